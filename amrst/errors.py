@@ -1,0 +1,22 @@
+"""Exceptions raised by the engine. The CLI and the app show their messages as they are."""
+
+from __future__ import annotations
+
+
+class AmrstError(Exception):
+    """Base class: a message a user can act on (what is wrong, what to do)."""
+
+
+class InvalidInput(AmrstError):
+    """A file or an array the engine cannot use (missing, empty, corrupt, too few points)."""
+
+
+class RegistrationFailed(AmrstError):
+    """The scans could not be registered (too few key points, no verified candidate)."""
+
+
+class Cancelled(AmrstError):
+    """The user asked the running stage to stop."""
+
+    def __init__(self, message: str = "Cancelled by the user.") -> None:
+        super().__init__(message)

@@ -1,0 +1,150 @@
+"""Core data types: a point cloud with attributes and a georeferencing offset, and transforms.
+
+Coordinates are float64 *local* coordinates plus a float64 ``offset`` (as LAS does), so
+georeferenced clouds (x = 500000, y = 5000000) keep millimetres everywhere. Never float32.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+
+Transform = np.ndarray  # (4, 4) float64 rigid transform, e.g. T_target_source
+
+
+def _frozen_array(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Cloud:
+    """A point cloud: local coordinates, an offset, and per-point attributes.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+        Local coordinates in metres; world coordinates are ``xyz + offset``.
+    offset : (3,) float64
+        Georeferencing offset in metres (zeros for local data).
+    attributes : mapping of str to (N, ...) arrays
+        Per-point fields kept end to end: ``intensity``, ``red``/``green``/``blue``,
+        ``return_number``, ``number_of_returns``, ``classification``, extra dimensions.
+    name : str
+        A short label (usually the file name) for messages and the GUI.
+    meta : mapping
+        Format details worth keeping on write (e.g. LAS point format, scales).
+    """
+
+    xyz: np.ndarray
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    attributes: Mapping[str, np.ndarray] = field(default_factory=dict)
+    name: str = ""
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        xyz = np.asarray(self.xyz, dtype=np.float64)
+        if xyz.ndim != 2 or xyz.shape[1] != 3:
+            raise InvalidInput(f"Point array must have shape (N, 3); got {xyz.shape}.")
+        offset = np.asarray(self.offset, dtype=np.float64).reshape(3)
+        attrs = {}
+        for key, value in dict(self.attributes).items():
+            arr = np.asarray(value)
+            if arr.shape[:1] != (len(xyz),):
+                raise InvalidInput(
+                    f"Attribute '{key}' has {arr.shape[0] if arr.ndim else 0} values "
+                    f"for {len(xyz)} points."
+                )
+            attrs[key] = _frozen_array(arr)
+        object.__setattr__(self, "xyz", _frozen_array(xyz))
+        object.__setattr__(self, "offset", _frozen_array(offset))
+        object.__setattr__(self, "attributes", MappingProxyType(attrs))
+        object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+
+    def __len__(self) -> int:
+        return int(self.xyz.shape[0])
+
+    @property
+    def world_xyz(self) -> np.ndarray:
+        """(N, 3) float64 world coordinates (``xyz + offset``)."""
+        return self.xyz + self.offset
+
+    @property
+    def intensity(self) -> np.ndarray | None:
+        """(N,) float64 intensity, or None when the scan has none."""
+        value = self.attributes.get("intensity")
+        return None if value is None else np.asarray(value, dtype=np.float64)
+
+    def select(self, index: np.ndarray) -> Cloud:
+        """A new cloud with the points picked by a boolean mask or an index array."""
+        return Cloud(
+            self.xyz[index],
+            self.offset,
+            {k: v[index] for k, v in self.attributes.items()},
+            self.name,
+            self.meta,
+        )
+
+    def with_xyz(self, xyz: np.ndarray, offset: np.ndarray | None = None) -> Cloud:
+        """A new cloud with the same attributes and new coordinates (same N)."""
+        return Cloud(
+            xyz, self.offset if offset is None else offset, self.attributes, self.name, self.meta
+        )
+
+
+def make_transform(R: np.ndarray, t: np.ndarray) -> Transform:
+    """(4, 4) float64 transform from a (3, 3) rotation and a (3,) translation."""
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = t
+    return out
+
+
+def apply_transform(T_b_a: Transform, xyz: np.ndarray) -> np.ndarray:
+    """Map (N, 3) points from frame a to frame b with the (4, 4) ``T_b_a``."""
+    return xyz @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+
+
+def invert_transform(T_b_a: Transform) -> Transform:
+    """The inverse of a rigid (4, 4) transform, exactly (no general matrix inverse)."""
+    R = T_b_a[:3, :3]
+    return make_transform(R.T, -R.T @ T_b_a[:3, 3])
+
+
+def transform_cloud(T_target_source: Transform, source: Cloud, target_offset=None) -> Cloud:
+    """Move a cloud by a world-frame transform, keeping millimetres at any offset.
+
+    ``T_target_source`` maps source *world* coordinates into target world coordinates.
+    The result is expressed relative to ``target_offset`` (default: the source offset)
+    without ever forming large world coordinates in the arithmetic of the small parts.
+
+    Parameters
+    ----------
+    T_target_source : (4, 4) float64
+    source : Cloud
+    target_offset : (3,) float64 or None
+
+    Returns
+    -------
+    Cloud
+        Same attributes, coordinates in the target frame.
+    """
+    R = T_target_source[:3, :3]
+    t = T_target_source[:3, 3]
+    new_offset = source.offset if target_offset is None else np.asarray(target_offset, float)
+    # world_t = R (xyz + o_s) + t ; local_t = world_t - o_new = R xyz + (R o_s + t - o_new)
+    shift = R @ source.offset + t - new_offset
+    return source.with_xyz(source.xyz @ R.T + shift, new_offset)
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle of a (3, 3) rotation in degrees, robust near 0 and 180."""
+    c = (np.trace(R) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))

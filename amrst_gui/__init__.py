@@ -1,0 +1,1 @@
+"""AMRST Studio: the desktop app."""
