@@ -1,0 +1,245 @@
+"""PCD (Point Cloud Library) files: ascii, binary and binary_compressed (LZF).
+
+Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
+``red``/``green``/``blue`` (uint8) and packed again on write (private to amrst.io).
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from typing import BinaryIO, NamedTuple
+
+import numpy as np
+
+from amrst._io_common import (
+    RawCloud,
+    clean_name,
+    coordinate_columns,
+    format_rows,
+    needs_double,
+    number_format,
+    storable,
+)
+from amrst._io_text import parse_numbers
+from amrst.errors import InvalidInput
+from amrst.types import Cloud
+
+_KINDS = {"F": "f", "I": "i", "U": "u"}
+_MAX_HEADER_LINES = 100
+
+
+class _Header(NamedTuple):
+    fields: list[tuple[str, str, int]]  # (name, numpy code, count)
+    points: int
+    data: str  # ascii | binary | binary_compressed
+    n_lines: int  # header lines, so errors can name the file's line
+
+
+def _parse_header(f: BinaryIO, path: Path) -> _Header:
+    keys: dict[str, list[str]] = {}
+    for n_lines in range(1, _MAX_HEADER_LINES + 1):
+        line = f.readline()
+        if not line:
+            break
+        words = line.decode("ascii", errors="replace").split()
+        if not words or words[0].startswith("#"):
+            continue
+        keys[words[0].upper()] = words[1:]
+        if words[0].upper() == "DATA":
+            return _make_header(keys, n_lines, path)
+    raise InvalidInput(f"{path} is not a PCD file (no 'DATA' line in its header).")
+
+
+def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Header:
+    try:
+        names = keys["FIELDS"]
+        sizes = [int(s) for s in keys["SIZE"]]
+        kinds = [_KINDS[t.upper()] for t in keys["TYPE"]]
+        counts = [int(c) for c in keys.get("COUNT", ["1"] * len(names))]
+        points = int(keys.get("POINTS", [0])[0]) or int(keys["WIDTH"][0]) * int(
+            keys.get("HEIGHT", ["1"])[0]
+        )
+    except (KeyError, ValueError, IndexError) as exc:
+        raise InvalidInput(
+            f"{path}: the PCD header is incomplete or malformed ({exc!r} missing or "
+            "wrong in FIELDS/SIZE/TYPE/COUNT/POINTS). Re-save the file with PCL."
+        ) from exc
+    if not len(names) == len(sizes) == len(kinds) == len(counts):
+        raise InvalidInput(f"{path}: FIELDS, SIZE, TYPE and COUNT differ in length.")
+    fields = [
+        (name if name != "_" else f"_pad{i}", f"{k}{s}", c)
+        for i, (name, k, s, c) in enumerate(
+            zip(names, kinds, sizes, counts, strict=True)
+        )
+    ]
+    return _Header(fields, points, keys["DATA"][0].lower(), n_lines)
+
+
+def _lzf_decompress(data: bytes, expected: int) -> bytes:
+    """Decompress LZF (liblzf format, as PCL uses for binary_compressed)."""
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        ctrl = data[i]
+        i += 1
+        if ctrl < 32:  # a literal run of ctrl + 1 bytes
+            out += data[i : i + ctrl + 1]
+            i += ctrl + 1
+            continue
+        length = ctrl >> 5
+        if length == 7:
+            length += data[i]
+            i += 1
+        ref = len(out) - ((ctrl & 0x1F) << 8) - data[i] - 1
+        i += 1
+        length += 2
+        if ref < 0:
+            raise ValueError("corrupt LZF data (back reference before start)")
+        if ref + length <= len(out):
+            out += out[ref : ref + length]
+        else:  # overlapping copy: repeats a short pattern
+            for k in range(length):
+                out.append(out[ref + k])
+    if len(out) != expected:
+        raise ValueError(f"LZF data decompressed to {len(out)} bytes, not {expected}")
+    return bytes(out)
+
+
+def _columns(header: _Header, f: BinaryIO, path: Path) -> dict[str, np.ndarray]:
+    n = header.points
+    if header.data == "ascii":
+        text = f.read().decode("ascii", errors="replace")
+        width = sum(c for _, _, c in header.fields)
+        flat = parse_numbers(text, width, None, header.n_lines + 1, path, max_rows=n)
+        _check_count(len(flat), n, path)
+        out, col = {}, 0
+        for name, code, count in header.fields:
+            out[name] = _squeeze(flat[:, col : col + count].astype(code))
+            col += count
+        return out
+    if header.data == "binary":
+        dtype = np.dtype([(name, "<" + code, (c,)) for name, code, c in header.fields])
+        raw = f.read(n * dtype.itemsize)
+        _check_count(len(raw) // max(dtype.itemsize, 1), n, path)
+        records = np.frombuffer(raw, dtype=dtype, count=n)
+        return {name: _squeeze(records[name]) for name, _, _ in header.fields}
+    if header.data == "binary_compressed":
+        return _compressed_columns(header, f, path)
+    raise InvalidInput(f"{path}: unknown PCD DATA type {header.data!r}.")
+
+
+def _compressed_columns(
+    header: _Header, f: BinaryIO, path: Path
+) -> dict[str, np.ndarray]:
+    packed_size, size = struct.unpack("<II", f.read(8))
+    raw = _lzf_decompress(f.read(packed_size), size)
+    out, pos, n = {}, 0, header.points
+    for name, code, count in header.fields:  # column-major: one block per field
+        nbytes = n * count * np.dtype(code).itemsize
+        block = np.frombuffer(raw[pos : pos + nbytes], dtype="<" + code)
+        _check_count(len(block) // count, n, path)
+        out[name] = _squeeze(block.reshape(n, count))
+        pos += nbytes
+    return out
+
+
+def _squeeze(arr: np.ndarray) -> np.ndarray:
+    arr = arr.astype(arr.dtype.newbyteorder("="))
+    return arr[:, 0] if arr.ndim == 2 and arr.shape[1] == 1 else arr
+
+
+def _check_count(found: int, expected: int, path: Path) -> None:
+    if found < expected:
+        raise InvalidInput(
+            f"{path} is truncated: it holds {found} of the {expected} points its "
+            "header announces. Copy or export it again."
+        )
+
+
+def _unpack_rgb(columns: dict[str, np.ndarray]) -> None:
+    for key in ("rgb", "rgba"):
+        value = columns.get(key)
+        if value is None or value.ndim != 1 or value.dtype.itemsize != 4:
+            continue
+        packed = (
+            value.view(np.uint32)
+            if value.dtype.kind == "f"
+            else value.astype(np.uint32)
+        )
+        del columns[key]
+        for name, shift in (("red", 16), ("green", 8), ("blue", 0)):
+            columns[name] = ((packed >> shift) & 0xFF).astype(np.uint8)
+
+
+def read_pcd(path: Path) -> RawCloud:
+    """Read a PCD file; every field except x, y, z (and padding) is an attribute."""
+    with open(path, "rb") as f:
+        header = _parse_header(f, path)
+        columns = _columns(header, f, path)
+    if not {"x", "y", "z"} <= columns.keys():
+        raise InvalidInput(f"{path}: the PCD file has no x, y and z fields.")
+    coords = [columns.pop(c) for c in "xyz"]
+    single = all(c.dtype == np.float32 for c in coords)
+    xyz = np.column_stack(coords).astype(np.float32 if single else np.float64)
+    attributes = {k: v for k, v in columns.items() if not k.startswith("_pad")}
+    _unpack_rgb(attributes)
+    meta = {"pcd_data": header.data, "coord_dtype": "float32" if single else "float64"}
+    return RawCloud(xyz, np.zeros(3), attributes, meta)
+
+
+def _fields(cloud: Cloud) -> dict[str, np.ndarray]:
+    """Attributes to write: 1-D or (N, k) arrays; 8-bit RGB packed into 'rgb'."""
+    out: dict[str, np.ndarray] = {}
+    for name, value in cloud.attributes.items():
+        arr = storable(np.asarray(value).reshape(len(cloud), -1), allow_int64=True)
+        if arr is not None:
+            out[clean_name(name)] = arr[:, 0] if arr.shape[1] == 1 else arr
+    rgb = [out.get(c) for c in ("red", "green", "blue")]
+    if all(c is not None and c.ndim == 1 for c in rgb) and all(
+        c.dtype.kind in "iu" and c.min(initial=0) >= 0 and c.max(initial=0) <= 255
+        for c in rgb
+    ):
+        r, g, b = (out.pop(c).astype(np.uint32) for c in ("red", "green", "blue"))
+        out["rgb"] = ((r << 16) | (g << 8) | b).view(np.float32)  # PCL's convention
+    return out
+
+
+def write_pcd(path: Path, cloud: Cloud, *, binary: bool = True) -> None:
+    """Write a PCD v0.7 file (binary or ascii) with x, y, z and every attribute."""
+    fields = dict(
+        zip("xyz", coordinate_columns(cloud, needs_double(cloud)), strict=True)
+    )
+    fields.update(_fields(cloud))
+    counts = [1 if a.ndim == 1 else a.shape[1] for a in fields.values()]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {' '.join(fields)}\n"
+        f"SIZE {' '.join(str(a.dtype.itemsize) for a in fields.values())}\n"
+        f"TYPE {' '.join(a.dtype.kind.upper() for a in fields.values())}\n"
+        f"COUNT {' '.join(map(str, counts))}\n"
+        f"WIDTH {len(cloud)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+        f"POINTS {len(cloud)}\nDATA {'binary' if binary else 'ascii'}\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        if binary:
+            dtype = np.dtype(
+                [
+                    (n, "<" + a.dtype.str[1:], (c,))
+                    for (n, a), c in zip(fields.items(), counts, strict=True)
+                ]
+            )
+            records = np.empty(len(cloud), dtype=dtype)
+            for name, arr in fields.items():
+                records[name] = arr.reshape(len(cloud), -1)
+            f.write(records.tobytes())
+            return
+        columns = [
+            a.reshape(len(cloud), -1)[:, j]
+            for a, c in zip(fields.values(), counts, strict=True)
+            for j in range(c)
+        ]
+        formats = [number_format(c.dtype, typed=True) for c in columns]
+        for block in format_rows(columns, formats, " "):
+            f.write(block.encode("ascii"))

@@ -1,0 +1,382 @@
+"""Read and write point clouds: LAS/LAZ, PLY, PCD and delimited text.
+
+Every format is registered once in ``_FORMATS`` (napari's reader convention:
+:func:`get_reader` returns a callable or None). Readers keep every attribute and
+georeferenced precision: large coordinates are split into a float64 ``offset`` plus
+small float64 local values. Writes are atomic (a temp file in the same folder, then
+``os.replace``). Every failure is an :class:`~amrst.errors.InvalidInput` or
+:class:`~amrst.errors.AmrstError` whose message says what is wrong and what to do.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amrst._io_common import RawCloud, rebase
+from amrst._io_las import read_las, write_las
+from amrst._io_pcd import read_pcd, write_pcd
+from amrst._io_ply import read_ply, write_ply
+from amrst._io_text import read_text, write_text
+from amrst.errors import AmrstError, InvalidInput
+from amrst.types import Cloud
+
+logger = logging.getLogger(__name__)
+
+PathLike = str | os.PathLike[str]
+Reader = Callable[..., Cloud]
+_SPACING_SAMPLE = 20_000
+
+
+@dataclass(frozen=True)
+class _Format:
+    label: str
+    read: Callable[..., RawCloud]
+    write: Callable[..., None] | None
+    text: bool = False
+
+
+_TEXT_CSV = functools.partial(write_text, sep=",")
+_FORMATS: dict[str, _Format] = {
+    ".las": _Format("las", read_las, write_las),
+    ".laz": _Format("laz", read_las, functools.partial(write_las, compress=True)),
+    ".ply": _Format("ply", read_ply, write_ply),
+    ".pcd": _Format("pcd", read_pcd, write_pcd),
+    ".xyz": _Format("text", read_text, write_text, text=True),
+    ".txt": _Format("text", read_text, write_text, text=True),
+    ".asc": _Format("text", read_text, None, text=True),
+    ".csv": _Format("text", read_text, _TEXT_CSV, text=True),
+    ".pts": _Format("text", read_text, None, text=True),
+}
+# The atomic writer looks writers up here, so tests can make one fail midway.
+_WRITERS = {ext: fmt.write for ext, fmt in _FORMATS.items() if fmt.write is not None}
+
+
+def supported_extensions() -> tuple[str, ...]:
+    """File extensions :func:`read` understands (lower case, with the dot).
+
+    Returns
+    -------
+    tuple of str
+        E.g. ``(".las", ".laz", ".ply", ...)``.
+    """
+    return tuple(_FORMATS)
+
+
+def writable_extensions() -> tuple[str, ...]:
+    """File extensions :func:`write` can produce (lower case, with the dot)."""
+    return tuple(_WRITERS)
+
+
+def get_reader(path: PathLike) -> Reader | None:
+    """The reader for ``path``, or None when its extension is not supported.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A point-cloud file name; only its extension is looked at.
+
+    Returns
+    -------
+    callable or None
+        ``reader(path) -> Cloud`` (this module's :func:`read`), or None.
+    """
+    return read if Path(path).suffix.lower() in _FORMATS else None
+
+
+def _check_readable(path: Path) -> _Format:
+    if not path.exists():
+        raise InvalidInput(f"File not found: {path}. Check the path and the file name.")
+    if path.is_dir():
+        raise InvalidInput(
+            f"{path} is a folder, not a point-cloud file. Choose a file ending in "
+            f"{', '.join(_FORMATS)}."
+        )
+    fmt = _FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise InvalidInput(
+            f"Cannot read {path.name}: unsupported extension '{path.suffix}'. "
+            f"Supported: {', '.join(_FORMATS)}. Convert the file (e.g. with "
+            "CloudCompare) to one of these."
+        )
+    if path.stat().st_size == 0:
+        raise InvalidInput(
+            f"{path} is empty (0 bytes). The export or copy probably failed; "
+            "export it again."
+        )
+    return fmt
+
+
+def read(
+    path: PathLike, *, columns: Sequence[str] | None = None, drop_invalid: bool = True
+) -> Cloud:
+    """Read a point cloud, keeping every attribute and georeferenced precision.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.las .laz .ply .pcd .xyz .txt .asc .csv .pts`` file.
+    columns : sequence of str, optional
+        Text files only: names of the columns in order, e.g.
+        ``["x", "y", "z", "intensity", "red", "green", "blue"]``; must include
+        x, y and z. Default: the header's names, else x, y, z, intensity, col4...
+    drop_invalid : bool
+        Drop points with NaN/inf coordinates (logged as a warning; the count is
+        kept in ``meta["n_dropped_invalid"]``).
+
+    Returns
+    -------
+    Cloud
+        ``xyz`` (N, 3) float64 local coordinates, ``offset`` (3,) float64,
+        ``attributes`` per point, ``meta`` with ``format``, ``path`` and format
+        details.
+
+    Raises
+    ------
+    InvalidInput
+        Missing file, a folder, unsupported extension, empty, corrupt or truncated
+        file, a non-numeric text line, or no valid point.
+    """
+    path = Path(path)
+    fmt = _check_readable(path)
+    if columns is not None and not fmt.text:
+        logger.warning(
+            "columns= applies to text files only; ignored for %s.", path.name
+        )
+    try:
+        raw = fmt.read(path, columns) if fmt.text else fmt.read(path)
+    except AmrstError:
+        raise
+    except MemoryError as exc:
+        raise InvalidInput(f"{path} is too large to load into memory.") from exc
+    except Exception as exc:  # any library error becomes a message the user can act on
+        raise InvalidInput(
+            f"Could not read {path}: {exc} ({type(exc).__name__}). The file looks "
+            f"corrupt or truncated, or is not really a {fmt.label} file; "
+            "export it again."
+        ) from exc
+    return _finish(raw, path, fmt.label, drop_invalid)
+
+
+def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
+    """Drop invalid rows, choose the offset and build the Cloud."""
+    valid = np.isfinite(raw.xyz).all(axis=1)
+    n_valid = int(valid.sum())
+    if n_valid == 0:
+        raise InvalidInput(
+            f"{path} contains no valid points ({len(valid)} rows, none with finite "
+            "x, y, z). Check the export or the column order (columns=)."
+        )
+    n_dropped = len(valid) - n_valid if drop_invalid else 0
+    xyz, attributes = raw.xyz, raw.attributes
+    if n_dropped:
+        logger.warning(
+            "%s: dropped %d of %d points with NaN/inf coordinates.",
+            path.name,
+            n_dropped,
+            len(valid),
+        )
+        xyz = xyz[valid]
+        attributes = {k: v[valid] for k, v in attributes.items()}
+    local, offset = rebase(xyz, raw.offset)
+    meta = {"format": label, "path": str(path), "n_dropped_invalid": n_dropped}
+    return Cloud(local, offset, attributes, path.name, {**meta, **raw.meta})
+
+
+def write(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
+    """Write a cloud atomically, keeping attributes and world-coordinate precision.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ending in ``.las .laz .ply .pcd .xyz .txt .csv``. An existing
+        file is replaced only once the new one is completely written.
+    cloud : Cloud
+        The cloud; world coordinates ``xyz + offset`` are written.
+    binary : bool
+        PLY and PCD: binary (default) or ASCII. Ignored by other formats.
+
+    Raises
+    ------
+    InvalidInput
+        Unsupported extension, missing folder, or the path is a folder.
+    AmrstError
+        The file could not be written (permissions, full disk, ...).
+    """
+    path = Path(path)
+    writer = _WRITERS.get(path.suffix.lower())
+    if writer is None:
+        raise InvalidInput(
+            f"Cannot write {path.name}: unsupported extension '{path.suffix}'. "
+            f"Choose one of {', '.join(_WRITERS)}."
+        )
+    if not path.parent.is_dir():
+        raise InvalidInput(
+            f"Cannot write {path}: the folder {path.parent} does not exist. "
+            "Create it or choose another folder."
+        )
+    if path.is_dir():
+        raise InvalidInput(f"Cannot write {path}: it is a folder. Choose a file name.")
+    _atomic_write(path, lambda tmp: writer(tmp, cloud, binary=binary))
+
+
+def _atomic_write(path: Path, write_to: Callable[[Path], None]) -> None:
+    """Run ``write_to(temp)``, then move temp over ``path``; never a partial file."""
+    try:
+        fd, name = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=".tmp", dir=path.parent
+        )
+    except OSError as exc:
+        raise AmrstError(
+            f"Cannot write {path}: {exc.strerror or exc}. Check that the folder is "
+            "writable, or choose another one."
+        ) from exc
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        write_to(tmp)
+        _copy_mode(path, tmp)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, AmrstError) or not isinstance(exc, Exception):
+            raise
+        raise AmrstError(
+            f"Could not write {path}: {exc} ({type(exc).__name__}). Nothing was "
+            "changed; check the free disk space and the permissions, then retry."
+        ) from exc
+
+
+def _copy_mode(path: Path, tmp: Path) -> None:
+    """Give the new file the old one's permissions (mkstemp makes it owner-only)."""
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    os.chmod(tmp, mode)
+
+
+def describe(cloud: Cloud) -> dict[str, Any]:
+    """Summary numbers for ``amrst info``: size, bounds, spacing, attributes, format.
+
+    Parameters
+    ----------
+    cloud : Cloud
+
+    Returns
+    -------
+    dict
+        ``name``, ``n_points``, ``offset``, ``bounds_min``/``bounds_max`` (world, m),
+        ``extent`` (m), ``median_spacing_m`` (median nearest-neighbour distance of
+        at most 20000 seeded random points, or None), ``attributes`` (name ->
+        ``{"dtype", "shape", "min", "max"}``) and ``format`` (JSON-friendly meta).
+    """
+    n = len(cloud)
+    lo = cloud.xyz.min(axis=0) + cloud.offset if n else np.full(3, np.nan)
+    hi = cloud.xyz.max(axis=0) + cloud.offset if n else np.full(3, np.nan)
+    return {
+        "name": cloud.name,
+        "n_points": n,
+        "offset": cloud.offset.tolist(),
+        "bounds_min": lo.tolist(),
+        "bounds_max": hi.tolist(),
+        "extent": (hi - lo).tolist(),
+        "median_spacing_m": _median_spacing(cloud.xyz),
+        "attributes": {k: _describe_array(v) for k, v in cloud.attributes.items()},
+        "format": _plain_meta(cloud.meta),
+    }
+
+
+def _median_spacing(xyz: np.ndarray) -> float | None:
+    from scipy.spatial import cKDTree
+
+    if len(xyz) < 2:
+        return None
+    rng = np.random.default_rng(0)
+    sample = rng.choice(len(xyz), size=min(len(xyz), _SPACING_SAMPLE), replace=False)
+    # Query the sample against all points: a tree of the sample alone would
+    # overestimate the spacing of a large cloud.
+    dist, _ = cKDTree(xyz, balanced_tree=False, compact_nodes=False).query(
+        xyz[sample], k=2
+    )
+    return float(np.median(dist[:, 1]))
+
+
+def _describe_array(arr: np.ndarray) -> dict[str, Any]:
+    finite = arr[np.isfinite(arr)] if arr.dtype.kind == "f" else arr
+    has = finite.size > 0
+    return {
+        "dtype": str(arr.dtype),
+        "shape": list(arr.shape[1:]),
+        "min": finite.min().item() if has else None,
+        "max": finite.max().item() if has else None,
+    }
+
+
+def _plain_meta(meta: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in meta.items():
+        if key == "las_vlrs":
+            out["las_vlrs"] = [f"{v[0]}/{v[1]} {v[2]}".strip() for v in value]
+        elif isinstance(value, (str, int, float, bool)) or value is None:
+            out[key] = value
+        elif isinstance(value, (tuple, list)) and all(
+            isinstance(v, (str, int, float, bool)) for v in value
+        ):
+            out[key] = list(value)
+    return out
+
+
+def format_description(d: dict[str, Any]) -> str:
+    """Human-readable multi-line text of a :func:`describe` dict.
+
+    Parameters
+    ----------
+    d : dict
+        The output of :func:`describe`.
+
+    Returns
+    -------
+    str
+        Lines such as ``points      12,345``; no trailing newline.
+    """
+
+    def xyz(values: Sequence[float], digits: int = 3) -> str:
+        return "  ".join(f"{v:.{digits}f}" for v in values)
+
+    spacing = d["median_spacing_m"]
+    lines = [
+        d["name"] or "(unnamed cloud)",
+        f"  points      {d['n_points']:,}",
+        f"  offset      {xyz(d['offset'])}",
+        f"  min         {xyz(d['bounds_min'])}",
+        f"  max         {xyz(d['bounds_max'])}",
+        f"  extent      {xyz(d['extent'])} m",
+        "  spacing     "
+        + ("n/a" if spacing is None else f"{spacing:.4f} m (median nearest neighbour)"),
+        f"  attributes  {len(d['attributes']) or 'none'}",
+    ]
+    width = max((len(k) for k in d["attributes"]), default=0)
+    for name, info in d["attributes"].items():
+        shape = f"x{info['shape']}" if info["shape"] else ""
+        lines.append(
+            f"    {name:<{width}}  {info['dtype']}{shape}  "
+            f"min {_num(info['min'])}  max {_num(info['max'])}"
+        )
+    fmt = d["format"]
+    details = [f"{k}={v}" for k, v in fmt.items() if k not in ("path", "format")]
+    lines.append(
+        f"  format      {fmt.get('format', '?')}  {', '.join(details)}".rstrip()
+    )
+    return "\n".join(lines)
+
+
+def _num(value: Any) -> str:
+    if value is None:
+        return "n/a"
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
