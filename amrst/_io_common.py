@@ -91,13 +91,15 @@ def flat_attributes(cloud: Cloud) -> dict[str, np.ndarray]:
         if arr.ndim == 1:
             out[key] = arr
             continue
-        arr = arr.reshape(len(arr), -1)
+        arr = arr.reshape(len(arr), int(np.prod(arr.shape[1:])))
         for i in range(arr.shape[1]):
             out[f"{key}_{i}"] = arr[:, i]
     return out
 
 
-def storable(arr: np.ndarray, *, allow_int64: bool) -> np.ndarray | None:
+def storable(
+    arr: np.ndarray, *, allow_int64: bool, name: str = ""
+) -> np.ndarray | None:
     """Cast an attribute to a dtype binary formats can store, without changing values.
 
     Bools become uint8 and float16 float32. 64-bit integers become 32-bit ones
@@ -110,7 +112,9 @@ def storable(arr: np.ndarray, *, allow_int64: bool) -> np.ndarray | None:
     if kind == "f":
         return arr.astype(np.float32) if arr.dtype.itemsize < 4 else arr
     if kind not in "iu":
-        logger.warning("Skipping non-numeric attribute of dtype %s.", arr.dtype)
+        logger.warning(
+            "Not writing attribute %r: dtype %s is not numeric.", name, arr.dtype
+        )
         return None
     if arr.dtype.itemsize < 8 or allow_int64:
         return arr

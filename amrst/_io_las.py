@@ -164,7 +164,7 @@ def _split(cloud: Cloud, point_format: int) -> tuple[dict[str, Any], dict[str, A
             if exact:
                 continue
             name = _PREFIX + name
-        value = storable(values, allow_int64=True)
+        value = storable(values, allow_int64=True, name=name)
         if value is not None:
             if len(name) > 32:
                 logger.warning(

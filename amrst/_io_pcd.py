@@ -192,7 +192,9 @@ def _fields(cloud: Cloud) -> dict[str, np.ndarray]:
     """Attributes to write: 1-D or (N, k) arrays; 8-bit RGB packed into 'rgb'."""
     out: dict[str, np.ndarray] = {}
     for name, value in cloud.attributes.items():
-        arr = storable(np.asarray(value).reshape(len(cloud), -1), allow_int64=True)
+        value = np.asarray(value)
+        width = int(np.prod(value.shape[1:]))
+        arr = storable(value.reshape(len(cloud), width), allow_int64=True, name=name)
         if arr is not None:
             out[clean_name(name)] = arr[:, 0] if arr.shape[1] == 1 else arr
     rgb = [out.get(c) for c in ("red", "green", "blue")]
@@ -211,35 +213,27 @@ def write_pcd(path: Path, cloud: Cloud, *, binary: bool = True) -> None:
         zip("xyz", coordinate_columns(cloud, needs_double(cloud)), strict=True)
     )
     fields.update(_fields(cloud))
-    counts = [1 if a.ndim == 1 else a.shape[1] for a in fields.values()]
+    n = len(cloud)
+    blocks = {k: a.reshape(n, 1) if a.ndim == 1 else a for k, a in fields.items()}
     header = (
         "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
-        f"FIELDS {' '.join(fields)}\n"
-        f"SIZE {' '.join(str(a.dtype.itemsize) for a in fields.values())}\n"
-        f"TYPE {' '.join(a.dtype.kind.upper() for a in fields.values())}\n"
-        f"COUNT {' '.join(map(str, counts))}\n"
-        f"WIDTH {len(cloud)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
-        f"POINTS {len(cloud)}\nDATA {'binary' if binary else 'ascii'}\n"
+        f"FIELDS {' '.join(blocks)}\n"
+        f"SIZE {' '.join(str(a.dtype.itemsize) for a in blocks.values())}\n"
+        f"TYPE {' '.join(a.dtype.kind.upper() for a in blocks.values())}\n"
+        f"COUNT {' '.join(str(a.shape[1]) for a in blocks.values())}\n"
+        f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+        f"POINTS {n}\nDATA {'binary' if binary else 'ascii'}\n"
     )
     with open(path, "wb") as f:
         f.write(header.encode("ascii"))
         if binary:
-            dtype = np.dtype(
-                [
-                    (n, "<" + a.dtype.str[1:], (c,))
-                    for (n, a), c in zip(fields.items(), counts, strict=True)
-                ]
-            )
-            records = np.empty(len(cloud), dtype=dtype)
-            for name, arr in fields.items():
-                records[name] = arr.reshape(len(cloud), -1)
+            dtype = [(k, "<" + a.dtype.str[1:], a.shape[1:]) for k, a in blocks.items()]
+            records = np.empty(n, dtype=dtype)
+            for name, arr in blocks.items():
+                records[name] = arr
             f.write(records.tobytes())
             return
-        columns = [
-            a.reshape(len(cloud), -1)[:, j]
-            for a, c in zip(fields.values(), counts, strict=True)
-            for j in range(c)
-        ]
+        columns = [a[:, j] for a in blocks.values() for j in range(a.shape[1])]
         formats = [number_format(c.dtype, typed=True) for c in columns]
         for block in format_rows(columns, formats, " "):
             f.write(block.encode("ascii"))

@@ -187,7 +187,7 @@ def write_ply(path: Path, cloud: Cloud, *, binary: bool = True) -> None:
         zip("xyz", coordinate_columns(cloud, needs_double(cloud)), strict=True)
     )
     for name, arr in flat_attributes(cloud).items():
-        value = storable(arr, allow_int64=False)
+        value = storable(arr, allow_int64=False, name=name)
         if value is not None:
             columns[name] = value
     fmt = "binary_little_endian" if binary else "ascii"

@@ -23,6 +23,7 @@ from amrst._io_common import (
     format_rows,
     narrow_int,
     number_format,
+    storable,
 )
 from amrst.errors import InvalidInput
 from amrst.types import Cloud
@@ -38,7 +39,6 @@ class _Layout:
 
     def __init__(self, text: str, path: Path) -> None:
         self.header: list[str] | None = None
-        self.count_line = False
         lines = _leading_lines(text, 3)
         if not lines:
             raise InvalidInput(
@@ -49,7 +49,7 @@ class _Layout:
         tokens = _split(first, _delimiter(first))
         skip = 0
         if len(tokens) == 1 and _is_int(tokens[0]) and len(lines) > 1:
-            self.count_line, skip = True, 1  # .pts: the first line is the count
+            skip = 1  # .pts: the first line is the point count
         elif not all(_is_number(t) for t in tokens):
             self.header, skip = [_clean(t) for t in tokens], 1
         if skip >= len(lines):
@@ -222,7 +222,11 @@ def _locate_error(
 
 def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
     """Read a delimited text point cloud; see the module docstring for the layout."""
-    text = path.read_bytes().decode("utf-8", errors="replace").lstrip("\ufeff")
+    raw = path.read_bytes()
+    # Windows tools often save UTF-16 (with a byte-order mark); everything else
+    # is read as UTF-8, whose first 128 characters are the ASCII of the numbers.
+    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
+    text = raw.decode(encoding, errors="replace").lstrip("\ufeff")
     layout = _Layout(text, path)
     if layout.n_columns < 3:
         raise InvalidInput(
@@ -259,7 +263,11 @@ def write_text(
 
     ``binary`` is ignored (text is text); it keeps the writer signature uniform.
     """
-    attrs = flat_attributes(cloud)
+    attrs = {}
+    for name, values in flat_attributes(cloud).items():
+        value = storable(values, allow_int64=True, name=name)
+        if value is not None:
+            attrs[name] = value
     names = ["x", "y", "z", *attrs]
     columns = [*coordinate_columns(cloud, double=True), *attrs.values()]
     formats = [_COORD_FORMAT] * 3 + [number_format(a.dtype) for a in attrs.values()]

@@ -170,6 +170,11 @@ def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
     """Drop invalid rows, choose the offset and build the Cloud."""
     valid = np.isfinite(raw.xyz).all(axis=1)
     n_valid = int(valid.sum())
+    if len(valid) == 0:
+        raise InvalidInput(
+            f"{path} contains no points. Check that the export finished and "
+            "wrote the points."
+        )
     if n_valid == 0:
         raise InvalidInput(
             f"{path} contains no valid points ({len(valid)} rows, none with finite "

@@ -1,9 +1,8 @@
-"""amrst.io: round trips in every format, georeferenced precision, bad input, atomicity."""
+"""amrst.io: round trips in every format, georeferencing, bad input, atomic writes."""
 
 from __future__ import annotations
 
 import logging
-import struct
 
 import numpy as np
 import pytest
@@ -46,7 +45,7 @@ def _attributes(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
 def geo_cloud() -> Cloud:
     """300 points of a 'tree' at x~500000, y~5000000 with millimetre decimals."""
     rng = np.random.default_rng(7)
-    xyz = np.round(rng.uniform(0, 20, (300, 3)), 3) + [0.123, 0.456, 0.789]
+    xyz = np.round(rng.uniform(0, 20, (300, 3)), 3) + np.array([0.123, 0.456, 0.789])
     return Cloud(xyz, GEO_OFFSET, _attributes(300, rng), "geo")
 
 
@@ -201,7 +200,8 @@ def test_ply_ascii_with_faces_after_vertices(tmp_path):
         _ply_header(
             "ascii",
             3,
-            "property float x\nproperty float y\nproperty float z\nproperty uchar red\n",
+            "property float x\nproperty float y\nproperty float z\n"
+            "property uchar red\n",
             "element face 1\nproperty list uchar int vertex_indices\n",
         )
         + b"0 0 0 255\n1 0 0 128\n0 1 0 0\n3 0 1 2\n"
@@ -233,7 +233,8 @@ def test_pcd_ascii_unpacks_rgb_and_keeps_multi_count_fields(tmp_path):
     text = (
         "VERSION 0.7\nFIELDS x y z rgb hist\nSIZE 4 4 4 4 4\nTYPE F F F F F\n"
         "COUNT 1 1 1 1 2\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\n"
-        f"DATA ascii\n1 2 3 {float(packed)!r} 0.5 1.5\n4 5 6 {float(packed)!r} 2.5 3.5\n"
+        f"DATA ascii\n1 2 3 {float(packed)!r} 0.5 1.5\n"
+        f"4 5 6 {float(packed)!r} 2.5 3.5\n"
     )
     (tmp_path / "a.pcd").write_text(text)
     cloud = io.read(tmp_path / "a.pcd")
@@ -305,6 +306,24 @@ def test_text_columns_argument_names_columns(tmp_path):
         io.read(tmp_path / "c.xyz", columns=["a", "b", "c"])
 
 
+def test_text_utf16_with_bom(tmp_path):
+    (tmp_path / "w.txt").write_bytes("x\ty\tz\n1\t2\t3\n".encode("utf-16"))
+    np.testing.assert_array_equal(io.read(tmp_path / "w.txt").xyz, [[1, 2, 3]])
+
+
+def test_multi_column_attributes_round_trip(tmp_path):
+    normals = np.random.default_rng(1).normal(size=(6, 3))
+    cloud = Cloud(np.arange(18.0).reshape(6, 3), attributes={"normal": normals})
+    io.write(tmp_path / "n.pcd", cloud)
+    np.testing.assert_array_equal(
+        io.read(tmp_path / "n.pcd").attributes["normal"], normals
+    )
+    io.write(tmp_path / "n.ply", cloud)  # PLY has no arrays: normal_0, normal_1, ...
+    np.testing.assert_array_equal(
+        io.read(tmp_path / "n.ply").attributes["normal_2"], normals[:, 2]
+    )
+
+
 def test_text_reads_large_georeferenced_values(tmp_path):
     (tmp_path / "g.txt").write_text(
         "500000.123 5000000.456 12.5\n500001.5 5000001.25 13\n"
@@ -347,14 +366,14 @@ def test_truncated_binary_file(tmp_path, small_cloud, ext):
     io.write(tmp_path / f"full{ext}", small_cloud)
     data = (tmp_path / f"full{ext}").read_bytes()
     (tmp_path / f"cut{ext}").write_bytes(data[: len(data) * 2 // 3])
-    with pytest.raises(InvalidInput, match=f"cut{ext}") as info:
+    with pytest.raises(InvalidInput, match=rf"cut\{ext}") as info:
         io.read(tmp_path / f"cut{ext}")
     assert "truncated" in str(info.value)
 
 
 def test_garbage_las_is_invalid_input(tmp_path):
     (tmp_path / "g.las").write_bytes(b"not a las file at all" * 50)
-    with pytest.raises(InvalidInput, match="g.las"):
+    with pytest.raises(InvalidInput, match=r"g\.las"):
         io.read(tmp_path / "g.las")
 
 
@@ -408,8 +427,16 @@ def test_ply_with_zero_vertices(tmp_path):
         "property float x\nproperty float y\nproperty float z\n",
     )
     (tmp_path / "z.ply").write_bytes(header)
-    with pytest.raises(InvalidInput, match="no valid points"):
+    with pytest.raises(InvalidInput, match="contains no points"):
         io.read(tmp_path / "z.ply")
+
+
+@pytest.mark.parametrize("ext", [".las", ".ply", ".pcd", ".csv"])
+def test_an_empty_cloud_can_be_written(tmp_path, ext):
+    empty = Cloud(np.zeros((0, 3)), attributes={"normal": np.zeros((0, 3))})
+    io.write(tmp_path / f"e{ext}", empty)
+    with pytest.raises(InvalidInput, match="no points"):
+        io.read(tmp_path / f"e{ext}")
 
 
 # --- registry and writing --------------------------------------------------------
