@@ -191,7 +191,7 @@ def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
         )
         xyz = xyz[valid]
         attributes = {k: v[valid] for k, v in attributes.items()}
-    local, offset = rebase(xyz, raw.offset)
+    local, offset = rebase(xyz, raw.offset + 0.0)  # + 0.0 turns -0.0 into 0.0
     meta = {"format": label, "path": str(path), "n_dropped_invalid": n_dropped}
     return Cloud(local, offset, attributes, path.name, {**meta, **raw.meta})
 
