@@ -1,0 +1,328 @@
+"""The AMRST chain, stage by stage, as the CLI, the app and the benchmark run it.
+
+register(target, source) reads like the method:
+  1. preprocess each scan (outliers, thinning)         stages/preprocess.py
+  2. separate wood and leaves                          stages/separate.py
+  3. skeletonise the wood, 4. pick key points          stages/skeleton.py, keypoints.py
+  5. match similar tetrahedra between the key points   stages/match.py
+  6. verify and rank every match; coarse solution      stages/coarse.py
+  7. refine with ICP (LM-ICP or robust point-to-plane)  stages/fine.py
+  8. measure (NN-RMSE, Hausdorff, overlap)             stages/metrics.py
+The app calls the same steps one at a time (prepare_scan, skeletonise_scan, find_matches,
+coarse_from_matches, refine, evaluate) so the user can look and overrule between them.
+Engine stages work in each cloud's local coordinates; the transforms returned by
+register() and used by export are in world coordinates (see world_transform).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from amrst.errors import RegistrationFailed
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.stages.coarse import (
+    CandidateList,
+    CoarseParams,
+    CoarseResult,
+    choose_coarse,
+    rank_candidates,
+)
+from amrst.stages.fine import FineParams, FineResult, refine_registration
+from amrst.stages.keypoints import KeypointParams, KeypointResult, extract_keypoints
+from amrst.stages.match import MatchParams, TetraMatches, match_tetrahedra
+from amrst.stages.metrics import CloudMetrics, MetricsParams, measure_clouds
+from amrst.stages.preprocess import (
+    PreprocessParams,
+    PreprocessResult,
+    preprocess_points,
+)
+from amrst.stages.separate import SeparateParams, SeparationResult, separate_wood
+from amrst.stages.skeleton import SkeletonParams, SkeletonResult, build_skeleton
+from amrst.types import Cloud, Transform, make_transform
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RegistrationParams:
+    """All settings, one field per stage (KISS-ICP style). Change with dataclasses.replace."""
+
+    preprocess: PreprocessParams = field(default_factory=PreprocessParams)
+    separate: SeparateParams = field(default_factory=SeparateParams)
+    skeleton: SkeletonParams = field(default_factory=SkeletonParams)
+    keypoints: KeypointParams = field(default_factory=KeypointParams)
+    match: MatchParams = field(default_factory=MatchParams)
+    coarse: CoarseParams = field(default_factory=CoarseParams)
+    fine: FineParams = field(default_factory=FineParams)
+    metrics: MetricsParams = field(default_factory=MetricsParams)
+
+
+@dataclass(frozen=True, slots=True)
+class ScanAnalysis:
+    """One scan after the per-scan stages; later fields are None until computed."""
+
+    cloud: Cloud
+    pre: PreprocessResult
+    separation: SeparationResult
+    skeleton: SkeletonResult | None = None
+    keypoints: KeypointResult | None = None
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(N, 3) preprocessed points, local coordinates."""
+        return self.pre.xyz
+
+    @property
+    def is_wood(self) -> np.ndarray:
+        """(N,) bool wood label of the preprocessed points."""
+        return self.separation.is_wood
+
+    def points(self, which: str) -> np.ndarray:
+        """Preprocessed points: 'all', 'wood' or 'leaf' (falls back to all when too few)."""
+        if which == "all":
+            return self.xyz
+        sel = self.xyz[self.is_wood if which == "wood" else ~self.is_wood]
+        return sel if len(sel) >= 100 else self.xyz
+
+
+@dataclass(frozen=True, slots=True)
+class MatchResult:
+    """Tetrahedron matches and the ranked candidate solutions built from them."""
+
+    tetra: TetraMatches
+    candidates: tuple  # tuple[Candidate, ...], best first
+    n_matches: int
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class RegistrationResult:
+    """Everything register() found, for display, export and the benchmark."""
+
+    T_target_source: Transform  # world frame, after fine registration
+    T_coarse: Transform  # world frame, coarse solution
+    confidence: float
+    message: str
+    target: ScanAnalysis
+    source: ScanAnalysis
+    matches: MatchResult
+    coarse: CoarseResult
+    fine: FineResult
+    metrics_coarse: CloudMetrics
+    metrics_fine: CloudMetrics
+    timings: dict  # stage -> seconds, with "total"
+    params: RegistrationParams
+
+
+def _timed(timings: dict, key: str, t0: float) -> float:
+    now = time.perf_counter()
+    timings[key] = timings.get(key, 0.0) + now - t0
+    return now
+
+
+def prepare_scan(
+    cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
+) -> ScanAnalysis:
+    """Preprocess one scan and separate wood from leaves."""
+    timings: dict = {}
+    t0 = time.perf_counter()
+    pre = preprocess_points(
+        cloud.xyz, params.preprocess, SubReporter(reporter, 0, 0.3, "preprocess")
+    )
+    t0 = _timed(timings, "preprocess", t0)
+    intensity = cloud.intensity
+    sep = separate_wood(
+        pre.xyz,
+        None if intensity is None else intensity[pre.index],
+        params.separate,
+        SubReporter(reporter, 0.3, 1.0, "wood-leaf separation"),
+    )
+    _timed(timings, "separate", t0)
+    return ScanAnalysis(cloud, pre, sep, timings=timings)
+
+
+def skeletonise_scan(
+    analysis: ScanAnalysis,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> ScanAnalysis:
+    """Add the skeleton and the key points to a prepared scan."""
+    timings = dict(analysis.timings)
+    t0 = time.perf_counter()
+    pts = analysis.points(params.skeleton.points)
+    if len(pts) < params.skeleton.min_points:
+        pts = analysis.xyz
+    skel = build_skeleton(
+        pts, params.skeleton, SubReporter(reporter, 0, 0.9, "skeleton")
+    )
+    t0 = _timed(timings, "skeleton", t0)
+    kp = extract_keypoints(skel, params.keypoints)
+    _timed(timings, "keypoints", t0)
+    reporter.progress(1.0, f"{len(kp.xyz)} key points")
+    return replace(analysis, skeleton=skel, keypoints=kp, timings=timings)
+
+
+def find_matches(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> MatchResult:
+    """Match tetrahedra between the two key point sets, then verify and rank them."""
+    if target.keypoints is None or source.keypoints is None:
+        raise RegistrationFailed(
+            "Build the skeletons and key points of both scans first."
+        )
+    for name, an in (("target", target), ("source", source)):
+        if len(an.keypoints.xyz) < 4:
+            raise RegistrationFailed(
+                f"The {name} skeleton has only {len(an.keypoints.xyz)} key points; 4 are needed for a "
+                "tetrahedron. Raise the depth rule (max_depth), lower the pruning length, or skeletonise all points."
+            )
+    timings: dict = {}
+    t0 = time.perf_counter()
+    tetra = match_tetrahedra(
+        target.keypoints.xyz,
+        source.keypoints.xyz,
+        params.match,
+        SubReporter(reporter, 0, 0.4, "matching"),
+    )
+    t0 = _timed(timings, "match", t0)
+    ranked: CandidateList = rank_candidates(
+        tetra,
+        target.xyz,
+        source.xyz,
+        params.coarse,
+        SubReporter(reporter, 0.4, 1.0, "verification"),
+    )
+    _timed(timings, "verify", t0)
+    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings)
+
+
+def coarse_from_matches(
+    matches: MatchResult, rejected: frozenset[int] = frozenset()
+) -> CoarseResult:
+    """The best candidate not rejected by the user (local frames)."""
+    return choose_coarse(CandidateList(matches.candidates, matches.n_matches), rejected)
+
+
+def refine(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    T_init: Transform,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> FineResult:
+    """Fine registration from a coarse local-frame transform."""
+    which = params.fine.points
+    return refine_registration(
+        source.points(which), target.points(which), T_init, params.fine, reporter
+    )
+
+
+def evaluate(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    T_target_source: Transform,
+    params: RegistrationParams,
+) -> CloudMetrics:
+    """NN-RMSE, Hausdorff and overlap of the preprocessed scans under a local-frame transform."""
+    moved = source.xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
+    return measure_clouds(target.xyz, moved, params.metrics)
+
+
+def world_transform(T_local: Transform, target: Cloud, source: Cloud) -> Transform:
+    """Convert a transform between the clouds' local frames into world coordinates."""
+    return (
+        make_transform(np.eye(3), target.offset)
+        @ T_local
+        @ make_transform(np.eye(3), -source.offset)
+    )
+
+
+def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transform:
+    """Inverse of world_transform: a world transform expressed between local frames."""
+    return (
+        make_transform(np.eye(3), -target.offset)
+        @ T_world
+        @ make_transform(np.eye(3), source.offset)
+    )
+
+
+def register(
+    target: Cloud,
+    source: Cloud,
+    params: RegistrationParams | None = None,
+    reporter: Reporter | None = None,
+) -> RegistrationResult:
+    """Register ``source`` onto ``target`` (the whole AMRST chain).
+
+    Parameters
+    ----------
+    target : Cloud
+        The reference scan.
+    source : Cloud
+        The scan to move.
+    params : RegistrationParams or None
+        Defaults when None.
+    reporter : Reporter or None
+
+    Returns
+    -------
+    RegistrationResult
+        ``T_target_source`` maps source world coordinates into the target world frame.
+
+    Raises
+    ------
+    RegistrationFailed
+        Too few key points, or no verified candidate.
+    Cancelled
+        When the reporter asks to stop.
+    """
+    params = params or RegistrationParams()
+    reporter = reporter or NULL_REPORTER
+    t_start = time.perf_counter()
+    tgt = prepare_scan(target, params, SubReporter(reporter, 0.0, 0.2, "target"))
+    src = prepare_scan(source, params, SubReporter(reporter, 0.2, 0.4, "source"))
+    tgt = skeletonise_scan(tgt, params, SubReporter(reporter, 0.4, 0.5, "target"))
+    src = skeletonise_scan(src, params, SubReporter(reporter, 0.5, 0.6, "source"))
+    matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
+    coarse = coarse_from_matches(matches)
+    t0 = time.perf_counter()
+    fine = refine(
+        tgt,
+        src,
+        coarse.T_target_source,
+        params,
+        SubReporter(reporter, 0.85, 0.95, "fine"),
+    )
+    t_fine = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    m_coarse = evaluate(tgt, src, coarse.T_target_source, params)
+    m_fine = evaluate(tgt, src, fine.T_target_source, params)
+    timings: dict = {}
+    for an in (tgt, src):
+        for k, v in an.timings.items():
+            timings[k] = timings.get(k, 0.0) + v
+    timings.update(matches.timings)
+    timings["fine"] = t_fine
+    timings["metrics"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    reporter.progress(1.0, "done")
+    return RegistrationResult(
+        T_target_source=world_transform(fine.T_target_source, target, source),
+        T_coarse=world_transform(coarse.T_target_source, target, source),
+        confidence=coarse.confidence,
+        message=coarse.message,
+        target=tgt,
+        source=src,
+        matches=matches,
+        coarse=coarse,
+        fine=fine,
+        metrics_coarse=m_coarse,
+        metrics_fine=m_fine,
+        timings=timings,
+        params=params,
+    )

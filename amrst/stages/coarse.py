@@ -1,0 +1,365 @@
+"""Verification, ranking and the coarse solution.
+
+Every tetrahedron match proposes a transform. Matches that propose the same transform are
+grouped (their count is the *support*), each group is scored by how much of the source
+scan lands on the target scan under its transform (voxel occupancy, a cheap and
+symmetric-enough test), and the best few are polished with a short ICP and scored again.
+All groups are kept, ranked and explained: the user may reject the top one and take the
+next. The confidence compares the winner with the best *different* solution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amrst.errors import RegistrationFailed
+from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.match import TetraMatches
+from amrst.types import Transform, rotation_angle_deg
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CoarseParams:
+    """Verification of candidate matches."""
+
+    verify_voxel_m: float = field(
+        default=0.1,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 2.0,
+            "help": "Voxel size of the overlap test; a source point scores when it lands in or next to an occupied target voxel.",
+        },
+    )
+    verify_points: int = field(
+        default=1500,
+        metadata={
+            "unit": "points",
+            "min": 50,
+            "max": 100000,
+            "help": "Source points sampled for the overlap test (seeded).",
+        },
+    )
+    same_solution_m: float = field(
+        default=0.3,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 10.0,
+            "help": "Matches whose transforms move the tree centre less than this apart (and rotate < same_solution_deg) are one solution.",
+        },
+    )
+    same_solution_deg: float = field(
+        default=3.0,
+        metadata={
+            "unit": "deg",
+            "min": 0.1,
+            "max": 90.0,
+            "help": "Rotation part of the same-solution test.",
+        },
+    )
+    polish_top: int = field(
+        default=8,
+        metadata={
+            "unit": "solutions",
+            "min": 0,
+            "max": 100,
+            "help": "The best solutions get a short ICP polish and a second score (0 = off).",
+        },
+    )
+    polish_max_dist_m: float = field(
+        default=0.5,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 5.0,
+            "help": "Largest correspondence distance of the polish ICP.",
+        },
+    )
+    max_candidates: int = field(
+        default=200,
+        metadata={
+            "unit": "solutions",
+            "min": 1,
+            "max": 10000,
+            "help": "Solutions kept in the ranked list.",
+        },
+    )
+    seed: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """One candidate solution: a tetrahedron match, its transform and how well it verified."""
+
+    id: int
+    rank: int  # 1 = best
+    score: float  # verification score 0..1 (after the polish where polished)
+    raw_score: float  # overlap under the tetrahedron transform itself
+    support: int  # tetrahedron matches agreeing with this solution
+    volume_m3: float
+    edge_error: float  # largest relative edge difference of the tetrahedron pair
+    svd_residual_m: float  # RMS vertex distance after the Kabsch fit
+    target_idx: np.ndarray  # (4,) target key point indices
+    source_idx: (
+        np.ndarray
+    )  # (4,) source key point indices, vertex i <-> target vertex i
+    T_match: Transform  # Kabsch transform of the tetrahedron pair
+    T_target_source: Transform  # T_match, polished when it was among the best
+    polished: bool
+    explanation: str
+
+
+@dataclass(frozen=True, slots=True)
+class CandidateList:
+    """All solutions, best first."""
+
+    candidates: tuple[Candidate, ...]
+    n_matches: int  # tetrahedron matches before grouping
+
+
+@dataclass(frozen=True, slots=True)
+class CoarseResult:
+    """The chosen coarse solution."""
+
+    candidate: Candidate
+    T_target_source: Transform
+    confidence: float  # 0..1: 1 - runner-up score / winner score (different solutions)
+    runner_up_score: float
+    message: str
+
+
+class _Occupancy:
+    """Dilated voxel occupancy of the target, as sorted int64 codes."""
+
+    def __init__(self, xyz: np.ndarray, voxel: float) -> None:
+        self.voxel = voxel
+        keys = np.unique(np.floor(xyz / voxel).astype(np.int64), axis=0)
+        offs = (
+            np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T
+        )
+        self.codes = np.unique(
+            self._code((keys[:, None, :] + offs[None]).reshape(-1, 3))
+        )
+
+    @staticmethod
+    def _code(k: np.ndarray) -> np.ndarray:
+        k = k + (1 << 20)
+        return (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2]
+
+    def fraction(self, pts: np.ndarray) -> float:
+        code = self._code(np.floor(pts / self.voxel).astype(np.int64))
+        pos = np.searchsorted(self.codes, code)
+        pos = np.minimum(pos, len(self.codes) - 1)
+        return float(np.mean(self.codes[pos] == code))
+
+
+def _group(
+    matches: TetraMatches, centre: np.ndarray, params: CoarseParams
+) -> list[np.ndarray]:
+    """Greedy grouping of matches by transform; best residual first."""
+    order = np.argsort(matches.svd_residual_m, kind="stable")
+    T = matches.T_target_source
+    moved = np.einsum("pij,j->pi", T[:, :3, :3], centre) + T[:, :3, 3]
+    reps: list[int] = []
+    members: list[list[int]] = []
+    for i in order:
+        if reps:
+            r = np.asarray(reps)
+            near = np.linalg.norm(moved[r] - moved[i], axis=1) < params.same_solution_m
+            if near.any():
+                cos = (np.einsum("pij,ij->p", T[r[near], :3, :3], T[i, :3, :3]) - 1) / 2
+                ang = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+                if (ang < params.same_solution_deg).any():
+                    members[int(np.flatnonzero(near)[np.argmin(ang)])].append(int(i))
+                    continue
+        reps.append(int(i))
+        members.append([int(i)])
+    return [np.asarray(m) for m in members]
+
+
+def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transform:
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+    out = reg.registration_icp(
+        pcd,
+        tgt_pcd,
+        max_dist,
+        T,
+        reg.TransformationEstimationPointToPoint(),
+        reg.ICPConvergenceCriteria(max_iteration=15),
+    )
+    T2 = np.asarray(out.transformation)
+    out = reg.registration_icp(
+        pcd,
+        tgt_pcd,
+        max_dist / 3,
+        T2,
+        reg.TransformationEstimationPointToPoint(),
+        reg.ICPConvergenceCriteria(max_iteration=15),
+    )
+    return np.asarray(out.transformation)
+
+
+def rank_candidates(
+    matches: TetraMatches,
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> CandidateList:
+    """Group, verify and rank tetrahedron matches.
+
+    Parameters
+    ----------
+    matches : TetraMatches
+    target_xyz : (N, 3) float64
+        Target points used for verification (preprocessed scan).
+    source_xyz : (M, 3) float64
+        Source points used for verification.
+    params : CoarseParams
+    reporter : Reporter
+
+    Returns
+    -------
+    CandidateList
+    """
+    import open3d as o3d
+
+    if len(matches.T_target_source) == 0:
+        return CandidateList((), 0)
+    rng = np.random.default_rng(params.seed)
+    sample = source_xyz[
+        rng.choice(
+            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
+        )
+    ]
+    occ = _Occupancy(target_xyz, params.verify_voxel_m)
+    groups = _group(matches, source_xyz.mean(axis=0), params)
+    reporter.progress(0.3, f"{len(groups)} distinct solutions")
+    rep = np.array([g[0] for g in groups])
+    T = matches.T_target_source
+    raw = np.array([occ.fraction(sample @ T[i, :3, :3].T + T[i, :3, 3]) for i in rep])
+    support = np.array([len(g) for g in groups])
+    polished_T = {int(i): T[i] for i in rep}
+    score = raw.copy()
+    is_polished = np.zeros(len(rep), dtype=bool)
+    if params.polish_top > 0:
+        tgt_pcd = o3d.geometry.PointCloud(
+            o3d.utility.Vector3dVector(target_xyz)
+        ).voxel_down_sample(params.verify_voxel_m / 2)
+        src_small = np.asarray(
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_xyz))
+            .voxel_down_sample(params.verify_voxel_m / 2)
+            .points
+        )
+        top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
+            : params.polish_top
+        ]
+        for n, j in enumerate(top):
+            reporter.check_cancelled()
+            Tp = _polish(src_small, tgt_pcd, T[rep[j]], params.polish_max_dist_m)
+            polished_T[int(rep[j])] = Tp
+            score[j] = occ.fraction(sample @ Tp[:3, :3].T + Tp[:3, 3])
+            is_polished[j] = True
+            reporter.progress(
+                0.4 + 0.5 * (n + 1) / len(top), "verifying the best solutions"
+            )
+    # Polished solutions first (their score is comparable), then the rest by raw score.
+    order = np.lexsort((-support, -score, ~is_polished))[: params.max_candidates]
+    cands = []
+    for rank, j in enumerate(order, start=1):
+        i = int(rep[j])
+        expl = (
+            f"{support[j]} tetrahedron match(es) agree; {score[j]:.0%} of sampled source points "
+            f"land on the target{' after a short ICP' if is_polished[j] else ''} "
+            f"({raw[j]:.0%} under the tetrahedron fit); edge error {matches.edge_error[i]:.1%}, "
+            f"SVD residual {matches.svd_residual_m[i] * 100:.1f} cm, volume {matches.volume_m3[i]:.2f} m³."
+        )
+        cands.append(
+            Candidate(
+                id=int(j),
+                rank=rank,
+                score=float(score[j]),
+                raw_score=float(raw[j]),
+                support=int(support[j]),
+                volume_m3=float(matches.volume_m3[i]),
+                edge_error=float(matches.edge_error[i]),
+                svd_residual_m=float(matches.svd_residual_m[i]),
+                target_idx=matches.target_idx[i],
+                source_idx=matches.source_idx[i],
+                T_match=T[i],
+                T_target_source=polished_T[i],
+                polished=bool(is_polished[j]),
+                explanation=expl,
+            )
+        )
+    reporter.progress(1.0, f"{len(cands)} ranked solutions")
+    return CandidateList(tuple(cands), len(T))
+
+
+def _distinct(a: Transform, b: Transform, centre: np.ndarray) -> bool:
+    d = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
+    return d > 0.5 or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > 5.0
+
+
+def choose_coarse(
+    candidates: CandidateList,
+    rejected: frozenset[int] = frozenset(),
+    centre: np.ndarray | None = None,
+) -> CoarseResult:
+    """The best candidate the user has not rejected, with a confidence.
+
+    Parameters
+    ----------
+    candidates : CandidateList
+    rejected : frozenset of int
+        Candidate ids the user rejected.
+    centre : (3,) float64 or None
+        Source point around which transforms are compared (default: origin).
+
+    Returns
+    -------
+    CoarseResult
+
+    Raises
+    ------
+    RegistrationFailed
+        When no candidate is left.
+    """
+    left = [c for c in candidates.candidates if c.id not in rejected]
+    if not left:
+        if candidates.candidates:
+            raise RegistrationFailed(
+                "All candidate matches are rejected: restore one, or change the matching parameters and match again."
+            )
+        raise RegistrationFailed(
+            "No similar tetrahedra were found between the two skeletons. Try a larger edge tolerance ε, "
+            "a larger SVD residual δ, more key points (depth rule), or check that both files show the same tree."
+        )
+    best = left[0]
+    centre = np.zeros(3) if centre is None else centre
+    others = [
+        c.score
+        for c in left[1:]
+        if _distinct(c.T_target_source, best.T_target_source, centre)
+    ]
+    runner = max(others, default=0.0)
+    conf = float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
+    if best.score < 0.2:
+        msg = (
+            f"Low confidence: only {best.score:.0%} of the source lands on the target. Check the matches by eye; "
+            "the scans may overlap little or the skeletons may differ."
+        )
+    elif conf < 0.15:
+        msg = (
+            f"Low confidence: the runner-up solution scores almost as well ({runner:.0%} vs {best.score:.0%}). "
+            "Review the top matches."
+        )
+    else:
+        msg = f"Candidate {best.rank}: {best.score:.0%} overlap, confidence {conf:.2f}."
+    return CoarseResult(best, best.T_target_source, conf, runner, msg)

@@ -1,0 +1,264 @@
+"""Tetrahedron matching between two key point sets (paper section II.D.2).
+
+Instead of comparing all C(n,4) x C(m,4) tetrahedron pairs, each tetrahedron is described
+by its six edge lengths sorted longest first, mapped through ``log(L + c)`` so that the
+paper's relative tolerance ε holds for long edges while short edges keep an absolute
+floor of about ε·c (a plain relative test would reject every short edge for skeleton
+noise, a plain absolute one would accept everything on short edges). Source descriptors
+go into a KD-tree and each target tetrahedron queries it. Sorted edges lose the vertex
+order and admit mirror images, so each descriptor match is re-checked under all 24 vertex
+permutations with the signed volume, and the best proper permutation is solved by Kabsch.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amrst.progress import NULL_REPORTER, Reporter
+
+_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+_PERMS = np.array(list(itertools.permutations(range(4))))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MatchParams:
+    """Similar-tetrahedron matching (paper's ε, β, δ) and the levelled-scanner rule."""
+
+    edge_tolerance: float = field(
+        default=0.05,
+        metadata={
+            "unit": "relative",
+            "min": 0.005,
+            "max": 0.3,
+            "help": "ε: edges match when their lengths differ by less than this share (paper: 0.01-0.1).",
+        },
+    )
+    edge_floor_m: float = field(
+        default=0.5,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 5.0,
+            "help": "c in log(L + c): short edges get an absolute tolerance of about ε·c instead of a relative one.",
+        },
+    )
+    volume_tolerance: float = field(
+        default=0.1,
+        metadata={
+            "unit": "relative",
+            "min": 0.01,
+            "max": 1.0,
+            "help": "β: |V1/V2 - 1| must be below this (paper: at most 0.1).",
+        },
+    )
+    max_residual_m: float = field(
+        default=0.15,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 2.0,
+            "help": "δ: RMS distance of the four vertex pairs after the SVD (Kabsch) fit.",
+        },
+    )
+    min_edge_m: float = field(
+        default=0.5,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 20.0,
+            "help": "Tetrahedra with a shorter edge are not used (too sensitive to noise).",
+        },
+    )
+    min_flatness: float = field(
+        default=0.05,
+        metadata={
+            "unit": "",
+            "min": 0.0,
+            "max": 1.0,
+            "help": "Volume over the volume of a regular tetrahedron of the same mean edge; flatter ones are rejected (their pose is ill-defined).",
+        },
+    )
+    max_tetrahedra: int = field(
+        default=6000,
+        metadata={
+            "unit": "tetrahedra",
+            "min": 10,
+            "max": 200000,
+            "help": "Largest tetrahedra (by volume) kept per scan, as the paper sorts by volume.",
+        },
+    )
+    levelled: bool = field(
+        default=True,
+        metadata={
+            "help": "Scanners were levelled: reject matches that tilt the vertical by more than max_tilt_deg. Turn off for arbitrary orientations."
+        },
+    )
+    max_tilt_deg: float = field(
+        default=6.0,
+        metadata={
+            "unit": "deg",
+            "min": 0.1,
+            "max": 180.0,
+            "help": "Largest tilt of the vertical a levelled match may imply.",
+        },
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class TetraMatches:
+    """All tetrahedron pairs that passed the edge, volume, orientation and SVD tests."""
+
+    target_idx: np.ndarray  # (P, 4) int64 key point indices in the target
+    source_idx: np.ndarray  # (P, 4) int64 corresponding source key points (same order)
+    T_target_source: np.ndarray  # (P, 4, 4) float64 Kabsch transform of each pair
+    volume_m3: np.ndarray  # (P,) target tetrahedron volume
+    edge_error: np.ndarray  # (P,) largest relative edge difference
+    svd_residual_m: np.ndarray  # (P,) RMS vertex distance after the fit
+    n_target_tetra: int
+    n_source_tetra: int
+    n_descriptor_pairs: int  # pairs found in the KD-tree before the checks
+
+
+def _tetrahedra(xyz: np.ndarray, params: MatchParams):
+    """Admissible tetrahedra: (T, 4) indices, (T, 6) edges, (T,) signed volume."""
+    n = len(xyz)
+    if n < 4:
+        return np.zeros((0, 4), int), np.zeros((0, 6)), np.zeros(0)
+    quads = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64)
+    v = xyz[quads]  # (T, 4, 3)
+    edges = np.linalg.norm(v[:, _EDGES[:, 0]] - v[:, _EDGES[:, 1]], axis=2)
+    signed = (
+        np.einsum(
+            "ti,ti->t",
+            v[:, 1] - v[:, 0],
+            np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 0]),
+        )
+        / 6
+    )
+    mean_edge = edges.mean(axis=1)
+    flatness = np.abs(signed) / (mean_edge**3 / (6 * np.sqrt(2)))
+    ok = (edges.min(axis=1) >= params.min_edge_m) & (flatness >= params.min_flatness)
+    quads, edges, signed = quads[ok], edges[ok], signed[ok]
+    order = np.argsort(-np.abs(signed), kind="stable")[: params.max_tetrahedra]
+    return quads[order], edges[order], signed[order]
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched least-squares rigid fit dst ≈ R src + t.
+
+    Parameters
+    ----------
+    src, dst : (B, K, 3) float64
+
+    Returns
+    -------
+    (B, 4, 4) transforms and (B,) RMS residuals (m).
+    """
+    cs, cd = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)
+    h = np.einsum("bki,bkj->bij", src - cs, dst - cd)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", u, vt)))
+    fix = np.ones((len(src), 3))
+    fix[:, 2] = d
+    R = np.einsum("bji,bj,bkj->bik", vt, fix, u)  # V diag(1,1,d) U^T
+    t = cd[:, 0] - np.einsum("bij,bj->bi", R, cs[:, 0])
+    out = np.tile(np.eye(4), (len(src), 1, 1))
+    out[:, :3, :3], out[:, :3, 3] = R, t
+    moved = np.einsum("bij,bkj->bki", R, src) + t[:, None]
+    res = np.sqrt(np.mean(np.sum((moved - dst) ** 2, axis=2), axis=1))
+    return out, res
+
+
+def match_tetrahedra(
+    target_kp: np.ndarray,
+    source_kp: np.ndarray,
+    params: MatchParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> TetraMatches:
+    """Find congruent tetrahedra between two key point sets.
+
+    Parameters
+    ----------
+    target_kp : (n, 3) float64
+        Target key points.
+    source_kp : (m, 3) float64
+        Source key points.
+    params : MatchParams
+    reporter : Reporter
+
+    Returns
+    -------
+    TetraMatches
+        Every pair that passed, with the vertex correspondence recovered.
+    """
+    from scipy.spatial import cKDTree
+
+    tq, te, tv = _tetrahedra(target_kp, params)
+    sq, se, sv = _tetrahedra(source_kp, params)
+    reporter.progress(0.2, f"{len(tq)} / {len(sq)} tetrahedra")
+    empty = TetraMatches(
+        np.zeros((0, 4), int),
+        np.zeros((0, 4), int),
+        np.zeros((0, 4, 4)),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros(0),
+        len(tq),
+        len(sq),
+        0,
+    )
+    if len(tq) == 0 or len(sq) == 0:
+        return empty
+    c = params.edge_floor_m
+    desc_t = np.log(np.sort(te, axis=1)[:, ::-1] + c)
+    desc_s = np.log(np.sort(se, axis=1)[:, ::-1] + c)
+    # Chebyshev ball: every sorted edge within tolerance (log(1+ε) ~ ε).
+    hits = cKDTree(desc_s).query_ball_point(
+        desc_t, r=np.log1p(params.edge_tolerance), p=np.inf, workers=-1
+    )
+    ti = np.repeat(np.arange(len(tq)), [len(h) for h in hits])
+    si = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.int64, count=len(ti))
+    n_pairs = len(ti)
+    reporter.progress(0.5, f"{n_pairs} descriptor pairs")
+    reporter.check_cancelled()
+    vol_ok = np.abs(np.abs(tv[ti]) / np.abs(sv[si]) - 1) < params.volume_tolerance
+    # Mirror images have all edges equal but the opposite signed volume.
+    ti, si = ti[vol_ok], si[vol_ok]
+    if len(ti) == 0:
+        return empty
+    # Recover the vertex correspondence: the proper permutation whose edges agree best.
+    sv_perm = source_kp[sq[si]][:, _PERMS]  # (P, 24, 4, 3)
+    e_perm = np.linalg.norm(
+        sv_perm[:, :, _EDGES[:, 0]] - sv_perm[:, :, _EDGES[:, 1]], axis=3
+    )
+    e_t = te[ti][:, None, :]
+    rel = np.abs(e_perm - e_t) / (np.maximum(e_perm, e_t) + c)
+    worst = rel.max(axis=2)  # (P, 24)
+    a, b, cc, d = (sv_perm[:, :, i] for i in range(4))
+    s_sign = np.sign(np.einsum("pki,pki->pk", b - a, np.cross(cc - a, d - a)))
+    worst = np.where(s_sign == np.sign(tv[ti])[:, None], worst, np.inf)
+    best = np.argmin(worst, axis=1)
+    edge_err = worst[np.arange(len(ti)), best]
+    keep = edge_err <= params.edge_tolerance
+    ti, si, best, edge_err = ti[keep], si[keep], best[keep], edge_err[keep]
+    tgt_idx = tq[ti]
+    src_idx = sq[si][np.arange(len(si))[:, None], _PERMS[best]]
+    T, res = kabsch(source_kp[src_idx], target_kp[tgt_idx])
+    keep = res <= params.max_residual_m
+    if params.levelled:
+        keep &= np.degrees(np.arccos(np.clip(T[:, 2, 2], -1, 1))) <= params.max_tilt_deg
+    reporter.progress(1.0, f"{int(keep.sum())} congruent tetrahedra")
+    return TetraMatches(
+        tgt_idx[keep],
+        src_idx[keep],
+        T[keep],
+        np.abs(tv[ti][keep]),
+        edge_err[keep],
+        res[keep],
+        len(tq),
+        len(sq),
+        n_pairs,
+    )

@@ -1,0 +1,149 @@
+"""Preprocess: drop NaNs, remove statistical outliers, thin to a voxel grid.
+
+Thinning only evens out density (near points are dense in TLS scans); every later stage
+keeps indices into the original cloud so that exports never lose points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.progress import NULL_REPORTER, Reporter
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PreprocessParams:
+    """Noise filtering and thinning."""
+
+    outlier_neighbours: int = field(
+        default=12,
+        metadata={
+            "unit": "points",
+            "min": 0,
+            "max": 100,
+            "help": "Neighbours used by the statistical outlier filter; 0 turns it off. Typical 8-30.",
+        },
+    )
+    outlier_std_ratio: float = field(
+        default=3.0,
+        metadata={
+            "unit": "σ",
+            "min": 0.5,
+            "max": 10.0,
+            "help": "A point whose mean neighbour distance is more than this many standard deviations above the average is noise. Typical 2-4.",
+        },
+    )
+    voxel_size_m: float = field(
+        default=0.02,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 0.5,
+            "help": "Thin to one point per voxel of this size before analysis (0 = keep all). Typical 0.01-0.05.",
+        },
+    )
+    min_points: int = field(
+        default=200,
+        metadata={
+            "unit": "points",
+            "min": 10,
+            "max": 100000,
+            "help": "Fewest points a scan must keep to be registered.",
+        },
+    )
+
+    def __post_init__(self) -> None:
+        if (
+            self.outlier_neighbours < 0
+            or self.outlier_std_ratio <= 0
+            or self.voxel_size_m < 0
+        ):
+            raise ValueError(
+                "preprocess parameters must be non-negative (std ratio > 0)"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class PreprocessResult:
+    """What was kept, as indices into the input cloud."""
+
+    xyz: np.ndarray  # (N, 3) float64 kept (thinned) points, local coordinates
+    index: np.ndarray  # (N,) int64 index of each kept point in the input cloud
+    n_input: int
+    n_invalid: int  # NaN/inf coordinates dropped
+    n_outliers: int  # removed by the statistical filter
+    n_thinned: int  # merged away by voxel thinning
+
+
+def _voxel_representatives(xyz: np.ndarray, voxel: float) -> np.ndarray:
+    """Index of the point nearest each occupied voxel's centroid (keeps real points)."""
+    keys = np.floor((xyz - xyz.min(axis=0)) / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(
+        keys, axis=0, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.ravel()
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse, xyz)
+    centroids = sums / counts[:, None]
+    dist = np.sum((xyz - centroids[inverse]) ** 2, axis=1)
+    order = np.lexsort((dist, inverse))  # per voxel, nearest first
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = inverse[order][1:] != inverse[order][:-1]
+    return np.sort(order[first])
+
+
+def preprocess_points(
+    xyz: np.ndarray, params: PreprocessParams, reporter: Reporter = NULL_REPORTER
+) -> PreprocessResult:
+    """Filter noise and thin a scan.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+        Local coordinates of the scan.
+    params : PreprocessParams
+    reporter : Reporter
+
+    Returns
+    -------
+    PreprocessResult
+
+    Raises
+    ------
+    InvalidInput
+        When fewer than ``params.min_points`` points survive.
+    """
+    import open3d as o3d
+
+    n_input = len(xyz)
+    index = np.flatnonzero(np.all(np.isfinite(xyz), axis=1))
+    n_invalid = n_input - len(index)
+    pts = xyz[index]
+    reporter.check_cancelled()
+    n_outliers = 0
+    if params.outlier_neighbours > 0 and len(pts) > params.outlier_neighbours + 1:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        _, kept = pcd.remove_statistical_outlier(
+            params.outlier_neighbours, params.outlier_std_ratio
+        )
+        kept = np.asarray(kept, dtype=np.int64)
+        n_outliers = len(pts) - len(kept)
+        index, pts = index[kept], pts[kept]
+    reporter.progress(0.5, "outliers removed")
+    n_before = len(pts)
+    if params.voxel_size_m > 0 and len(pts):
+        reps = _voxel_representatives(pts, params.voxel_size_m)
+        index, pts = index[reps], pts[reps]
+    if len(pts) < params.min_points:
+        raise InvalidInput(
+            f"Only {len(pts)} usable points after filtering ({n_input} read, {n_invalid} invalid, "
+            f"{n_outliers} outliers); at least {params.min_points} are needed. Check that the file "
+            "holds a whole tree scan, or lower the voxel size / outlier filter."
+        )
+    reporter.progress(1.0, f"{len(pts)} points kept")
+    return PreprocessResult(
+        pts, index, n_input, n_invalid, n_outliers, n_before - len(pts)
+    )
