@@ -1,0 +1,142 @@
+"""``amrst-gui [TARGET SOURCE] [--truth FILE]``: open AMRST Studio.
+
+With no files it opens the bundled sample pair (resources/sample), ready to run.
+``--screenshot PATH`` saves the window once the scans are shown (after ``--run
+STEP`` if given) and quits: used for the README and for checking headless runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("QT_API", "pyside6")
+
+STEPS = ("separate", "skeleton", "match", "coarse", "fine")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="amrst-gui", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument(
+        "target", nargs="?", type=Path, help="reference scan (stays fixed)"
+    )
+    parser.add_argument(
+        "source", nargs="?", type=Path, help="scan to move onto the target"
+    )
+    parser.add_argument("--truth", type=Path, help="truth.json with T_target_source")
+    parser.add_argument(
+        "--screenshot",
+        type=Path,
+        metavar="PNG",
+        help="save the window to PNG once ready, then quit",
+    )
+    parser.add_argument(
+        "--run", choices=STEPS, help="run the workflow up to this step first"
+    )
+    parser.add_argument(
+        "--tab",
+        choices=("scans", "registration"),
+        default="scans",
+        help="which 3D tab to show (for --screenshot)",
+    )
+    args = parser.parse_args(argv)
+    if (args.target is None) != (args.source is None):
+        parser.error(
+            "give both TARGET and SOURCE, or neither (to open the bundled sample)"
+        )
+    return args
+
+
+def resolve_inputs(
+    args: argparse.Namespace,
+) -> tuple[Path | None, Path | None, Path | None]:
+    """The files to open: the ones given, else the bundled sample (with its truth)."""
+    from amrst_gui.app import sample_dir
+
+    if args.target is not None:
+        return args.target, args.source, args.truth
+    sample = sample_dir()
+    target, source, truth = (
+        sample / n for n in ("target.ply", "source.ply", "truth.json")
+    )
+    if not (target.is_file() and source.is_file()):
+        return None, None, args.truth
+    return target, source, args.truth or (truth if truth.is_file() else None)
+
+
+class _Screenshot:
+    """Runs to the requested step, grabs the window, quits (exit code 1 on failure)."""
+
+    def __init__(self, app, win, path: Path, step: str | None, tab: str) -> None:
+        self.app, self.win, self.path, self.step, self.tab = app, win, path, step, tab
+        self.ran = False
+        win.session.busy_changed.connect(self._on_busy_changed)
+        win.session.failed.connect(self._on_failed)
+
+    def _on_busy_changed(self, busy: bool) -> None:
+        from PySide6.QtCore import QTimer
+
+        if busy or not self.win.session.has_scans:
+            return
+        if self.step and not self.ran:
+            self.ran = True
+            self.win.session.run_step(self.step)
+            return
+        self.win.tabs.setCurrentIndex(1 if self.tab == "registration" else 0)
+        QTimer.singleShot(500, self._save)
+
+    def _save(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.win.grab().save(str(self.path))
+        print(f"Saved {self.path}")
+        self.win.close()
+        self.app.exit(0)
+
+    def _on_failed(self, message: str) -> None:
+        print(f"amrst-gui: {message}", file=sys.stderr)
+        self.win.close()
+        self.app.exit(1)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``amrst-gui``."""
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    logging.basicConfig(
+        level=logging.INFO, format="%(levelname)s %(name)s: %(message)s"
+    )
+    from amrst_gui.app import create_app
+
+    app = create_app(sys.argv[:1])
+    from amrst_gui.main_window import MainWindow
+
+    win = MainWindow()
+    win.show()
+    target, source, truth = resolve_inputs(args)
+    shot = (
+        _Screenshot(app, win, args.screenshot, args.run, args.tab)
+        if args.screenshot
+        else None
+    )
+    if target is None:
+        win.status.show_message(
+            "No scans yet: open a target and a source (File menu), "
+            "or drop two files on the window."
+        )
+        if shot is not None:
+            print(
+                "amrst-gui: the bundled sample is missing; nothing to show.",
+                file=sys.stderr,
+            )
+            return 1
+    else:
+        win.open_pair(target, source, truth)
+    return app.exec()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

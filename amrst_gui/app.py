@@ -1,0 +1,65 @@
+"""Application set-up: GL format and shared contexts before QApplication, settings."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from PySide6.QtCore import QCoreApplication, QSettings, Qt
+from PySide6.QtGui import QSurfaceFormat
+from PySide6.QtWidgets import QApplication
+
+ORGANIZATION = "AMRST"
+APPLICATION = "AMRST Studio"
+
+
+def sample_dir() -> Path:
+    """The bundled sample pair (resources/sample); AMRST_SAMPLE_DIR overrides it."""
+    override = os.environ.get("AMRST_SAMPLE_DIR")
+    if override:
+        return Path(override)
+    return Path(__file__).resolve().parents[1] / "resources" / "sample"
+
+
+def gl_format() -> QSurfaceFormat:
+    """Desktop OpenGL 3.2 core, what VTK's shaders need (as pyvistaqt's rwi asks)."""
+    fmt = QSurfaceFormat()
+    fmt.setRenderableType(QSurfaceFormat.RenderableType.OpenGL)
+    fmt.setProfile(QSurfaceFormat.OpenGLContextProfile.CoreProfile)
+    fmt.setVersion(3, 2)
+    fmt.setSwapBehavior(QSurfaceFormat.SwapBehavior.DoubleBuffer)
+    for size in ("Red", "Green", "Blue", "Alpha"):
+        getattr(fmt, f"set{size}BufferSize")(8)
+    fmt.setDepthBufferSize(8)
+    fmt.setStencilBufferSize(0)
+    fmt.setSamples(0)
+    return fmt
+
+
+def configure_qt() -> None:
+    """Settings that only work before the QApplication exists.
+
+    Without shared GL contexts a dock holding a QtInteractor froze after being
+    floated and docked again (shared/notes/headless-gui-testing.md).
+    """
+    os.environ.setdefault("QT_API", "pyside6")
+    QCoreApplication.setAttribute(Qt.AA_ShareOpenGLContexts)
+    QSurfaceFormat.setDefaultFormat(gl_format())
+    QCoreApplication.setOrganizationName(ORGANIZATION)
+    QCoreApplication.setApplicationName(APPLICATION)
+
+
+def create_app(argv: list[str] | None = None) -> QApplication:
+    """The QApplication, configured; reuses an existing one (tests)."""
+    app = QApplication.instance()
+    if app is None:
+        configure_qt()
+        app = QApplication(argv if argv is not None else [])
+    return app
+
+
+def app_settings() -> QSettings:
+    """Per-user INI settings; tests redirect them with ``QSettings.setPath``."""
+    return QSettings(
+        QSettings.IniFormat, QSettings.UserScope, ORGANIZATION, APPLICATION
+    )

@@ -1,0 +1,228 @@
+"""ExportDialog, AboutDialog and the shortcuts list. None of them blocks: open()."""
+
+from __future__ import annotations
+
+import platform
+from importlib import metadata
+from pathlib import Path
+
+from PySide6 import __version__ as pyside_version
+from PySide6.QtCore import qVersion
+from PySide6.QtGui import QKeySequence
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDialog,
+    QDialogButtonBox,
+    QFileDialog,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QVBoxLayout,
+)
+
+EXPORT_PARTS = (
+    ("registered", "Registered source cloud", "The source moved into the target frame"),
+    (
+        "merged",
+        "Merged cloud (with a scan_id field)",
+        "Target and moved source in one file; scan_id 0 = target, 1 = source",
+    ),
+    ("transform", "Transform (JSON + 4×4 text)", "T_target_source, coarse and final"),
+    (
+        "metrics",
+        "Metrics (CSV + JSON)",
+        "RMSE, Hausdorff, overlap, truth errors, timings",
+    ),
+    ("params", "Parameters (params.json)", "Everything needed to run it again"),
+)
+CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
+
+
+class ExportDialog(QDialog):
+    """Where to write, what, and in which point-cloud format.
+
+    Emits QDialog's ``accepted``; read ``folder()``, ``cloud_format()`` and ``parts()``.
+    """
+
+    def __init__(
+        self, parent=None, folder: str = "", cloud_format: str = "ply"
+    ) -> None:
+        super().__init__(parent)
+        self.setObjectName("export_dialog")
+        self.setWindowTitle("Export registration")
+        self.folder_edit = QLineEdit(folder)
+        self.folder_edit.setPlaceholderText("Output folder")
+        self.folder_edit.setToolTip(
+            "Files are written here; existing ones are replaced"
+        )
+        browse = QPushButton("Browse…")
+        browse.clicked.connect(self._browse)
+        row = QHBoxLayout()
+        row.addWidget(self.folder_edit, 1)
+        row.addWidget(browse)
+        self.part_boxes: dict[str, QCheckBox] = {}
+        parts_box = QGroupBox("Write")
+        parts_layout = QVBoxLayout(parts_box)
+        for key, label, tip in EXPORT_PARTS:
+            box = QCheckBox(label)
+            box.setChecked(True)
+            box.setToolTip(tip)
+            box.toggled.connect(self._validate)
+            parts_layout.addWidget(box)
+            self.part_boxes[key] = box
+        self.format_combo = QComboBox()
+        for fmt in CLOUD_FORMATS:
+            self.format_combo.addItem(fmt.upper(), fmt)
+        self.format_combo.setCurrentIndex(
+            max(
+                0,
+                CLOUD_FORMATS.index(cloud_format)
+                if cloud_format in CLOUD_FORMATS
+                else 0,
+            )
+        )
+        self.format_combo.setToolTip(
+            "LAS/LAZ keep georeferencing offsets and LAS fields; "
+            "PLY and PCD are read by most tools"
+        )
+        form = QFormLayout()
+        form.addRow("Folder:", row)
+        form.addRow("Cloud format:", self.format_combo)
+        self.problem = QLabel("")
+        self.problem.setStyleSheet("color: #c00000;")
+        self.buttons = QDialogButtonBox(QDialogButtonBox.Ok | QDialogButtonBox.Cancel)
+        self.buttons.button(QDialogButtonBox.Ok).setText("Export")
+        self.buttons.accepted.connect(self.accept)
+        self.buttons.rejected.connect(self.reject)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(parts_box)
+        layout.addWidget(self.problem)
+        layout.addWidget(self.buttons)
+        self.folder_edit.textChanged.connect(self._validate)
+        self._validate()
+
+    def folder(self) -> Path:
+        """The chosen output folder."""
+        return Path(self.folder_edit.text().strip()).expanduser()
+
+    def cloud_format(self) -> str:
+        """ "ply", "las", "laz" or "pcd"."""
+        return str(self.format_combo.currentData())
+
+    def parts(self) -> tuple[str, ...]:
+        """The parts to write, in export_registration's names."""
+        return tuple(k for k, box in self.part_boxes.items() if box.isChecked())
+
+    def _validate(self, *_args) -> None:
+        problem = ""
+        if not self.folder_edit.text().strip():
+            problem = "Choose an output folder."
+        elif not self.parts():
+            problem = "Choose at least one thing to write."
+        self.problem.setText(problem)
+        self.buttons.button(QDialogButtonBox.Ok).setEnabled(not problem)
+
+    def _browse(self) -> None:
+        folder = QFileDialog.getExistingDirectory(
+            self, "Export to folder", self.folder_edit.text()
+        )
+        if folder:
+            self.folder_edit.setText(folder)
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of AMRST and the libraries it runs on."""
+    import amrst
+
+    def dist(*names: str) -> str:
+        for name in names:
+            try:
+                return metadata.version(name)
+            except metadata.PackageNotFoundError:
+                continue
+        return "not installed"
+
+    try:
+        from vtkmodules.vtkCommonCore import vtkVersion
+
+        vtk = vtkVersion.GetVTKVersion()
+    except ImportError:
+        vtk = "not installed"
+    return {
+        "AMRST": amrst.__version__,
+        "AMRST Studio": dist("amrst-studio"),
+        "Qt": qVersion(),
+        "PySide6": pyside_version,
+        "VTK": vtk,
+        "pyvista": dist("pyvista"),
+        "pyvistaqt": dist("pyvistaqt"),
+        "superqt": dist("superqt"),
+        "open3d": dist("open3d-cpu", "open3d"),
+        "numpy": dist("numpy"),
+        "scipy": dist("scipy"),
+        "Python": platform.python_version(),
+    }
+
+
+class AboutDialog(QDialog):
+    """What AMRST Studio is, and the versions it runs on."""
+
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("about_dialog")
+        self.setWindowTitle("About AMRST Studio")
+        self.versions = library_versions()
+        rows = "".join(
+            f"<tr><td>{k}</td><td>&nbsp;{v}</td></tr>" for k, v in self.versions.items()
+        )
+        text = QLabel(
+            "<h3>AMRST Studio</h3>"
+            "<p>Marker-free registration of two terrestrial laser scans of one tree: "
+            "wood/leaf separation, skeletons, similar tetrahedra between key points "
+            "(AMRST), review by eye, ICP refinement, export.</p>"
+            f"<table>{rows}</table>"
+        )
+        text.setWordWrap(True)
+        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons.rejected.connect(self.reject)
+        layout = QVBoxLayout(self)
+        layout.addWidget(text)
+        layout.addWidget(buttons)
+
+
+class ShortcutsDialog(QDialog):
+    """Every action with a shortcut, in menu order."""
+
+    def __init__(self, actions, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("shortcuts_dialog")
+        self.setWindowTitle("Keyboard shortcuts")
+        rows = []
+        for action in actions:
+            key = action.shortcut().toString(QKeySequence.NativeText)
+            if key:
+                label = (
+                    action.text()
+                    .replace("&&", "\0")
+                    .replace("&", "")
+                    .replace("\0", "&")
+                )
+                rows.append(f"<tr><td><b>{key}</b></td><td>&nbsp;{label}</td></tr>")
+        rows.append(
+            "<tr><td><b>Alt+1/2/3</b></td><td>&nbsp;Registration view: "
+            "before / coarse / fine</td></tr>"
+        )
+        text = QLabel(
+            f"<table>{''.join(rows)}</table><p>Delete and R act on the "
+            "selected match while the Matches dock has focus.</p>"
+        )
+        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons.rejected.connect(self.reject)
+        layout = QVBoxLayout(self)
+        layout.addWidget(text)
+        layout.addWidget(buttons)

@@ -1,0 +1,117 @@
+"""What each workflow step runs in its worker: engine calls only, no Qt.
+
+Each function takes its inputs (frozen engine objects), then the reporter last,
+and returns ``(result, seconds)``. The session hands them to
+``workers.run_stage`` and applies the result on the GUI thread.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from amrst.progress import Reporter, SubReporter
+
+ROLES = ("target", "source")
+
+
+def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
+    """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``."""
+    from amrst import io
+
+    start = time.perf_counter()
+    clouds = {}
+    for i, (role, path) in enumerate(paths.items()):
+        reporter.check_cancelled()
+        reporter.progress(i / len(paths), f"Reading {role} {Path(path).name}")
+        clouds[role] = io.read(path)
+    reporter.progress(1.0, "Scans read")
+    return clouds, time.perf_counter() - start
+
+
+def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, float]:
+    """Preprocess and separate wood from leaves in both scans."""
+    from amrst import pipeline
+
+    start = time.perf_counter()
+    out = {}
+    for i, role in enumerate(ROLES):
+        sub = SubReporter(reporter, i / 2, (i + 1) / 2, role)
+        out[role] = pipeline.prepare_scan(clouds[role], params, sub)
+    return out, time.perf_counter() - start
+
+
+def skeletonise_pair(
+    analyses: dict, params: Any, reporter: Reporter
+) -> tuple[dict, float]:
+    """Skeleton and key points of both scans."""
+    from amrst import pipeline
+
+    start = time.perf_counter()
+    out = {}
+    for i, role in enumerate(ROLES):
+        sub = SubReporter(reporter, i / 2, (i + 1) / 2, role)
+        out[role] = pipeline.skeletonise_scan(analyses[role], params, sub)
+    return out, time.perf_counter() - start
+
+
+def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, float]:
+    """Similar-tetrahedra candidates between the two key point sets."""
+    from amrst import pipeline
+
+    start = time.perf_counter()
+    result = pipeline.find_matches(
+        analyses["target"], analyses["source"], params, reporter
+    )
+    return result, time.perf_counter() - start
+
+
+def evaluate_coarse(
+    analyses: dict, coarse: Any, params: Any, reporter: Reporter
+) -> tuple[tuple[Any, Any], float]:
+    """Measure the accepted coarse transform; returns ``(coarse, CloudMetrics)``."""
+    from amrst import pipeline
+
+    start = time.perf_counter()
+    reporter.progress(0.0, "Measuring the coarse alignment")
+    metrics = pipeline.evaluate(
+        analyses["target"], analyses["source"], coarse.T_target_source, params
+    )
+    reporter.progress(1.0, "Coarse alignment measured")
+    return (coarse, metrics), time.perf_counter() - start
+
+
+def refine_pair(
+    analyses: dict, T_init: Any, params: Any, reporter: Reporter
+) -> tuple[tuple[Any, Any], float]:
+    """Fine registration from ``T_init``; returns ``(FineResult, CloudMetrics)``."""
+    from amrst import pipeline
+
+    start = time.perf_counter()
+    fine = pipeline.refine(
+        analyses["target"],
+        analyses["source"],
+        T_init,
+        params,
+        SubReporter(reporter, 0, 0.9),
+    )
+    reporter.check_cancelled()
+    reporter.progress(0.9, "Measuring the fine alignment")
+    metrics = pipeline.evaluate(
+        analyses["target"], analyses["source"], fine.T_target_source, params
+    )
+    reporter.progress(1.0, "Fine registration done")
+    return (fine, metrics), time.perf_counter() - start
+
+
+def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, float]:
+    """Write the chosen outputs with ``amrst.export.export_registration``."""
+    from amrst import export
+
+    start = time.perf_counter()
+    reporter.progress(0.0, f"Writing to {out_dir}")
+    reporter.check_cancelled()
+    paths = export.export_registration(out_dir, **kwargs)
+    reporter.progress(1.0, f"Wrote {len(paths)} files")
+    return list(paths), time.perf_counter() - start

@@ -1,0 +1,282 @@
+"""MainWindow: docks, menus, toolbar around the 3D views; wires session to widgets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from PySide6.QtCore import QByteArray, Qt
+from PySide6.QtWidgets import (
+    QDockWidget,
+    QFileDialog,
+    QMainWindow,
+    QMessageBox,
+    QTabWidget,
+)
+
+from amrst_gui import dialogs, menus
+from amrst_gui.actions import WorkflowActions
+from amrst_gui.app import app_settings
+from amrst_gui.panels.log_panel import LogPanel
+from amrst_gui.panels.matches_panel import MatchesPanel
+from amrst_gui.panels.metrics_panel import MetricsPanel
+from amrst_gui.panels.params_panel import ParamsPanel
+from amrst_gui.panels.scans_panel import ScansPanel
+from amrst_gui.panels.status import WorkflowStatusBar
+from amrst_gui.session import Session
+from amrst_gui.views.registration_pane import RegistrationPane
+from amrst_gui.views.scan_pane import ScansArea
+
+MAX_RECENT = 10
+
+
+class MainWindow(QMainWindow):
+    """The app window. Owns the Session; every panel and view listens to it.
+
+    Listens to ``failed`` (status bar, log, non-blocking message), ``scan_loaded``
+    (recent files, title) and ``busy_changed``; the panels and views listen to
+    the rest (see their docstrings).
+    """
+
+    def __init__(self, session: Session | None = None, settings=None) -> None:
+        super().__init__()
+        self.setObjectName("main_window")
+        self.setWindowTitle("AMRST Studio")
+        self.settings = settings if settings is not None else app_settings()
+        # The log first, so it records everything from here on.
+        self.log_panel = LogPanel()
+        self.session = session if session is not None else Session(self)
+        s = self.session
+        self.scans_area = ScansArea(s)
+        self.registration = RegistrationPane(s)
+        self.tabs = QTabWidget()
+        self.tabs.setObjectName("view_tabs")
+        self.tabs.addTab(self.scans_area, "Scans: target | source")
+        self.tabs.addTab(self.registration, "Registration overlay")
+        self.setCentralWidget(self.tabs)
+        self.actions = WorkflowActions(self, s)
+        self.scans_panel = ScansPanel(s)
+        self.params_panel = ParamsPanel(s)
+        self.matches_panel = MatchesPanel(s, self.actions.reject, self.actions.restore)
+        self.metrics_panel = MetricsPanel(s)
+        self.docks: dict[str, QDockWidget] = {}
+        left, right, bottom = (
+            Qt.LeftDockWidgetArea,
+            Qt.RightDockWidgetArea,
+            Qt.BottomDockWidgetArea,
+        )
+        self._add_dock("scans", "Scans", self.scans_panel, left)
+        self._add_dock("parameters", "Parameters", self.params_panel, left)
+        self._add_dock("matches", "Matches", self.matches_panel, right)
+        self._add_dock("metrics", "Metrics", self.metrics_panel, right)
+        self._add_dock("log", "Log", self.log_panel, bottom)
+        self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
+        self.docks["scans"].raise_()
+        self.status = WorkflowStatusBar(s, self)
+        self.setStatusBar(self.status)
+        self.toolbar = menus.build(self)
+        self.error_box: QMessageBox | None = None
+        self.export_box: dialogs.ExportDialog | None = None
+        self._closed = False
+
+        s.failed.connect(self._on_failed)
+        s.scan_loaded.connect(self._on_scan_loaded)
+        self.params_panel.params_applied.connect(s.set_params)
+        self.scans_panel.open_requested.connect(self.open_scan_dialog)
+        self.scans_panel.recent_chosen.connect(
+            lambda role, path: s.load_scan(role, path)
+        )
+        self.scans_panel.swap_requested.connect(s.swap_scans)
+        self.scans_panel.files_dropped.connect(self._on_files_dropped)
+        self.scans_area.files_dropped.connect(self._on_files_dropped)
+        self.resize(1500, 950)
+        self._default_state: QByteArray | None = None
+        self._restored = self._restore_settings()
+        self.scans_area.refresh()
+        self.registration.refresh()
+
+    # ------------------------------------------------------------- public
+    def views(self) -> list:
+        """Every ScanView (closed explicitly when the window closes)."""
+        return [*self.scans_area.views(), self.registration.view]
+
+    def open_pair(self, target, source, truth=None) -> None:
+        """Load a target and a source (in a worker), and a truth file if given."""
+        if truth is not None:
+            self.session.load_truth(truth)
+        self.session.load_scans(target, source)
+
+    def recent_files(self) -> list[str]:
+        """Recently opened scan files, newest first."""
+        value = self.settings.value("recent/files", [])
+        return [value] if isinstance(value, str) else list(value or [])
+
+    def reset_layout(self) -> None:
+        """Put every dock back where it started."""
+        if self._default_state is not None:
+            self.restoreState(self._default_state)
+        for dock in self.docks.values():
+            dock.show()
+
+    # ------------------------------------------------------------ dialogs
+    def open_scan_dialog(self, role: str) -> None:
+        """Ask for a scan file for ``role``."""
+        from amrst import io
+
+        patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
+        start = self.settings.value("dirs/open", str(Path.home()))
+        path, _ = QFileDialog.getOpenFileName(
+            self,
+            f"Open the {role} scan",
+            start,
+            f"Point clouds ({patterns});;All files (*)",
+        )
+        if path:
+            self.settings.setValue("dirs/open", str(Path(path).parent))
+            self.session.load_scan(role, path)
+
+    def open_scan_dialog_target(self) -> None:
+        self.open_scan_dialog("target")
+
+    def open_scan_dialog_source(self) -> None:
+        self.open_scan_dialog("source")
+
+    def open_truth_dialog(self) -> None:
+        """Ask for a truth.json."""
+        start = self.settings.value("dirs/open", str(Path.home()))
+        path, _ = QFileDialog.getOpenFileName(
+            self, "Load truth", start, "Truth (*.json)"
+        )
+        if path:
+            self.session.load_truth(path)
+
+    def load_params_dialog(self) -> None:
+        """Read parameters from JSON and use them."""
+        from amrst import params_io
+
+        path, _ = QFileDialog.getOpenFileName(
+            self, "Load parameters", "", "JSON (*.json)"
+        )
+        if path:
+            try:
+                self.session.set_params(params_io.load_params(path))
+            except Exception as exc:  # a user-chosen file: say why it failed
+                self._on_failed(
+                    f"Could not load parameters from {Path(path).name}: {exc}"
+                )
+
+    def save_params_dialog(self) -> None:
+        """Write the current parameters to JSON."""
+        from amrst import params_io
+
+        path, _ = QFileDialog.getSaveFileName(
+            self, "Save parameters", "params.json", "JSON (*.json)"
+        )
+        if path:
+            params_io.save_params(path, self.session.params)
+            self.status.show_message(f"Parameters saved to {path}")
+
+    def export_dialog(self) -> dialogs.ExportDialog:
+        """Open the export dialog (non-blocking); Export starts the job."""
+        folder = self.settings.value("dirs/export", "")
+        fmt = self.settings.value("export/format", "ply")
+        box = dialogs.ExportDialog(self, folder=str(folder), cloud_format=str(fmt))
+        box.accepted.connect(lambda: self._on_export_accepted(box))
+        self.export_box = box
+        box.open()
+        return box
+
+    def about_dialog(self) -> None:
+        dialogs.AboutDialog(self).open()
+
+    def shortcuts_dialog(self) -> None:
+        dialogs.ShortcutsDialog(menus.all_actions(self), self).open()
+
+    # -------------------------------------------------------------- slots
+    def _on_export_accepted(self, box: dialogs.ExportDialog) -> None:
+        self.settings.setValue("dirs/export", str(box.folder()))
+        self.settings.setValue("export/format", box.cloud_format())
+        self.session.export(box.folder(), box.cloud_format(), box.parts())
+
+    def _on_failed(self, message: str) -> None:
+        # Status bar and log show it too; the box does not block the window.
+        if self.error_box is not None and self.error_box.isVisible():
+            self.error_box.setText(message)
+            return
+        box = QMessageBox(
+            QMessageBox.Warning, "AMRST Studio", message, QMessageBox.Ok, self
+        )
+        box.setObjectName("error_box")
+        box.setWindowModality(Qt.NonModal)
+        box.show()
+        self.error_box = box
+
+    def _on_scan_loaded(self, role: str) -> None:
+        path = self.session.path(role)
+        if path is not None:
+            recent = [str(path)] + [p for p in self.recent_files() if p != str(path)]
+            self.settings.setValue("recent/files", recent[:MAX_RECENT])
+            self.scans_panel.set_recent_files(self.recent_files())
+        names = [self.session.path(r) for r in ("target", "source")]
+        label = " ← ".join(p.name if p else "-" for p in names)
+        self.setWindowTitle(f"AMRST Studio: {label}")
+
+    def _on_files_dropped(self, role: str, paths: list) -> None:
+        if len(paths) >= 2:
+            self.session.load_scans(paths[0], paths[1])
+        else:
+            self.session.load_scan(role, paths[0])
+
+    # ----------------------------------------------------------- plumbing
+    def _add_dock(self, key: str, title: str, widget, area) -> QDockWidget:
+        dock = QDockWidget(title, self)
+        dock.setObjectName(f"{key}_dock")  # saveState needs it
+        dock.setWidget(widget)
+        dock.setFeatures(
+            QDockWidget.DockWidgetMovable
+            | QDockWidget.DockWidgetFloatable
+            | QDockWidget.DockWidgetClosable
+        )
+        self.addDockWidget(area, dock)
+        self.docks[key] = dock
+        return dock
+
+    def _restore_settings(self) -> bool:
+        geometry = self.settings.value("window/geometry")
+        state = self.settings.value("window/state")
+        if isinstance(geometry, QByteArray):
+            self.restoreGeometry(geometry)
+        restored = isinstance(state, QByteArray) and self.restoreState(state)
+        self.scans_panel.set_recent_files(self.recent_files())
+        return bool(restored)
+
+    def showEvent(self, event) -> None:
+        """Size the docks once the window has its size (only then does Qt apply it)."""
+        super().showEvent(event)
+        if self._default_state is None:
+            if not self._restored:
+                self._default_sizes()
+            self._default_state = self.saveState()
+
+    def _default_sizes(self) -> None:
+        d = self.docks
+        self.resizeDocks([d["scans"], d["matches"]], [330, 430], Qt.Horizontal)
+        self.resizeDocks([d["matches"], d["metrics"]], [330, 420], Qt.Vertical)
+        self.resizeDocks([d["log"]], [150], Qt.Vertical)
+
+    def closeEvent(self, event) -> None:
+        """Cancel a running step and wait for it, save the layout, close the views."""
+        if not self._closed:
+            self._closed = True
+            if self.session.busy:
+                self.status.show_message("Cancelling the running step…")
+            self.session.shutdown()
+            self.settings.setValue("window/geometry", self.saveGeometry())
+            self.settings.setValue("window/state", self.saveState())
+            self.settings.sync()
+            self.log_panel.detach()
+            for dock in self.docks.values():  # floating docks are windows of their own
+                if dock.isFloating():
+                    dock.hide()
+            for view in self.views():  # before the widgets go (pyvistaqt#846)
+                view.close_view()
+        super().closeEvent(event)

@@ -1,0 +1,215 @@
+"""MatchesPanel: the ranked candidates, selection, reject / restore."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import QAbstractTableModel, QItemSelectionModel, QModelIndex, Qt
+from PySide6.QtGui import QColor, QFont
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QTableView,
+    QToolButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+COLUMNS = ("Rank", "Score", "Volume (m³)", "Edge error", "SVD residual (m)", "Status")
+_TIPS = (
+    "Rank by verification score (1 = best)",
+    "Verification score 0-1: how well the whole clouds agree under this match",
+    "Volume of the tetrahedron; larger ones pin the pose down better",
+    "Largest relative difference between corresponding edges",
+    "RMS distance of the four vertex pairs after the SVD fit",
+    "'coarse' = used for the coarse solution (best one not rejected)",
+)
+
+
+_ROOT = QModelIndex()
+
+
+class CandidateModel(QAbstractTableModel):
+    """Table model over ``session.matches`` and ``session.rejected`` (read-only)."""
+
+    def __init__(self, session, parent=None) -> None:
+        super().__init__(parent)
+        self.session = session
+        self.rows: tuple = ()
+
+    def reload(self) -> None:
+        self.beginResetModel()
+        self.rows = self.session.matches
+        self.endResetModel()
+
+    def review_changed(self) -> None:
+        if self.rows:
+            self.dataChanged.emit(
+                self.index(0, 0), self.index(len(self.rows) - 1, len(COLUMNS) - 1)
+            )
+
+    def rowCount(self, parent=_ROOT) -> int:
+        return 0 if parent.isValid() else len(self.rows)
+
+    def columnCount(self, parent=_ROOT) -> int:
+        return 0 if parent.isValid() else len(COLUMNS)
+
+    def headerData(self, section, orientation, role=Qt.DisplayRole):
+        if orientation == Qt.Horizontal:
+            if role == Qt.DisplayRole:
+                return COLUMNS[section]
+            if role == Qt.ToolTipRole:
+                return _TIPS[section]
+        return None
+
+    def status(self, cand) -> str:
+        if cand.id in self.session.rejected:
+            return "rejected"
+        coarse = self.session.coarse
+        if (
+            coarse is not None
+            and coarse.candidate is not None
+            and coarse.candidate.id == cand.id
+        ):
+            return "coarse ◀"
+        return "candidate"
+
+    def data(self, index, role=Qt.DisplayRole):
+        if not index.isValid():
+            return None
+        cand = self.rows[index.row()]
+        col = index.column()
+        if role == Qt.DisplayRole:
+            return (
+                str(cand.rank),
+                f"{cand.score:.3f}",
+                f"{cand.volume_m3:.3f}",
+                f"{cand.edge_error:.1%}",
+                f"{cand.svd_residual_m:.3f}",
+                self.status(cand),
+            )[col]
+        if role == Qt.ToolTipRole:
+            return str(cand.explanation)
+        if role == Qt.TextAlignmentRole and col < 5:
+            return int(Qt.AlignRight | Qt.AlignVCenter)
+        status = self.status(cand)
+        if role == Qt.ForegroundRole and status == "rejected":
+            return QColor("#999999")
+        if role == Qt.FontRole and status != "candidate":
+            font = QFont()
+            font.setStrikeOut(status == "rejected")
+            font.setBold(status.startswith("coarse"))
+            return font
+        if role == Qt.UserRole:
+            return int(cand.id)
+        return None
+
+
+class MatchesPanel(QWidget):
+    """Ranked candidates; selecting a row shows that match in both views.
+
+    Listens to ``matches_changed``, ``review_changed``, ``selection_changed``
+    (and the upstream result signals, which clear the table); calls
+    ``session.select_match``; the Reject / Restore buttons trigger the window's
+    actions (keys Delete and R while this dock has focus).
+    """
+
+    def __init__(self, session, reject_action, restore_action, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("matches_panel")
+        self.session = session
+        self.model = CandidateModel(session, self)
+        self.table = QTableView()
+        self.table.setModel(self.model)
+        self.table.setSelectionBehavior(QAbstractItemView.SelectRows)
+        self.table.setSelectionMode(QAbstractItemView.SingleSelection)
+        self.table.verticalHeader().hide()
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeToContents)
+        self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.selectionModel().currentRowChanged.connect(
+            self._on_current_row_changed
+        )
+        self.coarse_label = QLabel("No matches yet: run Match (Ctrl+3).")
+        self.coarse_label.setWordWrap(True)
+        self.explanation = QLabel("")
+        self.explanation.setWordWrap(True)
+        self.explanation.setStyleSheet("color: #505050;")
+        buttons = QHBoxLayout()
+        for action in (reject_action, restore_action):
+            button = QToolButton()
+            button.setDefaultAction(action)
+            button.setToolButtonStyle(Qt.ToolButtonTextOnly)
+            buttons.addWidget(button)
+            self.addAction(action)  # its shortcut works while this panel has focus
+        buttons.addStretch(1)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addWidget(self.coarse_label)
+        layout.addWidget(self.table, 1)
+        layout.addLayout(buttons)
+        layout.addWidget(self.explanation)
+        session.matches_changed.connect(self._on_matches_changed)
+        session.review_changed.connect(self._on_review_changed)
+        session.selection_changed.connect(self._on_selection_changed)
+        for name in (
+            "scan_loaded",
+            "scans_swapped",
+            "separation_finished",
+            "skeletons_finished",
+        ):
+            getattr(session, name).connect(self._on_matches_changed)
+        self._on_matches_changed()
+
+    def _on_matches_changed(self, *_args) -> None:
+        self.model.reload()
+        self._show_coarse()
+        self._on_selection_changed(
+            self.session.selected_match and self.session.selected_match.id
+        )
+
+    def _on_review_changed(self, _rejected) -> None:
+        self.model.review_changed()
+        self._show_coarse()
+
+    def _on_selection_changed(self, match_id) -> None:
+        cand = self.session.selected_match
+        self.explanation.setText(
+            "" if cand is None else f"Match #{cand.rank}: {cand.explanation}"
+        )
+        row = next((i for i, c in enumerate(self.model.rows) if c.id == match_id), None)
+        sel = self.table.selectionModel()
+        if row is None:
+            sel.clearSelection()
+            return
+        index = self.model.index(row, 0)
+        if sel.currentIndex().row() != row:
+            flags = QItemSelectionModel.ClearAndSelect | QItemSelectionModel.Rows
+            sel.setCurrentIndex(index, flags)
+        self.table.scrollTo(index)
+
+    def _on_current_row_changed(self, current: QModelIndex, _previous) -> None:
+        if current.isValid() and current.row() < len(self.model.rows):
+            self.session.select_match(self.model.rows[current.row()].id)
+
+    def _show_coarse(self) -> None:
+        s = self.session
+        if not s.matches:
+            self.coarse_label.setText(
+                "No matches yet: run Match (Ctrl+3)."
+                if s.match_result is None
+                else "Matching found no candidate: " + s.coarse_message
+            )
+            return
+        coarse = s.coarse
+        n_rej = len(s.rejected)
+        if coarse is None:
+            text = f"<b>No coarse solution</b>: {s.coarse_message}"
+        else:
+            rank = coarse.candidate.rank if coarse.candidate is not None else "-"
+            text = (
+                f"<b>Coarse solution: match #{rank}</b>, confidence "
+                f"{coarse.confidence:.0%}. {coarse.message}"
+            )
+        self.coarse_label.setText(
+            f"{text}<br>{len(s.matches)} candidates, {n_rej} rejected."
+        )

@@ -1,0 +1,171 @@
+"""MetricsPanel: coarse and fine quality numbers, truth errors, time per stage."""
+
+from __future__ import annotations
+
+import math
+
+from PySide6.QtWidgets import (
+    QHeaderView,
+    QLabel,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from amrst_gui import steps
+
+_ROWS = (
+    (
+        "rmse_m",
+        "RMSE (m)",
+        "RMS of source-to-target nearest-neighbour distances, all points",
+    ),
+    ("rmse_overlap_m", "RMSE in overlap (m)", "The same, only points in the overlap"),
+    (
+        "hausdorff_m",
+        "Hausdorff (m)",
+        "Largest nearest-neighbour distance, either direction",
+    ),
+    ("hausdorff_p95_m", "Hausdorff P95 (m)", "95th percentile of those distances"),
+    ("overlap_fraction", "Overlap", "Share of source points near a target point"),
+    ("confidence", "Confidence", "Coarse: how clearly the best candidate wins"),
+    ("iterations", "Iterations", "Fine: ICP iterations"),
+    ("fitness", "Fitness", "Fine: inlier share of the ICP"),
+    ("inlier_rmse_m", "Inlier RMSE (m)", "Fine: RMSE of the ICP inliers"),
+    ("converged", "Converged", "Fine: did the ICP converge"),
+    (
+        "rotation_error_deg",
+        "Truth: rotation error (°)",
+        "Needs a truth file (File > Load truth)",
+    ),
+    ("translation_error_m", "Truth: translation error (m)", "Needs a truth file"),
+    (
+        "gt_rmse_m",
+        "Truth: GT RMSE (m)",
+        "RMS distance between source points moved by the estimate and by the truth",
+    ),
+    ("registered", "Truth: registered", "rotation < 1° and GT RMSE < 5 cm"),
+)
+_STAGES = ("coarse", "fine")
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "yes" if value else "NO"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "n/a"
+        return f"{value:.4f}" if abs(value) < 100 else f"{value:.1f}"
+    return str(value)
+
+
+class MetricsPanel(QWidget):
+    """Quality of the coarse and the fine result, truth errors, timings.
+
+    Listens to ``coarse_accepted``, ``fine_finished``, ``review_changed``,
+    ``truth_loaded`` and the upstream result signals; emits nothing.
+    """
+
+    def __init__(self, session, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("metrics_panel")
+        self.session = session
+        self.table = QTableWidget(len(_ROWS), len(_STAGES))
+        self.table.setHorizontalHeaderLabels(["Coarse", "Fine"])
+        self.table.setVerticalHeaderLabels([label for _, label, _ in _ROWS])
+        for i, (_, _, tip) in enumerate(_ROWS):
+            self.table.verticalHeaderItem(i).setToolTip(tip)
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.Stretch)
+        self.table.setEditTriggers(QTableWidget.NoEditTriggers)
+        self.timings = QTableWidget(0, 1)
+        self.timings.setHorizontalHeaderLabels(["Seconds"])
+        self.timings.horizontalHeader().setSectionResizeMode(QHeaderView.Stretch)
+        self.timings.setEditTriggers(QTableWidget.NoEditTriggers)
+        self.truth_label = QLabel("")
+        self.truth_label.setWordWrap(True)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addWidget(self.table, 3)
+        layout.addWidget(self.truth_label)
+        layout.addWidget(QLabel("Time per stage"))
+        layout.addWidget(self.timings, 2)
+        for name in (
+            "scan_loaded",
+            "scans_swapped",
+            "separation_finished",
+            "skeletons_finished",
+            "matches_changed",
+            "review_changed",
+            "coarse_accepted",
+            "fine_finished",
+            "truth_loaded",
+        ):
+            getattr(session, name).connect(self._on_results_changed)
+        self.refresh()
+
+    def values(self) -> dict[str, dict[str, object]]:
+        """What the table shows: stage -> metric -> value."""
+        s = self.session
+        out: dict[str, dict[str, object]] = {stage: {} for stage in _STAGES}
+        for stage, m in s.metrics.items():
+            out[stage].update(m.as_dict())
+        coarse = s.accepted_coarse or s.coarse
+        if coarse is not None:
+            out["coarse"]["confidence"] = float(coarse.confidence)
+        if s.fine is not None:
+            f = s.fine
+            out["fine"].update(
+                iterations=int(f.iterations),
+                fitness=float(f.fitness),
+                inlier_rmse_m=float(f.inlier_rmse_m),
+                converged=bool(f.converged),
+            )
+        for stage, err in s.truth_errors().items():
+            out[stage].update(err.as_dict())
+            out[stage]["registered"] = bool(err.registered())
+        return out
+
+    def refresh(self) -> None:
+        """Show the session's current numbers."""
+        values = self.values()
+        for col, stage in enumerate(_STAGES):
+            for row, (key, _, _) in enumerate(_ROWS):
+                self.table.setItem(
+                    row, col, QTableWidgetItem(_fmt(values[stage].get(key)))
+                )
+        s = self.session
+        if s.truth is None:
+            self.truth_label.setText(
+                "No truth loaded (File > Load truth… for true errors)."
+            )
+        else:
+            name = s.truth_path.name if s.truth_path else "truth"
+            self.truth_label.setText(f"Truth: {name}")
+        timings = self._timings()
+        self.timings.setRowCount(len(timings))
+        self.timings.setVerticalHeaderLabels(list(timings))
+        for row, seconds in enumerate(timings.values()):
+            self.timings.setItem(row, 0, QTableWidgetItem(f"{seconds:.2f}"))
+
+    def _timings(self) -> dict[str, float]:
+        s = self.session
+        out: dict[str, float] = {}
+        for step, seconds in s.timings.items():
+            out["Load" if step == "load" else steps.plain_label(step)] = seconds
+        # The engine's own split of the steps, per scan.
+        for role in ("target", "source"):
+            an = s.analysis(role)
+            for stage, t in (an.timings if an is not None else {}).items():
+                out[f"  {role}: {stage}"] = t
+        if s.match_result is not None:
+            for stage, t in s.match_result.timings.items():
+                out[f"  {stage}"] = t
+        return out
+
+    def _on_results_changed(self, *_args) -> None:
+        self.refresh()

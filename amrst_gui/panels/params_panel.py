@@ -1,0 +1,251 @@
+"""ParamsPanel: every stage's parameters, built from the dataclass fields.
+
+The form edits a draft; Apply makes a new frozen RegistrationParams with
+``dataclasses.replace`` and emits it (STYLE.md section 4, magicgui's lesson).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QScrollArea,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
+
+_GROUP_TITLES = {
+    "preprocess": "Preprocess (outliers, thinning)",
+    "separate": "Wood / leaf separation",
+    "skeleton": "Skeleton",
+    "keypoints": "Key points",
+    "match": "Tetrahedron matching",
+    "coarse": "Candidate verification (coarse)",
+    "fine": "Fine registration (ICP)",
+    "metrics": "Metrics",
+}
+
+
+def tooltip_for(field: dataclasses.Field) -> str:
+    """Help text, unit and allowed range of one parameter."""
+    meta = field.metadata
+    lines = [f"{field.name}: {meta.get('help', 'no description')}"]
+    if meta.get("unit"):
+        lines.append(f"Unit: {meta['unit']}")
+    if "min" in meta or "max" in meta:
+        lines.append(f"Range: {meta.get('min', '-∞')} to {meta.get('max', '∞')}")
+    if "choices" in meta:
+        lines.append("Choices: " + ", ".join(map(str, meta["choices"])))
+    return "\n".join(lines)
+
+
+def _decimals(value: float, lo: float) -> int:
+    smallest = min(abs(v) for v in (value, lo, 1.0) if v) if (value or lo) else 1.0
+    digits = 3
+    while smallest < 10 ** (-digits + 1) and digits < 9:
+        digits += 1
+    return digits
+
+
+def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
+    """A widget for one scalar parameter, chosen from its default's type."""
+    meta = field.metadata
+    if "choices" in meta:
+        w = QComboBox()
+        for choice in meta["choices"]:
+            w.addItem(str(choice), choice)
+    elif isinstance(value, bool):
+        w = QCheckBox()
+    elif isinstance(value, int):
+        w = QSpinBox()
+        w.setRange(int(meta.get("min", -(2**31))), int(meta.get("max", 2**31 - 1)))
+        w.setSingleStep(
+            max(1, (w.maximum() - w.minimum()) // 200) if "max" in meta else 1
+        )
+    elif isinstance(value, float):
+        w = QDoubleSpinBox()
+        lo, hi = float(meta.get("min", -1e9)), float(meta.get("max", 1e9))
+        w.setDecimals(_decimals(value, lo))
+        w.setRange(lo, hi)
+        w.setSingleStep(max(abs(value) * 0.1, 10 ** -w.decimals()))
+    else:
+        w = QLineEdit()
+    if meta.get("unit") and hasattr(w, "setSuffix"):
+        w.setSuffix(f" {meta['unit']}" if meta["unit"] not in ("relative", "") else "")
+    w.setToolTip(tooltip_for(field))
+    w.setObjectName(field.name)
+    set_editor_value(w, value)
+    return w
+
+
+def set_editor_value(w: QWidget, value: Any) -> None:
+    """Show ``value`` in an editor made by :func:`make_editor`."""
+    if isinstance(w, QComboBox):
+        w.setCurrentIndex(max(0, w.findData(value)))
+    elif isinstance(w, QCheckBox):
+        w.setChecked(bool(value))
+    elif isinstance(w, QSpinBox | QDoubleSpinBox):
+        w.setValue(value)
+    else:
+        w.setText(str(value))
+
+
+def editor_value(w: QWidget, like: Any) -> Any:
+    """The value an editor holds, of the same type as ``like``."""
+    if isinstance(w, QComboBox):
+        return w.currentData()
+    if isinstance(w, QCheckBox):
+        return w.isChecked()
+    if isinstance(w, QSpinBox):
+        return int(w.value())
+    if isinstance(w, QDoubleSpinBox):
+        return float(w.value())
+    return type(like)(w.text())
+
+
+class ParamsPanel(QWidget):
+    """One group per stage; presets, reset to defaults, Apply.
+
+    Listens to ``params_changed`` (shows the session's params) and
+    ``busy_changed``; emits ``params_applied(RegistrationParams)``.
+    """
+
+    params_applied = Signal(object)
+
+    def __init__(self, session, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("params_panel")
+        self.session = session
+        self.editors: dict[tuple[str, str], QWidget] = {}
+        self.preset = QComboBox()
+        self.preset.setToolTip("Load a preset into the form (then Apply)")
+        self.preset.addItem("Preset…", None)
+        for name in self._presets():
+            self.preset.addItem(name, name)
+        self.preset.activated.connect(self._on_preset_activated)
+        reset = QPushButton("Defaults")
+        reset.setToolTip("Put the default values in the form (then Apply)")
+        reset.clicked.connect(self._on_reset_clicked)
+        self.apply_button = QPushButton("Apply")
+        self.apply_button.setToolTip(
+            "Use these values; steps that depend on them become stale"
+        )
+        self.apply_button.clicked.connect(self.apply)
+        self.state = QLabel("")
+        self.state.setWordWrap(True)
+        top = QHBoxLayout()
+        top.addWidget(self.preset, 1)
+        top.addWidget(reset)
+        top.addWidget(self.apply_button)
+
+        body = QWidget()
+        body_layout = QVBoxLayout(body)
+        params = session.params
+        for group in dataclasses.fields(params):
+            values = getattr(params, group.name)
+            box = QGroupBox(_GROUP_TITLES.get(group.name, group.name))
+            box.setObjectName(f"group_{group.name}")
+            form = QFormLayout(box)
+            for f in dataclasses.fields(values):
+                editor = make_editor(f, getattr(values, f.name))
+                self._connect_dirty(editor)
+                label = QLabel(f.name.replace("_", " "))
+                label.setToolTip(editor.toolTip())
+                form.addRow(label, editor)
+                self.editors[(group.name, f.name)] = editor
+            body_layout.addWidget(box)
+        body_layout.addStretch(1)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(body)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addLayout(top)
+        layout.addWidget(self.state)
+        layout.addWidget(scroll, 1)
+        session.params_changed.connect(self._on_params_changed)
+        self.show_params(params)
+
+    def draft(self) -> Any:
+        """RegistrationParams built from the form (raises ValueError if invalid)."""
+        params = self.session.params
+        groups = {}
+        for group in dataclasses.fields(params):
+            values = getattr(params, group.name)
+            changes = {
+                f.name: editor_value(
+                    self.editors[(group.name, f.name)], getattr(values, f.name)
+                )
+                for f in dataclasses.fields(values)
+            }
+            groups[group.name] = dataclasses.replace(values, **changes)
+        return dataclasses.replace(params, **groups)
+
+    def show_params(self, params: Any) -> None:
+        """Fill the form with ``params``."""
+        for (group, name), editor in self.editors.items():
+            editor.blockSignals(True)
+            set_editor_value(editor, getattr(getattr(params, group), name))
+            editor.blockSignals(False)
+        self._set_dirty(False)
+
+    def apply(self) -> None:
+        """Emit the form's values as new params (or show why they are invalid)."""
+        try:
+            params = self.draft()
+        except (ValueError, TypeError) as exc:
+            self.state.setText(f"Not applied: {exc}")
+            self.state.setStyleSheet("color: #c00000;")
+            return
+        self.params_applied.emit(params)
+        self._set_dirty(False)
+
+    def _presets(self) -> list[str]:
+        try:
+            from amrst import params_io
+
+            return sorted(params_io.list_presets())
+        except ImportError:
+            return []
+
+    def _on_preset_activated(self, index: int) -> None:
+        name = self.preset.itemData(index)
+        self.preset.setCurrentIndex(0)
+        if name is None:
+            return
+        from amrst import params_io
+
+        self.show_params(params_io.load_preset(name))
+        self._set_dirty(True, f"Preset '{name}' loaded into the form: press Apply.")
+
+    def _on_reset_clicked(self) -> None:
+        self.show_params(type(self.session.params)())
+        self._set_dirty(True, "Defaults loaded into the form: press Apply.")
+
+    def _on_params_changed(self, params: Any) -> None:
+        self.show_params(params)
+
+    def _connect_dirty(self, editor: QWidget) -> None:
+        for signal in ("valueChanged", "toggled", "currentIndexChanged", "textEdited"):
+            if hasattr(editor, signal):
+                getattr(editor, signal).connect(lambda *_: self._set_dirty(True))
+                return
+
+    def _set_dirty(self, dirty: bool, text: str = "") -> None:
+        self.apply_button.setEnabled(dirty)
+        self.state.setStyleSheet("color: #b06000;" if dirty else "")
+        self.state.setText(
+            text or ("Changed: press Apply to use these values." if dirty else "")
+        )

@@ -1,0 +1,107 @@
+"""WorkflowStatusBar: the running step, its progress, Cancel, and the last outcome."""
+
+from __future__ import annotations
+
+from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar, QWidget
+
+from amrst_gui import steps
+
+
+class WorkflowStatusBar(QStatusBar):
+    """Progress and Cancel while a job runs; the last success or failure after.
+
+    Listens to ``step_started``, ``progressed``, ``busy_changed``, ``failed``,
+    ``cancelled`` and the step result signals; calls ``session.cancel()``.
+    """
+
+    def __init__(self, session, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("status_bar")
+        self.session = session
+        self.message = QLabel("Ready.")
+        self.message.setMinimumWidth(200)
+        self.progress = QProgressBar()
+        self.progress.setRange(0, 1000)
+        self.progress.setMaximumWidth(260)
+        self.progress.setTextVisible(True)
+        self.progress.setFormat("%p%")
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setToolTip(
+            "Stop the running step (Esc); earlier results are kept"
+        )
+        self.cancel_button.clicked.connect(session.cancel)
+        self.addWidget(self.message, 1)
+        self.addPermanentWidget(self.progress)
+        self.addPermanentWidget(self.cancel_button)
+        self._on_busy_changed(False)
+        session.step_started.connect(self._on_step_started)
+        session.progressed.connect(self._on_progressed)
+        session.busy_changed.connect(self._on_busy_changed)
+        session.failed.connect(self._on_failed)
+        session.cancelled.connect(self._on_cancelled)
+        session.scan_loaded.connect(self._on_scan_loaded)
+        session.matches_changed.connect(self._on_matches_changed)
+        session.coarse_accepted.connect(self._on_coarse_accepted)
+        session.fine_finished.connect(self._on_fine_finished)
+        session.exported.connect(self._on_exported)
+
+    def show_message(self, text: str, error: bool = False) -> None:
+        """Put ``text`` in the status bar, red for errors."""
+        self.message.setStyleSheet("color: #c00000;" if error else "")
+        self.message.setText(text)
+        self.message.setToolTip(text)
+
+    def _on_step_started(self, step: str) -> None:
+        label = "Loading scans" if step == "load" else steps.plain_label(step)
+        self.show_message(f"{label}…")
+        self.progress.setValue(0)
+
+    def _on_progressed(self, fraction: float, message: str) -> None:
+        self.progress.setValue(int(fraction * 1000))
+        if message:
+            step = self.session.running_step or ""
+            label = (
+                "Loading" if step == "load" else steps.plain_label(step) if step else ""
+            )
+            self.show_message(f"{label}: {message}" if label else message)
+
+    def _on_busy_changed(self, busy: bool) -> None:
+        self.progress.setVisible(busy)
+        self.cancel_button.setVisible(busy)
+        self.cancel_button.setEnabled(busy)
+
+    def _on_failed(self, message: str) -> None:
+        self.show_message(message, error=True)
+
+    def _on_cancelled(self, message: str) -> None:
+        self.show_message(message)
+
+    def _on_scan_loaded(self, _role: str) -> None:
+        if self.session.has_scans and not self.session.busy:
+            self.show_message(
+                "Scans loaded. Next: Separate (Ctrl+1) or Run all (Ctrl+R)."
+            )
+
+    def _on_matches_changed(self) -> None:
+        n = len(self.session.matches)
+        self.show_message(
+            f"{n} candidate matches. Review them in the Matches dock, "
+            "then Accept coarse (Ctrl+4)."
+        )
+
+    def _on_coarse_accepted(self, coarse) -> None:
+        self.show_message(
+            f"Coarse solution accepted ({coarse.message}). "
+            "Next: Fine registration (Ctrl+5)."
+        )
+
+    def _on_fine_finished(self, fine) -> None:
+        state = "converged" if fine.converged else "did NOT converge"
+        self.show_message(
+            f"Fine registration {state} after {fine.iterations} iterations, "
+            f"RMSE {fine.inlier_rmse_m:.4f} m. Next: Export (Ctrl+E)."
+        )
+
+    def _on_exported(self, paths: list) -> None:
+        folder = paths[0].parent if paths else ""
+        self.show_message(f"Exported {len(paths)} files to {folder}.")

@@ -1,0 +1,307 @@
+"""Read-only views of the session's results: derived values, never stored twice.
+
+A mixin so ``session.py`` stays small; it holds no Qt code and emits nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from amrst_gui import jobs, steps
+
+_TRUTH_SAMPLE = 20_000
+
+
+class ResultsMixin:
+    """Results and derived state of a :class:`~amrst_gui.session.Session`."""
+
+    def _reset_results(self) -> None:
+        self._analyses: dict[str, Any] = dict.fromkeys(jobs.ROLES)
+        self._matches: Any = None
+        self._rejected: frozenset[int] = frozenset()
+        self._selected: int | None = None
+        self._accepted: Any = None
+        self._fine: Any = None
+        self._metrics: dict[str, Any] = {}
+        self._timings: dict[str, float] = {
+            k: v for k, v in getattr(self, "_timings", {}).items() if k == "load"
+        }
+        self._step_params: dict[str, Any] = {}
+        self._coarse_cache: tuple | None = None
+
+    def _clear_after(self, step: str) -> None:
+        # The analyses themselves are replaced by the separate/skeleton result.
+        later = steps.later_steps(step)
+        if "match" in later:
+            self._matches, self._rejected, self._selected = None, frozenset(), None
+        if "coarse" in later:
+            self._accepted = None
+            self._metrics.pop("coarse", None)
+        if "fine" in later:
+            self._fine = None
+            self._metrics.pop("fine", None)
+        for name in later:
+            self._step_params.pop(name, None)
+            self._timings.pop(name, None)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def has_scans(self) -> bool:
+        """True when both target and source are loaded."""
+        return all(self._clouds[r] is not None for r in jobs.ROLES)
+
+    def analysis(self, role: str) -> Any:
+        """The ScanAnalysis of ``role`` (separation, then skeleton), or None."""
+        return self._analyses[role]
+
+    @property
+    def matches(self) -> tuple:
+        """Ranked candidates (best first); empty before matching."""
+        return () if self._matches is None else tuple(self._matches.candidates)
+
+    @property
+    def match_result(self) -> Any:
+        """The MatchResult, or None."""
+        return self._matches
+
+    @property
+    def rejected(self) -> frozenset[int]:
+        """Ids of the candidates the user rejected."""
+        return self._rejected
+
+    @property
+    def selected_match(self) -> Any:
+        """The Candidate shown in the views, or None."""
+        return self._candidate(self._selected)
+
+    @property
+    def coarse(self) -> Any:
+        """CoarseResult from the best candidate not rejected (None if none is left)."""
+        return self._coarse_state()[0]
+
+    @property
+    def coarse_message(self) -> str:
+        """Why the coarse solution is what it is (or why there is none)."""
+        return self._coarse_state()[1]
+
+    @property
+    def accepted_coarse(self) -> Any:
+        """The CoarseResult the user accepted, or None."""
+        return self._accepted
+
+    @property
+    def fine(self) -> Any:
+        """The FineResult, or None."""
+        return self._fine
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        """CloudMetrics by stage ("coarse", "fine")."""
+        return dict(self._metrics)
+
+    @property
+    def timings(self) -> dict[str, float]:
+        """Seconds per step that ran."""
+        return dict(self._timings)
+
+    @property
+    def final_transform(self) -> np.ndarray | None:
+        """The best T_target_source so far (local frames, as the engine works):
+        fine if done, else the accepted coarse."""
+        if self._fine is not None:
+            return self._fine.T_target_source
+        if self._accepted is not None:
+            return self._accepted.T_target_source
+        return None
+
+    def world(self, T_local: np.ndarray) -> np.ndarray:
+        """A local-frame T_target_source in world coordinates (export, truth)."""
+        from amrst.pipeline import world_transform
+
+        return world_transform(T_local, self._clouds["target"], self._clouds["source"])
+
+    def is_done(self, step: str) -> bool:
+        """True when the step's result exists (stale or not)."""
+        if step == "separate":
+            return self._analyses["target"] is not None
+        if step == "skeleton":
+            an = self._analyses["target"]
+            return an is not None and an.keypoints is not None
+        if step == "match":
+            return self._matches is not None
+        if step == "coarse":
+            return self._accepted is not None
+        if step == "fine":
+            return self._fine is not None
+        return False
+
+    def is_stale(self, step: str) -> bool:
+        """True when a result exists but was computed with other parameters."""
+        if not self.is_done(step):
+            return False
+        used = self._step_params.get(step)
+        if used is None:
+            return True
+        if any(
+            getattr(used, g) != getattr(self._params, g) for g in steps.groups_for(step)
+        ):
+            return True
+        if step in ("coarse", "fine"):
+            current = self.coarse
+            accepted = self._accepted.candidate
+            if (
+                current is None
+                or accepted is None
+                or current.candidate.id != accepted.id
+            ):
+                return True
+        return step == "fine" and self.is_stale("coarse")
+
+    def plan(self, step: str) -> list[str]:
+        """Steps ``run_step(step)`` runs: the missing or stale ones, then ``step``."""
+        out: list[str] = []
+        for name in steps.STEPS[: steps.STEPS.index(step) + 1]:
+            if out or name == step or not self.is_done(name) or self.is_stale(name):
+                out.append(name)
+        return out
+
+    # --------------------------------------------------------- derived values
+    def truth_errors(self) -> dict[str, Any]:
+        """TruthErrors by stage ("coarse", "fine") when a truth file is loaded."""
+        if self._truth is None or self._clouds["source"] is None:
+            return {}
+        from amrst.stages.metrics import truth_errors
+
+        source = self._clouds["source"]
+        xyz = source.xyz[:: max(1, len(source) // _TRUTH_SAMPLE)] + source.offset
+        out = {}
+        coarse = self._accepted or self.coarse
+        if coarse is not None:
+            out["coarse"] = truth_errors(
+                self.world(coarse.T_target_source), self._truth, xyz
+            )
+        if self._fine is not None:
+            out["fine"] = truth_errors(
+                self.world(self._fine.T_target_source), self._truth, xyz
+            )
+        return out
+
+    def metrics_report(self) -> dict[str, dict]:
+        """Everything measured, as plain dicts for the export."""
+        report: dict[str, dict] = {}
+        for stage, m in self._metrics.items():
+            report[stage] = dict(m.as_dict())
+        if self._accepted is not None:
+            c = self._accepted
+            report.setdefault("coarse", {}).update(
+                confidence=float(c.confidence),
+                candidate_id=None if c.candidate is None else int(c.candidate.id),
+                rejected_ids=sorted(int(i) for i in self._rejected),
+            )
+        if self._fine is not None:
+            f = self._fine
+            report.setdefault("fine", {}).update(
+                converged=bool(f.converged),
+                iterations=int(f.iterations),
+                fitness=float(f.fitness),
+                inlier_rmse_m=float(f.inlier_rmse_m),
+                method=str(f.method),
+            )
+        for stage, err in self.truth_errors().items():
+            report.setdefault(stage, {}).update(
+                {f"truth_{k}": v for k, v in err.as_dict().items()}
+            )
+        report["timings_s"] = dict(self._timings)
+        return report
+
+    def summary(self, step: str) -> str:
+        """One line about a step's result, for the log."""
+        if step == "load":
+            return "; ".join(
+                f"{r}: {self._name(r)} ({len(self._clouds[r]):,} points)"
+                for r in jobs.ROLES
+                if self._clouds[r] is not None
+            )
+        if step == "separate":
+            return "; ".join(
+                f"{r}: {int(np.count_nonzero(a.is_wood)):,} wood "
+                f"of {len(a.is_wood):,} points"
+                for r, a in self._analyses.items()
+            )
+        if step == "skeleton":
+            return "; ".join(
+                f"{r}: {len(a.skeleton.nodes)} skeleton nodes, "
+                f"{len(a.keypoints.xyz)} key points"
+                for r, a in self._analyses.items()
+            )
+        if step == "match":
+            return f"{len(self.matches)} candidates. {self.coarse_message}"
+        if step in ("coarse", "fine") and step in self._metrics:
+            m = self._metrics[step]
+            return f"RMSE {m.rmse_m:.4f} m, overlap {m.overlap_fraction:.0%}"
+        return ""
+
+    # --------------------------------------------------------------- helpers
+    def _coarse_state(self) -> tuple[Any, str]:
+        if self._matches is None:
+            return None, "No matches yet: run Match."
+        key = (id(self._matches), self._rejected)
+        if self._coarse_cache is None or self._coarse_cache[0] != key:
+            from amrst import pipeline
+            from amrst.errors import RegistrationFailed
+
+            try:
+                coarse = pipeline.coarse_from_matches(self._matches, self._rejected)
+                value = (coarse, str(coarse.message))
+            except RegistrationFailed as exc:
+                value = (None, str(exc))
+            self._coarse_cache = (key, value)
+        return self._coarse_cache[1]
+
+    def _candidate_ids(self) -> set[int]:
+        return {int(c.id) for c in self.matches}
+
+    def _candidate(self, match_id: int | None) -> Any:
+        for c in self.matches:
+            if c.id == match_id:
+                return c
+        return None
+
+    def _describe_match(self, match_id: int) -> str:
+        c = self._candidate(match_id)
+        return f"#{c.rank} (id {c.id}, score {c.score:.2f})" if c else str(match_id)
+
+    def _name(self, role: str) -> str:
+        path = self._paths[role]
+        cloud = self._clouds[role]
+        return path.name if path else (cloud.name if cloud is not None else "-")
+
+    def _groups(self) -> list[str]:
+        return [f.name for f in dataclasses.fields(self._params)]
+
+    def _params_text(self, step: str) -> str:
+        if step not in steps.STEPS:
+            return ""
+        parts = []
+        for group in steps.own_groups(step):
+            values = getattr(self._params, group, None)
+            if values is None:
+                continue
+            fields = ", ".join(
+                f"{f.name}={getattr(values, f.name)}"
+                for f in dataclasses.fields(values)
+            )
+            parts.append(f"{group}({fields})")
+        return " with " + "; ".join(parts) if parts else ""
+
+    def _hint(self, step: str) -> str:
+        groups = steps.own_groups(step)
+        if not groups:
+            return ""
+        return (
+            f" (Try other '{', '.join(groups)}' values in the Parameters dock, "
+            "or a preset, and run the step again.)"
+        )

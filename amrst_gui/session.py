@@ -1,0 +1,406 @@
+"""Session: all state of one registration job, kept apart from the widgets.
+
+State is exposed through read-only properties holding frozen engine results;
+each change goes through a method that validates it, stores it and emits one
+signal (STYLE.md section 4). Work runs through ``workers.run_stage``; results
+are applied here, on the GUI thread. This module imports no widgets.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QObject, Signal
+
+from amrst.errors import AmrstError, Cancelled
+from amrst_gui import jobs, steps, workers
+from amrst_gui.results import ResultsMixin
+
+log = logging.getLogger("amrst_gui.session")
+
+
+class Session(ResultsMixin, QObject):
+    """One target/source pair, its parameters, results and review decisions.
+
+    Signals (all emitted on the GUI thread):
+    ``scan_loaded(role)``, ``scans_swapped()``, ``params_changed(params)``,
+    ``separation_finished()``, ``skeletons_finished()``, ``matches_changed()``,
+    ``review_changed(rejected_ids)``, ``selection_changed(match_id or None)``,
+    ``coarse_accepted(CoarseResult)``, ``fine_finished(FineResult)``,
+    ``truth_loaded(T_target_source)``, ``exported(paths)``,
+    ``step_started(step)``, ``progressed(fraction, message)``,
+    ``busy_changed(bool)``, ``failed(message)``, ``cancelled(message)``.
+    """
+
+    scan_loaded = Signal(str)
+    scans_swapped = Signal()
+    params_changed = Signal(object)
+    separation_finished = Signal()
+    skeletons_finished = Signal()
+    matches_changed = Signal()
+    review_changed = Signal(frozenset)
+    selection_changed = Signal(object)
+    coarse_accepted = Signal(object)
+    fine_finished = Signal(object)
+    truth_loaded = Signal(object)
+    exported = Signal(list)
+    step_started = Signal(str)
+    progressed = Signal(float, str)
+    busy_changed = Signal(bool)
+    failed = Signal(str)
+    cancelled = Signal(str)
+
+    def __init__(self, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        from amrst.pipeline import RegistrationParams
+
+        self._params = RegistrationParams()
+        self._paths: dict[str, Path | None] = dict.fromkeys(jobs.ROLES)
+        self._clouds: dict[str, Any] = dict.fromkeys(jobs.ROLES)
+        self._reset_results()
+        self._truth: np.ndarray | None = None
+        self._truth_path: Path | None = None
+        self._job: workers.StageJob | None = None
+        self._chain: list[str] = []
+        self._chain_dropped = False
+        self._pending_paths: dict[str, Path] = {}
+        self._closing = False
+
+    # ------------------------------------------------------------ properties
+    @property
+    def params(self) -> Any:
+        """The current RegistrationParams (frozen)."""
+        return self._params
+
+    @property
+    def busy(self) -> bool:
+        """True while a job runs."""
+        return self._job is not None
+
+    @property
+    def running_step(self) -> str | None:
+        """The step the running job computes, or None."""
+        return self._job.name if self._job is not None else None
+
+    def path(self, role: str) -> Path | None:
+        """The file the ``role`` scan was read from."""
+        return self._paths[role]
+
+    def cloud(self, role: str) -> Any:
+        """The input Cloud for ``role`` ("target" or "source"), or None."""
+        return self._clouds[role]
+
+    @property
+    def truth(self) -> np.ndarray | None:
+        """The known (4, 4) T_target_source from a truth file, or None."""
+        return self._truth
+
+    @property
+    def truth_path(self) -> Path | None:
+        """The truth file that was loaded."""
+        return self._truth_path
+
+    # --------------------------------------------------------------- changes
+    def load_scans(self, target: str | Path, source: str | Path) -> None:
+        """Read both scans in a worker; emits ``scan_loaded`` once per role."""
+        self._start_load({"target": Path(target), "source": Path(source)})
+
+    def load_scan(self, role: str, path: str | Path) -> None:
+        """Read one scan in a worker; emits ``scan_loaded(role)``."""
+        if role not in jobs.ROLES:
+            raise ValueError(f"role must be 'target' or 'source', not {role!r}")
+        self._start_load({role: Path(path)})
+
+    def swap_scans(self) -> None:
+        """Make the source the reference and vice versa; emits ``scans_swapped``."""
+        if self._refuse_if_busy("swap the scans"):
+            return
+        self._clouds = {
+            "target": self._clouds["source"],
+            "source": self._clouds["target"],
+        }
+        self._paths = {"target": self._paths["source"], "source": self._paths["target"]}
+        self._reset_results()
+        if self._truth is not None:
+            from amrst.types import invert_transform
+
+            self._truth = invert_transform(self._truth)
+        log.info("Swapped: the reference (target) is now %s", self._name("target"))
+        self.scans_swapped.emit()
+
+    def set_params(self, params: Any) -> None:
+        """Use new RegistrationParams; emits ``params_changed`` if they differ."""
+        if params == self._params:
+            return
+        changed = [
+            g for g in self._groups() if getattr(params, g) != getattr(self._params, g)
+        ]
+        self._params = params
+        log.info("Parameters changed: %s", ", ".join(changed) or "none")
+        self.params_changed.emit(params)
+
+    def select_match(self, match_id: int | None) -> None:
+        """Show one candidate in the views; emits ``selection_changed``."""
+        if match_id == self._selected:
+            return
+        if match_id is not None and match_id not in self._candidate_ids():
+            raise ValueError(f"no candidate with id {match_id}")
+        self._selected = match_id
+        self.selection_changed.emit(match_id)
+
+    def reject_match(self, match_id: int) -> None:
+        """Exclude a candidate from the coarse solution; emits ``review_changed``."""
+        if match_id in self._rejected:
+            return
+        if match_id not in self._candidate_ids():
+            raise ValueError(f"no candidate with id {match_id}")
+        self._rejected = self._rejected | {match_id}
+        log.info("Rejected match %s", self._describe_match(match_id))
+        self.review_changed.emit(self._rejected)
+
+    def restore_match(self, match_id: int) -> None:
+        """Undo a rejection; emits ``review_changed``."""
+        if match_id not in self._rejected:
+            return
+        self._rejected = self._rejected - {match_id}
+        log.info("Restored match %s", self._describe_match(match_id))
+        self.review_changed.emit(self._rejected)
+
+    def load_truth(self, path: str | Path) -> None:
+        """Read ``T_target_source`` from a truth JSON.
+
+        Emits ``truth_loaded`` or ``failed``.
+        """
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+            T = np.asarray(data["T_target_source"], dtype=np.float64)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise ValueError(f"T_target_source has shape {T.shape}, not (4, 4)")
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            self._fail(
+                f"Could not read the truth file {path.name}: {exc}. "
+                "It must be JSON with a 4x4 'T_target_source' list."
+            )
+            return
+        self._truth, self._truth_path = T, path
+        log.info("Loaded truth from %s", path)
+        self.truth_loaded.emit(T)
+
+    # ------------------------------------------------------------------ jobs
+    def run_step(self, step: str) -> None:
+        """Run ``step`` and whatever earlier step is missing or stale, in order."""
+        if self._refuse_if_busy(steps.plain_label(step)):
+            return
+        if not self.has_scans:
+            self._fail("Open a target and a source scan first (File > Open).")
+            return
+        self._chain = self.plan(step)
+        self._set_busy(True)
+        self._start_next()
+
+    def run_all(self) -> None:
+        """The automatic path: everything up to fine registration."""
+        self.run_step("fine")
+
+    def accept_coarse(self) -> None:
+        """Accept the coarse solution (best candidate not rejected) and measure it."""
+        self.run_step("coarse")
+
+    def export(
+        self, out_dir: str | Path, cloud_format: str = "ply", parts=None
+    ) -> None:
+        """Write the results with ``amrst.export``; emits ``exported(paths)``."""
+        if self._refuse_if_busy("export"):
+            return
+        T_final = self.final_transform
+        if T_final is None:
+            self._fail("Nothing to export yet: accept a coarse solution first.")
+            return
+        kwargs = {
+            "target": self._clouds["target"],
+            "source": self._clouds["source"],
+            # The engine works between local frames; the files hold world transforms.
+            "T_target_source": self.world(T_final),
+            "T_coarse": self.world(self._accepted.T_target_source),
+            "metrics": self.metrics_report(),
+            "params": self._params,
+            "cloud_format": cloud_format,
+        }
+        if parts is not None:
+            kwargs["parts"] = tuple(parts)
+        self._chain = []
+        self._set_busy(True)
+        self._launch("export", jobs.export_pair, Path(out_dir), kwargs)
+
+    def cancel(self) -> None:
+        """Ask the running job to stop; earlier results are kept."""
+        if self._job is not None:
+            log.info("Cancelling %s", self._label(self._job.name))
+            # The running step may still finish (its result is kept); what
+            # would have followed it is dropped either way.
+            self._chain_dropped = bool(self._chain)
+            self._chain = []
+            self._job.cancel()
+
+    def shutdown(self, timeout_s: float = 60.0) -> bool:
+        """Cancel the running job and wait for the worker (window closing)."""
+        self._closing = True
+        self._chain = []
+        if self._job is not None:
+            self._job.discard()
+            self._job = None
+        return workers.wait_for_workers(timeout_s)
+
+    # ------------------------------------------------------------- internals
+    def _start_load(self, paths: dict[str, Path]) -> None:
+        if self._refuse_if_busy("open scans"):
+            return
+        for path in paths.values():
+            if not path.is_file():
+                self._fail(f"The file {path} does not exist.")
+                return
+        self._chain = []
+        self._pending_paths = dict(paths)
+        self._set_busy(True)
+        self._launch("load", jobs.load_pair, paths)
+
+    def _start_next(self) -> None:
+        step = self._chain.pop(0)
+        p, an = self._params, self._analyses
+        if step == "separate":
+            self._launch(step, jobs.separate_pair, dict(self._clouds), p)
+        elif step == "skeleton":
+            self._launch(step, jobs.skeletonise_pair, dict(an), p)
+        elif step == "match":
+            self._launch(step, jobs.match_pair, dict(an), p)
+        elif step == "coarse":
+            coarse = self.coarse
+            if coarse is None:
+                self._chain = []
+                self._set_busy(False)
+                self._fail(f"No coarse solution to accept: {self.coarse_message}")
+                return
+            self._launch(step, jobs.evaluate_coarse, dict(an), coarse, p)
+        elif step == "fine":
+            self._launch(
+                step, jobs.refine_pair, dict(an), self._accepted.T_target_source, p
+            )
+
+    def _launch(self, step: str, fn, *args) -> None:
+        log.info("%s: started%s", self._label(step), self._params_text(step))
+        self._job = workers.run_stage(
+            fn,
+            *args,
+            name=step,
+            on_result=lambda payload: self._on_job_returned(step, payload),
+            on_error=lambda exc: self._on_job_errored(step, exc),
+            on_progress=self.progressed.emit,
+        )
+        self.step_started.emit(step)
+
+    def _on_job_returned(self, step: str, payload: tuple) -> None:
+        result, seconds = payload
+        self._job = None
+        self._timings[step] = seconds
+        emit = self._apply(step, result)
+        log.info(
+            "%s: finished in %.2f s. %s", self._label(step), seconds, self.summary(step)
+        )
+        if self._chain:
+            emit()
+            self._start_next()
+            return
+        self._set_busy(False)
+        emit()
+        if self._chain_dropped:
+            self._chain_dropped = False
+            message = (
+                f"Stopped after {self._label(step)}; the later steps were cancelled."
+            )
+            log.warning(message)
+            self.cancelled.emit(message)
+
+    def _on_job_errored(self, step: str, exc: BaseException) -> None:
+        self._job = None
+        self._chain = []
+        self._chain_dropped = False
+        self._set_busy(False)
+        label = self._label(step)
+        if isinstance(exc, Cancelled):
+            log.warning("%s cancelled; earlier results are kept.", label)
+            self.cancelled.emit(f"{label} cancelled; earlier results are kept.")
+            return
+        if isinstance(exc, AmrstError):
+            hint = self._hint(step)
+            self._fail(f"{label} failed: {exc}{hint}")
+        else:
+            log.error(
+                "Unexpected error in %s:\n%s",
+                label,
+                getattr(exc, "__traceback_text__", repr(exc)),
+            )
+            self._fail(
+                f"{label} failed with an unexpected error: {type(exc).__name__}: {exc}"
+            )
+
+    def _apply(self, step: str, result: Any):
+        """Store a step's result and clear what was built on the old one.
+
+        Returns the function that emits the step's signal.
+        """
+        if step == "load":
+            for role, cloud in result.items():
+                self._clouds[role] = cloud
+                self._paths[role] = self._pending_paths[role]
+            self._reset_results()
+            roles = list(result)
+            return lambda: [self.scan_loaded.emit(r) for r in roles]
+        if step == "export":
+            return lambda: self.exported.emit(result)
+        self._clear_after(step)
+        self._step_params[step] = self._params
+        if step in ("separate", "skeleton"):
+            self._analyses = result
+            sig = (
+                self.separation_finished
+                if step == "separate"
+                else self.skeletons_finished
+            )
+            return sig.emit
+        if step == "match":
+            self._matches = result
+            self._rejected = frozenset()
+            cands = result.candidates
+            self._selected = cands[0].id if cands else None
+            return self.matches_changed.emit
+        if step == "coarse":
+            self._accepted, self._metrics["coarse"] = result
+            return lambda: self.coarse_accepted.emit(self._accepted)
+        self._fine, self._metrics["fine"] = result
+        return lambda: self.fine_finished.emit(self._fine)
+
+    @staticmethod
+    def _label(step: str) -> str:
+        return steps.plain_label(step) if step in steps.LABELS else step
+
+    def _set_busy(self, busy: bool) -> None:
+        if not self._closing:
+            self.busy_changed.emit(busy)
+
+    def _refuse_if_busy(self, what: str) -> bool:
+        if self._job is None:
+            return False
+        self._fail(
+            f"Cannot {what} while {self._label(self._job.name)} runs; "
+            "wait or cancel it first."
+        )
+        return True
+
+    def _fail(self, message: str) -> None:
+        log.error(message)
+        self.failed.emit(message)

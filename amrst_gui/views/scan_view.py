@@ -1,0 +1,156 @@
+"""ScanView: one QtInteractor that draws a Scene, and nothing else."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyvista as pv
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import QVBoxLayout, QWidget
+from pyvistaqt import QtInteractor
+
+from amrst_gui.views.layers import (
+    LinesLayer,
+    PointsLayer,
+    Scene,
+    SpheresLayer,
+    TextLayer,
+)
+
+BACKGROUND = (0.12, 0.13, 0.15)
+
+
+def _lines_polydata(nodes: np.ndarray, edges: np.ndarray) -> pv.PolyData:
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
+    return pv.PolyData(np.asarray(nodes, np.float32), lines=cells)
+
+
+class ScanView(QWidget):
+    """A 3D view: ``update_scene(scene)`` makes its actors match the scene.
+
+    Listens to no session signal (its pane calls ``update_scene``); emits
+    ``camera_moved()`` when the user ends a rotate/pan/zoom, for linked cameras.
+    Every actor is named after its layer, so an update replaces, never piles up.
+    """
+
+    camera_moved = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        # auto_update=False: a closed window's timer froze the others (pyvistaqt#762).
+        self.plotter = QtInteractor(self, auto_update=False)
+        # QtInteractor would add a dropped file to its scene; the pane handles drops.
+        self.plotter.setAcceptDrops(False)
+        self.plotter.set_background(BACKGROUND)
+        layout.addWidget(self.plotter)
+        self._keys: dict[str, tuple] = {}
+        self._frame_key: tuple | None = None
+        self._scene: Scene | None = None
+        self._closed = False
+        if self.plotter.iren is not None:
+            self.plotter.iren.add_observer(
+                "EndInteractionEvent", self._on_interaction_ended
+            )
+
+    @property
+    def scene(self) -> Scene | None:
+        """The scene drawn last."""
+        return self._scene
+
+    def actor_names(self) -> set[str]:
+        """Names of the layers currently drawn."""
+        return set(self._keys)
+
+    def update_scene(self, scene: Scene) -> None:
+        """Draw ``scene``: add changed layers, drop missing ones, then render once."""
+        if self._closed or scene is self._scene:
+            return
+        wanted = scene.names()
+        for name in [n for n in self._keys if n not in wanted]:
+            self.plotter.remove_actor(name, render=False)
+            del self._keys[name]
+        for layer in scene.layers:
+            if self._keys.get(layer.name) == layer.key:
+                continue
+            self._draw(layer)
+            self._keys[layer.name] = layer.key
+        if scene.frame_key != self._frame_key:
+            self._frame_key = scene.frame_key
+            self.reset_camera(render=False)
+        self._scene = scene
+        self.plotter.render()
+
+    def reset_camera(self, render: bool = True) -> None:
+        """Look at the tree from the side (z up), the way it stands in the field."""
+        if self._closed:
+            return
+        self.plotter.view_xz(render=False)
+        self.plotter.camera.elevation = 15
+        self.plotter.reset_camera(render=False)
+        self.plotter.camera.zoom(1.3)  # the bounding sphere leaves wide margins
+        if render:
+            self.plotter.render()
+
+    def close_view(self) -> None:
+        """Close the plotter (before the widget goes; pyvistaqt#846)."""
+        if not self._closed:
+            self._closed = True
+            self.plotter.close()
+
+    def _draw(self, layer) -> None:
+        p = self.plotter
+        if isinstance(layer, PointsLayer):
+            poly = pv.PolyData(np.asarray(layer.xyz, np.float32))
+            poly["rgb"] = layer.rgb
+            p.add_mesh(
+                poly,
+                scalars="rgb",
+                rgb=True,
+                style="points",
+                point_size=layer.point_size,
+                name=layer.name,
+                reset_camera=False,
+                render=False,
+                pickable=False,
+            )
+        elif isinstance(layer, LinesLayer):
+            poly = _lines_polydata(layer.nodes, layer.edges)
+            p.add_mesh(
+                poly,
+                color=layer.color,
+                line_width=layer.width,
+                name=layer.name,
+                reset_camera=False,
+                render=False,
+                pickable=False,
+            )
+        elif isinstance(layer, SpheresLayer):
+            centers = pv.PolyData(np.asarray(layer.centers, np.float32))
+            centers["rgb"] = layer.rgb
+            sphere = pv.Sphere(
+                radius=layer.radius, theta_resolution=12, phi_resolution=8
+            )
+            glyphs = centers.glyph(geom=sphere, scale=False, orient=False)
+            p.add_mesh(
+                glyphs,
+                scalars="rgb",
+                rgb=True,
+                name=layer.name,
+                reset_camera=False,
+                render=False,
+                pickable=False,
+            )
+        elif isinstance(layer, TextLayer):
+            p.add_text(
+                layer.text,
+                position=layer.position,
+                font_size=9,
+                color="white",
+                name=layer.name,
+                render=False,
+            )
+
+    def _on_interaction_ended(self, *_args) -> None:
+        self.camera_moved.emit()

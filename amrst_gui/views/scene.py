@@ -1,0 +1,237 @@
+"""Build what the views draw from the session's results. Pure numpy, no Qt.
+
+Clouds are decimated here for display only (``MAX_DISPLAY_POINTS`` per view);
+every computation in the engine uses all points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from amrst_gui.views.layers import (
+    LinesLayer,
+    PointsLayer,
+    Ref,
+    Scene,
+    SpheresLayer,
+    TextLayer,
+)
+
+MAX_DISPLAY_POINTS = 200_000
+
+WOOD_RGB = (139, 90, 43)  # brown, as in the paper's figures
+LEAF_RGB = (70, 170, 60)  # green
+KIND_RGB = {"root": (255, 255, 255), "branch": (255, 150, 30), "end": (170, 190, 225)}
+# One colour per tetrahedron vertex, the same in both views (vertex i <-> vertex i).
+MATCH_RGB = np.array(
+    [(230, 25, 75), (255, 225, 25), (240, 50, 230), (70, 240, 240)], np.uint8
+)
+TETRA_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+TARGET_RGB = (240, 170, 40)  # registration view: target amber, source blue
+SOURCE_RGB = (60, 150, 255)
+COLOUR_MODES = ("height", "intensity", "wood")
+REGISTRATION_STAGES = ("before", "coarse", "fine")
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """Display choices of one scan view (never used by the engine)."""
+
+    show_points: bool = True
+    colour: str = "height"  # one of COLOUR_MODES
+    show_skeleton: bool = True
+    show_keypoints: bool = True
+    show_match: bool = True
+    max_points: int = MAX_DISPLAY_POINTS
+
+
+def display_index(n: int, max_points: int) -> slice:
+    """Which of ``n`` points to draw: all, or an even stride down to ``max_points``."""
+    step = max(1, -(-n // max(1, max_points)))
+    return slice(None, None, step)
+
+
+def height_rgb(xyz: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colours by height (viridis)."""
+    from matplotlib import colormaps
+
+    z = xyz[:, 2]
+    lo, hi = (z.min(), z.max()) if len(z) else (0.0, 1.0)
+    t = np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)
+    return (colormaps["viridis"](t)[:, :3] * 255).astype(np.uint8)
+
+
+def intensity_rgb(values: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 grey levels from intensity, stretched between percentiles 2-98."""
+    v = np.asarray(values, dtype=np.float64)
+    lo, hi = np.percentile(v, [2, 98]) if len(v) else (0.0, 1.0)
+    grey = 60 + 195 * np.clip((v - lo) / max(hi - lo, 1e-12), 0, 1)
+    return np.repeat(grey.astype(np.uint8)[:, None], 3, axis=1)
+
+
+def _marker_radius(xyz: np.ndarray) -> float:
+    if len(xyz) == 0:
+        return 0.05
+    extent = np.ptp(xyz[:: max(1, len(xyz) // 5000)], axis=0)
+    return float(max(np.linalg.norm(extent) * 0.006, 0.01))
+
+
+def _title(session, role: str, cloud) -> str:
+    label = "Target (reference)" if role == "target" else "Source (moved)"
+    path = session.path(role)
+    name = path.name if path else cloud.name
+    lines = [f"{label}: {name}, {len(cloud):,} points"]
+    an = session.analysis(role)
+    if an is not None:
+        wood = float(np.mean(an.is_wood)) if len(an.is_wood) else 0.0
+        text = f"wood {wood:.0%} of {len(an.is_wood):,} processed points"
+        if an.skeleton is not None and an.keypoints is not None:
+            n_nodes, n_kp = len(an.skeleton.nodes), len(an.keypoints.xyz)
+            text += f" | {n_nodes} skeleton nodes, {n_kp} key points"
+        lines.append(text)
+    cand = session.selected_match
+    if cand is not None:
+        state = "rejected" if cand.id in session.rejected else "candidate"
+        lines.append(f"match #{cand.rank} ({state}, score {cand.score:.2f})")
+    return "\n".join(lines)
+
+
+def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
+    """Layers of one scan view: points, skeleton, key points, the selected match."""
+    cloud = session.cloud(role)
+    if cloud is None:
+        label = "Target (reference)" if role == "target" else "Source"
+        text = f"{label}: no scan yet.\nOpen one (File menu) or drop a file here."
+        return Scene(frame_key=(role, None), layers=(TextLayer("title", text),))
+    an = session.analysis(role)
+    layers: list = []
+    if options.show_points:
+        layers.append(_points_layer(cloud, an, options))
+    radius = _marker_radius(cloud.xyz)
+    skel = None if an is None else an.skeleton
+    kp = None if an is None else an.keypoints
+    if options.show_skeleton and skel is not None and len(skel.edges):
+        layers.append(
+            LinesLayer(
+                "skeleton",
+                (Ref(skel),),
+                np.asarray(skel.nodes, np.float32),
+                np.asarray(skel.edges),
+            )
+        )
+    if options.show_keypoints and kp is not None and len(kp.xyz):
+        rgb = np.array(
+            [KIND_RGB.get(str(k), (200, 200, 200)) for k in kp.kind], np.uint8
+        )
+        layers.append(SpheresLayer("keypoints", (Ref(kp),), kp.xyz, rgb, radius))
+    cand = session.selected_match
+    if options.show_match and cand is not None and kp is not None:
+        idx = np.asarray(cand.target_idx if role == "target" else cand.source_idx)
+        verts = np.asarray(kp.xyz, np.float32)[idx]
+        rejected = cand.id in session.rejected
+        key = (Ref(kp), int(cand.id), rejected)
+        layers.append(
+            SpheresLayer("match_vertices", key, verts, MATCH_RGB, radius * 2.2)
+        )
+        colour = (120, 120, 120) if rejected else (255, 255, 255)
+        layers.append(LinesLayer("match_edges", key, verts, TETRA_EDGES, colour, 4.0))
+    layers.append(TextLayer("title", _title(session, role, cloud)))
+    sub = cloud.xyz[display_index(len(cloud), 5000)]
+    return Scene(
+        frame_key=(role, Ref(cloud)), layers=tuple(layers), center=sub.mean(axis=0)
+    )
+
+
+def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
+    mode = options.colour
+    if mode == "wood" and an is not None:
+        sl = display_index(len(an.xyz), options.max_points)
+        xyz = np.asarray(an.xyz[sl], np.float32)
+        wood = np.asarray(an.is_wood[sl], bool)
+        rgb = np.where(wood[:, None], np.uint8(WOOD_RGB), np.uint8(LEAF_RGB)).astype(
+            np.uint8
+        )
+        return PointsLayer("points", ("wood", Ref(an), options.max_points), xyz, rgb)
+    sl = display_index(len(cloud), options.max_points)
+    xyz = cloud.xyz[sl]
+    intensity = cloud.intensity
+    if mode == "intensity" and intensity is not None:
+        rgb = intensity_rgb(intensity[sl])
+    else:
+        mode = "height"
+        rgb = height_rgb(xyz)
+    return PointsLayer(
+        "points", (mode, Ref(cloud), options.max_points), xyz.astype(np.float32), rgb
+    )
+
+
+def moved_local(T_target_source: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """Source local points (N, 3) mapped into the target's local frame.
+
+    The session's transforms are between local frames (as the engine computes
+    them), so georeferenced scans never form large world coordinates here.
+    """
+    return xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
+
+
+def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]:
+    """The T_target_source shown for ``stage`` and a caption describing it."""
+    if stage == "before":
+        # As scanned: world coordinates, i.e. the offsets' difference in local terms.
+        T = np.eye(4)
+        T[:3, 3] = session.cloud("source").offset - session.cloud("target").offset
+        return T, "Before registration (source as scanned)"
+    if stage == "coarse":
+        accepted = session.accepted_coarse
+        if accepted is not None:
+            return accepted.T_target_source, "After coarse registration (accepted)"
+        coarse = session.coarse
+        if coarse is not None:
+            return (
+                coarse.T_target_source,
+                "After coarse registration (proposed, not accepted)",
+            )
+        return None, f"No coarse solution yet. {session.coarse_message}"
+    fine = session.fine
+    if fine is not None:
+        return fine.T_target_source, f"After fine registration ({fine.method})"
+    return None, "No fine registration yet: accept a coarse solution, then run Fine."
+
+
+def build_registration_scene(
+    session, stage: str, max_points: int = MAX_DISPLAY_POINTS
+) -> Scene:
+    """Target and moved source overlaid in two colours."""
+    target, source = session.cloud("target"), session.cloud("source")
+    if target is None or source is None:
+        text = "Registration: open a target and a source scan."
+        return Scene(
+            frame_key=("registration", None), layers=(TextLayer("title", text),)
+        )
+    T, caption = registration_transform(session, stage)
+    half = max(1, max_points // 2)
+    t_xyz = target.xyz[display_index(len(target), half)].astype(np.float32)
+    layers = [
+        PointsLayer(
+            "target_points",
+            ("target", Ref(target), half),
+            t_xyz,
+            np.tile(np.uint8(TARGET_RGB), (len(t_xyz), 1)),
+        )
+    ]
+    if T is not None:
+        s_xyz = moved_local(T, source.xyz[display_index(len(source), half)]).astype(
+            np.float32
+        )
+        key = ("source", Ref(source), half, T.tobytes())
+        rgb = np.tile(np.uint8(SOURCE_RGB), (len(s_xyz), 1))
+        layers.append(PointsLayer("source_points", key, s_xyz, rgb))
+    legend = "amber: target (reference)   blue: source"
+    layers.append(TextLayer("title", f"{caption}\n{legend}"))
+    return Scene(
+        frame_key=("registration", Ref(target)),
+        layers=tuple(layers),
+        center=t_xyz.mean(axis=0) if len(t_xyz) else np.zeros(3),
+    )

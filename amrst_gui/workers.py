@@ -1,0 +1,162 @@
+"""The one place that runs work off the GUI thread (STYLE.md section 4).
+
+``run_stage(fn, *args, on_result=..., on_progress=..., on_error=...)`` calls
+``fn(*args, reporter)`` in superqt's thread pool and returns a :class:`StageJob`.
+The reporter is an :class:`amrst.progress.EventReporter`: ``cancel()`` sets its
+``threading.Event`` and the engine raises ``Cancelled`` at its next check point.
+
+Every callback runs on the GUI thread: the worker's signals are relayed through a
+``StageJob`` (a QObject created on the GUI thread) with explicit queued
+connections, so no widget, plotter or session is ever touched from a worker.
+"""
+
+from __future__ import annotations
+
+import logging
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+from PySide6.QtCore import QObject, Qt, QThreadPool, Signal, Slot
+from superqt.utils import WorkerBase, create_worker
+
+from amrst.progress import EventReporter
+
+log = logging.getLogger("amrst_gui.workers")
+
+
+class StageJob(QObject):
+    """A running stage: progress, result and error arrive as GUI-thread signals.
+
+    Emits ``progressed(float, str)``, ``returned(object)``, ``errored(object)``
+    (the exception; its ``__traceback_text__`` attribute holds the worker
+    traceback) and ``finished()`` once, after either of the two.
+    """
+
+    progressed = Signal(float, str)
+    returned = Signal(object)
+    errored = Signal(object)
+    finished = Signal()
+    _progress_from_worker = Signal(float, str)
+
+    def __init__(self, name: str, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.name = name
+        self.reporter = EventReporter(on_progress=self._progress_from_worker.emit)
+        self._worker: WorkerBase | None = None
+        self._done = False
+        self._discarded = False
+        # Emitted from the worker thread, delivered on this object's (GUI) thread.
+        self._progress_from_worker.connect(self._relay_progress, Qt.QueuedConnection)
+
+    @property
+    def done(self) -> bool:
+        """True once the work returned or raised."""
+        return self._done
+
+    @property
+    def cancel_requested(self) -> bool:
+        """True once :meth:`cancel` was called."""
+        return self.reporter.cancelled
+
+    def cancel(self) -> None:
+        """Ask the stage to stop at its next check point (does not wait)."""
+        self.reporter.cancel()
+
+    def discard(self) -> None:
+        """Cancel, and drop every signal still on its way (used when closing)."""
+        self._discarded = True
+        self.cancel()
+
+    def _start(self, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
+        def work() -> Any:
+            try:
+                return fn(*args, self.reporter, **kwargs)
+            except BaseException as exc:
+                # Keep the worker traceback for the log; the exception crosses threads.
+                exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
+                raise
+
+        worker = create_worker(work, _start_thread=False, _ignore_errors=True)
+        worker.returned.connect(self._relay_returned, Qt.QueuedConnection)
+        worker.errored.connect(self._relay_errored, Qt.QueuedConnection)
+        worker.warned.connect(self._relay_warned, Qt.QueuedConnection)
+        self._worker = worker
+        worker.start()
+
+    @Slot(float, str)
+    def _relay_progress(self, fraction: float, message: str) -> None:
+        if not (self._discarded or self._done):
+            self.progressed.emit(fraction, message)
+
+    @Slot(object)
+    def _relay_returned(self, result: object) -> None:
+        self._finish(self.returned, result)
+
+    @Slot(object)
+    def _relay_errored(self, exc: object) -> None:
+        self._finish(self.errored, exc)
+
+    @Slot(tuple)
+    def _relay_warned(self, warning: tuple) -> None:
+        message, category = warning[0], warning[1]
+        log.warning("%s: %s: %s", self.name, category.__name__, message)
+
+    def _finish(self, signal: Any, value: object) -> None:
+        if self._done:
+            return
+        self._done = True
+        self._worker = None
+        if self._discarded:
+            return
+        signal.emit(value)
+        self.finished.emit()
+
+
+def run_stage(
+    fn: Callable[..., Any],
+    *args: Any,
+    name: str = "",
+    on_result: Callable[[Any], None] | None = None,
+    on_progress: Callable[[float, str], None] | None = None,
+    on_error: Callable[[BaseException], None] | None = None,
+    on_finished: Callable[[], None] | None = None,
+    **kwargs: Any,
+) -> StageJob:
+    """Run ``fn(*args, reporter, **kwargs)`` in a worker thread.
+
+    Parameters
+    ----------
+    fn : callable
+        An engine function; its last positional argument is the reporter.
+    name : str
+        A label for log messages.
+    on_result, on_progress, on_error, on_finished : callables
+        Called on the GUI thread with the return value, ``(fraction, message)``,
+        the exception, and nothing, respectively.
+
+    Returns
+    -------
+    StageJob
+        ``cancel()`` asks the work to stop; signals carry the outcome.
+    """
+    job = StageJob(name or getattr(fn, "__name__", "stage"))
+    if on_progress is not None:
+        job.progressed.connect(on_progress)
+    if on_result is not None:
+        job.returned.connect(on_result)
+    if on_error is not None:
+        job.errored.connect(on_error)
+    if on_finished is not None:
+        job.finished.connect(on_finished)
+    job._start(fn, args, kwargs)
+    return job
+
+
+def wait_for_workers(timeout_s: float = 60.0) -> bool:
+    """Block until every worker thread has returned; True if they all did in time.
+
+    Used when the window closes: cancel first, then wait (napari's pattern), so
+    no worker outlives the widgets its results were meant for.
+    """
+    return QThreadPool.globalInstance().waitForDone(int(timeout_s * 1000))

@@ -1,0 +1,141 @@
+"""Fixtures for the app tests: Qt set up before QApplication, isolated settings,
+a ``make_main_window`` factory that closes every view and checks for leaks.
+
+Run headless with pytest-xvfb and ``QT_QPA_PLATFORM=xcb`` (the only platform on
+which the QtInteractors draw; see shared/notes/headless-gui-testing.md).
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+from pathlib import Path
+
+os.environ.setdefault("QT_API", "pyside6")
+os.environ.setdefault("LIBGL_ALWAYS_SOFTWARE", "1")
+
+import numpy as np
+import pytest
+
+from amrst_gui.app import configure_qt, sample_dir
+
+# Shared GL contexts and the GL format must be set before pytest-qt makes the app.
+configure_qt()
+
+
+def pytest_collection_modifyitems(items) -> None:
+    here = Path(__file__).parent
+    for item in items:
+        if here in Path(item.fspath).parents:
+            item.add_marker(pytest.mark.gui)
+
+
+@pytest.fixture(autouse=True)
+def _isolated_settings(tmp_path):
+    """Every test gets its own QSettings folder (never the user's)."""
+    from PySide6.QtCore import QSettings
+
+    QSettings.setPath(
+        QSettings.IniFormat, QSettings.UserScope, str(tmp_path / "settings")
+    )
+
+
+@pytest.fixture(scope="session")
+def sample_pair():
+    """The bundled sample: (target, source, truth) paths from resources/sample."""
+    folder = sample_dir()
+    paths = tuple(folder / n for n in ("target.ply", "source.ply", "truth.json"))
+    missing = [p.name for p in paths if not p.is_file()]
+    assert not missing, f"bundled sample incomplete in {folder}: missing {missing}"
+    return paths
+
+
+def _close_views(win) -> None:
+    for view in win.views():
+        view.close_view()
+
+
+def _open_interactors() -> list:
+    from pyvistaqt import QtInteractor
+
+    gc.collect()
+    return [
+        o
+        for o in gc.get_objects()
+        if isinstance(o, QtInteractor) and not getattr(o, "_closed", True)
+    ]
+
+
+@pytest.fixture
+def make_main_window(qtbot, qapp):
+    """Factory: ``make_main_window()`` -> a shown MainWindow registered with qtbot.
+
+    At teardown every window is closed (which cancels and waits for a running
+    step and closes the plotters first, pyvistaqt#846), then nothing may be
+    left: no running job, no open QtInteractor, no new visible top-level widget.
+    """
+    from amrst_gui.main_window import MainWindow
+
+    before = set(qapp.topLevelWidgets())
+    windows = []
+
+    def factory(**kwargs) -> MainWindow:
+        win = MainWindow(**kwargs)
+        qtbot.addWidget(win, before_close_func=_close_views)
+        win.show()
+        qtbot.waitExposed(win)
+        windows.append(win)
+        return win
+
+    yield factory
+
+    for win in windows:
+        win.close()
+    for win in windows:
+        assert not win.session.busy
+        assert all(view._closed for view in win.views())
+    leaked = [w for w in qapp.topLevelWidgets() if w.isVisible() and w not in before]
+    assert not leaked, f"widgets left open: {leaked}"
+    assert not _open_interactors(), "a QtInteractor was not closed"
+
+
+@pytest.fixture
+def loaded_window(make_main_window, qtbot, sample_pair):
+    """A main window with the sample pair loaded (and its truth)."""
+    win = make_main_window()
+    target, source, truth = sample_pair
+    with qtbot.waitSignals([win.session.scan_loaded] * 2, timeout=20_000):
+        win.open_pair(target, source, truth)
+    qtbot.waitUntil(lambda: not win.session.busy, timeout=5_000)
+    return win
+
+
+@pytest.fixture
+def errors(qtbot):
+    """Collects ``session.failed`` messages: ``errors.watch(session)``; assert on it."""
+
+    class Errors(list):
+        def watch(self, session):
+            session.failed.connect(self.append)
+            return self
+
+    return Errors()
+
+
+@pytest.fixture
+def content_fraction():
+    """``content_fraction(widget)``: share of its pixels unlike the 3D background."""
+    return _content_fraction
+
+
+def _content_fraction(widget, background=(31, 33, 38), tol: int = 12) -> float:
+    from PySide6.QtGui import QImage
+
+    image = widget.grab().toImage().convertToFormat(QImage.Format_RGB888)
+    w, h, stride = image.width(), image.height(), image.bytesPerLine()
+    buf = np.frombuffer(image.constBits(), np.uint8, count=stride * h).reshape(
+        h, stride
+    )
+    rgb = buf[:, : w * 3].reshape(h, w, 3).astype(int)
+    differs = np.abs(rgb - np.array(background)).max(axis=2) > tol
+    return float(differs.mean())
