@@ -1,0 +1,1 @@
+"""Benchmark: every method on every case, interleaved, with paper metrics and plots."""

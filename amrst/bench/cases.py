@@ -1,0 +1,190 @@
+"""The registration case format: a folder with target.ply, source.ply and truth.json.
+
+``truth.json`` holds ``T_target_source`` (4x4, row-major nested lists) mapping source
+coordinates into the target frame; simulated cases add ``spec_target``,
+``spec_source``, ``tree``, ``seed``, ``n_target``, ``n_source`` and ``shared_fraction``.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.types import Cloud, Transform
+
+if TYPE_CHECKING:
+    from amrst.simulate import SimulatedPair
+
+PathLike = str | os.PathLike[str]
+
+
+@dataclass(frozen=True, eq=False)
+class Case:
+    """One registration case read from disk.
+
+    Attributes
+    ----------
+    name : str
+        The folder name.
+    target, source : Cloud
+    T_target_source : (4, 4) float64
+        The true transform.
+    truth : dict
+        Everything in ``truth.json``.
+    """
+
+    name: str
+    target: Cloud
+    source: Cloud
+    T_target_source: Transform
+    truth: dict[str, Any] = field(default_factory=dict)
+
+
+def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
+    """Case folders under ``cases_dir`` (those holding a truth.json), sorted by name.
+
+    Parameters
+    ----------
+    cases_dir : path
+    pattern : str or None
+        Shell pattern on the folder name (``fnmatch``), e.g. ``"*normal*"``.
+
+    Returns
+    -------
+    list of Path
+
+    Raises
+    ------
+    InvalidInput
+        If ``cases_dir`` is not a folder.
+    """
+    root = Path(cases_dir)
+    if not root.is_dir():
+        raise InvalidInput(f"{root} is not a folder of cases.")
+    found = sorted(p.parent for p in root.glob("*/truth.json"))
+    if (root / "truth.json").is_file():
+        found.insert(0, root)
+    if pattern:
+        found = [p for p in found if fnmatch.fnmatch(p.name, pattern)]
+    return found
+
+
+def read_case(path: PathLike) -> Case:
+    """Read one case folder.
+
+    Parameters
+    ----------
+    path : path
+        Folder with ``target.ply``, ``source.ply`` and ``truth.json``.
+
+    Returns
+    -------
+    Case
+
+    Raises
+    ------
+    InvalidInput
+        If a file is missing or ``T_target_source`` is not a 4x4 matrix.
+    """
+    from amrst import io
+
+    folder = Path(path)
+    truth_path = folder / "truth.json"
+    if not truth_path.is_file():
+        raise InvalidInput(f"{folder} has no truth.json; it is not a case folder.")
+    truth = json.loads(truth_path.read_text(encoding="utf-8"))
+    T = np.asarray(truth.get("T_target_source"), dtype=float)
+    if T.shape != (4, 4):
+        raise InvalidInput(f"{truth_path}: T_target_source must be a 4x4 matrix.")
+    return Case(
+        folder.name,
+        io.read(folder / "target.ply"),
+        io.read(folder / "source.ply"),
+        T,
+        truth,
+    )
+
+
+def truth_dict(
+    pair: SimulatedPair, tree_name: str, seed: int | None = None
+) -> dict[str, Any]:
+    """The ``truth.json`` content of a simulated pair (the shared cases' keys).
+
+    Parameters
+    ----------
+    pair : SimulatedPair
+    tree_name : str
+        File name of the tree the pair was made from.
+    seed : int or None
+        The seed given to :func:`amrst.simulate.simulate_pair`.
+
+    Returns
+    -------
+    dict
+    """
+    return {
+        "T_target_source": np.asarray(pair.T_target_source, dtype=float).tolist(),
+        "spec_target": dict(pair.spec_target),
+        "spec_source": dict(pair.spec_source),
+        "tree": tree_name,
+        "seed": seed,
+        "n_target": len(pair.target),
+        "n_source": len(pair.source),
+        "shared_fraction": pair.shared_fraction,
+    }
+
+
+def write_json_atomic(path: PathLike, data: Any) -> None:
+    """Write ``data`` as indented JSON through a temp file and ``os.replace``."""
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}-")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1)
+            fh.write("\n")
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_case(
+    pair: SimulatedPair,
+    out_dir: PathLike,
+    tree_name: str,
+    seed: int | None = None,
+) -> Path:
+    """Write ``target.ply``, ``source.ply`` and ``truth.json`` into ``out_dir``.
+
+    Parameters
+    ----------
+    pair : SimulatedPair
+    out_dir : path
+        Created if missing.
+    tree_name : str
+        Recorded as ``tree`` in ``truth.json``.
+    seed : int or None
+        Recorded as ``seed`` in ``truth.json``.
+
+    Returns
+    -------
+    Path
+        The case folder.
+    """
+    from amrst import io
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    io.write(out / "target.ply", pair.target)
+    io.write(out / "source.ply", pair.source)
+    write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed))
+    return out
