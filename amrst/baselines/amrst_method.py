@@ -1,0 +1,34 @@
+"""The AMRST engine behind the baseline interface, so the benchmark treats it alike."""
+
+from __future__ import annotations
+
+from amrst.baselines._common import MethodResult, evaluate, local_pair, to_local
+from amrst.types import Cloud
+
+
+def register_amrst(target: Cloud, source: Cloud) -> MethodResult:
+    """Run ``amrst.register`` with default parameters.
+
+    Parameters
+    ----------
+    target, source : Cloud
+
+    Returns
+    -------
+    MethodResult
+        ``extra`` holds ``confidence`` and ``T_coarse`` is not kept; timings are the
+        engine's own per-stage timings (with ``total``).
+    """
+    from amrst import register  # lazily: the engine is optional for the baselines
+
+    result = register(target, source)
+    tgt, src, origin = local_pair(target, source)
+    fitness, rmse = evaluate(tgt, src, to_local(result.T_target_source, origin))
+    timings = {str(k): float(v) for k, v in dict(result.timings).items()}
+    return MethodResult(
+        result.T_target_source,
+        timings,
+        fitness=fitness,
+        inlier_rmse_m=rmse,
+        extra={"confidence": float(result.confidence)},
+    )
