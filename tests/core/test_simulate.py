@@ -1,4 +1,4 @@
-"""The virtual scanner: exact truth, occlusion, frames, determinism and the case files."""
+"""The virtual scanner: exact truth, occlusion, frames, determinism, case files."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def tree() -> Cloud:
     crown = 1.5 * v / np.linalg.norm(v, axis=1, keepdims=True) * rng.uniform(
         0.3, 1.0, (n_crown, 1)
     ) ** (1 / 3) + [0, 0, 6.5]
-    xyz = np.vstack([trunk, crown]) + [100.0, 200.0, 50.0]
+    xyz = np.vstack([trunk, crown]) + np.array([100.0, 200.0, 50.0])
     intensity = rng.integers(0, 65535, len(xyz)).astype(np.uint16)
     return Cloud(xyz, attributes={"intensity": intensity}, name="synthetic")
 
@@ -158,7 +158,7 @@ def test_write_case_round_trip(tree: Cloud, tmp_path) -> None:
     pair = simulate_pair(tree, seed=2)
     out = write_case(pair, tmp_path / "case", "synthetic.ply", seed=2)
     truth = json.loads((out / "truth.json").read_text())
-    assert CASE_KEYS <= set(truth)
+    assert set(truth) >= CASE_KEYS
     case = read_case(out)
     np.testing.assert_allclose(case.T_target_source, pair.T_target_source)
     assert len(case.source) == truth["n_source"] == len(pair.source)
@@ -174,8 +174,18 @@ def test_cli_writes_a_case(tree: Cloud, tmp_path) -> None:
     parser = argparse.ArgumentParser()
     configure_parser(parser)
     args = parser.parse_args(
-        [str(tree_path), "--out", str(tmp_path / "c"), "--seed", "4"]
-        + ["--distance-m", "6", "8", "--separation-deg", "120"]
+        [
+            str(tree_path),
+            "--out",
+            str(tmp_path / "c"),
+            "--seed",
+            "4",
+            "--distance-m",
+            "6",
+            "8",
+            "--separation-deg",
+            "120",
+        ]
     )
     assert run_cli(args) == 0
     truth = json.loads((tmp_path / "c" / "truth.json").read_text())

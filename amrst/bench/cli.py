@@ -1,0 +1,121 @@
+"""``amrst bench``: argument parsing and a terminal progress bar on stderr."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+import time
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    import argparse
+
+
+class TerminalProgress:
+    """A one-line progress bar on a terminal stream: bar, message, elapsed time.
+
+    Implements the :class:`amrst.progress.Reporter` protocol (never cancels; Ctrl+C
+    stops the run as usual).
+
+    Parameters
+    ----------
+    stream : text stream
+        Usually ``sys.stderr``.
+    width : int
+        Characters of the bar.
+    """
+
+    def __init__(self, stream: TextIO | None = None, width: int = 24) -> None:
+        self._stream = stream if stream is not None else sys.stderr
+        self._width = width
+        self._start = time.perf_counter()
+        self._tty = bool(getattr(self._stream, "isatty", lambda: False)())
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Redraw the bar (a new line per update when the stream is not a terminal)."""
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        filled = round(fraction * self._width)
+        elapsed = int(time.perf_counter() - self._start)
+        line = (
+            f"[{'#' * filled}{'.' * (self._width - filled)}] {fraction:4.0%} "
+            f"{elapsed // 60:d}:{elapsed % 60:02d}  {message}"
+        )
+        if self._tty:
+            self._stream.write("\r\x1b[2K" + line[:160])
+            if fraction >= 1.0:
+                self._stream.write("\n")
+        else:
+            self._stream.write(line + "\n")
+        self._stream.flush()
+
+    def check_cancelled(self) -> None:
+        """Never cancels."""
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Add the ``amrst bench`` arguments to ``p``.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    """
+    from amrst.bench.run import DEFAULT_METHODS
+
+    p.add_argument("cases_dir", metavar="CASES_DIR", help="folder of case folders")
+    p.add_argument(
+        "--methods",
+        nargs="+",
+        default=list(DEFAULT_METHODS),
+        metavar="NAME",
+        help=f"methods to run (default: all: {' '.join(DEFAULT_METHODS)})",
+    )
+    p.add_argument("--out", default="bench_out", metavar="DIR", help="output folder")
+    p.add_argument("--repeat", type=int, default=1, metavar="N", help="runs per pair")
+    p.add_argument("--cases", default=None, metavar="PATTERN", help="e.g. '*normal*'")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Run the benchmark from parsed ``args``; print where the results went.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    int
+        0 when it ran (even if methods failed on cases), 2 on unusable input,
+        130 when interrupted.
+    """
+    from amrst.bench.run import run_bench
+    from amrst.errors import AmrstError
+
+    command = shlex.join(["amrst", "bench", *sys.argv[2:]]) if len(sys.argv) > 1 else ""
+    try:
+        result = run_bench(
+            args.cases_dir,
+            args.methods,
+            args.out,
+            args.repeat,
+            TerminalProgress(),
+            pattern=args.cases,
+            command=command,
+            plots=not args.no_plots,
+        )
+    except KeyboardInterrupt:
+        print(
+            "\namrst bench: interrupted; partial results are in the output folder.",
+            file=sys.stderr,
+        )
+        return 130
+    except AmrstError as exc:
+        print(f"amrst bench: {exc}", file=sys.stderr)
+        return 2
+    ok = sum(r.success for r in result.runs)
+    print(
+        f"{len(result.runs)} runs, {ok} registered; "
+        f"summary: {result.out_dir / 'summary.md'}",
+        file=sys.stderr,
+    )
+    return 0

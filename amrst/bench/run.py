@@ -1,0 +1,279 @@
+"""Run registration methods on cases, interleaved, and score them against the truth.
+
+For each case (read once) every method runs in turn; with ``repeat`` > 1 the order of
+the methods rotates from one repeat to the next, so no method always runs first (warm
+caches) or last. Only the method call is timed: the clouds are already in memory and
+scoring happens afterwards. A method that raises is recorded with its error text and
+the run goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amrst.baselines._common import Method, MethodResult, to_local
+from amrst.bench.cases import Case, find_cases, read_case
+from amrst.errors import Cancelled, InvalidInput
+from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.metrics import measure_clouds, truth_errors
+from amrst.types import apply_transform
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_METHODS = ("icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst")
+NAN = float("nan")
+
+
+@dataclass(slots=True, kw_only=True)
+class RunRecord:
+    """One method on one case (one repeat): errors, paper metrics, times."""
+
+    case: str
+    method: str
+    repeat: int
+    success: bool = False
+    rotation_error_deg: float = NAN
+    translation_error_m: float = NAN
+    gt_rmse_m: float = NAN
+    rmse_m: float = NAN
+    rmse_overlap_m: float = NAN
+    hausdorff_m: float = NAN
+    hausdorff_p95_m: float = NAN
+    overlap_fraction: float = NAN
+    time_s: float = NAN  # wall time of the method call
+    fitness: float = NAN
+    inlier_rmse_m: float = NAN
+    iterations: int | None = None
+    converged: bool | None = None
+    n_target: int = 0
+    n_source: int = 0
+    timings: dict[str, float] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+    error: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return asdict(self)
+
+
+@dataclass(frozen=True, slots=True)
+class BenchResult:
+    """What :func:`run_bench` did and wrote."""
+
+    runs: list[RunRecord]
+    cases: list[str]
+    methods: list[str]
+    out_dir: Path
+    files: list[Path]
+    meta: dict[str, Any]
+
+
+def resolve_methods(
+    methods: Sequence[str] | Mapping[str, Method] | None,
+) -> dict[str, Method]:
+    """Method callables by name: names are looked up in ``amrst.baselines.METHODS``.
+
+    Parameters
+    ----------
+    methods : sequence of str, mapping of str to Method, or None
+        None means all of ``DEFAULT_METHODS``.
+
+    Returns
+    -------
+    dict of str to Method
+
+    Raises
+    ------
+    InvalidInput
+        If a name is unknown.
+    """
+    from amrst.baselines import METHODS
+
+    if methods is None:
+        methods = DEFAULT_METHODS
+    if isinstance(methods, Mapping):
+        return dict(methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InvalidInput(
+            f"Unknown method(s) {unknown}; choose from {sorted(METHODS)}."
+        )
+    return {m: METHODS[m] for m in methods}
+
+
+def score(
+    case: Case, method: str, repeat: int, result: MethodResult, wall_s: float
+) -> RunRecord:
+    """Compare a method's result with the case truth (paper metrics and truth errors).
+
+    Parameters
+    ----------
+    case : Case
+    method : str
+    repeat : int
+    result : MethodResult
+    wall_s : float
+        Wall time of the method call (s).
+
+    Returns
+    -------
+    RunRecord
+    """
+    origin = case.target.offset
+    src = case.source.xyz + (case.source.offset - origin)
+    T_est = to_local(np.asarray(result.T_target_source, dtype=float), origin)
+    T_true = to_local(case.T_target_source, origin)
+    errors = truth_errors(T_est, T_true, src)
+    metrics = measure_clouds(case.target.xyz, apply_transform(T_est, src))
+    return RunRecord(
+        case=case.name,
+        method=method,
+        repeat=repeat,
+        success=bool(errors.registered()),
+        **errors.as_dict(),
+        **{k: v for k, v in metrics.as_dict().items() if not k.startswith("n_")},
+        time_s=wall_s,
+        fitness=float(result.fitness),
+        inlier_rmse_m=float(result.inlier_rmse_m),
+        iterations=result.iterations,
+        converged=result.converged,
+        n_target=len(case.target),
+        n_source=len(case.source),
+        timings={str(k): float(v) for k, v in result.timings.items()},
+        extra={
+            k: v for k, v in result.extra.items() if isinstance(v, (int, float, str))
+        },
+    )
+
+
+def run_one(case: Case, name: str, method: Method, repeat: int) -> RunRecord:
+    """Run and score one method on one case; an exception becomes the record's error."""
+    t0 = time.perf_counter()
+    try:
+        result = method(case.target, case.source)
+    except Cancelled:
+        raise
+    except Exception as exc:  # one failing method must not stop the benchmark
+        wall = time.perf_counter() - t0
+        logger.debug("%s on %s failed:\n%s", name, case.name, traceback.format_exc())
+        return RunRecord(
+            case=case.name,
+            method=name,
+            repeat=repeat,
+            time_s=wall,
+            n_target=len(case.target),
+            n_source=len(case.source),
+            error=f"{type(exc).__name__}: {exc}",
+        )
+    wall = time.perf_counter() - t0
+    try:
+        return score(case, name, repeat, result, wall)
+    except Exception as exc:  # e.g. a non-finite transform
+        return RunRecord(
+            case=case.name,
+            method=name,
+            repeat=repeat,
+            time_s=wall,
+            error=f"scoring: {exc}",
+        )
+
+
+def run_bench(
+    cases_dir: str | os.PathLike[str],
+    methods: Sequence[str] | Mapping[str, Method] | None = None,
+    out_dir: str | os.PathLike[str] = "bench_out",
+    repeat: int = 1,
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    pattern: str | None = None,
+    command: str = "",
+    plots: bool = True,
+) -> BenchResult:
+    """Run every method on every case, write results, summary and plots to ``out_dir``.
+
+    Parameters
+    ----------
+    cases_dir : path
+        Folder of case folders (each with target.ply, source.ply, truth.json), or one
+        case folder.
+    methods : sequence of str, mapping of str to Method, or None
+        Names from ``amrst.baselines.METHODS`` or callables by name; None runs all six.
+    out_dir : path
+        Created if missing; files are replaced atomically.
+    repeat : int
+        Runs of each method on each case; the method order rotates between repeats.
+    reporter : Reporter
+        Gets ``progress(fraction, "case i/n <case> | <method>")`` before each run and
+        is asked ``check_cancelled()`` between runs.
+    pattern : str or None
+        Shell pattern on case folder names.
+    command : str
+        The command line, recorded in the summary.
+    plots : bool
+        Also write the PNG plots.
+
+    Returns
+    -------
+    BenchResult
+
+    Raises
+    ------
+    InvalidInput
+        If there are no cases, an unknown method, or ``repeat`` < 1.
+    Cancelled
+        If the reporter asks to stop (results so far are written first).
+    """
+    from amrst.bench.report import machine_info, write_outputs
+
+    if repeat < 1:
+        raise InvalidInput("repeat must be at least 1.")
+    chosen = resolve_methods(methods)
+    names = list(chosen)
+    folders = find_cases(cases_dir, pattern)
+    if not folders:
+        raise InvalidInput(f"No case folders (with truth.json) under {cases_dir}.")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {
+        **machine_info(),
+        "command": command,
+        "cases_dir": str(cases_dir),
+        "methods": names,
+        "repeat": repeat,
+    }
+    runs: list[RunRecord] = []
+    case_names: list[str] = []
+    total = len(folders) * len(names) * repeat
+    started = time.perf_counter()
+    try:
+        for i, folder in enumerate(folders):
+            reporter.check_cancelled()
+            case = read_case(folder)
+            case_names.append(case.name)
+            for r in range(repeat):
+                order = names[r % len(names) :] + names[: r % len(names)]
+                for name in order:
+                    reporter.check_cancelled()
+                    reporter.progress(
+                        len(runs) / total,
+                        f"case {i + 1}/{len(folders)} {case.name} | {name}",
+                    )
+                    runs.append(run_one(case, name, chosen[name], r))
+            # Results so far are on disk after every case (a long run can be stopped).
+            write_outputs(out, runs, case_names, names, meta, final=False)
+    finally:
+        meta["wall_s"] = time.perf_counter() - started
+        files = write_outputs(
+            out, runs, case_names, names, meta, final=True, plots=plots
+        )
+    reporter.progress(1.0, "done")
+    return BenchResult(runs, case_names, names, out, files, meta)

@@ -1,0 +1,194 @@
+"""Benchmark: interleaved runs, a raising method is recorded, all files are written."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amrst.baselines import METHODS, MethodResult
+from amrst.bench import TerminalProgress, configure_parser, run_bench, run_cli
+from amrst.bench.cases import find_cases, read_case, write_json_atomic
+from amrst.errors import Cancelled, InvalidInput
+from amrst.types import Cloud, apply_transform, invert_transform, make_transform
+
+TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.ply"
+
+
+def _make_case(folder: Path, angle_deg: float, shift, seed: int) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    from amrst import io
+
+    tree = io.read(TINY)
+    rng = np.random.default_rng(seed)
+    R = Rotation.from_rotvec(
+        np.radians(angle_deg) * np.array([0.2, 0.3, 1.0])
+    ).as_matrix()
+    T = make_transform(R, shift)
+    folder.mkdir(parents=True)
+    src = apply_transform(invert_transform(T), tree.xyz) + rng.normal(
+        0, 0.002, tree.xyz.shape
+    )
+    io.write(folder / "target.ply", tree)
+    io.write(folder / "source.ply", Cloud(src))
+    write_json_atomic(
+        folder / "truth.json", {"T_target_source": T.tolist(), "seed": seed}
+    )
+    return T
+
+
+@pytest.fixture(scope="module")
+def cases_dir(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("cases")
+    _make_case(root / "01_small", 3.0, [0.2, -0.1, 0.05], 1)
+    _make_case(root / "02_other", 2.0, [-0.1, 0.15, 0.0], 2)
+    (root / "not_a_case").mkdir()
+    return root
+
+
+def _boom(target: Cloud, source: Cloud) -> MethodResult:
+    raise RuntimeError("kaboom on purpose")
+
+
+def _identity(target: Cloud, source: Cloud) -> MethodResult:
+    return MethodResult(np.eye(4), {"total": 0.001})
+
+
+class _Recorder:
+    def __init__(self, cancel_after: int | None = None) -> None:
+        self.messages: list[str] = []
+        self.checks = 0
+        self.cancel_after = cancel_after
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        self.messages.append(message)
+
+    def check_cancelled(self) -> None:
+        self.checks += 1
+        if self.cancel_after is not None and self.checks > self.cancel_after:
+            raise Cancelled()
+
+
+def test_cases_are_found_and_read(cases_dir: Path) -> None:
+    found = find_cases(cases_dir)
+    assert [p.name for p in found] == ["01_small", "02_other"]
+    assert [p.name for p in find_cases(cases_dir, "02*")] == ["02_other"]
+    case = read_case(found[0])
+    assert case.T_target_source.shape == (4, 4)
+    assert len(case.target) == len(case.source) == 5000
+    with pytest.raises(InvalidInput):
+        read_case(cases_dir / "not_a_case")
+
+
+def test_bench_survives_a_raising_method(cases_dir: Path, tmp_path: Path) -> None:
+    methods = {
+        "icp_centroid": METHODS["icp_centroid"],
+        "boom": _boom,
+        "amrst": _identity,
+    }
+    rec = _Recorder()
+    out = tmp_path / "out"
+    result = run_bench(cases_dir, methods, out, repeat=2, reporter=rec, command="x")
+    assert len(result.runs) == 2 * 3 * 2
+    for name in (
+        "results.csv",
+        "results.json",
+        "summary.md",
+        "accuracy.png",
+        "time.png",
+    ):
+        assert (out / name).is_file(), name
+        assert (out / name).stat().st_size > 0
+    boom = [r for r in result.runs if r.method == "boom"]
+    assert all("kaboom on purpose" in r.error and not r.success for r in boom)
+    icp = [r for r in result.runs if r.method == "icp_centroid"]
+    assert all(r.success and r.gt_rmse_m < 0.02 and not r.error for r in icp)
+    assert all(r.time_s > 0 and "total" in r.timings for r in icp)
+    # Interleaved: per case, repeat 0 runs the methods in order, repeat 1 rotates them.
+    first_case = [(r.repeat, r.method) for r in result.runs if r.case == "01_small"]
+    assert [m for rep, m in first_case if rep == 0] == ["icp_centroid", "boom", "amrst"]
+    assert [m for rep, m in first_case if rep == 1] == ["boom", "amrst", "icp_centroid"]
+    assert [r.case for r in result.runs[:6]] == ["01_small"] * 6
+    assert rec.messages[0].startswith("case 1/2 01_small")
+    summary = (out / "summary.md").read_text()
+    assert "RMSE and Hausdorff distance" in summary
+    assert "| case | icp_centroid RMSE | icp_centroid HD | boom RMSE" in summary
+    assert "| icp_centroid | 2/2 |" in summary
+    assert "| boom | 0/2 |" in summary
+    assert "kaboom on purpose" in summary
+    assert "Speed of amrst" in summary
+    assert "CPU:" in summary
+    doc = json.loads((out / "results.json").read_text())
+    assert len(doc["runs"]) == 12
+    assert doc["meta"]["repeat"] == 2
+    with (out / "results.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 12
+    assert "t_total" in rows[0]
+
+
+def test_bench_cancel_keeps_partial_results(cases_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(Cancelled):
+        run_bench(
+            cases_dir,
+            {"id": _identity},
+            out,
+            reporter=_Recorder(cancel_after=3),
+            plots=False,
+        )
+    doc = json.loads((out / "results.json").read_text())
+    assert 1 <= len(doc["runs"]) < 2
+    assert (out / "summary.md").is_file()
+
+
+def test_bench_rejects_bad_input(cases_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(InvalidInput):
+        run_bench(cases_dir, ["no_such_method"], tmp_path)
+    with pytest.raises(InvalidInput):
+        run_bench(tmp_path, ["icp"], tmp_path / "o")
+    with pytest.raises(InvalidInput):
+        run_bench(cases_dir, ["icp"], tmp_path / "o", repeat=0)
+
+
+def test_cli_hooks(cases_dir: Path, tmp_path: Path, capsys) -> None:
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    args = parser.parse_args([str(cases_dir)])
+    assert args.methods == ["icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst"]
+    assert args.out == "bench_out"
+    args = parser.parse_args(
+        [
+            str(cases_dir),
+            "--methods",
+            "icp",
+            "--out",
+            str(tmp_path / "o"),
+            "--cases",
+            "01*",
+            "--no-plots",
+        ]
+    )
+    assert run_cli(args) == 0
+    assert "summary" in capsys.readouterr().err
+    assert (tmp_path / "o" / "summary.md").is_file()
+    bad = parser.parse_args(
+        [str(cases_dir), "--methods", "nope", "--out", str(tmp_path)]
+    )
+    assert run_cli(bad) == 2
+
+
+def test_terminal_progress_writes_a_bar() -> None:
+    import io
+
+    stream = io.StringIO()
+    bar = TerminalProgress(stream, width=10)
+    bar.progress(0.5, "case 1/2 x | icp")
+    bar.check_cancelled()
+    assert "[#####.....]" in stream.getvalue()
+    assert "case 1/2 x | icp" in stream.getvalue()
