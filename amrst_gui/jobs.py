@@ -7,9 +7,12 @@ and returns ``(result, seconds)``. The session hands them to
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from amrst.progress import Reporter, SubReporter
 
@@ -115,3 +118,21 @@ def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, 
     paths = export.export_registration(out_dir, **kwargs)
     reporter.progress(1.0, f"Wrote {len(paths)} files")
     return list(paths), time.perf_counter() - start
+
+
+def read_truth(path: Path) -> np.ndarray:
+    """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong."""
+    try:
+        data = json.loads(Path(path).read_text())
+        T = np.asarray(data["T_target_source"], dtype=np.float64)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(
+            f"Could not read the truth file {Path(path).name}: {exc}. It must be "
+            "JSON with a 4x4 'T_target_source' list (row-major, source to target)."
+        ) from exc
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(
+            f"The truth file {Path(path).name} holds a {T.shape} T_target_source; "
+            "a 4x4 matrix of numbers is needed."
+        )
+    return T

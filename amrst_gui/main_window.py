@@ -6,6 +6,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QByteArray, Qt
 from PySide6.QtWidgets import (
+    QDialog,
     QDockWidget,
     QFileDialog,
     QMainWindow,
@@ -277,6 +278,8 @@ class MainWindow(QMainWindow):
             for dock in self.docks.values():  # floating docks are windows of their own
                 if dock.isFloating():
                     dock.hide()
+            for dialog in self.findChildren(QDialog):  # messages, export, about
+                dialog.close()
             for view in self.views():  # before the widgets go (pyvistaqt#846)
                 view.close_view()
         super().closeEvent(event)

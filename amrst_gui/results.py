@@ -145,10 +145,11 @@ class ResultsMixin:
         used = self._step_params.get(step)
         if used is None:
             return True
-        if any(
-            getattr(used, g) != getattr(self._params, g) for g in steps.groups_for(step)
-        ):
-            return True
+        for group in steps.groups_for(step):
+            if not steps.values_equal(
+                getattr(used, group), getattr(self._params, group)
+            ):
+                return True
         if step in ("coarse", "fine"):
             current = self.coarse
             accepted = self._accepted.candidate
@@ -188,6 +189,22 @@ class ResultsMixin:
                 self.world(self._fine.T_target_source), self._truth, xyz
             )
         return out
+
+    def export_arguments(self, cloud_format: str, parts=None) -> dict[str, Any]:
+        """Keyword arguments of ``amrst.export.export_registration`` (but out_dir)."""
+        kwargs = {
+            "target": self._clouds["target"],
+            "source": self._clouds["source"],
+            # The engine works between local frames; the files hold world transforms.
+            "T_target_source": self.world(self.final_transform),
+            "T_coarse": self.world(self._accepted.T_target_source),
+            "metrics": self.metrics_report(),
+            "params": self._params,
+            "cloud_format": cloud_format,
+        }
+        if parts is not None:
+            kwargs["parts"] = tuple(parts)
+        return kwargs
 
     def metrics_report(self) -> dict[str, dict]:
         """Everything measured, as plain dicts for the export."""

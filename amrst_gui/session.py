@@ -8,7 +8,6 @@ are applied here, on the GUI thread. This module imports no widgets.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -67,6 +66,7 @@ class Session(ResultsMixin, QObject):
         self._job: workers.StageJob | None = None
         self._chain: list[str] = []
         self._chain_dropped = False
+        self._busy = False
         self._pending_paths: dict[str, Path] = {}
         self._closing = False
 
@@ -78,8 +78,8 @@ class Session(ResultsMixin, QObject):
 
     @property
     def busy(self) -> bool:
-        """True while a job runs."""
-        return self._job is not None
+        """True from the start of a job (or chain of steps) until its end."""
+        return self._busy
 
     @property
     def running_step(self) -> str | None:
@@ -134,10 +134,12 @@ class Session(ResultsMixin, QObject):
 
     def set_params(self, params: Any) -> None:
         """Use new RegistrationParams; emits ``params_changed`` if they differ."""
-        if params == self._params:
+        if steps.values_equal(params, self._params):
             return
         changed = [
-            g for g in self._groups() if getattr(params, g) != getattr(self._params, g)
+            g
+            for g in self._groups()
+            if not steps.values_equal(getattr(params, g), getattr(self._params, g))
         ]
         self._params = params
         log.info("Parameters changed: %s", ", ".join(changed) or "none")
@@ -177,15 +179,9 @@ class Session(ResultsMixin, QObject):
         """
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-            T = np.asarray(data["T_target_source"], dtype=np.float64)
-            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-                raise ValueError(f"T_target_source has shape {T.shape}, not (4, 4)")
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            self._fail(
-                f"Could not read the truth file {path.name}: {exc}. "
-                "It must be JSON with a 4x4 'T_target_source' list."
-            )
+            T = jobs.read_truth(path)
+        except ValueError as exc:
+            self._fail(str(exc))
             return
         self._truth, self._truth_path = T, path
         log.info("Loaded truth from %s", path)
@@ -217,22 +213,10 @@ class Session(ResultsMixin, QObject):
         """Write the results with ``amrst.export``; emits ``exported(paths)``."""
         if self._refuse_if_busy("export"):
             return
-        T_final = self.final_transform
-        if T_final is None:
+        if self.final_transform is None:
             self._fail("Nothing to export yet: accept a coarse solution first.")
             return
-        kwargs = {
-            "target": self._clouds["target"],
-            "source": self._clouds["source"],
-            # The engine works between local frames; the files hold world transforms.
-            "T_target_source": self.world(T_final),
-            "T_coarse": self.world(self._accepted.T_target_source),
-            "metrics": self.metrics_report(),
-            "params": self._params,
-            "cloud_format": cloud_format,
-        }
-        if parts is not None:
-            kwargs["parts"] = tuple(parts)
+        kwargs = self.export_arguments(cloud_format, parts)
         self._chain = []
         self._set_busy(True)
         self._launch("export", jobs.export_pair, Path(out_dir), kwargs)
@@ -254,6 +238,7 @@ class Session(ResultsMixin, QObject):
         if self._job is not None:
             self._job.discard()
             self._job = None
+        self._busy = False
         return workers.wait_for_workers(timeout_s)
 
     # ------------------------------------------------------------- internals
@@ -389,16 +374,15 @@ class Session(ResultsMixin, QObject):
         return steps.plain_label(step) if step in steps.LABELS else step
 
     def _set_busy(self, busy: bool) -> None:
+        self._busy = busy
         if not self._closing:
             self.busy_changed.emit(busy)
 
     def _refuse_if_busy(self, what: str) -> bool:
-        if self._job is None:
+        if not self._busy:
             return False
-        self._fail(
-            f"Cannot {what} while {self._label(self._job.name)} runs; "
-            "wait or cancel it first."
-        )
+        running = self._label(self.running_step or "a step")
+        self._fail(f"Cannot {what} while {running} runs; wait or cancel it first.")
         return True
 
     def _fail(self, message: str) -> None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 STEPS = ("separate", "skeleton", "match", "coarse", "fine")
 
 LABELS = {
@@ -46,3 +49,22 @@ def plain_label(step: str) -> str:
 def later_steps(step: str) -> tuple[str, ...]:
     """Steps whose results are built on ``step``'s result."""
     return STEPS[STEPS.index(step) + 1 :]
+
+
+def values_equal(a, b) -> bool:
+    """Equality of parameter values in which NaN ("automatic") equals NaN."""
+    if a is b:
+        return True
+    if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
+        return type(a) is type(b) and all(
+            values_equal(getattr(a, f.name), getattr(b, f.name))
+            for f in dataclasses.fields(a)
+        )
+    if (
+        isinstance(a, float)
+        and isinstance(b, float)
+        and math.isnan(a)
+        and math.isnan(b)
+    ):
+        return True
+    return bool(a == b)

@@ -15,10 +15,19 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-COLUMNS = ("Rank", "Score", "Volume (m³)", "Edge error", "SVD residual (m)", "Status")
+COLUMNS = (
+    "Rank",
+    "Score",
+    "Support",
+    "Volume (m³)",
+    "Edge error",
+    "SVD residual (m)",
+    "Status",
+)
 _TIPS = (
     "Rank by verification score (1 = best)",
     "Verification score 0-1: how well the whole clouds agree under this match",
+    "How many tetrahedron matches agree with this solution",
     "Volume of the tetrahedron; larger ones pin the pose down better",
     "Largest relative difference between corresponding edges",
     "RMS distance of the four vertex pairs after the SVD fit",
@@ -83,6 +92,7 @@ class CandidateModel(QAbstractTableModel):
             return (
                 str(cand.rank),
                 f"{cand.score:.3f}",
+                str(getattr(cand, "support", "")),
                 f"{cand.volume_m3:.3f}",
                 f"{cand.edge_error:.1%}",
                 f"{cand.svd_residual_m:.3f}",
@@ -90,7 +100,7 @@ class CandidateModel(QAbstractTableModel):
             )[col]
         if role == Qt.ToolTipRole:
             return str(cand.explanation)
-        if role == Qt.TextAlignmentRole and col < 5:
+        if role == Qt.TextAlignmentRole and col < len(COLUMNS) - 1:
             return int(Qt.AlignRight | Qt.AlignVCenter)
         status = self.status(cand)
         if role == Qt.ForegroundRole and status == "rejected":

@@ -11,20 +11,18 @@ from typing import Any
 
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
-    QCheckBox,
     QComboBox,
-    QDoubleSpinBox,
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
     QLabel,
-    QLineEdit,
     QPushButton,
     QScrollArea,
-    QSpinBox,
     QVBoxLayout,
     QWidget,
 )
+
+from amrst_gui.panels.param_editors import editor_value, make_editor, set_editor_value
 
 _GROUP_TITLES = {
     "preprocess": "Preprocess (outliers, thinning)",
@@ -36,83 +34,6 @@ _GROUP_TITLES = {
     "fine": "Fine registration (ICP)",
     "metrics": "Metrics",
 }
-
-
-def tooltip_for(field: dataclasses.Field) -> str:
-    """Help text, unit and allowed range of one parameter."""
-    meta = field.metadata
-    lines = [f"{field.name}: {meta.get('help', 'no description')}"]
-    if meta.get("unit"):
-        lines.append(f"Unit: {meta['unit']}")
-    if "min" in meta or "max" in meta:
-        lines.append(f"Range: {meta.get('min', '-∞')} to {meta.get('max', '∞')}")
-    if "choices" in meta:
-        lines.append("Choices: " + ", ".join(map(str, meta["choices"])))
-    return "\n".join(lines)
-
-
-def _decimals(value: float, lo: float) -> int:
-    smallest = min(abs(v) for v in (value, lo, 1.0) if v) if (value or lo) else 1.0
-    digits = 3
-    while smallest < 10 ** (-digits + 1) and digits < 9:
-        digits += 1
-    return digits
-
-
-def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
-    """A widget for one scalar parameter, chosen from its default's type."""
-    meta = field.metadata
-    if "choices" in meta:
-        w = QComboBox()
-        for choice in meta["choices"]:
-            w.addItem(str(choice), choice)
-    elif isinstance(value, bool):
-        w = QCheckBox()
-    elif isinstance(value, int):
-        w = QSpinBox()
-        w.setRange(int(meta.get("min", -(2**31))), int(meta.get("max", 2**31 - 1)))
-        w.setSingleStep(
-            max(1, (w.maximum() - w.minimum()) // 200) if "max" in meta else 1
-        )
-    elif isinstance(value, float):
-        w = QDoubleSpinBox()
-        lo, hi = float(meta.get("min", -1e9)), float(meta.get("max", 1e9))
-        w.setDecimals(_decimals(value, lo))
-        w.setRange(lo, hi)
-        w.setSingleStep(max(abs(value) * 0.1, 10 ** -w.decimals()))
-    else:
-        w = QLineEdit()
-    if meta.get("unit") and hasattr(w, "setSuffix"):
-        w.setSuffix(f" {meta['unit']}" if meta["unit"] not in ("relative", "") else "")
-    w.setToolTip(tooltip_for(field))
-    w.setObjectName(field.name)
-    set_editor_value(w, value)
-    return w
-
-
-def set_editor_value(w: QWidget, value: Any) -> None:
-    """Show ``value`` in an editor made by :func:`make_editor`."""
-    if isinstance(w, QComboBox):
-        w.setCurrentIndex(max(0, w.findData(value)))
-    elif isinstance(w, QCheckBox):
-        w.setChecked(bool(value))
-    elif isinstance(w, QSpinBox | QDoubleSpinBox):
-        w.setValue(value)
-    else:
-        w.setText(str(value))
-
-
-def editor_value(w: QWidget, like: Any) -> Any:
-    """The value an editor holds, of the same type as ``like``."""
-    if isinstance(w, QComboBox):
-        return w.currentData()
-    if isinstance(w, QCheckBox):
-        return w.isChecked()
-    if isinstance(w, QSpinBox):
-        return int(w.value())
-    if isinstance(w, QDoubleSpinBox):
-        return float(w.value())
-    return type(like)(w.text())
 
 
 class ParamsPanel(QWidget):

@@ -168,8 +168,15 @@ class ScansArea(QWidget):
         reset = QPushButton("Reset views")
         reset.setToolTip("Look at both trees from the side again")
         reset.clicked.connect(self.reset_cameras)
+        self.frame_button = QPushButton("Frame match")
+        self.frame_button.setToolTip(
+            "Zoom both views onto the selected tetrahedron (F); Reset views to go back"
+        )
+        self.frame_button.setShortcut("F")
+        self.frame_button.clicked.connect(self.frame_match)
         bar.addWidget(self.link_box)
         bar.addWidget(reset)
+        bar.addWidget(self.frame_button)
         bar.addStretch(1)
         splitter = QSplitter(Qt.Horizontal)
         for pane in self.panes.values():
@@ -197,3 +204,11 @@ class ScansArea(QWidget):
         """Side views of both trees."""
         for view in self.views():
             view.reset_camera()
+
+    def frame_match(self) -> None:
+        """Zoom each view onto its tetrahedron of the selected match."""
+        for view in self.views():
+            layers = view.scene.layers if view.scene is not None else ()
+            for layer in layers:
+                if layer.name == "match_vertices":
+                    view.frame_points(layer.centers)

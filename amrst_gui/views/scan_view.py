@@ -17,6 +17,7 @@ from amrst_gui.views.layers import (
 )
 
 BACKGROUND = (0.12, 0.13, 0.15)
+_ELEVATION_DEG = 15
 
 
 def _lines_polydata(nodes: np.ndarray, edges: np.ndarray) -> pv.PolyData:
@@ -49,6 +50,7 @@ class ScanView(QWidget):
         self._frame_key: tuple | None = None
         self._scene: Scene | None = None
         self._closed = False
+        self._fit_pending = False
         if self.plotter.iren is not None:
             self.plotter.iren.add_observer(
                 "EndInteractionEvent", self._on_interaction_ended
@@ -86,12 +88,52 @@ class ScanView(QWidget):
         """Look at the tree from the side (z up), the way it stands in the field."""
         if self._closed:
             return
-        self.plotter.view_xz(render=False)
-        self.plotter.camera.elevation = 15
-        self.plotter.reset_camera(render=False)
-        self.plotter.camera.zoom(1.3)  # the bounding sphere leaves wide margins
+        if not self.isVisible():  # a hidden tab has no real size yet: fit when shown
+            self._fit_pending = True
+            return
+        self._fit_pending = False
+        p = self.plotter
+        p.view_xz(render=False)
+        p.camera.elevation = _ELEVATION_DEG
+        p.reset_camera(render=False)
+        # reset_camera fits the bounding sphere; a tree is tall and thin, so zoom in
+        # until its side view fills the widget.
+        b = np.asarray(p.bounds, dtype=float)
+        ext = b[1::2] - b[0::2]
+        if np.all(np.isfinite(ext)) and ext.max() > 0:
+            elev = np.radians(_ELEVATION_DEG)
+            need_h = ext[2] * np.cos(elev) + ext[1] * np.sin(elev)
+            need_w = ext[0]
+            cam = p.camera
+            span_h = 2 * cam.distance * np.tan(np.radians(cam.view_angle) / 2)
+            aspect = max(self.plotter.width(), 1) / max(self.plotter.height(), 1)
+            fit = 0.9 * min(
+                span_h / max(need_h, 1e-9), span_h * aspect / max(need_w, 1e-9)
+            )
+            if fit > 1:
+                cam.zoom(fit)
         if render:
-            self.plotter.render()
+            p.render()
+
+    def frame_points(self, xyz: np.ndarray, margin: float = 2.5) -> None:
+        """Aim at ``xyz`` (K, 3) from the current direction, filling the view."""
+        if self._closed or len(xyz) == 0:
+            return
+        cam = self.plotter.camera
+        center = np.asarray(xyz, float).mean(axis=0)
+        radius = max(float(np.linalg.norm(xyz - center, axis=1).max()), 0.05) * margin
+        direction = np.asarray(cam.position) - np.asarray(cam.focal_point)
+        direction /= max(np.linalg.norm(direction), 1e-12)
+        distance = radius / np.tan(np.radians(cam.view_angle) / 2)
+        cam.focal_point = tuple(center)
+        cam.position = tuple(center + direction * distance)
+        self.plotter.reset_camera_clipping_range()
+        self.plotter.render()
+
+    def showEvent(self, event) -> None:
+        super().showEvent(event)
+        if self._fit_pending and not self._closed:
+            self.reset_camera()
 
     def close_view(self) -> None:
         """Close the plotter (before the widget goes; pyvistaqt#846)."""

@@ -139,3 +139,40 @@ def _content_fraction(widget, background=(31, 33, 38), tol: int = 12) -> float:
     rgb = buf[:, : w * 3].reshape(h, w, 3).astype(int)
     differs = np.abs(rgb - np.array(background)).max(axis=2) > tol
     return float(differs.mean())
+
+
+@pytest.fixture
+def finish(qtbot):
+    """``finish(session, trigger, "signal_name")``: run a job to its end.
+
+    Waits for ``busy_changed(False)`` (so a failure ends the wait at once instead
+    of timing out), asserts that nothing failed and that the signal came, and
+    returns the signal's arguments.
+    """
+
+    def run(session, trigger, signal_name: str, timeout: int = 90_000) -> tuple:
+        got: list[tuple] = []
+        failed: list[str] = []
+        signal = getattr(session, signal_name)
+
+        def on_signal(*args):
+            got.append(args)
+
+        def on_failed(message):
+            failed.append(message)
+
+        signal.connect(on_signal)
+        session.failed.connect(on_failed)
+        try:
+            with qtbot.waitSignal(
+                session.busy_changed, timeout=timeout, check_params_cb=lambda b: not b
+            ):
+                trigger()
+        finally:
+            signal.disconnect(on_signal)
+            session.failed.disconnect(on_failed)
+        assert not failed, failed
+        assert got, f"{signal_name} was not emitted"
+        return got[-1]
+
+    return run

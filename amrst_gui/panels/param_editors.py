@@ -1,0 +1,138 @@
+"""One editor widget per parameter, chosen from the field's default and metadata.
+
+Floats whose default is NaN mean "automatic" and get a text field that accepts
+``auto``; tuples (e.g. neighbourhood scales) are typed as ``10, 30``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from typing import Any
+
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QLineEdit,
+    QSpinBox,
+    QWidget,
+)
+
+AUTO = "auto"
+
+
+def _is_nan(value: Any) -> bool:
+    return isinstance(value, float) and math.isnan(value)
+
+
+def tooltip_for(field: dataclasses.Field) -> str:
+    """Help text, unit and allowed range of one parameter."""
+    meta = field.metadata
+    lines = [f"{field.name}: {meta.get('help', 'no description')}"]
+    if meta.get("unit"):
+        lines.append(f"Unit: {meta['unit']}")
+    if "min" in meta or "max" in meta:
+        lines.append(f"Range: {meta.get('min', '-∞')} to {meta.get('max', '∞')}")
+    if "choices" in meta:
+        lines.append("Choices: " + ", ".join(map(str, meta["choices"])))
+    if _is_nan(field.default):
+        lines.append(f"Type '{AUTO}' for the automatic choice.")
+    if isinstance(field.default, tuple):
+        lines.append("Several values, separated by commas.")
+    return "\n".join(lines)
+
+
+def _decimals(value: float, lo: float) -> int:
+    nonzero = [abs(v) for v in (value, lo) if v]
+    smallest = min(nonzero) if nonzero else 1.0
+    digits = 3
+    while smallest < 10 ** (-digits + 1) and digits < 9:
+        digits += 1
+    return digits
+
+
+def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
+    """A widget for one parameter, showing ``value``."""
+    meta = field.metadata
+    if "choices" in meta:
+        w = QComboBox()
+        for choice in meta["choices"]:
+            w.addItem(str(choice), choice)
+    elif isinstance(value, bool):
+        w = QCheckBox()
+    elif isinstance(value, int):
+        w = QSpinBox()
+        w.setRange(int(meta.get("min", -(2**31))), int(meta.get("max", 2**31 - 1)))
+        span = w.maximum() - w.minimum()
+        w.setSingleStep(max(1, span // 200) if "max" in meta else 1)
+    elif isinstance(value, float) and not _is_nan(field.default) and not _is_nan(value):
+        w = QDoubleSpinBox()
+        lo, hi = float(meta.get("min", -1e9)), float(meta.get("max", 1e9))
+        w.setDecimals(_decimals(value, lo))
+        w.setRange(lo, hi)
+        w.setSingleStep(max(abs(value) * 0.1, 10 ** -w.decimals()))
+    else:
+        w = QLineEdit()
+    unit = meta.get("unit", "")
+    if unit and unit != "relative" and hasattr(w, "setSuffix"):
+        w.setSuffix(f" {unit}")
+    w.setToolTip(tooltip_for(field))
+    w.setObjectName(field.name)
+    set_editor_value(w, value)
+    return w
+
+
+def set_editor_value(w: QWidget, value: Any) -> None:
+    """Show ``value`` in an editor made by :func:`make_editor`."""
+    if isinstance(w, QComboBox):
+        w.setCurrentIndex(max(0, w.findData(value)))
+    elif isinstance(w, QCheckBox):
+        w.setChecked(bool(value))
+    elif isinstance(w, QSpinBox | QDoubleSpinBox):
+        w.setValue(value)
+    elif isinstance(value, tuple):
+        w.setText(", ".join(str(v) for v in value))
+    else:
+        w.setText(AUTO if _is_nan(value) else str(value))
+
+
+def editor_value(w: QWidget, like: Any) -> Any:
+    """The value an editor holds, of the same type as ``like`` (the current value).
+
+    Raises ValueError when the text cannot be read as that type.
+    """
+    if isinstance(w, QComboBox):
+        return w.currentData()
+    if isinstance(w, QCheckBox):
+        return w.isChecked()
+    if isinstance(w, QSpinBox):
+        return int(w.value())
+    if isinstance(w, QDoubleSpinBox):
+        value = float(w.value())
+        # The box rounds to its decimals: keep the exact value when unchanged.
+        return (
+            like
+            if isinstance(like, float) and round(like, w.decimals()) == value
+            else value
+        )
+    text = w.text().strip()
+    if isinstance(like, tuple):
+        kind = type(like[0]) if like else float
+        try:
+            return tuple(kind(part) for part in re.split(r"[,;\s]+", text) if part)
+        except ValueError as exc:
+            raise ValueError(
+                f"{w.objectName()}: '{text}' is not a list of numbers"
+            ) from exc
+    if isinstance(like, float):
+        if text.lower() in (AUTO, "nan", ""):
+            return like if _is_nan(like) else float("nan")
+        try:
+            return float(text)
+        except ValueError as exc:
+            raise ValueError(
+                f"{w.objectName()}: '{text}' is not a number or 'auto'"
+            ) from exc
+    return type(like)(text)

@@ -1,0 +1,127 @@
+"""Cancel, bad files, closing mid-step: the app keeps its results and keeps working."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+
+def test_cancel_a_running_step_keeps_earlier_results(loaded_window, qtbot, errors):
+    win = loaded_window
+    s = win.session
+    errors.watch(s)
+    # Cancel as soon as the first step reports progress; Run all always has later
+    # steps to drop, so `cancelled` comes whether or not separation stops in time.
+    s.progressed.connect(lambda *_: s.cancel())
+    with qtbot.waitSignal(s.cancelled, timeout=60_000) as blocker:
+        win.actions.run_all.trigger()
+    assert "cancel" in blocker.args[0].lower()
+    assert not s.busy
+    assert not s.is_done("match")
+    assert s.has_scans  # the loaded scans are still there
+    assert not errors, errors
+    assert win.actions.run_all.isEnabled()
+    assert "cancel" in win.status.message.text().lower()
+
+
+def test_busy_disables_job_actions(loaded_window, finish):
+    win = loaded_window
+    s = win.session
+    states = []
+    s.step_started.connect(
+        lambda _step: states.append([a.isEnabled() for a in win.actions.job_actions()])
+    )
+    finish(s, win.actions.separate.trigger, "separation_finished")
+    assert states
+    assert not any(states[0])
+    assert win.actions.separate.isEnabled()
+
+
+def test_corrupt_file_shows_an_error_and_the_app_keeps_working(
+    make_main_window, qtbot, tmp_path, sample_pair, errors
+):
+    win = make_main_window()
+    s = win.session
+    errors.watch(s)
+    bad = tmp_path / "broken.ply"
+    bad.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n\x00\x01"
+    )
+    with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:
+        s.load_scan("target", bad)
+    assert "broken.ply" in blocker.args[0]
+    assert win.error_box is not None
+    assert win.error_box.isVisible()
+    assert "broken.ply" in win.status.message.text()
+    assert "broken.ply" in win.log_panel.plain_text()
+    assert s.cloud("target") is None
+    assert not s.busy
+    # ...and the next, good file loads.
+    target, source, _ = sample_pair
+    with qtbot.waitSignals([s.scan_loaded] * 2, timeout=20_000):
+        win.open_pair(target, source)
+    assert s.has_scans
+    win.error_box.close()
+
+
+def test_missing_file_and_running_without_scans_fail_politely(
+    make_main_window, qtbot, tmp_path, errors
+):
+    win = make_main_window()
+    errors.watch(win.session)
+    win.session.load_scan("source", tmp_path / "nowhere.las")
+    win.session.run_step("match")
+    assert len(errors) == 2
+    assert "does not exist" in errors[0]
+    assert "Open a target and a source" in errors[1]
+    win.error_box.close()
+
+
+def test_close_the_window_mid_step(make_main_window, qtbot, sample_pair):
+    target, source, _ = sample_pair
+    win = make_main_window()
+    s = win.session
+    with qtbot.waitSignals([s.scan_loaded] * 2, timeout=20_000):
+        win.open_pair(target, source)
+    with qtbot.waitSignal(s.progressed, timeout=30_000):
+        win.actions.run_all.trigger()
+    assert s.busy
+    win.close()  # cancels, waits for the worker, closes the plotters
+    assert not s.busy
+    assert all(view._closed for view in win.views())
+    qtbot.wait(0)  # let any late queued signal arrive: nothing may touch the views
+
+
+@pytest.mark.parametrize("group", ["separate", "fine"])
+def test_parameter_change_marks_steps_stale_in_the_actions(
+    loaded_window, qtbot, finish, group
+):
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.separate.trigger, "separation_finished")
+    panel = win.params_panel
+    field = dataclasses.fields(getattr(s.params, group))[-1]
+    editor = panel.editors[(group, field.name)]
+    assert field.metadata.get("help", "") in editor.toolTip()
+    _nudge(editor)
+    assert panel.apply_button.isEnabled()
+    with qtbot.waitSignal(s.params_changed):
+        panel.apply_button.click()
+    stale = group == "separate"
+    assert win.actions.separate.text().endswith("(stale)") is stale
+    assert s.is_stale("separate") is stale
+
+
+def _nudge(editor) -> None:
+    from PySide6.QtWidgets import QCheckBox, QComboBox
+
+    if isinstance(editor, QCheckBox):
+        editor.setChecked(not editor.isChecked())
+    elif isinstance(editor, QComboBox):
+        editor.setCurrentIndex((editor.currentIndex() + 1) % editor.count())
+    else:
+        value = editor.value()
+        editor.setValue(
+            value + editor.singleStep() if value < editor.maximum() else value - 1
+        )

@@ -1,0 +1,111 @@
+"""The whole workflow on the bundled sample, through the real main window."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+
+def test_full_workflow_review_accept_refine_export(
+    loaded_window, qtbot, finish, tmp_path, content_fraction
+):
+    win = loaded_window
+    s = win.session
+    a = win.actions
+
+    # Step by step, each from its action, each in a worker.
+    finish(s, a.separate.trigger, "separation_finished")
+    assert a.separate.text().endswith("✓")
+    wood = win.scans_area.panes["target"].view.scene.layers[0]
+    assert wood.key[0] == "wood"  # the views switched to wood/leaf colouring
+
+    finish(s, a.skeleton.trigger, "skeletons_finished")
+    finish(s, a.match.trigger, "matches_changed")
+    ranked = s.matches
+    assert len(ranked) >= 2
+    assert win.matches_panel.model.rowCount() == len(ranked)
+
+    # The best match is selected and drawn in both views, same vertex colours.
+    assert s.selected_match.id == ranked[0].id
+    for view in win.scans_area.views():
+        assert {"skeleton", "keypoints", "match_vertices", "match_edges"} <= (
+            view.actor_names()
+        )
+        assert content_fraction(view.plotter) > 0.005
+    tv, sv = (v.scene for v in win.scans_area.views())
+    t_rgb = next(lay.rgb for lay in tv.layers if lay.name == "match_vertices")
+    s_rgb = next(lay.rgb for lay in sv.layers if lay.name == "match_vertices")
+    np.testing.assert_array_equal(t_rgb, s_rgb)
+    assert len({tuple(c) for c in t_rgb}) == 4
+
+    # Reject the top match with the Delete action: the coarse solution moves on.
+    win.matches_panel.table.setFocus()
+    with qtbot.waitSignal(s.review_changed) as blocker:
+        a.reject.trigger()
+    assert blocker.args == [frozenset({ranked[0].id})]
+    assert s.coarse.candidate.id == ranked[1].id
+    assert win.matches_panel.model.status(ranked[0]) == "rejected"
+    assert win.matches_panel.model.status(ranked[1]).startswith("coarse")
+    # Selecting another row shows it in the views.
+    win.matches_panel.table.selectRow(1)
+    assert s.selected_match.id == ranked[1].id
+    t_verts = next(lay for lay in tv.layers if lay.name == "match_vertices")
+    new_verts = next(
+        lay
+        for lay in win.scans_area.views()[0].scene.layers
+        if lay.name == "match_vertices"
+    )
+    assert new_verts.key != t_verts.key
+
+    (coarse,) = finish(s, a.accept_coarse.trigger, "coarse_accepted")
+    assert coarse.candidate.id == ranked[1].id
+    assert "coarse" in s.metrics
+    (fine,) = finish(s, a.run_fine.trigger, "fine_finished")
+    assert fine.converged
+    assert win.registration.stage == "fine"
+    assert "source_points" in win.registration.view.actor_names()
+    truth = s.truth_errors()["fine"]
+    assert truth.rotation_error_deg < 1.0
+    assert truth.gt_rmse_m < 0.05
+    assert win.metrics_panel.table.item(0, 1).text() != ""
+
+    # Export through the dialog, then read the files back with amrst.io.
+    a.export.trigger()
+    box = win.export_box
+    assert box.isVisible()
+    box.folder_edit.setText(str(tmp_path / "out"))
+    (paths,) = finish(s, box.accept, "exported")
+    _check_export(tmp_path / "out", paths, s)
+
+
+def _check_export(out, paths, session) -> None:
+    from amrst import io
+
+    names = {p.name for p in paths}
+    assert all(p.exists() and p.parent == out for p in paths)
+    transform_json = next(
+        p for p in paths if p.name.endswith(".json") and "transform" in p.name
+    )
+    data = json.loads(transform_json.read_text())
+    T_file = np.asarray(data["T_target_source"], dtype=float)
+    np.testing.assert_allclose(
+        T_file, session.world(session.final_transform), atol=1e-9
+    )
+    merged_path = next(p for p in paths if "merged" in p.name)
+    merged = io.read(merged_path)
+    n_target, n_source = len(session.cloud("target")), len(session.cloud("source"))
+    assert len(merged) == n_target + n_source
+    scan_id = np.asarray(merged.attributes["scan_id"])
+    assert set(np.unique(scan_id).tolist()) == {0, 1}
+    assert int(np.count_nonzero(scan_id == scan_id[0])) in (n_target, n_source)
+    assert any("params" in n for n in names)
+    assert any(n.endswith(".csv") for n in names)
+
+
+def test_run_all_is_the_automatic_path(loaded_window, finish):
+    s = loaded_window.session
+    finish(s, loaded_window.actions.run_all.trigger, "fine_finished")
+    assert s.accepted_coarse.candidate.id == s.matches[0].id
+    assert all(s.is_done(step) for step in ("separate", "skeleton", "match", "fine"))
+    assert loaded_window.actions.export.isEnabled()
