@@ -15,22 +15,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-COLUMNS = (
-    "Rank",
-    "Score",
-    "Support",
-    "Volume (m³)",
-    "Edge error",
-    "SVD residual (m)",
-    "Status",
-)
+COLUMNS = ("#", "Score", "Supp.", "Vol. m³", "Edge err.", "SVD m", "Status")
 _TIPS = (
     "Rank by verification score (1 = best)",
     "Verification score 0-1: how well the whole clouds agree under this match",
     "How many tetrahedron matches agree with this solution",
-    "Volume of the tetrahedron; larger ones pin the pose down better",
+    "Volume of the tetrahedron (m³); larger ones pin the pose down better",
     "Largest relative difference between corresponding edges",
-    "RMS distance of the four vertex pairs after the SVD fit",
+    "SVD residual: RMS distance (m) of the four vertex pairs after the fit",
     "'coarse' = used for the coarse solution (best one not rejected)",
 )
 

@@ -9,6 +9,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QTableWidget,
     QTableWidgetItem,
+    QTabWidget,
     QVBoxLayout,
     QWidget,
 )
@@ -88,12 +89,15 @@ class MetricsPanel(QWidget):
         self.timings.setEditTriggers(QTableWidget.NoEditTriggers)
         self.truth_label = QLabel("")
         self.truth_label.setWordWrap(True)
+        for table in (self.table, self.timings):
+            table.verticalHeader().setDefaultSectionSize(22)
+        self.tabs = QTabWidget()
+        self.tabs.addTab(self.table, "Quality")
+        self.tabs.addTab(self.timings, "Time per stage")
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
-        layout.addWidget(self.table, 3)
+        layout.addWidget(self.tabs, 1)
         layout.addWidget(self.truth_label)
-        layout.addWidget(QLabel("Time per stage"))
-        layout.addWidget(self.timings, 2)
         for name in (
             "scan_loaded",
             "scans_swapped",

@@ -27,6 +27,11 @@ def _is_nan(value: Any) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
 
+def field_label(name: str) -> str:
+    """``max_tilt_deg`` -> ``max tilt``: the unit shows in the editor instead."""
+    return re.sub(r"_(m|m3|deg|s)$", "", name).replace("_", " ")
+
+
 def tooltip_for(field: dataclasses.Field) -> str:
     """Help text, unit and allowed range of one parameter."""
     meta = field.metadata
@@ -80,6 +85,8 @@ def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
         w.setSuffix(f" {unit}")
     w.setToolTip(tooltip_for(field))
     w.setObjectName(field.name)
+    # Spin boxes size themselves to their largest value; the dock is narrow.
+    w.setMinimumWidth(70)
     set_editor_value(w, value)
     return w
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QFormLayout,
@@ -22,7 +22,12 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui.panels.param_editors import editor_value, make_editor, set_editor_value
+from amrst_gui.panels.param_editors import (
+    editor_value,
+    field_label,
+    make_editor,
+    set_editor_value,
+)
 
 _GROUP_TITLES = {
     "preprocess": "Preprocess (outliers, thinning)",
@@ -82,7 +87,7 @@ class ParamsPanel(QWidget):
             for f in dataclasses.fields(values):
                 editor = make_editor(f, getattr(values, f.name))
                 self._connect_dirty(editor)
-                label = QLabel(f.name.replace("_", " "))
+                label = QLabel(field_label(f.name))
                 label.setToolTip(editor.toolTip())
                 form.addRow(label, editor)
                 self.editors[(group.name, f.name)] = editor
@@ -90,6 +95,7 @@ class ParamsPanel(QWidget):
         body_layout.addStretch(1)
         scroll = QScrollArea()
         scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
         scroll.setWidget(body)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)

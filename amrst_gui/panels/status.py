@@ -40,6 +40,8 @@ class WorkflowStatusBar(QStatusBar):
         session.failed.connect(self._on_failed)
         session.cancelled.connect(self._on_cancelled)
         session.scan_loaded.connect(self._on_scan_loaded)
+        session.separation_finished.connect(self._on_separation_finished)
+        session.skeletons_finished.connect(self._on_skeletons_finished)
         session.matches_changed.connect(self._on_matches_changed)
         session.coarse_accepted.connect(self._on_coarse_accepted)
         session.fine_finished.connect(self._on_fine_finished)
@@ -81,6 +83,15 @@ class WorkflowStatusBar(QStatusBar):
             self.show_message(
                 "Scans loaded. Next: Separate (Ctrl+1) or Run all (Ctrl+R)."
             )
+
+    def _on_separation_finished(self) -> None:
+        self.show_message(
+            "Wood (brown) and leaves (green) separated. "
+            "Next: Skeleton & key points (Ctrl+2)."
+        )
+
+    def _on_skeletons_finished(self) -> None:
+        self.show_message("Skeletons and key points ready. Next: Match (Ctrl+3).")
 
     def _on_matches_changed(self) -> None:
         n = len(self.session.matches)

@@ -115,7 +115,7 @@ class ScanView(QWidget):
         if render:
             p.render()
 
-    def frame_points(self, xyz: np.ndarray, margin: float = 2.5) -> None:
+    def frame_points(self, xyz: np.ndarray, margin: float = 1.3) -> None:
         """Aim at ``xyz`` (K, 3) from the current direction, filling the view."""
         if self._closed or len(xyz) == 0:
             return

@@ -23,7 +23,7 @@ MAX_DISPLAY_POINTS = 200_000
 
 WOOD_RGB = (139, 90, 43)  # brown, as in the paper's figures
 LEAF_RGB = (70, 170, 60)  # green
-KIND_RGB = {"root": (255, 255, 255), "branch": (255, 150, 30), "end": (170, 190, 225)}
+KIND_RGB = {"root": (255, 255, 255), "branch": (255, 150, 30), "end": (200, 210, 235)}
 # One colour per tetrahedron vertex, the same in both views (vertex i <-> vertex i).
 MATCH_RGB = np.array(
     [(230, 25, 75), (255, 225, 25), (240, 50, 230), (70, 240, 240)], np.uint8
@@ -75,10 +75,10 @@ def _marker_radius(xyz: np.ndarray) -> float:
     if len(xyz) == 0:
         return 0.05
     extent = np.ptp(xyz[:: max(1, len(xyz) // 5000)], axis=0)
-    return float(max(np.linalg.norm(extent) * 0.006, 0.01))
+    return float(max(np.linalg.norm(extent) * 0.008, 0.01))
 
 
-def _title(session, role: str, cloud) -> str:
+def _title(session, role: str, cloud, options: ViewOptions) -> str:
     label = "Target (reference)" if role == "target" else "Source (moved)"
     path = session.path(role)
     name = path.name if path else cloud.name
@@ -87,10 +87,15 @@ def _title(session, role: str, cloud) -> str:
     if an is not None:
         wood = float(np.mean(an.is_wood)) if len(an.is_wood) else 0.0
         text = f"wood {wood:.0%} of {len(an.is_wood):,} processed points"
+        if options.colour == "wood":
+            text += " (brown wood, green leaves)"
+        lines.append(text)
         if an.skeleton is not None and an.keypoints is not None:
             n_nodes, n_kp = len(an.skeleton.nodes), len(an.keypoints.xyz)
-            text += f" | {n_nodes} skeleton nodes, {n_kp} key points"
-        lines.append(text)
+            lines.append(
+                f"{n_nodes} skeleton nodes; {n_kp} key points "
+                "(white root, orange branch, pale end)"
+            )
     cand = session.selected_match
     if cand is not None:
         state = "rejected" if cand.id in session.rejected else "candidate"
@@ -137,7 +142,7 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
         )
         colour = (120, 120, 120) if rejected else (255, 255, 255)
         layers.append(LinesLayer("match_edges", key, verts, TETRA_EDGES, colour, 4.0))
-    layers.append(TextLayer("title", _title(session, role, cloud)))
+    layers.append(TextLayer("title", _title(session, role, cloud, options)))
     sub = cloud.xyz[display_index(len(cloud), 5000)]
     return Scene(
         frame_key=(role, Ref(cloud)), layers=tuple(layers), center=sub.mean(axis=0)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 DOCKS = ("scans_dock", "parameters_dock", "matches_dock", "metrics_dock", "log_dock")
 
 
@@ -49,3 +51,105 @@ def test_layout_and_recent_files_are_remembered(make_main_window, qtbot, sample_
     assert again.docks["log"].isFloating()
     assert again.recent_files()[:2] == [str(source), str(target)]
     assert not again.scans_panel.boxes["target"].recent_menu.isEmpty()
+
+
+def test_dropping_a_file_on_a_view_loads_it(make_main_window, qtbot, sample_pair):
+    from PySide6.QtCore import QMimeData, QPoint, QPointF, Qt, QUrl
+    from PySide6.QtGui import QDragEnterEvent, QDropEvent
+    from PySide6.QtWidgets import QApplication
+
+    win = make_main_window()
+    pane = win.scans_area.panes["source"]
+    mime = QMimeData()
+    mime.setUrls([QUrl.fromLocalFile(str(sample_pair[1]))])
+    buttons, keys = Qt.LeftButton, Qt.NoModifier
+    # Qt 6 marks this constructor deprecated but has no other one for a drag enter.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        enter = QDragEnterEvent(QPoint(10, 10), Qt.CopyAction, mime, buttons, keys)
+    assert QApplication.sendEvent(pane, enter)
+    assert enter.isAccepted()
+    drop = QDropEvent(QPointF(10, 10), Qt.CopyAction, mime, buttons, keys)
+    with qtbot.waitSignal(win.session.scan_loaded) as blocker:
+        QApplication.sendEvent(pane, drop)
+    assert blocker.args == ["source"]
+    assert win.session.path("source") == sample_pair[1]
+    assert win.session.cloud("target") is None
+
+
+def test_linked_cameras_follow_each_other(loaded_window):
+    area = loaded_window.scans_area
+    target_view, source_view = area.views()
+    area.link_box.setChecked(True)
+    before = source_view.plotter.camera.position
+    target_view.plotter.camera.azimuth = 40
+    target_view.camera_moved.emit()
+    assert source_view.plotter.camera.position != before
+
+
+def test_about_and_shortcuts_dialogs(make_main_window, qtbot):
+    from amrst_gui.dialogs import AboutDialog, ShortcutsDialog
+
+    win = make_main_window()
+    win.actions.about.trigger()
+    about = win.findChild(AboutDialog)
+    assert about.isVisible()
+    for name in ("AMRST", "Qt", "PySide6", "VTK", "pyvista", "open3d", "numpy"):
+        assert about.versions[name]
+    win.actions.shortcuts.trigger()
+    assert win.findChild(ShortcutsDialog).isVisible()
+
+
+def test_amrst_gui_opens_the_bundled_sample(tmp_path):
+    """`amrst-gui` with no files: the sample pair, shown, saved, closed.
+
+    In its own process, as a user starts it (``app.exec()`` must not run inside
+    the test process: a finished exec leaves the shared QApplication quitting).
+    """
+    import os
+    import subprocess
+    import sys
+
+    from PySide6.QtGui import QImage
+
+    png = tmp_path / "start.png"
+    env = dict(os.environ, XDG_CONFIG_HOME=str(tmp_path / "config"))
+    done = subprocess.run(
+        [sys.executable, "-m", "amrst_gui", "--screenshot", str(png)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "target.ply (" in done.stderr  # the log names the bundled files
+    image = QImage(str(png))
+    assert image.width() > 800
+    assert image.height() > 500
+
+
+def test_large_clouds_are_decimated_for_display_only(
+    make_main_window, qtbot, tmp_path, content_fraction
+):
+    import numpy as np
+
+    from amrst import io
+    from amrst.types import Cloud
+    from amrst_gui.views.scene import MAX_DISPLAY_POINTS
+
+    rng = np.random.default_rng(0)
+    n = 260_000
+    xyz = rng.normal(size=(n, 3)) * [1.0, 1.0, 5.0]
+    big = tmp_path / "big.ply"
+    io.write(big, Cloud(xyz, attributes={"intensity": rng.random(n)}))
+    win = make_main_window()
+    with qtbot.waitSignals([win.session.scan_loaded] * 2, timeout=60_000):
+        win.open_pair(big, big)
+    assert len(win.session.cloud("target")) == n  # the engine gets every point
+    pane = win.scans_area.panes["target"]
+    pane.set_colour_mode("intensity")
+    shown = next(lay for lay in pane.view.scene.layers if lay.name == "points")
+    assert MAX_DISPLAY_POINTS // 2 < len(shown.xyz) <= MAX_DISPLAY_POINTS
+    assert shown.key[0] == "intensity"
+    assert content_fraction(pane.view.plotter) > 0.005

@@ -1,0 +1,98 @@
+"""Take one screenshot per workflow step from the running app, for the README.
+
+    xvfb-run -a -s "-screen 0 1600x1000x24" env QT_QPA_PLATFORM=xcb \
+        LIBGL_ALWAYS_SOFTWARE=1 .venv/bin/python docs/screenshots/make_screenshots.py
+
+Drives the real MainWindow on the bundled sample pair; the PNGs land next to
+this script. Settings go to a temporary folder, so the layout is the default one.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main() -> int:
+    from amrst_gui.app import create_app, sample_dir
+
+    app = create_app(sys.argv[:1])
+    from PySide6.QtCore import QEventLoop, QSettings, QTimer
+
+    from amrst_gui.main_window import MainWindow
+
+    settings_dir = tempfile.mkdtemp(prefix="amrst-shots-")
+    QSettings.setPath(QSettings.IniFormat, QSettings.UserScope, settings_dir)
+    win = MainWindow()
+    win.resize(1500, 950)
+    win.show()
+    s = win.session
+    failures: list[str] = []
+    s.failed.connect(failures.append)
+
+    def settle(ms: int = 400) -> None:
+        loop = QEventLoop()
+        QTimer.singleShot(ms, loop.quit)
+        loop.exec()
+
+    def run(start) -> None:
+        loop = QEventLoop()
+        s.busy_changed.connect(lambda busy: None if busy else loop.quit())
+        QTimer.singleShot(120_000, loop.quit)
+        start()
+        if s.busy:
+            loop.exec()
+        if failures:
+            raise SystemExit(f"failed: {failures}")
+        settle()
+
+    def shot(name: str, tab: int = 0) -> None:
+        win.tabs.setCurrentIndex(tab)
+        settle()
+        path = HERE / f"{name}.png"
+        win.grab().save(str(path))
+        print(f"saved {path}")
+
+    sample = sample_dir()
+    win.session.load_truth(sample / "truth.json")
+    run(lambda: s.load_scans(sample / "target.ply", sample / "source.ply"))
+    shot("01-loaded")
+    run(lambda: win.actions.separate.trigger())
+    shot("02-separated")
+    run(lambda: win.actions.skeleton.trigger())
+    shot("03-skeleton-keypoints")
+    run(lambda: win.actions.match.trigger())
+    win.scans_area.frame_match()
+    shot("04-matches")
+    # Review: reject the best match; the coarse solution moves to the next one.
+    win.matches_panel.table.setFocus()
+    win.actions.reject.trigger()
+    win.matches_panel.table.selectRow(1)
+    win.scans_area.frame_match()
+    shot("05-review-rejected")
+    run(lambda: win.actions.accept_coarse.trigger())
+    shot("06-coarse-overlay", tab=1)
+    run(lambda: win.actions.run_fine.trigger())
+    shot("07-fine-overlay", tab=1)
+    win.docks["parameters"].raise_()
+    shot("08-parameters", tab=1)
+    win.docks["scans"].raise_()
+    box = win.export_dialog()
+    box.folder_edit.setText(str(Path(settings_dir) / "export"))
+    settle()
+    path = HERE / "09-export-dialog.png"
+    box.grab().save(str(path))
+    print(f"saved {path}")
+    box.accept()
+    run(lambda: None)
+    shot("10-exported", tab=1)
+    win.close()
+    app.processEvents()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
