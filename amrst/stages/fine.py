@@ -56,8 +56,13 @@ class FineParams:
             "help": "Largest correspondence distance at the first scale; halved at each of the scales. Typical 2-5 × the expected coarse error.",
         },
     )
+    min_corr_dist_m: float = field(
+        default=0.02,
+        metadata={"unit": "m", "min": 0.001, "max": 5.0,
+                  "help": "Correspondence distance of the last scale; the scales step geometrically from max_corr_dist_m down to this. A tight last scale locks onto surfaces both scans saw. Typical 0.01-0.05."},
+    )
     scales: int = field(
-        default=3,
+        default=4,
         metadata={
             "unit": "",
             "min": 1,
@@ -104,6 +109,14 @@ class FineResult:
     )
     inlier_rmse_m: float
     max_corr_dist_m: float  # the last scale's distance
+
+
+def _ladder(params: FineParams) -> np.ndarray:
+    """Correspondence distances, geometric from max_corr_dist_m to min_corr_dist_m."""
+    if params.scales == 1:
+        return np.array([params.max_corr_dist_m])
+    lo = min(params.min_corr_dist_m, params.max_corr_dist_m)
+    return np.geomspace(params.max_corr_dist_m, lo, params.scales)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -206,7 +219,7 @@ def refine_registration(
     total, converged, dist = 0, True, params.max_corr_dist_m
     if params.method != "none":
         for s in range(params.scales):
-            dist = params.max_corr_dist_m / 2**s
+            dist = _ladder(params)[s]
             if params.method == "lm_icp":
                 T, it, conv = lm_icp(
                     source_xyz,

@@ -20,7 +20,7 @@ class KeypointParams:
     """Key point selection."""
 
     max_depth: int = field(
-        default=5,
+        default=50,
         metadata={
             "unit": "key nodes",
             "min": 1,

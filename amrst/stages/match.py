@@ -28,7 +28,7 @@ class MatchParams:
     """Similar-tetrahedron matching (paper's ε, β, δ) and the levelled-scanner rule."""
 
     edge_tolerance: float = field(
-        default=0.05,
+        default=0.08,
         metadata={
             "unit": "relative",
             "min": 0.005,
@@ -37,7 +37,7 @@ class MatchParams:
         },
     )
     edge_floor_m: float = field(
-        default=0.5,
+        default=1.0,
         metadata={
             "unit": "m",
             "min": 0.0,
@@ -55,7 +55,7 @@ class MatchParams:
         },
     )
     max_residual_m: float = field(
-        default=0.15,
+        default=0.3,
         metadata={
             "unit": "m",
             "min": 0.01,
@@ -96,6 +96,9 @@ class MatchParams:
             "help": "Scanners were levelled: reject matches that tilt the vertical by more than max_tilt_deg. Turn off for arbitrary orientations."
         },
     )
+    height_tolerance_m: float = field(
+        default=0.4, metadata={"unit": "m", "min": 0.01, "max": 10.0,
+                               "help": "Levelled scanners: vertex heights within a tetrahedron must agree to this (prunes matches early)."})
     max_tilt_deg: float = field(
         default=6.0,
         metadata={
@@ -144,6 +147,50 @@ def _tetrahedra(xyz: np.ndarray, params: MatchParams):
     quads, edges, signed = quads[ok], edges[ok], signed[ok]
     order = np.argsort(-np.abs(signed), kind="stable")[: params.max_tetrahedra]
     return quads[order], edges[order], signed[order]
+
+
+def _descriptor(kp, quads, edges, params: MatchParams) -> np.ndarray:
+    """Sorted log edge lengths; with levelled scanners also the sorted vertex heights."""
+    d = np.log(np.sort(edges, axis=1)[:, ::-1] + params.edge_floor_m) / np.log1p(params.edge_tolerance)
+    if not params.levelled:
+        return d
+    z = kp[quads][:, :, 2]
+    h = np.sort(z - z.mean(axis=1, keepdims=True), axis=1) / params.height_tolerance_m
+    return np.hstack([d, h])
+
+
+def _edge_index(a: int, b: int) -> int:
+    return next(i for i, (x, y) in enumerate(_EDGES) if {x, y} == {a, b})
+
+
+# Under vertex permutation π, target edge (a, b) meets source edge (π(a), π(b)); a
+# permutation's parity flips the signed volume. Both are fixed tables.
+_EDGE_PERM = np.array([[_edge_index(p[a], p[b]) for a, b in _EDGES] for p in _PERMS])
+_PARITY = np.array([np.linalg.det(np.eye(4)[list(p)]) for p in _PERMS])
+
+
+def _correspond(target_kp, source_kp, tq, sq, te, se, tv, sv, ti, si, params: MatchParams):
+    """For descriptor pairs, the proper vertex permutation whose edges agree best.
+
+    Sorted edges lose the vertex order and admit mirror images (same edges, opposite
+    signed volume); all 24 orders are tried and improper ones are excluded.
+    Returns the pairs kept, the permutation index and the edge error.
+    """
+    c = params.edge_floor_m
+    e_perm = se[si][:, _EDGE_PERM]  # (P, 24, 6)
+    e_t = te[ti][:, None, :]
+    worst = (np.abs(e_perm - e_t) / (np.maximum(e_perm, e_t) + c)).max(axis=2)  # (P, 24)
+    bad = np.sign(sv[si])[:, None] * _PARITY[None, :] != np.sign(tv[ti])[:, None]
+    if params.levelled:
+        zt = target_kp[tq[ti], 2]
+        zs = source_kp[sq[si], 2][:, _PERMS]  # (P, 24, 4)
+        dz = (zt - zt.mean(axis=1, keepdims=True))[:, None, :] - (zs - zs.mean(axis=2, keepdims=True))
+        bad |= np.abs(dz).max(axis=2) > params.height_tolerance_m
+    worst = np.where(bad, np.inf, worst)
+    best = np.argmin(worst, axis=1)
+    err = worst[np.arange(len(ti)), best]
+    keep = err <= params.edge_tolerance
+    return ti[keep], si[keep], best[keep], err[keep]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -213,37 +260,27 @@ def match_tetrahedra(
     if len(tq) == 0 or len(sq) == 0:
         return empty
     c = params.edge_floor_m
-    desc_t = np.log(np.sort(te, axis=1)[:, ::-1] + c)
-    desc_s = np.log(np.sort(se, axis=1)[:, ::-1] + c)
-    # Chebyshev ball: every sorted edge within tolerance (log(1+ε) ~ ε).
-    hits = cKDTree(desc_s).query_ball_point(
-        desc_t, r=np.log1p(params.edge_tolerance), p=np.inf, workers=-1
-    )
+    # Scaled so that the Chebyshev ball of radius 1 is the tolerance on every entry.
+    desc_t = _descriptor(target_kp, tq, te, params)
+    desc_s = _descriptor(source_kp, sq, se, params)
+    hits = cKDTree(desc_s).query_ball_point(desc_t, r=1.0, p=np.inf, workers=-1)
     ti = np.repeat(np.arange(len(tq)), [len(h) for h in hits])
     si = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.int64, count=len(ti))
     n_pairs = len(ti)
     reporter.progress(0.5, f"{n_pairs} descriptor pairs")
     reporter.check_cancelled()
     vol_ok = np.abs(np.abs(tv[ti]) / np.abs(sv[si]) - 1) < params.volume_tolerance
-    # Mirror images have all edges equal but the opposite signed volume.
     ti, si = ti[vol_ok], si[vol_ok]
     if len(ti) == 0:
         return empty
-    # Recover the vertex correspondence: the proper permutation whose edges agree best.
-    sv_perm = source_kp[sq[si]][:, _PERMS]  # (P, 24, 4, 3)
-    e_perm = np.linalg.norm(
-        sv_perm[:, :, _EDGES[:, 0]] - sv_perm[:, :, _EDGES[:, 1]], axis=3
-    )
-    e_t = te[ti][:, None, :]
-    rel = np.abs(e_perm - e_t) / (np.maximum(e_perm, e_t) + c)
-    worst = rel.max(axis=2)  # (P, 24)
-    a, b, cc, d = (sv_perm[:, :, i] for i in range(4))
-    s_sign = np.sign(np.einsum("pki,pki->pk", b - a, np.cross(cc - a, d - a)))
-    worst = np.where(s_sign == np.sign(tv[ti])[:, None], worst, np.inf)
-    best = np.argmin(worst, axis=1)
-    edge_err = worst[np.arange(len(ti)), best]
-    keep = edge_err <= params.edge_tolerance
-    ti, si, best, edge_err = ti[keep], si[keep], best[keep], edge_err[keep]
+    parts = [
+        _correspond(target_kp, source_kp, tq, sq, te, se, tv, sv, ti[k : k + 20000], si[k : k + 20000], params)
+        for k in range(0, len(ti), 20000)
+    ]
+    ti = np.concatenate([p[0] for p in parts])
+    si = np.concatenate([p[1] for p in parts])
+    best = np.concatenate([p[2] for p in parts])
+    edge_err = np.concatenate([p[3] for p in parts])
     tgt_idx = tq[ti]
     src_idx = sq[si][np.arange(len(si))[:, None], _PERMS[best]]
     T, res = kabsch(source_kp[src_idx], target_kp[tgt_idx])

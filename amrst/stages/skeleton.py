@@ -23,7 +23,7 @@ class SkeletonParams:
     """Skeleton extraction settings."""
 
     points: str = field(
-        default="wood",
+        default="all",
         metadata={
             "choices": ("wood", "all"),
             "help": "Skeletonise the wood points (the paper) or all points; falls back to all when too few wood points.",
