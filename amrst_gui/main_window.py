@@ -14,6 +14,7 @@ from PySide6.QtWidgets import (
     QTabWidget,
 )
 
+from amrst.errors import AmrstError
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
@@ -160,10 +161,8 @@ class MainWindow(QMainWindow):
         if path:
             try:
                 self.session.set_params(params_io.load_params(path))
-            except Exception as exc:  # a user-chosen file: say why it failed
-                self._on_failed(
-                    f"Could not load parameters from {Path(path).name}: {exc}"
-                )
+            except AmrstError as exc:
+                self._on_failed(f"Could not load parameters: {exc}")
 
     def save_params_dialog(self) -> None:
         """Write the current parameters to JSON."""
@@ -173,7 +172,11 @@ class MainWindow(QMainWindow):
             self, "Save parameters", "params.json", "JSON (*.json)"
         )
         if path:
-            params_io.save_params(path, self.session.params)
+            try:
+                params_io.save_params(path, self.session.params)
+            except (OSError, AmrstError) as exc:
+                self._on_failed(f"Could not save the parameters: {exc}")
+                return
             self.status.show_message(f"Parameters saved to {path}")
 
     def export_dialog(self) -> dialogs.ExportDialog:

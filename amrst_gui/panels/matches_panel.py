@@ -137,8 +137,11 @@ class MatchesPanel(QWidget):
         self.explanation.setWordWrap(True)
         self.explanation.setStyleSheet("color: #505050;")
         buttons = QHBoxLayout()
-        for action in (reject_action, restore_action):
-            button = QToolButton()
+        self.reject_button, self.restore_button = QToolButton(), QToolButton()
+        for button, action in (
+            (self.reject_button, reject_action),
+            (self.restore_button, restore_action),
+        ):
             button.setDefaultAction(action)
             button.setToolButtonStyle(Qt.ToolButtonTextOnly)
             buttons.addWidget(button)

@@ -147,15 +147,25 @@ class ParamsPanel(QWidget):
         except ImportError:
             return []
 
+    def load_preset(self, name: str) -> None:
+        """Put a preset's values in the form (Apply uses them)."""
+        from amrst import params_io
+        from amrst.errors import AmrstError
+
+        try:
+            params = params_io.load_preset(name)
+        except AmrstError as exc:
+            self.state.setText(f"Preset '{name}' not loaded: {exc}")
+            self.state.setStyleSheet("color: #c00000;")
+            return
+        self.show_params(params)
+        self._set_dirty(True, f"Preset '{name}' loaded into the form: press Apply.")
+
     def _on_preset_activated(self, index: int) -> None:
         name = self.preset.itemData(index)
         self.preset.setCurrentIndex(0)
-        if name is None:
-            return
-        from amrst import params_io
-
-        self.show_params(params_io.load_preset(name))
-        self._set_dirty(True, f"Preset '{name}' loaded into the form: press Apply.")
+        if name is not None:
+            self.load_preset(name)
 
     def _on_reset_clicked(self) -> None:
         self.show_params(type(self.session.params)())

@@ -125,3 +125,24 @@ def _nudge(editor) -> None:
         editor.setValue(
             value + editor.singleStep() if value < editor.maximum() else value - 1
         )
+
+
+def test_preset_fills_the_form_and_apply_uses_it(make_main_window, qtbot):
+    from amrst import params_io
+    from amrst_gui import steps
+
+    win = make_main_window()
+    panel = win.params_panel
+    names = list(params_io.list_presets())
+    assert names
+    assert panel.preset.count() == len(names) + 1
+    leafless = next(n for n in names if "leafless" in n.lower())
+    panel.load_preset(leafless)
+    assert panel.apply_button.isEnabled()
+    with qtbot.waitSignal(win.session.params_changed) as blocker:
+        panel.apply_button.click()
+    assert steps.values_equal(blocker.args[0], params_io.load_preset(leafless))
+    assert not panel.apply_button.isEnabled()
+    # Every parameter has an editor with a tooltip.
+    for (_group, name), editor in panel.editors.items():
+        assert editor.toolTip().startswith(name)

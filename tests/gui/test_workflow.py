@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from PySide6.QtCore import Qt
 
 
 def test_full_workflow_review_accept_refine_export(
@@ -39,11 +40,21 @@ def test_full_workflow_review_accept_refine_export(
     np.testing.assert_array_equal(t_rgb, s_rgb)
     assert len({tuple(c) for c in t_rgb}) == 4
 
-    # Reject the top match with the Delete action: the coarse solution moves on.
-    win.matches_panel.table.setFocus()
+    # Review with the keys: Delete rejects the selected (top) match, R restores
+    # it; then reject it for good. The coarse solution moves to the next one.
+    win.activateWindow()
+    qtbot.waitActive(win)
+    table = win.matches_panel.table
+    table.setFocus()
+    qtbot.waitUntil(table.hasFocus)
     with qtbot.waitSignal(s.review_changed) as blocker:
-        a.reject.trigger()
+        qtbot.keyClick(table, Qt.Key_Delete)
     assert blocker.args == [frozenset({ranked[0].id})]
+    with qtbot.waitSignal(s.review_changed) as blocker:
+        qtbot.keyClick(table, Qt.Key_R)
+    assert blocker.args == [frozenset()]
+    with qtbot.waitSignal(s.review_changed):
+        win.matches_panel.reject_button.click()
     assert s.coarse.candidate.id == ranked[1].id
     assert win.matches_panel.model.status(ranked[0]) == "rejected"
     assert win.matches_panel.model.status(ranked[1]).startswith("coarse")
