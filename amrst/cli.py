@@ -1,0 +1,201 @@
+"""The ``amrst`` command: info, register, simulate, bench.
+
+Every AmrstError becomes one clear line on stderr and a non-zero exit code; a traceback
+is shown only with --debug.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from amrst import __version__
+from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
+
+EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
+
+
+class TerminalReporter:
+    """Progress on stderr: a bar on a terminal, a line per stage message otherwise."""
+
+    def __init__(self, quiet: bool = False) -> None:
+        self._tty = sys.stderr.isatty()
+        self._quiet = quiet
+        self._last = ""
+        self._t0 = time.perf_counter()
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        if self._quiet:
+            return
+        if self._tty:
+            bar = "#" * int(30 * fraction)
+            sys.stderr.write(f"\r[{bar:<30}] {fraction:4.0%} {message[:50]:<50}")
+            if fraction >= 1.0:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+        elif message and message.split(":")[0] != self._last:
+            self._last = message.split(":")[0]
+            sys.stderr.write(f"{time.perf_counter() - self._t0:6.2f}s {message}\n")
+
+    def check_cancelled(self) -> None:
+        pass
+
+
+def read_truth(path: str) -> np.ndarray:
+    """T_target_source from a truth.json (clear errors)."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+        T = np.asarray(doc["T_target_source"], dtype=float)
+    except FileNotFoundError:
+        raise InvalidInput(f"Truth file not found: {p}.") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a 4x4 'T_target_source'.") from exc
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InvalidInput(f"T_target_source in {p} must be a finite 4x4 matrix, got shape {T.shape}.")
+    return T
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from amrst import io
+
+    for path in args.files:
+        cloud = io.read(path)
+        print(io.format_description(io.describe(cloud)))
+        if len(args.files) > 1:
+            print()
+    return 0
+
+
+def _load_params(args: argparse.Namespace):
+    from amrst.params_io import load_params, load_preset
+    from amrst.pipeline import RegistrationParams
+
+    if args.params:
+        return load_params(args.params)
+    if args.preset:
+        return load_preset(args.preset)
+    return RegistrationParams()
+
+
+def _cmd_register(args: argparse.Namespace) -> int:
+    from amrst import io
+    from amrst.export import export_registration
+    from amrst.pipeline import register
+    from amrst.report import registration_summary
+
+    t_start = time.perf_counter()
+    params = _load_params(args)
+    T_truth = read_truth(args.truth) if args.truth else None
+    target, source = io.read(args.target), io.read(args.source)
+    t_read = time.perf_counter() - t_start
+    result = register(target, source, params, TerminalReporter(args.quiet))
+    summary = registration_summary(result, T_truth)
+    summary["timings_s"]["read"] = round(t_read, 4)
+    parts = ["transform", "metrics", "params"] + (["registered", "merged"] if args.write_clouds else [])
+    extra = {
+        "confidence": result.confidence,
+        "message": result.message,
+        "timings_s": summary["timings_s"],
+        "coarse_candidate": {"rank": result.coarse.candidate.rank, "id": result.coarse.candidate.id,
+                             "explanation": result.coarse.candidate.explanation},
+        "target_file": str(args.target), "source_file": str(args.source),
+        "amrst_version": __version__,
+    }
+    files = export_registration(args.out, target=target, source=source, T_target_source=result.T_target_source,
+                                T_coarse=result.T_coarse, metrics=summary, params=params,
+                                cloud_format=args.format, parts=tuple(parts), transform_extra=extra)
+    fine = summary["fine"]
+    print(f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
+          f"(read {t_read:.2f} s).")
+    print(f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}, "
+          f"overlap score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}")
+    print(f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
+          f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}")
+    if T_truth is not None:
+        tf = summary["truth"]["fine"]
+        print(f"  truth: rotation error {tf['rotation_error_deg']:.3f} deg, translation error "
+              f"{tf['translation_error_m'] * 100:.1f} cm, gt_rmse {tf['gt_rmse_m'] * 100:.2f} cm "
+              f"-> {'registered' if summary['truth']['registered'] else 'NOT registered'}")
+    if result.confidence < 0.15 or result.coarse.candidate.score < 0.2:
+        print(f"  WARNING: {result.message}", file=sys.stderr)
+    print(f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with all sub-commands."""
+    from amrst import bench, simulate
+
+    p = argparse.ArgumentParser(prog="amrst", description="Marker-free registration of two TLS scans of one tree (AMRST).")
+    p.add_argument("--version", action="version", version=f"amrst {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    info = sub.add_parser("info", help="points, bounds, spacing and attributes of point cloud files")
+    info.add_argument("files", nargs="+", metavar="FILE")
+    info.set_defaults(func=_cmd_info)
+
+    reg = sub.add_parser("register", help="register SOURCE onto TARGET and write transform, metrics, parameters")
+    reg.add_argument("target", metavar="TARGET", help="reference scan (LAS/LAZ, PLY, PCD, XYZ/TXT/CSV)")
+    reg.add_argument("source", metavar="SOURCE", help="scan to move into the target frame")
+    reg.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    reg.add_argument("--params", metavar="FILE", help="parameter JSON (as written in params.json)")
+    reg.add_argument("--preset", metavar="NAME", help="a named preset from resources/presets")
+    reg.add_argument("--truth", metavar="TRUTH.json", help="known T_target_source: adds truth errors")
+    reg.add_argument("--write-clouds", action="store_true", help="also write the registered source and the merged cloud")
+    reg.add_argument("--format", default="ply", choices=("ply", "las", "laz", "pcd"), help="cloud format for --write-clouds")
+    reg.add_argument("--quiet", action="store_true", help="no progress output")
+    reg.set_defaults(func=_cmd_register)
+
+    sim = sub.add_parser("simulate", help="make two virtual tripod scans (with truth) from one complete tree cloud")
+    simulate.configure_parser(sim)
+    sim.set_defaults(func=simulate.run_cli)
+
+    ben = sub.add_parser("bench", help="run AMRST and the baselines on registration cases; write tables and plots")
+    bench.configure_parser(ben)
+    ben.set_defaults(func=bench.run_cli)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``amrst`` command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
+                        format="%(levelname)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except Cancelled:
+        print("Cancelled.", file=sys.stderr)
+        return EXIT_CANCELLED
+    except RegistrationFailed as exc:
+        print(f"Registration failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except AmrstError as exc:
+        print(f"Error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("Interrupted.", file=sys.stderr)
+        return EXIT_CANCELLED
+    except MemoryError:
+        print("Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).", file=sys.stderr)
+        return EXIT_INPUT
+    except Exception as exc:  # last line of defence: never a raw traceback for users
+        if args.debug:
+            raise
+        print(f"Internal error: {type(exc).__name__}: {exc}. Run again with --debug and report it.", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

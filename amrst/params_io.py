@@ -1,0 +1,129 @@
+"""Parameters to and from JSON, with a schema version, and named presets.
+
+Files written by an older version keep loading: unknown keys are refused with a clear
+message, missing keys take the current defaults, and ``schema_version`` says which
+layout a file has (see tests/core/data/params_v1.json).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from amrst.errors import InvalidInput
+from amrst.pipeline import RegistrationParams
+
+SCHEMA_VERSION = 1
+PRESETS_DIR = Path(__file__).resolve().parent.parent / "resources" / "presets"
+
+
+def params_to_dict(params: RegistrationParams) -> dict[str, Any]:
+    """Nested plain dict (JSON-ready) with ``schema_version``."""
+    out: dict[str, Any] = {"schema_version": SCHEMA_VERSION}
+    for f in dataclasses.fields(params):
+        stage = getattr(params, f.name)
+        out[f.name] = {
+            g.name: list(v) if isinstance(v := getattr(stage, g.name), tuple) else v
+            for g in dataclasses.fields(stage)
+        }
+    return out
+
+
+def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
+    """Build parameters from a dict; missing values take the defaults.
+
+    Raises
+    ------
+    InvalidInput
+        Unknown stage or parameter names, a newer schema, or values out of range.
+    """
+    version = data.get("schema_version", SCHEMA_VERSION)
+    if not isinstance(version, int) or version > SCHEMA_VERSION:
+        raise InvalidInput(
+            f"Parameter file schema_version {version!r} is newer than this AMRST "
+            f"({SCHEMA_VERSION}); update AMRST Studio or remove the newer settings."
+        )
+    defaults = RegistrationParams()
+    stages = {}
+    for f in dataclasses.fields(defaults):
+        given = data.get(f.name, {})
+        if not isinstance(given, dict):
+            raise InvalidInput(f"Parameters '{f.name}' must be a table of values.")
+        stage = getattr(defaults, f.name)
+        names = {g.name: g for g in dataclasses.fields(stage)}
+        unknown = set(given) - set(names)
+        if unknown:
+            raise InvalidInput(
+                f"Unknown parameter(s) {sorted(unknown)} in '{f.name}'; "
+                f"known ones are {sorted(names)}."
+            )
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}
+        try:
+            stages[f.name] = dataclasses.replace(stage, **values)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(f"Bad value in parameters '{f.name}': {exc}") from exc
+    unknown_stages = set(data) - set(stages) - {"schema_version", "name", "description"}
+    if unknown_stages:
+        raise InvalidInput(f"Unknown parameter section(s) {sorted(unknown_stages)}.")
+    return RegistrationParams(**stages)
+
+
+def save_params(path: str | os.PathLike, params: RegistrationParams) -> None:
+    """Write parameters as JSON, atomically."""
+    write_json_atomic(path, params_to_dict(params))
+
+
+def load_params(path: str | os.PathLike) -> RegistrationParams:
+    """Read a parameter JSON file (clear InvalidInput on any problem)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInput(f"Parameter file not found: {path}. Check the path.")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInput(f"Cannot read parameter file {path}: {exc}. It must be JSON.") from exc
+    if not isinstance(data, dict):
+        raise InvalidInput(f"Parameter file {path} must hold a JSON object.")
+    return params_from_dict(data)
+
+
+def list_presets() -> dict[str, Path]:
+    """Preset name -> file, from resources/presets/*.json."""
+    if not PRESETS_DIR.is_dir():
+        return {}
+    out = {}
+    for p in sorted(PRESETS_DIR.glob("*.json")):
+        try:
+            name = json.loads(p.read_text(encoding="utf-8")).get("name", p.stem)
+        except (OSError, json.JSONDecodeError):
+            continue
+        out[str(name)] = p
+    return out
+
+
+def load_preset(name: str) -> RegistrationParams:
+    """Parameters of a named preset."""
+    presets = list_presets()
+    if name not in presets:
+        raise InvalidInput(f"No preset named {name!r}; available: {sorted(presets)}.")
+    return load_params(presets[name])
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
+    """Write JSON to a temp file in the same folder, then rename over the target."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InvalidInput(f"Folder does not exist: {path.parent}. Create it first.")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=2, allow_nan=True)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,66 @@
+"""One plain dict that describes a registration: metrics, timings, truth errors.
+
+The CLI writes it as metrics.json, the app shows it in its Metrics panel and exports it,
+the benchmark reads the same numbers.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from amrst.pipeline import RegistrationResult
+from amrst.stages.metrics import truth_errors
+from amrst.types import Transform
+
+
+def registration_summary(result: RegistrationResult, T_truth: Transform | None = None) -> dict[str, Any]:
+    """Metrics of a registration as a nested JSON-ready dict.
+
+    Parameters
+    ----------
+    result : RegistrationResult
+    T_truth : (4, 4) float64 or None
+        Known ``T_target_source`` (world frame); adds rotation/translation errors and gt_rmse.
+
+    Returns
+    -------
+    dict
+    """
+    fine, coarse = result.fine, result.coarse
+    out: dict[str, Any] = {
+        "coarse": {
+            **result.metrics_coarse.as_dict(),
+            "candidate_rank": coarse.candidate.rank,
+            "candidate_id": coarse.candidate.id,
+            "verification_score": coarse.candidate.score,
+            "confidence": coarse.confidence,
+        },
+        "fine": {
+            **result.metrics_fine.as_dict(),
+            "method": fine.method,
+            "converged": fine.converged,
+            "iterations": fine.iterations,
+            "fitness": fine.fitness,
+            "inlier_rmse_m": fine.inlier_rmse_m,
+        },
+        "key_points": {"target": len(result.target.keypoints.xyz), "source": len(result.source.keypoints.xyz)},
+        "tetrahedron_matches": result.matches.n_matches,
+        "candidates": len(result.matches.candidates),
+        "wood_fraction": {
+            "target": result.target.separation.wood_fraction,
+            "source": result.source.separation.wood_fraction,
+        },
+        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+    }
+    if T_truth is not None:
+        src = result.source.cloud.world_xyz
+        out["truth"] = {
+            "fine": truth_errors(result.T_target_source, np.asarray(T_truth, float), src).as_dict(),
+            "coarse": truth_errors(result.T_coarse, np.asarray(T_truth, float), src).as_dict(),
+        }
+        out["truth"]["registered"] = bool(
+            truth_errors(result.T_target_source, np.asarray(T_truth, float), src).registered()
+        )
+    return out
