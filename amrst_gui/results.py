@@ -201,10 +201,29 @@ class ResultsMixin:
             "metrics": self.metrics_report(),
             "params": self._params,
             "cloud_format": cloud_format,
+            "transform_extra": self._transform_context(),
         }
         if parts is not None:
             kwargs["parts"] = tuple(parts)
         return kwargs
+
+    def _transform_context(self) -> dict[str, Any]:
+        coarse, fine = self._accepted, self._fine
+        extra: dict[str, Any] = {
+            "target_file": str(self._paths["target"] or ""),
+            "source_file": str(self._paths["source"] or ""),
+            "stage": "fine" if fine is not None else "coarse",
+            "coarse_confidence": float(coarse.confidence),
+            "coarse_match_rank": None
+            if coarse.candidate is None
+            else int(coarse.candidate.rank),
+            "rejected_match_ids": sorted(int(i) for i in self._rejected),
+        }
+        if fine is not None:
+            extra.update(
+                fine_method=str(fine.method), fine_converged=bool(fine.converged)
+            )
+        return extra
 
     def metrics_report(self) -> dict[str, dict]:
         """Everything measured, as plain dicts for the export."""
