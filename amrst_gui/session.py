@@ -67,6 +67,7 @@ class Session(ResultsMixin, QObject):
         self._chain: list[str] = []
         self._chain_dropped = False
         self._busy = False
+        self._job_params = self._params
         self._pending_paths: dict[str, Path] = {}
         self._closing = False
 
@@ -278,6 +279,8 @@ class Session(ResultsMixin, QObject):
 
     def _launch(self, step: str, fn, *args) -> None:
         log.info("%s: started%s", self._label(step), self._params_text(step))
+        # Parameters may change while the job runs: remember the ones it got.
+        self._job_params = self._params
         self._job = workers.run_stage(
             fn,
             *args,
@@ -346,9 +349,12 @@ class Session(ResultsMixin, QObject):
             roles = list(result)
             return lambda: [self.scan_loaded.emit(r) for r in roles]
         if step == "export":
+            folder = result[0].parent if result else "-"
+            names = ", ".join(p.name for p in result)
+            log.info("Exported to %s: %s", folder, names)
             return lambda: self.exported.emit(result)
         self._clear_after(step)
-        self._step_params[step] = self._params
+        self._step_params[step] = self._job_params
         if step in ("separate", "skeleton"):
             self._analyses = result
             sig = (

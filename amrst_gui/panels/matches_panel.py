@@ -72,8 +72,8 @@ class CandidateModel(QAbstractTableModel):
             and coarse.candidate is not None
             and coarse.candidate.id == cand.id
         ):
-            return "coarse ◀"
-        return "candidate"
+            return "◀ coarse"
+        return ""
 
     def data(self, index, role=Qt.DisplayRole):
         if not index.isValid():
@@ -97,7 +97,7 @@ class CandidateModel(QAbstractTableModel):
         status = self.status(cand)
         if role == Qt.ForegroundRole and status == "rejected":
             return QColor("#999999")
-        if role == Qt.FontRole and status != "candidate":
+        if role == Qt.FontRole and status:
             font = QFont()
             font.setStrikeOut(status == "rejected")
             font.setBold(status.startswith("coarse"))
@@ -119,6 +119,7 @@ class MatchesPanel(QWidget):
     def __init__(self, session, reject_action, restore_action, parent=None) -> None:
         super().__init__(parent)
         self.setObjectName("matches_panel")
+        self.setMinimumWidth(340)
         self.session = session
         self.model = CandidateModel(session, self)
         self.table = QTableView()
@@ -126,6 +127,8 @@ class MatchesPanel(QWidget):
         self.table.setSelectionBehavior(QAbstractItemView.SelectRows)
         self.table.setSelectionMode(QAbstractItemView.SingleSelection)
         self.table.verticalHeader().hide()
+        self.table.verticalHeader().setDefaultSectionSize(22)
+        self.table.horizontalHeader().setMinimumSectionSize(24)
         self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeToContents)
         self.table.horizontalHeader().setStretchLastSection(True)
         self.table.selectionModel().currentRowChanged.connect(

@@ -75,6 +75,7 @@ class MetricsPanel(QWidget):
     def __init__(self, session, parent=None) -> None:
         super().__init__(parent)
         self.setObjectName("metrics_panel")
+        self.setMinimumWidth(340)
         self.session = session
         self.table = QTableWidget(len(_ROWS), len(_STAGES))
         self.table.setHorizontalHeaderLabels(["Coarse", "Fine"])

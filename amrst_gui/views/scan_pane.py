@@ -211,4 +211,5 @@ class ScansArea(QWidget):
             layers = view.scene.layers if view.scene is not None else ()
             for layer in layers:
                 if layer.name == "match_vertices":
-                    view.frame_points(layer.centers)
+                    # Keep some of the tree around a small tetrahedron in sight.
+                    view.frame_points(layer.centers, min_radius=12 * layer.radius)

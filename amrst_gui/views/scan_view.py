@@ -115,13 +115,16 @@ class ScanView(QWidget):
         if render:
             p.render()
 
-    def frame_points(self, xyz: np.ndarray, margin: float = 1.3) -> None:
+    def frame_points(
+        self, xyz: np.ndarray, margin: float = 1.3, min_radius: float = 0.05
+    ) -> None:
         """Aim at ``xyz`` (K, 3) from the current direction, filling the view."""
         if self._closed or len(xyz) == 0:
             return
         cam = self.plotter.camera
         center = np.asarray(xyz, float).mean(axis=0)
-        radius = max(float(np.linalg.norm(xyz - center, axis=1).max()), 0.05) * margin
+        spread = float(np.linalg.norm(xyz - center, axis=1).max())
+        radius = max(spread * margin, min_radius)
         direction = np.asarray(cam.position) - np.asarray(cam.focal_point)
         direction /= max(np.linalg.norm(direction), 1e-12)
         distance = radius / np.tan(np.radians(cam.view_angle) / 2)

@@ -137,8 +137,14 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
         verts = np.asarray(kp.xyz, np.float32)[idx]
         rejected = cand.id in session.rejected
         key = (Ref(kp), int(cand.id), rejected)
+        # Big enough to spot in the whole tree, small enough not to hide a small
+        # tetrahedron's edges.
+        edges = np.linalg.norm(
+            verts[TETRA_EDGES[:, 0]] - verts[TETRA_EDGES[:, 1]], axis=1
+        )
+        vertex_radius = max(min(radius * 2.2, 0.2 * float(edges.min())), radius)
         layers.append(
-            SpheresLayer("match_vertices", key, verts, MATCH_RGB, radius * 2.2)
+            SpheresLayer("match_vertices", key, verts, MATCH_RGB, vertex_radius)
         )
         colour = (120, 120, 120) if rejected else (255, 255, 255)
         layers.append(LinesLayer("match_edges", key, verts, TETRA_EDGES, colour, 4.0))
