@@ -41,6 +41,7 @@ _CSV_FIELDS = [
     "hausdorff_p95_m",
     "overlap_fraction",
     "time_s",
+    "wall_s",
     "fitness",
     "inlier_rmse_m",
     "iterations",
@@ -181,8 +182,9 @@ def summary_markdown(
     out = ["# AMRST benchmark\n\n"]
     out.append(
         f"{n} cases x {len(methods)} methods x {meta.get('repeat', 1)} repeat(s); "
-        f"registered = {SUCCESS_RULE}. Times are wall seconds of the method call only "
-        f"(clouds already in memory), median over repeats.\n\n"
+        f"registered = {SUCCESS_RULE}. Times are the seconds each method reports for "
+        f"its own run (clouds already in memory, libraries loaded), median over "
+        f"repeats.\n\n"
     )
     rows = []
     for m in methods:
@@ -223,7 +225,10 @@ def summary_markdown(
     )
     if "amrst" in methods and len(methods) > 1:
         out.append("\n## Speed of amrst\n\n")
-        out.append("Median over cases of time(method) / time(amrst), same run:\n\n")
+        out.append(
+            "Median over cases of time(method) / time(amrst), same run "
+            "(above 1: amrst is faster):\n\n"
+        )
         ratio_rows = [
             [m, f"{fmt(r)}x", str(k)]
             for m, (r, k) in speed_ratios(agg, cases, methods).items()
