@@ -111,7 +111,7 @@ def write_plots(
     files = [_save(fig, out / "accuracy.png")]
     fig, ax = _figure(len(cases))
     _per_case(ax, agg, cases, methods, "time_s")
-    ax.set_ylabel("wall time of the method call (s)")
+    ax.set_ylabel("compute time of the method (s)")
     ax.set_title("Registration time per case (lower is faster; log scale)")
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
     files.append(_save(fig, out / "time.png"))
