@@ -95,6 +95,7 @@ class MatchResult:
     candidates: tuple  # tuple[Candidate, ...], best first
     n_matches: int
     timings: dict = field(default_factory=dict)
+    source_centre: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) source centroid
 
 
 @dataclass(frozen=True, slots=True)
@@ -198,14 +199,14 @@ def find_matches(
         SubReporter(reporter, 0.4, 1.0, "verification"),
     )
     _timed(timings, "verify", t0)
-    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings)
+    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings, source.xyz.mean(axis=0))
 
 
 def coarse_from_matches(
     matches: MatchResult, rejected: frozenset[int] = frozenset()
 ) -> CoarseResult:
     """The best candidate not rejected by the user (local frames)."""
-    return choose_coarse(CandidateList(matches.candidates, matches.n_matches), rejected)
+    return choose_coarse(CandidateList(matches.candidates, matches.n_matches), rejected, matches.source_centre)
 
 
 def refine(

@@ -61,13 +61,18 @@ class CoarseParams:
         },
     )
     polish_top: int = field(
-        default=8,
+        default=4,
         metadata={
             "unit": "solutions",
             "min": 0,
             "max": 100,
             "help": "The best solutions get a short ICP polish and a second score (0 = off).",
         },
+    )
+    tight_dist_m: float = field(
+        default=0.04,
+        metadata={"unit": "m", "min": 0.005, "max": 1.0,
+                  "help": "After the polish, a candidate scores the share of sampled source points within this distance of the target: the true pose wins at tight distances, a biased one only at loose ones."},
     )
     polish_max_dist_m: float = field(
         default=0.5,
@@ -156,28 +161,26 @@ class _Occupancy:
         return float(np.mean(self.codes[pos] == code))
 
 
-def _group(
-    matches: TetraMatches, centre: np.ndarray, params: CoarseParams
-) -> list[np.ndarray]:
-    """Greedy grouping of matches by transform; best residual first."""
-    order = np.argsort(matches.svd_residual_m, kind="stable")
+def _group(matches: TetraMatches, centre: np.ndarray, params: CoarseParams) -> list[np.ndarray]:
+    """Group matches proposing the same transform; each group best residual first.
+
+    Two transforms are the same solution when they move the source centre to the same
+    cell of size ``same_solution_m`` and their rotation vectors fall in the same cell of
+    ``same_solution_deg``: a hash, so thousands of matches group in one pass.
+    """
+    from scipy.spatial.transform import Rotation
+
     T = matches.T_target_source
     moved = np.einsum("pij,j->pi", T[:, :3, :3], centre) + T[:, :3, 3]
-    reps: list[int] = []
-    members: list[list[int]] = []
-    for i in order:
-        if reps:
-            r = np.asarray(reps)
-            near = np.linalg.norm(moved[r] - moved[i], axis=1) < params.same_solution_m
-            if near.any():
-                cos = (np.einsum("pij,ij->p", T[r[near], :3, :3], T[i, :3, :3]) - 1) / 2
-                ang = np.degrees(np.arccos(np.clip(cos, -1, 1)))
-                if (ang < params.same_solution_deg).any():
-                    members[int(np.flatnonzero(near)[np.argmin(ang)])].append(int(i))
-                    continue
-        reps.append(int(i))
-        members.append([int(i)])
-    return [np.asarray(m) for m in members]
+    rotvec = Rotation.from_matrix(T[:, :3, :3]).as_rotvec(degrees=True)
+    key = np.hstack([np.floor(moved / params.same_solution_m), np.floor(rotvec / params.same_solution_deg)])
+    _, label = np.unique(key.astype(np.int64), axis=0, return_inverse=True)
+    label = label.ravel()
+    order = np.lexsort((matches.svd_residual_m, label))
+    bounds = np.flatnonzero(np.r_[True, label[order][1:] != label[order][:-1], True])
+    groups = [order[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+    groups.sort(key=lambda g: matches.svd_residual_m[g[0]])
+    return groups
 
 
 def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transform:
@@ -191,7 +194,7 @@ def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transfor
         max_dist,
         T,
         reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=15),
+        reg.ICPConvergenceCriteria(max_iteration=10),
     )
     T2 = np.asarray(out.transformation)
     out = reg.registration_icp(
@@ -200,7 +203,7 @@ def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transfor
         max_dist / 3,
         T2,
         reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=15),
+        reg.ICPConvergenceCriteria(max_iteration=10),
     )
     return np.asarray(out.transformation)
 
@@ -229,6 +232,7 @@ def rank_candidates(
     CandidateList
     """
     import open3d as o3d
+    from scipy.spatial import cKDTree
 
     if len(matches.T_target_source) == 0:
         return CandidateList((), 0)
@@ -249,12 +253,13 @@ def rank_candidates(
     score = raw.copy()
     is_polished = np.zeros(len(rep), dtype=bool)
     if params.polish_top > 0:
+        tgt_tree = cKDTree(target_xyz)
         tgt_pcd = o3d.geometry.PointCloud(
             o3d.utility.Vector3dVector(target_xyz)
-        ).voxel_down_sample(params.verify_voxel_m / 2)
+        ).voxel_down_sample(params.verify_voxel_m * 0.7)
         src_small = np.asarray(
             o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_xyz))
-            .voxel_down_sample(params.verify_voxel_m / 2)
+            .voxel_down_sample(params.verify_voxel_m * 0.7)
             .points
         )
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
@@ -264,7 +269,8 @@ def rank_candidates(
             reporter.check_cancelled()
             Tp = _polish(src_small, tgt_pcd, T[rep[j]], params.polish_max_dist_m)
             polished_T[int(rep[j])] = Tp
-            score[j] = occ.fraction(sample @ Tp[:3, :3].T + Tp[:3, 3])
+            d = tgt_tree.query(sample @ Tp[:3, :3].T + Tp[:3, 3], distance_upper_bound=params.tight_dist_m, workers=-1)[0]
+            score[j] = float(np.mean(d < params.tight_dist_m))
             is_polished[j] = True
             reporter.progress(
                 0.4 + 0.5 * (n + 1) / len(top), "verifying the best solutions"
@@ -343,16 +349,17 @@ def choose_coarse(
         )
     best = left[0]
     centre = np.zeros(3) if centre is None else centre
+    # Scores are comparable only between candidates verified the same way.
     others = [
         c.score
         for c in left[1:]
-        if _distinct(c.T_target_source, best.T_target_source, centre)
+        if c.polished == best.polished and _distinct(c.T_target_source, best.T_target_source, centre)
     ]
     runner = max(others, default=0.0)
     conf = float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
-    if best.score < 0.2:
+    if best.score < 0.1:
         msg = (
-            f"Low confidence: only {best.score:.0%} of the source lands on the target. Check the matches by eye; "
+            f"Low confidence: only {best.score:.0%} of the sampled source points land on the target. Check the matches by eye; "
             "the scans may overlap little or the skeletons may differ."
         )
     elif conf < 0.15:
@@ -361,5 +368,5 @@ def choose_coarse(
             "Review the top matches."
         )
     else:
-        msg = f"Candidate {best.rank}: {best.score:.0%} overlap, confidence {conf:.2f}."
+        msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
     return CoarseResult(best, best.T_target_source, conf, runner, msg)

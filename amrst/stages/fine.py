@@ -48,7 +48,7 @@ class FineParams:
         },
     )
     max_corr_dist_m: float = field(
-        default=0.3,
+        default=0.15,
         metadata={
             "unit": "m",
             "min": 0.005,
@@ -62,7 +62,7 @@ class FineParams:
                   "help": "Correspondence distance of the last scale; the scales step geometrically from max_corr_dist_m down to this. A tight last scale locks onto surfaces both scans saw. Typical 0.01-0.05."},
     )
     scales: int = field(
-        default=4,
+        default=3,
         metadata={
             "unit": "",
             "min": 1,

@@ -122,52 +122,70 @@ class SkeletonResult:
         return np.bincount(p, minlength=len(self.nodes))
 
 
+def _min_edge_per_pair(la, lb, el):
+    """Index of the shortest edge for each unordered component pair."""
+    lo, hi = np.minimum(la, lb), np.maximum(la, lb)
+    order = np.lexsort((el, hi, lo))
+    key = np.column_stack([lo[order], hi[order]])
+    first = np.r_[True, np.any(key[1:] != key[:-1], axis=1)]
+    return order[first]
+
+
 def _graph(xyz: np.ndarray, params: SkeletonParams):
-    """Sparse symmetric graph: kNN edges plus the shortest bridges between components."""
+    """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
+
+    Gaps left by occlusion split the wood into components. Candidate bridges are the
+    longer edges of a wider kNN query; a minimum spanning tree over components keeps
+    the shortest set that links them (the paper's Delaunay graph links everything, at
+    several times the cost). Components still apart are linked to the root's one by
+    their nearest point. A bridge costs twice its length, so paths prefer real wood.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-    from scipy.spatial import Delaunay, cKDTree
+    from scipy.spatial import cKDTree
 
     n = len(xyz)
-    k = min(params.neighbours + 1, n)
-    dist, idx = cKDTree(xyz).query(xyz, k=k, workers=-1)
-    rows = np.repeat(np.arange(n), k - 1)
-    cols, w = idx[:, 1:].ravel(), dist[:, 1:].ravel()
+    tree = cKDTree(xyz)
+    k = min(max(params.neighbours, 16) + 1, n)
+    dist, idx = tree.query(xyz, k=k, workers=-1)
+    kn = min(params.neighbours + 1, n)
+    rows = np.repeat(np.arange(n), kn - 1)
+    cols, w = idx[:, 1:kn].ravel(), dist[:, 1:kn].ravel()
     ok = w <= params.max_edge_m
     rows, cols, w = rows[ok], cols[ok], w[ok]
-    g = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
+    g = coo_matrix((w, (rows, cols)), shape=(n, n))
     n_comp, labels = connected_components(g, directed=False)
     bridged = 0
-    if n_comp > 1 and n >= 5:
-        # Delaunay edges between different components; keep the component-level MST.
-        simp = Delaunay(xyz, qhull_options="QJ").simplices
-        e = np.concatenate([simp[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
-        e = e[labels[e[:, 0]] != labels[e[:, 1]]]
-        if len(e):
-            el = np.linalg.norm(xyz[e[:, 0]] - xyz[e[:, 1]], axis=1)
-            la, lb = labels[e[:, 0]], labels[e[:, 1]]
-            comp = coo_matrix((el + 1e-9, (la, lb)), shape=(n_comp, n_comp)).tocsr()
-            # coo->csr sums duplicates: take the minimum per component pair instead.
-            order = np.lexsort((el, np.minimum(la, lb), np.maximum(la, lb)))
-            key = np.minimum(la, lb)[order] * n_comp + np.maximum(la, lb)[order]
-            first = np.r_[True, key[1:] != key[:-1]]
-            sel = order[first]
-            comp = coo_matrix(
-                (el[sel] + 1e-9, (la[sel], lb[sel])), shape=(n_comp, n_comp)
-            )
+    if n_comp > 1:
+        e0 = np.repeat(np.arange(n), k - 1)
+        e1, el = idx[:, 1:].ravel(), dist[:, 1:].ravel()
+        cross = (labels[e0] != labels[e1]) & np.isfinite(el)
+        e0, e1, el = e0[cross], e1[cross], el[cross]
+        if len(e0):
+            sel = _min_edge_per_pair(labels[e0], labels[e1], el)
+            comp = coo_matrix((el[sel] + 1e-9, (labels[e0[sel]], labels[e1[sel]])), shape=(n_comp, n_comp))
             mst = minimum_spanning_tree(comp).tocoo()
-            pair_best = {
-                (min(a, b), max(a, b)): s for a, b, s in zip(la[sel], lb[sel], sel)
-            }
-            bridges = np.array(
-                [pair_best[(min(a, b), max(a, b))] for a, b in zip(mst.row, mst.col)]
-            )
-            if len(bridges):
-                bridged = len(bridges)
-                # A gap costs more than its length, so paths prefer real wood.
-                rows = np.r_[rows, e[bridges, 0]]
-                cols = np.r_[cols, e[bridges, 1]]
-                w = np.r_[w, 2.0 * el[bridges]]
+            # Map each MST component pair back to its shortest edge.
+            pair = {(int(min(a, b)), int(max(a, b))): int(s) for a, b, s in zip(labels[e0[sel]], labels[e1[sel]], sel)}
+            bridges = [pair[(int(min(a, b)), int(max(a, b)))] for a, b in zip(mst.row, mst.col)]
+            rows, cols, w = np.r_[rows, e0[bridges]], np.r_[cols, e1[bridges]], np.r_[w, 2.0 * el[bridges]]
+            bridged += len(bridges)
+        g = coo_matrix((w, (rows, cols)), shape=(n, n))
+        n_comp, labels = connected_components(g, directed=False)
+        if n_comp > 1:
+            # Far islands: link each to the largest component by its nearest point.
+            main = np.argmax(np.bincount(labels))
+            main_idx = np.flatnonzero(labels == main)
+            main_tree = cKDTree(xyz[main_idx])
+            others = np.flatnonzero(labels != main)
+            d, j = main_tree.query(xyz[others], workers=-1)
+            lab = labels[others]
+            order = np.lexsort((d, lab))
+            first = order[np.r_[True, lab[order][1:] != lab[order][:-1]]]
+            rows = np.r_[rows, others[first]]
+            cols = np.r_[cols, main_idx[j[first]]]
+            w = np.r_[w, 2.0 * d[first]]
+            bridged += len(first)
     g = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     return g.maximum(g.T), bridged
 
