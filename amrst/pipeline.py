@@ -16,6 +16,7 @@ register() and used by export are in world coordinates (see world_transform).
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field, replace
 
@@ -42,6 +43,8 @@ from amrst.stages.preprocess import (
 from amrst.stages.separate import SeparateParams, SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonParams, SkeletonResult, build_skeleton
 from amrst.types import Cloud, Transform, make_transform
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -184,12 +187,18 @@ def find_matches(
             )
     timings: dict = {}
     t0 = time.perf_counter()
-    tetra = match_tetrahedra(
-        target.keypoints.xyz,
-        source.keypoints.xyz,
-        params.match,
-        SubReporter(reporter, 0, 0.4, "matching"),
-    )
+    tetra = match_tetrahedra(target.keypoints.xyz, source.keypoints.xyz, params.match,
+                             SubReporter(reporter, 0, 0.4, "matching"))
+    if len(tetra.T_target_source) == 0 and params.match.retry_relaxed:
+        # One retry with looser tolerances before giving up (said in the log).
+        m = params.match
+        relaxed = replace(m, edge_tolerance=min(2 * m.edge_tolerance, 0.3),
+                          max_residual_m=1.5 * m.max_residual_m, height_tolerance_m=1.5 * m.height_tolerance_m,
+                          volume_tolerance=min(2 * m.volume_tolerance, 1.0))
+        log.info("No congruent tetrahedra; retrying with edge tolerance %.2f, residual %.2f m",
+                 relaxed.edge_tolerance, relaxed.max_residual_m)
+        tetra = match_tetrahedra(target.keypoints.xyz, source.keypoints.xyz, relaxed,
+                                 SubReporter(reporter, 0, 0.4, "matching (relaxed)"))
     t0 = _timed(timings, "match", t0)
     ranked: CandidateList = rank_candidates(
         tetra,

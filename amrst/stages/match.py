@@ -99,6 +99,10 @@ class MatchParams:
     height_tolerance_m: float = field(
         default=0.4, metadata={"unit": "m", "min": 0.01, "max": 10.0,
                                "help": "Levelled scanners: vertex heights within a tetrahedron must agree to this (prunes matches early)."})
+    retry_relaxed: bool = field(
+        default=True,
+        metadata={"help": "When no tetrahedra match, try once more with doubled ε and β and 1.5x δ and height tolerance."},
+    )
     max_tilt_deg: float = field(
         default=6.0,
         metadata={
