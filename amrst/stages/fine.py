@@ -82,7 +82,7 @@ class FineParams:
         },
     )
     tolerance: float = field(
-        default=1e-6,
+        default=1e-5,
         metadata={
             "unit": "relative",
             "min": 0.0,
@@ -142,7 +142,7 @@ def lm_icp(src, tgt, T_init, max_dist, iters, tol, reporter=NULL_REPORTER):
     for it in range(1, iters + 1):
         reporter.check_cancelled()
         p = src @ T[:3, :3].T + T[:3, 3]
-        d, j = tree.query(p, distance_upper_bound=max_dist, workers=-1)
+        d, j = tree.query(p, distance_upper_bound=max_dist)
         ok = np.isfinite(d)
         if ok.sum() < 6:
             return T, it, False
@@ -248,7 +248,7 @@ def refine_registration(
                 f"scale {s + 1}/{params.scales}, {dist * 100:.0f} cm",
             )
             reporter.check_cancelled()
-    d = cKDTree(target_xyz).query(source_xyz @ T[:3, :3].T + T[:3, 3], workers=-1)[0]
+    d = cKDTree(target_xyz).query(source_xyz @ T[:3, :3].T + T[:3, 3])[0]
     inl = d < dist
     return FineResult(
         T,

@@ -47,7 +47,7 @@ class KeypointParams:
         },
     )
     max_keypoints: int = field(
-        default=40,
+        default=32,
         metadata={
             "unit": "points",
             "min": 4,

@@ -82,7 +82,7 @@ class MatchParams:
         },
     )
     max_tetrahedra: int = field(
-        default=6000,
+        default=3000,
         metadata={
             "unit": "tetrahedra",
             "min": 10,

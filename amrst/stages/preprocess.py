@@ -37,7 +37,7 @@ class PreprocessParams:
         },
     )
     voxel_size_m: float = field(
-        default=0.02,
+        default=0.03,
         metadata={
             "unit": "m",
             "min": 0.0,

@@ -178,7 +178,7 @@ def _graph(xyz: np.ndarray, params: SkeletonParams):
             main_idx = np.flatnonzero(labels == main)
             main_tree = cKDTree(xyz[main_idx])
             others = np.flatnonzero(labels != main)
-            d, j = main_tree.query(xyz[others], workers=-1)
+            d, j = main_tree.query(xyz[others])
             lab = labels[others]
             order = np.lexsort((d, lab))
             first = order[np.r_[True, lab[order][1:] != lab[order][:-1]]]
