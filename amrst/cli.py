@@ -115,7 +115,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
           f"(read {t_read:.2f} s).")
     print(f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}, "
-          f"overlap score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}")
+          f"verification score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}")
     print(f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
           f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}")
     if T_truth is not None:

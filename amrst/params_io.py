@@ -62,6 +62,8 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
                 f"known ones are {sorted(names)}."
             )
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}
+        for key, value in values.items():
+            _check_value(f.name, names[key], getattr(stage, key), value)
         try:
             stages[f.name] = dataclasses.replace(stage, **values)
         except (TypeError, ValueError) as exc:
@@ -70,6 +72,32 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     if unknown_stages:
         raise InvalidInput(f"Unknown parameter section(s) {sorted(unknown_stages)}.")
     return RegistrationParams(**stages)
+
+
+def _check_value(stage: str, f: dataclasses.Field, default: Any, value: Any) -> None:
+    """Type and range of one value against the field's default and metadata."""
+    name = f"{stage}.{f.name}"
+    meta = f.metadata
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, tuple):
+        ok = isinstance(value, tuple) and all(isinstance(v, type(default[0])) for v in value)
+    else:
+        ok = True
+    if not ok:
+        raise InvalidInput(f"Parameter {name} must be of type {type(default).__name__}, got {value!r}.")
+    if "choices" in meta and value not in meta["choices"]:
+        raise InvalidInput(f"Parameter {name} must be one of {list(meta['choices'])}, got {value!r}.")
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value == value:
+        lo, hi = meta.get("min"), meta.get("max")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise InvalidInput(f"Parameter {name} = {value} is outside its range [{lo}, {hi}].")
 
 
 def save_params(path: str | os.PathLike, params: RegistrationParams) -> None:

@@ -145,6 +145,7 @@ def transform_cloud(T_target_source: Transform, source: Cloud, target_offset=Non
 
 
 def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle of a (3, 3) rotation in degrees, robust near 0 and 180."""
-    c = (np.trace(R) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    """Angle of a (3, 3) rotation in degrees, accurate near 0 and 180 (via the quaternion)."""
+    from scipy.spatial.transform import Rotation
+
+    return float(np.degrees(Rotation.from_matrix(np.asarray(R, float)).magnitude()))

@@ -96,7 +96,7 @@ class CoarseParams:
             "help": "Solutions kept in the ranked list.",
         },
     )
-    seed: int = 0
+    seed: int = field(default=0, metadata={"help": "Seed of the verification sampling (same inputs give the same ranking)."})
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,18 +177,24 @@ class _Occupancy:
 def _group(matches: TetraMatches, centre: np.ndarray, params: CoarseParams) -> list[np.ndarray]:
     """Group matches proposing the same transform; each group best residual first.
 
-    Two transforms are the same solution when they move the source centre to the same
-    cell of size ``same_solution_m`` and their rotation vectors fall in the same cell of
-    ``same_solution_deg``: a hash, so thousands of matches group in one pass.
+    Two matches are one solution when their transforms move the source centre less
+    than ``same_solution_m`` apart and their rotation vectors differ by less than
+    ``same_solution_deg`` (Chebyshev test on both, linked transitively). Found with a
+    KD-tree, so it does not depend on where the coordinate origin is.
     """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
     T = matches.T_target_source
+    n = len(T)
     moved = np.einsum("pij,j->pi", T[:, :3, :3], centre) + T[:, :3, 3]
     rotvec = Rotation.from_matrix(T[:, :3, :3]).as_rotvec(degrees=True)
-    key = np.hstack([np.floor(moved / params.same_solution_m), np.floor(rotvec / params.same_solution_deg)])
-    _, label = np.unique(key.astype(np.int64), axis=0, return_inverse=True)
-    label = label.ravel()
+    feat = np.hstack([moved / params.same_solution_m, rotvec / params.same_solution_deg])
+    pairs = cKDTree(feat).query_pairs(1.0, p=np.inf, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    label = connected_components(graph, directed=False)[1]
     order = np.lexsort((matches.svd_residual_m, label))
     bounds = np.flatnonzero(np.r_[True, label[order][1:] != label[order][:-1], True])
     groups = [order[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
@@ -200,7 +206,7 @@ def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transfor
     import open3d as o3d
 
     reg = o3d.pipelines.registration
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(src, dtype=np.float64)))
     out = reg.registration_icp(
         pcd,
         tgt_pcd,
@@ -273,10 +279,10 @@ def rank_candidates(
     if params.polish_top > 0:
         tgt_tree = cKDTree(target_xyz)
         tgt_pcd = o3d.geometry.PointCloud(
-            o3d.utility.Vector3dVector(target_xyz)
+            o3d.utility.Vector3dVector(np.array(target_xyz, dtype=np.float64))
         ).voxel_down_sample(params.verify_voxel_m * 0.7)
         src_small = np.asarray(
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_xyz))
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(source_xyz, dtype=np.float64)))
             .voxel_down_sample(params.verify_voxel_m * 0.7)
             .points
         )

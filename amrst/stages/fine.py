@@ -55,7 +55,7 @@ class FineParams:
             "unit": "m",
             "min": 0.005,
             "max": 5.0,
-            "help": "Largest correspondence distance at the first scale; halved at each of the scales. Typical 2-5 × the expected coarse error.",
+            "help": "Correspondence distance of the first scale. Typical 2-5 × the expected coarse error.",
         },
     )
     min_corr_dist_m: float = field(
@@ -173,8 +173,8 @@ def _robust_plane(src, tgt, T_init, max_dist, iters, tol):
     import open3d as o3d
 
     reg = o3d.pipelines.registration
-    s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
-    t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tgt))
+    s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(src, dtype=np.float64)))
+    t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(tgt, dtype=np.float64)))
     t.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=max(max_dist, 0.05), max_nn=20)
     )
@@ -183,7 +183,13 @@ def _robust_plane(src, tgt, T_init, max_dist, iters, tol):
         relative_fitness=tol, relative_rmse=tol, max_iteration=iters
     )
     out = reg.registration_icp(s, t, max_dist, T_init, est, crit)
-    return np.asarray(out.transformation), iters, True
+    T = np.asarray(out.transformation)
+    # Open3D does not report iterations or convergence: one more iteration tells
+    # whether the estimate still moves (converged when it moves < 0.1 mm / 0.001 deg).
+    one = reg.registration_icp(s, t, max_dist, T, est, reg.ICPConvergenceCriteria(max_iteration=1))
+    step = np.linalg.inv(T) @ np.asarray(one.transformation)
+    moved = np.linalg.norm(step[:3, 3]) < 1e-4 and np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1, 1)) < 1.75e-5
+    return T, iters, bool(moved)
 
 
 def refine_registration(

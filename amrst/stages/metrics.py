@@ -8,7 +8,7 @@ and translation errors and ``gt_rmse``.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -24,9 +24,13 @@ class MetricsParams:
     max_points : points sampled from each cloud for the distances (speed; seeded).
     """
 
-    overlap_dist_m: float = 0.1
-    max_points: int = 50_000
-    seed: int = 0
+    overlap_dist_m: float = field(
+        default=0.1, metadata={"unit": "m", "min": 0.001, "max": 5.0,
+                               "help": "A source point closer than this to the target is in the overlap (RMSE in overlap, overlap fraction). Typical 0.05-0.2."})
+    max_points: int = field(
+        default=50_000, metadata={"unit": "points", "min": 100, "max": 10_000_000,
+                                  "help": "Points sampled from each scan for the distance metrics (seeded)."})
+    seed: int = field(default=0, metadata={"help": "Seed of the metric sampling."})
 
     def __post_init__(self) -> None:
         if self.overlap_dist_m <= 0:

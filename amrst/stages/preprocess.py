@@ -125,7 +125,7 @@ def preprocess_points(
     reporter.check_cancelled()
     n_outliers = 0
     if params.outlier_neighbours > 0 and len(pts) > params.outlier_neighbours + 1:
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(pts, dtype=np.float64)))
         _, kept = pcd.remove_statistical_outlier(
             params.outlier_neighbours, params.outlier_std_ratio
         )

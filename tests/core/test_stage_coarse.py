@@ -88,16 +88,6 @@ def test_right_transform_ranks_first_and_agreeing_matches_group(tiny_tree) -> No
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=ValueError,
-    reason=(
-        "rank_candidates passes target_xyz/source_xyz straight to "
-        "open3d.utility.Vector3dVector, which raises 'ValueError: array is not "
-        "writeable' for read-only arrays such as Cloud.xyz (amrst/stages/coarse.py, "
-        "the polish step of rank_candidates)"
-    ),
-)
 def test_read_only_inputs_are_accepted(tiny_tree) -> None:
     target, source, T_true = _tiny_pair(tiny_tree)
     target.setflags(write=False)
@@ -106,19 +96,6 @@ def test_read_only_inputs_are_accepted(tiny_tree) -> None:
     assert ranked.candidates[0].score > 0.9
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "amrst/stages/coarse.py _group (since ffb2d0a) groups by hashing "
-        "floor(moved_centre / same_solution_m): two transforms 1 mm apart on either "
-        "side of a cell boundary become two solutions with support 1 each, although "
-        "CoarseParams.same_solution_m says transforms moving the centre less than it "
-        "apart are one solution. The cells also make grouping depend on the local "
-        "origin: the sample pair with its offset split 1000 m differently gives 18 "
-        "instead of 23 solutions from the same 24 matches and a coarse transform "
-        "4.4 cm away (the fine step hides it today)"
-    ),
-)
 def test_transforms_a_millimetre_apart_are_one_solution(tiny_tree) -> None:
     _, source, _ = _tiny_pair(tiny_tree)
     centre = source.mean(axis=0)

@@ -141,15 +141,6 @@ def test_lm_icp_stopped_early_does_not_claim_convergence(oblique_pair) -> None:
     assert res.iterations == 1
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "robust_plane results always say converged=True and iterations = "
-        "scales * max_iterations: amrst/stages/fine.py _robust_plane returns "
-        "`iters, True` whatever Open3D did (its RegistrationResult has no iteration "
-        "count), so a 1-iteration run from 5 deg off is reported as converged"
-    ),
-)
 def test_robust_plane_stopped_early_does_not_claim_convergence(oblique_pair) -> None:
     params = FineParams(method="robust_plane", scales=1, max_iterations=1)
     res = refine_registration(
@@ -160,23 +151,15 @@ def test_robust_plane_stopped_early_does_not_claim_convergence(oblique_pair) -> 
     assert not res.converged
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=ValueError,
-    reason=(
-        "refine_registration with voxel_size_m=0 passes the caller's arrays straight "
-        "to open3d.utility.Vector3dVector (amrst/stages/fine.py _robust_plane), which "
-        "raises 'ValueError: array is not writeable' for read-only arrays such as "
-        "Cloud.xyz"
-    ),
-)
 def test_read_only_inputs_are_accepted(tiny_tree, oblique_pair) -> None:
     assert not tiny_tree.xyz.flags.writeable
     params = FineParams(method="robust_plane", voxel_size_m=0.0, scales=1)
     src = oblique_pair.source[:1000].copy()
     src.setflags(write=False)
-    res = refine_registration(src, tiny_tree.xyz, np.eye(4), params)
-    assert res.fitness > 0
+    # Started at the truth: the point is that read-only arrays reach Open3D (issue:
+    # Cloud.xyz is always read-only), not convergence from afar.
+    res = refine_registration(src, tiny_tree.xyz, oblique_pair.T_true, params)
+    assert res.fitness > 0.5
 
 
 def test_params_are_validated() -> None:
