@@ -177,28 +177,30 @@ class _Occupancy:
 def _group(matches: TetraMatches, centre: np.ndarray, params: CoarseParams) -> list[np.ndarray]:
     """Group matches proposing the same transform; each group best residual first.
 
-    Two matches are one solution when their transforms move the source centre less
-    than ``same_solution_m`` apart and their rotation vectors differ by less than
-    ``same_solution_deg`` (Chebyshev test on both, linked transitively). Found with a
-    KD-tree, so it does not depend on where the coordinate origin is.
+    Leader clustering: the match with the lowest SVD residual leads a group of every
+    unassigned match whose transform moves the source centre less than
+    ``same_solution_m`` from the leader's and whose rotation vector differs by less
+    than ``same_solution_deg``; then the next unassigned one leads. Not transitive (a
+    chain of small steps cannot merge different solutions) and independent of where
+    the coordinate origin is. Neighbours come from a KD-tree (Chebyshev ball).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
     T = matches.T_target_source
-    n = len(T)
     moved = np.einsum("pij,j->pi", T[:, :3, :3], centre) + T[:, :3, 3]
     rotvec = Rotation.from_matrix(T[:, :3, :3]).as_rotvec(degrees=True)
     feat = np.hstack([moved / params.same_solution_m, rotvec / params.same_solution_deg])
-    pairs = cKDTree(feat).query_pairs(1.0, p=np.inf, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    label = connected_components(graph, directed=False)[1]
-    order = np.lexsort((matches.svd_residual_m, label))
-    bounds = np.flatnonzero(np.r_[True, label[order][1:] != label[order][:-1], True])
-    groups = [order[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
-    groups.sort(key=lambda g: matches.svd_residual_m[g[0]])
+    near = cKDTree(feat).query_ball_point(feat, 1.0, p=np.inf)
+    assigned = np.zeros(len(T), dtype=bool)
+    groups = []
+    for leader in np.argsort(matches.svd_residual_m, kind="stable"):
+        if assigned[leader]:
+            continue
+        members = [m for m in near[leader] if not assigned[m]]
+        assigned[members] = True
+        members.sort(key=lambda m: (m != leader, matches.svd_residual_m[m]))
+        groups.append(np.asarray(members, dtype=np.int64))
     return groups
 
 
