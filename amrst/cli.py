@@ -56,9 +56,13 @@ def read_truth(path: str) -> np.ndarray:
     except FileNotFoundError:
         raise InvalidInput(f"Truth file not found: {p}.") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InvalidInput(f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a 4x4 'T_target_source'.") from exc
+        raise InvalidInput(
+            f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a 4x4 'T_target_source'."
+        ) from exc
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise InvalidInput(f"T_target_source in {p} must be a finite 4x4 matrix, got shape {T.shape}.")
+        raise InvalidInput(
+            f"T_target_source in {p} must be a finite 4x4 matrix, got shape {T.shape}."
+        )
     return T
 
 
@@ -98,34 +102,59 @@ def _cmd_register(args: argparse.Namespace) -> int:
     result = register(target, source, params, TerminalReporter(args.quiet))
     summary = registration_summary(result, T_truth)
     summary["timings_s"]["read"] = round(t_read, 4)
-    parts = ["transform", "metrics", "params"] + (["registered", "merged"] if args.write_clouds else [])
+    parts = ["transform", "metrics", "params"] + (
+        ["registered", "merged"] if args.write_clouds else []
+    )
     extra = {
         "confidence": result.confidence,
         "message": result.message,
         "timings_s": summary["timings_s"],
-        "coarse_candidate": {"rank": result.coarse.candidate.rank, "id": result.coarse.candidate.id,
-                             "explanation": result.coarse.candidate.explanation},
-        "target_file": str(args.target), "source_file": str(args.source),
+        "coarse_candidate": {
+            "rank": result.coarse.candidate.rank,
+            "id": result.coarse.candidate.id,
+            "explanation": result.coarse.candidate.explanation,
+        },
+        "target_file": str(args.target),
+        "source_file": str(args.source),
         "amrst_version": __version__,
     }
-    files = export_registration(args.out, target=target, source=source, T_target_source=result.T_target_source,
-                                T_coarse=result.T_coarse, metrics=summary, params=params,
-                                cloud_format=args.format, parts=tuple(parts), transform_extra=extra)
+    files = export_registration(
+        args.out,
+        target=target,
+        source=source,
+        T_target_source=result.T_target_source,
+        T_coarse=result.T_coarse,
+        metrics=summary,
+        params=params,
+        cloud_format=args.format,
+        parts=tuple(parts),
+        transform_extra=extra,
+    )
     fine = summary["fine"]
-    print(f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
-          f"(read {t_read:.2f} s).")
-    print(f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}, "
-          f"verification score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}")
-    print(f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
-          f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}")
+    print(
+        f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
+        f"(read {t_read:.2f} s)."
+    )
+    print(
+        f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}, "
+        f"verification score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}"
+    )
+    print(
+        f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
+        f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}"
+    )
     if T_truth is not None:
         tf = summary["truth"]["fine"]
-        print(f"  truth: rotation error {tf['rotation_error_deg']:.3f} deg, translation error "
-              f"{tf['translation_error_m'] * 100:.1f} cm, gt_rmse {tf['gt_rmse_m'] * 100:.2f} cm "
-              f"-> {'registered' if summary['truth']['registered'] else 'NOT registered'}")
+        print(
+            f"  truth: rotation error {tf['rotation_error_deg']:.3f} deg, translation error "
+            f"{tf['translation_error_m'] * 100:.1f} cm, gt_rmse {tf['gt_rmse_m'] * 100:.2f} cm "
+            f"-> {'registered' if summary['truth']['registered'] else 'NOT registered'}"
+        )
     if result.confidence < 0.15 or result.coarse.candidate.score < 0.2:
         print(f"  WARNING: {result.message}", file=sys.stderr)
-    print(f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files))
+    print(
+        f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
+    )
     return 0
 
 
@@ -133,32 +162,71 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all sub-commands."""
     from amrst import bench, simulate
 
-    p = argparse.ArgumentParser(prog="amrst", description="Marker-free registration of two TLS scans of one tree (AMRST).")
+    p = argparse.ArgumentParser(
+        prog="amrst",
+        description="Marker-free registration of two TLS scans of one tree (AMRST).",
+    )
     p.add_argument("--version", action="version", version=f"amrst {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+    p.add_argument(
+        "--debug", action="store_true", help="show tracebacks and debug logging"
+    )
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    info = sub.add_parser("info", help="points, bounds, spacing and attributes of point cloud files")
+    info = sub.add_parser(
+        "info", help="points, bounds, spacing and attributes of point cloud files"
+    )
     info.add_argument("files", nargs="+", metavar="FILE")
     info.set_defaults(func=_cmd_info)
 
-    reg = sub.add_parser("register", help="register SOURCE onto TARGET and write transform, metrics, parameters")
-    reg.add_argument("target", metavar="TARGET", help="reference scan (LAS/LAZ, PLY, PCD, XYZ/TXT/CSV)")
-    reg.add_argument("source", metavar="SOURCE", help="scan to move into the target frame")
-    reg.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
-    reg.add_argument("--params", metavar="FILE", help="parameter JSON (as written in params.json)")
-    reg.add_argument("--preset", metavar="NAME", help="a named preset from resources/presets")
-    reg.add_argument("--truth", metavar="TRUTH.json", help="known T_target_source: adds truth errors")
-    reg.add_argument("--write-clouds", action="store_true", help="also write the registered source and the merged cloud")
-    reg.add_argument("--format", default="ply", choices=("ply", "las", "laz", "pcd"), help="cloud format for --write-clouds")
+    reg = sub.add_parser(
+        "register",
+        help="register SOURCE onto TARGET and write transform, metrics, parameters",
+    )
+    reg.add_argument(
+        "target",
+        metavar="TARGET",
+        help="reference scan (LAS/LAZ, PLY, PCD, XYZ/TXT/CSV)",
+    )
+    reg.add_argument(
+        "source", metavar="SOURCE", help="scan to move into the target frame"
+    )
+    reg.add_argument(
+        "--out", required=True, metavar="DIR", help="output folder (created)"
+    )
+    reg.add_argument(
+        "--params", metavar="FILE", help="parameter JSON (as written in params.json)"
+    )
+    reg.add_argument(
+        "--preset", metavar="NAME", help="a named preset from resources/presets"
+    )
+    reg.add_argument(
+        "--truth", metavar="TRUTH.json", help="known T_target_source: adds truth errors"
+    )
+    reg.add_argument(
+        "--write-clouds",
+        action="store_true",
+        help="also write the registered source and the merged cloud",
+    )
+    reg.add_argument(
+        "--format",
+        default="ply",
+        choices=("ply", "las", "laz", "pcd"),
+        help="cloud format for --write-clouds",
+    )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
     reg.set_defaults(func=_cmd_register)
 
-    sim = sub.add_parser("simulate", help="make two virtual tripod scans (with truth) from one complete tree cloud")
+    sim = sub.add_parser(
+        "simulate",
+        help="make two virtual tripod scans (with truth) from one complete tree cloud",
+    )
     simulate.configure_parser(sim)
     sim.set_defaults(func=simulate.run_cli)
 
-    ben = sub.add_parser("bench", help="run AMRST and the baselines on registration cases; write tables and plots")
+    ben = sub.add_parser(
+        "bench",
+        help="run AMRST and the baselines on registration cases; write tables and plots",
+    )
     bench.configure_parser(ben)
     ben.set_defaults(func=bench.run_cli)
     return p
@@ -168,8 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``amrst`` command."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
-                        format="%(levelname)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.WARNING,
+        format="%(levelname)s: %(message)s",
+    )
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
@@ -188,12 +258,18 @@ def main(argv: list[str] | None = None) -> int:
         print("Interrupted.", file=sys.stderr)
         return EXIT_CANCELLED
     except MemoryError:
-        print("Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).", file=sys.stderr)
+        print(
+            "Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).",
+            file=sys.stderr,
+        )
         return EXIT_INPUT
     except Exception as exc:  # last line of defence: never a raw traceback for users
         if args.debug:
             raise
-        print(f"Internal error: {type(exc).__name__}: {exc}. Run again with --debug and report it.", file=sys.stderr)
+        print(
+            f"Internal error: {type(exc).__name__}: {exc}. Run again with --debug and report it.",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -40,12 +40,22 @@ def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
         ref = a if a is not None else b
         dtype = np.result_type(*(x.dtype for x in (a, b) if x is not None))
         parts = [
-            np.asarray(x, dtype) if x is not None else np.zeros((len(c), *ref.shape[1:]), dtype)
+            np.asarray(x, dtype)
+            if x is not None
+            else np.zeros((len(c), *ref.shape[1:]), dtype)
             for x, c in ((a, target), (b, moved_source))
         ]
         attrs[name] = np.concatenate(parts)
-    attrs["scan_id"] = np.r_[np.zeros(len(target), np.uint8), np.ones(len(moved_source), np.uint8)]
-    return Cloud(np.vstack([target.xyz, moved_source.xyz]), target.offset, attrs, "merged", target.meta)
+    attrs["scan_id"] = np.r_[
+        np.zeros(len(target), np.uint8), np.ones(len(moved_source), np.uint8)
+    ]
+    return Cloud(
+        np.vstack([target.xyz, moved_source.xyz]),
+        target.offset,
+        attrs,
+        "merged",
+        target.meta,
+    )
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
@@ -67,9 +77,13 @@ def _write_text_atomic(path: Path, text: str) -> None:
         raise
 
 
-def transform_document(T_target_source: Transform, T_coarse: Transform | None, **extra: Any) -> dict:
+def transform_document(
+    T_target_source: Transform, T_coarse: Transform | None, **extra: Any
+) -> dict:
     """The transform.json content: 4x4 row-major nested lists plus context."""
-    doc: dict[str, Any] = {"T_target_source": np.asarray(T_target_source, float).tolist()}
+    doc: dict[str, Any] = {
+        "T_target_source": np.asarray(T_target_source, float).tolist()
+    }
     if T_coarse is not None:
         doc["T_coarse"] = np.asarray(T_coarse, float).tolist()
     doc["convention"] = "x_target = T_target_source @ [x_source, 1]; row-major, metres"
@@ -123,14 +137,20 @@ def export_registration(
     """
     unknown = set(parts) - set(PARTS)
     if unknown:
-        raise InvalidInput(f"Unknown export part(s) {sorted(unknown)}; choose from {PARTS}.")
+        raise InvalidInput(
+            f"Unknown export part(s) {sorted(unknown)}; choose from {PARTS}."
+        )
     if cloud_format not in CLOUD_FORMATS:
-        raise InvalidInput(f"Unknown cloud format {cloud_format!r}; choose from {CLOUD_FORMATS}.")
+        raise InvalidInput(
+            f"Unknown cloud format {cloud_format!r}; choose from {CLOUD_FORMATS}."
+        )
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InvalidInput(f"Cannot create the export folder {out}: {exc}. Choose another folder.") from exc
+        raise InvalidInput(
+            f"Cannot create the export folder {out}: {exc}. Choose another folder."
+        ) from exc
     written: list[Path] = []
     moved = None
     if "registered" in parts or "merged" in parts:
@@ -142,11 +162,21 @@ def export_registration(
         written.append(out / f"merged.{cloud_format}")
         amrst_io.write(written[-1], merge_clouds(target, moved))
     if "transform" in parts:
-        extra = {"target": target.name, "source": source.name, **(transform_extra or {})}
+        extra = {
+            "target": target.name,
+            "source": source.name,
+            **(transform_extra or {}),
+        }
         written.append(out / "transform.json")
-        write_json_atomic(written[-1], transform_document(T_target_source, T_coarse, **extra))
+        write_json_atomic(
+            written[-1], transform_document(T_target_source, T_coarse, **extra)
+        )
         written.append(out / "transform.txt")
-        _write_text_atomic(written[-1], "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source) + "\n")
+        _write_text_atomic(
+            written[-1],
+            "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source)
+            + "\n",
+        )
     if "metrics" in parts:
         written.append(out / "metrics.json")
         write_json_atomic(written[-1], metrics or {})

@@ -52,4 +52,6 @@ if __name__ == "__main__":
     from pathlib import Path
 
     readme = Path(__file__).resolve().parent.parent / "README.md"
-    readme.write_text(update_readme(readme.read_text(encoding="utf-8")), encoding="utf-8")
+    readme.write_text(
+        update_readme(readme.read_text(encoding="utf-8")), encoding="utf-8"
+    )

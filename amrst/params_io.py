@@ -87,17 +87,29 @@ def _check_value(stage: str, f: dataclasses.Field, default: Any, value: Any) -> 
     elif isinstance(default, str):
         ok = isinstance(value, str)
     elif isinstance(default, tuple):
-        ok = isinstance(value, tuple) and all(isinstance(v, type(default[0])) for v in value)
+        ok = isinstance(value, tuple) and all(
+            isinstance(v, type(default[0])) for v in value
+        )
     else:
         ok = True
     if not ok:
-        raise InvalidInput(f"Parameter {name} must be of type {type(default).__name__}, got {value!r}.")
+        raise InvalidInput(
+            f"Parameter {name} must be of type {type(default).__name__}, got {value!r}."
+        )
     if "choices" in meta and value not in meta["choices"]:
-        raise InvalidInput(f"Parameter {name} must be one of {list(meta['choices'])}, got {value!r}.")
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and value == value:
+        raise InvalidInput(
+            f"Parameter {name} must be one of {list(meta['choices'])}, got {value!r}."
+        )
+    if (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and value == value
+    ):
         lo, hi = meta.get("min"), meta.get("max")
         if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise InvalidInput(f"Parameter {name} = {value} is outside its range [{lo}, {hi}].")
+            raise InvalidInput(
+                f"Parameter {name} = {value} is outside its range [{lo}, {hi}]."
+            )
 
 
 def save_params(path: str | os.PathLike, params: RegistrationParams) -> None:
@@ -113,7 +125,9 @@ def load_params(path: str | os.PathLike) -> RegistrationParams:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInput(f"Cannot read parameter file {path}: {exc}. It must be JSON.") from exc
+        raise InvalidInput(
+            f"Cannot read parameter file {path}: {exc}. It must be JSON."
+        ) from exc
     if not isinstance(data, dict):
         raise InvalidInput(f"Parameter file {path} must hold a JSON object.")
     return params_from_dict(data)

@@ -98,7 +98,9 @@ class MatchResult:
     candidates: tuple  # tuple[Candidate, ...], best first
     n_matches: int
     timings: dict = field(default_factory=dict)
-    source_centre: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) source centroid
+    source_centre: np.ndarray = field(
+        default_factory=lambda: np.zeros(3)
+    )  # (3,) source centroid
 
 
 @dataclass(frozen=True, slots=True)
@@ -187,18 +189,33 @@ def find_matches(
             )
     timings: dict = {}
     t0 = time.perf_counter()
-    tetra = match_tetrahedra(target.keypoints.xyz, source.keypoints.xyz, params.match,
-                             SubReporter(reporter, 0, 0.4, "matching"))
+    tetra = match_tetrahedra(
+        target.keypoints.xyz,
+        source.keypoints.xyz,
+        params.match,
+        SubReporter(reporter, 0, 0.4, "matching"),
+    )
     if len(tetra.T_target_source) == 0 and params.match.retry_relaxed:
         # One retry with looser tolerances before giving up (said in the log).
         m = params.match
-        relaxed = replace(m, edge_tolerance=min(2 * m.edge_tolerance, 0.3),
-                          max_residual_m=1.5 * m.max_residual_m, height_tolerance_m=1.5 * m.height_tolerance_m,
-                          volume_tolerance=min(2 * m.volume_tolerance, 1.0))
-        log.info("No congruent tetrahedra; retrying with edge tolerance %.2f, residual %.2f m",
-                 relaxed.edge_tolerance, relaxed.max_residual_m)
-        tetra = match_tetrahedra(target.keypoints.xyz, source.keypoints.xyz, relaxed,
-                                 SubReporter(reporter, 0, 0.4, "matching (relaxed)"))
+        relaxed = replace(
+            m,
+            edge_tolerance=min(2 * m.edge_tolerance, 0.3),
+            max_residual_m=1.5 * m.max_residual_m,
+            height_tolerance_m=1.5 * m.height_tolerance_m,
+            volume_tolerance=min(2 * m.volume_tolerance, 1.0),
+        )
+        log.info(
+            "No congruent tetrahedra; retrying with edge tolerance %.2f, residual %.2f m",
+            relaxed.edge_tolerance,
+            relaxed.max_residual_m,
+        )
+        tetra = match_tetrahedra(
+            target.keypoints.xyz,
+            source.keypoints.xyz,
+            relaxed,
+            SubReporter(reporter, 0, 0.4, "matching (relaxed)"),
+        )
     t0 = _timed(timings, "match", t0)
     ranked: CandidateList = rank_candidates(
         tetra,
@@ -208,14 +225,20 @@ def find_matches(
         SubReporter(reporter, 0.4, 1.0, "verification"),
     )
     _timed(timings, "verify", t0)
-    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings, source.xyz.mean(axis=0))
+    return MatchResult(
+        tetra, ranked.candidates, ranked.n_matches, timings, source.xyz.mean(axis=0)
+    )
 
 
 def coarse_from_matches(
     matches: MatchResult, rejected: frozenset[int] = frozenset()
 ) -> CoarseResult:
     """The best candidate not rejected by the user (local frames)."""
-    return choose_coarse(CandidateList(matches.candidates, matches.n_matches), rejected, matches.source_centre)
+    return choose_coarse(
+        CandidateList(matches.candidates, matches.n_matches),
+        rejected,
+        matches.source_centre,
+    )
 
 
 def refine(

@@ -71,15 +71,23 @@ class EventReporter:
 class SubReporter:
     """Maps a sub-stage's [0, 1] onto the range [start, stop] of a parent reporter."""
 
-    def __init__(self, parent: Reporter, start: float, stop: float, label: str = "") -> None:
+    def __init__(
+        self, parent: Reporter, start: float, stop: float, label: str = ""
+    ) -> None:
         self._parent = parent
         self._start = start
         self._span = stop - start
         self._label = label
 
     def progress(self, fraction: float, message: str = "") -> None:
-        text = f"{self._label}: {message}" if self._label and message else (message or self._label)
-        self._parent.progress(self._start + self._span * min(max(fraction, 0.0), 1.0), text)
+        text = (
+            f"{self._label}: {message}"
+            if self._label and message
+            else (message or self._label)
+        )
+        self._parent.progress(
+            self._start + self._span * min(max(fraction, 0.0), 1.0), text
+        )
 
     def check_cancelled(self) -> None:
         self._parent.check_cancelled()

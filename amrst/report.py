@@ -15,7 +15,9 @@ from amrst.stages.metrics import truth_errors
 from amrst.types import Transform
 
 
-def registration_summary(result: RegistrationResult, T_truth: Transform | None = None) -> dict[str, Any]:
+def registration_summary(
+    result: RegistrationResult, T_truth: Transform | None = None
+) -> dict[str, Any]:
     """Metrics of a registration as a nested JSON-ready dict.
 
     Parameters
@@ -45,7 +47,10 @@ def registration_summary(result: RegistrationResult, T_truth: Transform | None =
             "fitness": fine.fitness,
             "inlier_rmse_m": fine.inlier_rmse_m,
         },
-        "key_points": {"target": len(result.target.keypoints.xyz), "source": len(result.source.keypoints.xyz)},
+        "key_points": {
+            "target": len(result.target.keypoints.xyz),
+            "source": len(result.source.keypoints.xyz),
+        },
         "tetrahedron_matches": result.matches.n_matches,
         "candidates": len(result.matches.candidates),
         "wood_fraction": {
@@ -57,10 +62,16 @@ def registration_summary(result: RegistrationResult, T_truth: Transform | None =
     if T_truth is not None:
         src = result.source.cloud.world_xyz
         out["truth"] = {
-            "fine": truth_errors(result.T_target_source, np.asarray(T_truth, float), src).as_dict(),
-            "coarse": truth_errors(result.T_coarse, np.asarray(T_truth, float), src).as_dict(),
+            "fine": truth_errors(
+                result.T_target_source, np.asarray(T_truth, float), src
+            ).as_dict(),
+            "coarse": truth_errors(
+                result.T_coarse, np.asarray(T_truth, float), src
+            ).as_dict(),
         }
         out["truth"]["registered"] = bool(
-            truth_errors(result.T_target_source, np.asarray(T_truth, float), src).registered()
+            truth_errors(
+                result.T_target_source, np.asarray(T_truth, float), src
+            ).registered()
         )
     return out

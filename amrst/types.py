@@ -95,7 +95,11 @@ class Cloud:
     def with_xyz(self, xyz: np.ndarray, offset: np.ndarray | None = None) -> Cloud:
         """A new cloud with the same attributes and new coordinates (same N)."""
         return Cloud(
-            xyz, self.offset if offset is None else offset, self.attributes, self.name, self.meta
+            xyz,
+            self.offset if offset is None else offset,
+            self.attributes,
+            self.name,
+            self.meta,
         )
 
 
@@ -118,7 +122,9 @@ def invert_transform(T_b_a: Transform) -> Transform:
     return make_transform(R.T, -R.T @ T_b_a[:3, 3])
 
 
-def transform_cloud(T_target_source: Transform, source: Cloud, target_offset=None) -> Cloud:
+def transform_cloud(
+    T_target_source: Transform, source: Cloud, target_offset=None
+) -> Cloud:
     """Move a cloud by a world-frame transform, keeping millimetres at any offset.
 
     ``T_target_source`` maps source *world* coordinates into target world coordinates.
@@ -138,7 +144,9 @@ def transform_cloud(T_target_source: Transform, source: Cloud, target_offset=Non
     """
     R = T_target_source[:3, :3]
     t = T_target_source[:3, 3]
-    new_offset = source.offset if target_offset is None else np.asarray(target_offset, float)
+    new_offset = (
+        source.offset if target_offset is None else np.asarray(target_offset, float)
+    )
     # world_t = R (xyz + o_s) + t ; local_t = world_t - o_new = R xyz + (R o_s + t - o_new)
     shift = R @ source.offset + t - new_offset
     return source.with_xyz(source.xyz @ R.T + shift, new_offset)

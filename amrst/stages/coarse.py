@@ -44,7 +44,12 @@ class CoarseParams:
     )
     raw_points: int = field(
         default=400,
-        metadata={"unit": "points", "min": 20, "max": 100000, "help": "Sampled source points for the first (raw) score of every solution; the polished ones use verify_points."},
+        metadata={
+            "unit": "points",
+            "min": 20,
+            "max": 100000,
+            "help": "Sampled source points for the first (raw) score of every solution; the polished ones use verify_points.",
+        },
     )
     same_solution_m: float = field(
         default=0.3,
@@ -75,8 +80,12 @@ class CoarseParams:
     )
     tight_dist_m: float = field(
         default=0.04,
-        metadata={"unit": "m", "min": 0.005, "max": 1.0,
-                  "help": "After the polish, a candidate scores the share of sampled source points within this distance of the target: the true pose wins at tight distances, a biased one only at loose ones."},
+        metadata={
+            "unit": "m",
+            "min": 0.005,
+            "max": 1.0,
+            "help": "After the polish, a candidate scores the share of sampled source points within this distance of the target: the true pose wins at tight distances, a biased one only at loose ones.",
+        },
     )
     polish_max_dist_m: float = field(
         default=0.5,
@@ -96,7 +105,12 @@ class CoarseParams:
             "help": "Solutions kept in the ranked list.",
         },
     )
-    seed: int = field(default=0, metadata={"help": "Seed of the verification sampling (same inputs give the same ranking)."})
+    seed: int = field(
+        default=0,
+        metadata={
+            "help": "Seed of the verification sampling (same inputs give the same ranking)."
+        },
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,7 +188,9 @@ class _Occupancy:
         return float(np.mean(self.codes[pos] == code))
 
 
-def _group(matches: TetraMatches, centre: np.ndarray, params: CoarseParams) -> list[np.ndarray]:
+def _group(
+    matches: TetraMatches, centre: np.ndarray, params: CoarseParams
+) -> list[np.ndarray]:
     """Group matches proposing the same transform; each group best residual first.
 
     Leader clustering: the match with the lowest SVD residual leads a group of every
@@ -190,7 +206,9 @@ def _group(matches: TetraMatches, centre: np.ndarray, params: CoarseParams) -> l
     T = matches.T_target_source
     moved = np.einsum("pij,j->pi", T[:, :3, :3], centre) + T[:, :3, 3]
     rotvec = Rotation.from_matrix(T[:, :3, :3]).as_rotvec(degrees=True)
-    feat = np.hstack([moved / params.same_solution_m, rotvec / params.same_solution_deg])
+    feat = np.hstack(
+        [moved / params.same_solution_m, rotvec / params.same_solution_deg]
+    )
     near = cKDTree(feat).query_ball_point(feat, 1.0, p=np.inf)
     assigned = np.zeros(len(T), dtype=bool)
     groups = []
@@ -208,7 +226,9 @@ def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transfor
     import open3d as o3d
 
     reg = o3d.pipelines.registration
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(src, dtype=np.float64)))
+    pcd = o3d.geometry.PointCloud(
+        o3d.utility.Vector3dVector(np.array(src, dtype=np.float64))
+    )
     out = reg.registration_icp(
         pcd,
         tgt_pcd,
@@ -270,10 +290,14 @@ def rank_candidates(
     T = matches.T_target_source
     # Raw score: a smaller sample, all groups in one vectorised pass.
     few = sample[: params.raw_points]
-    raw = np.concatenate([
-        occ.fraction_many(np.einsum("gij,nj->gni", T[chunk, :3, :3], few) + T[chunk, None, :3, 3])
-        for chunk in np.array_split(rep, max(1, len(rep) // 256))
-    ])
+    raw = np.concatenate(
+        [
+            occ.fraction_many(
+                np.einsum("gij,nj->gni", T[chunk, :3, :3], few) + T[chunk, None, :3, 3]
+            )
+            for chunk in np.array_split(rep, max(1, len(rep) // 256))
+        ]
+    )
     support = np.array([len(g) for g in groups])
     polished_T = {int(i): T[i] for i in rep}
     score = raw.copy()
@@ -284,7 +308,9 @@ def rank_candidates(
             o3d.utility.Vector3dVector(np.array(target_xyz, dtype=np.float64))
         ).voxel_down_sample(params.verify_voxel_m * 0.7)
         src_small = np.asarray(
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(source_xyz, dtype=np.float64)))
+            o3d.geometry.PointCloud(
+                o3d.utility.Vector3dVector(np.array(source_xyz, dtype=np.float64))
+            )
             .voxel_down_sample(params.verify_voxel_m * 0.7)
             .points
         )
@@ -295,7 +321,10 @@ def rank_candidates(
             reporter.check_cancelled()
             Tp = _polish(src_small, tgt_pcd, T[rep[j]], params.polish_max_dist_m)
             polished_T[int(rep[j])] = Tp
-            d = tgt_tree.query(sample @ Tp[:3, :3].T + Tp[:3, 3], distance_upper_bound=params.tight_dist_m)[0]
+            d = tgt_tree.query(
+                sample @ Tp[:3, :3].T + Tp[:3, 3],
+                distance_upper_bound=params.tight_dist_m,
+            )[0]
             score[j] = float(np.mean(d < params.tight_dist_m))
             is_polished[j] = True
             reporter.progress(
@@ -379,14 +408,21 @@ def choose_coarse(
     others = [
         c.score
         for c in left[1:]
-        if c.polished == best.polished and _distinct(c.T_target_source, best.T_target_source, centre)
+        if c.polished == best.polished
+        and _distinct(c.T_target_source, best.T_target_source, centre)
     ]
     runner = max(others, default=0.0)
     # Confidence: how clearly the winner beats a different solution, times how well it
     # fits at all (on the 20 benchmark cases every right winner scored >= 0.45 after the
     # polish and every wrong one <= 0.08; full credit from SCORE_FULL_CREDIT).
-    separation = float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
-    fit = min(1.0, best.score / SCORE_FULL_CREDIT) if best.polished else min(1.0, best.score)
+    separation = (
+        float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
+    )
+    fit = (
+        min(1.0, best.score / SCORE_FULL_CREDIT)
+        if best.polished
+        else min(1.0, best.score)
+    )
     conf = separation * fit
     if best.score < 0.1:
         msg = (

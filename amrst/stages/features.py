@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def eigen_features(xyz: np.ndarray, k: int, tree=None) -> dict[str, np.ndarray]:
+def eigen_features(
+    xyz: np.ndarray, k: int, tree=None, neighbours=None
+) -> dict[str, np.ndarray]:
     """Local covariance features on k nearest neighbours.
 
     Parameters
@@ -15,6 +17,8 @@ def eigen_features(xyz: np.ndarray, k: int, tree=None) -> dict[str, np.ndarray]:
         Neighbourhood size (including the point itself).
     tree : scipy.spatial.cKDTree or None
         A tree built on ``xyz`` (reused when given).
+    neighbours : (N, K) int or None
+        Neighbour indices sorted by distance with K >= k (one query serves all scales).
 
     Returns
     -------
@@ -25,9 +29,12 @@ def eigen_features(xyz: np.ndarray, k: int, tree=None) -> dict[str, np.ndarray]:
     from scipy.spatial import cKDTree
 
     k = int(min(k, len(xyz)))
-    if tree is None:
-        tree = cKDTree(xyz)
-    _, idx = tree.query(xyz, k=k, workers=-1)
+    if neighbours is not None and neighbours.shape[1] >= k:
+        idx = neighbours[:, :k]
+    else:
+        if tree is None:
+            tree = cKDTree(xyz)
+        _, idx = tree.query(xyz, k=k, workers=-1)
     nb = xyz[idx]  # (N, k, 3)
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb) / k

@@ -60,8 +60,12 @@ class FineParams:
     )
     min_corr_dist_m: float = field(
         default=0.02,
-        metadata={"unit": "m", "min": 0.001, "max": 5.0,
-                  "help": "Correspondence distance of the last scale; the scales step geometrically from max_corr_dist_m down to this. A tight last scale locks onto surfaces both scans saw. Typical 0.01-0.05."},
+        metadata={
+            "unit": "m",
+            "min": 0.001,
+            "max": 5.0,
+            "help": "Correspondence distance of the last scale; the scales step geometrically from max_corr_dist_m down to this. A tight last scale locks onto surfaces both scans saw. Typical 0.01-0.05.",
+        },
     )
     scales: int = field(
         default=3,
@@ -121,12 +125,6 @@ def _ladder(params: FineParams) -> np.ndarray:
     return np.geomspace(params.max_corr_dist_m, lo, params.scales)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    return out - out.transpose(0, 2, 1)
-
-
 def _rotvec(w: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
@@ -147,12 +145,21 @@ def lm_icp(src, tgt, T_init, max_dist, iters, tol, reporter=NULL_REPORTER):
         if ok.sum() < 6:
             return T, it, False
         p, q = p[ok], tgt[j[ok]]
-        e = (p - q).reshape(-1)
-        J = np.zeros((len(p), 3, 6))  # d(R p + t)/d(w, t) for a left increment
-        J[:, :, :3] = -_skew(p)
-        J[:, :, 3:] = np.eye(3)
-        J = J.reshape(-1, 6)
-        H, g = J.T @ J, J.T @ e
+        e = p - q
+        # JᵀJ and Jᵀe of J_i = [-[p_i]x, I] (left increment) in closed form from sums,
+        # instead of building the (N, 3, 6) Jacobian: H = [[Σ|p|²I - Σppᵀ, [Σp]x],
+        # [-[Σp]x, N I]], g = [Σ p × e, Σ e].
+        sp = p.sum(axis=0)
+        sx = np.array(
+            [[0.0, -sp[2], sp[1]], [sp[2], 0.0, -sp[0]], [-sp[1], sp[0], 0.0]]
+        )
+        H = np.empty((6, 6))
+        H[:3, :3] = np.eye(3) * np.einsum("ni,ni->", p, p) - p.T @ p
+        H[:3, 3:] = sx
+        H[3:, :3] = -sx
+        H[3:, 3:] = np.eye(3) * len(p)
+        g = np.concatenate([np.cross(p, e).sum(axis=0), e.sum(axis=0)])
+        e = e.reshape(-1)
         cost = float(e @ e) / len(p)
         for _ in range(10):  # LM: raise damping until the step lowers the cost
             dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
@@ -173,8 +180,12 @@ def _robust_plane(src, tgt, T_init, max_dist, iters, tol):
     import open3d as o3d
 
     reg = o3d.pipelines.registration
-    s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(src, dtype=np.float64)))
-    t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(tgt, dtype=np.float64)))
+    s = o3d.geometry.PointCloud(
+        o3d.utility.Vector3dVector(np.array(src, dtype=np.float64))
+    )
+    t = o3d.geometry.PointCloud(
+        o3d.utility.Vector3dVector(np.array(tgt, dtype=np.float64))
+    )
     t.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=max(max_dist, 0.05), max_nn=20)
     )
@@ -186,9 +197,14 @@ def _robust_plane(src, tgt, T_init, max_dist, iters, tol):
     T = np.asarray(out.transformation)
     # Open3D does not report iterations or convergence: one more iteration tells
     # whether the estimate still moves (converged when it moves < 0.1 mm / 0.001 deg).
-    one = reg.registration_icp(s, t, max_dist, T, est, reg.ICPConvergenceCriteria(max_iteration=1))
+    one = reg.registration_icp(
+        s, t, max_dist, T, est, reg.ICPConvergenceCriteria(max_iteration=1)
+    )
     step = np.linalg.inv(T) @ np.asarray(one.transformation)
-    moved = np.linalg.norm(step[:3, 3]) < 1e-4 and np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1, 1)) < 1.75e-5
+    moved = (
+        np.linalg.norm(step[:3, 3]) < 1e-4
+        and np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1, 1)) < 1.75e-5
+    )
     return T, iters, bool(moved)
 
 

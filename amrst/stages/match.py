@@ -97,11 +97,19 @@ class MatchParams:
         },
     )
     height_tolerance_m: float = field(
-        default=0.4, metadata={"unit": "m", "min": 0.01, "max": 10.0,
-                               "help": "Levelled scanners: vertex heights within a tetrahedron must agree to this (prunes matches early)."})
+        default=0.4,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 10.0,
+            "help": "Levelled scanners: vertex heights within a tetrahedron must agree to this (prunes matches early).",
+        },
+    )
     retry_relaxed: bool = field(
         default=True,
-        metadata={"help": "When no tetrahedra match, try once more with doubled ε and β and 1.5x δ and height tolerance."},
+        metadata={
+            "help": "When no tetrahedra match, try once more with doubled ε and β and 1.5x δ and height tolerance."
+        },
     )
     max_tilt_deg: float = field(
         default=6.0,
@@ -155,7 +163,9 @@ def _tetrahedra(xyz: np.ndarray, params: MatchParams):
 
 def _descriptor(kp, quads, edges, params: MatchParams) -> np.ndarray:
     """Sorted log edge lengths; with levelled scanners also the sorted vertex heights."""
-    d = np.log(np.sort(edges, axis=1)[:, ::-1] + params.edge_floor_m) / np.log1p(params.edge_tolerance)
+    d = np.log(np.sort(edges, axis=1)[:, ::-1] + params.edge_floor_m) / np.log1p(
+        params.edge_tolerance
+    )
     if not params.levelled:
         return d
     z = kp[quads][:, :, 2]
@@ -173,7 +183,9 @@ _EDGE_PERM = np.array([[_edge_index(p[a], p[b]) for a, b in _EDGES] for p in _PE
 _PARITY = np.array([np.linalg.det(np.eye(4)[list(p)]) for p in _PERMS])
 
 
-def _correspond(target_kp, source_kp, tq, sq, te, se, tv, sv, ti, si, params: MatchParams):
+def _correspond(
+    target_kp, source_kp, tq, sq, te, se, tv, sv, ti, si, params: MatchParams
+):
     """For descriptor pairs, the proper vertex permutation whose edges agree best.
 
     Sorted edges lose the vertex order and admit mirror images (same edges, opposite
@@ -183,12 +195,16 @@ def _correspond(target_kp, source_kp, tq, sq, te, se, tv, sv, ti, si, params: Ma
     c = params.edge_floor_m
     e_perm = se[si][:, _EDGE_PERM]  # (P, 24, 6)
     e_t = te[ti][:, None, :]
-    worst = (np.abs(e_perm - e_t) / (np.maximum(e_perm, e_t) + c)).max(axis=2)  # (P, 24)
+    worst = (np.abs(e_perm - e_t) / (np.maximum(e_perm, e_t) + c)).max(
+        axis=2
+    )  # (P, 24)
     bad = np.sign(sv[si])[:, None] * _PARITY[None, :] != np.sign(tv[ti])[:, None]
     if params.levelled:
         zt = target_kp[tq[ti], 2]
         zs = source_kp[sq[si], 2][:, _PERMS]  # (P, 24, 4)
-        dz = (zt - zt.mean(axis=1, keepdims=True))[:, None, :] - (zs - zs.mean(axis=2, keepdims=True))
+        dz = (zt - zt.mean(axis=1, keepdims=True))[:, None, :] - (
+            zs - zs.mean(axis=2, keepdims=True)
+        )
         bad |= np.abs(dz).max(axis=2) > params.height_tolerance_m
     worst = np.where(bad, np.inf, worst)
     best = np.argmin(worst, axis=1)
@@ -263,7 +279,6 @@ def match_tetrahedra(
     )
     if len(tq) == 0 or len(sq) == 0:
         return empty
-    c = params.edge_floor_m
     # Scaled so that the Chebyshev ball of radius 1 is the tolerance on every entry.
     desc_t = _descriptor(target_kp, tq, te, params)
     desc_s = _descriptor(source_kp, sq, se, params)
@@ -278,7 +293,19 @@ def match_tetrahedra(
     if len(ti) == 0:
         return empty
     parts = [
-        _correspond(target_kp, source_kp, tq, sq, te, se, tv, sv, ti[k : k + 20000], si[k : k + 20000], params)
+        _correspond(
+            target_kp,
+            source_kp,
+            tq,
+            sq,
+            te,
+            se,
+            tv,
+            sv,
+            ti[k : k + 20000],
+            si[k : k + 20000],
+            params,
+        )
         for k in range(0, len(ti), 20000)
     ]
     ti = np.concatenate([p[0] for p in parts])

@@ -25,11 +25,23 @@ class MetricsParams:
     """
 
     overlap_dist_m: float = field(
-        default=0.1, metadata={"unit": "m", "min": 0.001, "max": 5.0,
-                               "help": "A source point closer than this to the target is in the overlap (RMSE in overlap, overlap fraction). Typical 0.05-0.2."})
+        default=0.1,
+        metadata={
+            "unit": "m",
+            "min": 0.001,
+            "max": 5.0,
+            "help": "A source point closer than this to the target is in the overlap (RMSE in overlap, overlap fraction). Typical 0.05-0.2.",
+        },
+    )
     max_points: int = field(
-        default=50_000, metadata={"unit": "points", "min": 100, "max": 10_000_000,
-                                  "help": "Points sampled from each scan for the distance metrics (seeded)."})
+        default=50_000,
+        metadata={
+            "unit": "points",
+            "min": 100,
+            "max": 10_000_000,
+            "help": "Points sampled from each scan for the distance metrics (seeded).",
+        },
+    )
     seed: int = field(default=0, metadata={"help": "Seed of the metric sampling."})
 
     def __post_init__(self) -> None:
@@ -84,7 +96,7 @@ def _sample(xyz: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
 def measure_clouds(
     target_xyz: np.ndarray,
     moved_source_xyz: np.ndarray,
-    params: MetricsParams = MetricsParams(),  # noqa: B008 - frozen, safe default
+    params: MetricsParams = MetricsParams(),
 ) -> CloudMetrics:
     """Nearest-neighbour distances between two clouds already in one frame.
 

@@ -115,8 +115,8 @@ class SeparationResult:
         return float(self.is_wood.mean()) if len(self.is_wood) else 0.0
 
 
-def _geometry_votes(xyz, tree, params):
-    feats = [eigen_features(xyz, k, tree) for k in params.scales_k]
+def _geometry_votes(xyz, neighbours, params):
+    feats = [eigen_features(xyz, k, neighbours=neighbours) for k in params.scales_k]
     curv = np.max([f["curvature"] for f in feats], axis=0)  # smooth at every scale
     thr = params.curvature_max
     if thr <= 0:
@@ -162,12 +162,14 @@ def separate_wood(
         return SeparationResult(
             ones, ones.astype(float), "all_wood", float("nan"), float("nan")
         )
-    tree = cKDTree(xyz)
+    # One neighbour query serves every feature scale and the vote.
+    k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
+    neighbours = cKDTree(xyz).query(xyz, k=k_max, workers=-1)[1].reshape(n, -1)
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0
     if params.mode in ("auto", "geometry") or not use_intensity:
-        v, curv_thr = _geometry_votes(xyz, tree, params)
+        v, curv_thr = _geometry_votes(xyz, neighbours, params)
         votes.append(v)
         methods.append("geometry")
     reporter.progress(0.4, "geometric features")
@@ -179,7 +181,7 @@ def separate_wood(
     vote = np.mean(votes, axis=0)
     # Neighbourhood step: each point takes the mean vote of its neighbours.
     k = int(min(params.vote_neighbours, n))
-    _, idx = tree.query(xyz, k=k, workers=-1)
+    idx = neighbours[:, :k]
     score = vote[idx].mean(axis=1) if k > 1 else vote
     candidate = score > 0.5 if len(votes) == 1 else score >= 0.5
     reporter.progress(0.7, "neighbourhood vote")

@@ -163,12 +163,24 @@ def _graph(xyz: np.ndarray, params: SkeletonParams):
         e0, e1, el = e0[cross], e1[cross], el[cross]
         if len(e0):
             sel = _min_edge_per_pair(labels[e0], labels[e1], el)
-            comp = coo_matrix((el[sel] + 1e-9, (labels[e0[sel]], labels[e1[sel]])), shape=(n_comp, n_comp))
+            comp = coo_matrix(
+                (el[sel] + 1e-9, (labels[e0[sel]], labels[e1[sel]])),
+                shape=(n_comp, n_comp),
+            )
             mst = minimum_spanning_tree(comp).tocoo()
             # Map each MST component pair back to its shortest edge.
-            pair = {(int(min(a, b)), int(max(a, b))): int(s) for a, b, s in zip(labels[e0[sel]], labels[e1[sel]], sel)}
-            bridges = [pair[(int(min(a, b)), int(max(a, b)))] for a, b in zip(mst.row, mst.col)]
-            rows, cols, w = np.r_[rows, e0[bridges]], np.r_[cols, e1[bridges]], np.r_[w, 2.0 * el[bridges]]
+            pair = {
+                (int(min(a, b)), int(max(a, b))): int(s)
+                for a, b, s in zip(labels[e0[sel]], labels[e1[sel]], sel, strict=True)
+            }
+            bridges = [
+                pair[(int(min(a, b)), int(max(a, b)))] for a, b in zip(mst.row, mst.col, strict=True)
+            ]
+            rows, cols, w = (
+                np.r_[rows, e0[bridges]],
+                np.r_[cols, e1[bridges]],
+                np.r_[w, 2.0 * el[bridges]],
+            )
             bridged += len(bridges)
         g = coo_matrix((w, (rows, cols)), shape=(n, n))
         n_comp, labels = connected_components(g, directed=False)
