@@ -19,6 +19,16 @@ from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
+LOW_CONFIDENCE = 0.3
+MIN_VERIFIED_SCORE = (
+    0.15  # polished tight score; benchmark: right >= 0.45, wrong <= 0.08
+)
+
+
+def is_verified(result) -> bool:
+    """Whether the chosen candidate passed verification (polished and fitting tightly)."""
+    cand = result.coarse.candidate
+    return bool(cand.polished and cand.score >= MIN_VERIFIED_SCORE)
 
 
 class TerminalReporter:
@@ -105,7 +115,9 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
+    verified = is_verified(result)
     extra = {
+        "verified": verified,
         "confidence": result.confidence,
         "message": result.message,
         "timings_s": summary["timings_s"],
@@ -150,11 +162,22 @@ def _cmd_register(args: argparse.Namespace) -> int:
             f"{tf['translation_error_m'] * 100:.1f} cm, gt_rmse {tf['gt_rmse_m'] * 100:.2f} cm "
             f"-> {'registered' if summary['truth']['registered'] else 'NOT registered'}"
         )
-    if result.confidence < 0.15 or result.coarse.candidate.score < 0.2:
-        print(f"  WARNING: {result.message}", file=sys.stderr)
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
+    if not verified:
+        print(
+            f"Registration failed: no verified candidate. The best solution puts only "
+            f"{result.coarse.candidate.score:.0%} of the sampled source points within "
+            f"{params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or "
+            'more on the benchmark). The files above are marked "verified": false. Check '
+            "that both scans show the same tree, review the matches in amrst-gui, or try "
+            '--preset "Leaf-on broadleaf" / a larger edge tolerance.',
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
+    if result.confidence < LOW_CONFIDENCE:
+        print(f"  WARNING: {result.message}", file=sys.stderr)
     return 0
 
 

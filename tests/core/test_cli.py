@@ -143,3 +143,33 @@ def test_register_subprocess_writes_transform_and_truth_errors(
     assert (out / "params.json").is_file()
     assert (out / "metrics.csv").is_file()
     assert not (out / "merged.ply").exists()  # only with --write-clouds
+
+
+def test_unregistrable_pair_exits_3_and_marks_files_unverified(
+    capsys, tmp_path, sample_pair
+) -> None:
+    # A box of random points is not the same tree: no transform may be reported as found.
+    from amrst import io
+    from amrst.cli import EXIT_FAILED
+    from amrst.types import Cloud
+
+    rng = np.random.default_rng(5)
+    src = tmp_path / "noise.ply"
+    io.write(src, Cloud(rng.uniform([0, 0, 0], [6, 6, 20], size=(8000, 3))))
+    out = tmp_path / "out"
+    rc = main(
+        [
+            "register",
+            str(sample_pair.target_path),
+            str(src),
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
+    err = capsys.readouterr().err
+    assert rc == EXIT_FAILED
+    assert "Traceback" not in err
+    assert "Registration failed" in err
+    if (out / "transform.json").exists():  # written for inspection, never as a success
+        assert json.loads((out / "transform.json").read_text())["verified"] is False
