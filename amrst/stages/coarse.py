@@ -162,7 +162,8 @@ class _Occupancy:
 
     def __init__(self, xyz: np.ndarray, voxel: float) -> None:
         self.voxel = voxel
-        keys = np.unique(np.floor(xyz / voxel).astype(np.int64), axis=0)
+        keys = np.floor(xyz / voxel).astype(np.int64)
+        keys = keys[np.unique(self._code(keys), return_index=True)[1]]
         offs = (
             np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T
         )

@@ -46,8 +46,19 @@ def eigen_features(
     l1, l2, l3 = _sym3_eigenvalues(a, b, c, d, e, f)
     l1, l2, l3 = (np.clip(v, 1e-12, None) for v in (l1, l2, l3))
     # Principal direction: a column of adj(C - l1 I) (the largest one for stability).
-    m = np.stack([np.stack([a - l1, d, e], -1), np.stack([d, b - l1, f], -1), np.stack([e, f, c - l1], -1)], 1)
-    cols = np.cross(m[:, 0], m[:, 1]), np.cross(m[:, 0], m[:, 2]), np.cross(m[:, 1], m[:, 2])
+    m = np.stack(
+        [
+            np.stack([a - l1, d, e], -1),
+            np.stack([d, b - l1, f], -1),
+            np.stack([e, f, c - l1], -1),
+        ],
+        1,
+    )
+    cols = (
+        np.cross(m[:, 0], m[:, 1]),
+        np.cross(m[:, 0], m[:, 2]),
+        np.cross(m[:, 1], m[:, 2]),
+    )
     best = np.argmax(np.stack([np.einsum("ni,ni->n", v, v) for v in cols]), axis=0)
     v1 = np.choose(best[:, None], cols)
     v1 = v1 / np.maximum(np.linalg.norm(v1, axis=1, keepdims=True), 1e-300)

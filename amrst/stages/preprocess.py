@@ -78,15 +78,27 @@ class PreprocessResult:
     n_thinned: int  # merged away by voxel thinning
 
 
+def voxel_keys(xyz: np.ndarray, voxel: float) -> np.ndarray:
+    """(N,) int64 code of each point's voxel (one int per voxel, for fast 1-D unique).
+
+    Keys of up to 2^21 voxels per axis are packed into one int64; larger grids (a very
+    small voxel over a large extent) fall back to row-wise codes via np.unique(axis=0).
+    """
+    k = np.floor((xyz - xyz.min(axis=0)) / voxel).astype(np.int64)
+    if k.size and k.max() < (1 << 21):
+        return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+    return np.unique(k, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
 def _voxel_representatives(xyz: np.ndarray, voxel: float) -> np.ndarray:
     """Index of the point nearest each occupied voxel's centroid (keeps real points)."""
-    keys = np.floor((xyz - xyz.min(axis=0)) / voxel).astype(np.int64)
     _, inverse, counts = np.unique(
-        keys, axis=0, return_inverse=True, return_counts=True
+        voxel_keys(xyz, voxel), return_inverse=True, return_counts=True
     )
     inverse = inverse.ravel()
-    sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse, xyz)
+    sums = np.column_stack(
+        [np.bincount(inverse, xyz[:, d], len(counts)) for d in range(3)]
+    )
     centroids = sums / counts[:, None]
     dist = np.sum((xyz - centroids[inverse]) ** 2, axis=1)
     order = np.lexsort((dist, inverse))  # per voxel, nearest first

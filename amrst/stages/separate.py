@@ -192,7 +192,14 @@ def separate_wood(
     if len(wood_idx):
         v = params.voxel_size_m
         keys = np.floor(xyz[wood_idx] / v).astype(np.int64)
-        uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+        code = (
+            (keys[:, 0] - keys[:, 0].min()) * (1 << 42)
+            + (keys[:, 1] - keys[:, 1].min()) * (1 << 21)
+            + keys[:, 2]
+            - keys[:, 2].min()
+        )
+        _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+        uniq = keys[first]
         labels = connected_components(
             uniq.astype(float), 1.75
         )  # sqrt(3) voxel diagonal

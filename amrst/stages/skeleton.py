@@ -174,7 +174,8 @@ def _graph(xyz: np.ndarray, params: SkeletonParams):
                 for a, b, s in zip(labels[e0[sel]], labels[e1[sel]], sel, strict=True)
             }
             bridges = [
-                pair[(int(min(a, b)), int(max(a, b)))] for a, b in zip(mst.row, mst.col, strict=True)
+                pair[(int(min(a, b)), int(max(a, b)))]
+                for a, b in zip(mst.row, mst.col, strict=True)
             ]
             rows, cols, w = (
                 np.r_[rows, e0[bridges]],
@@ -285,8 +286,9 @@ def build_skeleton(
     k = int(cluster.max()) + 1
     valid = cluster >= 0
     counts = np.bincount(cluster[valid], minlength=k)
-    nodes = np.zeros((k, 3))
-    np.add.at(nodes, cluster[valid], xyz[valid])
+    nodes = np.column_stack(
+        [np.bincount(cluster[valid], xyz[valid, d], k) for d in range(3)]
+    )
     nodes /= np.maximum(counts, 1)[:, None]
     node_geo = np.full(k, np.inf)
     np.minimum.at(node_geo, cluster[valid], geo[valid])
