@@ -307,12 +307,12 @@ def rank_candidates(
         tgt_tree = cKDTree(target_xyz)
         tgt_pcd = o3d.geometry.PointCloud(
             o3d.utility.Vector3dVector(np.array(target_xyz, dtype=np.float64))
-        ).voxel_down_sample(params.verify_voxel_m * 0.7)
+        ).voxel_down_sample(params.verify_voxel_m)
         src_small = np.asarray(
             o3d.geometry.PointCloud(
                 o3d.utility.Vector3dVector(np.array(source_xyz, dtype=np.float64))
             )
-            .voxel_down_sample(params.verify_voxel_m * 0.7)
+            .voxel_down_sample(params.verify_voxel_m)
             .points
         )
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
