@@ -303,8 +303,8 @@ def rank_candidates(
     polished_T = {int(i): T[i] for i in rep}
     score = raw.copy()
     is_polished = np.zeros(len(rep), dtype=bool)
+    tgt_tree = cKDTree(target_xyz)
     if params.polish_top > 0:
-        tgt_tree = cKDTree(target_xyz)
         tgt_pcd = o3d.geometry.PointCloud(
             o3d.utility.Vector3dVector(np.array(target_xyz, dtype=np.float64))
         ).voxel_down_sample(params.verify_voxel_m)
@@ -331,15 +331,37 @@ def rank_candidates(
             reporter.progress(
                 0.4 + 0.5 * (n + 1) / len(top), "verifying the best solutions"
             )
-    # Polished solutions first (their score is comparable), then the rest by raw score.
-    order = np.lexsort((-support, -score, ~is_polished))[: params.max_candidates]
+    # Every listed solution gets the same tight score, so the column reads one way:
+    # the unpolished ones under their tetrahedron transform, on the smaller sample.
+    shortlist = np.argsort(-raw, kind="stable")[: params.max_candidates]
+    shortlist = np.union1d(shortlist, np.flatnonzero(is_polished))
+    for j in shortlist[~is_polished[shortlist]]:
+        Tj = T[rep[j]]
+        d = tgt_tree.query(
+            few @ Tj[:3, :3].T + Tj[:3, 3], distance_upper_bound=params.tight_dist_m
+        )[0]
+        score[j] = float(np.mean(d < params.tight_dist_m))
+    # Polished solutions first (the polish is part of their verification), then the rest.
+    order = shortlist[
+        np.lexsort(
+            (
+                -support[shortlist],
+                -raw[shortlist],
+                -score[shortlist],
+                ~is_polished[shortlist],
+            )
+        )
+    ]
+    order = order[: params.max_candidates]
     cands = []
     for rank, j in enumerate(order, start=1):
         i = int(rep[j])
         expl = (
             f"{support[j]} tetrahedron match(es) agree; {score[j]:.0%} of sampled source points "
-            f"land on the target{' after a short ICP' if is_polished[j] else ''} "
-            f"({raw[j]:.0%} under the tetrahedron fit); edge error {matches.edge_error[i]:.1%}, "
+            f"lie within {params.tight_dist_m * 100:.0f} cm of the target"
+            f"{' after a short ICP polish' if is_polished[j] else ' under the tetrahedron fit'} "
+            f"({raw[j]:.0%} on or next to a {params.verify_voxel_m * 100:.0f} cm target voxel); "
+            f"edge error {matches.edge_error[i]:.1%}, "
             f"SVD residual {matches.svd_residual_m[i] * 100:.1f} cm, volume {matches.volume_m3[i]:.2f} m³."
         )
         cands.append(
@@ -419,15 +441,11 @@ def choose_coarse(
     separation = (
         float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
     )
-    fit = (
-        min(1.0, best.score / SCORE_FULL_CREDIT)
-        if best.polished
-        else min(1.0, best.score)
-    )
+    fit = min(1.0, best.score / SCORE_FULL_CREDIT)
     conf = separation * fit
     if best.score < 0.1:
         msg = (
-            f"Low confidence: only {best.score:.0%} of the sampled source points land on the target. Check the matches by eye; "
+            f"Low confidence: only {best.score:.0%} of the sampled source points lie near the target. Check the matches by eye; "
             "the scans may overlap little or the skeletons may differ."
         )
     elif conf < 0.15:
