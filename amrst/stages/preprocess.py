@@ -6,12 +6,15 @@ keeps indices into the original cloud so that exports never lose points.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -43,6 +46,15 @@ class PreprocessParams:
             "min": 0.0,
             "max": 0.5,
             "help": "Thin to one point per voxel of this size before analysis (0 = keep all). Typical 0.01-0.05.",
+        },
+    )
+    max_points: int = field(
+        default=120_000,
+        metadata={
+            "unit": "points",
+            "min": 1000,
+            "max": 10_000_000,
+            "help": "Largest working set: a bigger scan is thinned with a larger voxel until this many points remain (logged). Keeps huge scans to seconds; exports always use every point.",
         },
     )
     min_points: int = field(
@@ -141,6 +153,19 @@ def preprocess_points(
     if params.voxel_size_m > 0 and len(pts):
         reps = _voxel_representatives(pts, params.voxel_size_m)
         index, pts = index[reps], pts[reps]
+    voxel = params.voxel_size_m
+    while len(pts) > params.max_points:
+        # Surface density falls with the square of the voxel size.
+        voxel = max(voxel, 0.005) * max(1.2, np.sqrt(len(pts) / params.max_points))
+        reps = _voxel_representatives(pts, voxel)
+        index, pts = index[reps], pts[reps]
+    if voxel != params.voxel_size_m:
+        log.warning(
+            "Large scan: thinned to %d points with a %.1f cm voxel (max_points %d).",
+            len(pts),
+            voxel * 100,
+            params.max_points,
+        )
     n_thinned = n_before - len(pts)
     reporter.progress(0.5, "thinned")
     n_outliers = 0

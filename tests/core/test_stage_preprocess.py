@@ -151,3 +151,16 @@ def test_inputs_are_not_modified() -> None:
 def test_params_refuse_negative_values(bad) -> None:
     with pytest.raises(ValueError, match="non-negative"):
         PreprocessParams(**bad)
+
+
+def test_huge_scans_are_thinned_to_max_points(caplog) -> None:
+    from amrst.stages.preprocess import PreprocessParams, preprocess_points
+
+    rng = np.random.default_rng(3)
+    xyz = rng.uniform(0, 10, size=(60_000, 3))
+    params = PreprocessParams(voxel_size_m=0.01, max_points=5_000, outlier_neighbours=0)
+    res = preprocess_points(xyz, params)
+    assert len(res.xyz) <= 5_000
+    assert len(res.xyz) > 1_000  # thinned, not emptied
+    assert np.array_equal(xyz[res.index], res.xyz)  # still real points, valid indices
+    assert "Large scan" in caplog.text
