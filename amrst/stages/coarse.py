@@ -17,7 +17,7 @@ import numpy as np
 from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.match import TetraMatches
-from amrst.types import Transform, rotation_angle_deg
+from amrst.types import Transform, make_transform, rotation_angle_deg
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -155,6 +155,8 @@ class CoarseResult:
 
 
 SCORE_FULL_CREDIT = 0.3
+POLISH_ITERATIONS = 25
+POLISH_POINTS = 1000
 
 
 class _Occupancy:
@@ -223,31 +225,28 @@ def _group(
     return groups
 
 
-def _polish(src: np.ndarray, tgt_pcd, T: Transform, max_dist: float) -> Transform:
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    pcd = o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.array(src, dtype=np.float64))
-    )
-    out = reg.registration_icp(
-        pcd,
-        tgt_pcd,
-        max_dist,
-        T,
-        reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=10),
-    )
-    T2 = np.asarray(out.transformation)
-    out = reg.registration_icp(
-        pcd,
-        tgt_pcd,
-        max_dist / 3,
-        T2,
-        reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=10),
-    )
-    return np.asarray(out.transformation)
+def _polish(
+    src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
+) -> Transform:
+    """Short point-to-point ICP, the closed-form (Kabsch) step each iteration, at
+    max_dist and then a third of it (what Open3D's point-to-point ICP does; importing
+    Open3D would cost a second per command). ``tree`` is a cKDTree on ``tgt``."""
+    for dist in (max_dist, max_dist / 3):
+        for _ in range(POLISH_ITERATIONS):
+            moved = src @ T[:3, :3].T + T[:3, 3]
+            d, j = tree.query(moved, distance_upper_bound=dist)
+            ok = d < dist
+            if ok.sum() < 6:
+                return T
+            a, b = moved[ok], tgt[j[ok]]
+            ca, cb = a.mean(axis=0), b.mean(axis=0)
+            u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+            R = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
+            t = cb - R @ ca
+            T = make_transform(R, t) @ T
+            if np.linalg.norm(t + R @ ca - ca) < 1e-4 and np.trace(R) > 3 - 1e-9:
+                break
+    return T
 
 
 def rank_candidates(
@@ -273,8 +272,9 @@ def rank_candidates(
     -------
     CandidateList
     """
-    import open3d as o3d
     from scipy.spatial import cKDTree
+
+    from amrst.stages.preprocess import _voxel_representatives
 
     if len(matches.T_target_source) == 0:
         return CandidateList((), 0)
@@ -305,22 +305,24 @@ def rank_candidates(
     is_polished = np.zeros(len(rep), dtype=bool)
     tgt_tree = cKDTree(target_xyz)
     if params.polish_top > 0:
-        tgt_pcd = o3d.geometry.PointCloud(
-            o3d.utility.Vector3dVector(np.array(target_xyz, dtype=np.float64))
-        ).voxel_down_sample(params.verify_voxel_m)
-        src_small = np.asarray(
-            o3d.geometry.PointCloud(
-                o3d.utility.Vector3dVector(np.array(source_xyz, dtype=np.float64))
-            )
-            .voxel_down_sample(params.verify_voxel_m)
-            .points
-        )
+        # Open3D would do this too, but importing it costs a second per command.
+        tgt_small = target_xyz[
+            _voxel_representatives(target_xyz, params.verify_voxel_m)
+        ]
+        src_small = source_xyz[
+            _voxel_representatives(source_xyz, params.verify_voxel_m)
+        ]
+        if len(src_small) > POLISH_POINTS:
+            src_small = src_small[rng.choice(len(src_small), POLISH_POINTS, replace=False)]
+        small_tree = cKDTree(tgt_small)
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
             : params.polish_top
         ]
         for n, j in enumerate(top):
             reporter.check_cancelled()
-            Tp = _polish(src_small, tgt_pcd, T[rep[j]], params.polish_max_dist_m)
+            Tp = _polish(
+                src_small, tgt_small, small_tree, T[rep[j]], params.polish_max_dist_m
+            )
             polished_T[int(rep[j])] = Tp
             d = tgt_tree.query(
                 sample @ Tp[:3, :3].T + Tp[:3, 3],

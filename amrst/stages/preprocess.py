@@ -119,6 +119,16 @@ def _voxel_representatives(xyz: np.ndarray, voxel: float) -> np.ndarray:
     return np.sort(order[first])
 
 
+def _statistical_inliers(pts: np.ndarray, k: int, std_ratio: float) -> np.ndarray:
+    """Indices of points whose mean distance to their k neighbours is at most
+    mean + std_ratio * std over all points (Open3D's statistical outlier rule, in scipy:
+    importing Open3D costs a second per command)."""
+    from scipy.spatial import cKDTree
+
+    d = cKDTree(pts).query(pts, k=k + 1, workers=-1)[0][:, 1:].mean(axis=1)
+    return np.flatnonzero(d <= d.mean() + std_ratio * d.std())
+
+
 def preprocess_points(
     xyz: np.ndarray, params: PreprocessParams, reporter: Reporter = NULL_REPORTER
 ) -> PreprocessResult:
@@ -140,8 +150,6 @@ def preprocess_points(
     InvalidInput
         When fewer than ``params.min_points`` points survive.
     """
-    import open3d as o3d
-
     n_input = len(xyz)
     index = np.flatnonzero(np.all(np.isfinite(xyz), axis=1))
     n_invalid = n_input - len(index)
@@ -170,13 +178,9 @@ def preprocess_points(
     reporter.progress(0.5, "thinned")
     n_outliers = 0
     if params.outlier_neighbours > 0 and len(pts) > params.outlier_neighbours + 1:
-        pcd = o3d.geometry.PointCloud(
-            o3d.utility.Vector3dVector(np.array(pts, dtype=np.float64))
+        kept = _statistical_inliers(
+            pts, params.outlier_neighbours, params.outlier_std_ratio
         )
-        _, kept = pcd.remove_statistical_outlier(
-            params.outlier_neighbours, params.outlier_std_ratio
-        )
-        kept = np.sort(np.asarray(kept, dtype=np.int64))
         n_outliers = len(pts) - len(kept)
         index, pts = index[kept], pts[kept]
     if len(pts) < params.min_points:
