@@ -44,6 +44,8 @@ case "$mode" in
   app)
     if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
       echo "[bootstrap] no display found: starting the app on a virtual screen (xvfb-run)."
+      echo "[bootstrap] it runs but cannot be seen here; stop it with Ctrl+C. To see it, run this"
+      echo "[bootstrap] on a desktop or over ssh -X; for a picture: .venv/bin/amrst-gui --screenshot out.png"
       exec xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/amrst-gui "$@"
     fi
     exec .venv/bin/amrst-gui "$@"
