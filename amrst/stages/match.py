@@ -137,12 +137,24 @@ class TetraMatches:
     n_descriptor_pairs: int  # pairs found in the KD-tree before the checks
 
 
+def _combinations4(n: int) -> np.ndarray:
+    """(C(n,4), 4) int64 all index quadruples i<j<k<l, in lexicographic order."""
+    pairs = np.column_stack(np.triu_indices(n, 1))  # (i, j), i < j
+    out = []
+    for i, j in pairs:  # at most C(n,2) small blocks, each vectorised
+        if j >= n - 2:
+            continue
+        kl = pairs[pairs[:, 0] > j]
+        out.append(np.column_stack([np.full(len(kl), i), np.full(len(kl), j), kl]))
+    return np.concatenate(out) if out else np.zeros((0, 4), dtype=np.int64)
+
+
 def _tetrahedra(xyz: np.ndarray, params: MatchParams):
     """Admissible tetrahedra: (T, 4) indices, (T, 6) edges, (T,) signed volume."""
     n = len(xyz)
     if n < 4:
         return np.zeros((0, 4), int), np.zeros((0, 6)), np.zeros(0)
-    quads = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64)
+    quads = _combinations4(n)
     v = xyz[quads]  # (T, 4, 3)
     edges = np.linalg.norm(v[:, _EDGES[:, 0]] - v[:, _EDGES[:, 1]], axis=2)
     signed = (

@@ -169,3 +169,13 @@ def test_kabsch_never_returns_a_reflection() -> None:
     ref, _ = Rotation.align_vectors(dst[0] - cd, src[0] - cs)
     np.testing.assert_allclose(T[0, :3, :3], ref.as_matrix(), atol=1e-9)
     assert res[0] > 0.1
+
+
+@pytest.mark.parametrize("n", [4, 5, 9, 32])
+def test_combinations4_matches_itertools(n) -> None:
+    import itertools
+
+    from amrst.stages.match import _combinations4
+
+    expected = np.array(list(itertools.combinations(range(n), 4)))
+    np.testing.assert_array_equal(_combinations4(n), expected)
