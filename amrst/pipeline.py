@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from amrst.errors import RegistrationFailed
+from amrst.errors import InvalidInput, RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.coarse import (
     CandidateList,
@@ -134,9 +134,12 @@ def prepare_scan(
     """Preprocess one scan and separate wood from leaves."""
     timings: dict = {}
     t0 = time.perf_counter()
-    pre = preprocess_points(
-        cloud.xyz, params.preprocess, SubReporter(reporter, 0, 0.3, "preprocess")
-    )
+    try:
+        pre = preprocess_points(
+            cloud.xyz, params.preprocess, SubReporter(reporter, 0, 0.3, "preprocess")
+        )
+    except InvalidInput as exc:  # say which scan
+        raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
     t0 = _timed(timings, "preprocess", t0)
     intensity = cloud.intensity
     sep = separate_wood(

@@ -313,7 +313,9 @@ def rank_candidates(
             _voxel_representatives(source_xyz, params.verify_voxel_m)
         ]
         if len(src_small) > POLISH_POINTS:
-            src_small = src_small[rng.choice(len(src_small), POLISH_POINTS, replace=False)]
+            src_small = src_small[
+                rng.choice(len(src_small), POLISH_POINTS, replace=False)
+            ]
         small_tree = cKDTree(tgt_small)
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
             : params.polish_top

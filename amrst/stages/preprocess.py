@@ -185,7 +185,7 @@ def preprocess_points(
         index, pts = index[kept], pts[kept]
     if len(pts) < params.min_points:
         raise InvalidInput(
-            f"Only {len(pts)} usable points after filtering ({n_input} read, {n_invalid} invalid, "
+            f"Only {len(pts)} usable point(s) after filtering ({n_input} read, {n_invalid} invalid, "
             f"{n_outliers} outliers); at least {params.min_points} are needed. Check that the file "
             "holds a whole tree scan, or lower the voxel size / outlier filter."
         )

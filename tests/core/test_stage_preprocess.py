@@ -120,7 +120,7 @@ def test_voxel_thinning_of_clusters_gives_one_point_per_cluster() -> None:
 
 def test_too_few_points_raise_invalid_input() -> None:
     xyz = _blob(150)
-    with pytest.raises(InvalidInput, match=r"Only 150 usable points.*at least 200"):
+    with pytest.raises(InvalidInput, match=r"Only 150 usable point\(s\).*at least 200"):
         preprocess_points(xyz, PreprocessParams(outlier_neighbours=0, min_points=200))
     all_nan = np.full((300, 3), np.nan)
     with pytest.raises(InvalidInput, match="300 read, 300 invalid"):
