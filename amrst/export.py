@@ -11,15 +11,15 @@ import csv
 import datetime as _dt
 import io as _stdio
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from amrst import io as amrst_io
+from amrst.atomic import write_json_atomic, write_text_atomic
 from amrst.errors import InvalidInput
-from amrst.params_io import params_to_dict, write_json_atomic
+from amrst.params_io import params_to_dict
 from amrst.pipeline import RegistrationParams
 from amrst.types import Cloud, Transform, transform_cloud
 
@@ -64,17 +64,6 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
             _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
     else:
         out[prefix] = value
-
-
-def _write_text_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def transform_document(
@@ -172,7 +161,7 @@ def export_registration(
             written[-1], transform_document(T_target_source, T_coarse, **extra)
         )
         written.append(out / "transform.txt")
-        _write_text_atomic(
+        write_text_atomic(
             written[-1],
             "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source)
             + "\n",
@@ -187,7 +176,7 @@ def export_registration(
         w.writerow(["metric", "value"])
         w.writerows(flat.items())
         written.append(out / "metrics.csv")
-        _write_text_atomic(written[-1], buf.getvalue())
+        write_text_atomic(written[-1], buf.getvalue())
     if "params" in parts:
         written.append(out / "params.json")
         write_json_atomic(written[-1], params_to_dict(params or RegistrationParams()))

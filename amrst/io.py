@@ -13,7 +13,6 @@ from __future__ import annotations
 import functools
 import logging
 import os
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ from amrst._io_las import read_las, write_las
 from amrst._io_pcd import read_pcd, write_pcd
 from amrst._io_ply import read_ply, write_ply
 from amrst._io_text import read_text, write_text
+from amrst.atomic import write_atomic
 from amrst.errors import AmrstError, InvalidInput
 from amrst.types import Cloud
 
@@ -230,40 +230,7 @@ def write(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
         )
     if path.is_dir():
         raise InvalidInput(f"Cannot write {path}: it is a folder. Choose a file name.")
-    _atomic_write(path, lambda tmp: writer(tmp, cloud, binary=binary))
-
-
-def _atomic_write(path: Path, write_to: Callable[[Path], None]) -> None:
-    """Run ``write_to(temp)``, then move temp over ``path``; never a partial file."""
-    try:
-        fd, name = tempfile.mkstemp(
-            prefix=f".{path.name}.", suffix=".tmp", dir=path.parent
-        )
-    except OSError as exc:
-        raise AmrstError(
-            f"Cannot write {path}: {exc.strerror or exc}. Check that the folder is "
-            "writable, or choose another one."
-        ) from exc
-    os.close(fd)
-    tmp = Path(name)
-    try:
-        write_to(tmp)
-        _copy_mode(path, tmp)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        tmp.unlink(missing_ok=True)
-        if isinstance(exc, AmrstError) or not isinstance(exc, Exception):
-            raise
-        raise AmrstError(
-            f"Could not write {path}: {exc} ({type(exc).__name__}). Nothing was "
-            "changed; check the free disk space and the permissions, then retry."
-        ) from exc
-
-
-def _copy_mode(path: Path, tmp: Path) -> None:
-    """Give the new file the old one's permissions (mkstemp makes it owner-only)."""
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-    os.chmod(tmp, mode)
+    write_atomic(path, lambda tmp: writer(tmp, cloud, binary=binary))
 
 
 def describe(cloud: Cloud) -> dict[str, Any]:

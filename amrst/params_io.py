@@ -10,10 +10,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
+from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.pipeline import RegistrationParams
 
@@ -153,19 +153,3 @@ def load_preset(name: str) -> RegistrationParams:
     if name not in presets:
         raise InvalidInput(f"No preset named {name!r}; available: {sorted(presets)}.")
     return load_params(presets[name])
-
-
-def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
-    """Write JSON to a temp file in the same folder, then rename over the target."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise InvalidInput(f"Folder does not exist: {path.parent}. Create it first.")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=2, allow_nan=True)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -10,13 +10,13 @@ from __future__ import annotations
 import fnmatch
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.types import Cloud, Transform
 
@@ -142,21 +142,6 @@ def truth_dict(
     }
 
 
-def write_json_atomic(path: PathLike, data: Any) -> None:
-    """Write ``data`` as indented JSON through a temp file and ``os.replace``."""
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}-")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_case(
     pair: SimulatedPair,
     out_dir: PathLike,
@@ -186,5 +171,5 @@ def write_case(
     out.mkdir(parents=True, exist_ok=True)
     io.write(out / "target.ply", pair.target)
     io.write(out / "source.ply", pair.source)
-    write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed))
+    write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed), indent=1)
     return out

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from amrst.bench.report import write_text_atomic
+from amrst.atomic import write_text_atomic
 
 _MARKERS = "osD^vP*X<>"
 

@@ -15,13 +15,14 @@ import json
 import math
 import os
 import platform
-import tempfile
 from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from amrst.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     from amrst.bench.run import RunRecord
@@ -50,19 +51,6 @@ _CSV_FIELDS = [
     "n_source",
     "error",
 ]
-
-
-def write_text_atomic(path: Path, text: str | bytes) -> None:
-    """Replace ``path`` with ``text`` through a temp file in the same folder."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}-")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(text.encode("utf-8") if isinstance(text, str) else text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _version(module: str) -> str:

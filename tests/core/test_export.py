@@ -225,3 +225,20 @@ def test_unwritable_folder_is_refused(tmp_path: Path, scans) -> None:
         export_registration(
             blocker / "sub", target=target, source=source, T_target_source=T
         )
+
+
+def test_exported_files_are_readable_by_others(tmp_path, sample_pair) -> None:
+    # mkstemp alone makes owner-only (0600) files; a colleague must be able to read exports.
+    import stat
+
+    from amrst.export import export_registration
+
+    files = export_registration(
+        tmp_path / "out",
+        target=sample_pair.target,
+        source=sample_pair.source,
+        T_target_source=np.eye(4),
+        parts=("registered", "transform", "metrics", "params"),
+    )
+    for f in files:
+        assert f.stat().st_mode & stat.S_IROTH, f"{f.name} is not readable by others"

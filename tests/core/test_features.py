@@ -14,15 +14,21 @@ def test_eigen_features_match_eigh() -> None:
     nb = xyz[idx] - xyz[idx].mean(axis=1, keepdims=True)
     w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb) / 20)
     w = np.clip(w, 1e-12, None)
-    np.testing.assert_allclose(got["linearity"], (w[:, 2] - w[:, 1]) / w[:, 2], atol=1e-9)
-    np.testing.assert_allclose(got["planarity"], (w[:, 1] - w[:, 0]) / w[:, 2], atol=1e-9)
+    np.testing.assert_allclose(
+        got["linearity"], (w[:, 2] - w[:, 1]) / w[:, 2], atol=1e-9
+    )
+    np.testing.assert_allclose(
+        got["planarity"], (w[:, 1] - w[:, 0]) / w[:, 2], atol=1e-9
+    )
     np.testing.assert_allclose(got["curvature"], w[:, 0] / w.sum(axis=1), atol=1e-9)
     np.testing.assert_allclose(got["verticality"], np.abs(v[:, 2, 2]), atol=1e-6)
 
 
 def test_line_and_plane_are_recognised() -> None:
     t = np.linspace(0, 10, 500)
-    line = np.column_stack([t, 0 * t, 0 * t]) + 1e-4 * np.random.default_rng(1).normal(size=(500, 3))
+    line = np.column_stack([t, 0 * t, 0 * t]) + 1e-4 * np.random.default_rng(1).normal(
+        size=(500, 3)
+    )
     assert np.median(eigen_features(line, 10)["linearity"]) > 0.99
     vertical = line[:, [1, 2, 0]]
     assert np.median(eigen_features(vertical, 10)["verticality"]) > 0.99

@@ -1,0 +1,64 @@
+"""Atomic writes: every file the engine writes goes through here.
+
+The content goes to a temporary file in the same folder, which then replaces the target
+with ``os.replace``: a failed or interrupted write never leaves half a file and never
+clobbers the old one. The new file keeps the old one's permissions (0644 when new;
+``mkstemp`` alone would make it readable by its owner only).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from amrst.errors import AmrstError
+
+
+def write_atomic(path: str | os.PathLike, write_to: Callable[[Path], None]) -> None:
+    """Run ``write_to(temp_path)``, then move the temp file over ``path``.
+
+    Raises
+    ------
+    AmrstError
+        When the folder is not writable or the write fails (the old file is untouched).
+    """
+    path = Path(path)
+    try:
+        fd, name = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=".tmp", dir=path.parent
+        )
+    except OSError as exc:
+        raise AmrstError(
+            f"Cannot write {path}: {exc.strerror or exc}. Check that the folder exists "
+            "and is writable, or choose another one."
+        ) from exc
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        write_to(tmp)
+        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, AmrstError) or not isinstance(exc, Exception):
+            raise
+        raise AmrstError(
+            f"Could not write {path}: {exc} ({type(exc).__name__}). Nothing was "
+            "changed; check the free disk space and the permissions, then retry."
+        ) from exc
+
+
+def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
+    """Write text (UTF-8) or bytes atomically."""
+    data = text.encode("utf-8") if isinstance(text, str) else text
+    write_atomic(path, lambda tmp: tmp.write_bytes(data))
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any, indent: int = 2) -> None:
+    """Write ``data`` as indented JSON atomically."""
+    write_text_atomic(path, json.dumps(data, indent=indent, allow_nan=True) + "\n")
