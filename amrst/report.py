@@ -61,17 +61,11 @@ def registration_summary(
     }
     if T_truth is not None:
         src = result.source.cloud.world_xyz
+        T_truth = np.asarray(T_truth, float)
+        fine_err = truth_errors(result.T_target_source, T_truth, src)
         out["truth"] = {
-            "fine": truth_errors(
-                result.T_target_source, np.asarray(T_truth, float), src
-            ).as_dict(),
-            "coarse": truth_errors(
-                result.T_coarse, np.asarray(T_truth, float), src
-            ).as_dict(),
+            "fine": fine_err.as_dict(),
+            "coarse": truth_errors(result.T_coarse, T_truth, src).as_dict(),
+            "registered": fine_err.registered(),
         }
-        out["truth"]["registered"] = bool(
-            truth_errors(
-                result.T_target_source, np.asarray(T_truth, float), src
-            ).registered()
-        )
     return out

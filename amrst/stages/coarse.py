@@ -17,7 +17,7 @@ import numpy as np
 from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.match import TetraMatches
-from amrst.types import Transform, make_transform, rotation_angle_deg
+from amrst.types import Transform, rotation_angle_deg
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -231,6 +231,8 @@ def _polish(
     """Short point-to-point ICP, the closed-form (Kabsch) step each iteration, at
     max_dist and then a third of it (what Open3D's point-to-point ICP does; importing
     Open3D would cost a second per command). ``tree`` is a cKDTree on ``tgt``."""
+    from amrst.stages.match import kabsch
+
     for dist in (max_dist, max_dist / 3):
         for _ in range(POLISH_ITERATIONS):
             moved = src @ T[:3, :3].T + T[:3, 3]
@@ -238,13 +240,9 @@ def _polish(
             ok = d < dist
             if ok.sum() < 6:
                 return T
-            a, b = moved[ok], tgt[j[ok]]
-            ca, cb = a.mean(axis=0), b.mean(axis=0)
-            u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-            R = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
-            t = cb - R @ ca
-            T = make_transform(R, t) @ T
-            if np.linalg.norm(t + R @ ca - ca) < 1e-4 and np.trace(R) > 3 - 1e-9:
+            step = kabsch(moved[ok][None], tgt[j[ok]][None])[0][0]
+            T = step @ T
+            if np.linalg.norm(step[:3, 3]) < 1e-4 and np.trace(step[:3, :3]) > 3 - 1e-9:
                 break
     return T
 

@@ -90,22 +90,25 @@ class PreprocessResult:
     n_thinned: int  # merged away by voxel thinning
 
 
-def voxel_keys(xyz: np.ndarray, voxel: float) -> np.ndarray:
-    """(N,) int64 code of each point's voxel (one int per voxel, for fast 1-D unique).
+def voxel_grid(xyz: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Integer voxel of each point, and one int64 code per voxel (for a fast 1-D unique).
 
-    Keys of up to 2^21 voxels per axis are packed into one int64; larger grids (a very
-    small voxel over a large extent) fall back to row-wise codes via np.unique(axis=0).
+    Returns
+    -------
+    keys : (N, 3) int64, counted from the cloud's minimum corner
+    code : (N,) int64, equal for points in the same voxel. Keys of up to 2^21 voxels per
+        axis are packed into one int64; larger grids fall back to row-wise codes.
     """
     k = np.floor((xyz - xyz.min(axis=0)) / voxel).astype(np.int64)
     if k.size and k.max() < (1 << 21):
-        return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
-    return np.unique(k, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+        return k, (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+    return k, np.unique(k, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
 
 
 def _voxel_representatives(xyz: np.ndarray, voxel: float) -> np.ndarray:
     """Index of the point nearest each occupied voxel's centroid (keeps real points)."""
     _, inverse, counts = np.unique(
-        voxel_keys(xyz, voxel), return_inverse=True, return_counts=True
+        voxel_grid(xyz, voxel)[1], return_inverse=True, return_counts=True
     )
     inverse = inverse.ravel()
     sums = np.column_stack(

@@ -15,6 +15,7 @@ import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import connected_components, eigen_features, otsu_threshold
+from amrst.stages.preprocess import voxel_grid
 
 MODES = ("auto", "geometry", "intensity", "all_wood")
 
@@ -191,13 +192,7 @@ def separate_wood(
     wood_idx = np.flatnonzero(candidate)
     if len(wood_idx):
         v = params.voxel_size_m
-        keys = np.floor(xyz[wood_idx] / v).astype(np.int64)
-        code = (
-            (keys[:, 0] - keys[:, 0].min()) * (1 << 42)
-            + (keys[:, 1] - keys[:, 1].min()) * (1 << 21)
-            + keys[:, 2]
-            - keys[:, 2].min()
-        )
+        keys, code = voxel_grid(xyz[wood_idx], v)
         _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
         uniq = keys[first]
         labels = connected_components(
