@@ -20,15 +20,6 @@ from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
 LOW_CONFIDENCE = 0.3
-MIN_VERIFIED_SCORE = (
-    0.15  # polished tight score; benchmark: right >= 0.45, wrong <= 0.08
-)
-
-
-def is_verified(result) -> bool:
-    """Whether the chosen candidate passed verification (polished and fitting tightly)."""
-    cand = result.coarse.candidate
-    return bool(cand.polished and cand.score >= MIN_VERIFIED_SCORE)
 
 
 class TerminalReporter:
@@ -115,7 +106,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
-    verified = is_verified(result)
+    verified = result.coarse.verified
     extra = {
         "verified": verified,
         "confidence": result.confidence,

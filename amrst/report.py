@@ -38,6 +38,7 @@ def registration_summary(
             "candidate_id": coarse.candidate.id,
             "verification_score": coarse.candidate.score,
             "confidence": coarse.confidence,
+            "verified": coarse.verified,
         },
         "fine": {
             **result.metrics_fine.as_dict(),

@@ -152,9 +152,13 @@ class CoarseResult:
     confidence: float  # 0..1: 1 - runner-up score / winner score (different solutions)
     runner_up_score: float
     message: str
+    verified: bool  # polished and scoring >= MIN_VERIFIED_SCORE: safe to use unattended
 
 
 SCORE_FULL_CREDIT = 0.3
+# Below this polished score no candidate counts as verified (benchmark: right winners
+# scored >= 0.45, wrong ones <= 0.10).
+MIN_VERIFIED_SCORE = 0.15
 POLISH_ITERATIONS = 25
 POLISH_POINTS = 1000
 
@@ -457,4 +461,5 @@ def choose_coarse(
         )
     else:
         msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
-    return CoarseResult(best, best.T_target_source, conf, runner, msg)
+    verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
+    return CoarseResult(best, best.T_target_source, conf, runner, msg, verified)

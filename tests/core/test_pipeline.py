@@ -198,3 +198,10 @@ def test_find_matches_needs_four_key_points(sample_run) -> None:
     bare = dataclasses.replace(r.target, skeleton=None, keypoints=None)
     with pytest.raises(RegistrationFailed, match="key points of both scans first"):
         find_matches(bare, r.source, r.params)
+
+
+def test_sample_registration_is_verified(sample_run) -> None:
+    coarse = sample_run.result.coarse
+    assert coarse.verified
+    assert coarse.candidate.polished
+    assert coarse.confidence > 0.3
