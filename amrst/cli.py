@@ -139,7 +139,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
         f"(read {t_read:.2f} s)."
     )
     print(
-        f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}, "
+        f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}"
+        f"{' (trunk heading search)' if result.coarse.candidate.origin == 'trunk' else ''}, "
         f"verification score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}"
     )
     print(
@@ -161,7 +162,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
             f"Registration failed: no verified candidate. The best solution puts only "
             f"{result.coarse.candidate.score:.0%} of the sampled source points within "
             f"{params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or "
-            'more on the benchmark). The files above are marked "verified": false. Check '
+            "more on the benchmark), and the trunk heading search found no heading that "
+            'clearly beats the others. The files above are marked "verified": false. Check '
             "that both scans show the same tree, review the matches in amrst-gui, or try "
             '--preset "Leaf-on broadleaf" / a larger edge tolerance.',
             file=sys.stderr,

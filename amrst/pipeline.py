@@ -29,7 +29,9 @@ from amrst.stages.coarse import (
     CoarseParams,
     CoarseResult,
     choose_coarse,
+    merge_trunk_solutions,
     rank_candidates,
+    score_transforms,
 )
 from amrst.stages.fine import FineParams, FineResult, refine_registration
 from amrst.stages.keypoints import KeypointParams, KeypointResult, extract_keypoints
@@ -42,6 +44,7 @@ from amrst.stages.preprocess import (
 )
 from amrst.stages.separate import SeparateParams, SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonParams, SkeletonResult, build_skeleton
+from amrst.stages.trunk import TrunkParams, search_yaw
 from amrst.types import Cloud, Transform, make_transform
 
 log = logging.getLogger(__name__)
@@ -57,6 +60,7 @@ class RegistrationParams:
     keypoints: KeypointParams = field(default_factory=KeypointParams)
     match: MatchParams = field(default_factory=MatchParams)
     coarse: CoarseParams = field(default_factory=CoarseParams)
+    trunk: TrunkParams = field(default_factory=TrunkParams)
     fine: FineParams = field(default_factory=FineParams)
     metrics: MetricsParams = field(default_factory=MetricsParams)
 
@@ -225,11 +229,79 @@ def find_matches(
         target.xyz,
         source.xyz,
         params.coarse,
-        SubReporter(reporter, 0.4, 1.0, "verification"),
+        SubReporter(reporter, 0.4, 0.8, "verification"),
     )
-    _timed(timings, "verify", t0)
-    return MatchResult(
-        tetra, ranked.candidates, ranked.n_matches, timings, source.xyz.mean(axis=0)
+    t0 = _timed(timings, "verify", t0)
+    centre = source.xyz.mean(axis=0)
+    if _wants_trunk_search(ranked, params, centre):
+        ranked = _add_trunk_solutions(
+            ranked, target, source, params, SubReporter(reporter, 0.8, 1.0, "trunk")
+        )
+        _timed(timings, "trunk", t0)
+    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings, centre)
+
+
+def _wants_trunk_search(
+    ranked: CandidateList, params: RegistrationParams, centre: np.ndarray
+) -> bool:
+    mode = params.trunk.mode
+    if mode == "off" or not params.match.levelled:
+        return False
+    if mode == "always" or not ranked.candidates:
+        return True
+    return not choose_coarse(ranked, frozenset(), centre).verified
+
+
+def _add_trunk_solutions(
+    ranked: CandidateList,
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    params: RegistrationParams,
+    reporter: Reporter,
+) -> CandidateList:
+    """Run the trunk heading search, refine its best headings, add them to the list."""
+    search = search_yaw(
+        target.xyz, source.xyz, params.trunk, SubReporter(reporter, 0, 0.6, "search")
+    )
+    log.info(
+        "No tetrahedron match verified: trunk heading search kept %d heading(s)",
+        len(search.solutions),
+    )
+    # Rank the kept headings by a quick fine registration, then refine the best one
+    # with the full settings (the others stay as the quick pass left them).
+    points = params.trunk.fine_points
+    quick = replace(
+        params,
+        fine=replace(
+            params.fine,
+            points=points,
+            voxel_size_m=params.trunk.refine_voxel_m,
+            max_iterations=params.trunk.refine_iterations,
+        ),
+    )
+    full = replace(params, fine=replace(params.fine, points=points))
+    refined = []
+    for k, sol in enumerate(search.solutions):
+        refined.append(
+            refine(target, source, sol.T_target_source, quick).T_target_source
+        )
+        reporter.progress(
+            0.6 + 0.3 * (k + 1) / len(search.solutions), "refining the best headings"
+        )
+    if refined:
+        precise = score_transforms(
+            refined, target.xyz, source.xyz, params.coarse, params.trunk.score_dist_m
+        )[1]
+        best = int(np.argmax(precise))
+        refined[best] = refine(target, source, refined[best], full).T_target_source
+    return merge_trunk_solutions(
+        ranked,
+        search,
+        refined,
+        target.xyz,
+        source.xyz,
+        params.coarse,
+        params.trunk.score_dist_m,
     )
 
 
@@ -247,12 +319,21 @@ def coarse_from_matches(
 def refine(
     target: ScanAnalysis,
     source: ScanAnalysis,
-    T_init: Transform,
+    start: Transform | CoarseResult,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
 ) -> FineResult:
-    """Fine registration from a coarse local-frame transform."""
+    """Fine registration from a coarse local-frame transform or an accepted coarse result.
+
+    A coarse result from the trunk heading search is refined on ``trunk.fine_points``
+    (it was verified that way); anything else on ``fine.points``.
+    """
     which = params.fine.points
+    T_init = start
+    if isinstance(start, CoarseResult):
+        T_init = start.T_target_source
+        if start.candidate.origin == "trunk":
+            which = params.trunk.fine_points
     return refine_registration(
         source.points(which), target.points(which), T_init, params.fine, reporter
     )
@@ -330,7 +411,7 @@ def register(
     fine = refine(
         tgt,
         src,
-        coarse.T_target_source,
+        coarse,
         params,
         SubReporter(reporter, 0.85, 0.95, "fine"),
     )

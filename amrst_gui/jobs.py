@@ -86,16 +86,17 @@ def evaluate_coarse(
 
 
 def refine_pair(
-    analyses: dict, T_init: Any, params: Any, reporter: Reporter
+    analyses: dict, coarse: Any, params: Any, reporter: Reporter
 ) -> tuple[tuple[Any, Any], float]:
-    """Fine registration from ``T_init``; returns ``(FineResult, CloudMetrics)``."""
+    """Fine registration from the accepted ``coarse`` result (a CoarseResult or a
+    transform); returns ``(FineResult, CloudMetrics)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
     fine = pipeline.refine(
         analyses["target"],
         analyses["source"],
-        T_init,
+        coarse,
         params,
         SubReporter(reporter, 0, 0.9),
     )

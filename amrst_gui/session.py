@@ -273,9 +273,7 @@ class Session(ResultsMixin, QObject):
                 return
             self._launch(step, jobs.evaluate_coarse, dict(an), coarse, p)
         elif step == "fine":
-            self._launch(
-                step, jobs.refine_pair, dict(an), self._accepted.T_target_source, p
-            )
+            self._launch(step, jobs.refine_pair, dict(an), self._accepted, p)
 
     def _launch(self, step: str, fn, *args) -> None:
         log.info("%s: started%s", self._label(step), self._params_text(step))

@@ -133,6 +133,10 @@ class Candidate:
     T_target_source: Transform  # T_match, polished when it was among the best
     polished: bool
     explanation: str
+    origin: str = "tetrahedra"  # or "trunk": the trunk-anchored yaw search
+    precise_score: float = float(
+        "nan"
+    )  # trunk: share within its score_dist_m after fine
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,6 +163,10 @@ SCORE_FULL_CREDIT = 0.3
 # Below this polished score no candidate counts as verified (benchmark: right winners
 # scored >= 0.45, wrong ones <= 0.10).
 MIN_VERIFIED_SCORE = 0.15
+# Trunk solutions: verified also when this share lands within the tight distance and the
+# next heading scores at most half as much (see README, "Trunk heading search").
+MIN_PRECISE_SCORE = 0.03
+MIN_SEPARATION = 0.5
 POLISH_ITERATIONS = 25
 POLISH_POINTS = 1000
 
@@ -433,23 +441,45 @@ def choose_coarse(
         )
     best = left[0]
     centre = np.zeros(3) if centre is None else centre
-    # Scores are comparable only between candidates verified the same way.
-    others = [
-        c.score
+    # Scores are comparable only between candidates verified the same way: trunk
+    # solutions (refined, then scored tightly) among themselves, polished tetrahedron
+    # solutions among themselves.
+    rivals = [
+        c
         for c in left[1:]
-        if c.polished == best.polished
+        if c.origin == best.origin
+        and c.polished == best.polished
         and _distinct(c.T_target_source, best.T_target_source, centre)
     ]
-    runner = max(others, default=0.0)
+    if best.origin == "trunk":
+        key = best.precise_score
+        runner_key = max((c.precise_score for c in rivals), default=0.0)
+    else:
+        key = best.score
+        runner_key = max((c.score for c in rivals), default=0.0)
+    runner = max((c.score for c in rivals), default=0.0)
     # Confidence: how clearly the winner beats a different solution, times how well it
     # fits at all (on the 20 benchmark cases every right winner scored >= 0.45 after the
     # polish and every wrong one <= 0.08; full credit from SCORE_FULL_CREDIT).
-    separation = (
-        float(np.clip(1 - runner / best.score, 0, 1)) if best.score > 0 else 0.0
-    )
-    fit = min(1.0, best.score / SCORE_FULL_CREDIT)
+    separation = float(np.clip(1 - runner_key / key, 0, 1)) if key > 0 else 0.0
+    if best.origin == "trunk":
+        fit = min(1.0, best.precise_score / (2 * MIN_PRECISE_SCORE))
+    else:
+        fit = min(1.0, best.score / SCORE_FULL_CREDIT)
     conf = separation * fit
-    if best.score < 0.1:
+    verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
+    if best.origin == "trunk":
+        # A refined trunk solution that beats every other heading clearly also counts.
+        verified = verified or (
+            best.precise_score >= MIN_PRECISE_SCORE and separation >= MIN_SEPARATION
+        )
+    if best.origin == "trunk" and verified:
+        msg = (
+            f"Candidate {best.rank} (trunk heading search): {best.precise_score:.0%} of the sampled source points "
+            f"lie on the target, against {runner_key:.0%} for the next heading. The scans share little beyond the "
+            "trunk; check the overlay by eye."
+        )
+    elif best.score < 0.1:
         msg = (
             f"Low confidence: only {best.score:.0%} of the sampled source points lie near the target. Check the matches by eye; "
             "the scans may overlap little or the skeletons may differ."
@@ -461,5 +491,106 @@ def choose_coarse(
         )
     else:
         msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
-    verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
     return CoarseResult(best, best.T_target_source, conf, runner, msg, verified)
+
+
+def score_transforms(
+    transforms: list[Transform],
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    precise_dist_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Share of sampled source points within ``tight_dist_m`` and within
+    ``precise_dist_m`` of the target under each transform (the same seeded sample as
+    the ranking uses)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(params.seed)
+    sample = source_xyz[
+        rng.choice(
+            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
+        )
+    ]
+    tree = cKDTree(target_xyz)
+    reach = max(params.tight_dist_m, precise_dist_m)
+    out = np.zeros((2, len(transforms)))
+    for k, T in enumerate(transforms):
+        d = tree.query(sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=reach)[0]
+        out[:, k] = np.mean(d < params.tight_dist_m), np.mean(d < precise_dist_m)
+    return out[0], out[1]
+
+
+def merge_trunk_solutions(
+    candidates: CandidateList,
+    search,
+    refined: list[Transform],
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    precise_dist_m: float,
+) -> CandidateList:
+    """Add refined trunk-search solutions to the ranking, scored as the others are.
+
+    Parameters
+    ----------
+    candidates : CandidateList
+        The tetrahedron solutions.
+    search : TrunkSearchResult
+    refined : list of (4, 4) transforms
+        Each ``search.solutions[k]`` after fine registration.
+    target_xyz, source_xyz : (N, 3), (M, 3) float64
+    params : CoarseParams
+    precise_dist_m : float
+        Distance of the precise score that orders the trunk solutions.
+
+    Returns
+    -------
+    CandidateList
+        Trunk solutions first (best precise score first) when the best of them scores
+        above every tetrahedron solution, after them otherwise; ranks renumbered.
+    """
+    from dataclasses import replace
+
+    scores, precises = score_transforms(
+        refined, target_xyz, source_xyz, params, precise_dist_m
+    )
+    base = 1 + max((c.id for c in candidates.candidates), default=0)
+    tb, sb = search.target_base, search.source_base
+    trunk = []
+    for k, (sol, T) in enumerate(zip(search.solutions, refined, strict=True)):
+        score, precise = float(scores[k]), float(precises[k])
+        expl = (
+            f"Trunk heading search: trunk bases matched (target trunk r = {tb.radius_m * 100:.0f} cm, "
+            f"source r = {sb.radius_m * 100:.0f} cm), heading started at {sol.start_yaw_deg:.0f}°, "
+            f"levelled ICP polish, then fine registration: {precise:.0%} of sampled source points lie within "
+            f"{precise_dist_m * 100:.1f} cm of the target, {score:.0%} within {params.tight_dist_m * 100:.0f} cm. "
+            "Not a tetrahedron match: offered because no tetrahedron match verified."
+        )
+        trunk.append(
+            Candidate(
+                id=base + k,
+                rank=0,
+                score=score,
+                raw_score=sol.score,
+                support=0,
+                volume_m3=float("nan"),
+                edge_error=float("nan"),
+                svd_residual_m=float("nan"),
+                target_idx=np.zeros(0, dtype=np.int64),
+                source_idx=np.zeros(0, dtype=np.int64),
+                T_match=sol.T_target_source,
+                T_target_source=T,
+                polished=True,
+                explanation=expl,
+                origin="trunk",
+                precise_score=precise,
+            )
+        )
+    trunk.sort(key=lambda c: -c.precise_score)
+    tetra = list(candidates.candidates)
+    best_tetra = max((c.score for c in tetra), default=-1.0)
+    first = bool(trunk) and trunk[0].score > best_tetra
+    merged = trunk + tetra if first else tetra + trunk
+    merged = [replace(c, rank=r) for r, c in enumerate(merged, start=1)]
+    return CandidateList(tuple(merged), candidates.n_matches)

@@ -30,6 +30,11 @@ _TIPS = (
 _ROOT = QModelIndex()
 
 
+def _num(value: float, fmt: str, missing: str = "—") -> str:
+    """A number for the table, or ``missing`` for a trunk-search solution (NaN)."""
+    return missing if value != value else fmt.format(value)
+
+
 class CandidateModel(QAbstractTableModel):
     """Table model over ``session.matches`` and ``session.rejected`` (read-only)."""
 
@@ -85,9 +90,9 @@ class CandidateModel(QAbstractTableModel):
                 str(cand.rank),
                 f"{cand.score:.3f}",
                 str(getattr(cand, "support", "")),
-                f"{cand.volume_m3:.3f}",
-                f"{cand.edge_error:.1%}",
-                f"{cand.svd_residual_m:.3f}",
+                _num(cand.volume_m3, "{:.3f}", "trunk"),
+                _num(cand.edge_error, "{:.1%}"),
+                _num(cand.svd_residual_m, "{:.3f}"),
                 self.status(cand),
             )[col]
         if role == Qt.ToolTipRole:

@@ -132,7 +132,13 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
         )
         layers.append(SpheresLayer("keypoints", (Ref(kp),), kp.xyz, rgb, radius))
     cand = session.selected_match
-    if options.show_match and cand is not None and kp is not None:
+    # Trunk-search solutions have no tetrahedron to draw.
+    if (
+        options.show_match
+        and cand is not None
+        and kp is not None
+        and len(cand.target_idx) == 4
+    ):
         idx = np.asarray(cand.target_idx if role == "target" else cand.source_idx)
         verts = np.asarray(kp.xyz, np.float32)[idx]
         rejected = cand.id in session.rejected

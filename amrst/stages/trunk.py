@@ -1,0 +1,293 @@
+"""Trunk-anchored yaw search: a second source of coarse candidates for levelled scans.
+
+Beyond the paper. When no tetrahedron match verifies (the two skeletons share too
+little, as when two scanners saw opposite halves of a crown), levelled scans still share
+the trunk: its base fixes the translation and only the heading (yaw) is unknown. The
+trunk centre of each scan is a circle fitted to a low horizontal slice (the centroid of
+the visible arc would sit a trunk radius towards the scanner). The search turns the
+source about the vertical in ``yaw_step_deg`` steps, polishes each start with a
+levelled (yaw + translation) ICP, scores it by the share of source points that land
+within ``score_dist_m`` of the target, and returns the best distinct solutions. The
+pipeline then refines each of them with the fine stage and keeps the one that fits best.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amrst.progress import NULL_REPORTER, Reporter
+from amrst.types import Transform, make_transform
+
+TRUNK_MODES = ("fallback", "always", "off")
+_MIN_SLICE_POINTS = 10
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrunkParams:
+    """Trunk-anchored yaw search (levelled scanners only)."""
+
+    mode: str = field(
+        default="fallback",
+        metadata={
+            "choices": TRUNK_MODES,
+            "help": "fallback: search only when no tetrahedron match verifies; always: add its solutions to every ranking; off: never.",
+        },
+    )
+    slice_low_m: float = field(
+        default=0.1,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 5.0,
+            "help": "Bottom of the trunk slice, above the lowest point of the scan.",
+        },
+    )
+    slice_high_m: float = field(
+        default=1.3,
+        metadata={
+            "unit": "m",
+            "min": 0.1,
+            "max": 10.0,
+            "help": "Top of the trunk slice, above the lowest point (1.3 m is breast height).",
+        },
+    )
+    yaw_step_deg: float = field(
+        default=10.0,
+        metadata={
+            "unit": "deg",
+            "min": 1.0,
+            "max": 90.0,
+            "help": "Step of the heading sweep; each start is polished, so steps up to about 10 deg still find the heading.",
+        },
+    )
+    polish_dist_m: float = field(
+        default=0.2,
+        metadata={
+            "unit": "m",
+            "min": 0.02,
+            "max": 2.0,
+            "help": "Largest correspondence distance of the levelled polish of each start. Small keeps each start local; large lets crowns pull it into a wrong overlap.",
+        },
+    )
+    voxel_m: float = field(
+        default=0.1,
+        metadata={
+            "unit": "m",
+            "min": 0.01,
+            "max": 1.0,
+            "help": "Voxel size of the clouds the sweep polishes on.",
+        },
+    )
+    points: int = field(
+        default=1000,
+        metadata={
+            "unit": "points",
+            "min": 50,
+            "max": 100000,
+            "help": "Source points sampled for the polish and the score of each start (seeded).",
+        },
+    )
+    score_dist_m: float = field(
+        default=0.015,
+        metadata={
+            "unit": "m",
+            "min": 0.002,
+            "max": 0.5,
+            "help": "A source point scores when it lands this close to the target. Tight: only the true heading puts many points on surfaces both scanners saw.",
+        },
+    )
+    keep: int = field(
+        default=4,
+        metadata={
+            "unit": "solutions",
+            "min": 1,
+            "max": 36,
+            "help": "Best distinct headings handed on to fine registration and the final choice.",
+        },
+    )
+    fine_points: str = field(
+        default="all",
+        metadata={
+            "choices": ("all", "leaf", "wood"),
+            "help": "Points the fine registration of each kept heading uses. All: when the scans share little crown, the trunk holds the fit in place.",
+        },
+    )
+    refine_voxel_m: float = field(
+        default=0.08,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 0.5,
+            "help": "Voxel size of the quick fine registration that ranks the kept headings; the best one is then refined with the full fine settings.",
+        },
+    )
+    refine_iterations: int = field(
+        default=15,
+        metadata={
+            "unit": "",
+            "min": 1,
+            "max": 200,
+            "help": "Iterations per scale of that quick fine registration.",
+        },
+    )
+    seed: int = field(default=0, metadata={"help": "Seed of the point sampling."})
+
+
+@dataclass(frozen=True, slots=True)
+class TrunkBase:
+    """Where a scan's trunk meets the ground (its lowest points)."""
+
+    centre: np.ndarray  # (3,) x, y of the trunk axis; z of the lowest point (m)
+    radius_m: float  # fitted trunk radius; nan when the circle fit was not usable
+    n_points: int  # points in the slice
+
+
+@dataclass(frozen=True, slots=True)
+class YawSolution:
+    T_target_source: Transform  # levelled: rotation about the vertical only
+    start_yaw_deg: float  # heading the sweep started from
+    score: float  # share of sampled source points within score_dist_m
+
+
+@dataclass(frozen=True, slots=True)
+class TrunkSearchResult:
+    target_base: TrunkBase
+    source_base: TrunkBase
+    solutions: tuple[YawSolution, ...]  # best first, distinct
+    n_starts: int
+
+
+def find_trunk_base(xyz: np.ndarray, params: TrunkParams) -> TrunkBase:
+    """Trunk centre from a circle fitted to a low slice of the scan.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+    params : TrunkParams
+
+    Returns
+    -------
+    TrunkBase
+        Falls back to the slice's median (radius nan) when the fit is unusable.
+    """
+    z0 = float(np.percentile(xyz[:, 2], 0.2))
+    z = xyz[:, 2]
+    sl = xyz[(z > z0 + params.slice_low_m) & (z < z0 + params.slice_high_m)]
+    if len(sl) < _MIN_SLICE_POINTS:
+        sl = xyz[z < z0 + params.slice_high_m]
+    med = np.median(sl[:, :2], axis=0)
+    # Kasa fit: x² + y² = 2ax + 2by + c, linear in (a, b, c).
+    x, y = sl[:, 0] - med[0], sl[:, 1] - med[1]
+    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
+    sol = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
+    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
+    radius = float(np.sqrt(r2)) if r2 > 0 else float("nan")
+    spread = float(np.max(np.linalg.norm(sl[:, :2] - med, axis=1)))
+    centre = med + sol[:2]
+    # A slice of branches or leaves fits a meaningless circle: keep the median then.
+    if not np.isfinite(radius) or radius > max(1.5 * spread, 0.05) or radius > 2.0:
+        return TrunkBase(np.r_[med, z0], float("nan"), len(sl))
+    return TrunkBase(np.r_[centre, z0], radius, len(sl))
+
+
+def _rot_z(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def polish_levelled(
+    src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
+) -> Transform:
+    """Point-to-point ICP restricted to a turn about the vertical and a translation.
+
+    The closed-form step is a 2D Procrustes fit of the x, y offsets from their centroid
+    plus the centroid shift. ``tree`` is a cKDTree on ``tgt``.
+    """
+    for dist in (max_dist, max_dist / 3):
+        for _ in range(15):
+            moved = src @ T[:3, :3].T + T[:3, 3]
+            d, j = tree.query(moved, distance_upper_bound=dist)
+            ok = d < dist
+            if ok.sum() < 6:
+                return T
+            p, q = moved[ok], tgt[j[ok]]
+            pc, qc = p.mean(axis=0), q.mean(axis=0)
+            a, b = p - pc, q - qc
+            yaw = np.arctan2(
+                np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+                np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]),
+            )
+            R = _rot_z(yaw)
+            step = make_transform(R, qc - R @ pc)
+            T = step @ T
+            if abs(yaw) < 1e-5 and np.linalg.norm(step[:3, 3]) < 1e-4:
+                break
+    return T
+
+
+def search_yaw(
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: TrunkParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> TrunkSearchResult:
+    """Sweep the source heading about its trunk base and keep the best distinct fits.
+
+    Parameters
+    ----------
+    target_xyz, source_xyz : (N, 3), (M, 3) float64
+        Preprocessed scans in their local frames.
+    params : TrunkParams
+    reporter : Reporter
+
+    Returns
+    -------
+    TrunkSearchResult
+        Up to ``params.keep`` solutions, best first; they differ by > 5 deg or > 0.5 m.
+    """
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.coarse import _distinct
+    from amrst.stages.preprocess import _voxel_representatives
+
+    rng = np.random.default_rng(params.seed)
+    tb = find_trunk_base(target_xyz, params)
+    sb = find_trunk_base(source_xyz, params)
+    tgt = target_xyz[_voxel_representatives(target_xyz, params.voxel_m)]
+    src = source_xyz[_voxel_representatives(source_xyz, params.voxel_m)]
+    if len(src) > params.points:
+        src = src[rng.choice(len(src), params.points, replace=False)]
+    sample = source_xyz[
+        rng.choice(len(source_xyz), min(params.points, len(source_xyz)), replace=False)
+    ]
+    tree, full_tree = cKDTree(tgt), cKDTree(target_xyz)
+    yaws = np.arange(0.0, 360.0, params.yaw_step_deg)
+    found = []
+    for n, yaw in enumerate(yaws):
+        reporter.check_cancelled()
+        R = _rot_z(np.radians(yaw))
+        T = polish_levelled(
+            src,
+            tgt,
+            tree,
+            make_transform(R, tb.centre - R @ sb.centre),
+            params.polish_dist_m,
+        )
+        d = full_tree.query(
+            sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=params.score_dist_m
+        )[0]
+        found.append(
+            YawSolution(T, float(yaw), float(np.mean(d < params.score_dist_m)))
+        )
+        reporter.progress((n + 1) / len(yaws), "trunk heading search")
+    found.sort(key=lambda s: -s.score)
+    centre = source_xyz.mean(axis=0)
+    kept: list[YawSolution] = []
+    for s in found:
+        if all(_distinct(s.T_target_source, k.T_target_source, centre) for k in kept):
+            kept.append(s)
+            if len(kept) == params.keep:
+                break
+    return TrunkSearchResult(tb, sb, tuple(kept), len(yaws))
