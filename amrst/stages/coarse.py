@@ -168,7 +168,7 @@ MIN_VERIFIED_SCORE = 0.15
 MIN_PRECISE_SCORE = 0.03
 MIN_SEPARATION = 0.5
 POLISH_ITERATIONS = 25
-POLISH_POINTS = 1000
+POLISH_POINTS = 500
 
 
 class _Occupancy:
@@ -349,12 +349,15 @@ def rank_candidates(
     # the unpolished ones under their tetrahedron transform, on the smaller sample.
     shortlist = np.argsort(-raw, kind="stable")[: params.max_candidates]
     shortlist = np.union1d(shortlist, np.flatnonzero(is_polished))
-    for j in shortlist[~is_polished[shortlist]]:
-        Tj = T[rep[j]]
+    rest = shortlist[~is_polished[shortlist]]
+    if len(rest):
+        # One KD-tree query for all of them: (G, n, 3) moved samples.
+        Tr = T[rep[rest]]
+        moved = np.einsum("gij,nj->gni", Tr[:, :3, :3], few) + Tr[:, None, :3, 3]
         d = tgt_tree.query(
-            few @ Tj[:3, :3].T + Tj[:3, 3], distance_upper_bound=params.tight_dist_m
-        )[0]
-        score[j] = float(np.mean(d < params.tight_dist_m))
+            moved.reshape(-1, 3), distance_upper_bound=params.tight_dist_m
+        )[0].reshape(len(rest), -1)
+        score[rest] = np.mean(d < params.tight_dist_m, axis=1)
     # Polished solutions first (the polish is part of their verification), then the rest.
     order = shortlist[
         np.lexsort(
