@@ -22,7 +22,7 @@ LABELS = {
 _OWN_GROUPS = {
     "separate": ("preprocess", "separate"),
     "skeleton": ("skeleton", "keypoints"),
-    "match": ("match", "coarse"),  # "coarse" ranks and verifies the candidates
+    "match": ("match", "coarse", "trunk"),  # ranking, verification, trunk search
     "coarse": ("metrics",),
     "fine": ("fine",),
 }

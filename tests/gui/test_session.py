@@ -143,3 +143,15 @@ def test_truth_errors_need_a_truth_file(session, sample_pair, tmp_path):
     errors = session.truth_errors()["coarse"]
     # The sample's easy pair: the best candidate is right to within a degree.
     assert errors.rotation_error_deg < 2.0
+
+
+def test_every_parameter_group_belongs_to_a_step() -> None:
+    """A parameter section no step owns would never mark a result stale."""
+    import dataclasses
+
+    from amrst.pipeline import RegistrationParams
+    from amrst_gui import steps
+
+    owned = set(steps.groups_for(steps.STEPS[-1]))
+    groups = {f.name for f in dataclasses.fields(RegistrationParams)}
+    assert groups <= owned, groups - owned
