@@ -269,31 +269,39 @@ def _add_trunk_solutions(
     )
     # Rank the kept headings by a quick fine registration, then refine the best one
     # with the full settings (the others stay as the quick pass left them).
-    points = params.trunk.fine_points
+    choice = params.trunk.fine_points
+    tries = ("all", "leaf") if choice == "best" else (choice,)
     quick = replace(
         params,
         fine=replace(
             params.fine,
-            points=points,
+            points=tries[0],
             voxel_size_m=params.trunk.refine_voxel_m,
             max_iterations=params.trunk.refine_iterations,
         ),
     )
-    full = replace(params, fine=replace(params.fine, points=points))
-    refined = []
+    refined, used = [], []
     for k, sol in enumerate(search.solutions):
         refined.append(
             refine(target, source, sol.T_target_source, quick).T_target_source
         )
+        used.append(tries[0])
         reporter.progress(
             0.6 + 0.3 * (k + 1) / len(search.solutions), "refining the best headings"
         )
     if refined:
-        precise = score_transforms(
-            refined, target.xyz, source.xyz, params.coarse, params.trunk.score_dist_m
-        )[1]
-        best = int(np.argmax(precise))
-        refined[best] = refine(target, source, refined[best], full).T_target_source
+        best = int(np.argmax(_precise(refined, target, source, params)))
+        fits = [
+            refine(
+                target,
+                source,
+                refined[best],
+                replace(params, fine=replace(params.fine, points=points)),
+            ).T_target_source
+            for points in tries
+        ]
+        pick = int(np.argmax(_precise(fits, target, source, params)))
+        refined[best], used[best] = fits[pick], tries[pick]
     return merge_trunk_solutions(
         ranked,
         search,
@@ -302,7 +310,20 @@ def _add_trunk_solutions(
         source.xyz,
         params.coarse,
         params.trunk.score_dist_m,
+        used,
     )
+
+
+def _precise(
+    transforms: list[Transform],
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    params: RegistrationParams,
+) -> np.ndarray:
+    """Share of sampled source points within trunk.score_dist_m under each transform."""
+    return score_transforms(
+        transforms, target.xyz, source.xyz, params.coarse, params.trunk.score_dist_m
+    )[1]
 
 
 def coarse_from_matches(
@@ -325,15 +346,15 @@ def refine(
 ) -> FineResult:
     """Fine registration from a coarse local-frame transform or an accepted coarse result.
 
-    A coarse result from the trunk heading search is refined on ``trunk.fine_points``
-    (it was verified that way); anything else on ``fine.points``.
+    A coarse result from the trunk heading search is refined on the point set its
+    verification chose (``Candidate.fine_points``); anything else on ``fine.points``.
     """
     which = params.fine.points
     T_init = start
     if isinstance(start, CoarseResult):
         T_init = start.T_target_source
-        if start.candidate.origin == "trunk":
-            which = params.trunk.fine_points
+        if start.candidate.fine_points:
+            which = start.candidate.fine_points
     return refine_registration(
         source.points(which), target.points(which), T_init, params.fine, reporter
     )

@@ -134,9 +134,10 @@ class Candidate:
     polished: bool
     explanation: str
     origin: str = "tetrahedra"  # or "trunk": the trunk-anchored yaw search
-    precise_score: float = float(
-        "nan"
-    )  # trunk: share within its score_dist_m after fine
+    # Trunk solutions only: share of points within trunk.score_dist_m after the fine
+    # fit, and the point set that fit used ("" = fine.points).
+    precise_score: float = float("nan")
+    fine_points: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -532,6 +533,7 @@ def merge_trunk_solutions(
     source_xyz: np.ndarray,
     params: CoarseParams,
     precise_dist_m: float,
+    fine_points: list[str],
 ) -> CandidateList:
     """Add refined trunk-search solutions to the ranking, scored as the others are.
 
@@ -546,6 +548,8 @@ def merge_trunk_solutions(
     params : CoarseParams
     precise_dist_m : float
         Distance of the precise score that orders the trunk solutions.
+    fine_points : list of str
+        The point set each solution's fine registration used.
 
     Returns
     -------
@@ -566,7 +570,7 @@ def merge_trunk_solutions(
         expl = (
             f"Trunk heading search: trunk bases matched (target trunk r = {tb.radius_m * 100:.0f} cm, "
             f"source r = {sb.radius_m * 100:.0f} cm), heading started at {sol.start_yaw_deg:.0f}°, "
-            f"levelled ICP polish, then fine registration: {precise:.0%} of sampled source points lie within "
+            f"levelled ICP polish, then fine registration on {fine_points[k]} points: {precise:.0%} of sampled source points lie within "
             f"{precise_dist_m * 100:.1f} cm of the target, {score:.0%} within {params.tight_dist_m * 100:.0f} cm. "
             "Not a tetrahedron match: offered because no tetrahedron match verified."
         )
@@ -588,6 +592,7 @@ def merge_trunk_solutions(
                 explanation=expl,
                 origin="trunk",
                 precise_score=precise,
+                fine_points=fine_points[k],
             )
         )
     trunk.sort(key=lambda c: -c.precise_score)

@@ -108,10 +108,10 @@ class TrunkParams:
         },
     )
     fine_points: str = field(
-        default="all",
+        default="best",
         metadata={
-            "choices": ("all", "leaf", "wood"),
-            "help": "Points the fine registration of each kept heading uses. All: when the scans share little crown, the trunk holds the fit in place.",
+            "choices": ("best", "all", "leaf", "wood"),
+            "help": "Points the fine registration of the best heading uses. best: fit on all points and on the leaf points and keep the fit that puts more source points within score_dist_m (all points hold scans that share little crown in place; leaf points avoid the bias two trunk halves give).",
         },
     )
     refine_voxel_m: float = field(
