@@ -115,6 +115,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         "coarse_candidate": {
             "rank": result.coarse.candidate.rank,
             "id": result.coarse.candidate.id,
+            "origin": result.coarse.candidate.origin,
             "explanation": result.coarse.candidate.explanation,
         },
         "target_file": str(args.target),
