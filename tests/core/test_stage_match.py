@@ -179,3 +179,18 @@ def test_combinations4_matches_itertools(n) -> None:
 
     expected = np.array(list(itertools.combinations(range(n), 4)))
     np.testing.assert_array_equal(_combinations4(n), expected)
+
+
+def test_descriptor_pairs_agree_with_brute_force() -> None:
+    from amrst.stages.match import _descriptor_pairs
+
+    rng = np.random.default_rng(7)
+    desc_t = rng.uniform(0.0, 6.0, (300, 5))
+    desc_s = rng.uniform(0.0, 6.0, (250, 5))
+    desc_s[:20] = desc_t[:20] + 1.0  # pairs exactly on the boundary count
+    ti, si = _descriptor_pairs(desc_t, desc_s)
+    close = np.all(np.abs(desc_t[:, None, :] - desc_s[None, :, :]) <= 1.0, axis=2)
+    want_t, want_s = np.nonzero(close)  # row-major: sorted by (target, source)
+    assert len(want_t) > 50
+    np.testing.assert_array_equal(ti, want_t)
+    np.testing.assert_array_equal(si, want_s)
