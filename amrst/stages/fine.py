@@ -131,11 +131,15 @@ def _rotvec(w: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(w).as_matrix()
 
 
-def lm_icp(src, tgt, T_init, max_dist, iters, tol, reporter=NULL_REPORTER):
-    """Levenberg-Marquardt point-to-point ICP. Returns (T, iterations, converged)."""
+def lm_icp(src, tgt, T_init, max_dist, iters, tol, reporter=NULL_REPORTER, tree=None):
+    """Levenberg-Marquardt point-to-point ICP. Returns (T, iterations, converged).
+
+    ``tree`` is a cKDTree built on ``tgt``, reused when given.
+    """
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(tgt)
+    if tree is None:
+        tree = cKDTree(tgt)
     T, lam, prev = T_init.copy(), 1e-3, np.inf
     for it in range(1, iters + 1):
         reporter.check_cancelled()
@@ -240,6 +244,7 @@ def refine_registration(
         source_xyz = source_xyz[_voxel_representatives(source_xyz, params.voxel_size_m)]
         target_xyz = target_xyz[_voxel_representatives(target_xyz, params.voxel_size_m)]
     T = np.asarray(T_init, float).copy()
+    tree = cKDTree(target_xyz)  # one tree for every scale and the final count
     total, converged, dist = 0, True, params.max_corr_dist_m
     if params.method != "none":
         for s in range(params.scales):
@@ -253,6 +258,7 @@ def refine_registration(
                     params.max_iterations,
                     params.tolerance,
                     reporter,
+                    tree,
                 )
             else:
                 T, it, conv = _robust_plane(
@@ -270,7 +276,7 @@ def refine_registration(
                 f"scale {s + 1}/{params.scales}, {dist * 100:.0f} cm",
             )
             reporter.check_cancelled()
-    d = cKDTree(target_xyz).query(source_xyz @ T[:3, :3].T + T[:3, 3])[0]
+    d = tree.query(source_xyz @ T[:3, :3].T + T[:3, 3])[0]
     inl = d < dist
     return FineResult(
         T,
