@@ -105,6 +105,8 @@ class MatchResult:
     source_centre: np.ndarray = field(
         default_factory=lambda: np.zeros(3)
     )  # (3,) source centroid
+    # candidate id -> FineResult already computed while verifying it (trunk search)
+    refined: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -233,12 +235,15 @@ def find_matches(
     )
     t0 = _timed(timings, "verify", t0)
     centre = source.xyz.mean(axis=0)
+    finished: dict = {}
     if _wants_trunk_search(ranked, params, centre):
-        ranked = _add_trunk_solutions(
+        ranked, finished = _add_trunk_solutions(
             ranked, target, source, params, SubReporter(reporter, 0.8, 1.0, "trunk")
         )
         _timed(timings, "trunk", t0)
-    return MatchResult(tetra, ranked.candidates, ranked.n_matches, timings, centre)
+    return MatchResult(
+        tetra, ranked.candidates, ranked.n_matches, timings, centre, finished
+    )
 
 
 def _wants_trunk_search(
@@ -258,8 +263,12 @@ def _add_trunk_solutions(
     source: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter,
-) -> CandidateList:
-    """Run the trunk heading search, refine its best headings, add them to the list."""
+) -> tuple[CandidateList, dict]:
+    """Run the trunk heading search, refine its best headings, add them to the list.
+
+    Returns the merged list and ``{candidate id: FineResult}`` for the solution that
+    already had its full fine registration.
+    """
     search = search_yaw(
         target.xyz, source.xyz, params.trunk, SubReporter(reporter, 0, 0.6, "search")
     )
@@ -280,7 +289,7 @@ def _add_trunk_solutions(
             max_iterations=params.trunk.refine_iterations,
         ),
     )
-    refined, used = [], []
+    refined, used, done = [], [], None
     for k, sol in enumerate(search.solutions):
         refined.append(
             refine(target, source, sol.T_target_source, quick).T_target_source
@@ -297,12 +306,17 @@ def _add_trunk_solutions(
                 source,
                 refined[best],
                 replace(params, fine=replace(params.fine, points=points)),
-            ).T_target_source
+            )
             for points in tries
         ]
-        pick = int(np.argmax(_precise(fits, target, source, params)))
-        refined[best], used[best] = fits[pick], tries[pick]
-    return merge_trunk_solutions(
+        pick = int(
+            np.argmax(
+                _precise([f.T_target_source for f in fits], target, source, params)
+            )
+        )
+        refined[best], used[best] = fits[pick].T_target_source, tries[pick]
+        done = fits[pick]
+    merged = merge_trunk_solutions(
         ranked,
         search,
         refined,
@@ -312,6 +326,13 @@ def _add_trunk_solutions(
         params.trunk.score_dist_m,
         used,
     )
+    # The best heading already had its full fine registration: register() reuses it.
+    finished = {
+        c.id: done
+        for c in merged.candidates
+        if refined and c.T_target_source is refined[best]
+    }
+    return merged, finished
 
 
 def _precise(
@@ -429,7 +450,7 @@ def register(
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()
-    fine = refine(
+    fine = matches.refined.get(coarse.candidate.id) or refine(
         tgt,
         src,
         coarse,
