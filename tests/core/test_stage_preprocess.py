@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from amrst.errors import InvalidInput
-from amrst.stages.preprocess import PreprocessParams, preprocess_points
+from amrst.stages.preprocess import (
+    PreprocessParams,
+    preprocess_points,
+    voxel_representatives,
+)
 
 NO_FILTERS = PreprocessParams(outlier_neighbours=0, voxel_size_m=0.0, min_points=10)
 
@@ -93,6 +97,25 @@ def test_voxel_thinning_keeps_one_real_point_per_occupied_voxel() -> None:
         centroid = xyz[members].mean(axis=0)
         d = np.linalg.norm(xyz[members] - centroid, axis=1)
         assert members[int(np.argmin(d))] == i
+
+
+def test_voxel_representatives_name_each_points_owner() -> None:
+    """Brute force: the owner of every point is its own voxel's representative, ties
+    in distance to the centroid go to the lowest index."""
+    rng = np.random.default_rng(6)
+    xyz = rng.uniform(0.0, 1.0, (2000, 3))
+    xyz = np.vstack([xyz, xyz[:50]])  # exact duplicates: ties
+    voxel = 0.2
+    reps, owner = voxel_representatives(xyz, voxel)
+    assert np.all(np.diff(reps) > 0)
+    voxels = _occupied_voxels(xyz, voxel)
+    assert len(reps) == len(voxels)
+    for members in voxels.values():
+        centroid = xyz[members].mean(axis=0)
+        d = np.sum((xyz[members] - centroid) ** 2, axis=1)
+        rep = members[int(np.argmin(d))]  # first (lowest index) of the nearest
+        assert rep in reps
+        np.testing.assert_array_equal(reps[owner[members]], rep)
 
 
 def test_voxel_thinning_of_clusters_gives_one_point_per_cluster() -> None:
