@@ -17,14 +17,17 @@ def eigen_features(
         Neighbourhood size (including the point itself).
     tree : scipy.spatial.cKDTree or None
         A tree built on ``xyz`` (reused when given).
-    neighbours : (N, K) int or None
-        Neighbour indices sorted by distance with K >= k (one query serves all scales).
+    neighbours : (M, K) int or None
+        Neighbour indices into ``xyz`` sorted by distance with K >= k (one query serves
+        all scales); row i describes the neighbourhood of the i-th point of interest
+        (M = N for every point).
 
     Returns
     -------
     dict
         ``linearity``, ``planarity``, ``scattering`` ((λ1-λ2)/λ1, (λ2-λ3)/λ1, λ3/λ1),
-        ``curvature`` (λ3/Σλ), ``verticality`` (|z| of the principal direction), all (N,).
+        ``curvature`` (λ3/Σλ), ``verticality`` (|z| of the principal direction), all
+        (M,).
     """
     from scipy.spatial import cKDTree
 
@@ -35,16 +38,10 @@ def eigen_features(
         if tree is None:
             tree = cKDTree(xyz)
         _, idx = tree.query(xyz, k=k, workers=-1)
-    nb = xyz[idx]  # (N, k, 3)
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    x, y, z = nb[..., 0], nb[..., 1], nb[..., 2]
-    # The six covariance entries, then eigenvalues in closed form (Smith 1961): several
-    # times faster than a batched eigh; the principal direction is solved only for the
-    # verticality feature.
-    a, b, c = (x * x).mean(1), (y * y).mean(1), (z * z).mean(1)
-    d, e, f = (x * y).mean(1), (x * z).mean(1), (y * z).mean(1)
-    l1, l2, l3 = _sym3_eigenvalues(a, b, c, d, e, f)
-    l1, l2, l3 = (np.clip(v, 1e-12, None) for v in (l1, l2, l3))
+    cov = _covariances(xyz, idx.reshape(len(idx), -1), (k,))[0]
+    feats = _shape(*cov)
+    a, b, c, d, e, f = cov
+    l1 = feats.pop("_l1")
     # Principal direction: a column of adj(C - l1 I) (the largest one for stability).
     m = np.stack(
         [
@@ -62,12 +59,78 @@ def eigen_features(
     best = np.argmax(np.stack([np.einsum("ni,ni->n", v, v) for v in cols]), axis=0)
     v1 = np.choose(best[:, None], cols)
     v1 = v1 / np.maximum(np.linalg.norm(v1, axis=1, keepdims=True), 1e-300)
+    feats["verticality"] = np.abs(v1[:, 2])
+    return feats
+
+
+def shape_features(
+    xyz: np.ndarray, neighbours: np.ndarray, ks: tuple[int, ...]
+) -> list[dict[str, np.ndarray]]:
+    """``eigen_features`` without the verticality, for several k from one neighbour list.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+    neighbours : (M, K) int
+        Neighbour indices into ``xyz`` sorted by distance, K >= max(ks).
+    ks : tuple of int
+        Neighbourhood sizes; the products are formed once for the largest.
+
+    Returns
+    -------
+    list of dict
+        Per k: ``linearity``, ``planarity``, ``scattering``, ``curvature``, all (M,).
+    """
+    out = []
+    for cov in _covariances(xyz, neighbours, ks):
+        feats = _shape(*cov)
+        del feats["_l1"]
+        out.append(feats)
+    return out
+
+
+def _covariances(xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]) -> list:
+    """The six entries (a, b, c, d, e, f) of each neighbourhood's covariance, per k.
+
+    Moments of the offsets from each neighbourhood's first point (the point itself):
+    centimetre-sized numbers, so E[uuᵀ] - E[u]E[u]ᵀ loses nothing to cancellation, and
+    the products are formed once and summed in runs for all k.
+    """
+    ks = tuple(min(k, idx.shape[1]) for k in ks)  # tiny clouds: fewer neighbours
+    kmax = max(ks)
+    g = xyz.T[:, idx[:, :kmax]]  # (3, M, K) contiguous per coordinate
+    g = g - g[:, :, :1]
+    x, y, z = g
+    prods = (x, y, z, x * x, y * y, z * z, x * y, x * z, y * z)
+    out, sums, done = [], [0.0] * 9, 0
+    for k in sorted(set(ks)):
+        sums = [s + p[:, done:k].sum(axis=1) for s, p in zip(sums, prods, strict=True)]
+        done = k
+        mx, my, mz = (v / k for v in sums[:3])
+        a, b, c, d, e, f = (v / k for v in sums[3:])
+        out.append(
+            (
+                a - mx * mx,
+                b - my * my,
+                c - mz * mz,
+                d - mx * my,
+                e - mx * mz,
+                f - my * mz,
+            )
+        )
+    by_k = dict(zip(sorted(set(ks)), out, strict=True))
+    return [by_k[k] for k in ks]
+
+
+def _shape(a, b, c, d, e, f) -> dict[str, np.ndarray]:
+    l1, l2, l3 = _sym3_eigenvalues(a, b, c, d, e, f)
+    l1, l2, l3 = (np.clip(v, 1e-12, None) for v in (l1, l2, l3))
     return {
         "linearity": (l1 - l2) / l1,
         "planarity": (l2 - l3) / l1,
         "scattering": l3 / l1,
         "curvature": l3 / (l1 + l2 + l3),
-        "verticality": np.abs(v1[:, 2]),
+        "_l1": l1,
     }
 
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
-from amrst.stages.features import connected_components, eigen_features, otsu_threshold
-from amrst.stages.preprocess import voxel_grid
+from amrst.stages.features import connected_components, otsu_threshold, shape_features
+from amrst.stages.preprocess import voxel_grid, voxel_representatives
 
 MODES = ("auto", "geometry", "intensity", "all_wood")
 
@@ -61,6 +61,15 @@ class SeparateParams:
         metadata={
             "unit": "intensity units",
             "help": "Intensity above which a point looks like wood; NaN = automatic (Otsu).",
+        },
+    )
+    feature_voxel_m: float = field(
+        default=0.06,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 0.5,
+            "help": "Features and votes are computed at one point per voxel of this size (its neighbourhoods still come from all points) and shared by the voxel's points; 0 = at every point (slower).",
         },
     )
     vote_neighbours: int = field(
@@ -117,7 +126,7 @@ class SeparationResult:
 
 
 def _geometry_votes(xyz, neighbours, params):
-    feats = [eigen_features(xyz, k, neighbours=neighbours) for k in params.scales_k]
+    feats = shape_features(xyz, neighbours, params.scales_k)
     curv = np.max([f["curvature"] for f in feats], axis=0)  # smooth at every scale
     thr = params.curvature_max
     if thr <= 0:
@@ -163,15 +172,22 @@ def separate_wood(
         return SeparationResult(
             ones, ones.astype(float), "all_wood", float("nan"), float("nan")
         )
+    # Features at one representative point per feature voxel (its neighbours are taken
+    # from all points, so the scales keep their size); the voxel's points share them.
+    if params.feature_voxel_m > 0:
+        reps, owner = voxel_representatives(xyz, params.feature_voxel_m)
+    else:
+        reps = owner = np.arange(n)
     # One neighbour query serves every feature scale and the vote.
     k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
-    neighbours = cKDTree(xyz).query(xyz, k=k_max, workers=-1)[1].reshape(n, -1)
+    neighbours = cKDTree(xyz).query(xyz[reps], k=k_max, workers=-1)[1]
+    neighbours = neighbours.reshape(len(reps), -1)
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0
     if params.mode in ("auto", "geometry") or not use_intensity:
         v, curv_thr = _geometry_votes(xyz, neighbours, params)
-        votes.append(v)
+        votes.append(v[owner])
         methods.append("geometry")
     reporter.progress(0.4, "geometric features")
     reporter.check_cancelled()
@@ -180,10 +196,10 @@ def separate_wood(
         votes.append(v)
         methods.append("intensity")
     vote = np.mean(votes, axis=0)
-    # Neighbourhood step: each point takes the mean vote of its neighbours.
+    # Neighbourhood step: each representative takes the mean vote of its neighbours.
     k = int(min(params.vote_neighbours, n))
-    idx = neighbours[:, :k]
-    score = vote[idx].mean(axis=1) if k > 1 else vote
+    score = vote[neighbours[:, :k]].mean(axis=1) if k > 1 else vote[reps]
+    score = score[owner]
     candidate = score > 0.5 if len(votes) == 1 else score >= 0.5
     reporter.progress(0.7, "neighbourhood vote")
     reporter.check_cancelled()

@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from amrst.stages.features import eigen_features, otsu_threshold
+from amrst.stages.features import eigen_features, otsu_threshold, shape_features
 
 
 def test_eigen_features_match_eigh() -> None:
@@ -38,3 +38,18 @@ def test_otsu_splits_two_modes() -> None:
     rng = np.random.default_rng(2)
     values = np.r_[rng.normal(0.0, 0.1, 1000), rng.normal(1.0, 0.1, 1000)]
     assert 0.3 < otsu_threshold(values) < 0.7
+
+
+def test_shape_features_agree_with_eigen_features_per_scale() -> None:
+    """Several scales from one neighbour list, on a subset of rows, equal one call of
+    eigen_features per scale on all points."""
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(size=(2000, 3)) * [2.0, 1.0, 0.1] + [500.0, -300.0, 40.0]
+    nb = cKDTree(xyz).query(xyz, k=30)[1]
+    rows = np.arange(0, 2000, 7)
+    got = shape_features(xyz, nb[rows], (30, 10))
+    for feats, k in zip(got, (30, 10), strict=True):
+        want = eigen_features(xyz, k)
+        assert set(feats) == {"linearity", "planarity", "scattering", "curvature"}
+        for name, value in feats.items():
+            np.testing.assert_allclose(value, want[name][rows], atol=1e-9)

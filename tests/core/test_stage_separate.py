@@ -50,11 +50,16 @@ def synthetic_tree() -> SyntheticTree:
     return SyntheticTree(xyz, labels == 0, labels == 1, labels == 2)
 
 
-def test_geometry_separates_trunk_and_branches_from_leaves(synthetic_tree) -> None:
+@pytest.mark.parametrize("feature_voxel_m", [0.0, 0.06])
+def test_geometry_separates_trunk_and_branches_from_leaves(
+    synthetic_tree, feature_voxel_m
+) -> None:
+    """Features at every point, and at one point per 6 cm voxel (the default)."""
     t = synthetic_tree
     xyz = t.xyz.copy()
     xyz.setflags(write=False)
-    res = separate_wood(xyz, None, SeparateParams(mode="geometry"))
+    params = SeparateParams(mode="geometry", feature_voxel_m=feature_voxel_m)
+    res = separate_wood(xyz, None, params)
     np.testing.assert_array_equal(xyz, t.xyz)  # input unchanged
     assert res.method == "geometry"
     assert res.is_wood.dtype == bool
