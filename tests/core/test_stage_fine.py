@@ -170,3 +170,29 @@ def test_params_are_validated() -> None:
     p = FineParams()
     with pytest.raises(dataclasses.FrozenInstanceError):
         p.method = "none"  # type: ignore[misc]
+
+
+def test_nearest_cache_matches_a_fresh_query_every_step() -> None:
+    """The cached correspondences equal a KD-tree query after every small motion,
+    including shrinking distances (later scales) and points leaving the target."""
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.fine import _NearestCache
+
+    rng = np.random.default_rng(4)
+    tgt = rng.uniform(0.0, 2.0, (3000, 3))
+    src = rng.uniform(-0.2, 2.2, (1500, 3))
+    tree = cKDTree(tgt)
+    cache = _NearestCache(tree, tgt, len(src), 0.15)
+    p = src.copy()
+    for step in range(40):
+        max_dist = 0.15 if step < 20 else 0.05
+        cache.max_dist = max_dist
+        angle = rng.normal(0.0, 0.01 if step < 5 else 0.001)
+        R = _rotation([0.2, 0.3, 1.0], np.degrees(angle))
+        p = p @ R.T + rng.normal(0.0, 0.01 if step < 5 else 0.0005, 3)
+        found, q = cache.match(p)
+        d, j = tree.query(p, distance_upper_bound=max_dist)
+        want = np.flatnonzero(np.isfinite(d))
+        np.testing.assert_array_equal(found, want)
+        np.testing.assert_array_equal(q, tgt[j[want]])
