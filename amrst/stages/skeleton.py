@@ -122,13 +122,15 @@ class SkeletonResult:
         return np.bincount(p, minlength=len(self.nodes))
 
 
-def _min_edge_per_pair(la, lb, el):
-    """Index of the shortest edge for each unordered component pair."""
-    lo, hi = np.minimum(la, lb), np.maximum(la, lb)
-    order = np.lexsort((el, hi, lo))
-    key = np.column_stack([lo[order], hi[order]])
-    first = np.r_[True, np.any(key[1:] != key[:-1], axis=1)]
-    return order[first]
+def _min_edge_per_pair(key, el):
+    """Index of the shortest edge for each component pair code, by ascending code.
+
+    Returns the edge indices and their codes.
+    """
+    order = np.lexsort((el, key))
+    sorted_key = key[order]
+    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
+    return order[first], sorted_key[first]
 
 
 def _graph(xyz: np.ndarray, params: SkeletonParams):
@@ -162,21 +164,19 @@ def _graph(xyz: np.ndarray, params: SkeletonParams):
         cross = (labels[e0] != labels[e1]) & np.isfinite(el)
         e0, e1, el = e0[cross], e1[cross], el[cross]
         if len(e0):
-            sel = _min_edge_per_pair(labels[e0], labels[e1], el)
+            la, lb = labels[e0].astype(np.int64), labels[e1].astype(np.int64)
+            # One code per unordered component pair.
+            sel, sel_key = _min_edge_per_pair(
+                np.minimum(la, lb) * n_comp + np.maximum(la, lb), el
+            )
             comp = coo_matrix(
-                (el[sel] + 1e-9, (labels[e0[sel]], labels[e1[sel]])),
-                shape=(n_comp, n_comp),
+                (el[sel] + 1e-9, (la[sel], lb[sel])), shape=(n_comp, n_comp)
             )
             mst = minimum_spanning_tree(comp).tocoo()
             # Map each MST component pair back to its shortest edge.
-            pair = {
-                (int(min(a, b)), int(max(a, b))): int(s)
-                for a, b, s in zip(labels[e0[sel]], labels[e1[sel]], sel, strict=True)
-            }
-            bridges = [
-                pair[(int(min(a, b)), int(max(a, b)))]
-                for a, b in zip(mst.row, mst.col, strict=True)
-            ]
+            a, b = mst.row.astype(np.int64), mst.col.astype(np.int64)
+            key = np.minimum(a, b) * n_comp + np.maximum(a, b)
+            bridges = sel[np.searchsorted(sel_key, key)]
             rows, cols, w = (
                 np.r_[rows, e0[bridges]],
                 np.r_[cols, e1[bridges]],
@@ -298,9 +298,11 @@ def build_skeleton(
     cross = (pc != cc) & (pc >= 0)
     parent = np.full(k, -1, dtype=np.int64)
     if cross.any():
-        pairs, votes = np.unique(
-            np.column_stack([cc[cross], pc[cross]]), axis=0, return_counts=True
+        # (child, parent) cluster pairs as one code: a 1-D unique, same order.
+        codes, votes = np.unique(
+            cc[cross].astype(np.int64) * k + pc[cross], return_counts=True
         )
+        pairs = np.column_stack([codes // k, codes % k])
         order = np.lexsort((-votes, pairs[:, 0]))
         first = np.r_[True, pairs[order][1:, 0] != pairs[order][:-1, 0]]
         best = pairs[order][first]
