@@ -193,16 +193,23 @@ def _tetrahedra(xyz: np.ndarray, params: MatchParams):
     return quads[order], edges[order], signed[order]
 
 
-def _descriptor(kp, quads, edges, params: MatchParams) -> np.ndarray:
-    """Sorted log edge lengths; with levelled scanners also the sorted vertex heights."""
+def _descriptor(kp, quads, edges, signed, params: MatchParams) -> np.ndarray:
+    """Sorted log edge lengths and the log volume; with levelled scanners also the
+    sorted vertex heights.
+
+    Each entry is scaled so that a Chebyshev distance of 1 is its tolerance. The volume
+    entry is a necessary condition of the volume test |V1/V2 - 1| < β (which the pairs
+    pass afterwards): it keeps most pairs that would fail that test out of the search.
+    """
     d = np.log(np.sort(edges, axis=1)[:, ::-1] + params.edge_floor_m) / np.log1p(
         params.edge_tolerance
     )
+    v = np.log(np.abs(signed)) / (-np.log1p(-params.volume_tolerance) * (1 + 1e-9))
     if not params.levelled:
-        return d
+        return np.column_stack([d, v])
     z = kp[quads][:, :, 2]
     h = np.sort(z - z.mean(axis=1, keepdims=True), axis=1) / params.height_tolerance_m
-    return np.hstack([d, h])
+    return np.column_stack([d, v, h])
 
 
 def _edge_index(a: int, b: int) -> int:
@@ -340,8 +347,8 @@ def match_tetrahedra(
     if len(tq) == 0 or len(sq) == 0:
         return empty
     # Scaled so that the Chebyshev ball of radius 1 is the tolerance on every entry.
-    desc_t = _descriptor(target_kp, tq, te, params)
-    desc_s = _descriptor(source_kp, sq, se, params)
+    desc_t = _descriptor(target_kp, tq, te, tv, params)
+    desc_s = _descriptor(source_kp, sq, se, sv, params)
     ti, si = _descriptor_pairs(desc_t, desc_s)
     n_pairs = len(ti)
     reporter.progress(0.5, f"{n_pairs} descriptor pairs")
