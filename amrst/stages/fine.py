@@ -149,23 +149,28 @@ class _NearestCache:
         # with nothing within reach has even more room for a smaller max_dist).
         self.reach = 1.5 * max_dist
         self.ref = np.zeros((n, 3))  # where each point was at its last query
-        self.j = np.full(n, len(tgt))  # nearest target point, len(tgt) = none in reach
-        self.slack = np.full(n, -np.inf)  # movement allowed before a new query
+        self.q = np.full(
+            (n, 3), np.inf
+        )  # its nearest target point (inf: none in reach)
+        self.slack2 = np.full(n, -1.0)  # squared movement allowed before a new query
 
     def match(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Source points with a match within max_dist (M,) int64, their matches (M, 3)."""
-        moved = np.sqrt(np.sum((p - self.ref) ** 2, axis=1))
-        stale = np.flatnonzero(moved >= self.slack)
+        step = p - self.ref
+        stale = np.flatnonzero(np.einsum("ij,ij->i", step, step) >= self.slack2)
         if len(stale):
             d, jj = self.tree.query(p[stale], k=2, distance_upper_bound=self.reach)
-            self.ref[stale], self.j[stale] = p[stale], jj[:, 0]
+            self.ref[stale] = p[stale]
+            found = jj[:, 0] < len(self.tgt)
+            self.q[stale[found]] = self.tgt[jj[found, 0]]
+            self.q[stale[~found]] = np.inf
             d1, d2 = d[:, 0], np.minimum(d[:, 1], self.reach)
-            free = np.where(np.isfinite(d1), (d2 - d1) / 2, self.reach - self.max_dist)
-            self.slack[stale] = free - 1e-9  # margin for rounding
-        found = np.flatnonzero(self.j < len(self.tgt))
-        q = self.tgt[self.j[found]]
-        inside = np.sum((p[found] - q) ** 2, axis=1) < self.max_dist**2  # as the query
-        return found[inside], q[inside]
+            free = np.where(found, (d2 - d1) / 2, self.reach - self.max_dist)
+            free -= 1e-9  # margin for rounding
+            self.slack2[stale] = np.where(free > 0, free * free, -1.0)
+        off = p - self.q
+        inside = np.flatnonzero(np.einsum("ij,ij->i", off, off) < self.max_dist**2)
+        return inside, self.q[inside]
 
 
 def lm_icp(
