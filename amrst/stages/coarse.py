@@ -17,7 +17,7 @@ import numpy as np
 from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.match import TetraMatches
-from amrst.types import Transform, rotation_angle_deg
+from amrst.types import Transform, make_transform, rotation_angle_deg
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -170,6 +170,9 @@ MIN_PRECISE_SCORE = 0.03
 MIN_SEPARATION = 0.5
 POLISH_ITERATIONS = 25
 POLISH_POINTS = 500
+# A polish iteration that moves less than this (m, rad) ends its scale.
+POLISH_STOP_M = 1e-4
+POLISH_STOP_RAD = 3e-5
 
 
 class _Occupancy:
@@ -238,14 +241,24 @@ def _group(
     return groups
 
 
+def _rigid_step(p: np.ndarray, q: np.ndarray) -> Transform:
+    """Least-squares rigid fit q ≈ R p + t of one point set (Kabsch), without the
+    batching overhead of ``match.kabsch``: the polish calls it thousands of times."""
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    u, _, vt = np.linalg.svd((p - pc).T @ (q - qc))
+    R = vt.T @ u.T
+    if np.linalg.det(R) < 0:
+        vt[2] *= -1
+        R = vt.T @ u.T
+    return make_transform(R, qc - R @ pc)
+
+
 def _polish(
     src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
 ) -> Transform:
     """Short point-to-point ICP, the closed-form (Kabsch) step each iteration, at
     max_dist and then a third of it (what Open3D's point-to-point ICP does; importing
     Open3D would cost a second per command). ``tree`` is a cKDTree on ``tgt``."""
-    from amrst.stages.match import kabsch
-
     for dist in (max_dist, max_dist / 3):
         for _ in range(POLISH_ITERATIONS):
             moved = src @ T[:3, :3].T + T[:3, 3]
@@ -253,9 +266,12 @@ def _polish(
             ok = d < dist
             if ok.sum() < 6:
                 return T
-            step = kabsch(moved[ok][None], tgt[j[ok]][None])[0][0]
+            step = _rigid_step(moved[ok], tgt[j[ok]])
             T = step @ T
-            if np.linalg.norm(step[:3, 3]) < 1e-4 and np.trace(step[:3, :3]) > 3 - 1e-9:
+            if (
+                np.linalg.norm(step[:3, 3]) < POLISH_STOP_M
+                and np.trace(step[:3, :3]) > 3 - POLISH_STOP_RAD**2
+            ):
                 break
     return T
 
