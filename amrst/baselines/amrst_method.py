@@ -17,7 +17,10 @@ def register_amrst(target: Cloud, source: Cloud) -> MethodResult:
     -------
     MethodResult
         ``extra`` holds ``confidence`` and ``T_coarse`` is not kept; timings are the
-        engine's own per-stage timings (with ``total``).
+        engine's own per-stage timings. ``total`` leaves out the engine's metrics
+        stage (NN-RMSE, Hausdorff and overlap of the coarse and the fine result, for
+        the report), as the benchmark leaves out every baseline's own fitness
+        evaluation; the full figure is kept as ``total_with_metrics``.
     """
     from amrst import register  # lazily: the engine is optional for the baselines
 
@@ -25,6 +28,8 @@ def register_amrst(target: Cloud, source: Cloud) -> MethodResult:
     tgt, src, origin = local_pair(target, source)
     fitness, rmse = evaluate(tgt, src, to_local(result.T_target_source, origin))
     timings = {str(k): float(v) for k, v in dict(result.timings).items()}
+    timings["total_with_metrics"] = timings["total"]
+    timings["total"] -= timings.get("metrics", 0.0)
     return MethodResult(
         result.T_target_source,
         timings,
