@@ -273,6 +273,13 @@ class Session(ResultsMixin, QObject):
                 return
             self._launch(step, jobs.evaluate_coarse, dict(an), coarse, p)
         elif step == "fine":
+            points = self._accepted.candidate.fine_points
+            if points:
+                log.info(
+                    "Fine registration runs on %s points, the set the trunk heading "
+                    "search verified this solution with (not fine.points).",
+                    points,
+                )
             self._launch(step, jobs.refine_pair, dict(an), self._accepted, p)
 
     def _launch(self, step: str, fn, *args) -> None:
