@@ -29,9 +29,7 @@ from amrst.stages.coarse import (
     CoarseParams,
     CoarseResult,
     choose_coarse,
-    merge_trunk_solutions,
     rank_candidates,
-    score_transforms,
 )
 from amrst.stages.fine import FineParams, FineResult, refine_registration
 from amrst.stages.keypoints import KeypointParams, KeypointResult, extract_keypoints
@@ -44,7 +42,12 @@ from amrst.stages.preprocess import (
 )
 from amrst.stages.separate import SeparateParams, SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonParams, SkeletonResult, build_skeleton
-from amrst.stages.trunk import TrunkParams, search_yaw
+from amrst.stages.trunk import (
+    TrunkParams,
+    merge_trunk_solutions,
+    score_transforms,
+    search_yaw,
+)
 from amrst.types import Cloud, Transform, make_transform
 
 log = logging.getLogger(__name__)

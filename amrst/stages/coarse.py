@@ -254,19 +254,26 @@ def _rigid_step(p: np.ndarray, q: np.ndarray) -> Transform:
 
 
 def _polish(
-    src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
+    src: np.ndarray,
+    tgt: np.ndarray,
+    tree,
+    T: Transform,
+    max_dist: float,
+    fit=_rigid_step,
+    iterations: int = POLISH_ITERATIONS,
 ) -> Transform:
-    """Short point-to-point ICP, the closed-form (Kabsch) step each iteration, at
-    max_dist and then a third of it (what Open3D's point-to-point ICP does; importing
-    Open3D would cost a second per command). ``tree`` is a cKDTree on ``tgt``."""
+    """Short point-to-point ICP, the closed-form ``fit`` step each iteration (Kabsch by
+    default), at max_dist and then a third of it (what Open3D's point-to-point ICP
+    does; importing Open3D would cost a second per command). ``tree`` is a cKDTree on
+    ``tgt``."""
     for dist in (max_dist, max_dist / 3):
-        for _ in range(POLISH_ITERATIONS):
+        for _ in range(iterations):
             moved = src @ T[:3, :3].T + T[:3, 3]
             d, j = tree.query(moved, distance_upper_bound=dist)
             ok = d < dist
             if ok.sum() < 6:
                 return T
-            step = _rigid_step(moved[ok], tgt[j[ok]])
+            step = fit(moved[ok], tgt[j[ok]])
             T = step @ T
             if (
                 np.linalg.norm(step[:3, 3]) < POLISH_STOP_M
@@ -512,109 +519,3 @@ def choose_coarse(
     else:
         msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
     return CoarseResult(best, best.T_target_source, conf, runner, msg, verified)
-
-
-def score_transforms(
-    transforms: list[Transform],
-    target_xyz: np.ndarray,
-    source_xyz: np.ndarray,
-    params: CoarseParams,
-    precise_dist_m: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Share of sampled source points within ``tight_dist_m`` and within
-    ``precise_dist_m`` of the target under each transform (the same seeded sample as
-    the ranking uses)."""
-    from scipy.spatial import cKDTree
-
-    rng = np.random.default_rng(params.seed)
-    sample = source_xyz[
-        rng.choice(
-            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
-        )
-    ]
-    tree = cKDTree(target_xyz)
-    reach = max(params.tight_dist_m, precise_dist_m)
-    out = np.zeros((2, len(transforms)))
-    for k, T in enumerate(transforms):
-        d = tree.query(sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=reach)[0]
-        out[:, k] = np.mean(d < params.tight_dist_m), np.mean(d < precise_dist_m)
-    return out[0], out[1]
-
-
-def merge_trunk_solutions(
-    candidates: CandidateList,
-    search,
-    refined: list[Transform],
-    target_xyz: np.ndarray,
-    source_xyz: np.ndarray,
-    params: CoarseParams,
-    precise_dist_m: float,
-    fine_points: list[str],
-) -> CandidateList:
-    """Add refined trunk-search solutions to the ranking, scored as the others are.
-
-    Parameters
-    ----------
-    candidates : CandidateList
-        The tetrahedron solutions.
-    search : TrunkSearchResult
-    refined : list of (4, 4) transforms
-        Each ``search.solutions[k]`` after fine registration.
-    target_xyz, source_xyz : (N, 3), (M, 3) float64
-    params : CoarseParams
-    precise_dist_m : float
-        Distance of the precise score that orders the trunk solutions.
-    fine_points : list of str
-        The point set each solution's fine registration used.
-
-    Returns
-    -------
-    CandidateList
-        Trunk solutions first (best precise score first) when the best of them scores
-        above every tetrahedron solution, after them otherwise; ranks renumbered.
-    """
-    from dataclasses import replace
-
-    scores, precises = score_transforms(
-        refined, target_xyz, source_xyz, params, precise_dist_m
-    )
-    base = 1 + max((c.id for c in candidates.candidates), default=0)
-    tb, sb = search.target_base, search.source_base
-    trunk = []
-    for k, (sol, T) in enumerate(zip(search.solutions, refined, strict=True)):
-        score, precise = float(scores[k]), float(precises[k])
-        expl = (
-            f"Trunk heading search: trunk bases matched (target trunk r = {tb.radius_m * 100:.0f} cm, "
-            f"source r = {sb.radius_m * 100:.0f} cm), heading started at {sol.start_yaw_deg:.0f}°, "
-            f"levelled ICP polish, then fine registration on {fine_points[k]} points: {precise:.0%} of sampled source points lie within "
-            f"{precise_dist_m * 100:.1f} cm of the target, {score:.0%} within {params.tight_dist_m * 100:.0f} cm. "
-            "Not a tetrahedron match: offered because no tetrahedron match verified."
-        )
-        trunk.append(
-            Candidate(
-                id=base + k,
-                rank=0,
-                score=score,
-                raw_score=sol.score,
-                support=0,
-                volume_m3=float("nan"),
-                edge_error=float("nan"),
-                svd_residual_m=float("nan"),
-                target_idx=np.zeros(0, dtype=np.int64),
-                source_idx=np.zeros(0, dtype=np.int64),
-                T_match=sol.T_target_source,
-                T_target_source=T,
-                polished=True,
-                explanation=expl,
-                origin="trunk",
-                precise_score=precise,
-                fine_points=fine_points[k],
-            )
-        )
-    trunk.sort(key=lambda c: -c.precise_score)
-    tetra = list(candidates.candidates)
-    best_tetra = max((c.score for c in tetra), default=-1.0)
-    first = bool(trunk) and trunk[0].score > best_tetra
-    merged = trunk + tetra if first else tetra + trunk
-    merged = [replace(c, rank=r) for r, c in enumerate(merged, start=1)]
-    return CandidateList(tuple(merged), candidates.n_matches)

@@ -8,7 +8,8 @@ the visible arc would sit a trunk radius towards the scanner). The search turns 
 source about the vertical in ``yaw_step_deg`` steps, polishes each start with a
 levelled (yaw + translation) ICP, scores it by the share of source points that land
 within ``score_dist_m`` of the target, and returns the best distinct solutions. The
-pipeline then refines each of them with the fine stage and keeps the one that fits best.
+pipeline then refines each of them with the fine stage; ``merge_trunk_solutions``
+scores them as the coarse stage scores its candidates and adds them to the ranking.
 """
 
 from __future__ import annotations
@@ -18,6 +19,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.coarse import (
+    Candidate,
+    CandidateList,
+    CoarseParams,
+    _distinct,
+    _polish,
+)
 from amrst.types import Transform, make_transform
 
 TRUNK_MODES = ("fallback", "always", "off")
@@ -197,34 +205,25 @@ def _rot_z(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _levelled_step(p: np.ndarray, q: np.ndarray) -> Transform:
+    """Least-squares fit q ≈ Rz p + t with a turn about the vertical only: a 2D
+    Procrustes fit of the x, y offsets from their centroids, plus the centroid shift."""
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    a, b = p - pc, q - qc
+    yaw = np.arctan2(
+        np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+        np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]),
+    )
+    R = _rot_z(yaw)
+    return make_transform(R, qc - R @ pc)
+
+
 def polish_levelled(
     src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
 ) -> Transform:
-    """Point-to-point ICP restricted to a turn about the vertical and a translation.
-
-    The closed-form step is a 2D Procrustes fit of the x, y offsets from their centroid
-    plus the centroid shift. ``tree`` is a cKDTree on ``tgt``.
-    """
-    for dist in (max_dist, max_dist / 3):
-        for _ in range(15):
-            moved = src @ T[:3, :3].T + T[:3, 3]
-            d, j = tree.query(moved, distance_upper_bound=dist)
-            ok = d < dist
-            if ok.sum() < 6:
-                return T
-            p, q = moved[ok], tgt[j[ok]]
-            pc, qc = p.mean(axis=0), q.mean(axis=0)
-            a, b = p - pc, q - qc
-            yaw = np.arctan2(
-                np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
-                np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]),
-            )
-            R = _rot_z(yaw)
-            step = make_transform(R, qc - R @ pc)
-            T = step @ T
-            if abs(yaw) < 1e-5 and np.linalg.norm(step[:3, 3]) < 1e-4:
-                break
-    return T
+    """The coarse stage's polish ICP restricted to a turn about the vertical and a
+    translation. ``tree`` is a cKDTree on ``tgt``."""
+    return _polish(src, tgt, tree, T, max_dist, fit=_levelled_step, iterations=15)
 
 
 def search_yaw(
@@ -249,7 +248,6 @@ def search_yaw(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.stages.coarse import _distinct
     from amrst.stages.preprocess import _voxel_representatives
 
     rng = np.random.default_rng(params.seed)
@@ -291,3 +289,109 @@ def search_yaw(
             if len(kept) == params.keep:
                 break
     return TrunkSearchResult(tb, sb, tuple(kept), len(yaws))
+
+
+def score_transforms(
+    transforms: list[Transform],
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    precise_dist_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Share of sampled source points within ``tight_dist_m`` and within
+    ``precise_dist_m`` of the target under each transform (the same seeded sample as
+    the ranking uses)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(params.seed)
+    sample = source_xyz[
+        rng.choice(
+            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
+        )
+    ]
+    tree = cKDTree(target_xyz)
+    reach = max(params.tight_dist_m, precise_dist_m)
+    out = np.zeros((2, len(transforms)))
+    for k, T in enumerate(transforms):
+        d = tree.query(sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=reach)[0]
+        out[:, k] = np.mean(d < params.tight_dist_m), np.mean(d < precise_dist_m)
+    return out[0], out[1]
+
+
+def merge_trunk_solutions(
+    candidates: CandidateList,
+    search: TrunkSearchResult,
+    refined: list[Transform],
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    precise_dist_m: float,
+    fine_points: list[str],
+) -> CandidateList:
+    """Add refined trunk-search solutions to the ranking, scored as the others are.
+
+    Parameters
+    ----------
+    candidates : CandidateList
+        The tetrahedron solutions.
+    search : TrunkSearchResult
+    refined : list of (4, 4) transforms
+        Each ``search.solutions[k]`` after fine registration.
+    target_xyz, source_xyz : (N, 3), (M, 3) float64
+    params : CoarseParams
+    precise_dist_m : float
+        Distance of the precise score that orders the trunk solutions.
+    fine_points : list of str
+        The point set each solution's fine registration used.
+
+    Returns
+    -------
+    CandidateList
+        Trunk solutions first (best precise score first) when the best of them scores
+        above every tetrahedron solution, after them otherwise; ranks renumbered.
+    """
+    from dataclasses import replace
+
+    scores, precises = score_transforms(
+        refined, target_xyz, source_xyz, params, precise_dist_m
+    )
+    base = 1 + max((c.id for c in candidates.candidates), default=0)
+    tb, sb = search.target_base, search.source_base
+    trunk = []
+    for k, (sol, T) in enumerate(zip(search.solutions, refined, strict=True)):
+        score, precise = float(scores[k]), float(precises[k])
+        expl = (
+            f"Trunk heading search: trunk bases matched (target trunk r = {tb.radius_m * 100:.0f} cm, "
+            f"source r = {sb.radius_m * 100:.0f} cm), heading started at {sol.start_yaw_deg:.0f}°, "
+            f"levelled ICP polish, then fine registration on {fine_points[k]} points: {precise:.0%} of sampled source points lie within "
+            f"{precise_dist_m * 100:.1f} cm of the target, {score:.0%} within {params.tight_dist_m * 100:.0f} cm. "
+            "Not a tetrahedron match: offered because no tetrahedron match verified."
+        )
+        trunk.append(
+            Candidate(
+                id=base + k,
+                rank=0,
+                score=score,
+                raw_score=sol.score,
+                support=0,
+                volume_m3=float("nan"),
+                edge_error=float("nan"),
+                svd_residual_m=float("nan"),
+                target_idx=np.zeros(0, dtype=np.int64),
+                source_idx=np.zeros(0, dtype=np.int64),
+                T_match=sol.T_target_source,
+                T_target_source=T,
+                polished=True,
+                explanation=expl,
+                origin="trunk",
+                precise_score=precise,
+                fine_points=fine_points[k],
+            )
+        )
+    trunk.sort(key=lambda c: -c.precise_score)
+    tetra = list(candidates.candidates)
+    best_tetra = max((c.score for c in tetra), default=-1.0)
+    first = bool(trunk) and trunk[0].score > best_tetra
+    merged = trunk + tetra if first else tetra + trunk
+    merged = [replace(c, rank=r) for r, c in enumerate(merged, start=1)]
+    return CandidateList(tuple(merged), candidates.n_matches)
