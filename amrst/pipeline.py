@@ -330,11 +330,13 @@ def _add_trunk_solutions(
         used,
     )
     # The best heading already had its full fine registration: register() reuses it.
-    finished = {
-        c.id: done
-        for c in merged.candidates
-        if refined and c.T_target_source is refined[best]
-    }
+    finished = {}
+    if done is not None:
+        finished = {
+            c.id: done
+            for c in merged.candidates
+            if c.T_target_source is done.T_target_source
+        }
     return merged, finished
 
 
