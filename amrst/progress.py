@@ -91,3 +91,43 @@ class SubReporter:
 
     def check_cancelled(self) -> None:
         self._parent.check_cancelled()
+
+
+class SharedReporter:
+    """Lets ``n`` tasks running at once report to one parent: each task's [0, 1] counts
+    1/n of [start, stop], so the parent sees a monotonic sum while every task's own
+    progress is monotonic. Thread-safe; cancel checks go to the parent."""
+
+    def __init__(
+        self, parent: Reporter, n: int, start: float = 0.0, stop: float = 1.0
+    ) -> None:
+        import threading
+
+        self._parent, self._start, self._span = parent, start, stop - start
+        self._done = [0.0] * n
+        self._lock = threading.Lock()
+
+    def task(self, i: int, label: str = "") -> Reporter:
+        """The reporter task ``i`` reports to."""
+        return _SharedTask(self, i, label)
+
+    def _report(self, i: int, fraction: float, message: str) -> None:
+        with self._lock:
+            self._done[i] = max(self._done[i], min(max(fraction, 0.0), 1.0))
+            total = sum(self._done) / len(self._done)
+            self._parent.progress(self._start + self._span * total, message)
+
+    def check_cancelled(self) -> None:
+        self._parent.check_cancelled()
+
+
+class _SharedTask:
+    def __init__(self, shared: SharedReporter, i: int, label: str) -> None:
+        self._shared, self._i, self._label = shared, i, label
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        text = f"{self._label}: {message}" if self._label and message else message
+        self._shared._report(self._i, fraction, text or self._label)
+
+    def check_cancelled(self) -> None:
+        self._shared.check_cancelled()

@@ -1,0 +1,56 @@
+"""Reporters: sub-ranges, and several tasks reporting at once."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+
+import pytest
+
+from amrst.errors import Cancelled
+from amrst.progress import EventReporter, SharedReporter
+
+
+def _recording():
+    seen: list[tuple[float, str]] = []
+    return EventReporter(lambda f, m: seen.append((f, m))), seen
+
+
+def test_shared_reporter_sums_interleaved_tasks_monotonically() -> None:
+    parent, seen = _recording()
+    shared = SharedReporter(parent, 2, 0.2, 0.6)
+    a, b = shared.task(0, "target"), shared.task(1, "source")
+    a.progress(0.5, "half")
+    b.progress(1.0, "all")
+    a.progress(0.3, "late")  # an out-of-order report never moves the sum back
+    a.progress(1.0)
+    fractions = [f for f, _ in seen]
+    assert fractions == pytest.approx([0.3, 0.5, 0.5, 0.6])
+    assert seen[0][1] == "target: half"
+    assert seen[-1][1] == "target"
+
+
+def test_shared_reporter_from_threads_stays_monotonic() -> None:
+    parent, seen = _recording()
+    shared = SharedReporter(parent, 2)
+
+    def work(i: int) -> None:
+        rep = shared.task(i)
+        for k in range(1, 201):
+            rep.progress(k / 200)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    fractions = [f for f, _ in seen]
+    assert all(b >= a for a, b in itertools.pairwise(fractions))
+    assert fractions[-1] == pytest.approx(1.0)
+
+
+def test_shared_reporter_passes_cancel_on() -> None:
+    parent, _ = _recording()
+    parent.cancel()
+    with pytest.raises(Cancelled):
+        SharedReporter(parent, 2).task(1).check_cancelled()
