@@ -17,7 +17,7 @@ import numpy as np
 from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.match import TetraMatches
-from amrst.types import Transform, make_transform, rotation_angle_deg
+from amrst.types import Transform, rotation_angle_deg
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -241,46 +241,72 @@ def _group(
     return groups
 
 
-def _rigid_step(p: np.ndarray, q: np.ndarray) -> Transform:
-    """Least-squares rigid fit q ≈ R p + t of one point set (Kabsch), without the
-    batching overhead of ``match.kabsch``: the polish calls it thousands of times."""
-    pc, qc = p.mean(axis=0), q.mean(axis=0)
-    u, _, vt = np.linalg.svd((p - pc).T @ (q - qc))
-    R = vt.T @ u.T
-    if np.linalg.det(R) < 0:
-        vt[2] *= -1
-        R = vt.T @ u.T
-    return make_transform(R, qc - R @ pc)
+def _weighted_centres(p: np.ndarray, q: np.ndarray, w: np.ndarray):
+    """Centroids of (B, n, 3) point sets under (B, n) 0/1 weights, and the offsets."""
+    sw = w.sum(axis=1)[:, None]
+    pc = np.einsum("bn,bni->bi", w, p) / sw
+    qc = np.einsum("bn,bni->bi", w, q) / sw
+    return pc, qc, p - pc[:, None], q - qc[:, None]
+
+
+def _rigid_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Least-squares rigid fits q ≈ R p + t (Kabsch) of B point sets at once, each on
+    its points with weight 1; (B, 4, 4)."""
+    pc, qc, a, b = _weighted_centres(p, q, w)
+    u, _, vt = np.linalg.svd(np.einsum("bn,bni,bnj->bij", w, a, b))
+    R = np.einsum("bji,bkj->bik", vt, u)  # V Uᵀ
+    flip = np.linalg.det(R) < 0
+    vt[flip, 2] *= -1
+    R[flip] = np.einsum("bji,bkj->bik", vt[flip], u[flip])
+    out = np.tile(np.eye(4), (len(p), 1, 1))
+    out[:, :3, :3] = R
+    out[:, :3, 3] = qc - np.einsum("bij,bj->bi", R, pc)
+    return out
 
 
 def _polish(
     src: np.ndarray,
     tgt: np.ndarray,
     tree,
-    T: Transform,
+    Ts: np.ndarray,
     max_dist: float,
-    fit=_rigid_step,
+    fit=_rigid_steps,
     iterations: int = POLISH_ITERATIONS,
-) -> Transform:
-    """Short point-to-point ICP, the closed-form ``fit`` step each iteration (Kabsch by
-    default), at max_dist and then a third of it (what Open3D's point-to-point ICP
-    does; importing Open3D would cost a second per command). ``tree`` is a cKDTree on
-    ``tgt``."""
+) -> np.ndarray:
+    """Short point-to-point ICP of B starts at once, the closed-form ``fit`` step each
+    iteration (Kabsch by default), at max_dist and then a third of it (what Open3D's
+    point-to-point ICP does; importing Open3D would cost a second per command).
+
+    One KD-tree query per iteration serves every start still moving; a start stops a
+    scale when its step is below POLISH_STOP_M / POLISH_STOP_RAD, and stops for good
+    when fewer than 6 of its points find a partner. ``tree`` is a cKDTree on ``tgt``;
+    ``Ts`` (B, 4, 4); returns the polished (B, 4, 4).
+    """
+    Ts = np.array(Ts, dtype=float).reshape(-1, 4, 4)
+    alive = np.ones(len(Ts), dtype=bool)
     for dist in (max_dist, max_dist / 3):
+        moving = alive.copy()
         for _ in range(iterations):
-            moved = src @ T[:3, :3].T + T[:3, 3]
-            d, j = tree.query(moved, distance_upper_bound=dist)
-            ok = d < dist
-            if ok.sum() < 6:
-                return T
-            step = fit(moved[ok], tgt[j[ok]])
-            T = step @ T
-            if (
-                np.linalg.norm(step[:3, 3]) < POLISH_STOP_M
-                and np.trace(step[:3, :3]) > 3 - POLISH_STOP_RAD**2
-            ):
+            idx = np.flatnonzero(moving)
+            if not len(idx):
                 break
-    return T
+            T = Ts[idx]
+            moved = np.einsum("bij,nj->bni", T[:, :3, :3], src) + T[:, None, :3, 3]
+            d, j = tree.query(moved.reshape(-1, 3), distance_upper_bound=dist)
+            ok = (d < dist).reshape(len(idx), -1)
+            enough = ok.sum(axis=1) >= 6
+            alive[idx[~enough]] = moving[idx[~enough]] = False
+            idx, moved, ok = idx[enough], moved[enough], ok[enough]
+            if not len(idx):
+                break
+            partner = tgt[np.minimum(j, len(tgt) - 1)].reshape(-1, len(src), 3)
+            step = fit(moved, partner[enough], ok.astype(float))
+            Ts[idx] = step @ Ts[idx]
+            still = (np.linalg.norm(step[:, :3, 3], axis=1) >= POLISH_STOP_M) | (
+                np.trace(step[:, :3, :3], axis1=1, axis2=2) <= 3 - POLISH_STOP_RAD**2
+            )
+            moving[idx[~still]] = False
+    return Ts
 
 
 def rank_candidates(
@@ -354,11 +380,11 @@ def rank_candidates(
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
             : params.polish_top
         ]
-        for n, j in enumerate(top):
-            reporter.check_cancelled()
-            Tp = _polish(
-                src_small, tgt_small, small_tree, T[rep[j]], params.polish_max_dist_m
-            )
+        reporter.check_cancelled()
+        Tps = _polish(
+            src_small, tgt_small, small_tree, T[rep[top]], params.polish_max_dist_m
+        )
+        for j, Tp in zip(top, Tps, strict=True):
             polished_T[int(rep[j])] = Tp
             d = tgt_tree.query(
                 sample @ Tp[:3, :3].T + Tp[:3, 3],
@@ -366,9 +392,7 @@ def rank_candidates(
             )[0]
             score[j] = float(np.mean(d < params.tight_dist_m))
             is_polished[j] = True
-            reporter.progress(
-                0.4 + 0.5 * (n + 1) / len(top), "verifying the best solutions"
-            )
+        reporter.progress(0.9, "verified the best solutions")
     # Every listed solution gets the same tight score, so the column reads one way:
     # the unpolished ones under their tetrahedron transform, on the smaller sample.
     shortlist = np.argsort(-raw, kind="stable")[: params.max_candidates]

@@ -25,6 +25,7 @@ from amrst.stages.coarse import (
     CoarseParams,
     _distinct,
     _polish,
+    _weighted_centres,
 )
 from amrst.types import Transform, make_transform
 
@@ -205,25 +206,28 @@ def _rot_z(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _levelled_step(p: np.ndarray, q: np.ndarray) -> Transform:
-    """Least-squares fit q ≈ Rz p + t with a turn about the vertical only: a 2D
-    Procrustes fit of the x, y offsets from their centroids, plus the centroid shift."""
-    pc, qc = p.mean(axis=0), q.mean(axis=0)
-    a, b = p - pc, q - qc
+def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Least-squares fits q ≈ Rz p + t with a turn about the vertical only, for B point
+    sets at once under (B, n) 0/1 weights: a 2D Procrustes fit of the x, y offsets from
+    the centroids, plus the centroid shift; (B, 4, 4)."""
+    pc, qc, a, b = _weighted_centres(p, q, w)
     yaw = np.arctan2(
-        np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
-        np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]),
+        np.einsum("bn,bn->b", w, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]),
+        np.einsum("bn,bn->b", w, a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]),
     )
-    R = _rot_z(yaw)
-    return make_transform(R, qc - R @ pc)
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.tile(np.eye(4), (len(p), 1, 1))
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
+    out[:, :3, 3] = qc - np.einsum("bij,bj->bi", out[:, :3, :3], pc)
+    return out
 
 
 def polish_levelled(
-    src: np.ndarray, tgt: np.ndarray, tree, T: Transform, max_dist: float
-) -> Transform:
+    src: np.ndarray, tgt: np.ndarray, tree, Ts: np.ndarray, max_dist: float
+) -> np.ndarray:
     """The coarse stage's polish ICP restricted to a turn about the vertical and a
-    translation. ``tree`` is a cKDTree on ``tgt``."""
-    return _polish(src, tgt, tree, T, max_dist, fit=_levelled_step, iterations=15)
+    translation, for (B, 4, 4) starts at once. ``tree`` is a cKDTree on ``tgt``."""
+    return _polish(src, tgt, tree, Ts, max_dist, fit=_levelled_steps, iterations=15)
 
 
 def search_yaw(
@@ -262,24 +266,27 @@ def search_yaw(
     ]
     tree, full_tree = cKDTree(tgt), cKDTree(target_xyz)
     yaws = np.arange(0.0, 360.0, params.yaw_step_deg)
-    found = []
-    for n, yaw in enumerate(yaws):
-        reporter.check_cancelled()
-        R = _rot_z(np.radians(yaw))
-        T = polish_levelled(
-            src,
-            tgt,
-            tree,
-            make_transform(R, tb.centre - R @ sb.centre),
-            params.polish_dist_m,
-        )
-        d = full_tree.query(
-            sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=params.score_dist_m
-        )[0]
-        found.append(
-            YawSolution(T, float(yaw), float(np.mean(d < params.score_dist_m)))
-        )
-        reporter.progress((n + 1) / len(yaws), "trunk heading search")
+    starts = np.stack(
+        [
+            make_transform(R, tb.centre - R @ sb.centre)
+            for R in (_rot_z(np.radians(y)) for y in yaws)
+        ]
+    )
+    reporter.check_cancelled()
+    polished = polish_levelled(src, tgt, tree, starts, params.polish_dist_m)
+    reporter.progress(0.8, "trunk heading search")
+    moved = (
+        np.einsum("bij,nj->bni", polished[:, :3, :3], sample) + polished[:, None, :3, 3]
+    )
+    d = full_tree.query(moved.reshape(-1, 3), distance_upper_bound=params.score_dist_m)[
+        0
+    ].reshape(len(yaws), -1)
+    scores = np.mean(d < params.score_dist_m, axis=1)
+    found = [
+        YawSolution(T, float(y), float(sc))
+        for T, y, sc in zip(polished, yaws, scores, strict=True)
+    ]
+    reporter.progress(1.0, "trunk heading search")
     found.sort(key=lambda s: -s.score)
     centre = source_xyz.mean(axis=0)
     kept: list[YawSolution] = []

@@ -79,7 +79,7 @@ def test_levelled_polish_recovers_a_small_heading_and_offset() -> None:
     tgt = _tree(rng)
     T_true = make_transform(_rot_z(4.0), np.array([0.08, -0.05, 0.03]))
     src = apply_transform(np.linalg.inv(T_true), tgt)
-    T = polish_levelled(src, tgt, cKDTree(tgt), np.eye(4), 0.3)
+    T = polish_levelled(src, tgt, cKDTree(tgt), np.eye(4)[None], 0.3)[0]
     np.testing.assert_allclose(T, T_true, atol=2e-3)
     # Only a turn about the vertical: the z axis stays put.
     np.testing.assert_allclose(T[:3, 2], [0, 0, 1], atol=1e-9)
