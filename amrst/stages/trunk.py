@@ -272,9 +272,15 @@ def search_yaw(
             for R in (_rot_z(np.radians(y)) for y in yaws)
         ]
     )
-    reporter.check_cancelled()
-    polished = polish_levelled(src, tgt, tree, starts, params.polish_dist_m)
-    reporter.progress(0.8, "trunk heading search")
+    # One start at a time: a batch of all headings queries the tree in scattered
+    # order and was 25% slower here (the coarse stage's four starts batch well).
+    polished = np.empty_like(starts)
+    for n, start in enumerate(starts):
+        reporter.check_cancelled()
+        polished[n] = polish_levelled(
+            src, tgt, tree, start[None], params.polish_dist_m
+        )[0]
+        reporter.progress(0.8 * (n + 1) / len(starts), "trunk heading search")
     moved = (
         np.einsum("bij,nj->bni", polished[:, :3, :3], sample) + polished[:, None, :3, 3]
     )
