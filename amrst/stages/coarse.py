@@ -309,6 +309,16 @@ def _polish(
     return Ts
 
 
+def verification_sample(
+    source_xyz: np.ndarray, params: CoarseParams
+) -> tuple[np.ndarray, np.random.Generator]:
+    """The seeded sample of source points every verification score is measured on,
+    and the generator after drawing it (the ranking draws more from it)."""
+    rng = np.random.default_rng(params.seed)
+    n = min(params.verify_points, len(source_xyz))
+    return source_xyz[rng.choice(len(source_xyz), n, replace=False)], rng
+
+
 def rank_candidates(
     matches: TetraMatches,
     target_xyz: np.ndarray,
@@ -338,12 +348,7 @@ def rank_candidates(
 
     if len(matches.T_target_source) == 0:
         return CandidateList((), 0)
-    rng = np.random.default_rng(params.seed)
-    sample = source_xyz[
-        rng.choice(
-            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
-        )
-    ]
+    sample, rng = verification_sample(source_xyz, params)
     occ = _Occupancy(target_xyz, params.verify_voxel_m)
     groups = _group(matches, source_xyz.mean(axis=0), params)
     reporter.progress(0.3, f"{len(groups)} distinct solutions")

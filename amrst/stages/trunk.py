@@ -26,6 +26,7 @@ from amrst.stages.coarse import (
     _distinct,
     _polish,
     _weighted_centres,
+    verification_sample,
 )
 from amrst.types import Transform, make_transform
 
@@ -316,12 +317,7 @@ def score_transforms(
     the ranking uses)."""
     from scipy.spatial import cKDTree
 
-    rng = np.random.default_rng(params.seed)
-    sample = source_xyz[
-        rng.choice(
-            len(source_xyz), min(params.verify_points, len(source_xyz)), replace=False
-        )
-    ]
+    sample = verification_sample(source_xyz, params)[0]
     tree = cKDTree(target_xyz)
     reach = max(params.tight_dist_m, precise_dist_m)
     out = np.zeros((2, len(transforms)))
