@@ -415,27 +415,25 @@ def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transfo
     )
 
 
-def _analyse_both(
-    target: Cloud, source: Cloud, params: RegistrationParams, reporter: Reporter
-) -> tuple[ScanAnalysis, ScanAnalysis]:
-    """The per-scan stages of both scans at once, one thread each: their KD-tree
-    queries and large numpy steps release the GIL, which made these stages 1.24-1.37x
-    faster on this 2-core machine. Results are the same as one after the other."""
+def both_scans(fn, target_item, source_item, reporter: Reporter = NULL_REPORTER):
+    """``fn(item, reporter)`` for the target's and the source's item at once, one thread
+    each, returning ``(target result, source result)``.
+
+    The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
+    made them 1.24-1.37x faster on this 2-core machine; results are the same as one
+    after the other. Progress is the mean of the two (monotonic); an error is raised
+    as the serial order would have raised it (the target's first).
+    """
     from concurrent.futures import ThreadPoolExecutor
 
-    shared = SharedReporter(reporter, 2, 0.0, 0.6)
-
-    def analyse(i: int, cloud: Cloud, role: str) -> ScanAnalysis:
-        rep = shared.task(i, role)
-        an = prepare_scan(cloud, params, SubReporter(rep, 0.0, 0.7))
-        return skeletonise_scan(an, params, SubReporter(rep, 0.7, 1.0))
-
+    shared = SharedReporter(reporter, 2)
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
         jobs = [
-            pool.submit(analyse, 0, target, "target"),
-            pool.submit(analyse, 1, source, "source"),
+            pool.submit(fn, item, shared.task(i, role))
+            for i, (item, role) in enumerate(
+                ((target_item, "target"), (source_item, "source"))
+            )
         ]
-        # The target's error first, as the serial order reported it.
         return jobs[0].result(), jobs[1].result()
 
 
@@ -472,7 +470,12 @@ def register(
     params = params or RegistrationParams()
     reporter = reporter or NULL_REPORTER
     t_start = time.perf_counter()
-    tgt, src = _analyse_both(target, source, params, reporter)
+
+    def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
+        an = prepare_scan(cloud, params, SubReporter(rep, 0.0, 0.7))
+        return skeletonise_scan(an, params, SubReporter(rep, 0.7, 1.0))
+
+    tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.6))
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()

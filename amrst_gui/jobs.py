@@ -38,11 +38,13 @@ def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, 
     from amrst import pipeline
 
     start = time.perf_counter()
-    out = {}
-    for i, role in enumerate(ROLES):
-        sub = SubReporter(reporter, i / 2, (i + 1) / 2, role)
-        out[role] = pipeline.prepare_scan(clouds[role], params, sub)
-    return out, time.perf_counter() - start
+    out = pipeline.both_scans(
+        lambda cloud, rep: pipeline.prepare_scan(cloud, params, rep),
+        clouds["target"],
+        clouds["source"],
+        reporter,
+    )
+    return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
 
 
 def skeletonise_pair(
@@ -52,11 +54,13 @@ def skeletonise_pair(
     from amrst import pipeline
 
     start = time.perf_counter()
-    out = {}
-    for i, role in enumerate(ROLES):
-        sub = SubReporter(reporter, i / 2, (i + 1) / 2, role)
-        out[role] = pipeline.skeletonise_scan(analyses[role], params, sub)
-    return out, time.perf_counter() - start
+    out = pipeline.both_scans(
+        lambda an, rep: pipeline.skeletonise_scan(an, params, rep),
+        analyses["target"],
+        analyses["source"],
+        reporter,
+    )
+    return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
 
 
 def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, float]:
