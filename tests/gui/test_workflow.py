@@ -120,3 +120,44 @@ def test_run_all_is_the_automatic_path(loaded_window, finish):
     assert s.accepted_coarse.candidate.id == s.matches[0].id
     assert all(s.is_done(step) for step in ("separate", "skeleton", "match", "fine"))
     assert loaded_window.actions.export.isEnabled()
+
+
+def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> None:
+    """With matching made impossible, the match step offers trunk-search candidates:
+    the table reads 'trunk', selecting one draws no tetrahedron, rejecting it moves
+    the coarse solution on, and fine registration runs from it."""
+    import dataclasses
+
+    win = loaded_window
+    s = win.session
+    a = win.actions
+    p = s.params
+    s.set_params(
+        dataclasses.replace(
+            p,
+            match=dataclasses.replace(
+                p.match, edge_tolerance=0.005, max_residual_m=0.001, retry_relaxed=False
+            ),
+        )
+    )
+    finish(s, a.separate.trigger, "separation_finished")
+    finish(s, a.skeleton.trigger, "skeletons_finished")
+    finish(s, a.match.trigger, "matches_changed")
+    ranked = s.matches
+    assert ranked and all(c.origin == "trunk" for c in ranked)
+    model = win.matches_panel.model
+    assert model.data(model.index(0, 3)) == "trunk"  # the volume column
+    assert model.data(model.index(0, 4)) == "—"
+    for view in win.scans_area.views():
+        assert "match_vertices" not in view.actor_names()
+    assert s.coarse.verified
+    with qtbot.waitSignal(s.review_changed):
+        win.matches_panel.reject_button.click()
+    assert s.coarse.candidate.id == ranked[1].id
+    with qtbot.waitSignal(s.review_changed):
+        win.matches_panel.table.selectRow(0)
+        win.matches_panel.restore_button.click()
+    assert s.coarse.candidate.id == ranked[0].id
+    finish(s, a.accept_coarse.trigger, "coarse_accepted")
+    (fine,) = finish(s, a.run_fine.trigger, "fine_finished")
+    assert s.truth_errors()["fine"].gt_rmse_m < 0.05
