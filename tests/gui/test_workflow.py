@@ -144,7 +144,8 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     finish(s, a.skeleton.trigger, "skeletons_finished")
     finish(s, a.match.trigger, "matches_changed")
     ranked = s.matches
-    assert ranked and all(c.origin == "trunk" for c in ranked)
+    assert ranked
+    assert all(c.origin == "trunk" for c in ranked)
     model = win.matches_panel.model
     assert model.data(model.index(0, 3)) == "trunk"  # the volume column
     assert model.data(model.index(0, 4)) == "—"
@@ -160,4 +161,5 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     assert s.coarse.candidate.id == ranked[0].id
     finish(s, a.accept_coarse.trigger, "coarse_accepted")
     (fine,) = finish(s, a.run_fine.trigger, "fine_finished")
+    assert fine.converged
     assert s.truth_errors()["fine"].gt_rmse_m < 0.05
