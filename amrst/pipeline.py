@@ -275,10 +275,7 @@ def _add_trunk_solutions(
     search = search_yaw(
         target.xyz, source.xyz, params.trunk, SubReporter(reporter, 0, 0.6, "search")
     )
-    log.info(
-        "No tetrahedron match verified: trunk heading search kept %d heading(s)",
-        len(search.solutions),
-    )
+    log.info("Trunk heading search kept %d heading(s)", len(search.solutions))
     # Rank the kept headings by a quick fine registration, then refine the best one
     # with the full settings (the others stay as the quick pass left them).
     choice = params.trunk.fine_points

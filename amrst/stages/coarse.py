@@ -523,12 +523,23 @@ def choose_coarse(
     else:
         fit = min(1.0, best.score / SCORE_FULL_CREDIT)
     conf = separation * fit
-    verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
     if best.origin == "trunk":
-        # A refined trunk solution that beats every other heading clearly also counts.
-        verified = verified or (
-            best.precise_score >= MIN_PRECISE_SCORE and separation >= MIN_SEPARATION
+        # Trunk solutions had a fine registration, so even a wrong heading scores
+        # 0.2-0.3 at 4 cm: only the tight score and a clear lead verify one. The lead
+        # needs something to lead: a distinct rival heading, or other headings that
+        # converged to the same pose (a single kept heading verifies nothing).
+        agree = sum(
+            c.origin == "trunk"
+            and not _distinct(c.T_target_source, best.T_target_source, centre)
+            for c in left[1:]
         )
+        verified = bool(
+            (rivals or agree)
+            and best.precise_score >= MIN_PRECISE_SCORE
+            and separation >= MIN_SEPARATION
+        )
+    else:
+        verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
     if best.origin == "trunk" and verified:
         msg = (
             f"Candidate {best.rank} (trunk heading search): {best.precise_score:.0%} of the sampled source points "

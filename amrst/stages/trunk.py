@@ -26,6 +26,7 @@ from amrst.stages.coarse import (
     _distinct,
     _polish,
     _weighted_centres,
+    choose_coarse,
     verification_sample,
 )
 from amrst.types import Transform, make_transform
@@ -370,11 +371,11 @@ def merge_trunk_solutions(
     for k, (sol, T) in enumerate(zip(search.solutions, refined, strict=True)):
         score, precise = float(scores[k]), float(precises[k])
         expl = (
-            f"Trunk heading search: trunk bases matched (target trunk r = {tb.radius_m * 100:.0f} cm, "
-            f"source r = {sb.radius_m * 100:.0f} cm), heading started at {sol.start_yaw_deg:.0f}°, "
+            f"Trunk heading search: trunk bases matched ({_radius_text(tb, 'target')}, "
+            f"{_radius_text(sb, 'source')}), heading started at {sol.start_yaw_deg:.0f}°, "
             f"levelled ICP polish, then fine registration on {fine_points[k]} points: {precise:.0%} of sampled source points lie within "
             f"{precise_dist_m * 100:.1f} cm of the target, {score:.0%} within {params.tight_dist_m * 100:.0f} cm. "
-            "Not a tetrahedron match: offered because no tetrahedron match verified."
+            "Not a tetrahedron match."
         )
         trunk.append(
             Candidate(
@@ -399,8 +400,29 @@ def merge_trunk_solutions(
         )
     trunk.sort(key=lambda c: -c.precise_score)
     tetra = list(candidates.candidates)
+    centre = source_xyz.mean(axis=0)
+
+    def verifies(cands: list[Candidate]) -> bool:
+        return (
+            bool(cands)
+            and choose_coarse(
+                CandidateList(tuple(cands), 0), frozenset(), centre
+            ).verified
+        )
+
+    # A verified trunk solution goes above unverified tetrahedron matches, whatever
+    # their 4 cm scores; otherwise the higher 4 cm score leads.
     best_tetra = max((c.score for c in tetra), default=-1.0)
-    first = bool(trunk) and trunk[0].score > best_tetra
+    if verifies(trunk) != verifies(tetra):
+        first = verifies(trunk)
+    else:
+        first = bool(trunk) and trunk[0].score > best_tetra
     merged = trunk + tetra if first else tetra + trunk
     merged = [replace(c, rank=r) for r, c in enumerate(merged, start=1)]
     return CandidateList(tuple(merged), candidates.n_matches)
+
+
+def _radius_text(base: TrunkBase, role: str) -> str:
+    if np.isfinite(base.radius_m):
+        return f"{role} trunk r = {base.radius_m * 100:.0f} cm"
+    return f"{role} trunk centre from the slice median, no circle fitted"
