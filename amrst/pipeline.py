@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from amrst.errors import InvalidInput, RegistrationFailed
+from amrst.errors import Cancelled, InvalidInput, RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.coarse import (
     CandidateList,
@@ -290,14 +290,14 @@ def _add_trunk_solutions(
         ),
     )
     refined, used, done = [], [], None
+    n = len(search.solutions)
     for k, sol in enumerate(search.solutions):
+        step = SubReporter(reporter, 0.6 + 0.3 * k / n, 0.6 + 0.3 * (k + 1) / n)
         refined.append(
-            refine(target, source, sol.T_target_source, quick).T_target_source
+            refine(target, source, sol.T_target_source, quick, step).T_target_source
         )
         used.append(tries[0])
-        reporter.progress(
-            0.6 + 0.3 * (k + 1) / len(search.solutions), "refining the best headings"
-        )
+        step.progress(1.0, "refining the best headings")
     if refined:
         best = int(np.argmax(_precise(refined, target, source, params)))
         fits = [
@@ -306,8 +306,13 @@ def _add_trunk_solutions(
                 source,
                 refined[best],
                 replace(params, fine=replace(params.fine, points=points)),
+                SubReporter(
+                    reporter,
+                    0.9 + 0.1 * i / len(tries),
+                    0.9 + 0.1 * (i + 1) / len(tries),
+                ),
             )
-            for points in tries
+            for i, points in enumerate(tries)
         ]
         pick = int(
             np.argmax(
@@ -418,20 +423,40 @@ def both_scans(fn, target_item, source_item, reporter: Reporter = NULL_REPORTER)
 
     The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
     made them 1.24-1.37x faster on this 2-core machine; results are the same as one
-    after the other. Progress is the mean of the two (monotonic); an error is raised
-    as the serial order would have raised it (the target's first).
+    after the other. Progress is the mean of the two (monotonic). When one task fails
+    (or the caller is interrupted) the other stops at its next cancel check instead
+    of running to the end; the error is raised as the serial order would have raised
+    it (the target's first).
     """
     from concurrent.futures import ThreadPoolExecutor
 
     shared = SharedReporter(reporter, 2)
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
         jobs = [
-            pool.submit(fn, item, shared.task(i, role))
+            pool.submit(_stop_sibling_on_error, fn, item, shared.task(i, role), shared)
             for i, (item, role) in enumerate(
                 ((target_item, "target"), (source_item, "source"))
             )
         ]
-        return jobs[0].result(), jobs[1].result()
+        try:
+            results = [job.result() for job in jobs]
+        except BaseException:
+            shared.stop()
+            for job in jobs:  # the real error over the Cancelled it caused
+                if job.done() and not job.cancelled():
+                    exc = job.exception()
+                    if exc is not None and not isinstance(exc, Cancelled):
+                        raise exc from None
+            raise
+    return results[0], results[1]
+
+
+def _stop_sibling_on_error(fn, item, rep: Reporter, shared: SharedReporter):
+    try:
+        return fn(item, rep)
+    except BaseException:
+        shared.stop()
+        raise
 
 
 def register(

@@ -106,6 +106,11 @@ class SharedReporter:
         self._parent, self._start, self._span = parent, start, stop - start
         self._done = [0.0] * n
         self._lock = threading.Lock()
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        """Make every task's next cancel check raise Cancelled (a sibling failed)."""
+        self._stop.set()
 
     def task(self, i: int, label: str = "") -> Reporter:
         """The reporter task ``i`` reports to."""
@@ -118,6 +123,8 @@ class SharedReporter:
             self._parent.progress(self._start + self._span * total, message)
 
     def check_cancelled(self) -> None:
+        if self._stop.is_set():
+            raise Cancelled()
         self._parent.check_cancelled()
 
 

@@ -54,3 +54,37 @@ def test_shared_reporter_passes_cancel_on() -> None:
     parent.cancel()
     with pytest.raises(Cancelled):
         SharedReporter(parent, 2).task(1).check_cancelled()
+
+
+def test_both_scans_stops_the_sibling_when_one_fails() -> None:
+    import time
+
+    from amrst.pipeline import both_scans
+
+    laps = []
+
+    def work(item, rep):
+        if item == "bad":
+            time.sleep(0.05)
+            raise ValueError("source is corrupt")
+        for k in range(2000):  # 20 s if nobody stops it
+            rep.check_cancelled()
+            laps.append(k)
+            time.sleep(0.01)
+        return item
+
+    with pytest.raises(ValueError, match="corrupt"):
+        both_scans(work, "good", "bad")
+    assert len(laps) < 1000
+
+
+def test_both_scans_returns_both_in_order_and_raises_the_target_error_first() -> None:
+    from amrst.pipeline import both_scans
+
+    assert both_scans(lambda item, rep: item * 2, 1, 2) == (2, 4)
+
+    def fail(item, rep):
+        raise KeyError(item)
+
+    with pytest.raises(KeyError, match="target"):
+        both_scans(fail, "target", "source")
