@@ -159,12 +159,18 @@ def _cmd_register(args: argparse.Namespace) -> int:
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
     if not verified:
+        ran = "trunk" in result.timings
+        trunk_note = (
+            ", and the trunk heading search found no heading that clearly beats the others"
+            if ran
+            else ""
+        )
         print(
             f"Registration failed: no verified candidate. The best solution puts only "
             f"{result.coarse.candidate.score:.0%} of the sampled source points within "
             f"{params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or "
-            "more on the benchmark), and the trunk heading search found no heading that "
-            'clearly beats the others. The files above are marked "verified": false. Check '
+            f"more on the benchmark){trunk_note}. The files above are marked "
+            '"verified": false. Check '
             "that both scans show the same tree, review the matches in amrst-gui, or try "
             '--preset "Leaf-on broadleaf" / a larger edge tolerance.',
             file=sys.stderr,

@@ -145,7 +145,13 @@ class ResultsMixin:
         used = self._step_params.get(step)
         if used is None:
             return True
-        for group in steps.groups_for(step):
+        groups = steps.groups_for(step)
+        if step in ("match", "coarse") and any(
+            c.origin == "trunk" for c in self.matches
+        ):
+            # Trunk-search solutions were refined and verified with the fine settings.
+            groups = (*groups, "fine")
+        for group in groups:
             if not steps.values_equal(
                 getattr(used, group), getattr(self._params, group)
             ):
@@ -217,6 +223,10 @@ class ResultsMixin:
             "coarse_match_rank": None
             if coarse.candidate is None
             else int(coarse.candidate.rank),
+            "coarse_origin": None
+            if coarse.candidate is None
+            else str(coarse.candidate.origin),
+            "verified": bool(coarse.verified),
             "rejected_match_ids": sorted(int(i) for i in self._rejected),
         }
         if fine is not None:

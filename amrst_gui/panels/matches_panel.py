@@ -105,7 +105,7 @@ class CandidateModel(QAbstractTableModel):
         if role == Qt.FontRole and status:
             font = QFont()
             font.setStrikeOut(status == "rejected")
-            font.setBold(status.startswith("coarse"))
+            font.setBold(status.endswith("coarse"))
             return font
         if role == Qt.UserRole:
             return int(cand.id)

@@ -152,6 +152,16 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     for view in win.scans_area.views():
         assert "match_vertices" not in view.actor_names()
     assert s.coarse.verified
+    # They were verified with the fine settings: changing those makes them stale.
+    used = s.params
+    s.set_params(
+        dataclasses.replace(
+            used, fine=dataclasses.replace(used.fine, max_corr_dist_m=0.5)
+        )
+    )
+    assert s.is_stale("match")
+    s.set_params(used)
+    assert not s.is_stale("match")
     with qtbot.waitSignal(s.review_changed):
         win.matches_panel.reject_button.click()
     assert s.coarse.candidate.id == ranked[1].id
