@@ -110,7 +110,7 @@ class TrunkParams:
         },
     )
     keep: int = field(
-        default=4,
+        default=3,
         metadata={
             "unit": "solutions",
             "min": 1,
