@@ -159,20 +159,38 @@ def _cmd_register(args: argparse.Namespace) -> int:
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
     if not verified:
-        ran = "trunk" in result.timings
-        trunk_note = (
-            ", and the trunk heading search found no heading that clearly beats the others"
-            if ran
-            else ""
-        )
+        best = result.coarse.candidate
+        if best.origin == "trunk":
+            runner = result.coarse.runner_up_score
+            versus = (
+                f"against {runner:.0%} within {params.coarse.tight_dist_m * 100:.0f} cm "
+                "for the next heading, which is not a clear lead"
+                if runner > 0
+                else "with no other heading to compare it with"
+            )
+            why = (
+                f"The best solution comes from the trunk heading search: "
+                f"{best.precise_score:.0%} of the sampled source points lie within "
+                f"{params.trunk.score_dist_m * 100:.1f} cm of the target, {versus} "
+                "(a round or symmetric stem, or scans that share little, fit several "
+                "headings equally well)."
+            )
+        else:
+            why = (
+                f"The best solution puts only {best.score:.0%} of the sampled source points "
+                f"within {params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one "
+                "puts 45% or more on the benchmark)"
+                + (
+                    ", and the trunk heading search found no heading that clearly beats the others."
+                    if "trunk" in result.timings
+                    else "."
+                )
+            )
         print(
-            f"Registration failed: no verified candidate. The best solution puts only "
-            f"{result.coarse.candidate.score:.0%} of the sampled source points within "
-            f"{params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or "
-            f"more on the benchmark){trunk_note}. The files above are marked "
-            '"verified": false. Check '
-            "that both scans show the same tree, review the matches in amrst-gui, or try "
-            '--preset "Leaf-on broadleaf" / a larger edge tolerance.',
+            f"Registration failed: no verified candidate. {why} The files above are marked "
+            '"verified": false. Check that both scans show the same tree, review the '
+            'matches in amrst-gui, or try --preset "Leaf-on broadleaf" / a larger edge '
+            "tolerance.",
             file=sys.stderr,
         )
         return EXIT_FAILED

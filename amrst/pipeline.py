@@ -193,21 +193,29 @@ def find_matches(
         raise RegistrationFailed(
             "Build the skeletons and key points of both scans first."
         )
-    for name, an in (("target", target), ("source", source)):
-        if len(an.keypoints.xyz) < 4:
-            raise RegistrationFailed(
-                f"The {name} skeleton has only {len(an.keypoints.xyz)} key points; 4 are needed for a "
-                "tetrahedron. Raise the depth rule (max_depth), lower the pruning length, or skeletonise all points."
-            )
+    few = [
+        f"The {name} skeleton has only {len(an.keypoints.xyz)} key points; 4 are needed for a "
+        "tetrahedron. Raise the depth rule (max_depth), lower the pruning length, or skeletonise all points."
+        for name, an in (("target", target), ("source", source))
+        if len(an.keypoints.xyz) < 4
+    ]
+    trunk_available = params.trunk.mode != "off" and params.match.levelled
+    if few and not trunk_available:
+        raise RegistrationFailed(few[0])
     timings: dict = {}
     t0 = time.perf_counter()
-    tetra = match_tetrahedra(
-        target.keypoints.xyz,
-        source.keypoints.xyz,
-        params.match,
-        SubReporter(reporter, 0, 0.4, "matching"),
-    )
-    if len(tetra.T_target_source) == 0 and params.match.retry_relaxed:
+    if few:
+        # No tetrahedron to match: the trunk heading search may still register them.
+        log.warning("%s Trying the trunk heading search alone.", few[0])
+        tetra = _no_tetrahedra()
+    else:
+        tetra = match_tetrahedra(
+            target.keypoints.xyz,
+            source.keypoints.xyz,
+            params.match,
+            SubReporter(reporter, 0, 0.4, "matching"),
+        )
+    if len(tetra.T_target_source) == 0 and params.match.retry_relaxed and not few:
         # One retry with looser tolerances before giving up (said in the log).
         m = params.match
         relaxed = replace(
@@ -246,6 +254,21 @@ def find_matches(
         _timed(timings, "trunk", t0)
     return MatchResult(
         tetra, ranked.candidates, ranked.n_matches, timings, centre, finished
+    )
+
+
+def _no_tetrahedra() -> TetraMatches:
+    empty = np.zeros(0)
+    return TetraMatches(
+        np.zeros((0, 4), np.int64),
+        np.zeros((0, 4), np.int64),
+        np.zeros((0, 4, 4)),
+        empty,
+        empty,
+        empty,
+        0,
+        0,
+        0,
     )
 
 

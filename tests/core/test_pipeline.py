@@ -191,10 +191,19 @@ def test_find_matches_needs_four_key_points(sample_run) -> None:
         kp.xyz[:3], kp.kind[:3], kp.weight[:3], kp.node[:3], kp.depth[:3]
     )
     few = dataclasses.replace(r.source, keypoints=three)
+    no_trunk = dataclasses.replace(
+        r.params, trunk=dataclasses.replace(r.params.trunk, mode="off")
+    )
     with pytest.raises(
         RegistrationFailed, match="source skeleton has only 3 key points"
     ):
-        find_matches(r.target, few, r.params)
+        find_matches(r.target, few, no_trunk)
+    # With the trunk heading search (the default) there is still something to offer.
+    m = find_matches(r.target, few, r.params)
+    assert m.n_matches == 0
+    assert m.candidates
+    assert all(c.origin == "trunk" for c in m.candidates)
+    assert coarse_from_matches(m).verified
     bare = dataclasses.replace(r.target, skeleton=None, keypoints=None)
     with pytest.raises(RegistrationFailed, match="key points of both scans first"):
         find_matches(bare, r.source, r.params)
