@@ -207,7 +207,7 @@ def find_matches(
     if few:
         # No tetrahedron to match: the trunk heading search may still register them.
         log.warning("%s Trying the trunk heading search alone.", few[0])
-        tetra = _no_tetrahedra()
+        tetra = TetraMatches.empty()
     else:
         tetra = match_tetrahedra(
             target.keypoints.xyz,
@@ -254,21 +254,6 @@ def find_matches(
         _timed(timings, "trunk", t0)
     return MatchResult(
         tetra, ranked.candidates, ranked.n_matches, timings, centre, finished
-    )
-
-
-def _no_tetrahedra() -> TetraMatches:
-    empty = np.zeros(0)
-    return TetraMatches(
-        np.zeros((0, 4), np.int64),
-        np.zeros((0, 4), np.int64),
-        np.zeros((0, 4, 4)),
-        empty,
-        empty,
-        empty,
-        0,
-        0,
-        0,
     )
 
 

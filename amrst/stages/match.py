@@ -137,6 +137,22 @@ class TetraMatches:
     n_source_tetra: int
     n_descriptor_pairs: int  # descriptor pairs found before the checks
 
+    @classmethod
+    def empty(cls, n_target_tetra: int = 0, n_source_tetra: int = 0) -> TetraMatches:
+        """No matches (with the tetrahedron counts that were compared, if any)."""
+        none = np.zeros(0)
+        return cls(
+            np.zeros((0, 4), np.int64),
+            np.zeros((0, 4), np.int64),
+            np.zeros((0, 4, 4)),
+            none,
+            none,
+            none,
+            n_target_tetra,
+            n_source_tetra,
+            0,
+        )
+
 
 @functools.lru_cache(maxsize=4)
 def _combinations4(n: int) -> np.ndarray:
@@ -333,17 +349,7 @@ def match_tetrahedra(
     tq, te, tv = _tetrahedra(target_kp, params)
     sq, se, sv = _tetrahedra(source_kp, params)
     reporter.progress(0.2, f"{len(tq)} / {len(sq)} tetrahedra")
-    empty = TetraMatches(
-        np.zeros((0, 4), int),
-        np.zeros((0, 4), int),
-        np.zeros((0, 4, 4)),
-        np.zeros(0),
-        np.zeros(0),
-        np.zeros(0),
-        len(tq),
-        len(sq),
-        0,
-    )
+    empty = TetraMatches.empty(len(tq), len(sq))
     if len(tq) == 0 or len(sq) == 0:
         return empty
     # Scaled so that the Chebyshev ball of radius 1 is the tolerance on every entry.

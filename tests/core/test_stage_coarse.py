@@ -117,17 +117,7 @@ def test_transforms_a_millimetre_apart_are_one_solution(tiny_tree) -> None:
 
 
 def test_no_match_gives_an_empty_list_and_a_clear_failure() -> None:
-    empty = TetraMatches(
-        np.zeros((0, 4), int),
-        np.zeros((0, 4), int),
-        np.zeros((0, 4, 4)),
-        np.zeros(0),
-        np.zeros(0),
-        np.zeros(0),
-        0,
-        0,
-        0,
-    )
+    empty = TetraMatches.empty()
     pts = np.random.default_rng(0).uniform(0, 1, (100, 3))
     ranked = rank_candidates(empty, pts, pts, CoarseParams())
     assert ranked == CandidateList((), 0)
