@@ -280,8 +280,15 @@ def _add_trunk_solutions(
     Returns the merged list and ``{candidate id: FineResult}`` for the solution that
     already had its full fine registration.
     """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(target.xyz)  # one tree for the sweep and every score below
     search = search_yaw(
-        target.xyz, source.xyz, params.trunk, SubReporter(reporter, 0, 0.6, "search")
+        target.xyz,
+        source.xyz,
+        params.trunk,
+        SubReporter(reporter, 0, 0.6, "search"),
+        target_tree=tree,
     )
     log.info("Trunk heading search kept %d heading(s)", len(search.solutions))
     # Rank the kept headings by a quick fine registration, then refine the best one
@@ -307,7 +314,7 @@ def _add_trunk_solutions(
         used.append(tries[0])
         step.progress(1.0, "refining the best headings")
     if refined:
-        best = int(np.argmax(_precise(refined, target, source, params)))
+        best = int(np.argmax(_precise(refined, tree, source, params)))
         fits = [
             refine(
                 target,
@@ -323,9 +330,7 @@ def _add_trunk_solutions(
             for i, points in enumerate(tries)
         ]
         pick = int(
-            np.argmax(
-                _precise([f.T_target_source for f in fits], target, source, params)
-            )
+            np.argmax(_precise([f.T_target_source for f in fits], tree, source, params))
         )
         refined[best], used[best] = fits[pick].T_target_source, tries[pick]
         done = fits[pick]
@@ -333,7 +338,7 @@ def _add_trunk_solutions(
         ranked,
         search,
         refined,
-        target.xyz,
+        tree,
         source.xyz,
         params.coarse,
         params.trunk.score_dist_m,
@@ -352,13 +357,13 @@ def _add_trunk_solutions(
 
 def _precise(
     transforms: list[Transform],
-    target: ScanAnalysis,
+    target_tree,
     source: ScanAnalysis,
     params: RegistrationParams,
 ) -> np.ndarray:
     """Share of sampled source points within trunk.score_dist_m under each transform."""
     return score_transforms(
-        transforms, target.xyz, source.xyz, params.coarse, params.trunk.score_dist_m
+        transforms, target_tree, source.xyz, params.coarse, params.trunk.score_dist_m
     )[1]
 
 

@@ -237,6 +237,7 @@ def search_yaw(
     source_xyz: np.ndarray,
     params: TrunkParams,
     reporter: Reporter = NULL_REPORTER,
+    target_tree=None,
 ) -> TrunkSearchResult:
     """Sweep the source heading about its trunk base and keep the best distinct fits.
 
@@ -266,7 +267,8 @@ def search_yaw(
     sample = source_xyz[
         rng.choice(len(source_xyz), min(params.points, len(source_xyz)), replace=False)
     ]
-    tree, full_tree = cKDTree(tgt), cKDTree(target_xyz)
+    tree = cKDTree(tgt)
+    full_tree = cKDTree(target_xyz) if target_tree is None else target_tree
     yaws = np.arange(0.0, 360.0, params.yaw_step_deg)
     starts = np.stack(
         [
@@ -302,22 +304,21 @@ def search_yaw(
 
 def score_transforms(
     transforms: list[Transform],
-    target_xyz: np.ndarray,
+    target_tree,
     source_xyz: np.ndarray,
     params: CoarseParams,
     precise_dist_m: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Share of sampled source points within ``tight_dist_m`` and within
     ``precise_dist_m`` of the target under each transform (the same seeded sample as
-    the ranking uses)."""
-    from scipy.spatial import cKDTree
-
+    the ranking uses). ``target_tree`` is a cKDTree on the target points."""
     sample = verification_sample(source_xyz, params)[0]
-    tree = cKDTree(target_xyz)
     reach = max(params.tight_dist_m, precise_dist_m)
     out = np.zeros((2, len(transforms)))
     for k, T in enumerate(transforms):
-        d = tree.query(sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=reach)[0]
+        d = target_tree.query(
+            sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=reach
+        )[0]
         out[:, k] = np.mean(d < params.tight_dist_m), np.mean(d < precise_dist_m)
     return out[0], out[1]
 
@@ -326,7 +327,7 @@ def merge_trunk_solutions(
     candidates: CandidateList,
     search: TrunkSearchResult,
     refined: list[Transform],
-    target_xyz: np.ndarray,
+    target_tree,
     source_xyz: np.ndarray,
     params: CoarseParams,
     precise_dist_m: float,
@@ -341,7 +342,8 @@ def merge_trunk_solutions(
     search : TrunkSearchResult
     refined : list of (4, 4) transforms
         Each ``search.solutions[k]`` after fine registration.
-    target_xyz, source_xyz : (N, 3), (M, 3) float64
+    target_tree : cKDTree on the target points
+    source_xyz : (M, 3) float64
     params : CoarseParams
     precise_dist_m : float
         Distance of the precise score that orders the trunk solutions.
@@ -357,7 +359,7 @@ def merge_trunk_solutions(
     from dataclasses import replace
 
     scores, precises = score_transforms(
-        refined, target_xyz, source_xyz, params, precise_dist_m
+        refined, target_tree, source_xyz, params, precise_dist_m
     )
     base = 1 + max((c.id for c in candidates.candidates), default=0)
     tb, sb = search.target_base, search.source_base
