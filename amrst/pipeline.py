@@ -384,15 +384,21 @@ def refine(
     start: Transform | CoarseResult,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
+    matches: MatchResult | None = None,
 ) -> FineResult:
     """Fine registration from a coarse local-frame transform or an accepted coarse result.
 
     A coarse result from the trunk heading search is refined on the point set its
     verification chose (``Candidate.fine_points``); anything else on ``fine.points``.
+    When ``matches`` already holds this candidate's full fine registration (the trunk
+    search makes one while verifying), that result is returned instead of a second run.
     """
     which = params.fine.points
     T_init = start
     if isinstance(start, CoarseResult):
+        if matches is not None and start.candidate.id in matches.refined:
+            reporter.progress(1.0, "already refined while verifying")
+            return matches.refined[start.candidate.id]
         T_init = start.T_target_source
         if start.candidate.fine_points:
             which = start.candidate.fine_points
@@ -514,12 +520,13 @@ def register(
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()
-    fine = matches.refined.get(coarse.candidate.id) or refine(
+    fine = refine(
         tgt,
         src,
         coarse,
         params,
         SubReporter(reporter, 0.85, 0.95, "fine"),
+        matches,
     )
     t_fine = time.perf_counter() - t0
     t0 = time.perf_counter()

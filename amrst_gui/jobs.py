@@ -90,10 +90,11 @@ def evaluate_coarse(
 
 
 def refine_pair(
-    analyses: dict, coarse: Any, params: Any, reporter: Reporter
+    analyses: dict, coarse: Any, params: Any, reporter: Reporter, matches: Any = None
 ) -> tuple[tuple[Any, Any], float]:
     """Fine registration from the accepted ``coarse`` result (a CoarseResult or a
-    transform); returns ``(FineResult, CloudMetrics)``."""
+    transform), reusing a fit the match step already made for it (``matches``);
+    returns ``(FineResult, CloudMetrics)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -103,6 +104,7 @@ def refine_pair(
         coarse,
         params,
         SubReporter(reporter, 0, 0.9),
+        matches,
     )
     reporter.check_cancelled()
     reporter.progress(0.9, "Measuring the fine alignment")

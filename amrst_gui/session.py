@@ -8,6 +8,7 @@ are applied here, on the GUI thread. This module imports no widgets.
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 from typing import Any
@@ -280,7 +281,9 @@ class Session(ResultsMixin, QObject):
                     "search verified this solution with (not fine.points).",
                     points,
                 )
-            self._launch(step, jobs.refine_pair, dict(an), self._accepted, p)
+            # A trunk solution's full fit was made while matching: reuse it.
+            refine = functools.partial(jobs.refine_pair, matches=self._matches)
+            self._launch(step, refine, dict(an), self._accepted, p)
 
     def _launch(self, step: str, fn, *args) -> None:
         log.info("%s: started%s", self._label(step), self._params_text(step))

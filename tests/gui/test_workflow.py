@@ -172,4 +172,6 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     finish(s, a.accept_coarse.trigger, "coarse_accepted")
     (fine,) = finish(s, a.run_fine.trigger, "fine_finished")
     assert fine.converged
+    # The full fit the match step made for this solution, not a second run.
+    assert fine is s.match_result.refined[ranked[0].id]
     assert s.truth_errors()["fine"].gt_rmse_m < 0.05
