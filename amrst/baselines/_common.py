@@ -147,3 +147,24 @@ def evaluate(
     inside = np.isfinite(d)
     rmse = float(np.sqrt(np.mean(d[inside] ** 2))) if inside.any() else float("nan")
     return float(inside.mean()), rmse
+
+
+def finish(
+    tgt: np.ndarray,
+    src: np.ndarray,
+    T_local: Transform,
+    origin: np.ndarray,
+    clock: Stopwatch,
+    **fields,
+) -> MethodResult:
+    """Stop ``clock`` (the fitness below is not timed), score the move and wrap it as a
+    MethodResult in world coordinates; ``fields`` are the remaining MethodResult fields."""
+    timings = clock.finish()
+    fitness, rmse = evaluate(tgt, src, T_local)
+    return MethodResult(
+        to_world(T_local, origin),
+        timings,
+        fitness=fitness,
+        inlier_rmse_m=rmse,
+        **fields,
+    )

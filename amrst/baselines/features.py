@@ -14,10 +14,9 @@ import numpy as np
 from amrst.baselines._common import (
     MethodResult,
     Stopwatch,
-    evaluate,
+    finish,
     local_pair,
     to_o3d,
-    to_world,
 )
 from amrst.types import Cloud, Transform
 
@@ -164,14 +163,8 @@ def _register(
     T_global = np.asarray(res.transformation).copy()
     with clock.stage("refine"):
         T = refine_point_to_plane(tgt, src, T_global, params)
-    timings = clock.finish()
-    fitness, rmse = evaluate(tgt, src, T)
-    return MethodResult(
-        to_world(T, origin),
-        timings,
-        fitness=fitness,
-        inlier_rmse_m=rmse,
-        extra={"global_fitness": float(res.fitness)},
+    return finish(
+        tgt, src, T, origin, clock, extra={"global_fitness": float(res.fitness)}
     )
 
 

@@ -14,10 +14,9 @@ import numpy as np
 from amrst.baselines._common import (
     MethodResult,
     Stopwatch,
-    evaluate,
+    finish,
     local_pair,
     to_o3d,
-    to_world,
 )
 from amrst.types import Cloud, Transform, make_transform
 
@@ -96,14 +95,7 @@ def _run(
     if centroid:
         T_init = make_transform(np.eye(3), tgt.mean(axis=0) - src.mean(axis=0))
     T = icp_point_to_point(tgt, src, T_init, params, clock)
-    timings = clock.finish()
-    fitness, rmse = evaluate(tgt, src, T)
-    return MethodResult(
-        to_world(T, origin),
-        timings,
-        fitness=fitness,
-        inlier_rmse_m=rmse,
-    )
+    return finish(tgt, src, T, origin, clock)
 
 
 def register_icp(

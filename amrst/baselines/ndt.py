@@ -20,10 +20,9 @@ import numpy as np
 from amrst.baselines._common import (
     MethodResult,
     Stopwatch,
-    evaluate,
+    finish,
     local_pair,
     to_local,
-    to_world,
     voxel_down,
 )
 from amrst.types import Cloud, Transform, make_transform
@@ -294,13 +293,6 @@ def register_ndt(
         else to_local(np.asarray(T_init, dtype=float), origin)
     )
     T, iterations, converged = ndt_align(tgt, src, start, params, clock)
-    timings = clock.finish()
-    fitness, rmse = evaluate(tgt, src, T)
-    return MethodResult(
-        to_world(T, origin),
-        timings,
-        fitness=fitness,
-        inlier_rmse_m=rmse,
-        iterations=iterations,
-        converged=converged,
+    return finish(
+        tgt, src, T, origin, clock, iterations=iterations, converged=converged
     )
