@@ -18,6 +18,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst_gui.drops import FileDropMixin
+
 _TITLES = {
     "target": "Target (reference, stays fixed)",
     "source": "Source (moved onto target)",
@@ -33,7 +35,7 @@ def _describe(cloud) -> str:
         return ""
 
 
-class _RoleBox(QGroupBox):
+class _RoleBox(FileDropMixin, QGroupBox):
     dropped = Signal(list)
 
     def __init__(self, role: str, parent: QWidget) -> None:
@@ -87,17 +89,8 @@ class _RoleBox(QGroupBox):
         )
         self.setToolTip(_describe(cloud) or "Drop a scan file here to replace it")
 
-    def dragEnterEvent(self, event) -> None:
-        if event.mimeData().hasUrls():
-            event.acceptProposedAction()
-
-    def dropEvent(self, event) -> None:
-        paths = [
-            Path(u.toLocalFile()) for u in event.mimeData().urls() if u.isLocalFile()
-        ]
-        if paths:
-            self.dropped.emit(paths)
-            event.acceptProposedAction()
+    def files_dropped_here(self, paths: list[Path]) -> None:
+        self.dropped.emit(paths)
 
 
 class ScansPanel(QWidget):

@@ -17,6 +17,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst_gui.drops import FileDropMixin
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import COLOUR_MODES, ViewOptions, build_scan_scene
@@ -38,7 +39,7 @@ RESULT_SIGNALS = (
 )
 
 
-class ScanPane(QWidget):
+class ScanPane(FileDropMixin, QWidget):
     """Layer toggles above one scan's 3D view.
 
     Listens to the session's result signals (``scan_loaded``, ``scans_swapped``,
@@ -131,17 +132,8 @@ class ScanPane(QWidget):
         else:
             self.refresh()
 
-    def dragEnterEvent(self, event) -> None:
-        if event.mimeData().hasUrls():
-            event.acceptProposedAction()
-
-    def dropEvent(self, event) -> None:
-        paths = [
-            Path(u.toLocalFile()) for u in event.mimeData().urls() if u.isLocalFile()
-        ]
-        if paths:
-            self.files_dropped.emit(self.role, paths)
-            event.acceptProposedAction()
+    def files_dropped_here(self, paths: list[Path]) -> None:
+        self.files_dropped.emit(self.role, paths)
 
 
 class ScansArea(QWidget):
