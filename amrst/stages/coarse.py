@@ -228,16 +228,28 @@ def _group(
     feat = np.hstack(
         [moved / params.same_solution_m, rotvec / params.same_solution_deg]
     )
-    near = cKDTree(feat).query_ball_point(feat, 1.0, p=np.inf)
-    assigned = np.zeros(len(T), dtype=bool)
+    # Neighbour pairs as arrays (query_ball_point's Python lists cost 4x more on
+    # thousands of matches), then a CSR adjacency that lists each match's neighbours.
+    n = len(T)
+    pairs = cKDTree(feat).query_pairs(1.0, p=np.inf, output_type="ndarray")
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    order = np.argsort(rows, kind="stable")
+    cols = cols[order]
+    indptr = np.searchsorted(rows[order], np.arange(n + 1))
+    residual = np.asarray(matches.svd_residual_m)
+    assigned = np.zeros(n, dtype=bool)
     groups = []
-    for leader in np.argsort(matches.svd_residual_m, kind="stable"):
+    for leader in np.argsort(residual, kind="stable"):
         if assigned[leader]:
             continue
-        members = [m for m in near[leader] if not assigned[m]]
+        near = cols[indptr[leader] : indptr[leader + 1]]
+        near = near[~assigned[near]]
+        # Leader first, then by residual; ties by index (as the sorted lists gave).
+        near = near[np.lexsort((near, residual[near]))]
+        members = np.concatenate([[leader], near]).astype(np.int64)
         assigned[members] = True
-        members.sort(key=lambda m: (m != leader, matches.svd_residual_m[m]))
-        groups.append(np.asarray(members, dtype=np.int64))
+        groups.append(members)
     return groups
 
 
