@@ -49,6 +49,15 @@ class FineParams:
             "help": "Thin both clouds to this voxel size for the fit (0 = all points).",
         },
     )
+    max_points: int = field(
+        default=5000,
+        metadata={
+            "unit": "points",
+            "min": 0,
+            "max": 10_000_000,
+            "help": "After thinning, at most this many source points (a seeded sample) drive the fit; the target keeps all. Time grows with it, accuracy hardly beyond a few thousand (0 = all).",
+        },
+    )
     max_corr_dist_m: float = field(
         default=0.15,
         metadata={
@@ -298,6 +307,11 @@ def refine_registration(
     if params.voxel_size_m > 0:
         source_xyz = source_xyz[_voxel_representatives(source_xyz, params.voxel_size_m)]
         target_xyz = target_xyz[_voxel_representatives(target_xyz, params.voxel_size_m)]
+    if 0 < params.max_points < len(source_xyz):
+        pick = np.random.default_rng(0).choice(
+            len(source_xyz), params.max_points, replace=False
+        )
+        source_xyz = source_xyz[np.sort(pick)]
     T = np.asarray(T_init, float).copy()
     tree = cKDTree(target_xyz)  # one tree for every scale and the final count
     nearest = _NearestCache(tree, target_xyz, len(source_xyz), _ladder(params)[0])
