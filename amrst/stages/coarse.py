@@ -168,11 +168,12 @@ MIN_VERIFIED_SCORE = 0.15
 # next heading scores at most half as much (see README, "Trunk heading search").
 MIN_PRECISE_SCORE = 0.03
 MIN_SEPARATION = 0.5
-POLISH_ITERATIONS = 25
+POLISH_ITERATIONS = 15
 POLISH_POINTS = 500
-# A polish iteration that moves less than this (m, rad) ends its scale.
-POLISH_STOP_M = 1e-4
-POLISH_STOP_RAD = 3e-5
+# A polish iteration that moves less than this (m, rad) ends its scale: the fine
+# stage follows, so the polish only has to bring a pose within the 4 cm tight score.
+POLISH_STOP_M = 5e-4
+POLISH_STOP_RAD = 1e-4
 
 
 class _Occupancy:
@@ -256,8 +257,8 @@ def _group(
 def _weighted_centres(p: np.ndarray, q: np.ndarray, w: np.ndarray):
     """Centroids of (B, n, 3) point sets under (B, n) 0/1 weights, and the offsets."""
     sw = w.sum(axis=1)[:, None]
-    pc = np.einsum("bn,bni->bi", w, p) / sw
-    qc = np.einsum("bn,bni->bi", w, q) / sw
+    pc = np.matmul(w[:, None, :], p)[:, 0] / sw
+    qc = np.matmul(w[:, None, :], q)[:, 0] / sw
     return pc, qc, p - pc[:, None], q - qc[:, None]
 
 
@@ -265,7 +266,7 @@ def _rigid_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Least-squares rigid fits q ≈ R p + t (Kabsch) of B point sets at once, each on
     its points with weight 1; (B, 4, 4)."""
     pc, qc, a, b = _weighted_centres(p, q, w)
-    u, _, vt = np.linalg.svd(np.einsum("bn,bni,bnj->bij", w, a, b))
+    u, _, vt = np.linalg.svd(np.matmul((a * w[..., None]).transpose(0, 2, 1), b))
     R = np.einsum("bji,bkj->bik", vt, u)  # V Uᵀ
     flip = np.linalg.det(R) < 0
     vt[flip, 2] *= -1
