@@ -51,6 +51,13 @@ class RunRecord:
     hausdorff_m: float = NAN
     hausdorff_p95_m: float = NAN
     overlap_fraction: float = NAN
+    # Share of source points within 2 / 4 cm of the target under the estimate and
+    # under the truth: when an unregistered estimate matches or beats the truth here,
+    # the scans cannot tell the two poses apart at that tolerance.
+    within_2cm: float = NAN
+    within_4cm: float = NAN
+    truth_within_2cm: float = NAN
+    truth_within_4cm: float = NAN
     time_s: float = NAN  # the method's own compute total (timings["total"])
     wall_s: float = NAN  # the whole call, including the method's self-evaluation
     fitness: float = NAN
@@ -113,6 +120,33 @@ def resolve_methods(
     return {m: METHODS[m] for m in methods}
 
 
+WITHIN_M = (0.02, 0.04)
+WITHIN_POINTS = 20_000
+
+
+def within_fractions(
+    target_xyz: np.ndarray, source_xyz: np.ndarray, transforms: Sequence[np.ndarray]
+) -> list[tuple[float, ...]]:
+    """For each transform, the share of source points (a seeded sample of at most
+    WITHIN_POINTS) that land within each WITHIN_M distance of the target."""
+    from scipy.spatial import cKDTree
+
+    if len(target_xyz) == 0 or len(source_xyz) == 0:
+        return [(NAN,) * len(WITHIN_M) for _ in transforms]
+    src = source_xyz
+    if len(src) > WITHIN_POINTS:
+        rng = np.random.default_rng(0)
+        src = src[rng.choice(len(src), WITHIN_POINTS, replace=False)]
+    tree = cKDTree(target_xyz)
+    out = []
+    for T in transforms:
+        d = tree.query(
+            apply_transform(T, src), distance_upper_bound=max(WITHIN_M), workers=-1
+        )[0]
+        out.append(tuple(float(np.mean(d < r)) for r in WITHIN_M))
+    return out
+
+
 def score(
     case: Case, method: str, repeat: int, result: MethodResult, wall_s: float
 ) -> RunRecord:
@@ -139,6 +173,9 @@ def score(
     errors = truth_errors(T_est, T_true, src)
     compute = float(result.timings.get("total", NAN))
     metrics = measure_clouds(case.target.xyz, apply_transform(T_est, src))
+    (est_2, est_4), (true_2, true_4) = within_fractions(
+        case.target.xyz, src, [T_est, T_true]
+    )
     return RunRecord(
         case=case.name,
         method=method,
@@ -146,6 +183,10 @@ def score(
         success=bool(errors.registered()),
         **errors.as_dict(),
         **{k: v for k, v in metrics.as_dict().items() if not k.startswith("n_")},
+        within_2cm=est_2,
+        within_4cm=est_4,
+        truth_within_2cm=true_2,
+        truth_within_4cm=true_4,
         time_s=compute if np.isfinite(compute) and compute >= 0 else wall_s,
         wall_s=wall_s,
         fitness=float(result.fitness),

@@ -193,3 +193,42 @@ def test_terminal_progress_writes_a_bar() -> None:
     bar.check_cancelled()
     assert "[#####.....]" in stream.getvalue()
     assert "case 1/2 x | icp" in stream.getvalue()
+
+
+def test_within_fractions_count_points_near_the_target() -> None:
+    from amrst.bench.run import within_fractions
+
+    grid = np.stack(np.meshgrid(*[np.arange(0.0, 1.0, 0.1)] * 3), -1).reshape(-1, 3)
+    near = make_transform(np.eye(3), [0.03, 0.0, 0.0])  # 3 cm off every point
+    far = make_transform(np.eye(3), [0.05, 0.0, 0.0])  # 5 cm: 0.1 m grid, 5 cm away
+    assert within_fractions(grid, grid, [np.eye(4), near, far]) == [
+        (1.0, 1.0),
+        (0.0, 1.0),
+        (0.0, 0.0),
+    ]
+
+
+def test_truth_check_says_when_the_data_prefer_the_estimate() -> None:
+    from amrst.bench.report import truth_check_markdown
+
+    def row(success, est, true):
+        return {
+            "success": success,
+            "error": "",
+            "within_2cm": est[0],
+            "within_4cm": est[1],
+            "truth_within_2cm": true[0],
+            "truth_within_4cm": true[1],
+        }
+
+    agg = {
+        ("a", "amrst"): row(True, (0.3, 0.5), (0.3, 0.5)),
+        ("b", "amrst"): row(False, (0.03, 0.10), (0.02, 0.08)),
+        ("c", "amrst"): row(False, (0.01, 0.02), (0.30, 0.50)),
+    }
+    text = truth_check_markdown(agg, ["a", "b", "c"])
+    lines = {ln.split(" |")[0].strip("| "): ln for ln in text.splitlines()}
+    assert lines["a"].endswith("| registered |")
+    assert "at least as well as the truth" in lines["b"]
+    assert "a wrong pose" in lines["c"]
+    assert "| 3.0% | 10.0% |" in lines["b"]
