@@ -15,14 +15,18 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-COLUMNS = ("#", "Score", "Supp.", "Vol. m³", "Edge err.", "SVD m", "Status")
+COLUMNS = ("#", "Score", "Supp.", "Vol. m³", "Edge err.", "SVD m", "Close", "Status")
 _TIPS = (
-    "Rank by verification score (1 = best)",
+    "Rank (1 = best): verified solutions first, then by score; the trunk heading "
+    "search's solutions among themselves by their close fit (Close column)",
     "Verification score 0-1: how well the whole clouds agree under this match",
     "How many tetrahedron matches agree with this solution",
     "Volume of the tetrahedron (m³); larger ones pin the pose down better",
     "Largest relative difference between corresponding edges",
     "SVD residual: RMS distance (m) of the four vertex pairs after the fit",
+    "Trunk heading search only: share of sampled source points within "
+    "trunk.score_dist_m (1.5 cm by default) of the target after fine registration; "
+    "it ranks the headings, as a wrong heading can still score well at 4 cm",
     "'coarse' = used for the coarse solution (best one not rejected)",
 )
 
@@ -93,6 +97,7 @@ class CandidateModel(QAbstractTableModel):
                 _num(cand.volume_m3, "{:.3f}", "trunk"),
                 _num(cand.edge_error, "{:.1%}"),
                 _num(cand.svd_residual_m, "{:.3f}"),
+                _num(getattr(cand, "precise_score", float("nan")), "{:.1%}"),
                 self.status(cand),
             )[col]
         if role == Qt.ToolTipRole:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from PySide6.QtCore import Qt
 
 
@@ -26,6 +27,8 @@ def test_full_workflow_review_accept_refine_export(
     ranked = s.matches
     assert len(ranked) >= 2
     assert win.matches_panel.model.rowCount() == len(ranked)
+    model = win.matches_panel.model
+    assert model.data(model.index(0, 6)) == "—"  # close fit: trunk solutions only
 
     # The best match is selected and drawn in both views, same vertex colours.
     assert s.selected_match.id == ranked[0].id
@@ -149,6 +152,10 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     model = win.matches_panel.model
     assert model.data(model.index(0, 3)) == "trunk"  # the volume column
     assert model.data(model.index(0, 4)) == "—"
+    # The close-fit share that orders the headings is shown, best first.
+    close = [float(model.data(model.index(r, 6)).rstrip("%")) for r in range(3)]
+    assert close == sorted(close, reverse=True)
+    assert close[0] == pytest.approx(100 * ranked[0].precise_score, abs=0.05)
     for view in win.scans_area.views():
         assert "match_vertices" not in view.actor_names()
     assert s.coarse.verified
