@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Iterator, Sequence
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from amrst.types import Cloud
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Sequence
+
+    from amrst.types import Cloud
 
 logger = logging.getLogger(__name__)
 

@@ -12,15 +12,18 @@ from __future__ import annotations
 
 import functools
 import logging
-from collections.abc import Mapping
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst._io_common import RawCloud, flat_attributes, storable
 from amrst.errors import InvalidInput
-from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+    from pathlib import Path
+
+    from amrst.types import Cloud
 
 logger = logging.getLogger(__name__)
 

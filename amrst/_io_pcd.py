@@ -7,8 +7,7 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 from __future__ import annotations
 
 import struct
-from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -23,7 +22,11 @@ from amrst._io_common import (
 )
 from amrst._io_text import parse_numbers
 from amrst.errors import InvalidInput
-from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.types import Cloud
 
 _KINDS = {"F": "f", "I": "i", "U": "u"}
 _MAX_HEADER_LINES = 100

@@ -6,8 +6,7 @@ uses numpy structured dtypes instead (private to amrst.io).
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -22,7 +21,11 @@ from amrst._io_common import (
 )
 from amrst._io_text import parse_numbers
 from amrst.errors import InvalidInput
-from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.types import Cloud
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",

@@ -11,8 +11,7 @@ from __future__ import annotations
 import io
 import logging
 import warnings
-from collections.abc import Sequence
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,7 +25,12 @@ from amrst._io_common import (
     storable,
 )
 from amrst.errors import InvalidInput
-from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+    from amrst.types import Cloud
 
 logger = logging.getLogger(__name__)
 

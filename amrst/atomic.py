@@ -11,11 +11,13 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from amrst.errors import AmrstError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 def write_atomic(path: str | os.PathLike, write_to: Callable[[Path], None]) -> None:

@@ -10,9 +10,8 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import io as _stdio
-import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,6 +21,9 @@ from amrst.errors import InvalidInput
 from amrst.params_io import params_to_dict
 from amrst.pipeline import RegistrationParams
 from amrst.types import Cloud, Transform, transform_cloud
+
+if TYPE_CHECKING:
+    import os
 
 PARTS = ("registered", "merged", "transform", "metrics", "params")
 CLOUD_FORMATS = ("ply", "las", "laz", "pcd")

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.pipeline import RegistrationParams
+
+if TYPE_CHECKING:
+    import os
 
 SCHEMA_VERSION = 1
 PRESETS_DIR = Path(__file__).resolve().parent.parent / "resources" / "presets"

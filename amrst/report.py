@@ -6,13 +6,15 @@ the benchmark reads the same numbers.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.pipeline import RegistrationResult
 from amrst.stages.metrics import truth_errors
-from amrst.types import Transform
+
+if TYPE_CHECKING:
+    from amrst.pipeline import RegistrationResult
+    from amrst.types import Transform
 
 
 def registration_summary(

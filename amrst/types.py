@@ -6,14 +6,16 @@ georeferenced clouds (x = 500000, y = 5000000) keep millimetres everywhere. Neve
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst.errors import InvalidInput
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
 
 Transform = np.ndarray  # (4, 4) float64 rigid transform, e.g. T_target_source
 

@@ -11,14 +11,16 @@ from __future__ import annotations
 import functools
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from amrst.errors import AmrstError, Cancelled
 from amrst_gui import jobs, steps, workers
 from amrst_gui.results import ResultsMixin
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger("amrst_gui.session")
 

@@ -14,13 +14,15 @@ from __future__ import annotations
 
 import logging
 import traceback
-from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
 
 from amrst.progress import EventReporter
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 log = logging.getLogger("amrst_gui.workers")
 

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from amrst.baselines._common import MethodResult, evaluate, local_pair, to_local
-from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from amrst.types import Cloud
 
 
 def register_amrst(target: Cloud, source: Cloud) -> MethodResult:

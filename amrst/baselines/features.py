@@ -18,10 +18,11 @@ from amrst.baselines._common import (
     local_pair,
     to_o3d,
 )
-from amrst.types import Cloud, Transform
 
 if TYPE_CHECKING:
     import open3d as o3d
+
+    from amrst.types import Cloud, Transform
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -18,10 +18,10 @@ import numpy as np
 
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
-from amrst.types import Cloud, Transform
 
 if TYPE_CHECKING:
     from amrst.simulate import SimulatedPair
+    from amrst.types import Cloud, Transform
 
 PathLike = str | os.PathLike[str]
 

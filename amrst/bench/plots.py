@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst.atomic import write_text_atomic
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 _MARKERS = "osD^vP*X<>"
 

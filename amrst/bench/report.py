@@ -15,7 +15,6 @@ import json
 import math
 import os
 import platform
-from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -25,6 +24,8 @@ import numpy as np
 from amrst.atomic import write_text_atomic
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from amrst.bench.run import RunRecord
 
 SUCCESS_RULE = "rotation error < 1 deg and gt_rmse < 0.05 m"

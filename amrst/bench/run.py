@@ -12,13 +12,12 @@ recorded with its error text and the run goes on.
 from __future__ import annotations
 
 import logging
-import os
 import time
 import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +27,9 @@ from amrst.errors import Cancelled, InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.metrics import measure_clouds, truth_errors
 from amrst.types import apply_transform
+
+if TYPE_CHECKING:
+    import os
 
 logger = logging.getLogger(__name__)
 

@@ -11,13 +11,16 @@ next. The confidence compares the winner with the best *different* solution.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter
-from amrst.stages.match import TetraMatches
 from amrst.types import Transform, rotation_angle_deg
+
+if TYPE_CHECKING:
+    from amrst.stages.match import TetraMatches
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -9,10 +9,12 @@ near the trunk get a higher weight than far tips, which differ most between scan
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.stages.skeleton import SkeletonResult
+if TYPE_CHECKING:
+    from amrst.stages.skeleton import SkeletonResult
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -6,10 +6,9 @@ Floats whose default is NaN mean "automatic" and get a text field that accepts
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from PySide6.QtWidgets import (
     QCheckBox,
@@ -19,6 +18,9 @@ from PySide6.QtWidgets import (
     QSpinBox,
     QWidget,
 )
+
+if TYPE_CHECKING:
+    import dataclasses
 
 AUTO = "auto"
 

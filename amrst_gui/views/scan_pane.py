@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
@@ -21,6 +21,9 @@ from amrst_gui.drops import FileDropMixin
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import COLOUR_MODES, ViewOptions, build_scan_scene
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 _COLOUR_LABELS = {"height": "Height", "intensity": "Intensity", "wood": "Wood / leaf"}
 
