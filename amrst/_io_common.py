@@ -71,14 +71,14 @@ def rebase(xyz: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def needs_double(cloud: Cloud) -> bool:
-    """True when float32 coordinates would lose precision for this cloud."""
+    """Return True when float32 coordinates would lose precision for this cloud."""
     if np.any(cloud.offset != 0) or cloud.meta.get("coord_dtype") == "float64":
         return True
     return len(cloud) > 0 and float(np.abs(cloud.xyz).max()) > LARGE_COORD_M
 
 
 def clean_name(name: str) -> str:
-    """A field name usable in PLY/PCD headers and text headers (no spaces)."""
+    """Make a field name usable in PLY/PCD headers and text headers (no spaces)."""
     return re.sub(r"[^A-Za-z0-9_]", "_", name.strip()) or "field"
 
 
@@ -124,7 +124,7 @@ def storable(
 
 
 def narrow_int(arr: np.ndarray) -> np.ndarray:
-    """The smallest integer dtype holding ``arr`` when all its values are integers.
+    """Cast ``arr`` to the smallest integer dtype holding it if all values are integers.
 
     Arrays with fractions, NaN or values beyond 32-bit range are returned as float64
     (exact for integers up to 2**53) or unchanged if already float.
@@ -143,7 +143,7 @@ def narrow_int(arr: np.ndarray) -> np.ndarray:
 
 
 def number_format(dtype: np.dtype, *, typed: bool = False) -> str:
-    """A %-format that writes values of ``dtype`` as text without changing them.
+    """Return a %-format that writes values of ``dtype`` as text without changing them.
 
     ``typed``: the file declares the dtype (PLY/PCD), so a float32 value only has
     to round-trip through float32; plain text is read back as float64.

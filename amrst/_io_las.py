@@ -97,7 +97,7 @@ def _check_size(header: Any, path: Path) -> None:
 
 
 def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
-    """The point format holding most standard-named attributes (the file's first)."""
+    """Pick the point format holding most standard-named attributes (file's first)."""
     wanted = names & _all_standard_names()
     preferred = meta.get("las_point_format")
     candidates = list(_CANDIDATE_FORMATS)

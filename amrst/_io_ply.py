@@ -98,7 +98,7 @@ def _parse_header_lines(f: BinaryIO, path: Path) -> _Header:
 
 
 def _vertex(header: _Header, path: Path) -> tuple[_Element, list[_Element]]:
-    """The vertex element and the elements stored before it."""
+    """Return the vertex element and the elements stored before it."""
     for i, element in enumerate(header.elements):
         if element.name == "vertex":
             if any(code == "list" for _, code in element.props):

@@ -68,7 +68,7 @@ class _Layout:
 
 
 def _leading_lines(text: str, n: int) -> list[tuple[int, str]]:
-    """The first ``n`` non-blank, non-comment lines with their 1-based numbers."""
+    """List the first ``n`` non-blank, non-comment lines with their 1-based numbers."""
     found: list[tuple[int, str]] = []
     for no, line in enumerate(text[:1_000_000].split("\n"), start=1):
         if line.strip() and not line.lstrip().startswith("#"):

@@ -32,6 +32,7 @@ class TerminalReporter:
         self._t0 = time.perf_counter()
 
     def progress(self, fraction: float, message: str = "") -> None:
+        """Draw the bar, or write the message when its stage changed (unless quiet)."""
         if self._quiet:
             return
         if self._tty:
@@ -45,7 +46,7 @@ class TerminalReporter:
             sys.stderr.write(f"{time.perf_counter() - self._t0:6.2f}s {message}\n")
 
     def check_cancelled(self) -> None:
-        pass
+        """Never cancel: Ctrl+C stops the command instead."""
 
 
 def read_truth(path: str) -> np.ndarray:
@@ -200,7 +201,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with all sub-commands."""
+    """Build the argument parser with all sub-commands."""
     from amrst import bench, simulate
 
     p = argparse.ArgumentParser(

@@ -71,7 +71,7 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
 def transform_document(
     T_target_source: Transform, T_coarse: Transform | None, **extra: Any
 ) -> dict:
-    """The transform.json content: 4x4 row-major nested lists plus context."""
+    """Return the transform.json content: 4x4 row-major nested lists plus context."""
     doc: dict[str, Any] = {
         "T_target_source": np.asarray(T_target_source, float).tolist()
     }

@@ -77,7 +77,7 @@ def writable_extensions() -> tuple[str, ...]:
 
 
 def get_reader(path: PathLike) -> Reader | None:
-    """The reader for ``path``, or None when its extension is not supported.
+    """Return the reader for ``path``, or None when its extension is not supported.
 
     Parameters
     ----------

@@ -42,7 +42,7 @@ def parameter_table() -> str:
 
 
 def update_readme(text: str) -> str:
-    """The README text with the table between the markers replaced."""
+    """Return the README text with the table between the markers replaced."""
     head, _, rest = text.partition(BEGIN)
     _, _, tail = rest.partition(END)
     return f"{head}{BEGIN}\n{parameter_table()}\n{END}{tail}"

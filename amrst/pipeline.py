@@ -370,7 +370,7 @@ def _precise(
 def coarse_from_matches(
     matches: MatchResult, rejected: frozenset[int] = frozenset()
 ) -> CoarseResult:
-    """The best candidate not rejected by the user (local frames)."""
+    """Return the best candidate not rejected by the user (local frames)."""
     return choose_coarse(
         CandidateList(matches.candidates, matches.n_matches),
         rejected,
@@ -437,8 +437,9 @@ def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transfo
 
 
 def both_scans(fn, target_item, source_item, reporter: Reporter = NULL_REPORTER):
-    """``fn(item, reporter)`` for the target's and the source's item at once, one thread
-    each, returning ``(target result, source result)``.
+    """Run ``fn(item, reporter)`` for the target's and the source's item at once.
+
+    One thread each; returns ``(target result, source result)``.
 
     The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
     made them 1.24-1.37x faster on this 2-core machine; results are the same as one

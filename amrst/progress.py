@@ -28,10 +28,10 @@ class NullReporter:
     """Ignores progress and never cancels."""
 
     def progress(self, fraction: float, message: str = "") -> None:
-        pass
+        """Ignore the progress."""
 
     def check_cancelled(self) -> None:
-        pass
+        """Never cancel."""
 
 
 NULL_REPORTER = NullReporter()
@@ -60,10 +60,12 @@ class EventReporter:
         return self._cancel.is_set()
 
     def progress(self, fraction: float, message: str = "") -> None:
+        """Pass ``fraction``, clipped to [0, 1], and ``message`` to the callback."""
         if self._on_progress is not None:
             self._on_progress(min(max(float(fraction), 0.0), 1.0), message)
 
     def check_cancelled(self) -> None:
+        """Raise :class:`amrst.errors.Cancelled` once :meth:`cancel` was called."""
         if self._cancel.is_set():
             raise Cancelled()
 
@@ -80,6 +82,7 @@ class SubReporter:
         self._label = label
 
     def progress(self, fraction: float, message: str = "") -> None:
+        """Report ``fraction`` of the sub-stage as its share of [start, stop]."""
         text = (
             f"{self._label}: {message}"
             if self._label and message
@@ -90,13 +93,17 @@ class SubReporter:
         )
 
     def check_cancelled(self) -> None:
+        """Ask the parent reporter."""
         self._parent.check_cancelled()
 
 
 class SharedReporter:
-    """Lets ``n`` tasks running at once report to one parent: each task's [0, 1] counts
-    1/n of [start, stop], so the parent sees a monotonic sum while every task's own
-    progress is monotonic. Thread-safe; cancel checks go to the parent."""
+    """Lets ``n`` tasks running at once report to one parent.
+
+    Each task's [0, 1] counts 1/n of [start, stop], so the parent sees a monotonic sum
+    while every task's own progress is monotonic. Thread-safe; cancel checks go to the
+    parent.
+    """
 
     def __init__(
         self, parent: Reporter, n: int, start: float = 0.0, stop: float = 1.0
@@ -113,7 +120,7 @@ class SharedReporter:
         self._stop.set()
 
     def task(self, i: int, label: str = "") -> Reporter:
-        """The reporter task ``i`` reports to."""
+        """Return the reporter task ``i`` reports to."""
         return _SharedTask(self, i, label)
 
     def _report(self, i: int, fraction: float, message: str) -> None:
@@ -123,6 +130,7 @@ class SharedReporter:
             self._parent.progress(self._start + self._span * total, message)
 
     def check_cancelled(self) -> None:
+        """Raise Cancelled after :meth:`stop`, else ask the parent reporter."""
         if self._stop.is_set():
             raise Cancelled()
         self._parent.check_cancelled()

@@ -127,7 +127,7 @@ def footprints(xyz: np.ndarray, k: int = 4) -> np.ndarray:
 
 
 def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
-    """The pose ``T_tree_scanner`` of a scanner placed as ``spec`` says.
+    """Return the pose ``T_tree_scanner`` of a scanner placed as ``spec`` says.
 
     The scanner stands ``distance_m`` from ``base`` in direction ``azimuth_deg``,
     ``height_m`` above it; its frame is turned by ``heading_deg`` about z and tipped by
@@ -165,7 +165,7 @@ def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
 def visible_points(
     xyz: np.ndarray, res_deg: float, footprint_m: float | np.ndarray
 ) -> np.ndarray:
-    """Indices of the points a scanner at the origin records (nearest per beam).
+    """Return indices of the points a scanner at the origin records (nearest per beam).
 
     Parameters
     ----------

@@ -85,7 +85,7 @@ class Cloud:
         return None if value is None else np.asarray(value, dtype=np.float64)
 
     def select(self, index: np.ndarray) -> Cloud:
-        """A new cloud with the points picked by a boolean mask or an index array."""
+        """Return a new cloud of the points picked by a boolean mask or an index array."""
         return Cloud(
             self.xyz[index],
             self.offset,
@@ -95,7 +95,7 @@ class Cloud:
         )
 
     def with_xyz(self, xyz: np.ndarray, offset: np.ndarray | None = None) -> Cloud:
-        """A new cloud with the same attributes and new coordinates (same N)."""
+        """Return a new cloud with the same attributes and new coordinates (same N)."""
         return Cloud(
             xyz,
             self.offset if offset is None else offset,
@@ -119,7 +119,7 @@ def apply_transform(T_b_a: Transform, xyz: np.ndarray) -> np.ndarray:
 
 
 def invert_transform(T_b_a: Transform) -> Transform:
-    """The inverse of a rigid (4, 4) transform, exactly (no general matrix inverse)."""
+    """Invert a rigid (4, 4) transform exactly (no general matrix inverse)."""
     R = T_b_a[:3, :3]
     return make_transform(R.T, -R.T @ T_b_a[:3, 3])
 

@@ -71,7 +71,7 @@ class Stopwatch:
             self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
 
     def finish(self) -> dict[str, float]:
-        """The stage times plus ``total`` since construction."""
+        """Return the stage times plus ``total`` since construction."""
         return {**self.timings, "total": time.perf_counter() - self._start}
 
 
@@ -91,19 +91,19 @@ def local_pair(
 
 
 def to_world(T_local: Transform, origin: np.ndarray) -> Transform:
-    """A transform between origin-relative frames as a world ``T_target_source``."""
+    """Turn a transform between origin-relative frames into a world ``T_target_source``."""
     shift = make_transform(np.eye(3), origin)
     back = make_transform(np.eye(3), -origin)
     return shift @ T_local @ back
 
 
 def to_local(T_world: Transform, origin: np.ndarray) -> Transform:
-    """The inverse of :func:`to_world`: a world transform in origin-relative frames."""
+    """Invert :func:`to_world`: express a world transform in origin-relative frames."""
     return to_world(T_world, -np.asarray(origin, dtype=float))
 
 
 def to_o3d(xyz: np.ndarray) -> o3d.geometry.PointCloud:
-    """An Open3D point cloud of (N, 3) float64 points."""
+    """Make an Open3D point cloud of (N, 3) float64 points."""
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud()
@@ -157,8 +157,10 @@ def finish(
     clock: Stopwatch,
     **fields,
 ) -> MethodResult:
-    """Stop ``clock`` (the fitness below is not timed), score the move and wrap it as a
-    MethodResult in world coordinates; ``fields`` are the remaining MethodResult fields."""
+    """Stop ``clock``, score the move and wrap it as a world-frame MethodResult.
+
+    The fitness below is not timed; ``fields`` are the remaining MethodResult fields.
+    """
     timings = clock.finish()
     fitness, rmse = evaluate(tgt, src, T_local)
     return MethodResult(

@@ -116,7 +116,7 @@ def read_case(path: PathLike) -> Case:
 def truth_dict(
     pair: SimulatedPair, tree_name: str, seed: int | None = None
 ) -> dict[str, Any]:
-    """The ``truth.json`` content of a simulated pair (the shared cases' keys).
+    """Return the ``truth.json`` content of a simulated pair (the shared cases' keys).
 
     Parameters
     ----------

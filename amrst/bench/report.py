@@ -91,7 +91,7 @@ def machine_info() -> dict[str, Any]:
 
 
 def fmt(value: float | None) -> str:
-    """A table cell: 3 decimals below 10, fewer above, ``-`` for missing values."""
+    """Format a table cell: 3 decimals below 10, fewer above, ``-`` when missing."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
     v = float(value)
@@ -173,7 +173,7 @@ def summary_markdown(
     methods: list[str],
     meta: dict[str, Any],
 ) -> str:
-    """The summary.md text: method table, per-case tables, speed ratios, machine."""
+    """Write the summary.md text: method table, per-case tables, speed ratios, machine."""
     agg = aggregate(runs)
     n = len(cases)
     out = ["# AMRST benchmark\n\n"]
@@ -291,8 +291,11 @@ def summary_markdown(
 
 
 def truth_check_markdown(agg: dict, cases: list[str], method: str = "amrst") -> str:
-    """Per case: how many source points land within 2 / 4 cm of the target under the
-    truth and under ``method``'s estimate, and whether the data prefer the estimate."""
+    """Tabulate per case how many source points land within 2 / 4 cm of the target.
+
+    Counted under the truth and under ``method``'s estimate, with whether the data
+    prefer the estimate.
+    """
 
     def pct(v: float) -> str:
         return f"{100 * v:.1f}%" if math.isfinite(v) else "nan"

@@ -92,7 +92,7 @@ class BenchResult:
 def resolve_methods(
     methods: Sequence[str] | Mapping[str, Method] | None,
 ) -> dict[str, Method]:
-    """Method callables by name: names are looked up in ``amrst.baselines.METHODS``.
+    """Resolve method callables by name, looked up in ``amrst.baselines.METHODS``.
 
     Parameters
     ----------
@@ -129,8 +129,11 @@ WITHIN_POINTS = 20_000
 def within_fractions(
     target_xyz: np.ndarray, source_xyz: np.ndarray, transforms: Sequence[np.ndarray]
 ) -> list[tuple[float, ...]]:
-    """For each transform, the share of source points (a seeded sample of at most
-    WITHIN_POINTS) that land within each WITHIN_M distance of the target."""
+    """Compute the share of source points near the target under each transform.
+
+    One share per WITHIN_M distance; the source points are a seeded sample of at most
+    WITHIN_POINTS.
+    """
     from scipy.spatial import cKDTree
 
     if len(target_xyz) == 0 or len(source_xyz) == 0:

@@ -1,0 +1,1 @@
+"""Registration stages: one module per step of the pipeline (see amrst.pipeline)."""

@@ -266,8 +266,10 @@ def _weighted_centres(p: np.ndarray, q: np.ndarray, w: np.ndarray):
 
 
 def _rigid_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Least-squares rigid fits q ≈ R p + t (Kabsch) of B point sets at once, each on
-    its points with weight 1; (B, 4, 4)."""
+    """Fit q ≈ R p + t by least squares (Kabsch) for B point sets at once; (B, 4, 4).
+
+    Each set is fitted on its points with weight 1.
+    """
     pc, qc, a, b = _weighted_centres(p, q, w)
     u, _, vt = np.linalg.svd(np.matmul((a * w[..., None]).transpose(0, 2, 1), b))
     R = np.einsum("bji,bkj->bik", vt, u)  # V Uᵀ
@@ -289,9 +291,11 @@ def _polish(
     fit=_rigid_steps,
     iterations: int = POLISH_ITERATIONS,
 ) -> np.ndarray:
-    """Short point-to-point ICP of B starts at once, the closed-form ``fit`` step each
-    iteration (Kabsch by default), at max_dist and then a third of it (what Open3D's
-    point-to-point ICP does; importing Open3D would cost a second per command).
+    """Run a short point-to-point ICP from B starts at once.
+
+    Each iteration takes the closed-form ``fit`` step (Kabsch by default), at max_dist
+    and then a third of it (what Open3D's point-to-point ICP does; importing Open3D
+    would cost a second per command).
 
     One KD-tree query per iteration serves every start still moving; a start stops a
     scale when its step is below POLISH_STOP_M / POLISH_STOP_RAD, and stops for good
@@ -328,8 +332,10 @@ def _polish(
 def verification_sample(
     source_xyz: np.ndarray, params: CoarseParams
 ) -> tuple[np.ndarray, np.random.Generator]:
-    """The seeded sample of source points every verification score is measured on,
-    and the generator after drawing it (the ranking draws more from it)."""
+    """Draw the seeded sample of source points every verification score is measured on.
+
+    Also return the generator after drawing it (the ranking draws more from it).
+    """
     rng = np.random.default_rng(params.seed)
     n = min(params.verify_points, len(source_xyz))
     return source_xyz[rng.choice(len(source_xyz), n, replace=False)], rng
@@ -482,7 +488,7 @@ def choose_coarse(
     rejected: frozenset[int] = frozenset(),
     centre: np.ndarray | None = None,
 ) -> CoarseResult:
-    """The best candidate the user has not rejected, with a confidence.
+    """Return the best candidate the user has not rejected, with a confidence.
 
     Parameters
     ----------

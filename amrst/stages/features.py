@@ -90,7 +90,7 @@ def shape_features(
 
 
 def _covariances(xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]) -> list:
-    """The six entries (a, b, c, d, e, f) of each neighbourhood's covariance, per k.
+    """Compute the entries (a, b, c, d, e, f) of each neighbourhood's covariance, per k.
 
     Moments of the offsets from each neighbourhood's first point (the point itself):
     centimetre-sized numbers, so E[uuᵀ] - E[u]E[u]ᵀ loses nothing to cancellation, and

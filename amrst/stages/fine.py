@@ -141,8 +141,10 @@ def _rotvec(w: np.ndarray) -> np.ndarray:
 
 
 class _NearestCache:
-    """The nearest target point within ``max_dist`` of each moved source point, exactly
-    as a KD-tree query would return it, re-queried only for points that may have changed.
+    """The nearest target point within ``max_dist`` of each moved source point.
+
+    Exactly as a KD-tree query would return it, re-queried only for points that may
+    have changed.
 
     A query keeps the two nearest distances d1 <= d2 (within 1.5 max_dist). While a
     point has moved less than (d2 - d1) / 2 since, no other target point can have come

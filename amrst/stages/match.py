@@ -210,8 +210,9 @@ def _tetrahedra(xyz: np.ndarray, params: MatchParams):
 
 
 def _descriptor(kp, quads, edges, signed, params: MatchParams) -> np.ndarray:
-    """Sorted log edge lengths and the log volume; with levelled scanners also the
-    sorted vertex heights.
+    """Compute sorted log edge lengths and the log volume of each quad.
+
+    With levelled scanners also the sorted vertex heights.
 
     Each entry is scaled so that a Chebyshev distance of 1 is its tolerance. The volume
     entry is a necessary condition of the volume test |V1/V2 - 1| < β (which the pairs

@@ -79,7 +79,7 @@ class TruthErrors:
     gt_rmse_m: float  # RMS distance of source points mapped by estimate vs truth
 
     def registered(self, max_rot_deg: float = 1.0, max_gt_rmse_m: float = 0.05) -> bool:
-        """The benchmark's success rule: rotation < 1 deg and gt_rmse < 5 cm."""
+        """Apply the benchmark's success rule: rotation < 1 deg and gt_rmse < 5 cm."""
         return self.rotation_error_deg < max_rot_deg and self.gt_rmse_m < max_gt_rmse_m
 
     def as_dict(self) -> dict[str, float]:

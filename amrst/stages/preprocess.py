@@ -160,9 +160,12 @@ def voxel_representatives(
 
 
 def _statistical_inliers(pts: np.ndarray, k: int, std_ratio: float) -> np.ndarray:
-    """Indices of points whose mean distance to their k neighbours is at most
-    mean + std_ratio * std over all points (Open3D's statistical outlier rule, in scipy:
-    importing Open3D costs a second per command)."""
+    """Return indices of the points that pass Open3D's statistical outlier rule.
+
+    A point passes when its mean distance to its k neighbours is at most
+    mean + std_ratio * std over all points. Done in scipy: importing Open3D costs a
+    second per command.
+    """
     from scipy.spatial import cKDTree
 
     d = cKDTree(pts).query(pts, k=k + 1, workers=-1)[0][:, 1:].mean(axis=1)

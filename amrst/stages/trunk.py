@@ -157,6 +157,8 @@ class TrunkBase:
 
 @dataclass(frozen=True, slots=True)
 class YawSolution:
+    """One heading the yaw search settled on, with its score."""
+
     T_target_source: Transform  # levelled: rotation about the vertical only
     start_yaw_deg: float  # heading the sweep started from
     score: float  # share of sampled source points within score_dist_m
@@ -164,6 +166,8 @@ class YawSolution:
 
 @dataclass(frozen=True, slots=True)
 class TrunkSearchResult:
+    """Both scans' trunk bases and the distinct yaw solutions found from them."""
+
     target_base: TrunkBase
     source_base: TrunkBase
     solutions: tuple[YawSolution, ...]  # best first, distinct
@@ -209,9 +213,11 @@ def _rot_z(yaw: float) -> np.ndarray:
 
 
 def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Least-squares fits q ≈ Rz p + t with a turn about the vertical only, for B point
-    sets at once under (B, n) 0/1 weights: a 2D Procrustes fit of the x, y offsets from
-    the centroids, plus the centroid shift; (B, 4, 4)."""
+    """Fit q ≈ Rz p + t, a turn about the vertical only, for B point sets at once.
+
+    Least squares under (B, n) 0/1 weights: a 2D Procrustes fit of the x, y offsets
+    from the centroids, plus the centroid shift; (B, 4, 4).
+    """
     pc, qc, a, b = _weighted_centres(p, q, w)
     yaw = np.arctan2(
         np.einsum("bn,bn->b", w, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]),
@@ -227,8 +233,10 @@ def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
 def polish_levelled(
     src: np.ndarray, tgt: np.ndarray, tree, Ts: np.ndarray, max_dist: float
 ) -> np.ndarray:
-    """The coarse stage's polish ICP restricted to a turn about the vertical and a
-    translation, for (B, 4, 4) starts at once. ``tree`` is a cKDTree on ``tgt``."""
+    """Polish (B, 4, 4) starts at once with a turn about the vertical and a translation.
+
+    The coarse stage's polish ICP, so restricted. ``tree`` is a cKDTree on ``tgt``.
+    """
     return _polish(src, tgt, tree, Ts, max_dist, fit=_levelled_steps, iterations=15)
 
 
@@ -309,9 +317,12 @@ def score_transforms(
     params: CoarseParams,
     precise_dist_m: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Share of sampled source points within ``tight_dist_m`` and within
-    ``precise_dist_m`` of the target under each transform (the same seeded sample as
-    the ranking uses). ``target_tree`` is a cKDTree on the target points."""
+    """Score each transform by the share of sampled source points near the target.
+
+    Shares within ``tight_dist_m`` and within ``precise_dist_m`` of the target (the
+    same seeded sample as the ranking uses). ``target_tree`` is a cKDTree on the
+    target points.
+    """
     sample = verification_sample(source_xyz, params)[0]
     reach = max(params.tight_dist_m, precise_dist_m)
     out = np.zeros((2, len(transforms)))
