@@ -99,7 +99,7 @@ def _check_size(header: Any, path: Path) -> None:
 def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
     """Pick the point format holding most standard-named attributes (file's first)."""
     wanted = names & _all_standard_names()
-    preferred = meta.get("las_point_format")
+    preferred: Any = meta.get("las_point_format")
     candidates = list(_CANDIDATE_FORMATS)
     if preferred in range(11):
         candidates.insert(0, int(preferred))

@@ -7,7 +7,7 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING, BinaryIO, NamedTuple
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
 
 import numpy as np
 
@@ -203,7 +203,7 @@ def _fields(cloud: Cloud) -> dict[str, np.ndarray]:
     rgb = [out.get(c) for c in ("red", "green", "blue")]
     if all(c is not None and c.ndim == 1 for c in rgb) and all(
         c.dtype.kind in "iu" and c.min(initial=0) >= 0 and c.max(initial=0) <= 255
-        for c in rgb
+        for c in cast("list[np.ndarray]", rgb)  # all set, checked just before
     ):
         r, g, b = (out.pop(c).astype(np.uint32) for c in ("red", "green", "blue"))
         out["rgb"] = ((r << 16) | (g << 8) | b).view(np.float32)  # PCL's convention

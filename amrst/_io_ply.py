@@ -41,7 +41,7 @@ _MAX_HEADER_LINES = 10_000
 
 class _Element(NamedTuple):
     name: str
-    count: int
+    count: int  # type: ignore[assignment]  # PLY's word; shadows tuple.count
     props: list[tuple[str, str]]  # (name, numpy code); code "list" for list props
 
 
@@ -65,7 +65,9 @@ def _parse_header(f: BinaryIO, path: Path) -> _Header:
 
 
 def _parse_header_lines(f: BinaryIO, path: Path) -> _Header:
-    fmt, elements, comments = "", [], []
+    fmt = ""
+    elements: list[_Element] = []
+    comments: list[str] = []
     for _ in range(_MAX_HEADER_LINES):
         line = f.readline()
         if not line:

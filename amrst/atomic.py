@@ -20,7 +20,9 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
 
-def write_atomic(path: str | os.PathLike, write_to: Callable[[Path], None]) -> None:
+def write_atomic(
+    path: str | os.PathLike[str], write_to: Callable[[Path], object]
+) -> None:
     """Run ``write_to(temp_path)``, then move the temp file over ``path``.
 
     Raises
@@ -55,12 +57,12 @@ def write_atomic(path: str | os.PathLike, write_to: Callable[[Path], None]) -> N
         ) from exc
 
 
-def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
+def write_text_atomic(path: str | os.PathLike[str], text: str | bytes) -> None:
     """Write text (UTF-8) or bytes atomically."""
     data = text.encode("utf-8") if isinstance(text, str) else text
     write_atomic(path, lambda tmp: tmp.write_bytes(data))
 
 
-def write_json_atomic(path: str | os.PathLike, data: Any, indent: int = 2) -> None:
+def write_json_atomic(path: str | os.PathLike[str], data: Any, indent: int = 2) -> None:
     """Write ``data`` as indented JSON atomically."""
     write_text_atomic(path, json.dumps(data, indent=indent, allow_nan=True) + "\n")

@@ -12,11 +12,15 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
+
+if TYPE_CHECKING:
+    from amrst.pipeline import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
 LOW_CONFIDENCE = 0.3
@@ -79,7 +83,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_params(args: argparse.Namespace):
+def _load_params(args: argparse.Namespace) -> RegistrationParams:
     from amrst.params_io import load_params, load_preset
     from amrst.pipeline import RegistrationParams
 

@@ -11,7 +11,7 @@ import csv
 import datetime as _dt
 import io as _stdio
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -39,7 +39,7 @@ def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
     attrs: dict[str, np.ndarray] = {}
     for name in names:
         a, b = target.attributes.get(name), moved_source.attributes.get(name)
-        ref = a if a is not None else b
+        ref = cast("np.ndarray", a if a is not None else b)  # one of them is set
         dtype = np.result_type(*(x.dtype for x in (a, b) if x is not None))
         parts = [
             np.asarray(x, dtype)
@@ -70,7 +70,7 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
 
 def transform_document(
     T_target_source: Transform, T_coarse: Transform | None, **extra: Any
-) -> dict:
+) -> dict[str, Any]:
     """Return the transform.json content: 4x4 row-major nested lists plus context."""
     doc: dict[str, Any] = {
         "T_target_source": np.asarray(T_target_source, float).tolist()
@@ -84,17 +84,17 @@ def transform_document(
 
 
 def export_registration(
-    out_dir: str | os.PathLike,
+    out_dir: str | os.PathLike[str],
     *,
     target: Cloud,
     source: Cloud,
     T_target_source: Transform,
     T_coarse: Transform | None = None,
-    metrics: dict | None = None,
+    metrics: dict[str, Any] | None = None,
     params: RegistrationParams | None = None,
     cloud_format: str = "ply",
     parts: tuple[str, ...] = PARTS,
-    transform_extra: dict | None = None,
+    transform_extra: dict[str, Any] | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -143,15 +143,14 @@ def export_registration(
             f"Cannot create the export folder {out}: {exc}. Choose another folder."
         ) from exc
     written: list[Path] = []
-    moved = None
     if "registered" in parts or "merged" in parts:
         moved = transform_cloud(T_target_source, source, target.offset)
-    if "registered" in parts:
-        written.append(out / f"registered_source.{cloud_format}")
-        amrst_io.write(written[-1], moved)
-    if "merged" in parts:
-        written.append(out / f"merged.{cloud_format}")
-        amrst_io.write(written[-1], merge_clouds(target, moved))
+        if "registered" in parts:
+            written.append(out / f"registered_source.{cloud_format}")
+            amrst_io.write(written[-1], moved)
+        if "merged" in parts:
+            written.append(out / f"merged.{cloud_format}")
+            amrst_io.write(written[-1], merge_clouds(target, moved))
     if "transform" in parts:
         extra = {
             "target": target.name,

@@ -76,7 +76,9 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     return RegistrationParams(**stages)
 
 
-def _check_value(stage: str, f: dataclasses.Field, default: Any, value: Any) -> None:
+def _check_value(
+    stage: str, f: dataclasses.Field[Any], default: Any, value: Any
+) -> None:
     """Type and range of one value against the field's default and metadata."""
     name = f"{stage}.{f.name}"
     meta = f.metadata
@@ -114,12 +116,12 @@ def _check_value(stage: str, f: dataclasses.Field, default: Any, value: Any) -> 
             )
 
 
-def save_params(path: str | os.PathLike, params: RegistrationParams) -> None:
+def save_params(path: str | os.PathLike[str], params: RegistrationParams) -> None:
     """Write parameters as JSON, atomically."""
     write_json_atomic(path, params_to_dict(params))
 
 
-def load_params(path: str | os.PathLike) -> RegistrationParams:
+def load_params(path: str | os.PathLike[str]) -> RegistrationParams:
     """Read a parameter JSON file (clear InvalidInput on any problem)."""
     path = Path(path)
     if not path.is_file():

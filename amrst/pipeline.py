@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, TypeVar, cast
 
 import numpy as np
 
@@ -50,6 +51,16 @@ from amrst.stages.trunk import (
 )
 from amrst.types import Cloud, Transform, make_transform
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.coarse import Candidate
+
+_Item = TypeVar("_Item")
+_Out = TypeVar("_Out")
+
 log = logging.getLogger(__name__)
 
 
@@ -77,7 +88,7 @@ class ScanAnalysis:
     separation: SeparationResult
     skeleton: SkeletonResult | None = None
     keypoints: KeypointResult | None = None
-    timings: dict = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def xyz(self) -> np.ndarray:
@@ -102,14 +113,14 @@ class MatchResult:
     """Tetrahedron matches and the ranked candidate solutions built from them."""
 
     tetra: TetraMatches
-    candidates: tuple  # tuple[Candidate, ...], best first
+    candidates: tuple[Candidate, ...]  # best first
     n_matches: int
-    timings: dict = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
     source_centre: np.ndarray = field(
         default_factory=lambda: np.zeros(3)
     )  # (3,) source centroid
     # candidate id -> FineResult already computed while verifying it (trunk search)
-    refined: dict = field(default_factory=dict)
+    refined: dict[int, FineResult] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,11 +138,11 @@ class RegistrationResult:
     fine: FineResult
     metrics_coarse: CloudMetrics
     metrics_fine: CloudMetrics
-    timings: dict  # stage -> seconds, with "total"
+    timings: dict[str, float]  # stage -> seconds, with "total"
     params: RegistrationParams
 
 
-def _timed(timings: dict, key: str, t0: float) -> float:
+def _timed(timings: dict[str, float], key: str, t0: float) -> float:
     now = time.perf_counter()
     timings[key] = timings.get(key, 0.0) + now - t0
     return now
@@ -141,7 +152,7 @@ def prepare_scan(
     cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
 ) -> ScanAnalysis:
     """Preprocess one scan and separate wood from leaves."""
-    timings: dict = {}
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     try:
         pre = preprocess_points(
@@ -194,15 +205,15 @@ def find_matches(
             "Build the skeletons and key points of both scans first."
         )
     few = [
-        f"The {name} skeleton has only {len(an.keypoints.xyz)} key points; 4 are needed for a "
+        f"The {name} skeleton has only {len(kp.xyz)} key points; 4 are needed for a "
         "tetrahedron. Raise the depth rule (max_depth), lower the pruning length, or skeletonise all points."
-        for name, an in (("target", target), ("source", source))
-        if len(an.keypoints.xyz) < 4
+        for name, kp in (("target", target.keypoints), ("source", source.keypoints))
+        if len(kp.xyz) < 4
     ]
     trunk_available = params.trunk.mode != "off" and params.match.levelled
     if few and not trunk_available:
         raise RegistrationFailed(few[0])
-    timings: dict = {}
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     if few:
         # No tetrahedron to match: the trunk heading search may still register them.
@@ -246,7 +257,7 @@ def find_matches(
     )
     t0 = _timed(timings, "verify", t0)
     centre = source.xyz.mean(axis=0)
-    finished: dict = {}
+    finished: dict[int, FineResult] = {}
     if _wants_trunk_search(ranked, params, centre):
         ranked, finished = _add_trunk_solutions(
             ranked, target, source, params, SubReporter(reporter, 0.8, 1.0, "trunk")
@@ -274,7 +285,7 @@ def _add_trunk_solutions(
     source: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter,
-) -> tuple[CandidateList, dict]:
+) -> tuple[CandidateList, dict[int, FineResult]]:
     """Run the trunk heading search, refine its best headings, add them to the list.
 
     Returns the merged list and ``{candidate id: FineResult}`` for the solution that
@@ -345,7 +356,7 @@ def _add_trunk_solutions(
         used,
     )
     # The best heading already had its full fine registration: register() reuses it.
-    finished = {}
+    finished: dict[int, FineResult] = {}
     if done is not None:
         finished = {
             c.id: done
@@ -357,7 +368,7 @@ def _add_trunk_solutions(
 
 def _precise(
     transforms: list[Transform],
-    target_tree,
+    target_tree: cKDTree,
     source: ScanAnalysis,
     params: RegistrationParams,
 ) -> np.ndarray:
@@ -394,7 +405,6 @@ def refine(
     search makes one while verifying), that result is returned instead of a second run.
     """
     which = params.fine.points
-    T_init = start
     if isinstance(start, CoarseResult):
         if matches is not None and start.candidate.id in matches.refined:
             reporter.progress(1.0, "already refined while verifying")
@@ -402,6 +412,8 @@ def refine(
         T_init = start.T_target_source
         if start.candidate.fine_points:
             which = start.candidate.fine_points
+    else:
+        T_init = start
     return refine_registration(
         source.points(which), target.points(which), T_init, params.fine, reporter
     )
@@ -420,23 +432,30 @@ def evaluate(
 
 def world_transform(T_local: Transform, target: Cloud, source: Cloud) -> Transform:
     """Convert a transform between the clouds' local frames into world coordinates."""
-    return (
+    return cast(
+        "np.ndarray",
         make_transform(np.eye(3), target.offset)
         @ T_local
-        @ make_transform(np.eye(3), -source.offset)
+        @ make_transform(np.eye(3), -source.offset),
     )
 
 
 def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transform:
     """Inverse of world_transform: a world transform expressed between local frames."""
-    return (
+    return cast(
+        "np.ndarray",
         make_transform(np.eye(3), -target.offset)
         @ T_world
-        @ make_transform(np.eye(3), source.offset)
+        @ make_transform(np.eye(3), source.offset),
     )
 
 
-def both_scans(fn, target_item, source_item, reporter: Reporter = NULL_REPORTER):
+def both_scans(
+    fn: Callable[[_Item, Reporter], _Out],
+    target_item: _Item,
+    source_item: _Item,
+    reporter: Reporter = NULL_REPORTER,
+) -> tuple[_Out, _Out]:
     """Run ``fn(item, reporter)`` for the target's and the source's item at once.
 
     One thread each; returns ``(target result, source result)``.
@@ -471,7 +490,12 @@ def both_scans(fn, target_item, source_item, reporter: Reporter = NULL_REPORTER)
     return results[0], results[1]
 
 
-def _stop_sibling_on_error(fn, item, rep: Reporter, shared: SharedReporter):
+def _stop_sibling_on_error(
+    fn: Callable[[_Item, Reporter], _Out],
+    item: _Item,
+    rep: Reporter,
+    shared: SharedReporter,
+) -> _Out:
     try:
         return fn(item, rep)
     except BaseException:
@@ -533,7 +557,7 @@ def register(
     t0 = time.perf_counter()
     m_coarse = evaluate(tgt, src, coarse.T_target_source, params)
     m_fine = evaluate(tgt, src, fine.T_target_source, params)
-    timings: dict = {}
+    timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
             timings[k] = timings.get(k, 0.0) + v

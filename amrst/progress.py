@@ -9,9 +9,12 @@ the same code (see STYLE.md section 3).
 from __future__ import annotations
 
 import threading
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from amrst.errors import Cancelled
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 class Reporter(Protocol):
@@ -46,7 +49,9 @@ class EventReporter:
         Called as ``on_progress(fraction, message)``; may be called from a worker thread.
     """
 
-    def __init__(self, on_progress=None) -> None:
+    def __init__(
+        self, on_progress: Callable[[float, str], object] | None = None
+    ) -> None:
         self._cancel = threading.Event()
         self._on_progress = on_progress
 

@@ -6,7 +6,7 @@ the benchmark reads the same numbers.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from amrst.stages.metrics import truth_errors
 
 if TYPE_CHECKING:
     from amrst.pipeline import RegistrationResult
+    from amrst.stages.keypoints import KeypointResult
     from amrst.types import Transform
 
 
@@ -51,8 +52,9 @@ def registration_summary(
             "inlier_rmse_m": fine.inlier_rmse_m,
         },
         "key_points": {
-            "target": len(result.target.keypoints.xyz),
-            "source": len(result.source.keypoints.xyz),
+            # A finished registration has both scans' key points.
+            "target": len(cast("KeypointResult", result.target.keypoints).xyz),
+            "source": len(cast("KeypointResult", result.source.keypoints).xyz),
         },
         "tetrahedron_matches": result.matches.n_matches,
         "candidates": len(result.matches.candidates),

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -86,7 +86,10 @@ def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """(3, 3) rotation about a unit axis (Rodrigues)."""
     x, y, z = axis / np.linalg.norm(axis)
     K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + np.sin(angle_rad) * K + (1.0 - np.cos(angle_rad)) * (K @ K)
+    return cast(
+        "np.ndarray",
+        np.eye(3) + np.sin(angle_rad) * K + (1.0 - np.cos(angle_rad)) * (K @ K),
+    )
 
 
 def trunk_base(xyz: np.ndarray) -> np.ndarray:
@@ -123,7 +126,7 @@ def footprints(xyz: np.ndarray, k: int = 4) -> np.ndarray:
     from scipy.spatial import cKDTree
 
     d = cKDTree(xyz).query(xyz, k=k + 1)[0][:, -1]
-    return np.minimum(d, 3.0 * float(np.median(d)))
+    return cast("np.ndarray", np.minimum(d, 3.0 * float(np.median(d))))
 
 
 def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
@@ -218,7 +221,7 @@ def visible_points(
     cell_sorted = cell[order]
     first = np.ones(len(order), dtype=bool)
     first[1:] = cell_sorted[1:] != cell_sorted[:-1]
-    return idx[np.unique(pid[order[first]])]
+    return cast("np.ndarray", idx[np.unique(pid[order[first]])])
 
 
 def simulate_scan(
@@ -312,9 +315,9 @@ def simulate_pair(
         raise InvalidInput(f"The tree has {len(tree)} points; at least 100 are needed.")
     if res_deg <= 0 or noise_m < 0 or tilt_deg < 0:
         raise InvalidInput("res_deg must be > 0; noise_m and tilt_deg must be >= 0.")
-    distances = (
-        (distance_m, distance_m) if np.isscalar(distance_m) else tuple(distance_m)
-    )
+    # A number or a pair (np.isscalar narrows to numpy's scalar types, not to float).
+    pair: Any = (distance_m, distance_m) if np.isscalar(distance_m) else distance_m
+    distances: tuple[float, ...] = tuple(pair)
     if len(distances) != 2 or min(distances) <= 0:
         raise InvalidInput("distance_m must be one positive number or two.")
     if footprint_m is None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class Cloud:
     @property
     def world_xyz(self) -> np.ndarray:
         """(N, 3) float64 world coordinates (``xyz + offset``)."""
-        return self.xyz + self.offset
+        return cast("np.ndarray", self.xyz + self.offset)
 
     @property
     def intensity(self) -> np.ndarray | None:
@@ -115,7 +115,7 @@ def make_transform(R: np.ndarray, t: np.ndarray) -> Transform:
 
 def apply_transform(T_b_a: Transform, xyz: np.ndarray) -> np.ndarray:
     """Map (N, 3) points from frame a to frame b with the (4, 4) ``T_b_a``."""
-    return xyz @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    return cast("np.ndarray", xyz @ T_b_a[:3, :3].T + T_b_a[:3, 3])
 
 
 def invert_transform(T_b_a: Transform) -> Transform:
@@ -125,7 +125,7 @@ def invert_transform(T_b_a: Transform) -> Transform:
 
 
 def transform_cloud(
-    T_target_source: Transform, source: Cloud, target_offset=None
+    T_target_source: Transform, source: Cloud, target_offset: np.ndarray | None = None
 ) -> Cloud:
     """Move a cloud by a world-frame transform, keeping millimetres at any offset.
 

@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -94,7 +94,7 @@ def to_world(T_local: Transform, origin: np.ndarray) -> Transform:
     """Turn a transform between origin-relative frames into a world ``T_target_source``."""
     shift = make_transform(np.eye(3), origin)
     back = make_transform(np.eye(3), -origin)
-    return shift @ T_local @ back
+    return cast("np.ndarray", shift @ T_local @ back)
 
 
 def to_local(T_world: Transform, origin: np.ndarray) -> Transform:
@@ -155,7 +155,7 @@ def finish(
     T_local: Transform,
     origin: np.ndarray,
     clock: Stopwatch,
-    **fields,
+    **fields: Any,
 ) -> MethodResult:
     """Stop ``clock``, score the move and wrap it as a world-frame MethodResult.
 

@@ -7,7 +7,7 @@ descriptors, a global estimate from descriptor matches, then point-to-plane ICP.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -72,7 +72,8 @@ def _features(
 
     v = params.voxel_size_m
     pcd = _with_normals(xyz, v, params.normal_radius_factor * v)
-    fpfh = o3d.pipelines.registration.compute_fpfh_feature(
+    # open3d's stub marks ``indices`` required; it defaults to all points.
+    fpfh = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
         pcd,
         o3d.geometry.KDTreeSearchParamHybrid(
             radius=params.feature_radius_factor * v, max_nn=100
@@ -118,7 +119,7 @@ def refine_point_to_plane(
             ),
         )
         T = np.asarray(res.transformation).copy()
-    return T
+    return cast("np.ndarray", T)
 
 
 def _register(

@@ -8,6 +8,7 @@ Both run coarse-to-fine over shrinking correspondence distances on 0.05 m voxel 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -83,7 +84,7 @@ def icp_point_to_point(
                 src, tgt, dist, T, reg.TransformationEstimationPointToPoint(), criteria
             )
             T = np.asarray(res.transformation).copy()
-    return T
+    return cast("np.ndarray", T)
 
 
 def _run(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from amrst.baselines._common import (
     voxel_down,
 )
 from amrst.types import Cloud, Transform, make_transform
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -95,7 +99,11 @@ def build_grid(
     keys = np.floor(xyz / cell_m).astype(np.int64)
     _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
-    means = np.stack([np.bincount(inv, weights=xyz[:, k]) for k in range(3)], axis=1)
+    # np.bincount with weights gives float64 (numpy's stubs say intp).
+    means = cast(
+        "npt.NDArray[np.float64]",
+        np.stack([np.bincount(inv, weights=xyz[:, k]) for k in range(3)], axis=1),
+    )
     means /= counts[:, None]
     dev = xyz - means[inv]
     cov = np.empty((len(counts), 3, 3))
@@ -124,7 +132,9 @@ def _expmap(omega: np.ndarray) -> np.ndarray:
         return np.eye(3)
     x, y, z = omega / angle
     K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+    return cast(
+        "np.ndarray", np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+    )
 
 
 class _Scorer:
@@ -186,7 +196,7 @@ def _newton_step(grad: np.ndarray, H: np.ndarray) -> np.ndarray:
     floor = max(1e-6 * max(abs(w).max(), 1e-12), 1e-12)
     # Where the score is not convex, flip and floor the curvature (damped Newton).
     w = np.maximum(np.abs(w), floor)
-    return -(V @ ((V.T @ grad) / w))
+    return cast("np.ndarray", -(V @ ((V.T @ grad) / w)))
 
 
 def ndt_align(
@@ -243,7 +253,8 @@ def ndt_align(
                 step = _newton_step(grad, H)
                 # Clamp the step, then halve it until the score improves.
                 scale = min(1.0, max_rot / max(np.linalg.norm(step[:3]), 1e-12))
-                scale = min(scale, 0.5 * cell / max(np.linalg.norm(step[3:]), 1e-12))
+                norm = cast("float", np.linalg.norm(step[3:]))
+                scale = min(scale, 0.5 * cell / max(norm, 1e-12))
                 step *= scale
                 accepted = False
                 for _ in range(8):

@@ -151,8 +151,11 @@ def _median(values: list[float]) -> float:
 
 
 def speed_ratios(
-    agg: dict, cases: list[str], methods: list[str], ref: str = "amrst"
-) -> dict:
+    agg: dict[tuple[str, str], dict[str, Any]],
+    cases: list[str],
+    methods: list[str],
+    ref: str = "amrst",
+) -> dict[str, tuple[float, int]]:
     """Median over cases of ``time(method) / time(ref)`` where both ran cleanly."""
     ratios = {}
     for m in methods:
@@ -290,7 +293,9 @@ def summary_markdown(
     return "".join(out)
 
 
-def truth_check_markdown(agg: dict, cases: list[str], method: str = "amrst") -> str:
+def truth_check_markdown(
+    agg: dict[tuple[str, str], dict[str, Any]], cases: list[str], method: str = "amrst"
+) -> str:
     """Tabulate per case how many source points land within 2 / 4 cm of the target.
 
     Counted under the truth and under ``method``'s estimate, with whether the data

@@ -17,7 +17,7 @@ import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -186,8 +186,11 @@ def score(
         method=method,
         repeat=repeat,
         success=bool(errors.registered()),
-        **errors.as_dict(),
-        **{k: v for k, v in metrics.as_dict().items() if not k.startswith("n_")},
+        **cast("dict[str, Any]", errors.as_dict()),
+        **cast(
+            "dict[str, Any]",
+            {k: v for k, v in metrics.as_dict().items() if not k.startswith("n_")},
+        ),
         within_2cm=est_2,
         within_4cm=est_4,
         truth_within_2cm=true_2,

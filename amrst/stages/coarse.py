@@ -11,7 +11,7 @@ next. The confidence compares the winner with the best *different* solution.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -20,6 +20,10 @@ from amrst.progress import NULL_REPORTER, Reporter
 from amrst.types import Transform, rotation_angle_deg
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from scipy.spatial import cKDTree
+
     from amrst.stages.match import TetraMatches
 
 
@@ -196,13 +200,13 @@ class _Occupancy:
     @staticmethod
     def _code(k: np.ndarray) -> np.ndarray:
         k = k + (1 << 20)
-        return (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2]
+        return cast("np.ndarray", (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2])
 
     def fraction_many(self, pts: np.ndarray) -> np.ndarray:
         """(G,) occupied fraction of each of G point sets given as (G, n, 3)."""
         code = self._code(np.floor(pts / self.voxel).astype(np.int64))
         pos = np.minimum(np.searchsorted(self.codes, code), len(self.codes) - 1)
-        return np.mean(self.codes[pos] == code, axis=1)
+        return cast("np.ndarray", np.mean(self.codes[pos] == code, axis=1))
 
     def fraction(self, pts: np.ndarray) -> float:
         code = self._code(np.floor(pts / self.voxel).astype(np.int64))
@@ -257,7 +261,9 @@ def _group(
     return groups
 
 
-def _weighted_centres(p: np.ndarray, q: np.ndarray, w: np.ndarray):
+def _weighted_centres(
+    p: np.ndarray, q: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Centroids of (B, n, 3) point sets under (B, n) 0/1 weights, and the offsets."""
     sw = w.sum(axis=1)[:, None]
     pc = np.matmul(w[:, None, :], p)[:, 0] / sw
@@ -285,10 +291,10 @@ def _rigid_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
 def _polish(
     src: np.ndarray,
     tgt: np.ndarray,
-    tree,
+    tree: cKDTree,
     Ts: np.ndarray,
     max_dist: float,
-    fit=_rigid_steps,
+    fit: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = _rigid_steps,
     iterations: int = POLISH_ITERATIONS,
 ) -> np.ndarray:
     """Run a short point-to-point ICP from B starts at once.
@@ -478,7 +484,7 @@ def rank_candidates(
     return CandidateList(tuple(cands), len(T))
 
 
-def _distinct(a: Transform, b: Transform, centre: np.ndarray) -> bool:
+def _distinct(a: Transform, b: Transform, centre: np.ndarray) -> bool | np.bool_:
     d = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
     return d > 0.5 or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > 5.0
 

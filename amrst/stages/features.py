@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, cast
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 def eigen_features(
-    xyz: np.ndarray, k: int, tree=None, neighbours=None
+    xyz: np.ndarray,
+    k: int,
+    tree: cKDTree | None = None,
+    neighbours: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Local covariance features on k nearest neighbours.
 
@@ -89,7 +97,9 @@ def shape_features(
     return out
 
 
-def _covariances(xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]) -> list:
+def _covariances(
+    xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]
+) -> list[tuple[np.ndarray, ...]]:
     """Compute the entries (a, b, c, d, e, f) of each neighbourhood's covariance, per k.
 
     Moments of the offsets from each neighbourhood's first point (the point itself):
@@ -102,7 +112,9 @@ def _covariances(xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]) -> list:
     g = g - g[:, :, :1]
     x, y, z = g
     prods = (x, y, z, x * x, y * y, z * z, x * y, x * z, y * z)
-    out, sums, done = [], [0.0] * 9, 0
+    out: list[tuple[np.ndarray, ...]] = []
+    sums: list[Any] = [0.0] * 9  # floats, then (M,) arrays
+    done = 0
     for k in sorted(set(ks)):
         sums = [s + p[:, done:k].sum(axis=1) for s, p in zip(sums, prods, strict=True)]
         done = k
@@ -122,7 +134,14 @@ def _covariances(xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]) -> list:
     return [by_k[k] for k in ks]
 
 
-def _shape(a, b, c, d, e, f) -> dict[str, np.ndarray]:
+def _shape(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    e: np.ndarray,
+    f: np.ndarray,
+) -> dict[str, np.ndarray]:
     l1, l2, l3 = _sym3_eigenvalues(a, b, c, d, e, f)
     l1, l2, l3 = (np.clip(v, 1e-12, None) for v in (l1, l2, l3))
     return {
@@ -134,7 +153,14 @@ def _shape(a, b, c, d, e, f) -> dict[str, np.ndarray]:
     }
 
 
-def _sym3_eigenvalues(a, b, c, d, e, f):
+def _sym3_eigenvalues(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    e: np.ndarray,
+    f: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eigenvalues (descending) of symmetric 3x3 [[a, d, e], [d, b, f], [e, f, c]], batched."""
     q = (a + b + c) / 3
     p1 = d * d + e * e + f * f
@@ -173,4 +199,4 @@ def connected_components(xyz: np.ndarray, radius: float) -> np.ndarray:
     pairs = cKDTree(xyz).query_pairs(radius, output_type="ndarray")
     n = len(xyz)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return cc(graph, directed=False)[1]
+    return cast("np.ndarray", cc(graph, directed=False)[1])

@@ -12,11 +12,15 @@ kernel, Open3D) is the alternative for scans with little foliage.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.types import Transform, make_transform
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 FINE_METHODS = ("robust_plane", "lm_icp", "none")
 POINT_SETS = ("all", "leaf", "wood")
@@ -137,7 +141,7 @@ def _ladder(params: FineParams) -> np.ndarray:
 def _rotvec(w: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_rotvec(w).as_matrix()
+    return cast("np.ndarray", Rotation.from_rotvec(w).as_matrix())
 
 
 class _NearestCache:
@@ -154,7 +158,7 @@ class _NearestCache:
     queries are made, and the transforms are the same bit for bit.
     """
 
-    def __init__(self, tree, tgt: np.ndarray, n: int, max_dist: float) -> None:
+    def __init__(self, tree: cKDTree, tgt: np.ndarray, n: int, max_dist: float) -> None:
         self.tree, self.tgt, self.max_dist = tree, tgt, max_dist
         # Kept across scales of decreasing max_dist: the slacks stay valid (a point
         # with nothing within reach has even more room for a smaller max_dist).
@@ -185,16 +189,16 @@ class _NearestCache:
 
 
 def lm_icp(
-    src,
-    tgt,
-    T_init,
-    max_dist,
-    iters,
-    tol,
-    reporter=NULL_REPORTER,
-    tree=None,
-    nearest=None,
-):
+    src: np.ndarray,
+    tgt: np.ndarray,
+    T_init: Transform,
+    max_dist: float,
+    iters: int,
+    tol: float,
+    reporter: Reporter = NULL_REPORTER,
+    tree: cKDTree | None = None,
+    nearest: _NearestCache | None = None,
+) -> tuple[Transform, int, bool]:
     """Levenberg-Marquardt point-to-point ICP. Returns (T, iterations, converged).
 
     ``tree`` is a cKDTree built on ``tgt``, reused when given; ``nearest`` a
@@ -246,7 +250,14 @@ def lm_icp(
     return T, iters, False
 
 
-def _robust_plane(src, tgt, T_init, max_dist, iters, tol):
+def _robust_plane(
+    src: np.ndarray,
+    tgt: np.ndarray,
+    T_init: Transform,
+    max_dist: float,
+    iters: int,
+    tol: float,
+) -> tuple[Transform, int, bool]:
     import open3d as o3d
 
     reg = o3d.pipelines.registration

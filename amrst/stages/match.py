@@ -172,7 +172,9 @@ def _combinations4(n: int) -> np.ndarray:
     return quads
 
 
-def _tetrahedra(xyz: np.ndarray, params: MatchParams):
+def _tetrahedra(
+    xyz: np.ndarray, params: MatchParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Admissible tetrahedra: (T, 4) indices, (T, 6) edges, (T,) signed volume."""
     n = len(xyz)
     if n < 4:
@@ -209,7 +211,13 @@ def _tetrahedra(xyz: np.ndarray, params: MatchParams):
     return quads[order], edges[order], signed[order]
 
 
-def _descriptor(kp, quads, edges, signed, params: MatchParams) -> np.ndarray:
+def _descriptor(
+    kp: np.ndarray,
+    quads: np.ndarray,
+    edges: np.ndarray,
+    signed: np.ndarray,
+    params: MatchParams,
+) -> np.ndarray:
     """Compute sorted log edge lengths and the log volume of each quad.
 
     With levelled scanners also the sorted vertex heights.
@@ -239,7 +247,9 @@ _EDGE_PERM = np.array([[_edge_index(p[a], p[b]) for a, b in _EDGES] for p in _PE
 _PARITY = np.array([np.linalg.det(np.eye(4)[list(p)]) for p in _PERMS])
 
 
-def _descriptor_pairs(desc_t: np.ndarray, desc_s: np.ndarray):
+def _descriptor_pairs(
+    desc_t: np.ndarray, desc_s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """All (target, source) descriptor pairs within Chebyshev distance 1, sorted.
 
     One dual-tree traversal (``sparse_distance_matrix``) instead of a ball query per
@@ -261,8 +271,18 @@ def _descriptor_pairs(desc_t: np.ndarray, desc_s: np.ndarray):
 
 
 def _correspond(
-    target_kp, source_kp, tq, sq, te, se, tv, sv, ti, si, params: MatchParams
-):
+    target_kp: np.ndarray,
+    source_kp: np.ndarray,
+    tq: np.ndarray,
+    sq: np.ndarray,
+    te: np.ndarray,
+    se: np.ndarray,
+    tv: np.ndarray,
+    sv: np.ndarray,
+    ti: np.ndarray,
+    si: np.ndarray,
+    params: MatchParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For descriptor pairs, the proper vertex permutation whose edges agree best.
 
     Sorted edges lose the vertex order and admit mirror images (same edges, opposite

@@ -125,7 +125,9 @@ class SeparationResult:
         return float(self.is_wood.mean()) if len(self.is_wood) else 0.0
 
 
-def _geometry_votes(xyz, neighbours, params):
+def _geometry_votes(
+    xyz: np.ndarray, neighbours: np.ndarray, params: SeparateParams
+) -> tuple[np.ndarray, float]:
     feats = shape_features(xyz, neighbours, params.scales_k)
     curv = np.max([f["curvature"] for f in feats], axis=0)  # smooth at every scale
     thr = params.curvature_max
@@ -136,7 +138,9 @@ def _geometry_votes(xyz, neighbours, params):
     return ((curv < thr) | linear).astype(float), thr
 
 
-def _intensity_votes(intensity, params):
+def _intensity_votes(
+    intensity: np.ndarray, params: SeparateParams
+) -> tuple[np.ndarray, float]:
     thr = params.intensity_threshold
     if not np.isfinite(thr):
         thr = otsu_threshold(intensity)
@@ -207,8 +211,7 @@ def separate_wood(
     is_wood = np.zeros(n, dtype=bool)
     wood_idx = np.flatnonzero(candidate)
     if len(wood_idx):
-        v = params.voxel_size_m
-        keys, code = voxel_grid(xyz[wood_idx], v)
+        keys, code = voxel_grid(xyz[wood_idx], params.voxel_size_m)
         _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
         uniq = keys[first]
         labels = connected_components(

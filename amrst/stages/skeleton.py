@@ -11,11 +11,16 @@ the cluster its shortest paths come from. Short twigs are pruned.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+    from scipy.sparse import csr_matrix
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -122,7 +127,9 @@ class SkeletonResult:
         return np.bincount(p, minlength=len(self.nodes))
 
 
-def _min_edge_per_pair(key, el):
+def _min_edge_per_pair(
+    key: np.ndarray, el: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Index of the shortest edge for each component pair code, by ascending code.
 
     Returns the edge indices and their codes.
@@ -133,7 +140,7 @@ def _min_edge_per_pair(key, el):
     return order[first], sorted_key[first]
 
 
-def _graph(xyz: np.ndarray, params: SkeletonParams):
+def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
     """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
 
     Gaps left by occlusion split the wood into components. Candidate bridges are the
@@ -286,8 +293,12 @@ def build_skeleton(
     k = int(cluster.max()) + 1
     valid = cluster >= 0
     counts = np.bincount(cluster[valid], minlength=k)
-    nodes = np.column_stack(
-        [np.bincount(cluster[valid], xyz[valid, d], k) for d in range(3)]
+    # np.bincount with weights gives float64 (numpy's stubs say intp).
+    nodes = cast(
+        "npt.NDArray[np.float64]",
+        np.column_stack(
+            [np.bincount(cluster[valid], xyz[valid, d], k) for d in range(3)]
+        ),
     )
     nodes /= np.maximum(counts, 1)[:, None]
     node_geo = np.full(k, np.inf)
@@ -318,7 +329,15 @@ def build_skeleton(
     return _compact(nodes, parent, node_geo, counts, keep, root_node, bridged)
 
 
-def _compact(nodes, parent, geo, counts, keep, root, bridged) -> SkeletonResult:
+def _compact(
+    nodes: np.ndarray,
+    parent: np.ndarray,
+    geo: np.ndarray,
+    counts: np.ndarray,
+    keep: np.ndarray,
+    root: int,
+    bridged: int,
+) -> SkeletonResult:
     new_id = np.full(len(nodes), -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))
     par = parent[keep]

@@ -15,6 +15,7 @@ scores them as the coarse stage scores its candidates and adds them to the ranki
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from amrst.stages.coarse import (
     verification_sample,
 )
 from amrst.types import Transform, make_transform
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 TRUNK_MODES = ("fallback", "always", "off")
 _MIN_SLICE_POINTS = 10
@@ -231,7 +235,7 @@ def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def polish_levelled(
-    src: np.ndarray, tgt: np.ndarray, tree, Ts: np.ndarray, max_dist: float
+    src: np.ndarray, tgt: np.ndarray, tree: cKDTree, Ts: np.ndarray, max_dist: float
 ) -> np.ndarray:
     """Polish (B, 4, 4) starts at once with a turn about the vertical and a translation.
 
@@ -245,7 +249,7 @@ def search_yaw(
     source_xyz: np.ndarray,
     params: TrunkParams,
     reporter: Reporter = NULL_REPORTER,
-    target_tree=None,
+    target_tree: cKDTree | None = None,
 ) -> TrunkSearchResult:
     """Sweep the source heading about its trunk base and keep the best distinct fits.
 
@@ -312,7 +316,7 @@ def search_yaw(
 
 def score_transforms(
     transforms: list[Transform],
-    target_tree,
+    target_tree: cKDTree,
     source_xyz: np.ndarray,
     params: CoarseParams,
     precise_dist_m: float,
@@ -338,7 +342,7 @@ def merge_trunk_solutions(
     candidates: CandidateList,
     search: TrunkSearchResult,
     refined: list[Transform],
-    target_tree,
+    target_tree: cKDTree,
     source_xyz: np.ndarray,
     params: CoarseParams,
     precise_dist_m: float,
