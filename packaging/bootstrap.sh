@@ -53,6 +53,9 @@ case "$mode" in
   test)
     # Architecture contract: amrst/ never imports Qt or pyvista.
     .venv/bin/lint-imports --config pyproject.toml
+    # House rules (STYLE.md section 7), configured in pyproject.toml: lint, then types.
+    .venv/bin/ruff check .
+    .venv/bin/python -m mypy
     # Own process group under a timeout, so a crash never leaves Xvfb behind.
     export QT_QPA_PLATFORM=xcb
     set +e
