@@ -49,7 +49,9 @@ class StageJob(QObject):
         self._done = False
         self._discarded = False
         # Emitted from the worker thread, delivered on this object's (GUI) thread.
-        self._progress_from_worker.connect(self._relay_progress, Qt.QueuedConnection)
+        self._progress_from_worker.connect(
+            self._relay_progress, Qt.ConnectionType.QueuedConnection
+        )
 
     @property
     def done(self) -> bool:
@@ -80,9 +82,11 @@ class StageJob(QObject):
                 raise
 
         worker = create_worker(work, _start_thread=False, _ignore_errors=True)
-        worker.returned.connect(self._relay_returned, Qt.QueuedConnection)
-        worker.errored.connect(self._relay_errored, Qt.QueuedConnection)
-        worker.warned.connect(self._relay_warned, Qt.QueuedConnection)
+        worker.returned.connect(
+            self._relay_returned, Qt.ConnectionType.QueuedConnection
+        )
+        worker.errored.connect(self._relay_errored, Qt.ConnectionType.QueuedConnection)
+        worker.warned.connect(self._relay_warned, Qt.ConnectionType.QueuedConnection)
         self._worker = worker
         worker.start()
 
