@@ -317,15 +317,16 @@ def truth_check_markdown(
         elif all(math.isfinite(e) and e >= t for e, t in zip(est, true, strict=True)):
             verdict = "estimate fits the data at least as well as the truth"
         else:
-            verdict = "truth fits better: a wrong pose"
+            verdict = "truth fits better: the method missed it"
         rows.append([c, pct(true[0]), pct(true[1]), pct(est[0]), pct(est[1]), verdict])
     return (
         f"\n## Do the scans single out the truth? ({method})\n\n"
         "Share of source points within 2 cm and 4 cm of the target under the truth "
         f"and under {method}'s estimate. When an unregistered estimate puts at least "
-        "as many points that close as the truth does, the scans alone cannot tell "
-        "the two poses apart at that tolerance: the miss is below what the data "
-        "resolve, not a wrong match.\n\n"
+        "as many points that close as the truth does, the scans alone do not single "
+        "out the truth at that tolerance: no method that scores how well the clouds "
+        "agree can be expected to find it there, whether the estimate lies near it "
+        "or far from it.\n\n"
         + _table(
             [
                 "case",
