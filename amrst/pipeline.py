@@ -48,6 +48,7 @@ from amrst.stages.trunk import (
     merge_trunk_solutions,
     score_transforms,
     search_yaw,
+    trunk_contenders,
 )
 from amrst.types import Cloud, Transform, make_transform
 
@@ -288,8 +289,8 @@ def _add_trunk_solutions(
 ) -> tuple[CandidateList, dict[int, FineResult]]:
     """Run the trunk heading search, refine its best headings, add them to the list.
 
-    Returns the merged list and ``{candidate id: FineResult}`` for the solution that
-    already had its full fine registration.
+    Returns the merged list and ``{candidate id: FineResult}`` for the solutions that
+    already had their full fine registration.
     """
     from scipy.spatial import cKDTree
 
@@ -303,7 +304,8 @@ def _add_trunk_solutions(
     )
     log.info("Trunk heading search kept %d heading(s)", len(search.solutions))
     # Rank the kept headings by a quick fine registration, then refine the best one
-    # with the full settings (the others stay as the quick pass left them).
+    # and its close contenders with the full settings (the rest stay as the quick
+    # pass left them).
     choice = params.trunk.fine_points
     tries = ("all", "leaf") if choice == "best" else (choice,)
     quick = replace(
@@ -315,7 +317,7 @@ def _add_trunk_solutions(
             max_iterations=params.trunk.refine_iterations,
         ),
     )
-    refined, used, done = [], [], None
+    refined, used = [], []
     n = len(search.solutions)
     for k, sol in enumerate(search.solutions):
         step = SubReporter(reporter, 0.6 + 0.3 * k / n, 0.6 + 0.3 * (k + 1) / n)
@@ -324,27 +326,36 @@ def _add_trunk_solutions(
         )
         used.append(tries[0])
         step.progress(1.0, "refining the best headings")
+    done: list[FineResult] = []
     if refined:
-        best = int(np.argmax(_precise(refined, tree, source, params)))
-        fits = [
-            refine(
-                target,
-                source,
-                refined[best],
-                replace(params, fine=replace(params.fine, points=points)),
-                SubReporter(
-                    reporter,
-                    0.9 + 0.1 * i / len(tries),
-                    0.9 + 0.1 * (i + 1) / len(tries),
-                ),
+        # The best quick fit, and every heading whose quick fit comes close to it,
+        # gets the full fine registration (on each point set tried); then the
+        # close-point share decides. A quick fit that stopped short must not settle
+        # a close race (case 17 flipped on the fine stage's sample size).
+        close = _precise(refined, tree, source, params)
+        contenders = trunk_contenders(close, params.trunk.contender_share)
+        runs = [(k, points) for k in contenders for points in tries]
+        fits = []
+        for i, (k, points) in enumerate(runs):
+            fits.append(
+                refine(
+                    target,
+                    source,
+                    refined[k],
+                    replace(params, fine=replace(params.fine, points=points)),
+                    SubReporter(
+                        reporter,
+                        0.9 + 0.1 * i / len(runs),
+                        0.9 + 0.1 * (i + 1) / len(runs),
+                    ),
+                )
             )
-            for i, points in enumerate(tries)
-        ]
-        pick = int(
-            np.argmax(_precise([f.T_target_source for f in fits], tree, source, params))
-        )
-        refined[best], used[best] = fits[pick].T_target_source, tries[pick]
-        done = fits[pick]
+        scores = _precise([f.T_target_source for f in fits], tree, source, params)
+        for k in {k for k, _ in runs}:
+            mine = [i for i, (kk, _) in enumerate(runs) if kk == k]
+            pick = max(mine, key=lambda i: scores[i])
+            refined[k], used[k] = fits[pick].T_target_source, runs[pick][1]
+            done.append(fits[pick])
     merged = merge_trunk_solutions(
         ranked,
         search,
@@ -355,14 +366,13 @@ def _add_trunk_solutions(
         params.trunk.score_dist_m,
         used,
     )
-    # The best heading already had its full fine registration: register() reuses it.
-    finished: dict[int, FineResult] = {}
-    if done is not None:
-        finished = {
-            c.id: done
-            for c in merged.candidates
-            if c.T_target_source is done.T_target_source
-        }
+    # These headings already had their full fine registration: register() reuses it.
+    finished = {
+        c.id: fit
+        for fit in done
+        for c in merged.candidates
+        if c.T_target_source is fit.T_target_source
+    }
     return merged, finished
 
 

@@ -147,6 +147,15 @@ class TrunkParams:
             "help": "Iterations per scale of that quick fine registration.",
         },
     )
+    contender_share: float = field(
+        default=0.5,
+        metadata={
+            "unit": "of the best",
+            "min": 0.0,
+            "max": 1.0,
+            "help": "Kept headings whose quick fit puts at least this share of the best one's close points (within score_dist_m) also get the full fine registration, and the best after it wins: a quick fit that has not converged does not decide between close contenders (1 = only the best).",
+        },
+    )
     seed: int = field(default=0, metadata={"help": "Seed of the point sampling."})
 
 
@@ -336,6 +345,29 @@ def score_transforms(
         )[0]
         out[:, k] = np.mean(d < params.tight_dist_m), np.mean(d < precise_dist_m)
     return out[0], out[1]
+
+
+def trunk_contenders(close: np.ndarray, share: float) -> list[int]:
+    """Pick the headings that get the full fine registration.
+
+    Parameters
+    ----------
+    close : (K,) float
+        Each kept heading's share of close points after the quick fine registration.
+    share : float
+        ``TrunkParams.contender_share``.
+
+    Returns
+    -------
+    list of int
+        The best heading first, then every other whose share is at least ``share``
+        times the best one's (none when the best has no close point), best first.
+    """
+    if len(close) == 0:
+        return []
+    order = [int(k) for k in np.argsort(-np.asarray(close), kind="stable")]
+    best = float(close[order[0]])
+    return [order[0]] + [k for k in order[1:] if best > 0 and close[k] >= share * best]
 
 
 def merge_trunk_solutions(

@@ -132,3 +132,37 @@ def test_trunk_search_does_not_run_when_a_match_verifies(sample_run) -> None:
     assert r.coarse.verified
     assert r.coarse.candidate.origin == "tetrahedra"
     assert "trunk" not in r.timings
+
+
+def test_contenders_are_the_best_and_those_close_to_it() -> None:
+    from amrst.stages.trunk import trunk_contenders
+
+    assert trunk_contenders(np.array([0.004, 0.0067, 0.002]), 0.5) == [1, 0]
+    assert trunk_contenders(np.array([0.004, 0.0067, 0.002]), 1.0) == [1]
+    assert trunk_contenders(np.array([0.004, 0.0067, 0.002]), 0.0) == [1, 0, 2]
+    assert trunk_contenders(np.array([0.0, 0.0]), 0.5) == [0]  # nothing close at all
+    assert trunk_contenders(np.array([]), 0.5) == []
+
+
+def test_every_contender_gets_and_keeps_its_full_fine_fit(sample_pair) -> None:
+    """With contender_share 0 every kept heading is refined in full; each of those
+    fits is kept for register() to reuse, and the winner is still the right one."""
+    base = RegistrationParams()
+    params = dataclasses.replace(
+        base,
+        match=dataclasses.replace(
+            base.match, edge_tolerance=0.005, max_residual_m=0.001, retry_relaxed=False
+        ),
+        trunk=dataclasses.replace(base.trunk, contender_share=0.0),
+    )
+    r = amrst.register(sample_pair.target, sample_pair.source, params)
+    trunk_ids = {c.id for c in r.matches.candidates if c.origin == "trunk"}
+    assert len(trunk_ids) >= 2
+    assert set(r.matches.refined) == trunk_ids
+    assert r.fine is r.matches.refined[r.coarse.candidate.id]
+    err = r.T_target_source @ np.linalg.inv(sample_pair.T_true)
+    moved = apply_transform(err, sample_pair.target.world_xyz)
+    assert (
+        float(np.sqrt(np.mean(np.sum((moved - sample_pair.target.world_xyz) ** 2, 1))))
+        < 0.05
+    )
