@@ -24,6 +24,8 @@ if TYPE_CHECKING:
 
 FINE_METHODS = ("robust_plane", "lm_icp", "none")
 POINT_SETS = ("all", "leaf", "wood")
+# Fewer sampled points than this make the fit a lottery (LM-ICP needs 6 at least).
+MIN_FIT_POINTS = 100
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -59,7 +61,7 @@ class FineParams:
             "unit": "points",
             "min": 0,
             "max": 10_000_000,
-            "help": "After thinning, at most this many source points (a seeded sample) drive the fit; the target keeps all. Time grows with it, accuracy hardly beyond a few thousand (0 = all).",
+            "help": "After thinning, at most this many source points (a seeded sample) drive the fit; the target keeps all, and fitness and inlier RMSE are measured on all thinned points. Time grows with it, accuracy hardly beyond a few thousand (0 = all; otherwise at least 100).",
         },
     )
     max_corr_dist_m: float = field(
@@ -113,6 +115,11 @@ class FineParams:
             raise ValueError(f"fine method must be one of {FINE_METHODS}")
         if self.points not in POINT_SETS:
             raise ValueError(f"fine points must be one of {POINT_SETS}")
+        if self.max_points != 0 and self.max_points < MIN_FIT_POINTS:
+            raise ValueError(
+                f"fine max_points must be 0 (all points) or at least {MIN_FIT_POINTS}, "
+                f"not {self.max_points}"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -320,6 +327,7 @@ def refine_registration(
     if params.voxel_size_m > 0:
         source_xyz = source_xyz[_voxel_representatives(source_xyz, params.voxel_size_m)]
         target_xyz = target_xyz[_voxel_representatives(target_xyz, params.voxel_size_m)]
+    all_source = source_xyz  # fitness and inlier RMSE are reported on all of them
     if 0 < params.max_points < len(source_xyz):
         pick = np.random.default_rng(0).choice(
             len(source_xyz), params.max_points, replace=False
@@ -360,7 +368,7 @@ def refine_registration(
                 f"scale {s + 1}/{params.scales}, {dist * 100:.0f} cm",
             )
             reporter.check_cancelled()
-    d = tree.query(source_xyz @ T[:3, :3].T + T[:3, 3])[0]
+    d = tree.query(all_source @ T[:3, :3].T + T[:3, 3])[0]
     inl = d < dist
     return FineResult(
         T,

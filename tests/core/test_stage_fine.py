@@ -199,15 +199,30 @@ def test_nearest_cache_matches_a_fresh_query_every_step() -> None:
 
 
 def test_max_points_samples_the_source_and_still_converges(oblique_pair) -> None:
-    """A 300-point sample of the source drives the fit (the fitness is a count over
-    those 300) and still lands on the truth; the sample is seeded."""
+    """A 300-point sample of the source drives the fit and still lands on the truth;
+    the sample is seeded, and fitness and inlier RMSE are those of all the points."""
     p = oblique_pair
+    rng = np.random.default_rng(2)
+    src = p.source[rng.choice(len(p.source), 1200, replace=False)]
     params = FineParams(method="lm_icp", voxel_size_m=0.0, max_points=300)
-    assert len(p.source) > 300
-    res = refine_registration(p.source, p.target, np.eye(4), params)
-    assert res.fitness * 300 == pytest.approx(round(res.fitness * 300))
+    res = refine_registration(src, p.target, np.eye(4), params)
     rot, trans = _errors(res.T_target_source, p.T_true)
     assert rot < 0.3
     assert trans < 0.03
-    again = refine_registration(p.source, p.target, np.eye(4), params)
+    fitness, rmse = _quality(src, p.target, res.T_target_source, res.max_corr_dist_m)
+    assert res.fitness == pytest.approx(fitness)
+    assert res.inlier_rmse_m == pytest.approx(rmse)
+    again = refine_registration(src, p.target, np.eye(4), params)
     np.testing.assert_array_equal(again.T_target_source, res.T_target_source)
+    full = refine_registration(
+        src, p.target, np.eye(4), dataclasses.replace(params, max_points=0)
+    )
+    assert not np.array_equal(full.T_target_source, res.T_target_source)
+
+
+@pytest.mark.parametrize("bad", [-1, 1, 5, 99])
+def test_max_points_below_a_usable_sample_is_refused(bad) -> None:
+    with pytest.raises(ValueError, match="max_points"):
+        FineParams(max_points=bad)
+    assert FineParams(max_points=0).max_points == 0
+    assert FineParams(max_points=100).max_points == 100
