@@ -312,12 +312,18 @@ def truth_check_markdown(
             continue
         est = (r["within_2cm"], r["within_4cm"])
         true = (r["truth_within_2cm"], r["truth_within_4cm"])
+        est_wins = [e >= t for e, t in zip(est, true, strict=True)]
         if r["success"]:
             verdict = "registered"
-        elif all(math.isfinite(e) and e >= t for e, t in zip(est, true, strict=True)):
+        elif not all(math.isfinite(v) for v in (*est, *true)):
+            verdict = "n/a (an empty cloud)"
+        elif all(est_wins):
             verdict = "estimate fits the data at least as well as the truth"
-        else:
+        elif not any(est_wins):
             verdict = "truth fits better: the method missed it"
+        else:
+            near, far = ("estimate", "truth") if est_wins[0] else ("truth", "estimate")
+            verdict = f"mixed: the data favour the {near} at 2 cm, the {far} at 4 cm"
         rows.append([c, pct(true[0]), pct(true[1]), pct(est[0]), pct(est[1]), verdict])
     return (
         f"\n## Do the scans single out the truth? ({method})\n\n"
@@ -330,10 +336,10 @@ def truth_check_markdown(
         + _table(
             [
                 "case",
-                "truth ≤2 cm",
-                "truth ≤4 cm",
-                f"{method} ≤2 cm",
-                f"{method} ≤4 cm",
+                "truth <2 cm",
+                "truth <4 cm",
+                f"{method} <2 cm",
+                f"{method} <4 cm",
                 "verdict",
             ],
             rows,

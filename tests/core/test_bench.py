@@ -225,10 +225,14 @@ def test_truth_check_says_when_the_data_prefer_the_estimate() -> None:
         ("a", "amrst"): row(True, (0.3, 0.5), (0.3, 0.5)),
         ("b", "amrst"): row(False, (0.03, 0.10), (0.02, 0.08)),
         ("c", "amrst"): row(False, (0.01, 0.02), (0.30, 0.50)),
+        ("d", "amrst"): row(False, (0.05, 0.08), (0.03, 0.10)),
+        ("e", "amrst"): row(False, (0.05, 0.08), (float("nan"), float("nan"))),
     }
-    text = truth_check_markdown(agg, ["a", "b", "c"])
+    text = truth_check_markdown(agg, ["a", "b", "c", "d", "e"])
     lines = {ln.split(" |")[0].strip("| "): ln for ln in text.splitlines()}
     assert lines["a"].endswith("| registered |")
     assert "at least as well as the truth" in lines["b"]
     assert "the method missed it" in lines["c"]
     assert "| 3.0% | 10.0% |" in lines["b"]
+    assert "favour the estimate at 2 cm, the truth at 4 cm" in lines["d"]
+    assert "n/a" in lines["e"]
