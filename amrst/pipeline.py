@@ -333,7 +333,9 @@ def _add_trunk_solutions(
         # close-point share decides. A quick fit that stopped short must not settle
         # a close race (case 17 flipped on the fine stage's sample size).
         close = _precise(refined, tree, source, params)
-        contenders = trunk_contenders(close, params.trunk.contender_share)
+        contenders = trunk_contenders(
+            close, params.trunk.contender_share, refined, source.xyz.mean(axis=0)
+        )
         runs = [(k, points) for k in contenders for points in tries]
         fits = []
         for i, (k, points) in enumerate(runs):

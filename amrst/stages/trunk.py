@@ -33,6 +33,8 @@ from amrst.stages.coarse import (
 from amrst.types import Transform, make_transform
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from scipy.spatial import cKDTree
 
 TRUNK_MODES = ("fallback", "always", "off")
@@ -126,7 +128,7 @@ class TrunkParams:
         default="best",
         metadata={
             "choices": ("best", "all", "leaf", "wood"),
-            "help": "Points the fine registration of the best heading uses. best: fit on all points and on the leaf points and keep the fit that puts more source points within score_dist_m (all points hold scans that share little crown in place; leaf points avoid the bias two trunk halves give).",
+            "help": "Points the full fine registration of the best heading (and its contenders, see contender_share) uses. best: fit on all points and on the leaf points and keep the fit that puts more source points within score_dist_m (all points hold scans that share little crown in place; leaf points avoid the bias two trunk halves give).",
         },
     )
     refine_voxel_m: float = field(
@@ -135,7 +137,7 @@ class TrunkParams:
             "unit": "m",
             "min": 0.0,
             "max": 0.5,
-            "help": "Voxel size of the quick fine registration that ranks the kept headings; the best one is then refined with the full fine settings.",
+            "help": "Voxel size of the quick fine registration that ranks the kept headings; the best one and its contenders are then refined with the full fine settings.",
         },
     )
     refine_iterations: int = field(
@@ -153,7 +155,7 @@ class TrunkParams:
             "unit": "of the best",
             "min": 0.0,
             "max": 1.0,
-            "help": "Kept headings whose quick fit puts at least this share of the best one's close points (within score_dist_m) also get the full fine registration, and the best after it wins: a quick fit that has not converged does not decide between close contenders (1 = only the best).",
+            "help": "Kept headings whose quick fit puts at least this share of the best one's close points (within score_dist_m) also get the full fine registration, and the best after it wins: a quick fit that has not converged does not decide between close contenders (1 = only the best and exact ties).",
         },
     )
     seed: int = field(default=0, metadata={"help": "Seed of the point sampling."})
@@ -347,7 +349,12 @@ def score_transforms(
     return out[0], out[1]
 
 
-def trunk_contenders(close: np.ndarray, share: float) -> list[int]:
+def trunk_contenders(
+    close: np.ndarray,
+    share: float,
+    transforms: Sequence[Transform] | None = None,
+    centre: np.ndarray | None = None,
+) -> list[int]:
     """Pick the headings that get the full fine registration.
 
     Parameters
@@ -356,6 +363,11 @@ def trunk_contenders(close: np.ndarray, share: float) -> list[int]:
         Each kept heading's share of close points after the quick fine registration.
     share : float
         ``TrunkParams.contender_share``.
+    transforms : sequence of K (4, 4) float64, optional
+        The quick fits; with ``centre``, a heading that landed on the pose of one
+        already picked is skipped (refining it again would give the same fit).
+    centre : (3,) float64, optional
+        Source centre of the same-pose test (local frame).
 
     Returns
     -------
@@ -367,7 +379,18 @@ def trunk_contenders(close: np.ndarray, share: float) -> list[int]:
         return []
     order = [int(k) for k in np.argsort(-np.asarray(close), kind="stable")]
     best = float(close[order[0]])
-    return [order[0]] + [k for k in order[1:] if best > 0 and close[k] >= share * best]
+    picked = [order[0]]
+    for k in order[1:]:
+        if not (best > 0 and close[k] >= share * best):
+            continue
+        if (
+            transforms is not None
+            and centre is not None
+            and not all(_distinct(transforms[k], transforms[j], centre) for j in picked)
+        ):
+            continue
+        picked.append(k)
+    return picked
 
 
 def merge_trunk_solutions(
