@@ -16,6 +16,7 @@ from PySide6.QtWidgets import (
 )
 
 COLUMNS = ("#", "Score", "Supp.", "Vol. m³", "Edge err.", "SVD m", "Close", "Status")
+CLOSE_COLUMN = COLUMNS.index("Close")
 _TIPS = (
     "Rank (1 = best): verified solutions first, then by score; the trunk heading "
     "search's solutions among themselves by their close fit (Close column)",
@@ -180,6 +181,12 @@ class MatchesPanel(QWidget):
 
     def _on_matches_changed(self, *_args) -> None:
         self.model.reload()
+        # The Close column only means something for trunk-search solutions; hidden
+        # otherwise, so Status stays in view at the dock's default width.
+        self.table.setColumnHidden(
+            CLOSE_COLUMN,
+            not any(getattr(c, "origin", "") == "trunk" for c in self.model.rows),
+        )
         self._show_coarse()
         self._on_selection_changed(
             self.session.selected_match and self.session.selected_match.id

@@ -29,6 +29,7 @@ def test_full_workflow_review_accept_refine_export(
     assert win.matches_panel.model.rowCount() == len(ranked)
     model = win.matches_panel.model
     assert model.data(model.index(0, 6)) == "—"  # close fit: trunk solutions only
+    assert win.matches_panel.table.isColumnHidden(6)  # ... so the column is hidden
 
     # The best match is selected and drawn in both views, same vertex colours.
     assert s.selected_match.id == ranked[0].id
@@ -153,6 +154,7 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     assert model.data(model.index(0, 3)) == "trunk"  # the volume column
     assert model.data(model.index(0, 4)) == "—"
     # The close-fit share that orders the headings is shown, best first.
+    assert not win.matches_panel.table.isColumnHidden(6)
     close = [float(model.data(model.index(r, 6)).rstrip("%")) for r in range(3)]
     assert close == sorted(close, reverse=True)
     assert close[0] == pytest.approx(100 * ranked[0].precise_score, abs=0.05)
