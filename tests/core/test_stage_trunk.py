@@ -116,6 +116,9 @@ def test_pipeline_falls_back_to_the_trunk_search(sample_pair) -> None:
     assert r.coarse.candidate.fine_points in ("all", "leaf")
     # Its full fine registration ran while verifying it, and is not run twice.
     assert r.fine is r.matches.refined[r.coarse.candidate.id]
+    # Same transform before and after, so the metrics are measured once.
+    np.testing.assert_array_equal(r.T_coarse, r.T_target_source)
+    assert r.metrics_fine is r.metrics_coarse
     err = r.T_target_source @ np.linalg.inv(sample_pair.T_true)
     moved = apply_transform(err, sample_pair.target.world_xyz)
     gt = float(np.sqrt(np.mean(np.sum((moved - sample_pair.target.world_xyz) ** 2, 1))))
