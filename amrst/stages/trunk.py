@@ -98,7 +98,7 @@ class TrunkParams:
         },
     )
     points: int = field(
-        default=1000,
+        default=600,
         metadata={
             "unit": "points",
             "min": 50,
