@@ -94,8 +94,10 @@ class ExportDialog(QDialog):
         form.addRow("Cloud format:", self.format_combo)
         self.problem = QLabel("")
         self.problem.setStyleSheet("color: #c00000;")
-        self.buttons = QDialogButtonBox(QDialogButtonBox.Ok | QDialogButtonBox.Cancel)
-        self.buttons.button(QDialogButtonBox.Ok).setText("Export")
+        self.buttons = QDialogButtonBox(
+            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
+        )
+        self.buttons.button(QDialogButtonBox.StandardButton.Ok).setText("Export")
         self.buttons.accepted.connect(self.accept)
         self.buttons.rejected.connect(self.reject)
         layout = QVBoxLayout(self)
@@ -125,7 +127,7 @@ class ExportDialog(QDialog):
         elif not self.parts():
             problem = "Choose at least one thing to write."
         self.problem.setText(problem)
-        self.buttons.button(QDialogButtonBox.Ok).setEnabled(not problem)
+        self.buttons.button(QDialogButtonBox.StandardButton.Ok).setEnabled(not problem)
 
     def _browse(self) -> None:
         folder = QFileDialog.getExistingDirectory(
@@ -188,7 +190,7 @@ class AboutDialog(QDialog):
             f"<table>{rows}</table>"
         )
         text.setWordWrap(True)
-        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
         buttons.rejected.connect(self.reject)
         layout = QVBoxLayout(self)
         layout.addWidget(text)
@@ -204,7 +206,7 @@ class ShortcutsDialog(QDialog):
         self.setWindowTitle("Keyboard shortcuts")
         rows = []
         for action in actions:
-            key = action.shortcut().toString(QKeySequence.NativeText)
+            key = action.shortcut().toString(QKeySequence.SequenceFormat.NativeText)
             if key:
                 label = (
                     action.text()
@@ -221,7 +223,7 @@ class ShortcutsDialog(QDialog):
             f"<table>{''.join(rows)}</table><p>Delete and R act on the "
             "selected match while the Matches dock has focus.</p>"
         )
-        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
         buttons.rejected.connect(self.reject)
         layout = QVBoxLayout(self)
         layout.addWidget(text)

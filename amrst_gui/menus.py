@@ -45,7 +45,7 @@ def build(window) -> QToolBar:
 
     toolbar = QToolBar("Workflow", window)
     toolbar.setObjectName("workflow_toolbar")  # saveState needs it
-    toolbar.setToolButtonStyle(Qt.ToolButtonTextBesideIcon)
+    toolbar.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
     toolbar.addAction(a.open_target)
     toolbar.addAction(a.open_source)
     toolbar.addSeparator()
@@ -55,10 +55,10 @@ def build(window) -> QToolBar:
     toolbar.addAction(a.run_all)
     toolbar.addAction(a.export)
     toolbar.addAction(a.cancel)
-    window.addToolBar(Qt.TopToolBarArea, toolbar)
+    window.addToolBar(Qt.ToolBarArea.TopToolBarArea, toolbar)
     # Shortcuts must work even when the menu bar is hidden or the toolbar floats.
     for action in all_actions(window):
-        if action.shortcutContext() != Qt.WidgetWithChildrenShortcut:
+        if action.shortcutContext() != Qt.ShortcutContext.WidgetWithChildrenShortcut:
             window.addAction(action)
     return toolbar
 

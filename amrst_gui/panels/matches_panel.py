@@ -65,11 +65,11 @@ class CandidateModel(QAbstractTableModel):
     def columnCount(self, parent=_ROOT) -> int:
         return 0 if parent.isValid() else len(COLUMNS)
 
-    def headerData(self, section, orientation, role=Qt.DisplayRole):
-        if orientation == Qt.Horizontal:
-            if role == Qt.DisplayRole:
+    def headerData(self, section, orientation, role=Qt.ItemDataRole.DisplayRole):
+        if orientation == Qt.Orientation.Horizontal:
+            if role == Qt.ItemDataRole.DisplayRole:
                 return COLUMNS[section]
-            if role == Qt.ToolTipRole:
+            if role == Qt.ItemDataRole.ToolTipRole:
                 return _TIPS[section]
         return None
 
@@ -85,12 +85,12 @@ class CandidateModel(QAbstractTableModel):
             return "◀ coarse"
         return ""
 
-    def data(self, index, role=Qt.DisplayRole):
+    def data(self, index, role=Qt.ItemDataRole.DisplayRole):
         if not index.isValid():
             return None
         cand = self.rows[index.row()]
         col = index.column()
-        if role == Qt.DisplayRole:
+        if role == Qt.ItemDataRole.DisplayRole:
             return (
                 str(cand.rank),
                 f"{cand.score:.3f}",
@@ -101,19 +101,19 @@ class CandidateModel(QAbstractTableModel):
                 _num(getattr(cand, "precise_score", float("nan")), "{:.1%}"),
                 self.status(cand),
             )[col]
-        if role == Qt.ToolTipRole:
+        if role == Qt.ItemDataRole.ToolTipRole:
             return str(cand.explanation)
-        if role == Qt.TextAlignmentRole and col < len(COLUMNS) - 1:
-            return int(Qt.AlignRight | Qt.AlignVCenter)
+        if role == Qt.ItemDataRole.TextAlignmentRole and col < len(COLUMNS) - 1:
+            return int(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
         status = self.status(cand)
-        if role == Qt.ForegroundRole and status == "rejected":
+        if role == Qt.ItemDataRole.ForegroundRole and status == "rejected":
             return QColor("#999999")
-        if role == Qt.FontRole and status:
+        if role == Qt.ItemDataRole.FontRole and status:
             font = QFont()
             font.setStrikeOut(status == "rejected")
             font.setBold(status.endswith("coarse"))
             return font
-        if role == Qt.UserRole:
+        if role == Qt.ItemDataRole.UserRole:
             return int(cand.id)
         return None
 
@@ -135,12 +135,14 @@ class MatchesPanel(QWidget):
         self.model = CandidateModel(session, self)
         self.table = QTableView()
         self.table.setModel(self.model)
-        self.table.setSelectionBehavior(QAbstractItemView.SelectRows)
-        self.table.setSelectionMode(QAbstractItemView.SingleSelection)
+        self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.table.verticalHeader().hide()
         self.table.verticalHeader().setDefaultSectionSize(22)
         self.table.horizontalHeader().setMinimumSectionSize(24)
-        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeToContents)
+        self.table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.ResizeToContents
+        )
         self.table.horizontalHeader().setStretchLastSection(True)
         self.table.selectionModel().currentRowChanged.connect(
             self._on_current_row_changed
@@ -157,7 +159,7 @@ class MatchesPanel(QWidget):
             (self.restore_button, restore_action),
         ):
             button.setDefaultAction(action)
-            button.setToolButtonStyle(Qt.ToolButtonTextOnly)
+            button.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextOnly)
             buttons.addWidget(button)
             self.addAction(action)  # its shortcut works while this panel has focus
         buttons.addStretch(1)
@@ -208,7 +210,10 @@ class MatchesPanel(QWidget):
             return
         index = self.model.index(row, 0)
         if sel.currentIndex().row() != row:
-            flags = QItemSelectionModel.ClearAndSelect | QItemSelectionModel.Rows
+            flags = (
+                QItemSelectionModel.SelectionFlag.ClearAndSelect
+                | QItemSelectionModel.SelectionFlag.Rows
+            )
             sel.setCurrentIndex(index, flags)
         self.table.scrollTo(index)
 

@@ -82,12 +82,16 @@ class MetricsPanel(QWidget):
         self.table.setVerticalHeaderLabels([label for _, label, _ in _ROWS])
         for i, (_, _, tip) in enumerate(_ROWS):
             self.table.verticalHeaderItem(i).setToolTip(tip)
-        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.Stretch)
-        self.table.setEditTriggers(QTableWidget.NoEditTriggers)
+        self.table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.Stretch
+        )
+        self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.timings = QTableWidget(0, 1)
         self.timings.setHorizontalHeaderLabels(["Seconds"])
-        self.timings.horizontalHeader().setSectionResizeMode(QHeaderView.Stretch)
-        self.timings.setEditTriggers(QTableWidget.NoEditTriggers)
+        self.timings.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.Stretch
+        )
+        self.timings.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.truth_label = QLabel("")
         self.truth_label.setWordWrap(True)
         for table in (self.table, self.timings):

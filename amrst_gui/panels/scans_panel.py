@@ -61,7 +61,7 @@ class _RoleBox(FileDropMixin, QGroupBox):
         self.recent_button = QToolButton()
         self.recent_button.setText("Recent")
         self.recent_button.setToolTip(f"Open a recently used file as the {role}")
-        self.recent_button.setPopupMode(QToolButton.InstantPopup)
+        self.recent_button.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
         self.recent_menu = QMenu(self.recent_button)
         self.recent_button.setMenu(self.recent_menu)
         buttons = QHBoxLayout()
