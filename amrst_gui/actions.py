@@ -36,7 +36,7 @@ _STEP_ACTIONS = (
         "accept_coarse",
         "coarse",
         "Ctrl+4",
-        QStyle.SP_DialogApplyButton,
+        QStyle.StandardPixmap.SP_DialogApplyButton,
         "Accept the coarse solution: the best candidate you did not reject.",
     ),
     (
@@ -57,6 +57,13 @@ class WorkflowActions(QObject):
     Triggers session methods directly, and window methods for anything with a dialog.
     """
 
+    # Set with setattr from _STEP_ACTIONS in __init__; declared here for mypy.
+    separate: QAction
+    skeleton: QAction
+    match: QAction
+    accept_coarse: QAction
+    run_fine: QAction
+
     def __init__(self, window, session) -> None:
         super().__init__(window)
         self.window = window
@@ -67,7 +74,7 @@ class WorkflowActions(QObject):
             "Ctrl+O",
             window.open_scan_dialog_target,
             "Choose the reference scan",
-            style.standardIcon(QStyle.SP_DialogOpenButton),
+            style.standardIcon(QStyle.StandardPixmap.SP_DialogOpenButton),
         )
         self.open_source = self._make(
             "Open &source…",
@@ -100,7 +107,7 @@ class WorkflowActions(QObject):
             "Write the current parameters to a JSON file",
         )
         self.quit = self._make(
-            "&Quit", QKeySequence.Quit, window.close, "Close AMRST Studio"
+            "&Quit", QKeySequence.StandardKey.Quit, window.close, "Close AMRST Studio"
         )
         self.step_actions: dict[str, QAction] = {}
         for attr, step, key, icon, tip in _STEP_ACTIONS:
@@ -120,7 +127,7 @@ class WorkflowActions(QObject):
             session.run_all,
             "The automatic path: every step up to fine registration, "
             "accepting the best candidate",
-            style.standardIcon(QStyle.SP_MediaPlay),
+            style.standardIcon(QStyle.StandardPixmap.SP_MediaPlay),
         )
         self.export = self._make(
             "&Export…",
@@ -128,19 +135,19 @@ class WorkflowActions(QObject):
             window.export_dialog,
             "Write the registered source, merged cloud, transform, "
             "metrics and parameters",
-            style.standardIcon(QStyle.SP_DialogSaveButton),
+            style.standardIcon(QStyle.StandardPixmap.SP_DialogSaveButton),
         )
         self.cancel = self._make(
             "&Cancel",
             "Esc",
             session.cancel,
             "Stop the running step; earlier results are kept",
-            style.standardIcon(QStyle.SP_BrowserStop),
+            style.standardIcon(QStyle.StandardPixmap.SP_BrowserStop),
         )
         # Review keys act only while the Matches dock has focus (typing is safe).
         self.reject = self._make(
             "&Reject match",
-            QKeySequence.Delete,
+            QKeySequence.StandardKey.Delete,
             self._reject_selected,
             "Exclude the selected match from the coarse solution (Del)",
         )
@@ -151,7 +158,7 @@ class WorkflowActions(QObject):
             "Use the selected match again (R)",
         )
         for action in (self.reject, self.restore):
-            action.setShortcutContext(Qt.WidgetWithChildrenShortcut)
+            action.setShortcutContext(Qt.ShortcutContext.WidgetWithChildrenShortcut)
         self.about = self._make(
             "&About AMRST Studio",
             "",
@@ -219,7 +226,11 @@ class WorkflowActions(QObject):
         return base
 
     def _tooltip(self, step: str, what: str) -> str:
-        shortcut = self.step_actions[step].shortcut().toString(QKeySequence.NativeText)
+        shortcut = (
+            self.step_actions[step]
+            .shortcut()
+            .toString(QKeySequence.SequenceFormat.NativeText)
+        )
         if self.session.is_stale(step):
             state = "Its parameters or inputs changed since it ran: run it again."
         elif self.session.is_done(step):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import cast
 
 from PySide6.QtCore import QCoreApplication, QSettings, Qt
 from PySide6.QtGui import QSurfaceFormat
@@ -43,7 +44,7 @@ def configure_qt() -> None:
     floated and docked again (shared/notes/headless-gui-testing.md).
     """
     os.environ.setdefault("QT_API", "pyside6")
-    QCoreApplication.setAttribute(Qt.AA_ShareOpenGLContexts)
+    QCoreApplication.setAttribute(Qt.ApplicationAttribute.AA_ShareOpenGLContexts)
     QSurfaceFormat.setDefaultFormat(gl_format())
     QCoreApplication.setOrganizationName(ORGANIZATION)
     QCoreApplication.setApplicationName(APPLICATION)
@@ -51,15 +52,16 @@ def configure_qt() -> None:
 
 def create_app(argv: list[str] | None = None) -> QApplication:
     """The QApplication, configured; reuses an existing one (tests)."""
-    app = QApplication.instance()
-    if app is None:
+    existing = QApplication.instance()
+    if existing is None:
         configure_qt()
-        app = QApplication(argv if argv is not None else [])
-    return app
+        return QApplication(argv if argv is not None else [])
+    # instance() is typed QCoreApplication; the app only ever creates QApplication.
+    return cast("QApplication", existing)
 
 
 def app_settings() -> QSettings:
     """Per-user INI settings; tests redirect them with ``QSettings.setPath``."""
     return QSettings(
-        QSettings.IniFormat, QSettings.UserScope, ORGANIZATION, APPLICATION
+        QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANIZATION, APPLICATION
     )
