@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from PySide6.QtWidgets import (
     QCheckBox,
@@ -63,23 +63,27 @@ def _decimals(value: float, lo: float) -> int:
 def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
     """A widget for one parameter, showing ``value``."""
     meta = field.metadata
+    w: QWidget
     if "choices" in meta:
-        w = QComboBox()
+        combo = QComboBox()
         for choice in meta["choices"]:
-            w.addItem(str(choice), choice)
+            combo.addItem(str(choice), choice)
+        w = combo
     elif isinstance(value, bool):
         w = QCheckBox()
     elif isinstance(value, int):
-        w = QSpinBox()
-        w.setRange(int(meta.get("min", -(2**31))), int(meta.get("max", 2**31 - 1)))
-        span = w.maximum() - w.minimum()
-        w.setSingleStep(max(1, span // 200) if "max" in meta else 1)
+        spin = QSpinBox()
+        spin.setRange(int(meta.get("min", -(2**31))), int(meta.get("max", 2**31 - 1)))
+        span = spin.maximum() - spin.minimum()
+        spin.setSingleStep(max(1, span // 200) if "max" in meta else 1)
+        w = spin
     elif isinstance(value, float) and not _is_nan(field.default) and not _is_nan(value):
-        w = QDoubleSpinBox()
+        dspin = QDoubleSpinBox()
         lo, hi = float(meta.get("min", -1e9)), float(meta.get("max", 1e9))
-        w.setDecimals(_decimals(value, lo))
-        w.setRange(lo, hi)
-        w.setSingleStep(max(abs(value) * 0.1, 10 ** -w.decimals()))
+        dspin.setDecimals(_decimals(value, lo))
+        dspin.setRange(lo, hi)
+        dspin.setSingleStep(max(abs(value) * 0.1, 10 ** -dspin.decimals()))
+        w = dspin
     else:
         w = QLineEdit()
     unit = meta.get("unit", "")
@@ -101,10 +105,13 @@ def set_editor_value(w: QWidget, value: Any) -> None:
         w.setChecked(bool(value))
     elif isinstance(w, QSpinBox | QDoubleSpinBox):
         w.setValue(value)
-    elif isinstance(value, tuple):
-        w.setText(", ".join(str(v) for v in value))
     else:
-        w.setText(AUTO if _is_nan(value) else str(value))
+        # make_editor's only other editor is a QLineEdit.
+        line = cast("QLineEdit", w)
+        if isinstance(value, tuple):
+            line.setText(", ".join(str(v) for v in value))
+        else:
+            line.setText(AUTO if _is_nan(value) else str(value))
 
 
 def editor_value(w: QWidget, like: Any) -> Any:
@@ -126,7 +133,7 @@ def editor_value(w: QWidget, like: Any) -> Any:
             if isinstance(like, float) and round(like, w.decimals()) == value
             else value
         )
-    text = w.text().strip()
+    text = cast("QLineEdit", w).text().strip()  # make_editor's only other editor
     if isinstance(like, tuple):
         kind = type(like[0]) if like else float
         try:

@@ -18,6 +18,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.drops import FileDropMixin
+from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import COLOUR_MODES, ViewOptions, build_scan_scene
@@ -173,7 +174,7 @@ class ScansArea(QWidget):
         bar.addWidget(reset)
         bar.addWidget(self.frame_button)
         bar.addStretch(1)
-        splitter = QSplitter(Qt.Horizontal)
+        splitter = QSplitter(Qt.Orientation.Horizontal)
         for pane in self.panes.values():
             splitter.addWidget(pane)
             pane.files_dropped.connect(self.files_dropped)
@@ -206,5 +207,7 @@ class ScansArea(QWidget):
             layers = view.scene.layers if view.scene is not None else ()
             for layer in layers:
                 if layer.name == "match_vertices":
+                    # build_scan_scene makes match_vertices a SpheresLayer only.
+                    assert isinstance(layer, SpheresLayer)
                     # Keep some of the tree around a small tetrahedron in sight.
                     view.frame_points(layer.centers, min_radius=12 * layer.radius)

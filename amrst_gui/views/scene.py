@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amrst_gui.views.layers import (
+    Layer,
     LinesLayer,
     PointsLayer,
     Ref,
@@ -167,9 +168,9 @@ def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
         sl = display_index(len(an.xyz), options.max_points)
         xyz = np.asarray(an.xyz[sl], np.float32)
         wood = np.asarray(an.is_wood[sl], bool)
-        rgb = np.where(wood[:, None], np.uint8(WOOD_RGB), np.uint8(LEAF_RGB)).astype(
-            np.uint8
-        )
+        rgb = np.where(
+            wood[:, None], np.array(WOOD_RGB, np.uint8), np.array(LEAF_RGB, np.uint8)
+        ).astype(np.uint8)
         return PointsLayer("points", ("wood", Ref(an), options.max_points), xyz, rgb)
     sl = display_index(len(cloud), options.max_points)
     xyz = cloud.xyz[sl]
@@ -230,12 +231,12 @@ def build_registration_scene(
     T, caption = registration_transform(session, stage)
     half = max(1, max_points // 2)
     t_xyz = target.xyz[display_index(len(target), half)].astype(np.float32)
-    layers = [
+    layers: list[Layer] = [
         PointsLayer(
             "target_points",
             ("target", Ref(target), half),
             t_xyz,
-            np.tile(np.uint8(TARGET_RGB), (len(t_xyz), 1)),
+            np.tile(np.array(TARGET_RGB, np.uint8), (len(t_xyz), 1)),
         )
     ]
     if T is not None:
@@ -243,7 +244,7 @@ def build_registration_scene(
             np.float32
         )
         key = ("source", Ref(source), half, T.tobytes())
-        rgb = np.tile(np.uint8(SOURCE_RGB), (len(s_xyz), 1))
+        rgb = np.tile(np.array(SOURCE_RGB, np.uint8), (len(s_xyz), 1))
         layers.append(PointsLayer("source_points", key, s_xyz, rgb))
     legend = "amber: target (reference)   blue: source"
     layers.append(TextLayer("title", f"{caption}\n{legend}"))
