@@ -357,7 +357,12 @@ class Session(ResultsMixin, QObject):
                 self._paths[role] = self._pending_paths[role]
             self._reset_results()
             roles = list(result)
-            return lambda: [self.scan_loaded.emit(r) for r in roles]
+
+            def emit_loaded() -> None:
+                for r in roles:
+                    self.scan_loaded.emit(r)
+
+            return emit_loaded
         if step == "export":
             folder = result[0].parent if result else "-"
             names = ", ".join(p.name for p in result)
