@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 from PySide6.QtCore import QByteArray, Qt
 from PySide6.QtWidgets import (
@@ -39,6 +40,10 @@ class MainWindow(QMainWindow):
     the rest (see their docstrings).
     """
 
+    # The window's WorkflowActions. The name shadows QWidget.actions() on every
+    # MainWindow (menus and tests use it): call QWidget.actions(window) for Qt's list.
+    actions: WorkflowActions  # type: ignore[assignment]
+
     def __init__(self, session: Session | None = None, settings=None) -> None:
         super().__init__()
         self.setObjectName("main_window")
@@ -62,9 +67,9 @@ class MainWindow(QMainWindow):
         self.metrics_panel = MetricsPanel(s)
         self.docks: dict[str, QDockWidget] = {}
         left, right, bottom = (
-            Qt.LeftDockWidgetArea,
-            Qt.RightDockWidgetArea,
-            Qt.BottomDockWidgetArea,
+            Qt.DockWidgetArea.LeftDockWidgetArea,
+            Qt.DockWidgetArea.RightDockWidgetArea,
+            Qt.DockWidgetArea.BottomDockWidgetArea,
         )
         self._add_dock("scans", "Scans", self.scans_panel, left)
         self._add_dock("parameters", "Parameters", self.params_panel, left)
@@ -110,7 +115,10 @@ class MainWindow(QMainWindow):
     def recent_files(self) -> list[str]:
         """Recently opened scan files, newest first."""
         value = self.settings.value("recent/files", [])
-        return [value] if isinstance(value, str) else list(value or [])
+        # value() is typed object; here a str, a list of str, or None or [] if unset.
+        return (
+            [value] if isinstance(value, str) else list(cast("list[str]", value or []))
+        )
 
     def reset_layout(self) -> None:
         """Put every dock back where it started."""
@@ -125,7 +133,7 @@ class MainWindow(QMainWindow):
         from amrst import io
 
         patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
-        start = self.settings.value("dirs/open", str(Path.home()))
+        start = cast("str", self.settings.value("dirs/open", str(Path.home())))
         path, _ = QFileDialog.getOpenFileName(
             self,
             f"Open the {role} scan",
@@ -144,7 +152,7 @@ class MainWindow(QMainWindow):
 
     def open_truth_dialog(self) -> None:
         """Ask for a truth.json."""
-        start = self.settings.value("dirs/open", str(Path.home()))
+        start = cast("str", self.settings.value("dirs/open", str(Path.home())))
         path, _ = QFileDialog.getOpenFileName(
             self, "Load truth", start, "Truth (*.json)"
         )
@@ -207,10 +215,14 @@ class MainWindow(QMainWindow):
             self.error_box.setText(message)
             return
         box = QMessageBox(
-            QMessageBox.Warning, "AMRST Studio", message, QMessageBox.Ok, self
+            QMessageBox.Icon.Warning,
+            "AMRST Studio",
+            message,
+            QMessageBox.StandardButton.Ok,
+            self,
         )
         box.setObjectName("error_box")
-        box.setWindowModality(Qt.NonModal)
+        box.setWindowModality(Qt.WindowModality.NonModal)
         box.show()
         self.error_box = box
 
@@ -236,9 +248,9 @@ class MainWindow(QMainWindow):
         dock.setObjectName(f"{key}_dock")  # saveState needs it
         dock.setWidget(widget)
         dock.setFeatures(
-            QDockWidget.DockWidgetMovable
-            | QDockWidget.DockWidgetFloatable
-            | QDockWidget.DockWidgetClosable
+            QDockWidget.DockWidgetFeature.DockWidgetMovable
+            | QDockWidget.DockWidgetFeature.DockWidgetFloatable
+            | QDockWidget.DockWidgetFeature.DockWidgetClosable
         )
         self.addDockWidget(area, dock)
         self.docks[key] = dock
@@ -263,9 +275,13 @@ class MainWindow(QMainWindow):
 
     def _default_sizes(self) -> None:
         d = self.docks
-        self.resizeDocks([d["scans"], d["matches"]], [330, 430], Qt.Horizontal)
-        self.resizeDocks([d["matches"], d["metrics"]], [330, 420], Qt.Vertical)
-        self.resizeDocks([d["log"]], [150], Qt.Vertical)
+        self.resizeDocks(
+            [d["scans"], d["matches"]], [330, 430], Qt.Orientation.Horizontal
+        )
+        self.resizeDocks(
+            [d["matches"], d["metrics"]], [330, 420], Qt.Orientation.Vertical
+        )
+        self.resizeDocks([d["log"]], [150], Qt.Orientation.Vertical)
 
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views."""
