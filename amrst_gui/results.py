@@ -6,17 +6,29 @@ A mixin so ``session.py`` stays small; it holds no Qt code and emits nothing.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst_gui import jobs, steps
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.pipeline import RegistrationParams
 
 _TRUTH_SAMPLE = 20_000
 
 
 class ResultsMixin:
     """Results and derived state of a :class:`~amrst_gui.session.Session`."""
+
+    if TYPE_CHECKING:
+        # Set by the host class, Session.__init__; declared here for mypy.
+        _clouds: dict[str, Any]
+        _paths: dict[str, Path | None]
+        _params: RegistrationParams
+        _truth: np.ndarray | None
 
     def _reset_results(self) -> None:
         self._analyses: dict[str, Any] = dict.fromkeys(jobs.ROLES)
@@ -198,11 +210,14 @@ class ResultsMixin:
 
     def export_arguments(self, cloud_format: str, parts=None) -> dict[str, Any]:
         """Keyword arguments of ``amrst.export.export_registration`` (but out_dir)."""
+        T_final = self.final_transform
+        # Session.export, the only caller, returns early while this is None.
+        assert T_final is not None
         kwargs = {
             "target": self._clouds["target"],
             "source": self._clouds["source"],
             # The engine works between local frames; the files hold world transforms.
-            "T_target_source": self.world(self.final_transform),
+            "T_target_source": self.world(T_final),
             "T_coarse": self.world(self._accepted.T_target_source),
             "metrics": self.metrics_report(),
             "params": self._params,
@@ -299,6 +314,7 @@ class ResultsMixin:
             from amrst import pipeline
             from amrst.errors import RegistrationFailed
 
+            value: tuple[Any, str]  # (CoarseResult or None, message)
             try:
                 coarse = pipeline.coarse_from_matches(self._matches, self._rejected)
                 value = (coarse, str(coarse.message))
