@@ -133,7 +133,7 @@ class MainWindow(QMainWindow):
         from amrst import io
 
         patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
-        start = cast("str", self.settings.value("dirs/open", str(Path.home())))
+        start = str(self.settings.value("dirs/open", "", type=str) or Path.home())
         path, _ = QFileDialog.getOpenFileName(
             self,
             f"Open the {role} scan",
@@ -152,7 +152,7 @@ class MainWindow(QMainWindow):
 
     def open_truth_dialog(self) -> None:
         """Ask for a truth.json."""
-        start = cast("str", self.settings.value("dirs/open", str(Path.home())))
+        start = str(self.settings.value("dirs/open", "", type=str) or Path.home())
         path, _ = QFileDialog.getOpenFileName(
             self, "Load truth", start, "Truth (*.json)"
         )
