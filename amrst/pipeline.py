@@ -353,9 +353,10 @@ def _add_trunk_solutions(
                 )
             )
         scores = _precise([f.T_target_source for f in fits], tree, source, params)
-        for k in {k for k, _ in runs}:
-            mine = [i for i, (kk, _) in enumerate(runs) if kk == k]
-            pick = max(mine, key=lambda i: scores[i])
+        for j, k in enumerate(contenders):  # runs hold each contender's tries in turn
+            pick = max(
+                range(j * len(tries), (j + 1) * len(tries)), key=scores.__getitem__
+            )
             refined[k], used[k] = fits[pick].T_target_source, runs[pick][1]
             done.append(fits[pick])
     merged = merge_trunk_solutions(
