@@ -33,18 +33,27 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     return clouds, time.perf_counter() - start
 
 
-def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, float]:
-    """Preprocess and separate wood from leaves in both scans."""
+def _both(
+    step: Any, items: dict, params: Any, reporter: Reporter
+) -> tuple[dict, float]:
+    """Run ``step(item, params, reporter)`` on both scans at once; results by role."""
     from amrst import pipeline
 
     start = time.perf_counter()
     out = pipeline.both_scans(
-        lambda cloud, rep: pipeline.prepare_scan(cloud, params, rep),
-        clouds["target"],
-        clouds["source"],
+        lambda item, rep: step(item, params, rep),
+        items["target"],
+        items["source"],
         reporter,
     )
     return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
+
+
+def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, float]:
+    """Preprocess and separate wood from leaves in both scans."""
+    from amrst import pipeline
+
+    return _both(pipeline.prepare_scan, clouds, params, reporter)
 
 
 def skeletonise_pair(
@@ -53,14 +62,7 @@ def skeletonise_pair(
     """Skeleton and key points of both scans."""
     from amrst import pipeline
 
-    start = time.perf_counter()
-    out = pipeline.both_scans(
-        lambda an, rep: pipeline.skeletonise_scan(an, params, rep),
-        analyses["target"],
-        analyses["source"],
-        reporter,
-    )
-    return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
+    return _both(pipeline.skeletonise_scan, analyses, params, reporter)
 
 
 def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, float]:
