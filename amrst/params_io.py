@@ -15,12 +15,13 @@ from typing import TYPE_CHECKING, Any
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.pipeline import RegistrationParams
+from amrst.resources import resource_path
 
 if TYPE_CHECKING:
     import os
 
 SCHEMA_VERSION = 1
-PRESETS_DIR = Path(__file__).resolve().parent.parent / "resources" / "presets"
+PRESETS_DIR = resource_path("presets")
 
 
 def params_to_dict(params: RegistrationParams) -> dict[str, Any]:

@@ -10,6 +10,8 @@ from PySide6.QtCore import QCoreApplication, QSettings, Qt
 from PySide6.QtGui import QSurfaceFormat
 from PySide6.QtWidgets import QApplication
 
+from amrst.resources import resource_path
+
 ORGANIZATION = "AMRST"
 APPLICATION = "AMRST Studio"
 
@@ -19,7 +21,7 @@ def sample_dir() -> Path:
     override = os.environ.get("AMRST_SAMPLE_DIR")
     if override:
         return Path(override)
-    return Path(__file__).resolve().parents[1] / "resources" / "sample"
+    return resource_path("sample")
 
 
 def gl_format() -> QSurfaceFormat:

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import cast
 
 from PySide6.QtCore import QByteArray, Qt
+from PySide6.QtGui import QIcon
 from PySide6.QtWidgets import (
     QDialog,
     QDockWidget,
@@ -16,6 +17,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError
+from amrst.resources import resource_path
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
@@ -48,6 +50,7 @@ class MainWindow(QMainWindow):
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")
+        self.setWindowIcon(QIcon(str(resource_path("icons", "amrst.svg"))))
         self.settings = settings if settings is not None else app_settings()
         # The log first, so it records everything from here on.
         self.log_panel = LogPanel()

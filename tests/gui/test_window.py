@@ -11,6 +11,8 @@ def test_opens_with_both_scans_drawn(loaded_window, content_fraction):
     win = loaded_window
     assert {d.objectName() for d in win.docks.values()} == set(DOCKS)
     assert win.toolbar.objectName() == "workflow_toolbar"
+    # The app icon (resources/icons/amrst.svg) loads: Qt's SVG plugin renders it.
+    assert not win.windowIcon().pixmap(64, 64).isNull()
     for role, view in zip(("target", "source"), win.scans_area.views(), strict=True):
         assert "points" in view.actor_names()
         assert len(view.scene.layers[0].xyz) == len(win.session.cloud(role))
