@@ -75,6 +75,7 @@ class _Screenshot:
     def __init__(self, app, win, path: Path, step: str | None, tab: str) -> None:
         self.app, self.win, self.path, self.step, self.tab = app, win, path, step, tab
         self.ran = False
+        win.session.discard_guard = None  # nobody to ask: it closes on its own
         win.session.busy_changed.connect(self._on_busy_changed)
         win.session.failed.connect(self._on_failed)
 

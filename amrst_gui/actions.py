@@ -90,7 +90,7 @@ class WorkflowActions(QObject):
         )
         self.swap = self._make(
             "S&wap target and source",
-            "Ctrl+W",
+            "Ctrl+Shift+X",  # not Ctrl+W, which closes windows in most apps
             session.swap_scans,
             "Make the source the reference (clears the results)",
         )

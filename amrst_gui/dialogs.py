@@ -1,4 +1,8 @@
-"""ExportDialog, AboutDialog and the shortcuts list. None of them blocks: open()."""
+"""ExportDialog, AboutDialog, the shortcuts list and the discard question.
+
+The dialogs do not block (open()); only :func:`confirm_discard` waits for its answer,
+because the action it guards goes on or not on that answer.
+"""
 
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QLineEdit,
+    QMessageBox,
     QPushButton,
     QVBoxLayout,
 )
@@ -40,6 +45,21 @@ EXPORT_PARTS = (
     ("params", "Parameters (params.json)", "Everything needed to run it again"),
 )
 CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
+
+
+def confirm_discard(parent, action: str) -> bool:
+    """Ask whether ``action`` may throw away the unexported registration result."""
+    box = QMessageBox(
+        QMessageBox.Icon.Warning,
+        "Discard the registration?",
+        f"{action} discards the registration result, which has not been exported.",
+        QMessageBox.StandardButton.Discard | QMessageBox.StandardButton.Cancel,
+        parent,
+    )
+    box.setObjectName("discard_box")
+    box.setInformativeText("Choose Cancel, then Export (Ctrl+E), to keep it.")
+    box.setDefaultButton(QMessageBox.StandardButton.Cancel)
+    return box.exec() == QMessageBox.StandardButton.Discard
 
 
 class ExportDialog(QDialog):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import cast
 
@@ -30,6 +31,8 @@ from amrst_gui.panels.status import WorkflowStatusBar
 from amrst_gui.session import Session
 from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
+
+log = logging.getLogger("amrst_gui.main_window")
 
 MAX_RECENT = 10
 
@@ -88,8 +91,10 @@ class MainWindow(QMainWindow):
         self.export_box: dialogs.ExportDialog | None = None
         self._closed = False
 
+        s.discard_guard = lambda action: dialogs.confirm_discard(self, action)
         s.failed.connect(self._on_failed)
         s.scan_loaded.connect(self._on_scan_loaded)
+        s.scans_swapped.connect(self._update_title)
         self.params_panel.params_applied.connect(s.set_params)
         self.scans_panel.open_requested.connect(self.open_scan_dialog)
         self.scans_panel.recent_chosen.connect(
@@ -111,9 +116,10 @@ class MainWindow(QMainWindow):
 
     def open_pair(self, target, source, truth=None) -> None:
         """Load a target and a source (in a worker), and a truth file if given."""
+        # Scans first: a truth loaded before them would belong to the old pair.
+        self.session.load_scans(target, source)
         if truth is not None:
             self.session.load_truth(truth)
-        self.session.load_scans(target, source)
 
     def recent_files(self) -> list[str]:
         """Recently opened scan files, newest first."""
@@ -235,11 +241,21 @@ class MainWindow(QMainWindow):
             recent = [str(path)] + [p for p in self.recent_files() if p != str(path)]
             self.settings.setValue("recent/files", recent[:MAX_RECENT])
             self.scans_panel.set_recent_files(self.recent_files())
+        self._update_title()
+
+    def _update_title(self) -> None:
         names = [self.session.path(r) for r in ("target", "source")]
         label = " ← ".join(p.name if p else "-" for p in names)
         self.setWindowTitle(f"AMRST Studio: {label}")
 
     def _on_files_dropped(self, role: str, paths: list) -> None:
+        if len(paths) > 2:
+            log.warning(
+                "%d files dropped: the first two are opened as target and source; "
+                "ignored: %s",
+                len(paths),
+                ", ".join(Path(p).name for p in paths[2:]),
+            )
         if len(paths) >= 2:
             self.session.load_scans(paths[0], paths[1])
         else:
@@ -288,6 +304,9 @@ class MainWindow(QMainWindow):
 
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views."""
+        if not self._closed and not self.session.may_discard("Closing AMRST Studio"):
+            event.ignore()
+            return
         if not self._closed:
             self._closed = True
             if self.session.busy:

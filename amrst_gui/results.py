@@ -43,6 +43,7 @@ class ResultsMixin:
         }
         self._step_params: dict[str, Any] = {}
         self._coarse_cache: tuple | None = None
+        self._exported_result: Any = None
 
     def _clear_after(self, step: str) -> None:
         # The analyses themselves are replaced by the separate/skeleton result.
@@ -118,6 +119,12 @@ class ResultsMixin:
     def timings(self) -> dict[str, float]:
         """Seconds per step that ran."""
         return dict(self._timings)
+
+    @property
+    def has_unexported_result(self) -> bool:
+        """True when a coarse or fine result exists that was not exported."""
+        final = self._fine or self._accepted
+        return final is not None and final is not self._exported_result
 
     @property
     def final_transform(self) -> np.ndarray | None:
@@ -220,7 +227,9 @@ class ResultsMixin:
             "T_target_source": self.world(T_final),
             "T_coarse": self.world(self._accepted.T_target_source),
             "metrics": self.metrics_report(),
-            "params": self._params,
+            # The parameters the result was computed with (export refuses stale ones).
+            "params": self._step_params.get("fine" if self._fine else "coarse")
+            or self._params,
             "cloud_format": cloud_format,
             "transform_extra": self._transform_context(),
         }

@@ -20,6 +20,8 @@ from amrst_gui import jobs, steps, workers
 from amrst_gui.results import ResultsMixin
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import numpy as np
 
 log = logging.getLogger("amrst_gui.session")
@@ -73,6 +75,10 @@ class Session(ResultsMixin, QObject):
         self._job_params = self._params
         self._pending_paths: dict[str, Path] = {}
         self._closing = False
+        self._truth_at_load: np.ndarray | None = None
+        # Asked before an unexported registration result is thrown away (closing,
+        # new scans, swap, a re-run); the window sets it. Returns True to go on.
+        self.discard_guard: Callable[[str], bool] | None = None
 
     # ------------------------------------------------------------ properties
     @property
@@ -121,7 +127,9 @@ class Session(ResultsMixin, QObject):
 
     def swap_scans(self) -> None:
         """Make the source the reference and vice versa; emits ``scans_swapped``."""
-        if self._refuse_if_busy("swap the scans"):
+        if self._refuse_if_busy("swap the scans") or not self.may_discard(
+            "Swapping the scans"
+        ):
             return
         self._clouds = {
             "target": self._clouds["source"],
@@ -139,6 +147,10 @@ class Session(ResultsMixin, QObject):
     def set_params(self, params: Any) -> None:
         """Use new RegistrationParams; emits ``params_changed`` if they differ."""
         if steps.values_equal(params, self._params):
+            return
+        if self._refuse_if_busy("change the parameters"):
+            # A chain of steps must run on one set of parameters.
+            self.params_changed.emit(self._params)
             return
         changed = [
             g
@@ -199,7 +211,12 @@ class Session(ResultsMixin, QObject):
         if not self.has_scans:
             self._fail("Open a target and a source scan first (File > Open).")
             return
-        self._chain = self.plan(step)
+        chain = self.plan(step)
+        if self._replaces_result(chain[0]) and not self.may_discard(
+            f"{steps.plain_label(chain[0])} again"
+        ):
+            return
+        self._chain = chain
         self._set_busy(True)
         self._start_next()
 
@@ -220,6 +237,15 @@ class Session(ResultsMixin, QObject):
         if self.final_transform is None:
             self._fail("Nothing to export yet: accept a coarse solution first.")
             return
+        stale = [st for st in ("coarse", "fine") if self.is_stale(st)]
+        if stale:
+            self._fail(
+                f"{steps.plain_label(stale[-1])} is out of date: parameters or the "
+                "review changed after it ran, so the files would not describe the "
+                f"result. Run {steps.plain_label(stale[0])} again (or undo the "
+                "change), then export."
+            )
+            return
         kwargs = self.export_arguments(cloud_format, parts)
         self._chain = []
         self._set_busy(True)
@@ -228,6 +254,14 @@ class Session(ResultsMixin, QObject):
     def cancel(self) -> None:
         """Ask the running job to stop; earlier results are kept."""
         if self._job is not None:
+            if self._job.name in steps.UNSTOPPABLE and not self._chain:
+                message = (
+                    f"{self._label(self._job.name)} cannot be stopped midway; "
+                    "it finishes in a moment."
+                )
+                log.info(message)
+                self.cancelled.emit(message)
+                return
             log.info("Cancelling %s", self._label(self._job.name))
             # The running step may still finish (its result is kept); what
             # would have followed it is dropped either way.
@@ -250,9 +284,18 @@ class Session(ResultsMixin, QObject):
         if self._refuse_if_busy("open scans"):
             return
         for path in paths.values():
+            if path.is_dir():
+                self._fail(
+                    f"{path} is a folder, not a point-cloud file: open or drop the "
+                    "scan files themselves."
+                )
+                return
             if not path.is_file():
                 self._fail(f"The file {path} does not exist.")
                 return
+        if not self.may_discard("Opening other scans"):
+            return
+        self._truth_at_load = self._truth
         self._chain = []
         self._pending_paths = dict(paths)
         self._set_busy(True)
@@ -356,6 +399,13 @@ class Session(ResultsMixin, QObject):
                 self._clouds[role] = cloud
                 self._paths[role] = self._pending_paths[role]
             self._reset_results()
+            if self._truth is not None and self._truth is self._truth_at_load:
+                log.info(
+                    "Cleared the truth (%s): it belonged to the scans before; load "
+                    "the new pair's truth with File > Load truth.",
+                    self._truth_path.name if self._truth_path else "truth",
+                )
+                self._truth, self._truth_path = None, None
             roles = list(result)
 
             def emit_loaded() -> None:
@@ -364,6 +414,7 @@ class Session(ResultsMixin, QObject):
 
             return emit_loaded
         if step == "export":
+            self._exported_result = self._fine or self._accepted
             folder = result[0].parent if result else "-"
             names = ", ".join(p.name for p in result)
             log.info("Exported to %s: %s", folder, names)
@@ -379,9 +430,10 @@ class Session(ResultsMixin, QObject):
             )
             return sig.emit
         if step == "match":
+            old, old_rejected = self._matches, self._rejected
             self._matches = result
-            self._rejected = frozenset()
-            cands = result.candidates
+            self._rejected = self._carry_rejections(old, old_rejected)
+            cands = [c for c in result.candidates if c.id not in self._rejected]
             self._selected = cands[0].id if cands else None
             return self.matches_changed.emit
         if step == "coarse":
@@ -389,6 +441,51 @@ class Session(ResultsMixin, QObject):
             return lambda: self.coarse_accepted.emit(self._accepted)
         self._fine, self._metrics["fine"] = result
         return lambda: self.fine_finished.emit(self._fine)
+
+    def may_discard(self, action: str) -> bool:
+        """Ask ``discard_guard`` before ``action`` throws an unexported result away."""
+        if not self.has_unexported_result or self.discard_guard is None:
+            return True
+        return self.discard_guard(action)
+
+    def _replaces_result(self, first_step: str) -> bool:
+        """Would a chain starting at ``first_step`` replace the registration result?"""
+        last = "fine" if self._fine is not None else "coarse"
+        return self.has_unexported_result and steps.STEPS.index(
+            first_step
+        ) <= steps.STEPS.index(last)
+
+    def _carry_rejections(self, old: Any, rejected: frozenset[int]) -> frozenset[int]:
+        """Rejections of a re-run match list, carried over by pose.
+
+        A rejected pose stays wrong when matching runs again (new parameters give new
+        candidate ids): every new candidate that is the same solution as a rejected
+        one (``amrst.stages.coarse.same_solution``) starts rejected; the log says so.
+        """
+        if old is None or not rejected or self._matches is None:
+            return frozenset()
+        from amrst.stages.coarse import same_solution
+
+        gone = [c for c in old.candidates if c.id in rejected]
+        centre = self._matches.source_centre
+        kept = frozenset(
+            int(c.id)
+            for c in self._matches.candidates
+            if any(
+                same_solution(c.T_target_source, g.T_target_source, centre)
+                for g in gone
+            )
+        )
+        if kept:
+            log.info(
+                "Kept %d rejection(s) from the review before: the new candidates %s "
+                "are solutions you rejected.",
+                len(kept),
+                ", ".join(self._describe_match(i) for i in sorted(kept)),
+            )
+        elif gone:
+            log.info("None of the %d rejected solution(s) came back.", len(gone))
+        return kept
 
     @staticmethod
     def _label(step: str) -> str:

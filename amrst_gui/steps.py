@@ -6,6 +6,9 @@ import dataclasses
 import math
 
 STEPS = ("separate", "skeleton", "match", "coarse", "fine")
+# Jobs that run to the end once started (short, or writing files); Cancel still drops
+# the steps queued after them.
+UNSTOPPABLE = frozenset({"load", "coarse", "export"})
 
 LABELS = {
     "load": "Load scans",

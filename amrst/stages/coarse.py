@@ -489,6 +489,25 @@ def _distinct(a: Transform, b: Transform, centre: np.ndarray) -> bool | np.bool_
     return d > 0.5 or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > 5.0
 
 
+def same_solution(a: Transform, b: Transform, centre: np.ndarray) -> bool:
+    """Tell whether two transforms are one solution, as the confidence counts them.
+
+    Parameters
+    ----------
+    a, b : (4, 4) float64
+        Two T_target_source.
+    centre : (3,) float64
+        Source point the transforms are compared at (the tree centre).
+
+    Returns
+    -------
+    bool
+        True when they move ``centre`` less than 0.5 m apart and differ by at most
+        5 deg of rotation.
+    """
+    return not bool(_distinct(a, b, centre))
+
+
 def choose_coarse(
     candidates: CandidateList,
     rejected: frozenset[int] = frozenset(),

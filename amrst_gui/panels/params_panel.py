@@ -103,6 +103,8 @@ class ParamsPanel(QWidget):
         layout.addWidget(self.state)
         layout.addWidget(scroll, 1)
         session.params_changed.connect(self._on_params_changed)
+        # A running chain of steps uses one set of parameters: Apply waits for it.
+        session.busy_changed.connect(lambda busy: self.apply_button.setEnabled(not busy))
         self.show_params(params)
 
     def draft(self) -> Any:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar, QWidget
 
 from amrst_gui import steps
@@ -101,17 +102,31 @@ class WorkflowStatusBar(QStatusBar):
         )
 
     def _on_coarse_accepted(self, coarse) -> None:
+        warning = "" if coarse.verified else "UNVERIFIED: check the overlay. "
         self.show_message(
-            f"Coarse solution accepted ({coarse.message}). "
+            f"Coarse solution accepted ({coarse.message}). {warning}"
             "Next: Fine registration (Ctrl+5)."
         )
 
     def _on_fine_finished(self, fine) -> None:
-        state = "converged" if fine.converged else "did NOT converge"
-        self.show_message(
-            f"Fine registration {state} after {fine.iterations} iterations, "
-            f"RMSE {fine.inlier_rmse_m:.4f} m. Next: Export (Ctrl+E)."
-        )
+        coarse = self.session.accepted_coarse
+        if not fine.converged or not np.isfinite(fine.inlier_rmse_m):
+            self.show_message(
+                f"Fine registration did NOT converge after {fine.iterations} "
+                "iterations: check the overlay, reject the match or try other "
+                "fine parameters before exporting."
+            )
+        elif coarse is not None and not coarse.verified:
+            self.show_message(
+                f"Fine registration converged (RMSE {fine.inlier_rmse_m:.4f} m), but "
+                f"from an UNVERIFIED coarse solution (confidence "
+                f"{coarse.confidence:.0%}): check the overlay before exporting."
+            )
+        else:
+            self.show_message(
+                f"Fine registration converged after {fine.iterations} iterations, "
+                f"RMSE {fine.inlier_rmse_m:.4f} m. Next: Export (Ctrl+E)."
+            )
 
     def _on_exported(self, paths: list) -> None:
         folder = paths[0].parent if paths else ""

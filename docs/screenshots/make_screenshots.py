@@ -57,8 +57,8 @@ def main() -> int:
         print(f"saved {path}")
 
     sample = sample_dir()
-    win.session.load_truth(sample / "truth.json")
     run(lambda: s.load_scans(sample / "target.ply", sample / "source.ply"))
+    win.session.load_truth(sample / "truth.json")  # after: it belongs to these scans
     shot("01-loaded")
     run(lambda: win.actions.separate.trigger())
     shot("02-separated")

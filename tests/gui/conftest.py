@@ -40,6 +40,29 @@ def _isolated_settings(tmp_path):
     )
 
 
+@pytest.fixture(autouse=True)
+def discard_answers(monkeypatch):
+    """The discard question never blocks a test: it answers from this list.
+
+    Append False to refuse the next question; every question asked is recorded in
+    ``discard_answers.asked``. With the list empty the answer is Discard.
+    """
+    from amrst_gui import dialogs
+
+    class Answers(list):
+        asked: list[str]
+
+    answers = Answers()
+    answers.asked = []
+
+    def answer(_parent, action: str) -> bool:
+        answers.asked.append(action)
+        return answers.pop(0) if answers else True
+
+    monkeypatch.setattr(dialogs, "confirm_discard", answer)
+    return answers
+
+
 @pytest.fixture(scope="session")
 def sample_pair():
     """The bundled sample: (target, source, truth) paths from resources/sample."""

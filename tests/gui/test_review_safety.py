@@ -1,0 +1,146 @@
+"""Review decisions, truth and unexported results are not lost or mixed up."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+from PySide6.QtCore import QEventLoop, QTimer
+
+from amrst.stages.coarse import same_solution
+from amrst_gui.session import Session
+
+
+def _run(session: Session, start, timeout_ms: int = 90_000) -> list[str]:
+    """Start work, spin until idle; return the failure messages."""
+    loop = QEventLoop()
+    errors: list[str] = []
+    session.failed.connect(errors.append)
+    session.busy_changed.connect(lambda busy: None if busy else loop.quit())
+    QTimer.singleShot(timeout_ms, loop.quit)
+    start()
+    if session.busy:
+        loop.exec()
+    assert not session.busy, "timed out"
+    return errors
+
+
+@pytest.fixture
+def fresh(qapp, sample_pair):
+    target, source, _ = sample_pair
+    session = Session()
+    assert not _run(session, lambda: session.load_scans(target, source))
+    yield session
+    session.shutdown()
+
+
+def test_rejections_survive_matching_again(fresh):
+    s = fresh
+    assert not _run(s, lambda: s.run_step("match"))
+    first = s.matches[0]
+    s.reject_match(first.id)
+    tighter = dataclasses.replace(
+        s.params.match, edge_tolerance=s.params.match.edge_tolerance * 0.9
+    )
+    s.set_params(dataclasses.replace(s.params, match=tighter))
+    # Accept coarse re-runs the stale matching; the rejected pose must stay out.
+    assert not _run(s, s.accept_coarse)
+    centre = s.match_result.source_centre
+    again = [
+        c
+        for c in s.matches
+        if same_solution(c.T_target_source, first.T_target_source, centre)
+    ]
+    assert again, "the tighter matching should find the same solution again"
+    assert {c.id for c in again} <= s.rejected
+    assert not same_solution(
+        s.accepted_coarse.T_target_source, first.T_target_source, centre
+    )
+
+
+def test_a_truth_file_belongs_to_the_scans_it_came_with(fresh, sample_pair):
+    s = fresh
+    target, source, truth = sample_pair
+    s.load_truth(truth)
+    assert s.truth is not None
+    # Loaded right after the scans were asked for (as open_pair does): kept.
+    assert not _run(
+        s, lambda: (s.load_scans(target, source), s.load_truth(truth))
+    )
+    assert s.truth is not None
+    # Another scan opened later: the old truth no longer describes the pair.
+    assert not _run(s, lambda: s.load_scan("source", target))
+    assert s.truth is None
+    assert s.truth_errors() == {}
+
+
+def test_export_refuses_a_result_the_parameters_no_longer_describe(fresh, tmp_path):
+    s = fresh
+    assert not _run(s, s.run_all)
+    used = s.params
+    wider = dataclasses.replace(used.fine, max_corr_dist_m=0.3)
+    s.set_params(dataclasses.replace(used, fine=wider))
+    errors = _run(s, lambda: s.export(tmp_path / "stale"))
+    assert errors
+    assert "out of date" in errors[0]
+    assert not (tmp_path / "stale").exists()
+    # Rejecting the accepted match makes the result stale too.
+    s.set_params(used)
+    s.reject_match(s.accepted_coarse.candidate.id)
+    assert "out of date" in _run(s, lambda: s.export(tmp_path / "stale"))[0]
+    s.restore_match(s.accepted_coarse.candidate.id)
+    assert not _run(s, lambda: s.export(tmp_path / "ok"))
+    written = json.loads((tmp_path / "ok" / "params.json").read_text())
+    assert written["fine"]["max_corr_dist_m"] == used.fine.max_corr_dist_m
+
+
+def test_unexported_results_are_only_dropped_when_the_user_agrees(fresh, tmp_path):
+    s = fresh
+    asked: list[str] = []
+    answers = [False, False, False]
+    s.discard_guard = lambda action: asked.append(action) or answers.pop(0)
+    assert not _run(s, s.run_all)
+    fine = s.fine
+    s.run_step("separate")  # refused: the result stays
+    s.swap_scans()
+    s.load_scan("source", s.path("target"))
+    assert not s.busy
+    assert s.fine is fine
+    assert len(asked) == 3
+    assert not _run(s, lambda: s.export(tmp_path / "out"))
+    s.swap_scans()  # exported: nothing to ask
+    assert len(asked) == 3
+    assert s.fine is None
+
+
+def test_parameters_wait_for_the_running_chain(fresh):
+    s = fresh
+    before = s.params
+    other = dataclasses.replace(
+        before, preprocess=dataclasses.replace(before.preprocess, voxel_size_m=0.05)
+    )
+    errors = _run(s, lambda: (s.run_step("match"), s.set_params(other)))
+    assert any("change the parameters" in e for e in errors)
+    assert s.params is before
+    assert not s.is_stale("match")
+
+
+def test_a_dropped_folder_is_named_as_a_folder(fresh, tmp_path):
+    errors = _run(fresh, lambda: fresh.load_scan("target", tmp_path))
+    assert errors
+    assert "is a folder" in errors[0]
+
+
+def test_closing_with_an_unexported_result_asks_first(
+    make_main_window, sample_pair, discard_answers
+):
+    win = make_main_window()
+    target, source, truth = sample_pair
+    assert not _run(win.session, lambda: win.open_pair(target, source, truth))
+    assert win.session.truth is not None
+    assert not _run(win.session, win.session.run_all)
+    discard_answers.append(False)
+    assert not win.close()
+    assert win.isVisible()
+    assert discard_answers.asked == ["Closing AMRST Studio"]
