@@ -78,10 +78,10 @@ class ScanView(QWidget):
                 continue
             self._draw(layer)
             self._keys[layer.name] = layer.key
+        self._scene = scene
         if scene.frame_key != self._frame_key:
             self._frame_key = scene.frame_key
             self.reset_camera(render=False)
-        self._scene = scene
         self.plotter.render()
 
     def reset_camera(self, render: bool = True) -> None:
@@ -95,10 +95,10 @@ class ScanView(QWidget):
         p = self.plotter
         p.view_xz(render=False)
         p.camera.elevation = _ELEVATION_DEG
-        p.reset_camera(render=False)
+        b = self._fit_bounds()
+        p.reset_camera(render=False, bounds=b)
         # reset_camera fits the bounding sphere; a tree is tall and thin, so zoom in
         # until its side view fills the widget.
-        b = np.asarray(p.bounds, dtype=float)
         ext = b[1::2] - b[0::2]
         if np.all(np.isfinite(ext)) and ext.max() > 0:
             elev = np.radians(_ELEVATION_DEG)
@@ -114,6 +114,21 @@ class ScanView(QWidget):
                 cam.zoom(fit)
         if render:
             p.render()
+
+    def _fit_bounds(self) -> np.ndarray:
+        """Bounds to frame: the points' 0.5-99.5 percentiles, plus 5 % each side.
+
+        A few stray points metres away (real scans have them) would otherwise push
+        the tree into a corner of the view.
+        """
+        layers = [] if self._scene is None else self._scene.layers
+        pts = [ly.xyz for ly in layers if isinstance(ly, PointsLayer) and len(ly.xyz)]
+        if not pts:
+            return np.asarray(self.plotter.bounds, dtype=float)
+        xyz = np.concatenate(pts)
+        lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
+        pad = 0.05 * (hi - lo)
+        return np.column_stack([lo - pad, hi + pad]).ravel()
 
     def frame_points(
         self, xyz: np.ndarray, margin: float = 1.3, min_radius: float = 0.05

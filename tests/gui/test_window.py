@@ -155,3 +155,27 @@ def test_large_clouds_are_decimated_for_display_only(
     assert MAX_DISPLAY_POINTS // 2 < len(shown.xyz) <= MAX_DISPLAY_POINTS
     assert shown.key[0] == "intensity"
     assert content_fraction(pane.view.plotter) > 0.005
+
+
+def test_stray_points_do_not_push_the_tree_into_a_corner(
+    make_main_window, qtbot, tmp_path, sample_pair, content_fraction
+):
+    import numpy as np
+
+    from amrst import io
+
+    target = io.read(sample_pair[0])
+    world = target.world_xyz
+    far = world.mean(axis=0) + np.array([[-20.0, 0, 0], [0, 25.0, 0], [18.0, -3, 0]])
+    stray = tmp_path / "stray.ply"
+    io.write(stray, type(target)(np.vstack([world, far])))
+    win = make_main_window()
+    with qtbot.waitSignals([win.session.scan_loaded] * 2, timeout=20_000):
+        win.open_pair(sample_pair[0], stray)
+    clean, noisy = (
+        content_fraction(win.scans_area.panes[r].view.plotter)
+        for r in ("target", "source")
+    )
+    # Framed on the bulk of the points, the tree is drawn as large as without the
+    # three stray points (framed on the full bounds it came out at a third).
+    assert noisy > 0.7 * clean
