@@ -70,6 +70,20 @@ def rebase(xyz: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return local - shift, offset + shift
 
 
+def shorten(text: str, limit: int = 80) -> str:
+    """Return ``text`` cut to ``limit`` characters with an ellipsis, for messages.
+
+    Bad input can hold whole lines of binary garbage; a message quotes at most
+    ``limit`` characters of it.
+    """
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def quote(text: str, limit: int = 80) -> str:
+    """Return ``repr(text)`` (control bytes visible) cut to ``limit`` characters."""
+    return shorten(repr(text), limit)
+
+
 def needs_double(cloud: Cloud) -> bool:
     """Return True when float32 coordinates would lose precision for this cloud."""
     if np.any(cloud.offset != 0) or cloud.meta.get("coord_dtype") == "float64":

@@ -6,13 +6,19 @@ attributes named like a standard LAS dimension go there; every other attribute g
 into an extra-bytes dimension. A standard-named attribute whose values the standard
 field cannot hold (e.g. a float intensity of 0.37) is also stored exactly in an
 extra dimension ``amrst_<name>``, which the reader maps back.
+
+laspy trusts a file's header, so the reader checks the fixed header with
+``struct`` first (a corrupt one can make laspy loop for minutes), and refuses
+points that mostly lie outside the header's bounds (garbage point records).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
-from typing import TYPE_CHECKING, Any
+import math
+import struct
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -32,6 +38,19 @@ _CANDIDATE_FORMATS = (0, 1, 2, 3, 6, 7, 8)
 _DEFAULT_SCALE_M = 1e-4  # 0.1 mm: keeps millimetres after any transform
 _INT32_MAX = 2**31 - 1
 _SKIP_VLRS = {("LASF_Spec", 4), ("laszip encoded", 22204)}  # laspy writes these
+_HEADER_MIN = 227  # bytes of the LAS 1.0-1.2 public header; 1.3 and 1.4 add more
+_VLR_HEADER = 54  # bytes of a variable-length record's header
+_EVLR_HEADER = 60  # bytes of an extended VLR's header (LAS 1.4, after the points)
+_BOUNDS_SLACK = 0.1  # header bounds may be this share of their size too tight
+_BOUNDS_STEPS = 3  # ... plus this many scale steps of rounding
+
+
+class _FixedHeader(NamedTuple):
+    """The fields of the public header checked before laspy reads the file."""
+
+    scales: np.ndarray  # (3,) float64
+    mins: np.ndarray  # (3,) float64, world coordinates
+    maxs: np.ndarray  # (3,) float64
 
 
 @functools.cache
@@ -50,6 +69,7 @@ def read_las(path: Path) -> RawCloud:
     """Read a LAS/LAZ file: coordinates, every non-zero dimension, header details."""
     import laspy
 
+    fixed = _check_header(path)  # before laspy: a corrupt header can make it loop
     with laspy.open(path) as reader:
         _check_size(reader.header, path)
         las = reader.read()
@@ -57,6 +77,7 @@ def read_las(path: Path) -> RawCloud:
     scales = np.asarray(header.scales, dtype=np.float64)
     raw = (las.X, las.Y, las.Z)
     xyz = np.column_stack([np.asarray(v) * s for v, s in zip(raw, scales, strict=True)])
+    _check_bounds(xyz + np.asarray(header.offsets, np.float64), fixed, path)
     attributes: dict[str, np.ndarray] = {}
     for dim in header.point_format.dimensions:
         if dim.name in ("X", "Y", "Z"):
@@ -80,6 +101,150 @@ def read_las(path: Path) -> RawCloud:
         ),
     }
     return RawCloud(xyz, np.asarray(header.offsets, np.float64), attributes, meta)
+
+
+def _check_header(path: Path) -> _FixedHeader:
+    """Refuse a file whose public header is not LAS or is corrupt, without laspy.
+
+    laspy trusts the header: a huge number of (extended) variable-length records
+    makes it read past the end of the file for minutes, and a scale of 0 turns
+    every coordinate into 0. These checks read a few hundred bytes.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(375)  # the LAS 1.4 header; 1.0-1.2 use the first 227 bytes
+    if len(head) < _HEADER_MIN:
+        raise InvalidInput(
+            f"{path} is too short to be a LAS/LAZ file ({size} bytes; the header "
+            f"alone takes {_HEADER_MIN}): it is truncated or not a LAS file. "
+            "Copy or export it again."
+        )
+    if head[:4] != b"LASF":
+        raise InvalidInput(
+            f"{path} is not a LAS/LAZ file (it does not start with 'LASF'). "
+            "Export it again as LAS/LAZ, or give it its real extension."
+        )
+    header_size, point_start, n_vlrs = struct.unpack_from("<HII", head, 94)
+    values = np.array(struct.unpack_from("<12d", head, 131))
+    scales, offsets = values[0:3], values[3:6]
+    corrupt = f"{path}: corrupt LAS header:"
+    if not _HEADER_MIN <= header_size <= size:
+        raise InvalidInput(
+            f"{corrupt} it gives a header size of {header_size} bytes (at least "
+            f"{_HEADER_MIN} and at most the file's {size} bytes are possible). "
+            "Export the file again."
+        )
+    if point_start < header_size + _VLR_HEADER * n_vlrs:
+        raise InvalidInput(
+            f"{corrupt} it announces {n_vlrs:,} variable-length records that cannot "
+            f"fit between the header ({header_size} bytes) and the points (byte "
+            f"{point_start:,}). Export the file again."
+        )
+    if point_start > size:
+        raise InvalidInput(
+            f"{corrupt} its points would start at byte {point_start:,}, after the "
+            f"end of the file ({size:,} bytes): it is truncated or corrupt. "
+            "Copy or export it again."
+        )
+    if head[25] >= 4 and len(head) >= 247:  # LAS 1.4 (as laspy reads it): EVLRs
+        evlr_start, n_evlrs = struct.unpack_from("<QI", head, 235)
+        if n_evlrs and not point_start <= evlr_start <= size - _EVLR_HEADER * n_evlrs:
+            raise InvalidInput(
+                f"{corrupt} it announces {n_evlrs:,} extended variable-length "
+                f"records from byte {evlr_start:,} that cannot fit in the file "
+                f"({size:,} bytes). Export the file again."
+            )
+    for axis, scale, offset in zip("xyz", scales, offsets, strict=True):
+        if not (math.isfinite(scale) and scale > 0):
+            consequence = (
+                f", so every {axis} coordinate would be 0" if scale == 0 else ""
+            )
+            raise InvalidInput(
+                f"{corrupt} the header scale factor is {scale:g} for {axis}"
+                f"{consequence}; it must be a positive number such as 0.001. "
+                "Export the file again."
+            )
+        if not math.isfinite(offset):
+            raise InvalidInput(
+                f"{corrupt} the header offset is {offset:g} for {axis}; it must be "
+                "a finite number. Export the file again."
+            )
+    if head[104] & 0xC0 == 0x80:  # LAZ: bit 7 of the point format id
+        _check_laz_count(path, head)
+    return _FixedHeader(scales, values[7:12:2], values[6:12:2])
+
+
+def _check_laz_count(path: Path, head: bytes) -> None:
+    """Refuse a LAZ whose header announces more points than its chunks can hold.
+
+    LASzip stores points in chunks of a fixed size (in its VLR) and lists the
+    chunks in a table at the end. laszip decompresses the announced count
+    regardless, allocating it first: 2**28 announced points take 5 GB and
+    many seconds before failing. Files with variable chunks or without a chunk
+    table are left to laspy.
+    """
+    header_size, point_start, n_vlrs = struct.unpack_from("<HII", head, 94)
+    legacy = head[25] < 4 or len(head) < 255  # LAS 1.4 counts points in 64 bits
+    (n_points,) = struct.unpack_from(
+        "<I" if legacy else "<Q", head, 107 if legacy else 247
+    )
+    chunk_size = None
+    with open(path, "rb") as f:
+        pos = header_size
+        for _ in range(n_vlrs):
+            f.seek(pos)
+            vlr = f.read(_VLR_HEADER)
+            if len(vlr) < _VLR_HEADER or pos + _VLR_HEADER > point_start:
+                return
+            record_id, length = struct.unpack_from("<HH", vlr, 18)
+            if vlr[2:18].rstrip(b"\0") == b"laszip encoded" and record_id == 22204:
+                data = f.read(length)
+                if len(data) >= 16:
+                    (chunk_size,) = struct.unpack_from("<I", data, 12)
+                break
+            pos += _VLR_HEADER + length
+        if chunk_size is None or chunk_size == 0xFFFFFFFF:  # variable-size chunks
+            return
+        f.seek(point_start)
+        raw = f.read(8)
+        (table_start,) = struct.unpack("<q", raw) if len(raw) == 8 else (-1,)
+        if not point_start < table_start <= path.stat().st_size - 8:
+            return
+        f.seek(table_start)
+        _, n_chunks = struct.unpack("<II", f.read(8))
+    if n_points > n_chunks * chunk_size:
+        raise InvalidInput(
+            f"{path}: corrupt LAZ header: it announces {n_points:,} points but the "
+            f"file's {n_chunks:,} compressed chunks hold at most "
+            f"{n_chunks * chunk_size:,}. The file is corrupt or truncated; "
+            "copy or export it again."
+        )
+
+
+def _check_bounds(world: np.ndarray, fixed: _FixedHeader, path: Path) -> None:
+    """Refuse points that mostly lie outside the header's bounding box.
+
+    Garbage point records decode to coordinates spread over hundreds of km; a
+    valid file's points lie inside the box its header gives. Axes whose bounds
+    are unusable (not finite, inverted, or both 0 as some writers leave them)
+    are not checked.
+    """
+    lo, hi = fixed.mins, fixed.maxs
+    usable = np.isfinite(lo) & np.isfinite(hi) & (hi >= lo) & ((lo != 0) | (hi != 0))
+    if len(world) == 0 or not usable.any():
+        return
+    margin = _BOUNDS_SLACK * (hi - lo) + _BOUNDS_STEPS * fixed.scales
+    with np.errstate(invalid="ignore", over="ignore"):
+        outside = (world < lo - margin) | (world > hi + margin)
+    share = np.where(usable, outside.mean(axis=0), 0.0)
+    axis = int(np.argmax(share))
+    if share[axis] > 0.5:
+        raise InvalidInput(
+            f"{path}: {share[axis]:.0%} of the points lie outside the bounds its "
+            f"header gives for {'xyz'[axis]} ({lo[axis]:.3f} to {hi[axis]:.3f}): "
+            "the points disagree with the header bounds, so the file is corrupt. "
+            "Export it again."
+        )
 
 
 def _check_size(header: Any, path: Path) -> None:

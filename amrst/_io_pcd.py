@@ -6,6 +6,7 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 
 from __future__ import annotations
 
+import os
 import struct
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
 
@@ -18,6 +19,8 @@ from amrst._io_common import (
     format_rows,
     needs_double,
     number_format,
+    quote,
+    shorten,
     storable,
 )
 from amrst._io_text import parse_numbers
@@ -29,6 +32,7 @@ if TYPE_CHECKING:
     from amrst.types import Cloud
 
 _KINDS = {"F": "f", "I": "i", "U": "u"}
+_CODES = {"f2", "f4", "f8", "i1", "i2", "i4", "i8", "u1", "u2", "u4", "u8"}
 _MAX_HEADER_LINES = 100
 
 
@@ -65,9 +69,15 @@ def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Heade
         )
     except (KeyError, ValueError, IndexError) as exc:
         raise InvalidInput(
-            f"{path}: the PCD header is incomplete or malformed ({exc!r} missing or "
-            "wrong in FIELDS/SIZE/TYPE/COUNT/POINTS). Re-save the file with PCL."
+            f"{path}: the PCD header is incomplete or malformed ({shorten(repr(exc))} "
+            "missing or wrong in FIELDS/SIZE/TYPE/COUNT/POINTS). Re-save the file "
+            "with PCL."
         ) from exc
+    if points < 0 or min(counts, default=1) < 1:
+        raise InvalidInput(
+            f"{path}: the PCD header gives a negative number of points or a COUNT "
+            "below 1; the file is corrupt. Re-save the file with PCL."
+        )
     if not len(names) == len(sizes) == len(kinds) == len(counts):
         raise InvalidInput(f"{path}: FIELDS, SIZE, TYPE and COUNT differ in length.")
     fields = [
@@ -76,6 +86,13 @@ def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Heade
             zip(names, kinds, sizes, counts, strict=True)
         )
     ]
+    for name, code, _ in fields:
+        if code not in _CODES:
+            raise InvalidInput(
+                f"{path}: field {quote(name, 40)} has TYPE {code[0].upper()} with "
+                f"SIZE {code[1:]}, which PCD does not define (F: 4 or 8; "
+                "I and U: 1, 2, 4 or 8). The header is corrupt; re-save the file."
+            )
     return _Header(fields, points, keys["DATA"][0].lower(), n_lines)
 
 
@@ -123,19 +140,60 @@ def _columns(header: _Header, f: BinaryIO, path: Path) -> dict[str, np.ndarray]:
         return out
     if header.data == "binary":
         dtype = np.dtype([(name, "<" + code, (c,)) for name, code, c in header.fields])
+        _check_room(n, dtype.itemsize, f, path)
         raw = f.read(n * dtype.itemsize)
         _check_count(len(raw) // max(dtype.itemsize, 1), n, path)
         records = np.frombuffer(raw, dtype=dtype, count=n)
         return {name: _squeeze(records[name]) for name, _, _ in header.fields}
     if header.data == "binary_compressed":
         return _compressed_columns(header, f, path)
-    raise InvalidInput(f"{path}: unknown PCD DATA type {header.data!r}.")
+    raise InvalidInput(
+        f"{path}: unknown PCD DATA type {quote(header.data, 40)}; expected ascii, "
+        "binary or binary_compressed. Re-save the file with PCL."
+    )
+
+
+def _check_room(n: int, record: int, f: BinaryIO, path: Path) -> None:
+    """Refuse before reading when the rest of the file cannot hold ``n`` records.
+
+    ``f.read(nbytes)`` allocates ``nbytes`` first, so an absurd point count in
+    the header would fail as "out of memory" instead of "corrupt".
+    """
+    left = os.fstat(f.fileno()).st_size - f.tell()
+    if n * record > left:
+        raise InvalidInput(
+            f"{path}: the header announces {n:,} points but the file holds only "
+            f"about {max(left, 0) // max(record, 1):,}: the file is corrupt or "
+            "truncated. Copy or export it again."
+        )
 
 
 def _compressed_columns(
     header: _Header, f: BinaryIO, path: Path
 ) -> dict[str, np.ndarray]:
-    packed_size, size = struct.unpack("<II", f.read(8))
+    sizes = f.read(8)
+    if len(sizes) < 8:  # PCL writes both sizes even for 0 points
+        raise InvalidInput(
+            f"{path} is truncated: its compressed data is missing. Copy or export "
+            "it again."
+        )
+    packed_size, size = struct.unpack("<II", sizes)
+    record = sum(np.dtype(code).itemsize * c for _, code, c in header.fields)
+    # Both sizes come from the file: check them before allocating.
+    left = os.fstat(f.fileno()).st_size - f.tell()
+    if packed_size > left:
+        raise InvalidInput(
+            f"{path}: the compressed data announces {packed_size:,} bytes but the "
+            f"file holds only {left:,} after the header: the file is corrupt or "
+            "truncated. Copy or export it again."
+        )
+    if size != header.points * record:
+        raise InvalidInput(
+            f"{path}: the header announces {header.points:,} points "
+            f"({header.points * record:,} bytes) but the compressed data says "
+            f"{size:,} bytes: the file is corrupt or truncated. Copy or export "
+            "it again."
+        )
     raw = _lzf_decompress(f.read(packed_size), size)
     out, pos, n = {}, 0, header.points
     for name, code, count in header.fields:  # column-major: one block per field

@@ -6,6 +6,7 @@ uses numpy structured dtypes instead (private to amrst.io).
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import numpy as np
@@ -17,6 +18,8 @@ from amrst._io_common import (
     format_rows,
     needs_double,
     number_format,
+    quote,
+    shorten,
     storable,
 )
 from amrst._io_text import parse_numbers
@@ -26,6 +29,8 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.types import Cloud
+
+logger = logging.getLogger(__name__)
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -59,8 +64,8 @@ def _parse_header(f: BinaryIO, path: Path) -> _Header:
         return _parse_header_lines(f, path)
     except (IndexError, ValueError) as exc:
         raise InvalidInput(
-            f"{path}: malformed PLY header ({exc}). The file is corrupt or "
-            "truncated; export it again."
+            f"{path}: malformed PLY header ({shorten(str(exc))}). The file is "
+            "corrupt or truncated; export it again."
         ) from exc
 
 
@@ -77,20 +82,25 @@ def _parse_header_lines(f: BinaryIO, path: Path) -> _Header:
             continue
         if words[0] == "end_header":
             if fmt not in _ENDIAN:
-                raise InvalidInput(f"{path}: unknown PLY format {fmt!r}.")
+                raise InvalidInput(
+                    f"{path}: unknown PLY format {quote(fmt, 40)}; expected ascii, "
+                    "binary_little_endian or binary_big_endian. Export it again."
+                )
             return _Header(fmt, elements, comments, f.tell())
         if words[0] == "format":
             fmt = words[1]
         elif words[0] == "comment":
             comments.append(" ".join(words[1:]))
         elif words[0] == "element":
+            if int(words[2]) < 0:
+                raise ValueError(f"element {quote(words[1], 40)} has a negative count")
             elements.append(_Element(words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
             code = "list" if words[1] == "list" else _TYPES.get(words[1])
             if code is None:
                 raise InvalidInput(
-                    f"{path}: unknown PLY property type {words[1]!r}; the header "
-                    "is corrupt or truncated. Export the file again."
+                    f"{path}: unknown PLY property type {quote(words[1], 40)}; the "
+                    "header is corrupt or truncated. Export the file again."
                 )
             elements[-1].props.append((words[-1], code))
     raise InvalidInput(
@@ -115,25 +125,40 @@ def _vertex(header: _Header, path: Path) -> tuple[_Element, list[_Element]]:
 def _read_binary(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
     vertex, before = _vertex(header, path)
     endian = _ENDIAN[header.fmt]
+    skip = 0
     for element in before:
         if any(code == "list" for _, code in element.props):
             raise InvalidInput(
-                f"{path}: element '{element.name}' with list properties comes before "
-                "the vertices. Re-save the PLY with the vertices first."
+                f"{path}: element {quote(element.name, 40)} with list properties "
+                "comes before the vertices. Re-save the PLY with the vertices first."
             )
-        f.seek(
+        skip += (
             element.count
-            * np.dtype([(n, endian + c) for n, c in element.props]).itemsize,
-            1,
+            * np.dtype([(n, endian + c) for n, c in element.props]).itemsize
         )
     dtype = np.dtype([(n, endian + c) for n, c in vertex.props])
-    data = f.read(vertex.count * dtype.itemsize)
-    if len(data) < vertex.count * dtype.itemsize:
+    record = max(dtype.itemsize, 1)
+    # Check the size before reading: read() allocates what the header announces.
+    left = path.stat().st_size - header.size - skip
+    if vertex.count * dtype.itemsize > left:
         raise InvalidInput(
-            f"{path} is truncated: it holds {len(data) // dtype.itemsize} of the "
-            f"{vertex.count} points its header announces. Copy or export it again."
+            f"{path}: the header announces {vertex.count:,} points but the file "
+            f"holds only about {max(left, 0) // record:,}: the file is corrupt or "
+            "truncated. Copy or export it again."
         )
-    return np.frombuffer(data, dtype=dtype)
+    if vertex is header.elements[-1] and left - vertex.count * dtype.itemsize >= record:
+        extra = (left - vertex.count * dtype.itemsize) // record
+        logger.warning(
+            "%s: the PLY header announces %d points but the file holds about %d "
+            "more after them; only the announced %d were read. If points are "
+            "missing, export the file again.",
+            path.name,
+            vertex.count,
+            extra,
+            vertex.count,
+        )
+    f.seek(skip, 1)
+    return np.frombuffer(f.read(vertex.count * dtype.itemsize), dtype=dtype)
 
 
 def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:

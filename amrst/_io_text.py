@@ -22,6 +22,8 @@ from amrst._io_common import (
     format_rows,
     narrow_int,
     number_format,
+    quote,
+    shorten,
     storable,
 )
 from amrst.errors import InvalidInput
@@ -36,6 +38,10 @@ logger = logging.getLogger(__name__)
 
 _ALIASES = {"r": "red", "g": "green", "b": "blue", "i": "intensity"}
 _COORD_FORMAT = "%.6f"  # micrometres; float64 world values keep them up to 1e9 m
+_SNIFF_CHARS = 4096  # the start of the file looked at to tell text from binary
+_MAX_CONTROL_SHARE = 0.05  # more control characters than this: binary
+_MAX_UNDECODABLE_SHARE = 0.3  # more bytes that are not UTF-8 than this: binary
+_TEXT_CONTROLS = frozenset("\t\n\r\f\v\x1a")  # \x1a: DOS end-of-file mark
 
 
 class _Layout:
@@ -141,7 +147,7 @@ def _column_names(
         logger.warning(
             "%s: header %s has no x/y/z columns; using the first three as x, y, z.",
             path.name,
-            names,
+            shorten(str(names)),
         )
         names = ["x", "y", "z", *names[3:]]
     return _unique(names)
@@ -168,9 +174,13 @@ def parse_numbers(
 
     ``np.loadtxt`` (C parser since numpy 1.23) reads 1M rows x 4 columns in under
     a second. On failure the text is scanned line by line to report the line.
+    ``max_rows`` (a header's count, which may be absurd) never exceeds the number
+    of lines.
     """
     if delimiter == ";":
         text = text.replace(",", ".")
+    if max_rows is not None:  # loadtxt allocates max_rows rows up front
+        max_rows = min(max_rows, text.count("\n") + 1)
     try:
         data = _loadtxt(text, delimiter, max_rows)
     except ValueError as exc:
@@ -213,15 +223,59 @@ def _locate_error(
         if len(tokens) != n_columns:
             return InvalidInput(
                 f"{path}, line {no}: {len(tokens)} values where {n_columns} were "
-                f"expected ({line.strip()[:60]!r}). Fix or delete that line."
+                f"expected ({quote(line.strip(), 60)}). Fix or delete that line."
             )
         bad = [t for t in tokens if not _is_number(t)]
         if bad:
             return InvalidInput(
-                f"{path}, line {no}: {bad[0].strip()[:40]!r} is not a number. "
+                f"{path}, line {no}: {quote(bad[0].strip(), 40)} is not a number. "
                 "Fix or delete that line (or remove the extra header lines)."
             )
-    return InvalidInput(f"{path}: could not parse the numbers ({exc}).")
+    return InvalidInput(
+        f"{path}: could not parse the numbers ({shorten(str(exc))}). Check that "
+        "it holds one point per line."
+    )
+
+
+def _check_is_text(text: str, path: Path) -> None:
+    """Refuse a PLY, PCD, LAS or binary file given a text extension.
+
+    Parsing it as text would quote lines of binary garbage, or complain that
+    the word 'format' of a PLY header is not a number.
+    """
+    head = text[:_SNIFF_CHARS]
+    first = head.split("\n", 1)[0].strip()
+    kind = (
+        "PLY" if first == "ply"
+        else "PCD" if first.startswith(("# .PCD", "VERSION"))
+        else "LAS/LAZ" if head.startswith("LASF")
+        else None
+    )  # fmt: skip
+    if kind is None:
+        controls = sum(1 for c in head if _is_control(c))
+        undecodable = head.count("\ufffd")  # a few are accents in another encoding
+        if (
+            "\x00" in head
+            or controls > _MAX_CONTROL_SHARE * len(head)
+            or undecodable > _MAX_UNDECODABLE_SHARE * len(head)
+        ):
+            kind = "binary"
+    if kind is None:
+        return
+    extension = {
+        "PLY": ".ply",
+        "PCD": ".pcd",
+        "LAS/LAZ": ".las or .laz",
+        "binary": "such as .las, .laz, .ply or .pcd",
+    }[kind]
+    raise InvalidInput(
+        f"{path} is not a text point cloud (it looks like a {kind} file): give it "
+        f"its real extension ({extension}), or export the cloud again as text."
+    )
+
+
+def _is_control(char: str) -> bool:
+    return (char < " " or char == "\x7f") and char not in _TEXT_CONTROLS
 
 
 def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
@@ -231,6 +285,7 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
     # is read as UTF-8, whose first 128 characters are the ASCII of the numbers.
     encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
     text = raw.decode(encoding, errors="replace").lstrip("\ufeff")
+    _check_is_text(text, path)
     layout = _Layout(text, path)
     if layout.n_columns < 3:
         raise InvalidInput(

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from amrst._io_common import RawCloud, rebase
+from amrst._io_common import RawCloud, rebase, shorten
 from amrst._io_las import read_las, write_las
 from amrst._io_pcd import read_pcd, write_pcd
 from amrst._io_ply import read_ply, write_ply
@@ -33,6 +33,9 @@ logger = logging.getLogger(__name__)
 
 PathLike = str | os.PathLike[str]
 Reader = Callable[..., Cloud]
+#: World coordinates beyond this (m) are invalid like NaN: no Earth coordinate,
+#: not even geocentric (ECEF, about 6.4e6 m), comes near it. Messages say "1e9 m".
+MAX_COORD_M = 1e9
 _SPACING_SAMPLE = 20_000
 
 
@@ -129,8 +132,8 @@ def read(
         ``["x", "y", "z", "intensity", "red", "green", "blue"]``; must include
         x, y and z. Default: the header's names, else x, y, z, intensity, col4...
     drop_invalid : bool
-        Drop points with NaN/inf coordinates (logged as a warning; the count is
-        kept in ``meta["n_dropped_invalid"]``).
+        Drop points with NaN/inf coordinates or coordinates beyond 1e9 m (logged
+        as a warning; the count is kept in ``meta["n_dropped_invalid"]``).
 
     Returns
     -------
@@ -142,11 +145,15 @@ def read(
     Raises
     ------
     InvalidInput
-        Missing file, a folder, unsupported extension, empty, corrupt or truncated
-        file, a non-numeric text line, or no valid point.
+        Missing, unreadable (permissions) or empty file, a folder, unsupported
+        extension, corrupt or truncated file, a non-numeric text line, or no
+        valid point.
     """
     path = Path(path)
-    fmt = _check_readable(path)
+    try:
+        fmt = _check_readable(path)
+    except PermissionError as exc:  # a folder on the way cannot be searched
+        raise _permission_denied(path) from exc
     if columns is not None and not fmt.text:
         logger.warning(
             "columns= applies to text files only; ignored for %s.", path.name
@@ -155,20 +162,33 @@ def read(
         raw = fmt.read(path, columns) if fmt.text else fmt.read(path)
     except AmrstError:
         raise
+    except PermissionError as exc:
+        raise _permission_denied(path) from exc
     except MemoryError as exc:
         raise InvalidInput(f"{path} is too large to load into memory.") from exc
     except Exception as exc:  # any library error becomes a message the user can act on
         raise InvalidInput(
-            f"Could not read {path}: {exc} ({type(exc).__name__}). The file looks "
-            f"corrupt or truncated, or is not really a {fmt.label} file; "
-            "export it again."
+            f"Could not read {path}: {shorten(str(exc), 200)} "
+            f"({type(exc).__name__}). The file looks corrupt or truncated, or is "
+            f"not really a {fmt.label} file; export it again."
         ) from exc
     return _finish(raw, path, fmt.label, drop_invalid)
 
 
+def _permission_denied(path: Path) -> InvalidInput:
+    return InvalidInput(
+        f"Cannot read {path}: permission denied: fix the file's permissions or "
+        "copy it somewhere readable."
+    )
+
+
 def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
-    """Drop invalid rows, choose the offset and build the Cloud."""
-    valid = np.isfinite(raw.xyz).all(axis=1)
+    """Drop invalid rows, choose the offset and build the Cloud.
+
+    Invalid rows have a NaN, inf or absurd (beyond ``MAX_COORD_M``) world
+    coordinate; kept when ``drop_invalid`` is false.
+    """
+    valid = _valid_rows(raw.xyz, raw.offset)
     n_valid = int(valid.sum())
     if len(valid) == 0:
         raise InvalidInput(
@@ -178,13 +198,15 @@ def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
     if n_valid == 0:
         raise InvalidInput(
             f"{path} contains no valid points ({len(valid)} rows, none with finite "
-            "x, y, z). Check the export or the column order (columns=)."
+            "x, y, z within 1e9 m). Check the export, the units or the column "
+            "order (columns=)."
         )
     n_dropped = len(valid) - n_valid if drop_invalid else 0
     xyz, attributes = raw.xyz, raw.attributes
     if n_dropped:
         logger.warning(
-            "%s: dropped %d of %d points with NaN/inf coordinates.",
+            "%s: dropped %d of %d points with NaN/inf coordinates or coordinates "
+            "beyond 1e9 m.",
             path.name,
             n_dropped,
             len(valid),
@@ -194,6 +216,13 @@ def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
     local, offset = rebase(xyz, raw.offset + 0.0)  # + 0.0 turns -0.0 into 0.0
     meta = {"format": label, "path": str(path), "n_dropped_invalid": n_dropped}
     return Cloud(local, offset, attributes, path.name, {**meta, **raw.meta})
+
+
+def _valid_rows(xyz: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(N,) bool: rows whose world x, y, z are finite and within ``MAX_COORD_M``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        world = np.asarray(xyz, dtype=np.float64) + np.asarray(offset, np.float64)
+        return np.asarray((np.abs(world) <= MAX_COORD_M).all(axis=1))  # NaN: False
 
 
 def write(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
