@@ -1,7 +1,8 @@
 """The ``amrst`` command: info, register, simulate, bench.
 
 Every AmrstError becomes one clear line on stderr and a non-zero exit code; a traceback
-is shown only with --debug.
+is shown only with --debug. A closed output pipe (``amrst info big.ply | head``) ends
+the command quietly.
 """
 
 from __future__ import annotations
@@ -9,21 +10,25 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from amrst.pipeline import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
+EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
 LOW_CONFIDENCE = 0.3
+
+logger = logging.getLogger(__name__)
 
 
 class TerminalReporter:
@@ -54,22 +59,27 @@ class TerminalReporter:
 
 
 def read_truth(path: str) -> np.ndarray:
-    """T_target_source from a truth.json (clear errors)."""
+    """T_target_source from a truth.json, checked to be a rigid transform (clear errors)."""
+    from amrst.bench.cases import check_rigid
+
+    if not path.strip():
+        raise InvalidInput("The truth file path is empty; give a truth JSON file.")
     p = Path(path)
+    if p.is_dir():
+        raise InvalidInput(
+            f"Truth file {p} is a folder; give the path of a JSON file with a 4x4 "
+            "'T_target_source'."
+        )
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
-        T = np.asarray(doc["T_target_source"], dtype=float)
+        T = doc["T_target_source"]
     except FileNotFoundError:
         raise InvalidInput(f"Truth file not found: {p}.") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InvalidInput(
             f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a 4x4 'T_target_source'."
         ) from exc
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise InvalidInput(
-            f"T_target_source in {p} must be a finite 4x4 matrix, got shape {T.shape}."
-        )
-    return T
+    return check_rigid(T, f"T_target_source in {p}")
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -87,30 +97,51 @@ def _load_params(args: argparse.Namespace) -> RegistrationParams:
     from amrst.params_io import load_params, load_preset
     from amrst.pipeline import RegistrationParams
 
-    if args.params:
+    # An unknown preset is refused first, whatever else was given.
+    preset = load_preset(args.preset) if args.preset is not None else None
+    if args.params is not None and preset is not None:
+        raise InvalidInput(
+            f"Both --preset {args.preset!r} and --params {args.params} were given; "
+            "use one of --preset or --params."
+        )
+    if args.params is not None:
         return load_params(args.params)
-    if args.preset:
-        return load_preset(args.preset)
-    return RegistrationParams()
+    return preset if preset is not None else RegistrationParams()
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Tell whether two paths name one file (the same path, a link, a hard link)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
-    from amrst.export import export_registration
+    from amrst.export import check_output_dir, export_registration, output_names
     from amrst.pipeline import register
     from amrst.report import registration_summary
 
     t_start = time.perf_counter()
+    # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
-    T_truth = read_truth(args.truth) if args.truth else None
+    T_truth = read_truth(args.truth) if args.truth is not None else None
+    parts = ["transform", "metrics", "params"] + (
+        ["registered", "merged"] if args.write_clouds else []
+    )
+    check_output_dir(args.out, output_names(parts, args.format))
+    if _same_file(args.target, args.source):
+        logger.warning(
+            "TARGET and SOURCE are the same file (%s): the result will be the "
+            "identity transform.",
+            args.target,
+        )
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
     result = register(target, source, params, TerminalReporter(args.quiet))
     summary = registration_summary(result, T_truth)
     summary["timings_s"]["read"] = round(t_read, 4)
-    parts = ["transform", "metrics", "params"] + (
-        ["registered", "merged"] if args.write_clouds else []
-    )
     verified = result.coarse.verified
     extra = {
         "verified": verified,
@@ -138,6 +169,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         cloud_format=args.format,
         parts=tuple(parts),
         transform_extra=extra,
+        remove_stale=True,
     )
     fine = summary["fine"]
     print(
@@ -237,13 +269,20 @@ def build_parser() -> argparse.ArgumentParser:
         "source", metavar="SOURCE", help="scan to move into the target frame"
     )
     reg.add_argument(
-        "--out", required=True, metavar="DIR", help="output folder (created)"
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="output folder (created; checked before registering)",
     )
     reg.add_argument(
-        "--params", metavar="FILE", help="parameter JSON (as written in params.json)"
+        "--params",
+        metavar="FILE",
+        help="parameter JSON (as written in params.json); not with --preset",
     )
     reg.add_argument(
-        "--preset", metavar="NAME", help="a named preset from resources/presets"
+        "--preset",
+        metavar="NAME",
+        help="a named preset from resources/presets; not with --params",
     )
     reg.add_argument(
         "--truth", metavar="TRUTH.json", help="known T_target_source: adds truth errors"
@@ -278,8 +317,42 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _silence_stdout() -> None:
+    """Point stdout at devnull, so the exit flush does not fail on a closed pipe again.
+
+    The recipe of the Python documentation (signal module, note on SIGPIPE).
+    """
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file descriptor (tests)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``amrst`` command."""
+    """Entry point of the ``amrst`` command.
+
+    Parameters
+    ----------
+    argv : list of str or None
+        The arguments; None reads ``sys.argv``.
+
+    Returns
+    -------
+    int
+        The exit code: 0 done, 1 internal error or closed output pipe, 2 unusable
+        input, 3 registration failed, 130 cancelled.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()  # a closed pipe shows here, not in the exit flush
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_PIPE
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
@@ -291,6 +364,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        raise  # main() ends quietly
     except Cancelled:
         print("Cancelled.", file=sys.stderr)
         return EXIT_CANCELLED

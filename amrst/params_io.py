@@ -3,34 +3,50 @@
 Files written by an older version keep loading: unknown keys are refused with a clear
 message, missing keys take the current defaults, and ``schema_version`` says which
 layout a file has (see tests/core/data/params_v1.json).
+
+Values that mean "automatic" are NaN in memory (``separate.intensity_threshold``) and
+``null`` in the files written here, so strict JSON parsers read them; files holding a
+bare ``NaN`` (written by older versions) keep loading.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.pipeline import RegistrationParams
 from amrst.resources import resource_path
 
-if TYPE_CHECKING:
-    import os
-
 SCHEMA_VERSION = 1
 PRESETS_DIR = resource_path("presets")
 
 
+def _json_value(value: Any) -> Any:
+    """Return ``value`` as strict JSON holds it: lists for tuples, None for NaN/inf."""
+    if isinstance(value, tuple):
+        return [_json_value(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def params_to_dict(params: RegistrationParams) -> dict[str, Any]:
-    """Nested plain dict (JSON-ready) with ``schema_version``."""
+    """Nested plain dict (strict-JSON-ready) with ``schema_version``.
+
+    NaN ("automatic", e.g. ``separate.intensity_threshold``) becomes None, written as
+    ``null``; :func:`params_from_dict` reads None back as that default.
+    """
     out: dict[str, Any] = {"schema_version": SCHEMA_VERSION}
     for f in dataclasses.fields(params):
         stage = getattr(params, f.name)
         out[f.name] = {
-            g.name: list(v) if isinstance(v := getattr(stage, g.name), tuple) else v
+            g.name: _json_value(getattr(stage, g.name))
             for g in dataclasses.fields(stage)
         }
     return out
@@ -42,10 +58,17 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     Raises
     ------
     InvalidInput
-        Unknown stage or parameter names, a newer schema, or values out of range.
+        Unknown stage or parameter names, a bad or newer schema, values of the wrong
+        type, not finite or out of range, or values that contradict each other.
     """
     version = data.get("schema_version", SCHEMA_VERSION)
-    if not isinstance(version, int) or version > SCHEMA_VERSION:
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise InvalidInput(
+            f"Parameter file schema_version must be an integer of 1 or more (this "
+            f"AMRST writes {SCHEMA_VERSION}), got {version!r}; write it as a number "
+            f'without quotes, e.g. "schema_version": {SCHEMA_VERSION}.'
+        )
+    if version > SCHEMA_VERSION:
         raise InvalidInput(
             f"Parameter file schema_version {version!r} is newer than this AMRST "
             f"({SCHEMA_VERSION}); update AMRST Studio or remove the newer settings."
@@ -65,8 +88,12 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
                 f"known ones are {sorted(names)}."
             )
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}
-        for key, value in values.items():
-            _check_value(f.name, names[key], getattr(stage, key), value)
+        for key, value in list(values.items()):
+            default = getattr(stage, key)
+            if _is_automatic(default) and (value is None or _is_nan(value)):
+                values[key] = default  # null or NaN: "automatic", the default itself
+                continue
+            _check_value(f.name, names[key], default, value)
         try:
             stages[f.name] = dataclasses.replace(stage, **values)
         except (TypeError, ValueError) as exc:
@@ -74,7 +101,69 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     unknown_stages = set(data) - set(stages) - {"schema_version", "name", "description"}
     if unknown_stages:
         raise InvalidInput(f"Unknown parameter section(s) {sorted(unknown_stages)}.")
-    return RegistrationParams(**stages)
+    params = RegistrationParams(**stages)
+    check_params(params)
+    return params
+
+
+# Pairs (stage, low, high, strict) whose low value must stay below the high one: with
+# strict, low < high; otherwise low <= high.
+_ORDERED_PAIRS = (
+    ("preprocess", "min_points", "max_points", False),
+    ("fine", "min_corr_dist_m", "max_corr_dist_m", False),
+    ("trunk", "slice_low_m", "slice_high_m", True),
+)
+
+
+def check_params(params: RegistrationParams) -> None:
+    """Refuse parameter values that contradict each other.
+
+    Each stage checks its own values one by one; this checks the pairs that must stay
+    in order: ``preprocess.min_points <= preprocess.max_points``,
+    ``fine.min_corr_dist_m <= fine.max_corr_dist_m`` and
+    ``trunk.slice_low_m < trunk.slice_high_m``.
+
+    Parameters
+    ----------
+    params : RegistrationParams
+
+    Raises
+    ------
+    InvalidInput
+        Naming both parameters, their values and what to change.
+    """
+    for stage_name, low_name, high_name, strict in _ORDERED_PAIRS:
+        stage = getattr(params, stage_name)
+        low, high = getattr(stage, low_name), getattr(stage, high_name)
+        if low > high or (strict and low == high):
+            relation = "below" if strict else "at most"
+            raise InvalidInput(
+                f"Parameters {stage_name}.{low_name} = {low} and "
+                f"{stage_name}.{high_name} = {high} contradict each other: "
+                f"{low_name} must be {relation} {high_name}. Lower "
+                f"{stage_name}.{low_name} or raise {stage_name}.{high_name}."
+            )
+
+
+def _is_nan(value: Any) -> bool:
+    return isinstance(value, float) and math.isnan(value)
+
+
+def _is_automatic(default: Any) -> bool:
+    """Tell a NaN default: for such a field NaN (null in a file) means "automatic"."""
+    return _is_nan(default)
+
+
+def _finite(value: Any, as_float: bool) -> bool:
+    """Tell whether a number is finite (with ``as_float``, also as a float)."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if as_float and isinstance(value, int) and not isinstance(value, bool):
+        try:
+            return math.isfinite(float(value))
+        except OverflowError:
+            return False
+    return True  # integers and non-numbers: the type and range checks deal with them
 
 
 def _check_value(
@@ -105,16 +194,30 @@ def _check_value(
         raise InvalidInput(
             f"Parameter {name} must be one of {list(meta['choices'])}, got {value!r}."
         )
+    lo, hi = meta.get("min"), meta.get("max")
+    items = value if isinstance(value, tuple) else (value,)
+    as_float = isinstance(default, float) or (
+        isinstance(default, tuple) and bool(default) and isinstance(default[0], float)
+    )
+    if not all(_finite(v, as_float) for v in items):
+        span = f" in [{lo}, {hi}]" if lo is not None or hi is not None else ""
+        raise InvalidInput(
+            f"Parameter {name} = {value!r} is not a finite number (NaN and infinity "
+            f"are not allowed here); give a number{span}."
+        )
+    if f.name == "seed" and isinstance(value, int) and value < 0:
+        raise InvalidInput(
+            f"Parameter {name} = {value} is negative; a seed must be an integer of 0 "
+            "or more."
+        )
     if (
         isinstance(value, (int, float))
         and not isinstance(value, bool)
-        and value == value
+        and ((lo is not None and value < lo) or (hi is not None and value > hi))
     ):
-        lo, hi = meta.get("min"), meta.get("max")
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise InvalidInput(
-                f"Parameter {name} = {value} is outside its range [{lo}, {hi}]."
-            )
+        raise InvalidInput(
+            f"Parameter {name} = {value} is outside its range [{lo}, {hi}]."
+        )
 
 
 def save_params(path: str | os.PathLike[str], params: RegistrationParams) -> None:
@@ -124,7 +227,16 @@ def save_params(path: str | os.PathLike[str], params: RegistrationParams) -> Non
 
 def load_params(path: str | os.PathLike[str]) -> RegistrationParams:
     """Read a parameter JSON file (clear InvalidInput on any problem)."""
+    if not os.fspath(path).strip():
+        raise InvalidInput(
+            "The parameter file path is empty; give the path of a parameter JSON file."
+        )
     path = Path(path)
+    if path.is_dir():
+        raise InvalidInput(
+            f"Parameter file {path} is a folder, not a file; give the path of a "
+            "parameter JSON file (e.g. the params.json written by amrst register)."
+        )
     if not path.is_file():
         raise InvalidInput(f"Parameter file not found: {path}. Check the path.")
     try:

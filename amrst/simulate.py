@@ -19,13 +19,14 @@ The truth ``T_target_source`` is the composition of the two exact scanner poses.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from amrst.bench.cases import write_case
+from amrst.bench.cases import check_case_folder, write_case
 from amrst.errors import InvalidInput
 from amrst.types import (
     Cloud,
@@ -43,6 +44,8 @@ if TYPE_CHECKING:
 _MAX_HALF_BINS = 12
 # The grid is coarsened until a typical disc spans this many cells in radius.
 _CELLS_PER_RADIUS = 4.0
+# Fewest points a tree and each simulated scan must have.
+MIN_POINTS = 100
 
 
 @dataclass(frozen=True, eq=False)
@@ -309,17 +312,29 @@ def simulate_pair(
     Raises
     ------
     InvalidInput
-        If the tree has fewer than 100 points or a parameter is out of range.
+        If the tree has fewer than 100 points, a parameter is not finite or out of
+        range, or a scan keeps fewer than 100 points.
     """
-    if len(tree) < 100:
-        raise InvalidInput(f"The tree has {len(tree)} points; at least 100 are needed.")
-    if res_deg <= 0 or noise_m < 0 or tilt_deg < 0:
-        raise InvalidInput("res_deg must be > 0; noise_m and tilt_deg must be >= 0.")
+    if len(tree) < MIN_POINTS:
+        raise InvalidInput(
+            f"The tree has {len(tree)} points; at least {MIN_POINTS} are needed."
+        )
     # A number or a pair (np.isscalar narrows to numpy's scalar types, not to float).
     pair: Any = (distance_m, distance_m) if np.isscalar(distance_m) else distance_m
     distances: tuple[float, ...] = tuple(pair)
-    if len(distances) != 2 or min(distances) <= 0:
+    if len(distances) != 2:
         raise InvalidInput("distance_m must be one positive number or two.")
+    check_settings(
+        seed=seed,
+        separation_deg=separation_deg,
+        distance_m=distances,
+        res_deg=res_deg,
+        noise_m=noise_m,
+        tilt_deg=tilt_deg,
+        height_m=height_m,
+    )
+    if footprint_m is not None and not np.all(np.isfinite(footprint_m)):
+        raise InvalidInput("footprint_m must be finite (not NaN or infinity).")
     if footprint_m is None:
         footprint_m = footprints(tree.xyz)
     rng = np.random.default_rng(seed)
@@ -347,6 +362,16 @@ def simulate_pair(
             footprint_m=footprint_m,
             rng=rng,
         )
+        if len(scan) < MIN_POINTS:
+            role = "target" if k == 0 else "source"
+            raise InvalidInput(
+                f"The simulated {role} scan of {tree.name or 'the tree'} keeps only "
+                f"{len(scan)} point(s); at least {MIN_POINTS} are needed. The tree "
+                f"cloud has too few distinct points ({len(tree)} points, "
+                f"{_distinct(tree.xyz)} distinct) or the scanner is too far or too "
+                "coarse: use a denser tree cloud, a smaller res_deg or a shorter "
+                "distance_m."
+            )
         specs.append(spec)
         poses.append(pose)
         scans.append(scan)
@@ -362,6 +387,81 @@ def simulate_pair(
         index_target=indices[0],
         index_source=indices[1],
     )
+
+
+def _distinct(xyz: np.ndarray) -> int:
+    """Count the distinct points of a cloud (exact coordinates)."""
+    return len(np.unique(np.asarray(xyz), axis=0)) if len(xyz) else 0
+
+
+def check_settings(
+    *,
+    seed: Any,
+    separation_deg: float,
+    distance_m: tuple[float, ...],
+    res_deg: float,
+    noise_m: float,
+    tilt_deg: float,
+    height_m: float = 1.5,
+    cli: bool = False,
+) -> None:
+    """Refuse settings :func:`simulate_pair` cannot use, naming the setting.
+
+    Parameters
+    ----------
+    seed : int
+        Must be an integer of 0 or more.
+    separation_deg, res_deg, noise_m, tilt_deg, height_m : float
+        Must be finite; ``res_deg`` > 0, ``noise_m`` and ``tilt_deg`` >= 0.
+    distance_m : tuple of float
+        One or two finite distances > 0.
+    cli : bool
+        Name the settings as ``amrst simulate`` options (``--res-deg``).
+
+    Raises
+    ------
+    InvalidInput
+        The first setting that is wrong, and what it must be.
+    """
+
+    def label(name: str) -> str:
+        return "--" + name.replace("_", "-") if cli else name
+
+    if (
+        isinstance(seed, bool)
+        or not isinstance(seed, (int, np.integer))
+        or int(seed) < 0
+    ):
+        raise InvalidInput(
+            f"{label('seed')} must be an integer of 0 or more, got {seed!r}."
+        )
+    numbers = {
+        "separation_deg": [separation_deg],
+        "distance_m": list(distance_m),
+        "res_deg": [res_deg],
+        "noise_m": [noise_m],
+        "tilt_deg": [tilt_deg],
+        "height_m": [height_m],
+    }
+    for name, values in numbers.items():
+        for v in values:
+            if not isinstance(v, (int, float, np.number)) or not math.isfinite(v):
+                raise InvalidInput(
+                    f"{label(name)} must be a finite number, got {v!r}; NaN and "
+                    "infinity are not allowed."
+                )
+    if len(distance_m) not in (1, 2) or min(distance_m) <= 0:
+        raise InvalidInput(
+            f"{label('distance_m')} must be one positive number or two (target, "
+            f"source), got {list(distance_m)}."
+        )
+    if res_deg <= 0:
+        raise InvalidInput(f"{label('res_deg')} must be > 0, got {res_deg}.")
+    if noise_m < 0 or tilt_deg < 0:
+        raise InvalidInput(
+            f"{label('noise_m')} and {label('tilt_deg')} must be >= 0, got "
+            f"{noise_m} and {tilt_deg}."
+        )
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -411,6 +511,17 @@ def run_cli(args: argparse.Namespace) -> int:
         args.distance_m[0] if len(args.distance_m) == 1 else tuple(args.distance_m)
     )
     try:
+        # Settings and the output folder are checked before the (slow) simulation.
+        check_settings(
+            seed=args.seed,
+            separation_deg=args.separation_deg,
+            distance_m=tuple(args.distance_m),
+            res_deg=args.res_deg,
+            noise_m=args.noise_m,
+            tilt_deg=args.tilt_deg,
+            cli=True,
+        )
+        check_case_folder(args.out)
         tree = io.read(args.tree)
         pair = simulate_pair(
             tree,

@@ -10,11 +10,12 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from amrst.progress import Reporter, SubReporter
+
+if TYPE_CHECKING:
+    import numpy as np
 
 ROLES = ("target", "source")
 
@@ -131,17 +132,19 @@ def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, 
 
 def read_truth(path: Path) -> np.ndarray:
     """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong."""
+    from amrst.bench.cases import check_rigid
+    from amrst.errors import InvalidInput
+
     try:
         data = json.loads(Path(path).read_text())
-        T = np.asarray(data["T_target_source"], dtype=np.float64)
+        T = data["T_target_source"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(
             f"Could not read the truth file {Path(path).name}: {exc}. It must be "
             "JSON with a 4x4 'T_target_source' list (row-major, source to target)."
         ) from exc
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(
-            f"The truth file {Path(path).name} holds a {T.shape} T_target_source; "
-            "a 4x4 matrix of numbers is needed."
-        )
-    return T
+    try:
+        # The same test as `amrst register --truth`: 4x4, finite, rigid.
+        return check_rigid(T, f"The truth file {Path(path).name}")
+    except InvalidInput as exc:
+        raise ValueError(str(exc)) from exc

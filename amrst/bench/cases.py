@@ -77,6 +77,64 @@ def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
     return found
 
 
+# Largest |R^T R - I| entry a rotation block may show: 1e-4 admits matrices printed
+# with 6 decimals (error ~1e-6) and still refuses any real scale or shear.
+RIGID_TOL = 1e-4
+
+
+def check_rigid(T: Any, where: str) -> np.ndarray:
+    """Check that ``T`` is a rigid 4x4 transform; return it as float64.
+
+    Parameters
+    ----------
+    T : array_like
+        The matrix as read (nested lists).
+    where : str
+        Names the matrix in the messages, e.g. ``"T_target_source in truth.json"``.
+
+    Returns
+    -------
+    (4, 4) float64
+
+    Raises
+    ------
+    InvalidInput
+        Not numbers, not 4x4, NaN/inf entries, a last row other than [0, 0, 0, 1],
+        or a 3x3 block that is not a rotation (scale, shear, reflection) within
+        ``RIGID_TOL``.
+    """
+    need = (
+        "It must be a rigid 4x4 transform: a rotation and a translation, row-major, "
+        "with last row [0, 0, 0, 1]."
+    )
+    try:
+        M = np.asarray(T, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(
+            f"{where} is not a matrix of numbers ({exc}). {need}"
+        ) from exc
+    if M.shape != (4, 4):
+        raise InvalidInput(f"{where} must be a 4x4 matrix, got shape {M.shape}. {need}")
+    if not np.all(np.isfinite(M)):
+        raise InvalidInput(f"{where} contains NaN/inf. {need}")
+    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=RIGID_TOL):
+        raise InvalidInput(f"{where} has last row {M[3].tolist()}. {need}")
+    R = M[:3, :3]
+    deviation = float(np.abs(R.T @ R - np.eye(3)).max())
+    if deviation > RIGID_TOL:
+        raise InvalidInput(
+            f"{where} has a 3x3 block that is not a rotation (R^T R differs from the "
+            f"identity by up to {deviation:.3g}: a scale or a shear). {need}"
+        )
+    det = float(np.linalg.det(R))
+    if det <= 0:
+        raise InvalidInput(
+            f"{where} has a 3x3 block with determinant {det:.3g}: a reflection, "
+            f"not a rotation. {need}"
+        )
+    return M
+
+
 def read_case(path: PathLike) -> Case:
     """Read one case folder.
 
@@ -92,7 +150,8 @@ def read_case(path: PathLike) -> Case:
     Raises
     ------
     InvalidInput
-        If a file is missing or ``T_target_source`` is not a 4x4 matrix.
+        If a file is missing or unreadable, ``truth.json`` is not a JSON object, or
+        its ``T_target_source`` is not a rigid 4x4 transform.
     """
     from amrst import io
 
@@ -100,10 +159,18 @@ def read_case(path: PathLike) -> Case:
     truth_path = folder / "truth.json"
     if not truth_path.is_file():
         raise InvalidInput(f"{folder} has no truth.json; it is not a case folder.")
-    truth = json.loads(truth_path.read_text(encoding="utf-8"))
-    T = np.asarray(truth.get("T_target_source"), dtype=float)
-    if T.shape != (4, 4):
-        raise InvalidInput(f"{truth_path}: T_target_source must be a 4x4 matrix.")
+    try:
+        truth = json.loads(truth_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInput(
+            f"Cannot read {truth_path}: {exc}. It must be JSON with a 4x4 "
+            "'T_target_source'."
+        ) from exc
+    if not isinstance(truth, dict) or "T_target_source" not in truth:
+        raise InvalidInput(
+            f"{truth_path} must hold a JSON object with a 4x4 'T_target_source'."
+        )
+    T = check_rigid(truth["T_target_source"], f"T_target_source in {truth_path}")
     return Case(
         folder.name,
         io.read(folder / "target.ply"),
@@ -142,6 +209,33 @@ def truth_dict(
     }
 
 
+def check_case_folder(out_dir: PathLike) -> Path:
+    """Refuse a case folder path that is empty or an existing file (nothing created).
+
+    Parameters
+    ----------
+    out_dir : path
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InvalidInput
+        With what to change.
+    """
+    if not os.fspath(out_dir).strip():
+        raise InvalidInput("The case folder path is empty; give a folder name.")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InvalidInput(
+            f"The case folder {out} is an existing file; choose a folder (it is "
+            "created when missing)."
+        )
+    return out
+
+
 def write_case(
     pair: SimulatedPair,
     out_dir: PathLike,
@@ -164,11 +258,22 @@ def write_case(
     -------
     Path
         The case folder.
+
+    Raises
+    ------
+    InvalidInput
+        If ``out_dir`` is a file or cannot be created.
     """
     from amrst import io
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_case_folder(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InvalidInput(
+            f"Cannot create the case folder {out}: {exc.strerror or exc}. Choose "
+            "another folder."
+        ) from exc
     io.write(out / "target.ply", pair.target)
     io.write(out / "source.ply", pair.source)
     write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed), indent=1)

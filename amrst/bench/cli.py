@@ -113,8 +113,15 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"amrst bench: {exc}", file=sys.stderr)
         return 2
     ok = sum(r.success for r in result.runs)
+    unreadable = result.meta.get("unreadable_cases") or {}
+    skipped = (
+        f"; {len(unreadable)} case(s) could not be read and count as failed "
+        f"({', '.join(unreadable)})"
+        if unreadable
+        else ""
+    )
     print(
-        f"{len(result.runs)} runs, {ok} registered; "
+        f"{len(result.runs)} runs, {ok} registered{skipped}; "
         f"summary: {result.out_dir / 'summary.md'}",
         file=sys.stderr,
     )

@@ -6,7 +6,8 @@ caches) or last. Only the method call is timed: the clouds are already in memory
 lazily imported libraries are loaded before the first run, and scoring happens
 afterwards. The time is the method's own ``timings["total"]`` (the fitness it computes
 for itself is left out); the whole call is kept as ``wall_s``. A method that raises is
-recorded with its error text and the run goes on.
+recorded with its error text and the run goes on; so is a case that cannot be read
+(a failed record per method, with the reason).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 
 from amrst.baselines._common import Method, MethodResult, to_local
 from amrst.bench.cases import Case, find_cases, read_case
-from amrst.errors import Cancelled, InvalidInput
+from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.metrics import measure_clouds, truth_errors
 from amrst.types import apply_transform
@@ -243,6 +244,49 @@ def run_one(case: Case, name: str, method: Method, repeat: int) -> RunRecord:
         )
 
 
+def unreadable_case(
+    name: str, reason: str, methods: Sequence[str], repeat: int
+) -> list[RunRecord]:
+    """Failed records, one per method and repeat, for a case that cannot be read.
+
+    Parameters
+    ----------
+    name : str
+        The case folder name.
+    reason : str
+        Why it cannot be read; kept in each record's ``error``.
+    methods : sequence of str
+    repeat : int
+
+    Returns
+    -------
+    list of RunRecord
+    """
+    return [
+        RunRecord(case=name, method=m, repeat=r, error=f"case not read: {reason}")
+        for r in range(repeat)
+        for m in methods
+    ]
+
+
+def _no_cases_message(cases_dir: str | os.PathLike[str], pattern: str | None) -> str:
+    """Say why no case folder was found: none there, or the pattern matched none."""
+    if not pattern:
+        return f"No case folders (with truth.json) under {cases_dir}."
+    every = [p.name for p in find_cases(cases_dir)]
+    if not every:
+        return (
+            f"No case folders (with truth.json) under {cases_dir}, so the case "
+            f"pattern {pattern!r} matched nothing."
+        )
+    shown = ", ".join(every[:10]) + (", ..." if len(every) > 10 else "")
+    return (
+        f"The case pattern {pattern!r} matched nothing: none of the {len(every)} "
+        f"case folder(s) under {cases_dir} ({shown}) has a matching name. Check "
+        "the pattern (shell style, e.g. '*normal*')."
+    )
+
+
 def warm_up(names: Sequence[str]) -> None:
     """Import the libraries the methods load lazily, so no first call pays for it."""
     import scipy.spatial  # noqa: F401
@@ -306,15 +350,22 @@ def run_bench(
     names = list(chosen)
     folders = find_cases(cases_dir, pattern)
     if not folders:
-        raise InvalidInput(f"No case folders (with truth.json) under {cases_dir}.")
+        raise InvalidInput(_no_cases_message(cases_dir, pattern))
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InvalidInput(
+            f"Cannot create the output folder {out}: {exc.strerror or exc}. Choose "
+            "another folder."
+        ) from exc
     meta = {
         **machine_info(),
         "command": command,
         "cases_dir": str(cases_dir),
         "methods": names,
         "repeat": repeat,
+        "unreadable_cases": {},
     }
     warm_up(names)
     runs: list[RunRecord] = []
@@ -324,7 +375,20 @@ def run_bench(
     try:
         for i, folder in enumerate(folders):
             reporter.check_cancelled()
-            case = read_case(folder)
+            try:
+                case = read_case(folder)
+            except Exception as exc:  # one unreadable case must not stop the benchmark
+                reason = (
+                    str(exc)
+                    if isinstance(exc, AmrstError)
+                    else f"{type(exc).__name__}: {exc}"
+                )
+                logger.warning("Case %s skipped: %s", folder.name, reason)
+                meta["unreadable_cases"][folder.name] = reason
+                case_names.append(folder.name)
+                runs += unreadable_case(folder.name, reason, names, repeat)
+                write_outputs(out, runs, case_names, names, meta, final=False)
+                continue
             case_names.append(case.name)
             for r in range(repeat):
                 order = names[r % len(names) :] + names[: r % len(names)]

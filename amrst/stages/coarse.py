@@ -115,7 +115,8 @@ class CoarseParams:
     seed: int = field(
         default=0,
         metadata={
-            "help": "Seed of the verification sampling (same inputs give the same ranking)."
+            "min": 0,
+            "help": "Seed of the verification sampling (same inputs give the same ranking).",
         },
     )
 

@@ -115,6 +115,11 @@ class FineParams:
             raise ValueError(f"fine method must be one of {FINE_METHODS}")
         if self.points not in POINT_SETS:
             raise ValueError(f"fine points must be one of {POINT_SETS}")
+        if self.min_corr_dist_m > self.max_corr_dist_m:
+            raise ValueError(
+                f"fine.min_corr_dist_m ({self.min_corr_dist_m} m) must be at most "
+                f"fine.max_corr_dist_m ({self.max_corr_dist_m} m); lower one or raise the other"
+            )
         if self.max_points != 0 and self.max_points < MIN_FIT_POINTS:
             raise ValueError(
                 f"fine max_points must be 0 (all points) or at least {MIN_FIT_POINTS}, "

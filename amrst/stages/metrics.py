@@ -42,7 +42,9 @@ class MetricsParams:
             "help": "Points sampled from each scan for the distance metrics (seeded).",
         },
     )
-    seed: int = field(default=0, metadata={"help": "Seed of the metric sampling."})
+    seed: int = field(
+        default=0, metadata={"min": 0, "help": "Seed of the metric sampling."}
+    )
 
     def __post_init__(self) -> None:
         if self.overlap_dist_m <= 0:

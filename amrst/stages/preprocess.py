@@ -76,6 +76,11 @@ class PreprocessParams:
             raise ValueError(
                 "preprocess parameters must be non-negative (std ratio > 0)"
             )
+        if self.min_points > self.max_points:
+            raise ValueError(
+                f"preprocess.min_points ({self.min_points}) must be at most "
+                f"preprocess.max_points ({self.max_points}); lower one or raise the other"
+            )
 
 
 @dataclass(frozen=True, slots=True)

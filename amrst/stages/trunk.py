@@ -158,7 +158,18 @@ class TrunkParams:
             "help": "Kept headings whose quick fit puts at least this share of the best one's close points (within score_dist_m) also get the full fine registration, and the best after it wins: a quick fit that has not converged does not decide between close contenders (1 = only the best and exact ties).",
         },
     )
-    seed: int = field(default=0, metadata={"help": "Seed of the point sampling."})
+    seed: int = field(
+        default=0, metadata={"min": 0, "help": "Seed of the point sampling."}
+    )
+
+    def __post_init__(self) -> None:
+        if self.mode not in TRUNK_MODES:
+            raise ValueError(f"trunk mode must be one of {TRUNK_MODES}")
+        if self.slice_low_m >= self.slice_high_m:
+            raise ValueError(
+                f"trunk.slice_low_m ({self.slice_low_m} m) must be below "
+                f"trunk.slice_high_m ({self.slice_high_m} m); lower one or raise the other"
+            )
 
 
 @dataclass(frozen=True, slots=True)

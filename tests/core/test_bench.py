@@ -236,3 +236,66 @@ def test_truth_check_says_when_the_data_prefer_the_estimate() -> None:
     assert "| 3.0% | 10.0% |" in lines["b"]
     assert "favour the estimate at 2 cm, the truth at 4 cm" in lines["d"]
     assert "n/a" in lines["e"]
+
+
+def test_unreadable_cases_are_recorded_and_the_run_goes_on(
+    cases_dir: Path, tmp_path: Path
+) -> None:
+    import shutil
+
+    root = tmp_path / "cases"
+    shutil.copytree(cases_dir / "01_small", root / "01_small")
+    bad_cloud = root / "02_bad_cloud"
+    shutil.copytree(cases_dir / "02_other", bad_cloud)
+    (bad_cloud / "target.ply").write_bytes(b"\x00garbage" * 100)
+    bad_json = root / "03_bad_json"
+    shutil.copytree(cases_dir / "02_other", bad_json)
+    (bad_json / "truth.json").write_text("{not json")
+    not_rigid = root / "04_not_rigid"
+    shutil.copytree(cases_dir / "02_other", not_rigid)
+    write_json_atomic(
+        not_rigid / "truth.json", {"T_target_source": (2 * np.eye(4)).tolist()}
+    )
+    out = tmp_path / "out"
+    result = run_bench(root, {"id": _identity}, out, repeat=2, plots=False)
+    assert result.cases == ["01_small", "02_bad_cloud", "03_bad_json", "04_not_rigid"]
+    by_case = {c: [r for r in result.runs if r.case == c] for c in result.cases}
+    assert len(by_case["01_small"]) == 2
+    assert not by_case["01_small"][0].error
+    reasons = {
+        "02_bad_cloud": "target.ply",
+        "03_bad_json": "truth.json",
+        "04_not_rigid": "rigid 4x4",
+    }
+    for case, reason in reasons.items():
+        runs = by_case[case]
+        assert len(runs) == 2, case  # one failed record per method and repeat
+        assert all(not r.success and reason in r.error for r in runs), case
+        assert reason in result.meta["unreadable_cases"][case]
+    doc = json.loads((out / "results.json").read_text())
+    assert len(doc["runs"]) == 8
+    summary = (out / "summary.md").read_text()
+    assert "| id | 0/4 |" in summary
+    assert "03_bad_json / id (repeat 0): case not read" in summary
+
+
+def test_read_case_refuses_bad_truth_clearly(cases_dir: Path, tmp_path: Path) -> None:
+    import shutil
+
+    case = tmp_path / "c"
+    shutil.copytree(cases_dir / "01_small", case)
+    (case / "truth.json").write_text("{not json")
+    with pytest.raises(InvalidInput, match="must be JSON"):
+        read_case(case)
+    (case / "truth.json").write_text("[1, 2]")
+    with pytest.raises(InvalidInput, match="JSON object"):
+        read_case(case)
+
+
+def test_a_pattern_matching_nothing_says_so(cases_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(InvalidInput, match=r"pattern 'zz\*' matched nothing") as exc:
+        run_bench(cases_dir, {"id": _identity}, tmp_path / "o", pattern="zz*")
+    assert "01_small" in str(exc.value)  # what there is to match
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(InvalidInput, match="matched nothing"):
+        run_bench(tmp_path, {"id": _identity}, tmp_path / "o", pattern="zz*")

@@ -13,6 +13,7 @@ import pytest
 
 import amrst
 from amrst.cli import EXIT_INPUT, main
+from amrst.errors import InvalidInput
 
 VENV_AMRST = Path(sys.executable).with_name("amrst")
 
@@ -173,3 +174,155 @@ def test_unregistrable_pair_exits_3_and_marks_files_unverified(
     assert "Registration failed" in err
     if (out / "transform.json").exists():  # written for inspection, never as a success
         assert json.loads((out / "transform.json").read_text())["verified"] is False
+
+
+def _no_registration(monkeypatch) -> None:
+    """Make any registration fail the test: the checks must come before it."""
+    import amrst.pipeline
+
+    def register(*args, **kwargs):
+        raise AssertionError("registered although the command line was refused")
+
+    monkeypatch.setattr(amrst.pipeline, "register", register)
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
+
+def _with(R, t=(1.0, 2.0, 0.5), last=(0.0, 0.0, 0.0, 1.0)) -> list:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3], T[3] = R, t, last
+    return T.tolist()
+
+
+@pytest.mark.parametrize(
+    ("matrix", "says"),
+    [
+        (np.zeros((4, 4)).tolist(), "last row"),
+        (_with(_rot(20) @ np.diag([1.0, 1.0, -1.0])), "reflection"),
+        (_with(2.0 * np.eye(3)), "not a rotation"),
+        (_with(np.eye(3), last=(0, 0, 0, 2)), "last row"),
+        (_with([[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "not a rotation"),
+        (_with(np.eye(3), last=(1, 1, 1, 1)), "last row"),
+        (_with(np.eye(3), t=(float("nan"), 0, 0)), "contains NaN/inf"),
+    ],
+)
+def test_truth_must_be_a_rigid_transform(
+    capsys, monkeypatch, tmp_path, sample_pair, matrix, says
+) -> None:
+    _no_registration(monkeypatch)
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"T_target_source": matrix}))  # NaN written as NaN
+    out = tmp_path / "out"
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    assert main(["register", t, s, "--out", str(out), "--truth", str(truth)]) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert says in line
+    assert "rigid 4x4 transform" in line
+    assert "got shape (4, 4)" not in line
+    assert not out.exists()
+
+
+def test_a_valid_truth_is_accepted(tmp_path) -> None:
+    from amrst.cli import read_truth
+
+    truth = tmp_path / "truth.json"
+    T = _with(_rot(33.0), t=(-9.9, 7.2, 0.01))
+    truth.write_text(json.dumps({"T_target_source": T}))
+    np.testing.assert_array_equal(read_truth(str(truth)), np.asarray(T))
+    with pytest.raises(InvalidInput, match="is a folder"):
+        read_truth(str(tmp_path))
+
+
+def test_bad_output_folder_is_refused_before_registering(
+    capsys, monkeypatch, tmp_path, sample_pair
+) -> None:
+    _no_registration(monkeypatch)
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    cases = {"": "empty", str(a_file): "existing file", str(a_file / "sub"): "a file"}
+    if Path("/proc/self").is_dir():  # Linux: no folder can be made in /proc
+        cases["/proc/amrst-test"] = "Cannot create the export folder"
+    for out, says in cases.items():
+        assert main(["register", t, s, "--out", out, "--quiet"]) == 2, out
+        assert says in _one_line_error(capsys.readouterr().err), out
+    # A file name taken by a folder is found before registering too.
+    out = tmp_path / "out"
+    (out / "merged.ply").mkdir(parents=True)
+    rc = main(["register", t, s, "--out", str(out), "--write-clouds", "--quiet"])
+    assert rc == 2
+    assert "merged.ply" in _one_line_error(capsys.readouterr().err)
+    assert sorted(p.name for p in out.iterdir()) == ["merged.ply"]
+
+
+def test_preset_and_params_are_exclusive(capsys, monkeypatch, tmp_path, sample_pair):
+    from amrst.params_io import list_presets, save_params
+    from amrst.pipeline import RegistrationParams
+
+    _no_registration(monkeypatch)
+    params = tmp_path / "params.json"
+    save_params(params, RegistrationParams())
+    t, s, out = str(sample_pair.target_path), str(sample_pair.source_path), "o"
+    preset = sorted(list_presets())[0]
+    args = ["register", t, s, "--out", str(tmp_path / out)]
+    assert main([*args, "--preset", preset, "--params", str(params)]) == 2
+    assert "use one of --preset or --params" in _one_line_error(capsys.readouterr().err)
+    # An unknown preset is an error listing the known ones, with --params too.
+    assert main([*args, "--preset", "nosuch", "--params", str(params)]) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert "No preset named 'nosuch'" in line
+    assert all(name in line for name in list_presets())
+
+
+def test_stale_clouds_of_an_earlier_run_are_removed(
+    caplog, capsys, tmp_path, sample_pair
+) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = ["registered_source.ply", "merged.ply", "merged.las"]
+    kept = ["notes.txt", "merged_old.ply"]  # not AMRST output names: left alone
+    for name in stale + kept:
+        (out / name).write_bytes(b"earlier run")
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    with caplog.at_level("WARNING"):
+        assert main(["register", t, s, "--out", str(out), "--quiet"]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert not set(stale) & set(names)
+    assert set(kept) <= set(names)
+    assert "transform.json" in names
+    lines = [r.getMessage() for r in caplog.records if "earlier run" in r.getMessage()]
+    assert len(lines) == 1
+    assert all(name in lines[0] for name in stale)
+
+
+def test_same_file_as_target_and_source_warns(caplog, tmp_path, sample_pair) -> None:
+    t = str(sample_pair.target_path)
+    with caplog.at_level("WARNING"):
+        rc = main(["register", t, t, "--out", str(tmp_path / "o"), "--quiet"])
+    assert rc == 0
+    assert any(
+        "same file" in r.getMessage() and "identity" in r.getMessage()
+        for r in caplog.records
+    )
+
+
+def test_closed_output_pipe_ends_quietly(sample_pair) -> None:
+    """``amrst info big.ply | head -1``: no BrokenPipeError traceback."""
+    assert VENV_AMRST.is_file(), f"console script missing: {VENV_AMRST}"
+    read_end, write_end = os.pipe()
+    proc = subprocess.Popen(
+        [str(VENV_AMRST), "info", str(sample_pair.target_path)],
+        stdout=write_end,
+        stderr=subprocess.PIPE,
+    )
+    os.close(write_end)
+    os.close(read_end)  # the reader is gone before amrst writes anything
+    _, err = proc.communicate(timeout=120)
+    text = err.decode()
+    assert "Traceback" not in text
+    assert "BrokenPipeError" not in text
+    assert "Exception ignored" not in text
+    assert proc.returncode == 1

@@ -242,3 +242,92 @@ def test_exported_files_are_readable_by_others(tmp_path, sample_pair) -> None:
     )
     for f in files:
         assert f.stat().st_mode & stat.S_IROTH, f"{f.name} is not readable by others"
+
+
+def test_failed_cloud_write_leaves_no_new_file(
+    tmp_path: Path, scans, monkeypatch
+) -> None:
+    """registered_source.ply is written, merged.ply fails: neither may stay behind."""
+    target, source, T = scans
+    out = tmp_path / "out"
+    real = io._WRITERS[".ply"]
+
+    def fails_on_merged(path, cloud, *, binary=True):
+        if cloud.name == "merged":
+            raise OSError("disk full")
+        return real(path, cloud, binary=binary)
+
+    monkeypatch.setitem(io._WRITERS, ".ply", fails_on_merged)
+    with pytest.raises(AmrstError, match="disk full") as exc:
+        export_registration(out, target=target, source=source, T_target_source=T)
+    assert ".amrst-export-" not in str(exc.value)  # names the real destination
+    assert f"{out / 'merged.ply'}" in str(exc.value)
+    assert list(out.iterdir()) == []  # no new file, no staging folder
+
+
+def test_a_folder_in_the_way_is_refused_before_writing(tmp_path: Path, scans) -> None:
+    target, source, T = scans
+    (tmp_path / "merged.ply").mkdir()
+    with pytest.raises(InvalidInput, match=r"merged\.ply: a folder has that name"):
+        export_registration(tmp_path, target=target, source=source, T_target_source=T)
+    assert [p.name for p in tmp_path.iterdir()] == ["merged.ply"]
+
+
+def test_stale_clouds_are_removed_only_when_asked(
+    tmp_path: Path, scans, caplog
+) -> None:
+    target, source, T = scans
+    export_registration(
+        tmp_path, target=target, source=source, T_target_source=T, cloud_format="pcd"
+    )
+    (tmp_path / "merged_keep.ply").write_text("not an AMRST output name")
+    parts = ("transform", "metrics", "params")
+    export_registration(
+        tmp_path, target=target, source=source, T_target_source=T, parts=parts
+    )
+    assert (tmp_path / "merged.pcd").is_file()  # the library default keeps them
+    with caplog.at_level("WARNING", logger="amrst.export"):
+        export_registration(
+            tmp_path,
+            target=target,
+            source=source,
+            T_target_source=T,
+            parts=parts,
+            remove_stale=True,
+        )
+    names = {p.name for p in tmp_path.iterdir()}
+    assert not names & {"merged.pcd", "registered_source.pcd"}
+    assert "merged_keep.ply" in names
+    assert len(caplog.records) == 1
+    assert "registered_source.pcd, merged.pcd" in caplog.records[0].getMessage()
+
+
+def test_output_folder_checks(tmp_path: Path) -> None:
+    from amrst.export import check_output_dir, output_names
+
+    with pytest.raises(InvalidInput, match="empty"):
+        check_output_dir("")
+    a_file = tmp_path / "f"
+    a_file.write_text("x")
+    with pytest.raises(InvalidInput, match="existing file"):
+        check_output_dir(a_file)
+    with pytest.raises(InvalidInput, match="is a file, not a folder"):
+        check_output_dir(a_file / "sub")
+    if Path("/proc/self").is_dir():
+        with pytest.raises(InvalidInput, match="Cannot create the export folder"):
+            check_output_dir("/proc/amrst-test/out")
+    # A missing folder passes and is not left behind (nor its missing parents).
+    assert check_output_dir(tmp_path / "a" / "b") == tmp_path / "a" / "b"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]
+    assert output_names(("params", "merged"), "las") == ["merged.las", "params.json"]
+
+
+def test_params_json_is_strict_json(tmp_path: Path, scans) -> None:
+    target, source, T = scans
+    export_registration(
+        tmp_path, target=target, source=source, T_target_source=T, parts=("params",)
+    )
+    text = (tmp_path / "params.json").read_text(encoding="utf-8")
+    assert "NaN" not in text
+    json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in params.json"))
+    assert np.isnan(load_params(tmp_path / "params.json").separate.intensity_threshold)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -178,3 +179,115 @@ def test_every_preset_loads() -> None:
     assert load_preset("Leafless (winter)").separate.mode == "all_wood"
     with pytest.raises(InvalidInput, match="No preset named"):
         load_preset("nope")
+
+
+def _strict_json(text: str):
+    """json.loads that refuses NaN / Infinity (as strict parsers do)."""
+
+    def refuse(name: str):
+        raise ValueError(f"not strict JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.mark.parametrize(
+    ("stage", "name"),
+    [
+        ("preprocess", "voxel_size_m"),
+        ("fine", "max_corr_dist_m"),
+        ("match", "edge_tolerance"),
+        ("coarse", "tight_dist_m"),
+    ],
+)
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_values_are_refused_by_name(stage, name, value) -> None:
+    # NaN compares false with everything, so a range check alone lets it through.
+    with pytest.raises(InvalidInput, match=rf"{stage}\.{name}.*not a finite number"):
+        params_from_dict({stage: {name: value}})
+
+
+def test_non_finite_value_in_a_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "p.json"
+    path.write_text('{"preprocess": {"voxel_size_m": NaN}}')
+    with pytest.raises(InvalidInput, match=r"preprocess\.voxel_size_m"):
+        load_params(path)
+    path.write_text('{"fine": {"max_corr_dist_m": Infinity}}')
+    with pytest.raises(InvalidInput, match=r"fine\.max_corr_dist_m"):
+        load_params(path)
+
+
+def test_negative_seeds_are_refused_at_load_time() -> None:
+    defaults = RegistrationParams()
+    seeded = [
+        f.name
+        for f in dataclasses.fields(defaults)
+        if "seed" in {g.name for g in dataclasses.fields(getattr(defaults, f.name))}
+    ]
+    assert {"coarse", "metrics", "trunk"} <= set(seeded)
+    for stage in seeded:
+        with pytest.raises(InvalidInput, match=rf"{stage}\.seed = -1 is negative"):
+            params_from_dict({stage: {"seed": -1}})
+        assert getattr(params_from_dict({stage: {"seed": 7}}), stage).seed == 7
+
+
+@pytest.mark.parametrize(
+    ("stage", "low", "high", "values"),
+    [
+        ("preprocess", "min_points", "max_points", (100000, 1000)),
+        ("fine", "min_corr_dist_m", "max_corr_dist_m", (2.0, 0.01)),
+        ("trunk", "slice_low_m", "slice_high_m", (3.0, 0.5)),
+        ("trunk", "slice_low_m", "slice_high_m", (1.0, 1.0)),  # an empty slice
+    ],
+)
+def test_contradictory_pairs_are_refused_naming_both(stage, low, high, values) -> None:
+    with pytest.raises(InvalidInput) as exc:
+        params_from_dict({stage: {low: values[0], high: values[1]}})
+    assert f"{stage}.{low}" in str(exc.value)
+    assert f"{stage}.{high}" in str(exc.value)
+
+
+def test_ordered_pairs_may_touch() -> None:
+    p = params_from_dict(
+        {
+            "preprocess": {"min_points": 5000, "max_points": 5000},
+            "fine": {"min_corr_dist_m": 0.1, "max_corr_dist_m": 0.1},
+        }
+    )
+    assert p.preprocess.min_points == p.preprocess.max_points == 5000
+
+
+def test_schema_version_of_the_wrong_type_says_integer() -> None:
+    for bad in ("1", 1.0, True, None, 0):
+        with pytest.raises(InvalidInput, match="must be an integer") as exc:
+            params_from_dict({"schema_version": bad})
+        assert "newer" not in str(exc.value)
+
+
+def test_a_folder_as_parameter_file_is_named_a_folder(tmp_path: Path) -> None:
+    with pytest.raises(InvalidInput, match="is a folder") as exc:
+        load_params(tmp_path)
+    assert "not found" not in str(exc.value)
+    with pytest.raises(InvalidInput, match="empty"):
+        load_params("")
+
+
+def test_nan_is_written_as_null_and_read_back(tmp_path: Path) -> None:
+    path = tmp_path / "params.json"
+    save_params(path, RegistrationParams())
+    text = path.read_text(encoding="utf-8")
+    assert "NaN" not in text
+    doc = _strict_json(text)  # valid JSON for strict parsers
+    assert doc["separate"]["intensity_threshold"] is None
+    back = load_params(path)
+    assert math.isnan(back.separate.intensity_threshold)
+    assert _same(back, RegistrationParams())
+    # Files written before (a bare NaN) keep loading, as does an explicit value.
+    path.write_text('{"separate": {"intensity_threshold": NaN}}')
+    assert math.isnan(load_params(path).separate.intensity_threshold)
+    p = params_from_dict({"separate": {"intensity_threshold": 1200.0}})
+    assert p.separate.intensity_threshold == 1200.0
+    with pytest.raises(InvalidInput, match="intensity_threshold"):
+        params_from_dict({"separate": {"intensity_threshold": float("inf")}})
+    # Only "automatic" fields take null.
+    with pytest.raises(InvalidInput, match=r"preprocess\.voxel_size_m"):
+        params_from_dict({"preprocess": {"voxel_size_m": None}})

@@ -200,3 +200,65 @@ def test_rejects_tiny_tree() -> None:
 
     with pytest.raises(InvalidInput):
         simulate_pair(Cloud(np.zeros((10, 3))))
+
+
+def test_existing_file_as_out_is_refused(tree: Cloud, tmp_path, capsys) -> None:
+    from amrst import io
+    from amrst.errors import InvalidInput
+
+    a_file = tmp_path / "taken"
+    a_file.write_text("x")
+    pair = simulate_pair(tree, seed=2)
+    with pytest.raises(InvalidInput, match="existing file"):
+        write_case(pair, a_file, "synthetic.ply")
+    tree_path = tmp_path / "tree.ply"
+    io.write(tree_path, tree)
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    assert run_cli(parser.parse_args([str(tree_path), "--out", str(a_file)])) == 2
+    err = capsys.readouterr().err
+    assert "existing file" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--seed", "-1"),
+        ("--separation-deg", "nan"),
+        ("--separation-deg", "inf"),
+        ("--distance-m", "nan"),
+        ("--res-deg", "inf"),
+        ("--noise-m", "nan"),
+        ("--tilt-deg", "-inf"),
+    ],
+)
+def test_bad_numbers_are_refused_by_option(tmp_path, capsys, option, value) -> None:
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    out = tmp_path / "c"
+    args = parser.parse_args(["missing.ply", "--out", str(out), f"{option}={value}"])
+    assert run_cli(args) == 2  # refused before reading the (missing) tree
+    err = capsys.readouterr().err
+    assert option in err
+    assert "missing.ply" not in err
+    assert not out.exists()
+
+
+def test_bad_numbers_are_refused_by_the_library(tree: Cloud) -> None:
+    from amrst.errors import InvalidInput
+
+    with pytest.raises(InvalidInput, match="seed"):
+        simulate_pair(tree, seed=-1)
+    with pytest.raises(InvalidInput, match="separation_deg"):
+        simulate_pair(tree, separation_deg=float("nan"))
+    with pytest.raises(InvalidInput, match="distance_m"):
+        simulate_pair(tree, distance_m=(5.0, float("inf")))
+
+
+def test_tree_giving_too_few_scan_points_is_refused() -> None:
+    from amrst.errors import InvalidInput
+
+    # 5000 copies of one point: each scan would keep a single point.
+    with pytest.raises(InvalidInput, match=r"keeps only 1 point\(s\).*1 distinct"):
+        simulate_pair(Cloud(np.tile([[1.0, 2.0, 3.0]], (5000, 1)), name="same.xyz"))
