@@ -69,7 +69,8 @@ class MetricsPanel(QWidget):
     """Quality of the coarse and the fine result, truth errors, timings.
 
     Listens to ``coarse_accepted``, ``fine_finished``, ``review_changed``,
-    ``truth_loaded`` and the upstream result signals; emits nothing.
+    ``truth_loaded``, ``params_changed`` and the upstream result signals; emits
+    nothing. A column whose result is stale says so in its header.
     """
 
     def __init__(self, session, parent=None) -> None:
@@ -113,6 +114,7 @@ class MetricsPanel(QWidget):
             "coarse_accepted",
             "fine_finished",
             "truth_loaded",
+            "params_changed",
         ):
             getattr(session, name).connect(self._on_results_changed)
         self.refresh()
@@ -148,6 +150,13 @@ class MetricsPanel(QWidget):
                     row, col, QTableWidgetItem(_fmt(values[stage].get(key)))
                 )
         s = self.session
+        # A result the current parameters or review no longer describe says so.
+        self.table.setHorizontalHeaderLabels(
+            [
+                f"{title} (stale)" if s.is_stale(stage) else title
+                for title, stage in (("Coarse", "coarse"), ("Fine", "fine"))
+            ]
+        )
         if s.truth is None:
             self.truth_label.setText(
                 "No truth loaded (File > Load truth… for true errors)."

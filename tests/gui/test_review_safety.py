@@ -144,3 +144,18 @@ def test_closing_with_an_unexported_result_asks_first(
     assert not win.close()
     assert win.isVisible()
     assert discard_answers.asked == ["Closing AMRST Studio"]
+
+
+def test_metrics_mark_a_stale_result(loaded_window, finish):
+    win = loaded_window
+    s = win.session
+    finish(s, s.run_all, "fine_finished")
+    header = win.metrics_panel.table.horizontalHeaderItem
+    assert (header(0).text(), header(1).text()) == ("Coarse", "Fine")
+    used = s.params
+    s.set_params(
+        dataclasses.replace(used, fine=dataclasses.replace(used.fine, max_iterations=5))
+    )
+    assert (header(0).text(), header(1).text()) == ("Coarse", "Fine (stale)")
+    s.set_params(used)
+    assert header(1).text() == "Fine"
