@@ -449,11 +449,13 @@ class Session(ResultsMixin, QObject):
         return self.discard_guard(action)
 
     def _replaces_result(self, first_step: str) -> bool:
-        """Would a chain starting at ``first_step`` replace the registration result?"""
-        last = "fine" if self._fine is not None else "coarse"
-        return self.has_unexported_result and steps.STEPS.index(
-            first_step
-        ) <= steps.STEPS.index(last)
+        """Would a chain starting at ``first_step`` replace an unexported fine result?
+
+        Only the fine result: accepting coarse again after a change of mind is part of
+        the review and must not ask each time.
+        """
+        return self._fine is not None and self.has_unexported_result
+
 
     def _carry_rejections(self, old: Any, rejected: frozenset[int]) -> frozenset[int]:
         """Rejections of a re-run match list, carried over by pose.

@@ -159,3 +159,14 @@ def test_metrics_mark_a_stale_result(loaded_window, finish):
     assert (header(0).text(), header(1).text()) == ("Coarse", "Fine (stale)")
     s.set_params(used)
     assert header(1).text() == "Fine"
+
+
+def test_accepting_coarse_again_during_review_does_not_ask(fresh):
+    s = fresh
+    asked: list[str] = []
+    s.discard_guard = lambda action: asked.append(action) or False
+    assert not _run(s, s.accept_coarse)
+    s.reject_match(s.accepted_coarse.candidate.id)
+    assert not _run(s, s.accept_coarse)
+    assert asked == []
+    assert s.accepted_coarse.candidate.id not in s.rejected
