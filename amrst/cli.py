@@ -185,6 +185,11 @@ def _cmd_register(args: argparse.Namespace) -> int:
         f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
         f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}"
     )
+    if "merged" in result.tree:
+        merged = result.tree["merged"]
+        print(f"  tree (merged): {merged.summary()}")
+        if merged.note:
+            print(f"    {merged.note}")
     if T_truth is not None:
         tf = summary["truth"]["fine"]
         print(

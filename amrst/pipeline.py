@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, TypeVar, cast
 import numpy as np
 
 from amrst.errors import Cancelled, InvalidInput, RegistrationFailed
+from amrst.measure import MeasureParams, TreeMeasures, measure_registration
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.coarse import (
     CandidateList,
@@ -78,6 +79,7 @@ class RegistrationParams:
     trunk: TrunkParams = field(default_factory=TrunkParams)
     fine: FineParams = field(default_factory=FineParams)
     metrics: MetricsParams = field(default_factory=MetricsParams)
+    measure: MeasureParams = field(default_factory=MeasureParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,6 +143,8 @@ class RegistrationResult:
     metrics_fine: CloudMetrics
     timings: dict[str, float]  # stage -> seconds, with "total"
     params: RegistrationParams
+    # Height, DBH and crown of "target", "source" (moved) and "merged", full clouds.
+    tree: dict[str, TreeMeasures] = field(default_factory=dict)
 
 
 def _timed(timings: dict[str, float], key: str, t0: float) -> float:
@@ -573,6 +577,8 @@ def register(
     # and fine transforms are the same, and so are their metrics.
     same = np.array_equal(fine.T_target_source, coarse.T_target_source)
     m_fine = m_coarse if same else evaluate(tgt, src, fine.T_target_source, params)
+    T_world = world_transform(fine.T_target_source, target, source)
+    tree = measure_registration(target, source, T_world, params.measure)
     timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
@@ -583,7 +589,7 @@ def register(
     timings["total"] = time.perf_counter() - t_start
     reporter.progress(1.0, "done")
     return RegistrationResult(
-        T_target_source=world_transform(fine.T_target_source, target, source),
+        T_target_source=T_world,
         T_coarse=world_transform(coarse.T_target_source, target, source),
         confidence=coarse.confidence,
         message=coarse.message,
@@ -596,4 +602,5 @@ def register(
         metrics_fine=m_fine,
         timings=timings,
         params=params,
+        tree=tree,
     )

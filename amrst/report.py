@@ -64,6 +64,9 @@ def registration_summary(
         },
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
     }
+    if result.tree:
+        # Height, DBH and crown of each scan alone and of the merged tree.
+        out["tree"] = {name: m.as_dict() for name, m in result.tree.items()}
     if T_truth is not None:
         src = result.source.cloud.world_xyz
         T_truth = np.asarray(T_truth, float)

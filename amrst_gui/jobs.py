@@ -77,10 +77,20 @@ def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, fl
     return result, time.perf_counter() - start
 
 
+def measure_tree_pair(analyses: dict, T_local: Any, params: Any) -> dict:
+    """Height, DBH and crown of each scan and of both merged under ``T_local``."""
+    from amrst import pipeline
+    from amrst.measure import measure_registration
+
+    target, source = analyses["target"].cloud, analyses["source"].cloud
+    T_world = pipeline.world_transform(T_local, target, source)
+    return measure_registration(target, source, T_world, params.measure)
+
+
 def evaluate_coarse(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter
-) -> tuple[tuple[Any, Any], float]:
-    """Measure the accepted coarse transform; returns ``(coarse, CloudMetrics)``."""
+) -> tuple[tuple[Any, Any, dict], float]:
+    """Measure the accepted coarse transform; ``(coarse, CloudMetrics, tree)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -88,16 +98,18 @@ def evaluate_coarse(
     metrics = pipeline.evaluate(
         analyses["target"], analyses["source"], coarse.T_target_source, params
     )
+    reporter.progress(0.6, "Measuring the tree")
+    tree = measure_tree_pair(analyses, coarse.T_target_source, params)
     reporter.progress(1.0, "Coarse alignment measured")
-    return (coarse, metrics), time.perf_counter() - start
+    return (coarse, metrics, tree), time.perf_counter() - start
 
 
 def refine_pair(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter, matches: Any = None
-) -> tuple[tuple[Any, Any], float]:
+) -> tuple[tuple[Any, Any, dict], float]:
     """Fine registration from the accepted ``coarse`` result (a CoarseResult or a
     transform), reusing a fit the match step already made for it (``matches``);
-    returns ``(FineResult, CloudMetrics)``."""
+    returns ``(FineResult, CloudMetrics, tree measures)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -114,8 +126,10 @@ def refine_pair(
     metrics = pipeline.evaluate(
         analyses["target"], analyses["source"], fine.T_target_source, params
     )
+    reporter.progress(0.95, "Measuring the tree")
+    tree = measure_tree_pair(analyses, fine.T_target_source, params)
     reporter.progress(1.0, "Fine registration done")
-    return (fine, metrics), time.perf_counter() - start
+    return (fine, metrics, tree), time.perf_counter() - start
 
 
 def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, float]:

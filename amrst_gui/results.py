@@ -38,6 +38,7 @@ class ResultsMixin:
         self._accepted: Any = None
         self._fine: Any = None
         self._metrics: dict[str, Any] = {}
+        self._tree: dict[str, dict] = {}  # stage -> {"target"|"source"|"merged": ...}
         self._timings: dict[str, float] = {
             k: v for k, v in getattr(self, "_timings", {}).items() if k == "load"
         }
@@ -53,9 +54,11 @@ class ResultsMixin:
         if "coarse" in later:
             self._accepted = None
             self._metrics.pop("coarse", None)
+            self._tree.pop("coarse", None)
         if "fine" in later:
             self._fine = None
             self._metrics.pop("fine", None)
+            self._tree.pop("fine", None)
         for name in later:
             self._step_params.pop(name, None)
             self._timings.pop(name, None)
@@ -114,6 +117,12 @@ class ResultsMixin:
     def metrics(self) -> dict[str, Any]:
         """CloudMetrics by stage ("coarse", "fine")."""
         return dict(self._metrics)
+
+    @property
+    def tree(self) -> dict[str, Any]:
+        """TreeMeasures of "target", "source" and "merged" under the best result so far
+        (fine if done, else the accepted coarse); empty before."""
+        return dict(self._tree.get("fine") or self._tree.get("coarse") or {})
 
     @property
     def timings(self) -> dict[str, float]:
@@ -284,6 +293,8 @@ class ResultsMixin:
             report.setdefault(stage, {}).update(
                 {f"truth_{k}": v for k, v in err.as_dict().items()}
             )
+        if self.tree:
+            report["tree"] = {name: m.as_dict() for name, m in self.tree.items()}
         report["timings_s"] = dict(self._timings)
         return report
 

@@ -437,9 +437,9 @@ class Session(ResultsMixin, QObject):
             self._selected = cands[0].id if cands else None
             return self.matches_changed.emit
         if step == "coarse":
-            self._accepted, self._metrics["coarse"] = result
+            self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
             return lambda: self.coarse_accepted.emit(self._accepted)
-        self._fine, self._metrics["fine"] = result
+        self._fine, self._metrics["fine"], self._tree["fine"] = result
         return lambda: self.fine_finished.emit(self._fine)
 
     def may_discard(self, action: str) -> bool:

@@ -26,7 +26,7 @@ _OWN_GROUPS = {
     "separate": ("preprocess", "separate"),
     "skeleton": ("skeleton", "keypoints"),
     "match": ("match", "coarse", "trunk"),  # ranking, verification, trunk search
-    "coarse": ("metrics",),
+    "coarse": ("metrics", "measure"),  # the coarse and fine results are measured
     "fine": ("fine",),
 }
 

@@ -49,6 +49,37 @@ _ROWS = (
     ("registered", "Truth: registered", "rotation < 1° and GT RMSE < 5 cm"),
 )
 _STAGES = ("coarse", "fine")
+_SCANS = ("target", "source", "merged")
+# Tree tab rows: key of TreeMeasures.as_dict(), label, scale to the unit, tooltip.
+_TREE_ROWS = (
+    ("height_m", "Height (m)", 1.0, "Top minus base, stray points left out"),
+    (
+        "dbh_m",
+        "DBH (cm)",
+        100.0,
+        "Stem diameter at breast height (measure.breast_height_m)",
+    ),
+    (
+        "stem_arc_deg",
+        "Stem seen over (°)",
+        1.0,
+        "How much of the stem's circumference the DBH circle rests on: one scan sees "
+        "about half; the merged tree should see most of it",
+    ),
+    (
+        "stem_rmse_m",
+        "Stem fit RMSE (mm)",
+        1000.0,
+        "Scatter of the bark about the circle",
+    ),
+    ("crown_width_m", "Crown width (m)", 1.0, "Mean of the two principal crown widths"),
+    (
+        "crown_area_m2",
+        "Crown area (m²)",
+        1.0,
+        "Convex hull of the tree seen from above",
+    ),
+)
 
 
 def _fmt(value) -> str:
@@ -93,12 +124,30 @@ class MetricsPanel(QWidget):
             QHeaderView.ResizeMode.Stretch
         )
         self.timings.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.tree_table = QTableWidget(len(_TREE_ROWS), len(_SCANS))
+        self.tree_table.setObjectName("tree_table")
+        self.tree_table.setHorizontalHeaderLabels(["Target", "Source", "Merged"])
+        self.tree_table.setVerticalHeaderLabels([row[1] for row in _TREE_ROWS])
+        for i, row in enumerate(_TREE_ROWS):
+            self.tree_table.verticalHeaderItem(i).setToolTip(row[3])
+        self.tree_table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.Stretch
+        )
+        self.tree_table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.tree_note = QLabel("")
+        self.tree_note.setWordWrap(True)
+        tree_page = QWidget()
+        tree_layout = QVBoxLayout(tree_page)
+        tree_layout.setContentsMargins(0, 0, 0, 0)
+        tree_layout.addWidget(self.tree_table, 1)
+        tree_layout.addWidget(self.tree_note)
         self.truth_label = QLabel("")
         self.truth_label.setWordWrap(True)
-        for table in (self.table, self.timings):
+        for table in (self.table, self.timings, self.tree_table):
             table.verticalHeader().setDefaultSectionSize(22)
         self.tabs = QTabWidget()
         self.tabs.addTab(self.table, "Quality")
+        self.tabs.addTab(tree_page, "Tree")
         self.tabs.addTab(self.timings, "Time per stage")
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
@@ -164,11 +213,44 @@ class MetricsPanel(QWidget):
         else:
             name = s.truth_path.name if s.truth_path else "truth"
             self.truth_label.setText(f"Truth: {name}")
+        self._show_tree()
         timings = self._timings()
         self.timings.setRowCount(len(timings))
         self.timings.setVerticalHeaderLabels(list(timings))
         for row, seconds in enumerate(timings.values()):
             self.timings.setItem(row, 0, QTableWidgetItem(f"{seconds:.2f}"))
+
+    def tree_values(self) -> dict[str, dict[str, float]]:
+        """What the Tree tab shows: scan -> row key -> value in the row's unit."""
+        tree = self.session.tree
+        out: dict[str, dict[str, float]] = {}
+        for scan in _SCANS:
+            values = tree[scan].as_dict() if scan in tree else {}
+            out[scan] = {
+                key: float(values[key]) * scale
+                for key, _, scale, _ in _TREE_ROWS
+                if isinstance(values.get(key), (int, float))
+            }
+        return out
+
+    def _show_tree(self) -> None:
+        values = self.tree_values()
+        for col, scan in enumerate(_SCANS):
+            for row, (key, _, _, _) in enumerate(_TREE_ROWS):
+                value = values[scan].get(key)
+                text = "" if value is None else _fmt(value)
+                self.tree_table.setItem(row, col, QTableWidgetItem(text))
+        tree = self.session.tree
+        merged = tree.get("merged")
+        if merged is None:
+            self.tree_note.setText(
+                "Measured once a coarse solution is accepted (and again after fine)."
+            )
+        else:
+            stage = "fine" if self.session.fine is not None else "coarse"
+            self.tree_note.setText(
+                f"Under the {stage} transform. " + (merged.note or "")
+            )
 
     def _timings(self) -> dict[str, float]:
         s = self.session

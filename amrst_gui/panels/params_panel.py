@@ -37,7 +37,9 @@ _GROUP_TITLES = {
     "match": "Tetrahedron matching",
     "coarse": "Candidate verification (coarse)",
     "fine": "Fine registration (ICP)",
+    "trunk": "Trunk heading search",
     "metrics": "Metrics",
+    "measure": "Tree measurements (height, DBH, crown)",
 }
 
 

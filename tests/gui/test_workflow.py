@@ -184,3 +184,25 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     # The full fit the match step made for this solution, not a second run.
     assert fine is s.match_result.refined[ranked[0].id]
     assert s.truth_errors()["fine"].gt_rmse_m < 0.05
+
+
+def test_the_tree_is_measured_and_exported(loaded_window, finish, tmp_path):
+    import math
+
+    win = loaded_window
+    s = win.session
+    finish(s, s.run_all, "fine_finished")
+    values = win.metrics_panel.tree_values()
+    merged = values["merged"]
+    # The sample tree (ITSMe tree 1) is 22.7 m tall, its stem 15 cm across at 1.3 m.
+    assert merged["height_m"] == pytest.approx(22.7, abs=0.2)
+    assert merged["dbh_m"] == pytest.approx(15.0, abs=1.5)
+    # Each scan sees about half the stem; merged, the circle rests on much more.
+    assert merged["stem_arc_deg"] > max(
+        values["target"]["stem_arc_deg"], values["source"]["stem_arc_deg"]
+    )
+    assert win.metrics_panel.tree_table.item(1, 2).text() != ""
+    assert "fine transform" in win.metrics_panel.tree_note.text()
+    finish(s, lambda: s.export(tmp_path / "out"), "exported")
+    tree = json.loads((tmp_path / "out" / "metrics.json").read_text())["tree"]
+    assert math.isclose(tree["merged"]["dbh_m"] * 100, merged["dbh_m"])
