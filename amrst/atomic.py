@@ -66,3 +66,34 @@ def write_text_atomic(path: str | os.PathLike[str], text: str | bytes) -> None:
 def write_json_atomic(path: str | os.PathLike[str], data: Any, indent: int = 2) -> None:
     """Write ``data`` as indented JSON atomically."""
     write_text_atomic(path, json.dumps(data, indent=indent, allow_nan=True) + "\n")
+
+
+def make_folder(path: str | os.PathLike[str], what: str) -> Path:
+    """Create the folder ``path`` (and its parents) or say why not.
+
+    Parameters
+    ----------
+    path : path
+    what : str
+        How the message names it, e.g. "case folder".
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InvalidInput
+        When it cannot be created (a file in the way, no permission).
+    """
+    from amrst.errors import InvalidInput
+
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InvalidInput(
+            f"Cannot create the {what} {out}: {exc.strerror or exc}. Choose another "
+            "folder."
+        ) from exc
+    return out

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.atomic import write_json_atomic
+from amrst.atomic import make_folder, write_json_atomic
 from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
@@ -266,14 +266,7 @@ def write_case(
     """
     from amrst import io
 
-    out = check_case_folder(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot create the case folder {out}: {exc.strerror or exc}. Choose "
-            "another folder."
-        ) from exc
+    out = make_folder(check_case_folder(out_dir), "case folder")
     io.write(out / "target.ply", pair.target)
     io.write(out / "source.ply", pair.source)
     write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed), indent=1)

@@ -17,11 +17,11 @@ import time
 import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from amrst.atomic import make_folder
 from amrst.baselines._common import Method, MethodResult, to_local
 from amrst.bench.cases import Case, find_cases, read_case
 from amrst.errors import AmrstError, Cancelled, InvalidInput
@@ -31,6 +31,7 @@ from amrst.types import apply_transform
 
 if TYPE_CHECKING:
     import os
+    from pathlib import Path
 
 logger = logging.getLogger(__name__)
 
@@ -351,14 +352,7 @@ def run_bench(
     folders = find_cases(cases_dir, pattern)
     if not folders:
         raise InvalidInput(_no_cases_message(cases_dir, pattern))
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot create the output folder {out}: {exc.strerror or exc}. Choose "
-            "another folder."
-        ) from exc
+    out = make_folder(out_dir, "output folder")
     meta = {
         **machine_info(),
         "command": command,

@@ -6,7 +6,7 @@ import dataclasses
 import json
 
 import pytest
-from PySide6.QtCore import QEventLoop, QTimer
+from _run import run_until_idle
 
 from amrst.stages.coarse import same_solution
 from amrst_gui.session import Session
@@ -14,16 +14,7 @@ from amrst_gui.session import Session
 
 def _run(session: Session, start, timeout_ms: int = 90_000) -> list[str]:
     """Start work, spin until idle; return the failure messages."""
-    loop = QEventLoop()
-    errors: list[str] = []
-    session.failed.connect(errors.append)
-    session.busy_changed.connect(lambda busy: None if busy else loop.quit())
-    QTimer.singleShot(timeout_ms, loop.quit)
-    start()
-    if session.busy:
-        loop.exec()
-    assert not session.busy, "timed out"
-    return errors
+    return run_until_idle(session, start, timeout_ms)
 
 
 @pytest.fixture

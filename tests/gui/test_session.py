@@ -6,23 +6,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QEventLoop, QTimer
+from _run import run_until_idle
 
 from amrst_gui.session import Session
 
 
 def _run_until_idle(session: Session, start, timeout_ms: int = 60_000) -> None:
-    """Start work and spin an event loop until the session is idle again."""
-    loop = QEventLoop()
-    errors: list[str] = []
-    session.failed.connect(errors.append)
-    session.busy_changed.connect(lambda busy: None if busy else loop.quit())
-    QTimer.singleShot(timeout_ms, loop.quit)
-    start()
-    if session.busy:
-        loop.exec()
+    """Start work, spin until the session is idle again; nothing may fail."""
+    errors = run_until_idle(session, start, timeout_ms)
     assert not errors, errors
-    assert not session.busy, "timed out"
 
 
 @pytest.fixture(scope="module")
