@@ -60,7 +60,7 @@ class TerminalReporter:
 
 def read_truth(path: str) -> np.ndarray:
     """T_target_source from a truth.json, checked to be a rigid transform (clear errors)."""
-    from amrst.bench.cases import check_rigid
+    from amrst.types import check_rigid
 
     if not path.strip():
         raise InvalidInput("The truth file path is empty; give a truth JSON file.")

@@ -18,10 +18,10 @@ import numpy as np
 
 from amrst.atomic import make_folder, write_json_atomic
 from amrst.errors import InvalidInput
+from amrst.types import Cloud, Transform, check_rigid
 
 if TYPE_CHECKING:
     from amrst.simulate import SimulatedPair
-    from amrst.types import Cloud, Transform
 
 PathLike = str | os.PathLike[str]
 
@@ -75,64 +75,6 @@ def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
     if pattern:
         found = [p for p in found if fnmatch.fnmatch(p.name, pattern)]
     return found
-
-
-# Largest |R^T R - I| entry a rotation block may show: 1e-4 admits matrices printed
-# with 6 decimals (error ~1e-6) and still refuses any real scale or shear.
-RIGID_TOL = 1e-4
-
-
-def check_rigid(T: Any, where: str) -> np.ndarray:
-    """Check that ``T`` is a rigid 4x4 transform; return it as float64.
-
-    Parameters
-    ----------
-    T : array_like
-        The matrix as read (nested lists).
-    where : str
-        Names the matrix in the messages, e.g. ``"T_target_source in truth.json"``.
-
-    Returns
-    -------
-    (4, 4) float64
-
-    Raises
-    ------
-    InvalidInput
-        Not numbers, not 4x4, NaN/inf entries, a last row other than [0, 0, 0, 1],
-        or a 3x3 block that is not a rotation (scale, shear, reflection) within
-        ``RIGID_TOL``.
-    """
-    need = (
-        "It must be a rigid 4x4 transform: a rotation and a translation, row-major, "
-        "with last row [0, 0, 0, 1]."
-    )
-    try:
-        M = np.asarray(T, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(
-            f"{where} is not a matrix of numbers ({exc}). {need}"
-        ) from exc
-    if M.shape != (4, 4):
-        raise InvalidInput(f"{where} must be a 4x4 matrix, got shape {M.shape}. {need}")
-    if not np.all(np.isfinite(M)):
-        raise InvalidInput(f"{where} contains NaN/inf. {need}")
-    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=RIGID_TOL):
-        raise InvalidInput(f"{where} has last row {M[3].tolist()}. {need}")
-    R = M[:3, :3]
-    deviation = float(np.abs(R.T @ R - np.eye(3)).max())
-    if deviation > RIGID_TOL:
-        raise InvalidInput(
-            f"{where} has a 3x3 block that is not a rotation (R^T R differs from the "
-            f"identity by up to {deviation:.3g}: a scale or a shear). {need}"
-        )
-    det = float(np.linalg.det(R))
-    if det <= 0:
-        raise InvalidInput(
-            f"{where} has a 3x3 block with determinant {det:.3g}: a reflection, "
-            f"not a rotation. {need}"
-        )
-    return M
 
 
 def read_case(path: PathLike) -> Case:
