@@ -146,8 +146,8 @@ def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, 
 
 def read_truth(path: Path) -> np.ndarray:
     """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong."""
-    from amrst.bench.cases import check_rigid
     from amrst.errors import InvalidInput
+    from amrst.types import check_rigid
 
     try:
         data = json.loads(Path(path).read_text())
