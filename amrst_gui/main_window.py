@@ -122,12 +122,13 @@ class MainWindow(QMainWindow):
             self.session.load_truth(truth)
 
     def recent_files(self) -> list[str]:
-        """Recently opened scan files, newest first."""
+        """Recently opened scan files that still exist, newest first."""
         value = self.settings.value("recent/files", [])
         # value() is typed object; here a str, a list of str, or None or [] if unset.
-        return (
+        paths = (
             [value] if isinstance(value, str) else list(cast("list[str]", value or []))
         )
+        return [p for p in paths if Path(p).is_file()]  # moved or deleted: not offered
 
     def reset_layout(self) -> None:
         """Put every dock back where it started."""

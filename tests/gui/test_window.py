@@ -42,7 +42,9 @@ def test_layer_toggle_removes_and_restores_actor(loaded_window):
     assert "points" in pane.view.actor_names()
 
 
-def test_layout_and_recent_files_are_remembered(make_main_window, qtbot, sample_pair):
+def test_layout_and_recent_files_are_remembered(
+    make_main_window, qtbot, sample_pair, tmp_path
+):
     target, source, _ = sample_pair
     win = make_main_window()
     with qtbot.waitSignals([win.session.scan_loaded] * 2, timeout=20_000):
@@ -53,6 +55,10 @@ def test_layout_and_recent_files_are_remembered(make_main_window, qtbot, sample_
     assert again.docks["log"].isFloating()
     assert again.recent_files()[:2] == [str(source), str(target)]
     assert not again.scans_panel.boxes["target"].recent_menu.isEmpty()
+    # A file moved or deleted since is no longer offered.
+    gone = str(tmp_path / "moved-away.ply")
+    again.settings.setValue("recent/files", [gone, str(target)])
+    assert again.recent_files() == [str(target)]
 
 
 def test_dropping_a_file_on_a_view_loads_it(make_main_window, qtbot, sample_pair):
