@@ -66,12 +66,19 @@ class ExportDialog(QDialog):
     """Where to write, what, and in which point-cloud format.
 
     Emits QDialog's ``accepted``; read ``folder()``, ``cloud_format()`` and ``parts()``.
+    A relative folder is taken relative to ``base`` (the target scan's folder), not to
+    wherever the app was started from.
     """
 
     def __init__(
-        self, parent=None, folder: str = "", cloud_format: str = "ply"
+        self,
+        parent=None,
+        folder: str = "",
+        cloud_format: str = "ply",
+        base: Path | None = None,
     ) -> None:
         super().__init__(parent)
+        self.base = base
         self.setObjectName("export_dialog")
         self.setWindowTitle("Export registration")
         self.folder_edit = QLineEdit(folder)
@@ -129,8 +136,11 @@ class ExportDialog(QDialog):
         self._validate()
 
     def folder(self) -> Path:
-        """The chosen output folder."""
-        return Path(self.folder_edit.text().strip()).expanduser()
+        """The chosen output folder (absolute)."""
+        path = Path(self.folder_edit.text().strip()).expanduser()
+        if not path.is_absolute():
+            path = (self.base or Path.cwd()) / path
+        return path
 
     def cloud_format(self) -> str:
         """ "ply", "las", "laz" or "pcd"."""

@@ -201,7 +201,13 @@ class MainWindow(QMainWindow):
         """Open the export dialog (non-blocking); Export starts the job."""
         folder = self.settings.value("dirs/export", "")
         fmt = self.settings.value("export/format", "ply")
-        box = dialogs.ExportDialog(self, folder=str(folder), cloud_format=str(fmt))
+        target = self.session.path("target")
+        box = dialogs.ExportDialog(
+            self,
+            folder=str(folder),
+            cloud_format=str(fmt),
+            base=target.parent if target is not None else None,
+        )
         box.accepted.connect(lambda: self._on_export_accepted(box))
         self.export_box = box
         box.open()

@@ -89,6 +89,9 @@ def test_full_workflow_review_accept_refine_export(
     a.export.trigger()
     box = win.export_box
     assert box.isVisible()
+    # A relative folder lands beside the target scan, not in the working directory.
+    box.folder_edit.setText("out")
+    assert box.folder() == s.path("target").parent / "out"
     box.folder_edit.setText(str(tmp_path / "out"))
     (paths,) = finish(s, box.accept, "exported")
     _check_export(tmp_path / "out", paths, s)
