@@ -50,35 +50,22 @@ _ROWS = (
 )
 _STAGES = ("coarse", "fine")
 _SCANS = ("target", "source", "merged")
-# Tree tab rows: key of TreeMeasures.as_dict(), label, scale to the unit, tooltip.
+# Tree tab rows: key of TreeMeasures.as_dict(), label, scale to the unit, decimals
+# shown, tooltip.
 _TREE_ROWS = (
-    ("height_m", "Height (m)", 1.0, "Top minus base, stray points left out"),
-    (
-        "dbh_m",
-        "DBH (cm)",
-        100.0,
-        "Stem diameter at breast height (measure.breast_height_m)",
-    ),
+    ("height_m", "Height (m)", 1.0, 2, "Top minus base, stray points left out"),
+    ("dbh_m", "DBH (cm)", 100.0, 1, "Stem diameter at breast height"),
     (
         "stem_arc_deg",
         "Stem seen over (°)",
         1.0,
+        0,
         "How much of the stem's circumference the DBH circle rests on: one scan sees "
         "about half; the merged tree should see most of it",
     ),
-    (
-        "stem_rmse_m",
-        "Stem fit RMSE (mm)",
-        1000.0,
-        "Scatter of the bark about the circle",
-    ),
-    ("crown_width_m", "Crown width (m)", 1.0, "Mean of the two principal crown widths"),
-    (
-        "crown_area_m2",
-        "Crown area (m²)",
-        1.0,
-        "Convex hull of the tree seen from above",
-    ),
+    ("stem_rmse_m", "Stem fit RMSE (mm)", 1000.0, 1, "Bark scatter about the circle"),
+    ("crown_width_m", "Crown width (m)", 1.0, 2, "Mean of the two principal widths"),
+    ("crown_area_m2", "Crown area (m²)", 1.0, 1, "Convex hull seen from above"),
 )
 
 
@@ -129,7 +116,7 @@ class MetricsPanel(QWidget):
         self.tree_table.setHorizontalHeaderLabels(["Target", "Source", "Merged"])
         self.tree_table.setVerticalHeaderLabels([row[1] for row in _TREE_ROWS])
         for i, row in enumerate(_TREE_ROWS):
-            self.tree_table.verticalHeaderItem(i).setToolTip(row[3])
+            self.tree_table.verticalHeaderItem(i).setToolTip(row[4])
         self.tree_table.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.Stretch
         )
@@ -228,7 +215,7 @@ class MetricsPanel(QWidget):
             values = tree[scan].as_dict() if scan in tree else {}
             out[scan] = {
                 key: float(values[key]) * scale
-                for key, _, scale, _ in _TREE_ROWS
+                for key, _, scale, _, _ in _TREE_ROWS
                 if isinstance(values.get(key), (int, float))
             }
         return out
@@ -236,9 +223,9 @@ class MetricsPanel(QWidget):
     def _show_tree(self) -> None:
         values = self.tree_values()
         for col, scan in enumerate(_SCANS):
-            for row, (key, _, _, _) in enumerate(_TREE_ROWS):
+            for row, (key, _, _, decimals, _) in enumerate(_TREE_ROWS):
                 value = values[scan].get(key)
-                text = "" if value is None else _fmt(value)
+                text = "" if value is None else f"{value:.{decimals}f}"
                 self.tree_table.setItem(row, col, QTableWidgetItem(text))
         tree = self.session.tree
         merged = tree.get("merged")

@@ -77,6 +77,9 @@ def main() -> int:
     shot("06-coarse-overlay", tab=1)
     run(lambda: win.actions.run_fine.trigger())
     shot("07-fine-overlay", tab=1)
+    win.metrics_panel.tabs.setCurrentIndex(1)  # the Tree tab
+    shot("12-tree-measures", tab=1)
+    win.metrics_panel.tabs.setCurrentIndex(0)
     win.docks["parameters"].raise_()
     shot("08-parameters", tab=1)
     win.docks["scans"].raise_()
