@@ -57,6 +57,7 @@ class ParamsPanel(QWidget):
         self.setObjectName("params_panel")
         self.session = session
         self.editors: dict[tuple[str, str], QWidget] = {}
+        self._dirty = False
         self.preset = QComboBox()
         self.preset.setToolTip("Load a preset into the form (then Apply)")
         self.preset.addItem("Preset…", None)
@@ -106,7 +107,7 @@ class ParamsPanel(QWidget):
         layout.addWidget(scroll, 1)
         session.params_changed.connect(self._on_params_changed)
         # A running chain of steps uses one set of parameters: Apply waits for it.
-        session.busy_changed.connect(lambda busy: self.apply_button.setEnabled(not busy))
+        session.busy_changed.connect(self._update_apply)
         self.show_params(params)
 
     def draft(self) -> Any:
@@ -184,8 +185,12 @@ class ParamsPanel(QWidget):
                 getattr(editor, signal).connect(lambda *_: self._set_dirty(True))
                 return
 
+    def _update_apply(self, *_args) -> None:
+        self.apply_button.setEnabled(self._dirty and not self.session.busy)
+
     def _set_dirty(self, dirty: bool, text: str = "") -> None:
-        self.apply_button.setEnabled(dirty)
+        self._dirty = dirty
+        self._update_apply()
         self.state.setStyleSheet("color: #b06000;" if dirty else "")
         self.state.setText(
             text or ("Changed: press Apply to use these values." if dirty else "")

@@ -146,3 +146,29 @@ def test_preset_fills_the_form_and_apply_uses_it(make_main_window, qtbot):
     # Every parameter has an editor with a tooltip.
     for (_group, name), editor in panel.editors.items():
         assert editor.toolTip().startswith(name)
+
+
+def test_apply_waits_for_the_run_and_refuses_contradictions(loaded_window, finish):
+    win = loaded_window
+    panel, s = win.params_panel, win.session
+    assert not panel.apply_button.isEnabled()  # nothing changed yet
+    min_pts = panel.editors[("preprocess", "min_points")]
+    max_pts = panel.editors[("preprocess", "max_points")]
+    min_pts.setValue(90_000)
+    max_pts.setValue(5_000)
+    assert panel.apply_button.isEnabled()
+    during: list[bool] = []
+
+    def start() -> None:
+        s.run_step("separate")
+        during.append(panel.apply_button.isEnabled())
+
+    finish(s, start, "separation_finished")
+    assert during == [False]  # a run uses one set of parameters
+    assert panel.apply_button.isEnabled()  # still changed, and idle again
+    before = s.params
+    panel.apply()
+    # The stage itself refuses the pair, so the form says why and nothing changes.
+    assert "Not applied" in panel.state.text()
+    assert "preprocess.min_points" in panel.state.text()
+    assert s.params is before
