@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import dataclasses
-import logging
-import os
-import struct
-import sys
-
 import numpy as np
 import pytest
+from _clouds import GEO_OFFSET, ply_header
+from _clouds import small_cloud as make_small_cloud
 
 from amrst import io
 from amrst.errors import AmrstError, InvalidInput
 from amrst.types import Cloud, make_transform, transform_cloud
 
-GEO_OFFSET = np.array([500000.0, 5000000.0, 250.0])
 FORMATS = [
     (".las", True),
     (".laz", True),
@@ -55,10 +50,7 @@ def geo_cloud() -> Cloud:
 
 @pytest.fixture
 def small_cloud() -> Cloud:
-    rng = np.random.default_rng(3)
-    return Cloud(
-        rng.uniform(-5, 5, (200, 3)), attributes={"wood": np.ones(200, np.uint8)}
-    )
+    return make_small_cloud()
 
 
 def _assert_same_attributes(expected: Cloud, actual: Cloud) -> None:
@@ -166,13 +158,6 @@ def test_las_vlrs_are_kept(tmp_path, small_cloud):
 # --- PLY -------------------------------------------------------------------------
 
 
-def _ply_header(fmt: str, n: int, props: str, extra: str = "") -> bytes:
-    return (
-        f"ply\nformat {fmt} 1.0\ncomment hand made\nelement vertex {n}\n{props}"
-        f"{extra}end_header\n"
-    ).encode()
-
-
 @pytest.mark.parametrize("endian", ["<", ">"])
 def test_ply_binary_both_endians_keep_every_property(tmp_path, endian):
     fmt = "binary_little_endian" if endian == "<" else "binary_big_endian"
@@ -189,7 +174,7 @@ def test_ply_binary_both_endians_keep_every_property(tmp_path, endian):
         "property uchar label\nproperty float curvature\nproperty int count\n"
     )
     path = tmp_path / "b.ply"
-    path.write_bytes(_ply_header(fmt, 4, props) + rec.tobytes())
+    path.write_bytes(ply_header(fmt, 4, props) + rec.tobytes())
     cloud = io.read(path)
     np.testing.assert_allclose(cloud.world_xyz[:, 0], rec["x"], rtol=0, atol=1e-9)
     assert cloud.offset[0] == 500000.0
@@ -201,7 +186,7 @@ def test_ply_binary_both_endians_keep_every_property(tmp_path, endian):
 
 def test_ply_ascii_with_faces_after_vertices(tmp_path):
     text = (
-        _ply_header(
+        ply_header(
             "ascii",
             3,
             "property float x\nproperty float y\nproperty float z\n"
@@ -222,7 +207,7 @@ def test_ply_large_float32_coordinates_are_rebased(tmp_path):
     rec["x"] = [500000.0, 500010.0]
     props = "property float x\nproperty float y\nproperty float z\n"
     (tmp_path / "f.ply").write_bytes(
-        _ply_header("binary_little_endian", 2, props) + rec.tobytes()
+        ply_header("binary_little_endian", 2, props) + rec.tobytes()
     )
     cloud = io.read(tmp_path / "f.ply")
     np.testing.assert_array_equal(cloud.offset, [500000.0, 0, 0])
@@ -335,424 +320,6 @@ def test_text_reads_large_georeferenced_values(tmp_path):
     cloud = io.read(tmp_path / "g.txt")
     np.testing.assert_array_equal(cloud.offset, [500000.0, 5000000.0, 0.0])
     np.testing.assert_allclose(cloud.xyz[0], [0.123, 0.456, 12.5], atol=1e-9)
-
-
-# --- bad input -------------------------------------------------------------------
-
-
-def test_missing_file(tmp_path):
-    with pytest.raises(InvalidInput, match="File not found"):
-        io.read(tmp_path / "nope.las")
-
-
-def test_directory(tmp_path):
-    (tmp_path / "d.las").mkdir()
-    with pytest.raises(InvalidInput, match="is a folder"):
-        io.read(tmp_path / "d.las")
-
-
-def test_unknown_extension_lists_supported(tmp_path):
-    (tmp_path / "scan.e57").write_bytes(b"x")
-    with pytest.raises(InvalidInput, match=r"Supported: \.las, \.laz"):
-        io.read(tmp_path / "scan.e57")
-    assert io.get_reader(tmp_path / "scan.e57") is None
-
-
-@pytest.mark.parametrize("ext", [".las", ".ply", ".pcd", ".txt"])
-def test_empty_file(tmp_path, ext):
-    (tmp_path / f"e{ext}").write_bytes(b"")
-    with pytest.raises(InvalidInput, match="is empty"):
-        io.read(tmp_path / f"e{ext}")
-
-
-@pytest.mark.parametrize("ext", [".las", ".laz", ".ply", ".pcd"])
-def test_truncated_binary_file(tmp_path, small_cloud, ext):
-    io.write(tmp_path / f"full{ext}", small_cloud)
-    data = (tmp_path / f"full{ext}").read_bytes()
-    (tmp_path / f"cut{ext}").write_bytes(data[: len(data) * 2 // 3])
-    with pytest.raises(InvalidInput, match=rf"cut\{ext}") as info:
-        io.read(tmp_path / f"cut{ext}")
-    assert "truncated" in str(info.value)
-
-
-def test_garbage_las_is_invalid_input(tmp_path):
-    (tmp_path / "g.las").write_bytes(b"not a las file at all" * 50)
-    with pytest.raises(InvalidInput, match=r"g\.las"):
-        io.read(tmp_path / "g.las")
-
-
-def test_malformed_ply_header(tmp_path):
-    (tmp_path / "m.ply").write_bytes(b"ply\nformat\n")
-    with pytest.raises(InvalidInput, match="malformed PLY header"):
-        io.read(tmp_path / "m.ply")
-
-
-def test_non_numeric_text_row_names_the_line(tmp_path):
-    (tmp_path / "n.txt").write_text("x y z\n1 2 3\n4 5 6\n7 oops 9\n")
-    with pytest.raises(InvalidInput, match=r"line 4: 'oops' is not a number"):
-        io.read(tmp_path / "n.txt")
-
-
-def test_ragged_text_row_names_the_line(tmp_path):
-    (tmp_path / "r.csv").write_text("1,2,3\n4,5,6\n7,8\n")
-    with pytest.raises(InvalidInput, match=r"line 3: 2 values where 3"):
-        io.read(tmp_path / "r.csv")
-
-
-def test_nan_rows_are_dropped_and_counted(tmp_path, caplog):
-    (tmp_path / "nan.txt").write_text("1 2 3 5\nnan 2 3 6\n4 inf 6 7\n7 8 9 8\n")
-    with caplog.at_level(logging.WARNING, logger="amrst.io"):
-        cloud = io.read(tmp_path / "nan.txt")
-    assert len(cloud) == 2
-    assert cloud.attributes["intensity"].tolist() == [5, 8]
-    assert cloud.meta["n_dropped_invalid"] == 2
-    assert "dropped 2 of 4" in caplog.text
-    assert len(io.read(tmp_path / "nan.txt", drop_invalid=False)) == 4
-
-
-def test_one_point_is_enough(tmp_path):
-    (tmp_path / "one.xyz").write_text("1 2 3\n")
-    assert len(io.read(tmp_path / "one.xyz")) == 1
-
-
-def test_zero_valid_points(tmp_path):
-    (tmp_path / "z.txt").write_text("nan nan nan\nnan 1 2\n")
-    with pytest.raises(InvalidInput, match="no valid points"):
-        io.read(tmp_path / "z.txt")
-    (tmp_path / "h.txt").write_text("x y z\n")
-    with pytest.raises(InvalidInput, match="no points"):
-        io.read(tmp_path / "h.txt")
-
-
-def test_ply_with_zero_vertices(tmp_path):
-    header = _ply_header(
-        "binary_little_endian",
-        0,
-        "property float x\nproperty float y\nproperty float z\n",
-    )
-    (tmp_path / "z.ply").write_bytes(header)
-    with pytest.raises(InvalidInput, match="contains no points"):
-        io.read(tmp_path / "z.ply")
-
-
-@pytest.mark.parametrize("ext", [".las", ".ply", ".pcd", ".csv"])
-def test_an_empty_cloud_can_be_written(tmp_path, ext):
-    empty = Cloud(np.zeros((0, 3)), attributes={"normal": np.zeros((0, 3))})
-    io.write(tmp_path / f"e{ext}", empty)
-    with pytest.raises(InvalidInput, match="no points"):
-        io.read(tmp_path / f"e{ext}")
-
-
-# --- corrupt headers, lying counts, misnamed files ------------------------------
-
-
-def _valid_las(tmp_path, cloud: Cloud, ext: str = ".las") -> bytearray:
-    io.write(tmp_path / f"valid{ext}", cloud)
-    return bytearray((tmp_path / f"valid{ext}").read_bytes())
-
-
-@pytest.mark.timeout(30)  # laspy used to loop for minutes on these
-@pytest.mark.parametrize("ext", [".las", ".laz"])
-@pytest.mark.parametrize("n_vlrs", [0xFFFFFFFF, 1000])
-def test_las_vlr_count_that_cannot_fit_is_refused_at_once(
-    tmp_path, small_cloud, ext, n_vlrs
-):
-    data = _valid_las(tmp_path, small_cloud, ext)
-    struct.pack_into("<I", data, 100, n_vlrs)
-    (tmp_path / f"v{ext}").write_bytes(data)
-    with pytest.raises(InvalidInput, match=f"announces {n_vlrs:,} variable-length"):
-        io.read(tmp_path / f"v{ext}")
-
-
-@pytest.mark.timeout(30)
-@pytest.mark.parametrize("ext", [".las", ".laz"])
-def test_las_signature_then_random_bytes_is_refused_at_once(tmp_path, ext):
-    rng = np.random.default_rng(0)
-    for i in range(20):
-        path = tmp_path / f"r{i}{ext}"
-        path.write_bytes(b"LASF" + rng.bytes(5000))
-        with pytest.raises(InvalidInput, match="corrupt LAS header"):
-            io.read(path)
-
-
-def test_las_too_short_or_not_las(tmp_path):
-    (tmp_path / "s.las").write_bytes(b"LASF" + bytes(100))
-    with pytest.raises(InvalidInput, match="too short to be a LAS/LAZ file"):
-        io.read(tmp_path / "s.las")
-    (tmp_path / "p.las").write_bytes(b"ply\nformat ascii 1.0\n" + bytes(300))
-    with pytest.raises(InvalidInput, match="is not a LAS/LAZ file"):
-        io.read(tmp_path / "p.las")
-
-
-@pytest.mark.parametrize("ext", [".las", ".laz"])
-@pytest.mark.parametrize(
-    ("pos", "value", "message"),
-    [
-        (131, 0.0, "scale factor is 0 for x, so every x coordinate would be 0"),
-        (139, -0.001, "scale factor is -0.001 for y"),
-        (147, float("nan"), "scale factor is nan for z"),
-        (163, float("inf"), "offset is inf for y"),
-    ],
-)
-def test_las_bad_scale_or_offset_is_refused(
-    tmp_path, small_cloud, ext, pos, value, message
-):
-    data = _valid_las(tmp_path, small_cloud, ext)
-    struct.pack_into("<d", data, pos, value)
-    (tmp_path / f"s{ext}").write_bytes(data)
-    with pytest.raises(InvalidInput, match=message):
-        io.read(tmp_path / f"s{ext}")
-
-
-def test_las_header_or_point_data_beyond_the_file(tmp_path, small_cloud):
-    data = _valid_las(tmp_path, small_cloud)
-    bad = bytearray(data)
-    struct.pack_into("<H", bad, 94, 60000)
-    (tmp_path / "h.las").write_bytes(bad)
-    with pytest.raises(InvalidInput, match="header size of 60000 bytes"):
-        io.read(tmp_path / "h.las")
-    bad = bytearray(data)
-    struct.pack_into("<I", bad, 96, len(data) + 10)
-    (tmp_path / "o.las").write_bytes(bad)
-    with pytest.raises(InvalidInput, match="after the end of the file"):
-        io.read(tmp_path / "o.las")
-
-
-@pytest.mark.timeout(30)
-@pytest.mark.parametrize("ext", [".las", ".laz"])
-def test_las14_evlr_count_that_cannot_fit_is_refused_at_once(tmp_path, ext):
-    cloud = Cloud(np.eye(3), meta={"las_version": "1.4", "las_point_format": 6})
-    data = _valid_las(tmp_path, cloud, ext)
-    assert data[24:26] == b"\x01\x04"
-    (point_start,) = struct.unpack_from("<I", data, 96)
-    struct.pack_into("<QI", data, 235, point_start, 0xFFFFFFFF)
-    (tmp_path / f"e{ext}").write_bytes(data)
-    with pytest.raises(InvalidInput, match="4,294,967,295 extended variable-length"):
-        io.read(tmp_path / f"e{ext}")
-
-
-@pytest.mark.timeout(30)
-@pytest.mark.parametrize(
-    ("version", "pos", "fmt"), [("1.2", 107, "<I"), ("1.4", 247, "<Q")]
-)
-def test_laz_point_count_beyond_its_chunks_is_refused(
-    tmp_path, small_cloud, version, pos, fmt
-):
-    cloud = Cloud(small_cloud.xyz, meta={"las_version": version})
-    data = _valid_las(tmp_path, cloud, ".laz")
-    struct.pack_into(fmt, data, pos, 1_000_000)  # the point count
-    (tmp_path / "c.laz").write_bytes(data)
-    with pytest.raises(InvalidInput, match="1,000,000 points but the file's 1 comp"):
-        io.read(tmp_path / "c.laz")
-
-
-def test_las_garbage_point_records_disagree_with_header_bounds(tmp_path, small_cloud):
-    data = _valid_las(tmp_path, small_cloud)
-    (start,) = struct.unpack_from("<I", data, 96)
-    data[start:] = np.random.default_rng(1).bytes(len(data) - start)
-    (tmp_path / "g.las").write_bytes(data)
-    with pytest.raises(InvalidInput, match="disagree with the header bounds"):
-        io.read(tmp_path / "g.las")
-
-
-def test_las_bounds_check_tolerates_zero_bounds_and_a_few_strays(tmp_path):
-    rng = np.random.default_rng(2)
-    xyz = rng.uniform(0, 10, (100, 3))
-    xyz[:3] += 1000.0  # 3 % of the points far from the rest
-    valid = bytes(_valid_las(tmp_path, Cloud(xyz, GEO_OFFSET)))
-    zero = bytearray(valid)
-    struct.pack_into("<6d", zero, 179, *([0.0] * 6))  # a writer that skips bounds
-    (tmp_path / "z.las").write_bytes(zero)
-    assert len(io.read(tmp_path / "z.las")) == 100
-    tight = bytearray(valid)
-    (min_x,) = struct.unpack_from("<d", valid, 187)
-    struct.pack_into("<d", tight, 179, min_x + 10.0)  # max x leaves out the strays
-    (tmp_path / "t.las").write_bytes(tight)
-    assert len(io.read(tmp_path / "t.las")) == 100
-
-
-def _replace_reader(monkeypatch, ext: str, error: Exception) -> None:
-    def fail(*args, **kwargs):
-        raise error
-
-    fmt = io._FORMATS[ext]
-    monkeypatch.setitem(io._FORMATS, ext, dataclasses.replace(fmt, read=fail))
-
-
-def test_permission_denied_says_so(tmp_path, small_cloud, monkeypatch):
-    io.write(tmp_path / "p.ply", small_cloud)
-    _replace_reader(
-        monkeypatch, ".ply", PermissionError(13, "Permission denied", "p.ply")
-    )
-    with pytest.raises(InvalidInput, match="permission denied: fix the file's perm"):
-        io.read(tmp_path / "p.ply")
-
-
-@pytest.mark.skipif(
-    sys.platform == "win32" or os.geteuid() == 0, reason="root reads any file"
-)
-def test_unreadable_file(tmp_path, small_cloud):
-    io.write(tmp_path / "p.las", small_cloud)
-    (tmp_path / "p.las").chmod(0)
-    with pytest.raises(InvalidInput, match="permission denied"):
-        io.read(tmp_path / "p.las")
-
-
-@pytest.mark.parametrize("binary", [True, False])
-def test_ply_absurd_vertex_count_is_corrupt_not_out_of_memory(
-    tmp_path, small_cloud, binary
-):
-    io.write(tmp_path / "v.ply", small_cloud, binary=binary)
-    data = (tmp_path / "v.ply").read_bytes()
-    data = data.replace(b"element vertex 200\n", b"element vertex 999999999999\n")
-    (tmp_path / "h.ply").write_bytes(data)
-    with pytest.raises(InvalidInput, match="truncated") as info:
-        io.read(tmp_path / "h.ply")
-    assert "memory" not in str(info.value)
-    if binary:
-        assert (
-            "announces 999,999,999,999 points but the file holds only about 200:"
-            in (str(info.value))
-        )
-
-
-@pytest.mark.parametrize("data_type", ["binary", "ascii"])
-def test_pcd_absurd_point_count_is_corrupt_not_out_of_memory(
-    tmp_path, small_cloud, data_type
-):
-    io.write(tmp_path / "v.pcd", small_cloud, binary=data_type == "binary")
-    data = (tmp_path / "v.pcd").read_bytes()
-    for key in (b"WIDTH", b"POINTS"):
-        data = data.replace(key + b" 200\n", key + b" 99999999999\n")
-    (tmp_path / "h.pcd").write_bytes(data)
-    with pytest.raises(InvalidInput, match="truncated") as info:
-        io.read(tmp_path / "h.pcd")
-    assert "memory" not in str(info.value)
-    if data_type == "binary":
-        assert "announces 99,999,999,999 points but the file holds only about 200:" in (
-            str(info.value)
-        )
-
-
-def _lzf_literals(data: bytes) -> bytes:
-    """LZF stream of literal runs only (valid, just not compressed)."""
-    return b"".join(
-        bytes([len(data[i : i + 32]) - 1]) + data[i : i + 32]
-        for i in range(0, len(data), 32)
-    )
-
-
-def test_pcd_compressed_sizes_are_checked_before_allocating(tmp_path):
-    xyz = np.arange(30, dtype="<f4").reshape(10, 3)
-    packed = _lzf_literals(b"".join(xyz[:, i].tobytes() for i in range(3)))
-    head = (
-        b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-        b"WIDTH 10\nHEIGHT 1\nPOINTS 10\nDATA binary_compressed\n"
-    )
-    good = head + struct.pack("<II", len(packed), 120) + packed
-    (tmp_path / "ok.pcd").write_bytes(good)
-    np.testing.assert_array_equal(io.read(tmp_path / "ok.pcd").xyz, xyz)
-    (tmp_path / "size.pcd").write_bytes(
-        head + struct.pack("<II", len(packed), 4_000_000_000) + packed
-    )
-    with pytest.raises(InvalidInput, match="compressed data says 4,000,000,000 b"):
-        io.read(tmp_path / "size.pcd")
-    (tmp_path / "packed.pcd").write_bytes(
-        head + struct.pack("<II", 4_000_000_000, 120) + packed
-    )
-    with pytest.raises(InvalidInput, match="announces 4,000,000,000 bytes"):
-        io.read(tmp_path / "packed.pcd")
-
-
-def test_negative_counts_are_malformed_headers(tmp_path):
-    props = "property float x\nproperty float y\nproperty float z\n"
-    (tmp_path / "n.ply").write_bytes(
-        _ply_header("binary_little_endian", -5, props) + bytes(120)
-    )
-    with pytest.raises(InvalidInput, match=r"malformed PLY header.*negative count"):
-        io.read(tmp_path / "n.ply")
-    (tmp_path / "n.pcd").write_bytes(
-        b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-        b"WIDTH 1\nHEIGHT 1\nPOINTS -5\nDATA binary\n" + bytes(120)
-    )
-    with pytest.raises(InvalidInput, match="negative number of points"):
-        io.read(tmp_path / "n.pcd")
-
-
-def test_ply_body_longer_than_announced_warns(tmp_path, small_cloud, caplog):
-    io.write(tmp_path / "v.ply", small_cloud)
-    data = (tmp_path / "v.ply").read_bytes()
-    (tmp_path / "less.ply").write_bytes(
-        data.replace(b"element vertex 200\n", b"element vertex 50\n")
-    )
-    (tmp_path / "nl.ply").write_bytes(data + b"\n")  # a stray newline is no reason
-    with caplog.at_level(logging.WARNING, logger="amrst"):
-        assert len(io.read(tmp_path / "nl.ply")) == 200
-        assert not caplog.records
-        assert len(io.read(tmp_path / "less.ply")) == 50
-    assert "announces 50 points but the file holds about 150 more" in caplog.text
-    assert all(r.levelno == logging.WARNING for r in caplog.records)
-
-
-@pytest.mark.parametrize(
-    ("name", "content", "kind"),
-    [
-        ("b.csv", np.random.default_rng(0).bytes(20000), "binary"),
-        ("b.xyz", np.arange(3000, dtype="<f8").tobytes(), "binary"),
-        ("p.xyz", b"ply\nformat binary_little_endian 1.0\nend_header\n", "PLY"),
-        ("p.txt", b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\n", "PCD"),
-        ("p.pts", b"VERSION 0.7\nFIELDS x y z\n", "PCD"),
-        ("l.xyz", b"LASF" + bytes(400), "LAS/LAZ"),
-    ],
-)
-def test_text_reader_refuses_binary_and_other_formats(tmp_path, name, content, kind):
-    (tmp_path / name).write_bytes(content)
-    with pytest.raises(InvalidInput) as info:
-        io.read(tmp_path / name)
-    message = str(info.value)
-    assert f"not a text point cloud (it looks like a {kind} file)" in message
-    assert "give it its real extension" in message
-    assert len(message) < len(str(tmp_path)) + 200
-
-
-def test_text_messages_quote_at_most_80_characters(tmp_path, caplog):
-    # Good lines first, so the start of the file still looks like text.
-    (tmp_path / "t.xyz").write_bytes(b"1 2 3\n" * 1000 + b"4 5 6 " + b"\x01" * 300)
-    with pytest.raises(InvalidInput, match=r"line 1001: 4 values") as info:
-        io.read(tmp_path / "t.xyz")
-    assert "\\x01" * 20 not in str(info.value)
-    assert "..." in str(info.value)
-    (tmp_path / "n.xyz").write_text("1 2 3\n" + "4 5 " + "7" * 30 + "x" * 300 + "\n")
-    with pytest.raises(InvalidInput, match="not a number") as info:
-        io.read(tmp_path / "n.xyz")
-    assert "x" * 41 not in str(info.value)
-    (tmp_path / "h.xyz").write_text("a" * 500 + " b c\n1 2 3\n")
-    with caplog.at_level(logging.WARNING, logger="amrst"):
-        io.read(tmp_path / "h.xyz")
-    assert "has no x/y/z columns" in caplog.text
-    assert "a" * 81 not in caplog.text
-
-
-def test_text_with_a_latin1_header_is_still_text(tmp_path):
-    (tmp_path / "l.csv").write_bytes("x,y,z,höhe\n1,2,3,4\n5,6,7,8\n".encode("latin-1"))
-    assert len(io.read(tmp_path / "l.csv")) == 2
-
-
-def test_absurd_coordinates_are_dropped_like_nan(tmp_path, caplog):
-    (tmp_path / "e.xyz").write_text(
-        "1 2 3\n1e300 1e300 1e300\n4 5 6\n-2e9 0 0\n6378137 0 0\n"
-    )
-    with caplog.at_level(logging.WARNING, logger="amrst.io"):
-        cloud = io.read(tmp_path / "e.xyz")
-    assert len(cloud) == 3  # an ECEF-sized 6378137 m is kept
-    assert cloud.meta["n_dropped_invalid"] == 2
-    assert "dropped 2 of 5" in caplog.text
-    assert np.abs(cloud.world_xyz).max() == 6378137.0
-    io.describe(cloud)  # no overflow warning (warnings are errors in tests)
-    assert len(io.read(tmp_path / "e.xyz", drop_invalid=False)) == 5
-    (tmp_path / "all.xyz").write_text("1e12 1e12 1e12\n2e12 2e12 2e12\n")
-    with pytest.raises(InvalidInput, match=r"no valid points.*within 1e9 m"):
-        io.read(tmp_path / "all.xyz")
 
 
 # --- registry and writing --------------------------------------------------------
