@@ -25,11 +25,10 @@ from amrst.stages.coarse import (
     CandidateList,
     CoarseParams,
     _distinct,
-    _polish,
-    _weighted_centres,
     choose_coarse,
     verification_sample,
 )
+from amrst.stages.polish import polish, weighted_centres
 from amrst.types import Transform, make_transform
 
 if TYPE_CHECKING:
@@ -244,7 +243,7 @@ def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
     Least squares under (B, n) 0/1 weights: a 2D Procrustes fit of the x, y offsets
     from the centroids, plus the centroid shift; (B, 4, 4).
     """
-    pc, qc, a, b = _weighted_centres(p, q, w)
+    pc, qc, a, b = weighted_centres(p, q, w)
     yaw = np.arctan2(
         np.einsum("bn,bn->b", w, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]),
         np.einsum("bn,bn->b", w, a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]),
@@ -263,7 +262,7 @@ def polish_levelled(
 
     The coarse stage's polish ICP, so restricted. ``tree`` is a cKDTree on ``tgt``.
     """
-    return _polish(src, tgt, tree, Ts, max_dist, fit=_levelled_steps, iterations=15)
+    return polish(src, tgt, tree, Ts, max_dist, fit=_levelled_steps, iterations=15)
 
 
 def search_yaw(
