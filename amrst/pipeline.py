@@ -11,7 +11,7 @@ register(target, source) reads like the method:
 The app calls the same steps one at a time (prepare_scan, skeletonise_scan, find_matches,
 coarse_from_matches, refine, evaluate) so the user can look and overrule between them.
 Engine stages work in each cloud's local coordinates; the transforms returned by
-register() and used by export are in world coordinates (see world_transform).
+register() and used by export are in world coordinates (see amrst.types.world_transform).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, TypeVar, cast
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -51,7 +51,7 @@ from amrst.stages.trunk import (
     search_yaw,
     trunk_contenders,
 )
-from amrst.types import Cloud, Transform, make_transform
+from amrst.types import Cloud, Transform, world_transform
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -445,26 +445,6 @@ def evaluate(
     """NN-RMSE, Hausdorff and overlap of the preprocessed scans under a local-frame transform."""
     moved = source.xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
     return measure_clouds(target.xyz, moved, params.metrics)
-
-
-def world_transform(T_local: Transform, target: Cloud, source: Cloud) -> Transform:
-    """Convert a transform between the clouds' local frames into world coordinates."""
-    return cast(
-        "np.ndarray",
-        make_transform(np.eye(3), target.offset)
-        @ T_local
-        @ make_transform(np.eye(3), -source.offset),
-    )
-
-
-def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transform:
-    """Inverse of world_transform: a world transform expressed between local frames."""
-    return cast(
-        "np.ndarray",
-        make_transform(np.eye(3), -target.offset)
-        @ T_world
-        @ make_transform(np.eye(3), source.offset),
-    )
 
 
 def both_scans(

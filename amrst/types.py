@@ -217,3 +217,23 @@ def check_rigid(T: Any, where: str) -> np.ndarray:
             f"not a rotation. {need}"
         )
     return M
+
+
+def world_transform(T_local: Transform, target: Cloud, source: Cloud) -> Transform:
+    """Convert a transform between the clouds' local frames into world coordinates."""
+    return cast(
+        "np.ndarray",
+        make_transform(np.eye(3), target.offset)
+        @ T_local
+        @ make_transform(np.eye(3), -source.offset),
+    )
+
+
+def local_transform(T_world: Transform, target: Cloud, source: Cloud) -> Transform:
+    """Inverse of world_transform: a world transform expressed between local frames."""
+    return cast(
+        "np.ndarray",
+        make_transform(np.eye(3), -target.offset)
+        @ T_world
+        @ make_transform(np.eye(3), source.offset),
+    )

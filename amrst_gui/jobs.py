@@ -79,11 +79,11 @@ def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, fl
 
 def measure_tree_pair(analyses: dict, T_local: Any, params: Any) -> dict:
     """Height, DBH and crown of each scan and of both merged under ``T_local``."""
-    from amrst import pipeline
     from amrst.measure import measure_registration
+    from amrst.types import world_transform
 
     target, source = analyses["target"].cloud, analyses["source"].cloud
-    T_world = pipeline.world_transform(T_local, target, source)
+    T_world = world_transform(T_local, target, source)
     return measure_registration(target, source, T_world, params.measure)
 
 

@@ -147,7 +147,7 @@ class ResultsMixin:
 
     def world(self, T_local: np.ndarray) -> np.ndarray:
         """A local-frame T_target_source in world coordinates (export, truth)."""
-        from amrst.pipeline import world_transform
+        from amrst.types import world_transform
 
         return world_transform(T_local, self._clouds["target"], self._clouds["source"])
 

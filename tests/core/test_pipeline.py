@@ -16,13 +16,17 @@ from amrst.pipeline import (
     coarse_from_matches,
     evaluate,
     find_matches,
-    local_transform,
     refine,
-    world_transform,
 )
 from amrst.progress import EventReporter
 from amrst.stages.keypoints import KeypointResult
-from amrst.types import Cloud, apply_transform, make_transform
+from amrst.types import (
+    Cloud,
+    apply_transform,
+    local_transform,
+    make_transform,
+    world_transform,
+)
 
 
 def _rot_err_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:

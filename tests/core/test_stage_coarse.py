@@ -134,7 +134,7 @@ def sample_candidates(sample_run) -> CandidateList:
 
 
 def _local_gt_rmse(sample_pair, sample_run, T_local) -> float:
-    from amrst.pipeline import world_transform
+    from amrst.types import world_transform
 
     T = world_transform(T_local, sample_pair.target, sample_pair.source)
     return _gt_rmse(T, sample_pair.T_true, sample_pair.source.world_xyz)
