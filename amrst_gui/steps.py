@@ -18,6 +18,7 @@ LABELS = {
     "coarse": "Accept coarse",
     "fine": "Fine registration",
     "export": "Export",
+    "manual": "Manual pose",
 }
 
 # Parameter groups (fields of RegistrationParams) whose change makes a step's
