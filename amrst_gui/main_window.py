@@ -23,6 +23,7 @@ from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
 from amrst_gui.panels.log_panel import LogPanel
+from amrst_gui.panels.manual_panel import ManualPanel
 from amrst_gui.panels.matches_panel import MatchesPanel
 from amrst_gui.panels.metrics_panel import MetricsPanel
 from amrst_gui.panels.params_panel import ParamsPanel
@@ -71,6 +72,11 @@ class MainWindow(QMainWindow):
         self.params_panel = ParamsPanel(s)
         self.matches_panel = MatchesPanel(s, self.actions.reject, self.actions.restore)
         self.metrics_panel = MetricsPanel(s)
+        self.manual_panel = ManualPanel(
+            s,
+            self.scans_area.panes["target"].view,
+            self.scans_area.panes["source"].view,
+        )
         self.docks: dict[str, QDockWidget] = {}
         left, right, bottom = (
             Qt.DockWidgetArea.LeftDockWidgetArea,
@@ -81,6 +87,9 @@ class MainWindow(QMainWindow):
         self._add_dock("parameters", "Parameters", self.params_panel, left)
         self._add_dock("matches", "Matches", self.matches_panel, right)
         self._add_dock("metrics", "Metrics", self.metrics_panel, right)
+        self._add_dock("manual", "Manual pose", self.manual_panel, right)
+        self.tabifyDockWidget(self.docks["metrics"], self.docks["manual"])
+        self.docks["metrics"].raise_()
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.docks["scans"].raise_()
@@ -93,6 +102,9 @@ class MainWindow(QMainWindow):
 
         s.discard_guard = lambda action: dialogs.confirm_discard(self, action)
         s.failed.connect(self._on_failed)
+        # After Accept coarse, Fine or Run all the result is what to look at.
+        s.coarse_accepted.connect(self._show_overlay)
+        s.fine_finished.connect(self._show_overlay)
         s.scan_loaded.connect(self._on_scan_loaded)
         s.scans_swapped.connect(self._update_title)
         self.params_panel.params_applied.connect(s.set_params)
@@ -223,7 +235,20 @@ class MainWindow(QMainWindow):
     def _on_export_accepted(self, box: dialogs.ExportDialog) -> None:
         self.settings.setValue("dirs/export", str(box.folder()))
         self.settings.setValue("export/format", box.cloud_format())
-        self.session.export(box.folder(), box.cloud_format(), box.parts())
+        verdict = self.session.verdict
+        override = False
+        if verdict is not None and not verdict.ok:
+            # issue 13: a result that is not "registered" leaves only on purpose.
+            if not dialogs.confirm_override(self, verdict):
+                self.status.show_message("Export cancelled: " + verdict.text())
+                return
+            override = True
+        self.session.export(
+            box.folder(), box.cloud_format(), box.parts(), override=override
+        )
+
+    def _show_overlay(self, *_args) -> None:
+        self.tabs.setCurrentWidget(self.registration)
 
     def _on_failed(self, message: str) -> None:
         # Status bar and log show it too; the box does not block the window.

@@ -56,6 +56,7 @@ class Session(ResultsMixin, QObject):
     busy_changed = Signal(bool)
     failed = Signal(str)
     cancelled = Signal(str)
+    manual_preview_changed = Signal(object)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -75,6 +76,7 @@ class Session(ResultsMixin, QObject):
         self._pending_paths: dict[str, Path] = {}
         self._closing = False
         self._stop_unverified = False
+        self._manual_preview: np.ndarray | None = None
         self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
         # Asked before an unexported registration result is thrown away (closing,
@@ -205,6 +207,27 @@ class Session(ResultsMixin, QObject):
         self._truth, self._truth_path = T, path
         log.info("Loaded truth from %s", path)
         self.truth_loaded.emit(T)
+
+    def set_manual_preview(self, T_local: np.ndarray | None) -> None:
+        """Show a pose being made by hand in the overlay; emits
+        ``manual_preview_changed``."""
+        same = (T_local is None and self._manual_preview is None) or (
+            T_local is not None
+            and self._manual_preview is not None
+            and np.array_equal(T_local, self._manual_preview)
+        )
+        if not same:
+            self._manual_preview = None if T_local is None else np.array(T_local)
+            self.manual_preview_changed.emit(self._manual_preview)
+
+    @property
+    def manual_preview(self) -> np.ndarray | None:
+        """The pose being made by hand (pairs or nudge), or None."""
+        return self._manual_preview
+
+    def report_error(self, message: str) -> None:
+        """Show a problem found outside a job (bad typed input); emits ``failed``."""
+        self._fail(message)
 
     # ------------------------------------------------------------------ jobs
     def run_step(self, step: str, auto: bool = False) -> None:

@@ -15,7 +15,12 @@ from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import REGISTRATION_STAGES, build_registration_scene
 
-_LABELS = {"before": "Before", "coarse": "After coarse", "fine": "After fine"}
+_LABELS = {
+    "before": "Before",
+    "coarse": "After coarse",
+    "fine": "After fine",
+    "manual": "Manual",
+}
 
 
 class RegistrationPane(QWidget):
@@ -55,6 +60,7 @@ class RegistrationPane(QWidget):
         for name in RESULT_SIGNALS:
             slot = getattr(self, f"_on_{name}", self._on_results_changed)
             getattr(session, name).connect(slot)
+        session.manual_preview_changed.connect(self._on_manual_preview_changed)
 
     def set_stage(self, stage: str) -> None:
         """Show "before", "coarse" or "fine"."""
@@ -71,6 +77,10 @@ class RegistrationPane(QWidget):
 
     def _on_results_changed(self, *_args) -> None:
         self.refresh()
+
+    def _on_manual_preview_changed(self, T) -> None:
+        if self.stage == "manual":
+            self.refresh()
 
     def _on_fine_finished(self, _fine) -> None:
         self._show(stage="fine")

@@ -33,7 +33,7 @@ TETRA_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 TARGET_RGB = (240, 170, 40)  # registration view: target amber, source blue
 SOURCE_RGB = (60, 150, 255)
 COLOUR_MODES = ("height", "intensity", "wood")
-REGISTRATION_STAGES = ("before", "coarse", "fine")
+REGISTRATION_STAGES = ("before", "coarse", "fine", "manual")
 
 
 @dataclass(frozen=True)
@@ -212,6 +212,11 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
                 "After coarse registration (proposed, not accepted)",
             )
         return None, f"No coarse solution yet. {session.coarse_message}"
+    if stage == "manual":
+        T = session.manual_preview
+        if T is not None:
+            return T, "Manual pose (preview: point pairs and nudge, Manual dock)"
+        return None, "No manual pose yet: pick point pairs or nudge (Manual dock)."
     fine = session.fine
     if fine is not None:
         return fine.T_target_source, f"After fine registration ({fine.method})"

@@ -31,7 +31,9 @@ def test_full_workflow_review_accept_refine_export(
     assert win.matches_panel.model.rowCount() == len(ranked)
     model = win.matches_panel.model
     assert model.data(model.index(0, CLOSE_COLUMN)) == "—"  # trunk solutions only
-    assert win.matches_panel.table.isColumnHidden(CLOSE_COLUMN)  # ... so the column is hidden
+    assert win.matches_panel.table.isColumnHidden(
+        CLOSE_COLUMN
+    )  # ... so the column is hidden
 
     # The best match is selected and drawn in both views, same vertex colours.
     assert s.selected_match.id == ranked[0].id
