@@ -8,7 +8,8 @@ Public API (the app, the CLI and the benchmark use only these names)::
 """
 
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
-from amrst.pipeline import RegistrationParams, RegistrationResult, register
+from amrst.params import RegistrationParams
+from amrst.pipeline import RegistrationResult, register
 from amrst.types import Cloud
 
 __version__ = "0.1.0"

@@ -24,28 +24,26 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from amrst.errors import Cancelled, InvalidInput, RegistrationFailed
-from amrst.measure import MeasureParams, TreeMeasures, measure_registration
+from amrst.measure import TreeMeasures, measure_registration
+from amrst.params import RegistrationParams
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.coarse import (
     CandidateList,
-    CoarseParams,
     CoarseResult,
     choose_coarse,
     rank_candidates,
 )
-from amrst.stages.fine import FineParams, FineResult, refine_registration
-from amrst.stages.keypoints import KeypointParams, KeypointResult, extract_keypoints
-from amrst.stages.match import MatchParams, TetraMatches, match_tetrahedra
-from amrst.stages.metrics import CloudMetrics, MetricsParams, measure_clouds
+from amrst.stages.fine import FineResult, refine_registration
+from amrst.stages.keypoints import KeypointResult, extract_keypoints
+from amrst.stages.match import TetraMatches, match_tetrahedra
+from amrst.stages.metrics import CloudMetrics, measure_clouds
 from amrst.stages.preprocess import (
-    PreprocessParams,
     PreprocessResult,
     preprocess_points,
 )
-from amrst.stages.separate import SeparateParams, SeparationResult, separate_wood
-from amrst.stages.skeleton import SkeletonParams, SkeletonResult, build_skeleton
+from amrst.stages.separate import SeparationResult, separate_wood
+from amrst.stages.skeleton import SkeletonResult, build_skeleton
 from amrst.stages.trunk import (
-    TrunkParams,
     merge_trunk_solutions,
     score_transforms,
     search_yaw,
@@ -64,22 +62,6 @@ _Item = TypeVar("_Item")
 _Out = TypeVar("_Out")
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RegistrationParams:
-    """All settings, one field per stage (KISS-ICP style). Change with dataclasses.replace."""
-
-    preprocess: PreprocessParams = field(default_factory=PreprocessParams)
-    separate: SeparateParams = field(default_factory=SeparateParams)
-    skeleton: SkeletonParams = field(default_factory=SkeletonParams)
-    keypoints: KeypointParams = field(default_factory=KeypointParams)
-    match: MatchParams = field(default_factory=MatchParams)
-    coarse: CoarseParams = field(default_factory=CoarseParams)
-    trunk: TrunkParams = field(default_factory=TrunkParams)
-    fine: FineParams = field(default_factory=FineParams)
-    metrics: MetricsParams = field(default_factory=MetricsParams)
-    measure: MeasureParams = field(default_factory=MeasureParams)
 
 
 @dataclass(frozen=True, slots=True)
