@@ -16,7 +16,7 @@ from amrst_gui.review import ReviewMixin
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams
 
 _TRUTH_SAMPLE = 20_000
 
