@@ -315,9 +315,10 @@ def score_manual(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.stages.coarse import POLISH_POINTS, Candidate, verification_sample
+    from amrst.stages.candidates import Candidate, Origin
+    from amrst.stages.coarse import POLISH_POINTS, verification_sample
     from amrst.stages.polish import Occupancy, polish
-    from amrst.stages.preprocess import _voxel_representatives
+    from amrst.stages.voxels import voxel_sample
 
     T_start = np.asarray(T_start, float)
     sample, rng = verification_sample(source_xyz, params)
@@ -329,10 +330,10 @@ def score_manual(
     T_pol = T_start
     if params.polish_top > 0:
         tgt_small = target_xyz[
-            _voxel_representatives(target_xyz, params.verify_voxel_m)
+            voxel_sample(target_xyz, params.verify_voxel_m)
         ]
         src_small = source_xyz[
-            _voxel_representatives(source_xyz, params.verify_voxel_m)
+            voxel_sample(source_xyz, params.verify_voxel_m)
         ]
         if len(src_small) > POLISH_POINTS:
             src_small = src_small[
@@ -371,5 +372,5 @@ def score_manual(
             f"({raw:.0%} on or next to a {params.verify_voxel_m * 100:.0f} cm target "
             "voxel as given)."
         ),
-        origin="manual",
+        origin=Origin.MANUAL,
     )
