@@ -47,7 +47,9 @@ class PairFit:
         return float(np.sqrt(np.mean(self.residuals_m**2)))
 
 
-def _pairs(target_pts: np.ndarray, source_pts: np.ndarray) -> tuple:
+def _pairs(
+    target_pts: np.ndarray, source_pts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(target_pts, float).reshape(-1, 3)
     s = np.asarray(source_pts, float).reshape(-1, 3)
     if len(t) != len(s):
@@ -206,7 +208,8 @@ def nudge(
     turn = np.eye(4)
     turn[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
     turn[:3, 3] = p - turn[:3, :3] @ p + np.asarray(shift_m, float)
-    return turn @ np.asarray(T_target_source, float)
+    out: np.ndarray = turn @ np.asarray(T_target_source, float)
+    return out
 
 
 def parse_transform(text: str, where: str = "the transform") -> Transform:
@@ -329,12 +332,8 @@ def score_manual(
     )
     T_pol = T_start
     if params.polish_top > 0:
-        tgt_small = target_xyz[
-            voxel_sample(target_xyz, params.verify_voxel_m)
-        ]
-        src_small = source_xyz[
-            voxel_sample(source_xyz, params.verify_voxel_m)
-        ]
+        tgt_small = target_xyz[voxel_sample(target_xyz, params.verify_voxel_m)]
+        src_small = source_xyz[voxel_sample(source_xyz, params.verify_voxel_m)]
         if len(src_small) > POLISH_POINTS:
             src_small = src_small[
                 rng.choice(len(src_small), POLISH_POINTS, replace=False)

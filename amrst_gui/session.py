@@ -387,6 +387,7 @@ class Session(ResultsMixin, QObject):
                 step, functools.partial(jobs.match_pair, manual=manual), dict(an), p
             )
         elif step == "manual":
+            assert self._pending_manual is not None  # set by add_manual_pose
             T, how = self._pending_manual
             cid = self._next_manual_id()
             self._manual_labels[cid] = how

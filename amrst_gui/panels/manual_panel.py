@@ -104,7 +104,9 @@ class ManualPanel(QScrollArea):
         self.table = QTableWidget(0, len(_PAIR_COLUMNS))
         self.table.setObjectName("pairs_table")
         self.table.setHorizontalHeaderLabels(list(_PAIR_COLUMNS))
-        self.table.horizontalHeaderItem(3).setToolTip(
+        header_item = self.table.horizontalHeaderItem(3)
+        assert header_item is not None
+        header_item.setToolTip(
             "Distance between the target point and its source point moved by the fit. "
             "Good: about the point spacing (1-3 cm); a pair far above the others was "
             "mis-picked: delete it."
@@ -309,7 +311,11 @@ class ManualPanel(QScrollArea):
         return manual.nudge(
             base,
             self.yaw.value(),
-            tuple(s.value() / 100 for s in self.shift),
+            (
+                self.shift[0].value() / 100,
+                self.shift[1].value() / 100,
+                self.shift[2].value() / 100,
+            ),
             pivot=self._pivot(base),
         )
 
