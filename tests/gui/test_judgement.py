@@ -222,7 +222,7 @@ def test_a_typed_transform_becomes_the_candidate_fine_starts_from(
 def test_rejections_and_manual_poses_survive_a_preset_change_and_rerun(
     loaded_window, qtbot, caplog, preset
 ):
-    from amrst import params_io
+    from amrst import params as params_io
     from amrst.stages.coarse import same_solution
 
     win = loaded_window
