@@ -30,6 +30,7 @@ from amrst_gui.panels.params_panel import ParamsPanel
 from amrst_gui.panels.scans_panel import ScansPanel
 from amrst_gui.panels.status import WorkflowStatusBar
 from amrst_gui.session import Session
+from amrst_gui.views.quality_views import StemSlicesPane
 from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
 
@@ -66,6 +67,8 @@ class MainWindow(QMainWindow):
         self.tabs.setObjectName("view_tabs")
         self.tabs.addTab(self.scans_area, "Scans: target | source")
         self.tabs.addTab(self.registration, "Registration overlay")
+        self.slices = StemSlicesPane(s)
+        self.tabs.addTab(self.slices, "Stem slices")
         self.setCentralWidget(self.tabs)
         self.actions = WorkflowActions(self, s)
         self.scans_panel = ScansPanel(s)
@@ -92,6 +95,10 @@ class MainWindow(QMainWindow):
         self.docks["metrics"].raise_()
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
+        # The side docks run the full height: the log sits under the views only, so
+        # the Matches table keeps its rows on a laptop screen (issue 13).
+        self.setCorner(Qt.Corner.BottomRightCorner, right)
+        self.setCorner(Qt.Corner.BottomLeftCorner, left)
         self.docks["scans"].raise_()
         self.status = WorkflowStatusBar(s, self)
         self.setStatusBar(self.status)
@@ -115,11 +122,19 @@ class MainWindow(QMainWindow):
         self.scans_panel.swap_requested.connect(s.swap_scans)
         self.scans_panel.files_dropped.connect(self._on_files_dropped)
         self.scans_area.files_dropped.connect(self._on_files_dropped)
-        self.resize(1500, 950)
+        self._fit_screen()
         self._default_state: QByteArray | None = None
         self._restored = self._restore_settings()
         self.scans_area.refresh()
         self.registration.refresh()
+
+    def _fit_screen(self) -> None:
+        """Open at 1500x950 or the screen's free area, whichever is smaller."""
+        screen = self.screen().availableGeometry() if self.screen() else None
+        w, h = 1500, 950
+        if screen is not None:
+            w, h = min(w, screen.width()), min(h, screen.height())
+        self.resize(w, h)
 
     # ------------------------------------------------------------- public
     def views(self) -> list:
@@ -330,9 +345,9 @@ class MainWindow(QMainWindow):
             [d["scans"], d["matches"]], [330, 430], Qt.Orientation.Horizontal
         )
         self.resizeDocks(
-            [d["matches"], d["metrics"]], [330, 420], Qt.Orientation.Vertical
+            [d["matches"], d["metrics"]], [55, 45], Qt.Orientation.Vertical
         )
-        self.resizeDocks([d["log"]], [150], Qt.Orientation.Vertical)
+        self.resizeDocks([d["log"]], [120], Qt.Orientation.Vertical)
 
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views."""

@@ -148,7 +148,7 @@ class MatchesPanel(QWidget):
     def __init__(self, session, reject_action, restore_action, parent=None) -> None:
         super().__init__(parent)
         self.setObjectName("matches_panel")
-        self.setMinimumWidth(340)
+        self.setMinimumWidth(240)
         self.session = session
         self.model = CandidateModel(session, self)
         self.table = QTableView()
