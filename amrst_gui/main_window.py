@@ -37,6 +37,7 @@ from amrst_gui.views.scan_pane import ScansArea
 log = logging.getLogger("amrst_gui.main_window")
 
 MAX_RECENT = 10
+LAYOUT_VERSION = 2  # 2: the Manual pose dock, full-height side docks (issue 13)
 
 
 class MainWindow(QMainWindow):
@@ -327,7 +328,11 @@ class MainWindow(QMainWindow):
         state = self.settings.value("window/state")
         if isinstance(geometry, QByteArray):
             self.restoreGeometry(geometry)
-        restored = isinstance(state, QByteArray) and self.restoreState(state)
+        # A layout saved before the docks changed is not restored (Qt would leave the
+        # new docks floating about): the version says which docks the state knows.
+        restored = isinstance(state, QByteArray) and self.restoreState(
+            state, LAYOUT_VERSION
+        )
         self.scans_panel.set_recent_files(self.recent_files())
         return bool(restored)
 
@@ -360,7 +365,7 @@ class MainWindow(QMainWindow):
                 self.status.show_message("Cancelling the running step…")
             self.session.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())
-            self.settings.setValue("window/state", self.saveState())
+            self.settings.setValue("window/state", self.saveState(LAYOUT_VERSION))
             self.settings.sync()
             self.log_panel.detach()
             for dock in self.docks.values():  # floating docks are windows of their own

@@ -190,6 +190,9 @@ class MatchesPanel(QWidget):
         session.matches_changed.connect(self._on_matches_changed)
         session.review_changed.connect(self._on_review_changed)
         session.selection_changed.connect(self._on_selection_changed)
+        # The verdict's next step changes once a result exists.
+        session.coarse_accepted.connect(lambda _c: self._show_coarse())
+        session.fine_finished.connect(lambda _f: self._show_coarse())
         for name in (
             "scan_loaded",
             "scans_swapped",

@@ -123,14 +123,17 @@ class StemSlicesView(QWidget):
         circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
         p.setPen(QColor(120, 120, 120))
         p.drawRect(box)
-        title = f"{sl.height_m:g} m above the base"
         offset = sl.offset_m
-        if np.isfinite(offset):
-            title += f": centres {offset * 1000:.1f} mm apart"
-        else:
-            title += ": no stem circle in one scan"
+        second = (
+            f"centres {offset * 1000:.1f} mm apart"
+            if np.isfinite(offset)
+            else "no stem circle in one scan"
+        )
         p.setPen(QColor(230, 230, 230))
-        p.drawText(QPointF(box.left(), box.bottom() + 16), title)
+        p.drawText(
+            QPointF(box.left(), box.bottom() + 16), f"{sl.height_m:g} m above the base"
+        )
+        p.drawText(QPointF(box.left(), box.bottom() + 32), second)
         if not pts:
             return
         allp = np.vstack(pts)
