@@ -72,11 +72,11 @@ class RegistrationPane(QWidget):
             ("Front", "Look along y"),
             ("Side", "Look along x"),
         ):
-            button = QPushButton(name)
-            button.setToolTip(tip)
-            button.clicked.connect(lambda _=False, n=name: self.look(n))
-            bar.addWidget(button)
-            self.view_buttons[name] = button
+            look = QPushButton(name)
+            look.setToolTip(tip)
+            look.clicked.connect(lambda _=False, n=name: self.look(n))
+            bar.addWidget(look)
+            self.view_buttons[name] = look
         self.view = ScanView(self)
         self.histogram = DistanceHistogram(self)
         self.histogram.hide()
