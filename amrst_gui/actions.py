@@ -137,6 +137,12 @@ class WorkflowActions(QObject):
             "metrics and parameters",
             style.standardIcon(QStyle.StandardPixmap.SP_DialogSaveButton),
         )
+        self.view_report = self._make(
+            "View &report",
+            "",
+            window.view_report,
+            "Open the report the last export wrote (report.html) in your web browser",
+        )
         self.cancel = self._make(
             "&Cancel",
             "Esc",
@@ -183,6 +189,7 @@ class WorkflowActions(QObject):
             "matches_changed",
             "coarse_accepted",
             "fine_finished",
+            "exported",
         ):
             getattr(session, name).connect(self._on_session_changed)
         self.refresh()
@@ -212,6 +219,7 @@ class WorkflowActions(QObject):
         self.run_fine.setEnabled(idle and s.accepted_coarse is not None)
         self.run_all.setEnabled(idle and s.has_scans)
         self.export.setEnabled(idle and s.final_transform is not None)
+        self.view_report.setEnabled(s.last_report is not None)
         self.cancel.setEnabled(s.busy)
         selected = s.selected_match
         self.reject.setEnabled(selected is not None and selected.id not in s.rejected)

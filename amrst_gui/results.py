@@ -124,6 +124,17 @@ class ResultsMixin(ReviewMixin):
 
         return world_transform(T_local, self._clouds["target"], self._clouds["source"])
 
+    @property
+    def result_params(self) -> RegistrationParams:
+        """The parameters the current result was computed with (else the current)."""
+        used = self._step_params.get("fine" if self._fine is not None else "coarse")
+        return used or self._params
+
+    @property
+    def export_override(self) -> dict[str, str] | None:
+        """How the last export overrode a verdict that was not *registered*."""
+        return None if self._override is None else dict(self._override)
+
     def is_done(self, step: str) -> bool:
         """True when the step's result exists (stale or not)."""
         if step == "separate":
@@ -210,8 +221,7 @@ class ResultsMixin(ReviewMixin):
             "T_coarse": self.world(self._accepted.T_target_source),
             "metrics": self.metrics_report(),
             # The parameters the result was computed with (export refuses stale ones).
-            "params": self._step_params.get("fine" if self._fine else "coarse")
-            or self._params,
+            "params": self.result_params,
             "cloud_format": cloud_format,
             "transform_extra": self._transform_context(),
         }

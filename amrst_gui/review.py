@@ -67,6 +67,11 @@ class ReviewMixin:
         """The manual candidates (origin "manual"), newest first."""
         return tuple(c for c in self.matches if c.origin == "manual")
 
+    @property
+    def manual_labels(self) -> dict[int, str]:
+        """How each manual candidate was made ("3 point pairs", "typed", ...), by id."""
+        return dict(self._manual_labels)
+
     def _combine(self) -> Any:
         from amrst.pipeline import MatchResult
         from amrst.stages.match import TetraMatches

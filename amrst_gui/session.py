@@ -79,6 +79,7 @@ class Session(ResultsMixin, QObject):
         self._manual_preview: np.ndarray | None = None
         self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
+        self._last_report: Path | None = None
         # Asked before an unexported registration result is thrown away (closing,
         # new scans, swap, a re-run); the window sets it. Returns True to go on.
         self.discard_guard: Callable[[str], bool] | None = None
@@ -106,6 +107,11 @@ class Session(ResultsMixin, QObject):
     def cloud(self, role: str) -> Any:
         """The input Cloud for ``role`` ("target" or "source"), or None."""
         return self._clouds[role]
+
+    @property
+    def last_report(self) -> Path | None:
+        """The report.html the last export wrote, or None."""
+        return self._last_report
 
     @property
     def truth(self) -> np.ndarray | None:
@@ -317,9 +323,13 @@ class Session(ResultsMixin, QObject):
             )
             return
         kwargs = self.export_arguments(cloud_format, parts)
+        from amrst_gui.report import export_with_report, report_inputs
+
         self._chain = []
         self._set_busy(True)
-        self._launch("export", jobs.export_pair, Path(out_dir), kwargs)
+        self._launch(
+            "export", export_with_report, Path(out_dir), kwargs, report_inputs(self)
+        )
 
     def cancel(self) -> None:
         """Ask the running job to stop; earlier results are kept."""
@@ -506,6 +516,8 @@ class Session(ResultsMixin, QObject):
             return emit_loaded
         if step == "export":
             self._exported_result = self._fine or self._accepted
+            reports = [p for p in result if p.name == "report.html"]
+            self._last_report = reports[0] if reports else None
             folder = result[0].parent if result else "-"
             names = ", ".join(p.name for p in result)
             log.info("Exported to %s: %s", folder, names)
