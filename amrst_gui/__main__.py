@@ -47,6 +47,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default="scans",
         help="which 3D tab to show (for --screenshot)",
     )
+    parser.add_argument(
+        "--size",
+        metavar="WxH",
+        help="window size for --screenshot, e.g. 1366x768 (default: fit the screen)",
+    )
     args = parser.parse_args(argv)
     if (args.target is None) != (args.source is None):
         parser.error(
@@ -129,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     from amrst_gui.main_window import MainWindow
 
     win = MainWindow()
+    if args.size:
+        w, _x, h = args.size.partition("x")
+        win.resize(int(w), int(h))
     win.show()
     target, source, truth = resolve_inputs(args)
     shot = (
