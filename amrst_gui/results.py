@@ -38,6 +38,7 @@ class ResultsMixin(ReviewMixin):
         self._selected: int | None = None
         self._accepted: Any = None
         self._fine: Any = None
+        self._fine_note = ""  # from a manual pose: what Fine's check decided
         self._metrics: dict[str, Any] = {}
         self._tree: dict[str, dict] = {}  # stage -> {"target"|"source"|"merged": ...}
         self._timings: dict[str, float] = {
@@ -85,6 +86,11 @@ class ResultsMixin(ReviewMixin):
     def fine(self) -> Any:
         """The FineResult, or None."""
         return self._fine
+
+    @property
+    def fine_note(self) -> str:
+        """From a manual pose: whether Fine's result was kept, and why ("" else)."""
+        return self._fine_note if self._fine is not None else ""
 
     @property
     def metrics(self) -> dict[str, Any]:

@@ -427,8 +427,11 @@ class Session(ResultsMixin, QObject):
                     "search verified this solution with (not fine.points).",
                     points,
                 )
-            # A trunk solution's full fit was made while matching: reuse it.
-            refine = functools.partial(jobs.refine_pair, matches=self._matches)
+            # A trunk solution's full fit was made while matching: reuse it. From a
+            # manual pose, Fine never silently replaces a better one.
+            from amrst_gui.fine_job import refine_keeping_manual
+
+            refine = functools.partial(refine_keeping_manual, matches=self._matches)
             self._launch(step, refine, dict(an), self._accepted, p)
 
     def _launch(self, step: str, fn, *args) -> None:
@@ -548,7 +551,10 @@ class Session(ResultsMixin, QObject):
             self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
             self._accepted_pose = self._accepted.T_target_source
             return lambda: self.coarse_accepted.emit(self._accepted)
-        self._fine, self._metrics["fine"], self._tree["fine"] = result
+        self._fine, self._metrics["fine"], self._tree["fine"], decision = result
+        self._fine_note = "" if decision is None else decision.why
+        if self._fine_note:
+            (log.warning if decision.keep_manual else log.info)(self._fine_note)
         return lambda: self.fine_finished.emit(self._fine)
 
     def may_discard(self, action: str) -> bool:

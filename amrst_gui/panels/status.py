@@ -139,12 +139,17 @@ class WorkflowStatusBar(QStatusBar):
 
     def _on_fine_finished(self, fine) -> None:
         # The ICP's own inlier RMSE, named so; the Metrics dock names the others.
+        note = self.session.fine_note
+        if "kept" in note:  # Fine left a manual pose: the technician must know
+            self._show_verdict("Fine: your manual pose is kept.", note)
+            return
         self._show_verdict(
             f"Fine registration: {fine.iterations} ICP iterations, ICP inlier RMSE "
-            f"{fine.inlier_rmse_m * 100:.2f} cm."
+            f"{fine.inlier_rmse_m * 100:.2f} cm.",
+            note,
         )
 
-    def _show_verdict(self, prefix: str) -> None:
+    def _show_verdict(self, prefix: str, note: str = "") -> None:
         if self.session.busy:
             return  # a chain of steps: the last one speaks
         verdict = self.session.verdict
@@ -153,8 +158,10 @@ class WorkflowStatusBar(QStatusBar):
             return
         # Short in the bar; the reason and the next step in the tooltip (and in the
         # Matches and Metrics docks).
+        detail = verdict.text().replace(". ", ".\n")
         self.show_message(
-            f"{prefix} {verdict.headline}.", detail=verdict.text().replace(". ", ".\n")
+            f"{prefix} {verdict.headline}.",
+            detail=f"{note}\n\n{detail}" if note else detail,
         )
         self.message.setStyleSheet(verdict_style(verdict.status))
 
