@@ -23,7 +23,10 @@ def report_inputs(session: Session) -> ReportInputs | None:
     T = session.final_transform
     coarse = session.accepted_coarse
     verdict = session.verdict
-    if T is None or coarse is None or verdict is None or not session.has_scans:
+    target, source = session.cloud("target"), session.cloud("source")
+    if T is None or coarse is None or verdict is None:
+        return None
+    if target is None or source is None:
         return None
     metrics: dict[str, dict[str, Any]] = {}
     truth: dict[str, dict[str, Any]] = {}
@@ -37,10 +40,10 @@ def report_inputs(session: Session) -> ReportInputs | None:
         metrics.pop("fine")
     paths = (session.path("target"), session.path("source"))
     return ReportInputs(
-        target=session.cloud("target"),
-        source=session.cloud("source"),
-        target_file=str(paths[0] or session.cloud("target").name),
-        source_file=str(paths[1] or session.cloud("source").name),
+        target=target,
+        source=source,
+        target_file=str(paths[0] or target.name),
+        source_file=str(paths[1] or source.name),
         T_local=T,
         stage="fine" if session.fine is not None else "coarse",
         verdict=verdict,
