@@ -15,7 +15,11 @@ from pathlib import Path
 
 os.environ.setdefault("QT_API", "pyside6")
 
-STEPS = ("separate", "skeleton", "match", "coarse", "fine")
+
+def _steps() -> tuple[str, ...]:
+    from amrst.pipeline.steps import STEP_NAMES  # the step table
+
+    return STEP_NAMES
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -37,7 +41,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--run",
-        choices=(*STEPS, "all"),
+        choices=(*_steps(), "all"),
         help="run the workflow up to this step first (all: Run all, which stops "
         "before an unverified candidate)",
     )

@@ -124,10 +124,19 @@ class ResultsMixin(ReviewMixin):
         """A local-frame T_target_source in world coordinates (export, truth)."""
         from amrst.types import world_transform
 
+        return world_transform(T_local, *self._pair_clouds())
+
+    def local(self, T_world: np.ndarray) -> np.ndarray:
+        """A world T_target_source between the scans' local frames (the views)."""
+        from amrst.types import local_transform
+
+        return local_transform(T_world, *self._pair_clouds())
+
+    def _pair_clouds(self) -> tuple[Cloud, Cloud]:
         target, source = self.cloud("target"), self.cloud("source")
-        assert target is not None  # no result before both scans are loaded
+        assert target is not None  # no transform before both scans are loaded
         assert source is not None
-        return world_transform(T_local, target, source)
+        return target, source
 
     @property
     def result_params(self) -> RegistrationParams:
@@ -193,7 +202,7 @@ class ResultsMixin(ReviewMixin):
             return {}
         from amrst.stages.metrics import truth_errors
 
-        xyz = source.xyz[:: max(1, len(source) // _TRUTH_SAMPLE)] + source.offset
+        xyz = source.world_xyz[:: max(1, len(source) // _TRUTH_SAMPLE)]
         out = {}
         coarse = self._accepted or self.coarse
         if coarse is not None:
