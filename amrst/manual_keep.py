@@ -80,13 +80,16 @@ def judge_refinement(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.manual import tight_share
     from amrst.stages.coarse import verification_sample
 
     sample, _rng = verification_sample(source_xyz, params)
     tree = cKDTree(target_xyz)
-    before = tight_share(T_manual, tree, sample, params.tight_dist_m)
-    after = tight_share(T_refined, tree, sample, params.tight_dist_m)
+
+    def share(T: Transform) -> float:  # amrst.manual.tight_share, without the cycle
+        d = tree.query(sample @ T[:3, :3].T + T[:3, 3])[0]
+        return float(np.mean(d < params.tight_dist_m)) if len(d) else 0.0
+
+    before, after = share(T_manual), share(T_refined)
     centre = np.median(source_xyz, axis=0) if len(source_xyz) else np.zeros(3)
     turn = rotation_angle_deg(T_refined[:3, :3] @ T_manual[:3, :3].T)
     shift = float(
