@@ -1,10 +1,10 @@
 """Export a registration: moved source, merged cloud, transform, metrics, parameters.
 
-Every file is first written into a hidden staging folder inside the export folder; only
-when all of them are written are they renamed into place. A failed export therefore
-never leaves half a file, a partial set of new files, or a clobbered earlier one. The
-parameters go with the results (KISS-ICP writes its config next to its poses for the
-same reason).
+Every file is first written into a staging folder; the whole set then replaces the old
+one in one atomic step (amrst.outdir), under the folder's lock (amrst.folderlock). A
+failed or killed export therefore never leaves half a file, a mix of old and new files,
+or a clobbered earlier one. The parameters go with the results (KISS-ICP writes its
+config next to its poses for the same reason).
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import datetime as _dt
 import io as _stdio
 import logging
 import os
-import shutil
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -24,7 +23,9 @@ import numpy as np
 
 from amrst import io as amrst_io
 from amrst.atomic import write_json_atomic, write_text_atomic
-from amrst.errors import AmrstError, InvalidInput
+from amrst.errors import InvalidInput
+from amrst.folderlock import DEFAULT_TIMEOUT_S
+from amrst.outdir import replace_files
 from amrst.params import RegistrationParams, params_to_dict
 from amrst.types import Cloud, Transform, transform_cloud
 
@@ -40,7 +41,18 @@ CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
 CLOUD_NAMES = tuple(
     f"{stem}.{fmt}" for stem in ("registered_source", "merged") for fmt in CLOUD_FORMATS
 )
-_STAGING_PREFIX = ".amrst-export-"
+# Every name an export may write: a folder holding only these (and our hidden files)
+# is swapped as a whole (amrst.outdir).
+MANAGED_NAMES = frozenset(
+    [
+        *CLOUD_NAMES,
+        "transform.json",
+        "transform.txt",
+        "metrics.json",
+        "metrics.csv",
+        "params.json",
+    ]
+)
 
 
 def output_names(parts: Iterable[str] = PARTS, cloud_format: str = "ply") -> list[str]:
@@ -154,39 +166,6 @@ def _remove_empty(folders: list[Path]) -> None:
             folder.rmdir()
 
 
-def remove_stale_clouds(
-    out_dir: str | os.PathLike[str], keep: Iterable[str]
-) -> list[Path]:
-    """Remove the export cloud files of an earlier run that this run did not write.
-
-    Only the exact names in ``CLOUD_NAMES`` are touched (``registered_source.<fmt>``,
-    ``merged.<fmt>``), and only regular files or links.
-
-    Parameters
-    ----------
-    out_dir : path
-    keep : iterable of str
-        The names this run wrote.
-
-    Returns
-    -------
-    list of Path
-        The files removed.
-    """
-    out, kept = Path(out_dir), set(keep)
-    removed = []
-    for name in CLOUD_NAMES:
-        path = out / name
-        if name not in kept and (path.is_file() or path.is_symlink()):
-            try:
-                path.unlink()
-            except OSError as exc:
-                logger.warning("Could not remove the earlier %s: %s", path, exc)
-                continue
-            removed.append(path)
-    return removed
-
-
 def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
     """Both scans in one cloud with a ``scan_id`` field (0 = target, 1 = source).
 
@@ -254,6 +233,7 @@ def export_registration(
     parts: tuple[str, ...] = PARTS,
     transform_extra: dict[str, Any] | None = None,
     remove_stale: bool = False,
+    lock_timeout_s: float = DEFAULT_TIMEOUT_S,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -275,8 +255,10 @@ def export_registration(
     transform_extra : dict or None
         More fields for transform.json (confidence, timings, file names).
     remove_stale : bool
-        Once the new files are in place, remove the ``CLOUD_NAMES`` files this call
-        did not write (an earlier run's clouds), logging one warning line.
+        Drop from the folder the ``CLOUD_NAMES`` files this call does not write (an
+        earlier run's clouds), in the same atomic step, logging one warning line.
+    lock_timeout_s : float
+        How long to wait for another writer of ``out_dir`` (amrst.folderlock).
 
     Returns
     -------
@@ -289,6 +271,13 @@ def export_registration(
         Unknown part or format, or a folder that cannot be written.
     AmrstError
         A file could not be written; no new file of this call is left in ``out_dir``.
+    FolderBusy
+        Another run kept writing ``out_dir`` for ``lock_timeout_s``.
+
+    Notes
+    -----
+    The folder's files are replaced as one unit (see amrst.outdir for what a kill at
+    each instant leaves); earlier files this call does not write are kept.
     """
     unknown = set(parts) - set(PARTS)
     if unknown:
@@ -338,60 +327,20 @@ def export_registration(
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
-    written = _write_all(out, [(name, writers[name]) for name in names])
-    if remove_stale:
-        removed = remove_stale_clouds(out, names)
-        if removed:
-            logger.warning(
-                "Removed %d cloud file(s) of an earlier run from %s that this run did "
-                "not write: %s.",
-                len(removed),
-                out,
-                ", ".join(p.name for p in removed),
-            )
+    stale = [n for n in CLOUD_NAMES if n not in names] if remove_stale else []
+    written, removed = replace_files(
+        out,
+        {name: writers[name] for name in names},
+        managed=MANAGED_NAMES,
+        remove=stale,
+        lock_timeout_s=lock_timeout_s,
+    )
+    if removed:
+        logger.warning(
+            "Removed %d cloud file(s) of an earlier run from %s that this run did "
+            "not write: %s.",
+            len(removed),
+            out,
+            ", ".join(removed),
+        )
     return written
-
-
-def _write_all(
-    out: Path, jobs: list[tuple[str, Callable[[Path], object]]]
-) -> list[Path]:
-    """Write every file into a staging folder in ``out``, then rename them all in.
-
-    A failure while writing leaves ``out`` as it was; a failure while renaming (rare:
-    same folder) removes the files of this run already renamed.
-    """
-    try:
-        stage = Path(tempfile.mkdtemp(prefix=_STAGING_PREFIX, dir=out))
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot write in the export folder {out}: {exc.strerror or exc}. Check "
-            "its permissions or choose another folder."
-        ) from exc
-    placed: list[Path] = []
-    try:
-        for name, write in jobs:
-            try:
-                write(stage / name)
-            except AmrstError as exc:
-                # Name the real destination, not the staging folder.
-                raise type(exc)(str(exc).replace(str(stage), str(out))) from exc
-        for name, _ in jobs:
-            final, new = out / name, stage / name
-            if final.is_file():  # keep the permissions of the file it replaces
-                os.chmod(new, final.stat().st_mode & 0o777)
-            os.replace(new, final)
-            placed.append(final)
-    except BaseException as exc:
-        for path in placed:
-            with contextlib.suppress(OSError):
-                path.unlink()
-        if isinstance(exc, AmrstError) or not isinstance(exc, Exception):
-            raise
-        raise AmrstError(
-            f"Could not write the export into {out}: {exc} ({type(exc).__name__}). "
-            "No new file was left there; check the free disk space and the "
-            "permissions, then retry."
-        ) from exc
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    return placed
