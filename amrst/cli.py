@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -342,6 +343,18 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    # Library noise (numpy RuntimeWarnings, laspy's) never reaches the user: every
+    # problem worth telling is an AmrstError or a logged line (issue 16). --debug
+    # shows the warnings as log lines.
+    with warnings.catch_warnings():
+        if args.debug:
+            logging.captureWarnings(True)
+        else:
+            warnings.simplefilter("ignore")
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:

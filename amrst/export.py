@@ -9,14 +9,10 @@ config next to its poses for the same reason).
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import datetime as _dt
 import io as _stdio
 import logging
-import os
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -25,12 +21,15 @@ from amrst import io as amrst_io
 from amrst.atomic import write_json_atomic, write_text_atomic
 from amrst.errors import InvalidInput
 from amrst.folderlock import DEFAULT_TIMEOUT_S
+from amrst.outcheck import check_output_folder
 from amrst.outdir import replace_files
 from amrst.params import RegistrationParams, params_to_dict
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
+    import os
     from collections.abc import Callable, Iterable
+    from pathlib import Path
 
 logger = logging.getLogger(__name__)
 
@@ -89,81 +88,14 @@ def check_output_dir(
 ) -> Path:
     """Check, before any long work, that ``out_dir`` can take the export files.
 
-    The folder may be missing: it is created to try writing in it, then removed again
-    (with any parents created for it), so nothing is left behind.
-
-    Parameters
-    ----------
-    out_dir : path
-        The export folder.
-    names : iterable of str
-        File names to be written there; none of them may be a folder.
-
-    Returns
-    -------
-    Path
-        ``out_dir`` as a Path.
+    See :func:`amrst.outcheck.check_output_folder` (nothing is left behind).
 
     Raises
     ------
     InvalidInput
-        An empty path, an existing file, a folder that cannot be created or written,
-        or a file name taken by a folder.
+        With what to change.
     """
-    if not os.fspath(out_dir).strip():
-        raise InvalidInput(
-            "The export folder path is empty; give a folder name (it is created when "
-            "missing)."
-        )
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InvalidInput(
-            f"The export folder {out} is an existing file; choose a folder (it is "
-            "created when missing)."
-        )
-    missing = []
-    parent = out
-    while not parent.exists() and parent != parent.parent:
-        missing.append(parent)
-        parent = parent.parent
-    if parent.exists() and not parent.is_dir():
-        raise InvalidInput(
-            f"Cannot create the export folder {out}: {parent} is a file, not a folder. "
-            "Choose another folder."
-        )
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        _remove_empty(missing)
-        raise InvalidInput(
-            f"Cannot create the export folder {out}: {exc.strerror or exc}. Choose "
-            "another folder."
-        ) from exc
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".amrst-probe-", dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot write in the export folder {out}: {exc.strerror or exc}. Check "
-            "its permissions or choose another folder."
-        ) from exc
-    finally:
-        _remove_empty(missing)
-    for name in names:
-        if (out / name).is_dir():
-            raise InvalidInput(
-                f"Cannot write {out / name}: a folder has that name. Remove or rename "
-                "it, or choose another export folder."
-            )
-    return out
-
-
-def _remove_empty(folders: list[Path]) -> None:
-    """Remove the folders ``check_output_dir`` created (deepest first), if empty."""
-    for folder in folders:
-        with contextlib.suppress(OSError):
-            folder.rmdir()
+    return check_output_folder(out_dir, "export folder", names)
 
 
 def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:

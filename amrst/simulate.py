@@ -394,6 +394,9 @@ def _distinct(xyz: np.ndarray) -> int:
     return len(np.unique(np.asarray(xyz), axis=0)) if len(xyz) else 0
 
 
+MAX_NOISE_M = 0.5
+
+
 def check_settings(
     *,
     seed: Any,
@@ -461,6 +464,11 @@ def check_settings(
         raise InvalidInput(
             f"{label('noise_m')} and {label('tilt_deg')} must be >= 0, got "
             f"{noise_m} and {tilt_deg}."
+        )
+    if noise_m > MAX_NOISE_M:  # issue 16: 1e6 m wrote a case with no valid point
+        raise InvalidInput(
+            f"{label('noise_m')} must be at most {MAX_NOISE_M} m (a scanner's range "
+            f"noise is millimetres), got {noise_m:g}."
         )
 
 

@@ -157,15 +157,9 @@ def check_case_folder(out_dir: PathLike) -> Path:
     InvalidInput
         With what to change.
     """
-    if not os.fspath(out_dir).strip():
-        raise InvalidInput("The case folder path is empty; give a folder name.")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InvalidInput(
-            f"The case folder {out} is an existing file; choose a folder (it is "
-            "created when missing)."
-        )
-    return out
+    from amrst.outcheck import check_output_folder  # issue 16: permissions, loops
+
+    return check_output_folder(out_dir, "case folder")
 
 
 def write_case(
