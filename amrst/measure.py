@@ -99,6 +99,8 @@ _MAX_CURVATURE = 0.06
 _ISOLATION_M = 0.3
 _MIN_NEIGHBOURS = 2
 _CROWN_GRID_M = 0.05
+# Points closer than this are one point to the measurements (no-return copies, ...).
+_DUPLICATE_M = 0.0005
 # Height over stem diameter of real trees stays above this (open-grown broadleaves and
 # palms about 30-40, forest conifers 60-100).
 _MIN_SLENDERNESS = 15.0
@@ -167,32 +169,73 @@ class TreeMeasures:
         return ", ".join(parts)
 
 
-def _kept(xyz: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """Of the candidate rows, the ones with neighbours (not isolated strays)."""
+def _kept(xyz: np.ndarray, weight: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Of the candidate rows, the ones with neighbours (not isolated strays).
+
+    ``xyz`` holds distinct points; ``weight`` how many input points each stands for,
+    so a point repeated many times still counts as its copies (issue 16).
+    """
     from scipy.spatial import cKDTree
 
     # Only points near the candidates' heights can be their neighbours.
     z = xyz[candidates, 2]
-    near = xyz[
-        (xyz[:, 2] >= z.min() - _ISOLATION_M) & (xyz[:, 2] <= z.max() + _ISOLATION_M)
-    ]
+    band = (xyz[:, 2] >= z.min() - _ISOLATION_M) & (xyz[:, 2] <= z.max() + _ISOLATION_M)
+    near, near_weight = xyz[band], weight[band]
+    tree = cKDTree(near)
     counts = np.asarray(
-        cKDTree(near).query_ball_point(
-            xyz[candidates], _ISOLATION_M, return_length=True
-        )
+        tree.query_ball_point(xyz[candidates], _ISOLATION_M, return_length=True)
     )
+    # Few distinct neighbours: count their copies too (short lists, cheap).
+    few = np.flatnonzero(counts <= _MIN_NEIGHBOURS)
+    if len(few):
+        lists = tree.query_ball_point(xyz[candidates[few]], _ISOLATION_M)
+        counts[few] = [int(near_weight[ix].sum()) for ix in lists]
     return candidates[counts > _MIN_NEIGHBOURS]  # counts include the point itself
 
 
-def _base_and_top(xyz: np.ndarray) -> tuple[float, float]:
+def _base_and_top(xyz: np.ndarray, weight: np.ndarray) -> tuple[float, float]:
     z = xyz[:, 2]
     k = min(len(z), max(50, len(z) // 200))  # the lowest and highest 0.5 %
     order = np.argpartition(z, (k - 1, len(z) - k)) if len(z) > 2 * k else np.argsort(z)
-    low = _kept(xyz, order[:k])
-    high = _kept(xyz, order[-k:])
+    low = _kept(xyz, weight, order[:k])
+    high = _kept(xyz, weight, order[-k:])
     base = float(z[low].min()) if len(low) else float(np.percentile(z, 0.5))
     top = float(z[high].max()) if len(high) else float(np.percentile(z, 99.5))
     return base, top
+
+
+def distinct_points(
+    xyz: np.ndarray, cell_m: float = _DUPLICATE_M
+) -> tuple[np.ndarray, np.ndarray]:
+    """One point per ``cell_m`` cube that holds any, and how many each stands for.
+
+    TLS exports keep no-return points as copies of one position (issue 16: a million
+    at the origin); neighbour searches among copies cost the square of their number.
+    Points closer than ``cell_m`` carry no shape the measurements can see.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+    cell_m : float
+
+    Returns
+    -------
+    (M, 3) float64, (M,) int64
+        The first input point of each occupied cell (input order), and its count.
+    """
+    if len(xyz) == 0:
+        return xyz, np.zeros(0, np.int64)
+    cells = np.floor((xyz - xyz.min(axis=0)) / cell_m).astype(np.int64)
+    if cells.max() < 1 << 21:  # one int64 key per cell: a plain sort, 3x faster
+        cells = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]
+        _, first, inverse = np.unique(cells, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(
+            cells, axis=0, return_index=True, return_inverse=True
+        )
+    weight = np.bincount(inverse.reshape(-1), minlength=len(first))
+    order = np.argsort(first, kind="stable")
+    return xyz[first[order]], weight[order]
 
 
 def _circles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -391,7 +434,9 @@ def measure_tree(xyz: np.ndarray, params: MeasureParams | None = None) -> TreeMe
     if len(xyz) < 3:
         nan = float("nan")
         return TreeMeasures(len(xyz), nan, nan, nan, None, nan, nan, "too few points")
-    base, top = _base_and_top(xyz)
+    n_points = len(xyz)
+    xyz, weight = distinct_points(xyz)  # linear in the copies (issue 16)
+    base, top = _base_and_top(xyz, weight)
     z = xyz[:, 2]
     centre = base + params.breast_height_m
     in_slice = np.abs(z - centre) <= params.slice_m / 2
@@ -420,7 +465,7 @@ def measure_tree(xyz: np.ndarray, params: MeasureParams | None = None) -> TreeMe
         )
     area, width = _crown(xyz[:, :2])
     return TreeMeasures(
-        n_points=len(xyz),
+        n_points=n_points,
         base_z=base,
         height_m=height,
         dbh_m=2 * stem.radius_m if stem is not None else float("nan"),
