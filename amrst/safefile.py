@@ -65,7 +65,10 @@ def _os_error(exc: OSError, what: str, path: Path, hint: str) -> InvalidInput:
             "somewhere you can read."
         )
     if code == errno.ENAMETOOLONG:
-        return InvalidInput(f"The {what} path is too long: {str(path)[:80]}...")
+        return InvalidInput(
+            f"The {what} path is too long ({len(str(path))} characters: "
+            f"{str(path)[:60]}...); give a shorter path."
+        )
     return InvalidInput(
         f"Cannot read the {what} {path}: {exc.strerror or exc}. Give {hint}."
     )

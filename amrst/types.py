@@ -54,7 +54,10 @@ class Cloud:
     def __post_init__(self) -> None:
         xyz = np.asarray(self.xyz, dtype=np.float64)
         if xyz.ndim != 2 or xyz.shape[1] != 3:
-            raise InvalidInput(f"Point array must have shape (N, 3); got {xyz.shape}.")
+            raise InvalidInput(
+                f"Point array must have shape (N, 3); got {xyz.shape}. Give one row "
+                "of x, y, z per point."
+            )
         try:
             offset = np.asarray(self.offset, dtype=np.float64).reshape(3)
         except (TypeError, ValueError) as exc:

@@ -47,8 +47,9 @@ def read_truth_document(path: PathLike) -> dict[str, Any]:
     doc = load_json_file(path, "truth file", _HINT)
     if not isinstance(doc, dict) or "T_target_source" not in doc:
         raise InvalidInput(
-            f"Cannot read T_target_source from {p}: it must hold a JSON object with "
-            "a 4x4 'T_target_source' (row-major, source to target)."
+            f"The truth file {p} holds no 'T_target_source'; give a JSON object with "
+            "a 4x4 'T_target_source' (row-major, source to target), e.g. the "
+            "truth.json that amrst simulate writes."
         )
     T = check_rigid(doc["T_target_source"], f"T_target_source in {p}")
     shift = float(np.abs(T[:3, 3]).max())

@@ -82,7 +82,10 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     for f in dataclasses.fields(defaults):
         given = data.get(f.name, {})
         if not isinstance(given, dict):
-            raise InvalidInput(f"Parameters '{f.name}' must be a table of values.")
+            raise InvalidInput(
+                f"Parameters '{f.name}' must be a table of values, e.g. "
+                f'"{f.name}": {{...}} as in the params.json that amrst register writes.'
+            )
         stage = getattr(defaults, f.name)
         names = {g.name: g for g in dataclasses.fields(stage)}
         unknown = set(given) - set(names)
@@ -104,7 +107,11 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
             raise InvalidInput(f"Bad value in parameters '{f.name}': {exc}") from exc
     unknown_stages = set(data) - set(stages) - {"schema_version", "name", "description"}
     if unknown_stages:
-        raise InvalidInput(f"Unknown parameter section(s) {sorted(unknown_stages)}.")
+        raise InvalidInput(
+            f"Unknown parameter section(s) {sorted(unknown_stages)[:5]}; known ones "
+            f"are {sorted(stages)}. Check the spelling, or that this is a parameter "
+            "file (not a truth or metrics file)."
+        )
     # Pairs that must stay in order (min_points <= max_points, ...) are checked by
     # the stages themselves, so parameters built in code or in the app are too.
     return RegistrationParams(**stages)
@@ -212,7 +219,11 @@ def load_params(path: str | os.PathLike[str]) -> RegistrationParams:
         "a parameter JSON file (e.g. the params.json written by amrst register)",
     )
     if not isinstance(data, dict):
-        raise InvalidInput(f"Parameter file {path} must hold a JSON object.")
+        raise InvalidInput(
+            f"Parameter file {path} must hold a JSON object of sections, e.g. "
+            '{"fine": {"max_iterations": 50}}; give the params.json that amrst '
+            "register writes, or one like it."
+        )
     return params_from_dict(data)
 
 
