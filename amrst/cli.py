@@ -95,7 +95,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.export import check_output_dir, export_registration, output_names
     from amrst.pipeline import register
-    from amrst.report import registration_summary
+    from amrst.report import record_from_registration, result_documents
 
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
@@ -116,36 +116,29 @@ def _cmd_register(args: argparse.Namespace) -> int:
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
     result = register(target, source, params, TerminalReporter(args.quiet))
-    summary = registration_summary(result, T_truth)
-    summary["timings_s"]["read"] = round(t_read, 4)
+    # One layout for the CLI, the app and the benchmark (amrst.report, issue 11).
+    documents = result_documents(
+        record_from_registration(
+            result,
+            T_truth,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            timings_s={"read": t_read},
+            amrst_version=__version__,
+        )
+    )
+    summary = documents.metrics
     verified = result.coarse.verified
-    extra = {
-        "verified": verified,
-        "confidence": result.confidence,
-        "message": result.message,
-        "timings_s": summary["timings_s"],
-        "coarse_candidate": {
-            "rank": result.coarse.candidate.rank,
-            "id": result.coarse.candidate.id,
-            "origin": result.coarse.candidate.origin,
-            "explanation": result.coarse.candidate.explanation,
-        },
-        "target_file": str(args.target),
-        "source_file": str(args.source),
-        "amrst_version": __version__,
-    }
     files = export_registration(
         args.out,
         target=target,
         source=source,
         T_target_source=result.T_target_source,
-        T_coarse=result.T_coarse,
-        metrics=summary,
         params=params,
         cloud_format=args.format,
         parts=tuple(parts),
-        transform_extra=extra,
         remove_stale=True,
+        documents=documents,
     )
     fine = summary["fine"]
     print(

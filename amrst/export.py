@@ -9,9 +9,7 @@ config next to its poses for the same reason).
 
 from __future__ import annotations
 
-import csv
 import datetime as _dt
-import io as _stdio
 import logging
 from typing import TYPE_CHECKING, Any, cast
 
@@ -24,12 +22,15 @@ from amrst.folderlock import DEFAULT_TIMEOUT_S
 from amrst.outcheck import check_output_folder
 from amrst.outdir import replace_files
 from amrst.params import RegistrationParams, params_to_dict
+from amrst.report import CONVENTION, metrics_csv
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
     import os
     from collections.abc import Callable, Iterable
     from pathlib import Path
+
+    from amrst.report import ResultDocuments
 
 logger = logging.getLogger(__name__)
 
@@ -129,14 +130,6 @@ def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
     )
 
 
-def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
-    else:
-        out[prefix] = value
-
-
 def transform_document(
     T_target_source: Transform, T_coarse: Transform | None, **extra: Any
 ) -> dict[str, Any]:
@@ -146,7 +139,7 @@ def transform_document(
     }
     if T_coarse is not None:
         doc["T_coarse"] = np.asarray(T_coarse, float).tolist()
-    doc["convention"] = "x_target = T_target_source @ [x_source, 1]; row-major, metres"
+    doc["convention"] = CONVENTION
     doc["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     doc.update(extra)
     return doc
@@ -166,6 +159,7 @@ def export_registration(
     transform_extra: dict[str, Any] | None = None,
     remove_stale: bool = False,
     lock_timeout_s: float = DEFAULT_TIMEOUT_S,
+    documents: ResultDocuments | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -191,6 +185,9 @@ def export_registration(
         earlier run's clouds), in the same atomic step, logging one warning line.
     lock_timeout_s : float
         How long to wait for another writer of ``out_dir`` (amrst.folderlock).
+    documents : ResultDocuments or None
+        The result files from :func:`amrst.report.result_documents`; when given,
+        ``metrics``, ``T_coarse`` and ``transform_extra`` are not used.
 
     Returns
     -------
@@ -234,7 +231,10 @@ def export_registration(
             writers[f"merged.{cloud_format}"] = lambda p: amrst_io.write(
                 p, merge_clouds(target, moved)
             )
-    if "transform" in parts:
+    if documents is not None:  # the one result layout (amrst.report, issue 11)
+        doc, mdoc = documents.transform, documents.metrics
+        text, table = documents.transform_txt, documents.metrics_csv
+    else:
         extra = {
             "target": target.name,
             "source": source.name,
@@ -245,17 +245,13 @@ def export_registration(
             "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source)
             + "\n"
         )
+        mdoc, table = metrics or {}, metrics_csv(metrics or {})
+    if "transform" in parts:
         writers["transform.json"] = lambda p: write_json_atomic(p, doc)
         writers["transform.txt"] = lambda p: write_text_atomic(p, text)
     if "metrics" in parts:
-        flat: dict[str, Any] = {}
-        _flatten("", metrics or {}, flat)
-        buf = _stdio.StringIO()
-        w = csv.writer(buf)
-        w.writerow(["metric", "value"])
-        w.writerows(flat.items())
-        writers["metrics.json"] = lambda p: write_json_atomic(p, metrics or {})
-        writers["metrics.csv"] = lambda p: write_text_atomic(p, buf.getvalue())
+        writers["metrics.json"] = lambda p: write_json_atomic(p, mdoc)
+        writers["metrics.csv"] = lambda p: write_text_atomic(p, table)
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
