@@ -191,9 +191,15 @@ def write_case(
         If ``out_dir`` is a file or cannot be created.
     """
     from amrst import io
+    from amrst.outdir import replace_files
 
     out = make_folder(check_case_folder(out_dir), "case folder")
-    io.write(out / "target.ply", pair.target)
-    io.write(out / "source.ply", pair.source)
-    write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed), indent=1)
+    truth = truth_dict(pair, tree_name, seed)
+    # The three files as one unit: a kill never pairs new scans with an old truth.
+    writers = {
+        "target.ply": lambda p: io.write(p, pair.target),
+        "source.ply": lambda p: io.write(p, pair.source),
+        "truth.json": lambda p: write_json_atomic(p, truth, indent=1),
+    }
+    replace_files(out, writers, managed=set(writers))
     return out
