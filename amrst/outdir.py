@@ -364,4 +364,13 @@ def discard_old_set(old: Path, real: Path) -> None:
                 if not os.path.lexists(real / entry.name):
                     os.rename(entry.path, real / entry.name)
                     logger.warning("Moved %s back into %s.", entry.name, real)
+    # The list goes last: a run killed meanwhile still knows what it may delete.
+    with contextlib.suppress(OSError), os.scandir(old) as it:
+        for entry in it:
+            if entry.name == OLD_SET_NAME:
+                continue
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path, ignore_errors=True)
+            else:
+                os.unlink(entry.path)
     shutil.rmtree(old, ignore_errors=True)
