@@ -364,6 +364,16 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("Interrupted.", file=sys.stderr)
         return EXIT_CANCELLED
+    except OSError as exc:  # a file-system refusal no check above put in words
+        if args.debug:
+            raise
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(
+            f"Error: {exc.strerror or exc}{where}. Check the path, its length and "
+            "its permissions, or choose another file or folder.",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
     except MemoryError:
         print(
             "Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).",

@@ -295,8 +295,8 @@ def classify(code, err: str, expect: set[int]) -> str:
         return "unclear"
     if code == 2:
         lines = [ln for ln in err.splitlines() if ln.strip()]
-        if len(lines) == 2 and lines[0].startswith("usage:") and "error: argument" in err:
-            return "ok"  # argparse: the usage line and what is wrong with the option
+        if lines and lines[0].startswith("usage:") and "error: argument" in lines[-1]:
+            return "ok"  # argparse: the usage and what is wrong with the option
         low = err.lower()
         if len(lines) != 1 or "warning" in low or not any(h in low for h in HINTS):
             return "unclear"
