@@ -67,6 +67,7 @@ class ReportInputs:
     timings: Mapping[str, float] = field(default_factory=dict)
     override: Mapping[str, str] | None = None
     manual_labels: Mapping[int, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()  # e.g. why Fine's result was dropped for a manual pose
 
     @property
     def moved_source_xyz(self) -> np.ndarray:
@@ -208,6 +209,8 @@ def _verdict(r: ReportInputs) -> str:
         f'<p class="headline" style="color:{colour}">{_e(v.headline)}</p>'
         f"<p><b>Why:</b> {_e(v.reason)}</p><p><b>Next:</b> {_e(v.next_step)}</p>"
     )
+    for note in r.notes:
+        out += f"<p><b>Note:</b> {_e(note)}</p>"
     if r.override:
         out += (
             "<p><b>Exported on purpose although the verdict is "

@@ -57,6 +57,7 @@ def report_inputs(session: Session) -> ReportInputs | None:
         timings=session.timings,
         override=session.export_override,
         manual_labels=session.manual_labels,
+        notes=(session.fine_note,) if session.fine_note else (),
     )
 
 

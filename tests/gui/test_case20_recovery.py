@@ -76,6 +76,12 @@ def test_case20_six_pairs_recover_and_fine_keeps_the_manual_pose(
     assert after.rotation_error_deg < 1.0
     assert after.gt_rmse_m < 0.05
     assert s.verdict.status == "needs review"  # nothing can verify it on these scans
+    # The report says it too.
+    from amrst_gui.report import report_inputs
+
+    inputs = report_inputs(s)
+    assert inputs is not None
+    assert any("your pose is kept" in n for n in inputs.notes)
     with capsys.disabled():
         print(
             f"\ncase 20, 6 pairs: before Fine {before.rotation_error_deg:.3f} deg / "
