@@ -116,6 +116,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
     result = register(target, source, params, TerminalReporter(args.quiet))
+    from amrst.verdict import FAILED, REGISTERED, judge_result
+
+    # issue 13: one verdict, the same words as the app (amrst.verdict).
+    verdict = judge_result(result, params)
     # One layout for the CLI, the app and the benchmark (amrst.report, issue 11).
     documents = result_documents(
         record_from_registration(
@@ -125,10 +129,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
             source_file=str(args.source),
             timings_s={"read": t_read},
             amrst_version=__version__,
+            verdict=verdict.as_dict(),
         )
     )
     summary = documents.metrics
-    verified = result.coarse.verified
     files = export_registration(
         args.out,
         target=target,
@@ -169,44 +173,17 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    if not verified:
-        best = result.coarse.candidate
-        if best.origin == "trunk":
-            runner = result.coarse.runner_up_score
-            versus = (
-                f"against {runner:.0%} within {params.coarse.tight_dist_m * 100:.0f} cm "
-                "for the next heading, which is not a clear lead"
-                if runner > 0
-                else "with no other heading to compare it with"
-            )
-            why = (
-                f"The best solution comes from the trunk heading search: "
-                f"{best.precise_score:.0%} of the sampled source points lie within "
-                f"{params.trunk.score_dist_m * 100:.1f} cm of the target, {versus} "
-                "(a round or symmetric stem, or scans that share little, fit several "
-                "headings equally well)."
-            )
-        else:
-            why = (
-                f"The best solution puts only {best.score:.0%} of the sampled source points "
-                f"within {params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one "
-                "puts 45% or more on the benchmark)"
-                + (
-                    ", and the trunk heading search found no heading that clearly beats the others."
-                    if "trunk" in result.timings
-                    else "."
-                )
-            )
+    if verdict.status == FAILED:
         print(
-            f"Registration failed: no verified candidate. {why} The files above are marked "
-            '"verified": false. Check that both scans show the same tree, review the '
-            'matches in amrst-gui, or try --preset "Leaf-on broadleaf" / a larger edge '
-            "tolerance.",
+            f"Registration failed: {verdict.reason} The files above are marked "
+            f'"verified": false. Next: {verdict.next_step}',
             file=sys.stderr,
         )
         return EXIT_FAILED
-    if result.confidence < LOW_CONFIDENCE:
-        print(f"  WARNING: {result.message}", file=sys.stderr)
+    if verdict.status != REGISTERED:
+        print(f"  WARNING: {verdict.text()}", file=sys.stderr)
+    else:
+        print(f"  verdict: {verdict.text()}")
     return 0
 
 

@@ -62,6 +62,7 @@ class ResultRecord:
     message: str = ""
     counts: Mapping[str, Any] = field(default_factory=dict)
     amrst_version: str = ""
+    verdict: Mapping[str, str] | None = None  # amrst.verdict.Verdict.as_dict()
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,7 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         "target_file": record.target_file,
         "source_file": record.source_file,
         "stage": "fine" if fine is not None else "coarse",
+        "verdict": None if record.verdict is None else dict(record.verdict),
         "verified": verified,
         "confidence": confidence,
         "message": record.message,
@@ -130,6 +132,8 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         "timings_s": timings,
     }
     metrics: dict[str, Any] = {"schema_version": RESULT_SCHEMA_VERSION}
+    if record.verdict is not None:
+        metrics["verdict"] = dict(record.verdict)
     if record.metrics_coarse is not None or coarse is not None:
         section = dict(record.metrics_coarse or {})
         if coarse is not None:
