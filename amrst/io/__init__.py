@@ -23,7 +23,8 @@ from amrst.atomic import write_atomic
 from amrst.errors import AmrstError, InvalidInput
 from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
-from amrst.io.las import read_las, write_las
+from amrst.io.las import read_las
+from amrst.io.las_write import write_las
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
 from amrst.io.text import read_text, write_text
