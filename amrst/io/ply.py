@@ -15,6 +15,7 @@ from amrst.errors import InvalidInput
 from amrst.io.common import (
     RawCloud,
     coordinate_columns,
+    count_data_lines,
     flat_attributes,
     format_rows,
     needs_double,
@@ -22,6 +23,7 @@ from amrst.io.common import (
     quote,
     shorten,
     storable,
+    warn_undercount,
 )
 from amrst.io.text import parse_numbers
 
@@ -176,6 +178,10 @@ def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
             f"{path} is truncated: it holds {len(data)} of the {vertex.count} points "
             "its header announces. Copy or export it again."
         )
+    if vertex is header.elements[-1]:
+        found = count_data_lines(body, vertex.count)
+        if found > vertex.count:
+            warn_undercount(path, "PLY", vertex.count, found - vertex.count)
     out = np.empty(vertex.count, dtype=[(n, c) for n, c in vertex.props])
     for i, (name, _) in enumerate(vertex.props):
         out[name] = data[:, i]
