@@ -58,7 +58,13 @@ class _Layout:
         first = lines[0][1]
         tokens = _split(first, _delimiter(first))
         skip = 0
-        if len(tokens) == 1 and _is_int(tokens[0]) and len(lines) > 1:
+        if len(tokens) == 1 and _is_int(tokens[0]) and len(lines) == 1:
+            raise InvalidInput(
+                f"{path} has no points: it holds only the point-count line "
+                f"({quote(tokens[0], 20)}). Check that the export finished and "
+                "wrote the points."
+            )
+        if len(tokens) == 1 and _is_int(tokens[0]):
             skip = 1  # .pts: the first line is the point count
         elif not all(_is_number(t) for t in tokens):
             self.header, skip = [_clean(t) for t in tokens], 1
