@@ -9,8 +9,8 @@ laspy trusts a file's header, so the reader checks the fixed header with
 ``struct`` first (a corrupt one can make laspy loop for minutes), and refuses
 points that mostly lie outside the header's bounds and spread over the whole
 integer range (garbage point records). Header quirks that leave the points intact
-(bounds in raw units or simply wrong, a count one too high for a LAZ decoder, a
-count too low) are read with a one-line warning.
+(bounds in raw units or simply wrong, a count too low) are read with a one-line
+warning.
 """
 
 from __future__ import annotations
@@ -117,8 +117,7 @@ def _decode(path: Path, fixed: _FixedHeader) -> Any:
     """Return laspy's LasData for the file, decoded as its LASzip variant needs.
 
     A decoder failure (or panic) is retried with laspy's laszip backend when lazrs
-    was used, then by reading one point fewer than announced (a writer that counted
-    one point too many); otherwise it becomes one InvalidInput.
+    was used; otherwise it becomes one InvalidInput.
     """
     backend = choose_backend(path, fixed.laz)
     try:
@@ -134,17 +133,6 @@ def _decode(path: Path, fixed: _FixedHeader) -> Any:
     if backend is None and laspy.LazBackend.Laszip.is_available():
         with contextlib.suppress(Exception):
             return _open_and_read(path, laspy.LazBackend.Laszip)
-    las = _read_all_but_last(path, backend)
-    if las is not None:
-        logger.warning(
-            "%s: the header announces %d points but the file holds %d; read %d. "
-            "Export the file again if a point is missing.",
-            path.name,
-            len(las) + 1,
-            len(las),
-            len(las),
-        )
-        return las
     raise InvalidInput(
         f"{path} is corrupt or truncated: its points cannot be decoded "
         f"({shorten(str(error) or type(error).__name__, 100)}). Copy or export it "
@@ -158,26 +146,6 @@ def _open_and_read(path: Path, backend: Any) -> Any:
     with quiet_decoders(), laspy.open(path, laz_backend=backend) as reader:
         _check_size(reader.header, path)
         return reader.read()
-
-
-def _read_all_but_last(path: Path, backend: Any) -> Any:
-    """Return all points but the last announced one, or None when that fails too."""
-    import laspy
-
-    try:
-        with quiet_decoders(), laspy.open(path, laz_backend=backend) as reader:
-            n = reader.header.point_count
-            if n < 2 or not reader.header.are_points_compressed:
-                return None
-            points = reader.read_points(n - 1)
-            header = reader.header
-        if len(points) != n - 1:
-            return None
-        return laspy.LasData(header=header, points=points)
-    except BaseException as exc:
-        if isinstance(exc, Exception) or is_panic(exc):
-            return None
-        raise
 
 
 def _check_header(path: Path) -> _FixedHeader:
