@@ -15,11 +15,12 @@ warning.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
 import math
 import struct
+import tempfile
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -28,15 +29,14 @@ from amrst.errors import InvalidInput
 from amrst.io.common import RawCloud, shorten
 from amrst.io.laz import (
     check_laz_count,
-    choose_backend,
+    decompress_in_child,
     is_panic,
     laz_info,
+    needs_laszip,
     quiet_decoders,
 )
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     from amrst.io.laz import LazInfo
 
 logger = logging.getLogger(__name__)
@@ -116,34 +116,34 @@ def read_las(path: Path) -> RawCloud:
 def _decode(path: Path, fixed: _FixedHeader) -> Any:
     """Return laspy's LasData for the file, decoded as its LASzip variant needs.
 
-    A decoder failure (or panic) is retried with laspy's laszip backend when lazrs
-    was used; otherwise it becomes one InvalidInput.
+    Files lazrs cannot read are decompressed by laszip in a child process (it
+    crashes on truncated files). A decoder failure or panic becomes one InvalidInput.
     """
-    backend = choose_backend(path, fixed.laz)
+    if needs_laszip(path, fixed.laz):
+        with tempfile.TemporaryDirectory(prefix="amrst-laz-") as folder:
+            plain = Path(folder) / "points.las"
+            decompress_in_child(path, plain)
+            las = _open_and_read(plain)
+            las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 22204]
+            return las
     try:
-        return _open_and_read(path, backend)
+        return _open_and_read(path)
     except InvalidInput:
         raise
     except BaseException as exc:
         if not (isinstance(exc, Exception) or is_panic(exc)):
             raise  # KeyboardInterrupt, SystemExit
-        error = exc
+        raise InvalidInput(
+            f"{path} is corrupt or truncated: its points cannot be decoded "
+            f"({shorten(str(exc) or type(exc).__name__, 100)}). Copy or export it "
+            "again."
+        ) from exc
+
+
+def _open_and_read(path: Path) -> Any:
     import laspy
 
-    if backend is None and laspy.LazBackend.Laszip.is_available():
-        with contextlib.suppress(Exception):
-            return _open_and_read(path, laspy.LazBackend.Laszip)
-    raise InvalidInput(
-        f"{path} is corrupt or truncated: its points cannot be decoded "
-        f"({shorten(str(error) or type(error).__name__, 100)}). Copy or export it "
-        "again."
-    ) from error
-
-
-def _open_and_read(path: Path, backend: Any) -> Any:
-    import laspy
-
-    with quiet_decoders(), laspy.open(path, laz_backend=backend) as reader:
+    with quiet_decoders(), laspy.open(path) as reader:
         _check_size(reader.header, path)
         return reader.read()
 

@@ -16,7 +16,7 @@ import os
 import struct
 import sys
 import threading
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from amrst.errors import InvalidInput
 
@@ -122,20 +122,58 @@ def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:
         )
 
 
-def choose_backend(path: Path, info: LazInfo | None) -> Any:
-    """Return the laspy LAZ backend for this file (None: laspy's default, lazrs)."""
+def needs_laszip(path: Path, info: LazInfo | None) -> bool:
+    """Tell whether the file needs the laszip backend (refuse when it is missing)."""
     import laspy
 
     if info is None or not info.needs_laszip:
-        return None
+        return False
     if laspy.LazBackend.Laszip.is_available():
-        return laspy.LazBackend.Laszip
+        return True
     raise InvalidInput(
         f"{path} was compressed by {info.describe()} without a chunk table, which "
         "the installed LAZ decoder (lazrs) cannot read. Install the 'laszip' "
         "package (pip install laszip), or convert the file once with "
         "'laszip -i FILE -o NEW.laz' or 'pdal translate FILE NEW.laz'."
     )
+
+
+_CHILD = """
+import sys, laspy
+las = laspy.read(sys.argv[1], laz_backend=laspy.LazBackend.Laszip)
+las.write(sys.argv[2], do_compress=False)
+"""
+_CHILD_TIMEOUT_S = 600
+
+
+def decompress_in_child(path: Path, out: Path) -> None:
+    """Decompress ``path`` into the uncompressed LAS ``out`` with laszip, in a child.
+
+    The laszip library crashes the process (segmentation fault) on truncated
+    files; in a child process the crash becomes a refusal.
+    """
+    import subprocess
+
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", _CHILD, str(path), str(out)],
+            capture_output=True,
+            text=True,
+            timeout=_CHILD_TIMEOUT_S,
+            check=False,
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise InvalidInput(
+            f"{path}: the LAZ decoder (laszip) did not finish in "
+            f"{_CHILD_TIMEOUT_S} s; the file is corrupt. Copy or export it again."
+        ) from exc
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines()
+        why = lines[-1] if proc.returncode > 0 and lines else "it crashed"
+        raise InvalidInput(
+            f"{path} is corrupt or truncated: the LAZ decoder (laszip) failed "
+            f"({why[:100]}). Copy or export it again."
+        )
 
 
 def is_panic(exc: BaseException) -> bool:

@@ -247,3 +247,13 @@ def test_describe_spacing_unchanged_on_a_cloud_without_copies():
     sample = np.random.default_rng(0).choice(len(xyz), size=20_000, replace=False)
     dist, _ = cKDTree(xyz).query(xyz[sample], k=2)
     assert io.describe(Cloud(xyz))["median_spacing_m"] == float(np.median(dist[:, 1]))
+
+
+def test_truncated_legacy_laz_is_refused_not_crashed(tmp_path):
+    """The laszip library crashes on truncated files: it runs in a child process."""
+    peer = ROOT / "tests" / "data" / "peer"
+    data = (peer / "pdal-simple-laszip-compressor-version-1.2r0.laz").read_bytes()
+    for cut in (len(data) * 2 // 3, 400):
+        (tmp_path / "cut.laz").write_bytes(data[:cut])
+        with pytest.raises(InvalidInput, match="corrupt or truncated"):
+            io.read(tmp_path / "cut.laz")
