@@ -15,6 +15,7 @@ warning.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import math
@@ -37,6 +38,8 @@ from amrst.io.laz import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from amrst.io.laz import LazInfo
 
 logger = logging.getLogger(__name__)
@@ -51,7 +54,7 @@ _BOUNDS_STEPS = 3  # ... plus this many scale steps of rounding
 _COMPACT_SPAN = 2.0**32 / 64  # raw integer span of intact points (garbage: ~2**32)
 
 
-class _FixedHeader(NamedTuple):
+class FixedHeader(NamedTuple):
     """The fields of the public header checked before laspy reads the file."""
 
     scales: np.ndarray  # (3,) float64
@@ -77,8 +80,12 @@ def all_standard_names() -> frozenset[str]:
 
 def read_las(path: Path) -> RawCloud:
     """Read a LAS/LAZ/COPC file: coordinates, every non-zero dimension, header details."""
-    fixed = _check_header(path)  # before laspy: a corrupt header can make it loop
-    las = _decode(path, fixed)
+    fixed = check_header(path)  # before laspy: a corrupt header can make it loop
+    return las_to_raw(decode(path, fixed), fixed, path)
+
+
+def las_to_raw(las: Any, fixed: FixedHeader, path: Path) -> RawCloud:
+    """Turn laspy's LasData (all or part of ``path``) into a RawCloud."""
     header = las.header
     scales = np.asarray(header.scales, dtype=np.float64)
     raw = (las.X, las.Y, las.Z)
@@ -113,7 +120,7 @@ def read_las(path: Path) -> RawCloud:
     return RawCloud(xyz, np.asarray(header.offsets, np.float64), attributes, meta)
 
 
-def _decode(path: Path, fixed: _FixedHeader) -> Any:
+def decode(path: Path, fixed: FixedHeader) -> Any:
     """Return laspy's LasData for the file, decoded as its LASzip variant needs.
 
     Files lazrs cannot read are decompressed by laszip in a child process (it
@@ -148,7 +155,30 @@ def _open_and_read(path: Path) -> Any:
         return reader.read()
 
 
-def _check_header(path: Path) -> _FixedHeader:
+@contextlib.contextmanager
+def open_points(path: Path, fixed: FixedHeader) -> Iterator[Any]:
+    """Open ``path`` for streaming with laspy (a LasReader), decoded as it needs.
+
+    Files that need laszip are first decompressed (in a child process) into a
+    temporary uncompressed LAS, which is streamed instead.
+    """
+    import laspy
+
+    with contextlib.ExitStack() as stack:
+        if needs_laszip(path, fixed.laz):
+            folder = stack.enter_context(
+                tempfile.TemporaryDirectory(prefix="amrst-laz-")
+            )
+            plain = Path(folder) / "points.las"
+            decompress_in_child(path, plain)
+            path = plain
+        with quiet_decoders():  # the caller quiets each read it makes
+            reader = stack.enter_context(laspy.open(path))
+        _check_size(reader.header, path)
+        yield reader
+
+
+def check_header(path: Path) -> FixedHeader:
     """Refuse a file whose public header is not LAS or is corrupt, without laspy.
 
     laspy trusts the header: a huge number of (extended) variable-length records
@@ -223,11 +253,11 @@ def _check_header(path: Path) -> _FixedHeader:
         )
         if laz is not None:
             check_laz_count(path, n_points, laz)
-    return _FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
+    return FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
 
 
 def _check_bounds(
-    world: np.ndarray, ints: np.ndarray, fixed: _FixedHeader, path: Path
+    world: np.ndarray, ints: np.ndarray, fixed: FixedHeader, path: Path
 ) -> None:
     """Refuse garbage point records; report header bounds that are merely wrong.
 
