@@ -90,8 +90,13 @@ def run_one(path: Path) -> dict[str, object]:
             preexec_fn=_limit_memory,
         )
     except subprocess.TimeoutExpired:
-        return {"file": str(path), "exit": None, "points": None, "stderr": ["timeout"],
-                "expected": _expected_in_child(path)}
+        return {
+            "file": str(path),
+            "exit": None,
+            "points": None,
+            "stderr": ["timeout"],
+            "expected": _expected_in_child(path),
+        }
     match = re.search(r"points\s+([\d,]+)", proc.stdout)
     points = int(match.group(1).replace(",", "")) if match else None
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
