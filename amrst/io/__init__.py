@@ -201,7 +201,10 @@ def read(
     except PermissionError as exc:
         raise _permission_denied(path) from exc
     except MemoryError as exc:
-        raise InvalidInput(f"{path} is too large to load into memory.") from exc
+        raise InvalidInput(
+            f"{path} is too large to load into memory. Cut the tree out first "
+            "(amrst clip) or thin the cloud."
+        ) from exc
     except Exception as exc:  # any library error becomes a message the user can act on
         raise InvalidInput(
             f"Could not read {path}: {shorten(str(exc), 200)} "

@@ -58,7 +58,10 @@ def _parse_header(f: BinaryIO, path: Path) -> _Header:
         keys[words[0].upper()] = words[1:]
         if words[0].upper() == "DATA":
             return _make_header(keys, n_lines, path)
-    raise InvalidInput(f"{path} is not a PCD file (no 'DATA' line in its header).")
+    raise InvalidInput(
+        f"{path} is not a PCD file (no 'DATA' line in its header). Give it its "
+        "real extension, or re-save the file with PCL."
+    )
 
 
 def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Header:
@@ -82,7 +85,10 @@ def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Heade
             "below 1; the file is corrupt. Re-save the file with PCL."
         )
     if not len(names) == len(sizes) == len(kinds) == len(counts):
-        raise InvalidInput(f"{path}: FIELDS, SIZE, TYPE and COUNT differ in length.")
+        raise InvalidInput(
+            f"{path}: FIELDS, SIZE, TYPE and COUNT differ in length; the header is "
+            "corrupt. Re-save the file with PCL."
+        )
     fields = [
         (name if name != "_" else f"_pad{i}", f"{k}{s}", c)
         for i, (name, k, s, c) in enumerate(

@@ -61,7 +61,10 @@ class _Header(NamedTuple):
 
 def _parse_header(f: BinaryIO, path: Path) -> _Header:
     if f.readline().strip() != b"ply":
-        raise InvalidInput(f"{path} is not a PLY file (it does not start with 'ply').")
+        raise InvalidInput(
+            f"{path} is not a PLY file (it does not start with 'ply'). Give it its "
+            "real extension, or export the cloud again as PLY."
+        )
     try:
         return _parse_header_lines(f, path)
     except (IndexError, ValueError) as exc:
@@ -121,7 +124,10 @@ def _vertex(header: _Header, path: Path) -> tuple[_Element, list[_Element]]:
                     "Re-save the PLY with scalar vertex properties only."
                 )
             return element, header.elements[:i]
-    raise InvalidInput(f"{path}: the PLY file has no 'vertex' element.")
+    raise InvalidInput(
+        f"{path}: the PLY file has no 'vertex' element (no points; perhaps a "
+        "mesh without vertices). Export the point cloud again as PLY."
+    )
 
 
 def _read_binary(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
@@ -196,7 +202,10 @@ def read_ply(path: Path) -> RawCloud:
         vertices = reader(f, header, path)
     lower = {name.lower(): name for name in vertices.dtype.names or ()}
     if not {"x", "y", "z"} <= lower.keys():
-        raise InvalidInput(f"{path}: the vertices have no x, y and z properties.")
+        raise InvalidInput(
+            f"{path}: the vertices have no x, y and z properties. Export the cloud "
+            "again with its x, y and z coordinates."
+        )
     coords = [vertices[lower[c]] for c in "xyz"]
     single = all(c.dtype.kind == "f" and c.dtype.itemsize == 4 for c in coords)
     xyz = np.column_stack(coords).astype(np.float32 if single else np.float64)

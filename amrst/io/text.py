@@ -148,7 +148,8 @@ def _column_names(
     if not {"x", "y", "z"} <= set(names):
         if columns is not None:
             raise InvalidInput(
-                f"columns= must include 'x', 'y' and 'z'; got {list(columns)}."
+                f"columns= must include 'x', 'y' and 'z'; got {list(columns)}. Name "
+                "the coordinate columns x, y and z."
             )
         logger.warning(
             "%s: header %s has no x/y/z columns; using the first three as x, y, z.",

@@ -257,3 +257,32 @@ def test_truncated_legacy_laz_is_refused_not_crashed(tmp_path):
         (tmp_path / "cut.laz").write_bytes(data[:cut])
         with pytest.raises(InvalidInput, match="corrupt or truncated"):
             io.read(tmp_path / "cut.laz")
+
+
+_ACTIONS = ("again", "re-save", "give ", "fix", "check", "choose", "convert", "name ")
+
+
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("a.ply", b"plx\nformat ascii 1.0\n"),
+        ("b.ply", b"ply\nformat ascii 1.0\nelement face 0\nend_header\n"),
+        ("c.ply", ply_header("ascii", 1, "property float u\n") + b"1\n"),
+        ("d.pcd", b"VERSION 0.7\nFIELDS x y z\n"),
+        (
+            "e.pcd",
+            b"FIELDS x y z\nSIZE 4 4\nTYPE F F F\nCOUNT 1 1 1\nPOINTS 1\nDATA ascii\n",
+        ),
+        (
+            "f.pcd",
+            b"FIELDS a b c\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n",
+        ),
+    ],
+)
+def test_every_refusal_says_what_to_do(tmp_path, name, content):
+    """Issue 16: refusals said what was wrong but not what to do."""
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(InvalidInput) as info:
+        io.read(tmp_path / name)
+    message = str(info.value).lower()
+    assert any(action in message for action in _ACTIONS), message
