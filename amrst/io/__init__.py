@@ -29,7 +29,7 @@ from amrst.io.las import read_las
 from amrst.io.las_write import write_las
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
-from amrst.io.region import read_region
+from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
 from amrst.types import Cloud
 
@@ -309,6 +309,7 @@ __all__ = [
     "format_description",
     "get_reader",
     "read",
+    "read_overview",
     "read_region",
     "supported_extensions",
     "writable_extensions",

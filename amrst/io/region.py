@@ -259,3 +259,73 @@ def _stream(
             header.offsets,
         )
     return laspy.LasData(header=header, points=record), n_read
+
+
+def read_overview(
+    path: str | os.PathLike[str],
+    max_points: int = 200_000,
+    reporter: Reporter = NULL_REPORTER,
+) -> Cloud:
+    """Read an evenly thinned sample of a plot file, for a top view to click in.
+
+    LAS/LAZ/COPC are streamed in chunks keeping every k-th point (bounded
+    memory); other formats are read whole, then thinned. Attributes are dropped.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    max_points : int
+        At most about this many points are kept.
+    reporter : Reporter
+
+    Returns
+    -------
+    Cloud
+        The sample (``meta["overview_of"]``: the file's point count).
+    """
+    from amrst import io
+    from amrst.io.las import check_header, open_points
+    from amrst.types import Cloud
+
+    path = Path(path)
+    fmt = io._check_readable(path)
+    if fmt.label not in ("las", "laz"):
+        cloud = io.read(path)
+        step = max(1, -(-len(cloud) // max_points))
+        return Cloud(
+            cloud.xyz[::step], cloud.offset, {}, cloud.name, {"overview_of": len(cloud)}
+        )
+    fixed = check_header(path)
+    parts: list[np.ndarray] = []
+    try:
+        with open_points(path, fixed) as reader:
+            total = int(reader.header.point_count)
+            step = max(1, -(-total // max_points))
+            scales = np.asarray(reader.header.scales, np.float64)
+            chunks = reader.chunk_iterator(CHUNK_POINTS)
+            n_read = 0
+            while True:
+                reporter.check_cancelled()
+                with quiet_decoders():
+                    chunk = next(chunks, None)
+                if chunk is None or len(chunk) == 0:
+                    break
+                arr = chunk.array[(n_read + np.arange(len(chunk))) % step == 0]
+                parts.append(
+                    np.column_stack(
+                        [arr[c] * s for c, s in zip("XYZ", scales, strict=True)]
+                    )
+                )
+                n_read += len(chunk)
+                reporter.progress(min(n_read / max(total, 1), 1.0), "overview")
+            offset = np.asarray(reader.header.offsets, np.float64)
+    except (AmrstError, Cancelled):
+        raise
+    except Exception as exc:
+        raise InvalidInput(
+            f"Could not read {path}: {shorten(str(exc), 200)} "
+            f"({type(exc).__name__}). The file looks corrupt or truncated; "
+            "export it again."
+        ) from exc
+    xyz = np.vstack(parts) if parts else np.zeros((0, 3))
+    return Cloud(xyz, offset, {}, path.name, {"overview_of": n_read})

@@ -133,3 +133,16 @@ def test_cli_refuses_an_unwritable_output_before_reading(tmp_path, capsys):
     )  # fmt: skip
     assert code == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("ext", [".laz", ".pcd"])
+def test_overview_is_an_even_thin_sample(tmp_path, ext, monkeypatch):
+    monkeypatch.setattr(region, "CHUNK_POINTS", 1500)
+    plot = _plot()
+    io.write(tmp_path / f"plot{ext}", plot)
+    view = io.read_overview(tmp_path / f"plot{ext}", max_points=1000)
+    assert view.meta["overview_of"] == 8000
+    assert len(view) == 1000  # every 8th point
+    world = view.world_xyz
+    for i in range(4):  # every stem is in it
+        assert (np.abs(world[:, 0] - (500000.0 + 3.0 * i)) < 0.5).sum() > 200
