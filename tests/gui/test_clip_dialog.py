@@ -29,7 +29,9 @@ def test_clip_two_plots_then_register(
     target, source, truth = sample_pair
     for role, path in (("target", target), ("source", source)):
         tree = io.read(path)
-        plot = Cloud(np.vstack([tree.xyz, tree.xyz + [20.0, 0.0, 0.0]]), tree.offset)
+        plot = Cloud(
+            np.vstack([tree.xyz, tree.xyz + np.array([20.0, 0.0, 0.0])]), tree.offset
+        )
         io.write(tmp_path / f"{role}_plot.laz", plot)
 
         dialog = ClipDialog(s, win, out_dir=tmp_path / "clips")
