@@ -286,3 +286,10 @@ def test_every_refusal_says_what_to_do(tmp_path, name, content):
         io.read(tmp_path / name)
     message = str(info.value).lower()
     assert any(action in message for action in _ACTIONS), message
+
+
+def test_text_refusal_is_one_line_even_after_an_odd_header(tmp_path, caplog):
+    (tmp_path / "h.txt").write_text("boundary : a b c\nedge_length : 0.5\n")
+    with caplog.at_level(logging.WARNING), pytest.raises(InvalidInput, match="line 2"):
+        io.read(tmp_path / "h.txt")
+    assert not caplog.records  # the "no x/y/z columns" warning came first before
