@@ -33,6 +33,7 @@ from amrst.io.laz import (
     decompress_in_child,
     is_panic,
     laz_info,
+    lazrs_backends,
     needs_laszip,
     quiet_decoders,
 )
@@ -150,7 +151,7 @@ def decode(path: Path, fixed: FixedHeader) -> Any:
 def _open_and_read(path: Path) -> Any:
     import laspy
 
-    with quiet_decoders(), laspy.open(path) as reader:
+    with quiet_decoders(), laspy.open(path, laz_backend=lazrs_backends()) as reader:
         _check_size(reader.header, path)
         return reader.read()
 
@@ -173,7 +174,7 @@ def open_points(path: Path, fixed: FixedHeader) -> Iterator[Any]:
             decompress_in_child(path, plain)
             path = plain
         with quiet_decoders():  # the caller quiets each read it makes
-            reader = stack.enter_context(laspy.open(path))
+            reader = stack.enter_context(laspy.open(path, laz_backend=lazrs_backends()))
         _check_size(reader.header, path)
         yield reader
 

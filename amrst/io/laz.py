@@ -16,7 +16,7 @@ import os
 import struct
 import sys
 import threading
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from amrst.errors import InvalidInput
 
@@ -120,6 +120,17 @@ def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:
             at_least,
             n_points,
         )
+
+
+def lazrs_backends() -> tuple[Any, ...]:
+    """Return the backends laspy may use in this process: lazrs only.
+
+    laspy falls back to its laszip backend when lazrs cannot open a file, and
+    laszip crashes the process on truncated files: it only runs in a child.
+    """
+    import laspy
+
+    return (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
 
 
 def needs_laszip(path: Path, info: LazInfo | None) -> bool:

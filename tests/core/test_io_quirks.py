@@ -293,3 +293,31 @@ def test_text_refusal_is_one_line_even_after_an_odd_header(tmp_path, caplog):
     with caplog.at_level(logging.WARNING), pytest.raises(InvalidInput, match="line 2"):
         io.read(tmp_path / "h.txt")
     assert not caplog.records  # the "no x/y/z columns" warning came first before
+
+
+@pytest.mark.parametrize("damage", ["garbage", "zeros", "cut"])
+def test_damaged_laz_chunk_table_is_one_refusal_without_a_crash(tmp_path, damage):
+    """lazrs panicked on a garbage table (exit 1); laspy then tried laszip in-process,
+    which can crash the interpreter on truncated data: only lazrs runs in-process."""
+    cloud = Cloud(np.random.default_rng(1).uniform(0, 10, (5000, 3)))
+    data = _written(tmp_path, cloud, ".laz")
+    (start,) = struct.unpack_from("<I", data, 96)
+    (table,) = struct.unpack_from("<q", data, start)
+    body = len(data) - table - 8
+    if damage == "garbage":
+        data[table + 8 :] = b"\xff" * body
+    elif damage == "zeros":
+        data[table + 8 :] = b"\x00" * body
+    else:
+        del data[table + 9 :]
+    (tmp_path / "d.laz").write_bytes(data)
+    proc = subprocess.run(
+        [sys.executable, "-m", "amrst.cli", "info", str(tmp_path / "d.laz")],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=120,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert "Laszip" not in proc.stderr  # lazrs's message, not the in-process fallback
