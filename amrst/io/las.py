@@ -151,9 +151,12 @@ def decode(path: Path, fixed: FixedHeader) -> Any:
 def _open_and_read(path: Path) -> Any:
     import laspy
 
-    with quiet_decoders(), laspy.open(path, laz_backend=lazrs_backends()) as reader:
+    with quiet_decoders():  # not around our own warnings: stderr is muted there
+        reader = laspy.open(path, laz_backend=lazrs_backends())
+    with reader:
         _check_size(reader.header, path)
-        return reader.read()
+        with quiet_decoders():
+            return reader.read()
 
 
 @contextlib.contextmanager

@@ -77,6 +77,22 @@ def test_las_header_undercounting_its_points_is_reported(tmp_path, caplog):
     assert "announces 150 points but the file holds 200" in caplog.text
 
 
+def test_undercount_warning_reaches_the_command_line(tmp_path):
+    """The warning was logged while the decoders' stderr was muted, and lost."""
+    data = _written(tmp_path, make_small_cloud(), ".las")
+    struct.pack_into("<I", data, 107, 150)
+    (tmp_path / "u.las").write_bytes(data)
+    proc = subprocess.run(
+        [sys.executable, "-m", "amrst.cli", "info", str(tmp_path / "u.las")],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=120,
+    )
+    assert proc.returncode == 0
+    assert "announces 150 points but the file holds 200" in proc.stderr
+
+
 def test_laz_header_undercounting_its_chunks_is_reported(tmp_path, caplog):
     n = 120_000  # two LASzip chunks of 50,000 points and one of 20,000
     cloud = Cloud(np.random.default_rng(6).uniform(0, 10, (n, 3)))
