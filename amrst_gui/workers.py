@@ -5,6 +5,10 @@
 The reporter is an :class:`amrst.progress.EventReporter`: ``cancel()`` sets its
 ``threading.Event`` and the engine raises ``Cancelled`` at its next check point.
 
+A cancelled job keeps nothing of its own result: once ``cancel()`` was called, a
+value the work still returns (it passed its last check point before the request)
+arrives as ``errored(Cancelled())``, so Cancel always means "drop this step".
+
 Every callback runs on the GUI thread: the worker's signals are relayed through a
 ``StageJob`` (a QObject created on the GUI thread) with explicit queued
 connections, so no widget, plotter or session is ever touched from a worker.
@@ -19,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 from PySide6.QtCore import QObject, Qt, QThreadPool, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
 
+from amrst.errors import Cancelled
 from amrst.progress import EventReporter
 
 if TYPE_CHECKING:
@@ -97,6 +102,10 @@ class StageJob(QObject):
 
     @Slot(object)
     def _relay_returned(self, result: object) -> None:
+        if self.reporter.cancelled:
+            # Asked to stop: the step's result is dropped even if it got to the end.
+            self._finish(self.errored, Cancelled())
+            return
         self._finish(self.returned, result)
 
     @Slot(object)
@@ -146,6 +155,7 @@ def run_stage(
     StageJob
         ``cancel()`` asks the work to stop; signals carry the outcome.
     """
+    _enough_threads()
     job = StageJob(name or getattr(fn, "__name__", "stage"))
     if on_progress is not None:
         job.progressed.connect(on_progress)
@@ -157,6 +167,17 @@ def run_stage(
         job.finished.connect(on_finished)
     job._start(fn, args, kwargs)
     return job
+
+
+# Jobs that may run at once: a step, the Scans dock's descriptions and the three
+# views' scenes. Qt's default (one thread per core) queued the views behind a step.
+MIN_THREADS = 8
+
+
+def _enough_threads() -> None:
+    pool = QThreadPool.globalInstance()
+    if pool.maxThreadCount() < MIN_THREADS:
+        pool.setMaxThreadCount(MIN_THREADS)
 
 
 def wait_for_workers(timeout_s: float = 60.0) -> bool:

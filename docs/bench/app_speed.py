@@ -53,6 +53,24 @@ class Watchdog:
         self.reset()
         self.timer.start()
 
+    def trace(self, after_s: float = 0.3) -> None:
+        """Debugging aid (``--trace``): print the GUI thread's stack to stderr
+        whenever it has not ticked for ``after_s``, to find what stalls it."""
+        import threading
+        import traceback
+
+        main = threading.main_thread().ident
+
+        def watch() -> None:
+            while True:
+                time.sleep(after_s / 2)
+                if time.perf_counter() - self.last > after_s:
+                    frame = sys._current_frames().get(main)
+                    stack = "".join(traceback.format_stack(frame)[-8:])
+                    sys.stderr.write(f"STALL {time.perf_counter() - self.last:.2f}s\n{stack}")
+
+        threading.Thread(target=watch, daemon=True).start()
+
     def reset(self) -> None:
         self.last = time.perf_counter()
         self.max_gap_s = 0.0
@@ -156,9 +174,11 @@ def _cancel(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
         long_part = step in ("coarse", "fine")
         _wait(
             app,
-            lambda lp=long_part, t0=start: not s.busy
-            or (any("Measuring the tree" in m for m in messages) if lp else False)
-            or (time.perf_counter() - t0 > (60 if lp else 1.0)),
+            lambda lp=long_part, t0=start: (
+                not s.busy
+                or (any("Measuring the tree" in m for m in messages) if lp else False)
+                or (time.perf_counter() - t0 > (60 if lp else 1.0))
+            ),
             120,
         )
         if not s.busy:
@@ -195,6 +215,8 @@ def child(args) -> None:
     os.environ.setdefault("QT_API", "pyside6")
     app, win = _window()
     dog = Watchdog()
+    if args.trace:
+        dog.trace()
     out: dict = {}
     if args.phase in ("load", "all"):
         out.update(_load(app, win, args.target, args.source, dog))
@@ -271,7 +293,10 @@ def report(before: dict | None, after: dict) -> str:
             )
             + " |"
         )
-        row(f"{step}: longest GUI stall", lambda d, s=step: d["cancel"][s]["max_stall_s"])
+        row(
+            f"{step}: longest GUI stall",
+            lambda d, s=step: d["cancel"][s]["max_stall_s"],
+        )
         row(f"{step}: whole step", lambda d, s=step: d["cancel"][s]["full_s"])
     if before and "orbit_fps" in after:
         lines.append(
@@ -290,7 +315,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source-points", type=int, default=2_000_000)
     p.add_argument("--cancel-points", type=int, default=2_000_000)
     p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "amrst-app-speed")
+    p.add_argument("--trace", action="store_true", help="print what stalls (child)")
+    p.add_argument(
+        "--data", type=Path, default=Path(tempfile.gettempdir()) / "amrst-app-speed"
+    )
     p.add_argument("--target", type=Path)
     p.add_argument("--source", type=Path)
     p.add_argument("--cancel-target", type=Path)
