@@ -220,4 +220,4 @@ class ScansArea(QWidget):
                     # build_scan_scene makes match_vertices a SpheresLayer only.
                     assert isinstance(layer, SpheresLayer)
                     # Keep some of the tree around a small tetrahedron in sight.
-                    view.frame_points(layer.centers, min_radius=12 * layer.radius)
+                    view.frame_points(layer.centers, min_radius=6 * layer.radius)

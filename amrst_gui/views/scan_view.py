@@ -193,20 +193,39 @@ class ScanView(QWidget):
         return self._bounds
 
     def frame_points(
-        self, xyz: np.ndarray, margin: float = 1.3, min_radius: float = 0.05
+        self, xyz: np.ndarray, margin: float = 1.2, min_radius: float = 0.05
     ) -> None:
-        """Aim at ``xyz`` (K, 3) from the current direction, filling the view."""
+        """Aim at ``xyz`` (K, 3) from the current direction, filling the view.
+
+        The camera looks at the centre of the points' box and comes as close as
+        their extent across the screen (times ``margin``, at least ``2 *
+        min_radius``) allows. A bounding sphere around the mean, as before, framed
+        a tetrahedron with one vertex at the root and three in the crown from
+        further away than the whole tree (issue 15).
+        """
         if self._closed or len(xyz) == 0:
             return
+        xyz = np.asarray(xyz, float)
         cam = self.plotter.camera
-        center = np.asarray(xyz, float).mean(axis=0)
-        spread = float(np.linalg.norm(xyz - center, axis=1).max())
-        radius = max(spread * margin, min_radius)
-        direction = np.asarray(cam.position) - np.asarray(cam.focal_point)
-        direction /= max(np.linalg.norm(direction), 1e-12)
-        distance = radius / np.tan(np.radians(cam.view_angle) / 2)
-        cam.focal_point = tuple(center)
-        cam.position = tuple(center + direction * distance)
+        centre = (xyz.min(axis=0) + xyz.max(axis=0)) / 2
+        toward = np.asarray(cam.focal_point) - np.asarray(cam.position)
+        toward /= max(np.linalg.norm(toward), 1e-12)
+        up = np.asarray(cam.GetViewUp(), float)
+        up -= toward * (up @ toward)
+        up /= max(np.linalg.norm(up), 1e-12)
+        right = np.cross(toward, up)
+        rel = xyz - centre
+        half_h = margin * max(np.ptp(rel @ up), 2 * min_radius) / 2
+        half_w = margin * max(np.ptp(rel @ right), 2 * min_radius) / 2
+        aspect = max(self.plotter.width(), 1) / max(self.plotter.height(), 1)
+        tan_half = np.tan(np.radians(cam.GetViewAngle()) / 2)
+        # Distance to the nearest of the points' depths, so no point is cut off
+        # by perspective (nearer points look bigger).
+        distance = max(half_h / tan_half, half_w / (tan_half * aspect))
+        distance += float(np.max(-(rel @ toward), initial=0.0))
+        cam.SetFocalPoint(*centre)
+        cam.SetPosition(*(centre - toward * distance))
+        cam.SetViewUp(*up)
         self.plotter.reset_camera_clipping_range()
         self.plotter.render()
 
