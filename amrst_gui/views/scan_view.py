@@ -37,6 +37,42 @@ def _lines_polydata(nodes: np.ndarray, edges: np.ndarray) -> pv.PolyData:
     return pv.PolyData(np.asarray(nodes, np.float32), lines=cells)
 
 
+class _Interactor(QtInteractor):
+    """A QtInteractor that draws each frame once.
+
+    pyvistaqt renders in ``paintGL`` every time, also for the repaint that only
+    shows a render just finished (``WindowFrameEvent``), so every frame cost two
+    renders: 0.2-1 s each for 200,000 points with software OpenGL. Here that
+    repaint only copies the finished frame to the widget, as VTK's own C++ widget
+    does. Other repaints (expose, resize, grab) still render: pyvistaqt renders
+    there because pyvista may change a scene without rendering; ScanView renders
+    after every change it makes.
+    """
+
+    _fresh_frame = False
+
+    def _cb_frame(self, obj, evt) -> None:
+        if not self._in_paint:
+            self._fresh_frame = True
+        super()._cb_frame(obj, evt)
+
+    def resizeGL(self, w: int, h: int) -> None:
+        self._fresh_frame = False
+        super().resizeGL(w, h)
+
+    def paintGL(self) -> None:
+        if not (self._fresh_frame and not self._in_paint):
+            self._fresh_frame = False
+            super().paintGL()
+            return
+        self._fresh_frame = False
+        self._in_paint = True  # makes pyvistaqt's paintGL blit without rendering
+        try:
+            super().paintGL()
+        finally:
+            self._in_paint = False
+
+
 class ScanView(QWidget):
     """A 3D view: ``update_scene(scene)`` makes its actors match the scene.
 
@@ -53,7 +89,7 @@ class ScanView(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         # auto_update=False: a closed window's timer froze the others (pyvistaqt#762).
-        self.plotter = QtInteractor(self, auto_update=False, multi_samples=0)
+        self.plotter = _Interactor(self, auto_update=False, multi_samples=0)
         self.plotter.disable_anti_aliasing()
         # QtInteractor would add a dropped file to its scene; the pane handles drops.
         self.plotter.setAcceptDrops(False)
