@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -19,6 +20,9 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.drops import FileDropMixin
+
+if TYPE_CHECKING:
+    from amrst_gui.workers import StageJob
 
 _TITLES = {
     "target": "Target (reference, stays fixed)",
@@ -54,7 +58,7 @@ class _RoleBox(FileDropMixin, QGroupBox):
         self.offset = QLabel("-")
         self._described_cloud = None
         self._description = ""
-        self._describing = None
+        self._describing: StageJob | None = None
         form = QFormLayout()
         form.addRow("File:", self.file)
         form.addRow("Points:", self.points)

@@ -50,6 +50,7 @@ class _Interactor(QtInteractor):
     """
 
     _fresh_frame = False
+    _in_paint: bool  # pyvistaqt's (set in its __init__)
 
     def _cb_frame(self, obj, evt) -> None:
         if not self._in_paint:

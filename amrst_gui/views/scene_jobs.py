@@ -27,6 +27,8 @@ from amrst_gui.views.layers import PointsLayer, Scene
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from amrst_gui.workers import StageJob
+
 log = logging.getLogger("amrst_gui.views")
 
 # Scans up to this many points are built on the GUI thread (a few ms).
@@ -148,7 +150,7 @@ class SceneLoader(QObject):
     def __init__(self, view, parent: QObject | None = None) -> None:
         super().__init__(parent or view)
         self.view = view
-        self._job = None
+        self._job: StageJob | None = None
 
     @property
     def pending(self) -> bool:
