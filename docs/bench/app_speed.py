@@ -164,7 +164,8 @@ def _orbit(app, win, frames: int) -> dict:
 def _cancel(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
     s = win.session
     win.open_pair(target, source)
-    _wait(app, lambda: s.has_scans and not s.busy, 600)
+    _wait(app, lambda: _points_shown(win) and not s.busy, 600)
+    _wait(app, lambda: False, 3.0)  # the descriptions and the other views
     out: dict = {}
     messages: list[str] = []
     s.progressed.connect(lambda _f, m: messages.append(m))

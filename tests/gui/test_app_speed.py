@@ -53,11 +53,11 @@ def big_pair(tmp_path_factory):
 
 def _all_drawn(win) -> bool:
     views = win.scans_area.views()
+    panes = [*win.scans_area.panes.values(), win.registration]
     return (
         all("points" in v.actor_names() for v in views)
         and "target_points" in win.registration.view.actor_names()
-        and not any(p.loader.pending for p in win.scans_area.panes.values())
-        and not win.registration.loader.pending
+        and not any(getattr(p, "loader", None) and p.loader.pending for p in panes)
         and not win.session.busy
     )
 
