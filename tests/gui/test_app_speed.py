@@ -17,7 +17,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from dense_clouds import write_dense_pair  # noqa: E402
+from dense_clouds import write_dense_pair
 
 BIG = 2_000_000
 # Longest time the GUI thread may go without turning its event loop while a
@@ -126,15 +126,18 @@ def test_the_moving_subset_is_each_layers_share_of_the_budget():
     scene = Scene(("t",), (layer("a", 150_000), layer("b", 50_000)))
     out = prepare(scene, budget=20_000)
     a, b = out.moving["a"].n_points, out.moving["b"].n_points
-    assert out.still["a"].n_points == 150_000 and out.still["b"].n_points == 50_000
-    assert a + b <= 20_000 and abs(a / b - 3) < 0.2
+    assert out.still["a"].n_points == 150_000
+    assert out.still["b"].n_points == 50_000
+    assert a + b <= 20_000
+    assert abs(a / b - 3) < 0.2
     # A view already under the budget keeps one actor.
     assert not prepare(Scene(("t",), (layer("c", 5_000),)), budget=20_000).moving
     # The framing bounds ignore a stray point (0.5-99.5 percentiles).
     stray = layer("d", 10_000)
     stray.xyz[0] = (1000, 1000, 1000)
     bounds = prepare(Scene(("t",), (stray,))).bounds
-    assert bounds is not None and bounds.max() < 2
+    assert bounds is not None
+    assert bounds.max() < 2
 
 
 CANCEL_POINTS = 1_000_000
@@ -182,7 +185,8 @@ def test_every_long_step_stops_within_a_second_of_cancel_and_keeps_nothing(
     latency["separate"] = _cancel_when(
         qtbot, s, "separate", a.separate.trigger, lambda m: True
     )
-    assert s.analysis("target") is None and not s.is_done("separate")
+    assert s.analysis("target") is None
+    assert not s.is_done("separate")
 
     finish(s, a.separate.trigger, "separation_finished", timeout=300_000)
     finish(s, a.skeleton.trigger, "skeletons_finished", timeout=300_000)
@@ -196,14 +200,17 @@ def test_every_long_step_stops_within_a_second_of_cancel_and_keeps_nothing(
     latency["coarse"] = _cancel_when(
         qtbot, s, "coarse", s.accept_coarse, lambda m: "Measuring the tree" in m
     )
-    assert s.accepted_coarse is None and not s.is_done("coarse")
+    assert s.accepted_coarse is None
+    assert not s.is_done("coarse")
     finish(s, s.accept_coarse, "coarse_accepted", timeout=300_000)
     accepted = s.accepted_coarse
     latency["fine"] = _cancel_when(
         qtbot, s, "fine", lambda: s.run_step("fine"), lambda m: "Measuring" in m
     )
-    assert s.fine is None and not s.is_done("fine")
+    assert s.fine is None
+    assert not s.is_done("fine")
     # Earlier results are kept.
-    assert s.accepted_coarse is accepted and s.analysis("target") is analyses
+    assert s.accepted_coarse is accepted
+    assert s.analysis("target") is analyses
     slow = {k: round(v, 2) for k, v in latency.items() if v > 1.0}
     assert not slow, f"Cancel took over 1 s: {slow}"
