@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QTimer, Signal
 
 from amrst_gui.views.layers import PointsLayer, Scene
 
@@ -137,6 +137,45 @@ def build_and_prepare(
     return scene, prepare(scene)
 
 
+class _DrawQueue:
+    """Hands finished scenes to their views one per turn of the event loop.
+
+    Drawing a 200,000-point view is one render (a fraction of a second with
+    software OpenGL); three views finishing together drew back to back, and the
+    window stalled for their sum.
+    """
+
+    def __init__(self) -> None:
+        self._items: list[tuple[SceneLoader, Any]] = []
+        self._timer: QTimer | None = None
+
+    def put(self, loader: SceneLoader, out: Any) -> None:
+        self.drop(loader)
+        self._items.append((loader, out))
+        if self._timer is None:
+            self._timer = QTimer()
+            self._timer.setSingleShot(True)
+            self._timer.timeout.connect(self._next)
+        if not self._timer.isActive():
+            self._timer.start(0)
+
+    def drop(self, loader: SceneLoader) -> None:
+        self._items = [it for it in self._items if it[0] is not loader]
+
+    def has(self, loader: SceneLoader) -> bool:
+        return any(it[0] is loader for it in self._items)
+
+    def _next(self) -> None:
+        if self._items:
+            loader, out = self._items.pop(0)
+            loader._draw(out)
+        if self._items and self._timer is not None:
+            self._timer.start(0)
+
+
+_DRAWS = _DrawQueue()
+
+
 class SceneLoader(QObject):
     """Builds a view's scenes, the newest request only; ``view.update_scene`` draws.
 
@@ -154,8 +193,8 @@ class SceneLoader(QObject):
 
     @property
     def pending(self) -> bool:
-        """True while a scene is being built in a worker."""
-        return self._job is not None
+        """True while a scene is being built in a worker or waits to be drawn."""
+        return self._job is not None or _DRAWS.has(self)
 
     def request(
         self,
@@ -184,6 +223,7 @@ class SceneLoader(QObject):
 
     def drop(self) -> None:
         """Forget the scene being built (a newer one replaces it, or the view goes)."""
+        _DRAWS.drop(self)
         if self._job is not None:
             self._job.discard()
             self._job = None
@@ -192,6 +232,11 @@ class SceneLoader(QObject):
         if job is not self._job:
             return
         self._job = None
+        _DRAWS.put(self, out)
+
+    def _draw(self, out: tuple[Scene, Prepared]) -> None:
+        if getattr(self.view, "_closed", False):
+            return  # the window closed while the scene waited
         self.view.update_scene(*out)
         self.drawn.emit()
 

@@ -49,7 +49,8 @@ def test_a_result_returned_after_cancel_is_dropped(qtbot):
         return "result"
 
     job, got = _run(finishes, qtbot)
-    qtbot.waitUntil(job.worker_done.is_set, timeout=5_000)
+    # Wait without turning the event loop, so the result is still queued.
+    assert job.worker_done.wait(5.0)
     job.cancel()  # before the queued result reached the GUI thread
     qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
     assert got["result"] == []
