@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from amrst.progress import Reporter, SubReporter
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 
 if TYPE_CHECKING:
     import numpy as np
@@ -106,7 +106,7 @@ def score_manual_pair(
 
 
 def measure_tree_pair(
-    analyses: dict, T_local: Any, params: Any, reporter: Reporter
+    analyses: dict, T_local: Any, params: Any, reporter: Reporter = NULL_REPORTER
 ) -> dict:
     """Height, DBH and crown of each scan and of both merged under ``T_local``;
     stops at the reporter's cancel checks between the measurements."""
