@@ -43,7 +43,7 @@ class Snapshot:
     """What the scene builders read from the session, fixed at one moment.
 
     Same names as the session's (``cloud(role)``, ``path(role)``,
-    ``analysis(role)``, ``selected_match``, ``rejected``, ``coarse``,
+    ``analysis(role)``, ``local(T)``, ``selected_match``, ``rejected``, ``coarse``,
     ``coarse_message``, ``accepted_coarse``, ``manual_preview``, ``fine``), so a
     builder takes either.
     """
@@ -68,6 +68,13 @@ class Snapshot:
 
     def analysis(self, role: str) -> Any:
         return self._analyses[role]
+
+    def local(self, T_world: np.ndarray) -> np.ndarray:
+        """A world T_target_source between the scans' local frames (the session's
+        ``local``, on the snapshot's clouds)."""
+        from amrst.types import local_transform
+
+        return local_transform(T_world, self._clouds["target"], self._clouds["source"])
 
     def n_points(self, *roles: str) -> int:
         """Points in the clouds of ``roles`` (what a build may have to read)."""
