@@ -23,6 +23,9 @@ from amrst_gui.views.layers import (
 )
 
 MAX_DISPLAY_POINTS = 200_000
+# Points drawn per view while the camera moves (rotate, pan, zoom): a frame of
+# 30,000 points takes ~30 ms with software OpenGL, against ~200 ms for 200,000.
+MOVING_POINTS = 30_000
 
 WOOD_RGB = (139, 90, 43)  # brown, as in the paper's figures
 LEAF_RGB = (70, 170, 60)  # green
@@ -94,9 +97,10 @@ def _marker_radius(xyz: np.ndarray) -> float:
 def shown_text(shown: int, total: int) -> str:
     """The caption of how many points a view draws, e.g. "showing 200,000 of
     10,000,000 points (fewer while the view moves)"."""
+    moving = " (fewer while the view moves)" if shown > MOVING_POINTS else ""
     if shown >= total:
-        return f"showing all {total:,} points"
-    return f"showing {shown:,} of {total:,} points (fewer while the view moves)"
+        return f"showing all {total:,} points{moving}"
+    return f"showing {shown:,} of {total:,} points{moving}"
 
 
 def _title(session, role: str, cloud, options: ViewOptions, shown: int) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
 from amrst_gui.views.layers import PointsLayer, Scene
+from amrst_gui.views.scene import MOVING_POINTS
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -33,9 +34,6 @@ log = logging.getLogger("amrst_gui.views")
 
 # Scans up to this many points are built on the GUI thread (a few ms).
 SYNC_POINTS = 300_000
-# Points drawn per view while the camera moves (rotate, pan, zoom): a frame of
-# 30,000 points takes ~30 ms with software OpenGL, against ~200 ms for 200,000.
-MOVING_POINTS = 30_000
 _ROLES = ("target", "source")
 
 
