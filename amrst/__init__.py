@@ -7,9 +7,32 @@ Public API (the app, the CLI and the benchmark use only these names)::
     result.T_target_source  # (4, 4) maps source coordinates into the target frame
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
-from amrst.pipeline import RegistrationParams, RegistrationResult, register
 from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import RegistrationResult, register
+
+# The pipeline is loaded on first use, so that importing one stage, the readers or
+# the simulator does not load every stage (PEP 562).
+_LAZY = {
+    "RegistrationParams": "amrst.params",
+    "RegistrationResult": "amrst.pipeline",
+    "register": "amrst.pipeline",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'amrst' has no attribute {name!r}")
 
 __version__ = "0.1.0"
 __all__ = [

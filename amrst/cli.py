@@ -8,7 +8,6 @@ the command quietly.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -20,9 +19,8 @@ from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 if TYPE_CHECKING:
-    import numpy as np
 
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
 EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
@@ -58,30 +56,6 @@ class TerminalReporter:
         """Never cancel: Ctrl+C stops the command instead."""
 
 
-def read_truth(path: str) -> np.ndarray:
-    """T_target_source from a truth.json, checked to be a rigid transform (clear errors)."""
-    from amrst.types import check_rigid
-
-    if not path.strip():
-        raise InvalidInput("The truth file path is empty; give a truth JSON file.")
-    p = Path(path)
-    if p.is_dir():
-        raise InvalidInput(
-            f"Truth file {p} is a folder; give the path of a JSON file with a 4x4 "
-            "'T_target_source'."
-        )
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-        T = doc["T_target_source"]
-    except FileNotFoundError:
-        raise InvalidInput(f"Truth file not found: {p}.") from None
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InvalidInput(
-            f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a 4x4 'T_target_source'."
-        ) from exc
-    return check_rigid(T, f"T_target_source in {p}")
-
-
 def _cmd_info(args: argparse.Namespace) -> int:
     from amrst import io
 
@@ -94,8 +68,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _load_params(args: argparse.Namespace) -> RegistrationParams:
-    from amrst.params_io import load_params, load_preset
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams, load_params, load_preset
 
     # An unknown preset is refused first, whatever else was given.
     preset = load_preset(args.preset) if args.preset is not None else None
@@ -126,6 +99,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
+    from amrst.io.truth import read_truth
+
     T_truth = read_truth(args.truth) if args.truth is not None else None
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []

@@ -25,8 +25,7 @@ import numpy as np
 from amrst import io as amrst_io
 from amrst.atomic import write_json_atomic, write_text_atomic
 from amrst.errors import AmrstError, InvalidInput
-from amrst.params_io import params_to_dict
-from amrst.pipeline import RegistrationParams
+from amrst.params import RegistrationParams, params_to_dict
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from amrst.bench.cases import check_case_folder, write_case
 from amrst.errors import InvalidInput
+from amrst.io.cases import check_case_folder, write_case
 from amrst.types import (
     Cloud,
     Transform,

@@ -7,7 +7,6 @@ and returns ``(result, seconds)``. The session hands them to
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -145,20 +144,14 @@ def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, 
 
 
 def read_truth(path: Path) -> np.ndarray:
-    """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong."""
+    """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong.
+
+    The same reader and checks as ``amrst register --truth`` (amrst.io.truth).
+    """
     from amrst.errors import InvalidInput
-    from amrst.types import check_rigid
+    from amrst.io.truth import read_truth as read
 
     try:
-        data = json.loads(Path(path).read_text())
-        T = data["T_target_source"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(
-            f"Could not read the truth file {Path(path).name}: {exc}. It must be "
-            "JSON with a 4x4 'T_target_source' list (row-major, source to target)."
-        ) from exc
-    try:
-        # The same test as `amrst register --truth`: 4x4, finite, rigid.
-        return check_rigid(T, f"The truth file {Path(path).name}")
+        return read(path)
     except InvalidInput as exc:
         raise ValueError(str(exc)) from exc

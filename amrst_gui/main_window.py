@@ -171,7 +171,7 @@ class MainWindow(QMainWindow):
 
     def load_params_dialog(self) -> None:
         """Read parameters from JSON and use them."""
-        from amrst import params_io
+        from amrst import params as params_io
 
         path, _ = QFileDialog.getOpenFileName(
             self, "Load parameters", "", "JSON (*.json)"
@@ -184,7 +184,7 @@ class MainWindow(QMainWindow):
 
     def save_params_dialog(self) -> None:
         """Write the current parameters to JSON."""
-        from amrst import params_io
+        from amrst import params as params_io
 
         path, _ = QFileDialog.getSaveFileName(
             self, "Save parameters", "params.json", "JSON (*.json)"

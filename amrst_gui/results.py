@@ -15,7 +15,7 @@ from amrst_gui import jobs, steps
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams
 
 _TRUTH_SAMPLE = 20_000
 

@@ -60,7 +60,7 @@ class Session(ResultsMixin, QObject):
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
-        from amrst.pipeline import RegistrationParams
+        from amrst.params import RegistrationParams
 
         self._params = RegistrationParams()
         self._paths: dict[str, Path | None] = dict.fromkeys(jobs.ROLES)

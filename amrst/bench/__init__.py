@@ -1,7 +1,7 @@
 """Benchmark: every method on every case, interleaved, with paper metrics and plots.
 
 ``run_bench`` is the library entry; ``configure_parser`` / ``run_cli`` are the hooks of
-``amrst bench``. Reading cases and writing ``truth.json`` live in ``amrst.bench.cases``.
+``amrst bench``. Reading cases and writing ``truth.json`` live in ``amrst.io.cases``.
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ import numpy as np
 
 from amrst.atomic import make_folder
 from amrst.baselines._common import Method, MethodResult, to_local
-from amrst.bench.cases import Case, find_cases, read_case
 from amrst.errors import AmrstError, Cancelled, InvalidInput
+from amrst.io.cases import Case, find_cases, read_case
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.metrics import measure_clouds, truth_errors
 from amrst.types import apply_transform

@@ -146,7 +146,7 @@ class ParamsPanel(QWidget):
 
     def _presets(self) -> list[str]:
         try:
-            from amrst import params_io
+            from amrst import params as params_io
 
             return sorted(params_io.list_presets())
         except ImportError:
@@ -154,7 +154,7 @@ class ParamsPanel(QWidget):
 
     def load_preset(self, name: str) -> None:
         """Put a preset's values in the form (Apply uses them)."""
-        from amrst import params_io
+        from amrst import params as params_io
         from amrst.errors import AmrstError
 
         try:

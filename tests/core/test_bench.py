@@ -13,8 +13,8 @@ import pytest
 from amrst.atomic import write_json_atomic
 from amrst.baselines import METHODS, MethodResult
 from amrst.bench import TerminalProgress, configure_parser, run_bench, run_cli
-from amrst.bench.cases import find_cases, read_case
 from amrst.errors import Cancelled, InvalidInput
+from amrst.io.cases import find_cases, read_case
 from amrst.types import Cloud, apply_transform, invert_transform, make_transform
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.ply"

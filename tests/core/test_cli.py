@@ -226,7 +226,7 @@ def test_truth_must_be_a_rigid_transform(
 
 
 def test_a_valid_truth_is_accepted(tmp_path) -> None:
-    from amrst.cli import read_truth
+    from amrst.io.truth import read_truth
 
     truth = tmp_path / "truth.json"
     T = _with(_rot(33.0), t=(-9.9, 7.2, 0.01))
@@ -259,8 +259,7 @@ def test_bad_output_folder_is_refused_before_registering(
 
 
 def test_preset_and_params_are_exclusive(capsys, monkeypatch, tmp_path, sample_pair):
-    from amrst.params_io import list_presets, save_params
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams, list_presets, save_params
 
     _no_registration(monkeypatch)
     params = tmp_path / "params.json"

@@ -12,8 +12,7 @@ import pytest
 from amrst import io
 from amrst.errors import AmrstError, InvalidInput
 from amrst.export import PARTS, export_registration, merge_clouds
-from amrst.params_io import load_params
-from amrst.pipeline import RegistrationParams
+from amrst.params import RegistrationParams, load_params
 from amrst.types import Cloud, make_transform
 
 OFFSET = np.array([500000.0, 5000000.0, 100.0])

@@ -54,7 +54,7 @@ def test_wheel_ships_presets_sample_and_icon(tmp_path):
     # Installed from the wheel (first on the path), the engine finds its presets and
     # reads the sample from the installed package, not from this checkout.
     probe = (
-        "import amrst.params_io as p, amrst.io as io;"
+        "import amrst.params as p, amrst.io as io;"
         "from amrst.resources import resource_path as r;"
         "print(r('sample'));"
         "print(sorted(p.list_presets()));"

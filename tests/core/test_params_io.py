@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 from amrst.errors import InvalidInput
-from amrst.params_io import (
+from amrst.params import (
     SCHEMA_VERSION,
+    RegistrationParams,
     list_presets,
     load_params,
     load_preset,
@@ -19,7 +20,6 @@ from amrst.params_io import (
     params_to_dict,
     save_params,
 )
-from amrst.pipeline import RegistrationParams
 
 DATA = Path(__file__).parent / "data"
 PRESETS = Path(__file__).resolve().parents[2] / "resources" / "presets"

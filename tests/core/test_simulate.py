@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from amrst.bench.cases import read_case
+from amrst.io.cases import read_case
 from amrst.simulate import (
     configure_parser,
     run_cli,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import amrst
-from amrst.pipeline import RegistrationParams
+from amrst.params import RegistrationParams
 from amrst.stages.trunk import (
     TrunkParams,
     find_trunk_base,

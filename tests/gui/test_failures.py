@@ -128,7 +128,7 @@ def _nudge(editor) -> None:
 
 
 def test_preset_fills_the_form_and_apply_uses_it(make_main_window, qtbot):
-    from amrst import params_io
+    from amrst import params as params_io
     from amrst_gui import steps
 
     win = make_main_window()

@@ -141,7 +141,7 @@ def test_every_parameter_group_belongs_to_a_step() -> None:
     """A parameter section no step owns would never mark a result stale."""
     import dataclasses
 
-    from amrst.pipeline import RegistrationParams
+    from amrst.params import RegistrationParams
     from amrst_gui import steps
 
     owned = set(steps.groups_for(steps.STEPS[-1]))

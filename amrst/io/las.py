@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from amrst._io_common import RawCloud, flat_attributes, storable
 from amrst.errors import InvalidInput
+from amrst.io.common import RawCloud, flat_attributes, storable
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

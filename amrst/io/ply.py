@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import numpy as np
 
-from amrst._io_common import (
+from amrst.errors import InvalidInput
+from amrst.io.common import (
     RawCloud,
     coordinate_columns,
     flat_attributes,
@@ -22,8 +23,7 @@ from amrst._io_common import (
     shorten,
     storable,
 )
-from amrst._io_text import parse_numbers
-from amrst.errors import InvalidInput
+from amrst.io.text import parse_numbers
 
 if TYPE_CHECKING:
     from pathlib import Path

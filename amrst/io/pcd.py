@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
 
 import numpy as np
 
-from amrst._io_common import (
+from amrst.errors import InvalidInput
+from amrst.io.common import (
     RawCloud,
     clean_name,
     coordinate_columns,
@@ -23,8 +24,7 @@ from amrst._io_common import (
     shorten,
     storable,
 )
-from amrst._io_text import parse_numbers
-from amrst.errors import InvalidInput
+from amrst.io.text import parse_numbers
 
 if TYPE_CHECKING:
     from pathlib import Path

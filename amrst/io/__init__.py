@@ -16,17 +16,17 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from amrst._io_common import RawCloud, rebase, shorten
-from amrst._io_las import read_las, write_las
-from amrst._io_pcd import read_pcd, write_pcd
-from amrst._io_ply import read_ply, write_ply
-from amrst._io_text import read_text, write_text
 from amrst.atomic import write_atomic
 from amrst.errors import AmrstError, InvalidInput
+from amrst.io.common import RawCloud, rebase, shorten
+from amrst.io.describe import describe, format_description
+from amrst.io.las import read_las, write_las
+from amrst.io.pcd import read_pcd, write_pcd
+from amrst.io.ply import read_ply, write_ply
+from amrst.io.text import read_text, write_text
 from amrst.types import Cloud
 
 logger = logging.getLogger(__name__)
@@ -36,7 +36,6 @@ Reader = Callable[..., Cloud]
 #: World coordinates beyond this (m) are invalid like NaN: no Earth coordinate,
 #: not even geocentric (ECEF, about 6.4e6 m), comes near it. Messages say "1e9 m".
 MAX_COORD_M = 1e9
-_SPACING_SAMPLE = 20_000
 
 
 @dataclass(frozen=True)
@@ -262,122 +261,15 @@ def write(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
     write_atomic(path, lambda tmp: writer(tmp, cloud, binary=binary))
 
 
-def describe(cloud: Cloud) -> dict[str, Any]:
-    """Summary numbers for ``amrst info``: size, bounds, spacing, attributes, format.
-
-    Parameters
-    ----------
-    cloud : Cloud
-
-    Returns
-    -------
-    dict
-        ``name``, ``n_points``, ``offset``, ``bounds_min``/``bounds_max`` (world, m),
-        ``extent`` (m), ``median_spacing_m`` (median nearest-neighbour distance of
-        at most 20000 seeded random points, or None), ``attributes`` (name ->
-        ``{"dtype", "shape", "min", "max"}``) and ``format`` (JSON-friendly meta).
-    """
-    n = len(cloud)
-    lo = cloud.xyz.min(axis=0) + cloud.offset if n else np.full(3, np.nan)
-    hi = cloud.xyz.max(axis=0) + cloud.offset if n else np.full(3, np.nan)
-    return {
-        "name": cloud.name,
-        "n_points": n,
-        "offset": cloud.offset.tolist(),
-        "bounds_min": lo.tolist(),
-        "bounds_max": hi.tolist(),
-        "extent": (hi - lo).tolist(),
-        "median_spacing_m": _median_spacing(cloud.xyz),
-        "attributes": {k: _describe_array(v) for k, v in cloud.attributes.items()},
-        "format": _plain_meta(cloud.meta),
-    }
-
-
-def _median_spacing(xyz: np.ndarray) -> float | None:
-    from scipy.spatial import cKDTree
-
-    if len(xyz) < 2:
-        return None
-    rng = np.random.default_rng(0)
-    sample = rng.choice(len(xyz), size=min(len(xyz), _SPACING_SAMPLE), replace=False)
-    # Query the sample against all points: a tree of the sample alone would
-    # overestimate the spacing of a large cloud.
-    dist, _ = cKDTree(xyz, balanced_tree=False, compact_nodes=False).query(
-        xyz[sample], k=2
-    )
-    return float(np.median(dist[:, 1]))
-
-
-def _describe_array(arr: np.ndarray) -> dict[str, Any]:
-    finite = arr[np.isfinite(arr)] if arr.dtype.kind == "f" else arr
-    has = finite.size > 0
-    return {
-        "dtype": str(arr.dtype),
-        "shape": list(arr.shape[1:]),
-        "min": finite.min().item() if has else None,
-        "max": finite.max().item() if has else None,
-    }
-
-
-def _plain_meta(meta: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in meta.items():
-        if key == "las_vlrs":
-            out["las_vlrs"] = [f"{v[0]}/{v[1]} {v[2]}".strip() for v in value]
-        elif isinstance(value, (str, int, float, bool)) or value is None:
-            out[key] = value
-        elif isinstance(value, (tuple, list)) and all(
-            isinstance(v, (str, int, float, bool)) for v in value
-        ):
-            out[key] = list(value)
-    return out
-
-
-def format_description(d: dict[str, Any]) -> str:
-    """Human-readable multi-line text of a :func:`describe` dict.
-
-    Parameters
-    ----------
-    d : dict
-        The output of :func:`describe`.
-
-    Returns
-    -------
-    str
-        Lines such as ``points      12,345``; no trailing newline.
-    """
-
-    def xyz(values: Sequence[float], digits: int = 3) -> str:
-        return "  ".join(f"{v:.{digits}f}" for v in values)
-
-    spacing = d["median_spacing_m"]
-    lines = [
-        d["name"] or "(unnamed cloud)",
-        f"  points      {d['n_points']:,}",
-        f"  offset      {xyz(d['offset'])}",
-        f"  min         {xyz(d['bounds_min'])}",
-        f"  max         {xyz(d['bounds_max'])}",
-        f"  extent      {xyz(d['extent'])} m",
-        "  spacing     "
-        + ("n/a" if spacing is None else f"{spacing:.4f} m (median nearest neighbour)"),
-        f"  attributes  {len(d['attributes']) or 'none'}",
-    ]
-    width = max((len(k) for k in d["attributes"]), default=0)
-    for name, info in d["attributes"].items():
-        shape = f"x{info['shape']}" if info["shape"] else ""
-        lines.append(
-            f"    {name:<{width}}  {info['dtype']}{shape}  "
-            f"min {_num(info['min'])}  max {_num(info['max'])}"
-        )
-    fmt = d["format"]
-    details = [f"{k}={v}" for k, v in fmt.items() if k not in ("path", "format")]
-    lines.append(
-        f"  format      {fmt.get('format', '?')}  {', '.join(details)}".rstrip()
-    )
-    return "\n".join(lines)
-
-
-def _num(value: Any) -> str:
-    if value is None:
-        return "n/a"
-    return f"{value:.6g}" if isinstance(value, float) else str(value)
+__all__ = [
+    "MAX_COORD_M",
+    "PathLike",
+    "Reader",
+    "describe",
+    "format_description",
+    "get_reader",
+    "read",
+    "supported_extensions",
+    "writable_extensions",
+    "write",
+]

@@ -8,7 +8,6 @@ coordinates into the target frame; simulated cases add ``spec_target``,
 from __future__ import annotations
 
 import fnmatch
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ import numpy as np
 
 from amrst.atomic import make_folder, write_json_atomic
 from amrst.errors import InvalidInput
+from amrst.io.truth import read_truth_document
 from amrst.types import Cloud, Transform, check_rigid
 
 if TYPE_CHECKING:
@@ -101,17 +101,7 @@ def read_case(path: PathLike) -> Case:
     truth_path = folder / "truth.json"
     if not truth_path.is_file():
         raise InvalidInput(f"{folder} has no truth.json; it is not a case folder.")
-    try:
-        truth = json.loads(truth_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInput(
-            f"Cannot read {truth_path}: {exc}. It must be JSON with a 4x4 "
-            "'T_target_source'."
-        ) from exc
-    if not isinstance(truth, dict) or "T_target_source" not in truth:
-        raise InvalidInput(
-            f"{truth_path} must hold a JSON object with a 4x4 'T_target_source'."
-        )
+    truth = read_truth_document(truth_path)
     T = check_rigid(truth["T_target_source"], f"T_target_source in {truth_path}")
     return Case(
         folder.name,

@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst._io_common import (
+from amrst.errors import InvalidInput
+from amrst.io.common import (
     RawCloud,
     coordinate_columns,
     flat_attributes,
@@ -26,7 +27,6 @@ from amrst._io_common import (
     shorten,
     storable,
 )
-from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

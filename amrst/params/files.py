@@ -20,7 +20,7 @@ from typing import Any
 
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
-from amrst.pipeline import RegistrationParams
+from amrst.params.model import RegistrationParams
 from amrst.resources import resource_path
 
 SCHEMA_VERSION = 1
