@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.baselines._common import MethodResult, Stopwatch, finish, local_pair
+from amrst.stages.global_match import kiss_global, kiss_matcher_available
 
 if TYPE_CHECKING:
     from amrst.types import Cloud, Transform
@@ -43,45 +44,9 @@ class KissParams:
             raise ValueError("voxel sizes must be > 0")
 
 
-def kiss_matcher_available() -> bool:
-    """Tell whether the ``kiss_matcher`` package can be imported here."""
-    return importlib.util.find_spec("kiss_matcher") is not None
-
-
 def small_gicp_available() -> bool:
     """Tell whether the ``small_gicp`` package can be imported here."""
     return importlib.util.find_spec("small_gicp") is not None
-
-
-def kiss_global(
-    target_xyz: np.ndarray, source_xyz: np.ndarray, voxel_size_m: float = 0.1
-) -> tuple[Transform, int]:
-    """Global pose of the source on the target by KISS-Matcher.
-
-    Parameters
-    ----------
-    target_xyz, source_xyz : (N, 3), (M, 3) float64
-    voxel_size_m : float
-
-    Returns
-    -------
-    T_target_source : (4, 4) float64
-        Identity when KISS-Matcher found no solution.
-    n_inliers : int
-        Its final inlier correspondences (0 = no solution).
-    """
-    import kiss_matcher
-
-    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size_m))
-    sol = matcher.estimate(
-        np.asarray(source_xyz, dtype=np.float32),
-        np.asarray(target_xyz, dtype=np.float32),
-    )
-    T = np.eye(4)
-    if sol.valid:
-        T[:3, :3] = np.asarray(sol.rotation, dtype=float)
-        T[:3, 3] = np.asarray(sol.translation, dtype=float).reshape(3)
-    return T, int(matcher.get_num_final_inliers()) if sol.valid else 0
 
 
 def refine_gicp(

@@ -44,6 +44,27 @@ class RegistrationResult:
     tree: dict[str, TreeMeasures] = field(default_factory=dict)
 
 
+def _expect_ground(
+    tgt: ScanAnalysis, src: ScanAnalysis, params: RegistrationParams, rep: Reporter
+) -> tuple[ScanAnalysis, ScanAnalysis]:
+    """Analyse again the scan that found no ground when the other one found one.
+
+    Both scans of a pair were made in one place: a scan half hidden by a neighbour
+    may show only a few square metres of ground (2.8 m² in field case 09), too little
+    to tell from a stem foot on its own, but enough once the other scan has a ground.
+    """
+    t_scene, s_scene = tgt.scene, src.scene
+    if t_scene is None or s_scene is None or t_scene.has_ground == s_scene.has_ground:
+        return tgt, src
+    if t_scene.has_ground:
+        return tgt, analyse_scan(
+            src.cloud, params, rep, expect_ground=t_scene.ground_tilt_deg
+        )
+    return analyse_scan(
+        tgt.cloud, params, rep, expect_ground=s_scene.ground_tilt_deg
+    ), src
+
+
 def register(
     target: Cloud,
     source: Cloud,
@@ -82,6 +103,7 @@ def register(
         return analyse_scan(cloud, params, rep)
 
     tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.6))
+    tgt, src = _expect_ground(tgt, src, params, SubReporter(reporter, 0.55, 0.6))
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()

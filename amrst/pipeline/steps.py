@@ -52,7 +52,9 @@ STEPS: tuple[Step, ...] = (
         skeletonise_scan,
     ),
     # Ranking, verification and the trunk search all happen while matching.
-    Step("match", "Match tetrahedra", ("match", "coarse", "trunk"), False, find_matches),
+    Step(
+        "match", "Match tetrahedra", ("match", "coarse", "trunk"), False, find_matches
+    ),
     # The coarse and the fine results are measured (cloud metrics, tree measures).
     Step(
         "coarse",

@@ -22,8 +22,6 @@ from amrst.stages.polish import Occupancy, polish
 from amrst.types import Transform, rotation_angle_deg
 
 if TYPE_CHECKING:
-
-
     from amrst.stages.match import TetraMatches
 
 
@@ -158,6 +156,13 @@ class Candidate:
     # fit, and the point set that fit used ("" = fine.points).
     precise_score: float = float("nan")
     fine_points: str = ""
+    # Other sources that proposed the same solution (one candidate names them all).
+    also_found_by: tuple[Origin, ...] = ()
+
+    @property
+    def origins(self) -> tuple[Origin, ...]:
+        """Every source that proposed this solution, its own origin first."""
+        return (self.origin, *self.also_found_by)
 
 
 @dataclass(frozen=True, slots=True)
@@ -305,12 +310,8 @@ def rank_candidates(
     tgt_tree = cKDTree(target_xyz)
     if params.polish_top > 0:
         # Open3D would do this too, but importing it costs a second per command.
-        tgt_small = target_xyz[
-            voxel_sample(target_xyz, params.verify_voxel_m)
-        ]
-        src_small = source_xyz[
-            voxel_sample(source_xyz, params.verify_voxel_m)
-        ]
+        tgt_small = target_xyz[voxel_sample(target_xyz, params.verify_voxel_m)]
+        src_small = source_xyz[voxel_sample(source_xyz, params.verify_voxel_m)]
         if len(src_small) > POLISH_POINTS:
             src_small = src_small[
                 rng.choice(len(src_small), POLISH_POINTS, replace=False)
@@ -400,7 +401,9 @@ def distinct_solutions(a: Transform, b: Transform, centre: np.ndarray) -> bool:
     which tetrahedron matches are grouped into one candidate.
     """
     d = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
-    return bool(d > DISTINCT_M or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > DISTINCT_DEG)
+    return bool(
+        d > DISTINCT_M or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > DISTINCT_DEG
+    )
 
 
 def same_solution(a: Transform, b: Transform, centre: np.ndarray) -> bool:
@@ -460,11 +463,11 @@ def choose_coarse(
     centre = np.zeros(3) if centre is None else centre
     # Scores are comparable only between candidates verified the same way: trunk
     # solutions (refined, then scored tightly) among themselves, polished tetrahedron
-    # solutions among themselves.
+    # and feature-matcher solutions (same polish, same score) among themselves.
     rivals = [
         c
         for c in left[1:]
-        if c.origin == best.origin
+        if (c.origin is Origin.TRUNK) == (best.origin is Origin.TRUNK)
         and c.polished == best.polished
         and distinct_solutions(c.T_target_source, best.T_target_source, centre)
     ]
