@@ -329,7 +329,10 @@ def search_yaw(
     centre = source_xyz.mean(axis=0)
     kept: list[YawSolution] = []
     for s in found:
-        if all(distinct_solutions(s.T_target_source, k.T_target_source, centre) for k in kept):
+        if all(
+            distinct_solutions(s.T_target_source, k.T_target_source, centre)
+            for k in kept
+        ):
             kept.append(s)
             if len(kept) == params.keep:
                 break
@@ -397,7 +400,9 @@ def trunk_contenders(
         if (
             transforms is not None
             and centre is not None
-            and not all(distinct_solutions(transforms[k], transforms[j], centre) for j in picked)
+            and not all(
+                distinct_solutions(transforms[k], transforms[j], centre) for j in picked
+            )
         ):
             continue
         picked.append(k)
