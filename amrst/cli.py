@@ -19,6 +19,7 @@ from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 if TYPE_CHECKING:
+
     from amrst.params import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
