@@ -59,7 +59,10 @@ def _check(result: MethodResult, source: Cloud, T_true, rot_deg=0.3, gt_m=0.02):
 
 
 def test_registry_names() -> None:
-    assert set(METHODS) == {"icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst"}
+    assert set(METHODS) == {
+        "icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "kiss_matcher", "kiss_gicp",
+        "amrst",
+    }
 
 
 @pytest.mark.parametrize("name", ["icp", "icp_centroid", "fpfh_ransac", "fgr"])
