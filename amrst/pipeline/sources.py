@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from amrst.pipeline.features_source import add_feature_solution, wants_features
 from amrst.pipeline.trunk_fallback import add_trunk_solutions, wants_trunk_search
-from amrst.stages.coarse import CandidateList, Origin, distinct_solutions
+from amrst.stages.candidates import CandidateList, Origin, distinct_solutions
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.pipeline.analysis import ScanAnalysis
     from amrst.progress import Reporter
-    from amrst.stages.coarse import Candidate
+    from amrst.stages.candidates import Candidate
     from amrst.stages.fine import FineResult
 
 
