@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from amrst.atomic import make_folder
+from amrst.baselines import METHODS
 from amrst.baselines._common import Method, MethodResult, to_local
 from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.io.cases import Case, find_cases, read_case
@@ -35,7 +36,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_METHODS = ("icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst")
+DEFAULT_METHODS = tuple(METHODS)  # every baseline, amrst last
 NAN = float("nan")
 
 
