@@ -218,7 +218,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
-    from amrst import bench, simulate
+    from amrst import bench, simulate_cli
 
     p = argparse.ArgumentParser(
         prog="amrst",
@@ -285,8 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate",
         help="make two virtual tripod scans (with truth) from one complete tree cloud",
     )
-    simulate.configure_parser(sim)
-    sim.set_defaults(func=simulate.run_cli)
+    simulate_cli.configure_parser(sim)
+    sim.set_defaults(func=simulate_cli.run_cli)
 
     ben = sub.add_parser(
         "bench",
