@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from amrst.simulate import check_case_folder, check_settings, simulate_pair, write_case
 
@@ -35,6 +35,31 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--res-deg", type=float, default=0.04)
     p.add_argument("--noise-m", type=float, default=0.004)
     p.add_argument("--tilt-deg", type=float, default=0.5)
+    field = p.add_argument_group(
+        "field scene",
+        "make a field-like case: the tree on a rough ground disc, with neighbours and "
+        "shrubs, both scans cut with a cylinder around the stem (any of these options "
+        "turns it on)",
+    )
+    field.add_argument(
+        "--ground", action="store_true", help="add a rough, sloped ground disc"
+    )
+    field.add_argument("--slope-deg", type=float, default=8.0, help="largest slope")
+    field.add_argument(
+        "--neighbours",
+        nargs="+",
+        default=[],
+        metavar="TREE",
+        help="other tree clouds to stand 2.5-6 m away (a file may be given twice)",
+    )
+    field.add_argument("--shrubs", type=int, default=None, metavar="N")
+    field.add_argument(
+        "--clip-radius-m",
+        type=float,
+        default=None,
+        metavar="R",
+        help="cut both scans with a vertical cylinder of this radius around the stem",
+    )
 
 
 def run_cli(args: argparse.Namespace) -> int:
@@ -70,16 +95,33 @@ def run_cli(args: argparse.Namespace) -> int:
         )
         check_case_folder(args.out)
         tree = io.read(args.tree)
-        pair = simulate_pair(
-            tree,
-            seed=args.seed,
-            separation_deg=args.separation_deg,
-            distance_m=distance,
-            res_deg=args.res_deg,
-            noise_m=args.noise_m,
-            tilt_deg=args.tilt_deg,
-        )
-        out = write_case(pair, args.out, Path(args.tree).name, args.seed)
+        field = _field_options(args, io)
+        if field is None:
+            pair = simulate_pair(
+                tree,
+                seed=args.seed,
+                separation_deg=args.separation_deg,
+                distance_m=distance,
+                res_deg=args.res_deg,
+                noise_m=args.noise_m,
+                tilt_deg=args.tilt_deg,
+            )
+            out = write_case(pair, args.out, Path(args.tree).name, args.seed)
+        else:
+            from amrst.simulate_field import simulate_field_pair
+
+            pair, info = simulate_field_pair(
+                tree,
+                field,
+                seed=args.seed,
+                separation_deg=args.separation_deg,
+                distance_m=distance,
+                res_deg=args.res_deg,
+                noise_m=args.noise_m,
+                tilt_deg=args.tilt_deg,
+            )
+            out = write_case(pair, args.out, Path(args.tree).name, args.seed)
+            _add_to_truth(out / "truth.json", info)
     except AmrstError as exc:
         print(f"amrst simulate: {exc}", file=sys.stderr)
         return 2
@@ -89,3 +131,32 @@ def run_cli(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def _field_options(args: argparse.Namespace, io: Any) -> Any:
+    """Return the FieldOptions the arguments ask for, or None for a plain case."""
+    if not (
+        args.ground
+        or args.neighbours
+        or args.shrubs is not None
+        or args.clip_radius_m is not None
+    ):
+        return None
+    from amrst.simulate_field import FieldOptions
+
+    return FieldOptions(
+        ground=args.ground,
+        slope_deg=args.slope_deg,
+        neighbours=tuple(io.read(path) for path in args.neighbours),
+        shrubs=args.shrubs or 0,
+        clip_radius_m=args.clip_radius_m,
+    )
+
+
+def _add_to_truth(path: Path, info: dict[str, Any]) -> None:
+    import json
+
+    from amrst.atomic import write_json_atomic
+
+    truth = json.loads(path.read_text(encoding="utf-8"))
+    write_json_atomic(path, {**truth, **info}, indent=1)
