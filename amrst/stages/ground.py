@@ -45,8 +45,9 @@ class GroundFit:
     cell_m : float
     centres : (K, 2) float64
         Centre of every occupied cell.
-    surface : (K,) float64
-        Ground height of each cell (plane plus relief).
+    relief : (K,) float64
+        Height of each cell's ground above the plane (bumps; the plane carries the
+        slope, so a sloped cell is not biased towards its downhill edge).
     """
 
     found: bool
@@ -55,7 +56,7 @@ class GroundFit:
     n_cells: int
     cell_m: float
     centres: np.ndarray
-    surface: np.ndarray
+    relief: np.ndarray
 
     def height(self, xyz: np.ndarray) -> np.ndarray:
         """(N,) height of points above the ground surface (of their nearest cell).
@@ -68,7 +69,8 @@ class GroundFit:
         from scipy.spatial import cKDTree
 
         cell = cKDTree(self.centres).query(xyz[:, :2])[1]
-        return np.asarray(xyz[:, 2] - self.surface[cell])
+        plane = a * xyz[:, 0] + b * xyz[:, 1] + c
+        return np.asarray(xyz[:, 2] - plane - self.relief[cell])
 
     @property
     def normal(self) -> np.ndarray:
@@ -137,7 +139,9 @@ def fit_ground(
     cxy = (np.floor(xyz[first, :2] / cell_m) + 0.5) * cell_m
     if len(codes) < 3:
         return GroundFit(False, lowest, 0.0, len(codes), cell_m, none, np.zeros(0))
-    A = np.column_stack([cxy, np.ones(len(codes))])
+    # The plane is fitted through the lowest points where they are (not the cell
+    # centres): on a slope a cell's lowest point sits at its downhill edge.
+    A = np.column_stack([xyz[first, :2], np.ones(len(codes))])
     coef = _ransac_plane(
         A, mins, tol_m, np.tan(np.radians(max_slope_deg)), iterations, seed
     )
@@ -159,7 +163,7 @@ def fit_ground(
     nn = cKDTree(cxy[inl]).query(cxy, k=k)[1].reshape(len(codes), k)
     relief = np.median(resid[inl][nn], axis=1)
     relief[inl] = resid[inl]
-    return GroundFit(True, coef, area, len(codes), cell_m, cxy, A @ coef + relief)
+    return GroundFit(True, coef, area, len(codes), cell_m, cxy, relief)
 
 
 def _ransac_plane(
