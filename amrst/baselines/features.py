@@ -138,9 +138,8 @@ def global_ransac(
     """
     tgt_pcd, tgt_fpfh = _features(target_xyz, params)
     src_pcd, src_fpfh = _features(source_xyz, params)
-    return np.asarray(
-        _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, "ransac").transformation
-    ).copy()
+    res = _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, "ransac")
+    return cast("np.ndarray", np.asarray(res.transformation).copy())
 
 
 def _global(

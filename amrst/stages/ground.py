@@ -77,7 +77,7 @@ class GroundFit:
         """(3,) unit upward normal of the plane."""
         a, b, _ = self.plane
         n = np.array([-a, -b, 1.0])
-        return n / np.linalg.norm(n)
+        return np.asarray(n / np.linalg.norm(n))
 
     @property
     def tilt_deg(self) -> float:

@@ -202,8 +202,8 @@ class SceneResult:
     def keep(self, use_points: str = "above_ground") -> np.ndarray:
         """(N,) bool: the points the tree stages get (see ``SceneParams.use_points``)."""
         if use_points == "tree" and self.has_ground:
-            return self.labels == TREE
-        return self.labels != GROUND
+            return np.asarray(self.labels == TREE)
+        return np.asarray(self.labels != GROUND)
 
     def counts(self) -> dict[str, int]:
         """Points per label name."""
