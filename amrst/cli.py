@@ -114,7 +114,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
-    result = register(target, source, params, TerminalReporter(args.quiet))
+    stems = (getattr(args, "stem", None), getattr(args, "source_stem", None))
+    result = register(
+        target, source, params, TerminalReporter(args.quiet), stems=stems
+    )
     summary = registration_summary(result, T_truth)
     summary["timings_s"]["read"] = round(t_read, 4)
     verified = result.coarse.verified
@@ -279,6 +282,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="cloud format for --write-clouds",
     )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
+    for flag, role in (("--stem", "TARGET"), ("--source-stem", "SOURCE")):
+        reg.add_argument(
+            flag,
+            nargs=2,
+            type=float,
+            metavar=("X", "Y"),
+            help=f"stem of the tree to register in {role} (world x y): picks it among "
+            "neighbours and cuts a whole plot scan around it (scene.crop_radius_m)",
+        )
     reg.set_defaults(func=_cmd_register)
 
     sim = sub.add_parser(

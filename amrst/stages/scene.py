@@ -23,14 +23,15 @@ of the file.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from amrst.stages.ground import fit_ground
+from amrst.stages.stems import Stem, assign_to_stems, find_stems
 
-TREE, GROUND, OTHER = 0, 1, 2
-LABEL_NAMES = ("tree", "ground", "other")
+TREE, GROUND, OTHER, OUTSIDE = 0, 1, 2, 3
+LABEL_NAMES = ("tree", "ground", "other", "outside")
 SCENE_MODES = ("auto", "off")
 SCENE_POINTS = ("above_ground", "tree")
 MAX_GROUND_POINTS = 500_000
@@ -156,6 +157,15 @@ class SceneParams:
             "help": "A piece that reaches no stem goes with its nearest labelled neighbour when higher than this; lower, it is a shrub (other).",
         },
     )
+    crop_radius_m: float = field(
+        default=6.0,
+        metadata={
+            "unit": "m",
+            "min": 0.0,
+            "max": 1000.0,
+            "help": "With a stem position given (--stem): points farther than this from it are left out, as a technician's cylinder cut would (a whole plot scan becomes a field scan of one tree); 0 = keep all.",
+        },
+    )
     seed: int = field(
         default=0, metadata={"min": 0, "help": "Seed of the ground RANSAC."}
     )
@@ -170,15 +180,6 @@ class SceneParams:
                 f"scene.stem_low_m ({self.stem_low_m} m) must be below "
                 f"scene.stem_high_m ({self.stem_high_m} m)"
             )
-
-
-@dataclass(frozen=True, slots=True)
-class Stem:
-    """One stem found in the slice above the ground."""
-
-    xy: np.ndarray  # (2,) centre of the fitted circle (local frame)
-    radius_m: float  # nan when the circle fit was not usable
-    n_points: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,7 +204,7 @@ class SceneResult:
         """(N,) bool: the points the tree stages get (see ``SceneParams.use_points``)."""
         if use_points == "tree" and self.has_ground:
             return np.asarray(self.labels == TREE)
-        return np.asarray(self.labels != GROUND)
+        return np.asarray((self.labels == TREE) | (self.labels == OTHER))
 
     def counts(self) -> dict[str, int]:
         """Points per label name."""
@@ -226,6 +227,7 @@ def understand_scene(
     params : SceneParams
     stem_xy : (2,) float64 or None
         A stem position the user gives (local frame); default: the footprint centre.
+        Points farther than ``crop_radius_m`` from it are labelled ``OUTSIDE``.
     expect_ground : float or None
         The ground tilt (deg) of the other scan of the pair when it has a ground: then
         ``expected_ground_area_m2`` is enough, and the plane may tilt at most
@@ -252,6 +254,30 @@ def understand_scene(
     labels = np.full(n, TREE, dtype=np.int8)
     if params.mode == "off" or n < 10:
         return _no_ground(labels, xyz, axis, "scene analysis off")
+    if stem_xy is not None and params.crop_radius_m > 0:
+        # A whole plot scan with the stem given: cut it as a technician would.
+        outside = np.hypot(*(xyz[:, :2] - axis).T) > params.crop_radius_m
+        if (~outside).sum() >= 10:
+            inner = understand_scene(
+                xyz[~outside],
+                replace(params, crop_radius_m=0.0),
+                stem_xy,
+                expect_ground,
+                None
+                if ground_xyz is None
+                else _near(ground_xyz, axis, params.crop_radius_m),
+            )
+            labels[:] = OUTSIDE
+            labels[~outside] = inner.labels
+            height = np.full(n, np.nan)
+            height[~outside] = inner.height_m
+            return replace(
+                inner,
+                labels=labels,
+                height_m=height,
+                message=f"{inner.message}; {int(outside.sum())} points farther than "
+                f"{params.crop_radius_m:g} m from the given stem left out",
+            )
     gxyz = xyz if ground_xyz is None else np.asarray(ground_xyz, dtype=float)
     gxyz = gxyz[np.isfinite(gxyz).all(axis=1)]
     if len(gxyz) > MAX_GROUND_POINTS:
@@ -284,7 +310,7 @@ def understand_scene(
     h = ground.height(xyz)
     labels[h < params.ground_dist_m] = GROUND
     above = np.flatnonzero(labels != GROUND)
-    stems, slice_labels, slice_idx = _find_stems(xyz, h, above, params)
+    stems, slice_labels, slice_idx = find_stems(xyz, h, above, params)
     order = sorted(
         range(len(stems)), key=lambda k: float(np.linalg.norm(stems[k].xy - axis))
     )
@@ -292,7 +318,7 @@ def understand_scene(
     seeds = [slice_idx[slice_labels == k] for k in order]
     tree_stem = 0 if stems else -1
     if stems:
-        owner = _assign_to_stems(xyz, h, above, seeds, params)
+        owner = assign_to_stems(xyz, h, above, seeds, params)
         labels[above[owner != 0]] = OTHER
         base_xy = stems[0].xy
         # Where the stem meets the ground: the surface height of the nearest points.
@@ -322,6 +348,11 @@ def understand_scene(
     )
 
 
+def _near(xyz: np.ndarray, xy: np.ndarray, radius: float) -> np.ndarray:
+    xyz = np.asarray(xyz, dtype=float)
+    return np.asarray(xyz[np.hypot(xyz[:, 0] - xy[0], xyz[:, 1] - xy[1]) <= radius])
+
+
 def _no_ground(
     labels: np.ndarray, xyz: np.ndarray, axis: np.ndarray, msg: str
 ) -> SceneResult:
@@ -339,105 +370,3 @@ def _no_ground(
         axis,
         msg,
     )
-
-
-def _components(pts: np.ndarray, link: float) -> tuple[int, np.ndarray]:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(pts).query_pairs(link, output_type="ndarray")
-    g = coo_matrix(
-        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts))
-    )
-    n, lab = connected_components(g, directed=False)
-    return int(n), lab
-
-
-def _find_stems(
-    xyz: np.ndarray, h: np.ndarray, above: np.ndarray, params: SceneParams
-) -> tuple[list[Stem], np.ndarray, np.ndarray]:
-    """Stems in the slice; also each slice point's stem number (-1 none) and index."""
-    hs = h[above]
-    sl = above[(hs >= params.stem_low_m) & (hs <= params.stem_high_m)]
-    if len(sl) < 10:
-        return [], np.zeros(0, dtype=np.int64), sl
-    n, lab = _components(xyz[sl], params.link_m)
-    span = params.stem_high_m - params.stem_low_m
-    stems: list[Stem] = []
-    out = np.full(len(sl), -1, dtype=np.int64)
-    for k in range(n):
-        m = lab == k
-        if m.sum() < 10:
-            continue
-        hk = h[sl[m]]
-        # A stem crosses the slice: from near its bottom to near its top.
-        if (
-            hk.min() > params.stem_low_m + 0.25 * span
-            or hk.max() < params.stem_high_m - 0.25 * span
-        ):
-            continue
-        pts = xyz[sl[m], :2]
-        if np.ptp(pts, axis=0).max() > params.stem_max_width_m:
-            continue
-        out[m] = len(stems)
-        stems.append(_circle(pts))
-    return stems, out, sl
-
-
-def _circle(pts: np.ndarray) -> Stem:
-    """Kasa circle fit of a stem slice; the median when the fit is unusable."""
-    med = np.median(pts, axis=0)
-    x, y = pts[:, 0] - med[0], pts[:, 1] - med[1]
-    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-    sol = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
-    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
-    spread = float(np.max(np.hypot(x, y)))
-    if r2 <= 0 or np.sqrt(r2) > max(1.5 * spread, 0.05):
-        return Stem(med, float("nan"), len(pts))
-    return Stem(med + sol[:2], float(np.sqrt(r2)), len(pts))
-
-
-def _assign_to_stems(
-    xyz: np.ndarray,
-    h: np.ndarray,
-    above: np.ndarray,
-    seeds: list[np.ndarray],
-    params: SceneParams,
-) -> np.ndarray:
-    """Stem number of each point above the ground (0 = the tree), -1 for shrubs."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
-    from scipy.spatial import cKDTree
-
-    from amrst.stages.voxels import voxel_representatives
-
-    # Paths are traced on one point per voxel (a third of the link): ten times fewer
-    # links than on the 3 cm working points, same labels at this scale.
-    reps, owner_of = voxel_representatives(xyz[above], params.link_m / 3)
-    pts = xyz[above][reps]
-    pairs = cKDTree(pts).query_pairs(params.link_m, output_type="ndarray")
-    d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
-    graph = coo_matrix(
-        (d, (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts))
-    ).tocsr()
-    pos = np.full(len(xyz), -1, dtype=np.int64)
-    pos[above] = owner_of  # working point -> its voxel's node
-    node_stem = np.full(len(pts), -1, dtype=np.int64)
-    for k in range(len(seeds) - 1, -1, -1):  # the tree of interest wins a shared voxel
-        node_stem[pos[seeds[k]]] = k
-    nodes = np.flatnonzero(node_stem >= 0)
-    _, _, sources = dijkstra(
-        graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
-    )
-    owner = np.where(sources >= 0, node_stem[np.maximum(sources, 0)], -1)
-    h_nodes = h[above][reps]
-    # Pieces that reach no stem: crown parts (high) go with their nearest labelled
-    # point, shrubs (low) stay "other".
-    lost = np.flatnonzero(owner < 0)
-    reached = np.flatnonzero(owner >= 0)
-    if len(lost) and len(reached):
-        high = lost[h_nodes[lost] > params.crown_height_m]
-        nn = cKDTree(pts[reached]).query(pts[high])[1]
-        owner[high] = owner[reached[nn]]
-    return np.asarray(owner[owner_of])

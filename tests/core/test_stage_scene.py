@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 from amrst.stages.ground import fit_ground
-from amrst.stages.scene import GROUND, OTHER, TREE, SceneParams, understand_scene
+from amrst.stages.scene import (
+    GROUND,
+    OTHER,
+    OUTSIDE,
+    TREE,
+    SceneParams,
+    understand_scene,
+)
 
 SLOPE = np.tan(np.radians(10.0))
 
@@ -115,3 +122,23 @@ def test_bad_params_say_what_to_change() -> None:
         SceneParams(stem_low_m=2.0, stem_high_m=1.0)
     with pytest.raises(ValueError, match="mode"):
         SceneParams(mode="on")
+
+
+def test_a_plot_scan_is_cut_around_the_given_stem(stand) -> None:
+    """A third tree 9 m away (a plot scan): with the neighbour's stem given, the scan
+    is cut 6 m around it as a technician would; the far tree is left out."""
+    xyz, _truth = stand
+    rng = np.random.default_rng(2)
+    far = synthetic_tree(rng, np.array([-8.0, 4.0]), 6.0)
+    xy = rng.uniform(-11, 11, (20000, 2))
+    ground = np.column_stack([xy, ground_z(xy)])
+    plot = np.vstack([xyz, far, ground])
+    scene = understand_scene(plot, SceneParams(), stem_xy=np.array([3.0, 0.5]))
+    assert scene.has_ground
+    outside = scene.labels == OUTSIDE
+    np.testing.assert_array_equal(
+        outside, np.hypot(plot[:, 0] - 3.0, plot[:, 1] - 0.5) > 6.0
+    )
+    assert not scene.keep()[len(xyz) : len(xyz) + len(far)].any()
+    np.testing.assert_allclose(scene.stems[0].xy, [3.0, 0.5], atol=0.05)
+    assert np.isnan(scene.height_m[outside]).all()
