@@ -130,6 +130,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
             "rank": result.coarse.candidate.rank,
             "id": result.coarse.candidate.id,
             "origin": result.coarse.candidate.origin,
+            # Every source that proposed this pose (tetrahedra, features, trunk).
+            "found_by": [str(o) for o in result.coarse.candidate.origins],
             "explanation": result.coarse.candidate.explanation,
         },
         "target_file": str(args.target),

@@ -52,19 +52,6 @@ def test_field_pair_registers_with_the_scene_stage(field_case) -> None:
         assert len(an.xyz) < len(an.scene.labels)
 
 
-def test_without_the_scene_stage_no_silent_failure(field_case) -> None:
-    base = RegistrationParams()
-    off = dataclasses.replace(
-        base,
-        scene=dataclasses.replace(base.scene, mode="off"),
-        global_match=dataclasses.replace(base.global_match, mode="off"),
-    )
-    r = amrst.register(field_case.target, field_case.source, off)
-    # The ground confuses the tree stages: not registered, and it says so.
-    assert not _ok(r, field_case.T_target_source, field_case.source)
-    assert not r.coarse.verified
-
-
 def test_only_the_feature_matcher_can_register(sample_pair) -> None:
     """Matching made impossible and the trunk search off: the feature matcher's pose
     is the verified winner; with it off too there is nothing to offer."""
@@ -118,7 +105,9 @@ def test_global_matchers_find_a_large_turn(tiny_tree, matcher: str) -> None:
     if matcher == "kiss":
         pytest.importorskip("kiss_matcher")
     c, s = np.cos(np.radians(120)), np.sin(np.radians(120))
-    T_true = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [2.0, -1.0, 0.3])
+    T_true = make_transform(
+        np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [2.0, -1.0, 0.3]
+    )
     target = tiny_tree.xyz[::3]  # 1,667 points keep RANSAC quick
     source = apply_transform(invert_transform(T_true), target)
     found = match_globally(target, source, GlobalMatchParams(matcher=matcher))
@@ -127,3 +116,31 @@ def test_global_matchers_find_a_large_turn(tiny_tree, matcher: str) -> None:
     err = truth_errors(found.T_target_source, T_true, source)
     assert err.rotation_error_deg < 3.0, err
     assert err.gt_rmse_m < 0.15, err
+
+
+def test_register_command_on_the_field_pair(tmp_path) -> None:
+    """Exit 0 and the sources named in transform.json; with the scene stage off the
+    same pair exits 3 ("verified": false), never a silent wrong answer."""
+    import json
+
+    from amrst.cli import main
+
+    args = [str(FIELD / "target.ply"), str(FIELD / "source.ply"), "--quiet"]
+    assert main(["register", *args, "--out", str(tmp_path / "on")]) == 0
+    record = json.loads((tmp_path / "on" / "transform.json").read_text())
+    assert record["verified"] is True
+    assert record["coarse_candidate"]["found_by"][0] == "tetrahedra"
+    params = tmp_path / "off.json"
+    params.write_text(
+        json.dumps({"scene": {"mode": "off"}, "global_match": {"mode": "off"}})
+    )
+    off = ["register", *args, "--out", str(tmp_path / "off"), "--params", str(params)]
+    assert main(off) == 3
+    record = json.loads((tmp_path / "off" / "transform.json").read_text())
+    assert record["verified"] is False
+    # ... and it was indeed wrong: the ground confuses the tree stages.
+    case = read_case(FIELD)
+    err = truth_errors(
+        np.array(record["T_target_source"]), case.T_target_source, case.source.xyz
+    )
+    assert err.rotation_error_deg > 1.0 or err.gt_rmse_m > 0.05

@@ -26,12 +26,16 @@ def ground_z(xy: np.ndarray) -> np.ndarray:
     return SLOPE * xy[..., 0] + 0.02 * np.sin(3 * xy[..., 1])  # slope plus bumps
 
 
-def synthetic_tree(rng: np.random.Generator, foot_xy: np.ndarray, height: float) -> np.ndarray:
+def synthetic_tree(
+    rng: np.random.Generator, foot_xy: np.ndarray, height: float
+) -> np.ndarray:
     """A stem (cylinder surface, its foot 5 cm into the ground) and a crown shell."""
     z0 = float(ground_z(foot_xy)) - 0.05
     t = rng.uniform(0, 2 * np.pi, 3000)
     z = rng.uniform(0, height * 0.7, 3000)
-    stem = np.column_stack([foot_xy[0] + 0.15 * np.cos(t), foot_xy[1] + 0.15 * np.sin(t), z0 + z])
+    stem = np.column_stack(
+        [foot_xy[0] + 0.15 * np.cos(t), foot_xy[1] + 0.15 * np.sin(t), z0 + z]
+    )
     d = rng.normal(size=(3000, 3))
     d /= np.linalg.norm(d, axis=1)[:, None]
     crown = d * [1.5, 1.5, 1.2] + np.r_[foot_xy, z0 + height * 0.7]
@@ -106,7 +110,13 @@ def test_a_clean_tree_is_left_as_it_is(tiny_tree) -> None:
 
 def test_ground_fit_needs_area_and_levels_the_plane(stand) -> None:
     xyz, truth = stand
-    kw = {"cell_m": 0.5, "tol_m": 0.15, "max_slope_deg": 20.0, "iterations": 300, "seed": 0}
+    kw = {
+        "cell_m": 0.5,
+        "tol_m": 0.15,
+        "max_slope_deg": 20.0,
+        "iterations": 300,
+        "seed": 0,
+    }
     found = fit_ground(xyz, min_area_m2=12.0, **kw)
     assert found.found
     assert found.area_m2 > 30
