@@ -121,7 +121,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
     summary = registration_summary(result, T_truth)
     summary["timings_s"]["read"] = round(t_read, 4)
     verified = result.coarse.verified
+    from amrst.verdict import FAILED, REGISTERED, judge_result
+
     extra = {
+        "verdict": judge_result(result, params).as_dict(),
         "verified": verified,
         "confidence": result.confidence,
         "message": result.message,
@@ -180,44 +183,19 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    if not verified:
-        best = result.coarse.candidate
-        if best.origin == "trunk":
-            runner = result.coarse.runner_up_score
-            versus = (
-                f"against {runner:.0%} within {params.coarse.tight_dist_m * 100:.0f} cm "
-                "for the next heading, which is not a clear lead"
-                if runner > 0
-                else "with no other heading to compare it with"
-            )
-            why = (
-                f"The best solution comes from the trunk heading search: "
-                f"{best.precise_score:.0%} of the sampled source points lie within "
-                f"{params.trunk.score_dist_m * 100:.1f} cm of the target, {versus} "
-                "(a round or symmetric stem, or scans that share little, fit several "
-                "headings equally well)."
-            )
-        else:
-            why = (
-                f"The best solution puts only {best.score:.0%} of the sampled source points "
-                f"within {params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one "
-                "puts 45% or more on the benchmark)"
-                + (
-                    ", and the trunk heading search found no heading that clearly beats the others."
-                    if "trunk" in result.timings
-                    else "."
-                )
-            )
+    # issue 13: one verdict, the same words as the app (amrst.verdict).
+    verdict = judge_result(result, params)
+    if verdict.status == FAILED:
         print(
-            f"Registration failed: no verified candidate. {why} The files above are marked "
-            '"verified": false. Check that both scans show the same tree, review the '
-            'matches in amrst-gui, or try --preset "Leaf-on broadleaf" / a larger edge '
-            "tolerance.",
+            f"Registration failed: {verdict.reason} The files above are marked "
+            f'"verified": false. Next: {verdict.next_step}',
             file=sys.stderr,
         )
         return EXIT_FAILED
-    if result.confidence < LOW_CONFIDENCE:
-        print(f"  WARNING: {result.message}", file=sys.stderr)
+    if verdict.status != REGISTERED:
+        print(f"  WARNING: {verdict.text()}", file=sys.stderr)
+    else:
+        print(f"  verdict: {verdict.text()}")
     return 0
 
 
