@@ -55,8 +55,9 @@ def _expect_ground(
     """Analyse again the scan that found no ground when the other one found one.
 
     Both scans of a pair were made in one place: a scan half hidden by a neighbour
-    may show only a few square metres of ground (2.8 m² in field case 09), too little
-    to tell from a stem foot on its own, but enough once the other scan has a ground.
+    may show little ground (12 m² in field case 02's target, at the threshold), too
+    little to tell from a stem foot on its own (clean trees: up to 7.5 m²), but enough
+    once the other scan has a ground (``scene.expected_ground_area_m2``).
     """
     t_scene, s_scene = tgt.scene, src.scene
     if t_scene is None or s_scene is None or t_scene.has_ground == s_scene.has_ground:
