@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,7 +20,6 @@ from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 if TYPE_CHECKING:
-
     from amrst.params import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
@@ -94,7 +94,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.export import check_output_dir, export_registration, output_names
     from amrst.pipeline import register
-    from amrst.report import registration_summary
+    from amrst.report import record_from_registration, result_documents
 
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
@@ -105,7 +105,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
-    check_output_dir(args.out, output_names(parts, args.format))
+    report_name = ["report.html"] if args.report else []  # amrst.report_html
+    check_output_dir(args.out, output_names(parts, args.format) + report_name)
     if _same_file(args.target, args.source):
         logger.warning(
             "TARGET and SOURCE are the same file (%s): the result will be the "
@@ -114,46 +115,47 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
-    stems = (getattr(args, "stem", None), getattr(args, "source_stem", None))
-    result = register(
-        target, source, params, TerminalReporter(args.quiet), stems=stems
-    )
-    summary = registration_summary(result, T_truth)
-    summary["timings_s"]["read"] = round(t_read, 4)
-    verified = result.coarse.verified
+    stems = (args.stem, args.source_stem)  # --stem / --source-stem (issue 12)
+    result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
     from amrst.verdict import FAILED, REGISTERED, judge_result
 
-    extra = {
-        "verdict": judge_result(result, params).as_dict(),
-        "verified": verified,
-        "confidence": result.confidence,
-        "message": result.message,
-        "timings_s": summary["timings_s"],
-        "coarse_candidate": {
-            "rank": result.coarse.candidate.rank,
-            "id": result.coarse.candidate.id,
-            "origin": result.coarse.candidate.origin,
-            # Every source that proposed this pose (tetrahedra, features, trunk).
-            "found_by": [str(o) for o in result.coarse.candidate.origins],
-            "explanation": result.coarse.candidate.explanation,
-        },
-        "target_file": str(args.target),
-        "source_file": str(args.source),
-        "amrst_version": __version__,
-    }
+    verdict = judge_result(result, params)
+    # One layout for the CLI, the app and the benchmark (amrst.report, issue 11).
+    documents = result_documents(
+        record_from_registration(
+            result,
+            T_truth,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            timings_s={"read": t_read},
+            amrst_version=__version__,
+            verdict=verdict.as_dict(),
+        )
+    )
+    summary = documents.metrics
     files = export_registration(
         args.out,
         target=target,
         source=source,
         T_target_source=result.T_target_source,
-        T_coarse=result.T_coarse,
-        metrics=summary,
         params=params,
         cloud_format=args.format,
         parts=tuple(parts),
-        transform_extra=extra,
         remove_stale=True,
+        documents=documents,
     )
+    if args.report:  # issue 13: the registration report, pictures drawn with Agg
+        from amrst.report_html import inputs_from_result, write_report
+
+        report = inputs_from_result(
+            result,
+            target,
+            source,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            T_truth=T_truth,
+        )
+        files = [*files, write_report(Path(args.out) / "report.html", report)]
     fine = summary["fine"]
     print(
         f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
@@ -184,7 +186,6 @@ def _cmd_register(args: argparse.Namespace) -> int:
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
     # issue 13: one verdict, the same words as the app (amrst.verdict).
-    verdict = judge_result(result, params)
     if verdict.status == FAILED:
         print(
             f"Registration failed: {verdict.reason} The files above are marked "
@@ -261,16 +262,16 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("ply", "las", "laz", "pcd"),
         help="cloud format for --write-clouds",
     )
+    reg.add_argument(
+        "--report",
+        action="store_true",
+        help="also write report.html: verdict, candidates, metrics, pictures (no "
+        "display needed)",
+    )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
     for flag, role in (("--stem", "TARGET"), ("--source-stem", "SOURCE")):
-        reg.add_argument(
-            flag,
-            nargs=2,
-            type=float,
-            metavar=("X", "Y"),
-            help=f"stem of the tree to register in {role} (world x y): picks it among "
-            "neighbours and cuts a whole plot scan around it (scene.crop_radius_m)",
-        )
+        reg.add_argument(flag, nargs=2, type=float, metavar=("X", "Y"), help=f"stem of "
+            f"the tree in {role} (world x y): picks it and cuts a plot scan around it")
     reg.set_defaults(func=_cmd_register)
 
     sim = sub.add_parser(
@@ -334,6 +335,18 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    # Library noise (numpy RuntimeWarnings, laspy's) never reaches the user: every
+    # problem worth telling is an AmrstError or a logged line (issue 16). --debug
+    # shows the warnings as log lines.
+    with warnings.catch_warnings():
+        if args.debug:
+            logging.captureWarnings(True)
+        else:
+            warnings.simplefilter("ignore")
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:
@@ -350,6 +363,16 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("Interrupted.", file=sys.stderr)
         return EXIT_CANCELLED
+    except OSError as exc:  # a file-system refusal no check above put in words
+        if args.debug:
+            raise
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(
+            f"Error: {exc.strerror or exc}{where}. Check the path, its length and "
+            "its permissions, or choose another file or folder.",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
     except MemoryError:
         print(
             "Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).",
