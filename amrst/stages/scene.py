@@ -85,13 +85,13 @@ class SceneParams:
             "help": "Points less than this above the ground surface are ground.",
         },
     )
-    max_slope_deg: float = field(
-        default=20.0,
+    max_slope_deg: int = field(
+        default=20,
         metadata={
             "unit": "deg",
-            "min": 0.0,
-            "max": 60.0,
-            "help": "Steepest ground considered.",
+            "min": 0,
+            "max": 60,
+            "help": "Steepest ground considered (whole degrees).",
         },
     )
     min_ground_area_m2: float = field(
