@@ -120,8 +120,7 @@ def run_cli(args: argparse.Namespace) -> int:
                 noise_m=args.noise_m,
                 tilt_deg=args.tilt_deg,
             )
-            out = write_case(pair, args.out, Path(args.tree).name, args.seed)
-            _add_to_truth(out / "truth.json", info)
+            out = write_case(pair, args.out, Path(args.tree).name, args.seed, info)
     except AmrstError as exc:
         print(f"amrst simulate: {exc}", file=sys.stderr)
         return 2
@@ -151,12 +150,3 @@ def _field_options(args: argparse.Namespace, io: Any) -> Any:
         shrubs=args.shrubs or 0,
         clip_radius_m=args.clip_radius_m,
     )
-
-
-def _add_to_truth(path: Path, info: dict[str, Any]) -> None:
-    import json
-
-    from amrst.atomic import write_json_atomic
-
-    truth = json.loads(path.read_text(encoding="utf-8"))
-    write_json_atomic(path, {**truth, **info}, indent=1)
