@@ -115,7 +115,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
-    result = register(target, source, params, TerminalReporter(args.quiet))
+    stems = (args.stem, args.source_stem)  # --stem / --source-stem (issue 12)
+    result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
     from amrst.verdict import FAILED, REGISTERED, judge_result
 
     verdict = judge_result(result, params)
@@ -201,7 +202,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
-    from amrst import bench, clip, simulate
+    from amrst import bench, clip, simulate_cli
 
     p = argparse.ArgumentParser(
         prog="amrst",
@@ -268,14 +269,17 @@ def build_parser() -> argparse.ArgumentParser:
         "display needed)",
     )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
+    for flag, role in (("--stem", "TARGET"), ("--source-stem", "SOURCE")):
+        reg.add_argument(flag, nargs=2, type=float, metavar=("X", "Y"), help=f"stem of "
+            f"the tree in {role} (world x y): picks it and cuts a plot scan around it")
     reg.set_defaults(func=_cmd_register)
 
     sim = sub.add_parser(
         "simulate",
         help="make two virtual tripod scans (with truth) from one complete tree cloud",
     )
-    simulate.configure_parser(sim)
-    sim.set_defaults(func=simulate.run_cli)
+    simulate_cli.configure_parser(sim)
+    sim.set_defaults(func=simulate_cli.run_cli)
 
     cut = sub.add_parser(
         "clip", help="cut one tree (a cylinder around its stem) out of a plot file"

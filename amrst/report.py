@@ -90,6 +90,8 @@ def _candidate(coarse: CoarseResult | None) -> dict[str, Any] | None:
         "rank": int(c.rank),
         "id": int(c.id),
         "origin": str(c.origin),
+        # Every source that proposed this pose (issue 12: one candidate names both).
+        "found_by": [str(o) for o in c.origins],
         "explanation": str(c.explanation),
         "verification_score": float(c.score),
     }

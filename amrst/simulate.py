@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.cases import check_case_folder, write_case
+from amrst.scanner import footprints, visible_points
 from amrst.types import (
     Cloud,
     Transform,
@@ -36,14 +36,6 @@ from amrst.types import (
     make_transform,
 )
 
-if TYPE_CHECKING:
-    import argparse
-
-# A point's footprint covers at most (2 * _MAX_HALF_BINS + 1)^2 grid cells; this bounds
-# memory for points very close to the scanner or near the zenith.
-_MAX_HALF_BINS = 12
-# The grid is coarsened until a typical disc spans this many cells in radius.
-_CELLS_PER_RADIUS = 4.0
 # Fewest points a tree and each simulated scan must have.
 MIN_POINTS = 100
 
@@ -112,26 +104,6 @@ def trunk_base(xyz: np.ndarray) -> np.ndarray:
     return np.array([np.median(low[:, 0]), np.median(low[:, 1]), z0])
 
 
-def footprints(xyz: np.ndarray, k: int = 4) -> np.ndarray:
-    """Per-point disc radius: the distance to the k-th nearest neighbour (m).
-
-    Capped at three times the median so that isolated points do not hide whole regions.
-
-    Parameters
-    ----------
-    xyz : (N, 3) float64
-    k : int
-
-    Returns
-    -------
-    (N,) float64
-    """
-    from scipy.spatial import cKDTree
-
-    d = cKDTree(xyz).query(xyz, k=k + 1)[0][:, -1]
-    return cast("np.ndarray", np.minimum(d, 3.0 * float(np.median(d))))
-
-
 def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
     """Return the pose ``T_tree_scanner`` of a scanner placed as ``spec`` says.
 
@@ -166,65 +138,6 @@ def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
     )
     R_head = _rotation(np.array([0.0, 0.0, 1.0]), np.radians(spec["heading_deg"]))
     return make_transform(R_tilt @ R_head, centre)
-
-
-def visible_points(
-    xyz: np.ndarray, res_deg: float, footprint_m: float | np.ndarray
-) -> np.ndarray:
-    """Return indices of the points a scanner at the origin records (nearest per beam).
-
-    Parameters
-    ----------
-    xyz : (N, 3) float64
-        Points in the scanner frame.
-    res_deg : float
-        Angular step of the beam grid in azimuth and elevation (deg).
-    footprint_m : float or (N,) float64
-        Radius of the disc each point stands for (m).
-
-    Returns
-    -------
-    (K,) int64
-        Sorted indices of the points that are nearest in at least one grid cell.
-    """
-    r = np.linalg.norm(xyz, axis=1)
-    idx = np.flatnonzero(r > 0.05)
-    p, r = xyz[idx], r[idx]
-    radius = np.broadcast_to(np.asarray(footprint_m, dtype=float), (len(xyz),))[idx]
-    # Beams finer than a quarter of the typical disc change nothing but the cost: every
-    # visible point already wins cells; so the grid is only as fine as that.
-    typical = float(np.median(radius / r)) if len(r) else 0.0
-    res = max(np.radians(res_deg), typical / _CELLS_PER_RADIUS)
-    n_az = int(np.ceil(2 * np.pi / res))
-    el = np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0))
-    fa = (np.arctan2(p[:, 1], p[:, 0]) + np.pi) / res  # fractional cell coordinates
-    fe = (el + np.pi / 2) / res
-    ke = np.maximum(radius / r / res, 1e-9)  # angular radius in cells
-    ka = ke / np.maximum(np.cos(el), 1e-3)  # an azimuth step shrinks towards the zenith
-    na = np.minimum(np.ceil(ka), _MAX_HALF_BINS).astype(np.int64)
-    ne = np.minimum(np.ceil(ke), _MAX_HALF_BINS).astype(np.int64)
-    # Expand every point into its (2na+1) x (2ne+1) block of candidate cells.
-    width = 2 * na + 1
-    counts = width * (2 * ne + 1)
-    pid = np.repeat(np.arange(len(p)), counts)
-    k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    da = k % width[pid] - na[pid]
-    de = k // width[pid] - ne[pid]
-    ia = np.floor(fa).astype(np.int64)[pid] + da
-    ie = np.floor(fe).astype(np.int64)[pid] + de
-    # Keep the cells whose centre lies inside the point's disc, and always its own cell.
-    u = (ia + 0.5 - fa[pid]) / ka[pid]
-    v = (ie + 0.5 - fe[pid]) / ke[pid]
-    keep = (u * u + v * v <= 1.0) | ((da == 0) & (de == 0))
-    pid, ia, ie = pid[keep], ia[keep], ie[keep]
-    cell = (ie * n_az + np.mod(ia, n_az)).astype(np.int64)
-    # One sort on (cell, range in 0.1 mm): each cell's first entry is its nearest point.
-    r_q = np.minimum(np.round(r[pid] * 1e4), 2**24 - 1).astype(np.int64)
-    order = np.argsort(cell * 2**24 + r_q, kind="stable")
-    cell_sorted = cell[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = cell_sorted[1:] != cell_sorted[:-1]
-    return cast("np.ndarray", idx[np.unique(pid[order[first]])])
 
 
 def simulate_scan(
@@ -279,6 +192,7 @@ def simulate_pair(
     tilt_deg: float = 0.5,
     height_m: float = 1.5,
     footprint_m: float | np.ndarray | None = None,
+    base: np.ndarray | None = None,
 ) -> SimulatedPair:
     """Two tripod scans of one tree from positions ``separation_deg`` apart around it.
 
@@ -304,6 +218,9 @@ def simulate_pair(
         Radius of the disc each tree point covers (m); None uses each point's distance
         to its 4th nearest neighbour (discs that close the surface: trunks cast
         shadows).
+    base : (3,) float64 or None
+        The point the scanners are placed around (default: :func:`trunk_base` of the
+        cloud; a field scene gives its tree's stem foot, not the lowest ground point).
 
     Returns
     -------
@@ -338,7 +255,7 @@ def simulate_pair(
     if footprint_m is None:
         footprint_m = footprints(tree.xyz)
     rng = np.random.default_rng(seed)
-    base = trunk_base(tree.xyz)
+    base = trunk_base(tree.xyz) if base is None else np.asarray(base, dtype=float)
     start = float(rng.uniform(-180.0, 180.0))
     specs, poses, scans, indices = [], [], [], []
     for k, dist in enumerate(distances):
@@ -478,81 +395,16 @@ def check_settings(
         )
 
 
-def configure_parser(p: argparse.ArgumentParser) -> None:
-    """Add the ``amrst simulate`` arguments to ``p``.
-
-    Parameters
-    ----------
-    p : argparse.ArgumentParser
-    """
-    p.add_argument(
-        "tree", metavar="TREE", help="complete tree cloud (any readable format)"
-    )
-    p.add_argument("--out", required=True, metavar="DIR", help="case folder to write")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--separation-deg", type=float, default=90.0)
-    p.add_argument(
-        "--distance-m",
-        type=float,
-        nargs="+",
-        default=[8.0],
-        metavar="D",
-        help="trunk-to-scanner distance; give two values for target and source",
-    )
-    p.add_argument("--res-deg", type=float, default=0.04)
-    p.add_argument("--noise-m", type=float, default=0.004)
-    p.add_argument("--tilt-deg", type=float, default=0.5)
-
-
-def run_cli(args: argparse.Namespace) -> int:
-    """Simulate a pair from ``args`` (see :func:`configure_parser`) and write the case.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-
-    Returns
-    -------
-    int
-        Exit status: 0 on success, 2 when the input cannot be used.
-    """
-    import sys
-
-    from amrst import io
-    from amrst.errors import AmrstError
-
-    distance = (
-        args.distance_m[0] if len(args.distance_m) == 1 else tuple(args.distance_m)
-    )
-    try:
-        # Settings and the output folder are checked before the (slow) simulation.
-        check_settings(
-            seed=args.seed,
-            separation_deg=args.separation_deg,
-            distance_m=tuple(args.distance_m),
-            res_deg=args.res_deg,
-            noise_m=args.noise_m,
-            tilt_deg=args.tilt_deg,
-            cli=True,
-        )
-        check_case_folder(args.out)
-        tree = io.read(args.tree)
-        pair = simulate_pair(
-            tree,
-            seed=args.seed,
-            separation_deg=args.separation_deg,
-            distance_m=distance,
-            res_deg=args.res_deg,
-            noise_m=args.noise_m,
-            tilt_deg=args.tilt_deg,
-        )
-        out = write_case(pair, args.out, Path(args.tree).name, args.seed)
-    except AmrstError as exc:
-        print(f"amrst simulate: {exc}", file=sys.stderr)
-        return 2
-    print(
-        f"{out}: target {len(pair.target)} points, source {len(pair.source)} points, "
-        f"shared {pair.shared_fraction:.0%}",
-        file=sys.stderr,
-    )
-    return 0
+__all__ = [
+    "MIN_POINTS",
+    "SimulatedPair",
+    "check_case_folder",
+    "check_settings",
+    "footprints",
+    "scanner_pose",
+    "simulate_pair",
+    "simulate_scan",
+    "trunk_base",
+    "visible_points",
+    "write_case",
+]

@@ -20,7 +20,8 @@ def register_amrst(target: Cloud, source: Cloud) -> MethodResult:
     Returns
     -------
     MethodResult
-        ``extra`` holds ``confidence`` and ``T_coarse`` is not kept; timings are the
+        ``extra`` holds ``confidence``, ``verified`` (False: ``amrst register``
+        exits 3) and ``origin`` (the sources that found the pose); ``T_coarse`` is not kept; timings are the
         engine's own per-stage timings. ``total`` leaves out the engine's metrics
         stage (NN-RMSE, Hausdorff and overlap of the coarse and the fine result, for
         the report), as the benchmark leaves out every baseline's own fitness
@@ -39,5 +40,9 @@ def register_amrst(target: Cloud, source: Cloud) -> MethodResult:
         timings,
         fitness=fitness,
         inlier_rmse_m=rmse,
-        extra={"confidence": float(result.confidence)},
+        extra={
+            "confidence": float(result.confidence),
+            "verified": bool(result.coarse.verified),
+            "origin": "+".join(str(o) for o in result.coarse.candidate.origins),
+        },
     )

@@ -122,46 +122,76 @@ def refine_point_to_plane(
     return cast("np.ndarray", T)
 
 
-def _register(
-    target: Cloud, source: Cloud, params: FeatureParams, global_method: str
-) -> MethodResult:
+def global_ransac(
+    target_xyz: np.ndarray, source_xyz: np.ndarray, params: FeatureParams
+) -> Transform:
+    """Run the global step of FPFH + RANSAC alone (no ICP), as a candidate source does.
+
+    Parameters
+    ----------
+    target_xyz, source_xyz : (N, 3), (M, 3) float64
+    params : FeatureParams
+
+    Returns
+    -------
+    (4, 4) float64
+    """
+    tgt_pcd, tgt_fpfh = _features(target_xyz, params)
+    src_pcd, src_fpfh = _features(source_xyz, params)
+    res = _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, "ransac")
+    return cast("np.ndarray", np.asarray(res.transformation).copy())
+
+
+def _global(
+    tgt_pcd: o3d.geometry.PointCloud,
+    src_pcd: o3d.geometry.PointCloud,
+    tgt_fpfh: o3d.pipelines.registration.Feature,
+    src_fpfh: o3d.pipelines.registration.Feature,
+    params: FeatureParams,
+    global_method: str,
+) -> o3d.pipelines.registration.RegistrationResult:
     import open3d as o3d
 
     reg = o3d.pipelines.registration
+    dist = params.distance_factor * params.voxel_size_m
+    if global_method == "ransac":
+        o3d.utility.random.seed(params.seed)
+        return reg.registration_ransac_based_on_feature_matching(
+            src_pcd,
+            tgt_pcd,
+            src_fpfh,
+            tgt_fpfh,
+            False,  # mutual filter off
+            dist,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [
+                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                reg.CorrespondenceCheckerBasedOnDistance(dist),
+            ],
+            reg.RANSACConvergenceCriteria(
+                params.ransac_iterations, params.ransac_confidence
+            ),
+        )
+    return reg.registration_fgr_based_on_feature_matching(
+        src_pcd,
+        tgt_pcd,
+        src_fpfh,
+        tgt_fpfh,
+        reg.FastGlobalRegistrationOption(maximum_correspondence_distance=dist),
+    )
+
+
+def _register(
+    target: Cloud, source: Cloud, params: FeatureParams, global_method: str
+) -> MethodResult:
     clock = Stopwatch()
     tgt, src, origin = local_pair(target, source)
     with clock.stage("features"):
         tgt_pcd, tgt_fpfh = _features(tgt, params)
         src_pcd, src_fpfh = _features(src, params)
-    dist = params.distance_factor * params.voxel_size_m
     with clock.stage(global_method):
-        if global_method == "ransac":
-            o3d.utility.random.seed(params.seed)
-            res = reg.registration_ransac_based_on_feature_matching(
-                src_pcd,
-                tgt_pcd,
-                src_fpfh,
-                tgt_fpfh,
-                False,  # mutual filter off
-                dist,
-                reg.TransformationEstimationPointToPoint(False),
-                3,
-                [
-                    reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-                    reg.CorrespondenceCheckerBasedOnDistance(dist),
-                ],
-                reg.RANSACConvergenceCriteria(
-                    params.ransac_iterations, params.ransac_confidence
-                ),
-            )
-        else:
-            res = reg.registration_fgr_based_on_feature_matching(
-                src_pcd,
-                tgt_pcd,
-                src_fpfh,
-                tgt_fpfh,
-                reg.FastGlobalRegistrationOption(maximum_correspondence_distance=dist),
-            )
+        res = _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, global_method)
     T_global = np.asarray(res.transformation).copy()
     with clock.stage("refine"):
         T = refine_point_to_plane(tgt, src, T_global, params)

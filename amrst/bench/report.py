@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.atomic import write_text_atomic
+from amrst.bench.headline import headline_markdown, truth_check_markdown
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -207,7 +208,8 @@ def summary_markdown(
                 str(failed),
             ]
         )
-    out.append("## Per method\n\n")
+    out.append(headline_markdown(agg, runs, cases, methods))
+    out.append("\n## Per method\n\n")
     out.append(
         _table(
             [
@@ -291,60 +293,6 @@ def summary_markdown(
         f"- command: `{meta.get('command') or '(library call)'}`\n"
     )
     return "".join(out)
-
-
-def truth_check_markdown(
-    agg: dict[tuple[str, str], dict[str, Any]], cases: list[str], method: str = "amrst"
-) -> str:
-    """Tabulate per case how many source points land within 2 / 4 cm of the target.
-
-    Counted under the truth and under ``method``'s estimate, with whether the data
-    prefer the estimate.
-    """
-
-    def pct(v: float) -> str:
-        return f"{100 * v:.1f}%" if math.isfinite(v) else "nan"
-
-    rows = []
-    for c in cases:
-        r = agg.get((c, method))
-        if r is None or r["error"]:
-            continue
-        est = (r["within_2cm"], r["within_4cm"])
-        true = (r["truth_within_2cm"], r["truth_within_4cm"])
-        est_wins = [e >= t for e, t in zip(est, true, strict=True)]
-        if r["success"]:
-            verdict = "registered"
-        elif not all(math.isfinite(v) for v in (*est, *true)):
-            verdict = "n/a (an empty cloud)"
-        elif all(est_wins):
-            verdict = "estimate fits the data at least as well as the truth"
-        elif not any(est_wins):
-            verdict = "truth fits better: the method missed it"
-        else:
-            near, far = ("estimate", "truth") if est_wins[0] else ("truth", "estimate")
-            verdict = f"mixed: the data favour the {near} at 2 cm, the {far} at 4 cm"
-        rows.append([c, pct(true[0]), pct(true[1]), pct(est[0]), pct(est[1]), verdict])
-    return (
-        f"\n## Do the scans single out the truth? ({method})\n\n"
-        "Share of source points within 2 cm and 4 cm of the target under the truth "
-        f"and under {method}'s estimate. When an unregistered estimate puts at least "
-        "as many points that close as the truth does, the scans alone do not single "
-        "out the truth at that tolerance: no method that scores how well the clouds "
-        "agree can be expected to find it there, whether the estimate lies near it "
-        "or far from it.\n\n"
-        + _table(
-            [
-                "case",
-                "truth <2 cm",
-                "truth <4 cm",
-                f"{method} <2 cm",
-                f"{method} <4 cm",
-                "verdict",
-            ],
-            rows,
-        )
-    )
 
 
 def results_csv(runs: Sequence[RunRecord]) -> str:

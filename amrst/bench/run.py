@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from amrst.atomic import make_folder
+from amrst.baselines import METHODS
 from amrst.baselines._common import Method, MethodResult, to_local
+from amrst.bench.within import within_fractions
 from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.io.cases import Case, find_cases, read_case
 from amrst.progress import NULL_REPORTER, Reporter
@@ -35,7 +37,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_METHODS = ("icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst")
+DEFAULT_METHODS = tuple(METHODS)  # every baseline, amrst last
 NAN = float("nan")
 
 
@@ -122,36 +124,6 @@ def resolve_methods(
             f"Unknown method(s) {unknown}; choose from {sorted(METHODS)}."
         )
     return {m: METHODS[m] for m in methods}
-
-
-WITHIN_M = (0.02, 0.04)
-WITHIN_POINTS = 20_000
-
-
-def within_fractions(
-    target_xyz: np.ndarray, source_xyz: np.ndarray, transforms: Sequence[np.ndarray]
-) -> list[tuple[float, ...]]:
-    """Compute the share of source points near the target under each transform.
-
-    One share per WITHIN_M distance; the source points are a seeded sample of at most
-    WITHIN_POINTS.
-    """
-    from scipy.spatial import cKDTree
-
-    if len(target_xyz) == 0 or len(source_xyz) == 0:
-        return [(NAN,) * len(WITHIN_M) for _ in transforms]
-    src = source_xyz
-    if len(src) > WITHIN_POINTS:
-        rng = np.random.default_rng(0)
-        src = src[rng.choice(len(src), WITHIN_POINTS, replace=False)]
-    tree = cKDTree(target_xyz)
-    out = []
-    for T in transforms:
-        d = tree.query(
-            apply_transform(T, src), distance_upper_bound=max(WITHIN_M), workers=-1
-        )[0]
-        out.append(tuple(float(np.mean(d < r)) for r in WITHIN_M))
-    return out
 
 
 def score(

@@ -169,6 +169,7 @@ def write_case(
     out_dir: PathLike,
     tree_name: str,
     seed: int | None = None,
+    extra: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``target.ply``, ``source.ply`` and ``truth.json`` into ``out_dir``.
 
@@ -181,6 +182,8 @@ def write_case(
         Recorded as ``tree`` in ``truth.json``.
     seed : int or None
         Recorded as ``seed`` in ``truth.json``.
+    extra : dict or None
+        More ``truth.json`` keys (a field scene's clip radius, neighbours, labels).
 
     Returns
     -------
@@ -196,7 +199,7 @@ def write_case(
     from amrst.outdir import replace_files
 
     out = make_folder(check_case_folder(out_dir), "case folder")
-    truth = truth_dict(pair, tree_name, seed)
+    truth = {**truth_dict(pair, tree_name, seed), **(extra or {})}
     # The three files as one unit: a kill never pairs new scans with an old truth.
     writers: dict[str, Callable[[Path], object]] = {
         "target.ply": lambda p: io.write(p, pair.target),

@@ -15,6 +15,7 @@ from amrst.errors import Cancelled, InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
+from amrst.stages.scene import SceneResult, understand_scene
 from amrst.stages.separate import SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonResult, build_skeleton
 
@@ -40,6 +41,10 @@ class ScanAnalysis:
     skeleton: SkeletonResult | None = None
     keypoints: KeypointResult | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    # Scene labels of every preprocessed point (``scene_pre``); ``pre`` keeps only the
+    # points the tree stages use (scene.use_points). None when not computed.
+    scene: SceneResult | None = None
+    scene_pre: PreprocessResult | None = None
 
     @property
     def xyz(self) -> np.ndarray:
@@ -66,9 +71,17 @@ def _timed(timings: dict[str, float], key: str, t0: float) -> float:
 
 
 def prepare_scan(
-    cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
+    cloud: Cloud,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+    stem_xy: np.ndarray | None = None,
+    expect_ground: float | None = None,
 ) -> ScanAnalysis:
-    """Preprocess one scan and separate wood from leaves."""
+    """Preprocess one scan, label its scene, and separate wood from leaves.
+
+    ``stem_xy`` (local frame) picks the tree of interest; ``expect_ground`` is the
+    other scan's ground tilt (deg) when it has a ground (see ``understand_scene``).
+    """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     try:
@@ -78,6 +91,16 @@ def prepare_scan(
     except InvalidInput as exc:  # say which scan
         raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
     t0 = _timed(timings, "preprocess", t0)
+    # Ground, neighbours and shrubs (field scans); a clean tree stays as it is.
+    scene = understand_scene(
+        pre.xyz, params.scene, stem_xy, expect_ground, ground_xyz=cloud.xyz
+    )
+    full_pre = pre
+    keep = scene.keep(params.scene.use_points)
+    if not keep.all() and keep.sum() >= params.preprocess.min_points:
+        pre = replace(pre, xyz=pre.xyz[keep], index=pre.index[keep])
+    t0 = _timed(timings, "scene", t0)
+    reporter.progress(0.35, scene.message)
     intensity = cloud.intensity
     sep = separate_wood(
         pre.xyz,
@@ -86,7 +109,9 @@ def prepare_scan(
         SubReporter(reporter, 0.3, 1.0, "wood-leaf separation"),
     )
     _timed(timings, "separate", t0)
-    return ScanAnalysis(cloud, pre, sep, timings=timings)
+    return ScanAnalysis(
+        cloud, pre, sep, timings=timings, scene=scene, scene_pre=full_pre
+    )
 
 
 def skeletonise_scan(
@@ -111,14 +136,20 @@ def skeletonise_scan(
 
 
 def analyse_scan(
-    cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
+    cloud: Cloud,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+    stem_xy: np.ndarray | None = None,
+    expect_ground: float | None = None,
 ) -> ScanAnalysis:
     """Run every per-scan step: :func:`prepare_scan`, then :func:`skeletonise_scan`.
 
     The order is the step table's (``amrst.pipeline.steps.STEPS``, its ``per_scan``
     entries); a test keeps the two in agreement.
     """
-    an = prepare_scan(cloud, params, SubReporter(reporter, 0.0, 0.7))
+    an = prepare_scan(
+        cloud, params, SubReporter(reporter, 0.0, 0.7), stem_xy, expect_ground
+    )
     return skeletonise_scan(an, params, SubReporter(reporter, 0.7, 1.0))
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from amrst.errors import RegistrationFailed
 from amrst.pipeline.analysis import _timed
-from amrst.pipeline.sources import CANDIDATE_SOURCES
+from amrst.pipeline.sources import CANDIDATE_SOURCES, merge_same_solutions
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.coarse import CandidateList, choose_coarse, rank_candidates
 from amrst.stages.match import TetraMatches, match_tetrahedra
@@ -122,6 +122,8 @@ def find_matches(
         ranked, fits = extra.add(ranked, target, source, params, step)
         finished.update(fits)
         t0 = _timed(timings, extra.timing_key, t0)
+    if len(ranked.candidates) > 1:
+        ranked = merge_same_solutions(ranked, centre)
     return MatchResult(
         tetra, ranked.candidates, ranked.n_matches, timings, centre, finished
     )

@@ -44,11 +44,37 @@ class RegistrationResult:
     tree: dict[str, TreeMeasures] = field(default_factory=dict)
 
 
+def _expect_ground(
+    tgt: ScanAnalysis,
+    src: ScanAnalysis,
+    params: RegistrationParams,
+    rep: Reporter,
+    tgt_stem: np.ndarray | None,
+    src_stem: np.ndarray | None,
+) -> tuple[ScanAnalysis, ScanAnalysis]:
+    """Analyse again the scan that found no ground when the other one found one.
+
+    Both scans of a pair were made in one place: a scan half hidden by a neighbour
+    may show little ground (12 m² in field case 02's target, at the threshold), too
+    little to tell from a stem foot on its own (clean trees: up to 7.5 m²), but enough
+    once the other scan has a ground (``scene.expected_ground_area_m2``).
+    """
+    t_scene, s_scene = tgt.scene, src.scene
+    if t_scene is None or s_scene is None or t_scene.has_ground == s_scene.has_ground:
+        return tgt, src
+    if t_scene.has_ground:
+        return tgt, analyse_scan(
+            src.cloud, params, rep, src_stem, t_scene.ground_tilt_deg
+        )
+    return analyse_scan(tgt.cloud, params, rep, tgt_stem, s_scene.ground_tilt_deg), src
+
+
 def register(
     target: Cloud,
     source: Cloud,
     params: RegistrationParams | None = None,
     reporter: Reporter | None = None,
+    stems: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
 ) -> RegistrationResult:
     """Register ``source`` onto ``target`` (the whole AMRST chain).
 
@@ -61,6 +87,10 @@ def register(
     params : RegistrationParams or None
         Defaults when None.
     reporter : Reporter or None
+    stems : (target, source) of (2,) float64 or None
+        The stem of the tree of interest in each scan, world x y (for whole plot
+        scans: the scene stage cuts ``scene.crop_radius_m`` around it); None: the
+        stem nearest the middle of the scan.
 
     Returns
     -------
@@ -78,10 +108,23 @@ def register(
     reporter = reporter or NULL_REPORTER
     t_start = time.perf_counter()
 
+    local = {
+        id(cloud): None if xy is None else np.asarray(xy, float) - cloud.offset[:2]
+        for cloud, xy in zip((target, source), stems, strict=True)
+    }
+
     def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
-        return analyse_scan(cloud, params, rep)
+        return analyse_scan(cloud, params, rep, local[id(cloud)])
 
     tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.6))
+    tgt, src = _expect_ground(
+        tgt,
+        src,
+        params,
+        SubReporter(reporter, 0.55, 0.6),
+        local[id(target)],
+        local[id(source)],
+    )
     matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()

@@ -40,7 +40,7 @@ STEPS: tuple[Step, ...] = (
     Step(
         "separate",
         "Separate wood/leaves",
-        ("preprocess", "separate"),
+        ("preprocess", "scene", "separate"),  # the scene labels come with it
         True,
         prepare_scan,
     ),
@@ -51,8 +51,15 @@ STEPS: tuple[Step, ...] = (
         True,
         skeletonise_scan,
     ),
-    # Ranking, verification and the trunk search all happen while matching.
-    Step("match", "Match tetrahedra", ("match", "coarse", "trunk"), False, find_matches),
+    # Ranking, verification, the feature matcher and the trunk search all happen
+    # while matching.
+    Step(
+        "match",
+        "Match tetrahedra",
+        ("match", "coarse", "global_match", "trunk"),
+        False,
+        find_matches,
+    ),
     # The coarse and the fine results are measured (cloud metrics, tree measures).
     Step(
         "coarse",

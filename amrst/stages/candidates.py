@@ -66,6 +66,13 @@ class Candidate:
     # fit, and the point set that fit used ("" = fine.points).
     precise_score: float = float("nan")
     fine_points: str = ""
+    # Other sources that proposed the same solution (one candidate names them all).
+    also_found_by: tuple[Origin, ...] = ()
+
+    @property
+    def origins(self) -> tuple[Origin, ...]:
+        """Every source that proposed this solution, its own origin first."""
+        return (self.origin, *self.also_found_by)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,7 +169,7 @@ def choose_coarse(
     rivals = [
         c
         for c in left[1:]
-        if c.origin == best.origin
+        if (c.origin is Origin.TRUNK) == (best.origin is Origin.TRUNK)
         and c.polished == best.polished
         and distinct_solutions(c.T_target_source, best.T_target_source, centre)
     ]

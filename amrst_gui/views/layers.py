@@ -99,3 +99,25 @@ class Scene:
     def names(self) -> set[str]:
         """The actor names of this scene."""
         return {layer.name for layer in self.layers}
+
+
+# Scene labels (amrst.stages.scene: tree, ground, other, outside) as colours:
+# the tree green, the ground earth brown, neighbours and shrubs blue, cut-off grey.
+SCENE_COLOURS = np.array(
+    [[60, 170, 75], [150, 110, 70], [70, 120, 220], [120, 120, 120]], dtype=np.uint8
+)
+
+
+def scene_layer(xyz: np.ndarray, labels: np.ndarray, name: str = "scene") -> PointsLayer:
+    """Points coloured by their scene label (issue 12's scene layer).
+
+    xyz (N, 3) are the preprocessed points the labels refer to
+    (``ScanAnalysis.scene_pre.xyz``); labels (N,) the ``SceneResult.labels``.
+    """
+    labels = np.asarray(labels)
+    if labels.shape != (len(xyz),):
+        raise ValueError(f"{len(labels)} labels for {len(xyz)} points")
+    rgb = SCENE_COLOURS[np.clip(labels, 0, len(SCENE_COLOURS) - 1)]
+    return PointsLayer(
+        name, (Ref(xyz), Ref(labels)), np.asarray(xyz, dtype=np.float32), rgb
+    )

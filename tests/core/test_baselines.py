@@ -59,7 +59,10 @@ def _check(result: MethodResult, source: Cloud, T_true, rot_deg=0.3, gt_m=0.02):
 
 
 def test_registry_names() -> None:
-    assert set(METHODS) == {"icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst"}
+    assert set(METHODS) == {
+        "icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "kiss_matcher", "kiss_gicp",
+        "amrst",
+    }
 
 
 @pytest.mark.parametrize("name", ["icp", "icp_centroid", "fpfh_ransac", "fgr"])
@@ -156,11 +159,16 @@ def test_amrst_method_wraps_the_engine(monkeypatch) -> None:
         T_target_source=T_true,
         confidence=0.8,
         timings={"coarse": 0.1, "metrics": 0.05, "total": 0.2},
+        coarse=SimpleNamespace(
+            verified=True, candidate=SimpleNamespace(origins=("tetrahedra", "features"))
+        ),
     )
     monkeypatch.setattr(amrst, "register", lambda t, s: fake)
     result = METHODS["amrst"](target, source)
     np.testing.assert_allclose(result.T_target_source, T_true)
     assert result.extra["confidence"] == 0.8
+    assert result.extra["verified"] is True
+    assert result.extra["origin"] == "tetrahedra+features"
     # Like the baselines' own fitness evaluation, the metrics stage is not timed.
     assert result.timings["total"] == pytest.approx(0.15)
     assert result.timings["total_with_metrics"] == 0.2

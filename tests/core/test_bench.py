@@ -161,7 +161,10 @@ def test_cli_hooks(cases_dir: Path, tmp_path: Path, capsys) -> None:
     parser = argparse.ArgumentParser()
     configure_parser(parser)
     args = parser.parse_args([str(cases_dir)])
-    assert args.methods == ["icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "amrst"]
+    assert args.methods == [
+        "icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "kiss_matcher", "kiss_gicp",
+        "amrst",
+    ]
     assert args.out == "bench_out"
     args = parser.parse_args(
         [
@@ -209,7 +212,7 @@ def test_within_fractions_count_points_near_the_target() -> None:
 
 
 def test_truth_check_says_when_the_data_prefer_the_estimate() -> None:
-    from amrst.bench.report import truth_check_markdown
+    from amrst.bench.headline import truth_check_markdown
 
     def row(success, est, true):
         return {

@@ -203,7 +203,10 @@ def test_find_matches_needs_four_key_points(sample_run) -> None:
     ):
         find_matches(r.target, few, no_trunk)
     # With the trunk heading search (the default) there is still something to offer.
-    m = find_matches(r.target, few, r.params)
+    trunk_only = dataclasses.replace(
+        r.params, global_match=dataclasses.replace(r.params.global_match, mode="off")
+    )
+    m = find_matches(r.target, few, trunk_only)
     assert m.n_matches == 0
     assert m.candidates
     assert all(c.origin == "trunk" for c in m.candidates)

@@ -10,13 +10,12 @@ import pytest
 
 from amrst.io.cases import read_case
 from amrst.simulate import (
-    configure_parser,
-    run_cli,
     simulate_pair,
     simulate_scan,
     trunk_base,
     write_case,
 )
+from amrst.simulate_cli import configure_parser, run_cli
 from amrst.types import (
     Cloud,
     apply_transform,

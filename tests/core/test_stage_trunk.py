@@ -109,6 +109,8 @@ def test_pipeline_falls_back_to_the_trunk_search(sample_pair) -> None:
         match=dataclasses.replace(
             base.match, edge_tolerance=0.005, max_residual_m=0.001, retry_relaxed=False
         ),
+        # The feature matcher (asked first) would register the sample on its own.
+        global_match=dataclasses.replace(base.global_match, mode="off"),
     )
     r = amrst.register(sample_pair.target, sample_pair.source, no_match)
     assert r.coarse.candidate.origin == "trunk"
@@ -162,6 +164,7 @@ def test_every_contender_gets_and_keeps_its_full_fine_fit(sample_pair) -> None:
             base.match, edge_tolerance=0.005, max_residual_m=0.001, retry_relaxed=False
         ),
         trunk=dataclasses.replace(base.trunk, contender_share=0.0),
+        global_match=dataclasses.replace(base.global_match, mode="off"),
     )
     r = amrst.register(sample_pair.target, sample_pair.source, params)
     trunk = [c for c in r.matches.candidates if c.origin == "trunk"]

@@ -149,6 +149,8 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
             match=dataclasses.replace(
                 p.match, edge_tolerance=0.005, max_residual_m=0.001, retry_relaxed=False
             ),
+            # The feature matcher (asked first) would register the sample on its own.
+            global_match=dataclasses.replace(p.global_match, mode="off"),
         )
     )
     finish(s, a.separate.trigger, "separation_finished")
