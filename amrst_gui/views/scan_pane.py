@@ -29,7 +29,12 @@ from amrst_gui.views.scene_jobs import SceneLoader, Snapshot
 if TYPE_CHECKING:
     from pathlib import Path
 
-_COLOUR_LABELS = {"height": "Height", "intensity": "Intensity", "wood": "Wood / leaf"}
+_COLOUR_LABELS = {
+    "height": "Height",
+    "intensity": "Intensity",
+    "wood": "Wood / leaf",
+    "scene": "Scene (tree / ground / other)",
+}
 
 
 # Session signals after which what a 3D view shows may differ.

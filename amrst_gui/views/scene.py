@@ -37,7 +37,7 @@ MATCH_RGB = np.array(
 TETRA_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 TARGET_RGB = (240, 170, 40)  # registration view: target amber, source blue
 SOURCE_RGB = (60, 150, 255)
-COLOUR_MODES = ("height", "intensity", "wood")
+COLOUR_MODES = ("height", "intensity", "wood", "scene")
 REGISTRATION_STAGES = ("before", "coarse", "fine", "manual")
 # Distance colouring: 0 cm dark blue ... DISTANCE_CLIP_M and beyond yellow/red.
 DISTANCE_CLIP_M = 0.10
@@ -117,6 +117,11 @@ def _title(session, role: str, cloud, options: ViewOptions, shown: int) -> str:
         if options.colour == "wood":
             text += " (brown wood, green leaves)"
         lines.append(text)
+        if options.colour == "scene" and an.scene is not None:
+            lines.append(
+                f"{an.scene.message} (green tree, brown ground, blue other, "
+                "grey cut off)"
+            )
         if an.skeleton is not None and an.keypoints is not None:
             n_nodes, n_kp = len(an.skeleton.nodes), len(an.keypoints.xyz)
             lines.append(
@@ -192,6 +197,16 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
 
 def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
     mode = options.colour
+    scene = None if an is None else an.scene
+    if mode == "scene" and scene is not None and an.scene_pre is not None:
+        # Issue 12's scene layer: tree, ground, other (neighbours, shrubs), cut off.
+        from amrst_gui.views.layers import scene_layer
+
+        sl = display_index(len(an.scene_pre.xyz), options.max_points)
+        layer = scene_layer(an.scene_pre.xyz[sl], scene.labels[sl], "points")
+        return PointsLayer(
+            "points", ("scene", Ref(an), options.max_points), layer.xyz, layer.rgb
+        )
     if mode == "wood" and an is not None:
         sl = display_index(len(an.xyz), options.max_points)
         xyz = np.asarray(an.xyz[sl], np.float32)

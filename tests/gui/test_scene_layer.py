@@ -20,3 +20,31 @@ def test_scene_layer_colours_by_label() -> None:
     assert scene_layer(xyz, labels).key == layer.key
     with pytest.raises(ValueError, match="labels"):
         scene_layer(xyz, labels[:2])
+
+
+def test_the_scan_views_colour_a_field_pair_by_scene(make_main_window, qtbot) -> None:
+    """Issue 12: after Separate, "Scene" colours ground, tree and neighbours apart."""
+    from pathlib import Path
+
+    from tests.gui._run import run_until_idle
+
+    pair = Path(__file__).resolve().parents[1] / "data" / "field_pair"
+    win = make_main_window()
+    with qtbot.waitSignals([win.session.scan_loaded] * 2, timeout=20_000):
+        win.open_pair(pair / "target.ply", pair / "source.ply")
+    qtbot.waitUntil(lambda: not win.session.busy, timeout=10_000)
+    assert run_until_idle(win.session, lambda: win.session.run_step("separate")) == []
+    pane = win.scans_area.panes["target"]
+    pane.colour.setCurrentIndex(pane.colour.findData("scene"))
+    qtbot.waitUntil(
+        lambda: pane.view.scene is not None
+        and any(layer.key[0] == "scene" for layer in pane.view.scene.layers if layer.name == "points"),
+        timeout=10_000,
+    )
+    points = next(layer for layer in pane.view.scene.layers if layer.name == "points")
+    colours = {tuple(c) for c in points.rgb}
+    # The field pair holds ground and a tree at least, each in its own colour.
+    assert tuple(SCENE_COLOURS[GROUND]) in colours
+    assert tuple(SCENE_COLOURS[TREE]) in colours
+    title = next(layer for layer in pane.view.scene.layers if layer.name == "title")
+    assert "brown ground" in title.text
