@@ -92,9 +92,9 @@ def _same_file(a: str, b: str) -> bool:
 
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
-    from amrst.export import check_output_dir, export_registration, output_names
     from amrst.pipeline import register
-    from amrst.report import record_from_registration, result_documents
+    from amrst.results.documents import record_from_registration, result_documents
+    from amrst.results.export import check_output_dir, export_registration, output_names
 
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
@@ -105,7 +105,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
-    report_name = ["report.html"] if args.report else []  # amrst.report_html
+    report_name = ["report.html"] if args.report else []  # amrst.results.report_html
     check_output_dir(args.out, output_names(parts, args.format) + report_name)
     if _same_file(args.target, args.source):
         logger.warning(
@@ -117,10 +117,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_read = time.perf_counter() - t_start
     stems = (args.stem, args.source_stem)  # --stem / --source-stem (issue 12)
     result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
-    from amrst.verdict import FAILED, REGISTERED, judge_result
+    from amrst.review.verdict import FAILED, REGISTERED, judge_result
 
     verdict = judge_result(result, params)
-    # One layout for the CLI, the app and the benchmark (amrst.report, issue 11).
+    # One layout for the CLI, the app and the benchmark (amrst.results.documents, issue 11).
     documents = result_documents(
         record_from_registration(
             result,
@@ -145,7 +145,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         documents=documents,
     )
     if args.report:  # issue 13: the registration report, pictures drawn with Agg
-        from amrst.report_html import inputs_from_result, write_report
+        from amrst.results.report_html import inputs_from_result, write_report
 
         report = inputs_from_result(
             result,
@@ -185,7 +185,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    # issue 13: one verdict, the same words as the app (amrst.verdict).
+    # issue 13: one verdict, the same words as the app (amrst.review.verdict).
     if verdict.status == FAILED:
         print(
             f"Registration failed: {verdict.reason} The files above are marked "
@@ -202,7 +202,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
-    from amrst import bench, clip, simulate_cli
+    from amrst import bench, clip
+    from amrst.simulate import cli as simulate_cli
 
     p = argparse.ArgumentParser(
         prog="amrst",

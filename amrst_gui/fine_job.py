@@ -2,7 +2,7 @@
 
 From a manual candidate, Fine's result replaces the technician's pose only when it
 stays the same solution and does not lower the verification score
-(:func:`amrst.manual_keep.judge_refinement`); otherwise the manual pose is the fine
+(:func:`amrst.review.manual_keep.judge_refinement`); otherwise the manual pose is the fine
 result, and the decision says why. No widgets.
 """
 
@@ -13,8 +13,8 @@ import time
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from amrst.manual_keep import KeepDecision
     from amrst.progress import Reporter
+    from amrst.review.manual_keep import KeepDecision
 
 
 def refine_keeping_manual(
@@ -22,7 +22,7 @@ def refine_keeping_manual(
 ) -> tuple[tuple[Any, Any, dict, KeepDecision | None], float]:
     """``jobs.refine_pair``, then the manual-pose check; adds the decision (or None)."""
     from amrst import pipeline
-    from amrst.manual_keep import judge_refinement
+    from amrst.review.manual_keep import judge_refinement
     from amrst.stages.candidates import Origin
     from amrst_gui import jobs
 

@@ -87,7 +87,7 @@ def match_pair(
 
 
 def _score_manual(analyses: dict, T: Any, cid: int, how: str, params: Any) -> Any:
-    from amrst.manual import score_manual
+    from amrst.review.manual import score_manual
 
     return score_manual(
         T, analyses["target"].xyz, analyses["source"].xyz, params.coarse, cid, how
@@ -169,8 +169,8 @@ def refine_pair(
 
 
 def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, float]:
-    """Write the chosen outputs with ``amrst.export.export_registration``."""
-    from amrst import export
+    """Write the chosen outputs with ``amrst.results.export.export_registration``."""
+    from amrst.results import export
 
     start = time.perf_counter()
     reporter.progress(0.0, f"Writing to {out_dir}")

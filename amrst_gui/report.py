@@ -1,6 +1,6 @@
 """The registration report from the app: built from the session, written with Export.
 
-The engine's :mod:`amrst.report_html` writes the page (the same file as ``amrst
+The engine's :mod:`amrst.results.report_html` writes the page (the same file as ``amrst
 register --report``); this module collects the session's state into its inputs and
 runs the export and the report in one worker job. No widgets.
 """
@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from amrst.report_html import REPORT_NAME, ReportInputs, write_report
+from amrst.results.report_html import REPORT_NAME, ReportInputs, write_report
 
 if TYPE_CHECKING:
     from amrst.progress import Reporter

@@ -216,13 +216,13 @@ class ResultsMixin(ReviewMixin):
         return out
 
     def export_arguments(self, cloud_format: str, parts=None) -> dict[str, Any]:
-        """Keyword arguments of ``amrst.export.export_registration`` (but out_dir)."""
+        """Keyword arguments of ``amrst.results.export.export_registration`` (but out_dir)."""
         T_final = self.final_transform
         # Session.export, the only caller, returns early while this is None.
         assert T_final is not None
         assert self._accepted is not None  # a final transform needs an accepted one
         from amrst import __version__
-        from amrst.report import ResultRecord, result_documents
+        from amrst.results.documents import ResultRecord, result_documents
 
         fine = self._fine
         verdict = self.verdict

@@ -19,9 +19,9 @@ from amrst_gui.state import LinkId, LinkReview, ScanId
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.review.verdict import Verdict
     from amrst.stages.candidates import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
-    from amrst.verdict import Verdict
 
 log = logging.getLogger("amrst_gui.session")
 
@@ -232,7 +232,7 @@ class ReviewMixin:
     @property
     def verdict(self) -> Verdict | None:
         """The verdict of the current registration, or None before matching."""
-        from amrst.verdict import judge
+        from amrst.review.verdict import judge
 
         if self.match_result is None:
             return None
@@ -250,7 +250,7 @@ class ReviewMixin:
         )
 
     def _next_manual_id(self) -> int:
-        from amrst.manual import MANUAL_ID_BASE
+        from amrst.review.manual import MANUAL_ID_BASE
 
         self._review.manual_next += 1
         return MANUAL_ID_BASE + self._review.manual_next

@@ -256,7 +256,7 @@ class Session(RunnerMixin, StepJobsMixin, ResultsMixin, QObject):
         parts=None,
         override: bool = False,
     ) -> None:
-        """Write the results with ``amrst.export``; emits ``exported(paths)``.
+        """Write the results with ``amrst.results.export``; emits ``exported(paths)``.
 
         A result whose verdict is not *registered* is written only with ``override``
         (the window asks), and the override is recorded in the files.

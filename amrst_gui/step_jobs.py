@@ -30,11 +30,11 @@ if TYPE_CHECKING:
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.review.verdict import Verdict
     from amrst.stages.candidates import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
     from amrst.types import Cloud
-    from amrst.verdict import Verdict
     from amrst_gui.state import LinkReview
 
 log = logging.getLogger("amrst_gui.session")

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.atomic import write_text_atomic
+from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     from pathlib import Path

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.atomic import write_text_atomic
 from amrst.bench.headline import headline_markdown, truth_check_markdown
+from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

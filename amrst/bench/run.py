@@ -21,11 +21,11 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from amrst.atomic import make_folder
 from amrst.baselines import METHODS
 from amrst.baselines._common import Method, MethodResult, to_local
 from amrst.bench.within import within_fractions
 from amrst.errors import AmrstError, Cancelled, InvalidInput
+from amrst.files.atomic import make_folder
 from amrst.io.cases import Case, find_cases, read_case
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.metrics import measure_clouds, truth_errors

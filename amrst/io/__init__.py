@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from amrst.atomic import write_atomic
 from amrst.errors import AmrstError, InvalidInput
+from amrst.files.atomic import write_atomic
 from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
 from amrst.io.las import read_las

@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.atomic import make_folder, write_json_atomic
 from amrst.errors import InvalidInput
+from amrst.files.atomic import make_folder, write_json_atomic
 from amrst.io.truth import read_truth_document
 from amrst.types import Cloud, Transform, check_rigid
 
@@ -159,7 +159,7 @@ def check_case_folder(out_dir: PathLike) -> Path:
     InvalidInput
         With what to change.
     """
-    from amrst.outcheck import check_output_folder  # issue 16: permissions, loops
+    from amrst.files.outcheck import check_output_folder  # issue 16: permissions, loops
 
     return check_output_folder(out_dir, "case folder")
 
@@ -196,7 +196,7 @@ def write_case(
         If ``out_dir`` is a file or cannot be created.
     """
     from amrst import io
-    from amrst.outdir import replace_files
+    from amrst.files.outdir import replace_files
 
     out = make_folder(check_case_folder(out_dir), "case folder")
     truth = {**truth_dict(pair, tree_name, seed), **(extra or {})}

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.safefile import load_json_file
+from amrst.files.safefile import load_json_file
 from amrst.types import check_rigid
 
 PathLike = str | os.PathLike[str]

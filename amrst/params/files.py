@@ -16,11 +16,11 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
-from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
+from amrst.files.atomic import write_json_atomic
+from amrst.files.safefile import load_json_file
 from amrst.params.model import RegistrationParams
 from amrst.resources import resource_path
-from amrst.safefile import load_json_file
 
 if TYPE_CHECKING:
     import os

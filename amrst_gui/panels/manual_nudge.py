@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
     QSlider,
 )
 
-from amrst import manual
+from amrst.review import manual
 
 
 class NudgeMixin:

@@ -29,8 +29,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst import manual
 from amrst.errors import InvalidInput
+from amrst.review import manual
 from amrst.types import local_transform, rotation_angle_deg
 from amrst_gui.panels.manual_nudge import NudgeMixin
 

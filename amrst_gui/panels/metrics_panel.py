@@ -14,7 +14,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst.metric_doc import METRIC_ROWS as _ROWS
+from amrst.results.metric_doc import METRIC_ROWS as _ROWS
 from amrst_gui import steps
 from amrst_gui.panels.verdict_style import verdict_style
 

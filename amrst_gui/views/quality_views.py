@@ -271,7 +271,7 @@ class StemSlicesPane(QWidget):
 
     def refresh(self) -> None:
         """Slice both scans under the best transform so far."""
-        from amrst.quality import stem_slices
+        from amrst.review.quality import stem_slices
 
         s = self.session
         T = s.final_transform

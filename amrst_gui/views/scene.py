@@ -295,7 +295,7 @@ def build_registration_scene(
         key = ("source", Ref(source), half, T.tobytes(), colour)
         rgb = np.tile(np.array(SOURCE_RGB, np.uint8), (len(s_xyz), 1))
         if colour == "distance":
-            from amrst.quality import nn_distances
+            from amrst.review.quality import nn_distances
 
             d_s = nn_distances(s_xyz, t_xyz, 1.0)
             d_t = nn_distances(t_xyz, s_xyz, 1.0)

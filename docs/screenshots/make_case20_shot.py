@@ -40,7 +40,7 @@ def main(case: Path, size: str, out: Path) -> int:
     app = create_app(sys.argv[:1])
     from PySide6.QtCore import QEventLoop, QSettings, QTimer
 
-    from amrst.manual import fit_pairs
+    from amrst.review.manual import fit_pairs
     from amrst.types import local_transform
     from amrst_gui.main_window import MainWindow
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amrst.atomic import write_json_atomic
 from amrst.baselines import METHODS, MethodResult
 from amrst.bench import TerminalProgress, configure_parser, run_bench, run_cli
 from amrst.errors import Cancelled, InvalidInput
+from amrst.files.atomic import write_json_atomic
 from amrst.io.cases import find_cases, read_case
 from amrst.types import Cloud, apply_transform, invert_transform, make_transform
 

@@ -11,8 +11,8 @@ import pytest
 
 from amrst import io
 from amrst.errors import AmrstError, InvalidInput
-from amrst.export import PARTS, export_registration, merge_clouds
 from amrst.params import RegistrationParams, load_params
+from amrst.results.export import PARTS, export_registration, merge_clouds
 from amrst.types import Cloud, make_transform
 
 OFFSET = np.array([500000.0, 5000000.0, 100.0])
@@ -230,7 +230,7 @@ def test_exported_files_are_readable_by_others(tmp_path, sample_pair) -> None:
     # mkstemp alone makes owner-only (0600) files; a colleague must be able to read exports.
     import stat
 
-    from amrst.export import export_registration
+    from amrst.results.export import export_registration
 
     files = export_registration(
         tmp_path / "out",
@@ -285,7 +285,7 @@ def test_stale_clouds_are_removed_only_when_asked(
         tmp_path, target=target, source=source, T_target_source=T, parts=parts
     )
     assert (tmp_path / "merged.pcd").is_file()  # the library default keeps them
-    with caplog.at_level("WARNING", logger="amrst.export"):
+    with caplog.at_level("WARNING", logger="amrst.results.export"):
         export_registration(
             tmp_path,
             target=target,
@@ -302,7 +302,7 @@ def test_stale_clouds_are_removed_only_when_asked(
 
 
 def test_output_folder_checks(tmp_path: Path) -> None:
-    from amrst.export import check_output_dir, output_names
+    from amrst.results.export import check_output_dir, output_names
 
     with pytest.raises(InvalidInput, match="empty"):
         check_output_dir("")

@@ -34,6 +34,16 @@ def test_no_import_cycles(package: str) -> None:
     assert not cycles, cycles[:5]
 
 
+def test_no_module_over_400_lines() -> None:
+    long = {
+        str(p.relative_to(ROOT)): n
+        for folder in ("amrst", "amrst_gui")
+        for p in (ROOT / folder).rglob("*.py")
+        if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
+    }
+    assert not long, f"split these by responsibility: {long}"
+
+
 def test_simulate_loads_no_benchmark_or_baseline() -> None:
     code = (
         "import sys, amrst.simulate; "

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from amrst import manual
 from amrst.errors import InvalidInput
+from amrst.review import manual
 from amrst.types import rotation_angle_deg
 
 

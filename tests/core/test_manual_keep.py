@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from amrst.manual_keep import judge_refinement
+from amrst.review.manual_keep import judge_refinement
 from amrst.stages.coarse import CoarseParams
 from amrst.types import make_transform
 

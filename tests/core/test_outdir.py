@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amrst import outdir
 from amrst.errors import AmrstError
-from amrst.export import export_registration
-from amrst.folderlock import FolderBusy, FolderLock
+from amrst.files import outdir
+from amrst.files.folderlock import FolderBusy, FolderLock
+from amrst.results.export import export_registration
 from amrst.types import Cloud, make_transform
 
 pytestmark = pytest.mark.skipif(
@@ -174,7 +174,7 @@ _WRITER = textwrap.dedent(
     import os, sys, time
     sys.path.insert(0, {tests!r})
     from test_outdir import _export
-    import amrst.outdir as od
+    import amrst.files.outdir as od
     shift, slow_s, timeout_s = float(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
     real = od._write_into
     def slow(*a, **k):
@@ -252,7 +252,7 @@ def test_the_lock_of_a_dead_holder_is_taken_at_once(tmp_path: Path) -> None:
         [
             sys.executable,
             "-c",
-            "import sys, os, signal; from amrst.folderlock import FolderLock; "
+            "import sys, os, signal; from amrst.files.folderlock import FolderLock; "
             "FolderLock(sys.argv[1]).acquire(); os.kill(os.getpid(), signal.SIGKILL)",
             str(tmp_path),
         ],

@@ -49,15 +49,15 @@ def test_report_modules_need_no_display_nor_qt() -> None:
     # The report is drawn in a process where Qt and pyvista cannot be imported.
     code = (
         "import sys; sys.modules['PySide6'] = None; sys.modules['pyvista'] = None\n"
-        "import amrst.report_html, amrst.report_images\n"
-        "from amrst.report_images import slices_png\n"
+        "import amrst.results.report_html, amrst.results.report_images\n"
+        "from amrst.results.report_images import slices_png\n"
         "assert slices_png([]).startswith(b'\\x89PNG')\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_a_slice_through_a_flared_base_says_the_fit_is_unreliable() -> None:
-    from amrst.quality import stem_slices
+    from amrst.review.quality import stem_slices
 
     rng = np.random.default_rng(0)
 

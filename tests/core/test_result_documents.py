@@ -1,6 +1,6 @@
 """One result layout for the CLI, the app and the benchmark (issue 11).
 
-transform.json, metrics.json and metrics.csv come from amrst.report.result_documents;
+transform.json, metrics.json and metrics.csv come from amrst.results.documents.result_documents;
 files written before (no schema_version, by the CLI or the app) keep being read.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from amrst.report import (
+from amrst.results.documents import (
     RESULT_SCHEMA_VERSION,
     ResultRecord,
     record_from_registration,

@@ -21,10 +21,10 @@ import pytest
 # The forked unprivileged child cannot import from root's Python: import up front
 # everything main() imports lazily.
 import amrst.bench
-import amrst.export
 import amrst.io.truth
 import amrst.pipeline
-import amrst.report
+import amrst.results.documents
+import amrst.results.export
 import amrst.simulate  # noqa: F401
 from amrst.cli import main
 from amrst.errors import InvalidInput

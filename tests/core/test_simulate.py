@@ -15,7 +15,7 @@ from amrst.simulate import (
     trunk_base,
     write_case,
 )
-from amrst.simulate_cli import configure_parser, run_cli
+from amrst.simulate.cli import configure_parser, run_cli
 from amrst.types import (
     Cloud,
     apply_transform,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from amrst.errors import InvalidInput
-from amrst.simulate_field import (
+from amrst.simulate.field import (
     GROUND,
     OTHER,
     TREE,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from amrst import verdict
+from amrst.review import verdict
 from amrst.stages.coarse import Candidate, CandidateList, choose_coarse
 
 

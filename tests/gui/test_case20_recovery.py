@@ -43,7 +43,7 @@ def _spread_pairs(target, source, T_true, k: int):
 def test_case20_six_pairs_recover_and_fine_keeps_the_manual_pose(
     make_main_window, qtbot, capsys
 ):
-    from amrst.manual import fit_pairs
+    from amrst.review.manual import fit_pairs
     from amrst.types import local_transform
 
     win = make_main_window()

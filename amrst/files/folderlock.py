@@ -5,7 +5,7 @@ who holds it there (pid, host, start time, command). A second writer, in this pr
 or another, waits for it (up to ``timeout_s``) and then gives up with a message naming
 the holder. The kernel releases the lock when its holder dies, so the lock of a killed
 run is stale at once and the next run takes it without asking anyone (the file it left
-is reused). The folder of an export is swapped as a whole (amrst.outdir), so the lock
+is reused). The folder of an export is swapped as a whole (amrst.files.outdir), so the lock
 file itself can change inode: a lock is held only once the path names the very file
 that was locked (the usual lock-file re-check), and ``adopt`` locks the new folder's
 lock file before the swap.

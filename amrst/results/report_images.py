@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.quality import nn_distances
+from amrst.review.quality import nn_distances
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from matplotlib.figure import Figure
 
-    from amrst.quality import StemSlice
+    from amrst.review.quality import StemSlice
 
 TARGET_RGB = (240 / 255, 170 / 255, 40 / 255)  # the app's colours (views.scene)
 SOURCE_RGB = (60 / 255, 150 / 255, 255 / 255)

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.measure.stem import StemCircle, fit_stem_circle, stem_surface
 from amrst.progress import NULL_REPORTER
-from amrst.stem import StemCircle, fit_stem_circle, stem_surface
 
 if TYPE_CHECKING:
     from amrst.progress import Reporter

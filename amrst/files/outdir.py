@@ -25,7 +25,7 @@ it (a few renames, milliseconds): the folder can show a mix *until the next AMRS
 that writes it*, which finishes the renames from the record before anything else.
 
 Either way the next run removes the debris (staging folders, siblings, records) under
-the folder's lock (amrst.folderlock), so two writers never interleave.
+the folder's lock (amrst.files.folderlock), so two writers never interleave.
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from amrst.atomic import write_json_atomic
 from amrst.errors import AmrstError, InvalidInput
-from amrst.folderlock import DEFAULT_TIMEOUT_S, LOCK_NAME, FolderLock
+from amrst.files.atomic import write_json_atomic
+from amrst.files.folderlock import DEFAULT_TIMEOUT_S, LOCK_NAME, FolderLock
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Mapping

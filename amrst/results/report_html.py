@@ -19,16 +19,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.metric_doc import METRIC_ROWS
+from amrst.results.metric_doc import METRIC_ROWS
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
+    from amrst.review.verdict import Verdict
     from amrst.stages.candidates import Candidate
     from amrst.types import Cloud
-    from amrst.verdict import Verdict
 
 REPORT_NAME = "report.html"
 _COLOURS = {"registered": "#1b7f2a", "needs review": "#b26a00", "failed": "#b00020"}
@@ -47,7 +47,7 @@ class ReportInputs:
 
     ``T_local`` maps the source's local frame into the target's (as the engine
     works); ``metrics`` and ``truth`` are keyed by stage ("coarse", "fine"), each a
-    mapping of the keys of ``amrst.metric_doc.METRIC_ROWS`` to values.
+    mapping of the keys of ``amrst.results.metric_doc.METRIC_ROWS`` to values.
     """
 
     target: Cloud
@@ -86,8 +86,8 @@ def inputs_from_result(
     T_truth: np.ndarray | None = None,
 ) -> ReportInputs:
     """Report inputs of a finished ``amrst.pipeline.RegistrationResult`` (the CLI)."""
+    from amrst.review.verdict import judge_result
     from amrst.types import local_transform
-    from amrst.verdict import judge_result
 
     params = result.params
     T_local = local_transform(result.T_target_source, target, source)
@@ -132,8 +132,8 @@ def inputs_from_result(
 
 def render_images(inputs: ReportInputs) -> dict[str, bytes]:
     """Draw the report's pictures with matplotlib (Agg); PNG bytes by name."""
-    from amrst.quality import stem_slices
-    from amrst.report_images import render_all
+    from amrst.results.report_images import render_all
+    from amrst.review.quality import stem_slices
 
     moved = inputs.moved_source_xyz
     slices = stem_slices(inputs.target.xyz, moved, params=inputs.params.measure)
@@ -147,7 +147,7 @@ def write_report(
 
     ``images`` (PNG bytes by name) default to :func:`render_images`.
     """
-    from amrst.atomic import write_text_atomic
+    from amrst.files.atomic import write_text_atomic
 
     path = Path(path)
     pictures = dict(images) if images is not None else render_images(inputs)

@@ -1,7 +1,7 @@
 """Export a registration: moved source, merged cloud, transform, metrics, parameters.
 
 Every file is first written into a staging folder; the whole set then replaces the old
-one in one atomic step (amrst.outdir), under the folder's lock (amrst.folderlock). A
+one in one atomic step (amrst.files.outdir), under the folder's lock (amrst.files.folderlock). A
 failed or killed export therefore never leaves half a file, a mix of old and new files,
 or a clobbered earlier one. The parameters go with the results (KISS-ICP writes its
 config next to its poses for the same reason).
@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from amrst import io as amrst_io
-from amrst.atomic import write_json_atomic, write_text_atomic
 from amrst.errors import InvalidInput
-from amrst.folderlock import DEFAULT_TIMEOUT_S
-from amrst.outcheck import check_output_folder
-from amrst.outdir import replace_files
+from amrst.files.atomic import write_json_atomic, write_text_atomic
+from amrst.files.folderlock import DEFAULT_TIMEOUT_S
+from amrst.files.outcheck import check_output_folder
+from amrst.files.outdir import replace_files
 from amrst.params import RegistrationParams, params_to_dict
-from amrst.report import CONVENTION, metrics_csv
+from amrst.results.documents import CONVENTION, metrics_csv
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
     from pathlib import Path
 
-    from amrst.report import ResultDocuments
+    from amrst.results.documents import ResultDocuments
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ CLOUD_NAMES = tuple(
     f"{stem}.{fmt}" for stem in ("registered_source", "merged") for fmt in CLOUD_FORMATS
 )
 # Every name an export may write: a folder holding only these (and our hidden files)
-# is swapped as a whole (amrst.outdir).
+# is swapped as a whole (amrst.files.outdir).
 MANAGED_NAMES = frozenset(
     [
         *CLOUD_NAMES,
@@ -89,7 +89,7 @@ def check_output_dir(
 ) -> Path:
     """Check, before any long work, that ``out_dir`` can take the export files.
 
-    See :func:`amrst.outcheck.check_output_folder` (nothing is left behind).
+    See :func:`amrst.files.outcheck.check_output_folder` (nothing is left behind).
 
     Raises
     ------
@@ -184,9 +184,9 @@ def export_registration(
         Drop from the folder the ``CLOUD_NAMES`` files this call does not write (an
         earlier run's clouds), in the same atomic step, logging one warning line.
     lock_timeout_s : float
-        How long to wait for another writer of ``out_dir`` (amrst.folderlock).
+        How long to wait for another writer of ``out_dir`` (amrst.files.folderlock).
     documents : ResultDocuments or None
-        The result files from :func:`amrst.report.result_documents`; when given,
+        The result files from :func:`amrst.results.documents.result_documents`; when given,
         ``metrics``, ``T_coarse`` and ``transform_extra`` are not used.
 
     Returns
@@ -205,7 +205,7 @@ def export_registration(
 
     Notes
     -----
-    The folder's files are replaced as one unit (see amrst.outdir for what a kill at
+    The folder's files are replaced as one unit (see amrst.files.outdir for what a kill at
     each instant leaves); earlier files this call does not write are kept.
     """
     unknown = set(parts) - set(PARTS)
@@ -231,7 +231,7 @@ def export_registration(
             writers[f"merged.{cloud_format}"] = lambda p: amrst_io.write(
                 p, merge_clouds(target, moved)
             )
-    if documents is not None:  # the one result layout (amrst.report, issue 11)
+    if documents is not None:  # the one result layout (amrst.results.documents, issue 11)
         doc, mdoc = documents.transform, documents.metrics
         text, table = documents.transform_txt, documents.metrics_csv
     else:

@@ -62,7 +62,7 @@ class ResultRecord:
     message: str = ""
     counts: Mapping[str, Any] = field(default_factory=dict)
     amrst_version: str = ""
-    # registered / needs review / failed, with reason and next step (amrst.verdict),
+    # registered / needs review / failed, with reason and next step (amrst.review.verdict),
     # and whether the user chose to export a result that is not registered.
     verdict: Mapping[str, Any] | None = None
     # Set when the user exported a result that is not "registered" (the app asks):

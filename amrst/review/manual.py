@@ -347,7 +347,7 @@ def score_manual(
         )[0]
     note = ""
     if params.polish_top > 0:
-        from amrst.manual_keep import judge_refinement
+        from amrst.review.manual_keep import judge_refinement
 
         kept = judge_refinement(
             T_start, T_pol, target_xyz, source_xyz, params, "The short ICP polish"

@@ -108,7 +108,7 @@ def run_cli(args: argparse.Namespace) -> int:
             )
             out = write_case(pair, args.out, Path(args.tree).name, args.seed)
         else:
-            from amrst.simulate_field import simulate_field_pair
+            from amrst.simulate.field import simulate_field_pair
 
             pair, info = simulate_field_pair(
                 tree,
@@ -141,7 +141,7 @@ def _field_options(args: argparse.Namespace, io: Any) -> Any:
         or args.clip_radius_m is not None
     ):
         return None
-    from amrst.simulate_field import FieldOptions
+    from amrst.simulate.field import FieldOptions
 
     return FieldOptions(
         ground=args.ground,

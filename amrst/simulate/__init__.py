@@ -19,7 +19,6 @@ The truth ``T_target_source`` is the composition of the two exact scanner poses.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -27,7 +26,8 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.cases import check_case_folder, write_case
-from amrst.scanner import footprints, visible_points
+from amrst.simulate.scanner import footprints, visible_points
+from amrst.simulate.settings import MAX_NOISE_M, MAX_TILT_DEG, check_settings
 from amrst.types import (
     Cloud,
     Transform,
@@ -311,91 +311,9 @@ def _distinct(xyz: np.ndarray) -> int:
     return len(np.unique(np.asarray(xyz), axis=0)) if len(xyz) else 0
 
 
-MAX_NOISE_M = 0.5
-MAX_TILT_DEG = 45.0
-
-
-def check_settings(
-    *,
-    seed: Any,
-    separation_deg: float,
-    distance_m: tuple[float, ...],
-    res_deg: float,
-    noise_m: float,
-    tilt_deg: float,
-    height_m: float = 1.5,
-    cli: bool = False,
-) -> None:
-    """Refuse settings :func:`simulate_pair` cannot use, naming the setting.
-
-    Parameters
-    ----------
-    seed : int
-        Must be an integer of 0 or more.
-    separation_deg, res_deg, noise_m, tilt_deg, height_m : float
-        Must be finite; ``res_deg`` > 0, ``noise_m`` and ``tilt_deg`` >= 0.
-    distance_m : tuple of float
-        One or two finite distances > 0.
-    cli : bool
-        Name the settings as ``amrst simulate`` options (``--res-deg``).
-
-    Raises
-    ------
-    InvalidInput
-        The first setting that is wrong, and what it must be.
-    """
-
-    def label(name: str) -> str:
-        return "--" + name.replace("_", "-") if cli else name
-
-    if (
-        isinstance(seed, bool)
-        or not isinstance(seed, (int, np.integer))
-        or int(seed) < 0
-    ):
-        raise InvalidInput(
-            f"{label('seed')} must be an integer of 0 or more, got {seed!r}."
-        )
-    numbers = {
-        "separation_deg": [separation_deg],
-        "distance_m": list(distance_m),
-        "res_deg": [res_deg],
-        "noise_m": [noise_m],
-        "tilt_deg": [tilt_deg],
-        "height_m": [height_m],
-    }
-    for name, values in numbers.items():
-        for v in values:
-            if not isinstance(v, (int, float, np.number)) or not math.isfinite(v):
-                raise InvalidInput(
-                    f"{label(name)} must be a finite number, got {v!r}; NaN and "
-                    "infinity are not allowed."
-                )
-    if len(distance_m) not in (1, 2) or min(distance_m) <= 0:
-        raise InvalidInput(
-            f"{label('distance_m')} must be one positive number or two (target, "
-            f"source), got {list(distance_m)}."
-        )
-    if res_deg <= 0:
-        raise InvalidInput(f"{label('res_deg')} must be > 0, got {res_deg}.")
-    if noise_m < 0 or tilt_deg < 0:
-        raise InvalidInput(
-            f"{label('noise_m')} and {label('tilt_deg')} must be >= 0, got "
-            f"{noise_m} and {tilt_deg}."
-        )
-    if tilt_deg > MAX_TILT_DEG:
-        raise InvalidInput(
-            f"{label('tilt_deg')} must be at most {MAX_TILT_DEG} degrees (a levelled "
-            f"tripod tilts under 1), got {tilt_deg:g}."
-        )
-    if noise_m > MAX_NOISE_M:  # issue 16: 1e6 m wrote a case with no valid point
-        raise InvalidInput(
-            f"{label('noise_m')} must be at most {MAX_NOISE_M} m (a scanner's range "
-            f"noise is millimetres), got {noise_m:g}."
-        )
-
-
 __all__ = [
+    "MAX_NOISE_M",
+    "MAX_TILT_DEG",
     "MIN_POINTS",
     "SimulatedPair",
     "check_case_folder",

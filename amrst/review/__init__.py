@@ -1,0 +1,1 @@
+"""The technician's judgement: the verdict, manual poses (point pairs, nudge, typed transform) and the quality checks (distances, stem slices)."""
