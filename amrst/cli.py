@@ -87,7 +87,10 @@ def _same_file(a: str, b: str) -> bool:
     try:
         return os.path.samefile(a, b)
     except OSError:
-        return Path(a).resolve() == Path(b).resolve()
+        try:
+            return Path(a).resolve() == Path(b).resolve()
+        except RuntimeError:  # a symbolic link loop: io.read refuses it in words
+            return False
 
 
 def _cmd_register(args: argparse.Namespace) -> int:

@@ -337,3 +337,15 @@ def test_damaged_laz_chunk_table_is_one_refusal_without_a_crash(tmp_path, damage
     assert proc.returncode == 2, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert "Laszip" not in proc.stderr  # lazrs's message, not the in-process fallback
+
+
+def test_register_with_a_symlink_loop_is_one_line(tmp_path, capsys):
+    """Hostile corpus: 'register LOOP LOOP' was "Internal error: RuntimeError"."""
+    from amrst import cli
+
+    (tmp_path / "a.ply").symlink_to(tmp_path / "b.ply")
+    (tmp_path / "b.ply").symlink_to(tmp_path / "a.ply")
+    loop = str(tmp_path / "a.ply")
+    code = cli.main(["register", loop, loop, "--out", str(tmp_path / "out")])
+    assert code == cli.EXIT_INPUT
+    assert "symbolic link loop" in capsys.readouterr().err
