@@ -113,7 +113,7 @@ def measure_clouds(
     -------
     CloudMetrics
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import NearestTree
 
     rng = np.random.default_rng(params.seed)
     tgt = _sample(np.asarray(target_xyz, float), params.max_points, rng)
@@ -121,8 +121,8 @@ def measure_clouds(
     if len(tgt) == 0 or len(src) == 0:
         nan = float("nan")
         return CloudMetrics(nan, nan, nan, nan, 0.0, len(tgt), len(src))
-    d_st = cKDTree(tgt).query(src, workers=-1)[0]
-    d_ts = cKDTree(src).query(tgt, workers=-1)[0]
+    d_st = NearestTree(tgt).query(src)[0]
+    d_ts = NearestTree(src).query(tgt)[0]
     inside = d_st < params.overlap_dist_m
     both = np.concatenate([d_st, d_ts])
     return CloudMetrics(

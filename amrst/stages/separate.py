@@ -168,7 +168,7 @@ def separate_wood(
     -------
     SeparationResult
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import knn
 
     n = len(xyz)
     if params.mode == "all_wood":
@@ -184,8 +184,7 @@ def separate_wood(
         reps = owner = np.arange(n)
     # One neighbour query serves every feature scale and the vote.
     k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
-    neighbours = cKDTree(xyz).query(xyz[reps], k=k_max, workers=-1)[1]
-    neighbours = neighbours.reshape(len(reps), -1)
+    neighbours = knn(xyz, k_max, xyz[reps])[1]
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0

@@ -61,3 +61,88 @@ def test_voxel_grid_codes_separate_voxels_on_a_huge_grid() -> None:
     reps, owner = voxel_representatives(xyz, 0.001)
     assert len(reps) == 2
     np.testing.assert_array_equal(owner, [0, 0, 1, 1])
+
+
+def _cloud_with_duplicates(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(size=(n, 3)) * [1.0, 1.0, 3.0]
+    xyz = np.vstack([xyz, xyz[: n // 10], xyz[: n // 50]])  # doubled and tripled points
+    return xyz[rng.permutation(len(xyz))]
+
+
+def _same_neighbours(
+    d: np.ndarray,
+    i: np.ndarray,
+    d_ref: np.ndarray,
+    i_ref: np.ndarray,
+    xyz: np.ndarray,
+    q: np.ndarray,
+) -> None:
+    """A valid k-nearest answer: scipy's distances, each index really at its distance,
+    no index twice in a row. Equidistant neighbours (duplicates) may come in another
+    order or, at the k-th place, be another of the tied points."""
+    np.testing.assert_allclose(d, d_ref, rtol=1e-12, atol=1e-12)
+    found = np.isfinite(d_ref)
+    np.testing.assert_array_equal(np.isfinite(d), found)
+    np.testing.assert_array_equal(i[~found], i_ref[~found])
+    rows, cols = np.nonzero(found)
+    at = np.linalg.norm(xyz[i[rows, cols]] - q[rows], axis=1)
+    np.testing.assert_allclose(at, d[rows, cols], rtol=1e-9, atol=1e-12)
+    srt = np.sort(np.where(found, i, -1 - np.arange(i.shape[1])), axis=1)
+    assert np.all(np.diff(srt, axis=1) != 0)
+
+
+@pytest.mark.parametrize("k", [1, 2, 13, 30])
+def test_knn_equals_scipy_ckdtree(k: int) -> None:
+    from scipy.spatial import cKDTree
+
+    from amrst.neighbours import knn
+
+    xyz = _cloud_with_duplicates(20_000, seed=k)
+    queries = np.vstack([xyz[::7], np.random.default_rng(1).normal(size=(500, 3))])
+    for q in (None, queries):
+        d, i = knn(xyz, k, q)
+        qq = xyz if q is None else q
+        d_ref, i_ref = cKDTree(xyz).query(qq, k=k)
+        assert i.dtype == np.int64
+        _same_neighbours(d, i, d_ref.reshape(d.shape), i_ref.reshape(i.shape), xyz, qq)
+
+
+def test_knn_refuses_an_impossible_k() -> None:
+    from amrst.neighbours import knn
+
+    with pytest.raises(ValueError, match="k must be"):
+        knn(np.zeros((5, 3)), 6)
+
+
+@pytest.mark.parametrize(
+    ("k", "bound"), [(1, np.inf), (1, 0.05), (2, 0.1), (3, np.inf)]
+)
+def test_nearest_tree_equals_scipy_ckdtree(k: int, bound: float) -> None:
+    from scipy.spatial import cKDTree
+
+    from amrst.neighbours import NearestTree
+
+    xyz = _cloud_with_duplicates(10_000, seed=3)
+    q = np.vstack([xyz[::5] + 0.01, np.random.default_rng(2).normal(size=(500, 3)) * 4])
+    d, i = NearestTree(xyz).query(q, k=k, distance_upper_bound=bound)
+    d_ref, i_ref = cKDTree(xyz).query(q, k=k, distance_upper_bound=bound)
+    assert d.shape == d_ref.shape
+    assert i.dtype == np.int64
+    if k == 1:
+        d, i, d_ref, i_ref = d[:, None], i[:, None], d_ref[:, None], i_ref[:, None]
+    assert np.isfinite(d_ref).sum() > 0
+    assert (~np.isfinite(d_ref)).sum() > 0 or bound == np.inf
+    _same_neighbours(d, i, d_ref, i_ref, xyz, q)
+
+
+def test_nearest_tree_pads_like_scipy_when_k_exceeds_the_points() -> None:
+    from amrst.neighbours import NearestTree
+
+    xyz = np.random.default_rng(0).normal(size=(4, 3))
+    d, i = NearestTree(xyz).query(xyz, k=6)
+    assert np.all(np.isinf(d[:, 4:]))
+    assert np.all(i[:, 4:] == 4)
+    d, i = NearestTree(np.zeros((0, 3))).query(xyz)
+    assert np.all(np.isinf(d))
+    assert np.all(i == 0)
