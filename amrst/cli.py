@@ -294,6 +294,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.configure_parser(ben)
     ben.set_defaults(func=bench.run_cli)
+
+    from amrst.bench import scale  # issue 15: dense pairs, time per stage, memory
+
+    sca = sub.add_parser(
+        "bench-scale",
+        help="densify a case to millions of points a scan; time amrst register per stage",
+    )
+    scale.configure_parser(sca)
+    sca.set_defaults(func=scale.run_cli)
     return p
 
 
