@@ -60,7 +60,8 @@ def knn(
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
     tree = small_gicp.KdTree(pts, num_threads=threads)
     idx, sq = tree.batch_knn_search(q, k, num_threads=threads)
-    return np.sqrt(sq), idx.astype(np.int64)
+    # Every index is valid (k <= N): the uint64 array reads as int64 without a copy.
+    return np.sqrt(sq, out=sq), idx.view(np.int64)
 
 
 class NearestTree:

@@ -146,3 +146,28 @@ def test_nearest_tree_pads_like_scipy_when_k_exceeds_the_points() -> None:
     d, i = NearestTree(np.zeros((0, 3))).query(xyz)
     assert np.all(np.isinf(d))
     assert np.all(i == 0)
+
+
+@pytest.mark.parametrize("fill", [0.02, 0.05, 0.09])
+def test_voxel_components_equal_the_kd_tree_pair_search(fill: float) -> None:
+    """Same labels as connected_components at radius 1.75 (26-connectivity)."""
+    from amrst.stages.features import connected_components, voxel_components
+
+    rng = np.random.default_rng(int(fill * 100))
+    grid = np.stack(np.meshgrid(*[np.arange(25)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    keys = grid[rng.random(len(grid)) < fill]
+    keys = keys[rng.permutation(len(keys))]
+    got = voxel_components(keys)
+    want = connected_components(keys.astype(float), 1.75)
+    np.testing.assert_array_equal(got, want)
+    assert 1 < len(np.unique(got)) < len(keys)  # really several, really merged
+
+
+def test_voxel_components_link_corners_only_and_handle_far_keys() -> None:
+    from amrst.stages.features import voxel_components
+
+    keys = np.array([[0, 0, 0], [1, 1, 1], [3, 1, 1], [5, 0, 0], [6, 0, 0]])
+    np.testing.assert_array_equal(voxel_components(keys), [0, 0, 1, 2, 2])
+    far = keys + np.array([0, 0, 1 << 20])  # beyond the packed codes: fallback
+    np.testing.assert_array_equal(voxel_components(far), [0, 0, 1, 2, 2])
+    assert len(voxel_components(np.zeros((0, 3), dtype=np.int64))) == 0

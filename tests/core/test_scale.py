@@ -8,7 +8,12 @@ import shutil
 import numpy as np
 import pytest
 
-from amrst.bench.scale import densify, format_scale_table, make_scale_pair, time_register
+from amrst.bench.scale import (
+    densify,
+    format_scale_table,
+    make_scale_pair,
+    time_register,
+)
 from amrst.errors import InvalidInput
 from amrst.sampling import MEASURE_MAX_POINTS, bounded_sample, measure_pair
 from amrst.types import Cloud
@@ -30,7 +35,9 @@ def test_densify_makes_jittered_copies_seeded() -> None:
     assert len(d) == 12_345
     np.testing.assert_array_equal(d.offset, c.offset)
     src = np.arange(12_345) % len(c)
-    np.testing.assert_array_equal(d.attributes["intensity"], c.attributes["intensity"][src])
+    np.testing.assert_array_equal(
+        d.attributes["intensity"], c.attributes["intensity"][src]
+    )
     jitter = d.xyz - c.xyz[src]
     assert jitter.std() == pytest.approx(0.003, rel=0.05)
     assert np.abs(jitter).max() < 0.003 * 6
