@@ -171,3 +171,27 @@ def test_voxel_components_link_corners_only_and_handle_far_keys() -> None:
     far = keys + np.array([0, 0, 1 << 20])  # beyond the packed codes: fallback
     np.testing.assert_array_equal(voxel_components(far), [0, 0, 1, 2, 2])
     assert len(voxel_components(np.zeros((0, 3), dtype=np.int64))) == 0
+
+
+@pytest.mark.parametrize("offset", [0.0, 4.5e5, 6.4e6])
+def test_gt_rmse_from_moments_equals_moving_the_points(offset: float) -> None:
+    """truth_errors' gt_rmse against the direct formula, georeferenced points too."""
+    from amrst.stages.metrics import truth_errors
+    from amrst.types import apply_transform, make_transform
+
+    rng = np.random.default_rng(int(offset) % 97)
+    xyz = rng.normal(size=(20_000, 3)) * [3.0, 3.0, 8.0] + offset
+    ax = rng.normal(size=3)
+    ax /= np.linalg.norm(ax)
+    for angle_deg, shift in ((0.01, 0.002), (0.5, 0.05), (30.0, 1.0)):
+        a = np.radians(angle_deg)
+        K = np.array([[0, -ax[2], ax[1]], [ax[2], 0, -ax[0]], [-ax[1], ax[0], 0]])
+        R = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+        T_true = make_transform(np.eye(3), rng.normal(size=3))
+        T_est = make_transform(R, T_true[:3, 3] + shift) @ np.eye(4)
+        diff = apply_transform(T_est, xyz) - apply_transform(T_true, xyz)
+        want = np.sqrt(np.mean(np.sum(diff**2, axis=1)))
+        got = truth_errors(T_est, T_true, xyz).gt_rmse_m
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-9)
+    assert truth_errors(np.eye(4), np.eye(4), xyz).gt_rmse_m == 0.0
+    assert truth_errors(np.eye(4), np.eye(4), xyz[:0]).gt_rmse_m == 0.0
