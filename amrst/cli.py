@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
+from amrst.terminal import TerminalReporter
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
@@ -27,33 +28,6 @@ EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
 LOW_CONFIDENCE = 0.3
 
 logger = logging.getLogger(__name__)
-
-
-class TerminalReporter:
-    """Progress on stderr: a bar on a terminal, a line per stage message otherwise."""
-
-    def __init__(self, quiet: bool = False) -> None:
-        self._tty = sys.stderr.isatty()
-        self._quiet = quiet
-        self._last = ""
-        self._t0 = time.perf_counter()
-
-    def progress(self, fraction: float, message: str = "") -> None:
-        """Draw the bar, or write the message when its stage changed (unless quiet)."""
-        if self._quiet:
-            return
-        if self._tty:
-            bar = "#" * int(30 * fraction)
-            sys.stderr.write(f"\r[{bar:<30}] {fraction:4.0%} {message[:50]:<50}")
-            if fraction >= 1.0:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
-        elif message and message.split(":")[0] != self._last:
-            self._last = message.split(":")[0]
-            sys.stderr.write(f"{time.perf_counter() - self._t0:6.2f}s {message}\n")
-
-    def check_cancelled(self) -> None:
-        """Never cancel: Ctrl+C stops the command instead."""
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -206,6 +180,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
     from amrst import bench, clip
+    from amrst.bench import scale  # issue 15: dense pairs, per-stage time, memory
     from amrst.simulate import cli as simulate_cli
 
     p = argparse.ArgumentParser(
@@ -297,6 +272,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.configure_parser(ben)
     ben.set_defaults(func=bench.run_cli)
+
+    sca = sub.add_parser("bench-scale", help="time amrst register on densified pairs")
+    scale.configure_parser(sca)
+    sca.set_defaults(func=scale.run_cli)
     return p
 
 

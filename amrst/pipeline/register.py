@@ -8,15 +8,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.measure import TreeMeasures, measure_registration
 from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
 from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
 from amrst.pipeline.refine import evaluate, refine
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.sampling import measure_pair
 from amrst.types import world_transform
 
 if TYPE_CHECKING:
+    from amrst.measure import TreeMeasures
     from amrst.stages.coarse import CoarseResult
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
@@ -40,7 +41,8 @@ class RegistrationResult:
     metrics_fine: CloudMetrics
     timings: dict[str, float]  # stage -> seconds, with "total"
     params: RegistrationParams
-    # Height, DBH and crown of "target", "source" (moved) and "merged", full clouds.
+    # Height, DBH and crown of "target", "source" (moved) and "merged"; scans over
+    # amrst.sampling.MEASURE_MAX_POINTS points are measured on a seeded sample.
     tree: dict[str, TreeMeasures] = field(default_factory=dict)
 
 
@@ -144,7 +146,7 @@ def register(
     same = np.array_equal(fine.T_target_source, coarse.T_target_source)
     m_fine = m_coarse if same else evaluate(tgt, src, fine.T_target_source, params)
     T_world = world_transform(fine.T_target_source, target, source)
-    tree = measure_registration(target, source, T_world, params.measure)
+    tree = measure_pair(target, source, T_world, params.measure)
     timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():

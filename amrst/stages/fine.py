@@ -20,7 +20,7 @@ from amrst.progress import NULL_REPORTER, Reporter
 from amrst.types import Transform, make_transform
 
 if TYPE_CHECKING:
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import NearestTree
 
 FINE_METHODS = ("robust_plane", "lm_icp", "none")
 POINT_SETS = ("all", "leaf", "wood")
@@ -170,7 +170,9 @@ class _NearestCache:
     queries are made, and the transforms are the same bit for bit.
     """
 
-    def __init__(self, tree: cKDTree, tgt: np.ndarray, n: int, max_dist: float) -> None:
+    def __init__(
+        self, tree: NearestTree, tgt: np.ndarray, n: int, max_dist: float
+    ) -> None:
         self.tree, self.tgt, self.max_dist = tree, tgt, max_dist
         # Kept across scales of decreasing max_dist: the slacks stay valid (a point
         # with nothing within reach has even more room for a smaller max_dist).
@@ -208,18 +210,19 @@ def lm_icp(
     iters: int,
     tol: float,
     reporter: Reporter = NULL_REPORTER,
-    tree: cKDTree | None = None,
+    tree: NearestTree | None = None,
     nearest: _NearestCache | None = None,
 ) -> tuple[Transform, int, bool]:
     """Levenberg-Marquardt point-to-point ICP. Returns (T, iterations, converged).
 
-    ``tree`` is a cKDTree built on ``tgt``, reused when given; ``nearest`` a
-    _NearestCache of an earlier scale with a larger distance, reused when given.
+    ``tree`` is a :class:`amrst.neighbours.NearestTree` on ``tgt``, reused when given;
+    ``nearest`` a _NearestCache of an earlier scale with a larger distance, reused
+    when given.
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import NearestTree
 
     if tree is None:
-        tree = cKDTree(tgt)
+        tree = NearestTree(tgt)
     if nearest is None or nearest.reach < 1.5 * max_dist:
         nearest = _NearestCache(tree, tgt, len(src), max_dist)
     nearest.max_dist = max_dist
@@ -325,8 +328,7 @@ def refine_registration(
     -------
     FineResult
     """
-    from scipy.spatial import cKDTree
-
+    from amrst.neighbours import NearestTree
     from amrst.stages.voxels import voxel_sample
 
     if params.voxel_size_m > 0:
@@ -339,7 +341,7 @@ def refine_registration(
         )
         source_xyz = source_xyz[np.sort(pick)]
     T = np.asarray(T_init, float).copy()
-    tree = cKDTree(target_xyz)  # one tree for every scale and the final count
+    tree = NearestTree(target_xyz)  # one tree for every scale and the final count
     nearest = _NearestCache(tree, target_xyz, len(source_xyz), _ladder(params)[0])
     total, converged, dist = 0, True, params.max_corr_dist_m
     if params.method != "none":

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amrst.types import Transform, apply_transform, rotation_angle_deg
+from amrst.types import Transform, rotation_angle_deg
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -113,7 +113,7 @@ def measure_clouds(
     -------
     CloudMetrics
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import NearestTree
 
     rng = np.random.default_rng(params.seed)
     tgt = _sample(np.asarray(target_xyz, float), params.max_points, rng)
@@ -121,8 +121,8 @@ def measure_clouds(
     if len(tgt) == 0 or len(src) == 0:
         nan = float("nan")
         return CloudMetrics(nan, nan, nan, nan, 0.0, len(tgt), len(src))
-    d_st = cKDTree(tgt).query(src, workers=-1)[0]
-    d_ts = cKDTree(src).query(tgt, workers=-1)[0]
+    d_st = NearestTree(tgt).query(src)[0]
+    d_ts = NearestTree(src).query(tgt)[0]
     inside = d_st < params.overlap_dist_m
     both = np.concatenate([d_st, d_ts])
     return CloudMetrics(
@@ -154,13 +154,28 @@ def truth_errors(
     TruthErrors
     """
     R_delta = T_estimate[:3, :3] @ T_truth[:3, :3].T
-    diff = apply_transform(T_estimate, source_xyz) - apply_transform(
-        T_truth, source_xyz
-    )
     return TruthErrors(
         rotation_error_deg=rotation_angle_deg(R_delta),
         translation_error_m=float(np.linalg.norm(T_estimate[:3, 3] - T_truth[:3, 3])),
-        gt_rmse_m=float(np.sqrt(np.mean(np.sum(diff**2, axis=1))))
-        if len(diff)
-        else 0.0,
+        gt_rmse_m=_gt_rmse(T_estimate, T_truth, source_xyz),
     )
+
+
+def _gt_rmse(T_a: Transform, T_b: Transform, xyz: np.ndarray) -> float:
+    """RMS of |T_a p - T_b p| over the points, from their mean and covariance.
+
+    With A = R_a - R_b, b = t_a - t_b and p = c + q (c the mean): the mean of
+    |A p + b|² is tr(A C Aᵀ) + |A c + b|², C the covariance of q. One pass over a
+    multi-million-point scan instead of moving it twice (0.7 s at 2M points); centring
+    first keeps georeferenced coordinates exact.
+    """
+    pts = np.asarray(xyz, dtype=np.float64)
+    if len(pts) == 0:
+        return 0.0
+    A = T_a[:3, :3] - T_b[:3, :3]
+    b = T_a[:3, 3] - T_b[:3, 3]
+    c = pts.mean(axis=0)
+    q = pts - c
+    C = (q.T @ q) / len(pts)
+    e = A @ c + b
+    return float(np.sqrt(max(float(np.trace(A @ C @ A.T)) + float(e @ e), 0.0)))

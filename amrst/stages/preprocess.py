@@ -100,12 +100,12 @@ def _statistical_inliers(pts: np.ndarray, k: int, std_ratio: float) -> np.ndarra
     """Return indices of the points that pass Open3D's statistical outlier rule.
 
     A point passes when its mean distance to its k neighbours is at most
-    mean + std_ratio * std over all points. Done in scipy: importing Open3D costs a
-    second per command.
+    mean + std_ratio * std over all points. Done without Open3D (importing it costs a
+    second per command), on small_gicp's KD-tree (:func:`amrst.neighbours.knn`).
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import knn
 
-    d = cKDTree(pts).query(pts, k=k + 1, workers=-1)[0][:, 1:].mean(axis=1)
+    d = knn(pts, k + 1)[0][:, 1:].mean(axis=1)
     return np.flatnonzero(d <= d.mean() + std_ratio * d.std())
 
 
@@ -131,9 +131,13 @@ def preprocess_points(
         When fewer than ``params.min_points`` points survive.
     """
     n_input = len(xyz)
-    index = np.flatnonzero(np.all(np.isfinite(xyz), axis=1))
+    finite = np.isfinite(xyz).all(axis=1)
+    if finite.all():  # the usual case: no copy of a scan of millions of points
+        index, pts = np.arange(n_input), np.asarray(xyz)
+    else:
+        index = np.flatnonzero(finite)
+        pts = xyz[index]
     n_invalid = n_input - len(index)
-    pts = xyz[index]
     reporter.check_cancelled()
     # Thin first: the outlier filter then works on even density (TLS scans are far
     # denser near the scanner) and costs a fraction.

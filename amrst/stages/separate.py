@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
-from amrst.stages.features import connected_components, otsu_threshold, shape_features
+from amrst.stages.features import otsu_threshold, shape_features, voxel_components
 from amrst.stages.voxels import voxel_grid, voxel_representatives
 
 MODES = ("auto", "geometry", "intensity", "all_wood")
@@ -170,7 +170,7 @@ def separate_wood(
     -------
     SeparationResult
     """
-    from scipy.spatial import cKDTree
+    from amrst.neighbours import knn
 
     n = len(xyz)
     if params.mode == "all_wood":
@@ -186,8 +186,7 @@ def separate_wood(
         reps = owner = np.arange(n)
     # One neighbour query serves every feature scale and the vote.
     k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
-    neighbours = cKDTree(xyz).query(xyz[reps], k=k_max, workers=-1)[1]
-    neighbours = neighbours.reshape(len(reps), -1)
+    neighbours = knn(xyz, k_max, xyz[reps])[1]
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0
@@ -216,9 +215,7 @@ def separate_wood(
         keys, code = voxel_grid(xyz[wood_idx], params.voxel_size_m)
         _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
         uniq = keys[first]
-        labels = connected_components(
-            uniq.astype(float), 1.75
-        )  # sqrt(3) voxel diagonal
+        labels = voxel_components(uniq)  # 26-connectivity: corners touch
         point_labels = labels[inverse.ravel()]
         sizes = np.bincount(point_labels)
         keep = sizes[point_labels] >= max(

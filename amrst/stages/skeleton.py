@@ -151,12 +151,12 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-    from scipy.spatial import cKDTree
+
+    from amrst.neighbours import NearestTree, knn
 
     n = len(xyz)
-    tree = cKDTree(xyz)
     k = min(max(params.neighbours, 16) + 1, n)
-    dist, idx = tree.query(xyz, k=k, workers=-1)
+    dist, idx = knn(xyz, k)
     kn = min(params.neighbours + 1, n)
     rows = np.repeat(np.arange(n), kn - 1)
     cols, w = idx[:, 1:kn].ravel(), dist[:, 1:kn].ravel()
@@ -196,7 +196,7 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
             # Far islands: link each to the largest component by its nearest point.
             main = np.argmax(np.bincount(labels))
             main_idx = np.flatnonzero(labels == main)
-            main_tree = cKDTree(xyz[main_idx])
+            main_tree = NearestTree(xyz[main_idx])
             others = np.flatnonzero(labels != main)
             d, j = main_tree.query(xyz[others])
             lab = labels[others]

@@ -1,0 +1,279 @@
+"""Scale benchmark: dense pairs made from a case, timed per stage with peak memory.
+
+Real TLS scans of one tree hold millions of points; the shared cases hold thousands.
+:func:`densify` makes a dense scan from a sparse one by jittered copies of its points
+(seeded Gaussian noise, 3 mm by default, in the scan's own frame, so the case's truth
+still holds); :func:`make_scale_pair` writes such a pair as LAZ beside a copy of the
+truth. :func:`time_register` runs the whole ``amrst register`` command on a pair in a
+child process and reads back its per-stage timings and its peak resident memory;
+``kiss_ratio`` times our registration against KISS-Matcher + small_gicp GICP on
+the same clouds in one process (``amrst.bench.kiss``). ``amrst bench-scale`` prints
+both as tables.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.types import Cloud
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Sequence
+
+PathLike = str | os.PathLike[str]
+# Stages in the order the pipeline runs them (the table's columns).
+STAGES = (
+    "read",
+    "preprocess",
+    "separate",
+    "skeleton",
+    "keypoints",
+    "match",
+    "verify",
+    "trunk",
+    "fine",
+    "metrics",
+)
+
+
+def densify(
+    cloud: Cloud, n_points: int, noise_m: float = 0.003, seed: int = 0
+) -> Cloud:
+    """Make an ``n_points`` scan from ``cloud`` by jittered copies of its points.
+
+    Point ``i`` of the result is input point ``i mod N`` plus seeded Gaussian noise of
+    ``noise_m`` per axis; attributes are copied along. The first N points are jittered
+    too, so no input point survives exactly.
+
+    Parameters
+    ----------
+    cloud : Cloud
+    n_points : int
+        Points of the result (>= 1).
+    noise_m : float
+        Standard deviation of the jitter per axis (m).
+    seed : int
+
+    Returns
+    -------
+    Cloud
+        Same offset, name and meta as ``cloud``.
+    """
+    if len(cloud) == 0:
+        raise InvalidInput(f"{cloud.name or 'The scan'} is empty: nothing to densify.")
+    if n_points < 1:
+        raise InvalidInput(f"Give at least 1 point to make, not {n_points}.")
+    rng = np.random.default_rng(seed)
+    idx = np.arange(n_points, dtype=np.int64) % len(cloud)
+    xyz = cloud.xyz[idx]
+    xyz += rng.normal(0.0, noise_m, size=xyz.shape)
+    attrs = {k: v[idx] for k, v in cloud.attributes.items()}
+    return Cloud(xyz, cloud.offset, attrs, cloud.name, {})
+
+
+def make_scale_pair(
+    case_dir: PathLike,
+    out_dir: PathLike,
+    n_points: int,
+    noise_m: float = 0.003,
+    seed: int = 0,
+) -> Path:
+    """Write ``target.laz``, ``source.laz`` (``n_points`` each) and ``truth.json``.
+
+    Parameters
+    ----------
+    case_dir : path
+        A case folder (``target.*``, ``source.*``, ``truth.json``).
+    out_dir : path
+        Created when missing.
+    n_points : int
+        Points per scan.
+    noise_m : float
+    seed : int
+        The target uses ``seed``, the source ``seed + 1``.
+
+    Returns
+    -------
+    Path
+        The folder written.
+    """
+    from amrst import io
+    from amrst.files.atomic import make_folder, write_json_atomic
+    from amrst.io.cases import read_case
+
+    case = read_case(case_dir)
+    out = make_folder(out_dir, "scale case folder")
+    for role, cloud, s in (
+        ("target", case.target, seed),
+        ("source", case.source, seed + 1),
+    ):
+        io.write(out / f"{role}.laz", densify(cloud, n_points, noise_m, s))
+    truth = dict(case.truth)
+    truth.update(
+        densified_from=str(case_dir),
+        densify_points=n_points,
+        densify_noise_m=noise_m,
+        densify_seed=seed,
+    )
+    write_json_atomic(out / "truth.json", truth, indent=1)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class ScaleRow:
+    """One whole ``amrst register`` command on one pair."""
+
+    name: str
+    n_target: int
+    n_source: int
+    wall_s: float  # the whole command, interpreter start included
+    peak_mb: float  # peak resident memory of the command
+    exit_code: int
+    timings: dict[str, float] = field(default_factory=dict)  # stage -> s
+
+
+def time_register(
+    pair_dir: PathLike, n_points: int | None = None, extra: Sequence[str] = ()
+) -> ScaleRow:
+    """Run ``amrst register`` on a pair folder in a child process.
+
+    Parameters
+    ----------
+    pair_dir : path
+        Holds ``target.*`` and ``source.*`` (LAZ, LAS, PLY...) and ``truth.json``.
+    n_points : int or None
+        Points per scan for the table (read from ``truth.json`` when None).
+    extra : sequence of str
+        More ``amrst register`` arguments.
+
+    Returns
+    -------
+    ScaleRow
+        Peak memory is the child's maximum resident set size (``wait4``).
+    """
+    pair = Path(pair_dir)
+    files = {p.stem: p for p in pair.iterdir() if p.stem in ("target", "source")}
+    if set(files) != {"target", "source"}:
+        raise InvalidInput(f"{pair} needs a target.* and a source.* scan.")
+    truth = json.loads((pair / "truth.json").read_text())
+    n = n_points or int(truth.get("densify_points", 0))
+    with tempfile.TemporaryDirectory(prefix="amrst-scale-") as tmp:
+        cmd = [
+            sys.executable,
+            "-m",
+            "amrst.cli",
+            "register",
+            str(files["target"]),
+            str(files["source"]),
+            "--out",
+            tmp,
+            "--quiet",
+            "--truth",
+            str(pair / "truth.json"),
+            *extra,
+        ]
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        timings: dict[str, float] = {}
+        doc = Path(tmp) / "transform.json"
+        if doc.exists():
+            timings = {
+                k: float(v)
+                for k, v in json.loads(doc.read_text()).get("timings_s", {}).items()
+            }
+    return ScaleRow(
+        pair.name,
+        n or int(truth.get("n_target", 0)),
+        n or int(truth.get("n_source", 0)),
+        wall,
+        usage.ru_maxrss / 1024.0,
+        proc.returncode,
+        timings,
+    )
+
+
+def format_scale_table(rows: Sequence[ScaleRow]) -> str:
+    """Format rows as a Markdown table: points, seconds per stage, command, peak memory."""
+    head = ["pair", "points/scan", *STAGES, "total", "command", "peak MB", "exit"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [r.name, f"{r.n_target:,}"]
+        cells += [f"{r.timings[s]:.2f}" if s in r.timings else "-" for s in STAGES]
+        total = r.timings.get("total", float("nan")) + r.timings.get("read", 0.0)
+        cells += [
+            f"{total:.2f}",
+            f"{r.wall_s:.2f}",
+            f"{r.peak_mb:.0f}",
+            str(r.exit_code),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Add the ``amrst bench-scale`` arguments to ``p``."""
+    p.add_argument(
+        "case_dir", metavar="CASE_DIR", help="the case to densify (e.g. case 08)"
+    )
+    p.add_argument(
+        "--points",
+        type=int,
+        nargs="+",
+        default=[2_000_000],
+        metavar="N",
+        help="points per scan of each dense pair (default 2000000)",
+    )
+    p.add_argument("--noise-m", type=float, default=0.003, help="jitter (m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--out", default="bench_scale", metavar="DIR", help="pairs and tables go here"
+    )
+    p.add_argument(
+        "--kiss",
+        nargs="*",
+        default=None,
+        metavar="CASES_DIR",
+        help="also time KISS-Matcher + GICP against us on these case folders",
+    )
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Make the dense pairs (kept for the next run), time them, print the tables."""
+    from amrst.files.atomic import make_folder, write_text_atomic
+
+    out = make_folder(args.out, "output folder")
+    parts = [f"Command: `amrst bench-scale {' '.join(sys.argv[2:])}`", ""]
+    rows = []
+    for n in args.points:
+        pair = out / f"{Path(args.case_dir).name}-{n // 1000}k-seed{args.seed}"
+        if not (pair / "truth.json").exists():
+            print(f"making {pair.name} ...", file=sys.stderr)
+            make_scale_pair(args.case_dir, pair, n, args.noise_m, args.seed)
+        print(f"timing amrst register on {pair.name} ...", file=sys.stderr)
+        rows.append(time_register(pair, n))
+    parts += [format_scale_table(rows), ""]
+    if args.kiss is not None:
+        from amrst.bench.cli import TerminalProgress
+        from amrst.bench.kiss import format_kiss_table, kiss_ratio
+
+        dirs = args.kiss or ["cases"]
+        parts += [format_kiss_table(kiss_ratio(dirs, reporter=TerminalProgress())), ""]
+    text = "\n".join(parts)
+    write_text_atomic(out / "scale.md", text)
+    print(text)
+    return 0

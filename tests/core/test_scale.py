@@ -1,0 +1,111 @@
+"""Scale benchmark tools: densified pairs, the timed command, bounded samples."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from amrst.bench.scale import (
+    densify,
+    format_scale_table,
+    make_scale_pair,
+    time_register,
+)
+from amrst.errors import InvalidInput
+from amrst.sampling import MEASURE_MAX_POINTS, bounded_sample, measure_pair
+from amrst.types import Cloud
+
+
+def _cloud(n: int = 500) -> Cloud:
+    rng = np.random.default_rng(0)
+    return Cloud(
+        rng.uniform(0, 2, (n, 3)),
+        offset=[100.0, 200.0, 0.0],
+        attributes={"intensity": np.arange(n, dtype=np.uint16)},
+        name="c",
+    )
+
+
+def test_densify_makes_jittered_copies_seeded() -> None:
+    c = _cloud()
+    d = densify(c, 12_345, noise_m=0.003, seed=4)
+    assert len(d) == 12_345
+    np.testing.assert_array_equal(d.offset, c.offset)
+    src = np.arange(12_345) % len(c)
+    np.testing.assert_array_equal(
+        d.attributes["intensity"], c.attributes["intensity"][src]
+    )
+    jitter = d.xyz - c.xyz[src]
+    assert jitter.std() == pytest.approx(0.003, rel=0.05)
+    assert np.abs(jitter).max() < 0.003 * 6
+    assert not np.any(np.all(jitter == 0, axis=1))  # no point survives exactly
+    np.testing.assert_array_equal(densify(c, 12_345, 0.003, 4).xyz, d.xyz)
+    assert not np.array_equal(densify(c, 12_345, 0.003, 5).xyz, d.xyz)
+
+
+def test_densify_refuses_nothing_to_copy() -> None:
+    with pytest.raises(InvalidInput, match="empty"):
+        densify(Cloud(np.zeros((0, 3))), 10)
+    with pytest.raises(InvalidInput, match="at least 1"):
+        densify(_cloud(), 0)
+
+
+def test_bounded_sample_is_the_cloud_itself_up_to_the_bound() -> None:
+    c = _cloud(1000)
+    assert bounded_sample(c, 1000) is c
+    s = bounded_sample(c, 300, seed=2)
+    assert len(s) == 300
+    idx = s.attributes["intensity"].astype(int)  # intensity == index here
+    assert np.all(np.diff(idx) > 0)  # file order, no repeats
+    np.testing.assert_array_equal(s.xyz, c.xyz[idx])
+    np.testing.assert_array_equal(bounded_sample(c, 300, seed=2).xyz, s.xyz)
+    assert not np.array_equal(bounded_sample(c, 300, seed=3).xyz, s.xyz)
+
+
+def test_measure_pair_is_the_whole_measurement_under_the_bound(sample_pair) -> None:
+    """The shared cases hold at most 60,000 points a scan: measured whole, as before."""
+    from amrst.measure import measure_registration
+
+    assert max(len(sample_pair.target), len(sample_pair.source)) <= MEASURE_MAX_POINTS
+    got = measure_pair(sample_pair.target, sample_pair.source, sample_pair.T_true)
+    want = measure_registration(
+        sample_pair.target, sample_pair.source, sample_pair.T_true
+    )
+    assert got == want
+    few = measure_pair(
+        sample_pair.target, sample_pair.source, sample_pair.T_true, max_points=2000
+    )
+    assert few["merged"].n_points == 4000
+
+
+@pytest.mark.slow
+def test_time_register_on_a_densified_sample(tmp_path, sample_pair) -> None:
+    """A dense pair written as LAZ registers in a child process: per-stage timings,
+    peak memory, exit 0, and the case's truth still holds."""
+    case = tmp_path / "case"
+    case.mkdir()
+    for p in (sample_pair.target_path, sample_pair.source_path, sample_pair.truth_path):
+        shutil.copy(p, case / p.name)
+    n = 3 * max(len(sample_pair.target), len(sample_pair.source))
+    pair = make_scale_pair(case, tmp_path / "dense", n, seed=1)
+    assert sorted(p.name for p in pair.iterdir()) == [
+        "source.laz",
+        "target.laz",
+        "truth.json",
+    ]
+    truth = json.loads((pair / "truth.json").read_text())
+    np.testing.assert_allclose(truth["T_target_source"], sample_pair.T_true)
+    assert truth["densify_points"] == n
+    row = time_register(pair)
+    assert row.exit_code == 0
+    assert row.n_target == n
+    assert row.peak_mb > 50
+    assert row.wall_s > row.timings["total"] > 0
+    for stage in ("read", "preprocess", "separate", "skeleton", "fine", "metrics"):
+        assert row.timings[stage] >= 0
+    table = format_scale_table([row])
+    assert f"{n:,}" in table
+    assert table.count("\n") == 2
