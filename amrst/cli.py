@@ -99,6 +99,11 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
+    if len(args.source) > 1 or "#" in args.target + "".join(args.source):
+        from amrst.multiscan.cli import run_register  # several scans: amrst.multiscan
+
+        return run_register(args, params, TerminalReporter(args.quiet))
+    args.source = args.source[0]
     from amrst.io.truth import read_truth
 
     T_truth = read_truth(args.truth) if args.truth is not None else None
@@ -246,7 +251,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="reference scan (LAS/LAZ, PLY, PCD, XYZ/TXT/CSV)",
     )
     reg.add_argument(
-        "source", metavar="SOURCE", help="scan to move into the target frame"
+        "source",
+        metavar="SOURCE",
+        nargs="+",
+        help="scan(s) to move into the target frame; FILE.e57#k picks scan k of a file",
     )
     reg.add_argument(
         "--out",
