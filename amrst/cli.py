@@ -302,6 +302,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.configure_parser(ben)
     ben.set_defaults(func=bench.run_cli)
+
+    from amrst.campaign import cli as campaign_cli  # amrst campaign / amrst batch
+
+    cam = sub.add_parser("campaign", help="a folder of trees: init, status, simulate")
+    campaign_cli.configure_campaign(cam)
+    cam.set_defaults(func=campaign_cli.run_campaign)
+    bat = sub.add_parser("batch", help="register every tree of a campaign on Dask")
+    campaign_cli.configure_batch(bat)
+    bat.set_defaults(func=campaign_cli.run_batch_cli)
     return p
 
 
