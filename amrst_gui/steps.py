@@ -5,43 +5,35 @@ from __future__ import annotations
 import dataclasses
 import math
 
-STEPS = ("separate", "skeleton", "match", "coarse", "fine")
+from amrst.pipeline.steps import STEP_NAMES, get_step
+from amrst.pipeline.steps import STEPS as ENGINE_STEPS
+from amrst.pipeline.steps import groups_for as _groups_for
+from amrst.pipeline.steps import later_steps as _later_steps
+
+# The engine's step table is the one list of steps; the app adds its own two jobs
+# (loading and exporting) around it.
+STEPS = STEP_NAMES
 # Jobs that run to the end once started (short, or writing files); Cancel still drops
 # the steps queued after them.
-UNSTOPPABLE = frozenset({"load", "coarse", "export"})
+UNSTOPPABLE = frozenset(
+    {"load", "export"} | {s.name for s in ENGINE_STEPS if not s.cancellable}
+)
 
 LABELS = {
     "load": "Load scans",
-    "separate": "Separate wood/leaves",
-    "skeleton": "Skeleton && key points",
-    "match": "Match tetrahedra",
-    "coarse": "Accept coarse",
-    "fine": "Fine registration",
+    **{s.name: s.label.replace("&", "&&") for s in ENGINE_STEPS},  # Qt mnemonics
     "export": "Export",
-}
-
-# Parameter groups (fields of RegistrationParams) whose change makes a step's
-# result stale; cumulative, because each step consumes the one before.
-_OWN_GROUPS = {
-    "separate": ("preprocess", "separate"),
-    "skeleton": ("skeleton", "keypoints"),
-    "match": ("match", "coarse", "trunk"),  # ranking, verification, trunk search
-    "coarse": ("metrics", "measure"),  # the coarse and fine results are measured
-    "fine": ("fine",),
 }
 
 
 def groups_for(step: str) -> tuple[str, ...]:
     """Parameter groups a step's result depends on, its own and upstream ones."""
-    out: list[str] = []
-    for name in STEPS[: STEPS.index(step) + 1]:
-        out.extend(_OWN_GROUPS[name])
-    return tuple(out)
+    return _groups_for(step)
 
 
 def own_groups(step: str) -> tuple[str, ...]:
     """Parameter groups that belong to this step alone (for the log and hints)."""
-    return _OWN_GROUPS.get(step, ())
+    return get_step(step).groups if step in STEPS else ()
 
 
 def plain_label(step: str) -> str:
@@ -51,7 +43,7 @@ def plain_label(step: str) -> str:
 
 def later_steps(step: str) -> tuple[str, ...]:
     """Steps whose results are built on ``step``'s result."""
-    return STEPS[STEPS.index(step) + 1 :]
+    return _later_steps(step)
 
 
 def values_equal(a, b) -> bool:

@@ -51,7 +51,7 @@ def update_readme(text: str) -> str:
 if __name__ == "__main__":
     from pathlib import Path
 
-    readme = Path(__file__).resolve().parent.parent / "README.md"
+    readme = Path(__file__).resolve().parents[2] / "README.md"
     readme.write_text(
         update_readme(readme.read_text(encoding="utf-8")), encoding="utf-8"
     )

@@ -11,6 +11,7 @@ next. The confidence compares the winner with the best *different* solution.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -63,7 +64,7 @@ class CoarseParams:
             "unit": "m",
             "min": 0.01,
             "max": 10.0,
-            "help": "Matches whose transforms move the tree centre less than this apart (and rotate < same_solution_deg) are one solution.",
+            "help": "Tetrahedron matches whose transforms move the tree centre less than this apart (and rotate < same_solution_deg) are grouped into one candidate (their count is its support).",
         },
     )
     same_solution_deg: float = field(
@@ -120,6 +121,18 @@ class CoarseParams:
     )
 
 
+class Origin(str, Enum):
+    """Where a candidate solution came from (compares equal to its value)."""
+
+    TETRAHEDRA = "tetrahedra"  # a similar-tetrahedra match (the paper's method)
+    TRUNK = "trunk"  # the trunk-anchored heading search (levelled scans)
+    FEATURES = "features"  # a generic feature matcher (e.g. KISS-Matcher)
+    MANUAL = "manual"  # given by the user: point pairs, nudge or a typed transform
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass(frozen=True, slots=True)
 class Candidate:
     """One candidate solution: a tetrahedron match, its transform and how well it verified."""
@@ -140,7 +153,7 @@ class Candidate:
     T_target_source: Transform  # T_match, polished when it was among the best
     polished: bool
     explanation: str
-    origin: str = "tetrahedra"  # or "trunk": the trunk-anchored yaw search
+    origin: Origin = Origin.TETRAHEDRA
     # Trunk solutions only: share of points within trunk.score_dist_m after the fine
     # fit, and the point set that fit used ("" = fine.points).
     precise_score: float = float("nan")
@@ -176,6 +189,10 @@ MIN_VERIFIED_SCORE = 0.15
 MIN_PRECISE_SCORE = 0.03
 MIN_SEPARATION = 0.5
 POLISH_POINTS = 500
+# Two solutions are different when they move the tree centre more than DISTINCT_M apart
+# or differ by more than DISTINCT_DEG of rotation (see distinct_solutions).
+DISTINCT_M = 0.5
+DISTINCT_DEG = 5.0
 
 
 def _group(
@@ -261,7 +278,7 @@ def rank_candidates(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.stages.preprocess import _voxel_representatives
+    from amrst.stages.voxels import voxel_sample
 
     if len(matches.T_target_source) == 0:
         return CandidateList((), 0)
@@ -289,10 +306,10 @@ def rank_candidates(
     if params.polish_top > 0:
         # Open3D would do this too, but importing it costs a second per command.
         tgt_small = target_xyz[
-            _voxel_representatives(target_xyz, params.verify_voxel_m)
+            voxel_sample(target_xyz, params.verify_voxel_m)
         ]
         src_small = source_xyz[
-            _voxel_representatives(source_xyz, params.verify_voxel_m)
+            voxel_sample(source_xyz, params.verify_voxel_m)
         ]
         if len(src_small) > POLISH_POINTS:
             src_small = src_small[
@@ -373,9 +390,17 @@ def rank_candidates(
     return CandidateList(tuple(cands), len(T))
 
 
-def _distinct(a: Transform, b: Transform, centre: np.ndarray) -> bool | np.bool_:
+def distinct_solutions(a: Transform, b: Transform, centre: np.ndarray) -> bool:
+    """Tell whether two transforms are different solutions (the inverse of same_solution).
+
+    Different when they move ``centre`` more than ``DISTINCT_M`` apart or differ by more
+    than ``DISTINCT_DEG`` of rotation. This is the one test behind the confidence
+    (rivals), the trunk search's kept headings and the rejections carried over to a
+    new match; ``CoarseParams.same_solution_m/_deg`` is a different, tighter notion:
+    which tetrahedron matches are grouped into one candidate.
+    """
     d = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
-    return d > 0.5 or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > 5.0
+    return bool(d > DISTINCT_M or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > DISTINCT_DEG)
 
 
 def same_solution(a: Transform, b: Transform, centre: np.ndarray) -> bool:
@@ -394,7 +419,7 @@ def same_solution(a: Transform, b: Transform, centre: np.ndarray) -> bool:
         True when they move ``centre`` less than 0.5 m apart and differ by at most
         5 deg of rotation.
     """
-    return not bool(_distinct(a, b, centre))
+    return not distinct_solutions(a, b, centre)
 
 
 def choose_coarse(
@@ -441,9 +466,9 @@ def choose_coarse(
         for c in left[1:]
         if c.origin == best.origin
         and c.polished == best.polished
-        and _distinct(c.T_target_source, best.T_target_source, centre)
+        and distinct_solutions(c.T_target_source, best.T_target_source, centre)
     ]
-    if best.origin == "trunk":
+    if best.origin is Origin.TRUNK:
         key = best.precise_score
         runner_key = max((c.precise_score for c in rivals), default=0.0)
     else:
@@ -454,19 +479,19 @@ def choose_coarse(
     # fits at all (on the 20 benchmark cases every right winner scored >= 0.45 after the
     # polish and every wrong one <= 0.08; full credit from SCORE_FULL_CREDIT).
     separation = float(np.clip(1 - runner_key / key, 0, 1)) if key > 0 else 0.0
-    if best.origin == "trunk":
+    if best.origin is Origin.TRUNK:
         fit = min(1.0, best.precise_score / (2 * MIN_PRECISE_SCORE))
     else:
         fit = min(1.0, best.score / SCORE_FULL_CREDIT)
     conf = separation * fit
-    if best.origin == "trunk":
+    if best.origin is Origin.TRUNK:
         # Trunk solutions had a fine registration, so even a wrong heading scores
         # 0.2-0.3 at 4 cm: only the tight score and a clear lead verify one. The lead
         # needs something to lead: a distinct rival heading, or other headings that
         # converged to the same pose (a single kept heading verifies nothing).
         agree = sum(
-            c.origin == "trunk"
-            and not _distinct(c.T_target_source, best.T_target_source, centre)
+            c.origin is Origin.TRUNK
+            and not distinct_solutions(c.T_target_source, best.T_target_source, centre)
             for c in left[1:]
         )
         verified = bool(
@@ -476,7 +501,7 @@ def choose_coarse(
         )
     else:
         verified = bool(best.polished and best.score >= MIN_VERIFIED_SCORE)
-    if best.origin == "trunk" and verified:
+    if best.origin is Origin.TRUNK and verified:
         msg = (
             f"Candidate {best.rank} (trunk heading search): {best.precise_score:.0%} of the sampled source points "
             f"lie on the target, against {runner_key:.0%} for the next heading. The scans share little beyond the "

@@ -302,8 +302,8 @@ def _robust_plane(
 
 
 def refine_registration(
-    source_xyz: np.ndarray,
     target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
     T_init: Transform,
     params: FineParams,
     reporter: Reporter = NULL_REPORTER,
@@ -312,10 +312,10 @@ def refine_registration(
 
     Parameters
     ----------
+    target_xyz : (N, 3) float64
+        Target points (target frame).
     source_xyz : (M, 3) float64
         Source points (source frame) chosen by ``params.points``.
-    target_xyz : (N, 3) float64
-        Target points.
     T_init : (4, 4) float64
         Coarse transform.
     params : FineParams
@@ -327,11 +327,11 @@ def refine_registration(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.stages.preprocess import _voxel_representatives
+    from amrst.stages.voxels import voxel_sample
 
     if params.voxel_size_m > 0:
-        source_xyz = source_xyz[_voxel_representatives(source_xyz, params.voxel_size_m)]
-        target_xyz = target_xyz[_voxel_representatives(target_xyz, params.voxel_size_m)]
+        source_xyz = source_xyz[voxel_sample(source_xyz, params.voxel_size_m)]
+        target_xyz = target_xyz[voxel_sample(target_xyz, params.voxel_size_m)]
     all_source = source_xyz  # fitness and inlier RMSE are reported on all of them
     if 0 < params.max_points < len(source_xyz):
         pick = np.random.default_rng(0).choice(

@@ -15,7 +15,7 @@ import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import connected_components, otsu_threshold, shape_features
-from amrst.stages.preprocess import voxel_grid, voxel_representatives
+from amrst.stages.voxels import voxel_grid, voxel_representatives
 
 MODES = ("auto", "geometry", "intensity", "all_wood")
 

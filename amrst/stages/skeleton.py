@@ -262,14 +262,14 @@ def build_skeleton(
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, dijkstra
 
-    from amrst.stages.preprocess import _voxel_representatives
+    from amrst.stages.voxels import voxel_sample
 
     if len(wood_xyz) < params.min_points:
         raise InvalidInput(
             f"Only {len(wood_xyz)} wood points: at least {params.min_points} are needed for a "
             "skeleton. Try separation mode 'geometry' or 'all_wood', or a smaller voxel size."
         )
-    xyz = wood_xyz[_voxel_representatives(wood_xyz, params.voxel_size_m)]
+    xyz = wood_xyz[voxel_sample(wood_xyz, params.voxel_size_m)]
     graph, bridged = _graph(xyz, params)
     reporter.progress(0.3, "graph built")
     reporter.check_cancelled()

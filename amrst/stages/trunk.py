@@ -24,8 +24,9 @@ from amrst.stages.coarse import (
     Candidate,
     CandidateList,
     CoarseParams,
-    _distinct,
+    Origin,
     choose_coarse,
+    distinct_solutions,
     verification_sample,
 )
 from amrst.stages.polish import polish, weighted_centres
@@ -288,13 +289,13 @@ def search_yaw(
     """
     from scipy.spatial import cKDTree
 
-    from amrst.stages.preprocess import _voxel_representatives
+    from amrst.stages.voxels import voxel_sample
 
     rng = np.random.default_rng(params.seed)
     tb = find_trunk_base(target_xyz, params)
     sb = find_trunk_base(source_xyz, params)
-    tgt = target_xyz[_voxel_representatives(target_xyz, params.voxel_m)]
-    src = source_xyz[_voxel_representatives(source_xyz, params.voxel_m)]
+    tgt = target_xyz[voxel_sample(target_xyz, params.voxel_m)]
+    src = source_xyz[voxel_sample(source_xyz, params.voxel_m)]
     if len(src) > params.points:
         src = src[rng.choice(len(src), params.points, replace=False)]
     sample = source_xyz[
@@ -328,7 +329,7 @@ def search_yaw(
     centre = source_xyz.mean(axis=0)
     kept: list[YawSolution] = []
     for s in found:
-        if all(_distinct(s.T_target_source, k.T_target_source, centre) for k in kept):
+        if all(distinct_solutions(s.T_target_source, k.T_target_source, centre) for k in kept):
             kept.append(s)
             if len(kept) == params.keep:
                 break
@@ -396,7 +397,7 @@ def trunk_contenders(
         if (
             transforms is not None
             and centre is not None
-            and not all(_distinct(transforms[k], transforms[j], centre) for j in picked)
+            and not all(distinct_solutions(transforms[k], transforms[j], centre) for j in picked)
         ):
             continue
         picked.append(k)
@@ -441,6 +442,7 @@ def merge_trunk_solutions(
     scores, precises = score_transforms(
         refined, target_tree, source_xyz, params, precise_dist_m
     )
+    # Heading k becomes candidate id `base + k`: callers rely on it (trunk_fallback).
     base = 1 + max((c.id for c in candidates.candidates), default=0)
     tb, sb = search.target_base, search.source_base
     trunk = []
@@ -469,7 +471,7 @@ def merge_trunk_solutions(
                 T_target_source=T,
                 polished=True,
                 explanation=expl,
-                origin="trunk",
+                origin=Origin.TRUNK,
                 precise_score=precise,
                 fine_points=fine_points[k],
             )

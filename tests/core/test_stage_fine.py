@@ -80,7 +80,7 @@ def test_converges_from_5_deg_and_30_cm(fine_pair, method) -> None:
     assert np.median(np.linalg.norm(p.source - p.target, axis=1)) > 0.3
     src, tgt = p.source.copy(), p.target.copy()
     params = FineParams(method=method, **p.overrides)
-    res = refine_registration(src, tgt, np.eye(4), params)
+    res = refine_registration(tgt, src, np.eye(4), params)
     np.testing.assert_array_equal(src, p.source)  # inputs unchanged
     np.testing.assert_array_equal(tgt, p.target)
     rot, trans = _errors(res.T_target_source, p.T_true)
@@ -114,7 +114,7 @@ def test_fitness_and_inlier_rmse_match_a_brute_force_count(oblique_pair) -> None
     pick = rng.choice(len(p.source), 800, replace=False)
     src, tgt = p.source[pick], p.target
     params = FineParams(method="lm_icp", voxel_size_m=0.0, scales=2)
-    res = refine_registration(src, tgt, np.eye(4), params)
+    res = refine_registration(tgt, src, np.eye(4), params)
     fitness, rmse = _quality(src, tgt, res.T_target_source, res.max_corr_dist_m)
     assert res.fitness == pytest.approx(fitness)
     assert res.inlier_rmse_m == pytest.approx(rmse)
@@ -124,7 +124,7 @@ def test_fitness_and_inlier_rmse_match_a_brute_force_count(oblique_pair) -> None
 def test_method_none_returns_the_initial_transform(oblique_pair) -> None:
     T_init = make_transform(_rotation([0, 0, 1], 1.0), [0.1, 0.2, 0.3])
     res = refine_registration(
-        oblique_pair.source, oblique_pair.target, T_init, FineParams(method="none")
+        oblique_pair.target, oblique_pair.source, T_init, FineParams(method="none")
     )
     np.testing.assert_array_equal(res.T_target_source, T_init)
     assert res.T_target_source is not T_init
@@ -135,7 +135,7 @@ def test_method_none_returns_the_initial_transform(oblique_pair) -> None:
 def test_lm_icp_stopped_early_does_not_claim_convergence(oblique_pair) -> None:
     params = FineParams(method="lm_icp", scales=1, max_iterations=1)
     res = refine_registration(
-        oblique_pair.source, oblique_pair.target, np.eye(4), params
+        oblique_pair.target, oblique_pair.source, np.eye(4), params
     )
     assert not res.converged
     assert res.iterations == 1
@@ -144,7 +144,7 @@ def test_lm_icp_stopped_early_does_not_claim_convergence(oblique_pair) -> None:
 def test_robust_plane_stopped_early_does_not_claim_convergence(oblique_pair) -> None:
     params = FineParams(method="robust_plane", scales=1, max_iterations=1)
     res = refine_registration(
-        oblique_pair.source, oblique_pair.target, np.eye(4), params
+        oblique_pair.target, oblique_pair.source, np.eye(4), params
     )
     rot, _ = _errors(res.T_target_source, oblique_pair.T_true)
     assert rot > 0.2  # it really is not there yet
@@ -158,7 +158,7 @@ def test_read_only_inputs_are_accepted(tiny_tree, oblique_pair) -> None:
     src.setflags(write=False)
     # Started at the truth: the point is that read-only arrays reach Open3D (issue:
     # Cloud.xyz is always read-only), not convergence from afar.
-    res = refine_registration(src, tiny_tree.xyz, oblique_pair.T_true, params)
+    res = refine_registration(tiny_tree.xyz, src, oblique_pair.T_true, params)
     assert res.fitness > 0.5
 
 
@@ -205,17 +205,17 @@ def test_max_points_samples_the_source_and_still_converges(oblique_pair) -> None
     rng = np.random.default_rng(2)
     src = p.source[rng.choice(len(p.source), 1200, replace=False)]
     params = FineParams(method="lm_icp", voxel_size_m=0.0, max_points=300)
-    res = refine_registration(src, p.target, np.eye(4), params)
+    res = refine_registration(p.target, src, np.eye(4), params)
     rot, trans = _errors(res.T_target_source, p.T_true)
     assert rot < 0.3
     assert trans < 0.03
     fitness, rmse = _quality(src, p.target, res.T_target_source, res.max_corr_dist_m)
     assert res.fitness == pytest.approx(fitness)
     assert res.inlier_rmse_m == pytest.approx(rmse)
-    again = refine_registration(src, p.target, np.eye(4), params)
+    again = refine_registration(p.target, src, np.eye(4), params)
     np.testing.assert_array_equal(again.T_target_source, res.T_target_source)
     full = refine_registration(
-        src, p.target, np.eye(4), dataclasses.replace(params, max_points=0)
+        p.target, src, np.eye(4), dataclasses.replace(params, max_points=0)
     )
     assert not np.array_equal(full.T_target_source, res.T_target_source)
 

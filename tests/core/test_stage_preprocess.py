@@ -6,11 +6,8 @@ import numpy as np
 import pytest
 
 from amrst.errors import InvalidInput
-from amrst.stages.preprocess import (
-    PreprocessParams,
-    preprocess_points,
-    voxel_representatives,
-)
+from amrst.stages.preprocess import PreprocessParams, preprocess_points
+from amrst.stages.voxels import voxel_representatives
 
 NO_FILTERS = PreprocessParams(outlier_neighbours=0, voxel_size_m=0.0, min_points=10)
 

@@ -1,0 +1,175 @@
+"""Per-scan analysis: preprocess, wood/leaf separation, skeleton and key points.
+
+Each scan is analysed once, whatever number of links (scan pairs) it takes part in;
+:func:`both_scans` runs the two scans of a pair at once. Everything here works in the
+scan's own local coordinates (``Cloud.xyz``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, TypeVar
+
+from amrst.errors import Cancelled, InvalidInput
+from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
+from amrst.stages.keypoints import KeypointResult, extract_keypoints
+from amrst.stages.preprocess import PreprocessResult, preprocess_points
+from amrst.stages.separate import SeparationResult, separate_wood
+from amrst.stages.skeleton import SkeletonResult, build_skeleton
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import numpy as np
+
+    from amrst.params import RegistrationParams
+    from amrst.types import Cloud
+
+_Item = TypeVar("_Item")
+_Out = TypeVar("_Out")
+
+
+@dataclass(frozen=True, slots=True)
+class ScanAnalysis:
+    """One scan after the per-scan stages; later fields are None until computed."""
+
+    cloud: Cloud
+    pre: PreprocessResult
+    separation: SeparationResult
+    skeleton: SkeletonResult | None = None
+    keypoints: KeypointResult | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(N, 3) preprocessed points, local coordinates."""
+        return self.pre.xyz
+
+    @property
+    def is_wood(self) -> np.ndarray:
+        """(N,) bool wood label of the preprocessed points."""
+        return self.separation.is_wood
+
+    def points(self, which: str) -> np.ndarray:
+        """Preprocessed points: 'all', 'wood' or 'leaf' (falls back to all when too few)."""
+        if which == "all":
+            return self.xyz
+        sel = self.xyz[self.is_wood if which == "wood" else ~self.is_wood]
+        return sel if len(sel) >= 100 else self.xyz
+
+
+def _timed(timings: dict[str, float], key: str, t0: float) -> float:
+    now = time.perf_counter()
+    timings[key] = timings.get(key, 0.0) + now - t0
+    return now
+
+
+def prepare_scan(
+    cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
+) -> ScanAnalysis:
+    """Preprocess one scan and separate wood from leaves."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    try:
+        pre = preprocess_points(
+            cloud.xyz, params.preprocess, SubReporter(reporter, 0, 0.3, "preprocess")
+        )
+    except InvalidInput as exc:  # say which scan
+        raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
+    t0 = _timed(timings, "preprocess", t0)
+    intensity = cloud.intensity
+    sep = separate_wood(
+        pre.xyz,
+        None if intensity is None else intensity[pre.index],
+        params.separate,
+        SubReporter(reporter, 0.3, 1.0, "wood-leaf separation"),
+    )
+    _timed(timings, "separate", t0)
+    return ScanAnalysis(cloud, pre, sep, timings=timings)
+
+
+def skeletonise_scan(
+    analysis: ScanAnalysis,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+) -> ScanAnalysis:
+    """Add the skeleton and the key points to a prepared scan."""
+    timings = dict(analysis.timings)
+    t0 = time.perf_counter()
+    pts = analysis.points(params.skeleton.points)
+    if len(pts) < params.skeleton.min_points:
+        pts = analysis.xyz
+    skel = build_skeleton(
+        pts, params.skeleton, SubReporter(reporter, 0, 0.9, "skeleton")
+    )
+    t0 = _timed(timings, "skeleton", t0)
+    kp = extract_keypoints(skel, params.keypoints)
+    _timed(timings, "keypoints", t0)
+    reporter.progress(1.0, f"{len(kp.xyz)} key points")
+    return replace(analysis, skeleton=skel, keypoints=kp, timings=timings)
+
+
+def analyse_scan(
+    cloud: Cloud, params: RegistrationParams, reporter: Reporter = NULL_REPORTER
+) -> ScanAnalysis:
+    """Run every per-scan step: :func:`prepare_scan`, then :func:`skeletonise_scan`.
+
+    The order is the step table's (``amrst.pipeline.steps.STEPS``, its ``per_scan``
+    entries); a test keeps the two in agreement.
+    """
+    an = prepare_scan(cloud, params, SubReporter(reporter, 0.0, 0.7))
+    return skeletonise_scan(an, params, SubReporter(reporter, 0.7, 1.0))
+
+
+def both_scans(
+    fn: Callable[[_Item, Reporter], _Out],
+    target_item: _Item,
+    source_item: _Item,
+    reporter: Reporter = NULL_REPORTER,
+) -> tuple[_Out, _Out]:
+    """Run ``fn(item, reporter)`` for the target's and the source's item at once.
+
+    One thread each; returns ``(target result, source result)``.
+
+    The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
+    made them 1.24-1.37x faster on this 2-core machine; results are the same as one
+    after the other. Progress is the mean of the two (monotonic). When one task fails
+    (or the caller is interrupted) the other stops at its next cancel check instead
+    of running to the end; the error is raised as the serial order would have raised
+    it (the target's first).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    shared = SharedReporter(reporter, 2)
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
+        jobs = [
+            pool.submit(_stop_sibling_on_error, fn, item, shared.task(i, role), shared)
+            for i, (item, role) in enumerate(
+                ((target_item, "target"), (source_item, "source"))
+            )
+        ]
+        try:
+            results = [job.result() for job in jobs]
+        except BaseException:
+            shared.stop()
+            for job in jobs:  # the real error over the Cancelled it caused
+                if job.done() and not job.cancelled():
+                    exc = job.exception()
+                    if exc is not None and not isinstance(exc, Cancelled):
+                        raise exc from None
+            raise
+    return results[0], results[1]
+
+
+def _stop_sibling_on_error(
+    fn: Callable[[_Item, Reporter], _Out],
+    item: _Item,
+    rep: Reporter,
+    shared: SharedReporter,
+) -> _Out:
+    try:
+        return fn(item, rep)
+    except BaseException:
+        shared.stop()
+        raise

@@ -1,0 +1,57 @@
+"""Fine registration of a link from a coarse solution, and the link's cloud metrics."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.coarse import CoarseResult
+from amrst.stages.fine import FineResult, refine_registration
+from amrst.stages.metrics import CloudMetrics, measure_clouds
+
+if TYPE_CHECKING:
+    from amrst.params import RegistrationParams
+    from amrst.pipeline.analysis import ScanAnalysis
+    from amrst.pipeline.link import MatchResult
+    from amrst.types import Transform
+
+
+def refine(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    start: Transform | CoarseResult,
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+    matches: MatchResult | None = None,
+) -> FineResult:
+    """Fine registration from a coarse local-frame transform or an accepted coarse result.
+
+    A coarse result from the trunk heading search is refined on the point set its
+    verification chose (``Candidate.fine_points``); anything else on ``fine.points``.
+    When ``matches`` already holds this candidate's full fine registration (the trunk
+    search makes one while verifying), that result is returned instead of a second run.
+    """
+    which = params.fine.points
+    if isinstance(start, CoarseResult):
+        if matches is not None and start.candidate.id in matches.refined:
+            reporter.progress(1.0, "already refined while verifying")
+            return matches.refined[start.candidate.id]
+        T_init = start.T_target_source
+        if start.candidate.fine_points:
+            which = start.candidate.fine_points
+    else:
+        T_init = start
+    return refine_registration(
+        target.points(which), source.points(which), T_init, params.fine, reporter
+    )
+
+
+def evaluate(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    T_target_source: Transform,
+    params: RegistrationParams,
+) -> CloudMetrics:
+    """NN-RMSE, Hausdorff and overlap of the preprocessed scans under a local-frame transform."""
+    moved = source.xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
+    return measure_clouds(target.xyz, moved, params.metrics)
