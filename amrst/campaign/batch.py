@@ -44,7 +44,8 @@ class BatchSummary:
     skipped: list[str] = field(default_factory=list)
     registered: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
-    seconds: float = 0.0
+    seconds: float = 0.0  # wall time of the whole call, cluster start included
+    run_seconds: float = 0.0  # first submission to last result
     workers: int = 0
     results: list[dict[str, Any]] = field(default_factory=list)
 
@@ -52,7 +53,7 @@ class BatchSummary:
     def trees_per_hour(self) -> float:
         """Trees this run registered (ok or failed) per hour of wall time."""
         n = len(self.registered) + len(self.failed)
-        return 3600.0 * n / self.seconds if self.seconds > 0 else 0.0
+        return 3600.0 * n / self.run_seconds if self.run_seconds > 0 else 0.0
 
 
 def _params(
@@ -218,6 +219,7 @@ def run_batch(
                     left,
                     row,
                 )
+        summary.run_seconds = time.perf_counter() - started
     finally:
         client.close()
         if cluster is not None:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.errors import Cancelled, RegistrationFailed
+from amrst.errors import RegistrationFailed
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.types import invert_transform
 
@@ -165,10 +165,7 @@ def register_links(
         step = SubReporter(
             reporter, k / len(pairs), (k + 1) / len(pairs), f"link {i}-{j}"
         )
-        try:
-            links.append(register_link(analyses[i], analyses[j], (i, j), params, step))
-        except Cancelled:
-            raise
+        links.append(register_link(analyses[i], analyses[j], (i, j), params, step))
     return links
 
 
