@@ -71,7 +71,10 @@ def _params(
 
 
 def pending_trees(
-    campaign: Campaign, params: RegistrationParams | None = None, force: bool = False
+    campaign: Campaign,
+    params: RegistrationParams | None = None,
+    force: bool = False,
+    clouds: str = "",
 ) -> tuple[list[tuple[Any, str]], list[str], dict[str, Any]]:
     """Return ``([(entry, stamp)] to run, [ids already done], params dict)``."""
     from amrst.params import params_to_dict
@@ -80,7 +83,7 @@ def pending_trees(
     todo, done = [], []
     root = campaign.root.resolve()
     for entry in campaign.trees:
-        stamp = tree_stamp(root, entry, doc)
+        stamp = tree_stamp(root, entry, doc, clouds)
         if not force and is_done(campaign.results_dir(entry.id), stamp):
             done.append(entry.id)
         else:
@@ -122,6 +125,7 @@ def run_batch(
     force: bool = False,
     progress: BatchProgress | None = None,
     only: list[str] | None = None,
+    clouds: str = "",
 ) -> BatchSummary:
     """Register every tree not done yet; write the table after each one.
 
@@ -139,6 +143,8 @@ def run_batch(
     progress : BatchProgress or None
     only : list of str or None
         Tree ids to consider (default: all).
+    clouds : str
+        Also write each tree's merged cloud in this format ("" = none).
 
     Returns
     -------
@@ -151,7 +157,7 @@ def run_batch(
     from amrst.errors import InvalidInput
 
     t0 = time.perf_counter()
-    todo, done, doc = pending_trees(campaign, params, force)
+    todo, done, doc = pending_trees(campaign, params, force, clouds)
     if only is not None:
         unknown = set(only) - {t.id for t in campaign.trees}
         if unknown:
@@ -178,6 +184,7 @@ def run_batch(
                 entry,
                 doc,
                 stamp,
+                clouds,
                 key=f"amrst-tree-{entry.id}-{stamp[:12]}",
                 pure=False,
             )

@@ -134,6 +134,15 @@ def configure_batch(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tree", action="append", metavar="ID", help="only this tree (repeatable)"
     )
+    p.add_argument(
+        "--write-clouds",
+        nargs="?",
+        const="ply",
+        default="",
+        choices=("ply", "las", "laz", "pcd"),
+        metavar="FORMAT",
+        help="also write each tree's merged cloud (scan_id per point); default format ply",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -163,6 +172,7 @@ def run_batch_cli(args: argparse.Namespace) -> int:
         force=args.force,
         progress=TerminalBar(args.quiet),
         only=args.tree,
+        clouds=args.write_clouds,
     )
     print(
         f"{len(summary.registered)} registered, {len(summary.failed)} failed, "

@@ -45,8 +45,13 @@ def _file_hash(path: Path) -> str:
     return h.hexdigest()
 
 
-def tree_stamp(root: Path, entry: TreeEntry, params: dict[str, Any]) -> str:
-    """Return the hash of everything a tree's result depends on (hex sha256)."""
+def tree_stamp(
+    root: Path, entry: TreeEntry, params: dict[str, Any], clouds: str = ""
+) -> str:
+    """Return the hash of everything a tree's result depends on (hex sha256).
+
+    ``clouds``: the cloud format written with the results ("" = none).
+    """
     from amrst.io.scans import split_spec
 
     files: dict[str, str] = {}
@@ -60,6 +65,7 @@ def tree_stamp(root: Path, entry: TreeEntry, params: dict[str, Any]) -> str:
         "files": files,
         "truth": None if entry.truth is None else _file_hash(root / entry.truth),
         "params": params,
+        "clouds": clouds,
     }
     text = json.dumps(doc, sort_keys=True, default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
@@ -81,7 +87,11 @@ def _now() -> str:
 
 
 def run_tree(
-    root: str, entry: TreeEntry, params: dict[str, Any], stamp: str
+    root: str,
+    entry: TreeEntry,
+    params: dict[str, Any],
+    stamp: str,
+    clouds: str = "",
 ) -> dict[str, Any]:
     """Register one tree and write its results; never raises for a bad tree.
 
@@ -94,6 +104,9 @@ def run_tree(
         ``params_to_dict`` of the registration parameters.
     stamp : str
         :func:`tree_stamp` of this tree, written into ``stamp.json`` when done.
+    clouds : str
+        Also write the merged cloud (and the moved source of a pair) in this format
+        ("ply", "las", "laz", "pcd"); "" writes none, as ``amrst register`` by default.
 
     Returns
     -------
@@ -111,7 +124,7 @@ def run_tree(
         make_folder(out, "results folder")
         for name in (STAMP, ERROR):
             (out / name).unlink(missing_ok=True)
-        verdict, files = _register(base, entry, params, out)
+        verdict, files = _register(base, entry, params, out, clouds)
     except Exception as exc:  # one tree's failure is data for the table, not a crash
         message = (
             str(exc) if isinstance(exc, AmrstError) else f"{type(exc).__name__}: {exc}"
@@ -156,7 +169,7 @@ def run_tree(
 
 
 def _register(
-    base: Path, entry: TreeEntry, params_doc: dict[str, Any], out: Path
+    base: Path, entry: TreeEntry, params_doc: dict[str, Any], out: Path, clouds: str
 ) -> tuple[str, list[str]]:
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
@@ -164,17 +177,24 @@ def _register(
     from amrst.params import params_from_dict
 
     params = params_from_dict(params_doc)
-    clouds = []
+    scans = []
     for spec in entry.scans:
         found = read_scans(base / spec)
         if len(found) != 1:
             raise_many(spec, len(found))
-        clouds.append(found[0])
+        scans.append(found[0])
     truth = None
     if entry.truth is not None:
-        truth = read_scan_truth(base / entry.truth, len(clouds), entry.reference)
-    result = register_scans(clouds, entry.reference, params)
-    written = export_scans(out, result, files=list(entry.scans), truth=truth)
+        truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)
+    result = register_scans(scans, entry.reference, params)
+    written = export_scans(
+        out,
+        result,
+        files=list(entry.scans),
+        truth=truth,
+        clouds=bool(clouds),
+        cloud_format=clouds or "ply",
+    )
     return result.verdict, [p.name for p in written]
 
 

@@ -323,8 +323,9 @@ def read_scan_truth(
     """Read the true ``T_reference_scan`` of every scan from a truth file.
 
     Accepts a multi-scan truth.json (``T_reference_scan``: one 4x4 per scan, onto scan
-    0, as ``amrst campaign simulate`` writes) or a pair's (``T_target_source``: scan 1
-    onto scan 0). Re-expressed onto ``reference`` when that is not scan 0.
+    0, as ``amrst campaign simulate`` writes; re-expressed onto ``reference``) or, for
+    two scans, a pair's (``T_target_source``: the other scan onto the reference, the
+    target).
 
     Raises
     ------
@@ -341,11 +342,13 @@ def read_scan_truth(
             check_rigid(T, f"T_reference_scan[{k}] in {path}")
             for k, T in enumerate(doc["T_reference_scan"])
         ]
+    elif n == 2:  # a pair's truth: the other scan onto the reference (the target)
+        pair = check_rigid(doc["T_target_source"], f"T_target_source in {path}")
+        mats = [np.eye(4), np.eye(4)]
+        mats[1 - reference] = pair
+        return mats
     else:
-        mats = [
-            np.eye(4),
-            check_rigid(doc["T_target_source"], f"T_target_source in {path}"),
-        ]
+        mats = [np.eye(4), np.eye(4)]  # a pair's truth: refused below
     if len(mats) != n:
         raise InvalidInput(
             f"{path} gives the truth of {len(mats)} scan(s) but {n} are registered. "

@@ -61,7 +61,7 @@ def test_local_cluster_corrupt_scan_and_resume(
     write_scans(simulate_scans(tiny_tree, 3, seed=0, res_deg=0.2), tmp_path / "T02")
     _corrupt_tree(tmp_path, "T03", sample_pair)
     campaign, _ = init_campaign(tmp_path)
-    summary = run_batch(campaign, workers=2)
+    summary = run_batch(campaign, workers=2, clouds="ply")
     assert sorted(summary.registered) == ["T01", "T02"]
     assert list(summary.failed) == ["T03"]
     assert "b.ply" in summary.failed["T03"]
@@ -76,11 +76,16 @@ def test_local_cluster_corrupt_scan_and_resume(
     assert rows["T02"]["links_verified"] == "3"
     assert rows["T03"]["status"] == "failed"
     assert "b.ply" in rows["T03"]["error"]
-    scans = json.loads((tmp_path / "results" / "T02" / "scans.json").read_text())
-    assert all(s["truth"]["registered"] for s in scans["scans"])
+    for tree in ("T01", "T02"):  # truth read from the tree folder's truth.json
+        scans = json.loads((tmp_path / "results" / tree / "scans.json").read_text())
+        assert all(s["truth"]["registered"] for s in scans["scans"])
+    from amrst import io
+
+    merged = io.read(tmp_path / "results" / "T02" / "merged.ply")
+    assert set(np.unique(merged.attributes["scan_id"])) == {0, 1, 2}
     # fix the corrupt scan: a re-run registers only that tree
     shutil.copy(sample_pair.source_path, tmp_path / "T03" / "b.ply")
-    again = run_batch(load_campaign(tmp_path), workers=1)
+    again = run_batch(load_campaign(tmp_path), workers=1, clouds="ply")
     assert sorted(again.skipped) == ["T01", "T02"]
     assert again.registered == ["T03"]
     assert _rows(tmp_path)["T03"]["status"] == "registered"
@@ -92,7 +97,12 @@ def test_local_cluster_corrupt_scan_and_resume(
 
     base = RegistrationParams()
     changed = replace(base, fine=replace(base.fine, voxel_size_m=0.02))
-    assert pending_trees(load_campaign(tmp_path), base)[1] == ["T01", "T02", "T03"]
+    assert pending_trees(load_campaign(tmp_path), base, clouds="ply")[1] == [
+        "T01",
+        "T02",
+        "T03",
+    ]
+    assert pending_trees(load_campaign(tmp_path), base)[1] == []  # no clouds: redo
     todo, done, _ = pending_trees(load_campaign(tmp_path), changed)
     assert done == []
     assert len(todo) == 3
