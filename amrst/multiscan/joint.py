@@ -31,6 +31,11 @@ if TYPE_CHECKING:
 ROUNDS = 2
 #: Largest correspondence distance of the joint ICP (m): the poses are already close.
 JOINT_MAX_CORR_M = 0.05
+#: Points of the joint ICP: all preprocessed points. Measured on 4 simulated 4-scan
+#: trees, the worst pair's gt_rmse fell from 0.66/0.32/0.27/0.06 cm (tree of pairwise
+#: links) to 0.39/0.07/0.22/0.05 cm; with the leaf points alone the refinement was
+#: rejected (no lower mutual NN-RMSE) on all four.
+JOINT_POINTS = "all"
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,7 +125,8 @@ def refine_jointly(
     reference : int
         Its pose stays the identity.
     params : RegistrationParams
-        ``fine`` settings (point set, voxel size, method) and the overlap distance.
+        ``fine`` settings (voxel size, method, iterations) and the overlap distance;
+        the point set is ``JOINT_POINTS``.
     reporter : Reporter
     rounds : int
 
@@ -137,7 +143,7 @@ def refine_jointly(
     )
     if fine.method == "none":
         fine = replace(fine, method="lm_icp")
-    points = [an.points(params.fine.points) for an in analyses]
+    points = [an.points(JOINT_POINTS) for an in analyses]
     overlap = params.metrics.overlap_dist_m
     current = list(poses)
     movable = [k for k, p in enumerate(current) if p is not None and k != reference]
@@ -149,8 +155,11 @@ def refine_jointly(
             reporter.check_cancelled()
             start = current[k]
             assert start is not None  # movable scans are reached
-            result = refine_registration(
-                points[k], _posed(points, current, k), start, fine
+            result = refine_registration(  # keywords: the order changed once
+                target_xyz=_posed(points, current, k),
+                source_xyz=points[k],
+                T_init=start,
+                params=fine,
             )
             current[k] = result.T_target_source
             done += 1

@@ -63,8 +63,20 @@ def test_three_scans_all_placed_within_truth(three_scans, three_result):
         assert path[-1] == k
     tree_links = [link for link in three_result.links if link.in_tree]
     assert len(tree_links) == 2  # a spanning tree of 3 scans
-    assert three_result.joint is not None
-    assert np.isfinite(three_result.joint.rmse_before_m)
+    # the joint refinement moved the scans and made the worst one better, not worse
+    joint = three_result.joint
+    assert joint is not None
+    assert joint.kept
+    assert max(joint.moved_m) > 1e-4
+    assert joint.rmse_after_m <= joint.rmse_before_m
+
+    def worst(poses):
+        return max(
+            truth_errors(poses[k], truth[k], three_scans.scans[k].xyz).gt_rmse_m
+            for k in range(3)
+        )
+
+    assert worst(three_result.T_reference_scan) <= worst(three_result.T_tree)
 
 
 def _link(a, b, verdict, weight=0.5):
