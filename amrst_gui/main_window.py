@@ -22,6 +22,7 @@ from amrst.resources import resource_path
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
+from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
 from amrst_gui.panels.matches_panel import MatchesPanel
 from amrst_gui.panels.metrics_panel import MetricsPanel
@@ -82,7 +83,11 @@ class MainWindow(QMainWindow):
         self._add_dock("matches", "Matches", self.matches_panel, right)
         self._add_dock("metrics", "Metrics", self.metrics_panel, right)
         self._add_dock("log", "Log", self.log_panel, bottom)
+        self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
+        self._add_dock("campaign", "Campaign", self.campaign_panel, left)
+        self.campaign_panel.tree_selected.connect(lambda _id, p: s.load_scans(*p[:2]))
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
+        self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         self.docks["scans"].raise_()
         self.status = WorkflowStatusBar(s, self)
         self.setStatusBar(self.status)
@@ -319,6 +324,7 @@ class MainWindow(QMainWindow):
             if self.session.busy:
                 self.status.show_message("Cancelling the running step…")
             self.session.shutdown()
+            self.campaign_panel.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())
             self.settings.setValue("window/state", self.saveState())
             self.settings.sync()

@@ -20,6 +20,7 @@ from amrst.campaign.table import campaign_rows, write_table
 if TYPE_CHECKING:
     from amrst.campaign.manifest import Campaign
     from amrst.params import RegistrationParams
+    from amrst.progress import Reporter
 
 
 class BatchProgress(Protocol):
@@ -35,6 +36,37 @@ class BatchProgress(Protocol):
         row: dict[str, Any] | None,
     ) -> None:
         """Report the counts after a change; ``row`` is the tree just finished."""
+
+
+class ReporterProgress:
+    """A BatchProgress that tells an amrst Reporter (the app's worker) and can cancel.
+
+    Each finished tree calls ``progress(done share, "<id>: <verdict or error>")``;
+    ``check_cancelled`` is asked between trees, so a cancel stops the batch there (the
+    trees in flight are lost, as with any kill).
+    """
+
+    def __init__(self, reporter: Reporter) -> None:
+        self.reporter = reporter
+
+    def update(
+        self,
+        done: int,
+        failed: int,
+        running: int,
+        total: int,
+        left_s: float | None,
+        row: dict[str, Any] | None,
+    ) -> None:
+        """Forward the share of trees finished and the tree just finished."""
+        share = (done + failed) / total if total else 1.0
+        text = (
+            ""
+            if row is None
+            else f"{row['id']}: {row.get('verdict') or row.get('error', '')}"
+        )
+        self.reporter.progress(share, text)
+        self.reporter.check_cancelled()
 
 
 @dataclass
@@ -238,3 +270,21 @@ def run_batch(
 def table_rows(campaign: Campaign) -> list[dict[str, Any]]:
     """Return the campaign table's rows as they stand on disk."""
     return campaign_rows(campaign)
+
+
+def run_remaining(
+    root: str, workers: int, reporter: Reporter, scheduler: str | None = None
+) -> BatchSummary:
+    """Run the pending trees of the campaign at ``root``, reporting to ``reporter``.
+
+    The app's "Run remaining" calls this in a worker thread (the same Dask code as
+    ``amrst batch``).
+    """
+    from amrst.campaign.manifest import load_campaign
+
+    return run_batch(
+        load_campaign(root),
+        workers=workers,
+        scheduler=scheduler,
+        progress=ReporterProgress(reporter),
+    )

@@ -130,6 +130,14 @@ def merge_scans(result: MultiScanResult) -> Cloud:
         for k, T in enumerate(result.T_reference_scan)
         if T is not None
     ]
+    return merge_moved(ref, moved)
+
+
+def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
+    """Return scans already moved into ``ref``'s frame as one cloud; ``scan_id`` = k.
+
+    Attributes missing from some scans are zeros for their points.
+    """
     names = list(dict.fromkeys(a for _, c in moved for a in c.attributes))
     attrs: dict[str, np.ndarray] = {}
     for name in names:
@@ -142,9 +150,8 @@ def merge_scans(result: MultiScanResult) -> Cloud:
             ]
         )
     attrs["scan_id"] = np.concatenate([np.full(len(c), k, np.uint8) for k, c in moved])
-    return Cloud(
-        np.vstack([c.xyz for _, c in moved]), ref.offset, attrs, "merged", ref.meta
-    )
+    xyz = np.vstack([c.xyz for _, c in moved])
+    return Cloud(xyz, ref.offset, attrs, "merged", ref.meta)
 
 
 def _pair_files(

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import warnings
 
-DOCKS = ("scans_dock", "parameters_dock", "matches_dock", "metrics_dock", "log_dock")
+DOCKS = (
+    "scans_dock",
+    "parameters_dock",
+    "matches_dock",
+    "metrics_dock",
+    "log_dock",
+    "campaign_dock",
+)
 
 
 def test_opens_with_both_scans_drawn(loaded_window, content_fraction):
