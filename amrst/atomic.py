@@ -9,6 +9,7 @@ clobbers the old one. The new file keeps the old one's permissions (0644 when ne
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -63,9 +64,53 @@ def write_text_atomic(path: str | os.PathLike[str], text: str | bytes) -> None:
     write_atomic(path, lambda tmp: tmp.write_bytes(data))
 
 
+def strict_json(data: Any) -> tuple[Any, dict[str, str]]:
+    """Return ``data`` with every NaN/infinity replaced by None, and where they were.
+
+    Strict JSON has no NaN or Infinity (``json.dumps`` writes them by default, and
+    most other readers then refuse the file). Numpy scalars and arrays become plain
+    numbers and lists; tuples become lists.
+
+    Returns
+    -------
+    (object, dict of str to str)
+        The clean data, and dotted path -> what the value was (``"inf"``, ``"nan"``).
+    """
+    nulls: dict[str, str] = {}
+
+    def clean(value: Any, where: str) -> Any:
+        if isinstance(value, dict):
+            return {
+                k: clean(v, f"{where}.{k}" if where else str(k))
+                for k, v in value.items()
+            }
+        if isinstance(value, (list, tuple)):
+            return [clean(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
+            return clean(value.tolist(), where)  # numpy scalars and arrays
+        if isinstance(value, float) and not math.isfinite(value):
+            nulls[where] = repr(value)
+            return None
+        return value
+
+    return clean(data, ""), nulls
+
+
 def write_json_atomic(path: str | os.PathLike[str], data: Any, indent: int = 2) -> None:
-    """Write ``data`` as indented JSON atomically."""
-    write_text_atomic(path, json.dumps(data, indent=indent, allow_nan=True) + "\n")
+    """Write ``data`` as indented, strict JSON atomically.
+
+    A value that is not a finite number is written ``null``; when ``data`` is an
+    object, its key ``null_values`` then says which ones and what they were, so a
+    reader knows why (e.g. ``{"truth.fine.translation_error_m": "inf"}``).
+    """
+    clean, nulls = strict_json(data)
+    if nulls and isinstance(clean, dict):
+        clean["null_values"] = {
+            k: f"{v} (not a finite number; JSON has no NaN or infinity)"
+            for k, v in nulls.items()
+        }
+    text = json.dumps(clean, indent=indent, allow_nan=False)
+    write_text_atomic(path, text + "\n")
 
 
 def make_folder(path: str | os.PathLike[str], what: str) -> Path:

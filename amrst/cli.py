@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -94,7 +95,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.export import check_output_dir, export_registration, output_names
     from amrst.pipeline import register
-    from amrst.report import registration_summary
+    from amrst.report import record_from_registration, result_documents
 
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
@@ -120,36 +121,32 @@ def _cmd_register(args: argparse.Namespace) -> int:
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
     result = register(target, source, params, TerminalReporter(args.quiet))
-    summary = registration_summary(result, T_truth)
-    summary["timings_s"]["read"] = round(t_read, 4)
-    verified = result.coarse.verified
-    extra = {
-        "verified": verified,
-        "confidence": result.confidence,
-        "message": result.message,
-        "timings_s": summary["timings_s"],
-        "coarse_candidate": {
-            "rank": result.coarse.candidate.rank,
-            "id": result.coarse.candidate.id,
-            "origin": result.coarse.candidate.origin,
-            "explanation": result.coarse.candidate.explanation,
-        },
-        "target_file": str(args.target),
-        "source_file": str(args.source),
-        "amrst_version": __version__,
-    }
+    from amrst.verdict import FAILED, REGISTERED, judge_result
+
+    verdict = judge_result(result, params)
+    # One layout for the CLI, the app and the benchmark (amrst.report, issue 11).
+    documents = result_documents(
+        record_from_registration(
+            result,
+            T_truth,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            timings_s={"read": t_read},
+            amrst_version=__version__,
+            verdict=verdict.as_dict(),
+        )
+    )
+    summary = documents.metrics
     files = export_registration(
         args.out,
         target=target,
         source=source,
         T_target_source=result.T_target_source,
-        T_coarse=result.T_coarse,
-        metrics=summary,
         params=params,
         cloud_format=args.format,
         parts=tuple(parts),
-        transform_extra=extra,
         remove_stale=True,
+        documents=documents,
     )
     fine = summary["fine"]
     print(
@@ -180,44 +177,18 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    if not verified:
-        best = result.coarse.candidate
-        if best.origin == "trunk":
-            runner = result.coarse.runner_up_score
-            versus = (
-                f"against {runner:.0%} within {params.coarse.tight_dist_m * 100:.0f} cm "
-                "for the next heading, which is not a clear lead"
-                if runner > 0
-                else "with no other heading to compare it with"
-            )
-            why = (
-                f"The best solution comes from the trunk heading search: "
-                f"{best.precise_score:.0%} of the sampled source points lie within "
-                f"{params.trunk.score_dist_m * 100:.1f} cm of the target, {versus} "
-                "(a round or symmetric stem, or scans that share little, fit several "
-                "headings equally well)."
-            )
-        else:
-            why = (
-                f"The best solution puts only {best.score:.0%} of the sampled source points "
-                f"within {params.coarse.tight_dist_m * 100:.0f} cm of the target (a right one "
-                "puts 45% or more on the benchmark)"
-                + (
-                    ", and the trunk heading search found no heading that clearly beats the others."
-                    if "trunk" in result.timings
-                    else "."
-                )
-            )
+    # issue 13: one verdict, the same words as the app (amrst.verdict).
+    if verdict.status == FAILED:
         print(
-            f"Registration failed: no verified candidate. {why} The files above are marked "
-            '"verified": false. Check that both scans show the same tree, review the '
-            'matches in amrst-gui, or try --preset "Leaf-on broadleaf" / a larger edge '
-            "tolerance.",
+            f"Registration failed: {verdict.reason} The files above are marked "
+            f'"verified": false. Next: {verdict.next_step}',
             file=sys.stderr,
         )
         return EXIT_FAILED
-    if result.confidence < LOW_CONFIDENCE:
-        print(f"  WARNING: {result.message}", file=sys.stderr)
+    if verdict.status != REGISTERED:
+        print(f"  WARNING: {verdict.text()}", file=sys.stderr)
+    else:
+        print(f"  verdict: {verdict.text()}")
     return 0
 
 
@@ -359,6 +330,18 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    # Library noise (numpy RuntimeWarnings, laspy's) never reaches the user: every
+    # problem worth telling is an AmrstError or a logged line (issue 16). --debug
+    # shows the warnings as log lines.
+    with warnings.catch_warnings():
+        if args.debug:
+            logging.captureWarnings(True)
+        else:
+            warnings.simplefilter("ignore")
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:
@@ -375,6 +358,16 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("Interrupted.", file=sys.stderr)
         return EXIT_CANCELLED
+    except OSError as exc:  # a file-system refusal no check above put in words
+        if args.debug:
+            raise
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(
+            f"Error: {exc.strerror or exc}{where}. Check the path, its length and "
+            "its permissions, or choose another file or folder.",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
     except MemoryError:
         print(
             "Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).",

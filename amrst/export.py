@@ -1,35 +1,36 @@
 """Export a registration: moved source, merged cloud, transform, metrics, parameters.
 
-Every file is first written into a hidden staging folder inside the export folder; only
-when all of them are written are they renamed into place. A failed export therefore
-never leaves half a file, a partial set of new files, or a clobbered earlier one. The
-parameters go with the results (KISS-ICP writes its config next to its poses for the
-same reason).
+Every file is first written into a staging folder; the whole set then replaces the old
+one in one atomic step (amrst.outdir), under the folder's lock (amrst.folderlock). A
+failed or killed export therefore never leaves half a file, a mix of old and new files,
+or a clobbered earlier one. The parameters go with the results (KISS-ICP writes its
+config next to its poses for the same reason).
 """
 
 from __future__ import annotations
 
-import contextlib
-import csv
 import datetime as _dt
-import io as _stdio
 import logging
-import os
-import shutil
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from amrst import io as amrst_io
 from amrst.atomic import write_json_atomic, write_text_atomic
-from amrst.errors import AmrstError, InvalidInput
+from amrst.errors import InvalidInput
+from amrst.folderlock import DEFAULT_TIMEOUT_S
+from amrst.outcheck import check_output_folder
+from amrst.outdir import replace_files
 from amrst.params import RegistrationParams, params_to_dict
+from amrst.report import CONVENTION, metrics_csv
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
+    import os
     from collections.abc import Callable, Iterable
+    from pathlib import Path
+
+    from amrst.report import ResultDocuments
 
 logger = logging.getLogger(__name__)
 
@@ -40,7 +41,18 @@ CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
 CLOUD_NAMES = tuple(
     f"{stem}.{fmt}" for stem in ("registered_source", "merged") for fmt in CLOUD_FORMATS
 )
-_STAGING_PREFIX = ".amrst-export-"
+# Every name an export may write: a folder holding only these (and our hidden files)
+# is swapped as a whole (amrst.outdir).
+MANAGED_NAMES = frozenset(
+    [
+        *CLOUD_NAMES,
+        "transform.json",
+        "transform.txt",
+        "metrics.json",
+        "metrics.csv",
+        "params.json",
+    ]
+)
 
 
 def output_names(parts: Iterable[str] = PARTS, cloud_format: str = "ply") -> list[str]:
@@ -77,114 +89,14 @@ def check_output_dir(
 ) -> Path:
     """Check, before any long work, that ``out_dir`` can take the export files.
 
-    The folder may be missing: it is created to try writing in it, then removed again
-    (with any parents created for it), so nothing is left behind.
-
-    Parameters
-    ----------
-    out_dir : path
-        The export folder.
-    names : iterable of str
-        File names to be written there; none of them may be a folder.
-
-    Returns
-    -------
-    Path
-        ``out_dir`` as a Path.
+    See :func:`amrst.outcheck.check_output_folder` (nothing is left behind).
 
     Raises
     ------
     InvalidInput
-        An empty path, an existing file, a folder that cannot be created or written,
-        or a file name taken by a folder.
+        With what to change.
     """
-    if not os.fspath(out_dir).strip():
-        raise InvalidInput(
-            "The export folder path is empty; give a folder name (it is created when "
-            "missing)."
-        )
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InvalidInput(
-            f"The export folder {out} is an existing file; choose a folder (it is "
-            "created when missing)."
-        )
-    missing = []
-    parent = out
-    while not parent.exists() and parent != parent.parent:
-        missing.append(parent)
-        parent = parent.parent
-    if parent.exists() and not parent.is_dir():
-        raise InvalidInput(
-            f"Cannot create the export folder {out}: {parent} is a file, not a folder. "
-            "Choose another folder."
-        )
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        _remove_empty(missing)
-        raise InvalidInput(
-            f"Cannot create the export folder {out}: {exc.strerror or exc}. Choose "
-            "another folder."
-        ) from exc
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".amrst-probe-", dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot write in the export folder {out}: {exc.strerror or exc}. Check "
-            "its permissions or choose another folder."
-        ) from exc
-    finally:
-        _remove_empty(missing)
-    for name in names:
-        if (out / name).is_dir():
-            raise InvalidInput(
-                f"Cannot write {out / name}: a folder has that name. Remove or rename "
-                "it, or choose another export folder."
-            )
-    return out
-
-
-def _remove_empty(folders: list[Path]) -> None:
-    """Remove the folders ``check_output_dir`` created (deepest first), if empty."""
-    for folder in folders:
-        with contextlib.suppress(OSError):
-            folder.rmdir()
-
-
-def remove_stale_clouds(
-    out_dir: str | os.PathLike[str], keep: Iterable[str]
-) -> list[Path]:
-    """Remove the export cloud files of an earlier run that this run did not write.
-
-    Only the exact names in ``CLOUD_NAMES`` are touched (``registered_source.<fmt>``,
-    ``merged.<fmt>``), and only regular files or links.
-
-    Parameters
-    ----------
-    out_dir : path
-    keep : iterable of str
-        The names this run wrote.
-
-    Returns
-    -------
-    list of Path
-        The files removed.
-    """
-    out, kept = Path(out_dir), set(keep)
-    removed = []
-    for name in CLOUD_NAMES:
-        path = out / name
-        if name not in kept and (path.is_file() or path.is_symlink()):
-            try:
-                path.unlink()
-            except OSError as exc:
-                logger.warning("Could not remove the earlier %s: %s", path, exc)
-                continue
-            removed.append(path)
-    return removed
+    return check_output_folder(out_dir, "export folder", names)
 
 
 def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
@@ -218,14 +130,6 @@ def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
     )
 
 
-def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
-    else:
-        out[prefix] = value
-
-
 def transform_document(
     T_target_source: Transform, T_coarse: Transform | None, **extra: Any
 ) -> dict[str, Any]:
@@ -235,7 +139,7 @@ def transform_document(
     }
     if T_coarse is not None:
         doc["T_coarse"] = np.asarray(T_coarse, float).tolist()
-    doc["convention"] = "x_target = T_target_source @ [x_source, 1]; row-major, metres"
+    doc["convention"] = CONVENTION
     doc["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     doc.update(extra)
     return doc
@@ -254,6 +158,8 @@ def export_registration(
     parts: tuple[str, ...] = PARTS,
     transform_extra: dict[str, Any] | None = None,
     remove_stale: bool = False,
+    lock_timeout_s: float = DEFAULT_TIMEOUT_S,
+    documents: ResultDocuments | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -275,8 +181,13 @@ def export_registration(
     transform_extra : dict or None
         More fields for transform.json (confidence, timings, file names).
     remove_stale : bool
-        Once the new files are in place, remove the ``CLOUD_NAMES`` files this call
-        did not write (an earlier run's clouds), logging one warning line.
+        Drop from the folder the ``CLOUD_NAMES`` files this call does not write (an
+        earlier run's clouds), in the same atomic step, logging one warning line.
+    lock_timeout_s : float
+        How long to wait for another writer of ``out_dir`` (amrst.folderlock).
+    documents : ResultDocuments or None
+        The result files from :func:`amrst.report.result_documents`; when given,
+        ``metrics``, ``T_coarse`` and ``transform_extra`` are not used.
 
     Returns
     -------
@@ -289,6 +200,13 @@ def export_registration(
         Unknown part or format, or a folder that cannot be written.
     AmrstError
         A file could not be written; no new file of this call is left in ``out_dir``.
+    FolderBusy
+        Another run kept writing ``out_dir`` for ``lock_timeout_s``.
+
+    Notes
+    -----
+    The folder's files are replaced as one unit (see amrst.outdir for what a kill at
+    each instant leaves); earlier files this call does not write are kept.
     """
     unknown = set(parts) - set(PARTS)
     if unknown:
@@ -313,7 +231,10 @@ def export_registration(
             writers[f"merged.{cloud_format}"] = lambda p: amrst_io.write(
                 p, merge_clouds(target, moved)
             )
-    if "transform" in parts:
+    if documents is not None:  # the one result layout (amrst.report, issue 11)
+        doc, mdoc = documents.transform, documents.metrics
+        text, table = documents.transform_txt, documents.metrics_csv
+    else:
         extra = {
             "target": target.name,
             "source": source.name,
@@ -324,74 +245,30 @@ def export_registration(
             "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source)
             + "\n"
         )
+        mdoc, table = metrics or {}, metrics_csv(metrics or {})
+    if "transform" in parts:
         writers["transform.json"] = lambda p: write_json_atomic(p, doc)
         writers["transform.txt"] = lambda p: write_text_atomic(p, text)
     if "metrics" in parts:
-        flat: dict[str, Any] = {}
-        _flatten("", metrics or {}, flat)
-        buf = _stdio.StringIO()
-        w = csv.writer(buf)
-        w.writerow(["metric", "value"])
-        w.writerows(flat.items())
-        writers["metrics.json"] = lambda p: write_json_atomic(p, metrics or {})
-        writers["metrics.csv"] = lambda p: write_text_atomic(p, buf.getvalue())
+        writers["metrics.json"] = lambda p: write_json_atomic(p, mdoc)
+        writers["metrics.csv"] = lambda p: write_text_atomic(p, table)
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
-    written = _write_all(out, [(name, writers[name]) for name in names])
-    if remove_stale:
-        removed = remove_stale_clouds(out, names)
-        if removed:
-            logger.warning(
-                "Removed %d cloud file(s) of an earlier run from %s that this run did "
-                "not write: %s.",
-                len(removed),
-                out,
-                ", ".join(p.name for p in removed),
-            )
+    stale = [n for n in CLOUD_NAMES if n not in names] if remove_stale else []
+    written, removed = replace_files(
+        out,
+        {name: writers[name] for name in names},
+        managed=MANAGED_NAMES,
+        remove=stale,
+        lock_timeout_s=lock_timeout_s,
+    )
+    if removed:
+        logger.warning(
+            "Removed %d cloud file(s) of an earlier run from %s that this run did "
+            "not write: %s.",
+            len(removed),
+            out,
+            ", ".join(removed),
+        )
     return written
-
-
-def _write_all(
-    out: Path, jobs: list[tuple[str, Callable[[Path], object]]]
-) -> list[Path]:
-    """Write every file into a staging folder in ``out``, then rename them all in.
-
-    A failure while writing leaves ``out`` as it was; a failure while renaming (rare:
-    same folder) removes the files of this run already renamed.
-    """
-    try:
-        stage = Path(tempfile.mkdtemp(prefix=_STAGING_PREFIX, dir=out))
-    except OSError as exc:
-        raise InvalidInput(
-            f"Cannot write in the export folder {out}: {exc.strerror or exc}. Check "
-            "its permissions or choose another folder."
-        ) from exc
-    placed: list[Path] = []
-    try:
-        for name, write in jobs:
-            try:
-                write(stage / name)
-            except AmrstError as exc:
-                # Name the real destination, not the staging folder.
-                raise type(exc)(str(exc).replace(str(stage), str(out))) from exc
-        for name, _ in jobs:
-            final, new = out / name, stage / name
-            if final.is_file():  # keep the permissions of the file it replaces
-                os.chmod(new, final.stat().st_mode & 0o777)
-            os.replace(new, final)
-            placed.append(final)
-    except BaseException as exc:
-        for path in placed:
-            with contextlib.suppress(OSError):
-                path.unlink()
-        if isinstance(exc, AmrstError) or not isinstance(exc, Exception):
-            raise
-        raise AmrstError(
-            f"Could not write the export into {out}: {exc} ({type(exc).__name__}). "
-            "No new file was left there; check the free disk space and the "
-            "permissions, then retry."
-        ) from exc
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    return placed

@@ -394,6 +394,10 @@ def _distinct(xyz: np.ndarray) -> int:
     return len(np.unique(np.asarray(xyz), axis=0)) if len(xyz) else 0
 
 
+MAX_NOISE_M = 0.5
+MAX_TILT_DEG = 45.0
+
+
 def check_settings(
     *,
     seed: Any,
@@ -461,6 +465,16 @@ def check_settings(
         raise InvalidInput(
             f"{label('noise_m')} and {label('tilt_deg')} must be >= 0, got "
             f"{noise_m} and {tilt_deg}."
+        )
+    if tilt_deg > MAX_TILT_DEG:
+        raise InvalidInput(
+            f"{label('tilt_deg')} must be at most {MAX_TILT_DEG} degrees (a levelled "
+            f"tripod tilts under 1), got {tilt_deg:g}."
+        )
+    if noise_m > MAX_NOISE_M:  # issue 16: 1e6 m wrote a case with no valid point
+        raise InvalidInput(
+            f"{label('noise_m')} must be at most {MAX_NOISE_M} m (a scanner's range "
+            f"noise is millimetres), got {noise_m:g}."
         )
 
 

@@ -54,8 +54,23 @@ class Cloud:
     def __post_init__(self) -> None:
         xyz = np.asarray(self.xyz, dtype=np.float64)
         if xyz.ndim != 2 or xyz.shape[1] != 3:
-            raise InvalidInput(f"Point array must have shape (N, 3); got {xyz.shape}.")
-        offset = np.asarray(self.offset, dtype=np.float64).reshape(3)
+            raise InvalidInput(
+                f"Point array must have shape (N, 3); got {xyz.shape}. Give one row "
+                "of x, y, z per point."
+            )
+        try:
+            offset = np.asarray(self.offset, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(
+                f"Cloud offset must be 3 numbers (x, y, z in metres); got "
+                f"{self.offset!r:.60}."
+            ) from exc
+        if not np.isfinite(offset).all():
+            # issue 16: an infinite offset gave a NaN transform marked verified
+            raise InvalidInput(
+                f"Cloud offset {offset.tolist()} is not finite; give 3 finite numbers "
+                "(x, y, z in metres, zeros for local data)."
+            )
         attrs = {}
         for key, value in dict(self.attributes).items():
             arr = np.asarray(value)

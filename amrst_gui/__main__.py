@@ -36,11 +36,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="save the window to PNG once ready, then quit",
     )
     parser.add_argument(
-        "--run", choices=STEPS, help="run the workflow up to this step first"
+        "--run",
+        choices=(*STEPS, "all"),
+        help="run the workflow up to this step first (all: Run all, which stops "
+        "before an unverified candidate)",
     )
     parser.add_argument(
         "--tab",
-        choices=("scans", "registration"),
+        choices=("scans", "registration", "slices", "distance"),
         default="scans",
         help="which 3D tab to show (for --screenshot)",
     )
@@ -86,10 +89,20 @@ class _Screenshot:
             return
         if self.step and not self.ran:
             self.ran = True
-            self.win.session.run_step(self.step)
+            if self.step == "all":
+                self.win.session.run_all()
+            else:
+                self.win.session.run_step(self.step)
             return
-        self.win.tabs.setCurrentIndex(1 if self.tab == "registration" else 0)
+        QTimer.singleShot(0, self._show_tab)
         QTimer.singleShot(500, self._save)
+
+    def _show_tab(self) -> None:
+        # After the result signals (Fine shows the overlay on its own).
+        tab = {"registration": 1, "distance": 1, "slices": 2}.get(self.tab, 0)
+        self.win.tabs.setCurrentIndex(tab)
+        if self.tab == "distance":
+            self.win.registration.colour.setCurrentIndex(1)
 
     def _save(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -99,9 +112,9 @@ class _Screenshot:
         self.app.exit(0)
 
     def _on_failed(self, message: str) -> None:
+        # A failed verdict is worth a picture too (issue 13): save, then quit.
         print(f"amrst-gui: {message}", file=sys.stderr)
-        self.win.close()
-        self.app.exit(1)
+        self.ran = True
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,6 +62,26 @@ def confirm_discard(parent, action: str) -> bool:
     return box.exec() == QMessageBox.StandardButton.Discard
 
 
+def confirm_override(parent, verdict) -> bool:
+    """Ask whether a result whose verdict is not *registered* is exported anyway."""
+    box = QMessageBox(
+        QMessageBox.Icon.Warning,
+        "Export a result that is not registered?",
+        f"The verdict is '{verdict.status}': {verdict.reason}",
+        QMessageBox.StandardButton.Cancel,
+        parent,
+    )
+    box.setObjectName("override_box")
+    box.setInformativeText(
+        f"Next: {verdict.next_step}\n\nExport anyway writes the files with this "
+        "verdict and your override recorded in transform.json and metrics.json."
+    )
+    anyway = box.addButton("Export anyway", QMessageBox.ButtonRole.AcceptRole)
+    box.setDefaultButton(QMessageBox.StandardButton.Cancel)
+    box.exec()
+    return box.clickedButton() is anyway
+
+
 class ExportDialog(QDialog):
     """Where to write, what, and in which point-cloud format.
 

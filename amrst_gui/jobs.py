@@ -65,15 +65,44 @@ def skeletonise_pair(
     return _both(pipeline.skeletonise_scan, analyses, params, reporter)
 
 
-def match_pair(analyses: dict, params: Any, reporter: Reporter) -> tuple[Any, float]:
-    """Similar-tetrahedra candidates between the two key point sets."""
+def match_pair(
+    analyses: dict, params: Any, reporter: Reporter, manual: tuple = ()
+) -> tuple[Any, float]:
+    """Similar-tetrahedra candidates between the two key point sets; returns
+    ``((MatchResult, manual candidates), seconds)``.
+
+    ``manual`` holds ``(T_as_given, id, how)`` of the technician's poses: they are
+    scored again with the new settings, so they stay in the list (issue 13).
+    """
     from amrst import pipeline
 
     start = time.perf_counter()
     result = pipeline.find_matches(
         analyses["target"], analyses["source"], params, reporter
     )
-    return result, time.perf_counter() - start
+    rescored = tuple(
+        _score_manual(analyses, T, cid, how, params) for T, cid, how in manual
+    )
+    return (result, rescored), time.perf_counter() - start
+
+
+def _score_manual(analyses: dict, T: Any, cid: int, how: str, params: Any) -> Any:
+    from amrst.manual import score_manual
+
+    return score_manual(
+        T, analyses["target"].xyz, analyses["source"].xyz, params.coarse, cid, how
+    )
+
+
+def score_manual_pair(
+    analyses: dict, T: Any, cid: int, how: str, params: Any, reporter: Reporter
+) -> tuple[Any, float]:
+    """A manual pose as a candidate, verified like the automatic ones."""
+    start = time.perf_counter()
+    reporter.progress(0.0, "Scoring the manual pose")
+    cand = _score_manual(analyses, T, cid, how, params)
+    reporter.progress(1.0, f"Manual pose: score {cand.score:.0%}")
+    return cand, time.perf_counter() - start
 
 
 def measure_tree_pair(analyses: dict, T_local: Any, params: Any) -> dict:

@@ -24,18 +24,21 @@ from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
 from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
+from amrst_gui.panels.manual_panel import ManualPanel
 from amrst_gui.panels.matches_panel import MatchesPanel
 from amrst_gui.panels.metrics_panel import MetricsPanel
 from amrst_gui.panels.params_panel import ParamsPanel
 from amrst_gui.panels.scans_panel import ScansPanel
 from amrst_gui.panels.status import WorkflowStatusBar
 from amrst_gui.session import Session
+from amrst_gui.views.quality_views import StemSlicesPane
 from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
 
 log = logging.getLogger("amrst_gui.main_window")
 
 MAX_RECENT = 10
+LAYOUT_VERSION = 2  # 2: the Manual pose dock, full-height side docks (issue 13)
 
 
 class MainWindow(QMainWindow):
@@ -66,12 +69,19 @@ class MainWindow(QMainWindow):
         self.tabs.setObjectName("view_tabs")
         self.tabs.addTab(self.scans_area, "Scans: target | source")
         self.tabs.addTab(self.registration, "Registration overlay")
+        self.slices = StemSlicesPane(s)
+        self.tabs.addTab(self.slices, "Stem slices")
         self.setCentralWidget(self.tabs)
         self.actions = WorkflowActions(self, s)
         self.scans_panel = ScansPanel(s)
         self.params_panel = ParamsPanel(s)
         self.matches_panel = MatchesPanel(s, self.actions.reject, self.actions.restore)
         self.metrics_panel = MetricsPanel(s)
+        self.manual_panel = ManualPanel(
+            s,
+            self.scans_area.panes["target"].view,
+            self.scans_area.panes["source"].view,
+        )
         self.docks: dict[str, QDockWidget] = {}
         left, right, bottom = (
             Qt.DockWidgetArea.LeftDockWidgetArea,
@@ -82,12 +92,19 @@ class MainWindow(QMainWindow):
         self._add_dock("parameters", "Parameters", self.params_panel, left)
         self._add_dock("matches", "Matches", self.matches_panel, right)
         self._add_dock("metrics", "Metrics", self.metrics_panel, right)
+        self._add_dock("manual", "Manual pose", self.manual_panel, right)
+        self.tabifyDockWidget(self.docks["metrics"], self.docks["manual"])
+        self.docks["metrics"].raise_()
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
         self._add_dock("campaign", "Campaign", self.campaign_panel, left)
         self.campaign_panel.tree_selected.connect(lambda _id, p: s.load_scans(*p[:2]))
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
+        # The side docks run the full height: the log sits under the views only, so
+        # the Matches table keeps its rows on a laptop screen (issue 13).
+        self.setCorner(Qt.Corner.BottomRightCorner, right)
+        self.setCorner(Qt.Corner.BottomLeftCorner, left)
         self.docks["scans"].raise_()
         self.status = WorkflowStatusBar(s, self)
         self.setStatusBar(self.status)
@@ -98,6 +115,9 @@ class MainWindow(QMainWindow):
 
         s.discard_guard = lambda action: dialogs.confirm_discard(self, action)
         s.failed.connect(self._on_failed)
+        # After Accept coarse, Fine or Run all the result is what to look at.
+        s.coarse_accepted.connect(self._show_overlay)
+        s.fine_finished.connect(self._show_overlay)
         s.scan_loaded.connect(self._on_scan_loaded)
         s.scans_swapped.connect(self._update_title)
         self.params_panel.params_applied.connect(s.set_params)
@@ -108,11 +128,19 @@ class MainWindow(QMainWindow):
         self.scans_panel.swap_requested.connect(s.swap_scans)
         self.scans_panel.files_dropped.connect(self._on_files_dropped)
         self.scans_area.files_dropped.connect(self._on_files_dropped)
-        self.resize(1500, 950)
+        self._fit_screen()
         self._default_state: QByteArray | None = None
         self._restored = self._restore_settings()
         self.scans_area.refresh()
         self.registration.refresh()
+
+    def _fit_screen(self) -> None:
+        """Open at 1500x950 or the screen's free area, whichever is smaller."""
+        screen = self.screen().availableGeometry() if self.screen() else None
+        w, h = 1500, 950
+        if screen is not None:
+            w, h = min(w, screen.width()), min(h, screen.height())
+        self.resize(w, h)
 
     # ------------------------------------------------------------- public
     def views(self) -> list:
@@ -228,7 +256,20 @@ class MainWindow(QMainWindow):
     def _on_export_accepted(self, box: dialogs.ExportDialog) -> None:
         self.settings.setValue("dirs/export", str(box.folder()))
         self.settings.setValue("export/format", box.cloud_format())
-        self.session.export(box.folder(), box.cloud_format(), box.parts())
+        verdict = self.session.verdict
+        override = False
+        if verdict is not None and not verdict.ok:
+            # issue 13: a result that is not "registered" leaves only on purpose.
+            if not dialogs.confirm_override(self, verdict):
+                self.status.show_message("Export cancelled: " + verdict.text())
+                return
+            override = True
+        self.session.export(
+            box.folder(), box.cloud_format(), box.parts(), override=override
+        )
+
+    def _show_overlay(self, *_args) -> None:
+        self.tabs.setCurrentWidget(self.registration)
 
     def _on_failed(self, message: str) -> None:
         # Status bar and log show it too; the box does not block the window.
@@ -292,7 +333,11 @@ class MainWindow(QMainWindow):
         state = self.settings.value("window/state")
         if isinstance(geometry, QByteArray):
             self.restoreGeometry(geometry)
-        restored = isinstance(state, QByteArray) and self.restoreState(state)
+        # A layout saved before the docks changed is not restored (Qt would leave the
+        # new docks floating about): the version says which docks the state knows.
+        restored = isinstance(state, QByteArray) and self.restoreState(
+            state, LAYOUT_VERSION
+        )
         self.scans_panel.set_recent_files(self.recent_files())
         return bool(restored)
 
@@ -310,9 +355,9 @@ class MainWindow(QMainWindow):
             [d["scans"], d["matches"]], [330, 430], Qt.Orientation.Horizontal
         )
         self.resizeDocks(
-            [d["matches"], d["metrics"]], [330, 420], Qt.Orientation.Vertical
+            [d["matches"], d["metrics"]], [55, 45], Qt.Orientation.Vertical
         )
-        self.resizeDocks([d["log"]], [150], Qt.Orientation.Vertical)
+        self.resizeDocks([d["log"]], [120], Qt.Orientation.Vertical)
 
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views."""
@@ -326,7 +371,7 @@ class MainWindow(QMainWindow):
             self.session.shutdown()
             self.campaign_panel.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())
-            self.settings.setValue("window/state", self.saveState())
+            self.settings.setValue("window/state", self.saveState(LAYOUT_VERSION))
             self.settings.sync()
             self.log_panel.detach()
             for dock in self.docks.values():  # floating docks are windows of their own

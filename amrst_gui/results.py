@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst_gui import jobs, steps
+from amrst_gui.review import ReviewMixin
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -20,7 +21,7 @@ if TYPE_CHECKING:
 _TRUTH_SAMPLE = 20_000
 
 
-class ResultsMixin:
+class ResultsMixin(ReviewMixin):
     """Results and derived state of a :class:`~amrst_gui.session.Session`."""
 
     if TYPE_CHECKING:
@@ -45,6 +46,8 @@ class ResultsMixin:
         self._step_params: dict[str, Any] = {}
         self._coarse_cache: tuple | None = None
         self._exported_result: Any = None
+        self._override: dict[str, str] | None = None
+        self._reset_review()
 
     def _clear_after(self, step: str) -> None:
         # The analyses themselves are replaced by the separate/skeleton result.
@@ -72,36 +75,6 @@ class ResultsMixin:
     def analysis(self, role: str) -> Any:
         """The ScanAnalysis of ``role`` (separation, then skeleton), or None."""
         return self._analyses[role]
-
-    @property
-    def matches(self) -> tuple:
-        """Ranked candidates (best first); empty before matching."""
-        return () if self._matches is None else tuple(self._matches.candidates)
-
-    @property
-    def match_result(self) -> Any:
-        """The MatchResult, or None."""
-        return self._matches
-
-    @property
-    def rejected(self) -> frozenset[int]:
-        """Ids of the candidates the user rejected."""
-        return self._rejected
-
-    @property
-    def selected_match(self) -> Any:
-        """The Candidate shown in the views, or None."""
-        return self._candidate(self._selected)
-
-    @property
-    def coarse(self) -> Any:
-        """CoarseResult from the best candidate not rejected (None if none is left)."""
-        return self._coarse_state()[0]
-
-    @property
-    def coarse_message(self) -> str:
-        """Why the coarse solution is what it is (or why there is none)."""
-        return self._coarse_state()[1]
 
     @property
     def accepted_coarse(self) -> Any:
@@ -262,6 +235,19 @@ class ResultsMixin:
             "verified": bool(coarse.verified),
             "rejected_match_ids": sorted(int(i) for i in self._rejected),
         }
+        verdict = self.verdict
+        if verdict is not None:
+            extra["verdict"] = verdict.as_dict()
+        if self._override is not None:
+            # issue 13: a result that is not "registered" leaves only on purpose.
+            extra["override"] = dict(self._override)
+        if coarse.candidate is not None and coarse.candidate.origin == "manual":
+            extra["manual_pose"] = {
+                "how": self._manual_labels.get(int(coarse.candidate.id), ""),
+                "T_target_source_as_given": self.world(
+                    coarse.candidate.T_match
+                ).tolist(),
+            }
         if fine is not None:
             extra.update(
                 fine_method=str(fine.method), fine_converged=bool(fine.converged)
@@ -296,6 +282,11 @@ class ResultsMixin:
         if self.tree:
             report["tree"] = {name: m.as_dict() for name, m in self.tree.items()}
         report["timings_s"] = dict(self._timings)
+        verdict = self.verdict
+        if verdict is not None:
+            report["verdict"] = verdict.as_dict()
+        if self._override is not None:
+            report["override"] = dict(self._override)
         return report
 
     def summary(self, step: str) -> str:
@@ -326,36 +317,6 @@ class ResultsMixin:
         return ""
 
     # --------------------------------------------------------------- helpers
-    def _coarse_state(self) -> tuple[Any, str]:
-        if self._matches is None:
-            return None, "No matches yet: run Match."
-        key = (id(self._matches), self._rejected)
-        if self._coarse_cache is None or self._coarse_cache[0] != key:
-            from amrst import pipeline
-            from amrst.errors import RegistrationFailed
-
-            value: tuple[Any, str]  # (CoarseResult or None, message)
-            try:
-                coarse = pipeline.coarse_from_matches(self._matches, self._rejected)
-                value = (coarse, str(coarse.message))
-            except RegistrationFailed as exc:
-                value = (None, str(exc))
-            self._coarse_cache = (key, value)
-        return self._coarse_cache[1]
-
-    def _candidate_ids(self) -> set[int]:
-        return {int(c.id) for c in self.matches}
-
-    def _candidate(self, match_id: int | None) -> Any:
-        for c in self.matches:
-            if c.id == match_id:
-                return c
-        return None
-
-    def _describe_match(self, match_id: int) -> str:
-        c = self._candidate(match_id)
-        return f"#{c.rank} (id {c.id}, score {c.score:.2f})" if c else str(match_id)
-
     def _name(self, role: str) -> str:
         path = self._paths[role]
         cloud = self._clouds[role]

@@ -13,6 +13,7 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from amrst.errors import AmrstError, Cancelled
@@ -21,8 +22,6 @@ from amrst_gui.results import ResultsMixin
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-
-    import numpy as np
 
 log = logging.getLogger("amrst_gui.session")
 
@@ -57,6 +56,7 @@ class Session(ResultsMixin, QObject):
     busy_changed = Signal(bool)
     failed = Signal(str)
     cancelled = Signal(str)
+    manual_preview_changed = Signal(object)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -75,6 +75,9 @@ class Session(ResultsMixin, QObject):
         self._job_params = self._params
         self._pending_paths: dict[str, Path] = {}
         self._closing = False
+        self._stop_unverified = False
+        self._manual_preview: np.ndarray | None = None
+        self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
         # Asked before an unexported registration result is thrown away (closing,
         # new scans, swap, a re-run); the window sets it. Returns True to go on.
@@ -177,6 +180,7 @@ class Session(ResultsMixin, QObject):
         if match_id not in self._candidate_ids():
             raise ValueError(f"no candidate with id {match_id}")
         self._rejected = self._rejected | {match_id}
+        self._remember_rejection(match_id)
         log.info("Rejected match %s", self._describe_match(match_id))
         self.review_changed.emit(self._rejected)
 
@@ -184,6 +188,7 @@ class Session(ResultsMixin, QObject):
         """Undo a rejection; emits ``review_changed``."""
         if match_id not in self._rejected:
             return
+        self._forget_rejection(match_id)
         self._rejected = self._rejected - {match_id}
         log.info("Restored match %s", self._describe_match(match_id))
         self.review_changed.emit(self._rejected)
@@ -203,8 +208,29 @@ class Session(ResultsMixin, QObject):
         log.info("Loaded truth from %s", path)
         self.truth_loaded.emit(T)
 
+    def set_manual_preview(self, T_local: np.ndarray | None) -> None:
+        """Show a pose being made by hand in the overlay; emits
+        ``manual_preview_changed``."""
+        same = (T_local is None and self._manual_preview is None) or (
+            T_local is not None
+            and self._manual_preview is not None
+            and np.array_equal(T_local, self._manual_preview)
+        )
+        if not same:
+            self._manual_preview = None if T_local is None else np.array(T_local)
+            self.manual_preview_changed.emit(self._manual_preview)
+
+    @property
+    def manual_preview(self) -> np.ndarray | None:
+        """The pose being made by hand (pairs or nudge), or None."""
+        return self._manual_preview
+
+    def report_error(self, message: str) -> None:
+        """Show a problem found outside a job (bad typed input); emits ``failed``."""
+        self._fail(message)
+
     # ------------------------------------------------------------------ jobs
-    def run_step(self, step: str) -> None:
+    def run_step(self, step: str, auto: bool = False) -> None:
         """Run ``step`` and whatever earlier step is missing or stale, in order."""
         if self._refuse_if_busy(steps.plain_label(step)):
             return
@@ -212,6 +238,9 @@ class Session(ResultsMixin, QObject):
             self._fail("Open a target and a source scan first (File > Open).")
             return
         chain = self.plan(step)
+        # Run all stops before it accepts an unverified candidate (issue 13); an
+        # explicit Accept coarse or Fine is the technician's own decision.
+        self._stop_unverified = auto
         if self._replaces_result(chain[0]) and not self.may_discard(
             f"{steps.plain_label(chain[0])} again"
         ):
@@ -222,21 +251,62 @@ class Session(ResultsMixin, QObject):
 
     def run_all(self) -> None:
         """The automatic path: everything up to fine registration."""
-        self.run_step("fine")
+        self.run_step("fine", auto=True)
 
     def accept_coarse(self) -> None:
         """Accept the coarse solution (best candidate not rejected) and measure it."""
         self.run_step("coarse")
 
+    def add_manual_pose(self, T_local: np.ndarray, how: str) -> None:
+        """Score a hand-made ``T_target_source`` (local frames) as a candidate.
+
+        It goes first in the candidate list (origin "manual"), verified and scored
+        like the others; emits ``matches_changed``. Separates the scans first when
+        that is missing (the score is measured on the preprocessed points).
+        """
+        if self._refuse_if_busy("add a manual pose"):
+            return
+        if not self.has_scans:
+            self._fail("Open a target and a source scan first (File > Open).")
+            return
+        self._pending_manual = (np.asarray(T_local, float), how)
+        chain = [s for s in self.plan("separate") if s == "separate"]
+        if self.is_done("separate") and not self.is_stale("separate"):
+            chain = []
+        self._chain = [*chain, "manual"]
+        self._stop_unverified = False
+        self._set_busy(True)
+        self._start_next()
+
     def export(
-        self, out_dir: str | Path, cloud_format: str = "ply", parts=None
+        self,
+        out_dir: str | Path,
+        cloud_format: str = "ply",
+        parts=None,
+        override: bool = False,
     ) -> None:
-        """Write the results with ``amrst.export``; emits ``exported(paths)``."""
+        """Write the results with ``amrst.export``; emits ``exported(paths)``.
+
+        A result whose verdict is not *registered* is written only with ``override``
+        (the window asks), and the override is recorded in the files.
+        """
         if self._refuse_if_busy("export"):
             return
         if self.final_transform is None:
             self._fail("Nothing to export yet: accept a coarse solution first.")
             return
+        verdict = self.verdict
+        if verdict is not None and not verdict.ok and not override:
+            self._fail(
+                f"Not exported: the verdict is '{verdict.status}'. {verdict.reason} "
+                "Export anyway only on purpose (the files then record the override)."
+            )
+            return
+        self._override = (
+            None
+            if verdict is None or verdict.ok
+            else {"verdict_status": verdict.status, "by": "user, in amrst-gui"}
+        )
         stale = [st for st in ("coarse", "fine") if self.is_stale(st)]
         if stale:
             self._fail(
@@ -309,13 +379,34 @@ class Session(ResultsMixin, QObject):
         elif step == "skeleton":
             self._launch(step, jobs.skeletonise_pair, dict(an), p)
         elif step == "match":
-            self._launch(step, jobs.match_pair, dict(an), p)
+            manual = tuple(
+                (c.T_match, int(c.id), self._manual_labels.get(int(c.id), ""))
+                for c in self._manual
+            )
+            self._launch(
+                step, functools.partial(jobs.match_pair, manual=manual), dict(an), p
+            )
+        elif step == "manual":
+            assert self._pending_manual is not None  # set by add_manual_pose
+            T, how = self._pending_manual
+            cid = self._next_manual_id()
+            self._manual_labels[cid] = how
+            self._launch(step, jobs.score_manual_pair, dict(an), T, cid, how, p)
         elif step == "coarse":
             coarse = self.coarse
             if coarse is None:
                 self._chain = []
                 self._set_busy(False)
                 self._fail(f"No coarse solution to accept: {self.coarse_message}")
+                return
+            if self._stop_unverified and not coarse.verified:
+                self._chain = []
+                self._set_busy(False)
+                verdict = self.verdict
+                self._fail(
+                    "Run all stopped before accepting an unverified candidate. "
+                    + (verdict.text() if verdict is not None else coarse.message)
+                )
                 return
             self._launch(step, jobs.evaluate_coarse, dict(an), coarse, p)
         elif step == "fine":
@@ -419,6 +510,12 @@ class Session(ResultsMixin, QObject):
             names = ", ".join(p.name for p in result)
             log.info("Exported to %s: %s", folder, names)
             return lambda: self.exported.emit(result)
+        if step == "manual":
+            self._manual = (result, *self._manual)
+            self._rejected = self._rejected - {int(result.id)}
+            self._selected = int(result.id)
+            log.info("Manual pose added: %s", result.explanation)
+            return self.matches_changed.emit
         self._clear_after(step)
         self._step_params[step] = self._job_params
         if step in ("separate", "skeleton"):
@@ -430,14 +527,14 @@ class Session(ResultsMixin, QObject):
             )
             return sig.emit
         if step == "match":
-            old, old_rejected = self._matches, self._rejected
-            self._matches = result
-            self._rejected = self._carry_rejections(old, old_rejected)
-            cands = [c for c in result.candidates if c.id not in self._rejected]
+            self._matches, self._manual = result
+            self._rejected = self._carry_review()
+            cands = [c for c in self.matches if c.id not in self._rejected]
             self._selected = cands[0].id if cands else None
             return self.matches_changed.emit
         if step == "coarse":
             self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
+            self._accepted_pose = self._accepted.T_target_source
             return lambda: self.coarse_accepted.emit(self._accepted)
         self._fine, self._metrics["fine"], self._tree["fine"] = result
         return lambda: self.fine_finished.emit(self._fine)
@@ -454,40 +551,11 @@ class Session(ResultsMixin, QObject):
         Only the fine result: accepting coarse again after a change of mind is part of
         the review and must not ask each time.
         """
-        return self._fine is not None and self.has_unexported_result
-
-
-    def _carry_rejections(self, old: Any, rejected: frozenset[int]) -> frozenset[int]:
-        """Rejections of a re-run match list, carried over by pose.
-
-        A rejected pose stays wrong when matching runs again (new parameters give new
-        candidate ids): every new candidate that is the same solution as a rejected
-        one (``amrst.stages.coarse.same_solution``) starts rejected; the log says so.
-        """
-        if old is None or not rejected or self._matches is None:
-            return frozenset()
-        from amrst.stages.coarse import same_solution
-
-        gone = [c for c in old.candidates if c.id in rejected]
-        centre = self._matches.source_centre
-        kept = frozenset(
-            int(c.id)
-            for c in self._matches.candidates
-            if any(
-                same_solution(c.T_target_source, g.T_target_source, centre)
-                for g in gone
-            )
-        )
-        if kept:
-            log.info(
-                "Kept %d rejection(s) from the review before: the new candidates %s "
-                "are solutions you rejected.",
-                len(kept),
-                ", ".join(self._describe_match(i) for i in sorted(kept)),
-            )
-        elif gone:
-            log.info("None of the %d rejected solution(s) came back.", len(gone))
-        return kept
+        if self._fine is None or not self.has_unexported_result:
+            return False
+        # A result nobody wants (not "registered") is replaced without asking.
+        verdict = self.verdict
+        return verdict is not None and verdict.ok
 
     @staticmethod
     def _label(step: str) -> str:

@@ -23,6 +23,7 @@ LABELS = {
     "load": "Load scans",
     **{s.name: s.label.replace("&", "&&") for s in ENGINE_STEPS},  # Qt mnemonics
     "export": "Export",
+    "manual": "Manual pose",
 }
 
 

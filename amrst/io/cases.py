@@ -21,6 +21,8 @@ from amrst.io.truth import read_truth_document
 from amrst.types import Cloud, Transform, check_rigid
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from amrst.simulate import SimulatedPair
 
 PathLike = str | os.PathLike[str]
@@ -157,15 +159,9 @@ def check_case_folder(out_dir: PathLike) -> Path:
     InvalidInput
         With what to change.
     """
-    if not os.fspath(out_dir).strip():
-        raise InvalidInput("The case folder path is empty; give a folder name.")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InvalidInput(
-            f"The case folder {out} is an existing file; choose a folder (it is "
-            "created when missing)."
-        )
-    return out
+    from amrst.outcheck import check_output_folder  # issue 16: permissions, loops
+
+    return check_output_folder(out_dir, "case folder")
 
 
 def write_case(
@@ -197,9 +193,15 @@ def write_case(
         If ``out_dir`` is a file or cannot be created.
     """
     from amrst import io
+    from amrst.outdir import replace_files
 
     out = make_folder(check_case_folder(out_dir), "case folder")
-    io.write(out / "target.ply", pair.target)
-    io.write(out / "source.ply", pair.source)
-    write_json_atomic(out / "truth.json", truth_dict(pair, tree_name, seed), indent=1)
+    truth = truth_dict(pair, tree_name, seed)
+    # The three files as one unit: a kill never pairs new scans with an old truth.
+    writers: dict[str, Callable[[Path], object]] = {
+        "target.ply": lambda p: io.write(p, pair.target),
+        "source.ply": lambda p: io.write(p, pair.source),
+        "truth.json": lambda p: write_json_atomic(p, truth, indent=1),
+    }
+    replace_files(out, writers, managed=set(writers))
     return out

@@ -6,18 +6,21 @@ The one reader of truth files for the command line (``--truth``), the app
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.safefile import load_json_file
 from amrst.types import check_rigid
 
-if TYPE_CHECKING:
-    import numpy as np
-
 PathLike = str | os.PathLike[str]
+# Georeferenced scans can lie in frames kilometres apart, never farther than the Earth
+# is wide; a larger translation is a typo or other units, and its squares overflow.
+MAX_TRANSLATION_M = 1e8
+_HINT = "a JSON file with a 4x4 'T_target_source' (row-major, source to target)"
 
 
 def read_truth_document(path: PathLike) -> dict[str, Any]:
@@ -36,32 +39,26 @@ def read_truth_document(path: PathLike) -> dict[str, Any]:
     Raises
     ------
     InvalidInput
-        If the path is empty, a folder, missing or unreadable, is not a JSON object,
-        or its ``T_target_source`` is not a finite rigid 4x4 transform.
+        If the path is empty, missing or unreadable, not a regular file (a folder,
+        FIFO, device, socket, link loop) or over 10 MB, is not a JSON object, or its
+        ``T_target_source`` is not a finite rigid 4x4 transform within 1e8 m.
     """
-    if not str(path).strip():
-        raise InvalidInput("The truth file path is empty; give a truth JSON file.")
     p = Path(path)
-    if p.is_dir():
-        raise InvalidInput(
-            f"Truth file {p} is a folder; give the path of a JSON file with a 4x4 "
-            "'T_target_source'."
-        )
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InvalidInput(f"Truth file not found: {p}.") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise InvalidInput(
-            f"Cannot read T_target_source from {p}: {exc}. It must be JSON with a "
-            "4x4 'T_target_source'."
-        ) from exc
+    doc = load_json_file(path, "truth file", _HINT)
     if not isinstance(doc, dict) or "T_target_source" not in doc:
         raise InvalidInput(
-            f"Cannot read T_target_source from {p}: it must hold a JSON object with "
-            "a 4x4 'T_target_source' (row-major, source to target)."
+            f"The truth file {p} holds no 'T_target_source'; give a JSON object with "
+            "a 4x4 'T_target_source' (row-major, source to target), e.g. the "
+            "truth.json that amrst simulate writes."
         )
-    check_rigid(doc["T_target_source"], f"T_target_source in {p}")
+    T = check_rigid(doc["T_target_source"], f"T_target_source in {p}")
+    shift = float(np.abs(T[:3, 3]).max())
+    if shift > MAX_TRANSLATION_M:
+        raise InvalidInput(
+            f"T_target_source in {p} moves the source by {shift:.3g} m, farther than "
+            f"any two scans lie apart (limit {MAX_TRANSLATION_M:.0e} m). Check its "
+            "units (metres) and layout (4x4 row-major, translation in the last column)."
+        )
     return doc
 
 

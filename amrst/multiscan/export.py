@@ -157,51 +157,43 @@ def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
 def _pair_files(
     out: Path,
     result: MultiScanResult,
-    summary_doc: dict[str, Any],
     files: Sequence[str],
     truth: Sequence[Transform | None] | None,
     clouds: bool,
     cloud_format: str,
 ) -> list[Path]:
-    """Write the files of ``amrst register`` for two scans, with the same content."""
+    """Write the files of ``amrst register`` for two scans, built as the CLI builds them."""
     from amrst.export import export_registration
-    from amrst.report import registration_summary
+    from amrst.report import record_from_registration, result_documents
+    from amrst.verdict import judge_result
 
     pair = result.pair
     assert pair is not None
     ref, other = result.reference, 1 - result.reference
     T_truth = None if truth is None else truth[other]
-    metrics = registration_summary(pair, T_truth)
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if clouds else []
     )
-    extra = {
-        "verified": pair.coarse.verified,
-        "confidence": pair.confidence,
-        "message": pair.message,
-        "timings_s": metrics["timings_s"],
-        "coarse_candidate": {
-            "rank": pair.coarse.candidate.rank,
-            "id": pair.coarse.candidate.id,
-            "origin": pair.coarse.candidate.origin,
-            "explanation": pair.coarse.candidate.explanation,
-        },
-        "target_file": files[ref] if files else result.scans[ref].name,
-        "source_file": files[other] if files else result.scans[other].name,
-        "amrst_version": __version__,
-    }
+    documents = result_documents(
+        record_from_registration(
+            pair,
+            T_truth,
+            target_file=files[ref] if files else result.scans[ref].name,
+            source_file=files[other] if files else result.scans[other].name,
+            amrst_version=__version__,
+            verdict=judge_result(pair, pair.params).as_dict(),
+        )
+    )
     return export_registration(
         out,
         target=result.scans[ref],
         source=result.scans[other],
         T_target_source=pair.T_target_source,
-        T_coarse=pair.T_coarse,
-        metrics=metrics,
         params=pair.params,
         cloud_format=cloud_format,
         parts=tuple(parts),
-        transform_extra=extra,
         remove_stale=True,
+        documents=documents,
     )
 
 
@@ -213,7 +205,8 @@ def _many_files(
     cloud_format: str,
 ) -> list[Path]:
     from amrst import io
-    from amrst.export import _write_all, check_output_dir
+    from amrst.export import MANAGED_NAMES, check_output_dir
+    from amrst.outdir import replace_files
     from amrst.params import params_to_dict
 
     n = len(result.scans)
@@ -265,7 +258,14 @@ def _many_files(
     if clouds:
         merged = merge_scans(result)
         jobs.append((f"merged.{cloud_format}", lambda p: io.write(p, merged)))
-    return _write_all(out, jobs)
+    jobs.append((SUMMARY, lambda p: write_json_atomic(p, doc)))
+    # amrst.outdir: the whole set replaces the earlier one as one unit.
+    managed = {*MANAGED_NAMES, *names, SUMMARY}
+    stale = [
+        name for name in managed if name.startswith("transform_") and name not in names
+    ]
+    written, _ = replace_files(out, dict(jobs), managed=managed, remove=stale)
+    return written
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -316,10 +316,9 @@ def export_scans(
     """
     out = Path(out_dir)
     doc = summary(result, truth, files)
-    if result.pair is not None:
-        written = _pair_files(out, result, doc, files, truth, clouds, cloud_format)
-    else:
-        written = _many_files(out, result, doc, clouds, cloud_format)
+    if result.pair is None:  # scans.json goes with the set
+        return _many_files(out, result, doc, clouds, cloud_format)
+    written = _pair_files(out, result, files, truth, clouds, cloud_format)
     write_json_atomic(out / SUMMARY, doc)
     return [*written, out / SUMMARY]
 

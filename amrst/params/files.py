@@ -14,16 +14,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from amrst.atomic import write_json_atomic
 from amrst.errors import InvalidInput
 from amrst.params.model import RegistrationParams
 from amrst.resources import resource_path
+from amrst.safefile import load_json_file
+
+if TYPE_CHECKING:
+    import os
+    from pathlib import Path
 
 SCHEMA_VERSION = 1
+MAX_LIST_ITEMS = 8  # a list parameter (e.g. separate.scales_k) holds a few values
 PRESETS_DIR = resource_path("presets")
 
 
@@ -78,7 +82,10 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     for f in dataclasses.fields(defaults):
         given = data.get(f.name, {})
         if not isinstance(given, dict):
-            raise InvalidInput(f"Parameters '{f.name}' must be a table of values.")
+            raise InvalidInput(
+                f"Parameters '{f.name}' must be a table of values, e.g. "
+                f'"{f.name}": {{...}} as in the params.json that amrst register writes.'
+            )
         stage = getattr(defaults, f.name)
         names = {g.name: g for g in dataclasses.fields(stage)}
         unknown = set(given) - set(names)
@@ -100,7 +107,11 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
             raise InvalidInput(f"Bad value in parameters '{f.name}': {exc}") from exc
     unknown_stages = set(data) - set(stages) - {"schema_version", "name", "description"}
     if unknown_stages:
-        raise InvalidInput(f"Unknown parameter section(s) {sorted(unknown_stages)}.")
+        raise InvalidInput(
+            f"Unknown parameter section(s) {sorted(unknown_stages)[:5]}; known ones "
+            f"are {sorted(stages)}. Check the spelling, or that this is a parameter "
+            "file (not a truth or metrics file)."
+        )
     # Pairs that must stay in order (min_points <= max_points, ...) are checked by
     # the stages themselves, so parameters built in code or in the app are too.
     return RegistrationParams(**stages)
@@ -149,11 +160,11 @@ def _check_value(
         ok = True
     if not ok:
         raise InvalidInput(
-            f"Parameter {name} must be of type {type(default).__name__}, got {value!r}."
+            f"Parameter {name} must be of type {type(default).__name__}, got {_short(value)}."
         )
     if "choices" in meta and value not in meta["choices"]:
         raise InvalidInput(
-            f"Parameter {name} must be one of {list(meta['choices'])}, got {value!r}."
+            f"Parameter {name} must be one of {list(meta['choices'])}, got {_short(value)}."
         )
     lo, hi = meta.get("min"), meta.get("max")
     items = value if isinstance(value, tuple) else (value,)
@@ -163,22 +174,36 @@ def _check_value(
     if not all(_finite(v, as_float) for v in items):
         span = f" in [{lo}, {hi}]" if lo is not None or hi is not None else ""
         raise InvalidInput(
-            f"Parameter {name} = {value!r} is not a finite number (NaN and infinity "
+            f"Parameter {name} = {_short(value)} is not a finite number (NaN and infinity "
             f"are not allowed here); give a number{span}."
         )
-    if f.name == "seed" and isinstance(value, int) and value < 0:
+    if f.name == "seed" and isinstance(value, int) and not 0 <= value < 2**63:
         raise InvalidInput(
-            f"Parameter {name} = {value} is negative; a seed must be an integer of 0 "
-            "or more."
+            f"Parameter {name} = {_short(value)} is {'negative' if value < 0 else 'too large'}; a "
+            "seed must be an integer from 0 to 2**63 - 1."
         )
-    if (
-        isinstance(value, (int, float))
-        and not isinstance(value, bool)
-        and ((lo is not None and value < lo) or (hi is not None and value > hi))
-    ):
+    if isinstance(value, tuple) and not 1 <= len(value) <= MAX_LIST_ITEMS:
         raise InvalidInput(
-            f"Parameter {name} = {value} is outside its range [{lo}, {hi}]."
+            f"Parameter {name} has {len(value)} values; give 1 to {MAX_LIST_ITEMS}, "
+            f"e.g. {list(default)}."
         )
+    for item in items:  # list items too (issue 16: scales_k = [100000000])
+        if (
+            isinstance(item, (int, float))
+            and not isinstance(item, bool)
+            and ((lo is not None and item < lo) or (hi is not None and item > hi))
+        ):
+            which = f" (item {item})" if isinstance(value, tuple) else ""
+            raise InvalidInput(
+                f"Parameter {name} = {_short(value)}{which} is outside its range "
+                f"[{lo}, {hi}]; give a value in that range."
+            )
+
+
+def _short(value: Any) -> str:
+    """Repr of a value, cut to one readable line (a number can have 4,000 digits)."""
+    text = repr(list(value) if isinstance(value, tuple) else value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def save_params(path: str | os.PathLike[str], params: RegistrationParams) -> None:
@@ -188,26 +213,17 @@ def save_params(path: str | os.PathLike[str], params: RegistrationParams) -> Non
 
 def load_params(path: str | os.PathLike[str]) -> RegistrationParams:
     """Read a parameter JSON file (clear InvalidInput on any problem)."""
-    if not os.fspath(path).strip():
-        raise InvalidInput(
-            "The parameter file path is empty; give the path of a parameter JSON file."
-        )
-    path = Path(path)
-    if path.is_dir():
-        raise InvalidInput(
-            f"Parameter file {path} is a folder, not a file; give the path of a "
-            "parameter JSON file (e.g. the params.json written by amrst register)."
-        )
-    if not path.is_file():
-        raise InvalidInput(f"Parameter file not found: {path}. Check the path.")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInput(
-            f"Cannot read parameter file {path}: {exc}. It must be JSON."
-        ) from exc
+    data = load_json_file(
+        path,
+        "parameter file",
+        "a parameter JSON file (e.g. the params.json written by amrst register)",
+    )
     if not isinstance(data, dict):
-        raise InvalidInput(f"Parameter file {path} must hold a JSON object.")
+        raise InvalidInput(
+            f"Parameter file {path} must hold a JSON object of sections, e.g. "
+            '{"fine": {"max_iterations": 50}}; give the params.json that amrst '
+            "register writes, or one like it."
+        )
     return params_from_dict(data)
 
 

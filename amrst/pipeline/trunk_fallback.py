@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING
 from amrst.pipeline.refine import refine
 from amrst.progress import Reporter, SubReporter
 from amrst.stages.coarse import CandidateList, choose_coarse
-from amrst.stages.trunk import (
+from amrst.stages.trunk import search_yaw
+from amrst.stages.trunk_merge import (
     merge_trunk_solutions,
     score_transforms,
-    search_yaw,
     trunk_contenders,
 )
 

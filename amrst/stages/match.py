@@ -12,12 +12,12 @@ permutations with the signed volume, and the best proper permutation is solved b
 
 from __future__ import annotations
 
-import functools
 import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from amrst.geometry import combinations4, kabsch
 from amrst.progress import NULL_REPORTER, Reporter
 
 _EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
@@ -154,24 +154,6 @@ class TetraMatches:
         )
 
 
-@functools.lru_cache(maxsize=4)
-def _combinations4(n: int) -> np.ndarray:
-    """(C(n,4), 4) int64 all index quadruples i<j<k<l, in lexicographic order.
-
-    Cached (read-only): both scans usually have the same number of key points.
-    """
-    pairs = np.column_stack(np.triu_indices(n, 1))  # (i, j), i < j
-    out = []
-    for i, j in pairs:  # at most C(n,2) small blocks, each vectorised
-        if j >= n - 2:
-            continue
-        kl = pairs[pairs[:, 0] > j]
-        out.append(np.column_stack([np.full(len(kl), i), np.full(len(kl), j), kl]))
-    quads = np.concatenate(out) if out else np.zeros((0, 4), dtype=np.int64)
-    quads.setflags(write=False)
-    return quads
-
-
 def _tetrahedra(
     xyz: np.ndarray, params: MatchParams
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -179,7 +161,7 @@ def _tetrahedra(
     n = len(xyz)
     if n < 4:
         return np.zeros((0, 4), int), np.zeros((0, 6)), np.zeros(0)
-    quads = _combinations4(n)
+    quads = combinations4(n)
     v = xyz[quads]  # (T, 4, 3)
     # Edge lengths looked up in the (n, n) distance matrix (computed as the norm of the
     # same differences, so the values are identical to norms of the T * 6 edges).
@@ -319,32 +301,6 @@ def _correspond(
     return ti[pair[first]], si[pair[first]], perm[first], err[first]
 
 
-def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched least-squares rigid fit dst ≈ R src + t.
-
-    Parameters
-    ----------
-    src, dst : (B, K, 3) float64
-
-    Returns
-    -------
-    (B, 4, 4) transforms and (B,) RMS residuals (m).
-    """
-    cs, cd = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)
-    h = np.einsum("bki,bkj->bij", src - cs, dst - cd)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", u, vt)))
-    fix = np.ones((len(src), 3))
-    fix[:, 2] = d
-    R = np.einsum("bji,bj,bkj->bik", vt, fix, u)  # V diag(1,1,d) U^T
-    t = cd[:, 0] - np.einsum("bij,bj->bi", R, cs[:, 0])
-    out = np.tile(np.eye(4), (len(src), 1, 1))
-    out[:, :3, :3], out[:, :3, 3] = R, t
-    moved = np.einsum("bij,bkj->bki", R, src) + t[:, None]
-    res = np.sqrt(np.mean(np.sum((moved - dst) ** 2, axis=2), axis=1))
-    return out, res
-
-
 def match_tetrahedra(
     target_kp: np.ndarray,
     source_kp: np.ndarray,
@@ -422,3 +378,6 @@ def match_tetrahedra(
         len(sq),
         n_pairs,
     )
+
+
+__all__ = ["MatchParams", "TetraMatches", "kabsch", "match_tetrahedra"]

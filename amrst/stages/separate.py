@@ -35,6 +35,8 @@ class SeparateParams:
         default=(10, 30),
         metadata={
             "unit": "points",
+            "min": 4,
+            "max": 100,  # issue 16: 1e8 neighbours ran to 3.4 GB before any message
             "help": "Neighbourhood sizes (k nearest) for the geometric features; more than one scale is sturdier.",
         },
     )

@@ -15,16 +15,32 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-COLUMNS = ("#", "Score", "Supp.", "Vol. m³", "Edge err.", "SVD m", "Close", "Status")
+from amrst_gui.panels.verdict_style import verdict_style
+
+COLUMNS = (
+    "#",
+    "Score",
+    "From",
+    "Supp.",
+    "Vol. m³",
+    "Edge err.",
+    "SVD",
+    "Close",
+    "Status",
+)
 CLOSE_COLUMN = COLUMNS.index("Close")
 _TIPS = (
     "Rank (1 = best): verified solutions first, then by score; the trunk heading "
     "search's solutions among themselves by their close fit (Close column)",
-    "Verification score 0-1: how well the whole clouds agree under this match",
+    "Verification score: share of sampled source points within 4 cm "
+    "(coarse.tight_dist_m) of the target under this pose. Good: 45% or more; "
+    "under 15% nothing is verified",
+    "Where the pose comes from: tetrahedra (matched skeletons), trunk (heading "
+    "search about the stem) or manual (your point pairs, nudge or typed transform)",
     "How many tetrahedron matches agree with this solution",
     "Volume of the tetrahedron (m³); larger ones pin the pose down better",
     "Largest relative difference between corresponding edges",
-    "SVD residual: RMS distance (m) of the four vertex pairs after the fit",
+    "SVD residual: RMS distance of the four vertex pairs after the fit. Good: a few cm",
     "Trunk heading search only: share of sampled source points within "
     "trunk.score_dist_m (1.5 cm by default) of the target after fine registration; "
     "it ranks the headings, as a wrong heading can still score well at 4 cm",
@@ -33,6 +49,7 @@ _TIPS = (
 
 
 _ROOT = QModelIndex()
+_ORIGIN = {"tetrahedra": "tetra", "trunk": "trunk", "manual": "manual"}
 
 
 def _num(value: float, fmt: str, missing: str = "—") -> str:
@@ -93,11 +110,12 @@ class CandidateModel(QAbstractTableModel):
         if role == Qt.ItemDataRole.DisplayRole:
             return (
                 str(cand.rank),
-                f"{cand.score:.3f}",
-                str(getattr(cand, "support", "")),
-                _num(cand.volume_m3, "{:.3f}", "trunk"),
+                f"{cand.score:.0%}",
+                _ORIGIN.get(str(cand.origin), str(cand.origin)),
+                str(cand.support) if cand.origin != "manual" else "—",
+                _num(cand.volume_m3, "{:.2f}"),
                 _num(cand.edge_error, "{:.1%}"),
-                _num(cand.svd_residual_m, "{:.3f}"),
+                _num(cand.svd_residual_m * 100, "{:.1f} cm"),
                 _num(getattr(cand, "precise_score", float("nan")), "{:.1%}"),
                 self.status(cand),
             )[col]
@@ -130,7 +148,7 @@ class MatchesPanel(QWidget):
     def __init__(self, session, reject_action, restore_action, parent=None) -> None:
         super().__init__(parent)
         self.setObjectName("matches_panel")
-        self.setMinimumWidth(340)
+        self.setMinimumWidth(240)
         self.session = session
         self.model = CandidateModel(session, self)
         self.table = QTableView()
@@ -172,6 +190,9 @@ class MatchesPanel(QWidget):
         session.matches_changed.connect(self._on_matches_changed)
         session.review_changed.connect(self._on_review_changed)
         session.selection_changed.connect(self._on_selection_changed)
+        # The verdict's next step changes once a result exists.
+        session.coarse_accepted.connect(lambda _c: self._show_coarse())
+        session.fine_finished.connect(lambda _f: self._show_coarse())
         for name in (
             "scan_loaded",
             "scans_swapped",
@@ -223,23 +244,26 @@ class MatchesPanel(QWidget):
 
     def _show_coarse(self) -> None:
         s = self.session
-        if not s.matches:
-            self.coarse_label.setText(
-                "No matches yet: run Match (Ctrl+3)."
-                if s.match_result is None
-                else "Matching found no candidate: " + s.coarse_message
-            )
+        if s.match_result is None:
+            self.coarse_label.setText("No matches yet: run Match (Ctrl+3).")
+            self.coarse_label.setStyleSheet("")
             return
+        verdict = s.verdict
         coarse = s.coarse
-        n_rej = len(s.rejected)
-        if coarse is None:
-            text = f"<b>No coarse solution</b>: {s.coarse_message}"
-        else:
-            rank = coarse.candidate.rank if coarse.candidate is not None else "-"
-            text = (
-                f"<b>Coarse solution: match #{rank}</b>, confidence "
-                f"{coarse.confidence:.0%}. {coarse.message}"
+        lines = []
+        if verdict is not None:
+            lines.append(
+                f"<b>{verdict.headline}</b>: {verdict.reason} "
+                f"<i>Next: {verdict.next_step}</i>"
             )
-        self.coarse_label.setText(
-            f"{text}<br>{len(s.matches)} candidates, {n_rej} rejected."
+        if coarse is not None:
+            lines.append(
+                f"Coarse solution: candidate #{coarse.candidate.rank}, confidence "
+                f"{coarse.confidence:.0%}."
+            )
+        lines.append(f"{len(s.matches)} candidates, {len(s.rejected)} rejected.")
+        self.coarse_label.setText("<br>".join(lines))
+        self.coarse_label.setToolTip(verdict.text() if verdict is not None else "")
+        self.coarse_label.setStyleSheet(
+            "" if verdict is None else verdict_style(verdict.status)
         )

@@ -15,38 +15,92 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui import steps
+from amrst_gui.panels.verdict_style import verdict_style
 
+# (key, name, kind, tooltip: what it is and what a good value looks like). One
+# format per kind everywhere (issue 13): distances in cm, fractions in %.
 _ROWS = (
     (
-        "rmse_m",
-        "RMSE (m)",
-        "RMS of source-to-target nearest-neighbour distances, all points",
+        "rmse_overlap_m",
+        "NN distance RMS, overlap",
+        "cm",
+        "RMS distance from each source point in the overlap to its nearest target "
+        "point. Good: about the scan noise, under 1-2 cm on bark. The figure to "
+        "judge fit by; it barely moves once the pose is right.",
     ),
-    ("rmse_overlap_m", "RMSE in overlap (m)", "The same, only points in the overlap"),
+    (
+        "overlap_fraction",
+        "Overlap",
+        "%",
+        "Share of source points with a target point within metrics.overlap_dist_m. "
+        "It says how much the scans share, not how right the pose is: two scans "
+        "from opposite sides of a tree share 30-60%.",
+    ),
+    (
+        "hausdorff_p95_m",
+        "NN distance, 95th pct.",
+        "cm",
+        "95% of source points lie closer than this to the target (either way). "
+        "Large when one scan sees branches the other does not; compare before and "
+        "after, do not judge it alone.",
+    ),
+    (
+        "rmse_m",
+        "NN distance RMS, all points",
+        "cm",
+        "The same RMS over all source points, also those the target never saw: "
+        "it can rise while the pose improves. Judge by the overlap RMS.",
+    ),
     (
         "hausdorff_m",
-        "Hausdorff (m)",
-        "Largest nearest-neighbour distance, either direction",
+        "Largest gap (Hausdorff)",
+        "cm",
+        "Largest nearest-neighbour distance either way: set by the one branch only "
+        "one scan sees. Not an error measure; shown for completeness.",
     ),
-    ("hausdorff_p95_m", "Hausdorff P95 (m)", "95th percentile of those distances"),
-    ("overlap_fraction", "Overlap", "Share of source points near a target point"),
-    ("confidence", "Confidence", "Coarse: how clearly the best candidate wins"),
-    ("iterations", "Iterations", "Fine: ICP iterations"),
-    ("fitness", "Fitness", "Fine: inlier share of the ICP"),
-    ("inlier_rmse_m", "Inlier RMSE (m)", "Fine: RMSE of the ICP inliers"),
-    ("converged", "Converged", "Fine: did the ICP converge"),
+    (
+        "confidence",
+        "Confidence",
+        "%",
+        "How clearly the chosen candidate beats the best different one. Good: 30% "
+        "or more; below it the verdict asks for a review.",
+    ),
+    ("iterations", "ICP iterations", "count", "Fine registration: iterations run."),
+    (
+        "fitness",
+        "ICP inlier share",
+        "%",
+        "Fine: share of the points ICP used (within its last correspondence "
+        "distance). Good: 30% or more on two-sided scans.",
+    ),
+    (
+        "inlier_rmse_m",
+        "ICP inlier RMSE",
+        "cm",
+        "Fine: RMS distance of the ICP's own inlier pairs (only those within its "
+        "correspondence distance), so smaller than the overlap RMS. Good: < 1 cm.",
+    ),
+    ("converged", "ICP converged", "bool", "Fine: did the ICP converge. Good: yes."),
     (
         "rotation_error_deg",
-        "Truth: rotation error (°)",
-        "Needs a truth file (File > Load truth)",
+        "Truth: rotation error",
+        "deg",
+        "Needs a truth file (File > Load truth). Good: < 0.1°; registered < 1°.",
     ),
-    ("translation_error_m", "Truth: translation error (m)", "Needs a truth file"),
+    (
+        "translation_error_m",
+        "Truth: translation error",
+        "cm",
+        "Error of the estimate at the source origin. Good: < 1 cm.",
+    ),
     (
         "gt_rmse_m",
-        "Truth: GT RMSE (m)",
-        "RMS distance between source points moved by the estimate and by the truth",
+        "Truth: point error RMS",
+        "cm",
+        "RMS distance between source points moved by the estimate and by the truth. "
+        "Good: < 1 cm; registered < 5 cm.",
     ),
-    ("registered", "Truth: registered", "rotation < 1° and GT RMSE < 5 cm"),
+    ("registered", "Truth: registered", "bool", "Rotation < 1° and point error < 5 cm"),
 )
 _STAGES = ("coarse", "fine")
 _SCANS = ("target", "source", "merged")
@@ -69,18 +123,25 @@ _TREE_ROWS = (
 )
 
 
-def _fmt(value) -> str:
+def _fmt(value, kind: str = "") -> str:
+    """One format per kind of quantity: cm with 2 decimals, % whole, ° 3 decimals."""
     if value is None:
         return ""
     if isinstance(value, bool):
         return "yes" if value else "NO"
-    if isinstance(value, int):
+    if isinstance(value, int) and kind in ("count", ""):
         return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "n/a"
-        return f"{value:.4f}" if abs(value) < 100 else f"{value:.1f}"
-    return str(value)
+    value = float(value)
+    if math.isnan(value):
+        return "n/a"
+    if kind == "cm":
+        cm = value * 100
+        return f"{cm:.2f} cm" if abs(cm) < 100 else f"{value:.2f} m"
+    if kind == "%":
+        return f"{value:.0%}"
+    if kind == "deg":
+        return f"{value:.3f}°"
+    return f"{value:g}"
 
 
 class MetricsPanel(QWidget):
@@ -94,16 +155,17 @@ class MetricsPanel(QWidget):
     def __init__(self, session, parent=None) -> None:
         super().__init__(parent)
         self.setObjectName("metrics_panel")
-        self.setMinimumWidth(340)
+        self.setMinimumWidth(280)
         self.session = session
         self.table = QTableWidget(len(_ROWS), len(_STAGES))
         self.table.setHorizontalHeaderLabels(["Coarse", "Fine"])
-        self.table.setVerticalHeaderLabels([label for _, label, _ in _ROWS])
-        for i, (_, _, tip) in enumerate(_ROWS):
+        self.table.setVerticalHeaderLabels([label for _, label, _, _ in _ROWS])
+        for i, (_, _, _, tip) in enumerate(_ROWS):
             self.table.verticalHeaderItem(i).setToolTip(tip)
         self.table.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.Stretch
         )
+        self.table.horizontalHeader().setMinimumSectionSize(90)
         self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.timings = QTableWidget(0, 1)
         self.timings.setHorizontalHeaderLabels(["Seconds"])
@@ -138,6 +200,10 @@ class MetricsPanel(QWidget):
         self.tabs.addTab(self.timings, "Time per stage")
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
+        self.verdict_label = QLabel("")
+        self.verdict_label.setObjectName("metrics_verdict")
+        self.verdict_label.setWordWrap(True)
+        layout.addWidget(self.verdict_label)
         layout.addWidget(self.tabs, 1)
         layout.addWidget(self.truth_label)
         for name in (
@@ -181,10 +247,20 @@ class MetricsPanel(QWidget):
         """Show the session's current numbers."""
         values = self.values()
         for col, stage in enumerate(_STAGES):
-            for row, (key, _, _) in enumerate(_ROWS):
-                self.table.setItem(
-                    row, col, QTableWidgetItem(_fmt(values[stage].get(key)))
-                )
+            for row, (key, _, kind, tip) in enumerate(_ROWS):
+                item = QTableWidgetItem(_fmt(values[stage].get(key), kind))
+                item.setToolTip(tip)
+                self.table.setItem(row, col, item)
+        verdict = self.session.verdict
+        if verdict is None:
+            self.verdict_label.setText("Verdict: none yet (run Match or Run all).")
+            self.verdict_label.setStyleSheet("")
+        else:
+            self.verdict_label.setText(
+                f"<b>Verdict: {verdict.headline}.</b> {verdict.reason}"
+            )
+            self.verdict_label.setStyleSheet(verdict_style(verdict.status))
+            self.verdict_label.setToolTip(verdict.text())
         s = self.session
         # A result the current parameters or review no longer describe says so.
         self.table.setHorizontalHeaderLabels(

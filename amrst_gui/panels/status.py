@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
 from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar, QWidget
 
 from amrst_gui import steps
+from amrst_gui.panels.verdict_style import verdict_style
 
 
 class WorkflowStatusBar(QStatusBar):
@@ -96,37 +96,30 @@ class WorkflowStatusBar(QStatusBar):
 
     def _on_matches_changed(self) -> None:
         n = len(self.session.matches)
-        self.show_message(
-            f"{n} candidate matches. Review them in the Matches dock, "
-            "then Accept coarse (Ctrl+4)."
+        self._show_verdict(
+            f"{n} candidates. Review them in the Matches dock, then Accept coarse "
+            "(Ctrl+4)."
         )
 
-    def _on_coarse_accepted(self, coarse) -> None:
-        warning = "" if coarse.verified else "UNVERIFIED: check the overlay. "
-        self.show_message(
-            f"Coarse solution accepted ({coarse.message}). {warning}"
-            "Next: Fine registration (Ctrl+5)."
-        )
+    def _on_coarse_accepted(self, _coarse) -> None:
+        self._show_verdict("Coarse solution accepted.")
 
     def _on_fine_finished(self, fine) -> None:
-        coarse = self.session.accepted_coarse
-        if not fine.converged or not np.isfinite(fine.inlier_rmse_m):
-            self.show_message(
-                f"Fine registration did NOT converge after {fine.iterations} "
-                "iterations: check the overlay, reject the match or try other "
-                "fine parameters before exporting."
-            )
-        elif coarse is not None and not coarse.verified:
-            self.show_message(
-                f"Fine registration converged (RMSE {fine.inlier_rmse_m:.4f} m), but "
-                f"from an UNVERIFIED coarse solution (confidence "
-                f"{coarse.confidence:.0%}): check the overlay before exporting."
-            )
-        else:
-            self.show_message(
-                f"Fine registration converged after {fine.iterations} iterations, "
-                f"RMSE {fine.inlier_rmse_m:.4f} m. Next: Export (Ctrl+E)."
-            )
+        # The ICP's own inlier RMSE, named so; the Metrics dock names the others.
+        self._show_verdict(
+            f"Fine registration: {fine.iterations} ICP iterations, ICP inlier RMSE "
+            f"{fine.inlier_rmse_m * 100:.2f} cm."
+        )
+
+    def _show_verdict(self, prefix: str) -> None:
+        if self.session.busy:
+            return  # a chain of steps: the last one speaks
+        verdict = self.session.verdict
+        if verdict is None:
+            self.show_message(prefix)
+            return
+        self.show_message(f"{prefix} {verdict.text()}")
+        self.message.setStyleSheet(verdict_style(verdict.status))
 
     def _on_exported(self, paths: list) -> None:
         folder = paths[0].parent if paths else ""

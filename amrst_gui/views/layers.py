@@ -94,6 +94,7 @@ class Scene:
     frame_key: tuple
     layers: tuple[Layer, ...] = ()
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    extra: dict = field(default_factory=dict)  # derived numbers panels show
 
     def names(self) -> set[str]:
         """The actor names of this scene."""

@@ -4,18 +4,27 @@ from __future__ import annotations
 
 from PySide6.QtWidgets import (
     QButtonGroup,
+    QComboBox,
     QHBoxLayout,
     QLabel,
+    QPushButton,
     QRadioButton,
     QVBoxLayout,
     QWidget,
 )
 
+from amrst_gui.views.bar_row import scrolling_row
+from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import REGISTRATION_STAGES, build_registration_scene
 
-_LABELS = {"before": "Before", "coarse": "After coarse", "fine": "After fine"}
+_LABELS = {
+    "before": "Before",
+    "coarse": "After coarse",
+    "fine": "After fine",
+    "manual": "Manual",
+}
 
 
 class RegistrationPane(QWidget):
@@ -47,14 +56,39 @@ class RegistrationPane(QWidget):
         self.buttons.button(0).setChecked(True)
         self.buttons.idToggled.connect(self._on_stage_toggled)
         bar.addStretch(1)
+        self.colour = QComboBox()
+        self.colour.addItem("Scan colours", "scans")
+        self.colour.addItem("Distance (cm)", "distance")
+        self.colour.setToolTip(
+            "Colour each point by its distance to the other scan (both ways), with "
+            "a histogram under the view: a right pose is blue (under 1-2 cm) "
+            "wherever both scans see the tree"
+        )
+        self.colour.currentIndexChanged.connect(lambda _i: self.refresh())
+        bar.addWidget(self.colour)
+        self.view_buttons = {}
+        for name, tip in (
+            ("Top", "Look down the stem"),
+            ("Front", "Look along y"),
+            ("Side", "Look along x"),
+        ):
+            look = QPushButton(name)
+            look.setToolTip(tip)
+            look.clicked.connect(lambda _=False, n=name: self.look(n))
+            bar.addWidget(look)
+            self.view_buttons[name] = look
         self.view = ScanView(self)
+        self.histogram = DistanceHistogram(self)
+        self.histogram.hide()
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        layout.addLayout(bar)
+        layout.addWidget(scrolling_row(bar))
         layout.addWidget(self.view, 1)
+        layout.addWidget(self.histogram)
         for name in RESULT_SIGNALS:
             slot = getattr(self, f"_on_{name}", self._on_results_changed)
             getattr(session, name).connect(slot)
+        session.manual_preview_changed.connect(self._on_manual_preview_changed)
 
     def set_stage(self, stage: str) -> None:
         """Show "before", "coarse" or "fine"."""
@@ -62,7 +96,20 @@ class RegistrationPane(QWidget):
 
     def refresh(self) -> None:
         """Rebuild the overlay from the session and draw it."""
-        self.view.update_scene(build_registration_scene(self.session, self.stage))
+        mode = self.colour.currentData()
+        scene = build_registration_scene(self.session, self.stage, colour=mode)
+        self.view.update_scene(scene)
+        self.histogram.setVisible(mode == "distance")
+        self.histogram.set_distances(scene.extra.get("distances", []))
+
+    def look(self, direction: str) -> None:
+        """Top, Front or Side view of the whole tree."""
+        p = self.view.plotter
+        {"Top": p.view_xy, "Front": p.view_xz, "Side": p.view_yz}[direction](
+            render=False
+        )
+        p.reset_camera(render=False, bounds=self.view._fit_bounds())
+        p.render()
 
     def _on_stage_toggled(self, index: int, checked: bool) -> None:
         if checked:
@@ -71,6 +118,10 @@ class RegistrationPane(QWidget):
 
     def _on_results_changed(self, *_args) -> None:
         self.refresh()
+
+    def _on_manual_preview_changed(self, T) -> None:
+        if self.stage == "manual":
+            self.refresh()
 
     def _on_fine_finished(self, _fine) -> None:
         self._show(stage="fine")

@@ -15,6 +15,7 @@ from amrst_gui.views.layers import (
     SpheresLayer,
     TextLayer,
 )
+from amrst_gui.views.picking import ClickPicker
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
@@ -35,6 +36,7 @@ class ScanView(QWidget):
     """
 
     camera_moved = Signal()
+    point_picked = Signal(int, object)  # index into pick_points, (3,) xyz
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -55,6 +57,14 @@ class ScanView(QWidget):
             self.plotter.iren.add_observer(
                 "EndInteractionEvent", self._on_interaction_ended
             )
+        self.picker = ClickPicker(self.plotter, self.point_picked.emit)
+
+    def set_picking(self, on: bool, points: np.ndarray | None = None) -> None:
+        """Let a left click pick (snap to) one of ``points`` (N, 3); emits
+        ``point_picked(index, xyz)``."""
+        self.picker.enabled = on
+        if points is not None:
+            self.picker.points = np.asarray(points)
 
     @property
     def scene(self) -> Scene | None:

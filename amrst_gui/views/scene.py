@@ -33,7 +33,17 @@ TETRA_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 TARGET_RGB = (240, 170, 40)  # registration view: target amber, source blue
 SOURCE_RGB = (60, 150, 255)
 COLOUR_MODES = ("height", "intensity", "wood")
-REGISTRATION_STAGES = ("before", "coarse", "fine")
+REGISTRATION_STAGES = ("before", "coarse", "fine", "manual")
+# Distance colouring: 0 cm dark blue ... DISTANCE_CLIP_M and beyond yellow/red.
+DISTANCE_CLIP_M = 0.10
+
+
+def distance_rgb(d: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colours of distances (m), turbo from 0 to DISTANCE_CLIP_M."""
+    from matplotlib import colormaps
+
+    t = np.clip(np.nan_to_num(np.asarray(d, float), nan=1e9) / DISTANCE_CLIP_M, 0, 1)
+    return (colormaps["turbo"](t)[:, :3] * 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -212,6 +222,11 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
                 "After coarse registration (proposed, not accepted)",
             )
         return None, f"No coarse solution yet. {session.coarse_message}"
+    if stage == "manual":
+        T = session.manual_preview
+        if T is not None:
+            return T, "Manual pose (preview: point pairs and nudge, Manual dock)"
+        return None, "No manual pose yet: pick point pairs or nudge (Manual dock)."
     fine = session.fine
     if fine is not None:
         return fine.T_target_source, f"After fine registration ({fine.method})"
@@ -219,9 +234,10 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
 
 
 def build_registration_scene(
-    session, stage: str, max_points: int = MAX_DISPLAY_POINTS
+    session, stage: str, max_points: int = MAX_DISPLAY_POINTS, colour: str = "scans"
 ) -> Scene:
-    """Target and moved source overlaid in two colours."""
+    """Target and moved source overlaid in two colours, or coloured by the distance
+    of each point to the other scan (``colour="distance"``)."""
     target, source = session.cloud("target"), session.cloud("source")
     if target is None or source is None:
         text = "Registration: open a target and a source scan."
@@ -239,17 +255,36 @@ def build_registration_scene(
             np.tile(np.array(TARGET_RGB, np.uint8), (len(t_xyz), 1)),
         )
     ]
+    legend = "amber: target (reference)   blue: source"
+    distances = np.zeros(0)
     if T is not None:
         s_xyz = moved_local(T, source.xyz[display_index(len(source), half)]).astype(
             np.float32
         )
-        key = ("source", Ref(source), half, T.tobytes())
+        key = ("source", Ref(source), half, T.tobytes(), colour)
         rgb = np.tile(np.array(SOURCE_RGB, np.uint8), (len(s_xyz), 1))
+        if colour == "distance":
+            from amrst.quality import nn_distances
+
+            d_s = nn_distances(s_xyz, t_xyz, 1.0)
+            d_t = nn_distances(t_xyz, s_xyz, 1.0)
+            rgb = distance_rgb(d_s)
+            layers[0] = PointsLayer(
+                "target_points",
+                ("target", Ref(target), half, T.tobytes(), colour),
+                t_xyz,
+                distance_rgb(d_t),
+            )
+            distances = np.concatenate([d_s, d_t])
+            legend = (
+                "colour: distance to the other scan, both ways "
+                "(blue 0 cm ... red 10 cm and more)"
+            )
         layers.append(PointsLayer("source_points", key, s_xyz, rgb))
-    legend = "amber: target (reference)   blue: source"
     layers.append(TextLayer("title", f"{caption}\n{legend}"))
     return Scene(
         frame_key=("registration", Ref(target)),
         layers=tuple(layers),
         center=t_xyz.mean(axis=0) if len(t_xyz) else np.zeros(3),
+        extra={"distances": distances},
     )

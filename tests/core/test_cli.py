@@ -128,6 +128,9 @@ def test_register_subprocess_writes_transform_and_truth_errors(
     assert np.asarray(doc["T_coarse"]).shape == (4, 4)
     assert doc["amrst_version"] == amrst.__version__
     metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
+    # One layout, from amrst.report.result_documents (issue 11).
+    assert doc["schema_version"] == metrics["schema_version"] == 2
+    assert doc["timings_s"]["read"] > 0
     truth = metrics["truth"]
     for stage in ("fine", "coarse"):
         assert {"rotation_error_deg", "translation_error_m", "gt_rmse_m"} <= set(
@@ -325,3 +328,14 @@ def test_closed_output_pipe_ends_quietly(sample_pair) -> None:
     assert "BrokenPipeError" not in text
     assert "Exception ignored" not in text
     assert proc.returncode == 1
+
+
+def test_a_file_system_refusal_is_one_line_not_an_internal_error(
+    capsys, tmp_path
+) -> None:
+    """Issue 16 corpus: a 300-character name gave "Internal error: OSError"."""
+    too_long = tmp_path / ("a" * 300 + ".ply")
+    assert main(["info", str(too_long)]) == EXIT_INPUT
+    line = _one_line_error(capsys.readouterr().err)
+    assert line.startswith("Error: File name too long")
+    assert "Internal error" not in line

@@ -330,3 +330,33 @@ def test_params_json_is_strict_json(tmp_path: Path, scans) -> None:
     assert "NaN" not in text
     json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in params.json"))
     assert np.isnan(load_params(tmp_path / "params.json").separate.intensity_threshold)
+
+
+def _no_constant(name: str) -> None:
+    raise AssertionError(f"not strict JSON: {name}")
+
+
+def test_output_json_is_strict_and_says_why_a_value_is_null(
+    tmp_path: Path, scans
+) -> None:
+    """Issue 16: an infinite truth error wrote ``Infinity`` (not JSON) to metrics.json."""
+    target, source, T = scans
+    metrics = {"truth": {"fine": {"translation_error_m": float("inf")}}, "ok": 1.0}
+    export_registration(
+        tmp_path,
+        target=target,
+        source=source,
+        T_target_source=T,
+        metrics=metrics,
+        parts=("metrics", "transform"),
+        transform_extra={"confidence": float("nan")},
+    )
+    for name in ("metrics.json", "transform.json"):
+        text = (tmp_path / name).read_text(encoding="utf-8")
+        # A strict parser: a bare NaN or Infinity fails the test.
+        doc = json.loads(text, parse_constant=_no_constant)
+        assert "null_values" in doc
+    doc = json.loads((tmp_path / "metrics.json").read_text(encoding="utf-8"))
+    assert doc["truth"]["fine"]["translation_error_m"] is None
+    assert doc["null_values"]["truth.fine.translation_error_m"].startswith("inf (")
+    assert doc["ok"] == 1.0

@@ -35,7 +35,9 @@ def _scans(n: int = 3, points: int = 400) -> tuple[list[Cloud], list[np.ndarray]
             Cloud(rng.normal(size=(points, 3)) * 4, attributes=attrs, name=f"s{k}")
         )
         R = Rotation.from_euler("zyx", [40 * k, 0.5 * k, -0.3 * k], degrees=True)
-        poses.append(make_transform(R.as_matrix(), GEO + np.array([3.0 * k, -2.0 * k, 0.1 * k])))
+        poses.append(
+            make_transform(R.as_matrix(), GEO + np.array([3.0 * k, -2.0 * k, 0.1 * k]))
+        )
     return scans, poses
 
 

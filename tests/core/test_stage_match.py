@@ -175,10 +175,10 @@ def test_kabsch_never_returns_a_reflection() -> None:
 def test_combinations4_matches_itertools(n) -> None:
     import itertools
 
-    from amrst.stages.match import _combinations4
+    from amrst.geometry import combinations4
 
     expected = np.array(list(itertools.combinations(range(n), 4)))
-    np.testing.assert_array_equal(_combinations4(n), expected)
+    np.testing.assert_array_equal(combinations4(n), expected)
 
 
 def test_descriptor_pairs_agree_with_brute_force() -> None:

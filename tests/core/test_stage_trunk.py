@@ -138,7 +138,7 @@ def test_trunk_search_does_not_run_when_a_match_verifies(sample_run) -> None:
 
 
 def test_contenders_are_the_best_and_those_close_to_it() -> None:
-    from amrst.stages.trunk import trunk_contenders
+    from amrst.stages.trunk_merge import trunk_contenders
 
     assert trunk_contenders(np.array([0.004, 0.0067, 0.002]), 0.5) == [1, 0]
     assert trunk_contenders(np.array([0.004, 0.0067, 0.002]), 1.0) == [1]

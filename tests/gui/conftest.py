@@ -63,6 +63,29 @@ def discard_answers(monkeypatch):
     return answers
 
 
+@pytest.fixture(autouse=True)
+def override_answers(monkeypatch):
+    """The export-override question never blocks: it answers from this list.
+
+    Append True to export anyway; every verdict asked about is recorded in
+    ``override_answers.asked``. With the list empty the answer is Cancel.
+    """
+    from amrst_gui import dialogs
+
+    class Answers(list):
+        asked: list
+
+    answers = Answers()
+    answers.asked = []
+
+    def answer(_parent, verdict) -> bool:
+        answers.asked.append(verdict)
+        return answers.pop(0) if answers else False
+
+    monkeypatch.setattr(dialogs, "confirm_override", answer)
+    return answers
+
+
 @pytest.fixture(scope="session")
 def sample_pair():
     """The bundled sample: (target, source, truth) paths from resources/sample."""

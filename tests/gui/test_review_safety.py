@@ -56,9 +56,7 @@ def test_a_truth_file_belongs_to_the_scans_it_came_with(fresh, sample_pair):
     s.load_truth(truth)
     assert s.truth is not None
     # Loaded right after the scans were asked for (as open_pair does): kept.
-    assert not _run(
-        s, lambda: (s.load_scans(target, source), s.load_truth(truth))
-    )
+    assert not _run(s, lambda: (s.load_scans(target, source), s.load_truth(truth)))
     assert s.truth is not None
     # Another scan opened later: the old truth no longer describes the pair.
     assert not _run(s, lambda: s.load_scan("source", target))

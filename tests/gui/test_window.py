@@ -9,6 +9,7 @@ DOCKS = (
     "parameters_dock",
     "matches_dock",
     "metrics_dock",
+    "manual_dock",
     "log_dock",
     "campaign_dock",
 )

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from PySide6.QtCore import Qt
 
+from amrst_gui.panels.matches_panel import CLOSE_COLUMN, COLUMNS
+
 
 def test_full_workflow_review_accept_refine_export(
     loaded_window, qtbot, finish, tmp_path, content_fraction
@@ -28,8 +30,10 @@ def test_full_workflow_review_accept_refine_export(
     assert len(ranked) >= 2
     assert win.matches_panel.model.rowCount() == len(ranked)
     model = win.matches_panel.model
-    assert model.data(model.index(0, 6)) == "—"  # close fit: trunk solutions only
-    assert win.matches_panel.table.isColumnHidden(6)  # ... so the column is hidden
+    assert model.data(model.index(0, CLOSE_COLUMN)) == "—"  # trunk solutions only
+    assert win.matches_panel.table.isColumnHidden(
+        CLOSE_COLUMN
+    )  # ... so the column is hidden
 
     # The best match is selected and drawn in both views, same vertex colours.
     assert s.selected_match.id == ranked[0].id
@@ -154,11 +158,13 @@ def test_trunk_search_candidates_in_the_app(loaded_window, qtbot, finish) -> Non
     assert ranked
     assert all(c.origin == "trunk" for c in ranked)
     model = win.matches_panel.model
-    assert model.data(model.index(0, 3)) == "trunk"  # the volume column
-    assert model.data(model.index(0, 4)) == "—"
+    assert model.data(model.index(0, COLUMNS.index("From"))) == "trunk"
+    assert model.data(model.index(0, COLUMNS.index("Vol. m³"))) == "—"
     # The close-fit share that orders the headings is shown, best first.
-    assert not win.matches_panel.table.isColumnHidden(6)
-    close = [float(model.data(model.index(r, 6)).rstrip("%")) for r in range(3)]
+    assert not win.matches_panel.table.isColumnHidden(CLOSE_COLUMN)
+    close = [
+        float(model.data(model.index(r, CLOSE_COLUMN)).rstrip("%")) for r in range(3)
+    ]
     assert close == sorted(close, reverse=True)
     assert close[0] == pytest.approx(100 * ranked[0].precise_score, abs=0.05)
     for view in win.scans_area.views():

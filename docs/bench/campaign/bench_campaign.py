@@ -132,7 +132,7 @@ def workers() -> None:
     equal_alone = {k: alone.get(k) == v for k, v in (ref or {}).items()}
 
     def rate(n: int) -> float:
-        mine = [r for r, k in zip(runs, (1, 2, 1, 2)) if k == n]
+        mine = [r for r, k in zip(runs, (1, 2, 1, 2), strict=True) if k == n]
         return 3600 * sum(r["registered"] for r in mine) / sum(r["seconds_running"] for r in mine)  # type: ignore[misc]
 
     record(
@@ -155,7 +155,7 @@ def external() -> None:
     ref = transforms(CAMP / "results")
     file = WORK / "scheduler.json"
     file.unlink(missing_ok=True)
-    logs = [open(WORK / f"ext{i}.log", "w") for i in range(3)]
+    logs = [open(WORK / f"ext{i}.log", "w") for i in range(3)]  # noqa: SIM115 - closed below
     procs = [subprocess.Popen([PY, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(file)], env=ENV, stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True)]
     try:
         while not file.is_file():
@@ -185,7 +185,7 @@ def kill() -> None:
     rounds = []
     for _ in range(3):
         before = {p.parent.name for p in (CAMP / "results").glob("*/stamp.json")} if (CAMP / "results").is_dir() else set()
-        log = open(WORK / "kill.log", "a")
+        log = open(WORK / "kill.log", "a")  # noqa: SIM115 - closed below
         p = subprocess.Popen([PY, "-m", "amrst.cli", "batch", str(CAMP), "--workers", "2", "--quiet"], env=ENV, stdout=log, stderr=subprocess.STDOUT)
         wait = rng.uniform(8.0, 30.0)
         time.sleep(wait)
@@ -224,7 +224,7 @@ def fourscan() -> None:
         if len(tree) > 150_000:
             tree = tree.select(np.random.default_rng(0).choice(len(tree), 150_000, replace=False))
         sim = simulate_scans(tree, 4, seed=100 + k)
-        seps = [round((b["azimuth_deg"] - a["azimuth_deg"]) % 360) for a, b in zip(sim.specs, sim.specs[1:])]
+        seps = [round((b["azimuth_deg"] - a["azimuth_deg"]) % 360) for a, b in zip(sim.specs, sim.specs[1:], strict=False)]
         t0 = time.perf_counter()
         res = register_scans(sim.scans, 0)
         secs = time.perf_counter() - t0
@@ -241,7 +241,7 @@ def fourscan() -> None:
             per.append({"rot_deg": round(e.rotation_error_deg, 4), "trans_cm": round(100 * e.translation_error_m, 2), "gt_rmse_cm": round(100 * e.gt_rmse_m, 3), "pairwise_gt_rmse_cm": round(100 * et.gt_rmse_m, 3), "path": res.paths[s]})
         ok = all(p.get("reached", True) and p["rot_deg"] < 1 and p["trans_cm"] < 5 for p in per)
         # worst link: the relative transform of every pair of scans vs the truth
-        def worst(poses):
+        def worst(poses, truth=truth, sim=sim):
             out = 0.0
             for a in range(4):
                 for b in range(a + 1, 4):
@@ -251,7 +251,7 @@ def fourscan() -> None:
                     tru = np.linalg.inv(truth[a]) @ truth[b]
                     out = max(out, truth_errors(est, tru, sim.scans[b].xyz).gt_rmse_m)
             return 100 * out
-        rows.append({"tree": rel, "separations_deg": seps, "ok": ok, "scans": per, "links_verified": sum(l.verified for l in res.links), "worst_link_gt_rmse_cm_joint": round(worst(res.T_reference_scan), 3), "worst_link_gt_rmse_cm_pairwise": round(worst(res.T_tree), 3), "joint_kept": None if res.joint is None else res.joint.kept, "seconds": round(secs, 1)})
+        rows.append({"tree": rel, "separations_deg": seps, "ok": ok, "scans": per, "links_verified": sum(link.verified for link in res.links), "worst_link_gt_rmse_cm_joint": round(worst(res.T_reference_scan), 3), "worst_link_gt_rmse_cm_pairwise": round(worst(res.T_tree), 3), "joint_kept": None if res.joint is None else res.joint.kept, "seconds": round(secs, 1)})
         print(rows[-1])
     record(
         "four_scan",

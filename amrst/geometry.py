@@ -1,0 +1,51 @@
+"""Small geometric solvers shared by the stages and the app's manual alignment."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched least-squares rigid fit dst ≈ R src + t.
+
+    Parameters
+    ----------
+    src, dst : (B, K, 3) float64
+
+    Returns
+    -------
+    (B, 4, 4) transforms and (B,) RMS residuals (m).
+    """
+    cs, cd = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)
+    h = np.einsum("bki,bkj->bij", src - cs, dst - cd)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", u, vt)))
+    fix = np.ones((len(src), 3))
+    fix[:, 2] = d
+    R = np.einsum("bji,bj,bkj->bik", vt, fix, u)  # V diag(1,1,d) U^T
+    t = cd[:, 0] - np.einsum("bij,bj->bi", R, cs[:, 0])
+    out = np.tile(np.eye(4), (len(src), 1, 1))
+    out[:, :3, :3], out[:, :3, 3] = R, t
+    moved = np.einsum("bij,bkj->bki", R, src) + t[:, None]
+    res = np.sqrt(np.mean(np.sum((moved - dst) ** 2, axis=2), axis=1))
+    return out, res
+
+
+@functools.lru_cache(maxsize=4)
+def combinations4(n: int) -> np.ndarray:
+    """(C(n,4), 4) int64 all index quadruples i<j<k<l, in lexicographic order.
+
+    Cached (read-only): both scans usually have the same number of key points.
+    """
+    pairs = np.column_stack(np.triu_indices(n, 1))  # (i, j), i < j
+    out = []
+    for i, j in pairs:  # at most C(n,2) small blocks, each vectorised
+        if j >= n - 2:
+            continue
+        kl = pairs[pairs[:, 0] > j]
+        out.append(np.column_stack([np.full(len(kl), i), np.full(len(kl), j), kl]))
+    quads = np.concatenate(out) if out else np.zeros((0, 4), dtype=np.int64)
+    quads.setflags(write=False)
+    return quads

@@ -1,0 +1,218 @@
+"""One verdict per registration: registered, needs review, or failed (issue 13).
+
+The command line, the app's status bar, Matches header and Metrics dock, the exported
+files and the report all say the same words, because they all call :func:`judge`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from amrst.stages.coarse import Candidate, CoarseResult
+    from amrst.stages.fine import FineResult
+
+REGISTERED = "registered"
+NEEDS_REVIEW = "needs review"
+FAILED = "failed"
+STATUSES = (REGISTERED, NEEDS_REVIEW, FAILED)
+
+# Below this confidence a verified winner still needs a look (the runner-up is close).
+LOW_CONFIDENCE = 0.3
+
+# The way out when no candidate verifies, for the CLI and the app alike.
+RECOVER = (
+    "Check that both scans show the same tree; review the candidates in amrst-gui's "
+    "Matches dock or recover the pose by hand there (point pairs, nudge, or a typed "
+    'transform); or try the preset "Leaf-on broadleaf" or a larger edge tolerance.'
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """What a technician must know about one registration.
+
+    Attributes
+    ----------
+    status : str
+        ``"registered"``, ``"needs review"`` or ``"failed"``.
+    reason : str
+        Why, in plain words, with the numbers that decided it.
+    next_step : str
+        What to do next.
+    """
+
+    status: str
+    reason: str
+    next_step: str
+
+    @property
+    def ok(self) -> bool:
+        """True only for *registered*: safe to use without a second look."""
+        return self.status == REGISTERED
+
+    @property
+    def headline(self) -> str:
+        """``Registered``, ``Needs review`` or ``Failed``."""
+        return self.status[0].upper() + self.status[1:]
+
+    def text(self) -> str:
+        """One paragraph: headline, reason, next step."""
+        return f"{self.headline}: {self.reason} Next: {self.next_step}"
+
+    def as_dict(self) -> dict[str, str]:
+        """JSON-ready form, for the exported files."""
+        return {
+            "status": self.status,
+            "reason": self.reason,
+            "next_step": self.next_step,
+        }
+
+
+def _why_unverified(
+    best: Candidate,
+    runner_up_score: float,
+    tight_dist_m: float,
+    score_dist_m: float,
+    trunk_searched: bool,
+) -> str:
+    """Say why a candidate did not verify (the words the CLI has always printed)."""
+    if best.origin == "trunk":
+        versus = (
+            f"against {runner_up_score:.0%} within {tight_dist_m * 100:.0f} cm "
+            "for the next heading, which is not a clear lead"
+            if runner_up_score > 0
+            else "with no other heading to compare it with"
+        )
+        return (
+            f"The best solution comes from the trunk heading search: "
+            f"{best.precise_score:.0%} of the sampled source points lie within "
+            f"{score_dist_m * 100:.1f} cm of the target, {versus} (a round or "
+            "symmetric stem, or scans that share little, fit several headings "
+            "equally well)."
+        )
+    what = "Your manual pose" if best.origin == "manual" else "The best solution"
+    return (
+        f"{what} puts only {best.score:.0%} of the sampled source points within "
+        f"{tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or more on "
+        "the benchmark)"
+        + (
+            ", and the trunk heading search found no heading that clearly beats the "
+            "others."
+            if trunk_searched and best.origin != "manual"
+            else "."
+        )
+    )
+
+
+def judge(
+    coarse: CoarseResult | None,
+    *,
+    candidates: Sequence[Candidate] = (),
+    no_coarse_message: str = "",
+    fine: FineResult | None = None,
+    tight_dist_m: float = 0.04,
+    score_dist_m: float = 0.015,
+    trunk_searched: bool = False,
+) -> Verdict:
+    """Judge a registration from its coarse choice and (optionally) its fine result.
+
+    Parameters
+    ----------
+    coarse : CoarseResult or None
+        The chosen coarse solution; None when no candidate is left.
+    candidates : sequence of Candidate
+        Every candidate (to tell "none found" from "all rejected").
+    no_coarse_message : str
+        Why there is no coarse solution (shown when ``coarse`` is None).
+    fine : FineResult or None
+        The fine registration, when it ran.
+    tight_dist_m, score_dist_m : float
+        Distances of the verification scores (coarse.tight_dist_m,
+        trunk.score_dist_m), named in the reason.
+    trunk_searched : bool
+        Whether the trunk heading search ran.
+
+    Returns
+    -------
+    Verdict
+    """
+    if coarse is None:
+        if candidates:
+            return Verdict(
+                FAILED,
+                "Every candidate is rejected, so there is no pose to use.",
+                "Restore a candidate, or recover the pose by hand (point pairs, "
+                "nudge, or a typed transform).",
+            )
+        return Verdict(
+            FAILED,
+            no_coarse_message or "Matching found no candidate.",
+            RECOVER,
+        )
+    best = coarse.candidate
+    if not coarse.verified:
+        why = _why_unverified(
+            best, coarse.runner_up_score, tight_dist_m, score_dist_m, trunk_searched
+        )
+        if best.origin == "manual":
+            # The technician's own pose: it may well be right, but nothing confirms it.
+            return Verdict(
+                NEEDS_REVIEW,
+                why,
+                "Check the overlay, the distance colours and the stem slices; run Fine "
+                "registration and look again, or refine the point pairs.",
+            )
+        return Verdict(FAILED, f"No candidate verifies. {why}", RECOVER)
+    if fine is not None and not fine.converged:
+        return Verdict(
+            NEEDS_REVIEW,
+            f"Fine registration did not converge after {fine.iterations} iterations.",
+            "Check the overlay; reject the candidate or try other fine parameters.",
+        )
+    if coarse.confidence < LOW_CONFIDENCE:
+        return Verdict(
+            NEEDS_REVIEW,
+            f"Low confidence ({coarse.confidence:.0%}): {coarse.message}",
+            "Compare the top candidates in the overlay and reject the wrong ones.",
+        )
+    source = {
+        "manual": "your manual pose",
+        "trunk": "the trunk heading search",
+    }.get(best.origin, "the tetrahedron matches")
+    reason = (
+        f"Candidate {best.rank} from {source} verifies: {best.score:.0%} of the "
+        f"sampled source points lie within {tight_dist_m * 100:.0f} cm of the target, "
+        f"confidence {coarse.confidence:.0%}."
+    )
+    nxt = (
+        "Nothing more is needed; the stem slices of the report confirm it at a glance."
+        if fine is not None
+        else "Run Fine registration, then export."
+    )
+    return Verdict(REGISTERED, reason, nxt)
+
+
+def judge_result(result: Any, params: Any) -> Verdict:
+    """Judge a finished ``amrst.pipeline.RegistrationResult``.
+
+    Parameters
+    ----------
+    result : RegistrationResult
+    params : RegistrationParams
+
+    Returns
+    -------
+    Verdict
+    """
+    return judge(
+        result.coarse,
+        candidates=result.matches.candidates,
+        fine=result.fine,
+        tight_dist_m=params.coarse.tight_dist_m,
+        score_dist_m=params.trunk.score_dist_m,
+        trunk_searched="trunk" in result.timings,
+    )

@@ -1,0 +1,413 @@
+"""ManualPanel: recover the pose by hand when matching fails (issue 13).
+
+Point pairs picked in the two scan views (each click snaps to the nearest point), a
+nudge (turn about the vertical, shift) with a live verification score, or a typed or
+loaded 4x4 transform. Each makes a candidate of origin "manual" through
+``session.add_manual_pose``; Accept coarse and Fine then start from it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QCheckBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QGridLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QPlainTextEdit,
+    QPushButton,
+    QScrollArea,
+    QSlider,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from amrst import manual
+from amrst.errors import InvalidInput
+from amrst.types import local_transform, rotation_angle_deg
+
+_PAIR_COLUMNS = ("#", "Target point (m)", "Source point (m)", "Residual")
+
+
+def _xyz(p) -> str:
+    return f"{p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}"
+
+
+class ManualPanel(QScrollArea):
+    """Point pairs, nudge and typed transform.
+
+    Listens to the views' ``point_picked`` and the session's ``scan_loaded``,
+    ``scans_swapped``, ``matches_changed`` and ``selection_changed``; calls
+    ``session.add_manual_pose`` and ``session.set_manual_preview``.
+    """
+
+    pairs_changed = Signal()
+
+    def __init__(self, session, target_view, source_view, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("manual_panel")
+        self.setWidgetResizable(True)
+        self.session = session
+        self.views = {"target": target_view, "source": source_view}
+        self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
+        self._undo: list[list] = []
+        self._pending: np.ndarray | None = None  # a target point waiting for its pair
+        self.fit: manual.PairFit | None = None
+        self._score_cache: tuple | None = None
+        body = QWidget()
+        layout = QVBoxLayout(body)
+        layout.setContentsMargins(4, 4, 4, 4)
+        layout.addWidget(self._pairs_box())
+        layout.addWidget(self._nudge_box())
+        layout.addWidget(self._typed_box())
+        layout.addStretch(1)
+        self.setWidget(body)
+        for view in self.views.values():
+            view.point_picked.connect(self._on_point_picked)
+        for name in ("scan_loaded", "scans_swapped"):
+            getattr(session, name).connect(self._on_scans_changed)
+        for name in ("matches_changed", "selection_changed", "coarse_accepted"):
+            getattr(session, name).connect(self._on_base_changed)
+        self._show_pairs()
+
+    # ------------------------------------------------------------- building
+    def _pairs_box(self) -> QGroupBox:
+        box = QGroupBox("Point pairs")
+        grid = QVBoxLayout(box)
+        self.pick_button = QPushButton("Pick point pairs")
+        self.pick_button.setCheckable(True)
+        self.pick_button.setToolTip(
+            "Click a point in the target view, then the same point in the source "
+            "view (Scans tab); each click snaps to the nearest scan point. Drag to "
+            "turn the view as usual."
+        )
+        self.pick_button.toggled.connect(self.set_picking)
+        self.levelled = QCheckBox("Levelled: turn about the vertical + shift only")
+        self.levelled.setChecked(True)
+        self.levelled.setToolTip(
+            "For scans levelled in the field: 2 pairs are enough and the fit cannot "
+            "tilt the tree. Off: a full rotation from 3 or more pairs."
+        )
+        self.levelled.toggled.connect(lambda _on: self._show_pairs())
+        self.hint = QLabel("")
+        self.hint.setWordWrap(True)
+        self.table = QTableWidget(0, len(_PAIR_COLUMNS))
+        self.table.setObjectName("pairs_table")
+        self.table.setHorizontalHeaderLabels(list(_PAIR_COLUMNS))
+        header_item = self.table.horizontalHeaderItem(3)
+        assert header_item is not None
+        header_item.setToolTip(
+            "Distance between the target point and its source point moved by the fit. "
+            "Good: about the point spacing (1-3 cm); a pair far above the others was "
+            "mis-picked: delete it."
+        )
+        self.table.verticalHeader().hide()
+        self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.ResizeToContents
+        )
+        self.table.setMinimumHeight(110)
+        buttons = QHBoxLayout()
+        self.delete_button = QPushButton("Delete pair")
+        self.delete_button.clicked.connect(self.delete_selected)
+        self.undo_button = QPushButton("Undo")
+        self.undo_button.clicked.connect(self.undo)
+        self.use_pairs = QPushButton("Use as candidate")
+        self.use_pairs.setToolTip(
+            "Add the fitted pose to the Matches list (origin manual), verified like "
+            "the others; then Accept coarse and Fine start from it."
+        )
+        self.use_pairs.clicked.connect(self.use_pair_fit)
+        for b in (self.delete_button, self.undo_button, self.use_pairs):
+            buttons.addWidget(b)
+        self.fit_label = QLabel("")
+        self.fit_label.setWordWrap(True)
+        for w in (self.pick_button, self.levelled, self.hint, self.table):
+            grid.addWidget(w)
+        grid.addLayout(buttons)
+        grid.addWidget(self.fit_label)
+        return box
+
+    def _nudge_box(self) -> QGroupBox:
+        box = QGroupBox("Nudge the source")
+        grid = QGridLayout(box)
+        self.yaw = QDoubleSpinBox()
+        self.yaw.setRange(-180, 180)
+        self.yaw.setSuffix(" °")
+        self.yaw.setDecimals(1)
+        self.yaw.setToolTip("Turn the source about the vertical through its stem")
+        self.yaw_slider = QSlider(Qt.Orientation.Horizontal)
+        self.yaw_slider.setRange(-180, 180)
+        self.yaw_slider.valueChanged.connect(lambda v: self.yaw.setValue(float(v)))
+        self.yaw.valueChanged.connect(self._on_nudged)
+        grid.addWidget(QLabel("Turn:"), 0, 0)
+        grid.addWidget(self.yaw, 0, 1)
+        grid.addWidget(self.yaw_slider, 0, 2)
+        self.shift: list[QDoubleSpinBox] = []
+        for i, axis in enumerate("xyz"):
+            spin = QDoubleSpinBox()
+            spin.setRange(-5000, 5000)
+            spin.setSingleStep(5)
+            spin.setSuffix(" cm")
+            spin.setToolTip(f"Move the source along {axis} (target frame)")
+            spin.valueChanged.connect(self._on_nudged)
+            grid.addWidget(QLabel(f"Move {axis}:"), 1 + i, 0)
+            grid.addWidget(spin, 1 + i, 1)
+            self.shift.append(spin)
+        self.score_label = QLabel("")
+        self.score_label.setObjectName("nudge_score")
+        self.score_label.setWordWrap(True)
+        self.score_label.setToolTip(
+            "Share of sampled source points within 4 cm of the target under the "
+            "nudged pose (no polish). A right pose scores 45% or more."
+        )
+        self.use_nudge = QPushButton("Use nudged pose")
+        self.use_nudge.clicked.connect(self.use_nudged)
+        grid.addWidget(self.score_label, 4, 0, 1, 3)
+        grid.addWidget(self.use_nudge, 5, 0, 1, 3)
+        return box
+
+    def _typed_box(self) -> QGroupBox:
+        box = QGroupBox("Type or load a transform")
+        lay = QVBoxLayout(box)
+        self.text = QPlainTextEdit()
+        self.text.setPlaceholderText(
+            "4 rows of 4 numbers (world T_target_source, as transform.txt), or the "
+            "JSON of transform.json"
+        )
+        self.text.setMaximumHeight(90)
+        row = QHBoxLayout()
+        load = QPushButton("Load file…")
+        load.clicked.connect(self._load_dialog)
+        self.use_typed = QPushButton("Use typed transform")
+        self.use_typed.clicked.connect(self.use_typed_transform)
+        row.addWidget(load)
+        row.addWidget(self.use_typed)
+        lay.addWidget(self.text)
+        lay.addLayout(row)
+        return box
+
+    # --------------------------------------------------------------- pairs
+    def set_picking(self, on: bool) -> None:
+        """Let clicks in the scan views pick pairs."""
+        if self.pick_button.isChecked() != on:
+            self.pick_button.setChecked(on)
+            return
+        s = self.session
+        for role, view in self.views.items():
+            cloud = s.cloud(role)
+            view.set_picking(on, None if cloud is None else cloud.xyz)
+        self._pending = None
+        self._show_pairs()
+
+    def _on_point_picked(self, _index: int, xyz) -> None:
+        view = self.sender()
+        role = next((r for r, v in self.views.items() if v is view), None)
+        if role == "target":
+            self._pending = np.asarray(xyz, float)
+        elif role == "source" and self._pending is not None:
+            self._undo.append(list(self.pairs))
+            self.pairs.append((self._pending, np.asarray(xyz, float)))
+            self._pending = None
+            self._score_cache = None
+        self._show_pairs()
+
+    def add_pair(self, target_xyz, source_xyz) -> None:
+        """Add one pair (local coordinates of each scan)."""
+        self._undo.append(list(self.pairs))
+        self.pairs.append(
+            (np.asarray(target_xyz, float), np.asarray(source_xyz, float))
+        )
+        self._show_pairs()
+
+    def delete_selected(self) -> None:
+        rows = sorted({i.row() for i in self.table.selectedIndexes()}, reverse=True)
+        if not rows and self.pairs:
+            rows = [len(self.pairs) - 1]
+        if rows:
+            self._undo.append(list(self.pairs))
+            for r in rows:
+                del self.pairs[r]
+            self._show_pairs()
+
+    def undo(self) -> None:
+        if self._undo:
+            self.pairs = self._undo.pop()
+            self._show_pairs()
+
+    def _show_pairs(self) -> None:
+        self.fit = None
+        need = 2 if self.levelled.isChecked() else 3
+        if len(self.pairs) >= need:
+            t = np.array([p[0] for p in self.pairs])
+            s = np.array([p[1] for p in self.pairs])
+            try:
+                self.fit = manual.fit_pairs(t, s, self.levelled.isChecked())
+            except InvalidInput as exc:
+                self.fit_label.setText(str(exc))
+        self.table.setRowCount(len(self.pairs))
+        for i, (tp, sp) in enumerate(self.pairs):
+            res = "" if self.fit is None else f"{self.fit.residuals_m[i] * 100:.1f} cm"
+            for j, text in enumerate((str(i + 1), _xyz(tp), _xyz(sp), res)):
+                self.table.setItem(i, j, QTableWidgetItem(text))
+        if self.fit is not None:
+            T = self.fit.T_target_source
+            self.fit_label.setText(
+                f"Fit of {len(self.pairs)} pairs: residual RMS "
+                f"{self.fit.rmse_m * 100:.1f} cm; turn "
+                f"{rotation_angle_deg(T[:3, :3]):.1f}°, shift "
+                f"{np.linalg.norm(T[:3, 3]):.2f} m. The overlay's Manual view shows it."
+            )
+        elif len(self.pairs) < need:
+            self.fit_label.setText(f"{len(self.pairs)} of {need} pairs needed.")
+        if self.pick_button.isChecked():
+            self.hint.setText(
+                "Now click the same point in the SOURCE view."
+                if self._pending is not None
+                else "Click a point in the TARGET view (Scans tab)."
+            )
+        else:
+            self.hint.setText("")
+        self.use_pairs.setEnabled(self.fit is not None)
+        self.delete_button.setEnabled(bool(self.pairs))
+        self.undo_button.setEnabled(bool(self._undo))
+        self._reset_nudge()
+        self.pairs_changed.emit()
+
+    def use_pair_fit(self) -> None:
+        if self.fit is not None:
+            how = f"{len(self.pairs)} point pairs" + (
+                ", levelled" if self.fit.levelled else ""
+            )
+            self.session.add_manual_pose(self.fit.T_target_source, how)
+
+    # --------------------------------------------------------------- nudge
+    def base_pose(self) -> np.ndarray | None:
+        """The pose the nudge starts from: the pair fit, else the shown candidate."""
+        if self.fit is not None:
+            return self.fit.T_target_source
+        s = self.session
+        for cand in (s.selected_match, s.coarse and s.coarse.candidate):
+            if cand:
+                return np.asarray(cand.T_target_source)
+        return None
+
+    def nudged_pose(self) -> np.ndarray | None:
+        """The base pose turned and moved by the nudge controls."""
+        base = self.base_pose()
+        if base is None:
+            return None
+        return manual.nudge(
+            base,
+            self.yaw.value(),
+            (
+                self.shift[0].value() / 100,
+                self.shift[1].value() / 100,
+                self.shift[2].value() / 100,
+            ),
+            pivot=self._pivot(base),
+        )
+
+    def _pivot(self, base: np.ndarray) -> np.ndarray:
+        # The source's stem, moved: its lowest metre of points, in the target frame.
+        cloud = self.session.cloud("source")
+        if cloud is None or not len(cloud):
+            return np.zeros(3)
+        xyz = cloud.xyz[:: max(1, len(cloud) // 20000)]
+        low = xyz[xyz[:, 2] < xyz[:, 2].min() + 1.0]
+        c = low.mean(axis=0)
+        return np.asarray(base[:3, :3] @ c + base[:3, 3])
+
+    def _reset_nudge(self) -> None:
+        for w in (self.yaw, *self.shift):
+            w.blockSignals(True)
+            w.setValue(0.0)
+            w.blockSignals(False)
+        self.yaw_slider.blockSignals(True)
+        self.yaw_slider.setValue(0)
+        self.yaw_slider.blockSignals(False)
+        self._on_nudged()
+
+    def _on_nudged(self, *_args) -> None:
+        T = self.nudged_pose()
+        self.session.set_manual_preview(T)
+        self.use_nudge.setEnabled(T is not None)
+        if T is None:
+            self.score_label.setText("Nothing to nudge yet: pick pairs or match.")
+            return
+        self.score_label.setText(
+            f"Score of this pose: {self.live_score(T):.0%} of sampled source points "
+            "within 4 cm of the target."
+        )
+
+    def live_score(self, T: np.ndarray) -> float:
+        """Tight share of the nudged pose, on the verification's sample."""
+        s = self.session
+        key = (id(s.analysis("target")), id(s.cloud("target")), id(s.cloud("source")))
+        if self._score_cache is None or self._score_cache[0] != key:
+            from scipy.spatial import cKDTree
+
+            from amrst.stages.coarse import verification_sample
+
+            tgt, src = (
+                (s.analysis(r).xyz if s.analysis(r) is not None else s.cloud(r).xyz)
+                for r in ("target", "source")
+            )
+            sample, _ = verification_sample(src, s.params.coarse)
+            self._score_cache = (key, cKDTree(tgt), sample)
+        _, tree, sample = self._score_cache
+        return manual.tight_share(T, tree, sample, s.params.coarse.tight_dist_m)
+
+    def use_nudged(self) -> None:
+        T = self.nudged_pose()
+        if T is not None:
+            self.session.add_manual_pose(T, f"nudged {self.yaw.value():+.1f}°")
+
+    # ----------------------------------------------------------- transform
+    def _load_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(
+            self, "Load a transform", "", "Transform (*.json *.txt);;All files (*)"
+        )
+        if path:
+            try:
+                self.text.setPlainText(Path(path).read_text())
+            except OSError as exc:
+                self.session.report_error(f"Could not read {path}: {exc}")
+
+    def use_typed_transform(self) -> None:
+        """Parse the text as a world T_target_source and add it as a candidate."""
+        s = self.session
+        if not s.has_scans:
+            s.report_error("Open a target and a source scan first (File > Open).")
+            return
+        try:
+            T_world = manual.parse_transform(self.text.toPlainText(), "The transform")
+        except InvalidInput as exc:
+            s.report_error(str(exc))
+            return
+        s.add_manual_pose(
+            local_transform(T_world, s.cloud("target"), s.cloud("source")),
+            "typed transform",
+        )
+
+    # --------------------------------------------------------------- slots
+    def _on_scans_changed(self, *_args) -> None:
+        self.pairs, self._undo, self._pending = [], [], None
+        self._score_cache = None
+        self.set_picking(False)
+        self._show_pairs()
+
+    def _on_base_changed(self, *_args) -> None:
+        if self.fit is None:
+            self._reset_nudge()

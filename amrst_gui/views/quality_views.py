@@ -1,0 +1,248 @@
+"""Quality views (issue 13): distance histogram with its colour bar, stem slices.
+
+``DistanceHistogram`` draws the distances of the overlay's distance colouring: each bar
+in the colour its points have in the 3D view, with the scale in cm under it.
+``StemSlicesView`` draws horizontal slices at heights above the tree base, both scans
+in their colours, the fitted circle of each and the centre offset in mm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, Qt
+from PySide6.QtGui import QColor, QFont, QPainter, QPen
+from PySide6.QtWidgets import QSizePolicy, QWidget
+
+from amrst_gui.views.scene import DISTANCE_CLIP_M, SOURCE_RGB, TARGET_RGB, distance_rgb
+
+_BINS = 25
+
+
+class DistanceHistogram(QWidget):
+    """Histogram of point-to-other-scan distances (cm), bars coloured like the points."""
+
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("distance_histogram")
+        self.setMinimumHeight(70)
+        self.setMaximumHeight(90)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+        self.distances = np.zeros(0)
+        self.setToolTip(
+            "Distance from each point to the nearest point of the other scan, both "
+            "ways. A right pose: most points under 1-2 cm (scan noise); parts only "
+            "one scan sees pile up at the right end."
+        )
+
+    def set_distances(self, distances: np.ndarray) -> None:
+        self.distances = np.asarray(distances, float)
+        self.update()
+
+    def summary(self) -> str:
+        d = self.distances[np.isfinite(self.distances)]
+        if not len(d):
+            return ""
+        return (
+            f"median {np.median(d) * 100:.1f} cm, 95th pct. "
+            f"{np.percentile(d, 95) * 100:.1f} cm, within 2 cm {np.mean(d < 0.02):.0%}"
+        )
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.fillRect(self.rect(), QColor(40, 42, 48))
+        w, h = self.width(), self.height()
+        d = np.minimum(self.distances[np.isfinite(self.distances)], DISTANCE_CLIP_M)
+        p.setPen(QColor(230, 230, 230))
+        p.setFont(QFont(self.font().family(), 8))
+        if not len(d):
+            p.drawText(
+                6, h // 2, "Distance colouring: choose it above to see the histogram."
+            )
+            p.end()
+            return
+        counts, edges = np.histogram(d, bins=_BINS, range=(0, DISTANCE_CLIP_M))
+        top, bottom = 16, h - 16
+        bar_w = (w - 12) / _BINS
+        mids = (edges[:-1] + edges[1:]) / 2
+        rgb = distance_rgb(mids)
+        peak = max(int(counts.max()), 1)
+        for i, c in enumerate(counts):
+            bh = (bottom - top) * c / peak
+            p.fillRect(
+                QRectF(6 + i * bar_w, bottom - bh, bar_w - 1, bh),
+                QColor(*(int(v) for v in rgb[i])),
+            )
+        for cm in (0, 2.5, 5, 7.5, 10):
+            x = 6 + (w - 12) * cm / (DISTANCE_CLIP_M * 100)
+            label = f"≥{cm:g} cm" if cm == 10 else f"{cm:g} cm"
+            p.drawText(QPointF(min(x, w - 44), h - 3), label)
+        p.drawText(6, 12, "Distances: " + self.summary())
+        p.end()
+
+
+class StemSlicesView(QWidget):
+    """Stem slices side by side; set with ``set_slices(list of StemSlice)``."""
+
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self.setObjectName("stem_slices")
+        self.slices: list = []
+        self.caption = "No registration to slice yet."
+        self.setMinimumSize(300, 200)
+
+    def set_slices(self, slices: list, caption: str) -> None:
+        self.slices, self.caption = list(slices), caption
+        self.setToolTip(
+            "Horizontal slices at heights above the tree base: amber target, blue "
+            "source. Good: the two circles coincide, offset under 5 mm; ghosting "
+            "that grows with height is wind, not misregistration."
+        )
+        self.update()
+
+    def offsets_mm(self) -> list[float]:
+        """Centre offset of each slice (mm; NaN without two circles)."""
+        return [s.offset_m * 1000 for s in self.slices]
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.fillRect(self.rect(), QColor(31, 33, 38))
+        p.setPen(QColor(230, 230, 230))
+        p.drawText(8, 16, self.caption)
+        n = len(self.slices)
+        if not n:
+            p.end()
+            return
+        size = min((self.width() - 16) / n, self.height() - 70)
+        for k, sl in enumerate(self.slices):
+            x0 = 8 + k * (self.width() - 16) / n
+            self._draw_slice(p, sl, QRectF(x0, 40, size - 8, size - 8))
+        p.end()
+
+    def _draw_slice(self, p: QPainter, sl, box: QRectF) -> None:
+        pts = [a for a in (sl.target_xy, sl.source_xy) if len(a)]
+        circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
+        p.setPen(QColor(120, 120, 120))
+        p.drawRect(box)
+        offset = sl.offset_m
+        second = (
+            f"centres {offset * 1000:.1f} mm apart"
+            if np.isfinite(offset)
+            else "no stem circle in one scan"
+        )
+        p.setPen(QColor(230, 230, 230))
+        p.drawText(
+            QPointF(box.left(), box.bottom() + 16), f"{sl.height_m:g} m above the base"
+        )
+        p.drawText(QPointF(box.left(), box.bottom() + 32), second)
+        if not pts:
+            return
+        allp = np.vstack(pts)
+        if circles:
+            c = np.array(circles[0].centre_xy)
+            half = max(max(ci.radius_m for ci in circles) * 1.8, 0.05)
+        else:
+            c = np.median(allp, axis=0)
+            half = max(float(np.percentile(np.abs(allp - c), 95)), 0.05)
+        scale = box.width() / (2 * half)
+
+        def to_px(xy):
+            return (
+                box.center().x() + (xy[0] - c[0]) * scale,
+                box.center().y() - (xy[1] - c[1]) * scale,
+            )
+
+        for xy, rgb in ((sl.target_xy, TARGET_RGB), (sl.source_xy, SOURCE_RGB)):
+            p.setPen(QPen(QColor(*rgb), 2))
+            for q in xy[:: max(1, len(xy) // 3000)]:
+                x, y = to_px(q)
+                if box.contains(QPointF(x, y)):
+                    p.drawPoint(QPointF(x, y))
+        p.setBrush(Qt.BrushStyle.NoBrush)
+        for circle, rgb in (
+            (sl.target_circle, TARGET_RGB),
+            (sl.source_circle, SOURCE_RGB),
+        ):
+            if circle is None:
+                continue
+            p.setPen(QPen(QColor(*rgb), 1.5))
+            x, y = to_px(circle.centre_xy)
+            r = circle.radius_m * scale
+            p.drawEllipse(QPointF(x, y), r, r)
+
+
+class StemSlicesPane(QWidget):
+    """Heights and thickness above a StemSlicesView of the session's best result.
+
+    Listens to ``coarse_accepted``, ``fine_finished``, ``scan_loaded`` and
+    ``scans_swapped``; emits nothing.
+    """
+
+    def __init__(self, session, parent=None) -> None:
+        from PySide6.QtWidgets import QHBoxLayout, QLabel, QLineEdit, QVBoxLayout
+
+        super().__init__(parent)
+        self.setObjectName("stem_slices_pane")
+        self.session = session
+        self.heights = QLineEdit("0.3, 1.3, 3")
+        self.heights.setToolTip("Heights above the tree base (m), separated by commas")
+        self.thickness = QLineEdit("10")
+        self.thickness.setToolTip("Slice thickness (cm)")
+        self.thickness.setMaximumWidth(50)
+        for edit in (self.heights, self.thickness):
+            edit.editingFinished.connect(self.refresh)
+        bar = QHBoxLayout()
+        bar.setContentsMargins(4, 2, 4, 2)
+        bar.addWidget(QLabel("Heights (m):"))
+        bar.addWidget(self.heights, 1)
+        bar.addWidget(QLabel("Thickness (cm):"))
+        bar.addWidget(self.thickness)
+        self.view = StemSlicesView(self)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addLayout(bar)
+        layout.addWidget(self.view, 1)
+        for name in (
+            "coarse_accepted",
+            "fine_finished",
+            "scan_loaded",
+            "scans_swapped",
+        ):
+            getattr(session, name).connect(lambda *_a: self.refresh())
+
+    def refresh(self) -> None:
+        """Slice both scans under the best transform so far."""
+        from amrst.quality import stem_slices
+
+        s = self.session
+        T = s.final_transform
+        if T is None or not s.has_scans:
+            self.view.set_slices(
+                [],
+                "No registration to slice yet: accept a coarse solution or run Fine.",
+            )
+            return
+        try:
+            heights = tuple(
+                float(v)
+                for v in self.heights.text().replace(";", ",").split(",")
+                if v.strip()
+            )
+            thickness = float(self.thickness.text()) / 100
+        except ValueError:
+            s.report_error(
+                "Stem slices: heights in m separated by commas, thickness in cm."
+            )
+            return
+        src = s.cloud("source").xyz
+        moved = src @ T[:3, :3].T + T[:3, 3]
+        slices = stem_slices(s.cloud("target").xyz, moved, heights, thickness)
+        stage = "fine" if s.fine is not None else "coarse"
+        self.view.set_slices(
+            slices,
+            f"Stem slices after {stage} registration: amber target, blue source, "
+            "circles fitted to each (good: centres under 5 mm apart)",
+        )
+
+    def showEvent(self, event) -> None:
+        super().showEvent(event)
+        self.refresh()

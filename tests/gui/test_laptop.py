@@ -1,0 +1,29 @@
+"""The window fits a laptop screen (issue 13): 1366x768, Matches shows 8 rows."""
+
+from __future__ import annotations
+
+
+def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish):
+    win = loaded_window
+    hint = win.minimumSizeHint()
+    assert hint.width() <= 1366
+    assert hint.height() <= 768
+    win.resize(1366, 768)
+    win._default_sizes()
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    table = win.matches_panel.table
+    qtbot.waitUntil(lambda: table.viewport().height() >= 8 * 22, timeout=3_000)
+    assert table.rowAt(7 * 22 + 5) == 7  # the 8th row is on screen
+    # Accept coarse and Fine leave the overlay tab on screen.
+    win.tabs.setCurrentIndex(0)
+    finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
+    assert win.tabs.currentWidget() is win.registration
+    # Distance colouring and its histogram; the stem slices with centre offsets.
+    win.registration.colour.setCurrentIndex(1)
+    assert win.registration.histogram.isVisible()
+    assert "median" in win.registration.histogram.summary()
+    win.tabs.setCurrentWidget(win.slices)
+    offsets = win.slices.view.offsets_mm()
+    assert len(offsets) == 3
+    assert any(o < 50 for o in offsets if o == o)
