@@ -28,7 +28,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.common import shorten
-from amrst.io.scans import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
