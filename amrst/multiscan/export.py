@@ -205,7 +205,7 @@ def _many_files(
     cloud_format: str,
 ) -> list[Path]:
     from amrst import io
-    from amrst.export import MANAGED_NAMES, check_output_dir
+    from amrst.export import CLOUD_NAMES, MANAGED_NAMES, check_output_dir
     from amrst.outdir import replace_files
     from amrst.params import params_to_dict
 
@@ -261,9 +261,13 @@ def _many_files(
     jobs.append((SUMMARY, lambda p: write_json_atomic(p, doc)))
     # amrst.outdir: the whole set replaces the earlier one as one unit.
     managed = {*MANAGED_NAMES, *names, SUMMARY}
-    stale = [
-        name for name in managed if name.startswith("transform_") and name not in names
-    ]
+    # an earlier run's clouds and per-scan files this run does not write (as the pair
+    # command removes stale clouds)
+    stale = sorted(
+        name
+        for name in {*managed, *CLOUD_NAMES}
+        if name not in names and (name.startswith("transform_") or name in CLOUD_NAMES)
+    )
     written, _ = replace_files(out, dict(jobs), managed=managed, remove=stale)
     return written
 

@@ -149,6 +149,9 @@ def test_export_many_scans(tmp_path, three_scans, three_result):
     ]
     T2 = np.loadtxt(tmp_path / "out" / "transform_2.txt")
     np.testing.assert_allclose(T2, three_result.T_reference_scan[2], atol=1e-9)
+    export_scans(tmp_path / "out", three_result)  # no clouds: the earlier one goes
+    assert not (tmp_path / "out" / "merged.ply").exists()
+    assert (tmp_path / "out" / "scans.json").is_file()
 
 
 def test_cli_three_scans_and_truth(tmp_path, three_scans, capsys):
