@@ -118,7 +118,7 @@ def run_tree(
 
     base = Path(root)
     out = base / "results" / entry.id
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     worker = f"{os.getpid()}@{os.uname().nodename}"
     try:
         make_folder(out, "results folder")
@@ -148,6 +148,7 @@ def run_tree(
             "worker": worker,
         }
     seconds = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0  # every thread of this worker process
     write_json_atomic(
         out / STAMP,
         {
@@ -155,6 +156,7 @@ def run_tree(
             "files": files,
             "verdict": verdict,
             "seconds": seconds,
+            "cpu_seconds": cpu,
             "finished_utc": _now(),
             "worker": worker,
         },
@@ -164,6 +166,7 @@ def run_tree(
         "ok": True,
         "verdict": verdict,
         "seconds": seconds,
+        "cpu_seconds": cpu,
         "worker": worker,
     }
 

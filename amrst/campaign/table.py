@@ -40,6 +40,7 @@ COLUMNS = (
     "Y",
     "reference",
     "seconds",
+    "cpu_seconds",
     "finished_utc",
     "error",
 )
@@ -106,6 +107,7 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
         crown_width_m=_num(merged.get("crown_width_m")),
         crown_area_m2=_num(merged.get("crown_area_m2")),
         seconds=_num(stamp.get("seconds")),
+        cpu_seconds=_num(stamp.get("cpu_seconds")),
         finished_utc=stamp.get("finished_utc", ""),
     )
     if merged.get("stem_x_m") is not None:

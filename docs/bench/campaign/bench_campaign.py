@@ -112,6 +112,10 @@ def _batch(workers: int, scheduler: str | None = None, force: bool = True) -> di
         "seconds_running": round(s.run_seconds, 1),
         "trees_per_hour": round(s.trees_per_hour),
         "workers": s.workers,
+        # CPU time of the workers (every thread) over the wall time: the cores the
+        # batch got; with other jobs on the machine it cannot reach the worker count.
+        "cpu_seconds": round(sum(r.get("cpu_seconds", 0.0) for r in s.results), 1),
+        "cores_used": round(sum(r.get("cpu_seconds", 0.0) for r in s.results) / s.run_seconds, 2),
     }
 
 
