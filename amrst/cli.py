@@ -20,7 +20,6 @@ from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
 
 if TYPE_CHECKING:
-
     from amrst.params import RegistrationParams
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
@@ -111,7 +110,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
-    check_output_dir(args.out, output_names(parts, args.format))
+    report_name = ["report.html"] if args.report else []  # amrst.report_html
+    check_output_dir(args.out, output_names(parts, args.format) + report_name)
     if _same_file(args.target, args.source):
         logger.warning(
             "TARGET and SOURCE are the same file (%s): the result will be the "
@@ -148,6 +148,18 @@ def _cmd_register(args: argparse.Namespace) -> int:
         remove_stale=True,
         documents=documents,
     )
+    if args.report:  # issue 13: the registration report, pictures drawn with Agg
+        from amrst.report_html import inputs_from_result, write_report
+
+        report = inputs_from_result(
+            result,
+            target,
+            source,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            T_truth=T_truth,
+        )
+        files = [*files, write_report(Path(args.out) / "report.html", report)]
     fine = summary["fine"]
     print(
         f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
@@ -256,6 +268,12 @@ def build_parser() -> argparse.ArgumentParser:
         default="ply",
         choices=("ply", "las", "laz", "pcd"),
         help="cloud format for --write-clouds",
+    )
+    reg.add_argument(
+        "--report",
+        action="store_true",
+        help="also write report.html: verdict, candidates, metrics, pictures (no "
+        "display needed)",
     )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
     reg.set_defaults(func=_cmd_register)

@@ -345,6 +345,15 @@ def score_manual(
             T_start[None],
             params.polish_max_dist_m,
         )[0]
+    note = ""
+    if params.polish_top > 0:
+        from amrst.manual_keep import judge_refinement
+
+        kept = judge_refinement(
+            T_start, T_pol, target_xyz, source_xyz, params, "The short ICP polish"
+        )
+        if kept.keep_manual:  # the polish left the technician's solution
+            T_pol, note = T_start, " " + kept.why
     d = cKDTree(target_xyz).query(
         sample @ T_pol[:3, :3].T + T_pol[:3, 3],
         distance_upper_bound=params.tight_dist_m,
@@ -364,12 +373,13 @@ def score_manual(
         source_idx=np.zeros(0, np.int64),
         T_match=T_start,
         T_target_source=np.asarray(T_pol),
-        polished=params.polish_top > 0,
+        polished=params.polish_top > 0 and not note,
         explanation=(
             f"Manual pose ({label}); {score:.0%} of sampled source points lie within "
-            f"{params.tight_dist_m * 100:.0f} cm of the target after a short ICP polish "
+            f"{params.tight_dist_m * 100:.0f} cm of the target "
+            f"{'as given' if note else 'after a short ICP polish'} "
             f"({raw:.0%} on or next to a {params.verify_voxel_m * 100:.0f} cm target "
-            "voxel as given)."
+            "voxel as given)." + note
         ),
         origin=Origin.MANUAL,
     )

@@ -17,6 +17,16 @@ from amrst.measure import MeasureParams, StemCircle, fit_stem_circle
 DEFAULT_HEIGHTS_M = (0.3, 1.3, 3.0)
 DEFAULT_THICKNESS_M = 0.1
 _STEM_RADIUS_M = 1.5  # slice points farther than this from the stem axis are crown
+# A slice's circle is trusted to judge a centre offset only when it rests on this many
+# points, this share of the slice's points, over this arc, and both scans' radii agree
+# within the larger of these (a flared base or roots fit no single circle: on case 08
+# at 0.3 m the two fits were 0.51 and 0.57 m wide circles through a few root points,
+# "271 mm apart" while the pose was right to 1 mm).
+MIN_SLICE_POINTS = 20
+MIN_SLICE_SHARE = 0.4
+MIN_SLICE_ARC_DEG = 90.0
+MAX_RADIUS_DIFF_M = 0.02
+MAX_RADIUS_DIFF_FRACTION = 0.15
 
 
 def nn_distances(
@@ -62,6 +72,45 @@ class StemSlice:
     source_xy: np.ndarray
     target_circle: StemCircle | None
     source_circle: StemCircle | None
+
+    def problem(self) -> str:
+        """Why the centre offset cannot be trusted, in plain words; "" when it can."""
+        fits = (
+            ("target", self.target_circle, len(self.target_xy)),
+            ("source", self.source_circle, len(self.source_xy)),
+        )
+        missing = [name for name, c, _n in fits if c is None]
+        if missing:
+            return f"no stem circle in the {' and '.join(missing)} scan"
+        for name, c, n in fits:
+            assert c is not None
+            share = c.n_points / max(n, 1)
+            if (
+                c.n_points < MIN_SLICE_POINTS
+                or share < MIN_SLICE_SHARE
+                or c.arc_deg < MIN_SLICE_ARC_DEG
+            ):
+                return (
+                    f"fit unreliable: the {name} circle rests on {c.n_points} of "
+                    f"{n} points ({share:.0%}) over {c.arc_deg:.0f}°, residual "
+                    f"{c.rmse_m * 1000:.1f} mm"
+                )
+        r_t, r_s = (c.radius_m for _n, c, _k in fits if c is not None)
+        limit = max(MAX_RADIUS_DIFF_M, MAX_RADIUS_DIFF_FRACTION * min(r_t, r_s))
+        if abs(r_t - r_s) > limit:
+            return (
+                f"fit unreliable: the circles differ in size (radius {r_t * 100:.1f} "
+                f"vs {r_s * 100:.1f} cm), no single stem circle here"
+            )
+        return ""
+
+    def caption(self) -> tuple[str, str]:
+        """Two short lines: the height, then the offset or why it is not shown."""
+        why = self.problem()
+        return (
+            f"{self.height_m:g} m above the base",
+            why if why else f"centres {self.offset_m * 1000:.1f} mm apart",
+        )
 
     @property
     def offset_m(self) -> float:

@@ -15,7 +15,11 @@ from pathlib import Path
 
 os.environ.setdefault("QT_API", "pyside6")
 
-STEPS = ("separate", "skeleton", "match", "coarse", "fine")
+
+def _steps() -> tuple[str, ...]:
+    from amrst.pipeline.steps import STEP_NAMES  # the step table
+
+    return STEP_NAMES
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -37,7 +41,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--run",
-        choices=(*STEPS, "all"),
+        choices=(*_steps(), "all"),
         help="run the workflow up to this step first (all: Run all, which stops "
         "before an unverified candidate)",
     )
@@ -46,6 +50,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         choices=("scans", "registration", "slices", "distance"),
         default="scans",
         help="which 3D tab to show (for --screenshot)",
+    )
+    parser.add_argument(
+        "--size",
+        metavar="WxH",
+        help="window size for --screenshot, e.g. 1366x768 (default: fit the screen)",
     )
     args = parser.parse_args(argv)
     if (args.target is None) != (args.source is None):
@@ -129,6 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     from amrst_gui.main_window import MainWindow
 
     win = MainWindow()
+    if args.size:
+        w, _x, h = args.size.partition("x")
+        win.resize(int(w), int(h))
     win.show()
     target, source, truth = resolve_inputs(args)
     shot = (

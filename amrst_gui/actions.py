@@ -8,45 +8,43 @@ from PySide6.QtWidgets import QStyle
 
 from amrst_gui import steps
 
-# (attribute, step, shortcut, icon, what it does)
-_STEP_ACTIONS = (
-    (
+# What the engine's step table (amrst.pipeline.steps.STEPS) does not say about a
+# step's action: its attribute name here, icon and what it does. The actions are made
+# for every step of the table, in its order, with Ctrl+1, Ctrl+2, ...; a step without
+# an entry gets an action named after it.
+_STEP_EXTRAS = {
+    "separate": (
         "separate",
-        "separate",
-        "Ctrl+1",
         None,
         "Preprocess both scans and separate wood (brown) from leaves (green).",
     ),
-    (
+    "skeleton": (
         "skeleton",
-        "skeleton",
-        "Ctrl+2",
         None,
         "Build each tree's skeleton from its wood points and pick the key points.",
     ),
-    (
+    "match": (
         "match",
-        "match",
-        "Ctrl+3",
         None,
         "Find similar tetrahedra between the key points and rank them (runs the "
         "earlier steps first when they are missing or stale).",
     ),
-    (
+    "coarse": (
         "accept_coarse",
-        "coarse",
-        "Ctrl+4",
         QStyle.StandardPixmap.SP_DialogApplyButton,
         "Accept the coarse solution: the best candidate you did not reject.",
     ),
-    (
+    "fine": (
         "run_fine",
-        "fine",
-        "Ctrl+5",
         None,
         "Refine the accepted coarse solution with ICP and measure the result.",
     ),
-)
+}
+# Steps that need more than the scans to start (else: enabled once both are loaded).
+_READY = {
+    "coarse": lambda s: s.coarse is not None,
+    "fine": lambda s: s.accepted_coarse is not None,
+}
 
 
 class WorkflowActions(QObject):
@@ -57,7 +55,7 @@ class WorkflowActions(QObject):
     Triggers session methods directly, and window methods for anything with a dialog.
     """
 
-    # Set with setattr from _STEP_ACTIONS in __init__; declared here for mypy.
+    # Set with setattr from the step table in __init__; declared here for mypy.
     separate: QAction
     skeleton: QAction
     match: QAction
@@ -110,10 +108,13 @@ class WorkflowActions(QObject):
             "&Quit", QKeySequence.StandardKey.Quit, window.close, "Close AMRST Studio"
         )
         self.step_actions: dict[str, QAction] = {}
-        for attr, step, key, icon, tip in _STEP_ACTIONS:
+        for number, step in enumerate(steps.STEPS, start=1):
+            attr, icon, tip = _STEP_EXTRAS.get(
+                step, (step, None, steps.plain_label(step))
+            )
             action = self._make(
                 steps.LABELS[step],
-                key,
+                f"Ctrl+{number}",
                 lambda _=False, s=step: session.run_step(s),
                 tip,
                 style.standardIcon(icon) if icon else None,
@@ -136,6 +137,12 @@ class WorkflowActions(QObject):
             "Write the registered source, merged cloud, transform, "
             "metrics and parameters",
             style.standardIcon(QStyle.StandardPixmap.SP_DialogSaveButton),
+        )
+        self.view_report = self._make(
+            "View &report",
+            "",
+            window.view_report,
+            "Open the report the last export wrote (report.html) in your web browser",
         )
         self.cancel = self._make(
             "&Cancel",
@@ -183,6 +190,7 @@ class WorkflowActions(QObject):
             "matches_changed",
             "coarse_accepted",
             "fine_finished",
+            "exported",
         ):
             getattr(session, name).connect(self._on_session_changed)
         self.refresh()
@@ -206,12 +214,12 @@ class WorkflowActions(QObject):
         for step, action in self.step_actions.items():
             action.setText(self._label(step))
             action.setToolTip(self._tooltip(step, action.statusTip()))
-        for step in ("separate", "skeleton", "match"):
-            self.step_actions[step].setEnabled(idle and s.has_scans)
-        self.accept_coarse.setEnabled(idle and s.coarse is not None)
-        self.run_fine.setEnabled(idle and s.accepted_coarse is not None)
+        for step, action in self.step_actions.items():
+            ready = _READY.get(step, lambda s: s.has_scans)
+            action.setEnabled(idle and bool(ready(s)))
         self.run_all.setEnabled(idle and s.has_scans)
         self.export.setEnabled(idle and s.final_transform is not None)
+        self.view_report.setEnabled(s.last_report is not None)
         self.cancel.setEnabled(s.busy)
         selected = s.selected_match
         self.reject.setEnabled(selected is not None and selected.id not in s.rejected)

@@ -62,6 +62,14 @@ def confirm_discard(parent, action: str) -> bool:
     return box.exec() == QMessageBox.StandardButton.Discard
 
 
+def open_report(_parent, path: Path) -> bool:
+    """Show a report.html in the default web browser; False when none opens it."""
+    from PySide6.QtCore import QUrl
+    from PySide6.QtGui import QDesktopServices
+
+    return bool(QDesktopServices.openUrl(QUrl.fromLocalFile(str(path))))
+
+
 def confirm_override(parent, verdict) -> bool:
     """Ask whether a result whose verdict is not *registered* is exported anyway."""
     box = QMessageBox(

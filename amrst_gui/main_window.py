@@ -246,6 +246,22 @@ class MainWindow(QMainWindow):
         box.open()
         return box
 
+    def view_report(self) -> None:
+        """Open the last export's report.html in the web browser."""
+        path = self.session.last_report
+        if path is None or not path.is_file():
+            self.status.show_message(
+                "No report yet: Export (Ctrl+E) writes report.html with the files.",
+                error=True,
+            )
+            return
+        if dialogs.open_report(self, path):
+            self.status.show_message(f"Opened {path.name} in the web browser.")
+        else:
+            self.status.show_message(
+                f"No web browser opened {path}; open the file by hand.", error=True
+            )
+
     def about_dialog(self) -> None:
         dialogs.AboutDialog(self).open()
 

@@ -18,6 +18,7 @@ def build(window) -> QToolBar:
     file_menu.addAction(a.save_params)
     file_menu.addSeparator()
     file_menu.addAction(a.export)
+    file_menu.addAction(a.view_report)
     file_menu.addSeparator()
     file_menu.addAction(a.quit)
 

@@ -8,15 +8,21 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from amrst_gui import jobs, steps
 from amrst_gui.review import ReviewMixin
 
 if TYPE_CHECKING:
     from pathlib import Path
 
+    import numpy as np
+
+    from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
+    from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.stages.candidates import CoarseResult
+    from amrst.stages.fine import FineResult
+    from amrst.stages.metrics import CloudMetrics, TruthErrors
+    from amrst.types import Cloud
 
 _TRUTH_SAMPLE = 20_000
 
@@ -26,43 +32,38 @@ class ResultsMixin(ReviewMixin):
 
     if TYPE_CHECKING:
         # Set by the host class, Session.__init__; declared here for mypy.
-        _clouds: dict[str, Any]
-        _paths: dict[str, Path | None]
         _params: RegistrationParams
         _truth: np.ndarray | None
 
+        def cloud(self, role: str) -> Cloud | None: ...
+        def path(self, role: str) -> Path | None: ...
+        def analysis(self, role: str) -> ScanAnalysis | None: ...
+        def _reset_analyses(self) -> None: ...
+
     def _reset_results(self) -> None:
-        self._analyses: dict[str, Any] = dict.fromkeys(jobs.ROLES)
-        self._matches: Any = None
+        self._reset_analyses()
+        self._matches: MatchResult | None = None
         self._rejected: frozenset[int] = frozenset()
         self._selected: int | None = None
-        self._accepted: Any = None
-        self._fine: Any = None
-        self._metrics: dict[str, Any] = {}
-        self._tree: dict[str, dict] = {}  # stage -> {"target"|"source"|"merged": ...}
+        self._accepted: CoarseResult | None = None
+        self._fine: FineResult | None = None
+        self._fine_note = ""  # from a manual pose: what Fine's check decided
+        self._metrics: dict[str, CloudMetrics] = {}
+        # stage -> {"target"|"source"|"merged": TreeMeasures}
+        self._tree: dict[str, dict[str, TreeMeasures]] = {}
         self._timings: dict[str, float] = {
             k: v for k, v in getattr(self, "_timings", {}).items() if k == "load"
         }
-        self._step_params: dict[str, Any] = {}
+        self._step_params: dict[str, RegistrationParams] = {}
         self._coarse_cache: tuple | None = None
-        self._exported_result: Any = None
+        self._exported_result: CoarseResult | FineResult | None = None
         self._override: dict[str, str] | None = None
         self._reset_review()
 
     def _clear_after(self, step: str) -> None:
-        # The analyses themselves are replaced by the separate/skeleton result.
-        later = steps.later_steps(step)
-        if "match" in later:
-            self._matches, self._rejected, self._selected = None, frozenset(), None
-        if "coarse" in later:
-            self._accepted = None
-            self._metrics.pop("coarse", None)
-            self._tree.pop("coarse", None)
-        if "fine" in later:
-            self._fine = None
-            self._metrics.pop("fine", None)
-            self._tree.pop("fine", None)
-        for name in later:
+        """Drop the results built on ``step``'s (each later step clears its own)."""
+        for name in steps.later_steps(step):
+            getattr(self, f"_clear_{name}")()  # step_jobs.py, per step
             self._step_params.pop(name, None)
             self._timings.pop(name, None)
 
@@ -70,29 +71,30 @@ class ResultsMixin(ReviewMixin):
     @property
     def has_scans(self) -> bool:
         """True when both target and source are loaded."""
-        return all(self._clouds[r] is not None for r in jobs.ROLES)
-
-    def analysis(self, role: str) -> Any:
-        """The ScanAnalysis of ``role`` (separation, then skeleton), or None."""
-        return self._analyses[role]
+        return all(self.cloud(r) is not None for r in jobs.ROLES)
 
     @property
-    def accepted_coarse(self) -> Any:
+    def accepted_coarse(self) -> CoarseResult | None:
         """The CoarseResult the user accepted, or None."""
         return self._accepted
 
     @property
-    def fine(self) -> Any:
+    def fine(self) -> FineResult | None:
         """The FineResult, or None."""
         return self._fine
 
     @property
-    def metrics(self) -> dict[str, Any]:
+    def fine_note(self) -> str:
+        """From a manual pose: whether Fine's result was kept, and why ("" else)."""
+        return self._fine_note if self._fine is not None else ""
+
+    @property
+    def metrics(self) -> dict[str, CloudMetrics]:
         """CloudMetrics by stage ("coarse", "fine")."""
         return dict(self._metrics)
 
     @property
-    def tree(self) -> dict[str, Any]:
+    def tree(self) -> dict[str, TreeMeasures]:
         """TreeMeasures of "target", "source" and "merged" under the best result so far
         (fine if done, else the accepted coarse); empty before."""
         return dict(self._tree.get("fine") or self._tree.get("coarse") or {})
@@ -122,22 +124,35 @@ class ResultsMixin(ReviewMixin):
         """A local-frame T_target_source in world coordinates (export, truth)."""
         from amrst.types import world_transform
 
-        return world_transform(T_local, self._clouds["target"], self._clouds["source"])
+        return world_transform(T_local, *self._pair_clouds())
+
+    def local(self, T_world: np.ndarray) -> np.ndarray:
+        """A world T_target_source between the scans' local frames (the views)."""
+        from amrst.types import local_transform
+
+        return local_transform(T_world, *self._pair_clouds())
+
+    def _pair_clouds(self) -> tuple[Cloud, Cloud]:
+        target, source = self.cloud("target"), self.cloud("source")
+        assert target is not None  # no transform before both scans are loaded
+        assert source is not None
+        return target, source
+
+    @property
+    def result_params(self) -> RegistrationParams:
+        """The parameters the current result was computed with (else the current)."""
+        used = self._step_params.get("fine" if self._fine is not None else "coarse")
+        return used or self._params
+
+    @property
+    def export_override(self) -> dict[str, str] | None:
+        """How the last export overrode a verdict that was not *registered*."""
+        return None if self._override is None else dict(self._override)
 
     def is_done(self, step: str) -> bool:
         """True when the step's result exists (stale or not)."""
-        if step == "separate":
-            return self._analyses["target"] is not None
-        if step == "skeleton":
-            an = self._analyses["target"]
-            return an is not None and an.keypoints is not None
-        if step == "match":
-            return self._matches is not None
-        if step == "coarse":
-            return self._accepted is not None
-        if step == "fine":
-            return self._fine is not None
-        return False
+        done = getattr(self, f"_done_{step}", None)  # step_jobs.py, per step
+        return bool(done()) if done is not None else False
 
     def is_stale(self, step: str) -> bool:
         """True when a result exists but was computed with other parameters."""
@@ -146,9 +161,11 @@ class ResultsMixin(ReviewMixin):
         used = self._step_params.get(step)
         if used is None:
             return True
+        from amrst.stages.candidates import Origin
+
         groups = steps.groups_for(step)
         if step in ("match", "coarse") and any(
-            c.origin == "trunk" for c in self.matches
+            c.origin == Origin.TRUNK for c in self.matches
         ):
             # Trunk-search solutions were refined and verified with the fine settings.
             groups = (*groups, "fine")
@@ -159,6 +176,7 @@ class ResultsMixin(ReviewMixin):
                 return True
         if step in ("coarse", "fine"):
             current = self.coarse
+            assert self._accepted is not None  # is_done(step) holds
             accepted = self._accepted.candidate
             if (
                 current is None
@@ -177,14 +195,14 @@ class ResultsMixin(ReviewMixin):
         return out
 
     # --------------------------------------------------------- derived values
-    def truth_errors(self) -> dict[str, Any]:
+    def truth_errors(self) -> dict[str, TruthErrors]:
         """TruthErrors by stage ("coarse", "fine") when a truth file is loaded."""
-        if self._truth is None or self._clouds["source"] is None:
+        source = self.cloud("source")
+        if self._truth is None or source is None:
             return {}
         from amrst.stages.metrics import truth_errors
 
-        source = self._clouds["source"]
-        xyz = source.xyz[:: max(1, len(source) // _TRUTH_SAMPLE)] + source.offset
+        xyz = source.world_xyz[:: max(1, len(source) // _TRUTH_SAMPLE)]
         out = {}
         coarse = self._accepted or self.coarse
         if coarse is not None:
@@ -202,16 +220,16 @@ class ResultsMixin(ReviewMixin):
         T_final = self.final_transform
         # Session.export, the only caller, returns early while this is None.
         assert T_final is not None
-        kwargs = {
-            "target": self._clouds["target"],
-            "source": self._clouds["source"],
+        assert self._accepted is not None  # a final transform needs an accepted one
+        kwargs: dict[str, Any] = {
+            "target": self.cloud("target"),
+            "source": self.cloud("source"),
             # The engine works between local frames; the files hold world transforms.
             "T_target_source": self.world(T_final),
             "T_coarse": self.world(self._accepted.T_target_source),
             "metrics": self.metrics_report(),
             # The parameters the result was computed with (export refuses stale ones).
-            "params": self._step_params.get("fine" if self._fine else "coarse")
-            or self._params,
+            "params": self.result_params,
             "cloud_format": cloud_format,
             "transform_extra": self._transform_context(),
         }
@@ -221,9 +239,10 @@ class ResultsMixin(ReviewMixin):
 
     def _transform_context(self) -> dict[str, Any]:
         coarse, fine = self._accepted, self._fine
+        assert coarse is not None  # only exported results have a context
         extra: dict[str, Any] = {
-            "target_file": str(self._paths["target"] or ""),
-            "source_file": str(self._paths["source"] or ""),
+            "target_file": str(self.path("target") or ""),
+            "source_file": str(self.path("source") or ""),
             "stage": "fine" if fine is not None else "coarse",
             "coarse_confidence": float(coarse.confidence),
             "coarse_match_rank": None
@@ -243,7 +262,7 @@ class ResultsMixin(ReviewMixin):
             extra["override"] = dict(self._override)
         if coarse.candidate is not None and coarse.candidate.origin == "manual":
             extra["manual_pose"] = {
-                "how": self._manual_labels.get(int(coarse.candidate.id), ""),
+                "how": self._review.manual_labels.get(int(coarse.candidate.id), ""),
                 "T_target_source_as_given": self.world(
                     coarse.candidate.T_match
                 ).tolist(),
@@ -291,35 +310,12 @@ class ResultsMixin(ReviewMixin):
 
     def summary(self, step: str) -> str:
         """One line about a step's result, for the log."""
-        if step == "load":
-            return "; ".join(
-                f"{r}: {self._name(r)} ({len(self._clouds[r]):,} points)"
-                for r in jobs.ROLES
-                if self._clouds[r] is not None
-            )
-        if step == "separate":
-            return "; ".join(
-                f"{r}: {int(np.count_nonzero(a.is_wood)):,} wood "
-                f"of {len(a.is_wood):,} points"
-                for r, a in self._analyses.items()
-            )
-        if step == "skeleton":
-            return "; ".join(
-                f"{r}: {len(a.skeleton.nodes)} skeleton nodes, "
-                f"{len(a.keypoints.xyz)} key points"
-                for r, a in self._analyses.items()
-            )
-        if step == "match":
-            return f"{len(self.matches)} candidates. {self.coarse_message}"
-        if step in ("coarse", "fine") and step in self._metrics:
-            m = self._metrics[step]
-            return f"RMSE {m.rmse_m:.4f} m, overlap {m.overlap_fraction:.0%}"
-        return ""
+        line = getattr(self, f"_summary_{step}", None)  # step_jobs.py, per step
+        return str(line()) if line is not None else ""
 
     # --------------------------------------------------------------- helpers
     def _name(self, role: str) -> str:
-        path = self._paths[role]
-        cloud = self._clouds[role]
+        path, cloud = self.path(role), self.cloud(role)
         return path.name if path else (cloud.name if cloud is not None else "-")
 
     def _groups(self) -> list[str]:

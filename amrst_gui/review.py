@@ -10,52 +10,62 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst_gui.state import LinkId, LinkReview, ScanId
+
 if TYPE_CHECKING:
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.stages.candidates import Candidate, CoarseResult
+    from amrst.stages.fine import FineResult
     from amrst.verdict import Verdict
 
 log = logging.getLogger("amrst_gui.session")
 
 
 class ReviewMixin:
-    """Review state of a link: rejected poses, manual candidates, accepted pose."""
+    """Review state of the links: rejected poses, manual candidates, accepted pose."""
 
     if TYPE_CHECKING:
-        _matches: Any
+        _matches: MatchResult | None
         _rejected: frozenset[int]
         _selected: int | None
-        _accepted: Any
-        _fine: Any
-        _params: Any
-        _step_params: dict[str, Any]
-        _analyses: dict[str, Any]
+        _accepted: CoarseResult | None
+        _fine: FineResult | None
+        _params: RegistrationParams
+        _step_params: dict[str, RegistrationParams]
         _coarse_cache: tuple | None
+        _roles: dict[str, ScanId]
+
+        def analysis(self, role: str) -> ScanAnalysis | None: ...
 
         def _fail(self, message: str) -> None: ...
 
     def _reset_review(self) -> None:
-        """Forget the review (new scans or swapped roles: another link)."""
-        self._rejected_poses: tuple[np.ndarray, ...] = ()
-        self._manual: tuple[Any, ...] = ()  # Candidates, newest first
-        self._manual_labels: dict[int, str] = {}
-        self._manual_next = 0
-        self._accepted_pose: np.ndarray | None = None
-        self._combined: tuple[tuple, Any] | None = None
+        """Forget every review (new scans or swapped roles: other links)."""
+        self._reviews: dict[LinkId, LinkReview] = {}
+        self._combined: tuple[tuple, MatchResult | None] | None = None
+
+    @property
+    def _review(self) -> LinkReview:
+        """The review of the current link (target scan, source scan)."""
+        link = (self._roles["target"], self._roles["source"])
+        return self._reviews.setdefault(link, LinkReview())
 
     # ------------------------------------------------------------ candidates
     @property
-    def matches(self) -> tuple:
+    def matches(self) -> tuple[Candidate, ...]:
         """Ranked candidates, manual poses first, then the automatic ones."""
         combined = self.match_result
         return () if combined is None else tuple(combined.candidates)
 
     @property
-    def match_result(self) -> Any:
+    def match_result(self) -> MatchResult | None:
         """The MatchResult with the manual candidates in front, or None."""
-        key = (id(self._matches), self._manual)
+        key = (id(self._matches), self._review.manual)
         if self._combined is not None and self._combined[0] == key:
             return self._combined[1]
         value = self._combine()
@@ -63,24 +73,29 @@ class ReviewMixin:
         return value
 
     @property
-    def manual_candidates(self) -> tuple:
+    def manual_candidates(self) -> tuple[Candidate, ...]:
         """The manual candidates (origin "manual"), newest first."""
         return tuple(c for c in self.matches if c.origin == "manual")
 
-    def _combine(self) -> Any:
+    @property
+    def manual_labels(self) -> dict[int, str]:
+        """How each manual candidate was made ("3 point pairs", "typed", ...), by id."""
+        return dict(self._review.manual_labels)
+
+    def _combine(self) -> MatchResult | None:
         from amrst.pipeline import MatchResult
         from amrst.stages.match import TetraMatches
 
         auto = () if self._matches is None else tuple(self._matches.candidates)
-        if not self._manual:
+        if not self._review.manual:
             return self._matches
         ranked = [
             dataclasses.replace(c, rank=i)
-            for i, c in enumerate((*self._manual, *auto), start=1)
+            for i, c in enumerate((*self._review.manual, *auto), start=1)
         ]
         if self._matches is not None:
             return dataclasses.replace(self._matches, candidates=tuple(ranked))
-        source = self._analyses["source"]
+        source = self.analysis("source")
         centre = source.xyz.mean(axis=0) if source is not None else np.zeros(3)
         return MatchResult(TetraMatches.empty(), tuple(ranked), 0, {}, centre)
 
@@ -90,12 +105,12 @@ class ReviewMixin:
         return self._rejected
 
     @property
-    def selected_match(self) -> Any:
+    def selected_match(self) -> Candidate | None:
         """The Candidate shown in the views, or None."""
         return self._candidate(self._selected)
 
     @property
-    def coarse(self) -> Any:
+    def coarse(self) -> CoarseResult | None:
         """CoarseResult from the best candidate not rejected (None if none is left)."""
         return self._coarse_state()[0]
 
@@ -104,7 +119,7 @@ class ReviewMixin:
         """Why the coarse solution is what it is (or why there is none)."""
         return self._coarse_state()[1]
 
-    def _coarse_state(self) -> tuple[Any, str]:
+    def _coarse_state(self) -> tuple[CoarseResult | None, str]:
         combined = self.match_result
         if combined is None:
             return None, "No matches yet: run Match."
@@ -113,7 +128,7 @@ class ReviewMixin:
             from amrst import pipeline
             from amrst.errors import RegistrationFailed
 
-            value: tuple[Any, str]  # (CoarseResult or None, message)
+            value: tuple[CoarseResult | None, str]
             try:
                 coarse = pipeline.coarse_from_matches(combined, self._rejected)
                 value = (coarse, str(coarse.message))
@@ -125,7 +140,7 @@ class ReviewMixin:
     def _candidate_ids(self) -> set[int]:
         return {int(c.id) for c in self.matches}
 
-    def _candidate(self, match_id: int | None) -> Any:
+    def _candidate(self, match_id: int | None) -> Candidate | None:
         for c in self.matches:
             if c.id == match_id:
                 return c
@@ -139,7 +154,10 @@ class ReviewMixin:
     def _remember_rejection(self, match_id: int) -> None:
         c = self._candidate(match_id)
         if c is not None:
-            self._rejected_poses = (*self._rejected_poses, c.T_target_source)
+            self._review.rejected_poses = (
+                *self._review.rejected_poses,
+                c.T_target_source,
+            )
 
     def _forget_rejection(self, match_id: int) -> None:
         from amrst.stages.coarse import same_solution
@@ -148,9 +166,9 @@ class ReviewMixin:
         if c is None:
             return
         centre = self._centre()
-        self._rejected_poses = tuple(
+        self._review.rejected_poses = tuple(
             T
-            for T in self._rejected_poses
+            for T in self._review.rejected_poses
             if not same_solution(T, c.T_target_source, centre)
         )
 
@@ -158,7 +176,7 @@ class ReviewMixin:
         combined = self.match_result
         if combined is not None:
             return np.asarray(combined.source_centre)
-        source = self._analyses["source"]
+        source = self.analysis("source")
         return source.xyz.mean(axis=0) if source is not None else np.zeros(3)
 
     def _carry_review(self) -> frozenset[int]:
@@ -171,29 +189,33 @@ class ReviewMixin:
             for c in self.matches
             if any(
                 same_solution(c.T_target_source, T, centre)
-                for T in self._rejected_poses
+                for T in self._review.rejected_poses
             )
         )
         notes = []
-        if self._rejected_poses:
+        if self._review.rejected_poses:
             notes.append(
                 f"{len(kept)} candidate(s) start rejected because they are pose(s) you "
-                f"rejected before ({len(self._rejected_poses)} rejected pose(s) kept)"
+                f"rejected before ({len(self._review.rejected_poses)} rejected pose(s) kept)"
                 + (
                     f": {', '.join(self._describe_match(i) for i in sorted(kept))}"
                     if kept
                     else ""
                 )
             )
-        if self._manual:
-            notes.append(f"{len(self._manual)} manual pose(s) kept and scored again")
-        if self._accepted_pose is not None:
+        if self._review.manual:
+            notes.append(
+                f"{len(self._review.manual)} manual pose(s) kept and scored again"
+            )
+        if self._review.accepted_pose is not None:
             same = next(
                 (
                     c
                     for c in self.matches
                     if c.id not in kept
-                    and same_solution(c.T_target_source, self._accepted_pose, centre)
+                    and same_solution(
+                        c.T_target_source, self._review.accepted_pose, centre
+                    )
                 ),
                 None,
             )
@@ -230,5 +252,5 @@ class ReviewMixin:
     def _next_manual_id(self) -> int:
         from amrst.manual import MANUAL_ID_BASE
 
-        self._manual_next += 1
-        return MANUAL_ID_BASE + self._manual_next
+        self._review.manual_next += 1
+        return MANUAL_ID_BASE + self._review.manual_next

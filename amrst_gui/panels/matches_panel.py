@@ -252,16 +252,18 @@ class MatchesPanel(QWidget):
         coarse = s.coarse
         lines = []
         if verdict is not None:
-            lines.append(
-                f"<b>{verdict.headline}</b>: {verdict.reason} "
-                f"<i>Next: {verdict.next_step}</i>"
-            )
+            # The next step is shown when there is one to take; "nothing more is
+            # needed" stays in the tooltip (the Matches table keeps its rows).
+            nxt = "" if verdict.ok else f" <i>Next: {verdict.next_step}</i>"
+            lines.append(f"<b>{verdict.headline}</b>: {verdict.reason}{nxt}")
+        counts = f"{len(s.matches)} candidates, {len(s.rejected)} rejected."
         if coarse is not None:
             lines.append(
                 f"Coarse solution: candidate #{coarse.candidate.rank}, confidence "
-                f"{coarse.confidence:.0%}."
+                f"{coarse.confidence:.0%}; {counts}"
             )
-        lines.append(f"{len(s.matches)} candidates, {len(s.rejected)} rejected.")
+        else:
+            lines.append(counts)
         self.coarse_label.setText("<br>".join(lines))
         self.coarse_label.setToolTip(verdict.text() if verdict is not None else "")
         self.coarse_label.setStyleSheet(

@@ -87,7 +87,9 @@ def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
     else:
         w = QLineEdit()
     unit = meta.get("unit", "")
-    if unit and unit != "relative" and hasattr(w, "setSuffix"):
+    # A long unit ("fraction of wood points") would push the value out of a narrow
+    # field; it stays in the tooltip ("Unit: ...").
+    if unit and unit != "relative" and len(unit) <= 10 and hasattr(w, "setSuffix"):
         w.setSuffix(f" {unit}")
     w.setToolTip(tooltip_for(field))
     w.setObjectName(field.name)

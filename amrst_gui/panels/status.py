@@ -2,10 +2,41 @@
 
 from __future__ import annotations
 
+from PySide6.QtCore import QSize, Qt
+from PySide6.QtGui import QPainter
 from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar, QWidget
 
 from amrst_gui import steps
 from amrst_gui.panels.verdict_style import verdict_style
+
+
+class ElidedLabel(QLabel):
+    """A one-line label that ends in "…" when its text does not fit (never cut off).
+
+    ``text()`` stays the whole message; the tooltip shows it too.
+    """
+
+    def minimumSizeHint(self) -> QSize:
+        return QSize(80, super().minimumSizeHint().height())
+
+    def sizeHint(self) -> QSize:
+        return QSize(200, super().sizeHint().height())
+
+    def shown_text(self) -> str:
+        """The text as drawn: elided to the label's width."""
+        return self.fontMetrics().elidedText(
+            " ".join(self.text().split()), Qt.TextElideMode.ElideRight, self.width()
+        )
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.setPen(self.palette().color(self.foregroundRole()))
+        p.drawText(
+            self.rect(),
+            int(Qt.AlignmentFlag.AlignVCenter | Qt.AlignmentFlag.AlignLeft),
+            self.shown_text(),
+        )
+        p.end()
 
 
 class WorkflowStatusBar(QStatusBar):
@@ -19,8 +50,7 @@ class WorkflowStatusBar(QStatusBar):
         super().__init__(parent)
         self.setObjectName("status_bar")
         self.session = session
-        self.message = QLabel("Ready.")
-        self.message.setMinimumWidth(200)
+        self.message = ElidedLabel("Ready.")
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setMaximumWidth(260)
@@ -48,11 +78,14 @@ class WorkflowStatusBar(QStatusBar):
         session.fine_finished.connect(self._on_fine_finished)
         session.exported.connect(self._on_exported)
 
-    def show_message(self, text: str, error: bool = False) -> None:
-        """Put ``text`` in the status bar, red for errors."""
+    def show_message(self, text: str, error: bool = False, detail: str = "") -> None:
+        """Put ``text`` in the status bar, red for errors; ``detail`` in the tooltip.
+
+        Text too long for the bar ends in "…"; the tooltip always holds all of it.
+        """
         self.message.setStyleSheet("color: #c00000;" if error else "")
         self.message.setText(text)
-        self.message.setToolTip(text)
+        self.message.setToolTip(f"{text}\n\n{detail}" if detail else text)
 
     def _on_step_started(self, step: str) -> None:
         label = "Loading scans" if step == "load" else steps.plain_label(step)
@@ -106,21 +139,37 @@ class WorkflowStatusBar(QStatusBar):
 
     def _on_fine_finished(self, fine) -> None:
         # The ICP's own inlier RMSE, named so; the Metrics dock names the others.
+        note = self.session.fine_note
+        if "kept" in note:  # Fine left a manual pose: the technician must know
+            self._show_verdict("Fine: your manual pose is kept.", note)
+            return
         self._show_verdict(
             f"Fine registration: {fine.iterations} ICP iterations, ICP inlier RMSE "
-            f"{fine.inlier_rmse_m * 100:.2f} cm."
+            f"{fine.inlier_rmse_m * 100:.2f} cm.",
+            note,
         )
 
-    def _show_verdict(self, prefix: str) -> None:
+    def _show_verdict(self, prefix: str, note: str = "") -> None:
         if self.session.busy:
             return  # a chain of steps: the last one speaks
         verdict = self.session.verdict
         if verdict is None:
             self.show_message(prefix)
             return
-        self.show_message(f"{prefix} {verdict.text()}")
+        # Short in the bar; the reason and the next step in the tooltip (and in the
+        # Matches and Metrics docks).
+        detail = verdict.text().replace(". ", ".\n")
+        self.show_message(
+            f"{prefix} {verdict.headline}.",
+            detail=f"{note}\n\n{detail}" if note else detail,
+        )
         self.message.setStyleSheet(verdict_style(verdict.status))
 
     def _on_exported(self, paths: list) -> None:
         folder = paths[0].parent if paths else ""
-        self.show_message(f"Exported {len(paths)} files to {folder}.")
+        report = any(p.name == "report.html" for p in paths)
+        self.show_message(
+            f"Exported {len(paths)} files to {folder}."
+            + (" View the report: File > View report." if report else ""),
+            detail="\n".join(str(p) for p in paths),
+        )

@@ -80,94 +80,154 @@ class DistanceHistogram(QWidget):
         p.end()
 
 
-class StemSlicesView(QWidget):
-    """Stem slices side by side; set with ``set_slices(list of StemSlice)``."""
+class SlicePlot(QWidget):
+    """One slice drawn to fit its box: both scans' points and their circles."""
 
-    def __init__(self, parent=None) -> None:
+    def __init__(self, sl, parent=None) -> None:
         super().__init__(parent)
-        self.setObjectName("stem_slices")
-        self.slices: list = []
-        self.caption = "No registration to slice yet."
-        self.setMinimumSize(300, 200)
+        self.slice = sl
+        self.setMinimumSize(120, 120)
+        policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Preferred)
+        policy.setHeightForWidth(True)
+        self.setSizePolicy(policy)
 
-    def set_slices(self, slices: list, caption: str) -> None:
-        self.slices, self.caption = list(slices), caption
-        self.setToolTip(
-            "Horizontal slices at heights above the tree base: amber target, blue "
-            "source. Good: the two circles coincide, offset under 5 mm; ghosting "
-            "that grows with height is wind, not misregistration."
-        )
-        self.update()
+    def hasHeightForWidth(self) -> bool:
+        return True
 
-    def offsets_mm(self) -> list[float]:
-        """Centre offset of each slice (mm; NaN without two circles)."""
-        return [s.offset_m * 1000 for s in self.slices]
+    def heightForWidth(self, width: int) -> int:
+        return width  # square: as tall as the column is wide
+
+    def plot_rect(self) -> QRectF:
+        """The square the slice is drawn in: as large as the widget allows."""
+        side = max(min(self.width(), self.height()) - 4, 10)
+        return QRectF((self.width() - side) / 2, (self.height() - side) / 2, side, side)
 
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
         p.fillRect(self.rect(), QColor(31, 33, 38))
-        p.setPen(QColor(230, 230, 230))
-        p.drawText(8, 16, self.caption)
-        n = len(self.slices)
-        if not n:
-            p.end()
-            return
-        size = min((self.width() - 16) / n, self.height() - 70)
-        for k, sl in enumerate(self.slices):
-            x0 = 8 + k * (self.width() - 16) / n
-            self._draw_slice(p, sl, QRectF(x0, 40, size - 8, size - 8))
+        _draw_slice(p, self.slice, self.plot_rect())
         p.end()
 
-    def _draw_slice(self, p: QPainter, sl, box: QRectF) -> None:
-        pts = [a for a in (sl.target_xy, sl.source_xy) if len(a)]
-        circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
-        p.setPen(QColor(120, 120, 120))
-        p.drawRect(box)
-        offset = sl.offset_m
-        second = (
-            f"centres {offset * 1000:.1f} mm apart"
-            if np.isfinite(offset)
-            else "no stem circle in one scan"
-        )
-        p.setPen(QColor(230, 230, 230))
-        p.drawText(
-            QPointF(box.left(), box.bottom() + 16), f"{sl.height_m:g} m above the base"
-        )
-        p.drawText(QPointF(box.left(), box.bottom() + 32), second)
-        if not pts:
-            return
-        allp = np.vstack(pts)
-        if circles:
-            c = np.array(circles[0].centre_xy)
-            half = max(max(ci.radius_m for ci in circles) * 1.8, 0.05)
-        else:
-            c = np.median(allp, axis=0)
-            half = max(float(np.percentile(np.abs(allp - c), 95)), 0.05)
-        scale = box.width() / (2 * half)
 
-        def to_px(xy):
-            return (
-                box.center().x() + (xy[0] - c[0]) * scale,
-                box.center().y() - (xy[1] - c[1]) * scale,
-            )
+def _draw_slice(p: QPainter, sl, box: QRectF) -> None:
+    pts = [a for a in (sl.target_xy, sl.source_xy) if len(a)]
+    circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
+    p.setPen(QColor(120, 120, 120))
+    p.drawRect(box)
+    if not pts:
+        return
+    allp = np.vstack(pts)
+    if circles:
+        c = np.array(circles[0].centre_xy)
+        half = max(max(ci.radius_m for ci in circles) * 1.8, 0.05)
+    else:
+        c = np.median(allp, axis=0)
+        half = max(float(np.percentile(np.abs(allp - c), 95)), 0.05)
+    scale = box.width() / (2 * half)
 
-        for xy, rgb in ((sl.target_xy, TARGET_RGB), (sl.source_xy, SOURCE_RGB)):
-            p.setPen(QPen(QColor(*rgb), 2))
-            for q in xy[:: max(1, len(xy) // 3000)]:
-                x, y = to_px(q)
-                if box.contains(QPointF(x, y)):
-                    p.drawPoint(QPointF(x, y))
-        p.setBrush(Qt.BrushStyle.NoBrush)
-        for circle, rgb in (
-            (sl.target_circle, TARGET_RGB),
-            (sl.source_circle, SOURCE_RGB),
-        ):
-            if circle is None:
-                continue
-            p.setPen(QPen(QColor(*rgb), 1.5))
-            x, y = to_px(circle.centre_xy)
-            r = circle.radius_m * scale
-            p.drawEllipse(QPointF(x, y), r, r)
+    def to_px(xy):
+        return (
+            box.center().x() + (xy[0] - c[0]) * scale,
+            box.center().y() - (xy[1] - c[1]) * scale,
+        )
+
+    for xy, rgb in ((sl.target_xy, TARGET_RGB), (sl.source_xy, SOURCE_RGB)):
+        p.setPen(QPen(QColor(*rgb), 2))
+        for q in xy[:: max(1, len(xy) // 3000)]:
+            x, y = to_px(q)
+            if box.contains(QPointF(x, y)):
+                p.drawPoint(QPointF(x, y))
+    p.setBrush(Qt.BrushStyle.NoBrush)
+    for circle, rgb in (
+        (sl.target_circle, TARGET_RGB),
+        (sl.source_circle, SOURCE_RGB),
+    ):
+        if circle is None:
+            continue
+        p.setPen(QPen(QColor(*rgb), 1.5))
+        x, y = to_px(circle.centre_xy)
+        r = circle.radius_m * scale
+        p.drawEllipse(QPointF(x, y), r, r)
+
+
+_NOTE_STYLE = "color: #e6e6e6;"
+_WARN_STYLE = "color: #ff8a80; font-weight: bold;"
+
+
+class StemSlicesView(QWidget):
+    """Stem slices side by side; set with ``set_slices(list of StemSlice)``.
+
+    Each slice is a plot with its two caption lines in labels under it (word-wrapped,
+    in their own column, so captions never overlap); the plots take the height left.
+    A slice whose circle fit cannot be trusted says so instead of an offset.
+    """
+
+    def __init__(self, parent=None) -> None:
+        from PySide6.QtWidgets import QHBoxLayout, QLabel, QVBoxLayout
+
+        super().__init__(parent)
+        self.setObjectName("stem_slices")
+        self.setAutoFillBackground(True)
+        pal = self.palette()
+        pal.setColor(self.backgroundRole(), QColor(31, 33, 38))
+        self.setPalette(pal)
+        self.slices: list = []
+        self.caption = "No registration to slice yet."
+        self.caption_label = QLabel(self.caption)
+        self.caption_label.setWordWrap(True)
+        self.caption_label.setStyleSheet(_NOTE_STYLE)
+        self.row = QHBoxLayout()
+        self.row.setSpacing(8)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(8, 6, 8, 6)
+        layout.addWidget(self.caption_label)
+        layout.addLayout(self.row, 1)
+        self.cells: list[QWidget] = []
+        self.setMinimumSize(300, 200)
+
+    def set_slices(self, slices: list, caption: str) -> None:
+        from PySide6.QtWidgets import QLabel, QVBoxLayout
+
+        self.slices, self.caption = list(slices), caption
+        self.caption_label.setText(caption)
+        self.setToolTip(
+            "Horizontal slices at heights above the tree base: amber target, blue "
+            "source. Good: the two circles coincide, offset under 5 mm; ghosting "
+            "that grows with height is wind, not misregistration. A circle resting "
+            "on few points, a short arc or a flared base is marked unreliable."
+        )
+        for cell in self.cells:
+            self.row.removeWidget(cell)
+            cell.deleteLater()
+        self.cells = []
+        for sl in self.slices:
+            cell = QWidget(self)
+            cell.setObjectName("slice_cell")
+            box = QVBoxLayout(cell)
+            box.setContentsMargins(0, 0, 0, 0)
+            box.setSpacing(2)
+            box.addWidget(SlicePlot(sl, cell))
+            title, note = sl.caption()
+            for text, style in (
+                (title, _NOTE_STYLE),
+                (note, _WARN_STYLE if sl.problem() else _NOTE_STYLE),
+            ):
+                label = QLabel(text, cell)
+                label.setWordWrap(True)
+                label.setStyleSheet(style)
+                label.setToolTip(text)
+                box.addWidget(label)
+            box.addStretch(1)
+            self.row.addWidget(cell, 1)
+            self.cells.append(cell)
+
+    def captions(self) -> list[tuple[str, str]]:
+        """The two caption lines of each slice, as shown."""
+        return [sl.caption() for sl in self.slices]
+
+    def offsets_mm(self) -> list[float]:
+        """Centre offset of each slice (mm; NaN without two circles)."""
+        return [s.offset_m * 1000 for s in self.slices]
 
 
 class StemSlicesPane(QWidget):

@@ -207,10 +207,8 @@ def moved_local(T_target_source: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]:
     """The T_target_source shown for ``stage`` and a caption describing it."""
     if stage == "before":
-        # As scanned: world coordinates, i.e. the offsets' difference in local terms.
-        T = np.eye(4)
-        T[:3, 3] = session.cloud("source").offset - session.cloud("target").offset
-        return T, "Before registration (source as scanned)"
+        # As scanned: the identity in world coordinates, in local terms.
+        return session.local(np.eye(4)), "Before registration (source as scanned)"
     if stage == "coarse":
         accepted = session.accepted_coarse
         if accepted is not None:

@@ -222,3 +222,18 @@ def finish(qtbot):
         return got[-1]
 
     return run
+
+
+@pytest.fixture(autouse=True)
+def opened_reports(monkeypatch):
+    """View report never starts a browser in a test: the paths it would open."""
+    from amrst_gui import dialogs
+
+    opened: list = []
+
+    def record(_parent, path) -> bool:
+        opened.append(path)
+        return True
+
+    monkeypatch.setattr(dialogs, "open_report", record)
+    return opened

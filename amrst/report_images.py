@@ -1,0 +1,187 @@
+"""The registration report's pictures, drawn with matplotlib's Agg (no display, no Qt).
+
+Four PNGs: the overlay (top and side views, target amber, source blue), the distance
+colouring (each moved source point coloured by its distance to the target, in cm), the
+distance histogram (both ways) and the stem slices with their fitted circles. The
+command line uses them as they are; the app may pass its own screenshots instead.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.quality import nn_distances
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.figure import Figure
+
+    from amrst.quality import StemSlice
+
+TARGET_RGB = (240 / 255, 170 / 255, 40 / 255)  # the app's colours (views.scene)
+SOURCE_RGB = (60 / 255, 150 / 255, 255 / 255)
+DISTANCE_CLIP_M = 0.10  # the colour scale ends here, as in the app
+MAX_POINTS = 30_000  # per cloud and picture: enough to see, quick to draw
+
+
+def sample(xyz: np.ndarray, n: int = MAX_POINTS, seed: int = 0) -> np.ndarray:
+    """At most ``n`` points of ``xyz``, picked at random but reproducibly."""
+    if len(xyz) <= n:
+        return xyz
+    return xyz[np.random.default_rng(seed).choice(len(xyz), n, replace=False)]
+
+
+def _png(fig: Figure) -> bytes:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return buf.getvalue()
+
+
+def _figure(width_in: float, height_in: float) -> Figure:
+    # A bare Figure renders with Agg and leaves pyplot's global backend alone.
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width_in, height_in), layout="constrained")
+
+
+def overlay_png(target_xyz: np.ndarray, moved_source_xyz: np.ndarray) -> bytes:
+    """Top (x-y) and side (x-z, y-z) views of both scans in their colours."""
+    fig = _figure(11, 4.6)
+    axes = fig.subplots(1, 3)
+    t, s = sample(target_xyz), sample(moved_source_xyz, seed=1)
+    for ax, (i, j, name) in zip(
+        axes,
+        ((0, 1, "Top (x-y)"), (0, 2, "Front (x-z)"), (1, 2, "Side (y-z)")),
+        strict=True,
+    ):
+        ax.scatter(t[:, i], t[:, j], s=0.3, color=TARGET_RGB, label="target", lw=0)
+        ax.scatter(s[:, i], s[:, j], s=0.3, color=SOURCE_RGB, label="source", lw=0)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(name)
+        ax.set_xlabel("xyz"[i] + " (m)")
+        ax.set_ylabel("xyz"[j] + " (m)")
+    axes[0].legend(markerscale=20, loc="upper right", fontsize=8)
+    return _png(fig)
+
+
+def distance_png(moved_source_xyz: np.ndarray, distances_m: np.ndarray) -> bytes:
+    """Colour the moved source by its distance to the target (front and side)."""
+    fig = _figure(11, 4.6)
+    axes = fig.subplots(1, 2)
+    keep = np.isfinite(distances_m)
+    xyz, d = moved_source_xyz[keep], distances_m[keep]
+    idx = np.argsort(d)  # the far points are drawn last, on top
+    idx = sample(idx[:, None], seed=2)[:, 0]
+    idx = idx[np.argsort(d[idx])]
+    art = None
+    for ax, (i, j, name) in zip(
+        axes, ((0, 2, "Front (x-z)"), (1, 2, "Side (y-z)")), strict=True
+    ):
+        art = ax.scatter(
+            xyz[idx, i],
+            xyz[idx, j],
+            c=np.minimum(d[idx], DISTANCE_CLIP_M) * 100,
+            cmap="turbo",
+            vmin=0,
+            vmax=DISTANCE_CLIP_M * 100,
+            s=0.5,
+            lw=0,
+        )
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"Source coloured by distance to the target: {name}")
+        ax.set_xlabel("xyz"[i] + " (m)")
+        ax.set_ylabel("xyz"[j] + " (m)")
+    if art is not None:
+        bar = fig.colorbar(art, ax=list(axes), shrink=0.8)
+        bar.set_label(f"distance (cm, {DISTANCE_CLIP_M * 100:.0f} and more at the top)")
+    return _png(fig)
+
+
+def histogram_png(to_target_m: np.ndarray, to_source_m: np.ndarray) -> bytes:
+    """Histogram of the nearest-neighbour distances both ways, in cm."""
+    fig = _figure(8, 3.2)
+    ax = fig.subplots()
+    bins = [float(b) for b in np.linspace(0, DISTANCE_CLIP_M * 100, 26)]
+    for d, colour, name in (
+        (to_target_m, SOURCE_RGB, "source to target"),
+        (to_source_m, TARGET_RGB, "target to source"),
+    ):
+        d = d[np.isfinite(d)]
+        ax.hist(
+            np.minimum(d, DISTANCE_CLIP_M) * 100,
+            bins=bins,
+            color=colour,
+            alpha=0.6,
+            label=f"{name}: median {np.median(d) * 100:.1f} cm" if len(d) else name,
+        )
+    ax.set_xlabel(
+        f"distance to the nearest point of the other scan (cm; the last bar holds "
+        f"{DISTANCE_CLIP_M * 100:.0f} cm and more)"
+    )
+    ax.set_ylabel("points")
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def slices_png(slices: Sequence[StemSlice]) -> bytes:
+    """One square per slice: both scans' points, their circles, and the caption."""
+    import matplotlib.patches as mpatches
+
+    n = max(len(slices), 1)
+    fig = _figure(3.6 * n, 4.2)
+    axes = np.atleast_1d(fig.subplots(1, n))
+    for ax, sl in zip(axes, slices, strict=False):
+        circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
+        for xy, colour in ((sl.target_xy, TARGET_RGB), (sl.source_xy, SOURCE_RGB)):
+            if len(xy):
+                ax.scatter(xy[:, 0], xy[:, 1], s=2, color=colour, lw=0)
+        for c, colour in (
+            (sl.target_circle, TARGET_RGB),
+            (sl.source_circle, SOURCE_RGB),
+        ):
+            if c is not None:
+                ax.add_patch(
+                    mpatches.Circle(c.centre_xy, c.radius_m, fill=False, color=colour)
+                )
+        if circles:
+            cx, cy = circles[0].centre_xy
+            half = max(max(c.radius_m for c in circles) * 1.8, 0.05)
+            ax.set_xlim(cx - half, cx + half)
+            ax.set_ylim(cy - half, cy + half)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+        first, second = sl.caption()
+        ax.set_title(first, fontsize=10)
+        note_colour = "#b00020" if sl.problem() else "black"
+        ax.set_xlabel(_wrap(second, 40), fontsize=8, color=note_colour)
+    return _png(fig)
+
+
+def _wrap(text: str, width: int) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width))
+
+
+def render_all(
+    target_xyz: np.ndarray,
+    moved_source_xyz: np.ndarray,
+    slices: Sequence[StemSlice],
+) -> dict[str, bytes]:
+    """Every picture of the report, by name (overlay, distance, histogram, slices)."""
+    t, s = sample(target_xyz), sample(moved_source_xyz, seed=1)
+    to_target = nn_distances(s, target_xyz)
+    to_source = nn_distances(t, moved_source_xyz)
+    return {
+        "overlay": overlay_png(target_xyz, moved_source_xyz),
+        "distance": distance_png(s, to_target),
+        "histogram": histogram_png(to_target, to_source),
+        "slices": slices_png(slices),
+    }
