@@ -81,8 +81,9 @@ class CampaignPanel(QWidget):
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.verticalHeader().setVisible(False)
         self.table.horizontalHeader().setSectionResizeMode(
-            QHeaderView.ResizeMode.ResizeToContents
+            QHeaderView.ResizeMode.Interactive
         )
+        self._fit_columns()
         self.open_button = QPushButton("Open campaign…")
         self.run_button = QPushButton("Run remaining")
         self.accept_button = QPushButton("Accept")
@@ -257,8 +258,19 @@ class CampaignPanel(QWidget):
             if row["tree_id"] in selected:
                 self.table.selectRow(i)
         self.table.blockSignals(False)
+        self._fit_columns()
         self._apply_filter()
         self._update_buttons()
+
+    def _fit_columns(self) -> None:
+        """Size each column to its contents, never narrower than its whole title."""
+        self.table.resizeColumnsToContents()
+        header = self.table.horizontalHeader()
+        metrics = header.fontMetrics()
+        for j, title in enumerate(COLUMNS):
+            need = metrics.horizontalAdvance(title) + 20  # the header's margins
+            if header.sectionSize(j) < need:
+                header.resizeSection(j, need)
 
     def _apply_filter(self) -> None:
         text = self.filter_edit.text().strip().lower()
