@@ -206,7 +206,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
-    from amrst import bench, simulate
+    from amrst import bench, clip, simulate
 
     p = argparse.ArgumentParser(
         prog="amrst",
@@ -284,6 +284,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.configure_parser(sim)
     sim.set_defaults(func=simulate.run_cli)
+
+    cut = sub.add_parser(
+        "clip", help="cut one tree (a cylinder around its stem) out of a plot file"
+    )
+    clip.configure_parser(cut)
+    cut.set_defaults(func=clip.run_cli)
 
     ben = sub.add_parser(
         "bench",

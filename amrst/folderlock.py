@@ -122,7 +122,13 @@ class FolderLock:
                 return
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+            except OSError as exc:
+                if not isinstance(exc, BlockingIOError):
+                    # A file system without locks (some network mounts): write
+                    # unguarded rather than not at all.
+                    logger.debug("No lock on %s: %s", self.path, exc)
+                    self._fds.append(fd)
+                    return
                 raw = _read_all(fd)
                 os.close(fd)
                 if time.monotonic() >= deadline:
@@ -150,7 +156,8 @@ class FolderLock:
         """Also lock the lock file of a folder about to replace this one."""
         fd = self._open(path)
         if fcntl is not None:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # new: nobody else has it
+            with contextlib.suppress(OSError):  # new: nobody else has it
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         _write_holder(fd)
         self._fds.append(fd)
 

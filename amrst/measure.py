@@ -26,9 +26,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.progress import NULL_REPORTER
 from amrst.stem import StemCircle, fit_stem_circle, stem_surface
 
 if TYPE_CHECKING:
+    from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
 __all__ = [
@@ -246,7 +248,11 @@ def _crown(xy: np.ndarray) -> tuple[float, float]:
     return float(hull.volume), float(extents.mean())
 
 
-def measure_tree(xyz: np.ndarray, params: MeasureParams | None = None) -> TreeMeasures:
+def measure_tree(
+    xyz: np.ndarray,
+    params: MeasureParams | None = None,
+    reporter: Reporter = NULL_REPORTER,
+) -> TreeMeasures:
     """Measure one tree cloud.
 
     Parameters
@@ -267,13 +273,16 @@ def measure_tree(xyz: np.ndarray, params: MeasureParams | None = None) -> TreeMe
         return TreeMeasures(len(xyz), nan, nan, nan, None, nan, nan, "too few points")
     n_points = len(xyz)
     xyz, weight = distinct_points(xyz)  # linear in the copies (issue 16)
+    reporter.check_cancelled()  # between the parts: Cancel in the app (issue 15)
     base, top = _base_and_top(xyz, weight)
+    reporter.check_cancelled()
     z = xyz[:, 2]
     centre = base + params.breast_height_m
     in_slice = np.abs(z - centre) <= params.slice_m / 2
     # Only bark-like points: branches and needles crowd the slice of many conifers,
     # and a circle through them is no stem. No bark in view: no DBH (said in note).
     surface = stem_surface(xyz, centre, params.slice_m / 2)
+    reporter.check_cancelled()
     stem = fit_stem_circle(xyz[in_slice & surface, :2], params)
     note = ""
     height = top - base
@@ -294,6 +303,7 @@ def measure_tree(xyz: np.ndarray, params: MeasureParams | None = None) -> TreeMe
             f"{int((in_slice & surface).sum())} on bark-like surfaces): the stem may "
             "be hidden by branches, or the cloud holds ground or several trees"
         )
+    reporter.check_cancelled()
     area, width = _crown(xyz[:, :2])
     return TreeMeasures(
         n_points=n_points,
@@ -312,6 +322,7 @@ def measure_registration(
     source: Cloud,
     T_target_source: Transform,
     params: MeasureParams | None = None,
+    reporter: Reporter = NULL_REPORTER,
 ) -> dict[str, TreeMeasures]:
     """Measure the target, the moved source and both merged, in the target frame.
 
@@ -332,8 +343,9 @@ def measure_registration(
     T = np.asarray(T_target_source, dtype=np.float64)
     tgt = target.world_xyz
     src = source.world_xyz @ T[:3, :3].T + T[:3, 3]
+    reporter.check_cancelled()
     return {
-        "target": measure_tree(tgt, params),
-        "source": measure_tree(src, params),
-        "merged": measure_tree(np.vstack([tgt, src]), params),
+        "target": measure_tree(tgt, params, reporter),
+        "source": measure_tree(src, params, reporter),
+        "merged": measure_tree(np.vstack([tgt, src]), params, reporter),
     }

@@ -105,7 +105,7 @@ def _is_ours(name: str) -> bool:
 
 def replace_files(
     folder: str | os.PathLike[str],
-    writers: dict[str, Callable[[Path], object]],
+    writers: Mapping[str, Callable[[Path], object]],
     *,
     managed: Collection[str],
     remove: Iterable[str] = (),
@@ -189,7 +189,7 @@ def _can_swap(real: Path, managed: Collection[str]) -> bool:
 
 
 def _write_into(
-    stage: Path, shown: Path, writers: dict[str, Callable[[Path], object]]
+    stage: Path, shown: Path, writers: Mapping[str, Callable[[Path], object]]
 ) -> None:
     """Write every file into ``stage``; errors name ``shown`` (the real folder)."""
     for name, write in writers.items():
@@ -210,7 +210,7 @@ def _write_into(
 def _swap(
     real: Path,
     shown: Path,
-    writers: dict[str, Callable[[Path], object]],
+    writers: Mapping[str, Callable[[Path], object]],
     gone: list[str],
     lock: FolderLock,
 ) -> None:
@@ -256,7 +256,7 @@ def _hand_over(new: Path, real: Path) -> Path:
 def _journal(
     real: Path,
     shown: Path,
-    writers: dict[str, Callable[[Path], object]],
+    writers: Mapping[str, Callable[[Path], object]],
     gone: list[str],
     stage: Path | None,
 ) -> None:

@@ -65,7 +65,11 @@ class ResultRecord:
     # registered / needs review / failed, with reason and next step (amrst.verdict),
     # and whether the user chose to export a result that is not registered.
     verdict: Mapping[str, Any] | None = None
-    override: bool = False
+    # Set when the user exported a result that is not "registered" (the app asks):
+    # what they overrode and when.
+    override: Mapping[str, Any] | None = None
+    # More context for transform.json (e.g. how a manual pose was given).
+    extra: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -125,7 +129,8 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         "stage": "fine" if fine is not None else "coarse",
         "verified": verified,
         "verdict": None if record.verdict is None else dict(record.verdict),
-        "exported_despite_verdict": bool(record.override),
+        "exported_despite_verdict": record.override is not None,
+        "override": None if record.override is None else dict(record.override),
         "confidence": confidence,
         "message": record.message,
         "coarse_candidate": _candidate(coarse),
@@ -135,10 +140,13 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         "rejected_match_ids": sorted(int(i) for i in record.rejected_match_ids),
         "timings_s": timings,
     }
+    transform.update({k: v for k, v in record.extra.items() if k not in transform})
     metrics: dict[str, Any] = {"schema_version": RESULT_SCHEMA_VERSION}
     if record.verdict is not None:
         metrics["verdict"] = dict(record.verdict)
-        metrics["exported_despite_verdict"] = bool(record.override)
+        metrics["exported_despite_verdict"] = record.override is not None
+        if record.override is not None:
+            metrics["override"] = dict(record.override)
     if record.metrics_coarse is not None or coarse is not None:
         section = dict(record.metrics_coarse or {})
         if coarse is not None:

@@ -48,5 +48,5 @@ def refine_keeping_manual(
             method=f"{fine.method} (result dropped: manual pose kept)",
         )
         metrics = pipeline.evaluate(target, source, fine.T_target_source, params)
-        tree = jobs.measure_tree_pair(analyses, fine.T_target_source, params)
+        tree = jobs.measure_tree_pair(analyses, fine.T_target_source, params, reporter)
     return (fine, metrics, tree, decision), time.perf_counter() - start

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from amrst.progress import Reporter, SubReporter
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 
 if TYPE_CHECKING:
     import numpy as np
@@ -105,14 +105,19 @@ def score_manual_pair(
     return cand, time.perf_counter() - start
 
 
-def measure_tree_pair(analyses: dict, T_local: Any, params: Any) -> dict:
-    """Height, DBH and crown of each scan and of both merged under ``T_local``."""
+def measure_tree_pair(
+    analyses: dict, T_local: Any, params: Any, reporter: Reporter = NULL_REPORTER
+) -> dict:
+    """Height, DBH and crown of each scan and of both merged under ``T_local``;
+    stops at the reporter's cancel checks between the measurements."""
     from amrst.measure import measure_registration
     from amrst.types import world_transform
 
     target, source = analyses["target"].cloud, analyses["source"].cloud
     T_world = world_transform(T_local, target, source)
-    return measure_registration(target, source, T_world, params.measure)
+    return measure_registration(
+        target, source, T_world, params.measure, reporter=reporter
+    )
 
 
 def evaluate_coarse(
@@ -123,11 +128,13 @@ def evaluate_coarse(
 
     start = time.perf_counter()
     reporter.progress(0.0, "Measuring the coarse alignment")
+    reporter.check_cancelled()
     metrics = pipeline.evaluate(
         analyses["target"], analyses["source"], coarse.T_target_source, params
     )
+    reporter.check_cancelled()
     reporter.progress(0.6, "Measuring the tree")
-    tree = measure_tree_pair(analyses, coarse.T_target_source, params)
+    tree = measure_tree_pair(analyses, coarse.T_target_source, params, reporter)
     reporter.progress(1.0, "Coarse alignment measured")
     return (coarse, metrics, tree), time.perf_counter() - start
 
@@ -154,8 +161,9 @@ def refine_pair(
     metrics = pipeline.evaluate(
         analyses["target"], analyses["source"], fine.T_target_source, params
     )
+    reporter.check_cancelled()
     reporter.progress(0.95, "Measuring the tree")
-    tree = measure_tree_pair(analyses, fine.T_target_source, params)
+    tree = measure_tree_pair(analyses, fine.T_target_source, params, reporter)
     reporter.progress(1.0, "Fine registration done")
     return (fine, metrics, tree), time.perf_counter() - start
 

@@ -13,6 +13,7 @@ def build(window) -> QToolBar:
     file_menu = bar.addMenu("&File")
     for action in (a.open_target, a.open_source, a.swap, a.load_truth):
         file_menu.addAction(action)
+    file_menu.addAction("Cut a &tree from a plot file…", lambda: _clip_dialog(window))
     file_menu.addSeparator()
     file_menu.addAction(a.load_params)
     file_menu.addAction(a.save_params)
@@ -84,3 +85,9 @@ def all_actions(window) -> list:
         a.about,
         a.quit,
     ]
+
+
+def _clip_dialog(window) -> None:
+    from amrst_gui.clip_dialog import ClipDialog
+
+    ClipDialog(window.session, window).open()

@@ -221,17 +221,49 @@ class ResultsMixin(ReviewMixin):
         # Session.export, the only caller, returns early while this is None.
         assert T_final is not None
         assert self._accepted is not None  # a final transform needs an accepted one
-        kwargs: dict[str, Any] = {
-            "target": self.cloud("target"),
-            "source": self.cloud("source"),
+        from amrst import __version__
+        from amrst.report import ResultRecord, result_documents
+
+        fine = self._fine
+        verdict = self.verdict
+        context = self._transform_context()
+        target, source = self.cloud("target"), self.cloud("source")
+        assert target is not None  # a result needs both scans
+        assert source is not None
+        # The one result layout of the CLI, the app and the benchmark (issue 11).
+        record = ResultRecord(
             # The engine works between local frames; the files hold world transforms.
-            "T_target_source": self.world(T_final),
-            "T_coarse": self.world(self._accepted.T_target_source),
-            "metrics": self.metrics_report(),
+            T_target_source=self.world(T_final),
+            T_coarse=self.world(self._accepted.T_target_source),
+            target_name=target.name,
+            source_name=source.name,
+            target_file=context["target_file"],
+            source_file=context["source_file"],
+            coarse=self._accepted,
+            fine=fine,
+            metrics_coarse=self._metrics["coarse"].as_dict()
+            if "coarse" in self._metrics
+            else None,
+            metrics_fine=self._metrics["fine"].as_dict()
+            if "fine" in self._metrics and fine is not None
+            else None,
+            truth=self.truth_errors(),
+            tree=self.tree,
+            timings_s=dict(self._timings),
+            rejected_match_ids=tuple(sorted(int(i) for i in self._rejected)),
+            verdict=None if verdict is None else verdict.as_dict(),
+            override=None if self._override is None else dict(self._override),
+            extra={k: context[k] for k in ("manual_pose",) if k in context},
+            amrst_version=__version__,
+        )
+        kwargs: dict[str, Any] = {
+            "target": target,
+            "source": source,
+            "T_target_source": record.T_target_source,
             # The parameters the result was computed with (export refuses stale ones).
             "params": self.result_params,
             "cloud_format": cloud_format,
-            "transform_extra": self._transform_context(),
+            "documents": result_documents(record),
         }
         if parts is not None:
             kwargs["parts"] = tuple(parts)

@@ -5,6 +5,14 @@
 The reporter is an :class:`amrst.progress.EventReporter`: ``cancel()`` sets its
 ``threading.Event`` and the engine raises ``Cancelled`` at its next check point.
 
+A cancelled job keeps nothing of its own result: once ``cancel()`` was called, a
+value the work still returns (it passed its last check point before the request)
+arrives as ``errored(Cancelled())``, so Cancel always means "drop this step". And
+Cancel answers within ``CANCEL_GRACE_S`` at any size: if the work has not reached
+a check point by then (one numpy call on millions of points can take seconds), the
+job ends as cancelled at once and the worker thread, already told to stop, ends at
+its next check point with nothing delivered (``worker_done`` is set then).
+
 Every callback runs on the GUI thread: the worker's signals are relayed through a
 ``StageJob`` (a QObject created on the GUI thread) with explicit queued
 connections, so no widget, plotter or session is ever touched from a worker.
@@ -13,18 +21,24 @@ connections, so no widget, plotter or session is ever touched from a worker.
 from __future__ import annotations
 
 import logging
+import threading
 import traceback
 from typing import TYPE_CHECKING, Any
 
-from PySide6.QtCore import QObject, Qt, QThreadPool, Signal, Slot
+from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
 
+from amrst.errors import Cancelled
 from amrst.progress import EventReporter
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
 log = logging.getLogger("amrst_gui.workers")
+
+# After Cancel, the longest wait for the work's next check point before the job is
+# reported cancelled anyway (issue 15: Cancel within a second at any size).
+CANCEL_GRACE_S = 0.5
 
 
 class StageJob(QObject):
@@ -48,6 +62,9 @@ class StageJob(QObject):
         self._worker: WorkerBase | None = None
         self._done = False
         self._discarded = False
+        self._abandon_timer: QTimer | None = None
+        # Set when the worker thread itself has returned or raised.
+        self.worker_done = threading.Event()
         # Emitted from the worker thread, delivered on this object's (GUI) thread.
         self._progress_from_worker.connect(
             self._relay_progress, Qt.ConnectionType.QueuedConnection
@@ -64,8 +81,25 @@ class StageJob(QObject):
         return self.reporter.cancelled
 
     def cancel(self) -> None:
-        """Ask the stage to stop at its next check point (does not wait)."""
+        """Ask the stage to stop at its next check point (does not wait); it is
+        reported cancelled then, or after ``CANCEL_GRACE_S`` at the latest."""
         self.reporter.cancel()
+        if not self._done and self._abandon_timer is None:
+            self._abandon_timer = QTimer(self)
+            self._abandon_timer.setSingleShot(True)
+            self._abandon_timer.timeout.connect(self._abandon)
+            self._abandon_timer.start(int(CANCEL_GRACE_S * 1000))
+
+    def _abandon(self) -> None:
+        if self._done:
+            return
+        log.info(
+            "%s: no check point reached %.1f s after Cancel; the worker stops at its "
+            "next one and its result is dropped",
+            self.name,
+            CANCEL_GRACE_S,
+        )
+        self._finish(self.errored, Cancelled())
 
     def discard(self) -> None:
         """Cancel, and drop every signal still on its way (used when closing)."""
@@ -80,6 +114,8 @@ class StageJob(QObject):
                 # Keep the worker traceback for the log; the exception crosses threads.
                 exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
                 raise
+            finally:
+                self.worker_done.set()
 
         worker = create_worker(work, _start_thread=False, _ignore_errors=True)
         worker.returned.connect(
@@ -97,6 +133,10 @@ class StageJob(QObject):
 
     @Slot(object)
     def _relay_returned(self, result: object) -> None:
+        if self.reporter.cancelled:
+            # Asked to stop: the step's result is dropped even if it got to the end.
+            self._finish(self.errored, Cancelled())
+            return
         self._finish(self.returned, result)
 
     @Slot(object)
@@ -146,6 +186,7 @@ def run_stage(
     StageJob
         ``cancel()`` asks the work to stop; signals carry the outcome.
     """
+    _enough_threads()
     job = StageJob(name or getattr(fn, "__name__", "stage"))
     if on_progress is not None:
         job.progressed.connect(on_progress)
@@ -157,6 +198,17 @@ def run_stage(
         job.finished.connect(on_finished)
     job._start(fn, args, kwargs)
     return job
+
+
+# Jobs that may run at once: a step, the Scans dock's descriptions and the three
+# views' scenes. Qt's default (one thread per core) queued the views behind a step.
+MIN_THREADS = 8
+
+
+def _enough_threads() -> None:
+    pool = QThreadPool.globalInstance()
+    if pool.maxThreadCount() < MIN_THREADS:
+        pool.setMaxThreadCount(MIN_THREADS)
 
 
 def wait_for_workers(timeout_s: float = 60.0) -> bool:

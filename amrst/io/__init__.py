@@ -10,9 +10,11 @@ small float64 local values. Writes are atomic (a temp file in the same folder, t
 
 from __future__ import annotations
 
+import errno
 import functools
 import logging
 import os
+import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,10 +26,12 @@ from amrst.errors import AmrstError, InvalidInput
 from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
 from amrst.io.e57 import read_e57
-from amrst.io.las import read_las, write_las
+from amrst.io.las import read_las
+from amrst.io.las_write import write_las
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
 from amrst.io.ptx import read_ptx
+from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
 from amrst.types import Cloud
 
@@ -99,12 +103,45 @@ def get_reader(path: PathLike) -> Reader | None:
 
 
 def _check_readable(path: Path) -> _Format:
-    if not path.exists():
-        raise InvalidInput(f"File not found: {path}. Check the path and the file name.")
-    if path.is_dir():
+    """Check what ``path`` is before opening it: never block on a FIFO or a device."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            raise InvalidInput(
+                f"{path} is a broken link: it points to {os.readlink(path)}, which "
+                "does not exist. Fix the link or give the real file."
+            ) from None
+        raise InvalidInput(
+            f"File not found: {path}. Check the path and the file name."
+        ) from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InvalidInput(
+                f"{path} is a symbolic link loop (the links point at each other). "
+                "Fix the links or give the real file."
+            ) from exc
+        if isinstance(exc, PermissionError):
+            raise
+        raise InvalidInput(
+            f"Cannot read {path}: {exc.strerror or exc}. Check the path."
+        ) from exc
+    if stat.S_ISDIR(info.st_mode):
         raise InvalidInput(
             f"{path} is a folder, not a point-cloud file. Choose a file ending in "
             f"{', '.join(_FORMATS)}."
+        )
+    if not stat.S_ISREG(info.st_mode):
+        kind = (
+            "a named pipe (FIFO)" if stat.S_ISFIFO(info.st_mode)
+            else "a character device" if stat.S_ISCHR(info.st_mode)
+            else "a block device" if stat.S_ISBLK(info.st_mode)
+            else "a socket" if stat.S_ISSOCK(info.st_mode)
+            else "not a regular file"
+        )  # fmt: skip
+        raise InvalidInput(
+            f"{path} is {kind}, not a point-cloud file. Save the cloud to a "
+            "regular file first and give that file."
         )
     fmt = _FORMATS.get(path.suffix.lower())
     if fmt is None:
@@ -113,7 +150,7 @@ def _check_readable(path: Path) -> _Format:
             f"Supported: {', '.join(_FORMATS)}. Convert the file (e.g. with "
             "CloudCompare) to one of these."
         )
-    if path.stat().st_size == 0:
+    if info.st_size == 0:
         raise InvalidInput(
             f"{path} is empty (0 bytes). The export or copy probably failed; "
             "export it again."
@@ -168,7 +205,10 @@ def read(
     except PermissionError as exc:
         raise _permission_denied(path) from exc
     except MemoryError as exc:
-        raise InvalidInput(f"{path} is too large to load into memory.") from exc
+        raise InvalidInput(
+            f"{path} is too large to load into memory. Cut the tree out first "
+            "(amrst clip) or thin the cloud."
+        ) from exc
     except Exception as exc:  # any library error becomes a message the user can act on
         raise InvalidInput(
             f"Could not read {path}: {shorten(str(exc), 200)} "
@@ -273,6 +313,8 @@ __all__ = [
     "format_description",
     "get_reader",
     "read",
+    "read_overview",
+    "read_region",
     "supported_extensions",
     "writable_extensions",
     "write",

@@ -16,6 +16,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
+    from pathlib import Path
 
     from amrst.types import Cloud
 
@@ -68,6 +69,35 @@ def rebase(xyz: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if not shift.any():
         return local, offset
     return local - shift, offset + shift
+
+
+def warn_undercount(path: Path, kind: str, announced: int, extra: int) -> None:
+    """Log that a header announces fewer points than its file holds (not read)."""
+    logger.warning(
+        "%s: the %s header announces %d points but the file holds about %d more "
+        "after them; only the announced %d were read. If points are missing, "
+        "export the file again.",
+        path.name,
+        kind,
+        announced,
+        extra,
+        announced,
+    )
+
+
+def count_data_lines(text: str, limit: int) -> int:
+    """Count non-blank, non-comment lines of ``text``, stopping past ``limit``.
+
+    Cheap when the text has no more newlines than ``limit`` (the common case).
+    """
+    if text.count("\n") < limit:
+        return min(limit, text.count("\n") + 1)
+    found = 0
+    for line in text.split("\n"):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            found += 1
+    return found
 
 
 def shorten(text: str, limit: int = 80) -> str:

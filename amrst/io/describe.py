@@ -50,18 +50,50 @@ def describe(cloud: Cloud) -> dict[str, Any]:
 
 
 def _median_spacing(xyz: np.ndarray) -> float | None:
+    """Median nearest-neighbour distance of a seeded sample, in linear-ish time.
+
+    Identical points are merged before the k-d tree is built: a tree holding
+    many copies of one point answers each query in time proportional to the
+    copies (1M points at the origin made ``amrst info`` take minutes). A sample
+    point with a copy has distance 0, as before.
+    """
     from scipy.spatial import cKDTree
 
     if len(xyz) < 2:
         return None
     rng = np.random.default_rng(0)
     sample = rng.choice(len(xyz), size=min(len(xyz), _SPACING_SAMPLE), replace=False)
-    # Query the sample against all points: a tree of the sample alone would
-    # overestimate the spacing of a large cloud.
-    dist, _ = cKDTree(xyz, balanced_tree=False, compact_nodes=False).query(
-        xyz[sample], k=2
-    )
-    return float(np.median(dist[:, 1]))
+    unique, copied_rows = _merge_copies(xyz)
+    copied = copied_rows[sample]
+    dist = np.zeros(len(sample))
+    if len(unique) >= 2 and not copied.all():
+        # Query the sample against all points: a tree of the sample alone would
+        # overestimate the spacing of a large cloud.
+        tree = cKDTree(unique, balanced_tree=False, compact_nodes=False)
+        found, _ = tree.query(xyz[sample[~copied]], k=2)
+        dist[~copied] = found[:, 1]
+    return float(np.median(dist))
+
+
+def _merge_copies(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct rows of ``xyz``, and (N,) bool: the row has an identical copy.
+
+    One lexsort (about 0.3 s per million points; ``np.unique(axis=0)`` takes
+    ten times longer).
+    """
+    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    ranked = xyz[order]
+    same = np.all(ranked[1:] == ranked[:-1], axis=1)  # row i+1 equals row i
+    if not same.any():
+        return xyz, np.zeros(len(xyz), dtype=bool)
+    in_run = np.zeros(len(xyz), dtype=bool)
+    in_run[1:] |= same
+    in_run[:-1] |= same
+    copied = np.empty(len(xyz), dtype=bool)
+    copied[order] = in_run
+    first = np.ones(len(xyz), dtype=bool)
+    first[1:] = ~same
+    return ranked[first], copied
 
 
 def _describe_array(arr: np.ndarray) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from amrst.errors import InvalidInput
 from amrst.io.common import (
     RawCloud,
     coordinate_columns,
+    count_data_lines,
     flat_attributes,
     format_rows,
     needs_double,
@@ -22,6 +23,7 @@ from amrst.io.common import (
     quote,
     shorten,
     storable,
+    warn_undercount,
 )
 from amrst.io.text import parse_numbers
 
@@ -59,7 +61,10 @@ class _Header(NamedTuple):
 
 def _parse_header(f: BinaryIO, path: Path) -> _Header:
     if f.readline().strip() != b"ply":
-        raise InvalidInput(f"{path} is not a PLY file (it does not start with 'ply').")
+        raise InvalidInput(
+            f"{path} is not a PLY file (it does not start with 'ply'). Give it its "
+            "real extension, or export the cloud again as PLY."
+        )
     try:
         return _parse_header_lines(f, path)
     except (IndexError, ValueError) as exc:
@@ -119,7 +124,10 @@ def _vertex(header: _Header, path: Path) -> tuple[_Element, list[_Element]]:
                     "Re-save the PLY with scalar vertex properties only."
                 )
             return element, header.elements[:i]
-    raise InvalidInput(f"{path}: the PLY file has no 'vertex' element.")
+    raise InvalidInput(
+        f"{path}: the PLY file has no 'vertex' element (no points; perhaps a "
+        "mesh without vertices). Export the point cloud again as PLY."
+    )
 
 
 def _read_binary(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
@@ -176,6 +184,10 @@ def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
             f"{path} is truncated: it holds {len(data)} of the {vertex.count} points "
             "its header announces. Copy or export it again."
         )
+    if vertex is header.elements[-1]:
+        found = count_data_lines(body, vertex.count)
+        if found > vertex.count:
+            warn_undercount(path, "PLY", vertex.count, found - vertex.count)
     out = np.empty(vertex.count, dtype=[(n, c) for n, c in vertex.props])
     for i, (name, _) in enumerate(vertex.props):
         out[name] = data[:, i]
@@ -190,7 +202,10 @@ def read_ply(path: Path) -> RawCloud:
         vertices = reader(f, header, path)
     lower = {name.lower(): name for name in vertices.dtype.names or ()}
     if not {"x", "y", "z"} <= lower.keys():
-        raise InvalidInput(f"{path}: the vertices have no x, y and z properties.")
+        raise InvalidInput(
+            f"{path}: the vertices have no x, y and z properties. Export the cloud "
+            "again with its x, y and z coordinates."
+        )
     coords = [vertices[lower[c]] for c in "xyz"]
     single = all(c.dtype.kind == "f" and c.dtype.itemsize == 4 for c in coords)
     xyz = np.column_stack(coords).astype(np.float32 if single else np.float64)

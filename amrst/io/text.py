@@ -58,7 +58,13 @@ class _Layout:
         first = lines[0][1]
         tokens = _split(first, _delimiter(first))
         skip = 0
-        if len(tokens) == 1 and _is_int(tokens[0]) and len(lines) > 1:
+        if len(tokens) == 1 and _is_int(tokens[0]) and len(lines) == 1:
+            raise InvalidInput(
+                f"{path} has no points: it holds only the point-count line "
+                f"({quote(tokens[0], 20)}). Check that the export finished and "
+                "wrote the points."
+            )
+        if len(tokens) == 1 and _is_int(tokens[0]):
             skip = 1  # .pts: the first line is the point count
         elif not all(_is_number(t) for t in tokens):
             self.header, skip = [_clean(t) for t in tokens], 1
@@ -123,8 +129,12 @@ def _is_int(token: str) -> bool:
 
 def _column_names(
     layout: _Layout, columns: Sequence[str] | None, path: Path
-) -> list[str]:
-    """Names for every column: the caller's, the header's, or x y z intensity col4.."""
+) -> tuple[list[str], str]:
+    """Name every column; also return a warning to log once the numbers parsed.
+
+    Names: the caller's, the header's, or x y z intensity col4..; warning: "" if
+    none.
+    """
     n = layout.n_columns
     if columns is not None:
         names = [str(c).strip().lower() for c in columns]
@@ -142,15 +152,15 @@ def _column_names(
     if not {"x", "y", "z"} <= set(names):
         if columns is not None:
             raise InvalidInput(
-                f"columns= must include 'x', 'y' and 'z'; got {list(columns)}."
+                f"columns= must include 'x', 'y' and 'z'; got {list(columns)}. Name "
+                "the coordinate columns x, y and z."
             )
-        logger.warning(
-            "%s: header %s has no x/y/z columns; using the first three as x, y, z.",
-            path.name,
-            shorten(str(names)),
+        warning = (
+            f"{path.name}: header {shorten(str(names))} has no x/y/z columns; "
+            "using the first three as x, y, z."
         )
-        names = ["x", "y", "z", *names[3:]]
-    return _unique(names)
+        return _unique(["x", "y", "z", *names[3:]]), warning
+    return _unique(names), ""
 
 
 def _unique(names: list[str]) -> list[str]:
@@ -292,7 +302,7 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
             f"{path} has {layout.n_columns} value(s) per line; at least x, y, z "
             "are needed. Check the separator and the export settings."
         )
-    names = _column_names(layout, columns, path)
+    names, warning = _column_names(layout, columns, path)
     data = parse_numbers(
         text[layout.body_start :],
         layout.n_columns,
@@ -300,6 +310,8 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
         layout.first_line_no,
         path,
     )
+    if warning:  # after the parse: a refusal stays one line
+        logger.warning("%s", warning)
     index = {name: i for i, name in enumerate(names)}
     xyz = data[:, [index["x"], index["y"], index["z"]]]
     attributes = {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -20,16 +21,22 @@ from PySide6.QtWidgets import (
 
 from amrst_gui.drops import FileDropMixin
 
+if TYPE_CHECKING:
+    from amrst_gui.workers import StageJob
+
 _TITLES = {
     "target": "Target (reference, stays fixed)",
     "source": "Source (moved onto target)",
 }
 
 
-def _describe(cloud) -> str:
-    try:
-        from amrst import io
+def describe_job(cloud, reporter) -> str:
+    """``amrst.io.describe`` as text, in a worker: bounds of every point and a
+    nearest-neighbour spacing take seconds on a 10M-point scan (issue 15)."""
+    from amrst import io
 
+    reporter.check_cancelled()
+    try:
         return str(io.describe(cloud))
     except Exception:  # describe is informative only; never block the panel
         return ""
@@ -49,6 +56,9 @@ class _RoleBox(FileDropMixin, QGroupBox):
         self.attributes = QLabel("-")
         self.attributes.setWordWrap(True)
         self.offset = QLabel("-")
+        self._described_cloud = None
+        self._description = ""
+        self._describing: StageJob | None = None
         form = QFormLayout()
         form.addRow("File:", self.file)
         form.addRow("Points:", self.points)
@@ -73,6 +83,8 @@ class _RoleBox(FileDropMixin, QGroupBox):
         layout.addLayout(buttons)
 
     def show_cloud(self, cloud, path: Path | None) -> None:
+        if cloud is not self._described_cloud:
+            self._describe_later(cloud)
         if cloud is None:
             for label in (self.file, self.points, self.attributes, self.offset):
                 label.setText("-")
@@ -87,7 +99,36 @@ class _RoleBox(FileDropMixin, QGroupBox):
         self.offset.setText(
             "none" if not off.any() else ", ".join(f"{v:.2f}" for v in off)
         )
-        self.setToolTip(_describe(cloud) or "Drop a scan file here to replace it")
+        self.setToolTip(
+            self._description
+            or "Describing the scan (bounds, spacing)… Drop a scan file here to "
+            "replace it"
+        )
+
+    def _describe_later(self, cloud) -> None:
+        """Describe ``cloud`` in a worker; the tooltip shows it once known."""
+        from amrst_gui import workers
+
+        if self._describing is not None:
+            self._describing.discard()
+        self._described_cloud, self._description, self._describing = cloud, "", None
+        if cloud is None:
+            return
+
+        def done(text: str, c=cloud) -> None:
+            if c is self._described_cloud:
+                self._description, self._describing = text, None
+                self.setToolTip(text or "Drop a scan file here to replace it")
+
+        self._describing = workers.run_stage(
+            describe_job, cloud, name=f"describe {self.role}", on_result=done
+        )
+
+    def close_jobs(self) -> None:
+        """Drop a description still being computed (the window is closing)."""
+        if self._describing is not None:
+            self._describing.discard()
+            self._describing = None
 
     def files_dropped_here(self, paths: list[Path]) -> None:
         self.dropped.emit(paths)

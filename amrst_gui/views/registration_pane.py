@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 from PySide6.QtWidgets import (
     QButtonGroup,
     QComboBox,
@@ -18,6 +20,7 @@ from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import REGISTRATION_STAGES, build_registration_scene
+from amrst_gui.views.scene_jobs import SceneLoader, Snapshot
 
 _LABELS = {
     "before": "Before",
@@ -78,6 +81,9 @@ class RegistrationPane(QWidget):
             bar.addWidget(look)
             self.view_buttons[name] = look
         self.view = ScanView(self)
+        self.loader = SceneLoader(self.view, self)
+        self.loader.drawn.connect(self._on_drawn)
+        self.loader.failed.connect(session.report_error)
         self.histogram = DistanceHistogram(self)
         self.histogram.hide()
         layout = QVBoxLayout(self)
@@ -95,21 +101,33 @@ class RegistrationPane(QWidget):
         self.buttons.button(REGISTRATION_STAGES.index(stage)).setChecked(True)
 
     def refresh(self) -> None:
-        """Rebuild the overlay from the session and draw it."""
+        """Rebuild the overlay from the session and draw it (in a worker for big
+        scans: the distance colouring's neighbour queries too)."""
         mode = self.colour.currentData()
-        scene = build_registration_scene(self.session, self.stage, colour=mode)
-        self.view.update_scene(scene)
+        snap = Snapshot(self.session)
+        build = functools.partial(
+            build_registration_scene, stage=self.stage, colour=mode
+        )
+        self.loader.request(build, snap, snap.n_points("target", "source"))
+
+    def _on_drawn(self) -> None:
+        scene = self.view.scene
+        mode = self.colour.currentData()
         self.histogram.setVisible(mode == "distance")
-        self.histogram.set_distances(scene.extra.get("distances", []))
+        self.histogram.set_distances(
+            scene.extra.get("distances", []) if scene is not None else []
+        )
 
     def look(self, direction: str) -> None:
         """Top, Front or Side view of the whole tree."""
-        p = self.view.plotter
-        {"Top": p.view_xy, "Front": p.view_xz, "Side": p.view_yz}[direction](
-            render=False
-        )
-        p.reset_camera(render=False, bounds=self.view._fit_bounds())
-        p.render()
+        # From the camera to the tree, and the screen's up (pyvista's view_xy,
+        # view_xz and view_yz, without their bounds pass over every actor).
+        toward, up = {
+            "Top": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+            "Front": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+            "Side": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+        }[direction]
+        self.view.reset_camera(direction=toward, up=up, elevation=0.0)
 
     def _on_stage_toggled(self, index: int, checked: bool) -> None:
         if checked:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt, Signal
@@ -23,6 +24,7 @@ from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
 from amrst_gui.views.scene import COLOUR_MODES, ViewOptions, build_scan_scene
+from amrst_gui.views.scene_jobs import SceneLoader, Snapshot
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -106,6 +108,8 @@ class ScanPane(FileDropMixin, QWidget):
         bar.addStretch(1)
 
         self.view = ScanView(self)
+        self.loader = SceneLoader(self.view, self)
+        self.loader.failed.connect(session.report_error)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.setSpacing(0)
@@ -120,8 +124,13 @@ class ScanPane(FileDropMixin, QWidget):
         self.colour.setCurrentIndex(COLOUR_MODES.index(mode))
 
     def refresh(self) -> None:
-        """Rebuild the scene from the session and draw it."""
-        self.view.update_scene(build_scan_scene(self.session, self.role, self.options))
+        """Rebuild the scene from the session and draw it (in a worker for a big
+        scan: the view keeps its last scene until the new one is ready)."""
+        snap = Snapshot(self.session)
+        build = functools.partial(
+            build_scan_scene, role=self.role, options=self.options
+        )
+        self.loader.request(build, snap, snap.n_points(self.role))
 
     def _set_option(self, field: str, value) -> None:
         self.options = dataclasses.replace(self.options, **{field: value})
@@ -211,4 +220,4 @@ class ScansArea(QWidget):
                     # build_scan_scene makes match_vertices a SpheresLayer only.
                     assert isinstance(layer, SpheresLayer)
                     # Keep some of the tree around a small tetrahedron in sight.
-                    view.frame_points(layer.centers, min_radius=12 * layer.radius)
+                    view.frame_points(layer.centers, min_radius=6 * layer.radius)

@@ -41,8 +41,12 @@ def test_simulate_loads_no_benchmark_or_baseline() -> None:
         "'amrst.baselines', 'open3d'))))"
     )
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True,
-        cwd=ROOT, timeout=120,
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+        timeout=120,
     ).stdout.strip()
     assert out == "[]", out
 
@@ -54,8 +58,12 @@ def test_one_stage_loads_only_what_it_needs() -> None:
         "'amrst.bench', 'amrst.baselines', 'amrst.cli', 'amrst.io'))))"
     )
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True,
-        cwd=ROOT, timeout=120,
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+        timeout=120,
     ).stdout.strip()
     assert out == "[]", out
 

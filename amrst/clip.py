@@ -1,0 +1,171 @@
+"""Cut one tree out of a big plot file: ``amrst clip FILE --stem X Y --radius R``.
+
+A technician receives one file per plot (a merged or single-position scan of
+millions of points) and registers tree by tree. :func:`clip_tree` keeps the points
+within a radius of a stem (optionally between two heights), reading only what the
+format allows: the octree nodes near the stem of a COPC file, chunk after chunk of
+a LAS/LAZ file (bounded memory), the whole file otherwise (see
+:func:`amrst.io.read_region`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from amrst.progress import NULL_REPORTER
+
+if TYPE_CHECKING:
+    import argparse
+
+    from amrst.progress import Reporter
+    from amrst.types import Cloud
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ClipParams:
+    """Where the tree of interest stands and how much of it to keep."""
+
+    stem_xy: tuple[float, float]  # world coordinates of the file (m)
+    radius_m: float = 5.0
+    zmin: float | None = None  # world heights (m); None: unbounded
+    zmax: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ClipResult:
+    """The tree, and how much of the file was decoded to find it."""
+
+    cloud: Cloud
+    method: str  # "copc spatial query" | "streamed chunks" | "whole file"
+    points_decoded: int
+    seconds: float
+
+
+def clip_tree(
+    path: str | Path, params: ClipParams, reporter: Reporter = NULL_REPORTER
+) -> ClipResult:
+    """Read the points of ``path`` within ``params.radius_m`` of the stem.
+
+    Parameters
+    ----------
+    path : str or Path
+        A plot file in any readable format.
+    params : ClipParams
+    reporter : Reporter
+        Progress and cancellation.
+
+    Returns
+    -------
+    ClipResult
+
+    Raises
+    ------
+    InvalidInput
+        Unreadable file, bad radius or heights, or no point near the stem.
+    """
+    from amrst import io
+
+    start = time.perf_counter()
+    cloud = io.read_region(
+        path,
+        params.stem_xy,
+        params.radius_m,
+        zmin=params.zmin,
+        zmax=params.zmax,
+        reporter=reporter,
+    )
+    return ClipResult(
+        cloud,
+        str(cloud.meta.get("clip_method", "")),
+        int(cloud.meta.get("clip_points_decoded", len(cloud))),
+        time.perf_counter() - start,
+    )
+
+
+def out_paths(out: str | Path, n_stems: int) -> list[Path]:
+    """One output per stem: ``out`` itself, or ``NAME_1.ext``, ``NAME_2.ext``..."""
+    out = Path(out)
+    if n_stems == 1:
+        return [out]
+    return [out.with_name(f"{out.stem}_{i}{out.suffix}") for i in range(1, n_stems + 1)]
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Add the ``amrst clip`` arguments to ``p``.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    """
+    p.add_argument("file", metavar="FILE", help="plot file (any readable format)")
+    p.add_argument(
+        "--stem",
+        nargs=2,
+        type=float,
+        action="append",
+        required=True,
+        metavar=("X", "Y"),
+        help="stem position in the file's coordinates; repeat for several trees",
+    )
+    p.add_argument("--radius", type=float, default=5.0, metavar="R", help="m")
+    p.add_argument("--zmin", type=float, default=None, help="lowest height kept (m)")
+    p.add_argument("--zmax", type=float, default=None, help="highest height kept (m)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="TREE.laz",
+        help="output file; with several stems TREE_1.laz, TREE_2.laz, ...",
+    )
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Clip one tree per ``--stem`` from ``args`` (see :func:`configure_parser`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    int
+        Exit status: 0 on success, 2 when the input cannot be used.
+    """
+    import sys
+
+    from amrst import io
+    from amrst.errors import AmrstError, InvalidInput
+
+    outs = out_paths(args.out, len(args.stem))
+    try:
+        # The output is checked before the (possibly long) read.
+        if io.get_reader(args.out) is None or Path(args.out).suffix.lower() not in (
+            io.writable_extensions()
+        ):
+            raise InvalidInput(
+                f"Cannot write {args.out}: choose a name ending in "
+                f"{', '.join(io.writable_extensions())}."
+            )
+        if not outs[0].parent.is_dir():
+            raise InvalidInput(
+                f"Cannot write {args.out}: the folder {outs[0].parent} does not "
+                "exist. Create it or choose another folder."
+            )
+        for (x, y), out in zip(args.stem, outs, strict=True):
+            params = ClipParams(
+                stem_xy=(x, y), radius_m=args.radius, zmin=args.zmin, zmax=args.zmax
+            )
+            result = clip_tree(args.file, params)
+            io.write(out, result.cloud)
+            print(
+                f"{out}: {len(result.cloud):,} points within {args.radius:g} m of "
+                f"({x:g}, {y:g}); {result.method}, {result.points_decoded:,} points "
+                f"decoded in {result.seconds:.2f} s",
+                file=sys.stderr,
+            )
+    except AmrstError as exc:
+        print(f"amrst clip: {exc}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,236 @@
+"""Decoding LAS/LAZ points through laspy, whatever LASzip variant wrote them.
+
+Private to :mod:`amrst.io`. lazrs (laspy's default LAZ backend) cannot read the
+pointwise, chunk-table-less files of early LASzip versions (it panics: "Variable-size
+chunks, but no chunk table"), so those go to laspy's ``laszip`` backend; without it
+they are refused with one line naming the compressor version. Decoder noise (laspy's
+``ERROR: ...`` log lines, a Rust panic message on stderr) never reaches the user: the
+outcome is one :class:`~amrst.errors.InvalidInput` or a logged warning.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import struct
+import sys
+import threading
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+from amrst.errors import InvalidInput
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from pathlib import Path
+
+logger = logging.getLogger(__name__)
+
+_VLR_HEADER = 54
+_VARIABLE_CHUNKS = 0xFFFFFFFF
+_COMPRESSORS = {0: "none", 1: "pointwise", 2: "pointwise-chunked", 3: "layered-chunked"}
+_quiet_lock = threading.Lock()
+_quiet_depth = 0
+_saved_fd: int | None = None
+
+
+class LazInfo(NamedTuple):
+    """What the LASzip VLR and the chunk table say (None: not found)."""
+
+    compressor: int
+    version: str  # e.g. "1.2r0"
+    chunk_size: int  # _VARIABLE_CHUNKS for variable-size chunks
+    n_chunks: int | None  # from the chunk table; None when there is none
+
+    def describe(self) -> str:
+        """Name the LASzip version and compressor, for messages."""
+        kind = _COMPRESSORS.get(self.compressor, f"compressor {self.compressor}")
+        return f"LASzip {self.version} ({kind})"
+
+    @property
+    def needs_laszip(self) -> bool:
+        """Tell whether lazrs cannot read it (it needs chunks and a chunk table)."""
+        return self.compressor < 2 or self.n_chunks is None
+
+
+def laz_info(path: Path, head: bytes) -> LazInfo | None:
+    """Read the LASzip VLR and the chunk table's size; None when there is no VLR."""
+    header_size, point_start, n_vlrs = struct.unpack_from("<HII", head, 94)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        pos = header_size
+        for _ in range(n_vlrs):
+            f.seek(pos)
+            vlr = f.read(_VLR_HEADER)
+            if len(vlr) < _VLR_HEADER or pos + _VLR_HEADER > point_start:
+                return None
+            record_id, length = struct.unpack_from("<HH", vlr, 18)
+            if vlr[2:18].rstrip(b"\0") == b"laszip encoded" and record_id == 22204:
+                data = f.read(length)
+                if len(data) < 16:
+                    return None
+                compressor, _, major, minor, rev, _, chunk = struct.unpack_from(
+                    "<HHBBHII", data
+                )
+                break
+            pos += _VLR_HEADER + length
+        else:
+            return None
+        f.seek(point_start)
+        raw = f.read(8)
+        (table_start,) = struct.unpack("<q", raw) if len(raw) == 8 else (-1,)
+        if table_start == -1 and size >= point_start + 16:  # written at the end
+            f.seek(size - 8)
+            (table_start,) = struct.unpack("<q", f.read(8))
+        n_chunks = None
+        if compressor >= 2 and point_start < table_start <= size - 8:
+            f.seek(table_start)
+            version, count = struct.unpack("<II", f.read(8))
+            if version == 0:
+                n_chunks = count
+    return LazInfo(compressor, f"{major}.{minor}r{rev}", chunk, n_chunks)
+
+
+def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:
+    """Refuse a LAZ whose header announces more points than its chunks can hold.
+
+    LASzip stores points in chunks of a fixed size and lists the chunks in a table
+    at the end. The decoder allocates the announced count first: 2**28 announced
+    points take 5 GB and many seconds before failing. A header announcing fewer
+    points than all but the last chunk hold is reported (the rest are not read).
+    """
+    if info.n_chunks is None or info.chunk_size in (0, _VARIABLE_CHUNKS):
+        return
+    capacity = info.n_chunks * info.chunk_size
+    if n_points > capacity:
+        raise InvalidInput(
+            f"{path}: corrupt LAZ header: it announces {n_points:,} points but the "
+            f"file's {info.n_chunks:,} compressed chunks hold at most {capacity:,}. "
+            "The file is corrupt or truncated; copy or export it again."
+        )
+    at_least = (info.n_chunks - 1) * info.chunk_size + 1
+    if n_points < at_least:
+        logger.warning(
+            "%s: the LAZ header announces %d points but its %d compressed chunks "
+            "hold at least %d; only the announced %d were read. If points are "
+            "missing, export the file again.",
+            path.name,
+            n_points,
+            info.n_chunks,
+            at_least,
+            n_points,
+        )
+
+
+def lazrs_backends() -> tuple[Any, ...]:
+    """Return the backends laspy may use in this process: lazrs only.
+
+    laspy falls back to its laszip backend when lazrs cannot open a file, and
+    laszip crashes the process on truncated files: it only runs in a child.
+    """
+    import laspy
+
+    return (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
+
+
+def needs_laszip(path: Path, info: LazInfo | None) -> bool:
+    """Tell whether the file needs the laszip backend (refuse when it is missing)."""
+    import laspy
+
+    if info is None or not info.needs_laszip:
+        return False
+    if laspy.LazBackend.Laszip.is_available():
+        return True
+    raise InvalidInput(
+        f"{path} was compressed by {info.describe()} without a chunk table, which "
+        "the installed LAZ decoder (lazrs) cannot read. Install the 'laszip' "
+        "package (pip install laszip), or convert the file once with "
+        "'laszip -i FILE -o NEW.laz' or 'pdal translate FILE NEW.laz'."
+    )
+
+
+_CHILD = """
+import sys, laspy
+las = laspy.read(sys.argv[1], laz_backend=laspy.LazBackend.Laszip)
+las.write(sys.argv[2], do_compress=False)
+"""
+_CHILD_TIMEOUT_S = 600
+
+
+def decompress_in_child(path: Path, out: Path) -> None:
+    """Decompress ``path`` into the uncompressed LAS ``out`` with laszip, in a child.
+
+    The laszip library crashes the process (segmentation fault) on truncated
+    files; in a child process the crash becomes a refusal.
+    """
+    import subprocess
+
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", _CHILD, str(path), str(out)],
+            capture_output=True,
+            text=True,
+            timeout=_CHILD_TIMEOUT_S,
+            check=False,
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise InvalidInput(
+            f"{path}: the LAZ decoder (laszip) did not finish in "
+            f"{_CHILD_TIMEOUT_S} s; the file is corrupt. Copy or export it again."
+        ) from exc
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines()
+        why = lines[-1] if proc.returncode > 0 and lines else "it crashed"
+        raise InvalidInput(
+            f"{path} is corrupt or truncated: the LAZ decoder (laszip) failed "
+            f"({why[:100]}). Copy or export it again."
+        )
+
+
+def is_panic(exc: BaseException) -> bool:
+    """Tell whether ``exc`` is a Rust panic raised through pyo3 (a BaseException)."""
+    return type(exc).__name__ == "PanicException"
+
+
+@contextlib.contextmanager
+def quiet_decoders() -> Iterator[None]:
+    """Silence laspy's log lines and native stderr output while decoding.
+
+    laspy logs ``ERROR: ...`` once per backend it tries before raising, and a Rust
+    panic prints its message and backtrace on file descriptor 2. The error itself
+    still reaches the caller as an exception. Nested and concurrent uses share one
+    redirection (the first in redirects, the last out restores).
+    """
+    global _quiet_depth, _saved_fd
+    laspy_log = logging.getLogger("laspy")
+    with _quiet_lock:
+        if _quiet_depth == 0:
+            _saved_fd = _redirect_stderr()
+        _quiet_depth += 1
+    old_disabled, laspy_log.disabled = laspy_log.disabled, True
+    try:
+        yield
+    finally:
+        laspy_log.disabled = old_disabled
+        with _quiet_lock:
+            _quiet_depth -= 1
+            if _quiet_depth == 0 and _saved_fd is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    sys.stderr.flush()
+                    os.dup2(_saved_fd, 2)
+                os.close(_saved_fd)
+                _saved_fd = None
+
+
+def _redirect_stderr() -> int | None:
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no file descriptor 2
+        return None
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+    finally:
+        os.close(devnull)
+    return saved

@@ -1,0 +1,256 @@
+"""Build a view's scene off the GUI thread, then draw it on the GUI thread (issue 15).
+
+A pane asks ``SceneLoader.request(build, snapshot, n_points)``: ``build(snapshot)``
+(a ``scene.build_*_scene``) picks and colours the displayed points, then
+:func:`prepare` makes the VTK point sets (every displayed point, and the few drawn
+while the camera moves) and the framing bounds. For a big scan this all runs in a
+worker through ``workers.run_stage``; the view only adds the finished actors and
+renders. A newer request drops an older one still running. Small scans (under
+``SYNC_POINTS``) are built at once on the GUI thread: a few milliseconds, and the
+views show their result before the signal that caused it returns.
+
+The worker never reads the live session: :class:`Snapshot` copies the references
+the builders need on the GUI thread (every result is a frozen engine object).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from PySide6.QtCore import QObject, QTimer, Signal
+
+from amrst_gui.views.layers import PointsLayer, Scene
+from amrst_gui.views.scene import MOVING_POINTS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from amrst_gui.workers import StageJob
+
+log = logging.getLogger("amrst_gui.views")
+
+# Scans up to this many points are built on the GUI thread (a few ms).
+SYNC_POINTS = 300_000
+_ROLES = ("target", "source")
+
+
+class Snapshot:
+    """What the scene builders read from the session, fixed at one moment.
+
+    Same names as the session's (``cloud(role)``, ``path(role)``,
+    ``analysis(role)``, ``local(T)``, ``selected_match``, ``rejected``, ``coarse``,
+    ``coarse_message``, ``accepted_coarse``, ``manual_preview``, ``fine``), so a
+    builder takes either.
+    """
+
+    def __init__(self, session) -> None:
+        self._clouds = {r: session.cloud(r) for r in _ROLES}
+        self._paths = {r: session.path(r) for r in _ROLES}
+        self._analyses = {r: session.analysis(r) for r in _ROLES}
+        self.selected_match = session.selected_match
+        self.rejected = session.rejected
+        self.coarse = session.coarse
+        self.coarse_message = session.coarse_message
+        self.accepted_coarse = session.accepted_coarse
+        self.manual_preview = session.manual_preview
+        self.fine = session.fine
+
+    def cloud(self, role: str) -> Any:
+        return self._clouds[role]
+
+    def path(self, role: str) -> Any:
+        return self._paths[role]
+
+    def analysis(self, role: str) -> Any:
+        return self._analyses[role]
+
+    def local(self, T_world: np.ndarray) -> np.ndarray:
+        """A world T_target_source between the scans' local frames (the session's
+        ``local``, on the snapshot's clouds)."""
+        from amrst.types import local_transform
+
+        return local_transform(T_world, self._clouds["target"], self._clouds["source"])
+
+    def n_points(self, *roles: str) -> int:
+        """Points in the clouds of ``roles`` (what a build may have to read)."""
+        return sum(len(c) for r in roles if (c := self._clouds[r]) is not None)
+
+
+@dataclass
+class Prepared:
+    """VTK data made in the worker for one scene: ``still[name]`` and
+    ``moving[name]`` point sets of each PointsLayer, ``bounds`` to frame."""
+
+    still: dict[str, Any] = field(default_factory=dict)
+    moving: dict[str, Any] = field(default_factory=dict)
+    bounds: np.ndarray | None = None
+
+
+def moving_index(n: int, n_total: int, budget: int = MOVING_POINTS) -> slice:
+    """Which of a layer's ``n`` points to draw while the camera moves, when the view
+    shows ``n_total`` in all: an even stride to the layer's share of ``budget``."""
+    share = max(1, int(budget * n / max(n_total, 1)))
+    return slice(None, None, max(1, -(-n // share)))
+
+
+def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
+    """Bounds to frame: the points' 0.5-99.5 percentiles, plus 5 % each side.
+
+    A few stray points metres away (real scans have them) would otherwise push the
+    tree into a corner of the view.
+    """
+    pts = [x for x in xyz_list if len(x)]
+    if not pts:
+        return None
+    xyz = np.concatenate(pts)
+    lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
+    pad = 0.05 * (hi - lo)
+    return np.column_stack([lo - pad, hi + pad]).ravel()
+
+
+def _polydata(xyz: np.ndarray, rgb: np.ndarray):
+    import pyvista as pv
+
+    poly = pv.PolyData(np.ascontiguousarray(xyz, np.float32))
+    poly["rgb"] = np.ascontiguousarray(rgb, np.uint8)
+    return poly
+
+
+def prepare(scene: Scene, budget: int = MOVING_POINTS) -> Prepared:
+    """The point sets of ``scene``'s PointsLayers, full and moving, and its bounds."""
+    points = [ly for ly in scene.layers if isinstance(ly, PointsLayer)]
+    total = sum(len(ly.xyz) for ly in points)
+    out = Prepared(bounds=fit_bounds([ly.xyz for ly in points]))
+    for layer in points:
+        out.still[layer.name] = _polydata(layer.xyz, layer.rgb)
+        if total > budget:
+            sl = moving_index(len(layer.xyz), total, budget)
+            out.moving[layer.name] = _polydata(layer.xyz[sl], layer.rgb[sl])
+    return out
+
+
+def build_and_prepare(
+    build: Callable[[Snapshot], Scene], snapshot: Snapshot, reporter
+) -> tuple[Scene, Prepared]:
+    """Worker function: the scene, then its VTK data (cancel checked between)."""
+    reporter.check_cancelled()
+    scene = build(snapshot)
+    reporter.check_cancelled()
+    return scene, prepare(scene)
+
+
+class _DrawQueue:
+    """Hands finished scenes to their views one per turn of the event loop.
+
+    Drawing a 200,000-point view is one render (a fraction of a second with
+    software OpenGL); three views finishing together drew back to back, and the
+    window stalled for their sum.
+    """
+
+    def __init__(self) -> None:
+        self._items: list[tuple[SceneLoader, Any]] = []
+        self._timer: QTimer | None = None
+
+    def put(self, loader: SceneLoader, out: Any) -> None:
+        self.drop(loader)
+        self._items.append((loader, out))
+        if self._timer is None:
+            self._timer = QTimer()
+            self._timer.setSingleShot(True)
+            self._timer.timeout.connect(self._next)
+        if not self._timer.isActive():
+            self._timer.start(0)
+
+    def drop(self, loader: SceneLoader) -> None:
+        self._items = [it for it in self._items if it[0] is not loader]
+
+    def has(self, loader: SceneLoader) -> bool:
+        return any(it[0] is loader for it in self._items)
+
+    def _next(self) -> None:
+        if self._items:
+            loader, out = self._items.pop(0)
+            loader._draw(out)
+        if self._items and self._timer is not None:
+            self._timer.start(0)
+
+
+_DRAWS = _DrawQueue()
+
+
+class SceneLoader(QObject):
+    """Builds a view's scenes, the newest request only; ``view.update_scene`` draws.
+
+    Emits ``drawn()`` after a scene built here was handed to the view (the GUI
+    thread), and ``failed(message)`` when building one raised.
+    """
+
+    drawn = Signal()
+    failed = Signal(str)
+
+    def __init__(self, view, parent: QObject | None = None) -> None:
+        super().__init__(parent or view)
+        self.view = view
+        self._job: StageJob | None = None
+
+    @property
+    def pending(self) -> bool:
+        """True while a scene is being built in a worker or waits to be drawn."""
+        return self._job is not None or _DRAWS.has(self)
+
+    def request(
+        self,
+        build: Callable[[Snapshot], Scene],
+        snapshot: Snapshot,
+        n_points: int,
+    ) -> None:
+        """Build ``build(snapshot)`` and draw it; ``n_points`` is the input size."""
+        from amrst_gui import workers
+
+        self.drop()
+        if n_points <= SYNC_POINTS:
+            scene = build(snapshot)
+            self.view.update_scene(scene, prepare(scene))
+            self.drawn.emit()
+            return
+        job = workers.run_stage(
+            build_and_prepare,
+            build,
+            snapshot,
+            name="display",
+            on_result=lambda out: self._apply(job, out),
+            on_error=lambda exc: self._failed(job, exc),
+        )
+        self._job = job
+
+    def drop(self) -> None:
+        """Forget the scene being built (a newer one replaces it, or the view goes)."""
+        _DRAWS.drop(self)
+        if self._job is not None:
+            self._job.discard()
+            self._job = None
+
+    def _apply(self, job, out: tuple[Scene, Prepared]) -> None:
+        if job is not self._job:
+            return
+        self._job = None
+        _DRAWS.put(self, out)
+
+    def _draw(self, out: tuple[Scene, Prepared]) -> None:
+        if getattr(self.view, "_closed", False):
+            return  # the window closed while the scene waited
+        self.view.update_scene(*out)
+        self.drawn.emit()
+
+    def _failed(self, job, exc: BaseException) -> None:
+        if job is not self._job:
+            return
+        self._job = None
+        log.error(
+            "Could not build the view: %s",
+            getattr(exc, "__traceback_text__", repr(exc)),
+        )
+        self.failed.emit(f"The view could not be drawn: {type(exc).__name__}: {exc}")

@@ -1,0 +1,58 @@
+"""The app's clip dialog: open a plot file, click a stem, the tree becomes a scan.
+
+Each sample scan is put in a "plot" beside a copy of itself 20 m away (a second
+tree); the dialog cuts the scan's own tree back out of each plot, loads it as
+target and source, and the pair then registers as the sample does (issue 17).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import Qt
+
+from amrst import io
+from amrst.types import Cloud
+from amrst_gui.clip_dialog import ClipDialog
+
+
+def _stem(tree: Cloud) -> tuple[float, float]:
+    world = tree.world_xyz
+    low = world[world[:, 2] < world[:, 2].min() + 1.0]
+    return float(np.median(low[:, 0])), float(np.median(low[:, 1]))
+
+
+def test_clip_two_plots_then_register(
+    make_main_window, qtbot, finish, sample_pair, tmp_path
+):
+    win = make_main_window()
+    s = win.session
+    target, source, truth = sample_pair
+    for role, path in (("target", target), ("source", source)):
+        tree = io.read(path)
+        plot = Cloud(
+            np.vstack([tree.xyz, tree.xyz + np.array([20.0, 0.0, 0.0])]), tree.offset
+        )
+        io.write(tmp_path / f"{role}_plot.laz", plot)
+
+        dialog = ClipDialog(s, win, out_dir=tmp_path / "clips")
+        qtbot.addWidget(dialog)
+        dialog.show()
+        with qtbot.waitSignal(dialog.overview_ready, timeout=30_000):
+            dialog.open_plot(tmp_path / f"{role}_plot.laz")
+        click = dialog.view.pixel_of(*_stem(tree)).toPoint()
+        qtbot.mouseClick(dialog.view, Qt.MouseButton.LeftButton, pos=click)
+        assert dialog.clip_button.isEnabled()
+        dialog.radius.setValue(7.0)  # the sample trees lean: crown 6 m off
+        dialog.role.setCurrentText(role)
+        with qtbot.waitSignal(s.scan_loaded, timeout=30_000) as loaded:
+            dialog.clip_button.click()
+        assert loaded.args == [role]
+        clipped = s.cloud(role)
+        assert 0.95 * len(tree) <= len(clipped) <= len(tree)  # not the copy
+        dialog.close()
+
+    qtbot.waitUntil(lambda: not s.busy, timeout=10_000)
+    s.load_truth(truth)
+    qtbot.waitUntil(lambda: s.truth is not None, timeout=10_000)
+    finish(s, win.actions.run_all.trigger, "fine_finished")
+    assert s.truth_errors()["fine"].gt_rmse_m < 0.05

@@ -1,0 +1,64 @@
+"""workers.run_stage: Cancel answers within a second and drops the step's result."""
+
+from __future__ import annotations
+
+import time
+
+from amrst.errors import Cancelled
+from amrst_gui import workers
+
+
+def _run(fn, qtbot):
+    got: dict = {"result": [], "error": []}
+    job = workers.run_stage(
+        fn,
+        on_result=got["result"].append,
+        on_error=got["error"].append,
+    )
+    return job, got
+
+
+def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
+    """Work that never checks (one long library call) is reported cancelled after
+    CANCEL_GRACE_S; its late result is never delivered."""
+
+    def long_call(reporter):
+        time.sleep(2.0)
+        return "late"
+
+    job, got = _run(long_call, qtbot)
+    qtbot.wait(100)
+    start = time.perf_counter()
+    job.cancel()
+    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
+    assert time.perf_counter() - start < workers.CANCEL_GRACE_S + 0.5
+    assert isinstance(got["error"][0], Cancelled)
+    assert not job.worker_done.is_set()  # the thread is still in its call ...
+    qtbot.waitUntil(job.worker_done.is_set, timeout=10_000)
+    qtbot.wait(100)  # ... and what it returned then is dropped
+    assert got["result"] == []
+    assert len(got["error"]) == 1
+
+
+def test_a_result_returned_after_cancel_is_dropped(qtbot):
+    """The work passed its last check point before Cancel and returned anyway:
+    the step keeps nothing (this Fine result used to be kept)."""
+
+    def finishes(reporter):
+        reporter.progress(1.0, "done")
+        return "result"
+
+    job, got = _run(finishes, qtbot)
+    # Wait without turning the event loop, so the result is still queued.
+    assert job.worker_done.wait(5.0)
+    job.cancel()  # before the queued result reached the GUI thread
+    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
+    assert got["result"] == []
+    assert isinstance(got["error"][0], Cancelled)
+
+
+def test_a_job_not_cancelled_delivers_its_result(qtbot):
+    job, got = _run(lambda reporter: 7, qtbot)
+    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
+    assert got == {"result": [7], "error": []}
+    assert job.done
