@@ -76,6 +76,11 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
+    if len(args.source) > 1 or "#" in args.target + "".join(args.source):
+        from amrst.multiscan.cli import run_register  # several scans: amrst.multiscan
+
+        return run_register(args, params, TerminalReporter(args.quiet))
+    args.source = args.source[0]
     from amrst.io.truth import read_truth
 
     T_truth = read_truth(args.truth) if args.truth is not None else None
@@ -209,7 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="reference scan (LAS/LAZ, PLY, PCD, XYZ/TXT/CSV)",
     )
     reg.add_argument(
-        "source", metavar="SOURCE", help="scan to move into the target frame"
+        "source",
+        metavar="SOURCE",
+        nargs="+",
+        help="scan(s) to move into the target frame; FILE.e57#k picks scan k of a file",
     )
     reg.add_argument(
         "--out",
@@ -276,6 +284,15 @@ def build_parser() -> argparse.ArgumentParser:
     sca = sub.add_parser("bench-scale", help="time amrst register on densified pairs")
     scale.configure_parser(sca)
     sca.set_defaults(func=scale.run_cli)
+
+    from amrst.campaign import cli as campaign_cli  # amrst campaign / amrst batch
+
+    cam = sub.add_parser("campaign", help="a folder of trees: init, status, simulate")
+    campaign_cli.configure_campaign(cam)
+    cam.set_defaults(func=campaign_cli.run_campaign)
+    bat = sub.add_parser("batch", help="register every tree of a campaign on Dask")
+    campaign_cli.configure_batch(bat)
+    bat.set_defaults(func=campaign_cli.run_batch_cli)
     return p
 
 

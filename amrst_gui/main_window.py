@@ -22,6 +22,7 @@ from amrst.resources import resource_path
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
+from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
 from amrst_gui.panels.manual_panel import ManualPanel
 from amrst_gui.panels.matches_panel import MatchesPanel
@@ -95,7 +96,11 @@ class MainWindow(QMainWindow):
         self.tabifyDockWidget(self.docks["metrics"], self.docks["manual"])
         self.docks["metrics"].raise_()
         self._add_dock("log", "Log", self.log_panel, bottom)
+        self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
+        self._add_dock("campaign", "Campaign", self.campaign_panel, left)
+        self.campaign_panel.tree_selected.connect(lambda _id, p: s.load_scans(*p[:2]))
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
+        self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         # The side docks run the full height: the log sits under the views only, so
         # the Matches table keeps its rows on a laptop screen (issue 13).
         self.setCorner(Qt.Corner.BottomRightCorner, right)
@@ -380,6 +385,7 @@ class MainWindow(QMainWindow):
             if self.session.busy:
                 self.status.show_message("Cancelling the running step…")
             self.session.shutdown()
+            self.campaign_panel.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())
             self.settings.setValue("window/state", self.saveState(LAYOUT_VERSION))
             self.settings.sync()

@@ -25,10 +25,12 @@ from amrst.errors import AmrstError, InvalidInput
 from amrst.files.atomic import write_atomic
 from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
+from amrst.io.e57 import read_e57
 from amrst.io.las import read_las
 from amrst.io.las_write import write_las
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
+from amrst.io.ptx import read_ptx
 from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
 from amrst.types import Cloud
@@ -61,6 +63,8 @@ _FORMATS: dict[str, _Format] = {
     ".asc": _Format("text", read_text, None, text=True),
     ".csv": _Format("text", read_text, _TEXT_CSV, text=True),
     ".pts": _Format("text", read_text, None, text=True),
+    ".e57": _Format("e57", read_e57, None),  # several scans: see amrst.io.scans
+    ".ptx": _Format("ptx", read_ptx, None),  # several scans: see amrst.io.scans
 }
 # The atomic writer looks writers up here, so tests can make one fail midway.
 _WRITERS = {ext: fmt.write for ext, fmt in _FORMATS.items() if fmt.write is not None}

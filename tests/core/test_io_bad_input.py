@@ -39,10 +39,10 @@ def test_directory(tmp_path):
 
 
 def test_unknown_extension_lists_supported(tmp_path):
-    (tmp_path / "scan.e57").write_bytes(b"x")
+    (tmp_path / "scan.rcp").write_bytes(b"x")
     with pytest.raises(InvalidInput, match=r"Supported: \.las, \.laz"):
-        io.read(tmp_path / "scan.e57")
-    assert io.get_reader(tmp_path / "scan.e57") is None
+        io.read(tmp_path / "scan.rcp")
+    assert io.get_reader(tmp_path / "scan.rcp") is None
 
 
 @pytest.mark.parametrize("ext", [".las", ".ply", ".pcd", ".txt"])

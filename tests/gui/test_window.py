@@ -11,6 +11,7 @@ DOCKS = (
     "metrics_dock",
     "manual_dock",
     "log_dock",
+    "campaign_dock",
 )
 
 

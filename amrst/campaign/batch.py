@@ -1,0 +1,290 @@
+"""Run every pending tree of a campaign as a Dask task.
+
+The same code runs on a :class:`distributed.LocalCluster` of worker processes (the
+default: ``workers`` processes, one thread each) and on an existing ``dask.distributed``
+scheduler given by address (workers started with ``dask worker ADDRESS`` on machines
+that see the campaign folder at the same path). Trees whose stamp matches are skipped;
+the others are submitted, and each finished tree updates the campaign table, so a batch
+killed at any moment loses only the trees in flight.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+from amrst.campaign.run import is_done, run_tree, tree_stamp
+from amrst.campaign.table import campaign_rows, write_table
+
+if TYPE_CHECKING:
+    from amrst.campaign.manifest import Campaign
+    from amrst.params import RegistrationParams
+    from amrst.progress import Reporter
+
+
+class BatchProgress(Protocol):
+    """What the batch tells as it goes (the CLI draws a bar, the app updates rows)."""
+
+    def update(
+        self,
+        done: int,
+        failed: int,
+        running: int,
+        total: int,
+        left_s: float | None,
+        row: dict[str, Any] | None,
+    ) -> None:
+        """Report the counts after a change; ``row`` is the tree just finished."""
+
+
+class ReporterProgress:
+    """A BatchProgress that tells an amrst Reporter (the app's worker) and can cancel.
+
+    Each finished tree calls ``progress(done share, "<id>: <verdict or error>")``;
+    ``check_cancelled`` is asked between trees, so a cancel stops the batch there (the
+    trees in flight are lost, as with any kill).
+    """
+
+    def __init__(self, reporter: Reporter) -> None:
+        self.reporter = reporter
+
+    def update(
+        self,
+        done: int,
+        failed: int,
+        running: int,
+        total: int,
+        left_s: float | None,
+        row: dict[str, Any] | None,
+    ) -> None:
+        """Forward the share of trees finished and the tree just finished."""
+        share = (done + failed) / total if total else 1.0
+        text = (
+            ""
+            if row is None
+            else f"{row['id']}: {row.get('verdict') or row.get('error', '')}"
+        )
+        self.reporter.progress(share, text)
+        self.reporter.check_cancelled()
+
+
+@dataclass
+class BatchSummary:
+    """What one batch run did: trees skipped (already done), run, failed."""
+
+    skipped: list[str] = field(default_factory=list)
+    registered: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0  # wall time of the whole call, cluster start included
+    run_seconds: float = 0.0  # first submission to last result
+    workers: int = 0
+    results: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def trees_per_hour(self) -> float:
+        """Trees this run registered (ok or failed) per hour of wall time."""
+        n = len(self.registered) + len(self.failed)
+        return 3600.0 * n / self.run_seconds if self.run_seconds > 0 else 0.0
+
+
+def _params(
+    campaign: Campaign, params: RegistrationParams | None
+) -> RegistrationParams:
+    from amrst.params import RegistrationParams, load_params, load_preset
+
+    if params is not None:
+        return params
+    if campaign.params:
+        return load_params(campaign.root / campaign.params)
+    if campaign.preset:
+        return load_preset(campaign.preset)
+    return RegistrationParams()
+
+
+def pending_trees(
+    campaign: Campaign,
+    params: RegistrationParams | None = None,
+    force: bool = False,
+    clouds: str = "",
+) -> tuple[list[tuple[Any, str]], list[str], dict[str, Any]]:
+    """Return ``([(entry, stamp)] to run, [ids already done], params dict)``."""
+    from amrst.params import params_to_dict
+
+    doc = params_to_dict(_params(campaign, params))
+    todo, done = [], []
+    root = campaign.root.resolve()
+    for entry in campaign.trees:
+        stamp = tree_stamp(root, entry, doc, clouds)
+        if not force and is_done(campaign.results_dir(entry.id), stamp):
+            done.append(entry.id)
+        else:
+            todo.append((entry, stamp))
+    return todo, done, doc
+
+
+def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
+    import logging
+
+    from distributed import Client, LocalCluster  # untyped: Any here
+
+    # The scheduler of a local cluster runs in this process: its INFO lines would
+    # drown the progress bar (the workers get silence_logs).
+    for name in ("distributed", "distributed.scheduler", "distributed.nanny"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+    client_cls: Any = Client
+    cluster_cls: Any = LocalCluster
+
+    if scheduler:
+        return client_cls(scheduler, timeout="20s"), None
+    cluster = cluster_cls(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=":0",  # any free port: never clashes with another batch
+        silence_logs=40,  # logging.ERROR: the progress bar is the output
+    )
+    return client_cls(cluster), cluster
+
+
+def run_batch(
+    campaign: Campaign,
+    *,
+    workers: int = 2,
+    scheduler: str | None = None,
+    params: RegistrationParams | None = None,
+    force: bool = False,
+    progress: BatchProgress | None = None,
+    only: list[str] | None = None,
+    clouds: str = "",
+) -> BatchSummary:
+    """Register every tree not done yet; write the table after each one.
+
+    Parameters
+    ----------
+    campaign : Campaign
+    workers : int
+        Worker processes of the local cluster (ignored with ``scheduler``).
+    scheduler : str or None
+        Address of a running ``dask scheduler`` (``tcp://host:8786``).
+    params : RegistrationParams or None
+        Default: the manifest's ``params`` / ``preset``, else the defaults.
+    force : bool
+        Run every tree, done or not.
+    progress : BatchProgress or None
+    only : list of str or None
+        Tree ids to consider (default: all).
+    clouds : str
+        Also write each tree's merged cloud in this format ("" = none).
+
+    Returns
+    -------
+    BatchSummary
+    """
+    from distributed import as_completed as _as_completed
+
+    as_completed: Any = _as_completed
+
+    from amrst.errors import InvalidInput
+
+    t0 = time.perf_counter()
+    todo, done, doc = pending_trees(campaign, params, force, clouds)
+    if only is not None:
+        unknown = set(only) - {t.id for t in campaign.trees}
+        if unknown:
+            raise InvalidInput(f"No tree {sorted(unknown)[0]!r} in the campaign.")
+        todo = [(e, s) for e, s in todo if e.id in only]
+        done = [i for i in done if i in only]
+    summary = BatchSummary(skipped=done)
+    total = len(todo) + len(done)
+    if not todo:
+        write_table(campaign)
+        if progress is not None:
+            progress.update(len(done), 0, 0, total, 0.0, None)
+        return summary
+    if workers < 1 and not scheduler:
+        raise InvalidInput(f"--workers must be at least 1, got {workers}.")
+    root = str(campaign.root.resolve())
+    client, cluster = _client(workers, scheduler)
+    try:
+        summary.workers = len(client.scheduler_info().get("workers", {})) or workers
+        futures = [
+            client.submit(
+                run_tree,
+                root,
+                entry,
+                doc,
+                stamp,
+                clouds,
+                key=f"amrst-tree-{entry.id}-{stamp[:12]}",
+                pure=False,
+            )
+            for entry, stamp in todo
+        ]
+        started = time.perf_counter()
+        if progress is not None:
+            progress.update(
+                len(done), 0, min(len(todo), summary.workers), total, None, None
+            )
+        for finished, future in enumerate(as_completed(futures), start=1):
+            try:
+                row = future.result()
+            except Exception as exc:  # the worker died (KilledWorker) or similar
+                key = str(future.key)
+                tree_id = next(
+                    (e.id for e, s in todo if key == f"amrst-tree-{e.id}-{s[:12]}"), key
+                )
+                row = {
+                    "id": tree_id,
+                    "ok": False,
+                    "error": f"{type(exc).__name__}: {exc}",
+                }
+            summary.results.append(row)
+            if row.get("ok"):
+                summary.registered.append(row["id"])
+            else:
+                summary.failed[row["id"]] = row.get("error", "")
+            write_table(campaign)  # after every tree: a kill loses only those in flight
+            if progress is not None:
+                rate = (time.perf_counter() - started) / finished
+                left = rate * (len(todo) - finished)
+                running = min(len(todo) - finished, summary.workers)
+                progress.update(
+                    len(done) + len(summary.registered),
+                    len(summary.failed),
+                    running,
+                    total,
+                    left,
+                    row,
+                )
+        summary.run_seconds = time.perf_counter() - started
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def table_rows(campaign: Campaign) -> list[dict[str, Any]]:
+    """Return the campaign table's rows as they stand on disk."""
+    return campaign_rows(campaign)
+
+
+def run_remaining(
+    root: str, workers: int, reporter: Reporter, scheduler: str | None = None
+) -> BatchSummary:
+    """Run the pending trees of the campaign at ``root``, reporting to ``reporter``.
+
+    The app's "Run remaining" calls this in a worker thread (the same Dask code as
+    ``amrst batch``).
+    """
+    from amrst.campaign.manifest import load_campaign
+
+    return run_batch(
+        load_campaign(root),
+        workers=workers,
+        scheduler=scheduler,
+        progress=ReporterProgress(reporter),
+    )

@@ -1,0 +1,244 @@
+"""The campaign manifest: one entry per tree, hand-editable (campaign.toml or .csv).
+
+``campaign.toml`` (paths relative to the campaign folder)::
+
+    [campaign]
+    name = "plot 7"
+    preset = ""            # optional: a preset for every tree (as amrst register --preset)
+    params = ""            # optional: a parameter JSON for every tree (--params)
+
+    [[tree]]
+    id = "T001"                                   # names the results folder
+    scans = ["T001/a.laz", "T001/b.laz", "T001/c.laz"]
+    reference = "T001/a.laz"                      # optional: a scan above, or its number
+    stem = [512345.2, 5456789.1]                  # optional: stem X, Y (world)
+    truth = "T001/truth.json"                     # optional: known transforms
+
+    [[tree]]
+    id = "T002"
+    scans = ["plot.e57#3", "plot.e57#4"]          # scans 3 and 4 of one E57 file
+
+``manifest.csv`` (the CSV form; ``campaign.csv`` is the results table) holds the same with one row per tree: ``id,scans,reference,stem_x,
+stem_y,truth``, the scans separated by ``;``. When both exist, campaign.toml is used.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from amrst.errors import InvalidInput
+
+if TYPE_CHECKING:
+    import os
+
+MANIFEST = "campaign.toml"
+MANIFEST_CSV = "manifest.csv"  # campaign.csv is the results table
+RESULTS = "results"
+_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+@dataclass(frozen=True, slots=True)
+class TreeEntry:
+    """One tree of a campaign: its scans (specs, relative paths) and options."""
+
+    id: str
+    scans: tuple[str, ...]
+    reference: int = 0
+    stem: tuple[float, float] | None = None
+    truth: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Campaign:
+    """A campaign folder and its manifest."""
+
+    root: Path
+    trees: tuple[TreeEntry, ...]
+    name: str = ""
+    preset: str = ""
+    params: str = ""
+    source: str = MANIFEST
+    notes: tuple[str, ...] = field(default=())
+
+    def results_dir(self, tree_id: str) -> Path:
+        """Return the folder holding one tree's results."""
+        return self.root / RESULTS / tree_id
+
+    def tree(self, tree_id: str) -> TreeEntry:
+        """Return the entry of ``tree_id``."""
+        for entry in self.trees:
+            if entry.id == tree_id:
+                return entry
+        raise InvalidInput(f"No tree {tree_id!r} in {self.root / self.source}.")
+
+
+def _reference(value: Any, scans: tuple[str, ...], where: str) -> int:
+    if value is None or value == "":
+        return 0
+    if isinstance(value, int) and not isinstance(value, bool):
+        if 0 <= value < len(scans):
+            return value
+    elif isinstance(value, str):
+        if value in scans:
+            return scans.index(value)
+        if value.isdigit() and int(value) < len(scans):
+            return int(value)
+        names = [Path(s).name for s in scans]
+        if names.count(value) == 1:
+            return names.index(value)
+    raise InvalidInput(
+        f"{where}: reference {value!r} is not one of its scans; give a scan as listed "
+        f"in 'scans' or its number 0 to {len(scans) - 1}."
+    )
+
+
+def _entry(raw: dict[str, Any], where: str) -> TreeEntry:
+    tree_id = str(raw.get("id", "")).strip()
+    if not _ID.match(tree_id):
+        raise InvalidInput(
+            f"{where}: tree id {tree_id!r} must start with a letter or digit and use only "
+            "letters, digits, '.', '_' and '-' (it names the results folder)."
+        )
+    scans = raw.get("scans")
+    if isinstance(scans, str):
+        scans = [s.strip() for s in scans.split(";") if s.strip()]
+    if not isinstance(scans, list) or not all(isinstance(s, str) for s in scans):
+        raise InvalidInput(f"{where}: 'scans' must be a list of scan files.")
+    if len(scans) < 2:
+        raise InvalidInput(
+            f"{where} (tree {tree_id}): {len(scans)} scan(s); a tree needs at least 2 "
+            "(the reference and a scan to move onto it)."
+        )
+    scans_t = tuple(scans)
+    stem = raw.get("stem")
+    stem_xy = None
+    if stem not in (None, "", []):
+        try:
+            x, y = (float(v) for v in stem)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(
+                f"{where}: 'stem' must be [X, Y], got {stem!r}."
+            ) from exc
+        stem_xy = (x, y)
+    truth = raw.get("truth") or None
+    return TreeEntry(
+        tree_id,
+        scans_t,
+        _reference(raw.get("reference"), scans_t, f"{where} (tree {tree_id})"),
+        stem_xy,
+        None if truth is None else str(truth),
+    )
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+
+    try:
+        with open(path, "rb") as f:
+            doc: dict[str, Any] = tomllib.load(f)
+            return doc
+    except tomllib.TOMLDecodeError as exc:
+        raise InvalidInput(
+            f"{path} is not valid TOML ({exc}). Fix that line (see the README's "
+            "campaign manifest format) or run amrst campaign init again."
+        ) from exc
+
+
+def _read_csv(path: Path) -> dict[str, Any]:
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    trees = []
+    for row in rows:
+        entry: dict[str, Any] = {k: (v or "").strip() for k, v in row.items() if k}
+        if entry.get("stem_x") and entry.get("stem_y"):
+            entry["stem"] = [entry["stem_x"], entry["stem_y"]]
+        trees.append(entry)
+    return {"tree": trees}
+
+
+def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
+    """Read a campaign folder's manifest (campaign.toml, else the CSV manifest).
+
+    Raises
+    ------
+    InvalidInput
+        No manifest, bad TOML/CSV, a bad entry, or two trees with one id.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise InvalidInput(
+            f"{root} is not a campaign folder. Create it with amrst campaign init."
+        )
+    toml, table = root / MANIFEST, root / MANIFEST_CSV
+    if toml.is_file():
+        doc, source = _read_toml(toml), MANIFEST
+    elif table.is_file():
+        doc, source = _read_csv(table), MANIFEST_CSV
+    else:
+        raise InvalidInput(f"{root} has no {MANIFEST}. Run: amrst campaign init {root}")
+    head = doc.get("campaign", {})
+    raw_trees = doc.get("tree", [])
+    if not isinstance(raw_trees, list):
+        raise InvalidInput(
+            f"{root / source}: 'tree' must be a list of [[tree]] tables."
+        )
+    trees = [_entry(t, f"{source}, tree {i + 1}") for i, t in enumerate(raw_trees)]
+    seen: set[str] = set()
+    for t in trees:
+        if t.id in seen:
+            raise InvalidInput(
+                f"{root / source}: two trees have the id {t.id!r}; ids must be unique."
+            )
+        seen.add(t.id)
+    return Campaign(
+        root,
+        tuple(trees),
+        str(head.get("name", root.name)),
+        str(head.get("preset", "") or ""),
+        str(head.get("params", "") or ""),
+        source,
+    )
+
+
+def _toml_str(value: str) -> str:
+    return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def manifest_text(campaign: Campaign) -> str:
+    """Return campaign.toml text for ``campaign`` (what :func:`load_campaign` reads)."""
+    lines = [
+        "# AMRST campaign: one [[tree]] table per tree; paths are relative to this folder.",
+        "# Edit freely: scans (FILE.e57#k picks scan k of a file), reference (a scan",
+        "# or its number), stem = [X, Y], truth = a truth.json. See the README.",
+        "",
+        "[campaign]",
+        f"name = {_toml_str(campaign.name)}",
+        f"preset = {_toml_str(campaign.preset)}",
+        f"params = {_toml_str(campaign.params)}",
+    ]
+    for t in campaign.trees:
+        lines += ["", "[[tree]]", f"id = {_toml_str(t.id)}"]
+        lines.append("scans = [" + ", ".join(_toml_str(s) for s in t.scans) + "]")
+        lines.append(f"reference = {_toml_str(t.scans[t.reference])}")
+        if t.stem is not None:
+            lines.append(f"stem = [{t.stem[0]!r}, {t.stem[1]!r}]")
+        if t.truth:
+            lines.append(f"truth = {_toml_str(t.truth)}")
+    return "\n".join(lines) + "\n"
+
+
+def save_campaign(campaign: Campaign) -> Path:
+    """Write ``campaign.toml`` atomically; return its path."""
+    from amrst.files.atomic import write_text_atomic
+
+    path = campaign.root / MANIFEST
+    write_text_atomic(path, manifest_text(campaign))
+    return path

@@ -1,0 +1,211 @@
+"""One tree of a campaign: the task every Dask worker runs, and its resume stamp.
+
+:func:`run_tree` reads the tree's scans, registers them (:func:`amrst.register_scans`),
+writes the results into ``results/<id>/`` (the files ``amrst register`` writes, plus
+scans.json) and writes ``stamp.json`` LAST. The stamp holds a hash of everything the
+result depends on (the content of every scan and truth file, the scan specs, the
+reference, the parameters and the amrst version) and the list of files written; a tree
+is done when its stamp matches the current hash and those files exist. A run killed
+at any moment therefore leaves either a complete, stamped result or no stamp.
+
+A failure is never raised to the batch: it is written to ``results/<id>/error.json``
+and returned as the row's ``error``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import hashlib
+import json
+import os
+import time
+import traceback
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from amrst import __version__
+
+if TYPE_CHECKING:
+    from amrst.campaign.manifest import TreeEntry
+
+STAMP = "stamp.json"
+ERROR = "error.json"
+_CHUNK = 1 << 20
+
+
+def _file_hash(path: Path) -> str:
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            while chunk := f.read(_CHUNK):
+                h.update(chunk)
+    except OSError as exc:  # missing scans are reported when the tree runs
+        return f"unreadable:{exc.__class__.__name__}"
+    return h.hexdigest()
+
+
+def tree_stamp(
+    root: Path, entry: TreeEntry, params: dict[str, Any], clouds: str = ""
+) -> str:
+    """Return the hash of everything a tree's result depends on (hex sha256).
+
+    ``clouds``: the cloud format written with the results ("" = none).
+    """
+    from amrst.io.scans import split_spec
+
+    files: dict[str, str] = {}
+    for spec in entry.scans:
+        path, _ = split_spec(root / spec)
+        files.setdefault(str(path.relative_to(root)), _file_hash(path))
+    doc = {
+        "amrst": __version__,
+        "scans": list(entry.scans),
+        "reference": entry.reference,
+        "files": files,
+        "truth": None if entry.truth is None else _file_hash(root / entry.truth),
+        "params": params,
+        "clouds": clouds,
+    }
+    text = json.dumps(doc, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def is_done(out: Path, stamp: str) -> bool:
+    """Tell whether ``out`` holds a complete result stamped with ``stamp``."""
+    try:
+        doc = json.loads((out / STAMP).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(doc, dict) or doc.get("stamp") != stamp:
+        return False
+    return all((out / name).is_file() for name in doc.get("files", []))
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def run_tree(
+    root: str,
+    entry: TreeEntry,
+    params: dict[str, Any],
+    stamp: str,
+    clouds: str = "",
+) -> dict[str, Any]:
+    """Register one tree and write its results; never raises for a bad tree.
+
+    Parameters
+    ----------
+    root : str
+        The campaign folder (absolute: workers on other machines see the same path).
+    entry : TreeEntry
+    params : dict
+        ``params_to_dict`` of the registration parameters.
+    stamp : str
+        :func:`tree_stamp` of this tree, written into ``stamp.json`` when done.
+    clouds : str
+        Also write the merged cloud (and the moved source of a pair) in this format
+        ("ply", "las", "laz", "pcd"); "" writes none, as ``amrst register`` by default.
+
+    Returns
+    -------
+    dict
+        ``id``, ``ok``, ``seconds``, ``verdict`` or ``error``, ``worker`` (pid@host).
+    """
+    from amrst.errors import AmrstError
+    from amrst.files.atomic import make_folder, write_json_atomic
+
+    base = Path(root)
+    out = base / "results" / entry.id
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    worker = f"{os.getpid()}@{os.uname().nodename}"
+    try:
+        make_folder(out, "results folder")
+        for name in (STAMP, ERROR):
+            (out / name).unlink(missing_ok=True)
+        verdict, files = _register(base, entry, params, out, clouds)
+    except Exception as exc:  # one tree's failure is data for the table, not a crash
+        message = (
+            str(exc) if isinstance(exc, AmrstError) else f"{type(exc).__name__}: {exc}"
+        )
+        doc = {
+            "error": message,
+            "type": type(exc).__name__,
+            "finished_utc": _now(),
+            "seconds": time.perf_counter() - t0,
+            "worker": worker,
+        }
+        if not isinstance(exc, AmrstError):
+            doc["traceback"] = traceback.format_exc()
+        with contextlib.suppress(AmrstError):
+            write_json_atomic(out / ERROR, doc)
+        return {
+            "id": entry.id,
+            "ok": False,
+            "error": message,
+            "seconds": doc["seconds"],
+            "worker": worker,
+        }
+    seconds = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0  # every thread of this worker process
+    write_json_atomic(
+        out / STAMP,
+        {
+            "stamp": stamp,
+            "files": files,
+            "verdict": verdict,
+            "seconds": seconds,
+            "cpu_seconds": cpu,
+            "finished_utc": _now(),
+            "worker": worker,
+        },
+    )
+    return {
+        "id": entry.id,
+        "ok": True,
+        "verdict": verdict,
+        "seconds": seconds,
+        "cpu_seconds": cpu,
+        "worker": worker,
+    }
+
+
+def _register(
+    base: Path, entry: TreeEntry, params_doc: dict[str, Any], out: Path, clouds: str
+) -> tuple[str, list[str]]:
+    from amrst.io.scans import read_scans
+    from amrst.multiscan import register_scans
+    from amrst.multiscan.export import export_scans, read_scan_truth
+    from amrst.params import params_from_dict
+
+    params = params_from_dict(params_doc)
+    scans = []
+    for spec in entry.scans:
+        found = read_scans(base / spec)
+        if len(found) != 1:
+            raise_many(spec, len(found))
+        scans.append(found[0])
+    truth = None
+    if entry.truth is not None:
+        truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)
+    result = register_scans(scans, entry.reference, params)
+    written = export_scans(
+        out,
+        result,
+        files=list(entry.scans),
+        truth=truth,
+        clouds=bool(clouds),
+        cloud_format=clouds or "ply",
+    )
+    return result.verdict, [p.name for p in written]
+
+
+def raise_many(spec: str, count: int) -> None:
+    """Refuse a manifest scan that names a whole multi-scan file."""
+    from amrst.errors import InvalidInput
+
+    raise InvalidInput(
+        f"{spec} holds {count} scans; list each one in the manifest as {spec}#0, "
+        f"{spec}#1, ..."
+    )

@@ -1,0 +1,149 @@
+"""The campaign table: one row per tree, read back from the results on disk.
+
+Column names follow what 3DFin and TreeQSM users read: ``TH`` (total height, m),
+``DBH`` (diameter at breast height, m), ``X``, ``Y`` (stem position, world
+coordinates). The table is rebuilt from every tree's ``scans.json``, ``stamp.json`` and
+``error.json``, so it is the same whichever run (or resumed run) produced them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io as _stdio
+import json
+import math
+from typing import TYPE_CHECKING, Any
+
+from amrst.campaign.run import ERROR, STAMP
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.campaign.manifest import Campaign, TreeEntry
+
+COLUMNS = (
+    "tree_id",
+    "status",
+    "verdict",
+    "confidence",
+    "n_scans",
+    "n_reached",
+    "links_verified",
+    "links_total",
+    "NN_RMSE_m",
+    "overlap",
+    "TH",
+    "DBH",
+    "crown_width_m",
+    "crown_area_m2",
+    "X",
+    "Y",
+    "reference",
+    "seconds",
+    "cpu_seconds",
+    "finished_utc",
+    "error",
+)
+TABLE = "campaign.csv"
+TABLE_XLSX = "campaign.xlsx"
+STATUS_ORDER = ("failed", "needs review", "not run", "registered")
+
+
+def _read(path: Path) -> dict[str, Any] | None:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _num(value: Any) -> float | str:
+    if value is None:
+        return ""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return ""
+    return "" if math.isnan(v) else v
+
+
+def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
+    """Return one tree's row from its results folder (``not run`` when empty)."""
+    out = campaign.results_dir(entry.id)
+    row: dict[str, Any] = dict.fromkeys(COLUMNS, "")
+    row.update(
+        tree_id=entry.id,
+        n_scans=len(entry.scans),
+        reference=entry.scans[entry.reference],
+    )
+    if entry.stem is not None:
+        row["X"], row["Y"] = entry.stem
+    stamp, error = _read(out / STAMP), _read(out / ERROR)
+    summary = _read(out / "scans.json") if stamp else None
+    if error is not None:
+        row.update(
+            status="failed",
+            error=error.get("error", ""),
+            seconds=_num(error.get("seconds")),
+            finished_utc=error.get("finished_utc", ""),
+        )
+        return row
+    if stamp is None or summary is None:
+        row["status"] = "not run"
+        return row
+    merged = summary.get("tree", {}).get("merged", {})
+    verdict = summary.get("verdict", "")
+    row.update(
+        status="registered" if verdict == "verified" else "needs review",
+        verdict=verdict,
+        confidence=_num(summary.get("confidence")),
+        n_reached=summary.get("n_reached", ""),
+        links_verified=summary.get("links_verified", ""),
+        links_total=summary.get("links_total", ""),
+        NN_RMSE_m=_num(summary.get("rmse_overlap_m")),
+        overlap=_num(summary.get("overlap_fraction")),
+        TH=_num(merged.get("height_m")),
+        DBH=_num(merged.get("dbh_m")),
+        crown_width_m=_num(merged.get("crown_width_m")),
+        crown_area_m2=_num(merged.get("crown_area_m2")),
+        seconds=_num(stamp.get("seconds")),
+        cpu_seconds=_num(stamp.get("cpu_seconds")),
+        finished_utc=stamp.get("finished_utc", ""),
+    )
+    if merged.get("stem_x_m") is not None:
+        row["X"], row["Y"] = _num(merged["stem_x_m"]), _num(merged["stem_y_m"])
+    return row
+
+
+def campaign_rows(campaign: Campaign) -> list[dict[str, Any]]:
+    """Return every tree's row, in manifest order."""
+    return [tree_row(campaign, t) for t in campaign.trees]
+
+
+def write_table(
+    campaign: Campaign, rows: list[dict[str, Any]] | None = None
+) -> list[Path]:
+    """Write campaign.csv (and .xlsx when openpyxl is installed), atomically."""
+    from amrst.files.atomic import write_atomic, write_text_atomic
+
+    rows = campaign_rows(campaign) if rows is None else rows
+    buf = _stdio.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    written = [campaign.root / TABLE]
+    write_text_atomic(written[0], buf.getvalue())
+    try:
+        import openpyxl
+    except ImportError:
+        return written
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = "trees"
+    sheet.append(list(COLUMNS))
+    for row in rows:
+        sheet.append([row[c] for c in COLUMNS])
+    sheet.freeze_panes = "B2"
+    write_atomic(campaign.root / TABLE_XLSX, lambda tmp: book.save(tmp))
+    written.append(campaign.root / TABLE_XLSX)
+    return written

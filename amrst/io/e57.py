@@ -1,0 +1,180 @@
+"""ASTM E57 files through ``pye57`` (libE57Format); private to amrst.io.
+
+An E57 file holds several scans (``data3D``), each with its points in the scanner's
+frame (cartesian or spherical), optional intensity and colour, and a pose (a unit
+quaternion and a translation: ``T_world_scanner``). :func:`read_e57` (the ``.e57`` entry
+of ``amrst.io``) reads every scan posed into one cloud with a ``scan_id`` attribute;
+:func:`amrst.io.scans.read_scans` reads chosen scans as separate clouds
+(``plot.e57#0,2``). Points flagged invalid (``cartesianInvalidState`` /
+``sphericalInvalidState``) are dropped. Attributes: ``intensity`` (float32, as
+stored), ``red``, ``green``, ``blue`` (uint8).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+    from amrst.io.common import RawCloud
+    from amrst.types import Cloud, Transform
+
+LABEL = "e57"
+_COLOURS = (("colorRed", "red"), ("colorGreen", "green"), ("colorBlue", "blue"))
+
+
+def _pose(header: Any) -> np.ndarray:
+    T = np.eye(4)
+    if header.has_pose():
+        T[:3, :3] = np.asarray(header.rotation_matrix, dtype=np.float64)
+        T[:3, 3] = np.asarray(header.translation, dtype=np.float64)
+    return T
+
+
+def _info(e57: Any, index: int) -> ScanInfo:
+    header = e57.get_header(index)
+    node = header.node
+    name = node["name"].value() if node.isDefined("name") else f"scan {index}"
+    fields = []
+    if "intensity" in header.point_fields:
+        fields.append("intensity")
+    if all(f in header.point_fields for f, _ in _COLOURS):
+        fields += [name for _, name in _COLOURS]
+    return ScanInfo(
+        index,
+        str(name),
+        int(header.point_count),
+        _pose(header),
+        bool(header.has_pose()),
+        tuple(fields),
+    )
+
+
+def _open(path: Path) -> Any:
+    import pye57
+
+    return pye57.E57(str(path))
+
+
+def list_scans(path: Path) -> list[ScanInfo]:
+    """Every scan of the file, from its headers (no points are read)."""
+
+    def run() -> list[ScanInfo]:
+        with _open(path) as e57:
+            return [_info(e57, i) for i in range(e57.scan_count)]
+
+    result: list[ScanInfo] = guarded(path, LABEL, run)
+    return result
+
+
+def _read_one(e57: Any, index: int, posed: bool) -> RawCloud:
+    from pye57.utils import convert_spherical_to_cartesian
+
+    info = _info(e57, index)
+    data = e57.read_scan(
+        index,
+        intensity="intensity" in info.fields,
+        colors="red" in info.fields,
+        transform=False,
+        ignore_missing_fields=True,
+    )
+    if "cartesianX" in data:
+        xyz = np.column_stack(
+            [
+                np.asarray(data[k], np.float64)
+                for k in ("cartesianX", "cartesianY", "cartesianZ")
+            ]
+        )
+    else:
+        rae = np.column_stack(
+            [
+                np.asarray(data[k], np.float64)
+                for k in ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
+            ]
+        )
+        xyz = convert_spherical_to_cartesian(rae)
+    attributes: dict[str, np.ndarray] = {}
+    if "intensity" in data:
+        attributes["intensity"] = np.asarray(data["intensity"])
+    for field, name in _COLOURS:
+        if field in data:
+            attributes[name] = np.asarray(data[field], np.uint8)
+    meta = {"scan_index": index, "scan_name": info.name, "e57_has_pose": info.has_pose}
+    return posed_raw(xyz, info.T_world_scanner, attributes, meta, posed=posed)
+
+
+def read_raw_scans(
+    path: Path, wanted: Sequence[int] | None, posed: bool
+) -> list[tuple[int, RawCloud]]:
+    """Read the chosen scans (all when None) as ``(index, RawCloud)``, posed or not."""
+
+    def run() -> list[tuple[int, RawCloud]]:
+        with _open(path) as e57:
+            chosen = check_indices(path, wanted, e57.scan_count)
+            return [(i, _read_one(e57, i, posed)) for i in chosen]
+
+    result: list[tuple[int, RawCloud]] = guarded(path, LABEL, run)
+    return result
+
+
+def read_e57(path: Path) -> RawCloud:
+    """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
+    raws = read_raw_scans(path, None, True)
+    return merge_raw([r for _, r in raws], [i for i, _ in raws])
+
+
+def write_e57(
+    path: str | Path,
+    scans: Sequence[Cloud],
+    poses: Sequence[Transform] | None = None,
+) -> None:
+    """Write scans and their poses to one E57 file, atomically.
+
+    Parameters
+    ----------
+    path : path
+        The ``.e57`` file to write.
+    scans : sequence of Cloud
+        Each scan in its scanner's frame. A scan's ``offset`` is folded into its pose,
+        so the points are stored small (pye57 stores them as float32) and
+        georeferenced coordinates keep millimetres.
+    poses : sequence of (4, 4) float64, optional
+        ``T_world_scanner`` of each scan; identity when None.
+    """
+    import pye57
+    from scipy.spatial.transform import Rotation
+
+    from amrst.files.atomic import write_atomic
+
+    poses = [np.eye(4)] * len(scans) if poses is None else list(poses)
+
+    def write_to(tmp: Path) -> None:
+        tmp.unlink(missing_ok=True)
+        with pye57.E57(str(tmp), mode="w") as e57:
+            for k, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
+                T = np.asarray(pose, np.float64).copy()
+                T[:3, 3] += T[:3, :3] @ scan.offset  # offset into the pose
+                data: dict[str, np.ndarray] = {
+                    f"cartesian{a}": np.ascontiguousarray(scan.xyz[:, i])
+                    for i, a in enumerate("XYZ")
+                }
+                if scan.intensity is not None:
+                    data["intensity"] = scan.intensity.astype(np.float32)
+                if all(c in scan.attributes for _, c in _COLOURS):
+                    for field, name in _COLOURS:
+                        data[field] = np.asarray(scan.attributes[name]).astype(np.uint8)
+                x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+                e57.write_scan_raw(
+                    data,
+                    name=scan.name or f"scan {k}",
+                    rotation=np.array([w, x, y, z]),
+                    translation=T[:3, 3],
+                )
+
+    write_atomic(path, write_to)

@@ -1,0 +1,146 @@
+"""Shared by the multi-scan readers (E57, PTX): scan headers, poses, errors; private.
+
+:mod:`amrst.io.scans` is the public side (specs, listing, reading chosen scans).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.io.common import OFFSET_STEP_M, RawCloud, shorten
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from pathlib import Path
+
+    from amrst.types import Transform
+
+
+@dataclass(frozen=True, slots=True)
+class ScanInfo:
+    """One scan of a multi-scan file, as its header describes it.
+
+    Attributes
+    ----------
+    index : int
+        Position in the file, from 0 (what ``FILE#index`` selects).
+    name : str
+        The scan's name in the file (E57 ``name``), or ``scan <index>``.
+    n_points : int
+        Points stored (before invalid ones are dropped).
+    T_world_scanner : (4, 4) float64
+        The stored pose; the identity when the file stores none.
+    has_pose : bool
+    fields : tuple of str
+        Per-point fields besides x, y, z (``intensity``, ``red``...).
+    """
+
+    index: int
+    name: str
+    n_points: int
+    T_world_scanner: Transform
+    has_pose: bool
+    fields: tuple[str, ...]
+
+
+def check_indices(
+    path: Path, wanted: Sequence[int] | None, count: int
+) -> tuple[int, ...]:
+    """Return the scans to read: ``wanted`` checked against the ``count`` in the file."""
+    if count == 0:
+        raise InvalidInput(f"{path} holds no scan. Export the scans again.")
+    if wanted is None:
+        return tuple(range(count))
+    bad = [i for i in wanted if not 0 <= i < count]
+    if bad:
+        raise InvalidInput(
+            f"{path} holds {count} scan(s), numbered 0 to {count - 1}; there is no "
+            f"scan {bad[0]}. Choose scans with FILE#k (amrst info {path.name} lists "
+            "them)."
+        )
+    return tuple(wanted)
+
+
+def posed_raw(
+    xyz: np.ndarray,
+    T_world_scanner: Transform,
+    attributes: dict[str, np.ndarray],
+    meta: dict[str, Any],
+    *,
+    posed: bool,
+) -> RawCloud:
+    """Return a scan as a RawCloud: moved by its pose (or not), precision kept at any offset.
+
+    ``xyz`` (N, 3) float64 is in the scanner frame. The pose's translation may be
+    georeferenced (x = 500000): it is split into a rounded offset and a small rest
+    before the points are moved, so the local values stay small.
+    """
+    T = np.asarray(T_world_scanner, dtype=np.float64)
+    meta = {**meta, "pose": tuple(tuple(float(v) for v in row) for row in T)}
+    if not posed:
+        return RawCloud(
+            xyz, np.zeros(3), attributes, {**meta, "scanner_origin": (0.0, 0.0, 0.0)}
+        )
+    t = T[:3, 3]
+    offset = np.floor(t / OFFSET_STEP_M) * OFFSET_STEP_M
+    offset[np.abs(t) < 1e4] = 0.0
+    local = xyz @ T[:3, :3].T + (t - offset)
+    origin = tuple(float(v) for v in t)
+    return RawCloud(local, offset, attributes, {**meta, "scanner_origin": origin})
+
+
+def merge_raw(raws: Sequence[RawCloud], indices: Sequence[int]) -> RawCloud:
+    """Several posed scans as one RawCloud with a ``scan_id`` attribute (file index)."""
+    if len(raws) == 1:
+        return raws[0]
+    offset = raws[0].offset
+    xyz = np.vstack([r.xyz + (r.offset - offset) for r in raws])
+    names = list(dict.fromkeys(k for r in raws for k in r.attributes))
+    attrs: dict[str, np.ndarray] = {}
+    for name in names:
+        cols = [r.attributes.get(name) for r in raws]
+        dtype = np.result_type(*(c.dtype for c in cols if c is not None))
+        attrs[name] = np.concatenate(
+            [
+                np.asarray(c, dtype) if c is not None else np.zeros(len(r.xyz), dtype)
+                for c, r in zip(cols, raws, strict=True)
+            ]
+        )
+    attrs["scan_id"] = np.concatenate(
+        [np.full(len(r.xyz), i, np.uint16) for i, r in zip(indices, raws, strict=True)]
+    )
+    meta = {
+        "n_scans": len(raws),
+        "scanner_origins": tuple(
+            float(v) for r in raws for v in r.meta.get("scanner_origin", (0, 0, 0))
+        ),
+    }
+    return RawCloud(xyz, offset, attrs, meta)
+
+
+def guarded(path: Path, label: str, fn: Callable[[], Any]) -> Any:
+    """Run a library call on ``path``; any library error becomes one InvalidInput line."""
+    from amrst.errors import AmrstError
+
+    try:
+        return fn()
+    except AmrstError:
+        raise
+    except PermissionError as exc:
+        raise InvalidInput(
+            f"Cannot read {path}: permission denied: fix the file's permissions or "
+            "copy it somewhere readable."
+        ) from exc
+    except MemoryError as exc:
+        raise InvalidInput(f"{path} is too large to load into memory.") from exc
+    except Exception as exc:  # libE57 messages run over several lines: one line here
+        text = " ".join(str(exc).replace("****", " ").split())
+        raise InvalidInput(
+            f"Could not read {path}: {shorten(text, 200)} "
+            f"({type(exc).__name__}). The file looks corrupt or truncated, or is "
+            f"not really a {label} file; export it again."
+        ) from exc

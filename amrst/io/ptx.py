@@ -1,0 +1,219 @@
+"""Leica PTX files (ASCII, several scans per file); private to amrst.io.
+
+Each scan is a 10-line header and then ``columns * rows`` point lines::
+
+    columns
+    rows
+    sx sy sz            scanner position (registered frame)
+    ax ay az            scanner x axis
+    bx by bz            scanner y axis
+    cx cy cz            scanner z axis
+    r11 r21 r31 0       the 4x4 T_world_scanner, stored transposed: the rotation's
+    r12 r22 r32 0       columns as rows, and the translation in the last row
+    r13 r23 r33 0
+    tx ty tz 1
+    x y z intensity [r g b]      scanner-frame coordinates; "0 0 0" = no return
+
+Points without a return (all coordinates exactly 0) are dropped. Intensity is kept as
+written (0..1), colour as ``red``/``green``/``blue`` uint8. Poses come from the 4x4
+matrix; a file whose matrix is the identity but whose scanner position is not (some
+exporters write points already registered) keeps its points as they are.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.io.common import shorten
+from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+    from amrst.io.common import RawCloud
+    from amrst.types import Cloud, Transform
+
+LABEL = "ptx"
+_HEADER_LINES = 10
+
+
+class _Scan:
+    """Where one scan's lines are, and its header values."""
+
+    def __init__(self, start: int, n: int, T: np.ndarray, width: int) -> None:
+        self.start, self.n, self.T, self.width = start, n, T, width
+
+
+def _numbers(line: str, count: int, path: Path, line_no: int) -> list[float]:
+    parts = line.split()
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != count:
+        raise InvalidInput(
+            f"{path}, line {line_no}: expected {count} number(s) of a PTX scan "
+            f"header, found {shorten(line.strip(), 60)!r}. The file is corrupt, "
+            "truncated or not a PTX file; export it again."
+        )
+    return values
+
+
+def _index(lines: list[str], path: Path) -> list[_Scan]:
+    """Walk the headers: where each scan's points start, how many, its pose."""
+    scans: list[_Scan] = []
+    pos = 0
+    while pos < len(lines):
+        if not lines[pos].strip():
+            pos += 1
+            continue
+        if pos + _HEADER_LINES > len(lines):
+            raise InvalidInput(
+                f"{path} ends inside the header of scan {len(scans)} (line {pos + 1}): "
+                "the file is truncated. Export it again."
+            )
+        cols = _numbers(lines[pos], 1, path, pos + 1)[0]
+        rows = _numbers(lines[pos + 1], 1, path, pos + 2)[0]
+        if cols < 0 or rows < 0 or cols != int(cols) or rows != int(rows):
+            raise InvalidInput(
+                f"{path}, line {pos + 1}: the scan size {cols:g} x {rows:g} is not "
+                "two whole numbers. The file is corrupt or not a PTX file."
+            )
+        for k in range(2, 6):
+            _numbers(lines[pos + k], 3, path, pos + k + 1)
+        M = np.array(
+            [_numbers(lines[pos + k], 4, path, pos + k + 1) for k in range(6, 10)]
+        )
+        T = M.T.copy()  # stored transposed: translation in the last row
+        n = int(cols) * int(rows)
+        start = pos + _HEADER_LINES
+        if start + n > len(lines):
+            raise InvalidInput(
+                f"{path}: scan {len(scans)} declares {n} points but the file ends "
+                f"after {len(lines) - start}: it is truncated. Export it again."
+            )
+        width = len(lines[start].split()) if n else 4
+        if width not in (3, 4, 7):
+            raise InvalidInput(
+                f"{path}, line {start + 1}: a PTX point line has 3, 4 or 7 numbers "
+                f"(x y z [intensity [r g b]]), found {width}."
+            )
+        scans.append(_Scan(start, n, T, width))
+        pos = start + n
+    return scans
+
+
+def _read_lines(path: Path) -> list[str]:
+    text = path.read_text(encoding="ascii", errors="strict")
+    return text.splitlines()
+
+
+def list_scans(path: Path) -> list[ScanInfo]:
+    """Every scan of the file, from its headers."""
+
+    def run() -> list[ScanInfo]:
+        scans = _index(_read_lines(path), path)
+        fields = {3: (), 4: ("intensity",), 7: ("intensity", "red", "green", "blue")}
+        return [
+            ScanInfo(
+                i,
+                f"scan {i}",
+                s.n,
+                s.T,
+                not np.allclose(s.T, np.eye(4)),
+                fields[s.width],
+            )
+            for i, s in enumerate(scans)
+        ]
+
+    result: list[ScanInfo] = guarded(path, LABEL, run)
+    return result
+
+
+def _points(lines: list[str], scan: _Scan, path: Path) -> np.ndarray:
+    block = lines[scan.start : scan.start + scan.n]
+    try:
+        values = np.array(" ".join(block).split(), dtype=np.float64)
+    except ValueError as exc:
+        raise InvalidInput(
+            f"{path}: a point line of the scan starting at line {scan.start + 1} is "
+            f"not numbers ({shorten(str(exc), 80)}). The file is corrupt; export it "
+            "again."
+        ) from exc
+    if values.size != scan.n * scan.width:
+        raise InvalidInput(
+            f"{path}: the scan starting at line {scan.start + 1} should have "
+            f"{scan.width} numbers on each of its {scan.n} point lines; some lines "
+            "have more or fewer. The file is corrupt; export it again."
+        )
+    return values.reshape(scan.n, scan.width)
+
+
+def read_raw_scans(
+    path: Path, wanted: Sequence[int] | None, posed: bool
+) -> list[tuple[int, RawCloud]]:
+    """Read the chosen scans (all when None) as ``(index, RawCloud)``, posed or not."""
+
+    def run() -> list[tuple[int, RawCloud]]:
+        lines = _read_lines(path)
+        scans = _index(lines, path)
+        out = []
+        for i in check_indices(path, wanted, len(scans)):
+            pts = _points(lines, scans[i], path)
+            keep = np.any(pts[:, :3] != 0.0, axis=1)  # 0 0 0: no return
+            pts = pts[keep]
+            attributes: dict[str, np.ndarray] = {}
+            if scans[i].width >= 4:
+                attributes["intensity"] = pts[:, 3].astype(np.float32)
+            if scans[i].width == 7:
+                for j, name in enumerate(("red", "green", "blue")):
+                    attributes[name] = np.clip(pts[:, 4 + j], 0, 255).astype(np.uint8)
+            meta = {"scan_index": i, "n_no_return": int((~keep).sum())}
+            out.append(
+                (i, posed_raw(pts[:, :3], scans[i].T, attributes, meta, posed=posed))
+            )
+        return out
+
+    result: list[tuple[int, RawCloud]] = guarded(path, LABEL, run)
+    return result
+
+
+def read_ptx(path: Path) -> RawCloud:
+    """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
+    raws = read_raw_scans(path, None, True)
+    return merge_raw([r for _, r in raws], [i for i, _ in raws])
+
+
+def write_ptx(
+    path: str | Path,
+    scans: Sequence[Cloud],
+    poses: Sequence[Transform] | None = None,
+) -> None:
+    """Write scans with their poses to one PTX file (one row per scan), atomically.
+
+    Each scan's ``offset`` is folded into its pose, so the point lines stay small.
+    """
+    from amrst.files.atomic import write_text_atomic
+
+    poses = [np.eye(4)] * len(scans) if poses is None else list(poses)
+    parts = []
+    for scan, pose in zip(scans, poses, strict=True):
+        T = np.asarray(pose, np.float64).copy()
+        T[:3, 3] += T[:3, :3] @ scan.offset
+        head = [f"{len(scan)}", "1", " ".join(f"{v:.17g}" for v in T[:3, 3])]
+        head += [" ".join(f"{v:.17g}" for v in T[:3, k]) for k in range(3)]
+        head += [" ".join(f"{v:.17g}" for v in row) for row in T.T]
+        cols = [scan.xyz[:, 0], scan.xyz[:, 1], scan.xyz[:, 2]]
+        inten = scan.intensity
+        cols.append(np.full(len(scan), 0.5) if inten is None else inten)
+        fmt = "%.17g %.17g %.17g %.9g"
+        if all(c in scan.attributes for c in ("red", "green", "blue")):
+            cols += [np.asarray(scan.attributes[c]) for c in ("red", "green", "blue")]
+            fmt += " %d %d %d"
+        body = "\n".join(fmt % row for row in zip(*cols, strict=True))
+        parts.append("\n".join(head) + "\n" + body + "\n")
+    write_text_atomic(path, "".join(parts))

@@ -1,0 +1,149 @@
+"""Files that hold several scans (E57, PTX): list them, choose some, read them posed.
+
+A *scan spec* names the scans to read: ``plot.e57`` (every scan of the file),
+``plot.e57#2`` (scan 2, counted from 0), ``plot.e57#0,2`` (scans 0 and 2); the same for
+``.ptx``. Any other file is one scan (``tree.laz``). :func:`read_scans` returns one
+:class:`~amrst.types.Cloud` per scan; :func:`list_scans` tells what a file holds without
+reading its points.
+
+Each scan is read *posed* (its points moved by the pose the file stores, so the scans of
+one file line up, in georeferenced coordinates when the poses are) or, with
+``posed=False``, in the scanner's own frame. Either way the cloud's ``meta`` keeps
+``pose`` (the stored 4x4 ``T_world_scanner``, row-major nested tuples),
+``scanner_origin`` (where the scanner stood in the cloud's frame) and ``scan_index``.
+Large coordinates are split into ``offset`` + small local values, as every reader does,
+so georeferenced scans keep millimetres.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.io.posed import ScanInfo
+
+__all__ = ["ScanInfo", "list_scans", "read_scans", "split_spec"]
+
+if TYPE_CHECKING:
+    from amrst.io.common import RawCloud
+    from amrst.types import Cloud
+
+PathLike = str | os.PathLike[str]
+_SPEC = re.compile(r"^(?P<path>.+?)#(?P<scans>[0-9][0-9 ,]*)$")
+
+
+def split_spec(spec: PathLike) -> tuple[Path, tuple[int, ...] | None]:
+    """Split ``plot.e57#0,2`` into the path and the scan indices (None: all scans).
+
+    Raises
+    ------
+    InvalidInput
+        A ``#`` part that is not a list of scan numbers.
+    """
+    text = os.fspath(spec)
+    m = _SPEC.match(text)
+    if m is None:
+        if "#" in Path(text).name and not Path(text).exists():
+            raise InvalidInput(
+                f"{text!r}: after '#' give scan numbers counted from 0, e.g. "
+                "plot.e57#2 or plot.e57#0,2 (amrst info plot.e57 lists them)."
+            )
+        return Path(text), None
+    parts = [p for p in re.split(r"[ ,]+", m.group("scans")) if p]
+    if not parts:
+        raise InvalidInput(f"{text!r}: no scan number after '#'.")
+    return Path(m.group("path")), tuple(int(p) for p in parts)
+
+
+def _multi_module(path: Path) -> Any:
+    suffix = path.suffix.lower()
+    if suffix == ".e57":
+        from amrst.io import e57
+
+        return e57
+    if suffix == ".ptx":
+        from amrst.io import ptx
+
+        return ptx
+    return None
+
+
+def list_scans(path: PathLike) -> list[ScanInfo]:
+    """List the scans a file holds (one for single-scan formats), without reading points.
+
+    Raises
+    ------
+    InvalidInput
+        Missing, empty, corrupt or truncated file, or an unsupported extension.
+    """
+    from amrst import io
+
+    path = Path(path)
+    module = _multi_module(path)
+    if module is None:
+        cloud = io.read(path)
+        fields = tuple(cloud.attributes)
+        return [ScanInfo(0, cloud.name, len(cloud), np.eye(4), False, fields)]
+    _check(path)
+    infos: list[ScanInfo] = module.list_scans(path)
+    return infos
+
+
+def read_scans(spec: PathLike, *, posed: bool = True) -> list[Cloud]:
+    """Read the scans a spec names (``plot.e57#0,2``, ``plot.ptx``, ``tree.laz``).
+
+    Parameters
+    ----------
+    spec : str or os.PathLike
+        A file, optionally followed by ``#`` and scan numbers counted from 0.
+    posed : bool
+        Move each scan by its stored pose (default), or keep scanner coordinates.
+
+    Returns
+    -------
+    list of Cloud
+        One cloud per scan, named ``file#k`` for multi-scan files, with ``meta``
+        ``pose``, ``scanner_origin`` and ``scan_index``.
+
+    Raises
+    ------
+    InvalidInput
+        Bad spec, a scan number the file does not have, or a file the readers refuse.
+    """
+    from amrst import io
+    from amrst.io import _finish as finish
+
+    path, wanted = split_spec(spec)
+    module = _multi_module(path)
+    if module is None:
+        if wanted not in (None, (0,)):
+            raise InvalidInput(
+                f"{path.name} holds one scan; '#' selects scans of E57 and PTX files "
+                "only."
+            )
+        return [io.read(path)]
+    _check(path)
+    raws: list[tuple[int, RawCloud]] = module.read_raw_scans(path, wanted, posed)
+    return [
+        replace(finish(raw, path, module.LABEL, True), name=f"{path.name}#{i}")
+        for i, raw in raws
+    ]
+
+
+def _check(path: Path) -> None:
+    """Make the checks every reader makes first: exists, a file, not empty, readable."""
+    from amrst.io import _check_readable
+
+    try:
+        _check_readable(path)
+    except PermissionError as exc:
+        raise InvalidInput(
+            f"Cannot read {path}: permission denied: fix the file's permissions or "
+            "copy it somewhere readable."
+        ) from exc

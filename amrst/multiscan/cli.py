@@ -1,0 +1,117 @@
+"""``amrst register REF SCAN2 SCAN3 ...``: more than two scans (or ``FILE.e57#k`` specs).
+
+amrst.cli hands the parsed arguments here when more than two scans are given; the
+options are those of the pair command (--out, --params/--preset, --truth,
+--write-clouds, --format, --quiet).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import argparse
+
+    from amrst.multiscan.register import MultiScanResult
+    from amrst.params import RegistrationParams
+    from amrst.progress import Reporter
+    from amrst.types import Cloud
+
+EXIT_FAILED = 3
+
+
+def read_specs(specs: list[str]) -> tuple[list[Cloud], list[str]]:
+    """Read every scan a list of specs names; return the clouds and their labels."""
+    from amrst.io.scans import read_scans
+
+    clouds: list[Cloud] = []
+    labels: list[str] = []
+    for spec in specs:
+        found = read_scans(spec)
+        clouds += found
+        labels += [
+            spec if len(found) == 1 else f"{spec}#{c.meta.get('scan_index', i)}"
+            for i, c in enumerate(found)
+        ]
+    return clouds, labels
+
+
+def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
+    """Human lines: every link with its verdict, every scan with its path."""
+    lines = []
+    for link in result.links:
+        rmse = (
+            ""
+            if link.metrics is None
+            else f", NN-RMSE {link.metrics.rmse_overlap_m * 100:.1f} cm, overlap {link.metrics.overlap_fraction:.0%}"
+        )
+        used = " [tree]" if link.in_tree else ""
+        lines.append(
+            f"  link {link.target}-{link.source}: {link.verdict}, score {link.score:.0%}, "
+            f"confidence {link.confidence:.2f}{rmse}{used}"
+        )
+    for k, label in enumerate(labels):
+        path = result.paths[k]
+        how = (
+            "reference"
+            if k == result.reference
+            else (
+                "NOT reached (no verified link)"
+                if path is None
+                else "via " + " -> ".join(map(str, path))
+            )
+        )
+        lines.append(f"  scan {k} ({label}): {how}")
+    if result.joint is not None:
+        j = result.joint
+        lines.append(
+            f"  joint refinement: mean NN-RMSE {j.rmse_before_m * 100:.2f} -> "
+            f"{j.rmse_after_m * 100:.2f} cm ({'kept' if j.kept else 'not kept: worse'})"
+        )
+    if "merged" in result.tree:
+        lines.append(f"  tree (merged): {result.tree['merged'].summary()}")
+    return lines
+
+
+def run_register(
+    args: argparse.Namespace, params: RegistrationParams, reporter: Reporter
+) -> int:
+    """Register every scan of ``args.target`` + ``args.source`` and write ``args.out``."""
+    from amrst.multiscan.export import export_scans, read_scan_truth
+    from amrst.multiscan.register import register_scans
+    from amrst.results.export import check_output_dir
+
+    check_output_dir(args.out)
+    t0 = time.perf_counter()
+    clouds, labels = read_specs([args.target, *args.source])
+    truth = None
+    if args.truth is not None:
+        truth = read_scan_truth(args.truth, len(clouds), 0)
+    result = register_scans(clouds, 0, params, reporter)
+    files = export_scans(
+        args.out,
+        result,
+        files=labels,
+        truth=truth,
+        clouds=args.write_clouds,
+        cloud_format=args.format,
+    )
+    print(
+        f"Registered {len(clouds)} scans onto {labels[0]} in "
+        f"{time.perf_counter() - t0:.2f} s: {result.verdict}."
+    )
+    for line in describe(result, labels):
+        print(line)
+    print(
+        f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
+    )
+    if result.verdict != "verified":
+        print(
+            "Registration failed for some scans: no verified link reaches them. Check "
+            "that they show the same tree, or review the links in amrst-gui.",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
+    return 0

@@ -1,0 +1,344 @@
+"""CampaignPanel: the trees of a campaign, their state, and the batch run behind them.
+
+The table lists every tree with its state (not run, running, registered, needs
+review, failed, rejected, accepted, exported), those needing a person first, and can
+be filtered by text and by "needs a person". The state comes from the campaign folder
+(amrst.campaign.table and amrst.campaign.review), so opening a campaign reads files,
+never registers. Decisions are written to the folder the moment they are made.
+"Run remaining" runs ``amrst.campaign.batch.run_remaining`` (the same Dask code as
+``amrst batch``) through ``workers.run_stage``; each finished tree updates its row.
+
+Emits ``tree_selected(tree id, scan paths with the reference first)``.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QCheckBox,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from amrst.errors import AmrstError
+from amrst_gui.workers import StageJob, run_stage
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.campaign.manifest import Campaign
+
+log = logging.getLogger("amrst_gui.campaign")
+
+COLUMNS = ("Tree", "State", "Confidence", "Links", "NN-RMSE cm", "TH m", "DBH cm")
+NEEDS_PERSON = ("needs review", "failed")
+
+
+def _fmt(value, scale: float = 1.0, digits: int = 2) -> str:
+    if value in ("", None):
+        return ""
+    try:
+        return f"{float(value) * scale:.{digits}f}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+class CampaignPanel(QWidget):
+    """Lists a campaign's trees; runs, accepts and exports them."""
+
+    tree_selected = Signal(str, list)
+    rows_changed = Signal()
+
+    def __init__(self, parent: QWidget | None = None, workers: int = 2) -> None:
+        super().__init__(parent)
+        self.setObjectName("campaign_panel")
+        self.workers = workers
+        self.campaign: Campaign | None = None
+        self.rows: list[dict] = []
+        self.job: StageJob | None = None
+        self._running: set[str] = set()
+        self.title = QLabel("No campaign open")
+        self.filter_edit = QLineEdit()
+        self.filter_edit.setPlaceholderText("Filter trees (id or state)")
+        self.filter_edit.setObjectName("campaign_filter")
+        self.needs_person = QCheckBox("Needs a person")
+        self.table = QTableWidget(0, len(COLUMNS))
+        self.table.setObjectName("campaign_table")
+        self.table.setHorizontalHeaderLabels(list(COLUMNS))
+        self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.table.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
+        self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.table.verticalHeader().setVisible(False)
+        self.table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.Interactive
+        )
+        self._fit_columns()
+        self.open_button = QPushButton("Open campaign…")
+        self.run_button = QPushButton("Run remaining")
+        self.accept_button = QPushButton("Accept")
+        self.reject_button = QPushButton("Reject")
+        self.export_button = QPushButton("Export accepted")
+        self.status = QLabel("")
+        buttons = QHBoxLayout()
+        for b in (
+            self.run_button,
+            self.accept_button,
+            self.reject_button,
+            self.export_button,
+        ):
+            buttons.addWidget(b)
+        filters = QHBoxLayout()
+        filters.addWidget(self.filter_edit)
+        filters.addWidget(self.needs_person)
+        layout = QVBoxLayout(self)
+        top = QHBoxLayout()
+        top.addWidget(self.title, 1)
+        top.addWidget(self.open_button)
+        layout.addLayout(top)
+        layout.addLayout(filters)
+        layout.addWidget(self.table)
+        layout.addLayout(buttons)
+        layout.addWidget(self.status)
+        self.filter_edit.textChanged.connect(self._apply_filter)
+        self.needs_person.toggled.connect(self._apply_filter)
+        self.table.itemSelectionChanged.connect(self._on_selection)
+        self.open_button.clicked.connect(self._choose_folder)
+        self.run_button.clicked.connect(self.run_remaining)
+        self.accept_button.clicked.connect(lambda: self.decide("accepted"))
+        self.reject_button.clicked.connect(lambda: self.decide("rejected"))
+        self.export_button.clicked.connect(self.export_accepted)
+        self._update_buttons()
+
+    # ------------------------------------------------------------- public
+    def open_campaign(self, folder: str | Path) -> bool:
+        """Read a campaign folder (manifest and results); False with a message if not."""
+        from amrst.campaign.manifest import load_campaign
+
+        try:
+            self.campaign = load_campaign(folder)
+        except AmrstError as exc:
+            self._say(str(exc))
+            return False
+        self.title.setText(f"{self.campaign.name}: {len(self.campaign.trees)} trees")
+        self.refresh()
+        return True
+
+    def refresh(self) -> None:
+        """Re-read every tree's state from the campaign folder and redraw the table."""
+        from amrst.campaign.review import STATE_ORDER, review_state
+        from amrst.campaign.table import campaign_rows
+
+        if self.campaign is None:
+            return
+        rows = campaign_rows(self.campaign)
+        for row in rows:
+            state = review_state(self.campaign, row["tree_id"], row["status"])
+            if row["tree_id"] in self._running and state in ("not run", "failed"):
+                state = "running"
+            row["state"] = state
+        rows.sort(key=lambda r: (STATE_ORDER.index(r["state"]), r["tree_id"]))
+        self.rows = rows
+        self._fill()
+        self.rows_changed.emit()
+
+    def state_of(self, tree_id: str) -> str:
+        """Return the state shown for one tree."""
+        return next(r["state"] for r in self.rows if r["tree_id"] == tree_id)
+
+    def select_tree(self, tree_id: str) -> None:
+        """Select one tree's row (as a click does)."""
+        for i in range(self.table.rowCount()):
+            if self._id_at(i) == tree_id:
+                self.table.selectRow(i)
+                return
+
+    def selected_ids(self) -> list[str]:
+        """Return the ids of the selected rows."""
+        rows = sorted({i.row() for i in self.table.selectedIndexes()})
+        return [self._id_at(r) for r in rows]
+
+    def _id_at(self, row: int) -> str:
+        item = self.table.item(row, 0)
+        return "" if item is None else item.text()
+
+    def decide(self, decision: str) -> None:
+        """Accept or reject the selected trees; written to the campaign folder now."""
+        from amrst.campaign.review import set_decision
+
+        if self.campaign is None:
+            return
+        for tree_id in self.selected_ids():
+            try:
+                set_decision(self.campaign, tree_id, decision)
+            except AmrstError as exc:
+                self._say(str(exc))
+        self.refresh()
+
+    def export_accepted(self) -> None:
+        """Write the merged cloud of every accepted tree (from stored transforms)."""
+        from amrst.campaign.review import export_tree
+
+        if self.campaign is None:
+            return
+        done = 0
+        for row in list(self.rows):
+            if row["state"] != "accepted":
+                continue
+            try:
+                export_tree(self.campaign, row["tree_id"])
+                done += 1
+            except AmrstError as exc:
+                self._say(f"{row['tree_id']}: {exc}")
+        self.refresh()
+        self._say(f"Exported {done} accepted tree(s).")
+
+    def run_remaining(self) -> None:
+        """Register every tree not done yet, in the background (Dask)."""
+        from amrst.campaign.batch import run_remaining
+
+        if self.campaign is None or self.job is not None:
+            return
+        self._running = {
+            r["tree_id"] for r in self.rows if r["state"] in ("not run", "failed")
+        }
+        self.refresh()
+        self.job = run_stage(
+            run_remaining,
+            str(self.campaign.root),
+            self.workers,
+            name="campaign batch",
+            on_progress=self._on_progress,
+            on_result=self._on_done,
+            on_error=self._on_error,
+            on_finished=self._on_finished,
+        )
+        self._update_buttons()
+
+    def cancel(self) -> None:
+        """Stop the batch after the trees in flight (they are lost, as with a kill)."""
+        if self.job is not None:
+            self.job.cancel()
+
+    # ----------------------------------------------------------- plumbing
+    def _fill(self) -> None:
+        self.table.blockSignals(True)
+        selected = set(self.selected_ids())
+        self.table.setRowCount(len(self.rows))
+        for i, row in enumerate(self.rows):
+            links = (
+                f"{row['links_verified']}/{row['links_total']}"
+                if row["links_total"] != ""
+                else ""
+            )
+            cells = (
+                row["tree_id"],
+                row["state"],
+                _fmt(row["confidence"]),
+                links,
+                _fmt(row["NN_RMSE_m"], 100, 1),
+                _fmt(row["TH"], 1, 1),
+                _fmt(row["DBH"], 100, 1),
+            )
+            for j, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                if j == 1 and row["error"]:
+                    item.setToolTip(row["error"])
+                self.table.setItem(i, j, item)
+            if row["tree_id"] in selected:
+                self.table.selectRow(i)
+        self.table.blockSignals(False)
+        self._fit_columns()
+        self._apply_filter()
+        self._update_buttons()
+
+    def _fit_columns(self) -> None:
+        """Size each column to its contents, never narrower than its whole title."""
+        self.table.resizeColumnsToContents()
+        header = self.table.horizontalHeader()
+        metrics = header.fontMetrics()
+        for j, title in enumerate(COLUMNS):
+            need = metrics.horizontalAdvance(title) + 20  # the header's margins
+            if header.sectionSize(j) < need:
+                header.resizeSection(j, need)
+
+    def _apply_filter(self) -> None:
+        text = self.filter_edit.text().strip().lower()
+        only = self.needs_person.isChecked()
+        for i, row in enumerate(self.rows):
+            hide = (
+                bool(text)
+                and text not in row["tree_id"].lower()
+                and text not in row["state"]
+            )
+            hide = hide or (only and row["state"] not in NEEDS_PERSON)
+            self.table.setRowHidden(i, hide)
+
+    def _on_selection(self) -> None:
+        self._update_buttons()
+        ids = self.selected_ids()
+        if len(ids) != 1 or self.campaign is None:
+            return
+        entry = self.campaign.tree(ids[0])
+        order = [entry.reference] + [
+            k for k in range(len(entry.scans)) if k != entry.reference
+        ]
+        self.tree_selected.emit(
+            ids[0], [str(self.campaign.root / entry.scans[k]) for k in order]
+        )
+
+    def _on_progress(self, fraction: float, message: str) -> None:
+        if message:
+            self._running.discard(message.split(":")[0])
+            self._say(f"{fraction:.0%} of the trees done; last: {message}")
+        self.refresh()
+
+    def _on_done(self, summary) -> None:
+        self._say(
+            f"Batch done: {len(summary.registered)} registered, {len(summary.failed)} "
+            f"failed, {len(summary.skipped)} already done."
+        )
+
+    def _on_error(self, exc: BaseException) -> None:
+        self._say(f"Batch stopped: {exc}")
+
+    def _on_finished(self) -> None:
+        self.job = None
+        self._running = set()
+        self.refresh()
+
+    def _choose_folder(self) -> None:
+        from PySide6.QtWidgets import QFileDialog
+
+        folder = QFileDialog.getExistingDirectory(self, "Open a campaign folder")
+        if folder:
+            self.open_campaign(folder)
+
+    def _update_buttons(self) -> None:
+        has = self.campaign is not None
+        self.run_button.setEnabled(has and self.job is None)
+        picked = bool(self.selected_ids())
+        self.accept_button.setEnabled(has and picked)
+        self.reject_button.setEnabled(has and picked)
+        self.export_button.setEnabled(
+            has and any(r["state"] == "accepted" for r in self.rows)
+        )
+
+    def _say(self, text: str) -> None:
+        self.status.setText(text)
+        log.info("%s", text)
+
+    def shutdown(self) -> None:
+        """Cancel a running batch (the window is closing)."""
+        if self.job is not None:
+            self.job.discard()

@@ -1,0 +1,126 @@
+"""Campaigns: manifest, init from a folder layout, the results table."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from amrst.campaign import init_campaign, load_campaign
+from amrst.campaign.manifest import MANIFEST, manifest_text
+from amrst.campaign.table import COLUMNS
+from amrst.cli import main
+from amrst.errors import InvalidInput
+from amrst.io.e57 import write_e57
+from amrst.types import Cloud
+
+
+def _layout(root, sample_pair):
+    """T01: the sample pair (target/source); T02: one E57 with 3 scans; lonely: 1 scan."""
+    (root / "T01").mkdir(parents=True)
+    for name in ("target.ply", "source.ply", "truth.json"):
+        shutil.copy(sample_pair.target_path.parent / name, root / "T01" / name)
+    (root / "T02").mkdir()
+    rng = np.random.default_rng(0)
+    write_e57(
+        root / "T02" / "plot.e57", [Cloud(rng.normal(size=(50, 3))) for _ in range(3)]
+    )
+    (root / "lonely").mkdir()
+    shutil.copy(sample_pair.target_path, root / "lonely" / "only.ply")
+    shutil.copy(sample_pair.target_path, root / "loose.ply")
+
+
+def test_init_pairs_folders_and_says_what_it_could_not(tmp_path, sample_pair):
+    _layout(tmp_path, sample_pair)
+    campaign, skipped = init_campaign(tmp_path)
+    assert [t.id for t in campaign.trees] == ["T01", "T02"]
+    t01, t02 = campaign.trees
+    assert t01.scans == ("T01/source.ply", "T01/target.ply")
+    assert t01.scans[t01.reference] == "T01/target.ply"  # target.* is the reference
+    assert t01.truth == "T01/truth.json"
+    assert t02.scans == ("T02/plot.e57#0", "T02/plot.e57#1", "T02/plot.e57#2")
+    assert t02.reference == 0
+    assert any("lonely" in s and "only one scan" in s for s in skipped)
+    assert any("loose.ply" in s for s in skipped)
+
+
+def test_hand_edits_survive_a_second_init(tmp_path, sample_pair):
+    _layout(tmp_path, sample_pair)
+    init_campaign(tmp_path)
+    text = (tmp_path / MANIFEST).read_text()
+    text = text.replace(
+        'reference = "T02/plot.e57#0"', "reference = 2\nstem = [1.5, -2.0]"
+    )
+    (tmp_path / MANIFEST).write_text(text)
+    (tmp_path / "T03").mkdir()
+    for name in ("a.ply", "b.ply"):
+        shutil.copy(sample_pair.target_path, tmp_path / "T03" / name)
+    campaign, _ = init_campaign(tmp_path)
+    t02 = campaign.tree("T02")
+    assert t02.reference == 2
+    assert t02.stem == (1.5, -2.0)
+    assert campaign.tree("T03").scans == ("T03/a.ply", "T03/b.ply")
+    assert (
+        load_campaign(tmp_path).trees == campaign.trees
+    )  # what was written reads back
+    assert manifest_text(campaign) == (tmp_path / MANIFEST).read_text()
+
+
+def test_csv_manifest(tmp_path):
+    (tmp_path / "manifest.csv").write_text(
+        "id,scans,reference,stem_x,stem_y,truth\nA1,a.ply;b.ply;c.ply,b.ply,10.5,20.25,\n"
+    )
+    (tree,) = load_campaign(tmp_path).trees
+    assert tree.scans == ("a.ply", "b.ply", "c.ply")
+    assert tree.reference == 1
+    assert tree.stem == (10.5, 20.25)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[[tree]\nid=1", "not valid TOML"),
+        ('[[tree]]\nid = "a b"\nscans = ["x.ply", "y.ply"]', "tree id"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply"]', "at least 2"),
+        (
+            '[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nreference = "z.ply"',
+            "not one of its scans",
+        ),
+        (
+            '[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\n[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]',
+            "unique",
+        ),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [1]', "stem"),
+    ],
+)
+def test_bad_manifest_one_line(tmp_path, text, message):
+    (tmp_path / MANIFEST).write_text(text)
+    with pytest.raises(InvalidInput, match=message) as info:
+        load_campaign(tmp_path)
+    assert "\n" not in str(info.value)
+
+
+def test_cli_init_and_status(tmp_path, sample_pair, capsys):
+    _layout(tmp_path, sample_pair)
+    assert main(["campaign", "init", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "T02: 3 scans" in out
+    assert "not paired: lonely" in out
+    assert main(["campaign", "status", str(tmp_path)]) == 0
+    assert "2 not run" in capsys.readouterr().out
+    assert main(["campaign", "status", str(tmp_path / "nothing")]) == 2
+
+
+def test_table_columns_3dfin_names():
+    for name in (
+        "TH",
+        "DBH",
+        "X",
+        "Y",
+        "verdict",
+        "confidence",
+        "NN_RMSE_m",
+        "overlap",
+    ):
+        assert name in COLUMNS

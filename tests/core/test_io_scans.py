@@ -1,0 +1,127 @@
+"""E57 and PTX: several scans per file, poses, intensity, colour, georeferencing.
+
+Files are made by the tests (pye57 writes real E57 through libE57Format) and read back
+through the same entry points the CLI and the campaign use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from amrst import io
+from amrst.errors import InvalidInput
+from amrst.io.e57 import write_e57
+from amrst.io.ptx import write_ptx
+from amrst.io.scans import list_scans, read_scans, split_spec
+from amrst.types import Cloud, make_transform
+
+WRITERS = {".e57": write_e57, ".ptx": write_ptx}
+GEO = np.array([512345.678, 5456789.012, 310.5])
+
+
+def _scans(n: int = 3, points: int = 400) -> tuple[list[Cloud], list[np.ndarray]]:
+    rng = np.random.default_rng(1)
+    scans, poses = [], []
+    for k in range(n):
+        attrs = {
+            "intensity": rng.random(points).astype(np.float32),
+            "red": rng.integers(0, 256, points).astype(np.uint8),
+            "green": rng.integers(0, 256, points).astype(np.uint8),
+            "blue": rng.integers(0, 256, points).astype(np.uint8),
+        }
+        scans.append(
+            Cloud(rng.normal(size=(points, 3)) * 4, attributes=attrs, name=f"s{k}")
+        )
+        R = Rotation.from_euler("zyx", [40 * k, 0.5 * k, -0.3 * k], degrees=True)
+        poses.append(
+            make_transform(R.as_matrix(), GEO + np.array([3.0 * k, -2.0 * k, 0.1 * k]))
+        )
+    return scans, poses
+
+
+@pytest.mark.parametrize("ext", [".e57", ".ptx"])
+def test_round_trip_several_scans_posed_and_local(tmp_path, ext):
+    scans, poses = _scans()
+    path = tmp_path / f"plot{ext}"
+    WRITERS[ext](path, scans, poses)
+    infos = list_scans(path)
+    assert [i.n_points for i in infos] == [400, 400, 400]
+    assert infos[1].fields == ("intensity", "red", "green", "blue")
+    np.testing.assert_allclose(infos[2].T_world_scanner, poses[2], atol=1e-9)
+    tol = 1e-5 if ext == ".e57" else 1e-9  # pye57 stores scanner xyz as float32
+    for k in range(3):
+        (cloud,) = read_scans(f"{path}#{k}")
+        assert cloud.name == f"plot{ext}#{k}"
+        expected = scans[k].xyz @ poses[k][:3, :3].T + poses[k][:3, 3]
+        # georeferenced: big offset, small local values, sub-millimetre world error
+        assert np.all(cloud.offset[:2] > 1e5)
+        assert np.abs(cloud.xyz).max() < 1e4
+        np.testing.assert_allclose(cloud.world_xyz, expected, rtol=0, atol=tol)
+        np.testing.assert_allclose(cloud.intensity, scans[k].intensity, atol=1e-6)
+        for c in ("red", "green", "blue"):
+            assert np.array_equal(cloud.attributes[c], scans[k].attributes[c])
+        np.testing.assert_allclose(cloud.meta["scanner_origin"], poses[k][:3, 3])
+        (local,) = read_scans(f"{path}#{k}", posed=False)
+        np.testing.assert_allclose(local.world_xyz, scans[k].xyz, atol=tol)
+        np.testing.assert_allclose(np.array(local.meta["pose"]), poses[k], atol=1e-9)
+    two = read_scans(f"{path}#2,0")
+    assert [c.meta["scan_index"] for c in two] == [2, 0]
+    merged = io.read(path)  # the amrst.io entry: every scan posed, with scan_id
+    assert len(merged) == 1200
+    assert np.bincount(merged.attributes["scan_id"]).tolist() == [400, 400, 400]
+
+
+def test_ptx_drops_points_without_return(tmp_path):
+    xyz = np.array([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [4.0, 5.0, 6.0], [7.0, 1.0, 2.0]])
+    write_ptx(tmp_path / "a.ptx", [Cloud(xyz)])
+    (cloud,) = read_scans(tmp_path / "a.ptx")
+    assert len(cloud) == 3
+    assert cloud.meta["n_no_return"] == 1
+
+
+def test_spec_syntax():
+    assert split_spec("a/plot.e57#0, 2") == (split_spec("a/plot.e57")[0], (0, 2))
+    assert split_spec("tree.laz")[1] is None
+    with pytest.raises(InvalidInput, match="scan numbers"):
+        split_spec("plot.e57#two")
+
+
+@pytest.mark.parametrize("ext", [".e57", ".ptx"])
+def test_scan_number_out_of_range(tmp_path, ext):
+    scans, poses = _scans(2, 50)
+    WRITERS[ext](tmp_path / f"p{ext}", scans, poses)
+    with pytest.raises(InvalidInput, match=r"holds 2 scan.*no scan 5"):
+        read_scans(f"{tmp_path / f'p{ext}'}#5")
+
+
+@pytest.mark.parametrize("ext", [".e57", ".ptx"])
+def test_truncated_and_garbage_files_one_line(tmp_path, ext):
+    scans, poses = _scans(2, 300)
+    good = tmp_path / f"good{ext}"
+    WRITERS[ext](good, scans, poses)
+    data = good.read_bytes()
+    cut = tmp_path / f"cut{ext}"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    junk = tmp_path / f"junk{ext}"
+    junk.write_bytes(b"\x00\x17 not a scan file \xff" * 50)
+    for bad in (cut, junk):
+        for read in (io.read, read_scans, list_scans):
+            with pytest.raises(InvalidInput) as info:
+                read(bad)
+            message = str(info.value)
+            assert "\n" not in message
+            assert bad.name in message
+            assert "export it again" in message.lower()
+
+
+def test_empty_and_missing(tmp_path):
+    (tmp_path / "e.e57").write_bytes(b"")
+    with pytest.raises(InvalidInput, match="is empty"):
+        read_scans(tmp_path / "e.e57")
+    with pytest.raises(InvalidInput, match="File not found"):
+        read_scans(tmp_path / "none.ptx#1")
+    io.write(tmp_path / "x.ply", Cloud(np.zeros((5, 3))))
+    with pytest.raises(InvalidInput, match="holds one scan"):
+        read_scans(f"{tmp_path / 'x.ply'}#1")

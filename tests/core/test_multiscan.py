@@ -1,0 +1,201 @@
+"""Several scans of one tree: links, spanning tree, joint refinement, export, CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import amrst
+from amrst import io
+from amrst.cli import main
+from amrst.multiscan.export import export_scans, read_scan_truth
+from amrst.multiscan.graph import Link, spanning_tree
+from amrst.multiscan.simulate import simulate_scans, write_scans
+from amrst.stages.metrics import truth_errors
+from amrst.types import make_transform
+
+
+@pytest.fixture(scope="module")
+def three_scans(tiny_tree):
+    """Three simulated scans of the tiny tree, 60-120 deg apart, with their truth."""
+    return simulate_scans(tiny_tree, 3, seed=0, res_deg=0.2)
+
+
+@pytest.fixture(scope="module")
+def three_result(three_scans):
+    return amrst.register_scans(three_scans.scans, reference=0)
+
+
+def test_two_scans_give_the_pair_result_exactly(sample_pair, sample_run):
+    result = amrst.register_scans([sample_pair.target, sample_pair.source])
+    pair = sample_run.result
+    assert np.array_equal(result.T_reference_scan[1], pair.T_target_source)
+    assert np.array_equal(result.T_reference_scan[0], np.eye(4))
+    assert result.pair is not None
+    assert result.pair.metrics_fine == pair.metrics_fine
+    (link,) = result.links
+    assert (link.target, link.source, link.in_tree) == (0, 1, True)
+    assert link.verdict == "verified"
+    assert result.paths == ((0,), (0, 1))
+
+
+def test_reference_other_than_first(sample_pair, sample_run):
+    result = amrst.register_scans([sample_pair.source, sample_pair.target], reference=1)
+    assert np.array_equal(result.T_reference_scan[0], sample_run.result.T_target_source)
+
+
+def test_three_scans_all_placed_within_truth(three_scans, three_result):
+    truth = three_scans.T_reference_scan(0)
+    assert three_result.verdict == "verified"
+    assert len(three_result.links) == 3
+    assert all(link.verified for link in three_result.links)
+    for k in range(3):
+        err = truth_errors(
+            three_result.T_reference_scan[k], truth[k], three_scans.scans[k].xyz
+        )
+        assert err.rotation_error_deg < 1.0
+        assert err.translation_error_m < 0.05
+        path = three_result.paths[k]
+        assert path is not None
+        assert path[0] == 0
+        assert path[-1] == k
+    tree_links = [link for link in three_result.links if link.in_tree]
+    assert len(tree_links) == 2  # a spanning tree of 3 scans
+    # the joint refinement moved the scans and made the worst one better, not worse
+    joint = three_result.joint
+    assert joint is not None
+    assert joint.kept
+    assert max(joint.moved_m) > 1e-4
+    assert joint.rmse_after_m <= joint.rmse_before_m
+
+    def worst(poses):
+        return max(
+            truth_errors(poses[k], truth[k], three_scans.scans[k].xyz).gt_rmse_m
+            for k in range(3)
+        )
+
+    assert worst(three_result.T_reference_scan) <= worst(three_result.T_tree)
+
+
+def _link(a, b, verdict, weight=0.5):
+    return Link(
+        a,
+        b,
+        verdict,
+        weight,
+        1.0,
+        weight,
+        make_transform(np.eye(3), [b - a, 0, 0]),
+        None,
+        "",
+    )
+
+
+def test_scan_unverified_with_reference_reached_through_another():
+    links = [
+        _link(0, 1, "verified", 0.6),
+        _link(0, 2, "unverified", 0.9),
+        _link(1, 2, "verified", 0.4),
+        _link(0, 3, "failed", 0.0),
+        _link(1, 3, "unverified", 0.5),
+        _link(2, 3, "unverified", 0.5),
+    ]
+    graph = spanning_tree(links, 4, 0)
+    assert graph.paths[:3] == ((0,), (0, 1), (0, 1, 2))
+    assert graph.paths[3] is None
+    assert graph.poses[3] is None
+    np.testing.assert_allclose(
+        graph.poses[2][:3, 3], [2.0, 0.0, 0.0]
+    )  # 0->1->2 composed
+    assert [link.in_tree for link in graph.links] == [
+        True,
+        False,
+        True,
+        False,
+        False,
+        False,
+    ]
+
+
+def test_direct_verified_link_is_preferred_to_a_better_detour():
+    links = [
+        _link(0, 1, "verified", 0.2),
+        _link(0, 2, "verified", 0.9),
+        _link(1, 2, "verified", 0.9),
+    ]
+    assert spanning_tree(links, 3, 0).paths[1] == (0, 1)
+
+
+def test_export_many_scans(tmp_path, three_scans, three_result):
+    truth = three_scans.T_reference_scan(0)
+    files = export_scans(tmp_path / "out", three_result, truth=truth, clouds=True)
+    names = {f.name for f in files}
+    assert {
+        "transform.json",
+        "transform_2.txt",
+        "metrics.json",
+        "merged.ply",
+        "scans.json",
+    } <= names
+    doc = json.loads((tmp_path / "out" / "scans.json").read_text())
+    assert doc["verdict"] == "verified"
+    assert doc["links_total"] == 3
+    assert all(s["truth"]["registered"] for s in doc["scans"])
+    merged = io.read(tmp_path / "out" / "merged.ply")
+    assert np.bincount(merged.attributes["scan_id"]).tolist() == [
+        len(s) for s in three_scans.scans
+    ]
+    T2 = np.loadtxt(tmp_path / "out" / "transform_2.txt")
+    np.testing.assert_allclose(T2, three_result.T_reference_scan[2], atol=1e-9)
+    export_scans(tmp_path / "out", three_result)  # no clouds: the earlier one goes
+    assert not (tmp_path / "out" / "merged.ply").exists()
+    assert (tmp_path / "out" / "scans.json").is_file()
+
+
+def test_cli_three_scans_and_truth(tmp_path, three_scans, capsys):
+    folder = write_scans(three_scans, tmp_path / "tree", "tiny", 0)
+    truth = read_scan_truth(folder / "truth.json", 3, 0)
+    np.testing.assert_allclose(truth[2], three_scans.T_reference_scan(0)[2])
+    scans = [str(folder / f"scan_{k}.ply") for k in range(3)]
+    code = main(
+        [
+            "register",
+            *scans,
+            "--out",
+            str(tmp_path / "out"),
+            "--truth",
+            str(folder / "truth.json"),
+            "--quiet",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "scan 2" in out
+    assert "link 1-2" in out
+    doc = json.loads((tmp_path / "out" / "scans.json").read_text())
+    assert doc["scans"][1]["file"] == scans[1]
+
+
+def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
+    from amrst.io.e57 import write_e57
+
+    write_e57(tmp_path / "plot.e57", three_scans.scans)
+    plot = tmp_path / "plot.e57"
+    code = main(
+        [
+            "register",
+            f"{plot}#0",
+            f"{plot}#1",
+            f"{plot}#2",
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ]
+    )
+    assert code == 0, capsys.readouterr()
+    code = main(["register", f"{plot}#0", f"{plot}#7", "--out", str(tmp_path / "o2")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "no scan 7" in err

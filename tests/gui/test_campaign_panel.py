@@ -1,0 +1,89 @@
+"""The Campaign dock, headless: open, run remaining (real Dask), filter, select,
+accept and export, with every decision on disk at once."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amrst_gui.panels.campaign_panel import CampaignPanel
+
+SAMPLE = Path(__file__).resolve().parents[2] / "resources" / "sample"
+
+
+def _campaign(root: Path) -> None:
+    from amrst.campaign import init_campaign, load_campaign
+    from amrst.campaign.batch import pending_trees
+    from amrst.campaign.run import run_tree
+
+    for tree in ("T01", "T03"):
+        (root / tree).mkdir(parents=True)
+        for name in ("target.ply", "source.ply"):
+            shutil.copy(SAMPLE / name, root / tree / name)
+    (root / "T02").mkdir()
+    shutil.copy(SAMPLE / "target.ply", root / "T02" / "a.ply")
+    (root / "T02" / "b.ply").write_bytes((SAMPLE / "source.ply").read_bytes()[:5000])
+    init_campaign(root)
+    todo, _, doc = pending_trees(load_campaign(root))
+    entry, stamp = next((e, s) for e, s in todo if e.id == "T03")
+    assert run_tree(str(root), entry, doc, stamp)["ok"]  # one tree done before opening
+
+
+@pytest.mark.slow
+def test_open_run_filter_select_accept_export(qtbot, tmp_path):
+    from amrst import io
+
+    _campaign(tmp_path)
+    panel = CampaignPanel(workers=1)
+    qtbot.addWidget(panel)
+    t0 = time.perf_counter()
+    assert panel.open_campaign(tmp_path)
+    assert time.perf_counter() - t0 < 2.0  # reads files, never registers
+    assert [(r["tree_id"], r["state"]) for r in panel.rows] == [
+        ("T03", "registered"),
+        ("T01", "not run"),
+        ("T02", "not run"),
+    ]
+    panel.run_remaining()
+    assert panel.state_of("T01") == "running"
+    qtbot.waitUntil(lambda: panel.job is None, timeout=120_000)
+    # those needing a person first: the corrupt tree leads
+    assert [(r["tree_id"], r["state"]) for r in panel.rows] == [
+        ("T02", "failed"),
+        ("T01", "registered"),
+        ("T03", "registered"),
+    ]
+    panel.needs_person.setChecked(True)
+    visible = [
+        panel.table.item(i, 0).text()
+        for i in range(3)
+        if not panel.table.isRowHidden(i)
+    ]
+    assert visible == ["T02"]
+    panel.needs_person.setChecked(False)
+    panel.filter_edit.setText("T0")
+    assert not any(panel.table.isRowHidden(i) for i in range(3))
+    with qtbot.waitSignal(panel.tree_selected) as selected:
+        panel.select_tree("T01")
+    assert selected.args[0] == "T01"
+    assert selected.args[1][0].endswith("T01/target.ply")  # the reference first
+    panel.decide("accepted")
+    review = json.loads((tmp_path / "results" / "T01" / "review.json").read_text())
+    assert review["decision"] == "accepted"  # on disk before anything else happens
+    assert panel.state_of("T01") == "accepted"
+    assert panel.export_button.isEnabled()
+    panel.export_accepted()
+    merged = io.read(tmp_path / "results" / "T01" / "merged.ply")
+    assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
+    assert panel.state_of("T01") == "exported"
+    # a new panel (the app restarted) shows the same states from the folder alone
+    again = CampaignPanel()
+    qtbot.addWidget(again)
+    again.open_campaign(tmp_path)
+    assert again.state_of("T01") == "exported"
+    assert again.state_of("T02") == "failed"
