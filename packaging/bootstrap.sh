@@ -9,11 +9,12 @@ cd "$here"
 mode="${1:-app}"; shift || true
 
 # System libraries Qt (xcb), VTK (GL) and open3d (libusb) need; Xvfb for headless use.
-# See shared notes: without libxcb-cursor0/icccm4/keysyms1 Qt aborts, without libusb open3d fails.
+# See shared notes: without libxcb-cursor0/icccm4/keysyms1 Qt aborts, without libusb open3d fails;
+# gcc and python3-dev build python-lzf (compiled LZF for PCD), which has no wheel.
 apt_pkgs="xvfb xauth libgl1 libgl1-mesa-dri libglx-mesa0 libegl1 libegl-mesa0 libglib2.0-0 \
 libdbus-1-3 libfontconfig1 fonts-dejavu-core libx11-xcb1 libxkbcommon-x11-0 libxcb-cursor0 \
 libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-randr0 libxcb-render-util0 libxcb-shape0 \
-libxcb-xfixes0 libxcb-sync1 libxcb-xkb1 libusb-1.0-0 libxcursor1"
+libxcb-xfixes0 libxcb-sync1 libxcb-xkb1 libusb-1.0-0 libxcursor1 gcc python3-dev"
 if command -v dpkg-query >/dev/null 2>&1; then
   missing=""
   for p in $apt_pkgs; do
