@@ -20,9 +20,11 @@ connections, so no widget, plotter or session is ever touched from a worker.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import traceback
+import warnings
 from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
@@ -107,15 +109,21 @@ class StageJob(QObject):
         self.cancel()
 
     def _start(self, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
+        # The work must not hold the job: if the worker thread dropped the last
+        # reference, the job (a QObject with a live QTimer after Cancel) would be
+        # deleted in the worker thread and its timer would fire on freed memory
+        # (a segfault in QTimerInfoList::activateTimers, about one GUI run in three).
+        reporter, worker_done = self.reporter, self.worker_done
+
         def work() -> Any:
             try:
-                return fn(*args, self.reporter, **kwargs)
+                return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses threads.
                 exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
                 raise
             finally:
-                self.worker_done.set()
+                worker_done.set()
 
         worker = create_worker(work, _start_thread=False, _ignore_errors=True)
         worker.returned.connect(
@@ -123,6 +131,8 @@ class StageJob(QObject):
         )
         worker.errored.connect(self._relay_errored, Qt.ConnectionType.QueuedConnection)
         worker.warned.connect(self._relay_warned, Qt.ConnectionType.QueuedConnection)
+        # superqt's own "finished": the thread function is over, nothing more comes.
+        worker.finished.connect(self._release, Qt.ConnectionType.QueuedConnection)
         self._worker = worker
         worker.start()
 
@@ -143,6 +153,29 @@ class StageJob(QObject):
     def _relay_errored(self, exc: object) -> None:
         self._finish(self.errored, exc)
 
+    @Slot()
+    def _release(self) -> None:
+        """The worker thread is over (GUI thread): let go of everything it needed.
+
+        Callers connect lambdas that hold the job (``lambda out: apply(job, out)``):
+        a cycle only Python's cyclic GC frees, in whatever thread it happens to run.
+        A job deleted in a worker thread while its Cancel timer was active left that
+        timer registered on the GUI thread: a segfault in
+        ``QTimerInfoList::activateTimers`` in a later test, about one run in three.
+        So the timer stops here and the connections go, on the GUI thread.
+        """
+        self._stop_abandon_timer()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for signal in (self.progressed, self.returned, self.errored, self.finished):
+                with contextlib.suppress(RuntimeError, TypeError):
+                    signal.disconnect()
+        _LIVE.discard(self)
+
+    def _stop_abandon_timer(self) -> None:
+        if self._abandon_timer is not None:
+            self._abandon_timer.stop()
+
     @Slot(tuple)
     def _relay_warned(self, warning: tuple) -> None:
         message, category = warning[0], warning[1]
@@ -152,6 +185,7 @@ class StageJob(QObject):
         if self._done:
             return
         self._done = True
+        self._stop_abandon_timer()
         self._worker = None
         if self._discarded:
             return
@@ -196,8 +230,14 @@ def run_stage(
         job.errored.connect(on_error)
     if on_finished is not None:
         job.finished.connect(on_finished)
+    # Held here until the work is over, released on the GUI thread: the caller may
+    # drop its reference (a newer scene replaces an older one) while it runs.
+    _LIVE.add(job)
     job._start(fn, args, kwargs)
     return job
+
+
+_LIVE: set[StageJob] = set()
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three

@@ -62,3 +62,40 @@ def test_a_job_not_cancelled_delivers_its_result(qtbot):
     qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
     assert got == {"result": [7], "error": []}
     assert job.done
+
+
+def test_a_finished_job_is_freed_by_reference_counting_on_the_gui_thread(
+    qtbot,
+) -> None:
+    """A StageJob and its worker's closure referred to each other: only Python's
+    cyclic GC freed them, in whatever thread it ran, and a job deleted in a worker
+    thread left its Cancel timer registered on the GUI thread (a segfault in
+    QTimerInfoList::activateTimers, about one GUI test run in three)."""
+    import gc
+    import threading
+    import weakref
+
+    from amrst_gui import workers
+
+    gate = threading.Event()
+    got: list = []
+    deleted_on: list = []
+
+    def fn(reporter):
+        gate.wait(5)
+        return "done"
+
+    gc.disable()  # no cyclic GC: only reference counting may free the job
+    try:
+        job = workers.run_stage(fn, on_result=got.append)
+        job.cancel()  # arms the abandon timer, the QTimer that outlived its job
+        job.destroyed.connect(lambda *_: deleted_on.append(threading.get_ident()))
+        ref = weakref.ref(job)
+        del job
+        assert ref() is not None, "the job went while its worker still ran"
+        gate.set()
+        qtbot.waitUntil(lambda: ref() is None, timeout=10_000)
+        qtbot.waitUntil(lambda: bool(deleted_on), timeout=5_000)
+    finally:
+        gc.enable()
+    assert deleted_on == [threading.main_thread().ident]
