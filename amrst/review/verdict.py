@@ -182,7 +182,8 @@ def judge(
     source = {
         "manual": "your manual pose",
         "trunk": "the trunk heading search",
-    }.get(best.origin, "the tetrahedron matches")
+        "features": "the feature matcher",
+    }.get(str(best.origin), "the tetrahedron matches")
     reason = (
         f"Candidate {best.rank} from {source} verifies: {best.score:.0%} of the "
         f"sampled source points lie within {tight_dist_m * 100:.0f} cm of the target, "

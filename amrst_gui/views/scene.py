@@ -47,7 +47,9 @@ def distance_rgb(d: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 colours of distances (m), turbo from 0 to DISTANCE_CLIP_M."""
     from matplotlib import colormaps
 
-    t = np.clip(np.nan_to_num(np.asarray(d, float), nan=1e9) / DISTANCE_CLIP_M, 0, 1)
+    # No neighbour within reach comes as inf (or NaN): the far end of the scale.
+    d = np.nan_to_num(np.asarray(d, float), nan=DISTANCE_CLIP_M, posinf=DISTANCE_CLIP_M)
+    t = np.clip(d / DISTANCE_CLIP_M, 0, 1)
     return (colormaps["turbo"](t)[:, :3] * 255).astype(np.uint8)
 
 

@@ -67,3 +67,27 @@ def test_all_rejected_or_none_found_is_failed():
 def test_dict_form_for_the_files():
     d = _judge([_cand(0, 0.66)]).as_dict()
     assert set(d) == {"status", "reason", "next_step"}
+
+
+def test_a_feature_matcher_pose_is_named_as_such() -> None:
+    """Field case 06 read "Candidate 1 from the tetrahedron matches" for a pose the
+    feature matcher found."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from amrst.stages.candidates import Candidate, CoarseResult, Origin
+
+    cand = Candidate(
+        id=1, rank=1, score=0.35, raw_score=0.28, support=0, volume_m3=float("nan"),
+        edge_error=float("nan"), svd_residual_m=float("nan"),
+        target_idx=np.zeros(0, int), source_idx=np.zeros(0, int),
+        T_match=np.eye(4), T_target_source=np.eye(4), polished=True,
+        explanation="", origin=Origin.FEATURES,
+    )
+    coarse = CoarseResult(cand, np.eye(4), 0.96, 0.0, "", True)
+    text = verdict.judge(coarse).reason
+    assert "feature matcher" in text
+    assert "tetrahedron" not in text
+    tetra = replace(coarse, candidate=replace(cand, origin=Origin.TETRAHEDRA))
+    assert "tetrahedron matches" in verdict.judge(tetra).reason
