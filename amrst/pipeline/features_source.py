@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.stages.candidates import wants_more
 from amrst.stages.coarse import (
     Candidate,
     CandidateList,
@@ -39,12 +40,7 @@ def wants_features(
     ranked: CandidateList, params: RegistrationParams, centre: np.ndarray
 ) -> bool:
     """Tell whether to ask the matcher: mode "always", or nothing verifies yet."""
-    mode = params.global_match.mode
-    if mode == "off":
-        return False
-    if mode == "always" or not ranked.candidates:
-        return True
-    return not choose_coarse(ranked, frozenset(), centre).verified
+    return wants_more(ranked, params.global_match.mode, centre)
 
 
 def add_feature_solution(

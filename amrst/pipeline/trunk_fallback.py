@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from amrst.pipeline.refine import refine
 from amrst.progress import Reporter, SubReporter
-from amrst.stages.coarse import CandidateList, choose_coarse
+from amrst.stages.candidates import wants_more
 from amrst.stages.trunk import search_yaw
 from amrst.stages.trunk_merge import (
     merge_trunk_solutions,
@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 
     from amrst.params import RegistrationParams
     from amrst.pipeline.analysis import ScanAnalysis
+    from amrst.stages.coarse import CandidateList
     from amrst.stages.fine import FineResult
     from amrst.types import Transform
 
@@ -39,12 +40,9 @@ def wants_trunk_search(
     ranked: CandidateList, params: RegistrationParams, centre: np.ndarray
 ) -> bool:
     """Tell whether to run the trunk search: mode "always", or nothing verifies yet."""
-    mode = params.trunk.mode
-    if mode == "off" or not params.match.levelled:
+    if not params.match.levelled:  # the heading search turns about the vertical
         return False
-    if mode == "always" or not ranked.candidates:
-        return True
-    return not choose_coarse(ranked, frozenset(), centre).verified
+    return wants_more(ranked, params.trunk.mode, centre)
 
 
 def add_trunk_solutions(

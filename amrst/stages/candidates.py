@@ -225,3 +225,16 @@ def choose_coarse(
     else:
         msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
     return CoarseResult(best, best.T_target_source, conf, runner, msg, verified)
+
+
+def wants_more(ranked: CandidateList, mode: str, centre: np.ndarray) -> bool:
+    """Tell whether a candidate source should run, by its mode.
+
+    "off": never; "always": always; otherwise ("fallback"): when the list is empty or
+    its best candidate does not verify. The one rule of every extra source.
+    """
+    if mode == "off":
+        return False
+    if mode == "always" or not ranked.candidates:
+        return True
+    return not choose_coarse(ranked, frozenset(), centre).verified
