@@ -17,7 +17,7 @@ STEPS = STEP_NAMES
 # the steps queued after them.
 UNSTOPPABLE = frozenset(
     {"load", "export"} | {s.name for s in ENGINE_STEPS if not s.cancellable}
-) - {"coarse"}  # the app's Accept coarse also measures the tree: long (issue 15)
+)
 
 LABELS = {
     "load": "Load scans",

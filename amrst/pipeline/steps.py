@@ -60,14 +60,14 @@ STEPS: tuple[Step, ...] = (
         False,
         find_matches,
     ),
-    # The coarse and the fine results are measured (cloud metrics, tree measures).
+    # The coarse and the fine results are measured (cloud metrics, tree measures);
+    # the measurements check for Cancel between their parts.
     Step(
         "coarse",
         "Accept coarse",
         ("metrics", "measure"),
         False,
         coarse_from_matches,
-        cancellable=False,
     ),
     Step("fine", "Fine registration", ("fine",), False, refine),
 )
