@@ -23,6 +23,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from amrst.measure import MeasureParams, TreeMeasures
+    from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
 #: Points per scan the tree measurements use at most (a seeded random sample above).
@@ -60,6 +61,7 @@ def measure_pair(
     T_target_source: Transform,
     params: MeasureParams | None = None,
     max_points: int = MEASURE_MAX_POINTS,
+    reporter: Reporter | None = None,
 ) -> dict[str, TreeMeasures]:
     """Measure target, moved source and merged tree on bounded samples of the scans.
 
@@ -72,6 +74,8 @@ def measure_pair(
     params : MeasureParams, optional
     max_points : int
         Points per scan at most (see :data:`MEASURE_MAX_POINTS`).
+    reporter : Reporter, optional
+        Checked for Cancel between the measurements (the app's steps).
 
     Returns
     -------
@@ -80,10 +84,12 @@ def measure_pair(
         the points measured.
     """
     from amrst.measure import measure_registration
+    from amrst.progress import NULL_REPORTER
 
     return measure_registration(
         bounded_sample(target, max_points, seed=0),
         bounded_sample(source, max_points, seed=1),
         T_target_source,
         params,
+        reporter=reporter or NULL_REPORTER,
     )

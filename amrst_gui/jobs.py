@@ -108,16 +108,16 @@ def score_manual_pair(
 def measure_tree_pair(
     analyses: dict, T_local: Any, params: Any, reporter: Reporter = NULL_REPORTER
 ) -> dict:
-    """Height, DBH and crown of each scan and of both merged under ``T_local``;
-    stops at the reporter's cancel checks between the measurements."""
-    from amrst.measure import measure_registration
+    """Height, DBH and crown of each scan and of both merged under ``T_local``, on
+    the same bounded samples as ``amrst register`` (amrst.sampling.measure_pair), so
+    the app and the command line give the same figures; stops at the reporter's
+    cancel checks between the measurements."""
+    from amrst.sampling import measure_pair
     from amrst.types import world_transform
 
     target, source = analyses["target"].cloud, analyses["source"].cloud
     T_world = world_transform(T_local, target, source)
-    return measure_registration(
-        target, source, T_world, params.measure, reporter=reporter
-    )
+    return measure_pair(target, source, T_world, params.measure, reporter=reporter)
 
 
 def evaluate_coarse(
