@@ -7,6 +7,7 @@ loads no benchmark or baseline, and the per-scan chain follows the step table.
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -44,11 +45,11 @@ def test_no_module_over_400_lines() -> None:
     assert not long, f"split these by responsibility: {long}"
 
 
-def test_simulate_loads_no_benchmark_or_baseline() -> None:
+def _loaded_after(module: str, prefixes: tuple[str, ...]) -> list[str]:
+    """Modules starting with ``prefixes`` that a fresh ``import module`` loads."""
     code = (
-        "import sys, amrst.simulate; "
-        "print(sorted(m for m in sys.modules if m.startswith(('amrst.bench', "
-        "'amrst.baselines', 'open3d'))))"
+        f"import sys, {module}; "
+        f"print(sorted(m for m in sys.modules if m.startswith({prefixes!r})))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code],
@@ -58,24 +59,18 @@ def test_simulate_loads_no_benchmark_or_baseline() -> None:
         cwd=ROOT,
         timeout=120,
     ).stdout.strip()
-    assert out == "[]", out
+    return ast.literal_eval(out)  # the list of module names the child printed
+
+
+def test_simulate_loads_no_benchmark_or_baseline() -> None:
+    loaded = _loaded_after("amrst.simulate", ("amrst.bench", "amrst.baselines", "open3d"))
+    assert loaded == [], loaded
 
 
 def test_one_stage_loads_only_what_it_needs() -> None:
-    code = (
-        "import sys, amrst.stages.fine; "
-        "print(sorted(m for m in sys.modules if m.startswith(('amrst.pipeline', "
-        "'amrst.bench', 'amrst.baselines', 'amrst.cli', 'amrst.io'))))"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        check=True,
-        cwd=ROOT,
-        timeout=120,
-    ).stdout.strip()
-    assert out == "[]", out
+    prefixes = ("amrst.pipeline", "amrst.bench", "amrst.baselines", "amrst.cli", "amrst.io")
+    loaded = _loaded_after("amrst.stages.fine", prefixes)
+    assert loaded == [], loaded
 
 
 def test_per_scan_chain_follows_the_step_table(tiny_tree) -> None:

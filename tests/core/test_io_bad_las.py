@@ -1,0 +1,151 @@
+"""Bad LAS/LAZ headers: counts that cannot fit, garbage after the signature, bad
+scales, data beyond the file, records that disagree with the header's bounds.
+
+Each is refused at once with an InvalidInput (laspy used to loop for minutes on some);
+odd but valid files still read. Split from test_io_bad_input.py.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from _clouds import GEO_OFFSET
+from _clouds import small_cloud as make_small_cloud
+
+from amrst import io
+from amrst.errors import InvalidInput
+from amrst.types import Cloud
+
+
+@pytest.fixture
+def small_cloud() -> Cloud:
+    return make_small_cloud()
+
+
+def _valid_las(tmp_path, cloud: Cloud, ext: str = ".las") -> bytearray:
+    io.write(tmp_path / f"valid{ext}", cloud)
+    return bytearray((tmp_path / f"valid{ext}").read_bytes())
+
+
+@pytest.mark.timeout(30)  # laspy used to loop for minutes on these
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize("n_vlrs", [0xFFFFFFFF, 1000])
+def test_las_vlr_count_that_cannot_fit_is_refused_at_once(
+    tmp_path, small_cloud, ext, n_vlrs
+):
+    data = _valid_las(tmp_path, small_cloud, ext)
+    struct.pack_into("<I", data, 100, n_vlrs)
+    (tmp_path / f"v{ext}").write_bytes(data)
+    with pytest.raises(InvalidInput, match=f"announces {n_vlrs:,} variable-length"):
+        io.read(tmp_path / f"v{ext}")
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_las_signature_then_random_bytes_is_refused_at_once(tmp_path, ext):
+    rng = np.random.default_rng(0)
+    for i in range(20):
+        path = tmp_path / f"r{i}{ext}"
+        path.write_bytes(b"LASF" + rng.bytes(5000))
+        with pytest.raises(InvalidInput, match="corrupt LAS header"):
+            io.read(path)
+
+
+def test_las_too_short_or_not_las(tmp_path):
+    (tmp_path / "s.las").write_bytes(b"LASF" + bytes(100))
+    with pytest.raises(InvalidInput, match="too short to be a LAS/LAZ file"):
+        io.read(tmp_path / "s.las")
+    (tmp_path / "p.las").write_bytes(b"ply\nformat ascii 1.0\n" + bytes(300))
+    with pytest.raises(InvalidInput, match="is not a LAS/LAZ file"):
+        io.read(tmp_path / "p.las")
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize(
+    ("pos", "value", "message"),
+    [
+        (131, 0.0, "scale factor is 0 for x, so every x coordinate would be 0"),
+        (139, -0.001, "scale factor is -0.001 for y"),
+        (147, float("nan"), "scale factor is nan for z"),
+        (163, float("inf"), "offset is inf for y"),
+    ],
+)
+def test_las_bad_scale_or_offset_is_refused(
+    tmp_path, small_cloud, ext, pos, value, message
+):
+    data = _valid_las(tmp_path, small_cloud, ext)
+    struct.pack_into("<d", data, pos, value)
+    (tmp_path / f"s{ext}").write_bytes(data)
+    with pytest.raises(InvalidInput, match=message):
+        io.read(tmp_path / f"s{ext}")
+
+
+def test_las_header_or_point_data_beyond_the_file(tmp_path, small_cloud):
+    data = _valid_las(tmp_path, small_cloud)
+    bad = bytearray(data)
+    struct.pack_into("<H", bad, 94, 60000)
+    (tmp_path / "h.las").write_bytes(bad)
+    with pytest.raises(InvalidInput, match="header size of 60000 bytes"):
+        io.read(tmp_path / "h.las")
+    bad = bytearray(data)
+    struct.pack_into("<I", bad, 96, len(data) + 10)
+    (tmp_path / "o.las").write_bytes(bad)
+    with pytest.raises(InvalidInput, match="after the end of the file"):
+        io.read(tmp_path / "o.las")
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_las14_evlr_count_that_cannot_fit_is_refused_at_once(tmp_path, ext):
+    cloud = Cloud(np.eye(3), meta={"las_version": "1.4", "las_point_format": 6})
+    data = _valid_las(tmp_path, cloud, ext)
+    assert data[24:26] == b"\x01\x04"
+    (point_start,) = struct.unpack_from("<I", data, 96)
+    struct.pack_into("<QI", data, 235, point_start, 0xFFFFFFFF)
+    (tmp_path / f"e{ext}").write_bytes(data)
+    with pytest.raises(InvalidInput, match="4,294,967,295 extended variable-length"):
+        io.read(tmp_path / f"e{ext}")
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize(
+    ("version", "pos", "fmt"), [("1.2", 107, "<I"), ("1.4", 247, "<Q")]
+)
+def test_laz_point_count_beyond_its_chunks_is_refused(
+    tmp_path, small_cloud, version, pos, fmt
+):
+    cloud = Cloud(small_cloud.xyz, meta={"las_version": version})
+    data = _valid_las(tmp_path, cloud, ".laz")
+    struct.pack_into(fmt, data, pos, 1_000_000)  # the point count
+    (tmp_path / "c.laz").write_bytes(data)
+    with pytest.raises(InvalidInput, match="1,000,000 points but the file's 1 comp"):
+        io.read(tmp_path / "c.laz")
+
+
+def test_las_garbage_point_records_disagree_with_header_bounds(tmp_path, small_cloud):
+    data = _valid_las(tmp_path, small_cloud)
+    (start,) = struct.unpack_from("<I", data, 96)
+    data[start:] = np.random.default_rng(1).bytes(len(data) - start)
+    (tmp_path / "g.las").write_bytes(data)
+    with pytest.raises(InvalidInput, match="disagree with the header bounds"):
+        io.read(tmp_path / "g.las")
+
+
+def test_las_bounds_check_tolerates_zero_bounds_and_a_few_strays(tmp_path):
+    rng = np.random.default_rng(2)
+    xyz = rng.uniform(0, 10, (100, 3))
+    xyz[:3] += 1000.0  # 3 % of the points far from the rest
+    valid = bytes(_valid_las(tmp_path, Cloud(xyz, GEO_OFFSET)))
+    zero = bytearray(valid)
+    struct.pack_into("<6d", zero, 179, *([0.0] * 6))  # a writer that skips bounds
+    (tmp_path / "z.las").write_bytes(zero)
+    assert len(io.read(tmp_path / "z.las")) == 100
+    tight = bytearray(valid)
+    (min_x,) = struct.unpack_from("<d", valid, 187)
+    struct.pack_into("<d", tight, 179, min_x + 10.0)  # max x leaves out the strays
+    (tmp_path / "t.las").write_bytes(tight)
+    assert len(io.read(tmp_path / "t.las")) == 100
+
+
