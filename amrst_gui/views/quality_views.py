@@ -8,12 +8,18 @@ in their colours, the fitted circle of each and the centre offset in mm.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QFont, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst_gui.views.scene import DISTANCE_CLIP_M, SOURCE_RGB, TARGET_RGB, distance_rgb
+from amrst_gui.views.scene_jobs import SYNC_POINTS
+
+if TYPE_CHECKING:
+    from amrst_gui.workers import StageJob
 
 _BINS = 25
 
@@ -243,6 +249,7 @@ class StemSlicesPane(QWidget):
         super().__init__(parent)
         self.setObjectName("stem_slices_pane")
         self.session = session
+        self._job: StageJob | None = None  # the slicing in a worker (big scans)
         self.heights = QLineEdit("0.3, 1.3, 3")
         self.heights.setToolTip("Heights above the tree base (m), separated by commas")
         self.thickness = QLineEdit("10")
@@ -271,8 +278,6 @@ class StemSlicesPane(QWidget):
 
     def refresh(self) -> None:
         """Slice both scans under the best transform so far."""
-        from amrst.review.quality import stem_slices
-
         s = self.session
         T = s.final_transform
         if T is None or not s.has_scans:
@@ -293,16 +298,45 @@ class StemSlicesPane(QWidget):
                 "Stem slices: heights in m separated by commas, thickness in cm."
             )
             return
-        src = s.cloud("source").xyz
-        moved = src @ T[:3, :3].T + T[:3, 3]
-        slices = stem_slices(s.cloud("target").xyz, moved, heights, thickness)
+        target, source = s.cloud("target").xyz, s.cloud("source").xyz
         stage = "fine" if s.fine is not None else "coarse"
-        self.view.set_slices(
-            slices,
+        caption = (
             f"Stem slices after {stage} registration: amber target, blue source, "
-            "circles fitted to each (good: centres under 5 mm apart)",
+            "circles fitted to each (good: centres under 5 mm apart)"
         )
+        if self._job is not None:  # a newer transform or setting replaces it
+            self._job.discard()
+            self._job = None
+        args = (target, source, T, heights, thickness)
+        if len(target) + len(source) <= SYNC_POINTS:  # a few ms: at once
+            self.view.set_slices(_slice_pair(*args), caption)
+            return
+        # Big scans are sliced in a worker: the window never waits for them (issue 15).
+        from amrst_gui import workers
+
+        self._job = workers.run_stage(
+            _slice_pair,
+            *args,
+            name="stem slices",
+            on_result=lambda slices: self._show(slices, caption),
+            on_error=lambda exc: self._show([], f"Stem slices failed: {exc}"),
+        )
+
+    def _show(self, slices, caption: str) -> None:
+        from shiboken6 import isValid
+
+        self._job = None
+        if isValid(self.view):  # the window may have closed while slicing
+            self.view.set_slices(slices, caption)
 
     def showEvent(self, event) -> None:
         super().showEvent(event)
         self.refresh()
+
+
+def _slice_pair(target, source, T, heights, thickness, reporter=None):
+    """Stem slices of the target and of the source moved by ``T`` (a worker's job)."""
+    from amrst.review.quality import stem_slices
+
+    moved = source @ T[:3, :3].T + T[:3, 3]
+    return stem_slices(target, moved, heights, thickness)

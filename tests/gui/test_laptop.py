@@ -27,3 +27,22 @@ def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish
     offsets = win.slices.view.offsets_mm()
     assert len(offsets) == 3
     assert any(o < 50 for o in offsets if o == o)
+
+
+def test_big_scans_are_sliced_in_a_worker(loaded_window, qtbot, finish, monkeypatch):
+    """Issue 15: the Stem slices tab sliced both full clouds on the GUI thread; above
+    SYNC_POINTS it now slices in a worker and shows the same slices when done."""
+    from amrst_gui.views import quality_views
+
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
+    win.tabs.setCurrentWidget(win.slices)
+    at_once = win.slices.view.offsets_mm()
+    monkeypatch.setattr(quality_views, "SYNC_POINTS", 0)  # every scan counts as big
+    win.slices.view.set_slices([], "cleared")
+    win.slices.refresh()
+    assert win.slices._job is not None  # the GUI thread did not slice
+    qtbot.waitUntil(lambda: win.slices._job is None, timeout=20_000)
+    assert win.slices.view.offsets_mm() == at_once
