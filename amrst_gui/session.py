@@ -17,10 +17,9 @@ import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from amrst_gui import jobs, steps, workers
-from amrst_gui.results import ResultsMixin
 from amrst_gui.runner import RunnerMixin
 from amrst_gui.state import ScanId, ScanState
-from amrst_gui.step_jobs import StepJobsMixin
+from amrst_gui.stored_result import StoredResultMixin
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -32,7 +31,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.session")
 
 
-class Session(RunnerMixin, StepJobsMixin, ResultsMixin, QObject):
+class Session(RunnerMixin, StoredResultMixin, QObject):
     """One target/source pair, its parameters, results and review decisions.
 
     Signals (all emitted on the GUI thread):

@@ -1,0 +1,251 @@
+"""A tree's stored result, read back from ``results/<id>/`` without registering again.
+
+The app shows a campaign tree from these files alone: every scan with its pose on the
+reference and the path it took, every link with its verdict and score, the tree's
+verdict and measures. :meth:`StoredTree.link_result` gives one link as the app's pair
+workflow needs it (the world transform between its two scans, metrics, verdict), so
+review, manual recovery, Fine and Export start from the stored result.
+
+Read from ``scans.json`` (written by every run) and, for a two-scan tree, the pair's
+``metrics.json`` (candidate score, verdict, coarse and fine metrics). No Qt.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.types import invert_transform
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.campaign.manifest import Campaign
+    from amrst.types import Transform
+
+#: How a link's verdict reads as the pair verdict (amrst.review.verdict.STATUSES).
+LINK_STATUS = {
+    "verified": "registered",
+    "unverified": "needs review",
+    "failed": "failed",
+}
+
+
+@dataclass(frozen=True)
+class StoredScan:
+    """One scan of a stored tree."""
+
+    index: int
+    spec: str  # as in the manifest, relative to the campaign folder
+    file: Path  # absolute
+    reached: bool
+    path: tuple[int, ...] | None  # scans from the reference to this one
+    T_reference_scan: Transform | None  # world: this scan -> the reference
+
+
+@dataclass(frozen=True)
+class StoredLink:
+    """One link (pair of scans) of a stored tree, as the batch registered it."""
+
+    target: int
+    source: int
+    verdict: str  # verified, unverified, failed
+    score: float
+    confidence: float
+    in_tree: bool
+    origin: str
+    message: str
+    metrics: dict[str, Any] | None
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """``(target, source)`` scan numbers."""
+        return (self.target, self.source)
+
+
+@dataclass(frozen=True)
+class StoredLinkResult:
+    """One link's stored result in the form the app's pair workflow takes.
+
+    ``T_world`` maps the source scan's world coordinates into the target's.
+    """
+
+    target: int
+    source: int
+    T_world: Transform
+    verdict: dict[str, str]  # status, reason, next_step
+    score: float
+    confidence: float
+    verified: bool
+    origin: str
+    metrics_fine: dict[str, Any] | None
+    metrics_coarse: dict[str, Any] | None
+    tree: dict[str, dict[str, Any]]
+    params: dict[str, Any] | None
+    label: str
+
+
+@dataclass(frozen=True)
+class StoredTree:
+    """Everything stored for one tree (from ``scans.json`` and its neighbours)."""
+
+    tree_id: str
+    reference: int
+    scans: tuple[StoredScan, ...]
+    links: tuple[StoredLink, ...]
+    verdict: str  # verified, partial, failed
+    confidence: float
+    tree: dict[str, dict[str, Any]]
+    params: dict[str, Any] | None
+    pair_metrics: dict[str, Any] | None = field(default=None, repr=False)
+
+    def default_link(self) -> tuple[int, int]:
+        """The link to show first: the reference and the first other scan."""
+        other = next(s.index for s in self.scans if s.index != self.reference)
+        return (self.reference, other)
+
+    def link(self, target: int, source: int) -> StoredLink | None:
+        """The stored link between two scans (either direction), or None."""
+        for link in self.links:
+            if {link.target, link.source} == {target, source}:
+                return link
+        return None
+
+    def link_transform(self, target: int, source: int) -> Transform | None:
+        """World ``T_target_source`` from the stored poses (None: a scan not reached)."""
+        T_t = self.scans[target].T_reference_scan
+        T_s = self.scans[source].T_reference_scan
+        if T_t is None or T_s is None:
+            return None
+        return invert_transform(T_t) @ T_s
+
+    def link_result(self, target: int, source: int) -> StoredLinkResult | None:
+        """The pair workflow's view of one link; None when a scan is not reached."""
+        T = self.link_transform(target, source)
+        if T is None:
+            return None
+        link = self.link(target, source)
+        pair = self.pair_metrics
+        label = f"tree {self.tree_id}, scans {target}-{source}"
+        if pair is not None and {target, source} == {0, 1} and target == self.reference:
+            coarse = pair.get("coarse") or {}
+            return StoredLinkResult(
+                target=target,
+                source=source,
+                T_world=T,
+                verdict=dict(pair.get("verdict") or _verdict_of(link, label)),
+                score=float(coarse.get("verification_score", np.nan)),
+                confidence=float(coarse.get("confidence", np.nan)),
+                verified=bool(coarse.get("verified", False)),
+                origin=str(coarse.get("candidate_origin", "tetrahedra")),
+                metrics_fine=pair.get("fine"),
+                metrics_coarse=coarse or None,
+                tree=dict(pair.get("tree") or self.tree),
+                params=self.params,
+                label=label,
+            )
+        return StoredLinkResult(
+            target=target,
+            source=source,
+            T_world=T,
+            verdict=_verdict_of(link, label),
+            score=np.nan if link is None else link.score,
+            confidence=np.nan if link is None else link.confidence,
+            verified=link is not None and link.verdict == "verified",
+            origin="tetrahedra" if link is None else (link.origin or "tetrahedra"),
+            metrics_fine=None if link is None else link.metrics,
+            metrics_coarse=None,
+            tree=dict(self.tree),
+            params=self.params,
+            label=label,
+        )
+
+
+def _verdict_of(link: StoredLink | None, label: str) -> dict[str, str]:
+    if link is None:
+        return {
+            "status": "needs review",
+            "reason": f"No link of its own was registered for {label}; the pose comes "
+            "from the poses of both scans on the reference.",
+            "next_step": "Check the overlay; run Fine to refine this pair.",
+        }
+    status = LINK_STATUS.get(link.verdict, "needs review")
+    how = "in the spanning tree" if link.in_tree else "not used by the spanning tree"
+    return {
+        "status": status,
+        "reason": f"Link {link.target}-{link.source} was {link.verdict} by the batch "
+        f"(score {link.score:.0%}, confidence {link.confidence:.2f}, {how}); the pose "
+        f"shown comes from both scans' final poses. {link.message}".strip(),
+        "next_step": "Accept the tree in the Campaign dock."
+        if status == "registered"
+        else "Review the overlay; recover the pose by hand or run Fine if it is wrong.",
+    }
+
+
+def _read(path: Path) -> dict[str, Any] | None:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _matrix(value: Any) -> Transform | None:
+    if value is None:
+        return None
+    T = np.asarray(value, dtype=float)
+    return T if T.shape == (4, 4) else None
+
+
+def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
+    """Read a tree's stored result; None when it has none (not run, or failed).
+
+    The scans are the manifest's (the same order as the result's ``scans``).
+    """
+    from amrst.campaign.run import STAMP
+
+    entry = campaign.tree(tree_id)
+    out = campaign.results_dir(tree_id)
+    doc = _read(out / "scans.json") if (out / STAMP).is_file() else None
+    if doc is None or len(doc.get("scans", [])) != len(entry.scans):
+        return None
+    scans = tuple(
+        StoredScan(
+            index=k,
+            spec=spec,
+            file=campaign.root / spec,
+            reached=bool(s.get("reached")),
+            path=None if s.get("path") is None else tuple(s["path"]),
+            T_reference_scan=_matrix(s.get("T_reference_scan")),
+        )
+        for k, (spec, s) in enumerate(zip(entry.scans, doc["scans"], strict=True))
+    )
+    links = tuple(
+        StoredLink(
+            target=int(d["target"]),
+            source=int(d["source"]),
+            verdict=str(d.get("verdict", "")),
+            score=float(d.get("score", np.nan)),
+            confidence=float(d.get("confidence", np.nan)),
+            in_tree=bool(d.get("in_tree")),
+            origin=str(d.get("origin", "")),
+            message=str(d.get("message", "")),
+            metrics=d.get("metrics"),
+        )
+        for d in doc.get("links", [])
+    )
+    pair = _read(out / "metrics.json") if len(scans) == 2 else None
+    return StoredTree(
+        tree_id=tree_id,
+        reference=int(doc.get("reference", entry.reference)),
+        scans=scans,
+        links=links,
+        verdict=str(doc.get("verdict", "")),
+        confidence=float(doc.get("confidence", np.nan)),
+        tree=dict(doc.get("tree") or {}),
+        params=_read(out / "params.json"),
+        pair_metrics=pair,
+    )
