@@ -98,7 +98,7 @@ class MainWindow(QMainWindow):
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
         self._add_dock("campaign", "Campaign", self.campaign_panel, left)
-        self.campaign_panel.tree_selected.connect(lambda _id, p: s.load_scans(*p[:2]))
+        self.campaign_panel.link_chosen.connect(s.load_stored)  # no registration
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         # The side docks run the full height: the log sits under the views only, so

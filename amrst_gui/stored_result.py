@@ -175,7 +175,11 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         )
         confidence = 0.0 if math.isnan(stored.confidence) else stored.confidence
         coarse = CoarseResult(
-            candidate, T, confidence, 0.0, str(stored.verdict.get("reason", "")),
+            candidate,
+            T,
+            confidence,
+            0.0,
+            str(stored.verdict.get("reason", "")),
             stored.verified,
         )
         fine = FineResult(T, STORED_METHOD, True, 0, math.nan, math.nan, math.nan)

@@ -14,10 +14,12 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from amrst.campaign.run import is_done, run_tree, tree_stamp
+from amrst.campaign.run import TREE_TOPIC, is_done, run_tree, tree_stamp
 from amrst.campaign.table import campaign_rows, write_table
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from amrst.campaign.manifest import Campaign
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
@@ -41,13 +43,24 @@ class BatchProgress(Protocol):
 class ReporterProgress:
     """A BatchProgress that tells an amrst Reporter (the app's worker) and can cancel.
 
-    Each finished tree calls ``progress(done share, "<id>: <verdict or error>")``;
+    Each finished tree calls ``progress(done share, "<id>: <verdict or error>")``; a
+    tree starting or ending on a worker ``progress(done share, STARTED + "<id>")`` or
+    ``FINISHED + "<id>"`` (worker events: "running" means running, not submitted);
     ``check_cancelled`` is asked between trees, so a cancel stops the batch there (the
     trees in flight are lost, as with any kill).
     """
 
+    STARTED = "started on a worker: "
+    FINISHED = "finished on a worker: "
+
     def __init__(self, reporter: Reporter) -> None:
         self.reporter = reporter
+        self.share = 0.0
+
+    def worker_event(self, tree_id: str, event: str) -> None:
+        """Tell that a tree started or finished on a worker (from the Dask client)."""
+        what = self.STARTED if event == "started" else self.FINISHED
+        self.reporter.progress(self.share, f"{what}{tree_id}")
 
     def update(
         self,
@@ -59,7 +72,7 @@ class ReporterProgress:
         row: dict[str, Any] | None,
     ) -> None:
         """Forward the share of trees finished and the tree just finished."""
-        share = (done + failed) / total if total else 1.0
+        share = self.share = (done + failed) / total if total else 1.0
         text = (
             ""
             if row is None
@@ -158,6 +171,7 @@ def run_batch(
     progress: BatchProgress | None = None,
     only: list[str] | None = None,
     clouds: str = "",
+    on_worker_event: Callable[[str, str], None] | None = None,
 ) -> BatchSummary:
     """Register every tree not done yet; write the table after each one.
 
@@ -177,6 +191,10 @@ def run_batch(
         Tree ids to consider (default: all).
     clouds : str
         Also write each tree's merged cloud in this format ("" = none).
+    on_worker_event : callable or None
+        Called as ``(tree id, "started" | "finished")`` when a worker starts or ends a
+        tree (Dask worker events, from the client's thread), so "running" can mean
+        running, not submitted.
 
     Returns
     -------
@@ -209,6 +227,11 @@ def run_batch(
     client, cluster = _client(workers, scheduler)
     try:
         summary.workers = len(client.scheduler_info().get("workers", {})) or workers
+        if on_worker_event is not None:
+            tell = on_worker_event
+            client.subscribe_topic(
+                TREE_TOPIC, lambda ev: tell(ev[1]["id"], ev[1]["event"])
+            )
         futures = [
             client.submit(
                 run_tree,
@@ -282,9 +305,11 @@ def run_remaining(
     """
     from amrst.campaign.manifest import load_campaign
 
+    progress = ReporterProgress(reporter)
     return run_batch(
         load_campaign(root),
         workers=workers,
         scheduler=scheduler,
-        progress=ReporterProgress(reporter),
+        progress=progress,
+        on_worker_event=progress.worker_event,
     )

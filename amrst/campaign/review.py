@@ -31,6 +31,7 @@ STATE_ORDER = (
     "failed",
     "registered",
     "running",
+    "queued",
     "not run",
     "rejected",
     "accepted",
@@ -55,6 +56,22 @@ def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:
         return "exported"
     decision = str(doc.get("decision", ""))
     return decision if decision in DECISIONS else batch_status
+
+
+def batch_state(
+    state: str, tree_id: str, queued: set[str], running: set[str]
+) -> str:
+    """Return the state to list while a batch runs.
+
+    ``running`` only for a tree a worker has started, ``queued`` for one submitted
+    and waiting; a tree in neither set (finished, or never submitted) keeps ``state``
+    (read from the folder).
+    """
+    if tree_id in running:
+        return "running"
+    if tree_id in queued:
+        return "queued"
+    return state
 
 
 def set_decision(campaign: Campaign, tree_id: str, decision: str) -> Path:

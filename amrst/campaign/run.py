@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 
 STAMP = "stamp.json"
 ERROR = "error.json"
+#: The Dask worker events a tree sends: {"id": ..., "event": "started" | "finished"}
+#: (the app marks a tree running between the two).
+TREE_TOPIC = "amrst-tree"
 _CHUNK = 1 << 20
 
 
@@ -116,6 +119,7 @@ def run_tree(
     from amrst.errors import AmrstError
     from amrst.files.atomic import make_folder, write_json_atomic
 
+    _tell(entry.id, "started")
     base = Path(root)
     out = base / "results" / entry.id
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -140,6 +144,7 @@ def run_tree(
             doc["traceback"] = traceback.format_exc()
         with contextlib.suppress(AmrstError):
             write_json_atomic(out / ERROR, doc)
+        _tell(entry.id, "finished")
         return {
             "id": entry.id,
             "ok": False,
@@ -161,6 +166,7 @@ def run_tree(
             "worker": worker,
         },
     )
+    _tell(entry.id, "finished")
     return {
         "id": entry.id,
         "ok": True,
@@ -169,6 +175,17 @@ def run_tree(
         "cpu_seconds": cpu,
         "worker": worker,
     }
+
+
+def _tell(tree_id: str, event: str) -> None:
+    """Send a worker event: this tree started or finished (nothing outside Dask)."""
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+    except (ImportError, ValueError):  # called directly: a test, one tree by hand
+        return
+    worker.log_event(TREE_TOPIC, {"id": tree_id, "event": event})
 
 
 def _register(

@@ -103,27 +103,28 @@ class StoredTree:
     pair_metrics: dict[str, Any] | None = field(default=None, repr=False)
 
     def default_link(self) -> tuple[int, int]:
-        """The link to show first: the reference and the first other scan."""
+        """Return the link to show first: the reference and the first other scan."""
         other = next(s.index for s in self.scans if s.index != self.reference)
         return (self.reference, other)
 
     def link(self, target: int, source: int) -> StoredLink | None:
-        """The stored link between two scans (either direction), or None."""
+        """Return the stored link between two scans (either direction), or None."""
         for link in self.links:
             if {link.target, link.source} == {target, source}:
                 return link
         return None
 
     def link_transform(self, target: int, source: int) -> Transform | None:
-        """World ``T_target_source`` from the stored poses (None: a scan not reached)."""
+        """Return the world ``T_target_source`` from the stored poses (None: a scan not reached)."""
         T_t = self.scans[target].T_reference_scan
         T_s = self.scans[source].T_reference_scan
         if T_t is None or T_s is None:
             return None
-        return invert_transform(T_t) @ T_s
+        T: Transform = invert_transform(T_t) @ T_s
+        return T
 
     def link_result(self, target: int, source: int) -> StoredLinkResult | None:
-        """The pair workflow's view of one link; None when a scan is not reached."""
+        """Return one link as the app's pair workflow takes it (None: a scan not reached)."""
         T = self.link_transform(target, source)
         if T is None:
             return None

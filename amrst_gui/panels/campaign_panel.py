@@ -1,14 +1,21 @@
 """CampaignPanel: the trees of a campaign, their state, and the batch run behind them.
 
-The table lists every tree with its state (not run, running, registered, needs
-review, failed, rejected, accepted, exported), those needing a person first, and can
-be filtered by text and by "needs a person". The state comes from the campaign folder
-(amrst.campaign.table and amrst.campaign.review), so opening a campaign reads files,
-never registers. Decisions are written to the folder the moment they are made.
+The table lists every tree with its state (not run, queued, running, registered,
+needs review, failed, rejected, accepted, exported), those needing a person first, and
+can be filtered by text and by "needs a person". The state comes from the campaign
+folder (amrst.campaign.table and amrst.campaign.review), so opening a campaign reads
+files, never registers. Decisions are written to the folder the moment they are made.
 "Run remaining" runs ``amrst.campaign.batch.run_remaining`` (the same Dask code as
-``amrst batch``) through ``workers.run_stage``; each finished tree updates its row.
+``amrst batch``) through ``workers.run_stage``: a tree reads "running" from the moment
+a Dask worker starts it (a worker event), "queued" while it waits, and its row updates
+when it finishes.
 
-Emits ``tree_selected(tree id, scan paths with the reference first)``.
+Below the table, :class:`TreeScansPanel` lists the selected tree's scans and links
+(amrst.campaign.stored, read from its result folder).
+
+Emits ``tree_selected(tree id, scan paths with the reference first)`` and
+``link_chosen(target path, source path, StoredLinkResult or None)``: the pair to show,
+with its stored result (None when the tree has none), for ``Session.load_stored``.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -25,6 +32,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QPushButton,
+    QSplitter,
     QTableWidget,
     QTableWidgetItem,
     QVBoxLayout,
@@ -32,32 +40,24 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError
+from amrst_gui.panels.campaign_rows import COLUMNS, row_cells, row_hidden
+from amrst_gui.panels.campaign_scans import TreeScansPanel
 from amrst_gui.workers import StageJob, run_stage
 
 if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.campaign.manifest import Campaign
+    from amrst.campaign.stored import StoredTree
 
 log = logging.getLogger("amrst_gui.campaign")
-
-COLUMNS = ("Tree", "State", "Confidence", "Links", "NN-RMSE cm", "TH m", "DBH cm")
-NEEDS_PERSON = ("needs review", "failed")
-
-
-def _fmt(value, scale: float = 1.0, digits: int = 2) -> str:
-    if value in ("", None):
-        return ""
-    try:
-        return f"{float(value) * scale:.{digits}f}"
-    except (TypeError, ValueError):
-        return str(value)
 
 
 class CampaignPanel(QWidget):
     """Lists a campaign's trees; runs, accepts and exports them."""
 
     tree_selected = Signal(str, list)
+    link_chosen = Signal(str, str, object)
     rows_changed = Signal()
 
     def __init__(self, parent: QWidget | None = None, workers: int = 2) -> None:
@@ -67,7 +67,10 @@ class CampaignPanel(QWidget):
         self.campaign: Campaign | None = None
         self.rows: list[dict] = []
         self.job: StageJob | None = None
-        self._running: set[str] = set()
+        self._queued: set[str] = set()  # submitted to the batch, not started yet
+        self._running: set[str] = set()  # started on a worker, not finished
+        self.stored: StoredTree | None = None  # of the selected tree
+        self.tree_scans = TreeScansPanel()
         self.title = QLabel("No campaign open")
         self.filter_edit = QLineEdit()
         self.filter_edit.setPlaceholderText("Filter trees (id or state)")
@@ -107,7 +110,14 @@ class CampaignPanel(QWidget):
         top.addWidget(self.open_button)
         layout.addLayout(top)
         layout.addLayout(filters)
-        layout.addWidget(self.table)
+        split = QSplitter(Qt.Orientation.Vertical)
+        split.setObjectName("campaign_split")
+        split.addWidget(self.table)
+        split.addWidget(self.tree_scans)
+        split.setStretchFactor(0, 3)
+        split.setStretchFactor(1, 2)
+        split.setChildrenCollapsible(False)
+        layout.addWidget(split, 1)
         layout.addLayout(buttons)
         layout.addWidget(self.status)
         self.filter_edit.textChanged.connect(self._apply_filter)
@@ -118,6 +128,7 @@ class CampaignPanel(QWidget):
         self.accept_button.clicked.connect(lambda: self.decide("accepted"))
         self.reject_button.clicked.connect(lambda: self.decide("rejected"))
         self.export_button.clicked.connect(self.export_accepted)
+        self.tree_scans.link_selected.connect(self.show_link)
         self._update_buttons()
 
     # ------------------------------------------------------------- public
@@ -136,7 +147,7 @@ class CampaignPanel(QWidget):
 
     def refresh(self) -> None:
         """Re-read every tree's state from the campaign folder and redraw the table."""
-        from amrst.campaign.review import STATE_ORDER, review_state
+        from amrst.campaign.review import STATE_ORDER, batch_state, review_state
         from amrst.campaign.table import campaign_rows
 
         if self.campaign is None:
@@ -144,9 +155,9 @@ class CampaignPanel(QWidget):
         rows = campaign_rows(self.campaign)
         for row in rows:
             state = review_state(self.campaign, row["tree_id"], row["status"])
-            if row["tree_id"] in self._running and state in ("not run", "failed"):
-                state = "running"
-            row["state"] = state
+            row["state"] = batch_state(
+                state, row["tree_id"], self._queued, self._running
+            )
         rows.sort(key=lambda r: (STATE_ORDER.index(r["state"]), r["tree_id"]))
         self.rows = rows
         self._fill()
@@ -209,9 +220,11 @@ class CampaignPanel(QWidget):
 
         if self.campaign is None or self.job is not None:
             return
-        self._running = {
+        # Queued until a worker starts them (its event marks them running).
+        self._queued = {
             r["tree_id"] for r in self.rows if r["state"] in ("not run", "failed")
         }
+        self._running = set()
         self.refresh()
         self.job = run_stage(
             run_remaining,
@@ -236,21 +249,7 @@ class CampaignPanel(QWidget):
         selected = set(self.selected_ids())
         self.table.setRowCount(len(self.rows))
         for i, row in enumerate(self.rows):
-            links = (
-                f"{row['links_verified']}/{row['links_total']}"
-                if row["links_total"] != ""
-                else ""
-            )
-            cells = (
-                row["tree_id"],
-                row["state"],
-                _fmt(row["confidence"]),
-                links,
-                _fmt(row["NN_RMSE_m"], 100, 1),
-                _fmt(row["TH"], 1, 1),
-                _fmt(row["DBH"], 100, 1),
-            )
-            for j, text in enumerate(cells):
+            for j, text in enumerate(row_cells(row)):
                 item = QTableWidgetItem(text)
                 if j == 1 and row["error"]:
                     item.setToolTip(row["error"])
@@ -273,18 +272,29 @@ class CampaignPanel(QWidget):
                 header.resizeSection(j, need)
 
     def _apply_filter(self) -> None:
-        text = self.filter_edit.text().strip().lower()
-        only = self.needs_person.isChecked()
+        text, only = self.filter_edit.text(), self.needs_person.isChecked()
         for i, row in enumerate(self.rows):
-            hide = (
-                bool(text)
-                and text not in row["tree_id"].lower()
-                and text not in row["state"]
-            )
-            hide = hide or (only and row["state"] not in NEEDS_PERSON)
-            self.table.setRowHidden(i, hide)
+            self.table.setRowHidden(i, row_hidden(row, text, only))
+
+    def show_link(self, target: int, source: int) -> None:
+        """Show one link of the selected tree: emits ``link_chosen`` with its stored
+        result (None when the tree has none or a scan was not reached)."""
+        ids = self.selected_ids()
+        if len(ids) != 1 or self.campaign is None:
+            return
+        entry = self.campaign.tree(ids[0])
+        stored = self.stored
+        result = None if stored is None else stored.link_result(target, source)
+        self.tree_scans.mark_shown((target, source))
+        self.link_chosen.emit(
+            str(self.campaign.root / entry.scans[target]),
+            str(self.campaign.root / entry.scans[source]),
+            result,
+        )
 
     def _on_selection(self) -> None:
+        from amrst.campaign.stored import read_stored_tree
+
         self._update_buttons()
         ids = self.selected_ids()
         if len(ids) != 1 or self.campaign is None:
@@ -293,13 +303,34 @@ class CampaignPanel(QWidget):
         order = [entry.reference] + [
             k for k in range(len(entry.scans)) if k != entry.reference
         ]
+        # The stored result, read from the tree's folder (no registration).
+        self.stored = read_stored_tree(self.campaign, ids[0])
+        shown = (order[0], order[1])
+        if self.stored is not None:
+            shown = self.stored.default_link()
+        self.tree_scans.show_tree(entry, self.stored, shown)
         self.tree_selected.emit(
             ids[0], [str(self.campaign.root / entry.scans[k]) for k in order]
         )
+        self.show_link(*shown)
 
     def _on_progress(self, fraction: float, message: str) -> None:
-        if message:
-            self._running.discard(message.split(":")[0])
+        from amrst.campaign.batch import ReporterProgress
+
+        started, ended = ReporterProgress.STARTED, ReporterProgress.FINISHED
+        if message.startswith(started):
+            tree_id = message[len(started) :]
+            if tree_id in self._queued:  # not when its result came first
+                self._queued.discard(tree_id)
+                self._running.add(tree_id)
+        elif message.startswith(ended):
+            self._running.discard(message[len(ended) :])
+        elif message:
+            for tree_id in [
+                t for t in self._queued | self._running if message.startswith(f"{t}: ")
+            ]:
+                self._queued.discard(tree_id)
+                self._running.discard(tree_id)
             self._say(f"{fraction:.0%} of the trees done; last: {message}")
         self.refresh()
 
@@ -314,7 +345,7 @@ class CampaignPanel(QWidget):
 
     def _on_finished(self) -> None:
         self.job = None
-        self._running = set()
+        self._queued, self._running = set(), set()
         self.refresh()
 
     def _choose_folder(self) -> None:

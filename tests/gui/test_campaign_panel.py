@@ -49,9 +49,20 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
         ("T01", "not run"),
         ("T02", "not run"),
     ]
+    seen: list[dict[str, str]] = []  # every state of the table while the batch runs
+    panel.rows_changed.connect(
+        lambda: seen.append({r["tree_id"]: r["state"] for r in panel.rows})
+    )
     panel.run_remaining()
-    assert panel.state_of("T01") == "running"
+    # submitted, not started: queued, never "running" before a worker takes it
+    assert panel.state_of("T01") == "queued"
+    assert panel.state_of("T02") == "queued"
     qtbot.waitUntil(lambda: panel.job is None, timeout=120_000)
+    running = [sorted(t for t, s in snap.items() if s == "running") for snap in seen]
+    # one worker: at most one tree running at a time, and T01 was seen running on it
+    # while T02 waited (T01 is submitted first; T02's corrupt scan fails in no time)
+    assert max(len(r) for r in running) == 1
+    assert any(snap["T01"] == "running" and snap["T02"] == "queued" for snap in seen)
     # those needing a person first: the corrupt tree leads
     assert [(r["tree_id"], r["state"]) for r in panel.rows] == [
         ("T02", "failed"),

@@ -1,0 +1,50 @@
+"""What the Campaign dock's table shows for a tree: its cells and whether it is hidden.
+
+Pure functions of a row of :func:`amrst.campaign.table.campaign_rows` (plus the
+``state`` the dock gives it); no Qt.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+COLUMNS = ("Tree", "State", "Confidence", "Links", "NN-RMSE cm", "TH m", "DBH cm")
+NEEDS_PERSON = ("needs review", "failed")
+
+
+def fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:
+    """A number scaled and rounded for a cell; "" for a missing one."""
+    if value in ("", None):
+        return ""
+    try:
+        return f"{float(value) * scale:.{digits}f}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def row_cells(row: dict[str, Any]) -> tuple[str, ...]:
+    """The texts of one tree's row, in COLUMNS order."""
+    links = (
+        f"{row['links_verified']}/{row['links_total']}"
+        if row["links_total"] != ""
+        else ""
+    )
+    return (
+        row["tree_id"],
+        row["state"],
+        fmt(row["confidence"]),
+        links,
+        fmt(row["NN_RMSE_m"], 100, 1),
+        fmt(row["TH"], 1, 1),
+        fmt(row["DBH"], 100, 1),
+    )
+
+
+def row_hidden(row: dict[str, Any], text: str, needs_person: bool) -> bool:
+    """Whether the filter hides a row: ``text`` in neither id nor state, or not one
+    needing a person when only those are asked for."""
+    text = text.strip().lower()
+    hide = (
+        bool(text) and text not in row["tree_id"].lower() and text not in row["state"]
+    )
+    return hide or (needs_person and row["state"] not in NEEDS_PERSON)

@@ -1,0 +1,187 @@
+"""TreeScansPanel: one campaign tree's scans and links, below the Campaign dock's table.
+
+The scans list names each scan, marks the reference and says how each other scan
+reached it (the path through the links, or "not reached"); the links list gives each
+link's verdict, score, confidence and NN-RMSE, and whether the spanning tree uses it.
+Selecting a link (or a scan: its link to the reference) emits
+``link_selected(target, source)``, and the window shows those two scans with the
+stored pose between them. Everything comes from
+:class:`amrst.campaign.stored.StoredTree`; nothing is computed here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import Signal
+from PySide6.QtGui import QBrush, QColor
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QHeaderView,
+    QLabel,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+if TYPE_CHECKING:
+    from amrst.campaign.manifest import TreeEntry
+    from amrst.campaign.stored import StoredTree
+
+SCAN_COLUMNS = ("Scan", "File", "Reaches the reference")
+LINK_COLUMNS = ("Link", "Verdict", "Score", "Conf.", "NN-RMSE cm", "Used")
+_VERDICT_COLOURS = {"verified": "#1b7f2a", "unverified": "#b26a00", "failed": "#b00020"}
+
+
+def scan_how(stored: StoredTree | None, k: int, reference: int) -> str:
+    """How scan ``k`` reaches the reference, in words."""
+    if k == reference:
+        return "reference"
+    if stored is None:
+        return "not run"
+    path = stored.scans[k].path
+    if path is None:
+        return "not reached (no verified link)"
+    return "via " + " → ".join(map(str, path))
+
+
+def link_cells(stored: StoredTree) -> list[tuple[str, ...]]:
+    """One row of texts per stored link, as the links list shows them."""
+    rows: list[tuple[str, ...]] = []
+    for link in stored.links:
+        rmse = (link.metrics or {}).get("rmse_overlap_m")
+        rows.append(
+            (
+                f"{link.target} ← {link.source}",
+                link.verdict,
+                "" if math.isnan(link.score) else f"{link.score:.0%}",
+                "" if math.isnan(link.confidence) else f"{link.confidence:.2f}",
+                "" if rmse is None else f"{float(rmse) * 100:.1f}",
+                "tree" if link.in_tree else "",
+            )
+        )
+    return rows
+
+
+def _table(columns: tuple[str, ...], name: str) -> QTableWidget:
+    table = QTableWidget(0, len(columns))
+    table.setObjectName(name)
+    table.setHorizontalHeaderLabels(list(columns))
+    table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+    table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+    table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+    table.verticalHeader().setVisible(False)
+    table.horizontalHeader().setStretchLastSection(True)
+    table.horizontalHeader().setSectionResizeMode(
+        QHeaderView.ResizeMode.ResizeToContents
+    )
+    return table
+
+
+class TreeScansPanel(QWidget):
+    """The scans and links of the tree selected in the Campaign dock."""
+
+    link_selected = Signal(int, int)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("campaign_tree_scans")
+        self.stored: StoredTree | None = None
+        self.reference = 0
+        self.title = QLabel("Select a tree to see its scans and links.")
+        self.title.setWordWrap(True)
+        self.scans = _table(SCAN_COLUMNS, "campaign_scans")
+        self.links = _table(LINK_COLUMNS, "campaign_links")
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.title)
+        layout.addWidget(self.scans, 1)
+        layout.addWidget(self.links, 1)
+        self.scans.itemSelectionChanged.connect(self._on_scan)
+        self.links.itemSelectionChanged.connect(self._on_link)
+
+    def show_tree(
+        self, entry: TreeEntry | None, stored: StoredTree | None, shown: tuple[int, int]
+    ) -> None:
+        """List one tree's scans (from the manifest) and its stored links, if any."""
+        self.stored = stored
+        for table in (self.scans, self.links):
+            table.blockSignals(True)
+            table.clearSelection()
+            table.setRowCount(0)
+        if entry is None:
+            self.title.setText("Select a tree to see its scans and links.")
+            self._unblock()
+            return
+        self.reference = stored.reference if stored is not None else entry.reference
+        verdict = "not run" if stored is None else stored.verdict
+        self.title.setText(
+            f"<b>{entry.id}</b>: {len(entry.scans)} scans, {verdict}; showing "
+            f"{shown[1]} onto {shown[0]}"
+        )
+        self.scans.setRowCount(len(entry.scans))
+        for k, spec in enumerate(entry.scans):
+            cells: tuple[str, ...] = (
+                str(k),
+                spec.rsplit("/", 1)[-1],
+                scan_how(stored, k, self.reference),
+            )
+            for j, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                item.setToolTip(spec)
+                if k == self.reference:
+                    font = item.font()
+                    font.setBold(True)
+                    item.setFont(font)
+                self.scans.setItem(k, j, item)
+        if stored is not None:
+            self.links.setRowCount(len(stored.links))
+            for i, cells in enumerate(link_cells(stored)):
+                link = stored.links[i]
+                for j, text in enumerate(cells):
+                    item = QTableWidgetItem(text)
+                    item.setToolTip(link.message)
+                    if j == 1:
+                        colour = _VERDICT_COLOURS.get(link.verdict, "#333333")
+                        item.setForeground(QBrush(QColor(colour)))
+                    self.links.setItem(i, j, item)
+        self.mark_shown(shown)
+        self._unblock()
+
+    def mark_shown(self, shown: tuple[int, int]) -> None:
+        """Select the row of the link the views show (no signal)."""
+        for table in (self.scans, self.links):
+            table.blockSignals(True)
+            table.clearSelection()
+        if self.stored is not None:
+            for i, link in enumerate(self.stored.links):
+                if {link.target, link.source} == set(shown):
+                    self.links.selectRow(i)
+        other = shown[1] if shown[0] == self.reference else None
+        if other is not None and other < self.scans.rowCount():
+            self.scans.selectRow(other)
+        self._unblock()
+
+    def select_link(self, target: int, source: int) -> None:
+        """Select a link as a click does (emits ``link_selected``)."""
+        self.link_selected.emit(target, source)
+
+    # ----------------------------------------------------------- plumbing
+    def _unblock(self) -> None:
+        for table in (self.scans, self.links):
+            table.blockSignals(False)
+
+    def _on_scan(self) -> None:
+        rows = {i.row() for i in self.scans.selectedIndexes()}
+        if len(rows) == 1:
+            k = rows.pop()
+            if k != self.reference:
+                self.link_selected.emit(self.reference, k)
+
+    def _on_link(self) -> None:
+        rows = {i.row() for i in self.links.selectedIndexes()}
+        if len(rows) == 1 and self.stored is not None:
+            link = self.stored.links[rows.pop()]
+            self.link_selected.emit(link.target, link.source)
