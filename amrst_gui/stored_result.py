@@ -184,6 +184,8 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         )
         fine = FineResult(T, STORED_METHOD, True, 0, math.nan, math.nan, math.nan)
         self._accepted, self._fine = coarse, fine
+        # Already on disk: switching trees never asks to discard it.
+        self._exported_result = fine
         self._selected = STORED_ID
         self._review.accepted_pose = T
         for stage, values in (

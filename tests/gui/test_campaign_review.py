@@ -1,0 +1,187 @@
+"""A campaign tree opened in the app from its stored result, never registered again.
+
+Driven headless through the window: select a tree (its stored pose, metrics and
+verdict show, only the load job runs), list its scans and links, show another link,
+accept and export; Fine from the stored pose separates and refines, nothing else.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SAMPLE = Path(__file__).resolve().parents[2] / "resources" / "sample"
+TINY_TREE = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.ply"
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> Path:
+    """T01: the sample pair, T02: three simulated scans (both run), T03: not run."""
+    from amrst import io
+    from amrst.campaign import init_campaign, load_campaign
+    from amrst.campaign.batch import pending_trees
+    from amrst.campaign.run import run_tree
+    from amrst.multiscan.simulate import simulate_scans, write_scans
+
+    root = tmp_path_factory.mktemp("campaign")
+    for tree in ("T01", "T03"):
+        (root / tree).mkdir()
+        for name in ("target.ply", "source.ply"):
+            shutil.copy(SAMPLE / name, root / tree / name)
+    write_scans(
+        simulate_scans(io.read(TINY_TREE), 3, seed=0, res_deg=0.2), root / "T02"
+    )
+    init_campaign(root)
+    todo, _, doc = pending_trees(load_campaign(root))
+    for entry, stamp in todo:
+        if entry.id != "T03":
+            assert run_tree(str(root), entry, doc, stamp)["ok"]
+    return root
+
+
+def _doc(root: Path, tree: str, name: str) -> dict:
+    return json.loads((root / "results" / tree / name).read_text(encoding="utf-8"))
+
+
+def _show(qtbot, panel, session, tree: str) -> float:
+    """Select a tree; return the seconds until its scans (and result) are shown."""
+    t0 = time.perf_counter()
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        panel.select_tree(tree)  # the load job starts
+    qtbot.waitUntil(lambda: not session.busy, timeout=20_000)
+    return time.perf_counter() - t0
+
+
+@pytest.mark.slow
+def test_select_review_accept_export_a_stored_tree(
+    make_main_window, qtbot, campaign, tmp_path, discard_answers
+):
+    from amrst import io
+    from amrst.types import invert_transform
+
+    win = make_main_window()
+    session, panel = win.session, win.campaign_panel
+    steps: list[str] = []
+    session.step_started.connect(steps.append)
+    assert panel.open_campaign(campaign)
+
+    seconds = _show(qtbot, panel, session, "T01")
+    assert steps == ["load"]  # no registration step ran
+    assert set(session.timings) == {"load"}
+    assert all(session.is_done(s) for s in ("match", "coarse", "fine"))
+    assert not session.is_stale("fine")
+    stored_T = np.asarray(_doc(campaign, "T01", "transform.json")["T_target_source"])
+    np.testing.assert_allclose(session.world(session.final_transform), stored_T)
+    metrics = _doc(campaign, "T01", "metrics.json")
+    assert session.verdict.status == metrics["verdict"]["status"]
+    assert session.metrics["fine"].rmse_overlap_m == metrics["fine"]["rmse_overlap_m"]
+    assert session.tree["merged"].height_m == metrics["tree"]["merged"]["height_m"]
+    assert win.tabs.currentWidget() is win.registration  # the overlay shows the pose
+    assert seconds < 10  # measured well under 1 s; a loaded machine gets slack
+
+    # three scans: every scan and link listed; another link shows its two scans
+    steps.clear()
+    _show(qtbot, panel, session, "T02")
+    assert steps == ["load"]
+    listing = panel.tree_scans
+    scans = _doc(campaign, "T02", "scans.json")
+    assert listing.scans.rowCount() == 3
+    assert listing.scans.item(0, 2).text() == "reference"
+    assert listing.scans.item(2, 2).text() == "via " + " → ".join(
+        map(str, scans["scans"][2]["path"])
+    )
+    assert [listing.links.item(i, 1).text() for i in range(3)] == [
+        link["verdict"] for link in scans["links"]
+    ]
+    row = next(
+        i
+        for i, link in enumerate(scans["links"])
+        if {link["target"], link["source"]} == {1, 2}
+    )
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        listing.links.selectRow(row)
+    qtbot.waitUntil(lambda: not session.busy, timeout=20_000)
+    link = scans["links"][row]
+    assert session.path("target").name == f"scan_{link['target']}.ply"
+    assert session.path("source").name == f"scan_{link['source']}.ply"
+    poses = [np.asarray(s["T_reference_scan"]) for s in scans["scans"]]
+    expected = invert_transform(poses[link["target"]]) @ poses[link["source"]]
+    np.testing.assert_allclose(
+        session.world(session.final_transform), expected, atol=1e-9
+    )
+    assert steps == ["load", "load"]
+
+    # a tree not run: its scans, no result
+    _show(qtbot, panel, session, "T03")
+    assert session.final_transform is None
+    assert session.stored is None
+    assert [listing.scans.item(k, 2).text() for k in range(2)] == [
+        "not run",
+        "reference",  # target.ply, the second in name order
+    ]
+
+    # accept (on disk at once) and export, from the stored result
+    _show(qtbot, panel, session, "T01")
+    panel.decide("accepted")
+    assert _doc(campaign, "T01", "review.json")["decision"] == "accepted"
+    out = tmp_path / "export"
+    with qtbot.waitSignal(session.exported, timeout=60_000):
+        session.export(out)
+    exported = json.loads((out / "transform.json").read_text(encoding="utf-8"))
+    np.testing.assert_allclose(exported["T_target_source"], stored_T)
+    panel.export_accepted()
+    merged = io.read(campaign / "results" / "T01" / "merged.ply")
+    assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
+    assert panel.state_of("T01") == "exported"
+    assert discard_answers.asked == []  # a stored result is never "unexported"
+
+    # Fine from the stored pose: separate, then refine; no match, no new coarse
+    steps.clear()
+    with qtbot.waitSignal(session.fine_finished, timeout=90_000):
+        session.run_step("fine")
+    qtbot.waitUntil(lambda: not session.busy, timeout=5_000)
+    assert steps == ["separate", "fine"]
+    assert session.stored is None  # the new fine result replaced the stored one
+    moved = session.world(session.final_transform)
+    assert np.linalg.norm(moved[:3, 3] - stored_T[:3, 3]) < 0.05
+
+
+def test_stored_tree_and_link_list(campaign):
+    from amrst.campaign import load_campaign
+    from amrst.campaign.review import batch_state
+    from amrst.campaign.stored import read_stored_tree
+    from amrst_gui.panels.campaign_scans import link_cells, scan_how
+
+    c = load_campaign(campaign)
+    assert read_stored_tree(c, "T03") is None  # not run: nothing stored
+    tree = read_stored_tree(c, "T02")
+    assert tree is not None
+    assert (len(tree.scans), len(tree.links)) == (3, 3)
+    doc = _doc(campaign, "T02", "scans.json")
+    assert [c[1] for c in link_cells(tree)] == [d["verdict"] for d in doc["links"]]
+    assert [c[5] == "tree" for c in link_cells(tree)] == [
+        d["in_tree"] for d in doc["links"]
+    ]
+    assert scan_how(tree, 0, 0) == "reference"
+    assert scan_how(None, 1, 0) == "not run"
+    for k in (1, 2):
+        assert scan_how(tree, k, 0).startswith("via 0 → ")
+    # a link's pose is the one between both scans' stored poses, either way round
+    T12, T21 = tree.link_transform(1, 2), tree.link_transform(2, 1)
+    np.testing.assert_allclose(T12 @ T21, np.eye(4), atol=1e-9)
+    assert tree.link(2, 1) is tree.link(1, 2)
+    result = tree.link_result(0, 1)
+    assert result is not None
+    assert result.verdict["status"] == "registered"
+    # the pair tree reads its verdict from the pair's own metrics.json
+    pair = read_stored_tree(c, "T01").link_result(1, 0)
+    assert pair.verdict == _doc(campaign, "T01", "metrics.json")["verdict"]
+    # while a batch runs: running only when a worker has it, queued before
+    assert batch_state("not run", "a", {"a"}, set()) == "queued"
+    assert batch_state("not run", "a", set(), {"a"}) == "running"
+    assert batch_state("registered", "a", set(), set()) == "registered"
