@@ -2,7 +2,9 @@
 
 amrst.cli hands the parsed arguments here when more than two scans are given; the
 options are those of the pair command (--out, --params/--preset, --truth,
---write-clouds, --format, --quiet).
+--write-clouds, --format, --report, --quiet). ``--report`` writes report.html: the
+pair report for two scans, else :mod:`amrst.results.report_multi` (every link with its
+verdict and score, every scan with its path).
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import argparse
+    from pathlib import Path
 
     from amrst.multiscan.register import MultiScanResult
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
-    from amrst.types import Cloud
+    from amrst.types import Cloud, Transform
 
 EXIT_FAILED = 3
 
@@ -83,7 +86,8 @@ def run_register(
     from amrst.multiscan.register import register_scans
     from amrst.results.export import check_output_dir
 
-    check_output_dir(args.out)
+    report = bool(getattr(args, "report", False))
+    check_output_dir(args.out, ["report.html"] if report else [])
     t0 = time.perf_counter()
     clouds, labels = read_specs([args.target, *args.source])
     truth = None
@@ -98,6 +102,8 @@ def run_register(
         clouds=args.write_clouds,
         cloud_format=args.format,
     )
+    if report:
+        files = [*files, write_scan_report(args.out, result, labels, truth)]
     print(
         f"Registered {len(clouds)} scans onto {labels[0]} in "
         f"{time.perf_counter() - t0:.2f} s: {result.verdict}."
@@ -115,3 +121,32 @@ def run_register(
         )
         return EXIT_FAILED
     return 0
+
+
+def write_scan_report(
+    out: str,
+    result: MultiScanResult,
+    labels: list[str],
+    truth: list[Transform] | None,
+) -> Path:
+    """Write report.html: the pair report for two scans, else the multi-scan one."""
+    from pathlib import Path
+
+    from amrst.multiscan.export import summary
+    from amrst.results.report_html import inputs_from_result, write_report
+    from amrst.results.report_multi import write_multi_report
+
+    path = Path(out) / "report.html"
+    if result.pair is not None:
+        ref, other = result.reference, 1 - result.reference
+        inputs = inputs_from_result(
+            result.pair,
+            result.scans[ref],
+            result.scans[other],
+            target_file=labels[ref],
+            source_file=labels[other],
+            T_truth=None if truth is None else truth[other],
+        )
+        return write_report(path, inputs)
+    rows = [s["truth"] for s in summary(result, truth, labels)["scans"]]
+    return write_multi_report(path, result, labels, rows)

@@ -176,7 +176,8 @@ def _fmt(kind: str, value: Any) -> str:
     return _e(value)
 
 
-def _table(head: list[str], rows: list[list[str]]) -> str:
+def html_table(head: list[str], rows: list[list[str]]) -> str:
+    """Return an HTML table of already escaped cells."""
     top = "".join(f"<th>{h}</th>" for h in head)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
     return f"<table><tr>{top}</tr>{body}</table>"
@@ -196,7 +197,7 @@ def _inputs(r: ReportInputs) -> str:
     matrix = "\n".join(" ".join(f"{v:12.6f}" for v in row) for row in T)
     return (
         "<h2>Inputs</h2>"
-        + _table(["Scan", "File", "Points", "Offset"], rows)
+        + html_table(["Scan", "File", "Points", "Offset"], rows)
         + f"<h3>T_target_source (world, after {_e(r.stage)})</h3><pre>{matrix}</pre>"
     )
 
@@ -247,7 +248,7 @@ def _candidates(r: ReportInputs) -> str:
         f"<h2>Chosen candidate and alternatives</h2><p>{n} candidates; "
         f"{len(r.rejected_ids)} rejected by the user. Score: share of the sampled "
         "source points within the verification distance of the target.</p>"
-        + _table(
+        + html_table(
             ["Rank", "Id", "From", "Score", "Support", "Status", "Explanation"], rows
         )
     )
@@ -267,7 +268,7 @@ def _metrics(r: ReportInputs) -> str:
     timings = ", ".join(f"{k} {v:.2f} s" for k, v in r.timings.items())
     return (
         "<h2>Metrics</h2>"
-        + _table(head, rows)
+        + html_table(head, rows)
         + (f"<p>Time per step: {_e(timings)}</p>" if timings else "")
     )
 
@@ -279,11 +280,12 @@ def _with_registered(truth: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _tree(r: ReportInputs) -> str:
-    if not r.tree:
+def tree_section(tree: Mapping[str, TreeMeasures]) -> str:
+    """Return the tree measurements section: one row per measured cloud."""
+    if not tree:
         return "<h2>Tree measurements</h2><p>None (no registration measured).</p>"
     rows = []
-    for name, m in r.tree.items():
+    for name, m in tree.items():
         rows.append(
             [
                 _e(name),
@@ -295,7 +297,7 @@ def _tree(r: ReportInputs) -> str:
                 _e(m.note),
             ]
         )
-    return "<h2>Tree measurements</h2>" + _table(
+    return "<h2>Tree measurements</h2>" + html_table(
         [
             "Cloud",
             "Height",
@@ -309,10 +311,11 @@ def _tree(r: ReportInputs) -> str:
     )
 
 
-def _params(r: ReportInputs) -> str:
+def params_section(params: RegistrationParams) -> str:
+    """Return the parameters section: every group's values with their units."""
     rows = []
-    for group in dataclasses.fields(r.params):
-        values = getattr(r.params, group.name)
+    for group in dataclasses.fields(params):
+        values = getattr(params, group.name)
         if not dataclasses.is_dataclass(values):
             rows.append([_e(group.name), "", _e(values), ""])
             continue
@@ -321,10 +324,11 @@ def _params(r: ReportInputs) -> str:
             rows.append(
                 [_e(group.name), _e(f.name), _e(getattr(values, f.name)), _e(unit)]
             )
-    return "<h2>Parameters</h2>" + _table(["Group", "Name", "Value", "Unit"], rows)
+    return "<h2>Parameters</h2>" + html_table(["Group", "Name", "Value", "Unit"], rows)
 
 
-def _images(images: Mapping[str, bytes]) -> str:
+def images_section(images: Mapping[str, bytes]) -> str:
+    """Return the pictures section: the PNGs embedded, with their captions."""
     out = ["<h2>Pictures</h2>"]
     for name, caption in _IMAGES:
         png = images.get(name)
@@ -338,7 +342,7 @@ def _images(images: Mapping[str, bytes]) -> str:
     return "".join(out)
 
 
-_STYLE = """
+STYLE = """
 body{font-family:sans-serif;max-width:1150px;margin:1em auto;color:#222}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;
 padding:3px 6px;text-align:left;vertical-align:top;font-size:90%}
@@ -355,14 +359,14 @@ def build_html(inputs: ReportInputs, images: Mapping[str, bytes]) -> str:
     title = f"Registration of {inputs.source_file} onto {inputs.target_file}"
     return (
         f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>{_e(title)}</title><style>{_STYLE}</style></head><body>"
+        f"<title>{_e(title)}</title><style>{STYLE}</style></head><body>"
         f"<h1>{_e(title)}</h1>"
         + _verdict(inputs)
         + _inputs(inputs)
         + _candidates(inputs)
         + _metrics(inputs)
-        + _images(images)
-        + _tree(inputs)
-        + _params(inputs)
+        + images_section(images)
+        + tree_section(inputs.tree)
+        + params_section(inputs.params)
         + f"<p><small>Written by AMRST {__version__}.</small></p></body></html>"
     )
