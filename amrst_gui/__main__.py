@@ -1,6 +1,8 @@
 """``amrst-gui [TARGET SOURCE] [--truth FILE]``: open AMRST Studio.
 
 With no files it opens the bundled sample pair (resources/sample), ready to run.
+``--campaign DIR [--tree ID]`` opens a campaign in the Campaign dock instead and shows
+one tree (default: the first listed) from its stored result.
 ``--screenshot PATH`` saves the window once the scans are shown (after ``--run
 STEP`` if given) and quits: used for the README and for checking headless runs.
 """
@@ -50,6 +52,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         choices=("scans", "registration", "slices", "distance"),
         default="scans",
         help="which 3D tab to show (for --screenshot)",
+    )
+    parser.add_argument(
+        "--campaign",
+        type=Path,
+        metavar="DIR",
+        help="open this campaign folder in the Campaign dock (instead of scans)",
+    )
+    parser.add_argument(
+        "--tree", metavar="ID", help="with --campaign: the tree to show first"
     )
     parser.add_argument(
         "--size",
@@ -126,6 +137,26 @@ class _Screenshot:
         self.ran = True
 
 
+def _open_campaign(win, folder: Path, tree: str | None) -> bool:
+    """Open a campaign in the Campaign dock and select a tree; False after a message."""
+    panel = win.campaign_panel
+    if not panel.open_campaign(folder):
+        print(f"amrst-gui: {panel.status.text()}", file=sys.stderr)
+        return False
+    win.docks["campaign"].raise_()
+    ids = [r["tree_id"] for r in panel.rows]
+    if tree is not None and tree not in ids:
+        print(
+            f"amrst-gui: no tree {tree!r} in {folder}; choose one of: "
+            + ", ".join(ids),
+            file=sys.stderr,
+        )
+        return False
+    if ids:
+        panel.select_tree(tree or ids[0])
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``amrst-gui``."""
     args = parse_args(sys.argv[1:] if argv is None else argv)
@@ -148,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.screenshot
         else None
     )
-    if target is None:
+    if args.campaign is not None:
+        if not _open_campaign(win, args.campaign, args.tree):
+            return 2
+    elif target is None:
         win.status.show_message(
             "No scans yet: open a target and a source (File menu), "
             "or drop two files on the window."

@@ -38,7 +38,7 @@ log = logging.getLogger("amrst_gui.session")
 
 #: The id of the stored pose among the candidates (no match produces negative ids).
 STORED_ID = -1
-STORED_METHOD = "stored (campaign batch)"
+STORED_METHOD = "stored by the campaign batch"
 
 
 class StoredResultMixin(StepJobsMixin, ResultsMixin):
@@ -182,7 +182,18 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
             str(stored.verdict.get("reason", "")),
             stored.verified,
         )
-        fine = FineResult(T, STORED_METHOD, True, 0, math.nan, math.nan, math.nan)
+        # A pair tree's metrics.json keeps what its ICP reported; a link of more
+        # scans has the joint refinement's pose, no ICP of its own.
+        icp = stored.metrics_fine or {}
+        fine = FineResult(
+            T,
+            f"{icp['method']} ({STORED_METHOD})" if "method" in icp else STORED_METHOD,
+            bool(icp.get("converged", True)),
+            int(icp.get("iterations", 0)),
+            float(icp.get("fitness", math.nan)),
+            float(icp.get("inlier_rmse_m", math.nan)),
+            math.nan,
+        )
         self._accepted, self._fine = coarse, fine
         # Already on disk: switching trees never asks to discard it.
         self._exported_result = fine
@@ -211,9 +222,11 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         )
 
         def emit() -> None:
+            # Not coarse_accepted: every view drawn on it draws again on
+            # fine_finished (the fine result is the stored pose too), and each
+            # redraw costs a switch between trees time.
             self.params_changed.emit(params)
             self.matches_changed.emit()
-            self.coarse_accepted.emit(coarse)
             self.fine_finished.emit(fine)
 
         return emit

@@ -114,9 +114,8 @@ class CampaignPanel(QWidget):
         split.setObjectName("campaign_split")
         split.addWidget(self.table)
         split.addWidget(self.tree_scans)
-        split.setStretchFactor(0, 3)
+        split.setStretchFactor(0, 3)  # the trees get the room; the scans a few rows
         split.setStretchFactor(1, 2)
-        split.setChildrenCollapsible(False)
         layout.addWidget(split, 1)
         layout.addLayout(buttons)
         layout.addWidget(self.status)
@@ -172,6 +171,7 @@ class CampaignPanel(QWidget):
         for i in range(self.table.rowCount()):
             if self._id_at(i) == tree_id:
                 self.table.selectRow(i)
+                self.table.scrollTo(self.table.model().index(i, 0))
                 return
 
     def selected_ids(self) -> list[str]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-COLUMNS = ("Tree", "State", "Confidence", "Links", "NN-RMSE cm", "TH m", "DBH cm")
+COLUMNS = ("Tree", "State", "Conf.", "Links", "NN-RMSE cm", "TH m", "DBH cm")
 NEEDS_PERSON = ("needs review", "failed")
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import QSize, Signal
 from PySide6.QtGui import QBrush, QColor
 from PySide6.QtWidgets import (
     QAbstractItemView,
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from amrst.campaign.stored import StoredTree
 
 SCAN_COLUMNS = ("Scan", "File", "Reaches the reference")
-LINK_COLUMNS = ("Link", "Verdict", "Score", "Conf.", "NN-RMSE cm", "Used")
+LINK_COLUMNS = ("Link", "Verdict", "Score", "Conf.", "NN-RMSE cm", "In tree")
 _VERDICT_COLOURS = {"verified": "#1b7f2a", "unverified": "#b26a00", "failed": "#b00020"}
 
 
@@ -59,20 +59,30 @@ def link_cells(stored: StoredTree) -> list[tuple[str, ...]]:
                 "" if math.isnan(link.score) else f"{link.score:.0%}",
                 "" if math.isnan(link.confidence) else f"{link.confidence:.2f}",
                 "" if rmse is None else f"{float(rmse) * 100:.1f}",
-                "tree" if link.in_tree else "",
+                "yes" if link.in_tree else "",
             )
         )
     return rows
 
 
+class _CompactTable(QTableWidget):
+    """A table that asks for a few rows only (a tree has 2 to 5 scans), so the dock
+    never makes the window taller than a laptop screen."""
+
+    def sizeHint(self) -> QSize:
+        rows = 4 * self.verticalHeader().defaultSectionSize()
+        return QSize(super().sizeHint().width(), rows)
+
+
 def _table(columns: tuple[str, ...], name: str) -> QTableWidget:
-    table = QTableWidget(0, len(columns))
+    table = _CompactTable(0, len(columns))
     table.setObjectName(name)
     table.setHorizontalHeaderLabels(list(columns))
     table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
     table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
     table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
     table.verticalHeader().setVisible(False)
+    table.verticalHeader().setDefaultSectionSize(table.fontMetrics().height() + 8)
     table.horizontalHeader().setStretchLastSection(True)
     table.horizontalHeader().setSectionResizeMode(
         QHeaderView.ResizeMode.ResizeToContents
@@ -97,8 +107,11 @@ class TreeScansPanel(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.title)
-        layout.addWidget(self.scans, 1)
-        layout.addWidget(self.links, 1)
+        for table in (self.scans, self.links):
+            layout.addWidget(table, 1)
+        # Shown with the first tree: a hidden panel adds nothing to the window's
+        # minimum height while the docks are still stacked, before they are tabbed.
+        self.hide()
         self.scans.itemSelectionChanged.connect(self._on_scan)
         self.links.itemSelectionChanged.connect(self._on_link)
 
@@ -115,6 +128,7 @@ class TreeScansPanel(QWidget):
             self.title.setText("Select a tree to see its scans and links.")
             self._unblock()
             return
+        self.show()
         self.reference = stored.reference if stored is not None else entry.reference
         verdict = "not run" if stored is None else stored.verdict
         self.title.setText(

@@ -140,6 +140,9 @@ class WorkflowStatusBar(QStatusBar):
     def _on_fine_finished(self, fine) -> None:
         # The ICP's own inlier RMSE, named so; the Metrics dock names the others.
         note = self.session.fine_note
+        if self.session.stored is not None:  # a campaign tree: nothing ran
+            self._show_verdict(f"Stored result of {self.session.stored.label}.")
+            return
         if "kept" in note:  # Fine left a manual pose: the technician must know
             self._show_verdict("Fine: your manual pose is kept.", note)
             return

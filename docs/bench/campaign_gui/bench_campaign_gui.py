@@ -1,0 +1,120 @@
+"""Open a campaign in the app and switch between its trees; time both.
+
+Usage (a campaign already run with ``amrst batch``; a display or Xvfb)::
+
+    xvfb-run -s "-screen 0 1920x1080x24" python docs/bench/campaign_gui/bench_campaign_gui.py CAMPAIGN [OUT.json]
+
+Open: ``CampaignPanel.open_campaign`` (manifest and every tree's result files read).
+Switch: from selecting a tree's row until the window is idle again with its scans and
+stored result shown (the load job done, every queued event handled, views drawn).
+Baselines in the same run: the same switches loading the scans alone (what selecting
+a tree did before its stored result was shown), and three of the trees registered
+from scratch (load + Run all: what showing a result cost without the stored one).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import sys
+import time
+
+os.environ.setdefault("QT_API", "pyside6")
+
+
+def _idle(app, session, timeout_s: float = 120.0) -> None:
+    end = time.perf_counter() + timeout_s
+    while time.perf_counter() < end:
+        app.processEvents()
+        if not session.busy:
+            break
+        time.sleep(0.002)
+    for _ in range(5):  # the signals of the applied result, the views' redraws
+        app.processEvents()
+
+
+def main() -> int:
+    from amrst_gui.app import configure_qt, create_app
+
+    configure_qt()
+    app = create_app(sys.argv[:1])
+    from amrst_gui.main_window import MainWindow
+
+    root = sys.argv[1]
+    out = sys.argv[2] if len(sys.argv) > 2 else None
+    win = MainWindow()
+    win.session.discard_guard = None
+    win.resize(1920, 1080)
+    win.show()
+    win.docks["campaign"].raise_()
+    app.processEvents()
+    panel, session = win.campaign_panel, win.session
+    t0 = time.perf_counter()
+    assert panel.open_campaign(root)
+    app.processEvents()
+    open_s = time.perf_counter() - t0
+    ids = [r["tree_id"] for r in panel.rows]
+    switch: dict[str, float] = {}
+    steps: list[str] = []
+    session.step_started.connect(steps.append)
+    for rnd in range(2):  # the second round: files in the page cache, as in use
+        for tree in ids:
+            t0 = time.perf_counter()
+            panel.select_tree(tree)
+            _idle(app, session)
+            if rnd == 1:
+                switch[tree] = time.perf_counter() - t0
+            assert session.stored is not None, tree
+    assert set(steps) == {"load"}, steps  # nothing but loading ran
+    scans_only: dict[str, float] = {}
+    for tree in ids:
+        entry = panel.campaign.tree(tree)
+        paths = [panel.campaign.root / s for s in entry.scans]
+        ref = entry.reference
+        t0 = time.perf_counter()
+        session.load_scans(paths[ref], paths[1 - ref if len(paths) == 2 else 1])
+        _idle(app, session)
+        scans_only[tree] = time.perf_counter() - t0
+    baseline: dict[str, float] = {}
+    for tree in ids[:3]:
+        panel.select_tree(tree)
+        _idle(app, session)
+        t0 = time.perf_counter()
+        session.load_scans(session.path("target"), session.path("source"))
+        _idle(app, session)
+        session.run_all()
+        _idle(app, session, 600)
+        baseline[tree] = time.perf_counter() - t0
+    values = sorted(switch.values())
+    doc = {
+        "campaign": root,
+        "trees": len(ids),
+        "open_s": open_s,
+        "switch_s": {
+            "median": statistics.median(values),
+            "max": values[-1],
+            "p90": values[int(0.9 * (len(values) - 1))],
+        },
+        "switch_by_tree_s": switch,
+        "scans_only_switch_s": {
+            "median": statistics.median(scans_only.values()),
+            "max": max(scans_only.values()),
+        },
+        "ratio_median_switch_over_scans_only": statistics.median(values)
+        / statistics.median(scans_only.values()),
+        "register_from_scratch_s": baseline,
+        "ratio_median_register_over_switch": statistics.median(baseline.values())
+        / statistics.median(values),
+        "load": os.getloadavg(),
+    }
+    print(json.dumps({k: v for k, v in doc.items() if k != "switch_by_tree_s"}, indent=1))
+    if out:
+        with open(out, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
+    win.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
