@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -171,7 +171,10 @@ class CampaignPanel(QWidget):
         for i in range(self.table.rowCount()):
             if self._id_at(i) == tree_id:
                 self.table.selectRow(i)
-                self.table.scrollTo(self.table.model().index(i, 0))
+                index = self.table.model().index(i, 0)
+                center = QAbstractItemView.ScrollHint.PositionAtCenter
+                self.table.scrollTo(index, center)  # and again once laid out
+                QTimer.singleShot(0, lambda: self.table.scrollTo(index, center))
                 return
 
     def selected_ids(self) -> list[str]:
