@@ -21,6 +21,7 @@ with its stored result (None when the tree has none), for ``Session.load_stored`
 from __future__ import annotations
 
 import logging
+from functools import partial
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt, QTimer, Signal
@@ -174,7 +175,7 @@ class CampaignPanel(QWidget):
                 index = self.table.model().index(i, 0)
                 center = QAbstractItemView.ScrollHint.PositionAtCenter
                 self.table.scrollTo(index, center)  # and again once laid out
-                QTimer.singleShot(0, lambda: self.table.scrollTo(index, center))
+                QTimer.singleShot(0, partial(self.table.scrollTo, index, center))
                 return
 
     def selected_ids(self) -> list[str]:

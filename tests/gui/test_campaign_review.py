@@ -164,7 +164,7 @@ def test_stored_tree_and_link_list(campaign):
     assert (len(tree.scans), len(tree.links)) == (3, 3)
     doc = _doc(campaign, "T02", "scans.json")
     assert [c[1] for c in link_cells(tree)] == [d["verdict"] for d in doc["links"]]
-    assert [c[5] == "tree" for c in link_cells(tree)] == [
+    assert [c[5] == "yes" for c in link_cells(tree)] == [
         d["in_tree"] for d in doc["links"]
     ]
     assert scan_how(tree, 0, 0) == "reference"
