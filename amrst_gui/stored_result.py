@@ -46,6 +46,8 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
 
     if TYPE_CHECKING:
         params_changed: Any
+        truth_loaded: Any
+        _truth_path: Path | None
 
         def _start_load(self, paths: dict[str, Path]) -> None: ...
 
@@ -215,6 +217,9 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
             self._step_params[step] = params
         self._stored = stored
         self._stored_matches, self._stored_fine = self._matches, fine
+        truth = None if stored.T_truth is None else np.asarray(stored.T_truth, float)
+        if truth is not None:  # the tree's truth file, for this link
+            self._truth, self._truth_path = truth, None
         log.info(
             "Showing the stored result of %s: %s (no step ran).",
             stored.label,
@@ -226,6 +231,8 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
             # fine_finished (the fine result is the stored pose too), and each
             # redraw costs a switch between trees time.
             self.params_changed.emit(params)
+            if truth is not None:
+                self.truth_loaded.emit(truth)
             self.matches_changed.emit()
             self.fine_finished.emit(fine)
 

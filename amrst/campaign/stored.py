@@ -86,6 +86,7 @@ class StoredLinkResult:
     tree: dict[str, dict[str, Any]]
     params: dict[str, Any] | None
     label: str
+    T_truth: Transform | None = None  # world T_target_source from the tree's truth
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,7 @@ class StoredTree:
     tree: dict[str, dict[str, Any]]
     params: dict[str, Any] | None
     pair_metrics: dict[str, Any] | None = field(default=None, repr=False)
+    truth: tuple[Transform, ...] | None = None  # true T_reference_scan per scan
 
     def default_link(self) -> tuple[int, int]:
         """Return the link to show first: the reference and the first other scan."""
@@ -131,6 +133,9 @@ class StoredTree:
         link = self.link(target, source)
         pair = self.pair_metrics
         label = f"tree {self.tree_id}, scans {target}-{source}"
+        truth = None
+        if self.truth is not None:
+            truth = invert_transform(self.truth[target]) @ self.truth[source]
         if pair is not None and {target, source} == {0, 1} and target == self.reference:
             coarse = pair.get("coarse") or {}
             return StoredLinkResult(
@@ -147,6 +152,7 @@ class StoredTree:
                 tree=dict(pair.get("tree") or self.tree),
                 params=self.params,
                 label=label,
+                T_truth=truth,
             )
         return StoredLinkResult(
             target=target,
@@ -162,6 +168,7 @@ class StoredTree:
             tree=dict(self.tree),
             params=self.params,
             label=label,
+            T_truth=truth,
         )
 
 
@@ -239,6 +246,18 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         for d in doc.get("links", [])
     )
     pair = _read(out / "metrics.json") if len(scans) == 2 else None
+    truth = None
+    if entry.truth is not None:
+        from amrst.errors import AmrstError
+        from amrst.multiscan.export import read_scan_truth
+
+        try:
+            reference = int(doc.get("reference", entry.reference))
+            truth = tuple(
+                read_scan_truth(campaign.root / entry.truth, len(scans), reference)
+            )
+        except AmrstError:  # a bad truth file: the result shows without truth errors
+            truth = None
     return StoredTree(
         tree_id=tree_id,
         reference=int(doc.get("reference", entry.reference)),
@@ -249,4 +268,5 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         tree=dict(doc.get("tree") or {}),
         params=_read(out / "params.json"),
         pair_metrics=pair,
+        truth=truth,
     )

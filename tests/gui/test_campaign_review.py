@@ -115,11 +115,16 @@ def test_select_review_accept_export_a_stored_tree(
         session.world(session.final_transform), expected, atol=1e-9
     )
     assert steps == ["load", "load"]
+    # the tree's truth file, for this link: its errors show as for a case
+    err = session.truth_errors()["fine"]
+    assert err.rotation_error_deg < 1.0
+    assert err.gt_rmse_m < 0.05
 
     # a tree not run: its scans, no result
     _show(qtbot, panel, session, "T03")
     assert session.final_transform is None
     assert session.stored is None
+    assert session.truth is None  # the last tree's truth went with it
     assert [listing.scans.item(k, 2).text() for k in range(2)] == [
         "not run",
         "reference",  # target.ply, the second in name order
