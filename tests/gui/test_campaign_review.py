@@ -190,3 +190,21 @@ def test_stored_tree_and_link_list(campaign):
     assert batch_state("not run", "a", {"a"}, set()) == "queued"
     assert batch_state("not run", "a", set(), {"a"}) == "running"
     assert batch_state("registered", "a", set(), set()) == "registered"
+
+
+def test_app_opens_a_campaign_from_the_command_line(
+    make_main_window, qtbot, campaign, tmp_path, capsys
+):
+    from amrst_gui.__main__ import _open_campaign, parse_args
+
+    args = parse_args(["--campaign", str(campaign), "--tree", "T02"])
+    win = make_main_window()
+    assert not _open_campaign(win, tmp_path / "nothing", None)
+    assert capsys.readouterr().err.startswith("amrst-gui: ")  # one line, no traceback
+    assert not _open_campaign(win, campaign, "T99")
+    assert "no tree 'T99'" in capsys.readouterr().err
+    with qtbot.waitSignal(win.session.fine_finished, timeout=20_000):
+        assert _open_campaign(win, args.campaign, args.tree)
+    qtbot.waitUntil(lambda: not win.session.busy, timeout=5_000)
+    assert win.campaign_panel.selected_ids() == ["T02"]
+    assert "T02" in win.session.stored.label
