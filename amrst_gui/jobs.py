@@ -28,9 +28,28 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     for i, (role, path) in enumerate(paths.items()):
         reporter.check_cancelled()
         reporter.progress(i / len(paths), f"Reading {role} {Path(path).name}")
-        clouds[role] = io.read(path)
+        clouds[role] = read_scan(path) if is_scan_spec(path) else io.read(path)
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
+
+
+def is_scan_spec(path: Path) -> bool:
+    """Tell whether ``path`` names one scan of a multi-scan file (``plot.e57#2``)."""
+    from amrst.errors import AmrstError
+    from amrst.io.scans import split_spec
+
+    try:
+        file, scans = split_spec(path)
+    except AmrstError:
+        return False
+    return scans is not None and len(scans) == 1 and file.is_file()
+
+
+def read_scan(spec: Path) -> Any:
+    """Read the one scan a ``FILE#k`` spec names (a campaign's E57/PTX trees)."""
+    from amrst.io.scans import read_scans
+
+    return read_scans(spec)[0]
 
 
 def _both(

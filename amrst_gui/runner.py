@@ -127,7 +127,7 @@ class RunnerMixin:
                     "scan files themselves."
                 )
                 return
-            if not path.is_file():
+            if not path.is_file() and not jobs.is_scan_spec(path):  # plot.e57#2
                 self._fail(f"The file {path} does not exist.")
                 return
         if not self.may_discard("Opening other scans"):

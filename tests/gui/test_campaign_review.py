@@ -21,11 +21,13 @@ TINY_TREE = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.p
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    """T01: the sample pair, T02: three simulated scans (both run), T03: not run."""
+    """T01: the sample pair, T02: three simulated scans, T04: two scans of one E57
+    file (these three run), T03: not run."""
     from amrst import io
     from amrst.campaign import init_campaign, load_campaign
     from amrst.campaign.batch import pending_trees
     from amrst.campaign.run import run_tree
+    from amrst.io.e57 import write_e57
     from amrst.multiscan.simulate import simulate_scans, write_scans
 
     root = tmp_path_factory.mktemp("campaign")
@@ -33,9 +35,10 @@ def campaign(tmp_path_factory) -> Path:
         (root / tree).mkdir()
         for name in ("target.ply", "source.ply"):
             shutil.copy(SAMPLE / name, root / tree / name)
-    write_scans(
-        simulate_scans(io.read(TINY_TREE), 3, seed=0, res_deg=0.2), root / "T02"
-    )
+    sim = simulate_scans(io.read(TINY_TREE), 3, seed=0, res_deg=0.2)
+    write_scans(sim, root / "T02")
+    (root / "T04").mkdir()
+    write_e57(root / "T04" / "plot.e57", sim.scans[:2])
     init_campaign(root)
     todo, _, doc = pending_trees(load_campaign(root))
     for entry, stamp in todo:
@@ -119,6 +122,12 @@ def test_select_review_accept_export_a_stored_tree(
     err = session.truth_errors()["fine"]
     assert err.rotation_error_deg < 1.0
     assert err.gt_rmse_m < 0.05
+
+    # scans of one E57 file (FILE#k in the manifest) open the same way
+    _show(qtbot, panel, session, "T04")
+    assert session.path("target").name == "plot.e57#0"
+    assert session.stored is not None
+    assert session.is_done("fine")
 
     # a tree not run: its scans, no result
     _show(qtbot, panel, session, "T03")
