@@ -1,0 +1,60 @@
+"""The batch's worker events: a tree is running from its start to its end on a worker.
+
+A real Dask LocalCluster (processes) with one worker: the events come in order,
+started then finished for each tree, never two trees open at once; a tree run outside
+Dask runs as before.
+"""
+
+from __future__ import annotations
+
+import shutil
+import threading
+
+import pytest
+
+from amrst.campaign import init_campaign, run_batch
+
+
+@pytest.mark.slow
+def test_one_worker_runs_one_tree_at_a_time(tmp_path, sample_pair):
+    for tree in ("T01", "T02"):
+        (tmp_path / tree).mkdir()
+        for path in (sample_pair.target_path, sample_pair.source_path):
+            shutil.copy(path, tmp_path / tree / path.name)
+    campaign, _ = init_campaign(tmp_path)
+    events: list[tuple[str, str]] = []
+    lock = threading.Lock()
+
+    def record(tree_id: str, event: str) -> None:
+        with lock:  # called from the Dask client's thread
+            events.append((tree_id, event))
+
+    summary = run_batch(campaign, workers=1, on_worker_event=record)
+    assert sorted(summary.registered) == ["T01", "T02"]
+    open_trees: set[str] = set()
+    for tree_id, event in events:
+        if event == "started":
+            assert not open_trees, events  # one worker: one tree at a time
+            open_trees.add(tree_id)
+        else:
+            assert open_trees == {tree_id}, events
+            open_trees.clear()
+    assert sorted(events) == sorted(
+        (t, e) for t in ("T01", "T02") for e in ("started", "finished")
+    )
+
+
+def test_a_tree_run_outside_dask_still_runs(tmp_path, sample_pair):
+    # no Dask worker to tell (get_worker fails): the tree runs and reports as ever
+    from amrst.campaign import load_campaign
+    from amrst.campaign.batch import pending_trees
+    from amrst.campaign.run import run_tree
+
+    (tmp_path / "T01").mkdir()
+    for path in (sample_pair.target_path, sample_pair.source_path):
+        shutil.copy(path, tmp_path / "T01" / path.name)
+    init_campaign(tmp_path)
+    todo, _, doc = pending_trees(load_campaign(tmp_path))
+    entry, stamp = todo[0]
+    row = run_tree(str(tmp_path), entry, doc, stamp)
+    assert row["ok"], row
