@@ -217,3 +217,37 @@ def test_app_opens_a_campaign_from_the_command_line(
     qtbot.waitUntil(lambda: not win.session.busy, timeout=5_000)
     assert win.campaign_panel.selected_ids() == ["T02"]
     assert "T02" in win.session.stored.label
+
+
+@pytest.mark.slow
+def test_manual_recovery_from_a_stored_result(make_main_window, qtbot, campaign):
+    from amrst.stages.candidates import Origin
+
+    win = make_main_window()
+    session, panel = win.session, win.campaign_panel
+    assert panel.open_campaign(campaign)
+    _show(qtbot, panel, session, "T02")
+    stored = session.world(session.final_transform)
+    steps: list[str] = []
+    session.step_started.connect(steps.append)
+    # a typed pose 3 cm off the stored one: scored as a candidate, first in the list
+    T = session.final_transform.copy()
+    T[0, 3] += 0.03
+    with qtbot.waitSignal(session.matches_changed, timeout=60_000):
+        session.add_manual_pose(T, "typed")
+    qtbot.waitUntil(lambda: not session.busy, timeout=5_000)
+    assert steps == ["separate", "manual"]  # no skeleton, no match
+    assert [c.origin for c in session.matches] == [Origin.MANUAL, Origin.TETRAHEDRA]
+    assert session.stored is not None  # still shown until a step replaces it
+    with qtbot.waitSignal(session.coarse_accepted, timeout=60_000):
+        session.accept_coarse()
+    assert steps[2:] == ["coarse"]
+    assert session.accepted_coarse.candidate.origin == Origin.MANUAL
+    assert session.stored is None  # the accepted manual pose replaced it
+    with qtbot.waitSignal(session.fine_finished, timeout=90_000):
+        session.run_step("fine")
+    qtbot.waitUntil(lambda: not session.busy, timeout=5_000)
+    assert steps[3:] == ["fine"]
+    # Fine from the manual pose comes back to the stored one (within 1 cm)
+    moved = session.world(session.final_transform)
+    assert abs(moved[0, 3] - stored[0, 3]) < 0.01
