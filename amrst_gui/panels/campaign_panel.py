@@ -71,6 +71,7 @@ class CampaignPanel(QWidget):
         self._queued: set[str] = set()  # submitted to the batch, not started yet
         self._running: set[str] = set()  # started on a worker, not finished
         self.stored: StoredTree | None = None  # of the selected tree
+        self._shown = (0, 1)  # the link of the selected tree the views show
         self.tree_scans = TreeScansPanel()
         self.title = QLabel("No campaign open")
         self.filter_edit = QLineEdit()
@@ -289,6 +290,7 @@ class CampaignPanel(QWidget):
         entry = self.campaign.tree(ids[0])
         stored = self.stored
         result = None if stored is None else stored.link_result(target, source)
+        self._shown = (target, source)
         self.tree_scans.mark_shown((target, source))
         self.link_chosen.emit(
             str(self.campaign.root / entry.scans[target]),
@@ -297,8 +299,6 @@ class CampaignPanel(QWidget):
         )
 
     def _on_selection(self) -> None:
-        from amrst.campaign.stored import read_stored_tree
-
         self._update_buttons()
         ids = self.selected_ids()
         if len(ids) != 1 or self.campaign is None:
@@ -307,35 +307,50 @@ class CampaignPanel(QWidget):
         order = [entry.reference] + [
             k for k in range(len(entry.scans)) if k != entry.reference
         ]
-        # The stored result, read from the tree's folder (no registration).
-        self.stored = read_stored_tree(self.campaign, ids[0])
-        shown = (order[0], order[1])
-        if self.stored is not None:
-            shown = self.stored.default_link()
-        self.tree_scans.show_tree(entry, self.stored, shown)
+        shown = self._list_tree(ids[0])
         self.tree_selected.emit(
             ids[0], [str(self.campaign.root / entry.scans[k]) for k in order]
         )
         self.show_link(*shown)
 
+    def _list_tree(self, tree_id: str) -> tuple[int, int]:
+        """Read a tree's stored result (no registration) and list its scans and
+        links; return the link to show first."""
+        from amrst.campaign.stored import read_stored_tree
+
+        assert self.campaign is not None  # only with a tree selected
+        entry = self.campaign.tree(tree_id)
+        self.stored = read_stored_tree(self.campaign, tree_id)
+        others = [k for k in range(len(entry.scans)) if k != entry.reference]
+        shown = (entry.reference, others[0])
+        if self.stored is not None:
+            shown = self.stored.default_link()
+        self.tree_scans.show_tree(entry, self.stored, shown)
+        return shown
+
     def _on_progress(self, fraction: float, message: str) -> None:
         from amrst.campaign.batch import ReporterProgress
 
         started, ended = ReporterProgress.STARTED, ReporterProgress.FINISHED
+        finished: list[str] = []
         if message.startswith(started):
             tree_id = message[len(started) :]
             if tree_id in self._queued:  # not when its result came first
                 self._queued.discard(tree_id)
                 self._running.add(tree_id)
         elif message.startswith(ended):
-            self._running.discard(message[len(ended) :])
+            finished = [message[len(ended) :]]
         elif message:
-            for tree_id in [
+            finished = [
                 t for t in self._queued | self._running if message.startswith(f"{t}: ")
-            ]:
-                self._queued.discard(tree_id)
-                self._running.discard(tree_id)
+            ]
             self._say(f"{fraction:.0%} of the trees done; last: {message}")
+        for tree_id in finished:
+            self._queued.discard(tree_id)
+            self._running.discard(tree_id)
+            if self.selected_ids() == [tree_id]:  # its links are new: list them
+                self._list_tree(tree_id)
+                self.tree_scans.mark_shown(self._shown)  # the views keep theirs
         self.refresh()
 
     def _on_done(self, summary) -> None:

@@ -53,11 +53,17 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     panel.rows_changed.connect(
         lambda: seen.append({r["tree_id"]: r["state"] for r in panel.rows})
     )
+    panel.select_tree("T01")  # not run yet: its scans, no links
+    assert panel.tree_scans.links.rowCount() == 0
+    assert panel.tree_scans.scans.item(0, 2).text() == "not run"
     panel.run_remaining()
     # submitted, not started: queued, never "running" before a worker takes it
     assert panel.state_of("T01") == "queued"
     assert panel.state_of("T02") == "queued"
     qtbot.waitUntil(lambda: panel.job is None, timeout=120_000)
+    # the selected tree finished: its link is listed at once
+    assert panel.tree_scans.links.rowCount() == 1
+    assert panel.tree_scans.links.item(0, 1).text() == "verified"
     running = [sorted(t for t, s in snap.items() if s == "running") for snap in seen]
     # one worker: at most one tree running at a time, and T01 was seen running on it
     # while T02 waited (T01 is submitted first; T02's corrupt scan fails in no time)
@@ -79,6 +85,7 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     panel.needs_person.setChecked(False)
     panel.filter_edit.setText("T0")
     assert not any(panel.table.isRowHidden(i) for i in range(3))
+    panel.table.clearSelection()
     with qtbot.waitSignal(panel.tree_selected) as selected:
         panel.select_tree("T01")
     assert selected.args[0] == "T01"
