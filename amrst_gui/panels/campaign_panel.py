@@ -41,7 +41,12 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError
-from amrst_gui.panels.campaign_rows import COLUMNS, row_cells, row_hidden
+from amrst_gui.panels.campaign_rows import (
+    COLUMNS,
+    BatchTracker,
+    row_cells,
+    row_hidden,
+)
 from amrst_gui.panels.campaign_scans import TreeScansPanel
 from amrst_gui.workers import StageJob, run_stage
 
@@ -68,8 +73,7 @@ class CampaignPanel(QWidget):
         self.campaign: Campaign | None = None
         self.rows: list[dict] = []
         self.job: StageJob | None = None
-        self._queued: set[str] = set()  # submitted to the batch, not started yet
-        self._running: set[str] = set()  # started on a worker, not finished
+        self.batch = BatchTracker()  # queued and running trees of the batch
         self.stored: StoredTree | None = None  # of the selected tree
         self._shown = (0, 1)  # the link of the selected tree the views show
         self.tree_scans = TreeScansPanel()
@@ -148,7 +152,7 @@ class CampaignPanel(QWidget):
 
     def refresh(self) -> None:
         """Re-read every tree's state from the campaign folder and redraw the table."""
-        from amrst.campaign.review import STATE_ORDER, batch_state, review_state
+        from amrst.campaign.review import STATE_ORDER, review_state
         from amrst.campaign.table import campaign_rows
 
         if self.campaign is None:
@@ -156,9 +160,7 @@ class CampaignPanel(QWidget):
         rows = campaign_rows(self.campaign)
         for row in rows:
             state = review_state(self.campaign, row["tree_id"], row["status"])
-            row["state"] = batch_state(
-                state, row["tree_id"], self._queued, self._running
-            )
+            row["state"] = self.batch.state(state, row["tree_id"])
         rows.sort(key=lambda r: (STATE_ORDER.index(r["state"]), r["tree_id"]))
         self.rows = rows
         self._fill()
@@ -226,10 +228,9 @@ class CampaignPanel(QWidget):
         if self.campaign is None or self.job is not None:
             return
         # Queued until a worker starts them (its event marks them running).
-        self._queued = {
-            r["tree_id"] for r in self.rows if r["state"] in ("not run", "failed")
-        }
-        self._running = set()
+        self.batch.submit(
+            {r["tree_id"] for r in self.rows if r["state"] in ("not run", "failed")}
+        )
         self.refresh()
         self.job = run_stage(
             run_remaining,
@@ -331,26 +332,13 @@ class CampaignPanel(QWidget):
     def _on_progress(self, fraction: float, message: str) -> None:
         from amrst.campaign.batch import ReporterProgress
 
-        started, ended = ReporterProgress.STARTED, ReporterProgress.FINISHED
-        finished: list[str] = []
-        if message.startswith(started):
-            tree_id = message[len(started) :]
-            if tree_id in self._queued:  # not when its result came first
-                self._queued.discard(tree_id)
-                self._running.add(tree_id)
-        elif message.startswith(ended):
-            finished = [message[len(ended) :]]
-        elif message:
-            finished = [
-                t for t in self._queued | self._running if message.startswith(f"{t}: ")
-            ]
-            self._say(f"{fraction:.0%} of the trees done; last: {message}")
-        for tree_id in finished:
-            self._queued.discard(tree_id)
-            self._running.discard(tree_id)
+        for tree_id in self.batch.on_message(message):
             if self.selected_ids() == [tree_id]:  # its links are new: list them
                 self._list_tree(tree_id)
                 self.tree_scans.mark_shown(self._shown)  # the views keep theirs
+        events = (ReporterProgress.STARTED, ReporterProgress.FINISHED)
+        if message and not message.startswith(events):  # a tree's result
+            self._say(f"{fraction:.0%} of the trees done; last: {message}")
         self.refresh()
 
     def _on_done(self, summary) -> None:
@@ -364,7 +352,7 @@ class CampaignPanel(QWidget):
 
     def _on_finished(self) -> None:
         self.job = None
-        self._queued, self._running = set(), set()
+        self.batch.clear()
         self.refresh()
 
     def _choose_folder(self) -> None:

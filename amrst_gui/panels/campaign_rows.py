@@ -48,3 +48,53 @@ def row_hidden(row: dict[str, Any], text: str, needs_person: bool) -> bool:
         bool(text) and text not in row["tree_id"].lower() and text not in row["state"]
     )
     return hide or (needs_person and row["state"] not in NEEDS_PERSON)
+
+
+class BatchTracker:
+    """Which trees of a running batch wait and which run, from its progress messages.
+
+    ``amrst.campaign.batch.ReporterProgress`` tells ``STARTED + id`` and
+    ``FINISHED + id`` when a Dask worker starts and ends a tree (worker events), and
+    ``"<id>: <verdict or error>"`` when the batch has its result. A tree is *queued*
+    from submission until a worker starts it, then *running* until it ends.
+    """
+
+    def __init__(self) -> None:
+        self.queued: set[str] = set()  # submitted, not started on a worker
+        self.running: set[str] = set()  # started on a worker, not finished
+
+    def submit(self, tree_ids: set[str]) -> None:
+        """A new batch: these trees wait for a worker."""
+        self.queued, self.running = set(tree_ids), set()
+
+    def clear(self) -> None:
+        """The batch is over (done, failed or cancelled)."""
+        self.queued, self.running = set(), set()
+
+    def state(self, state: str, tree_id: str) -> str:
+        """The state to list for a tree whose folder says ``state``."""
+        from amrst.campaign.review import batch_state
+
+        return batch_state(state, tree_id, self.queued, self.running)
+
+    def on_message(self, message: str) -> list[str]:
+        """Take one progress message; return the trees it says finished."""
+        from amrst.campaign.batch import ReporterProgress
+
+        started, ended = ReporterProgress.STARTED, ReporterProgress.FINISHED
+        if message.startswith(started):
+            tree_id = message[len(started) :]
+            if tree_id in self.queued:  # not when its result came first
+                self.queued.discard(tree_id)
+                self.running.add(tree_id)
+            return []
+        if message.startswith(ended):
+            finished = [message[len(ended) :]]
+        else:
+            finished = [
+                t for t in self.queued | self.running if message.startswith(f"{t}: ")
+            ]
+        for tree_id in finished:
+            self.queued.discard(tree_id)
+            self.running.discard(tree_id)
+        return finished

@@ -251,3 +251,24 @@ def test_manual_recovery_from_a_stored_result(make_main_window, qtbot, campaign)
     # Fine from the manual pose comes back to the stored one (within 1 cm)
     moved = session.world(session.final_transform)
     assert abs(moved[0, 3] - stored[0, 3]) < 0.01
+
+
+def test_batch_tracker_running_only_between_worker_events():
+    from amrst.campaign.batch import ReporterProgress as P
+    from amrst_gui.panels.campaign_rows import BatchTracker
+
+    batch = BatchTracker()
+    batch.submit({"A", "B"})
+    assert [batch.state("not run", t) for t in "AB"] == ["queued", "queued"]
+    assert batch.on_message(P.STARTED + "A") == []
+    assert [batch.state("not run", t) for t in "AB"] == ["running", "queued"]
+    assert batch.on_message(P.FINISHED + "A") == ["A"]  # its files are written
+    assert batch.state("registered", "A") == "registered"
+    assert batch.on_message(P.STARTED + "A") == []  # a late event changes nothing
+    assert batch.state("registered", "A") == "registered"
+    # a result before its worker's event (a fast failure): finished, never running
+    assert batch.on_message("B: b.ply is not a point cloud: ...") == ["B"]
+    assert batch.on_message(P.STARTED + "B") == []
+    assert batch.state("failed", "B") == "failed"
+    batch.clear()
+    assert batch.state("not run", "A") == "not run"
