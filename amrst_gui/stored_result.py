@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst_gui import steps
 from amrst_gui.results import ResultsMixin
 from amrst_gui.step_jobs import StepJobsMixin
 
@@ -146,6 +147,7 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
                 params = params_from_dict(stored.params)
             except AmrstError as exc:  # keep the current parameters
                 log.warning("%s: its params.json is not used: %s", stored.label, exc)
+        same_params = steps.values_equal(params, self._params)
         self._params = params
         T = self.local(np.asarray(stored.T_world, float))
         try:
@@ -230,7 +232,8 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
             # Not coarse_accepted: every view drawn on it draws again on
             # fine_finished (the fine result is the stored pose too), and each
             # redraw costs a switch between trees time.
-            self.params_changed.emit(params)
+            if not same_params:  # the Parameters dock rebuilds on it
+                self.params_changed.emit(params)
             if truth is not None:
                 self.truth_loaded.emit(truth)
             self.matches_changed.emit()
