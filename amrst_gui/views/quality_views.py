@@ -274,7 +274,7 @@ class StemSlicesPane(QWidget):
             "scan_loaded",
             "scans_swapped",
         ):
-            getattr(session, name).connect(lambda *_a: self.refresh())
+            getattr(session, name).connect(self._on_result)
 
     def refresh(self) -> None:
         """Slice both scans under the best transform so far."""
@@ -328,6 +328,10 @@ class StemSlicesPane(QWidget):
         self._job = None
         if isValid(self.view):  # the window may have closed while slicing
             self.view.set_slices(slices, caption)
+
+    def _on_result(self, *_args) -> None:
+        if self.isVisible():  # a hidden tab slices when shown (showEvent)
+            self.refresh()
 
     def showEvent(self, event) -> None:
         super().showEvent(event)
