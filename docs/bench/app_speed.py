@@ -65,10 +65,17 @@ class Watchdog:
             while True:
                 time.sleep(after_s / 2)
                 if time.perf_counter() - self.last > after_s:
-                    frame = sys._current_frames().get(main)
-                    stack = "".join(traceback.format_stack(frame)[-8:])
+                    # Every thread: a worker in a long C call that holds the
+                    # GIL stalls the GUI thread too.
+                    stacks = [
+                        f"-- thread {ident}{' (GUI)' if ident == main else ''}\n"
+                        + "".join(traceback.format_stack(frame)[-6:])
+                        for ident, frame in sys._current_frames().items()
+                        if ident != threading.get_ident()
+                    ]
                     sys.stderr.write(
-                        f"STALL {time.perf_counter() - self.last:.2f}s\n{stack}"
+                        f"STALL {time.perf_counter() - self.last:.2f}s\n"
+                        + "".join(stacks)
                     )
 
         threading.Thread(target=watch, daemon=True).start()
@@ -228,7 +235,7 @@ def child(args) -> None:
     app, win = _window()
     dog = Watchdog()
     if args.trace:
-        dog.trace()
+        dog.trace(args.trace)
     out: dict = {}
     if args.phase in ("load", "all"):
         out.update(_load(app, win, args.target, args.source, dog))
@@ -262,8 +269,11 @@ def _run_child(code: Path, args, phase: str) -> dict:
         *("--target", str(args.target), "--source", str(args.source)),
         *("--cancel-target", str(args.cancel_target)),
         *("--cancel-source", str(args.cancel_source)),
+        *(("--trace", str(args.trace)) if args.trace else ()),
     ]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    if args.trace:
+        sys.stderr.write(proc.stderr)
     for line in proc.stdout.splitlines():
         if line.startswith("RESULT "):
             return json.loads(line[7:])
@@ -331,7 +341,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source-points", type=int, default=2_000_000)
     p.add_argument("--cancel-points", type=int, default=2_000_000)
     p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--trace", action="store_true", help="print what stalls (child)")
+    p.add_argument(
+        "--trace",
+        type=float,
+        nargs="?",
+        const=0.3,
+        help="print what the GUI thread runs when it stalls this long (s)",
+    )
     p.add_argument(
         "--data", type=Path, default=Path(tempfile.gettempdir()) / "amrst-app-speed"
     )
