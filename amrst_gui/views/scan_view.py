@@ -321,10 +321,10 @@ class ScanView(QWidget):
 
     def _sync_caption(self) -> None:
         """Draw the title with "showing N of M points" as drawn at rest."""
-        title = (
-            next((ly for ly in self._scene.layers if ly.name == "title"), None)
-            if self._scene is not None
-            else None
+        layers = () if self._scene is None else self._scene.layers
+        title = next(
+            (ly for ly in layers if isinstance(ly, TextLayer) and ly.name == "title"),
+            None,
         )
         if title is None:
             self._caption = None
