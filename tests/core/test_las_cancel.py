@@ -47,7 +47,8 @@ def test_a_chunked_read_is_the_whole_file(tmp_path) -> None:
     )
     assert set(back.attributes) == set(cloud.attributes)
     # One progress report per chunk, the last at the end.
-    assert len(fractions) == 3 and fractions[-1] == 1.0
+    assert len(fractions) == 3
+    assert fractions[-1] == 1.0
 
 
 @pytest.mark.slow
@@ -69,6 +70,7 @@ def test_cancel_stops_a_laz_read_within_a_second(big_laz) -> None:
     cancel_at = time.perf_counter()
     reporter.cancel()
     worker.join(30)
-    assert "cancelled" in outcome and "cloud" not in outcome
+    assert "cancelled" in outcome
+    assert "cloud" not in outcome
     latency = outcome["t"] - cancel_at
     assert latency < 1.0, f"the read went on {latency:.2f} s after Cancel"

@@ -61,7 +61,8 @@ def test_cancel_stops_loading_a_big_pair_and_keeps_nothing(
     assert idle < 1.0, f"the app was busy {idle:.2f} s after Cancel"
     assert stopped < 1.0, f"the reading went on {stopped:.2f} s after Cancel"
     assert loaded == []
-    assert s.cloud("target") is None and s.cloud("source") is None
+    assert s.cloud("target") is None
+    assert s.cloud("source") is None
     # And the same files load in full afterwards.
     with qtbot.waitSignals([s.scan_loaded] * 2, timeout=120_000):
         win.open_pair(*big_laz_pair)
