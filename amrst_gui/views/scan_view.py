@@ -293,8 +293,7 @@ class ScanView(QWidget):
             )
         elif isinstance(layer, TextLayer):
             if layer.name == "title":
-                self._caption = None  # _sync_caption draws it
-                return
+                return  # _sync_caption draws it
             p.add_text(
                 layer.text,
                 position=layer.position,
@@ -333,8 +332,12 @@ class ScanView(QWidget):
             text = with_shown(title.text, self._points.drawn())
         else:
             text = self._caption or title.text
-        if text != self._caption:
-            self._caption = text
+        if text == self._caption:
+            return
+        actor = self.plotter.actors.get(title.name)
+        if self._caption is not None and hasattr(actor, "set_text"):
+            actor.set_text(title.position, text)  # in place: add_text is slow
+        else:
             self.plotter.add_text(
                 text,
                 position=title.position,
@@ -343,6 +346,7 @@ class ScanView(QWidget):
                 name=title.name,
                 render=False,
             )
+        self._caption = text
 
     def _on_frame_start(self, *_args) -> None:
         self._frame_start = time.perf_counter()
