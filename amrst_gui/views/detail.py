@@ -30,12 +30,12 @@ class PointLevels:
         self.level = 0  # the level shown
 
     def set_layer(self, name: str, sets: tuple[Any, ...], point_size: float) -> None:
-        """Replace layer ``name``'s point sets (shown at the current level)."""
+        """Replace layer ``name``'s point sets; drawn at the next :meth:`show`
+        (no actor is made for a level never shown)."""
         self.remove(name)
         self._sets[name] = sets
         self._styles[name] = point_size
         self._actors[name] = {}
-        self._show(name)
 
     def remove(self, name: str) -> None:
         for k in self._actors.pop(name, {}):
