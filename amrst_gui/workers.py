@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import threading
 import traceback
 import warnings
@@ -117,7 +116,6 @@ class StageJob(QObject):
         reporter, worker_done = self.reporter, self.worker_done
 
         def work() -> Any:
-            lower_priority()
             try:
                 return fn(*args, reporter, **kwargs)
             except BaseException as exc:
@@ -240,25 +238,6 @@ def run_stage(
 
 
 _LIVE: set[StageJob] = set()
-
-# Worker threads run this much nicer than the GUI thread (Linux: per thread), so
-# the window keeps its share of the CPU while steps, descriptions and scenes run
-# on every core (issue 15: on 2 cores, five busy workers made one frame take
-# five times as long). Nothing else competes on an idle machine, so the steps take
-# as long as before there.
-WORKER_NICE = 5
-_niced = threading.local()
-
-
-def lower_priority() -> None:
-    """Lower the calling worker thread's CPU priority once (no-op where unsupported)."""
-    if getattr(_niced, "done", False):
-        return
-    _niced.done = True
-    with contextlib.suppress(AttributeError, OSError):
-        tid = threading.get_native_id()
-        now = os.getpriority(os.PRIO_PROCESS, tid)
-        os.setpriority(os.PRIO_PROCESS, tid, min(19, now + WORKER_NICE))
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three
