@@ -18,7 +18,9 @@ the bundled sample, seeded, written to ``--data``):
 - orbit: drag the mouse across the target view (left button, as a user orbits)
   and time the frames drawn while it moves; frames per second;
 - runall: open ``--runall-target`` and ``--runall-source`` (default: the 2M + 2M
-  pair of ``amrst bench-scale``, written to ``--data`` when missing), then Run all
+  pair of ``amrst bench-scale``, written to ``--data`` when missing), Cancel the
+  load once the first chunk of points is read (time to idle, to the reading's
+  end), open the pair again, then Run all
   as a user would; the seconds of each step as the session timed it, the whole
   run from the click to idle, and the longest GUI stall meanwhile;
 - cancel: on a 2M + 2M pair, start each step, cancel it 1 s in (Accept coarse and
@@ -224,8 +226,41 @@ def _cancel(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
     return out
 
 
+def _cancel_load(app, win, target: Path, source: Path) -> dict:
+    """Open the pair and Cancel once the first chunk of points was read; seconds
+    until the app is idle and until the reading stopped (LAS/LAZ only)."""
+    s = win.session
+    marks: dict = {}
+
+    def on_progress(_f: float, message: str) -> None:
+        if "cancel" not in marks and "points read" in message:
+            marks["job"] = getattr(s, "_job", None)
+            marks["cancel"] = time.perf_counter()
+            s.cancel()
+
+    s.progressed.connect(on_progress)
+    start = time.perf_counter()
+    win.open_pair(target, source)
+    _wait(app, lambda: "cancel" in marks or not s.busy, 600)
+    s.progressed.disconnect(on_progress)
+    if "cancel" not in marks:  # no chunked reading (a version before it): the
+        # load ran to its end (and Cancel did not stop it then either)
+        return {"load_cancel_s": None, "load_full_s": time.perf_counter() - start}
+    _wait(app, lambda: not s.busy, 600)
+    idle = time.perf_counter() - marks["cancel"]
+    done = getattr(marks["job"], "worker_done", None)
+    if done is not None:
+        _wait(app, done.is_set, 600)
+    return {
+        "load_cancel_s": idle,
+        "load_worker_stopped_s": time.perf_counter() - marks["cancel"],
+        "load_kept_scans": s.cloud("target") is not None,
+    }
+
+
 def _runall(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
     s = win.session
+    out = _cancel_load(app, win, target, source)
     win.open_pair(target, source)
     _wait(app, lambda: _points_shown(win) and not s.busy, 600)
     _wait(app, lambda: False, 3.0)  # the descriptions and the other views
@@ -236,6 +271,7 @@ def _runall(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
     whole = time.perf_counter() - start
     timings = dict(getattr(s, "_timings", {}))
     return {
+        **out,
         "runall_s": whole,
         "runall_steps_s": {k: v for k, v in timings.items() if k != "load"},
         "runall_max_stall_s": dog.max_gap_s,
@@ -334,6 +370,12 @@ def report(before: dict | None, after: dict) -> str:
         row("orbit frames per second", lambda d: d["orbit_fps"], "")
         row("full-detail frame after the orbit", lambda d: d["rest_frame_s"])
     if "runall_s" in after:
+        row("Cancel while loading: idle after", lambda d: d["load_cancel_s"])
+        row(
+            "Cancel while loading: reading stopped after",
+            lambda d: d["load_worker_stopped_s"],
+        )
+        row("Load that could not be cancelled: ran for", lambda d: d["load_full_s"])
         row("Run all: click to idle", lambda d: d["runall_s"])
         for step in STEPS:
             row(f"Run all: {step}", lambda d, s=step: d["runall_steps_s"][s])
