@@ -120,3 +120,94 @@ class NearestTree:
         if far.any():
             dist[far], idx[far] = np.inf, self.n
         return dist.reshape(shape), idx.reshape(shape)
+
+
+class NeighbourTable:
+    """The ``K`` nearest neighbours of every point of a cloud, from one query.
+
+    The per-scan stages each needed a k-nearest query on a subset of the same
+    preprocessed points (the outlier filter on all of them, the wood features on the
+    points left after the outlier filter and the scene cut, the skeleton graph on a
+    voxel sample of those). The k nearest points of a subset are the first k of the
+    cloud's neighbours that belong to the subset, whenever the K listed hold k of
+    them: :meth:`knn` reads them off the table and queries a tree on the subset only
+    for the rows where too few remain. The answer equals :func:`knn` on the subset,
+    but for the order of neighbours at exactly equal distances.
+
+    Parameters
+    ----------
+    points : (M, 3) float64
+        The whole cloud.
+    dist, idx : (M, K) float64 and int64
+        :func:`knn` of every point of ``points`` (each point its own first neighbour).
+    pos : (N,) int64 or None
+        Sorted positions in ``points`` of the points this view stands for; None: all.
+    """
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        dist: np.ndarray,
+        idx: np.ndarray,
+        pos: np.ndarray | None = None,
+    ) -> None:
+        self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
+
+    @classmethod
+    def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
+        """Query the ``k`` nearest neighbours of every point (k capped at the points)."""
+        pts = _points(points)
+        dist, idx = knn(pts, min(k, len(pts)))
+        return cls(pts, dist, idx)
+
+    @property
+    def k(self) -> int:
+        """Neighbours listed per point (K)."""
+        return int(self._idx.shape[1])
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(N, 3) the points of this view."""
+        return self._points if self._pos is None else self._points[self._pos]
+
+    def __len__(self) -> int:
+        return len(self._points) if self._pos is None else len(self._pos)
+
+    def subset(self, pos: np.ndarray) -> NeighbourTable:
+        """Return the view of the points at ``pos`` (sorted positions in this view)."""
+        pos = np.asarray(pos, dtype=np.int64)
+        if self._pos is not None:
+            pos = self._pos[pos]
+        return NeighbourTable(self._points, self._dist, self._idx, pos)
+
+    def knn(
+        self, k: int, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``knn(self.xyz, k, self.xyz[rows])`` (every point when rows is None)."""
+        n = len(self)
+        if not 1 <= k <= n:
+            raise ValueError(f"k must be within 1..{n}, not {k}")
+        if rows is None and self._pos is None and k <= self.k:
+            return self._dist[:, :k], self._idx[:, :k]
+        rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
+        root = rows if self._pos is None else self._pos[rows]
+        if self._pos is None and k <= self.k:
+            return self._dist[root, :k], self._idx[root, :k]
+        if self._pos is None or k > self.k:
+            return knn(self.xyz, k, self.xyz[rows])
+        inv = np.full(len(self._points), -1, dtype=np.int64)
+        inv[self._pos] = np.arange(n)
+        j = inv[self._idx[root]]
+        member = j >= 0
+        count = np.cumsum(member, axis=1, dtype=np.int32)
+        ok = count[:, -1] >= k
+        take = member & (count <= k)
+        take[~ok] = False
+        dist = np.empty((len(rows), k))
+        idx = np.empty((len(rows), k), dtype=np.int64)
+        dist[ok] = self._dist[root][take].reshape(-1, k)
+        idx[ok] = j[take].reshape(-1, k)
+        if not ok.all():
+            redo = rows[~ok]
+            dist[~ok], idx[~ok] = knn(self.xyz, k, self.xyz[redo])
+        return dist, idx

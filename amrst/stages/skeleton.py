@@ -22,6 +22,8 @@ if TYPE_CHECKING:
     import numpy.typing as npt
     from scipy.sparse import csr_matrix
 
+    from amrst.neighbours import NeighbourTable
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SkeletonParams:
@@ -140,7 +142,9 @@ def _min_edge_per_pair(
     return order[first], sorted_key[first]
 
 
-def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
+def _graph(
+    xyz: np.ndarray, params: SkeletonParams, table: NeighbourTable | None = None
+) -> tuple[csr_matrix, int]:
     """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
 
     Gaps left by occlusion split the wood into components. Candidate bridges are the
@@ -156,7 +160,7 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
 
     n = len(xyz)
     k = min(max(params.neighbours, 16) + 1, n)
-    dist, idx = knn(xyz, k)
+    dist, idx = knn(xyz, k) if table is None else table.knn(k)
     kn = min(params.neighbours + 1, n)
     rows = np.repeat(np.arange(n), kn - 1)
     cols, w = idx[:, 1:kn].ravel(), dist[:, 1:kn].ravel()
@@ -239,7 +243,10 @@ def _prune(parent: np.ndarray, length: np.ndarray, min_len: float) -> np.ndarray
 
 
 def build_skeleton(
-    wood_xyz: np.ndarray, params: SkeletonParams, reporter: Reporter = NULL_REPORTER
+    wood_xyz: np.ndarray,
+    params: SkeletonParams,
+    reporter: Reporter = NULL_REPORTER,
+    neighbours: NeighbourTable | None = None,
 ) -> SkeletonResult:
     """Skeletonise a wood point cloud.
 
@@ -249,6 +256,9 @@ def build_skeleton(
         Wood points (local coordinates), z up.
     params : SkeletonParams
     reporter : Reporter
+    neighbours : NeighbourTable or None
+        The neighbours of exactly ``wood_xyz`` (the preprocess query): the graph's
+        are read off it instead of a new query; the same skeleton.
 
     Returns
     -------
@@ -269,8 +279,12 @@ def build_skeleton(
             f"Only {len(wood_xyz)} wood points: at least {params.min_points} are needed for a "
             "skeleton. Try separation mode 'geometry' or 'all_wood', or a smaller voxel size."
         )
-    xyz = wood_xyz[voxel_sample(wood_xyz, params.voxel_size_m)]
-    graph, bridged = _graph(xyz, params)
+    sample = voxel_sample(wood_xyz, params.voxel_size_m)
+    xyz = wood_xyz[sample]
+    table = None
+    if neighbours is not None and len(neighbours) == len(wood_xyz):
+        table = neighbours.subset(sample)
+    graph, bridged = _graph(xyz, params, table)
     reporter.progress(0.3, "graph built")
     reporter.check_cancelled()
     root = _find_root(xyz, params.root_slice_m)
