@@ -134,3 +134,110 @@ def test_analysis_shares_one_query_per_scan(tiny_tree) -> None:
     np.testing.assert_array_equal(alone.is_wood, an.is_wood)
     skel = build_skeleton(an.xyz, params.skeleton)
     np.testing.assert_array_equal(skel.nodes, an.skeleton.nodes)
+
+
+def _reference_lowest(xyz: np.ndarray, cell_m: float) -> np.ndarray:
+    """fit_ground's lowest point per cell before (unique + lexsort), kept verbatim."""
+    ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    code = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    _, inv = np.unique(code, return_inverse=True)
+    order = np.lexsort((xyz[:, 2], inv))
+    return order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]]
+
+
+def _reference_ransac(A, z, tol, max_slope, iterations, seed):  # type: ignore[no-untyped-def]
+    """The loop _ransac_plane was (kept verbatim)."""
+    rng = np.random.default_rng(seed)
+    best_score, best = -np.inf, np.array([0.0, 0.0, float(np.min(z))])
+    for idx in rng.integers(0, len(z), size=(iterations, 3)):
+        try:
+            coef = np.linalg.solve(A[idx], z[idx])
+        except np.linalg.LinAlgError:
+            continue
+        if np.hypot(coef[0], coef[1]) > max_slope:
+            continue
+        r = z - A @ coef
+        score = np.sum(np.abs(r) < tol) - 3.0 * np.sum(r < -2 * tol)
+        if score > best_score:
+            best_score, best = score, coef
+    return best
+
+
+def _ground_scene(seed: int) -> np.ndarray:
+    """A sloped, bumpy ground on a mm grid (ties in height and on cell edges), with
+    a stem and crown above it."""
+    rng = np.random.default_rng(seed)
+    xy = np.round(rng.uniform(-6, 6, (30_000, 2)), 3)
+    z = (
+        0.1 * xy[:, 0]
+        + 0.05 * np.sin(xy[:, 1])
+        + np.round(rng.normal(0, 0.01, len(xy)), 3)
+    )
+    tree = np.column_stack([rng.normal(0, 0.2, (4000, 2)), rng.uniform(0, 8, 4000)])
+    return np.vstack([np.column_stack([xy, z]), tree])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lowest_point_per_cell_equals_the_lexsort(seed: int) -> None:
+    from amrst.stages.ground import _lowest_per_cell
+
+    xyz = _ground_scene(seed)
+    xyz = np.vstack([xyz, xyz[:500]])  # exact duplicates: ties go to the lowest index
+    for cell in (0.5, 0.25, 1.0):
+        np.testing.assert_array_equal(
+            _lowest_per_cell(xyz, cell), _reference_lowest(xyz, cell)
+        )
+
+
+@pytest.mark.parametrize("n_cells", [5, 60, 900])
+def test_batched_ransac_equals_the_loop(n_cells: int) -> None:
+    """Same plane, singular draws (a cell drawn twice) and steep planes included."""
+    from amrst.stages.ground import _ransac_plane
+
+    rng = np.random.default_rng(n_cells)
+    xy = rng.uniform(-5, 5, (n_cells, 2))
+    z = 0.2 * xy[:, 0] + rng.normal(0, 0.05, n_cells)
+    z[: n_cells // 3] += rng.uniform(0.5, 3, n_cells // 3)  # crown points above
+    A = np.column_stack([xy, np.ones(n_cells)])
+    for slope in (0.05, 0.36, 10.0):
+        got = _ransac_plane(A, z, 0.15, slope, 300, seed=3)
+        np.testing.assert_array_equal(got, _reference_ransac(A, z, 0.15, slope, 300, 3))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_nearest_cell_equals_the_kd_tree(seed: int) -> None:
+    """Grid lookup against cKDTree: points on cell edges and in empty cells too."""
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.ground import fit_ground
+
+    xyz = _ground_scene(seed)
+    fit = fit_ground(
+        xyz,
+        cell_m=0.5,
+        tol_m=0.15,
+        max_slope_deg=20,
+        min_area_m2=4,
+        iterations=300,
+        seed=0,
+    )
+    assert fit.found
+    rng = np.random.default_rng(seed)
+    q = np.vstack(
+        [
+            xyz[::3],
+            rng.uniform(-9, 9, (3000, 3)),  # outside the grid and in empty cells
+            np.column_stack(
+                [np.round(rng.uniform(-6, 6, (2000, 2)) * 2) / 2, np.zeros(2000)]
+            ),
+        ]
+    )
+    got = fit.nearest_cell(q)
+    want = cKDTree(fit.centres).query(q[:, :2])[1]
+    d_got = np.linalg.norm(fit.centres[got] - q[:, :2], axis=1)
+    d_want = np.linalg.norm(fit.centres[want] - q[:, :2], axis=1)
+    np.testing.assert_allclose(d_got, d_want, rtol=0, atol=1e-12)
+    # Off the cell edges (every scan point here) the very same cell.
+    np.testing.assert_array_equal(got[: len(xyz[::3])], want[: len(xyz[::3])])
+    assert np.mean(got == want) > 0.99
