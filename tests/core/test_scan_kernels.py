@@ -241,3 +241,14 @@ def test_nearest_cell_equals_the_kd_tree(seed: int) -> None:
     # Off the cell edges (every scan point here) the very same cell.
     np.testing.assert_array_equal(got[: len(xyz[::3])], want[: len(xyz[::3])])
     assert np.mean(got == want) > 0.99
+
+
+def test_pair_lengths_equal_the_norm_bit_for_bit() -> None:
+    from amrst.stages.stems import _pair_lengths
+
+    rng = np.random.default_rng(4)
+    pts = np.round(rng.normal(size=(3000, 3)) * 5, 3)
+    pairs = rng.integers(0, len(pts), (50_000, 2))
+    want = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
+    np.testing.assert_array_equal(_pair_lengths(pts, pairs), want)
+    assert len(_pair_lengths(pts, np.zeros((0, 2), dtype=np.int64))) == 0
