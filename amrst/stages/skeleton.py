@@ -153,7 +153,7 @@ def _graph(
     several times the cost). Components still apart are linked to the root's one by
     their nearest point. A bridge costs twice its length, so paths prefer real wood.
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import coo_matrix, csr_matrix
     from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
     from amrst.neighbours import NearestTree, knn
@@ -162,18 +162,21 @@ def _graph(
     k = min(max(params.neighbours, 16) + 1, n)
     dist, idx = knn(xyz, k) if table is None else table.knn(k)
     kn = min(params.neighbours + 1, n)
-    rows = np.repeat(np.arange(n), kn - 1)
-    cols, w = idx[:, 1:kn].ravel(), dist[:, 1:kn].ravel()
-    ok = w <= params.max_edge_m
-    rows, cols, w = rows[ok], cols[ok], w[ok]
-    g = coo_matrix((w, (rows, cols)), shape=(n, n))
+    # The kNN edges row by row: built as CSR straight away (rows are in order).
+    ok = dist[:, 1:kn] <= params.max_edge_m
+    per_row = np.count_nonzero(ok, axis=1)
+    cols, w = idx[:, 1:kn][ok], dist[:, 1:kn][ok]
+    rows = np.repeat(np.arange(n), per_row)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(per_row, out=indptr[1:])
+    g = csr_matrix((w, cols, indptr), shape=(n, n))
     n_comp, labels = connected_components(g, directed=False)
     bridged = 0
     if n_comp > 1:
-        e0 = np.repeat(np.arange(n), k - 1)
-        e1, el = idx[:, 1:].ravel(), dist[:, 1:].ravel()
-        cross = (labels[e0] != labels[e1]) & np.isfinite(el)
-        e0, e1, el = e0[cross], e1[cross], el[cross]
+        cross = labels[idx[:, 1:]] != labels[:, None]
+        cross &= np.isfinite(dist[:, 1:])
+        e0, c = np.nonzero(cross)
+        e1, el = idx[:, 1:][e0, c], dist[:, 1:][e0, c]
         if len(e0):
             la, lb = labels[e0].astype(np.int64), labels[e1].astype(np.int64)
             # One code per unordered component pair.
@@ -194,8 +197,10 @@ def _graph(
                 np.r_[w, 2.0 * el[bridges]],
             )
             bridged += len(bridges)
-        g = coo_matrix((w, (rows, cols)), shape=(n, n))
-        n_comp, labels = connected_components(g, directed=False)
+            # Components after bridging: those of the small graph of bridged
+            # components, numbered like connected_components numbers the points'
+            # (by their first point).
+            n_comp, labels = _merge_components(labels, n_comp, a, b)
         if n_comp > 1:
             # Far islands: link each to the largest component by its nearest point.
             main = np.argmax(np.bincount(labels))
@@ -212,6 +217,26 @@ def _graph(
             bridged += len(first)
     g = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     return g.maximum(g.T), bridged
+
+
+def _merge_components(
+    labels: np.ndarray, n_comp: int, a: np.ndarray, b: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """Components of the points once components ``a[i]`` and ``b[i]`` are linked.
+
+    Numbered as scipy's connected_components numbers them on the linked point
+    graph: in the order of each component's first point.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    links = coo_matrix((np.ones(len(a)), (a, b)), shape=(n_comp, n_comp))
+    m, merged = connected_components(links, directed=False)
+    point_labels = merged[labels]
+    _, first = np.unique(point_labels, return_index=True)
+    rank = np.empty(m, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(m)
+    return int(m), rank[point_labels].astype(labels.dtype)
 
 
 def _find_root(xyz: np.ndarray, slice_m: float) -> int:

@@ -252,3 +252,36 @@ def test_pair_lengths_equal_the_norm_bit_for_bit() -> None:
     want = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
     np.testing.assert_array_equal(_pair_lengths(pts, pairs), want)
     assert len(_pair_lengths(pts, np.zeros((0, 2), dtype=np.int64))) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_merged_components_equal_scipys_on_the_linked_graph(seed: int) -> None:
+    """Same labels, same numbering, as connected_components on the point graph with
+    one edge per component link added (what the skeleton graph did before)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from amrst.stages.skeleton import _merge_components
+
+    rng = np.random.default_rng(seed)
+    n = 3000
+    e = rng.integers(0, n, (2200, 2))
+    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    n_comp, labels = connected_components(g, directed=False)
+    links = rng.integers(0, n_comp, (n_comp // 2, 2))
+    # One point of each linked component stands for it in the point graph.
+    first_point = np.array([np.flatnonzero(labels == c)[-1] for c in range(n_comp)])
+    linked = coo_matrix(
+        (
+            np.ones(len(e) + len(links)),
+            (
+                np.r_[e[:, 0], first_point[links[:, 0]]],
+                np.r_[e[:, 1], first_point[links[:, 1]]],
+            ),
+        ),
+        shape=(n, n),
+    )
+    want_n, want = connected_components(linked, directed=False)
+    got_n, got = _merge_components(labels, n_comp, links[:, 0], links[:, 1])
+    assert got_n == want_n < n_comp
+    np.testing.assert_array_equal(got, want)
