@@ -198,15 +198,17 @@ class NeighbourTable:
         inv = np.full(len(self._points), -1, dtype=np.int64)
         inv[self._pos] = np.arange(n)
         j = inv[self._idx[root]]
-        member = j >= 0
-        count = np.cumsum(member, axis=1, dtype=np.int32)
-        ok = count[:, -1] >= k
-        take = member & (count <= k)
-        take[~ok] = False
+        # Flat positions of the listed neighbours that are in the view, row by row;
+        # a row with k of them takes its first k.
+        at = np.flatnonzero(j.ravel() >= 0)
+        count = np.bincount(at // j.shape[1], minlength=len(rows))
+        ok = count >= k
+        start = np.cumsum(count) - count
+        take = at[(start[ok][:, None] + np.arange(k)).ravel()]
         dist = np.empty((len(rows), k))
         idx = np.empty((len(rows), k), dtype=np.int64)
-        dist[ok] = self._dist[root][take].reshape(-1, k)
-        idx[ok] = j[take].reshape(-1, k)
+        dist[ok] = self._dist[root].ravel()[take].reshape(-1, k)
+        idx[ok] = j.ravel()[take].reshape(-1, k)
         if not ok.all():
             redo = rows[~ok]
             dist[~ok], idx[~ok] = knn(self.xyz, k, self.xyz[redo])
