@@ -246,14 +246,16 @@ def _ransac_plane(
 
 
 def _solve_draws(M: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(I, 3) solutions of the (I, 3, 3) systems; NaN rows where one is singular."""
+    """(I, 3) solutions of the (I, 3, 3) systems; NaN rows where one is singular.
+
+    np.linalg.solve refuses a whole batch for one singular system (a draw that
+    repeats a cell often is): the batch is then halved until the singular draws
+    are alone, a few dozen solves instead of one per draw.
+    """
     try:
         return np.asarray(np.linalg.solve(M, b[..., None])[..., 0])
-    except np.linalg.LinAlgError:  # a singular draw: solve one by one
-        out = np.full(b.shape, np.nan)
-        for i in range(len(M)):
-            try:
-                out[i] = np.linalg.solve(M[i], b[i])
-            except np.linalg.LinAlgError:
-                continue
-        return out
+    except np.linalg.LinAlgError:
+        if len(M) == 1:
+            return np.full(b.shape, np.nan)
+        h = len(M) // 2
+        return np.concatenate([_solve_draws(M[:h], b[:h]), _solve_draws(M[h:], b[h:])])
