@@ -150,15 +150,23 @@ class NeighbourTable:
         dist: np.ndarray,
         idx: np.ndarray,
         pos: np.ndarray | None = None,
+        tree: Any = None,
     ) -> None:
         self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
+        self._tree = tree  # small_gicp.KdTree on points, for the rows left short
 
     @classmethod
     def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
         """Query the ``k`` nearest neighbours of every point (k capped at the points)."""
+        import small_gicp
+
         pts = _points(points)
-        dist, idx = knn(pts, min(k, len(pts)))
-        return cls(pts, dist, idx)
+        k = min(k, len(pts))
+        if k < 1:
+            raise ValueError("a neighbour table needs at least one point")
+        tree = small_gicp.KdTree(pts, num_threads=1)
+        idx, sq = tree.batch_knn_search(pts, k, num_threads=1)
+        return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree)
 
     @property
     def k(self) -> int:
@@ -178,7 +186,7 @@ class NeighbourTable:
         pos = np.asarray(pos, dtype=np.int64)
         if self._pos is not None:
             pos = self._pos[pos]
-        return NeighbourTable(self._points, self._dist, self._idx, pos)
+        return NeighbourTable(self._points, self._dist, self._idx, pos, self._tree)
 
     def knn(
         self, k: int, rows: np.ndarray | None = None
@@ -209,7 +217,23 @@ class NeighbourTable:
         idx = np.empty((len(rows), k), dtype=np.int64)
         dist[ok] = self._dist[root].ravel()[take].reshape(-1, k)
         idx[ok] = j.ravel()[take].reshape(-1, k)
-        if not ok.all():
-            redo = rows[~ok]
-            dist[~ok], idx[~ok] = knn(self.xyz, k, self.xyz[redo])
+        short = np.flatnonzero(~ok)
+        if len(short) and self._tree is not None:
+            # More of the cloud's neighbours for the rows left short (a few %).
+            wide = min(2 * self.k, len(self._points))
+            w_idx, w_sq = self._tree.batch_knn_search(
+                self._points[root[short]], wide, num_threads=1
+            )
+            jw = inv[w_idx.view(np.int64)]
+            at = np.flatnonzero(jw.ravel() >= 0)
+            count = np.bincount(at // wide, minlength=len(short))
+            got = count >= k
+            start = np.cumsum(count) - count
+            take = at[(start[got][:, None] + np.arange(k)).ravel()]
+            dist[short[got]] = np.sqrt(w_sq.ravel()[take]).reshape(-1, k)
+            idx[short[got]] = jw.ravel()[take].reshape(-1, k)
+            short = short[~got]
+        if len(short):
+            redo = rows[short]
+            dist[short], idx[short] = knn(self.xyz, k, self.xyz[redo])
         return dist, idx
