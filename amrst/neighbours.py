@@ -6,7 +6,8 @@ small_gicp's KD-tree (imports in about 0.2 s) measured faster than
 ``docs/bench/scale/README.md``): 1.2-1.7x for :func:`knn` (build a tree, then the k
 nearest of many points: the outlier filter, the wood features, the skeleton graph)
 and 1.4-1.9x for :class:`NearestTree` queries (one tree, many queries: ICP
-correspondences, cloud metrics). pykdtree was as fast with one OpenMP thread but
+correspondences, cloud metrics); :class:`NeighbourTable` shares one query between
+the per-scan stages. pykdtree was as fast with one OpenMP thread but
 5-12x slower than scipy with two on this loaded 2-core machine (OpenMP threads
 spin while they wait), so it is not used.
 
@@ -130,9 +131,12 @@ class NeighbourTable:
     points left after the outlier filter and the scene cut, the skeleton graph on a
     voxel sample of those). The k nearest points of a subset are the first k of the
     cloud's neighbours that belong to the subset, whenever the K listed hold k of
-    them: :meth:`knn` reads them off the table and queries a tree on the subset only
-    for the rows where too few remain. The answer equals :func:`knn` on the subset,
-    but for the order of neighbours at exactly equal distances.
+    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K
+    neighbours of the rows where too few remain, and queries the subset afresh only
+    for rows still short. The answer equals :func:`knn` on the subset, but for the
+    order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
+    build and one query per scan instead of three of each (small_gicp holds the GIL
+    while it queries, so the two scans' queries did not overlap anyway).
 
     Parameters
     ----------
@@ -142,6 +146,8 @@ class NeighbourTable:
         :func:`knn` of every point of ``points`` (each point its own first neighbour).
     pos : (N,) int64 or None
         Sorted positions in ``points`` of the points this view stands for; None: all.
+    tree : small_gicp.KdTree or None
+        The tree on ``points`` (None: rows left short are queried afresh).
     """
 
     def __init__(
