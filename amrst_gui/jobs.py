@@ -28,7 +28,14 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     for i, (role, path) in enumerate(paths.items()):
         reporter.check_cancelled()
         reporter.progress(i / len(paths), f"Reading {role} {Path(path).name}")
-        clouds[role] = read_scan(path) if is_scan_spec(path) else io.read(path)
+        # LAS/LAZ are read in chunks with a cancel check between them (issue 15).
+        sub = SubReporter(
+            reporter, i / len(paths), (i + 1) / len(paths), f"Reading {role}"
+        )
+        # FILE#k: one scan of an E57/PTX file (a campaign tree of one file)
+        clouds[role] = (
+            read_scan(path) if is_scan_spec(path) else io.read(path, reporter=sub)
+        )
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
 
