@@ -1,0 +1,154 @@
+"""The pair stages' fast kernels against the code they replaced (kept here verbatim).
+
+The polish ICP keeps its partners in a NearestCache, the occupancy grid is dilated
+axis by axis, and the verification asks the KD-tree only about points the occupancy
+test found near the target: each must give what the plain version gave, bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from amrst.neighbours import NearestTree
+from amrst.stages.polish import (
+    POLISH_ITERATIONS,
+    POLISH_STOP_M,
+    POLISH_STOP_RAD,
+    Occupancy,
+    polish,
+    rigid_steps,
+)
+
+
+def _reference_polish(src, tgt, tree, Ts, max_dist, fit=rigid_steps):
+    """The polish before the cache: one fresh bounded query per iteration."""
+    Ts = np.array(Ts, dtype=float).reshape(-1, 4, 4)
+    alive = np.ones(len(Ts), dtype=bool)
+    for dist in (max_dist, max_dist / 3):
+        moving = alive.copy()
+        for _ in range(POLISH_ITERATIONS):
+            idx = np.flatnonzero(moving)
+            if not len(idx):
+                break
+            T = Ts[idx]
+            moved = np.einsum("bij,nj->bni", T[:, :3, :3], src) + T[:, None, :3, 3]
+            d, j = tree.query(moved.reshape(-1, 3), distance_upper_bound=dist)
+            ok = (d < dist).reshape(len(idx), -1)
+            enough = ok.sum(axis=1) >= 6
+            alive[idx[~enough]] = moving[idx[~enough]] = False
+            idx, moved, ok = idx[enough], moved[enough], ok[enough]
+            if not len(idx):
+                break
+            partner = tgt[np.minimum(j, len(tgt) - 1)].reshape(-1, len(src), 3)
+            step = fit(moved, partner[enough], ok.astype(float))
+            Ts[idx] = step @ Ts[idx]
+            still = (np.linalg.norm(step[:, :3, 3], axis=1) >= POLISH_STOP_M) | (
+                np.trace(step[:, :3, :3], axis1=1, axis2=2) <= 3 - POLISH_STOP_RAD**2
+            )
+            moving[idx[~still]] = False
+    return Ts
+
+
+def _turn(deg: float, axis: int = 2) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    i, j = [k for k in range(3) if k != axis]
+    T = np.eye(4)
+    T[i, i], T[i, j], T[j, i], T[j, j] = c, -s, s, c
+    return T
+
+
+@pytest.fixture(scope="module")
+def crown() -> tuple[np.ndarray, np.ndarray]:
+    """A lumpy crown on a trunk as target, a noisy, partial copy as source."""
+    rng = np.random.default_rng(7)
+    trunk = np.column_stack(
+        [
+            0.2 * np.cos(t := rng.uniform(0, 2 * np.pi, 800)),
+            0.2 * np.sin(t),
+            rng.uniform(0, 3, 800),
+        ]
+    )
+    blobs = rng.normal(0, 1.0, (6, 3)) * [1.5, 1.5, 0.8] + [0, 0, 5]
+    crown = np.vstack([b + rng.normal(0, 0.5, (500, 3)) for b in blobs])
+    tgt = np.vstack([trunk, crown])
+    src = tgt[rng.choice(len(tgt), 500, replace=False)] + rng.normal(0, 0.01, (500, 3))
+    return src, tgt
+
+
+@pytest.mark.parametrize("tree_kind", ["ckdtree", "small_gicp"])
+def test_polish_with_the_cache_equals_fresh_queries(crown, tree_kind: str) -> None:
+    """Near starts, far starts (some die: fewer than 6 partners) and every start moving
+    differently: the same transforms bit for bit, on either KD-tree."""
+    src, tgt = crown
+    starts = [np.eye(4), _turn(4), _turn(-9), _turn(25), _turn(6, axis=0)]
+    shifted = _turn(2)
+    shifted[:3, 3] = [0.2, -0.1, 0.05]
+    far = np.eye(4)
+    far[:3, 3] = [50.0, 0, 0]
+    Ts = np.stack([*starts, shifted, far])
+    tree = cKDTree(tgt) if tree_kind == "ckdtree" else NearestTree(tgt)
+    got = polish(src, tgt, tree, Ts, 0.5)
+    want = _reference_polish(src, tgt, cKDTree(tgt), Ts, 0.5)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got[-1], far)  # nothing within reach: untouched
+    assert np.abs(got[0][:3, 3]).max() < 0.02  # and it does converge
+
+
+def _reference_occupancy_codes(xyz: np.ndarray, voxel: float) -> np.ndarray:
+    """The dilation before: all 27 offsets added at once, one unique."""
+    keys = np.floor(xyz / voxel).astype(np.int64)
+    keys = keys[np.unique(Occupancy._code(keys), return_index=True)[1]]
+    offs = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T
+    return np.unique(Occupancy._code((keys[:, None, :] + offs[None]).reshape(-1, 3)))
+
+
+@pytest.mark.parametrize("voxel", [0.05, 0.1, 0.7])
+def test_occupancy_dilated_axis_by_axis_equals_all_offsets(voxel: float) -> None:
+    rng = np.random.default_rng(3)
+    xyz = np.vstack(
+        [rng.normal(0, 2, (5000, 3)), rng.uniform(-40, 40, (300, 3)), -xyz_neg()]
+    )
+    occ = Occupancy(xyz, voxel)
+    np.testing.assert_array_equal(occ.codes, _reference_occupancy_codes(xyz, voxel))
+    # hits_many against a brute-force neighbourhood test on the voxel keys
+    pts = rng.normal(0, 3, (4, 300, 3))
+    keys = np.floor(xyz / voxel).astype(np.int64)
+    cells = {tuple(k) for k in keys}
+    qk = np.floor(pts / voxel).astype(np.int64)
+    brute = np.array(
+        [
+            [
+                any(
+                    (k[0] + a, k[1] + b, k[2] + c) in cells
+                    for a in (-1, 0, 1)
+                    for b in (-1, 0, 1)
+                    for c in (-1, 0, 1)
+                )
+                for k in row
+            ]
+            for row in qk
+        ]
+    )
+    np.testing.assert_array_equal(occ.hits_many(pts), brute)
+    np.testing.assert_array_equal(occ.fraction_many(pts), brute.mean(axis=1))
+
+
+def xyz_neg() -> np.ndarray:
+    """Points on negative voxel keys and on voxel borders."""
+    return np.array([[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], [3.5, 0.7, 1.4]])
+
+
+def test_points_within_the_tight_distance_are_all_on_occupied_voxels() -> None:
+    """The verification's prefilter: a point closer than the voxel to a target point
+    always lands on or next to an occupied voxel, so skipping the others loses none."""
+    rng = np.random.default_rng(5)
+    tgt = rng.uniform(-3, 3, (4000, 3))
+    pts = rng.uniform(-3.5, 3.5, (1, 20000, 3))
+    occ = Occupancy(tgt, 0.1)
+    d = cKDTree(tgt).query(pts[0], distance_upper_bound=0.1)[0]
+    close = d < 0.0999
+    assert close.sum() > 500
+    assert occ.hits_many(pts)[0][close].all()
