@@ -192,8 +192,17 @@ def lm_icp(
         e = p - q
         # JᵀJ and Jᵀe of J_i = [-[p_i]x, I] (left increment) in closed form from sums,
         # instead of building the (N, 3, 6) Jacobian: H = [[Σ|p|²I - Σppᵀ, [Σp]x],
-        # [-[Σp]x, N I]], g = [Σ p × e, Σ e].
-        sp = p.sum(axis=0)
+        # [-[Σp]x, N I]], g = [Σ p × e, Σ e]. The three column sums in one pass over
+        # an (N, 9) buffer, p × e written out as np.cross computes it: the same sums
+        # bit for bit (numpy adds the rows in order either way), 3x faster.
+        w = np.empty((len(p), 9))
+        w[:, :3] = p
+        w[:, 3:6] = e
+        for k, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
+            np.multiply(p[:, a], e[:, b], out=w[:, 6 + k])
+            w[:, 6 + k] -= p[:, b] * e[:, a]
+        sums = w.sum(axis=0)
+        sp = sums[:3]
         sx = np.array(
             [[0.0, -sp[2], sp[1]], [sp[2], 0.0, -sp[0]], [-sp[1], sp[0], 0.0]]
         )
@@ -202,14 +211,16 @@ def lm_icp(
         H[:3, 3:] = sx
         H[3:, :3] = -sx
         H[3:, 3:] = np.eye(3) * len(p)
-        g = np.concatenate([np.cross(p, e).sum(axis=0), e.sum(axis=0)])
-        e = e.reshape(-1)
-        cost = float(e @ e) / len(p)
+        g = np.concatenate([sums[6:], sums[3:6]])
+        # Not e @ e: OpenBLAS splits a dot product of over 10,000 terms over its
+        # threads, which cost more than the product itself on a busy 2-core machine
+        # (the fine stage took 1.9x as long; the sum differs in its last bits).
+        cost = float(np.einsum("ij,ij->", e, e)) / len(p)
         for _ in range(10):  # LM: raise damping until the step lowers the cost
             dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
             dT = make_transform(_rotvec(dx[:3]), dx[3:])
-            p2 = p @ dT[:3, :3].T + dT[:3, 3]
-            if np.mean(np.sum((p2 - q) ** 2, axis=1)) < cost:
+            off = p @ dT[:3, :3].T + dT[:3, 3] - q
+            if np.mean(np.einsum("ij,ij->i", off, off)) < cost:
                 lam = max(lam / 10, 1e-9)
                 T = dT @ T
                 break

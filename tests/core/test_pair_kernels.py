@@ -152,3 +152,60 @@ def test_points_within_the_tight_distance_are_all_on_occupied_voxels() -> None:
     close = d < 0.0999
     assert close.sum() > 500
     assert occ.hits_many(pts)[0][close].all()
+
+
+def _reference_lm_icp(src, tgt, T_init, max_dist, iters, tol):
+    """LM-ICP before the fused sums: fresh queries, np.cross, a BLAS dot product."""
+    from amrst.stages.fine import _rotvec
+    from amrst.types import make_transform
+
+    tree = cKDTree(tgt)
+    T, lam, prev = T_init.copy(), 1e-3, np.inf
+    for it in range(1, iters + 1):
+        p = src @ T[:3, :3].T + T[:3, 3]
+        d, j = tree.query(p, distance_upper_bound=max_dist)
+        ok = d < max_dist
+        if ok.sum() < 6:
+            return T, it
+        p, q = p[ok], tgt[j[ok]]
+        e = p - q
+        sp = p.sum(axis=0)
+        sx = np.array(
+            [[0.0, -sp[2], sp[1]], [sp[2], 0.0, -sp[0]], [-sp[1], sp[0], 0.0]]
+        )
+        H = np.empty((6, 6))
+        H[:3, :3] = np.eye(3) * np.einsum("ni,ni->", p, p) - p.T @ p
+        H[:3, 3:], H[3:, :3], H[3:, 3:] = sx, -sx, np.eye(3) * len(p)
+        g = np.concatenate([np.cross(p, e).sum(axis=0), e.sum(axis=0)])
+        e = e.reshape(-1)
+        cost = float(e @ e) / len(p)
+        for _ in range(10):
+            dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
+            dT = make_transform(_rotvec(dx[:3]), dx[3:])
+            p2 = p @ dT[:3, :3].T + dT[:3, 3]
+            if np.mean(np.sum((p2 - q) ** 2, axis=1)) < cost:
+                lam = max(lam / 10, 1e-9)
+                T = dT @ T
+                break
+            lam *= 10
+        if abs(prev - cost) <= tol * max(cost, 1e-12):
+            return T, it
+        prev = cost
+    return T, iters
+
+
+@pytest.mark.parametrize("n", [800, 6000])  # 6000: over OpenBLAS's threaded dot size
+def test_lm_icp_equals_the_plain_version(crown, n: int) -> None:
+    """Fused sums and a numpy dot product: the same steps, to rounding."""
+    from amrst.stages.fine import lm_icp
+
+    _, tgt = crown
+    rng = np.random.default_rng(9)
+    src = tgt[rng.choice(len(tgt), n)] + rng.normal(0, 0.01, (n, 3))
+    start = _turn(3)
+    start[:3, 3] = [0.05, -0.04, 0.02]
+    T, it, _ = lm_icp(src, tgt, start, 0.3, 30, 1e-7)
+    T_ref, it_ref = _reference_lm_icp(src, tgt, start, 0.3, 30, 1e-7)
+    assert it == it_ref
+    np.testing.assert_allclose(T, T_ref, rtol=0, atol=1e-9)
+    assert np.abs(T[:3, 3]).max() < 0.01  # and it converged near the identity
