@@ -27,7 +27,7 @@ from amrst.stages.candidates import (
     distinct_solutions,
     same_solution,
 )
-from amrst.stages.polish import Occupancy, polish
+from amrst.stages.polish import Occupancy, polish, transform_many
 
 if TYPE_CHECKING:
     from amrst.stages.match import TetraMatches
@@ -228,9 +228,7 @@ def rank_candidates(
     few = sample[: params.raw_points]
     hits = np.concatenate(
         [
-            occ.hits_many(
-                np.einsum("gij,nj->gni", T[chunk, :3, :3], few) + T[chunk, None, :3, 3]
-            )
+            occ.hits_many(transform_many(T[chunk], few))
             for chunk in np.array_split(rep, max(1, len(rep) // 256))
         ]
     )
@@ -275,7 +273,7 @@ def rank_candidates(
         # tight_dist_m of a target point lies on or next to its voxel: only the points
         # the raw score found there are asked (a third to a half of them).
         Tr = T[rep[rest]]
-        moved = np.einsum("gij,nj->gni", Tr[:, :3, :3], few) + Tr[:, None, :3, 3]
+        moved = transform_many(Tr, few)
         near = (
             hits[rest]
             if params.tight_dist_m < params.verify_voxel_m

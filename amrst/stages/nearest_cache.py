@@ -10,9 +10,12 @@ partners as a fresh query, see the class).
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 class NearestQuery(Protocol):
@@ -50,12 +53,21 @@ class NearestCache:
     max_dist : float
         The first (largest) correspondence distance; later ones may only be smaller
         (set ``max_dist`` between calls).
+    near : callable or None
+        ``near(points) -> (M,) bool``, False only for points with no target point
+        within ``reach`` (1.5 max_dist): those are not asked (a KD-tree without a
+        distance bound, small_gicp's, searches far points as long as near ones).
     """
 
     def __init__(
-        self, tree: NearestQuery, tgt: np.ndarray, n: int, max_dist: float
+        self,
+        tree: NearestQuery,
+        tgt: np.ndarray,
+        n: int,
+        max_dist: float,
+        near: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
-        self.tree, self.tgt, self.max_dist = tree, tgt, max_dist
+        self.tree, self.tgt, self.max_dist, self.near = tree, tgt, max_dist, near
         # Kept across scales of decreasing max_dist: the slacks stay valid (a point
         # with nothing within reach has even more room for a smaller max_dist).
         self.reach = 1.5 * max_dist
@@ -92,7 +104,16 @@ class NearestCache:
         stale = np.flatnonzero(np.einsum("ij,ij->i", step, step) >= slack2)
         at = stale if rows is None else rows[stale]
         if len(stale):
-            d, jj = self.tree.query(p[stale], k=2, distance_upper_bound=self.reach)
+            d = np.full((len(stale), 2), np.inf)
+            jj = np.full((len(stale), 2), len(self.tgt), dtype=np.int64)
+            ask = (
+                np.ones(len(stale), dtype=bool)
+                if self.near is None
+                else self.near(p[stale])
+            )
+            d[ask], jj[ask] = self.tree.query(
+                p[stale[ask]], k=2, distance_upper_bound=self.reach
+            )
             self.ref[at] = p[stale]
             found = jj[:, 0] < len(self.tgt)
             self.q[at[found]] = self.tgt[jj[found, 0]]

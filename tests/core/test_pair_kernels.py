@@ -209,3 +209,45 @@ def test_lm_icp_equals_the_plain_version(crown, n: int) -> None:
     assert it == it_ref
     np.testing.assert_allclose(T, T_ref, rtol=0, atol=1e-9)
     assert np.abs(T[:3, 3]).max() < 0.01  # and it converged near the identity
+
+
+def test_transform_many_equals_the_einsum_it_replaced() -> None:
+    from amrst.stages.polish import transform_many
+
+    rng = np.random.default_rng(12)
+    Ts = np.tile(np.eye(4), (37, 1, 1))
+    Ts[:, :3, :3] = np.linalg.qr(rng.normal(size=(37, 3, 3)))[0]
+    Ts[:, :3, 3] = rng.normal(0, 20, (37, 3))
+    pts = rng.normal(0, 7, (611, 3))
+    want = np.einsum("bij,nj->bni", Ts[:, :3, :3], pts) + Ts[:, None, :3, 3]
+    np.testing.assert_array_equal(transform_many(Ts, pts), want)
+
+
+def test_the_cache_skips_far_points_and_still_equals_fresh_queries() -> None:
+    """With the voxel prefilter, points far from the target are never queried, and
+    the partners are those of a bounded KD-tree query."""
+    from amrst.stages.nearest_cache import NearestCache
+
+    rng = np.random.default_rng(8)
+    tgt = rng.uniform(0, 2, (2000, 3))
+    occ = Occupancy(tgt, 1.05 * 1.5 * 0.2)
+    asked: list[int] = []
+
+    class Counting:
+        def __init__(self) -> None:
+            self.tree = NearestTree(tgt)
+
+        def query(self, x, k=1, distance_upper_bound=np.inf):
+            asked.append(len(x))
+            return self.tree.query(x, k, distance_upper_bound)
+
+    p = np.vstack([rng.uniform(-0.1, 2.1, (500, 3)), rng.uniform(5, 9, (500, 3))])
+    cache = NearestCache(
+        Counting(), tgt, len(p), 0.2, lambda x: occ.hits_many(x[None])[0]
+    )
+    found, q = cache.match(p)
+    assert asked[0] <= 500  # none of the far half
+    d, j = cKDTree(tgt).query(p, distance_upper_bound=0.2)
+    want = np.flatnonzero(np.isfinite(d))
+    np.testing.assert_array_equal(found, want)
+    np.testing.assert_array_equal(q, tgt[j[want]])
