@@ -175,9 +175,16 @@ def _tetrahedra(
         )
         / 6
     )
-    mean_edge = edges.mean(axis=1)
+    # edges.mean(axis=1), summed column by column in numpy's own order (exact).
+    mean_edge = edges[:, 0].copy()
+    for k in range(1, 6):
+        mean_edge += edges[:, k]
+    mean_edge /= 6
     flatness = np.abs(signed) / (mean_edge**3 / (6 * np.sqrt(2)))
-    ok = (edges.min(axis=1) >= params.min_edge_m) & (flatness >= params.min_flatness)
+    shortest = edges[:, 0].copy()
+    for k in range(1, 6):
+        np.minimum(shortest, edges[:, k], out=shortest)
+    ok = (shortest >= params.min_edge_m) & (flatness >= params.min_flatness)
     quads, edges, signed = quads[ok], edges[ok], signed[ok]
     size = np.abs(signed)
     if len(size) > params.max_tetrahedra:
@@ -252,6 +259,24 @@ def _descriptor_pairs(
     return ti[order], si[order]
 
 
+def _row_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=1)`` of a (P, k) array, column by column (exact, and faster)."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        np.maximum(out, a[:, k], out=out)
+    return out
+
+
+def _max_over_edges(log_s: np.ndarray, log_t: np.ndarray) -> np.ndarray:
+    """(P, 24) max over the six edges of ``|log_s[:, _EDGE_PERM] - log_t[:, None]|``."""
+    out = np.abs(log_s[:, _EDGE_PERM[:, 0]] - log_t[:, :1])
+    for k in range(1, 6):
+        np.maximum(
+            out, np.abs(log_s[:, _EDGE_PERM[:, k]] - log_t[:, k : k + 1]), out=out
+        )
+    return out
+
+
 def _correspond(
     target_kp: np.ndarray,
     source_kp: np.ndarray,
@@ -277,13 +302,15 @@ def _correspond(
     # little slack, then compute the exact error and the other tests on the few survivors.
     log_t = np.log(te[ti] + c).astype(np.float32)
     log_s = np.log(se[si] + c).astype(np.float32)
-    dlog = np.abs(log_s[:, _EDGE_PERM] - log_t[:, None, :]).max(axis=2)  # (P, 24)
+    # max over the six edges of |log_s[perm] - log_t|, (P, 24), one edge at a time:
+    # numpy reduces a short last axis slowly (this was 0.9 s of 4.8 over the cases).
+    dlog = _max_over_edges(log_s, log_t)
     limit = -np.log1p(-params.edge_tolerance) + 1e-5  # slack >> float32 rounding
     proper = np.sign(sv[si])[:, None] * _PARITY[None, :] == np.sign(tv[ti])[:, None]
     pair, perm = np.nonzero((dlog <= limit) & proper)
     e_s = se[si[pair]][np.arange(len(pair))[:, None], _EDGE_PERM[perm]]
     e_t = te[ti[pair]]
-    err = (np.abs(e_s - e_t) / (np.maximum(e_s, e_t) + c)).max(axis=1)
+    err = _row_max(np.abs(e_s - e_t) / (np.maximum(e_s, e_t) + c))
     ok = err <= params.edge_tolerance
     if params.levelled:
         zt = target_kp[tq[ti[pair]], 2]

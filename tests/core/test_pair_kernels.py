@@ -251,3 +251,21 @@ def test_the_cache_skips_far_points_and_still_equals_fresh_queries() -> None:
     want = np.flatnonzero(np.isfinite(d))
     np.testing.assert_array_equal(found, want)
     np.testing.assert_array_equal(q, tgt[j[want]])
+
+
+def test_match_reductions_equal_numpy_reductions() -> None:
+    """The tetrahedron screen's column-by-column maxima equal numpy's reductions."""
+    from amrst.stages.match import _EDGE_PERM, _max_over_edges, _row_max
+
+    rng = np.random.default_rng(2)
+    log_s = rng.uniform(0, 3, (5000, 6)).astype(np.float32)
+    log_t = rng.uniform(0, 3, (5000, 6)).astype(np.float32)
+    want = np.abs(log_s[:, _EDGE_PERM] - log_t[:, None, :]).max(axis=2)
+    np.testing.assert_array_equal(_max_over_edges(log_s, log_t), want)
+    a = rng.normal(size=(777, 6))
+    np.testing.assert_array_equal(_row_max(a), a.max(axis=1))
+    edges = rng.uniform(0.1, 20, (3000, 6))
+    mean = edges[:, 0].copy()
+    for k in range(1, 6):
+        mean += edges[:, k]
+    np.testing.assert_array_equal(mean / 6, edges.mean(axis=1))
