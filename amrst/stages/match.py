@@ -261,7 +261,7 @@ def _descriptor_pairs(
 
 def _row_max(a: np.ndarray) -> np.ndarray:
     """``a.max(axis=1)`` of a (P, k) array, column by column (exact, and faster)."""
-    out = a[:, 0].copy()
+    out: np.ndarray = a[:, 0].copy()
     for k in range(1, a.shape[1]):
         np.maximum(out, a[:, k], out=out)
     return out
@@ -269,7 +269,7 @@ def _row_max(a: np.ndarray) -> np.ndarray:
 
 def _max_over_edges(log_s: np.ndarray, log_t: np.ndarray) -> np.ndarray:
     """(P, 24) max over the six edges of ``|log_s[:, _EDGE_PERM] - log_t[:, None]|``."""
-    out = np.abs(log_s[:, _EDGE_PERM[:, 0]] - log_t[:, :1])
+    out: np.ndarray = np.abs(log_s[:, _EDGE_PERM[:, 0]] - log_t[:, :1])
     for k in range(1, 6):
         np.maximum(
             out, np.abs(log_s[:, _EDGE_PERM[:, k]] - log_t[:, k : k + 1]), out=out
