@@ -255,7 +255,7 @@ def test_the_cache_skips_far_points_and_still_equals_fresh_queries() -> None:
 
 def test_match_reductions_equal_numpy_reductions() -> None:
     """The tetrahedron screen's column-by-column maxima equal numpy's reductions."""
-    from amrst.stages.match import _EDGE_PERM, _max_over_edges, _row_max
+    from amrst.stages.tetra_screen import _EDGE_PERM, _max_over_edges, _row_max
 
     rng = np.random.default_rng(2)
     log_s = rng.uniform(0, 3, (5000, 6)).astype(np.float32)
