@@ -12,6 +12,8 @@ Two scans are the special case: :func:`register_scans` then runs
 
 from __future__ import annotations
 
+import itertools
+
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -81,10 +83,25 @@ class MultiScanResult:
 
     @property
     def verdict(self) -> str:
-        """``verified`` (every scan reached by verified links), ``partial`` or ``failed``."""
+        """``verified`` (every scan reached by verified links), else what is missing.
+
+        ``unverified``: every scan is placed but some only by a link that did not
+        verify (two scans: ``amrst register``'s flagged best guess); ``partial``: some
+        scans are not placed; ``failed``: only the reference is.
+        """
+        verified = {(ln.target, ln.source) for ln in self.links if ln.verified}
+        verified |= {(b, a) for a, b in verified}
+
+        def by_verified_links(path: tuple[int, ...] | None) -> bool:
+            return path is not None and all(
+                step in verified for step in itertools.pairwise(path)
+            )
+
         n = sum(self.reached)
         if n == len(self.scans):
-            return "verified"
+            if all(by_verified_links(p) for p in self.paths):
+                return "verified"
+            return "unverified"
         return "partial" if n > 1 else "failed"
 
     @property
