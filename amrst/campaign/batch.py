@@ -14,8 +14,9 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from amrst.campaign.run import is_done, run_tree, tree_stamp
-from amrst.campaign.table import campaign_rows, write_table
+from amrst.campaign.plan import cluster_scan_threads, longest_first
+from amrst.campaign.run import is_done, run_tree, tree_stamp, warm_worker
+from amrst.campaign.table import campaign_rows, tree_row, write_table
 
 if TYPE_CHECKING:
     from amrst.campaign.manifest import Campaign
@@ -133,18 +134,24 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     for name in ("distributed", "distributed.scheduler", "distributed.nanny"):
         logging.getLogger(name).setLevel(logging.WARNING)
 
+    import dask
+
     client_cls: Any = Client
     cluster_cls: Any = LocalCluster
 
     if scheduler:
         return client_cls(scheduler, timeout="20s"), None
-    cluster = cluster_cls(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",  # any free port: never clashes with another batch
-        silence_logs=40,  # logging.ERROR: the progress bar is the output
-    )
+    # One task per worker thread, the rest queued on the scheduler (Dask's default,
+    # 1.1, gives a 1-thread worker a second task to hold): the longest-first order is
+    # then kept to the end, and no tree waits behind another on a busy worker.
+    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+        cluster = cluster_cls(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",  # any free port: never clashes with another batch
+            silence_logs=40,  # logging.ERROR: the progress bar is the output
+        )
     return client_cls(cluster), cluster
 
 
@@ -206,9 +213,14 @@ def run_batch(
     if workers < 1 and not scheduler:
         raise InvalidInput(f"--workers must be at least 1, got {workers}.")
     root = str(campaign.root.resolve())
+    todo = longest_first(campaign.root.resolve(), todo)
+    rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends
+    index = {entry.id: k for k, entry in enumerate(campaign.trees)}
     client, cluster = _client(workers, scheduler)
     try:
         summary.workers = len(client.scheduler_info().get("workers", {})) or workers
+        client.run(warm_worker)  # imports on every worker at once, not in a tree
+        threads = cluster_scan_threads(client)
         futures = [
             client.submit(
                 run_tree,
@@ -217,10 +229,12 @@ def run_batch(
                 doc,
                 stamp,
                 clouds,
+                threads,
                 key=f"amrst-tree-{entry.id}-{stamp[:12]}",
                 pure=False,
+                priority=len(todo) - k,  # longest first
             )
-            for entry, stamp in todo
+            for k, (entry, stamp) in enumerate(todo)
         ]
         started = time.perf_counter()
         if progress is not None:
@@ -245,7 +259,11 @@ def run_batch(
                 summary.registered.append(row["id"])
             else:
                 summary.failed[row["id"]] = row.get("error", "")
-            write_table(campaign)  # after every tree: a kill loses only those in flight
+            # the table after every tree (its row read back from its results folder)
+            if row["id"] in index:
+                k = index[row["id"]]
+                rows[k] = tree_row(campaign, campaign.trees[k])
+            write_table(campaign, rows)
             if progress is not None:
                 rate = (time.perf_counter() - started) / finished
                 left = rate * (len(todo) - finished)

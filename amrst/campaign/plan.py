@@ -1,0 +1,95 @@
+"""How a batch spreads its trees over the workers: longest first, one core per task.
+
+Two measures made ``--workers 2`` run more trees per hour on a 2-core machine
+(docs/bench/campaign, issue 14):
+
+- **Longest first** (LPT scheduling): in manifest order the biggest trees (the field
+  cases, a 4-scan tree) came last, and one worker finished them alone while the other
+  waited. :func:`longest_first` orders the trees by the bytes of their scan files, the
+  cost known before reading them.
+- **One core per task**: a tree's two scans are analysed in two threads
+  (``amrst.pipeline.both_scans``), which helps one process on an idle machine but
+  oversubscribes the cores when every core already has a worker. :func:`scan_threads`
+  gives each task the threads its share of the host's cores allows (1 or 2).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from amrst.campaign.manifest import TreeEntry
+
+
+def tree_cost(root: Path, entry: TreeEntry) -> int:
+    """Return the bytes of a tree's scan files (0 for those that cannot be read).
+
+    A scan that is one of several in a file (``plot.e57#3``) counts the whole file:
+    all such trees then tie and keep their manifest order.
+    """
+    from amrst.io.scans import split_spec
+
+    total = 0
+    for spec in entry.scans:
+        path, _ = split_spec(root / spec)
+        try:
+            total += path.stat().st_size
+        except OSError:  # reported when the tree runs
+            continue
+    return total
+
+
+def longest_first(root: Path, todo: list[tuple[Any, str]]) -> list[tuple[Any, str]]:
+    """Return ``todo`` (``[(entry, stamp)]``) with the costliest trees first.
+
+    Ties keep the manifest order (the sort is stable).
+    """
+    return sorted(todo, key=lambda item: -tree_cost(root, item[0]))
+
+
+def host_cores() -> int:
+    """Return the cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def scan_threads(cores: int, tasks: int) -> int:
+    """Return the threads of one tree task when ``tasks`` run at once on ``cores``.
+
+    Parameters
+    ----------
+    cores : int
+        Cores of the host.
+    tasks : int
+        Tree tasks that run at once on it (worker processes x threads each).
+
+    Returns
+    -------
+    int
+        2 when every task has two cores to itself (its two scans at once), else 1.
+    """
+    return 2 if cores >= 2 * max(tasks, 1) else 1
+
+
+def cluster_scan_threads(client: Any) -> int:
+    """Return :func:`scan_threads` for the most loaded host of a Dask cluster."""
+    workers = client.scheduler_info().get("workers", {})
+    if not workers:
+        return 1
+    cores = client.run(host_cores)  # {worker address: cores of its host}
+    per_host: dict[str, list[int]] = {}
+    for address, info in workers.items():
+        per_host.setdefault(str(info.get("host", address)), []).append(
+            int(info.get("nthreads", 1))
+        )
+    host_of = {a: str(i.get("host", a)) for a, i in workers.items()}
+    host_cores_ = {host_of[a]: int(n) for a, n in cores.items() if a in host_of}
+    return min(
+        scan_threads(host_cores_.get(host, 1), sum(threads))
+        for host, threads in per_host.items()
+    )
