@@ -6,6 +6,12 @@ scheduler given by address (workers started with ``dask worker ADDRESS`` on mach
 that see the campaign folder at the same path). Trees whose stamp matches are skipped;
 the others are submitted, and each finished tree updates the campaign table, so a batch
 killed at any moment loses only the trees in flight.
+
+Trees go longest first, each with the threads its share of the cores allows, on
+workers that imported what a tree needs before the first one (``amrst.campaign.plan``).
+A local cluster gives each worker one task at a time (``worker-saturation`` 1.0) so
+that order holds to the end; an external scheduler keeps its own setting (start it
+with ``DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION=1.0`` for the same).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from amrst.campaign.plan import cluster_scan_threads, longest_first
+from amrst.campaign.plan import cluster_scan_threads, longest_first, time_left
 from amrst.campaign.run import is_done, run_tree, tree_stamp, warm_worker
 from amrst.campaign.table import campaign_rows, tree_row, write_table
 
@@ -213,7 +219,8 @@ def run_batch(
     if workers < 1 and not scheduler:
         raise InvalidInput(f"--workers must be at least 1, got {workers}.")
     root = str(campaign.root.resolve())
-    todo = longest_first(campaign.root.resolve(), todo)
+    todo, costs = longest_first(campaign.root.resolve(), todo)
+    total_cost, done_cost = sum(costs.values()), 0
     rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends
     index = {entry.id: k for k, entry in enumerate(campaign.trees)}
     client, cluster = _client(workers, scheduler)
@@ -264,9 +271,15 @@ def run_batch(
                 k = index[row["id"]]
                 rows[k] = tree_row(campaign, campaign.trees[k])
             write_table(campaign, rows)
+            done_cost += costs.get(row["id"], 0)
             if progress is not None:
-                rate = (time.perf_counter() - started) / finished
-                left = rate * (len(todo) - finished)
+                left = time_left(
+                    time.perf_counter() - started,
+                    finished,
+                    len(todo),
+                    done_cost,
+                    total_cost,
+                )
                 running = min(len(todo) - finished, summary.workers)
                 progress.update(
                     len(done) + len(summary.registered),

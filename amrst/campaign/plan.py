@@ -42,12 +42,28 @@ def tree_cost(root: Path, entry: TreeEntry) -> int:
     return total
 
 
-def longest_first(root: Path, todo: list[tuple[Any, str]]) -> list[tuple[Any, str]]:
-    """Return ``todo`` (``[(entry, stamp)]``) with the costliest trees first.
+def longest_first(
+    root: Path, todo: list[tuple[Any, str]]
+) -> tuple[list[tuple[Any, str]], dict[str, int]]:
+    """Return ``todo`` (``[(entry, stamp)]``) costliest first, and each tree's cost.
 
     Ties keep the manifest order (the sort is stable).
     """
-    return sorted(todo, key=lambda item: -tree_cost(root, item[0]))
+    costs = {entry.id: tree_cost(root, entry) for entry, _ in todo}
+    return sorted(todo, key=lambda item: -costs[item[0].id]), costs
+
+
+def time_left(
+    elapsed: float, done: int, total: int, done_cost: int, total_cost: int
+) -> float:
+    """Return the seconds left, from the share of the trees' bytes done so far.
+
+    Longest first, the count alone would overstate it (the first trees are the
+    slowest); by count when no size is known.
+    """
+    if done_cost > 0 and total_cost >= done_cost:
+        return elapsed * (total_cost - done_cost) / done_cost
+    return elapsed / max(done, 1) * (total - done)
 
 
 def host_cores() -> int:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from amrst.campaign import TreeEntry, init_campaign, run_batch
-from amrst.campaign.plan import longest_first, scan_threads, tree_cost
+from amrst.campaign.plan import longest_first, scan_threads, time_left, tree_cost
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,13 +37,22 @@ def test_longest_first_orders_by_bytes_ties_in_manifest_order(tmp_path) -> None:
     assert tree_cost(tmp_path, four) == 400
     assert tree_cost(tmp_path, gone) == 0  # reported when the tree runs
     todo = [(e, e.id) for e in (gone, small, big, tie, four)]
-    assert [s for _, s in longest_first(tmp_path, todo)] == [
+    ordered, costs = longest_first(tmp_path, todo)
+    assert costs == {"gone": 0, "small": 20, "big": 510, "tie": 20, "four": 400}
+    assert [s for _, s in ordered] == [
         "big",
         "four",
         "small",
         "tie",
         "gone",
     ]
+
+
+def test_time_left_follows_the_bytes_done() -> None:
+    # the biggest tree (half the bytes) took 10 s: about 10 s left, not 10 x 3
+    assert time_left(10.0, 1, 4, 500, 1000) == pytest.approx(10.0)
+    assert time_left(10.0, 2, 4, 0, 0) == pytest.approx(10.0)  # no size known: count
+    assert time_left(10.0, 4, 4, 1000, 1000) == 0.0
 
 
 @pytest.mark.parametrize(
