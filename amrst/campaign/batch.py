@@ -219,8 +219,8 @@ def run_batch(
     if workers < 1 and not scheduler:
         raise InvalidInput(f"--workers must be at least 1, got {workers}.")
     root = str(campaign.root.resolve())
-    todo, costs = longest_first(campaign.root.resolve(), todo)
-    total_cost, done_cost = sum(costs.values()), 0
+    todo, costs = longest_first(campaign, todo)
+    total_cost, done_cost = sum(costs.values()), 0.0
     rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends
     index = {entry.id: k for k, entry in enumerate(campaign.trees)}
     client, cluster = _client(workers, scheduler)
@@ -271,7 +271,7 @@ def run_batch(
                 k = index[row["id"]]
                 rows[k] = tree_row(campaign, campaign.trees[k])
             write_table(campaign, rows)
-            done_cost += costs.get(row["id"], 0)
+            done_cost += costs.get(row["id"], 0.0)
             if progress is not None:
                 left = time_left(
                     time.perf_counter() - started,

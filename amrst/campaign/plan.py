@@ -5,8 +5,8 @@ Two measures made ``--workers 2`` run more trees per hour on a 2-core machine
 
 - **Longest first** (LPT scheduling): in manifest order the biggest trees (the field
   cases, a 4-scan tree) came last, and one worker finished them alone while the other
-  waited. :func:`longest_first` orders the trees by the bytes of their scan files, the
-  cost known before reading them.
+  waited. :func:`longest_first` orders the trees by the seconds they took last time
+  when a run is on record, else by the bytes of their scan files.
 - **One core per task**: a tree's two scans are analysed in two threads
   (``amrst.pipeline.both_scans``), which helps one process on an idle machine but
   oversubscribes the cores when every core already has a worker. :func:`scan_threads`
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from amrst.campaign.manifest import TreeEntry
+    from amrst.campaign.manifest import Campaign, TreeEntry
 
 
 def tree_cost(root: Path, entry: TreeEntry) -> int:
@@ -42,21 +42,57 @@ def tree_cost(root: Path, entry: TreeEntry) -> int:
     return total
 
 
+def seconds_before(out: Path) -> float | None:
+    """Return the seconds a tree's last run took (stamp or error), None if unknown."""
+    import json
+
+    from amrst.campaign.run import ERROR, STAMP
+
+    for name in (STAMP, ERROR):
+        try:
+            doc = json.loads((out / name).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        seconds = doc.get("seconds") if isinstance(doc, dict) else None
+        if isinstance(seconds, (int, float)) and seconds > 0:
+            return float(seconds)
+    return None
+
+
+def tree_costs(campaign: Campaign, entries: list[TreeEntry]) -> dict[str, float]:
+    """Return each tree's expected cost, in seconds when a run is on record.
+
+    A tree run before (``--force``, changed parameters, a failed tree fixed) costs
+    what it took then; the others their bytes times the median seconds per byte of
+    those (or plain bytes when no tree has a time on record).
+    """
+    root = campaign.root.resolve()
+    size = {e.id: float(tree_cost(root, e)) for e in entries}
+    before = {e.id: seconds_before(campaign.results_dir(e.id)) for e in entries}
+    rates = sorted(
+        t / size[i] for i, t in before.items() if t is not None and size[i] > 0
+    )
+    if not rates:
+        return size
+    per_byte = rates[len(rates) // 2]
+    return {i: t if t is not None else size[i] * per_byte for i, t in before.items()}
+
+
 def longest_first(
-    root: Path, todo: list[tuple[Any, str]]
-) -> tuple[list[tuple[Any, str]], dict[str, int]]:
+    campaign: Campaign, todo: list[tuple[Any, str]]
+) -> tuple[list[tuple[Any, str]], dict[str, float]]:
     """Return ``todo`` (``[(entry, stamp)]``) costliest first, and each tree's cost.
 
-    Ties keep the manifest order (the sort is stable).
+    Ties keep the manifest order (the sort is stable). See :func:`tree_costs`.
     """
-    costs = {entry.id: tree_cost(root, entry) for entry, _ in todo}
+    costs = tree_costs(campaign, [entry for entry, _ in todo])
     return sorted(todo, key=lambda item: -costs[item[0].id]), costs
 
 
 def time_left(
-    elapsed: float, done: int, total: int, done_cost: int, total_cost: int
+    elapsed: float, done: int, total: int, done_cost: float, total_cost: float
 ) -> float:
-    """Return the seconds left, from the share of the trees' bytes done so far.
+    """Return the seconds left, from the share of the trees' cost done so far.
 
     Longest first, the count alone would overstate it (the first trees are the
     slowest); by count when no size is known.

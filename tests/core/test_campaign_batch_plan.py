@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amrst.campaign import TreeEntry, init_campaign, run_batch
+from amrst.campaign import Campaign, TreeEntry, init_campaign, run_batch
 from amrst.campaign.plan import longest_first, scan_threads, time_left, tree_cost
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,27 +25,47 @@ def _tree(root: Path, tree_id: str, sizes: dict[str, int]) -> TreeEntry:
     (root / tree_id).mkdir(parents=True)
     for name, size in sizes.items():
         (root / tree_id / name).write_bytes(b"x" * size)
-    return TreeEntry(id=tree_id, scans=[f"{tree_id}/{n}" for n in sizes], reference=0)
+    return TreeEntry(id=tree_id, scans=tuple(f"{tree_id}/{n}" for n in sizes))
 
 
-def test_longest_first_orders_by_bytes_ties_in_manifest_order(tmp_path) -> None:
-    small = _tree(tmp_path, "small", {"a.ply": 10, "b.ply": 10})
-    big = _tree(tmp_path, "big", {"a.ply": 500, "b.ply": 10})
-    tie = _tree(tmp_path, "tie", {"a.ply": 15, "b.ply": 5})
-    four = _tree(tmp_path, "four", {f"s{k}.ply": 100 for k in range(4)})
-    gone = TreeEntry(id="gone", scans=["gone/a.ply", "gone/b.ply"], reference=0)
-    assert tree_cost(tmp_path, four) == 400
-    assert tree_cost(tmp_path, gone) == 0  # reported when the tree runs
-    todo = [(e, e.id) for e in (gone, small, big, tie, four)]
-    ordered, costs = longest_first(tmp_path, todo)
-    assert costs == {"gone": 0, "small": 20, "big": 510, "tie": 20, "four": 400}
-    assert [s for _, s in ordered] == [
-        "big",
-        "four",
-        "small",
-        "tie",
-        "gone",
+def _five(root: Path) -> list[TreeEntry]:
+    return [
+        TreeEntry(id="gone", scans=("gone/a.ply", "gone/b.ply")),
+        _tree(root, "small", {"a.ply": 10, "b.ply": 10}),
+        _tree(root, "big", {"a.ply": 500, "b.ply": 10}),
+        _tree(root, "tie", {"a.ply": 15, "b.ply": 5}),
+        _tree(root, "four", {f"s{k}.ply": 100 for k in range(4)}),
     ]
+
+
+def test_first_run_goes_by_bytes_ties_in_manifest_order(tmp_path) -> None:
+    trees = _five(tmp_path)
+    assert tree_cost(tmp_path, trees[4]) == 400
+    assert tree_cost(tmp_path, trees[0]) == 0  # reported when the tree runs
+    ordered, costs = longest_first(
+        Campaign(tmp_path, tuple(trees)), [(e, e.id) for e in trees]
+    )
+    assert costs == {"gone": 0, "small": 20, "big": 510, "tie": 20, "four": 400}
+    assert [s for _, s in ordered] == ["big", "four", "small", "tie", "gone"]
+
+
+def test_a_tree_run_before_costs_the_seconds_it_took(tmp_path) -> None:
+    from amrst.campaign.run import ERROR, STAMP
+
+    trees = _five(tmp_path)
+    campaign = Campaign(tmp_path, tuple(trees))
+    for tree_id, name, seconds in (("small", STAMP, 8.0), ("big", ERROR, 0.5)):
+        campaign.results_dir(tree_id).mkdir(parents=True)
+        (campaign.results_dir(tree_id) / name).write_text(
+            json.dumps({"seconds": seconds})
+        )
+    ordered, costs = longest_first(campaign, [(e, e.id) for e in trees])
+    # seconds per byte: small 8/20, big 0.5/510; the median of two is the larger
+    assert costs["small"] == 8.0
+    assert costs["big"] == 0.5
+    assert costs["four"] == pytest.approx(400 * 8 / 20)
+    assert costs["tie"] == pytest.approx(8.0)  # ties with small: manifest order
+    assert [s for _, s in ordered] == ["four", "small", "tie", "big", "gone"]
 
 
 def test_time_left_follows_the_bytes_done() -> None:
