@@ -158,6 +158,9 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
         # hands freed memory back at once and faults it in again, 6x the page faults
         # and 12-13% more CPU per tree than amrst register (14 trees, one run).
         "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+        # The dashboard's profiler samples the task's stack every 10 ms (about 3% of
+        # the CPU of a tree); a batch never shows it.
+        "distributed.worker.profile.enabled": False,
     }
     with dask.config.set(config):
         cluster = cluster_cls(
