@@ -28,7 +28,11 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     for i, (role, path) in enumerate(paths.items()):
         reporter.check_cancelled()
         reporter.progress(i / len(paths), f"Reading {role} {Path(path).name}")
-        clouds[role] = io.read(path)
+        # LAS/LAZ are read in chunks with a cancel check between them (issue 15).
+        sub = SubReporter(
+            reporter, i / len(paths), (i + 1) / len(paths), f"Reading {role}"
+        )
+        clouds[role] = io.read(path, reporter=sub)
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
 

@@ -14,9 +14,9 @@ from amrst.pipeline.steps import later_steps as _later_steps
 # (loading and exporting) around it.
 STEPS = STEP_NAMES
 # Jobs that run to the end once started (short, or writing files); Cancel still drops
-# the steps queued after them.
+# the steps queued after them. Loading stops between chunks of LAS/LAZ points.
 UNSTOPPABLE = frozenset(
-    {"load", "export"} | {s.name for s in ENGINE_STEPS if not s.cancellable}
+    {"export"} | {s.name for s in ENGINE_STEPS if not s.cancellable}
 )
 
 LABELS = {

@@ -33,6 +33,7 @@ from amrst.io.ply import read_ply, write_ply
 from amrst.io.ptx import read_ptx
 from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
+from amrst.progress import NULL_REPORTER, Reporter
 from amrst.types import Cloud
 
 logger = logging.getLogger(__name__)
@@ -50,12 +51,15 @@ class _Format:
     read: Callable[..., RawCloud]
     write: Callable[..., None] | None
     text: bool = False
+    chunked: bool = False  # reads in steps, with a reporter (progress, Cancel)
 
 
 _TEXT_CSV = functools.partial(write_text, sep=",")
 _FORMATS: dict[str, _Format] = {
-    ".las": _Format("las", read_las, write_las),
-    ".laz": _Format("laz", read_las, functools.partial(write_las, compress=True)),
+    ".las": _Format("las", read_las, write_las, chunked=True),
+    ".laz": _Format(
+        "laz", read_las, functools.partial(write_las, compress=True), chunked=True
+    ),
     ".ply": _Format("ply", read_ply, write_ply),
     ".pcd": _Format("pcd", read_pcd, write_pcd),
     ".xyz": _Format("text", read_text, write_text, text=True),
@@ -159,7 +163,11 @@ def _check_readable(path: Path) -> _Format:
 
 
 def read(
-    path: PathLike, *, columns: Sequence[str] | None = None, drop_invalid: bool = True
+    path: PathLike,
+    *,
+    columns: Sequence[str] | None = None,
+    drop_invalid: bool = True,
+    reporter: Reporter = NULL_REPORTER,
 ) -> Cloud:
     """Read a point cloud, keeping every attribute and georeferenced precision.
 
@@ -174,6 +182,8 @@ def read(
     drop_invalid : bool
         Drop points with NaN/inf coordinates or coordinates beyond 1e9 m (logged
         as a warning; the count is kept in ``meta["n_dropped_invalid"]``).
+    reporter : Reporter
+        Progress and Cancel while LAS/LAZ points are decoded.
 
     Returns
     -------
@@ -188,6 +198,8 @@ def read(
         Missing, unreadable (permissions) or empty file, a folder, unsupported
         extension, corrupt or truncated file, a non-numeric text line, or no
         valid point.
+    Cancelled
+        ``reporter`` asked to stop (LAS/LAZ: checked between chunks of points).
     """
     path = Path(path)
     try:
@@ -199,7 +211,11 @@ def read(
             "columns= applies to text files only; ignored for %s.", path.name
         )
     try:
-        raw = fmt.read(path, columns) if fmt.text else fmt.read(path)
+        if fmt.text:
+            raw = fmt.read(path, columns)
+        else:
+            raw = fmt.read(path, reporter) if fmt.chunked else fmt.read(path)
+        reporter.check_cancelled()
     except AmrstError:
         raise
     except PermissionError as exc:

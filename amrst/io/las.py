@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from amrst.errors import InvalidInput
+from amrst.errors import Cancelled, InvalidInput
 from amrst.io.common import RawCloud, shorten
 from amrst.io.laz import (
     check_laz_count,
@@ -37,6 +37,7 @@ from amrst.io.laz import (
     needs_laszip,
     quiet_decoders,
 )
+from amrst.progress import NULL_REPORTER, Reporter
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -79,10 +80,20 @@ def all_standard_names() -> frozenset[str]:
     return frozenset().union(*(dimension_names(i) for i in range(11)))
 
 
-def read_las(path: Path) -> RawCloud:
-    """Read a LAS/LAZ/COPC file: coordinates, every non-zero dimension, header details."""
+# Points decoded per step of a read: a few tenths of a second of LAZ decoding, so a
+# Cancel (the reporter's check point between steps) stops a read within a second.
+CHUNK_POINTS = 500_000
+
+
+def read_las(path: Path, reporter: Reporter = NULL_REPORTER) -> RawCloud:
+    """Read a LAS/LAZ/COPC file: coordinates, every non-zero dimension, header details.
+
+    The points are decoded ``CHUNK_POINTS`` at a time, with ``reporter``'s
+    progress and cancel check between chunks (:class:`amrst.errors.Cancelled`:
+    nothing of the file is kept).
+    """
     fixed = check_header(path)  # before laspy: a corrupt header can make it loop
-    return las_to_raw(decode(path, fixed), fixed, path)
+    return las_to_raw(decode(path, fixed, reporter), fixed, path)
 
 
 def las_to_raw(las: Any, fixed: FixedHeader, path: Path) -> RawCloud:
@@ -121,7 +132,7 @@ def las_to_raw(las: Any, fixed: FixedHeader, path: Path) -> RawCloud:
     return RawCloud(xyz, np.asarray(header.offsets, np.float64), attributes, meta)
 
 
-def decode(path: Path, fixed: FixedHeader) -> Any:
+def decode(path: Path, fixed: FixedHeader, reporter: Reporter = NULL_REPORTER) -> Any:
     """Return laspy's LasData for the file, decoded as its LASzip variant needs.
 
     Files lazrs cannot read are decompressed by laszip in a child process (it
@@ -131,12 +142,12 @@ def decode(path: Path, fixed: FixedHeader) -> Any:
         with tempfile.TemporaryDirectory(prefix="amrst-laz-") as folder:
             plain = Path(folder) / "points.las"
             decompress_in_child(path, plain)
-            las = _open_and_read(plain)
+            las = _open_and_read(plain, reporter)
             las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 22204]
             return las
     try:
-        return _open_and_read(path)
-    except InvalidInput:
+        return _open_and_read(path, reporter)
+    except (InvalidInput, Cancelled):
         raise
     except BaseException as exc:
         if not (isinstance(exc, Exception) or is_panic(exc)):
@@ -148,15 +159,34 @@ def decode(path: Path, fixed: FixedHeader) -> Any:
         ) from exc
 
 
-def _open_and_read(path: Path) -> Any:
+def _open_and_read(path: Path, reporter: Reporter = NULL_REPORTER) -> Any:
     import laspy
 
+    reporter.check_cancelled()
     with quiet_decoders():  # not around our own warnings: stderr is muted there
         reader = laspy.open(path, laz_backend=lazrs_backends())
     with reader:
         _check_size(reader.header, path)
-        with quiet_decoders():
-            return reader.read()
+        header = reader.header
+        n = int(header.point_count)
+        # One array filled chunk by chunk (no list of chunks to concatenate: the
+        # peak stays one copy of the points).
+        points = np.empty(n, dtype=header.point_format.dtype())
+        done = 0
+        while done < n:
+            reporter.check_cancelled()
+            with quiet_decoders():
+                chunk = reader.read_points(min(CHUNK_POINTS, n - done))
+            if len(chunk) == 0:
+                break
+            points[done : done + len(chunk)] = chunk.array
+            done += len(chunk)
+            reporter.progress(done / n, f"{done:,} of {n:,} points read")
+        reporter.check_cancelled()
+        record = laspy.ScaleAwarePointRecord(
+            points[:done], header.point_format, header.scales, header.offsets
+        )
+        return laspy.LasData(header=header, points=record)
 
 
 @contextlib.contextmanager

@@ -161,6 +161,10 @@ class MatchesPanel(QWidget):
         self.table.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.ResizeToContents
         )
+        # Fit the columns to the first rows only: measuring every row (Qt's default:
+        # 1000) called the model's data() thousands of times on the GUI thread while
+        # a step ran in a worker, each call waiting for the GIL (issue 15).
+        self.table.horizontalHeader().setResizeContentsPrecision(40)
         self.table.horizontalHeader().setStretchLastSection(True)
         self.table.selectionModel().currentRowChanged.connect(
             self._on_current_row_changed

@@ -93,7 +93,14 @@ class WorkflowStatusBar(QStatusBar):
         self.progress.setValue(0)
 
     def _on_progressed(self, fraction: float, message: str) -> None:
+        # QProgressBar.setValue repaints at once, and with the 3D views in the
+        # window every repaint composes the whole window (software OpenGL: tens of
+        # ms); many reports per second froze the window (issue 15). So the value
+        # changes with updates off, and the bar is painted with the next frame.
+        self.progress.setUpdatesEnabled(False)
         self.progress.setValue(int(fraction * 1000))
+        self.progress.setUpdatesEnabled(True)
+        self.progress.update()
         if message:
             step = self.session.running_step or ""
             label = (

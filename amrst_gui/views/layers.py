@@ -108,7 +108,9 @@ SCENE_COLOURS = np.array(
 )
 
 
-def scene_layer(xyz: np.ndarray, labels: np.ndarray, name: str = "scene") -> PointsLayer:
+def scene_layer(
+    xyz: np.ndarray, labels: np.ndarray, name: str = "scene"
+) -> PointsLayer:
     """Points coloured by their scene label (issue 12's scene layer).
 
     xyz (N, 3) are the preprocessed points the labels refer to

@@ -1,20 +1,27 @@
 """ScanView: one QtInteractor that draws a Scene, and nothing else.
 
-Level of detail (issue 15): each points layer has two actors, every displayed point
-(at rest) and an even subset (``scene_jobs.MOVING_POINTS`` per view) shown only
-while the camera moves; VTK's StartInteractionEvent / EndInteractionEvent switch
-them. Multisampling is off: with software OpenGL it multiplied the cost of every
+Level of detail (issue 15): every frame is timed (``lod.COST``); at rest a view
+draws the largest level of detail (all displayed points, or every 2nd, 4th, ...)
+whose frame fits ``lod.REST_BUDGET_S``, going up one level per frame after a new
+scene, and while the camera moves (VTK's StartInteractionEvent /
+EndInteractionEvent) the largest up to ``scene.MOVING_POINTS`` that fits
+``lod.MOVING_BUDGET_S``; the caption says how many points are drawn at rest.
+Multisampling is off: with software OpenGL it multiplied the cost of every
 frame, and single-pixel points gain nothing from it.
 """
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pyvista as pv
-from PySide6.QtCore import Signal
+from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
-from pyvistaqt import QtInteractor
 
+from amrst_gui.views import lod
+from amrst_gui.views.detail import PointLevels, with_shown
+from amrst_gui.views.interactor import Interactor
 from amrst_gui.views.layers import (
     LinesLayer,
     PointsLayer,
@@ -23,10 +30,10 @@ from amrst_gui.views.layers import (
     TextLayer,
 )
 from amrst_gui.views.picking import ClickPicker
+from amrst_gui.views.scene import MOVING_POINTS
 from amrst_gui.views.scene_jobs import Prepared, prepare
 
 BACKGROUND = (0.12, 0.13, 0.15)
-_MOVING = "__moving"  # suffix of the actor drawn while the camera moves
 _ELEVATION_DEG = 15
 _VIEW_ANGLE_DEG = 30.0
 
@@ -35,43 +42,6 @@ def _lines_polydata(nodes: np.ndarray, edges: np.ndarray) -> pv.PolyData:
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
     return pv.PolyData(np.asarray(nodes, np.float32), lines=cells)
-
-
-class _Interactor(QtInteractor):
-    """A QtInteractor that draws each frame once.
-
-    pyvistaqt renders in ``paintGL`` every time, also for the repaint that only
-    shows a render just finished (``WindowFrameEvent``), so every frame cost two
-    renders: 0.2-1 s each for 200,000 points with software OpenGL. Here that
-    repaint only copies the finished frame to the widget, as VTK's own C++ widget
-    does. Other repaints (expose, resize, grab) still render: pyvistaqt renders
-    there because pyvista may change a scene without rendering; ScanView renders
-    after every change it makes.
-    """
-
-    _fresh_frame = False
-    _in_paint: bool  # pyvistaqt's (set in its __init__)
-
-    def _cb_frame(self, obj, evt) -> None:
-        if not self._in_paint:
-            self._fresh_frame = True
-        super()._cb_frame(obj, evt)
-
-    def resizeGL(self, w: int, h: int) -> None:
-        self._fresh_frame = False
-        super().resizeGL(w, h)
-
-    def paintGL(self) -> None:
-        if not (self._fresh_frame and not self._in_paint):
-            self._fresh_frame = False
-            super().paintGL()
-            return
-        self._fresh_frame = False
-        self._in_paint = True  # makes pyvistaqt's paintGL blit without rendering
-        try:
-            super().paintGL()
-        finally:
-            self._in_paint = False
 
 
 class ScanView(QWidget):
@@ -90,7 +60,7 @@ class ScanView(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         # auto_update=False: a closed window's timer froze the others (pyvistaqt#762).
-        self.plotter = _Interactor(self, auto_update=False, multi_samples=0)
+        self.plotter = Interactor(self, auto_update=False, multi_samples=0)
         self.plotter.disable_anti_aliasing()
         # QtInteractor would add a dropped file to its scene; the pane handles drops.
         self.plotter.setAcceptDrops(False)
@@ -102,8 +72,17 @@ class ScanView(QWidget):
         self._closed = False
         self._fit_pending = False
         self._bounds: np.ndarray | None = None
-        self._moving_actors: dict[str, tuple] = {}  # name -> (still, moving) actors
+        self._points = PointLevels(self.plotter)
+        self._rest_level: int | None = None  # None: no points drawn yet
         self._moving = False
+        self._frame_start = 0.0
+        self._frames = 0
+        self._adapt_queued = False
+        self._caption: str | None = None  # the title as drawn
+        rw = self.plotter.ren_win
+        if rw is not None:
+            rw.AddObserver("StartEvent", self._on_frame_start)
+            rw.AddObserver("EndEvent", self._on_frame_end)
         if self.plotter.iren is not None:
             self.plotter.iren.add_observer(
                 "StartInteractionEvent", self._on_interaction_started
@@ -135,15 +114,14 @@ class ScanView(QWidget):
         return self._moving
 
     def drawn_points(self) -> int:
-        """Points drawn now: the moving subset while the camera moves."""
-        total = 0
-        for name in self._keys:
-            pair = self._moving_actors.get(name)
-            if pair is None:
-                continue
-            actor = pair[1] if (self._moving and pair[1] is not None) else pair[0]
-            total += actor.GetMapper().GetInput().GetNumberOfPoints()
-        return total
+        """Points drawn now: fewer while the camera moves, or when a frame of all
+        would take too long (``lod``)."""
+        return self._points.drawn()
+
+    def caption(self) -> str | None:
+        """The title as drawn (its "showing N of M points" says ``drawn_points``
+        at rest)."""
+        return self._caption
 
     def update_scene(self, scene: Scene, prepared: Prepared | None = None) -> None:
         """Draw ``scene``: add changed layers, drop missing ones, then render once.
@@ -158,9 +136,10 @@ class ScanView(QWidget):
         wanted = scene.names()
         for name in [n for n in self._keys if n not in wanted]:
             self.plotter.remove_actor(name, render=False)
-            self.plotter.remove_actor(name + _MOVING, render=False)
-            self._moving_actors.pop(name, None)
+            self._points.remove(name)
             del self._keys[name]
+        if self._rest_level is None or not self._points.names():
+            self._rest_level = None  # a first frame: start low (lod.pick)
         for layer in scene.layers:
             if self._keys.get(layer.name) == layer.key:
                 continue
@@ -168,6 +147,8 @@ class ScanView(QWidget):
             self._keys[layer.name] = layer.key
         self._bounds = prepared.bounds
         self._scene = scene
+        self._choose_level(self._rest_level is None)
+        self._sync_caption()
         if scene.frame_key != self._frame_key:
             self._frame_key = scene.frame_key
             self.reset_camera(render=False)
@@ -280,14 +261,9 @@ class ScanView(QWidget):
     def _draw(self, layer, prepared: Prepared) -> None:
         p = self.plotter
         if isinstance(layer, PointsLayer):
-            still = self._add_points(prepared.still[layer.name], layer, layer.name)
-            moving = prepared.moving.get(layer.name)
-            if moving is not None:
-                moving = self._add_points(moving, layer, layer.name + _MOVING)
-                (still if self._moving else moving).SetVisibility(False)
-            else:
-                p.remove_actor(layer.name + _MOVING, render=False)
-            self._moving_actors[layer.name] = (still, moving)
+            self._points.set_layer(
+                layer.name, prepared.sets[layer.name], layer.point_size
+            )
         elif isinstance(layer, LinesLayer):
             poly = _lines_polydata(layer.nodes, layer.edges)
             p.add_mesh(
@@ -316,6 +292,8 @@ class ScanView(QWidget):
                 pickable=False,
             )
         elif isinstance(layer, TextLayer):
+            if layer.name == "title":
+                return  # _sync_caption draws it
             p.add_text(
                 layer.text,
                 position=layer.position,
@@ -325,25 +303,81 @@ class ScanView(QWidget):
                 render=False,
             )
 
-    def _add_points(self, poly, layer: PointsLayer, name: str):
-        return self.plotter.add_mesh(
-            poly,
-            scalars="rgb",
-            rgb=True,
-            style="points",
-            point_size=layer.point_size,
-            name=name,
-            reset_camera=False,
-            render=False,
-            pickable=False,
+    # ----------------------------------------------------------- level of detail
+    def _choose_level(self, first: bool) -> None:
+        """Show the rest level ``lod.pick`` gives (the moving one while moving)."""
+        levels = self._points.levels()
+        if not levels:
+            self._rest_level = None
+            return
+        drawn = None if first else levels[min(self._rest_level or 0, len(levels) - 1)]
+        self._rest_level = lod.pick(levels, lod.REST_BUDGET_S, drawn)
+        self._points.show(self._moving_level() if self._moving else self._rest_level)
+
+    def _moving_level(self) -> int:
+        levels = self._points.levels()
+        return lod.pick(levels, lod.MOVING_BUDGET_S, None, cap=MOVING_POINTS)
+
+    def _sync_caption(self) -> None:
+        """Draw the title with "showing N of M points" as drawn at rest."""
+        layers = () if self._scene is None else self._scene.layers
+        title = next(
+            (ly for ly in layers if isinstance(ly, TextLayer) and ly.name == "title"),
+            None,
         )
+        if title is None:
+            self._caption = None
+            return
+        if not self._moving and self._points.names():
+            text = with_shown(title.text, self._points.drawn())
+        else:
+            text = self._caption or title.text
+        if text == self._caption:
+            return
+        actor = self.plotter.actors.get(title.name)
+        if self._caption is not None and hasattr(actor, "set_text"):
+            actor.set_text(title.position, text)  # in place: add_text is slow
+        else:
+            self.plotter.add_text(
+                text,
+                position=title.position,
+                font_size=9,
+                color="white",
+                name=title.name,
+                render=False,
+            )
+        self._caption = text
+
+    def _on_frame_start(self, *_args) -> None:
+        self._frame_start = time.perf_counter()
+
+    def _on_frame_end(self, *_args) -> None:
+        seconds = time.perf_counter() - self._frame_start
+        drawn = self._points.drawn()
+        if drawn:
+            self._frames += 1
+            if self._frames > 1:  # the first frame of points also sets OpenGL up
+                lod.COST.record(drawn, seconds)
+        if not (self._moving or self._adapt_queued or self._closed):
+            self._adapt_queued = True
+            QTimer.singleShot(0, self, self._adapt)
+
+    def _adapt(self) -> None:
+        """After a frame at rest: go up a level while it fits the budget, down
+        when it did not fit; then draw again."""
+        self._adapt_queued = False
+        if self._closed or self._moving or self._rest_level is None:
+            return
+        before = self._rest_level
+        self._choose_level(False)
+        if self._rest_level != before:
+            self._sync_caption()
+            self.plotter.render()
 
     def _show_moving(self, moving: bool) -> None:
         self._moving = moving
-        for still, subset in self._moving_actors.values():
-            if subset is not None:
-                still.SetVisibility(not moving)
-                subset.SetVisibility(moving)
+        if self._rest_level is not None:
+            self._points.show(self._moving_level() if moving else self._rest_level)
 
     def _on_interaction_started(self, *_args) -> None:
         self._show_moving(True)

@@ -2,8 +2,9 @@
 
 A pane asks ``SceneLoader.request(build, snapshot, n_points)``: ``build(snapshot)``
 (a ``scene.build_*_scene``) picks and colours the displayed points, then
-:func:`prepare` makes the VTK point sets (every displayed point, and the few drawn
-while the camera moves) and the framing bounds. For a big scan this all runs in a
+:func:`prepare` makes the VTK point sets (every displayed point, and the halved
+levels of detail the view draws when a frame of all would be too slow, or while
+the camera moves: see ``lod``) and the framing bounds. For a big scan this all runs in a
 worker through ``workers.run_stage``; the view only adds the finished actors and
 renders. A newer request drops an older one still running. Small scans (under
 ``SYNC_POINTS``) are built at once on the GUI thread: a few milliseconds, and the
@@ -23,7 +24,6 @@ import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
 from amrst_gui.views.layers import PointsLayer, Scene
-from amrst_gui.views.scene import MOVING_POINTS
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -81,19 +81,33 @@ class Snapshot:
 
 @dataclass
 class Prepared:
-    """VTK data made in the worker for one scene: ``still[name]`` and
-    ``moving[name]`` point sets of each PointsLayer, ``bounds`` to frame."""
+    """VTK data made in the worker for one scene: ``sets[name]``, the point sets of
+    each PointsLayer at every level of detail (every displayed point, then every
+    2nd, 4th, ... point: :func:`level_sets`), and ``bounds`` to frame."""
 
-    still: dict[str, Any] = field(default_factory=dict)
-    moving: dict[str, Any] = field(default_factory=dict)
+    sets: dict[str, tuple[Any, ...]] = field(default_factory=dict)
     bounds: np.ndarray | None = None
 
+    @property
+    def still(self) -> dict[str, Any]:
+        """Every displayed point of each layer (level 0)."""
+        return {name: sets[0] for name, sets in self.sets.items()}
 
-def moving_index(n: int, n_total: int, budget: int = MOVING_POINTS) -> slice:
-    """Which of a layer's ``n`` points to draw while the camera moves, when the view
-    shows ``n_total`` in all: an even stride to the layer's share of ``budget``."""
-    share = max(1, int(budget * n / max(n_total, 1)))
-    return slice(None, None, max(1, -(-n // share)))
+
+# Levels of detail of a layer: every 2**k-th displayed point, down to this many.
+MIN_SET_POINTS = 1_000
+
+
+def level_slices(n: int, smallest: int = MIN_SET_POINTS) -> list[slice]:
+    """The strides of a layer's levels: all ``n`` points, then every 2nd, 4th, ...
+    while a level keeps at least ``smallest`` points. The same level index halves
+    every layer of a view, whichever scene made it."""
+    out = [slice(None)]
+    step = 2
+    while -(-n // step) >= smallest:
+        out.append(slice(None, None, step))
+        step *= 2
+    return out
 
 
 def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
@@ -119,16 +133,15 @@ def _polydata(xyz: np.ndarray, rgb: np.ndarray):
     return poly
 
 
-def prepare(scene: Scene, budget: int = MOVING_POINTS) -> Prepared:
-    """The point sets of ``scene``'s PointsLayers, full and moving, and its bounds."""
+def prepare(scene: Scene) -> Prepared:
+    """The point sets of ``scene``'s PointsLayers at every level, and its bounds."""
     points = [ly for ly in scene.layers if isinstance(ly, PointsLayer)]
-    total = sum(len(ly.xyz) for ly in points)
     out = Prepared(bounds=fit_bounds([ly.xyz for ly in points]))
     for layer in points:
-        out.still[layer.name] = _polydata(layer.xyz, layer.rgb)
-        if total > budget:
-            sl = moving_index(len(layer.xyz), total, budget)
-            out.moving[layer.name] = _polydata(layer.xyz[sl], layer.rgb[sl])
+        out.sets[layer.name] = tuple(
+            _polydata(layer.xyz[sl], layer.rgb[sl])
+            for sl in level_slices(len(layer.xyz))
+        )
     return out
 
 

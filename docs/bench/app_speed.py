@@ -17,6 +17,12 @@ the bundled sample, seeded, written to ``--data``):
   (a watchdog: the longest time the window could not respond);
 - orbit: drag the mouse across the target view (left button, as a user orbits)
   and time the frames drawn while it moves; frames per second;
+- runall: open ``--runall-target`` and ``--runall-source`` (default: the 2M + 2M
+  pair of ``amrst bench-scale``, written to ``--data`` when missing), Cancel the
+  load once the first chunk of points is read (time to idle, to the reading's
+  end), open the pair again, then Run all
+  as a user would; the seconds of each step as the session timed it, the whole
+  run from the click to idle, and the longest GUI stall meanwhile;
 - cancel: on a 2M + 2M pair, start each step, cancel it 1 s in (Accept coarse and
   Fine: as soon as they report "Measuring the tree", where they did not stop),
   and time until the app is idle again; whether the cancelled step's result was
@@ -65,10 +71,17 @@ class Watchdog:
             while True:
                 time.sleep(after_s / 2)
                 if time.perf_counter() - self.last > after_s:
-                    frame = sys._current_frames().get(main)
-                    stack = "".join(traceback.format_stack(frame)[-8:])
+                    # Every thread: a worker in a long C call that holds the
+                    # GIL stalls the GUI thread too.
+                    stacks = [
+                        f"-- thread {ident}{' (GUI)' if ident == main else ''}\n"
+                        + "".join(traceback.format_stack(frame)[-6:])
+                        for ident, frame in sys._current_frames().items()
+                        if ident != threading.get_ident()
+                    ]
                     sys.stderr.write(
-                        f"STALL {time.perf_counter() - self.last:.2f}s\n{stack}"
+                        f"STALL {time.perf_counter() - self.last:.2f}s\n"
+                        + "".join(stacks)
                     )
 
         threading.Thread(target=watch, daemon=True).start()
@@ -213,6 +226,59 @@ def _cancel(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
     return out
 
 
+def _cancel_load(app, win, target: Path, source: Path) -> dict:
+    """Open the pair and Cancel once the first chunk of points was read; seconds
+    until the app is idle and until the reading stopped (LAS/LAZ only)."""
+    s = win.session
+    marks: dict = {}
+
+    def on_progress(_f: float, message: str) -> None:
+        if "cancel" not in marks and "points read" in message:
+            marks["job"] = getattr(s, "_job", None)
+            marks["cancel"] = time.perf_counter()
+            s.cancel()
+
+    s.progressed.connect(on_progress)
+    start = time.perf_counter()
+    win.open_pair(target, source)
+    _wait(app, lambda: "cancel" in marks or not s.busy, 600)
+    s.progressed.disconnect(on_progress)
+    if "cancel" not in marks:  # no chunked reading (a version before it): the
+        # load ran to its end (and Cancel did not stop it then either)
+        return {"load_cancel_s": None, "load_full_s": time.perf_counter() - start}
+    _wait(app, lambda: not s.busy, 600)
+    idle = time.perf_counter() - marks["cancel"]
+    done = getattr(marks["job"], "worker_done", None)
+    if done is not None:
+        _wait(app, done.is_set, 600)
+    return {
+        "load_cancel_s": idle,
+        "load_worker_stopped_s": time.perf_counter() - marks["cancel"],
+        "load_kept_scans": s.cloud("target") is not None,
+    }
+
+
+def _runall(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
+    s = win.session
+    out = _cancel_load(app, win, target, source)
+    win.open_pair(target, source)
+    _wait(app, lambda: _points_shown(win) and not s.busy, 600)
+    _wait(app, lambda: False, 3.0)  # the descriptions and the other views
+    dog.reset()
+    start = time.perf_counter()
+    s.run_all()
+    _wait(app, lambda: not s.busy, 1800)
+    whole = time.perf_counter() - start
+    timings = dict(getattr(s, "_timings", {}))
+    return {
+        **out,
+        "runall_s": whole,
+        "runall_steps_s": {k: v for k, v in timings.items() if k != "load"},
+        "runall_max_stall_s": dog.max_gap_s,
+        "runall_fine": None if s.fine is None else s.fine.method,
+    }
+
+
 def _result_of(s, step: str):
     return {
         "separate": lambda: s.analysis("target"),
@@ -228,11 +294,13 @@ def child(args) -> None:
     app, win = _window()
     dog = Watchdog()
     if args.trace:
-        dog.trace()
+        dog.trace(args.trace)
     out: dict = {}
     if args.phase in ("load", "all"):
         out.update(_load(app, win, args.target, args.source, dog))
         out.update(_orbit(app, win, args.frames))
+    if args.phase in ("runall", "all"):
+        out.update(_runall(app, win, args.runall_target, args.runall_source, dog))
     if args.phase in ("cancel", "all"):
         out["cancel"] = _cancel(app, win, args.cancel_target, args.cancel_source, dog)
     win.close()
@@ -262,8 +330,13 @@ def _run_child(code: Path, args, phase: str) -> dict:
         *("--target", str(args.target), "--source", str(args.source)),
         *("--cancel-target", str(args.cancel_target)),
         *("--cancel-source", str(args.cancel_source)),
+        *("--runall-target", str(args.runall_target)),
+        *("--runall-source", str(args.runall_source)),
+        *(("--trace", str(args.trace)) if args.trace else ()),
     ]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    if args.trace:
+        sys.stderr.write(proc.stderr)
     for line in proc.stdout.splitlines():
         if line.startswith("RESULT "):
             return json.loads(line[7:])
@@ -296,6 +369,17 @@ def report(before: dict | None, after: dict) -> str:
         row("longest GUI stall while loading", lambda d: d["load_max_stall_s"])
         row("orbit frames per second", lambda d: d["orbit_fps"], "")
         row("full-detail frame after the orbit", lambda d: d["rest_frame_s"])
+    if "runall_s" in after:
+        row("Cancel while loading: idle after", lambda d: d["load_cancel_s"])
+        row(
+            "Cancel while loading: reading stopped after",
+            lambda d: d["load_worker_stopped_s"],
+        )
+        row("Load that could not be cancelled: ran for", lambda d: d["load_full_s"])
+        row("Run all: click to idle", lambda d: d["runall_s"])
+        for step in STEPS:
+            row(f"Run all: {step}", lambda d, s=step: d["runall_steps_s"][s])
+        row("Run all: longest GUI stall", lambda d: d["runall_max_stall_s"])
     for step in STEPS if "cancel" in after else ():
         row(f"{step}: idle after Cancel", lambda d, s=step: d["cancel"][s]["cancel_s"])
         row(
@@ -324,14 +408,22 @@ def report(before: dict | None, after: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--phase", choices=("load", "cancel", "all"), default="all")
+    p.add_argument(
+        "--phase", choices=("load", "runall", "cancel", "all"), default="all"
+    )
     p.add_argument("--before", default=BEFORE, help="git ref to compare with")
     p.add_argument("--no-before", action="store_true", help="measure this tree only")
     p.add_argument("--points", type=int, default=10_000_000)
     p.add_argument("--source-points", type=int, default=2_000_000)
     p.add_argument("--cancel-points", type=int, default=2_000_000)
     p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--trace", action="store_true", help="print what stalls (child)")
+    p.add_argument(
+        "--trace",
+        type=float,
+        nargs="?",
+        const=0.3,
+        help="print what the GUI thread runs when it stalls this long (s)",
+    )
     p.add_argument(
         "--data", type=Path, default=Path(tempfile.gettempdir()) / "amrst-app-speed"
     )
@@ -339,6 +431,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source", type=Path)
     p.add_argument("--cancel-target", type=Path)
     p.add_argument("--cancel-source", type=Path)
+    p.add_argument("--runall-target", type=Path)
+    p.add_argument("--runall-source", type=Path)
     args = p.parse_args(argv)
     if args.child:
         child(args)
@@ -353,6 +447,13 @@ def main(argv: list[str] | None = None) -> int:
     args.cancel_target, args.cancel_source = write_dense_pair(
         args.data, args.cancel_points, args.cancel_points
     )
+    if args.runall_target is None or args.runall_source is None:
+        from amrst.bench.scale import make_scale_pair
+
+        pair = args.data / "pair_2000000"
+        if not (pair / "source.laz").is_file():
+            make_scale_pair(ROOT / "resources" / "sample", pair, 2_000_000)
+        args.runall_target, args.runall_source = pair / "target.laz", pair / "source.laz"
     before = None
     if not args.no_before:
         with tempfile.TemporaryDirectory(prefix="amrst-before-") as tmp:
