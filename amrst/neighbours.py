@@ -6,7 +6,8 @@ small_gicp's KD-tree (imports in about 0.2 s) measured faster than
 ``docs/bench/scale/README.md``): 1.2-1.7x for :func:`knn` (build a tree, then the k
 nearest of many points: the outlier filter, the wood features, the skeleton graph)
 and 1.4-1.9x for :class:`NearestTree` queries (one tree, many queries: ICP
-correspondences, cloud metrics). pykdtree was as fast with one OpenMP thread but
+correspondences, cloud metrics); :class:`NeighbourTable` shares one query between
+the per-scan stages. pykdtree was as fast with one OpenMP thread but
 5-12x slower than scipy with two on this loaded 2-core machine (OpenMP threads
 spin while they wait), so it is not used.
 
@@ -120,3 +121,125 @@ class NearestTree:
         if far.any():
             dist[far], idx[far] = np.inf, self.n
         return dist.reshape(shape), idx.reshape(shape)
+
+
+class NeighbourTable:
+    """The ``K`` nearest neighbours of every point of a cloud, from one query.
+
+    The per-scan stages each needed a k-nearest query on a subset of the same
+    preprocessed points (the outlier filter on all of them, the wood features on the
+    points left after the outlier filter and the scene cut, the skeleton graph on a
+    voxel sample of those). The k nearest points of a subset are the first k of the
+    cloud's neighbours that belong to the subset, whenever the K listed hold k of
+    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K
+    neighbours of the rows where too few remain, and queries the subset afresh only
+    for rows still short. The answer equals :func:`knn` on the subset, but for the
+    order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
+    build and one query per scan instead of three of each (small_gicp holds the GIL
+    while it queries, so the two scans' queries did not overlap anyway).
+
+    Parameters
+    ----------
+    points : (M, 3) float64
+        The whole cloud.
+    dist, idx : (M, K) float64 and int64
+        :func:`knn` of every point of ``points`` (each point its own first neighbour).
+    pos : (N,) int64 or None
+        Sorted positions in ``points`` of the points this view stands for; None: all.
+    tree : small_gicp.KdTree or None
+        The tree on ``points`` (None: rows left short are queried afresh).
+    """
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        dist: np.ndarray,
+        idx: np.ndarray,
+        pos: np.ndarray | None = None,
+        tree: Any = None,
+    ) -> None:
+        self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
+        self._tree = tree  # small_gicp.KdTree on points, for the rows left short
+
+    @classmethod
+    def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
+        """Query the ``k`` nearest neighbours of every point (k capped at the points)."""
+        import small_gicp
+
+        pts = _points(points)
+        k = min(k, len(pts))
+        if k < 1:
+            raise ValueError("a neighbour table needs at least one point")
+        tree = small_gicp.KdTree(pts, num_threads=1)
+        idx, sq = tree.batch_knn_search(pts, k, num_threads=1)
+        return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree)
+
+    @property
+    def k(self) -> int:
+        """Neighbours listed per point (K)."""
+        return int(self._idx.shape[1])
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(N, 3) the points of this view."""
+        return self._points if self._pos is None else self._points[self._pos]
+
+    def __len__(self) -> int:
+        return len(self._points) if self._pos is None else len(self._pos)
+
+    def subset(self, pos: np.ndarray) -> NeighbourTable:
+        """Return the view of the points at ``pos`` (sorted positions in this view)."""
+        pos = np.asarray(pos, dtype=np.int64)
+        if self._pos is not None:
+            pos = self._pos[pos]
+        return NeighbourTable(self._points, self._dist, self._idx, pos, self._tree)
+
+    def knn(
+        self, k: int, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``knn(self.xyz, k, self.xyz[rows])`` (every point when rows is None)."""
+        n = len(self)
+        if not 1 <= k <= n:
+            raise ValueError(f"k must be within 1..{n}, not {k}")
+        if rows is None and self._pos is None and k <= self.k:
+            return self._dist[:, :k], self._idx[:, :k]
+        rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
+        root = rows if self._pos is None else self._pos[rows]
+        if self._pos is None and k <= self.k:
+            return self._dist[root, :k], self._idx[root, :k]
+        if self._pos is None or k > self.k:
+            return knn(self.xyz, k, self.xyz[rows])
+        inv = np.full(len(self._points), -1, dtype=np.int64)
+        inv[self._pos] = np.arange(n)
+        j = inv[self._idx[root]]
+        # Flat positions of the listed neighbours that are in the view, row by row;
+        # a row with k of them takes its first k.
+        at = np.flatnonzero(j.ravel() >= 0)
+        count = np.bincount(at // j.shape[1], minlength=len(rows))
+        ok = count >= k
+        start = np.cumsum(count) - count
+        take = at[(start[ok][:, None] + np.arange(k)).ravel()]
+        dist = np.empty((len(rows), k))
+        idx = np.empty((len(rows), k), dtype=np.int64)
+        dist[ok] = self._dist[root].ravel()[take].reshape(-1, k)
+        idx[ok] = j.ravel()[take].reshape(-1, k)
+        short = np.flatnonzero(~ok)
+        if len(short) and self._tree is not None:
+            # More of the cloud's neighbours for the rows left short (a few %).
+            wide = min(2 * self.k, len(self._points))
+            w_idx, w_sq = self._tree.batch_knn_search(
+                self._points[root[short]], wide, num_threads=1
+            )
+            jw = inv[w_idx.view(np.int64)]
+            at = np.flatnonzero(jw.ravel() >= 0)
+            count = np.bincount(at // wide, minlength=len(short))
+            got = count >= k
+            start = np.cumsum(count) - count
+            take = at[(start[got][:, None] + np.arange(k)).ravel()]
+            dist[short[got]] = np.sqrt(w_sq.ravel()[take]).reshape(-1, k)
+            idx[short[got]] = jw.ravel()[take].reshape(-1, k)
+            short = short[~got]
+        if len(short):
+            redo = rows[short]
+            dist[short], idx[short] = knn(self.xyz, k, self.xyz[redo])
+        return dist, idx

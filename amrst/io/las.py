@@ -30,6 +30,7 @@ from amrst.errors import Cancelled, InvalidInput
 from amrst.io.common import RawCloud, shorten
 from amrst.io.laz import (
     check_laz_count,
+    check_laz_vlr,
     decompress_in_child,
     is_panic,
     laz_info,
@@ -286,6 +287,7 @@ def check_header(path: Path) -> FixedHeader:
             "<I" if legacy else "<Q", head, 107 if legacy else 247
         )
         if laz is not None:
+            check_laz_vlr(path, laz, struct.unpack_from("<H", head, 105)[0], n_points)
             check_laz_count(path, n_points, laz)
     return FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
 

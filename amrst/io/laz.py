@@ -28,6 +28,9 @@ logger = logging.getLogger(__name__)
 
 _VLR_HEADER = 54
 _VARIABLE_CHUNKS = 0xFFFFFFFF
+_MAX_CHUNK_BYTES = (
+    256 * 2**20
+)  # a chunk larger than the file's points is corrupt past this
 _COMPRESSORS = {0: "none", 1: "pointwise", 2: "pointwise-chunked", 3: "layered-chunked"}
 _quiet_lock = threading.Lock()
 _quiet_depth = 0
@@ -41,6 +44,8 @@ class LazInfo(NamedTuple):
     version: str  # e.g. "1.2r0"
     chunk_size: int  # _VARIABLE_CHUNKS for variable-size chunks
     n_chunks: int | None  # from the chunk table; None when there is none
+    coder: int = 0  # 0: arithmetic, the only one LASzip defines
+    items: tuple[tuple[int, int, int], ...] = ()  # (type, size, version) per item
 
     def describe(self) -> str:
         """Name the LASzip version and compressor, for messages."""
@@ -69,9 +74,10 @@ def laz_info(path: Path, head: bytes) -> LazInfo | None:
                 data = f.read(length)
                 if len(data) < 16:
                     return None
-                compressor, _, major, minor, rev, _, chunk = struct.unpack_from(
+                compressor, coder, major, minor, rev, _, chunk = struct.unpack_from(
                     "<HHBBHII", data
                 )
+                items = _items(data)
                 break
             pos += _VLR_HEADER + length
         else:
@@ -88,7 +94,81 @@ def laz_info(path: Path, head: bytes) -> LazInfo | None:
             version, count = struct.unpack("<II", f.read(8))
             if version == 0:
                 n_chunks = count
-    return LazInfo(compressor, f"{major}.{minor}r{rev}", chunk, n_chunks)
+    return LazInfo(compressor, f"{major}.{minor}r{rev}", chunk, n_chunks, coder, items)
+
+
+def _items(data: bytes) -> tuple[tuple[int, int, int], ...]:
+    """Return the VLR's items as (type, size, version); () when cut short."""
+    if len(data) < 34:
+        return ()
+    (n_items,) = struct.unpack_from("<H", data, 32)
+    if len(data) < 34 + 6 * n_items:
+        return ()
+    return tuple(struct.unpack_from("<HHH", data, 34 + 6 * k) for k in range(n_items))
+
+
+# LASzip item type: (its size in bytes or None when any, the versions decoders know)
+_ITEMS = {
+    0: (None, (1, 2)),  # extra bytes (LAS 1.0-1.3 point formats)
+    6: (20, (1, 2)),  # point 1.0
+    7: (8, (1, 2)),  # GPS time
+    8: (6, (1, 2)),  # RGB
+    9: (29, (1,)),  # wave packet
+    10: (30, (3, 4)),  # point 1.4
+    11: (6, (3, 4)),  # RGB 1.4
+    12: (8, (3, 4)),  # RGB + NIR 1.4
+    13: (29, (3, 4)),  # wave packet 1.4
+    14: (None, (3, 4)),  # extra bytes 1.4
+}
+
+
+def check_laz_vlr(path: Path, info: LazInfo, record_length: int, n_points: int) -> None:
+    """Refuse a LASzip VLR no decoder can follow, before any point is decoded.
+
+    A damaged VLR (a chunk size far beyond the points, an unknown coder, item or
+    item version, or item sizes that do not add up to the point record) sends
+    lazrs's parallel decoder after absurd allocations (chunk size x record
+    length), which abort the whole process instead of raising.
+    """
+    problem = None
+    chunk_bytes = info.chunk_size * max(record_length, 1)
+    if (
+        info.chunk_size != _VARIABLE_CHUNKS
+        and info.chunk_size > n_points
+        and chunk_bytes > _MAX_CHUNK_BYTES
+    ):
+        problem = (
+            f"its chunk size is {info.chunk_size:,} points ({chunk_bytes / 1e9:.1f} GB "
+            f"to decode one chunk) for a file of {n_points:,} points"
+        )
+    elif info.coder != 0:
+        problem = f"its coder is {info.coder} (LASzip defines only 0)"
+    elif info.compressor > 3:
+        problem = f"its compressor is {info.compressor} (LASzip defines 0 to 3)"
+    elif info.items:
+        for kind, size, version in info.items:
+            known = _ITEMS.get(kind)
+            if known is None:
+                problem = f"it lists an unknown item type {kind}"
+            elif known[0] is not None and size != known[0]:
+                problem = f"item type {kind} has size {size}, not {known[0]}"
+            elif version not in known[1]:
+                problem = f"item type {kind} has an unknown version {version}"
+            if problem:
+                break
+        total = sum(size for _, size, _ in info.items)
+        if problem is None and total != record_length:
+            problem = (
+                f"its items add up to {total} bytes a point but the header's point "
+                f"records are {record_length} bytes"
+            )
+    else:
+        problem = "its item list is missing or cut short"
+    if problem:
+        raise InvalidInput(
+            f"{path}: corrupt LAZ compression record (LASzip VLR): {problem}. "
+            "The file is corrupt; copy or export it again."
+        )
 
 
 def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:

@@ -12,6 +12,8 @@ from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, TypeVar
 
+import numpy as np
+
 from amrst.errors import Cancelled, InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
@@ -22,8 +24,6 @@ from amrst.stages.skeleton import SkeletonResult, build_skeleton
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-
-    import numpy as np
 
     from amrst.params import RegistrationParams
     from amrst.types import Cloud
@@ -69,6 +69,19 @@ class ScanAnalysis:
         return sel if len(sel) >= 100 else self.xyz
 
 
+# Neighbours listed per point by the preprocess query beyond what the later stages
+# ask for: the wood features and the skeleton graph read theirs off that table where
+# enough of the listed points are left in their subset (see NeighbourTable).
+SHARED_MARGIN = 2
+
+
+def _shared_k(params: RegistrationParams) -> int:
+    """Neighbours per point the preprocess query lists for the later stages."""
+    sep = max(*params.separate.scales_k, params.separate.vote_neighbours)
+    skel = max(params.skeleton.neighbours, 16) + 1
+    return max(sep, skel) + SHARED_MARGIN
+
+
 def _timed(timings: dict[str, float], key: str, t0: float) -> float:
     now = time.perf_counter()
     timings[key] = timings.get(key, 0.0) + now - t0
@@ -91,7 +104,10 @@ def prepare_scan(
     t0 = time.perf_counter()
     try:
         pre = preprocess_points(
-            cloud.xyz, params.preprocess, SubReporter(reporter, 0, 0.3, "preprocess")
+            cloud.xyz,
+            params.preprocess,
+            SubReporter(reporter, 0, 0.3, "preprocess"),
+            share_k=_shared_k(params),
         )
     except InvalidInput as exc:  # say which scan
         raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
@@ -103,7 +119,9 @@ def prepare_scan(
     full_pre = pre
     keep = scene.keep(params.scene.use_points)
     if not keep.all() and keep.sum() >= params.preprocess.min_points:
-        pre = replace(pre, xyz=pre.xyz[keep], index=pre.index[keep])
+        kept = np.flatnonzero(keep)
+        table = None if pre.neighbours is None else pre.neighbours.subset(kept)
+        pre = replace(pre, xyz=pre.xyz[kept], index=pre.index[kept], neighbours=table)
     t0 = _timed(timings, "scene", t0)
     reporter.progress(0.35, scene.message)
     intensity = cloud.intensity
@@ -112,6 +130,7 @@ def prepare_scan(
         None if intensity is None else intensity[pre.index],
         params.separate,
         SubReporter(reporter, 0.3, 1.0, "wood-leaf separation"),
+        pre.neighbours,
     )
     _timed(timings, "separate", t0)
     return ScanAnalysis(
@@ -130,8 +149,11 @@ def skeletonise_scan(
     pts = analysis.points(params.skeleton.points)
     if len(pts) < params.skeleton.min_points:
         pts = analysis.xyz
+    table = analysis.pre.neighbours
+    if table is not None and len(pts) != len(table):  # the wood points alone
+        table = table.subset(np.flatnonzero(analysis.is_wood))
     skel = build_skeleton(
-        pts, params.skeleton, SubReporter(reporter, 0, 0.9, "skeleton")
+        pts, params.skeleton, SubReporter(reporter, 0, 0.9, "skeleton"), table
     )
     t0 = _timed(timings, "skeleton", t0)
     kp = extract_keypoints(skel, params.keypoints)

@@ -66,11 +66,41 @@ class GroundFit:
         a, b, c = self.plane
         if not self.found or len(self.centres) == 0:
             return np.asarray(xyz[:, 2] - (a * xyz[:, 0] + b * xyz[:, 1] + c))
+        plane = a * xyz[:, 0] + b * xyz[:, 1] + c
+        return np.asarray(xyz[:, 2] - plane - self.relief[self.nearest_cell(xyz)])
+
+    def nearest_cell(self, xyz: np.ndarray) -> np.ndarray:
+        """(N,) index of the cell centre nearest each point's x y.
+
+        A point inside an occupied cell is nearer its own centre than any other (at
+        most half a cell off in x and in y; every other centre at least that far in
+        one of them), so it is looked up in the grid; points in empty cells or within
+        a rounding error of a cell edge (where two centres tie) ask a KD-tree.
+        """
         from scipy.spatial import cKDTree
 
-        cell = cKDTree(self.centres).query(xyz[:, :2])[1]
-        plane = a * xyz[:, 0] + b * xyz[:, 1] + c
-        return np.asarray(xyz[:, 2] - plane - self.relief[cell])
+        cell = self.cell_m
+        f = xyz[:, :2] / cell
+        q = np.floor(f)
+        edge = np.minimum(f - q, 1.0 - (f - q)).min(axis=1) < 1e-9
+        cq = np.floor(self.centres / cell)
+        lo = cq.min(axis=0)
+        span = cq.max(axis=0) - lo + 1
+        ci = (cq - lo).astype(np.int64)
+        ccode = ci[:, 0] * int(span[1]) + ci[:, 1]
+        qi = q - lo
+        inside = ((qi >= 0) & (qi < span)).all(axis=1) & ~edge
+        qcode = np.zeros(len(xyz), dtype=np.int64)
+        qi = qi[inside].astype(np.int64)
+        qcode[inside] = qi[:, 0] * int(span[1]) + qi[:, 1]
+        # The centres come in grid order (fit_ground): ccode is sorted.
+        by_code = np.argsort(ccode, kind="stable")
+        at = by_code[np.minimum(np.searchsorted(ccode[by_code], qcode), len(ccode) - 1)]
+        hit = inside & (ccode[at] == qcode)
+        if not hit.all():
+            miss = np.flatnonzero(~hit)
+            at[miss] = cKDTree(self.centres).query(xyz[miss, :2])[1]
+        return at
 
     @property
     def normal(self) -> np.ndarray:
@@ -128,20 +158,14 @@ def fit_ground(
     none = np.zeros((0, 2))
     if n < 3:
         return GroundFit(False, lowest, 0.0, 0, cell_m, none, np.zeros(0))
-    ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
-    ij -= ij.min(axis=0)
-    code = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
-    codes, inv = np.unique(code, return_inverse=True)
-    # The lowest point of each cell: sort by cell, then height; take each run's first.
-    order = np.lexsort((xyz[:, 2], inv))
-    first = order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]]
+    first = _lowest_per_cell(xyz, cell_m)  # one per occupied cell
     mins = xyz[first, 2]
     cxy = (np.floor(xyz[first, :2] / cell_m) + 0.5) * cell_m
-    if len(codes) < 3:
-        return GroundFit(False, lowest, 0.0, len(codes), cell_m, none, np.zeros(0))
+    if len(first) < 3:
+        return GroundFit(False, lowest, 0.0, len(first), cell_m, none, np.zeros(0))
     # The plane is fitted through the lowest points where they are (not the cell
     # centres): on a slope a cell's lowest point sits at its downhill edge.
-    A = np.column_stack([xyz[first, :2], np.ones(len(codes))])
+    A = np.column_stack([xyz[first, :2], np.ones(len(first))])
     coef = _ransac_plane(
         A, mins, tol_m, np.tan(np.radians(max_slope_deg)), iterations, seed
     )
@@ -154,16 +178,38 @@ def fit_ground(
     inl = np.abs(resid) < tol_m
     area = float(inl.sum() * cell_m**2)
     if area < min_area_m2 or inl.sum() < 3:
-        return GroundFit(False, lowest, area, len(codes), cell_m, none, np.zeros(0))
+        return GroundFit(False, lowest, area, len(first), cell_m, none, np.zeros(0))
     # Relief: each cell takes the median residual of its nearest inlier cells, so
     # bumps follow while a cell with only crown points in it keeps the ground below.
     from scipy.spatial import cKDTree
 
     k = int(min(4, inl.sum()))
-    nn = cKDTree(cxy[inl]).query(cxy, k=k)[1].reshape(len(codes), k)
+    nn = cKDTree(cxy[inl]).query(cxy, k=k)[1].reshape(len(first), k)
     relief = np.median(resid[inl][nn], axis=1)
     relief[inl] = resid[inl]
-    return GroundFit(True, coef, area, len(codes), cell_m, cxy, relief)
+    return GroundFit(True, coef, area, len(first), cell_m, cxy, relief)
+
+
+def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:
+    """Index of the lowest point of each occupied cell, cells in grid order.
+
+    Ties go to the lowest index (what a stable sort by cell, then height, keeps
+    first). One stable sort by cell and a minimum per run, instead of a two-key
+    lexsort and a unique.
+    """
+    ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    code = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    order = np.argsort(code, kind="stable")
+    sc = code[order]
+    start = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])
+    z = xyz[order, 2]
+    low = np.minimum.reduceat(z, start)
+    run = np.repeat(np.arange(len(start)), np.diff(np.r_[start, len(order)]))
+    hit = np.flatnonzero(z == low[run])
+    # The first hit of each run: runs are in index order within (stable sort).
+    first_hit = hit[np.r_[True, run[hit][1:] != run[hit][:-1]]]
+    return np.asarray(order[first_hit])
 
 
 def _ransac_plane(
@@ -174,19 +220,42 @@ def _ransac_plane(
     iterations: int,
     seed: int,
 ) -> np.ndarray:
-    """Plane (a, b, c) with the most cell minima on it and the fewest far below it."""
+    """Plane (a, b, c) with the most cell minima on it and the fewest far below it.
+
+    The draws are solved and scored in blocks (one batched solve, one matrix product
+    per block), the first best draw wins as in a loop over them.
+    """
     rng = np.random.default_rng(seed)
-    best_score, best = -np.inf, np.array([0.0, 0.0, float(np.min(z))])
+    best = np.array([0.0, 0.0, float(np.min(z))])
     draws = rng.integers(0, len(z), size=(iterations, 3))
-    for idx in draws:
-        try:
-            coef = np.linalg.solve(A[idx], z[idx])
-        except np.linalg.LinAlgError:
-            continue
-        if np.hypot(coef[0], coef[1]) > max_slope:
-            continue
-        r = z - A @ coef
-        score = np.sum(np.abs(r) < tol) - _BELOW_PENALTY * np.sum(r < -2 * tol)
-        if score > best_score:
-            best_score, best = score, coef
-    return best
+    coefs = _solve_draws(A[draws], z[draws])
+    usable = np.isfinite(coefs).all(axis=1)
+    usable[usable] = np.hypot(coefs[usable, 0], coefs[usable, 1]) <= max_slope
+    cand = np.flatnonzero(usable)
+    if len(cand) == 0:
+        return best
+    scores = np.empty(len(cand))
+    block = max(1, 2_000_000 // max(len(z), 1))
+    for s in range(0, len(cand), block):
+        c = coefs[cand[s : s + block]]
+        r = z[:, None] - A @ c.T
+        scores[s : s + block] = np.sum(np.abs(r) < tol, axis=0) - _BELOW_PENALTY * (
+            np.sum(r < -2 * tol, axis=0)
+        )
+    return np.asarray(coefs[cand[int(np.argmax(scores))]])
+
+
+def _solve_draws(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(I, 3) solutions of the (I, 3, 3) systems; NaN rows where one is singular.
+
+    np.linalg.solve refuses a whole batch for one singular system (a draw that
+    repeats a cell often is): the batch is then halved until the singular draws
+    are alone, a few dozen solves instead of one per draw.
+    """
+    try:
+        return np.asarray(np.linalg.solve(M, b[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        if len(M) == 1:
+            return np.full(b.shape, np.nan)
+        h = len(M) // 2
+        return np.concatenate([_solve_draws(M[:h], b[:h]), _solve_draws(M[h:], b[h:])])

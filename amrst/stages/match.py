@@ -12,16 +12,15 @@ permutations with the signed volume, and the best proper permutation is solved b
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from amrst.geometry import combinations4, kabsch
 from amrst.progress import NULL_REPORTER, Reporter
-
-_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-_PERMS = np.array(list(itertools.permutations(range(4))))
+from amrst.stages.tetra_screen import EDGES as _EDGES
+from amrst.stages.tetra_screen import PERMS as _PERMS
+from amrst.stages.tetra_screen import correspond as _correspond
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -175,9 +174,16 @@ def _tetrahedra(
         )
         / 6
     )
-    mean_edge = edges.mean(axis=1)
+    # edges.mean(axis=1), summed column by column in numpy's own order (exact).
+    mean_edge = edges[:, 0].copy()
+    for k in range(1, 6):
+        mean_edge += edges[:, k]
+    mean_edge /= 6
     flatness = np.abs(signed) / (mean_edge**3 / (6 * np.sqrt(2)))
-    ok = (edges.min(axis=1) >= params.min_edge_m) & (flatness >= params.min_flatness)
+    shortest = edges[:, 0].copy()
+    for k in range(1, 6):
+        np.minimum(shortest, edges[:, k], out=shortest)
+    ok = (shortest >= params.min_edge_m) & (flatness >= params.min_flatness)
     quads, edges, signed = quads[ok], edges[ok], signed[ok]
     size = np.abs(signed)
     if len(size) > params.max_tetrahedra:
@@ -219,16 +225,6 @@ def _descriptor(
     return np.column_stack([d, v, h])
 
 
-def _edge_index(a: int, b: int) -> int:
-    return next(i for i, (x, y) in enumerate(_EDGES) if {x, y} == {a, b})
-
-
-# Under vertex permutation π, target edge (a, b) meets source edge (π(a), π(b)); a
-# permutation's parity flips the signed volume. Both are fixed tables.
-_EDGE_PERM = np.array([[_edge_index(p[a], p[b]) for a, b in _EDGES] for p in _PERMS])
-_PARITY = np.array([np.linalg.det(np.eye(4)[list(p)]) for p in _PERMS])
-
-
 def _descriptor_pairs(
     desc_t: np.ndarray, desc_s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -250,55 +246,6 @@ def _descriptor_pairs(
     ti, si = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     order = np.argsort(ti * len(desc_s) + si)
     return ti[order], si[order]
-
-
-def _correspond(
-    target_kp: np.ndarray,
-    source_kp: np.ndarray,
-    tq: np.ndarray,
-    sq: np.ndarray,
-    te: np.ndarray,
-    se: np.ndarray,
-    tv: np.ndarray,
-    sv: np.ndarray,
-    ti: np.ndarray,
-    si: np.ndarray,
-    params: MatchParams,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For descriptor pairs, the proper vertex permutation whose edges agree best.
-
-    Sorted edges lose the vertex order and admit mirror images (same edges, opposite
-    signed volume); all 24 orders are tried and improper ones are excluded.
-    Returns the pairs kept, the permutation index and the edge error.
-    """
-    c = params.edge_floor_m
-    # The relative edge error |a - b| / (max(a, b) + c) is 1 - exp(-|log(a+c) -
-    # log(b+c)|): screen all 24 orders on float32 log lengths (no division), with a
-    # little slack, then compute the exact error and the other tests on the few survivors.
-    log_t = np.log(te[ti] + c).astype(np.float32)
-    log_s = np.log(se[si] + c).astype(np.float32)
-    dlog = np.abs(log_s[:, _EDGE_PERM] - log_t[:, None, :]).max(axis=2)  # (P, 24)
-    limit = -np.log1p(-params.edge_tolerance) + 1e-5  # slack >> float32 rounding
-    proper = np.sign(sv[si])[:, None] * _PARITY[None, :] == np.sign(tv[ti])[:, None]
-    pair, perm = np.nonzero((dlog <= limit) & proper)
-    e_s = se[si[pair]][np.arange(len(pair))[:, None], _EDGE_PERM[perm]]
-    e_t = te[ti[pair]]
-    err = (np.abs(e_s - e_t) / (np.maximum(e_s, e_t) + c)).max(axis=1)
-    ok = err <= params.edge_tolerance
-    if params.levelled:
-        zt = target_kp[tq[ti[pair]], 2]
-        zs = source_kp[sq[si[pair]], 2][np.arange(len(pair))[:, None], _PERMS[perm]]
-        dz = (zt - zt.mean(axis=1, keepdims=True)) - (
-            zs - zs.mean(axis=1, keepdims=True)
-        )
-        ok &= np.abs(dz).max(axis=1) <= params.height_tolerance_m
-    pair, perm, err = pair[ok], perm[ok], err[ok]
-    # Per pair the smallest error; on a tie the first permutation (as argmin would).
-    order = np.lexsort((perm, err, pair))
-    first = (
-        order[np.r_[True, pair[order][1:] != pair[order][:-1]]] if len(order) else order
-    )
-    return ti[pair[first]], si[pair[first]], perm[first], err[first]
 
 
 def match_tetrahedra(

@@ -11,10 +11,12 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
+from amrst.stages.nearest_cache import NearestCache
+
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from scipy.spatial import cKDTree
+    from amrst.stages.nearest_cache import NearestQuery
 
 POLISH_ITERATIONS = 15
 # A polish iteration that moves less than this (m, rad) ends its scale: the fine
@@ -28,25 +30,47 @@ class Occupancy:
 
     def __init__(self, xyz: np.ndarray, voxel: float) -> None:
         self.voxel = voxel
-        keys = np.floor(xyz / voxel).astype(np.int64)
-        keys = keys[np.unique(self._code(keys), return_index=True)[1]]
-        offs = (
-            np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T
-        )
-        self.codes = np.unique(
-            self._code((keys[:, None, :] + offs[None]).reshape(-1, 3))
-        )
+        codes = np.unique(self._code(np.floor(xyz / voxel).astype(np.int64)))
+        # Dilate by one voxel along z, then y, then x: the same 27-neighbourhood as
+        # adding all 27 offsets at once, with three smaller sorts instead of one of
+        # 27 times the occupied voxels (1.5-2x faster).
+        for shift in (1, 1 << 21, 1 << 42):
+            codes = np.unique(np.concatenate([codes - shift, codes, codes + shift]))
+        self.codes = codes
 
     @staticmethod
     def _code(k: np.ndarray) -> np.ndarray:
         k = k + (1 << 20)
         return cast("np.ndarray", (k[..., 0] << 42) | (k[..., 1] << 21) | k[..., 2])
 
-    def fraction_many(self, pts: np.ndarray) -> np.ndarray:
-        """(G,) occupied fraction of each of G point sets given as (G, n, 3)."""
+    def hits_many(self, pts: np.ndarray) -> np.ndarray:
+        """(G, n) bool: which points of G (G, n, 3) point sets land on or near a voxel."""
         code = self._code(np.floor(pts / self.voxel).astype(np.int64))
         pos = np.minimum(np.searchsorted(self.codes, code), len(self.codes) - 1)
-        return cast("np.ndarray", np.mean(self.codes[pos] == code, axis=1))
+        return cast("np.ndarray", self.codes[pos] == code)
+
+    def fraction_many(self, pts: np.ndarray) -> np.ndarray:
+        """(G,) occupied fraction of each of G point sets given as (G, n, 3)."""
+        return cast("np.ndarray", np.mean(self.hits_many(pts), axis=1))
+
+
+def transform_many(Ts: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Move (n, 3) points by each of B (B, 4, 4) transforms; (B, n, 3).
+
+    The same values bit for bit as ``np.einsum("bij,nj->bni", R, pts) + t`` (whose
+    inner sum runs x, z, y), 5-10x faster: that einsum has no fast path here.
+    """
+    R = Ts[:, :3, :3]
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    return np.stack(
+        [
+            (R[:, i, 0, None] * x + R[:, i, 2, None] * z)
+            + R[:, i, 1, None] * y
+            + Ts[:, i, 3, None]
+            for i in range(3)
+        ],
+        axis=-1,
+    )
 
 
 def weighted_centres(
@@ -79,7 +103,7 @@ def rigid_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
 def polish(
     src: np.ndarray,
     tgt: np.ndarray,
-    tree: cKDTree,
+    tree: NearestQuery,
     Ts: np.ndarray,
     max_dist: float,
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = rigid_steps,
@@ -91,29 +115,46 @@ def polish(
     and then a third of it (what Open3D's point-to-point ICP does; importing Open3D
     would cost a second per command).
 
-    One KD-tree query per iteration serves every start still moving; a start stops a
-    scale when its step is below POLISH_STOP_M / POLISH_STOP_RAD, and stops for good
-    when fewer than 6 of its points find a partner. ``tree`` is a cKDTree on ``tgt``;
-    ``Ts`` (B, 4, 4); returns the polished (B, 4, 4).
+    Every start's points keep their partners in one :class:`NearestCache`: only the
+    points that may have found another nearest target point since are queried again
+    (a third of the queries on the benchmark cases, the same partners bit for bit).
+    A start stops a scale when its step is below POLISH_STOP_M / POLISH_STOP_RAD, and
+    stops for good when fewer than 6 of its points find a partner. ``tree`` is a
+    KD-tree on ``tgt`` (``cKDTree`` or ``NearestTree``); ``Ts`` (B, 4, 4); returns the
+    polished (B, 4, 4).
     """
     Ts = np.array(Ts, dtype=float).reshape(-1, 4, 4)
+    n = len(src)
     alive = np.ones(len(Ts), dtype=bool)
+    # Points with no target point within the cache's reach need no query: a dilated
+    # voxel grid at least that coarse tells them (exactly: anything closer lies in a
+    # neighbouring voxel).
+    occ = Occupancy(tgt, 1.05 * 1.5 * max_dist)
+    nearest = NearestCache(
+        tree, tgt, len(Ts) * n, max_dist, lambda pts: occ.hits_many(pts[None])[0]
+    )
     for dist in (max_dist, max_dist / 3):
+        nearest.max_dist = dist
         moving = alive.copy()
         for _ in range(iterations):
             idx = np.flatnonzero(moving)
             if not len(idx):
                 break
             T = Ts[idx]
-            moved = np.einsum("bij,nj->bni", T[:, :3, :3], src) + T[:, None, :3, 3]
-            d, j = tree.query(moved.reshape(-1, 3), distance_upper_bound=dist)
-            ok = (d < dist).reshape(len(idx), -1)
+            moved = transform_many(T, src)
+            rows = (idx[:, None] * n + np.arange(n)).reshape(-1)
+            inside, q = nearest.match(moved.reshape(-1, 3), rows)
+            found = np.zeros(len(rows), dtype=bool)
+            found[inside] = True
+            ok = found.reshape(len(idx), n)
             enough = ok.sum(axis=1) >= 6
             alive[idx[~enough]] = moving[idx[~enough]] = False
+            flat = np.zeros((len(rows), 3))  # partners; zeros (weight 0) for none
+            flat[inside] = q
+            partner = flat.reshape(len(idx), n, 3)
             idx, moved, ok = idx[enough], moved[enough], ok[enough]
             if not len(idx):
                 break
-            partner = tgt[np.minimum(j, len(tgt) - 1)].reshape(-1, len(src), 3)
             step = fit(moved, partner[enough], ok.astype(float))
             Ts[idx] = step @ Ts[idx]
             still = (np.linalg.norm(step[:, :3, 3], axis=1) >= POLISH_STOP_M) | (

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.voxels import voxel_sample
+
+if TYPE_CHECKING:
+    from amrst.neighbours import NeighbourTable
 
 log = logging.getLogger(__name__)
 
@@ -94,23 +98,35 @@ class PreprocessResult:
     n_invalid: int  # NaN/inf coordinates dropped
     n_outliers: int  # removed by the statistical filter
     n_thinned: int  # merged away by voxel thinning
+    # The outlier filter's neighbour query, kept for the later stages (``share_k``):
+    # a view of exactly the kept points. None when not asked for or not queried.
+    neighbours: NeighbourTable | None = None
 
 
-def _statistical_inliers(pts: np.ndarray, k: int, std_ratio: float) -> np.ndarray:
+def _statistical_inliers(
+    pts: np.ndarray, k: int, std_ratio: float, share_k: int = 0
+) -> tuple[np.ndarray, NeighbourTable]:
     """Return indices of the points that pass Open3D's statistical outlier rule.
 
     A point passes when its mean distance to its k neighbours is at most
     mean + std_ratio * std over all points. Done without Open3D (importing it costs a
     second per command), on small_gicp's KD-tree (:func:`amrst.neighbours.knn`).
+    The neighbour table (``max(k + 1, share_k)`` per point, a view of the inliers) is
+    returned too: the sorted distances of a longer query begin with the same values.
     """
-    from amrst.neighbours import knn
+    from amrst.neighbours import NeighbourTable
 
-    d = knn(pts, k + 1)[0][:, 1:].mean(axis=1)
-    return np.flatnonzero(d <= d.mean() + std_ratio * d.std())
+    table = NeighbourTable.build(pts, max(k + 1, share_k))
+    d = table.knn(k + 1)[0][:, 1:].mean(axis=1)
+    kept = np.flatnonzero(d <= d.mean() + std_ratio * d.std())
+    return kept, table.subset(kept)
 
 
 def preprocess_points(
-    xyz: np.ndarray, params: PreprocessParams, reporter: Reporter = NULL_REPORTER
+    xyz: np.ndarray,
+    params: PreprocessParams,
+    reporter: Reporter = NULL_REPORTER,
+    share_k: int = 0,
 ) -> PreprocessResult:
     """Filter noise and thin a scan.
 
@@ -120,6 +136,10 @@ def preprocess_points(
         Local coordinates of the scan.
     params : PreprocessParams
     reporter : Reporter
+    share_k : int
+        When above 0 (and the outlier filter runs), its neighbour query lists this
+        many neighbours and is kept in ``PreprocessResult.neighbours`` for the later
+        stages (one query per scan instead of three).
 
     Returns
     -------
@@ -161,9 +181,10 @@ def preprocess_points(
     n_thinned = n_before - len(pts)
     reporter.progress(0.5, "thinned")
     n_outliers = 0
+    table = None
     if params.outlier_neighbours > 0 and len(pts) > params.outlier_neighbours + 1:
-        kept = _statistical_inliers(
-            pts, params.outlier_neighbours, params.outlier_std_ratio
+        kept, table = _statistical_inliers(
+            pts, params.outlier_neighbours, params.outlier_std_ratio, share_k
         )
         n_outliers = len(pts) - len(kept)
         index, pts = index[kept], pts[kept]
@@ -174,4 +195,12 @@ def preprocess_points(
             "holds a whole tree scan, or lower the voxel size / outlier filter."
         )
     reporter.progress(1.0, f"{len(pts)} points kept")
-    return PreprocessResult(pts, index, n_input, n_invalid, n_outliers, n_thinned)
+    return PreprocessResult(
+        pts,
+        index,
+        n_input,
+        n_invalid,
+        n_outliers,
+        n_thinned,
+        table if share_k > 0 else None,
+    )

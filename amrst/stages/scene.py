@@ -247,7 +247,7 @@ def understand_scene(
     axis = (
         np.asarray(stem_xy, dtype=float).reshape(2)
         if stem_xy is not None
-        else (xyz[:, :2].min(axis=0) + xyz[:, :2].max(axis=0)) / 2
+        else np.array([(xyz[:, d].min() + xyz[:, d].max()) / 2 for d in (0, 1)])
         if n
         else np.zeros(2)
     )
@@ -279,7 +279,9 @@ def understand_scene(
                 f"{params.crop_radius_m:g} m from the given stem left out",
             )
     gxyz = xyz if ground_xyz is None else np.asarray(ground_xyz, dtype=float)
-    gxyz = gxyz[np.isfinite(gxyz).all(axis=1)]
+    finite = np.isfinite(gxyz).all(axis=1)
+    if not finite.all():
+        gxyz = gxyz[finite]
     if len(gxyz) > MAX_GROUND_POINTS:
         gxyz = gxyz[:: int(np.ceil(len(gxyz) / MAX_GROUND_POINTS))]
     ground = fit_ground(

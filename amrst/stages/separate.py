@@ -10,12 +10,16 @@ main branches whole while dropping small isolated "wood" specks inside the crown
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import otsu_threshold, shape_features, voxel_components
 from amrst.stages.voxels import voxel_grid, voxel_representatives
+
+if TYPE_CHECKING:
+    from amrst.neighbours import NeighbourTable
 
 MODES = ("auto", "geometry", "intensity", "all_wood")
 
@@ -154,6 +158,7 @@ def separate_wood(
     intensity: np.ndarray | None,
     params: SeparateParams,
     reporter: Reporter = NULL_REPORTER,
+    neighbours: NeighbourTable | None = None,
 ) -> SeparationResult:
     """Label each point wood or leaf.
 
@@ -165,6 +170,9 @@ def separate_wood(
         Intensity of the same points, when the scan has it.
     params : SeparateParams
     reporter : Reporter
+    neighbours : NeighbourTable or None
+        The neighbours of exactly these points (the preprocess query), read instead
+        of a new query; the same labels.
 
     Returns
     -------
@@ -186,12 +194,15 @@ def separate_wood(
         reps = owner = np.arange(n)
     # One neighbour query serves every feature scale and the vote.
     k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
-    neighbours = knn(xyz, k_max, xyz[reps])[1]
+    if neighbours is not None and len(neighbours) == n:
+        nbr = neighbours.knn(k_max, reps)[1]
+    else:
+        nbr = knn(xyz, k_max, xyz[reps])[1]
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0
     if params.mode in ("auto", "geometry") or not use_intensity:
-        v, curv_thr = _geometry_votes(xyz, neighbours, params)
+        v, curv_thr = _geometry_votes(xyz, nbr, params)
         votes.append(v[owner])
         methods.append("geometry")
     reporter.progress(0.4, "geometric features")
@@ -203,7 +214,7 @@ def separate_wood(
     vote = np.mean(votes, axis=0)
     # Neighbourhood step: each representative takes the mean vote of its neighbours.
     k = int(min(params.vote_neighbours, n))
-    score = vote[neighbours[:, :k]].mean(axis=1) if k > 1 else vote[reps]
+    score = vote[nbr[:, :k]].mean(axis=1) if k > 1 else vote[reps]
     score = score[owner]
     candidate = score > 0.5 if len(votes) == 1 else score >= 0.5
     reporter.progress(0.7, "neighbourhood vote")

@@ -22,6 +22,8 @@ if TYPE_CHECKING:
     import numpy.typing as npt
     from scipy.sparse import csr_matrix
 
+    from amrst.neighbours import NeighbourTable
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SkeletonParams:
@@ -140,7 +142,9 @@ def _min_edge_per_pair(
     return order[first], sorted_key[first]
 
 
-def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
+def _graph(
+    xyz: np.ndarray, params: SkeletonParams, table: NeighbourTable | None = None
+) -> tuple[csr_matrix, int]:
     """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
 
     Gaps left by occlusion split the wood into components. Candidate bridges are the
@@ -149,27 +153,30 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
     several times the cost). Components still apart are linked to the root's one by
     their nearest point. A bridge costs twice its length, so paths prefer real wood.
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import coo_matrix, csr_matrix
     from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
     from amrst.neighbours import NearestTree, knn
 
     n = len(xyz)
     k = min(max(params.neighbours, 16) + 1, n)
-    dist, idx = knn(xyz, k)
+    dist, idx = knn(xyz, k) if table is None else table.knn(k)
     kn = min(params.neighbours + 1, n)
-    rows = np.repeat(np.arange(n), kn - 1)
-    cols, w = idx[:, 1:kn].ravel(), dist[:, 1:kn].ravel()
-    ok = w <= params.max_edge_m
-    rows, cols, w = rows[ok], cols[ok], w[ok]
-    g = coo_matrix((w, (rows, cols)), shape=(n, n))
+    # The kNN edges row by row: built as CSR straight away (rows are in order).
+    ok = dist[:, 1:kn] <= params.max_edge_m
+    per_row = np.count_nonzero(ok, axis=1)
+    cols, w = idx[:, 1:kn][ok], dist[:, 1:kn][ok]
+    rows = np.repeat(np.arange(n), per_row)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(per_row, out=indptr[1:])
+    g = csr_matrix((w, cols, indptr), shape=(n, n))
     n_comp, labels = connected_components(g, directed=False)
     bridged = 0
     if n_comp > 1:
-        e0 = np.repeat(np.arange(n), k - 1)
-        e1, el = idx[:, 1:].ravel(), dist[:, 1:].ravel()
-        cross = (labels[e0] != labels[e1]) & np.isfinite(el)
-        e0, e1, el = e0[cross], e1[cross], el[cross]
+        cross = labels[idx[:, 1:]] != labels[:, None]
+        cross &= np.isfinite(dist[:, 1:])
+        e0, c = np.nonzero(cross)
+        e1, el = idx[:, 1:][e0, c], dist[:, 1:][e0, c]
         if len(e0):
             la, lb = labels[e0].astype(np.int64), labels[e1].astype(np.int64)
             # One code per unordered component pair.
@@ -190,8 +197,10 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
                 np.r_[w, 2.0 * el[bridges]],
             )
             bridged += len(bridges)
-        g = coo_matrix((w, (rows, cols)), shape=(n, n))
-        n_comp, labels = connected_components(g, directed=False)
+            # Components after bridging: those of the small graph of bridged
+            # components, numbered like connected_components numbers the points'
+            # (by their first point).
+            n_comp, labels = _merge_components(labels, n_comp, a, b)
         if n_comp > 1:
             # Far islands: link each to the largest component by its nearest point.
             main = np.argmax(np.bincount(labels))
@@ -208,6 +217,26 @@ def _graph(xyz: np.ndarray, params: SkeletonParams) -> tuple[csr_matrix, int]:
             bridged += len(first)
     g = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     return g.maximum(g.T), bridged
+
+
+def _merge_components(
+    labels: np.ndarray, n_comp: int, a: np.ndarray, b: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """Components of the points once components ``a[i]`` and ``b[i]`` are linked.
+
+    Numbered as scipy's connected_components numbers them on the linked point
+    graph: in the order of each component's first point.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    links = coo_matrix((np.ones(len(a)), (a, b)), shape=(n_comp, n_comp))
+    m, merged = connected_components(links, directed=False)
+    point_labels = merged[labels]
+    _, first = np.unique(point_labels, return_index=True)
+    rank = np.empty(m, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(m)
+    return int(m), rank[point_labels].astype(labels.dtype)
 
 
 def _find_root(xyz: np.ndarray, slice_m: float) -> int:
@@ -239,7 +268,10 @@ def _prune(parent: np.ndarray, length: np.ndarray, min_len: float) -> np.ndarray
 
 
 def build_skeleton(
-    wood_xyz: np.ndarray, params: SkeletonParams, reporter: Reporter = NULL_REPORTER
+    wood_xyz: np.ndarray,
+    params: SkeletonParams,
+    reporter: Reporter = NULL_REPORTER,
+    neighbours: NeighbourTable | None = None,
 ) -> SkeletonResult:
     """Skeletonise a wood point cloud.
 
@@ -249,6 +281,9 @@ def build_skeleton(
         Wood points (local coordinates), z up.
     params : SkeletonParams
     reporter : Reporter
+    neighbours : NeighbourTable or None
+        The neighbours of exactly ``wood_xyz`` (the preprocess query): the graph's
+        are read off it instead of a new query; the same skeleton.
 
     Returns
     -------
@@ -269,8 +304,12 @@ def build_skeleton(
             f"Only {len(wood_xyz)} wood points: at least {params.min_points} are needed for a "
             "skeleton. Try separation mode 'geometry' or 'all_wood', or a smaller voxel size."
         )
-    xyz = wood_xyz[voxel_sample(wood_xyz, params.voxel_size_m)]
-    graph, bridged = _graph(xyz, params)
+    sample = voxel_sample(wood_xyz, params.voxel_size_m)
+    xyz = wood_xyz[sample]
+    table = None
+    if neighbours is not None and len(neighbours) == len(wood_xyz):
+        table = neighbours.subset(sample)
+    graph, bridged = _graph(xyz, params, table)
     reporter.progress(0.3, "graph built")
     reporter.check_cancelled()
     root = _find_root(xyz, params.root_slice_m)

@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 
 TRUNK_MODES = ("fallback", "always", "off")
 _MIN_SLICE_POINTS = 10
+# Polished points per batch of headings in the sweep (36 headings x 600 points).
+_BATCH_POINTS = 40_000
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -282,6 +284,7 @@ def search_yaw(
     """
     from scipy.spatial import cKDTree
 
+    from amrst.neighbours import NearestTree
     from amrst.stages.voxels import voxel_sample
 
     rng = np.random.default_rng(params.seed)
@@ -294,7 +297,7 @@ def search_yaw(
     sample = source_xyz[
         rng.choice(len(source_xyz), min(params.points, len(source_xyz)), replace=False)
     ]
-    tree = cKDTree(tgt)
+    tree = NearestTree(tgt)
     full_tree = cKDTree(target_xyz) if target_tree is None else target_tree
     yaws = np.arange(0.0, 360.0, params.yaw_step_deg)
     starts = np.stack(
@@ -303,21 +306,23 @@ def search_yaw(
             for R in (_rot_z(np.radians(y)) for y in yaws)
         ]
     )
-    # One start at a time: a batch of all headings queries the tree in scattered
-    # order and was 25% slower here (the coarse stage's four starts batch well), and
-    # scoring them all at once held headings x points x 3 floats (0.9 GB at 1 deg
-    # steps and 100,000 points).
+    # Headings in batches of at most _BATCH_POINTS polished points: one KD-tree query
+    # per iteration serves the whole batch, and the partners each start keeps (the
+    # polish's NearestCache) spare most queries; scoring a batch at once holds
+    # batch x points x 3 floats, bounded whatever the step and sample size.
     found = []
-    for n, (start, yaw) in enumerate(zip(starts, yaws, strict=True)):
+    per = max(1, _BATCH_POINTS // max(len(src), len(sample), 1))
+    for b0 in range(0, len(starts), per):
         reporter.check_cancelled()
-        T = polish_levelled(src, tgt, tree, start[None], params.polish_dist_m)[0]
+        Ts = polish_levelled(src, tgt, tree, starts[b0 : b0 + per], params.polish_dist_m)
+        moved = sample @ Ts[:, :3, :3].transpose(0, 2, 1) + Ts[:, None, :3, 3]
         d = full_tree.query(
-            sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=params.score_dist_m
-        )[0]
-        found.append(
-            YawSolution(T, float(yaw), float(np.mean(d < params.score_dist_m)))
-        )
-        reporter.progress((n + 1) / len(starts), "trunk heading search")
+            moved.reshape(-1, 3), distance_upper_bound=params.score_dist_m
+        )[0].reshape(len(Ts), -1)
+        for k, T in enumerate(Ts):
+            score = float(np.mean(d[k] < params.score_dist_m))
+            found.append(YawSolution(T, float(yaws[b0 + k]), score))
+        reporter.progress(len(found) / len(starts), "trunk heading search")
     found.sort(key=lambda s: -s.score)
     centre = source_xyz.mean(axis=0)
     kept: list[YawSolution] = []

@@ -8,6 +8,8 @@ odd but valid files still read. Split from test_io_bad_input.py.
 from __future__ import annotations
 
 import struct
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -124,6 +126,54 @@ def test_laz_point_count_beyond_its_chunks_is_refused(
         io.read(tmp_path / "c.laz")
 
 
+def _laz_vlr_data_at(data: bytearray) -> int:
+    """Where the LASzip VLR's payload starts."""
+    pos, _, n_vlrs = struct.unpack_from("<HII", data, 94)
+    for _ in range(n_vlrs):
+        (length,) = struct.unpack_from("<H", data, pos + 20)
+        if data[pos + 2 : pos + 16] == b"laszip encoded":
+            return pos + 54
+        pos += 54 + length
+    raise AssertionError("no LASzip VLR")
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    ("offset", "fmt", "value", "message"),
+    [
+        (12, "<I", 2_868_953_936, "chunk size is 2,868,953,936 points"),  # fuzz seed 61
+        (2, "<H", 44, "its coder is 44"),
+        (0, "<H", 190, "its compressor is 190"),
+        (38, "<H", 34, "unknown version 34"),
+        (36, "<H", 21, "has size 21, not 20"),
+    ],
+)
+def test_laz_corrupt_compression_record_is_refused_not_an_abort(
+    tmp_path, small_cloud, offset, fmt, value, message
+):
+    """lazrs's parallel decoder aborted the whole process on such files (an
+    allocation of chunk size x record length); the check runs in a child here so
+    a regression fails this test instead of killing the suite."""
+    data = _valid_las(tmp_path, small_cloud, ".laz")
+    struct.pack_into(fmt, data, _laz_vlr_data_at(data) + offset, value)
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(data)
+    code = (
+        "import sys\nfrom amrst import io\nfrom amrst.errors import InvalidInput\n"
+        "try:\n    io.read(sys.argv[1])\nexcept InvalidInput as e:\n"
+        "    print(e)\n    sys.exit(2)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=50,
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "corrupt LAZ compression record" in proc.stdout
+    assert message in proc.stdout
+
+
 def test_las_garbage_point_records_disagree_with_header_bounds(tmp_path, small_cloud):
     data = _valid_las(tmp_path, small_cloud)
     (start,) = struct.unpack_from("<I", data, 96)
@@ -147,5 +197,3 @@ def test_las_bounds_check_tolerates_zero_bounds_and_a_few_strays(tmp_path):
     struct.pack_into("<d", tight, 179, min_x + 10.0)  # max x leaves out the strays
     (tmp_path / "t.las").write_bytes(tight)
     assert len(io.read(tmp_path / "t.las")) == 100
-
-

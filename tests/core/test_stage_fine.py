@@ -178,13 +178,13 @@ def test_nearest_cache_matches_a_fresh_query_every_step() -> None:
     from scipy.spatial import cKDTree
 
     from amrst.neighbours import NearestTree
-    from amrst.stages.fine import _NearestCache
+    from amrst.stages.nearest_cache import NearestCache
 
     rng = np.random.default_rng(4)
     tgt = rng.uniform(0.0, 2.0, (3000, 3))
     src = rng.uniform(-0.2, 2.2, (1500, 3))
     tree = cKDTree(tgt)  # the reference; the cache runs on the pipeline's tree
-    cache = _NearestCache(NearestTree(tgt), tgt, len(src), 0.15)
+    cache = NearestCache(NearestTree(tgt), tgt, len(src), 0.15)
     p = src.copy()
     for step in range(40):
         max_dist = 0.15 if step < 20 else 0.05
