@@ -89,12 +89,52 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
+# What a tree task imports on first use (lazily, inside the functions): about 0.9 s of
+# a worker's first tree. warm_worker imports them when the worker starts.
+WARM_MODULES = (
+    "amrst.files.outdir",
+    "amrst.io.scans",
+    "amrst.io.truth",
+    "amrst.multiscan",
+    "amrst.multiscan.export",
+    "amrst.multiscan.joint",
+    "amrst.neighbours",
+    "amrst.pipeline",
+    "amrst.results.documents",
+    "amrst.results.export",
+    "amrst.review.verdict",
+    "amrst.stages.kiss_threads",
+    "scipy.linalg",
+    "scipy.sparse.csgraph",
+    "scipy.spatial",
+    "scipy.special",
+    "small_gicp",
+    "kiss_matcher",
+    "threadpoolctl",
+)
+
+
+def warm_worker() -> int:
+    """Import what a tree needs, once per worker process; return the process id.
+
+    Optional packages that are not installed are skipped (the tree then falls back
+    as it would anyway).
+    """
+    import importlib
+
+    for name in WARM_MODULES:
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
+    return os.getpid()
+
+
 def run_tree(
     root: str,
     entry: TreeEntry,
     params: dict[str, Any],
     stamp: str,
     clouds: str = "",
+    threads: int = 2,
 ) -> dict[str, Any]:
     """Register one tree and write its results; never raises for a bad tree.
 
@@ -110,6 +150,10 @@ def run_tree(
     clouds : str
         Also write the merged cloud (and the moved source of a pair) in this format
         ("ply", "las", "laz", "pcd"); "" writes none, as ``amrst register`` by default.
+    threads : int
+        Threads for the two scans of a pair (``amrst.pipeline.SCAN_THREADS``): 1 when
+        every core already runs a task (``amrst.campaign.plan.scan_threads``). The
+        result is the same either way.
 
     Returns
     -------
@@ -128,7 +172,7 @@ def run_tree(
         make_folder(out, "results folder")
         for name in (STAMP, ERROR):
             (out / name).unlink(missing_ok=True)
-        verdict, files = _register(base, entry, params, out, clouds)
+        verdict, files = _register(base, entry, params, out, clouds, threads)
     except Exception as exc:  # one tree's failure is data for the table, not a crash
         message = (
             str(exc) if isinstance(exc, AmrstError) else f"{type(exc).__name__}: {exc}"
@@ -189,12 +233,18 @@ def _tell(tree_id: str, event: str) -> None:
 
 
 def _register(
-    base: Path, entry: TreeEntry, params_doc: dict[str, Any], out: Path, clouds: str
+    base: Path,
+    entry: TreeEntry,
+    params_doc: dict[str, Any],
+    out: Path,
+    clouds: str,
+    threads: int = 2,
 ) -> tuple[str, list[str]]:
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
+    from amrst.pipeline import SCAN_THREADS
 
     params = params_from_dict(params_doc)
     scans = []
@@ -206,7 +256,11 @@ def _register(
     truth = None
     if entry.truth is not None:
         truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)
-    result = register_scans(scans, entry.reference, params)
+    token = SCAN_THREADS.set(threads)
+    try:
+        result = register_scans(scans, entry.reference, params)
+    finally:
+        SCAN_THREADS.reset(token)
     written = export_scans(
         out,
         result,

@@ -8,6 +8,7 @@ scan's own local coordinates (``Cloud.xyz``).
 from __future__ import annotations
 
 import time
+from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, TypeVar
 
@@ -29,6 +30,10 @@ if TYPE_CHECKING:
 
 _Item = TypeVar("_Item")
 _Out = TypeVar("_Out")
+
+# Threads for the two scans of a pair in both_scans: 2 at once, 1 one after the other
+# (a campaign batch worker that has one core of its own, amrst.campaign.run).
+SCAN_THREADS: ContextVar[int] = ContextVar("amrst_scan_threads", default=2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,7 +188,8 @@ def both_scans(
 ) -> tuple[_Out, _Out]:
     """Run ``fn(item, reporter)`` for the target's and the source's item at once.
 
-    One thread each; returns ``(target result, source result)``.
+    One thread each (one after the other when :data:`SCAN_THREADS` is 1); returns
+    ``(target result, source result)``.
 
     The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
     made them 1.24-1.37x faster on this 2-core machine; results are the same as one
@@ -195,6 +201,9 @@ def both_scans(
     from concurrent.futures import ThreadPoolExecutor
 
     shared = SharedReporter(reporter, 2)
+    if SCAN_THREADS.get() < 2:  # same results, one after the other
+        first = fn(target_item, shared.task(0, "target"))
+        return first, fn(source_item, shared.task(1, "source"))
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
         jobs = [
             pool.submit(_stop_sibling_on_error, fn, item, shared.task(i, role), shared)

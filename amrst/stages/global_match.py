@@ -95,11 +95,14 @@ def kiss_global(
     """
     import kiss_matcher
 
+    from amrst.stages.kiss_threads import kiss_one_thread
+
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size_m))
-    sol = matcher.estimate(
-        np.asarray(source_xyz, dtype=np.float32),
-        np.asarray(target_xyz, dtype=np.float32),
-    )
+    with kiss_one_thread():  # threads made its pose vary from run to run
+        sol = matcher.estimate(
+            np.asarray(source_xyz, dtype=np.float32),
+            np.asarray(target_xyz, dtype=np.float32),
+        )
     T = np.eye(4)
     if sol.valid:
         T[:3, :3] = np.asarray(sol.rotation, dtype=float)

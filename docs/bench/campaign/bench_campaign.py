@@ -4,6 +4,7 @@ Run from the repository root (needs ../shared/data)::
 
     python docs/bench/campaign/bench_campaign.py build      # campaign folder + amrst register alone
     python docs/bench/campaign/bench_campaign.py workers    # --workers 1 then 2, same run
+    AMRST_BENCH_OLD=/path/to/old/checkout ... workers          # and the old code, same run
     python docs/bench/campaign/bench_campaign.py external   # scheduler + 2 workers as processes
     python docs/bench/campaign/bench_campaign.py kill       # SIGKILL at 3 random moments, resume
     python docs/bench/campaign/bench_campaign.py fourscan   # 4-scan trees from 10 shared trees
@@ -99,60 +100,101 @@ def build() -> None:
     record("register_alone", {"trees": len(list(ALONE.iterdir())), "seconds": round(time.perf_counter() - t0, 1)})
 
 
-def _batch(workers: int, scheduler: str | None = None, force: bool = True) -> dict[str, object]:
-    sys.path.insert(0, str(REPO))
+def _child(arg: str) -> None:
+    """One batch in this process (PYTHONPATH picks the code); prints its figures."""
+    job = json.loads(arg)
     from amrst.campaign import load_campaign, run_batch
 
-    s = run_batch(load_campaign(CAMP), workers=workers, scheduler=scheduler, force=force)
-    return {
+    load = os.getloadavg()[0]
+    s = run_batch(load_campaign(CAMP), workers=job["workers"], scheduler=job["scheduler"], force=job["force"])
+    cpu = sum(r.get("cpu_seconds", 0.0) for r in s.results)
+    busy: dict[str, float] = {}
+    for r in s.results:
+        busy[r["worker"]] = busy.get(r["worker"], 0.0) + r.get("seconds", 0.0)
+    n = len(s.registered) + len(s.failed)
+    print(json.dumps({
+        "code": job["code"],
         "registered": len(s.registered),
         "failed": s.failed,
         "skipped": len(s.skipped),
         "seconds_total": round(s.seconds, 1),
         "seconds_running": round(s.run_seconds, 1),
         "trees_per_hour": round(s.trees_per_hour),
+        # the whole call: cluster start (and, new code, the workers' imports) included
+        "trees_per_hour_whole_call": round(3600 * n / s.seconds) if s.seconds else 0,
         "workers": s.workers,
         # CPU time of the workers (every thread) over the wall time: the cores the
         # batch got; with other jobs on the machine it cannot reach the worker count.
-        "cpu_seconds": round(sum(r.get("cpu_seconds", 0.0) for r in s.results), 1),
-        "cores_used": round(sum(r.get("cpu_seconds", 0.0) for r in s.results) / s.run_seconds, 2),
-    }
+        "cpu_seconds": round(cpu, 1),
+        "cores_used": round(cpu / s.run_seconds, 2) if s.run_seconds else 0.0,
+        # wall time the workers spent between trees or after their last one
+        "idle_worker_seconds": round(s.workers * s.run_seconds - sum(busy.values()), 1),
+        "load_average_1min_before": round(load, 2),
+    }))
+
+
+def _batch(workers: int, scheduler: str | None = None, force: bool = True, repo: Path = REPO, code: str = "new") -> dict[str, object]:
+    """Run one batch in a fresh process on the code at ``repo``."""
+    job = json.dumps({"workers": workers, "scheduler": scheduler, "force": force, "code": code})
+    out = subprocess.run(
+        [PY, str(Path(__file__).resolve()), "_child", job],
+        env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True, check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
 
 def workers() -> None:
-    """--workers 1 and 2, alternated twice (1, 2, 1, 2) so both see the same load."""
+    """--workers 1 and 2, alternated (1, 2, 1, 2) so both see the same load.
+
+    With AMRST_BENCH_OLD=<a checkout of older code> the old code runs in the same run
+    too, interleaved (new 1, new 2, old 1, old 2, then old 2, old 1, new 2, new 1), for
+    the before/after figures.
+    """
     load = os.getloadavg()
+    old = os.environ.get("AMRST_BENCH_OLD")
     sim = CAMP / "sim4-itsme-tree2"  # amrst register alone again for the multi-scan tree
     amrst("register", *[str(f) for f in sorted(sim.glob("*.ply"))], "--out", str(ALONE / sim.name), "--quiet", check=False)
+    plan = [("new", 1), ("new", 2), ("new", 1), ("new", 2)]
+    if old:
+        plan = [("new", 1), ("new", 2), ("old", 1), ("old", 2), ("old", 2), ("old", 1), ("new", 2), ("new", 1)]
     runs = []
-    ref = None
-    same = True
-    for n in (1, 2, 1, 2):
-        runs.append(_batch(n))
+    ref: dict[str, dict[str, object]] = {}
+    same = {"new": True, "old": True}
+    for code, n in plan:
+        runs.append(_batch(n, repo=Path(old) if code == "old" else REPO, code=code))
         now = transforms(CAMP / "results")
-        same = same and (ref is None or now == ref)
-        ref = ref or now
+        same[code] = same[code] and (code not in ref or now == ref[code])
+        ref.setdefault(code, now)  # type: ignore[arg-type]
+        print(runs[-1], flush=True)
     alone = transforms(ALONE)
-    equal_alone = {k: alone.get(k) == v for k, v in (ref or {}).items()}
+    equal_alone = {k: alone.get(k) == v for k, v in ref["new"].items()}
 
-    def rate(n: int) -> float:
-        mine = [r for r, k in zip(runs, (1, 2, 1, 2), strict=True) if k == n]
-        return 3600 * sum(r["registered"] for r in mine) / sum(r["seconds_running"] for r in mine)  # type: ignore[misc]
+    def rate(code: str, n: int, key: str = "seconds_running") -> float:
+        mine = [r for r, (c, k) in zip(runs, plan, strict=True) if (c, k) == (code, n)]
+        return 3600 * sum(r["registered"] for r in mine) / sum(r[key] for r in mine)  # type: ignore[misc]
 
-    record(
-        "workers",
-        {
-            "runs_in_order": runs,
-            "trees_per_hour_1": round(rate(1)),
-            "trees_per_hour_2": round(rate(2)),
-            "speedup_trees_per_hour": round(rate(2) / rate(1), 2),
-            "all_runs_identical": same,
-            "trees_equal_register_alone": sum(equal_alone.values()),
-            "trees_compared": len(equal_alone),
-            "differ": [k for k, v in equal_alone.items() if not v],
-            "load_average_before": load,
-        },
-    )
+    doc: dict[str, object] = {
+        "runs_in_order": runs,
+        "trees_per_hour_1": round(rate("new", 1)),
+        "trees_per_hour_2": round(rate("new", 2)),
+        "speedup_trees_per_hour": round(rate("new", 2) / rate("new", 1), 2),
+        "speedup_whole_call": round(rate("new", 2, "seconds_total") / rate("new", 1, "seconds_total"), 2),
+        "all_runs_identical": same["new"],
+        "trees_equal_register_alone": sum(equal_alone.values()),
+        "trees_compared": len(equal_alone),
+        "differ": [k for k, v in equal_alone.items() if not v],
+        "load_average_before": load,
+    }
+    if old:
+        doc["old_code"] = old
+        doc["old_trees_per_hour_1"] = round(rate("old", 1))
+        doc["old_trees_per_hour_2"] = round(rate("old", 2))
+        doc["old_speedup_trees_per_hour"] = round(rate("old", 2) / rate("old", 1), 2)
+        doc["new_over_old_2_workers"] = round(rate("new", 2) / rate("old", 2), 2)
+        doc["new_over_old_1_worker"] = round(rate("new", 1) / rate("old", 1), 2)
+        doc["old_runs_identical"] = same["old"]
+        doc["old_equal_new"] = sum(ref["old"].get(k) == v for k, v in ref["new"].items())
+    record(os.environ.get("AMRST_BENCH_KEY", "workers"), doc)
 
 
 def external() -> None:
@@ -269,6 +311,9 @@ def fourscan() -> None:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["_child"]:
+        _child(sys.argv[2])
+        sys.exit(0)
     steps = {"build": build, "workers": workers, "external": external, "kill": kill, "fourscan": fourscan}
     for name in sys.argv[1:] or list(steps):
         steps[name]()

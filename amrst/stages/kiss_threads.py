@@ -1,0 +1,103 @@
+"""KISS-Matcher on one thread: the same pose on every run, in the CLI and in a worker.
+
+KISS-Matcher parallelises its features and matching with oneTBB and its max-clique
+pruning with OpenMP. With two threads the correspondences come out in a varying
+order, and on field case 06 its pose differed from run to run (10 to 16 runs in 30 on
+the same input, inlier counts 2 to 8 apart); the fine ICP then ended 1e-14 to 6e-12
+apart, so a campaign tree was not bit for bit what ``amrst register`` gave alone.
+One TBB thread gave the same pose in 30 runs of 30. TBB has no environment variable
+for its thread count, only the C++ ``tbb::global_control``: :func:`kiss_one_thread`
+creates one through its binary interface (``tbb::detail::r1::create``, stable across
+oneTBB 2021+) on the TBB copy the kiss_matcher wheel loaded, once per process, and
+holds OpenMP to one thread (threadpoolctl) around the call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+_CREATE = "_ZN3tbb6detail2r16createERNS0_2d114global_controlE"
+_ACTIVE = "_ZN3tbb6detail2r127global_control_active_valueEi"
+_MAX_ALLOWED_PARALLELISM = 0  # tbb::global_control::max_allowed_parallelism
+
+
+class _GlobalControl(ctypes.Structure):
+    """``tbb::detail::d1::global_control``: value, reserved, parameter."""
+
+    _fields_ = (
+        ("value", ctypes.c_size_t),
+        ("reserved", ctypes.c_ssize_t),
+        ("param", ctypes.c_int),
+    )
+
+
+_lock = threading.Lock()
+_state: dict[str, Any] = {}  # "control": the live global_control, "tbb": the CDLL
+
+
+def _kiss_tbb() -> Path | None:
+    """Return the TBB library the kiss_matcher wheel ships (None: not found)."""
+    import kiss_matcher
+
+    pkg = Path(kiss_matcher.__file__).resolve().parent
+    # auditwheel (Linux) puts it next to the package, delocate (macOS) inside it
+    for folder, pattern in (
+        (pkg.parent / "kiss_matcher.libs", "libtbb*.so*"),
+        (pkg / ".dylibs", "libtbb*.dylib"),
+    ):
+        found = sorted(folder.glob(pattern))
+        if found:
+            return found[0]
+    return None
+
+
+def limit_kiss_tbb() -> bool:
+    """Hold kiss_matcher's TBB to one thread for the rest of the process.
+
+    Returns
+    -------
+    bool
+        True when the limit is in place (False: no TBB found or an unknown binary
+        interface; KISS-Matcher then runs on its default threads).
+    """
+    with _lock:
+        if "tbb" not in _state:
+            _state["tbb"] = None
+            path = _kiss_tbb()
+            try:
+                lib = ctypes.CDLL(str(path)) if path is not None else None
+                if lib is not None:
+                    control = _GlobalControl(1, 0, _MAX_ALLOWED_PARALLELISM)
+                    getattr(lib, _CREATE)(ctypes.byref(control))
+                    _state["control"] = control  # alive as long as the process
+                    _state["tbb"] = lib
+            except (OSError, AttributeError):
+                _state["tbb"] = None
+        return _state["tbb"] is not None
+
+
+def kiss_tbb_threads() -> int | None:
+    """Return the TBB thread limit in force for kiss_matcher (None: not known)."""
+    lib = _state.get("tbb")
+    if lib is None:
+        return None
+    active = getattr(lib, _ACTIVE)
+    active.restype = ctypes.c_size_t
+    return int(active(_MAX_ALLOWED_PARALLELISM))
+
+
+@contextlib.contextmanager
+def kiss_one_thread() -> Iterator[None]:
+    """Run the enclosed KISS-Matcher calls on one TBB and one OpenMP thread."""
+    from threadpoolctl import threadpool_limits
+
+    limit_kiss_tbb()
+    with threadpool_limits(limits=1, user_api="openmp"):
+        yield

@@ -1,0 +1,64 @@
+"""KISS-Matcher runs on one thread: the same pose on every run (issue 14).
+
+With its TBB and OpenMP threads its pose varied from run to run on field case 06, so
+a campaign tree was not bit for bit the ``amrst register`` result. The check runs in
+a fresh process: TBB starts its worker threads at its first parallel loop there.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SCRIPT = r"""
+import json, os, sys
+import numpy as np
+from amrst import io
+from amrst.types import apply_transform, make_transform
+from amrst.stages.global_match import kiss_global
+from amrst.stages.kiss_threads import kiss_tbb_threads
+
+xyz = io.read(sys.argv[1]).xyz
+c, s = np.cos(np.radians(120)), np.sin(np.radians(120))
+T = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [2.0, -1.0, 0.3])
+source = apply_transform(T, xyz)[::2]
+before = len(os.listdir("/proc/self/task"))
+runs = [kiss_global(xyz, source, 0.1) for _ in range(3)]
+print(json.dumps({
+    "threads_before": before,
+    "threads_after": len(os.listdir("/proc/self/task")),
+    "tbb_limit": kiss_tbb_threads(),
+    "poses": [r[0].tolist() for r in runs],
+    "inliers": [r[1] for r in runs],
+}))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="Linux /proc")
+def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
+    pytest.importorskip("kiss_matcher")
+    from tests.conftest import TINY_TREE
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
+    env["PYTHONPATH"] = str(ROOT)
+    out = subprocess.run(
+        [sys.executable, "-c", SCRIPT, str(TINY_TREE)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["tbb_limit"] == 1
+    # No TBB worker, no OpenMP team: the threads are those the process had before.
+    assert doc["threads_after"] == doc["threads_before"], doc
+    assert doc["inliers"][0] > 0
+    assert all(p == doc["poses"][0] for p in doc["poses"]), doc["inliers"]
