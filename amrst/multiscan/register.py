@@ -13,7 +13,6 @@ Two scans are the special case: :func:`register_scans` then runs
 from __future__ import annotations
 
 import itertools
-
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
