@@ -7,9 +7,9 @@ the same input, inlier counts 2 to 8 apart); the fine ICP then ended 1e-14 to 6e
 apart, so a campaign tree was not bit for bit what ``amrst register`` gave alone.
 One TBB thread gave the same pose in 30 runs of 30. TBB has no environment variable
 for its thread count, only the C++ ``tbb::global_control``: :func:`kiss_one_thread`
-creates one through its binary interface (``tbb::detail::r1::create``, stable across
-oneTBB 2021+) on the TBB copy the kiss_matcher wheel loaded, once per process, and
-holds OpenMP to one thread (threadpoolctl) around the call.
+creates one through its binary interface (``tbb::detail::r1::create``/``destroy``,
+stable across oneTBB 2021+) on the TBB copy the kiss_matcher wheel loaded, around
+the call only, and holds OpenMP to one thread (threadpoolctl) there too.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 _CREATE = "_ZN3tbb6detail2r16createERNS0_2d114global_controlE"
 _ACTIVE = "_ZN3tbb6detail2r127global_control_active_valueEi"
+_DESTROY = "_ZN3tbb6detail2r17destroyERNS0_2d114global_controlE"
 _MAX_ALLOWED_PARALLELISM = 0  # tbb::global_control::max_allowed_parallelism
 
 
@@ -39,7 +40,7 @@ class _GlobalControl(ctypes.Structure):
 
 
 _lock = threading.Lock()
-_state: dict[str, Any] = {}  # "control": the live global_control, "tbb": the CDLL
+_state: dict[str, Any] = {}  # "tbb": the CDLL (None: not found)
 
 
 def _kiss_tbb() -> Path | None:
@@ -58,15 +59,8 @@ def _kiss_tbb() -> Path | None:
     return None
 
 
-def limit_kiss_tbb() -> bool:
-    """Hold kiss_matcher's TBB to one thread for the rest of the process.
-
-    Returns
-    -------
-    bool
-        True when the limit is in place (False: no TBB found or an unknown binary
-        interface; KISS-Matcher then runs on its default threads).
-    """
+def _tbb() -> Any:
+    """Return kiss_matcher's TBB library (None: not found or an unknown interface)."""
     with _lock:
         if "tbb" not in _state:
             _state["tbb"] = None
@@ -74,18 +68,16 @@ def limit_kiss_tbb() -> bool:
             try:
                 lib = ctypes.CDLL(str(path)) if path is not None else None
                 if lib is not None:
-                    control = _GlobalControl(1, 0, _MAX_ALLOWED_PARALLELISM)
-                    getattr(lib, _CREATE)(ctypes.byref(control))
-                    _state["control"] = control  # alive as long as the process
+                    getattr(lib, _CREATE), getattr(lib, _DESTROY), getattr(lib, _ACTIVE)
                     _state["tbb"] = lib
             except (OSError, AttributeError):
                 _state["tbb"] = None
-        return _state["tbb"] is not None
+        return _state["tbb"]
 
 
 def kiss_tbb_threads() -> int | None:
     """Return the TBB thread limit in force for kiss_matcher (None: not known)."""
-    lib = _state.get("tbb")
+    lib = _tbb()
     if lib is None:
         return None
     active = getattr(lib, _ACTIVE)
@@ -95,9 +87,22 @@ def kiss_tbb_threads() -> int | None:
 
 @contextlib.contextmanager
 def kiss_one_thread() -> Iterator[None]:
-    """Run the enclosed KISS-Matcher calls on one TBB and one OpenMP thread."""
+    """Run the enclosed KISS-Matcher calls on one TBB and one OpenMP thread.
+
+    The TBB limit lives only as long as the block (a ``global_control`` created on
+    entry and destroyed on exit), so other KISS-Matcher calls in the process, such
+    as the benchmark's peer, keep their default threads. Without kiss_matcher's TBB
+    (another wheel layout) KISS-Matcher runs on its default threads.
+    """
     from threadpoolctl import threadpool_limits
 
-    limit_kiss_tbb()
-    with threadpool_limits(limits=1, user_api="openmp"):
-        yield
+    lib = _tbb()
+    control = _GlobalControl(1, 0, _MAX_ALLOWED_PARALLELISM)
+    if lib is not None:
+        getattr(lib, _CREATE)(ctypes.byref(control))
+    try:
+        with threadpool_limits(limits=1, user_api="openmp"):
+            yield
+    finally:
+        if lib is not None:
+            getattr(lib, _DESTROY)(ctypes.byref(control))

@@ -23,18 +23,24 @@ import numpy as np
 from amrst import io
 from amrst.types import apply_transform, make_transform
 from amrst.stages.global_match import kiss_global
-from amrst.stages.kiss_threads import kiss_tbb_threads
+from amrst.stages.kiss_threads import kiss_one_thread, kiss_tbb_threads
 
 xyz = io.read(sys.argv[1]).xyz
 c, s = np.cos(np.radians(120)), np.sin(np.radians(120))
 T = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [2.0, -1.0, 0.3])
 source = apply_transform(T, xyz)[::2]
 before = len(os.listdir("/proc/self/task"))
-runs = [kiss_global(xyz, source, 0.1) for _ in range(3)]
+default = kiss_tbb_threads()
+with kiss_one_thread():  # kiss_global holds the limit itself; this keeps it for the count
+    inside = kiss_tbb_threads()
+    runs = [kiss_global(xyz, source, 0.1) for _ in range(3)]
+    during = len(os.listdir("/proc/self/task"))
 print(json.dumps({
     "threads_before": before,
-    "threads_after": len(os.listdir("/proc/self/task")),
-    "tbb_limit": kiss_tbb_threads(),
+    "threads_after": during,
+    "tbb_limit": inside,
+    "tbb_default": default,
+    "tbb_after": kiss_tbb_threads(),
     "poses": [r[0].tolist() for r in runs],
     "inliers": [r[1] for r in runs],
 }))
@@ -58,6 +64,8 @@ def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
     )
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert doc["tbb_limit"] == 1
+    # Only inside the block: other KISS-Matcher calls (the bench's peer) keep theirs.
+    assert doc["tbb_after"] == doc["tbb_default"]
     # No TBB worker, no OpenMP team: the threads are those the process had before.
     assert doc["threads_after"] == doc["threads_before"], doc
     assert doc["inliers"][0] > 0
