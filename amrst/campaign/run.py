@@ -256,11 +256,15 @@ def _register(
     truth = None
     if entry.truth is not None:
         truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)
-    token = SCAN_THREADS.set(threads)
+    from amrst import neighbours
+
+    token, kd_threads = SCAN_THREADS.set(threads), neighbours.threads()
+    neighbours.set_threads(threads)  # a worker with one core: one-thread KD queries too
     try:
         result = register_scans(scans, entry.reference, params)
     finally:
         SCAN_THREADS.reset(token)
+        neighbours.set_threads(kd_threads)
     written = export_scans(
         out,
         result,
