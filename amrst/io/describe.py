@@ -64,64 +64,79 @@ def describe(cloud: Cloud) -> dict[str, Any]:
 def _median_spacing(xyz: np.ndarray) -> float | None:
     """Median nearest-neighbour distance of a seeded sample, in linear-ish time.
 
-    Identical points are merged before the k-d tree is built: a tree holding
+    Identical points are merged before the k-d trees are built: a tree holding
     many copies of one point answers each query in time proportional to the
     copies (1M points at the origin made ``amrst info`` take minutes). A sample
     point with a copy has distance 0, as before.
+
+    The work goes slab by slab along x (:func:`_slabs`), one small tree each: numpy's
+    sorts and scipy's tree set-up hold the GIL, and on a 10M scan one sort or one
+    tree of every point stalled the window 0.2-0.4 s while this ran in a worker.
+    A sample point asks its own slab's tree, then any other slab nearer than the
+    neighbour found so far, so the distances are those of one tree of all points.
     """
     from scipy.spatial import cKDTree
 
-    if len(xyz) < 2:
+    n = len(xyz)
+    if n < 2:
         return None
     rng = np.random.default_rng(0)
-    sample = rng.choice(len(xyz), size=min(len(xyz), _SPACING_SAMPLE), replace=False)
-    unique, copied_rows = _merge_copies(xyz)
+    sample = rng.choice(n, size=min(n, _SPACING_SAMPLE), replace=False)
+    slabs = _slabs(xyz)
+    copied_rows = np.empty(n, dtype=bool)
+    slab_of = np.empty(n, dtype=np.int32)
+    trees, lo, hi = [], [], []
+    for k, rows in enumerate(slabs):
+        distinct, copied_rows[rows] = _merge_sorted(xyz[rows])
+        slab_of[rows] = k
+        trees.append(cKDTree(distinct, balanced_tree=False, compact_nodes=False))
+        lo.append(distinct[:, 0].min())
+        hi.append(distinct[:, 0].max())
     copied = copied_rows[sample]
     dist = np.zeros(len(sample))
-    if len(unique) >= 2 and not copied.all():
-        # Query the sample against all points: a tree of the sample alone would
-        # overestimate the spacing of a large cloud.
-        tree = cKDTree(unique, balanced_tree=False, compact_nodes=False)
-        found, _ = tree.query(xyz[sample[~copied]], k=2)
-        dist[~copied] = found[:, 1]
+    ask = sample[~copied]
+    if len(ask):
+        q, own = xyz[ask], slab_of[ask]
+        best = np.full(len(ask), np.inf)
+        for k, tree in enumerate(trees):  # own slab first: the second neighbour
+            mine = np.flatnonzero(own == k)
+            if len(mine) and tree.n >= 2:
+                best[mine] = tree.query(q[mine], k=2)[0][:, 1]
+        for k, tree in enumerate(trees):  # then any slab nearer than that
+            gap = np.maximum(lo[k] - q[:, 0], q[:, 0] - hi[k])
+            near = np.flatnonzero((own != k) & (gap < best))
+            if len(near):
+                best[near] = np.minimum(best[near], tree.query(q[near], k=1)[0])
+        dist[~copied] = best
     return float(np.median(dist))
 
 
-def _merge_copies(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct rows of ``xyz``, and (N,) bool: the row has an identical copy.
+def _slabs(xyz: np.ndarray) -> list[np.ndarray]:
+    """Split the rows into slabs along x, at most about ``_SLAB_ROWS`` each.
 
-    Identical rows share their x, so the rows are split into slabs along x (edges
-    from a sample's quantiles) and each slab is sorted on its own: numpy's sorts
-    hold the GIL, and one lexsort of 10M rows (0.3-0.4 s) stalled the window while
-    a scan's description ran in a worker; a slab takes a few ms. The distinct
-    rows come slab by slab (their order is not the input's).
+    Identical rows share their x, so they share a slab. The edges are a sample's
+    quantiles; the rows are assigned by one comparison pass per edge (no sort of
+    all rows, which would hold the GIL for its whole length).
     """
     n = len(xyz)
     if n <= _SLAB_ROWS:
-        return _merge_sorted(xyz)
+        return [np.arange(n)]
     x = np.ascontiguousarray(xyz[:, 0])
     n_slabs = -(-n // _SLAB_ROWS)
     probe = x[np.random.default_rng(0).integers(0, n, 20 * n_slabs)]
     edges = np.unique(np.quantile(probe, np.linspace(0, 1, n_slabs + 1)[1:-1]))
     slab = np.zeros(n, dtype=np.int16)
-    for edge in edges:  # one comparison pass per edge (no sort of all rows)
+    for edge in edges:
         slab += x > edge
-    uniques, copied = [], np.empty(n, dtype=bool)
-    for k in range(len(edges) + 1):
-        rows = np.flatnonzero(slab == k)
-        if len(rows):
-            distinct, has_copy = _merge_sorted(xyz[rows])
-            uniques.append(distinct)
-            copied[rows] = has_copy
-    if not copied.any():
-        return xyz, copied
-    return np.concatenate(uniques), copied
+    found = (np.flatnonzero(slab == k) for k in range(len(edges) + 1))
+    return [rows for rows in found if len(rows)]
 
 
 def _merge_sorted(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return what :func:`_merge_copies` does, by one lexsort of all rows.
+    """Distinct rows of ``xyz``, and (N,) bool: the row has an identical copy.
 
-    About 0.3 s per million points; ``np.unique(axis=0)`` takes ten times longer.
+    One lexsort (about 0.3 s per million points; ``np.unique(axis=0)`` takes
+    ten times longer).
     """
     order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
     ranked = xyz[order]
