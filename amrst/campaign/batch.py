@@ -199,6 +199,7 @@ def run_batch(
     only: list[str] | None = None,
     clouds: str = "",
     on_worker_event: Callable[[str, str], None] | None = None,
+    threads_per_tree: int | None = None,
 ) -> BatchSummary:
     """Register every tree not done yet; write the table after each one.
 
@@ -222,6 +223,10 @@ def run_batch(
         Called as ``(tree id, "started" | "finished")`` when a worker starts or ends a
         tree (Dask worker events, from the client's thread), so "running" can mean
         running, not submitted.
+    threads_per_tree : int or None
+        Threads each tree's registration uses (its two scans' analysis and the
+        KD-tree queries). None: 2 when every worker of a host has two cores to
+        itself, else 1 (:func:`amrst.campaign.plan.cluster_scan_threads`).
 
     Returns
     -------
@@ -250,6 +255,10 @@ def run_batch(
         return summary
     if workers < 1 and not scheduler:
         raise InvalidInput(f"--workers must be at least 1, got {workers}.")
+    if threads_per_tree is not None and not 1 <= threads_per_tree <= 2:
+        raise InvalidInput(
+            f"--threads-per-tree must be 1 or 2, got {threads_per_tree}."
+        )
     root = str(campaign.root.resolve())
     todo, costs = longest_first(campaign, todo)
     total_cost, done_cost = sum(costs.values()), 0.0
@@ -264,7 +273,7 @@ def run_batch(
                 TREE_TOPIC, lambda ev: tell(ev[1]["id"], ev[1]["event"])
             )
         client.run(warm_worker)  # imports on every worker at once, not in a tree
-        threads = cluster_scan_threads(client)
+        threads = threads_per_tree or cluster_scan_threads(client)
         futures = [
             client.submit(
                 run_tree,

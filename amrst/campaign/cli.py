@@ -126,6 +126,14 @@ def configure_batch(p: argparse.ArgumentParser) -> None:
         metavar="ADDRESS",
         help="use a running dask scheduler (tcp://host:8786) instead of local workers",
     )
+    p.add_argument(
+        "--threads-per-tree",
+        type=int,
+        choices=(1, 2),
+        metavar="N",
+        help="threads each tree uses, 1 or 2 (default: 2 when each worker has two "
+        "cores to itself, else 1)",
+    )
     p.add_argument("--params", metavar="FILE", help="parameter JSON for every tree")
     p.add_argument("--preset", metavar="NAME", help="a named preset for every tree")
     p.add_argument(
@@ -173,6 +181,7 @@ def run_batch_cli(args: argparse.Namespace) -> int:
         progress=TerminalBar(args.quiet),
         only=args.tree,
         clouds=args.write_clouds,
+        threads_per_tree=args.threads_per_tree,
     )
     print(
         f"{len(summary.registered)} registered, {len(summary.failed)} failed, "

@@ -206,6 +206,7 @@ def run_tree(
             "verdict": verdict,
             "seconds": seconds,
             "cpu_seconds": cpu,
+            "threads": threads,
             "finished_utc": _now(),
             "worker": worker,
         },

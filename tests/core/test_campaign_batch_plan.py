@@ -178,6 +178,25 @@ def test_one_worker_runs_the_biggest_tree_first(tmp_path, sample_pair, tiny_tree
     assert np.all([r["ok"] for r in summary.results])
 
 
+def test_threads_per_tree_reaches_every_tree(tmp_path, tiny_tree) -> None:
+    """--threads-per-tree pins the threads a tree uses; out of range is one line."""
+    import json
+
+    from amrst.errors import InvalidInput
+    from amrst.multiscan.simulate import simulate_scans, write_scans
+
+    for k in range(2):
+        write_scans(simulate_scans(tiny_tree, 2, seed=k, res_deg=0.4), tmp_path / f"T{k}")
+    campaign, _ = init_campaign(tmp_path)
+    with pytest.raises(InvalidInput, match="--threads-per-tree must be 1 or 2"):
+        run_batch(campaign, workers=1, threads_per_tree=3)
+    summary = run_batch(campaign, workers=1, threads_per_tree=1)
+    assert sorted(summary.registered) == ["T0", "T1"]
+    for tree in ("T0", "T1"):
+        stamp = json.loads((tmp_path / "results" / tree / "stamp.json").read_text())
+        assert stamp["threads"] == 1
+
+
 def _worker_env() -> dict[str, object]:
     import dask
 

@@ -5,6 +5,7 @@ Run from the repository root (needs ../shared/data)::
     python docs/bench/campaign/bench_campaign.py build      # campaign folder + amrst register alone
     python docs/bench/campaign/bench_campaign.py workers    # --workers 1 then 2, same run
     AMRST_BENCH_OLD=/path/to/old/checkout ... workers          # and the old code, same run
+    AMRST_BENCH_THREADS=1 AMRST_BENCH_KEY=workers_1thread ... workers  # one thread a tree
     python docs/bench/campaign/bench_campaign.py external   # scheduler + 2 workers as processes
     python docs/bench/campaign/bench_campaign.py kill       # SIGKILL at 3 random moments, resume
     python docs/bench/campaign/bench_campaign.py fourscan   # 4-scan trees from 10 shared trees
@@ -106,7 +107,8 @@ def _child(arg: str) -> None:
     from amrst.campaign import load_campaign, run_batch
 
     load = os.getloadavg()[0]
-    s = run_batch(load_campaign(CAMP), workers=job["workers"], scheduler=job["scheduler"], force=job["force"])
+    pinned = int(os.environ.get("AMRST_BENCH_THREADS", "0")) or None  # --threads-per-tree
+    s = run_batch(load_campaign(CAMP), workers=job["workers"], scheduler=job["scheduler"], force=job["force"], threads_per_tree=pinned)
     cpu = sum(r.get("cpu_seconds", 0.0) for r in s.results)
     busy: dict[str, float] = {}
     for r in s.results:
