@@ -11,11 +11,11 @@ transforms without registering again.
 from __future__ import annotations
 
 import datetime as _dt
-import json
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.campaign.table import read_doc
 from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
@@ -39,17 +39,9 @@ STATE_ORDER = (
 )
 
 
-def _read(path: Path) -> dict[str, Any] | None:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) else None
-
-
 def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:
     """Return the tree's state for the app: the decision when one was made, else the batch's."""
-    doc = _read(campaign.results_dir(tree_id) / REVIEW)
+    doc = read_doc(campaign.results_dir(tree_id) / REVIEW)
     if doc is None or batch_status in ("not run", "failed"):
         return batch_status
     if doc.get("exported_utc"):
@@ -58,9 +50,7 @@ def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:
     return decision if decision in DECISIONS else batch_status
 
 
-def batch_state(
-    state: str, tree_id: str, queued: set[str], running: set[str]
-) -> str:
+def batch_state(state: str, tree_id: str, queued: set[str], running: set[str]) -> str:
     """Return the state to list while a batch runs.
 
     ``running`` only for a tree a worker has started, ``queued`` for one submitted
@@ -101,7 +91,7 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
 
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
-    summary = _read(out / "scans.json")
+    summary = read_doc(out / "scans.json")
     if summary is None:
         raise InvalidInput(f"Tree {tree_id} has no result to export; run it first.")
     clouds = [read_scans(campaign.root / spec)[0] for spec in entry.scans]
@@ -114,7 +104,7 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     merged = merge_moved(ref, moved)
     path = out / f"merged.{cloud_format}"
     io.write(path, merged)
-    doc = _read(out / REVIEW) or {}
+    doc = read_doc(out / REVIEW) or {}
     doc["exported_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(
         timespec="seconds"
     )

@@ -12,12 +12,12 @@ Read from ``scans.json`` (written by every run) and, for a two-scan tree, the pa
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.campaign.table import read_doc
 from amrst.types import invert_transform
 
 if TYPE_CHECKING:
@@ -193,14 +193,6 @@ def _verdict_of(link: StoredLink | None, label: str) -> dict[str, str]:
     }
 
 
-def _read(path: Path) -> dict[str, Any] | None:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) else None
-
-
 def _matrix(value: Any) -> Transform | None:
     if value is None:
         return None
@@ -217,7 +209,7 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
 
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
-    doc = _read(out / "scans.json") if (out / STAMP).is_file() else None
+    doc = read_doc(out / "scans.json") if (out / STAMP).is_file() else None
     if doc is None or len(doc.get("scans", [])) != len(entry.scans):
         return None
     scans = tuple(
@@ -245,7 +237,7 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         )
         for d in doc.get("links", [])
     )
-    pair = _read(out / "metrics.json") if len(scans) == 2 else None
+    pair = read_doc(out / "metrics.json") if len(scans) == 2 else None
     truth = None
     if entry.truth is not None:
         from amrst.errors import AmrstError
@@ -266,7 +258,7 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         verdict=str(doc.get("verdict", "")),
         confidence=float(doc.get("confidence", np.nan)),
         tree=dict(doc.get("tree") or {}),
-        params=_read(out / "params.json"),
+        params=read_doc(out / "params.json"),
         pair_metrics=pair,
         truth=truth,
     )

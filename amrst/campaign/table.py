@@ -49,7 +49,8 @@ TABLE_XLSX = "campaign.xlsx"
 STATUS_ORDER = ("failed", "needs review", "not run", "registered")
 
 
-def _read(path: Path) -> dict[str, Any] | None:
+def read_doc(path: Path) -> dict[str, Any] | None:
+    """Return a result folder's JSON object (None: missing, unreadable or not one)."""
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -78,8 +79,8 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
     )
     if entry.stem is not None:
         row["X"], row["Y"] = entry.stem
-    stamp, error = _read(out / STAMP), _read(out / ERROR)
-    summary = _read(out / "scans.json") if stamp else None
+    stamp, error = read_doc(out / STAMP), read_doc(out / ERROR)
+    summary = read_doc(out / "scans.json") if stamp else None
     if error is not None:
         row.update(
             status="failed",
