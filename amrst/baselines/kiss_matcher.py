@@ -79,7 +79,8 @@ def _global(
     tgt: np.ndarray, src: np.ndarray, params: KissParams
 ) -> tuple[Transform, dict[str, float]]:
     if kiss_matcher_available():
-        T, inliers = kiss_global(tgt, src, params.voxel_size_m)
+        # as shipped, on its own threads (our pipeline holds it to one)
+        T, inliers = kiss_global(tgt, src, params.voxel_size_m, one_thread=False)
         return T, {"kiss_inliers": float(inliers), "fallback": 0.0}
     # Where no wheel exists: Open3D FPFH + RANSAC's global step instead.
     from amrst.baselines.features import FeatureParams, global_ransac

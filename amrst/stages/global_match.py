@@ -10,6 +10,7 @@ pose, which the pipeline polishes and verifies like every other candidate
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -77,7 +78,10 @@ def kiss_matcher_available() -> bool:
 
 
 def kiss_global(
-    target_xyz: np.ndarray, source_xyz: np.ndarray, voxel_size_m: float = 0.1
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    voxel_size_m: float = 0.1,
+    one_thread: bool = True,
 ) -> tuple[Transform, int]:
     """Global pose of the source on the target by KISS-Matcher.
 
@@ -85,6 +89,9 @@ def kiss_global(
     ----------
     target_xyz, source_xyz : (N, 3), (M, 3) float64
     voxel_size_m : float
+    one_thread : bool
+        Run it on one thread, so its pose is the same on every run (our pipeline).
+        The benchmark's KISS-Matcher baseline runs it as shipped (False).
 
     Returns
     -------
@@ -98,7 +105,8 @@ def kiss_global(
     from amrst.stages.kiss_threads import kiss_one_thread
 
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size_m))
-    with kiss_one_thread():  # threads made its pose vary from run to run
+    # threads made its pose vary from run to run
+    with kiss_one_thread() if one_thread else contextlib.nullcontext():
         sol = matcher.estimate(
             np.asarray(source_xyz, dtype=np.float32),
             np.asarray(target_xyz, dtype=np.float32),

@@ -70,3 +70,32 @@ def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
     assert doc["threads_after"] == doc["threads_before"], doc
     assert doc["inliers"][0] > 0
     assert all(p == doc["poses"][0] for p in doc["poses"]), doc["inliers"]
+
+
+
+def test_the_benchmark_baseline_runs_kiss_matcher_on_its_own_threads(
+    monkeypatch,
+) -> None:
+    """The peer is timed as shipped: our one-thread limit must not reach it."""
+    pytest.importorskip("kiss_matcher")
+    import contextlib
+
+    from amrst import io
+    from amrst.baselines.kiss_matcher import KissParams, _global
+    from amrst.stages import kiss_threads
+    from amrst.stages.global_match import kiss_global
+    from tests.conftest import TINY_TREE
+
+    entered = []
+
+    @contextlib.contextmanager
+    def recording():
+        entered.append(True)
+        yield
+
+    monkeypatch.setattr(kiss_threads, "kiss_one_thread", recording)
+    xyz = io.read(TINY_TREE).xyz
+    _global(xyz, xyz[::2] + 0.5, KissParams())
+    assert entered == []
+    kiss_global(xyz, xyz[::2] + 0.5, 0.1)  # our pipeline's call
+    assert entered == [True]
