@@ -5,9 +5,10 @@ by its six edge lengths sorted longest first, mapped through ``log(L + c)`` so t
 paper's relative tolerance ε holds for long edges while short edges keep an absolute
 floor of about ε·c (a plain relative test would reject every short edge for skeleton
 noise, a plain absolute one would accept everything on short edges). Target and source
-descriptors go into KD-trees and one dual-tree search finds the close pairs. Sorted edges lose the vertex
-order and admit mirror images, so each descriptor match is re-checked under all 24 vertex
-permutations with the signed volume, and the best proper permutation is solved by Kabsch.
+descriptors are joined on a bucket grid (``descriptor_join``) to find the close pairs.
+Sorted edges lose the vertex order and admit mirror images, so each descriptor match is
+re-checked under all 24 vertex permutations with the signed volume, and the best proper
+permutation is solved by Kabsch.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from amrst.geometry import combinations4, kabsch
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.descriptor_join import descriptor_pairs
 from amrst.stages.tetra_screen import EDGES as _EDGES
 from amrst.stages.tetra_screen import PERMS as _PERMS
 from amrst.stages.tetra_screen import correspond as _correspond
@@ -230,22 +232,14 @@ def _descriptor_pairs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """All (target, source) descriptor pairs within Chebyshev distance 1, sorted.
 
-    One dual-tree traversal (``sparse_distance_matrix``) instead of a ball query per
-    target tetrahedron: about twice as fast on the clustered descriptors of the
-    largest tetrahedra, with the same pairs.
+    A bucket-and-sweep join (``amrst.stages.descriptor_join``) instead of a dual-tree
+    KD search in 11 dimensions: the same pairs, about twice as fast.
 
     Returns
     -------
     (P,) int64 target and (P,) int64 source descriptor indices, sorted by (target, source).
     """
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(desc_t, leafsize=32).sparse_distance_matrix(
-        cKDTree(desc_s, leafsize=32), 1.0, p=np.inf, output_type="ndarray"
-    )
-    ti, si = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
-    order = np.argsort(ti * len(desc_s) + si)
-    return ti[order], si[order]
+    return descriptor_pairs(desc_t, desc_s)
 
 
 def match_tetrahedra(

@@ -194,3 +194,39 @@ def test_descriptor_pairs_agree_with_brute_force() -> None:
     assert len(want_t) > 50
     np.testing.assert_array_equal(ti, want_t)
     np.testing.assert_array_equal(si, want_s)
+
+
+@pytest.mark.parametrize("dims", [3, 7, 11])
+def test_descriptor_join_equals_the_kd_tree_and_brute_force(dims: int) -> None:
+    """The bucket join gives the dual-tree KD search's pairs, on clustered descriptors too."""
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.descriptor_join import descriptor_pairs
+
+    rng = np.random.default_rng(dims)
+    centres = rng.uniform(0.0, 30.0, (6, dims))  # clusters, like the largest tetrahedra
+    desc_t = centres[rng.integers(0, 6, 900)] + rng.normal(0, 0.7, (900, dims))
+    desc_s = centres[rng.integers(0, 6, 800)] + rng.normal(0, 0.7, (800, dims))
+    desc_s[:30] = desc_t[:30] + rng.choice([-1.0, 0.0, 1.0], (30, dims))  # on the bound
+    ti, si = descriptor_pairs(desc_t, desc_s)
+    close = np.all(np.abs(desc_t[:, None, :] - desc_s[None, :, :]) <= 1.0, axis=2)
+    want_t, want_s = np.nonzero(close)
+    assert len(want_t) > 100
+    np.testing.assert_array_equal(ti, want_t)
+    np.testing.assert_array_equal(si, want_s)
+    tree = cKDTree(desc_t).sparse_distance_matrix(
+        cKDTree(desc_s), 1.0, p=np.inf, output_type="ndarray"
+    )
+    assert len(tree) == len(ti)
+
+
+def test_descriptor_join_handles_empty_and_non_finite_descriptors() -> None:
+    from amrst.stages.descriptor_join import descriptor_pairs
+
+    ti, si = descriptor_pairs(np.zeros((0, 7)), np.ones((5, 7)))
+    assert len(ti) == len(si) == 0
+    desc_t = np.ones((4, 7))
+    desc_t[1, 6] = -np.inf  # log of a zero volume
+    ti, si = descriptor_pairs(desc_t, np.ones((3, 7)))
+    np.testing.assert_array_equal(ti, np.repeat([0, 2, 3], 3))
+    np.testing.assert_array_equal(si, np.tile([0, 1, 2], 3))
