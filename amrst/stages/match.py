@@ -13,6 +13,7 @@ permutation is solved by Kabsch.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -155,6 +156,32 @@ class TetraMatches:
         )
 
 
+@functools.lru_cache(maxsize=4)
+def _edge_slots(n: int) -> np.ndarray:
+    """(C(n,4), 6) flat positions in an (n, n) matrix of each quad's six edges (cached)."""
+    quads = combinations4(n)
+    slots = np.column_stack([quads[:, a] * n + quads[:, b] for a, b in _EDGES])
+    slots.setflags(write=False)
+    return slots
+
+
+def _signed_volumes(xyz: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(T,) signed volume of each quad: (v1 - v0) . ((v2 - v0) x (v3 - v0)) / 6.
+
+    Coordinate by coordinate on (T, 4) gathers instead of a (T, 4, 3) one, in the
+    order ``np.cross`` and ``np.einsum("ti,ti->t", ...)`` compute it (the same values
+    bit for bit), 2-3x faster.
+    """
+    x, y, z = (np.take(np.ascontiguousarray(xyz[:, k]), quads) for k in range(3))
+    ax, ay, az = x[:, 1] - x[:, 0], y[:, 1] - y[:, 0], z[:, 1] - z[:, 0]
+    bx, by, bz = x[:, 2] - x[:, 0], y[:, 2] - y[:, 0], z[:, 2] - z[:, 0]
+    cx, cy, cz = x[:, 3] - x[:, 0], y[:, 3] - y[:, 0], z[:, 3] - z[:, 0]
+    dot = ax * (by * cz - bz * cy)
+    dot += az * (bx * cy - by * cx)  # einsum's inner sum runs x, z, y
+    dot += ay * (bz * cx - bx * cz)
+    return dot / 6
+
+
 def _tetrahedra(
     xyz: np.ndarray, params: MatchParams
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,19 +190,12 @@ def _tetrahedra(
     if n < 4:
         return np.zeros((0, 4), int), np.zeros((0, 6)), np.zeros(0)
     quads = combinations4(n)
-    v = xyz[quads]  # (T, 4, 3)
     # Edge lengths looked up in the (n, n) distance matrix (computed as the norm of the
-    # same differences, so the values are identical to norms of the T * 6 edges).
+    # same differences, so the values are identical to norms of the T * 6 edges), by
+    # flat index with np.take (fancy 2-D indexing cost 6x more).
     dist = np.linalg.norm(xyz[:, None, :] - xyz[None, :, :], axis=2)
-    edges = np.column_stack([dist[quads[:, a], quads[:, b]] for a, b in _EDGES])
-    signed = (
-        np.einsum(
-            "ti,ti->t",
-            v[:, 1] - v[:, 0],
-            np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 0]),
-        )
-        / 6
-    )
+    edges = np.take(dist.ravel(), _edge_slots(n))
+    signed = _signed_volumes(xyz, quads)
     # edges.mean(axis=1), summed column by column in numpy's own order (exact).
     mean_edge = edges[:, 0].copy()
     for k in range(1, 6):
@@ -186,8 +206,9 @@ def _tetrahedra(
     for k in range(1, 6):
         np.minimum(shortest, edges[:, k], out=shortest)
     ok = (shortest >= params.min_edge_m) & (flatness >= params.min_flatness)
-    quads, edges, signed = quads[ok], edges[ok], signed[ok]
-    size = np.abs(signed)
+    # Rows kept, then the largest of them: one gather of the chosen rows at the end.
+    kept = np.flatnonzero(ok)
+    size = np.abs(signed[kept])
     if len(size) > params.max_tetrahedra:
         # Only the candidates at or above the cut-off volume need sorting (same order
         # as a stable sort of all of them, ties kept in index order).
@@ -198,7 +219,8 @@ def _tetrahedra(
         order = top[np.argsort(-size[top], kind="stable")][: params.max_tetrahedra]
     else:
         order = np.argsort(-size, kind="stable")
-    return quads[order], edges[order], signed[order]
+    rows = kept[order]
+    return quads[rows], edges[rows], signed[rows]
 
 
 def _descriptor(
