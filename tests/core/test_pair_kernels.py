@@ -269,3 +269,22 @@ def test_match_reductions_equal_numpy_reductions() -> None:
     for k in range(1, 6):
         mean += edges[:, k]
     np.testing.assert_array_equal(mean / 6, edges.mean(axis=1))
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_occupancy_dense_grid_and_sorted_codes_agree(
+    dense: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both representations (dense box, or sorted codes for a huge box) answer alike."""
+    monkeypatch.setattr(Occupancy, "MAX_CELLS", 1 << 40 if dense else 0)
+    rng = np.random.default_rng(11)
+    xyz = np.vstack([rng.normal(0, 1.5, (3000, 3)), xyz_neg()])
+    occ = Occupancy(xyz, 0.1)
+    assert (occ._grid is not None) == dense
+    np.testing.assert_array_equal(occ.codes, _reference_occupancy_codes(xyz, 0.1))
+    pts = rng.normal(0, 3, (3, 2000, 3))
+    pts[0, :5] = [[1e6, 0, 0], [-1e6, 0, 0], [0, 0, 1e6], [0, 0, -1e6], [0, 1e6, 0]]
+    code = Occupancy._code(np.floor(pts / 0.1).astype(np.int64))
+    want = np.isin(code, _reference_occupancy_codes(xyz, 0.1))
+    np.testing.assert_array_equal(occ.hits_many(pts), want)
+    assert not Occupancy(np.zeros((0, 3)), 0.1).hits_many(pts).any()
