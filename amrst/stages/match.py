@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -179,7 +180,7 @@ def _signed_volumes(xyz: np.ndarray, quads: np.ndarray) -> np.ndarray:
     dot = ax * (by * cz - bz * cy)
     dot += az * (bx * cy - by * cx)  # einsum's inner sum runs x, z, y
     dot += ay * (bz * cx - bx * cz)
-    return dot / 6
+    return cast("np.ndarray", dot / 6)
 
 
 def _tetrahedra(
