@@ -199,7 +199,9 @@ def polish(
             T = Ts[idx]
             moved = transform_many(T, src)
             rows = (idx[:, None] * n + np.arange(n)).reshape(-1)
-            inside, q = nearest.match(moved.reshape(-1, 3), rows)
+            # Every start still moving: all tracked rows in order (no gathers).
+            every = len(idx) == len(Ts)
+            inside, q = nearest.match(moved.reshape(-1, 3), None if every else rows)
             found = np.zeros(len(rows), dtype=bool)
             found[inside] = True
             ok = found.reshape(len(idx), n)
