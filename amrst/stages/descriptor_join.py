@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-# Entries of the descriptor tested first (they reject the most candidates on the
-# shared cases): longest edge, 4th edge, lowest height, 5th edge, ...
-_TEST_ORDER = (0, 3, 7, 4, 8, 2, 9, 1, 10, 5, 6)
+# Entries of the descriptor in the order they are tested: those that reject the most
+# candidates on the shared cases first (4th edge, lowest height, 3rd height, 5th
+# edge, ...), the longest edge last (its range was already exact to rounding).
+_TEST_ORDER = (3, 7, 9, 4, 8, 1, 2, 10, 5, 6, 0)
 _SWEEP = 0  # the longest edge: an exact range inside each bucket
 _GRID = (5, 6)  # shortest edge and volume: the buckets
 _CELL = 0.5  # bucket width (tolerance units): 5 buckets per entry cover the reach
@@ -111,8 +112,14 @@ def descriptor_pairs(
         ti, si = _grid_candidates(A, B, grid)
         tests = [d for d in _TEST_ORDER if d < dims]
         tests += [d for d in range(dims) if d not in tests]
-        for d in tests:
-            ok = np.flatnonzero(np.abs(A[d][ti] - B[d][si]) <= 1.0)
-            ti, si = ti[ok], si[ok]
+        # The first two entries on every candidate, then each entry on the survivors.
+        first, second = tests[0], tests[1]
+        ok = np.abs(A[first][ti] - B[first][si]) <= 1.0
+        ok &= np.abs(A[second][ti] - B[second][si]) <= 1.0
+        keep = np.flatnonzero(ok)
+        ti, si = ti[keep], si[keep]
+        for d in tests[2:]:
+            keep = np.flatnonzero(np.abs(A[d][ti] - B[d][si]) <= 1.0)
+            ti, si = ti[keep], si[keep]
     order = np.argsort(ti * m + si)
     return ti[order], si[order]
