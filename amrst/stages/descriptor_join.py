@@ -65,9 +65,9 @@ def _grid_candidates(
     comp = kb * width + (B[_SWEEP] - x0)
     order = np.argsort(comp, kind="stable")
     comp = comp[order]
-    key = (
-        (ka[:, None] + shift[None, :]) * width + (A[_SWEEP] - x0)[:, None]
-    ).reshape(-1)
+    key = ((ka[:, None] + shift[None, :]) * width + (A[_SWEEP] - x0)[:, None]).reshape(
+        -1
+    )
     # Rounding of the float key: widen the range (the exact test follows).
     slack = 1.0 + 1e-6 + 1e-12 * float(np.abs(comp).max(initial=0.0))
     left = np.searchsorted(comp, key - slack)

@@ -303,3 +303,23 @@ def test_rotvec_equals_scipy_bit_for_bit() -> None:
             np.testing.assert_array_equal(
                 _rotvec(w), Rotation.from_rotvec(w).as_matrix()
             )
+
+
+def test_proper_screen_equals_masking_all_24_orders() -> None:
+    """Screening only the proper permutations finds what masking all 24 found."""
+    from amrst.stages.tetra_screen import _PARITY, _max_over_edges, _proper_candidates
+
+    rng = np.random.default_rng(4)
+    log_t = rng.uniform(0, 1, (3000, 6)).astype(np.float32)
+    log_s = (log_t[:, rng.permutation(6)] + rng.normal(0, 0.05, (3000, 6))).astype(
+        np.float32
+    )
+    sign_t = rng.choice([-1.0, 0.0, 1.0], 3000, p=[0.45, 0.1, 0.45])
+    sign_s = rng.choice([-1.0, 0.0, 1.0], 3000, p=[0.45, 0.1, 0.45])
+    proper = sign_s[:, None] * _PARITY[None, :] == sign_t[:, None]
+    rows, cols = np.nonzero((_max_over_edges(log_s, log_t) <= 0.1) & proper)
+    want = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    pair, perm = _proper_candidates(log_s, log_t, sign_s, sign_t, 0.1)
+    got = list(zip(pair.tolist(), perm.tolist(), strict=True))
+    assert len(got) == len(set(got)) == len(want) > 100
+    assert set(got) == want
