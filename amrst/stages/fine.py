@@ -329,11 +329,12 @@ def refine_registration(
         source_xyz = source_xyz[np.sort(pick)]
     T = np.asarray(T_init, float).copy()
     tree = NearestTree(target_xyz)  # one tree for every scale and the final count
-    nearest = NearestCache(tree, target_xyz, len(source_xyz), _ladder(params)[0])
+    ladder = _ladder(params)  # the correspondence distance of each scale
+    nearest = NearestCache(tree, target_xyz, len(source_xyz), ladder[0])
     total, converged, dist = 0, True, params.max_corr_dist_m
     if params.method != "none":
         for s in range(params.scales):
-            dist = _ladder(params)[s]
+            dist = ladder[s]
             if params.method == "lm_icp":
                 T, it, conv = lm_icp(
                     source_xyz,
