@@ -47,7 +47,8 @@ class Occupancy:
             return
         self._lo = keys.min(axis=0) - 2
         self._shape = keys.max(axis=0) - self._lo + 3
-        if int(np.prod(self._shape)) <= self.MAX_CELLS:
+        sx, sy, sz = (int(s) for s in self._shape)  # Python ints: no overflow
+        if min(sx, sy, sz) > 0 and sx * sy * sz <= self.MAX_CELLS:
             self._grid = self._dense(keys - self._lo)
         else:
             self._codes = self._sparse(keys)
