@@ -124,7 +124,8 @@ def assign_to_stems(
     reached = np.flatnonzero(owner >= 0)
     if len(lost) and len(reached):
         high = lost[h_nodes[lost] > params.crown_height_m]
-        nn = NearestTree(pts[reached]).query(pts[high])[1]
+        # One thread, as for the skeleton's islands (a few thousand points).
+        nn = NearestTree(pts[reached], threads=1).query(pts[high])[1]
         owner[high] = owner[reached[nn]]
     return np.asarray(owner[owner_of])
 
