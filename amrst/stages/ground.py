@@ -194,22 +194,25 @@ def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:
     """Index of the lowest point of each occupied cell, cells in grid order.
 
     Ties go to the lowest index (what a stable sort by cell, then height, keeps
-    first). One stable sort by cell and a minimum per run, instead of a two-key
-    lexsort and a unique.
+    first). An unstable sort groups the points by cell (SIMD sorts: 2-3x faster than
+    a stable one); the minimum height of a run does not depend on the order inside
+    it, and the lowest index among a cell's lowest points is taken over the few
+    points at that height, in index order.
     """
     ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
     ij -= ij.min(axis=0)
     code = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
-    order = np.argsort(code, kind="stable")
+    order = np.argsort(code)
     sc = code[order]
     start = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])
-    z = xyz[order, 2]
-    low = np.minimum.reduceat(z, start)
+    z = xyz[:, 2]
+    zs = z[order]
+    low = np.minimum.reduceat(zs, start)
     run = np.repeat(np.arange(len(start)), np.diff(np.r_[start, len(order)]))
-    hit = np.flatnonzero(z == low[run])
-    # The first hit of each run: runs are in index order within (stable sort).
-    first_hit = hit[np.r_[True, run[hit][1:] != run[hit][:-1]]]
-    return np.asarray(order[first_hit])
+    hit = zs == low[run]  # every point at its cell's lowest height
+    first = np.full(len(start), len(z), dtype=np.int64)
+    np.minimum.at(first, run[hit], order[hit])
+    return first
 
 
 def _ransac_plane(
