@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from amrst.stages.voxels import column_min
+
 _BELOW_PENALTY = 3.0  # a cell far below a plane costs this many inliers
 
 
@@ -200,7 +202,7 @@ def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:
     points at that height, in index order.
     """
     ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
-    ij -= ij.min(axis=0)
+    ij -= column_min(ij)
     code = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
     order = np.argsort(code)
     sc = code[order]

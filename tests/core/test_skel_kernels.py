@@ -31,3 +31,15 @@ def test_draw_solves_equal_numpys_solve_one_by_one(n_cells: int) -> None:
     assert np.isnan(want).any(axis=1).sum() > 0  # the case is exercised
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(_halve_draws(A[draws], z[draws]), want)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.int64])
+def test_column_min_equals_numpys_min_over_rows(dtype: type) -> None:
+    from amrst.stages.voxels import column_min
+
+    rng = np.random.default_rng(4)
+    for cols in (2, 3):
+        a = (rng.normal(0, 100, (1001, cols))).astype(dtype)
+        got = column_min(a)
+        assert got.dtype == a.min(axis=0).dtype
+        np.testing.assert_array_equal(got, a.min(axis=0))
