@@ -82,19 +82,26 @@ class GroundFit:
         from scipy.spatial import cKDTree
 
         cell = self.cell_m
-        f = xyz[:, :2] / cell
-        q = np.floor(f)
-        edge = np.minimum(f - q, 1.0 - (f - q)).min(axis=1) < 1e-9
         cq = np.floor(self.centres / cell)
         lo = cq.min(axis=0)
         span = cq.max(axis=0) - lo + 1
         ci = (cq - lo).astype(np.int64)
         ccode = ci[:, 0] * int(span[1]) + ci[:, 1]
-        qi = q - lo
-        inside = ((qi >= 0) & (qi < span)).all(axis=1) & ~edge
+        # x and y one column at a time (numpy's reductions across the columns of an
+        # (N, 2) array are slow); the same values as on the (N, 2) arrays.
+        inside = np.ones(len(xyz), dtype=bool)
+        qi = []
+        for d in range(2):
+            f = xyz[:, d] / cell
+            q = np.floor(f)
+            r = f - q
+            inside &= np.minimum(r, 1.0 - r) >= 1e-9  # not on a cell edge
+            q -= lo[d]
+            inside &= (q >= 0) & (q < span[d])
+            qi.append(q)
+        qx, qy = (q[inside].astype(np.int64) for q in qi)
         qcode = np.zeros(len(xyz), dtype=np.int64)
-        qi = qi[inside].astype(np.int64)
-        qcode[inside] = qi[:, 0] * int(span[1]) + qi[:, 1]
+        qcode[inside] = qx * int(span[1]) + qy
         # The centres come in grid order (fit_ground): ccode is sorted.
         by_code = np.argsort(ccode, kind="stable")
         at = by_code[np.minimum(np.searchsorted(ccode[by_code], qcode), len(ccode) - 1)]

@@ -43,3 +43,14 @@ def test_column_min_equals_numpys_min_over_rows(dtype: type) -> None:
         got = column_min(a)
         assert got.dtype == a.min(axis=0).dtype
         np.testing.assert_array_equal(got, a.min(axis=0))
+
+
+def test_nearest_set_equals_the_full_sort() -> None:
+    """The k nearest by a partition are the sort's k, ties at the k-th included."""
+    from amrst.stages.scene import _nearest
+
+    rng = np.random.default_rng(5)
+    for n in (5, 20, 21, 500):
+        for d in (rng.random(n), np.round(rng.random(n), 1)):  # the second has ties
+            want = np.sort(np.argsort(d)[:20])
+            np.testing.assert_array_equal(np.sort(_nearest(d, 20)), want)
