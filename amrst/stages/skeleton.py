@@ -17,6 +17,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.skeleton_graph import bin_clusters, wood_graph
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -185,7 +186,6 @@ def build_skeleton(
     """
     from scipy.sparse.csgraph import dijkstra
 
-    from amrst.stages.skeleton_graph import bin_clusters, wood_graph
     from amrst.stages.voxels import voxel_sample
 
     if len(wood_xyz) < params.min_points:
