@@ -100,8 +100,9 @@ def assign_to_stems(
 
     # Paths are traced on one point per voxel (a third of the link): ten times fewer
     # links than on the 3 cm working points, same labels at this scale.
-    reps, owner_of = voxel_representatives(xyz[above], params.link_m / 3)
-    pts = xyz[above][reps]
+    above_xyz = xyz[above]
+    reps, owner_of = voxel_representatives(above_xyz, params.link_m / 3)
+    pts = above_xyz[reps]
     pairs = cKDTree(pts).query_pairs(params.link_m, output_type="ndarray")
     d = _pair_lengths(pts, pairs)
     graph = coo_matrix(
@@ -117,7 +118,7 @@ def assign_to_stems(
         graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
     )
     owner = np.where(sources >= 0, node_stem[np.maximum(sources, 0)], -1)
-    h_nodes = h[above][reps]
+    h_nodes = h[above[reps]]
     # Pieces that reach no stem: crown parts (high) go with their nearest labelled
     # point, shrubs (low) stay "other".
     lost = np.flatnonzero(owner < 0)
