@@ -54,3 +54,27 @@ def test_nearest_set_equals_the_full_sort() -> None:
         for d in (rng.random(n), np.round(rng.random(n), 1)):  # the second has ties
             want = np.sort(np.argsort(d)[:20])
             np.testing.assert_array_equal(np.sort(_nearest(d, 20)), want)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pairs_within_equal_the_default_tree_and_brute_force(seed: int) -> None:
+    """The faster-built tree finds the same pairs as scipy's default tree and as
+    every distance computed, on a cloud with points on a mm grid (equal distances)."""
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.stems import _pairs_within
+
+    rng = np.random.default_rng(seed)
+    pts = np.round(rng.uniform(0, 1.5, (3000, 3)) * [1, 1, 0.3], 3)
+    got = _pairs_within(pts, 0.06)
+    assert np.all(got[:, 0] < got[:, 1])
+
+    def as_set(p: np.ndarray) -> set[tuple[int, int]]:
+        return set(map(tuple, p.tolist()))
+
+    old = cKDTree(pts).query_pairs(0.06, output_type="ndarray")
+    assert as_set(got) == as_set(old)
+    assert len(got) == len(old)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    i, j = np.nonzero(np.triu(d <= 0.06, 1))
+    assert as_set(got) == as_set(np.column_stack([i, j]))
