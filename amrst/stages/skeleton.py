@@ -213,17 +213,16 @@ def build_skeleton(
     cluster = bin_clusters(graph, b, params.max_edge_m)
     k = int(cluster.max()) + 1
     valid = cluster >= 0
-    counts = np.bincount(cluster[valid], minlength=k)
+    cv, xv = cluster[valid], xyz[valid]  # gathered once for the sums below
+    counts = np.bincount(cv, minlength=k)
     # np.bincount with weights gives float64 (numpy's stubs say intp).
     nodes = cast(
         "npt.NDArray[np.float64]",
-        np.column_stack(
-            [np.bincount(cluster[valid], xyz[valid, d], k) for d in range(3)]
-        ),
+        np.column_stack([np.bincount(cv, xv[:, d], k) for d in range(3)]),
     )
     nodes /= np.maximum(counts, 1)[:, None]
     node_geo = np.full(k, np.inf)
-    np.minimum.at(node_geo, cluster[valid], geo[valid])
+    np.minimum.at(node_geo, cv, geo[valid])
     # Parent: the cluster the shortest paths come from (majority over the cluster's points).
     pts = np.flatnonzero(valid & (pred >= 0))
     pc, cc = cluster[pred[pts]], cluster[pts]
