@@ -68,7 +68,7 @@ def voxel_sample(xyz: np.ndarray, voxel: float) -> np.ndarray:
     (V,) int64
         Sorted indices of the representatives (see :func:`voxel_representatives`).
     """
-    return voxel_representatives(xyz, voxel)[0]
+    return _representatives(xyz, voxel, with_owner=False)[0]
 
 
 def voxel_representatives(
@@ -88,6 +88,16 @@ def voxel_representatives(
         Index of each voxel's representative (ties go to the lowest index).
     owner : (N,) int64
         Position in ``reps`` of the representative of each point's voxel.
+    """
+    return _representatives(xyz, voxel, with_owner=True)
+
+
+def _representatives(
+    xyz: np.ndarray, voxel: float, *, with_owner: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return :func:`voxel_representatives`; the owners only when asked.
+
+    :func:`voxel_sample` drops them (empty): a gather over every point saved.
     """
     if len(xyz) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
@@ -121,6 +131,8 @@ def voxel_representatives(
     hit = np.flatnonzero(dist == nearest[group])
     rep_of_group = np.full(n, len(xyz), dtype=np.int64)
     np.minimum.at(rep_of_group, group[hit], hit)  # ties: the lowest index
+    if not with_owner:
+        return np.sort(rep_of_group), np.zeros(0, dtype=np.int64)
     by_index = np.argsort(rep_of_group)
     reps = rep_of_group[by_index]
     rank = np.empty(n, dtype=np.int64)

@@ -78,3 +78,14 @@ def test_pairs_within_equal_the_default_tree_and_brute_force(seed: int) -> None:
     d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
     i, j = np.nonzero(np.triu(d <= 0.06, 1))
     assert as_set(got) == as_set(np.column_stack([i, j]))
+
+
+@pytest.mark.parametrize("voxel", [0.01, 0.05, 0.3])
+def test_voxel_sample_without_owners_names_the_same_points(voxel: float) -> None:
+    from amrst.stages.voxels import voxel_representatives, voxel_sample
+
+    rng = np.random.default_rng(6)
+    xyz = np.round(rng.normal(0, 1, (20_000, 3)), 2)  # duplicates: ties
+    reps, owner = voxel_representatives(xyz, voxel)
+    np.testing.assert_array_equal(voxel_sample(xyz, voxel), reps)
+    assert len(owner) == len(xyz)
