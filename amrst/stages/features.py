@@ -153,6 +153,7 @@ def _pairwise_rows(a: np.ndarray) -> np.ndarray:
     the same rounding for every column.
     """
     n = a.shape[1]
+    res: np.ndarray
     if n < 8:
         res = np.zeros((a.shape[0], a.shape[2]))
         for i in range(n):
@@ -161,7 +162,8 @@ def _pairwise_rows(a: np.ndarray) -> np.ndarray:
     if n > 128:
         half = n // 2
         half -= half % 8
-        return _pairwise_rows(a[:, :half]) + _pairwise_rows(a[:, half:])
+        both: np.ndarray = _pairwise_rows(a[:, :half]) + _pairwise_rows(a[:, half:])
+        return both
     r = a[:, :8].copy()
     stop = n - n % 8
     for i in range(8, stop, 8):
