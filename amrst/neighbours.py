@@ -44,17 +44,18 @@ def threads() -> int:
     return _threads
 
 
-# A query of less work than this (queries x neighbours) runs on one thread whatever
-# threads() says: waking the second OpenMP thread cost more than it saved on a
-# loaded 2-core machine (351 queries of 64 neighbours: 16 ms on two threads, 0.7 ms
-# on one). The answers do not depend on the threads.
-SMALL_BATCH = 32_768
+# A query of less work than this (queries x (neighbours + 3), about 0.1 us each on one
+# thread) runs on one thread whatever threads() says: waking the second OpenMP thread
+# cost more than it saved on a loaded 2-core machine (6,000 nearest-point queries:
+# 1.8 ms on one thread, 11.7 ms on two; 351 queries of 64 neighbours: 0.7 and 16 ms).
+# The answers do not depend on the threads.
+SMALL_BATCH = 100_000
 
 
 def _batch_threads(n_queries: int, k: int, threads: int | None = None) -> int:
     """Threads for ``n_queries`` queries of ``k`` neighbours (one for a small batch)."""
     n = _threads if threads is None else threads
-    return n if n_queries * max(k, 8) >= SMALL_BATCH else 1
+    return n if n_queries * (k + 3) >= SMALL_BATCH else 1
 
 
 def _build_threads(n_points: int, threads: int | None = None) -> int:

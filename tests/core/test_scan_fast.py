@@ -112,3 +112,31 @@ def test_table_subset_reads_every_path(keep_fraction: float) -> None:
                 )
     finally:
         neighbours.set_threads(before)
+
+
+def test_small_batches_run_on_one_thread_with_the_same_answers() -> None:
+    """Queries under SMALL_BATCH work run on one thread; big ones on threads(); the
+    neighbours are the same either way."""
+    before = neighbours.threads()
+    try:
+        neighbours.set_threads(2)
+        assert neighbours._batch_threads(100, 1) == 1
+        assert neighbours._batch_threads(351, 64) == 1
+        assert neighbours._batch_threads(16_000, 32) == 2
+        assert neighbours._batch_threads(16_000, 32, threads=1) == 1
+        assert neighbours._build_threads(16_000) == 1
+        assert neighbours._build_threads(200_000) == 2
+        rng = np.random.default_rng(11)
+        pts = np.round(rng.uniform(0, 2, (30_000, 3)), 3)
+        queries = rng.uniform(0, 2, (40_000, 3))  # 40,000 x (1 + 3): two threads
+        tree = neighbours.NearestTree(pts)
+        big = tree.query(queries, k=1, distance_upper_bound=0.05)
+        small = tree.query(queries[:500], k=1, distance_upper_bound=0.05)
+        neighbours.set_threads(1)
+        one = neighbours.NearestTree(pts).query(queries, k=1, distance_upper_bound=0.05)
+        for a, b in zip(big, one, strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(small, one, strict=True):
+            np.testing.assert_array_equal(a, b[:500])
+    finally:
+        neighbours.set_threads(before)
