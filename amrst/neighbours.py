@@ -185,9 +185,9 @@ class NeighbourTable:
     points left after the outlier filter and the scene cut, the skeleton graph on a
     voxel sample of those). The k nearest points of a subset are the first k of the
     cloud's neighbours that belong to the subset, whenever the K listed hold k of
-    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K
-    neighbours of the rows where too few remain, and queries the subset afresh only
-    for rows still short. The answer equals :func:`knn` on the subset, but for the
+    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K (then
+    8K, 32K, ...) neighbours of the rows where too few remain, and queries the subset
+    afresh only when that would cost more than a tree on the subset. The answer equals :func:`knn` on the subset, but for the
     order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
     build and one query per scan instead of three of each (small_gicp holds the GIL
     while it queries, so the two scans' queries did not overlap anyway).
