@@ -97,10 +97,6 @@ def shape_features(
     return out
 
 
-# Neighbourhoods whose covariances are worked out at once (see _covariances).
-_CHUNK = 512
-
-
 def _covariances(
     xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]
 ) -> list[tuple[np.ndarray, ...]]:
@@ -116,34 +112,25 @@ def _covariances(
     third of the cost (numpy's per-row reduction of 10-30 numbers is slow).
     """
     ks = tuple(min(k, idx.shape[1]) for k in ks)  # tiny clouds: fewer neighbours
-    kmax, m, runs = max(ks), len(idx), sorted(set(ks))
-    xt = np.ascontiguousarray(xyz.T, dtype=np.float64)
-    # Cumulative sums of (x, y, z, xx, yy, zz, xy, xz, yz) over the first k
-    # neighbours, per run end k; worked out _CHUNK rows at a time so that the
-    # products stay in the cache (2x less time than all rows at once in the pipeline).
-    sums = {k: np.empty((9, m)) for k in runs}
-    prods = np.empty((9, kmax, min(_CHUNK, m)))
-    for lo in range(0, m, _CHUNK):
-        hi = min(lo + _CHUNK, m)
-        p = prods[:, :, : hi - lo]
-        # (3, K, rows) gathered with np.take: several times faster than fancy indexing.
-        order = np.ascontiguousarray(np.asarray(idx)[lo:hi, :kmax].T)
-        g = np.take(xt, order, axis=1)
-        g -= g[:, :1].copy()
-        p[:3] = g
-        x, y, z = g
-        for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z)), 3):
-            np.multiply(u, v, out=p[i])
-        acc: Any = 0.0  # then (9, rows)
-        done = 0
-        for k in runs:
-            acc = acc + _pairwise_rows(p[:, done:k])
-            sums[k][:, lo:hi] = acc
-            done = k
+    kmax = max(ks)
+    m = len(idx)
+    # (3, K, M) gathered with np.take: several times faster than fancy indexing.
+    order = np.ascontiguousarray(np.asarray(idx)[:, :kmax].T)
+    g = np.take(np.ascontiguousarray(xyz.T, dtype=np.float64), order, axis=1)
+    g -= g[:, :1].copy()
+    prods = np.empty((9, kmax, m))
+    prods[:3] = g
+    x, y, z = g
+    for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z)), 3):
+        np.multiply(u, v, out=prods[i])
     out: list[tuple[np.ndarray, ...]] = []
-    for k in runs:
-        mx, my, mz = (v / k for v in sums[k][:3])
-        a, b, c, d, e, f = (v / k for v in sums[k][3:])
+    sums: Any = 0.0  # then (9, M)
+    done = 0
+    for k in sorted(set(ks)):
+        sums = sums + _pairwise_rows(prods[:, done:k])
+        done = k
+        mx, my, mz = (v / k for v in sums[:3])
+        a, b, c, d, e, f = (v / k for v in sums[3:])
         out.append(
             (
                 a - mx * mx,
