@@ -44,6 +44,30 @@ def threads() -> int:
     return _threads
 
 
+# A query of less work than this (queries x (neighbours + 3), about 0.1 us each on one
+# thread) runs on one thread whatever threads() says: waking the second OpenMP thread
+# cost more than it saved on a loaded 2-core machine (6,000 nearest-point queries:
+# 1.8 ms on one thread, 11.7 ms on two; 351 queries of 64 neighbours: 0.7 and 16 ms).
+# The answers do not depend on the threads.
+SMALL_BATCH = 100_000
+
+
+def _batch_threads(n_queries: int, k: int, threads: int | None = None) -> int:
+    """Threads for ``n_queries`` queries of ``k`` neighbours (one for a small batch)."""
+    n = _threads if threads is None else threads
+    return n if n_queries * (k + 3) >= SMALL_BATCH else 1
+
+
+def _build_threads(n_points: int, threads: int | None = None) -> int:
+    """Threads for building a tree on ``n_points`` points.
+
+    One below 100,000 points: 2-3 ms on one thread, and a second thread cost up to
+    25 ms of waiting on a loaded machine.
+    """
+    n = _threads if threads is None else threads
+    return n if n_points >= 100_000 else 1
+
+
 def _points(xyz: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3)
 
@@ -80,8 +104,10 @@ def knn(
     if len(q) == 0:
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
     n_threads = _threads if threads is None else threads
-    tree = small_gicp.KdTree(pts, num_threads=n_threads)
-    idx, sq = tree.batch_knn_search(q, k, num_threads=n_threads)
+    tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), n_threads))
+    idx, sq = tree.batch_knn_search(
+        q, k, num_threads=_batch_threads(len(q), k, n_threads)
+    )
     # Every index is valid (k <= N): the uint64 array reads as int64 without a copy.
     return np.sqrt(sq, out=sq), idx.view(np.int64)
 
@@ -104,7 +130,11 @@ class NearestTree:
         self.n = len(self.points)
         self.threads = _threads if threads is None else threads
         self._tree: Any = (
-            small_gicp.KdTree(self.points, num_threads=self.threads) if self.n else None
+            small_gicp.KdTree(
+                self.points, num_threads=_build_threads(self.n, self.threads)
+            )
+            if self.n
+            else None
         )
 
     def query(
@@ -131,7 +161,10 @@ class NearestTree:
         shape = (len(q),) if k == 1 else (len(q), k)
         if self.n == 0 or len(q) == 0:
             return np.full(shape, np.inf), np.full(shape, self.n, dtype=np.int64)
-        idx, sq = self._tree.batch_knn_search(q, min(k, self.n), self.threads)
+        kk = min(k, self.n)
+        idx, sq = self._tree.batch_knn_search(
+            q, kk, _batch_threads(len(q), kk, self.threads)
+        )
         dist = np.sqrt(sq)
         idx = idx.astype(np.int64)
         if k > self.n:  # pad like scipy
@@ -152,9 +185,9 @@ class NeighbourTable:
     points left after the outlier filter and the scene cut, the skeleton graph on a
     voxel sample of those). The k nearest points of a subset are the first k of the
     cloud's neighbours that belong to the subset, whenever the K listed hold k of
-    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K
-    neighbours of the rows where too few remain, and queries the subset afresh only
-    for rows still short. The answer equals :func:`knn` on the subset, but for the
+    them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K (then
+    8K, 32K, ...) neighbours of the rows where too few remain, and queries the subset
+    afresh only when that would cost more than a tree on the subset. The answer equals :func:`knn` on the subset, but for the
     order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
     build and one query per scan instead of three of each (small_gicp holds the GIL
     while it queries, so the two scans' queries did not overlap anyway).
@@ -191,8 +224,8 @@ class NeighbourTable:
         k = min(k, len(pts))
         if k < 1:
             raise ValueError("a neighbour table needs at least one point")
-        tree = small_gicp.KdTree(pts, num_threads=_threads)
-        idx, sq = tree.batch_knn_search(pts, k, num_threads=_threads)
+        tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts)))
+        idx, sq = tree.batch_knn_search(pts, k, num_threads=_batch_threads(len(pts), k))
         return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree)
 
     @property
@@ -227,29 +260,39 @@ class NeighbourTable:
         rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
         root = rows if self._pos is None else self._pos[rows]
         if self._pos is None and k <= self.k:
-            return self._dist[root, :k], self._idx[root, :k]
+            return (
+                np.take(self._dist[:, :k], root, axis=0),
+                np.take(self._idx[:, :k], root, axis=0),
+            )
         if self._pos is None or k > self.k:
             return knn(self.xyz, k, self.xyz[rows])
         inv = np.full(len(self._points), -1, dtype=np.int64)
         inv[self._pos] = np.arange(n)
-        j = inv[self._idx[root]]
-        # Flat positions of the listed neighbours that are in the view, row by row;
-        # a row with k of them takes its first k.
-        at = np.flatnonzero(j.ravel() >= 0)
-        count = np.bincount(at // j.shape[1], minlength=len(rows))
+        # np.take: several times faster than fancy indexing on these shapes.
+        j = np.take(inv, np.take(self._idx, root, axis=0))
+        dist = np.take(self._dist[:, :k], root, axis=0)
+        idx = np.ascontiguousarray(j[:, :k])
+        # Most rows (90-99 % on the shared cases) have their first k listed
+        # neighbours in the view: those are the answer as they stand. The others
+        # take the first k of their listed neighbours that are in the view.
+        part = np.flatnonzero((idx < 0).any(axis=1))
+        jp = j[part]
+        at = np.flatnonzero(jp.ravel() >= 0)
+        count = np.bincount(at // jp.shape[1], minlength=len(part))
         ok = count >= k
         start = np.cumsum(count) - count
         take = at[(start[ok][:, None] + np.arange(k)).ravel()]
-        dist = np.empty((len(rows), k))
-        idx = np.empty((len(rows), k), dtype=np.int64)
-        dist[ok] = self._dist[root].ravel()[take].reshape(-1, k)
-        idx[ok] = j.ravel()[take].reshape(-1, k)
-        short = np.flatnonzero(~ok)
-        if len(short) and self._tree is not None:
-            # More of the cloud's neighbours for the rows left short (a few %).
-            wide = min(2 * self.k, len(self._points))
+        dist[part[ok]] = self._dist[root[part]].ravel()[take].reshape(-1, k)
+        idx[part[ok]] = jp.ravel()[take].reshape(-1, k)
+        short = part[~ok]
+        # More of the cloud's neighbours for the rows left short (a few %): 2K, then
+        # four times more while that costs less than a tree on the view would.
+        wide, n_all = min(2 * self.k, len(self._points)), len(self._points)
+        while len(short) and self._tree is not None:
             w_idx, w_sq = self._tree.batch_knn_search(
-                self._points[root[short]], wide, num_threads=_threads
+                self._points[root[short]],
+                wide,
+                num_threads=_batch_threads(len(short), wide),
             )
             jw = inv[w_idx.view(np.int64)]
             at = np.flatnonzero(jw.ravel() >= 0)
@@ -260,7 +303,11 @@ class NeighbourTable:
             dist[short[got]] = np.sqrt(w_sq.ravel()[take]).reshape(-1, k)
             idx[short[got]] = jw.ravel()[take].reshape(-1, k)
             short = short[~got]
+            wide_next = min(4 * wide, n_all)
+            if wide == n_all or len(short) * wide_next > 4 * n_all:
+                break
+            wide = wide_next
         if len(short):
-            redo = rows[short]
-            dist[short], idx[short] = knn(self.xyz, k, self.xyz[redo])
+            xyz = self.xyz
+            dist[short], idx[short] = knn(xyz, k, xyz[rows[short]])
         return dist, idx
