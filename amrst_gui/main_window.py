@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
 
 from amrst.errors import AmrstError
 from amrst.resources import resource_path
-from amrst_gui import dialogs, menus
+from amrst_gui import dialogs, menus, offload, warmup
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
 from amrst_gui.panels.campaign_panel import CampaignPanel
@@ -54,6 +54,9 @@ class MainWindow(QMainWindow):
     actions: WorkflowActions  # type: ignore[assignment]
 
     def __init__(self, session: Session | None = None, settings=None) -> None:
+        # What the workers import later would stall the window then (issue 15).
+        warmup.import_worker_modules()
+        offload.start()  # the helper process that describes big scans
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")

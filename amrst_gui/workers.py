@@ -108,7 +108,13 @@ class StageJob(QObject):
         self._discarded = True
         self.cancel()
 
-    def _start(self, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
+    def _start(
+        self,
+        fn: Callable[..., Any],
+        args: tuple,
+        kwargs: dict,
+        gate: threading.Semaphore | None = None,
+    ) -> None:
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
         # deleted in the worker thread and its timer would fire on freed memory
@@ -117,7 +123,11 @@ class StageJob(QObject):
 
         def work() -> Any:
             try:
-                return fn(*args, reporter, **kwargs)
+                if gate is None:
+                    return fn(*args, reporter, **kwargs)
+                with gate:  # one job of its lane at a time (see LANES)
+                    reporter.check_cancelled()  # dropped while it waited
+                    return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses threads.
                 exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
@@ -201,6 +211,7 @@ def run_stage(
     on_progress: Callable[[float, str], None] | None = None,
     on_error: Callable[[BaseException], None] | None = None,
     on_finished: Callable[[], None] | None = None,
+    lane: str | None = None,
     **kwargs: Any,
 ) -> StageJob:
     """Run ``fn(*args, reporter, **kwargs)`` in a worker thread.
@@ -214,6 +225,9 @@ def run_stage(
     on_result, on_progress, on_error, on_finished : callables
         Called on the GUI thread with the return value, ``(fraction, message)``,
         the exception, and nothing, respectively.
+    lane : str, optional
+        A key of :data:`LANES`: the job waits until no other job of that lane
+        runs (a job dropped meanwhile then ends at once).
 
     Returns
     -------
@@ -233,11 +247,22 @@ def run_stage(
     # Held here until the work is over, released on the GUI thread: the caller may
     # drop its reference (a newer scene replaces an older one) while it runs.
     _LIVE.add(job)
-    job._start(fn, args, kwargs)
+    job._start(fn, args, kwargs, LANES[lane] if lane is not None else None)
     return job
 
 
 _LIVE: set[StageJob] = set()
+
+# Background work that runs one job at a time, whatever the pool allows (issue 15).
+# Every Python thread computing at once competes with the GUI thread for the GIL,
+# and CPython hands the GIL over unfairly: with a step, three views' scenes and two
+# scans' descriptions running together the GUI thread waited 0.2-0.5 s for it (a
+# 10M-point load). The views' scenes (and stem slices) take turns, and so do the
+# Scans dock's descriptions: at most a step and one job of each lane compute.
+LANES: dict[str, threading.Semaphore] = {
+    "display": threading.Semaphore(1),
+    "describe": threading.Semaphore(1),
+}
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three

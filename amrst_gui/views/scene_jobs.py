@@ -110,6 +110,9 @@ def level_slices(n: int, smallest: int = MIN_SET_POINTS) -> list[slice]:
     return out
 
 
+BOUNDS_SAMPLE = 50_000
+
+
 def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     """Bounds to frame: the points' 0.5-99.5 percentiles, plus 5 % each side.
 
@@ -119,7 +122,12 @@ def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     pts = [x for x in xyz_list if len(x)]
     if not pts:
         return None
-    xyz = np.concatenate(pts)
+    # An even sample of at most BOUNDS_SAMPLE points: the percentiles move by
+    # millimetres, and a partition of every displayed point held a worker for
+    # tens of milliseconds (issue 15).
+    total = sum(len(x) for x in pts)
+    step = max(1, -(-total // BOUNDS_SAMPLE))
+    xyz = np.concatenate([x[::step] for x in pts])
     lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
     pad = 0.05 * (hi - lo)
     return np.column_stack([lo - pad, hi + pad]).ravel()
@@ -234,6 +242,7 @@ class SceneLoader(QObject):
             build,
             snapshot,
             name="display",
+            lane="display",
             on_result=lambda out: self._apply(job, out),
             on_error=lambda exc: self._failed(job, exc),
         )
