@@ -42,7 +42,9 @@ def describe_job(cloud, reporter) -> str:
     reporter.check_cancelled()
     try:
         return str(
-            io.describe(cloud, spacing=lambda xyz: offload.median_spacing(xyz, reporter))
+            io.describe(
+                cloud, spacing=lambda xyz: offload.median_spacing(xyz, reporter)
+            )
         )
     except Cancelled:
         raise
