@@ -8,21 +8,27 @@ behind it: the window stalled 0.1-0.25 s while a scan was described, whatever th
 slab size. A separate process has its own GIL; the operating system shares the
 cores between it and the window fairly.
 
-One helper process (``spawn``: no copy of the GUI's threads or Qt state) is
-started with the window, so its imports are done before the first scan arrives.
-The points go to it through shared memory (copied in chunks that release the
-GIL), the answer comes back as one float. If the helper cannot run (no process
-support, or it died), the work runs in the calling thread as before.
+One helper process (``python -m amrst_gui.offload_helper``: a plain interpreter
+that imports only numpy and the spacing code, never the app or the caller's main
+script, as multiprocessing's spawn would) is started with the window, so its
+imports are done before the first scan arrives. The points go to it through
+shared memory (copied in chunks that release the GIL); the request and the answer
+are one line of JSON each over its stdin and stdout. Cancel kills the helper (a
+10M-point spacing would otherwise run on for seconds) and starts a fresh one. If
+the helper cannot run, the spacing is computed in the calling thread as before.
 """
 
 from __future__ import annotations
 
 import atexit
+import json
 import logging
-import multiprocessing
+import os
+import select
+import subprocess
+import sys
 import threading
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,102 +40,115 @@ log = logging.getLogger("amrst_gui.offload")
 
 # Rows copied into shared memory at once: 24 MB of float64, a few milliseconds.
 COPY_ROWS = 1_000_000
-_POLL_S = 0.1  # how often a waiting worker looks at Cancel
-
-_LOCK = threading.Lock()
-_POOL: ProcessPoolExecutor | None = None
+POLL_S = 0.1  # how often a waiting worker looks at Cancel
 
 
-def _pool() -> ProcessPoolExecutor:
-    global _POOL
-    with _LOCK:
-        if _POOL is None:
-            _POOL = ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context("spawn")
+class Helper:
+    """The helper process; one request at a time (callers queue on a lock)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        """Start the helper now (its imports take about a second, in the helper)."""
+        with self._lock:
+            self._ensure()
+
+    def _ensure(self) -> subprocess.Popen[bytes]:
+        if self._proc is None or self._proc.poll() is not None:
+            import amrst
+
+            root = str(Path(amrst.__file__).resolve().parents[1])
+            path = os.environ.get("PYTHONPATH")
+            env = {
+                **os.environ,
+                "PYTHONPATH": root if not path else os.pathsep.join([root, path]),
+            }
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "amrst_gui.offload_helper"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                env=env,
             )
-            atexit.register(shutdown)
-        return _POOL
+        return self._proc
+
+    def stop(self) -> None:
+        """End the helper without waiting for what it computes."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+    def median_spacing(self, xyz: np.ndarray, reporter: Reporter) -> float | None:
+        """``amrst.io.describe.median_spacing(xyz)`` (N, 3), computed in the helper;
+        raises ``Cancelled`` within ``POLL_S`` of a Cancel."""
+        from multiprocessing import shared_memory
+
+        from amrst.io.describe import median_spacing as here
+
+        if len(xyz) < 2:
+            return here(xyz)
+        with self._lock:
+            reporter.check_cancelled()
+            try:
+                proc = self._ensure()
+                shm = shared_memory.SharedMemory(create=True, size=xyz.nbytes)
+            except Exception as exc:  # no processes or no shared memory here
+                log.info("No helper process (%s); spacing computed here", exc)
+                return here(xyz)
+            try:
+                dst: np.ndarray = np.ndarray(xyz.shape, xyz.dtype, buffer=shm.buf)
+                for i in range(0, len(xyz), COPY_ROWS):
+                    dst[i : i + COPY_ROWS] = xyz[i : i + COPY_ROWS]
+                    reporter.check_cancelled()
+                del dst  # no view may outlive the mapping
+                ask = {"shm": shm.name, "shape": xyz.shape, "dtype": xyz.dtype.str}
+                answer = self._ask(proc, ask, reporter)
+            finally:
+                shm.close()
+                shm.unlink()
+        if answer is None:  # the helper died or could not answer
+            return here(xyz)
+        return answer.get("spacing")
+
+    def _ask(self, proc, request: dict, reporter: Reporter) -> dict | None:
+        assert proc.stdin is not None and proc.stdout is not None
+        try:
+            proc.stdin.write((json.dumps(request) + "\n").encode())
+            proc.stdin.flush()
+            while not select.select([proc.stdout], [], [], POLL_S)[0]:
+                if reporter.cancelled:
+                    self.stop()  # it would compute on for seconds
+                    self._ensure()  # a fresh one for the next scan
+                    reporter.check_cancelled()
+            line = proc.stdout.readline()
+        except OSError as exc:  # a broken pipe: the helper is gone
+            log.info("Helper process failed (%s); spacing computed here", exc)
+            self.stop()
+            return None
+        if not line:
+            self.stop()
+            return None
+        answer = json.loads(line)
+        if "error" in answer:
+            log.info("Helper process: %s; spacing computed here", answer["error"])
+            return None
+        return answer
+
+
+HELPER = Helper()
+atexit.register(HELPER.stop)
 
 
 def start() -> None:
-    """Start the helper process now and import what it needs (about 1 s, in the
-    helper): the first description then starts at once. Never raises."""
+    """Start the helper process (never raises: without it, work stays here)."""
     try:
-        _pool().submit(_warm)
-    except Exception as exc:  # no helper: descriptions run in their worker
-        log.info("No helper process (%s); describing in a worker thread", exc)
-
-
-def shutdown() -> None:
-    """Stop the helper process without waiting for a description it runs."""
-    global _POOL
-    with _LOCK:
-        pool, _POOL = _POOL, None
-    if pool is None:
-        return
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in processes:  # a description of 10M points would run on for seconds
-        if proc.is_alive():
-            proc.terminate()
+        HELPER.start()
+    except Exception as exc:
+        log.info("No helper process (%s)", exc)
 
 
 def median_spacing(xyz: np.ndarray, reporter: Reporter) -> float | None:
-    """``amrst.io.describe``'s median spacing of ``xyz`` (N, 3), computed in the
-    helper process; raises ``Cancelled`` within ``_POLL_S`` of a Cancel."""
-    from multiprocessing import shared_memory
-
-    from amrst.io.describe import median_spacing as here
-
-    xyz = np.ascontiguousarray(xyz)
-    if len(xyz) < 2:
-        return here(xyz)
-    try:
-        pool = _pool()
-        shm = shared_memory.SharedMemory(create=True, size=xyz.nbytes)
-    except Exception as exc:
-        log.info("No helper process (%s); spacing computed in this thread", exc)
-        return here(xyz)
-    try:
-        dst: np.ndarray = np.ndarray(xyz.shape, xyz.dtype, buffer=shm.buf)
-        for i in range(0, len(xyz), COPY_ROWS):
-            dst[i : i + COPY_ROWS] = xyz[i : i + COPY_ROWS]
-            reporter.check_cancelled()
-        del dst  # no view may outlive the mapping
-        try:
-            future = pool.submit(_spacing_in_helper, shm.name, xyz.shape, xyz.dtype.str)
-        except Exception as exc:  # the helper died (BrokenProcessPool) or closed
-            log.info("Helper process unavailable (%s); spacing computed here", exc)
-            return here(xyz)
-        while True:
-            try:
-                return future.result(timeout=_POLL_S)
-            except FutureTimeout:
-                if reporter.cancelled:
-                    future.cancel()
-                    reporter.check_cancelled()
-    finally:
-        shm.close()
-        shm.unlink()  # the helper keeps its own mapping until it closes it
-
-
-def _warm() -> None:
-    """(In the helper.) Import the spacing code: numpy, scipy.spatial."""
-    import amrst.io.describe  # noqa: F401
-
-
-def _spacing_in_helper(name: str, shape: tuple[int, ...], dtype: str) -> float | None:
-    """(In the helper.) The median spacing of the points in shared memory ``name``."""
-    from multiprocessing import shared_memory
-
-    from amrst.io.describe import median_spacing
-
-    shm = shared_memory.SharedMemory(name=name)
-    try:
-        xyz: np.ndarray = np.ndarray(shape, np.dtype(dtype), buffer=shm.buf)
-        try:
-            return median_spacing(xyz)
-        finally:
-            del xyz
-    finally:
-        shm.close()
+    """The median spacing of ``xyz`` (N, 3), in the helper process."""
+    return HELPER.median_spacing(np.ascontiguousarray(xyz), reporter)

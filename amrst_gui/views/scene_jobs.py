@@ -17,6 +17,7 @@ the builders need on the GUI thread (every result is a frozen engine object).
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -163,12 +164,41 @@ def build_and_prepare(
     return scene, prepare(scene)
 
 
+# Milliseconds between two draws the app starts itself (the next view's scene, the
+# next level of detail): a zero-delay timer ran before timers already due, so two
+# renders could follow each other with nothing in between (input, repaints) and
+# the window stalled for their sum (issue 15).
+DRAW_GAP_MS = 15
+
+
+class Pace:
+    """When the app's next draw of its own may start: ``DRAW_GAP_MS`` after the
+    last frame of any view ended (``mark``). Timers due together fired back to
+    back, so one view's next level of detail followed another view's new scene
+    with no turn of the event loop between them."""
+
+    def __init__(self) -> None:
+        self._end = -1.0
+
+    def mark(self) -> None:
+        """A frame ended now."""
+        self._end = time.perf_counter()
+
+    def wait_ms(self) -> int:
+        """Milliseconds until the next draw may start (0: now)."""
+        left = self._end + DRAW_GAP_MS / 1000 - time.perf_counter()
+        return max(0, int(left * 1000) + 1) if left > 0 else 0
+
+
+PACE = Pace()
+
+
 class _DrawQueue:
     """Hands finished scenes to their views one per turn of the event loop.
 
     Drawing a 200,000-point view is one render (a fraction of a second with
     software OpenGL); three views finishing together drew back to back, and the
-    window stalled for their sum.
+    window stalled for their sum. Draws are ``DRAW_GAP_MS`` apart.
     """
 
     def __init__(self) -> None:
@@ -183,7 +213,7 @@ class _DrawQueue:
             self._timer.setSingleShot(True)
             self._timer.timeout.connect(self._next)
         if not self._timer.isActive():
-            self._timer.start(0)
+            self._timer.start(DRAW_GAP_MS)
 
     def drop(self, loader: SceneLoader) -> None:
         self._items = [it for it in self._items if it[0] is not loader]
@@ -192,11 +222,15 @@ class _DrawQueue:
         return any(it[0] is loader for it in self._items)
 
     def _next(self) -> None:
+        wait = PACE.wait_ms()
+        if wait and self._timer is not None:
+            self._timer.start(wait)
+            return
         if self._items:
             loader, out = self._items.pop(0)
             loader._draw(out)
         if self._items and self._timer is not None:
-            self._timer.start(0)
+            self._timer.start(DRAW_GAP_MS)
 
 
 _DRAWS = _DrawQueue()
