@@ -113,7 +113,8 @@ class Helper:
         return answer.get("spacing")
 
     def _ask(self, proc, request: dict, reporter: Reporter) -> dict | None:
-        assert proc.stdin is not None and proc.stdout is not None
+        assert proc.stdin is not None
+        assert proc.stdout is not None
         try:
             proc.stdin.write((json.dumps(request) + "\n").encode())
             proc.stdin.flush()
