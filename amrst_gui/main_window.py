@@ -387,6 +387,8 @@ class MainWindow(QMainWindow):
             self._closed = True
             if self.session.busy:
                 self.status.show_message("Cancelling the running step…")
+            for box in self.scans_panel.boxes.values():
+                box.close_jobs()  # a description would hold the close for seconds
             self.session.shutdown()
             self.campaign_panel.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())

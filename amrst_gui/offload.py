@@ -33,6 +33,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.errors import Cancelled
+
 if TYPE_CHECKING:
     from amrst.progress import Reporter
 
@@ -119,17 +121,20 @@ class Helper:
             proc.stdin.write((json.dumps(request) + "\n").encode())
             proc.stdin.flush()
             while not select.select([proc.stdout], [], [], POLL_S)[0]:
-                if reporter.cancelled:
+                try:
+                    reporter.check_cancelled()
+                except Cancelled:
                     self.stop()  # it would compute on for seconds
                     self._ensure()  # a fresh one for the next scan
-                    reporter.check_cancelled()
+                    raise
             line = proc.stdout.readline()
         except OSError as exc:  # a broken pipe: the helper is gone
             log.info("Helper process failed (%s); spacing computed here", exc)
             self.stop()
             return None
-        if not line:
+        if not line:  # the helper died (or the window closed and ended it)
             self.stop()
+            reporter.check_cancelled()
             return None
         answer = json.loads(line)
         if "error" in answer:

@@ -33,6 +33,7 @@ WORKER_MODULES = (
     "amrst.review.manual_keep",
     "amrst_gui.fine_job",
     "concurrent.futures.thread",
+    "multiprocessing.shared_memory",
     "small_gicp",
 )
 

@@ -25,7 +25,7 @@ import logging
 import threading
 import traceback
 import warnings
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
@@ -113,7 +113,7 @@ class StageJob(QObject):
         fn: Callable[..., Any],
         args: tuple,
         kwargs: dict,
-        gate: threading.Semaphore | None = None,
+        lane: str | None = None,
     ) -> None:
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
@@ -123,10 +123,10 @@ class StageJob(QObject):
 
         def work() -> Any:
             try:
-                if gate is None:
+                if lane is None:
                     return fn(*args, reporter, **kwargs)
-                with gate:  # one job of its lane at a time (see LANES)
-                    reporter.check_cancelled()  # dropped while it waited
+                with LANES.enter(lane, reporter):  # one job per lane at a time
+                    reporter.check_cancelled()
                     return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses threads.
@@ -226,8 +226,8 @@ def run_stage(
         Called on the GUI thread with the return value, ``(fraction, message)``,
         the exception, and nothing, respectively.
     lane : str, optional
-        A key of :data:`LANES`: the job waits until no other job of that lane
-        runs (a job dropped meanwhile then ends at once).
+        ``"display"`` or ``"describe"`` (see ``_Lanes``): the job waits until no
+        other job of that lane runs (a job dropped meanwhile then ends at once).
 
     Returns
     -------
@@ -247,22 +247,60 @@ def run_stage(
     # Held here until the work is over, released on the GUI thread: the caller may
     # drop its reference (a newer scene replaces an older one) while it runs.
     _LIVE.add(job)
-    job._start(fn, args, kwargs, LANES[lane] if lane is not None else None)
+    if lane is not None and lane not in LANES:
+        raise ValueError(f"no lane {lane!r}")
+    job._start(fn, args, kwargs, lane)
     return job
 
 
 _LIVE: set[StageJob] = set()
 
+
 # Background work that runs one job at a time, whatever the pool allows (issue 15).
 # Every Python thread computing at once competes with the GUI thread for the GIL,
 # and CPython hands the GIL over unfairly: with a step, three views' scenes and two
 # scans' descriptions running together the GUI thread waited 0.2-0.5 s for it (a
-# 10M-point load). The views' scenes (and stem slices) take turns, and so do the
-# Scans dock's descriptions: at most a step and one job of each lane compute.
-LANES: dict[str, threading.Semaphore] = {
-    "display": threading.Semaphore(1),
-    "describe": threading.Semaphore(1),
-}
+# 10M-point load), and one busy worker doubles the time of a frame. The views'
+# scenes (and stem slices) take turns in the "display" lane; the Scans dock's
+# descriptions in the "describe" lane, which also waits while a scene is being
+# built or waits to be: the views come first, a tooltip can wait.
+class _Lanes:
+    """One running job per lane; "describe" yields to "display"."""
+
+    AFTER: ClassVar[dict[str, tuple[str, ...]]] = {"describe": ("display",)}
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._running: dict[str, int] = {}
+        self._waiting: dict[str, int] = {}
+
+    def __contains__(self, lane: object) -> bool:
+        return lane in ("display", "describe")
+
+    @contextlib.contextmanager
+    def enter(self, lane: str, reporter: EventReporter):
+        with self._cond:
+            self._waiting[lane] = self._waiting.get(lane, 0) + 1
+            try:
+                while self._running.get(lane, 0) or any(
+                    self._running.get(o, 0) or self._waiting.get(o, 0)
+                    for o in self.AFTER.get(lane, ())
+                ):
+                    self._cond.wait(0.1)
+                    reporter.check_cancelled()  # dropped while it waited
+            finally:
+                self._waiting[lane] -= 1
+            self._running[lane] = 1
+            self._cond.notify_all()
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._running[lane] = 0
+                self._cond.notify_all()
+
+
+LANES = _Lanes()
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three
