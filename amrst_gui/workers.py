@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 import traceback
 import warnings
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -265,28 +266,52 @@ _LIVE: set[StageJob] = set()
 # descriptions in the "describe" lane, which also waits while a scene is being
 # built or waits to be: the views come first, a tooltip can wait.
 class _Lanes:
-    """One running job per lane; "describe" yields to "display"."""
+    """One running job per lane; "describe" yields to "display", and waits until
+    the views have not drawn for ``QUIET_S`` (``MAX_DEFER_S`` at most): a view
+    steps its level of detail up for a few frames after a new scene."""
 
     AFTER: ClassVar[dict[str, tuple[str, ...]]] = {"describe": ("display",)}
+    QUIET: ClassVar[tuple[str, ...]] = ("describe",)
+    QUIET_S = 0.3
+    MAX_DEFER_S = 5.0
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._running: dict[str, int] = {}
         self._waiting: dict[str, int] = {}
+        self._last_draw = -1e9
 
     def __contains__(self, lane: object) -> bool:
         return lane in ("display", "describe")
+
+    def drew(self) -> None:
+        """A view drew a frame now, or has a scene to draw (GUI thread)."""
+        self._last_draw = time.perf_counter()
+
+    def idle(self, lane: str) -> bool:
+        """True if no job of ``lane`` runs or waits."""
+        return not (self._running.get(lane, 0) or self._waiting.get(lane, 0))
+
+    def _must_wait(self, lane: str, since: float) -> bool:
+        if self._running.get(lane, 0):
+            return True
+        if not all(self.idle(o) for o in self.AFTER.get(lane, ())):
+            return True
+        now = time.perf_counter()
+        return (
+            lane in self.QUIET
+            and now - self._last_draw < self.QUIET_S
+            and now - since < self.MAX_DEFER_S
+        )
 
     @contextlib.contextmanager
     def enter(self, lane: str, reporter: EventReporter):
         with self._cond:
             self._waiting[lane] = self._waiting.get(lane, 0) + 1
+            since = time.perf_counter()
             try:
-                while self._running.get(lane, 0) or any(
-                    self._running.get(o, 0) or self._waiting.get(o, 0)
-                    for o in self.AFTER.get(lane, ())
-                ):
-                    self._cond.wait(0.1)
+                while self._must_wait(lane, since):
+                    self._cond.wait(0.05)
                     reporter.check_cancelled()  # dropped while it waited
             finally:
                 self._waiting[lane] -= 1

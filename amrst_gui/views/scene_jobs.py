@@ -169,6 +169,7 @@ def build_and_prepare(
 # renders could follow each other with nothing in between (input, repaints) and
 # the window stalled for their sum (issue 15).
 DRAW_GAP_MS = 15
+HOLD_S = 1.0  # the longest a finished scene waits for the other views' scenes
 
 
 class Pace:
@@ -182,7 +183,10 @@ class Pace:
 
     def mark(self) -> None:
         """A frame ended now."""
+        from amrst_gui import workers
+
         self._end = time.perf_counter()
+        workers.LANES.drew()
 
     def wait_ms(self) -> int:
         """Milliseconds until the next draw may start (0: now)."""
@@ -204,10 +208,16 @@ class _DrawQueue:
     def __init__(self) -> None:
         self._items: list[tuple[SceneLoader, Any]] = []
         self._timer: QTimer | None = None
+        self._since = 0.0  # when the oldest waiting scene arrived
 
     def put(self, loader: SceneLoader, out: Any) -> None:
         self.drop(loader)
+        if not self._items:
+            self._since = time.perf_counter()
         self._items.append((loader, out))
+        from amrst_gui import workers
+
+        workers.LANES.drew()  # a draw is coming: descriptions wait
         if self._timer is None:
             self._timer = QTimer()
             self._timer.setSingleShot(True)
@@ -222,7 +232,19 @@ class _DrawQueue:
         return any(it[0] is loader for it in self._items)
 
     def _next(self) -> None:
+        from amrst_gui import workers
+
         wait = PACE.wait_ms()
+        # The other views' scenes first: a frame drawn while a worker computes
+        # takes twice as long (the GIL), so the views draw once their scenes are
+        # built, unless that takes over HOLD_S.
+        if (
+            not wait
+            and not workers.LANES.idle("display")
+            and time.perf_counter() - self._since < HOLD_S
+        ):
+            wait = 20
+        workers.LANES.drew()  # a draw is coming: descriptions wait
         if wait and self._timer is not None:
             self._timer.start(wait)
             return
