@@ -21,7 +21,7 @@ from collections import deque
 
 # Longest frame wanted at rest / while the camera moves (s). Well under the 100 ms
 # a user feels as a stall, since the machine may get busier between two frames.
-REST_BUDGET_S = 0.06
+REST_BUDGET_S = 0.045
 MOVING_BUDGET_S = 0.03
 # Points of the first frame before any frame was measured, and the smallest level.
 START_POINTS = 25_000
