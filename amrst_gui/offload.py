@@ -21,6 +21,7 @@ the helper cannot run, the spacing is computed in the calling thread as before.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import logging
 import os
@@ -61,6 +62,8 @@ class Helper:
         if self._proc is None or self._proc.poll() is not None:
             import amrst
 
+            self.stop()  # a helper that died: its pipes
+
             root = str(Path(amrst.__file__).resolve().parents[1])
             path = os.environ.get("PYTHONPATH")
             env = {
@@ -78,9 +81,15 @@ class Helper:
     def stop(self) -> None:
         """End the helper without waiting for what it computes."""
         proc, self._proc = self._proc, None
-        if proc is not None and proc.poll() is None:
+        if proc is None:
+            return
+        if proc.poll() is None:
             proc.kill()
-            proc.wait()
+        proc.wait()
+        for pipe in (proc.stdin, proc.stdout):
+            if pipe is not None:
+                with contextlib.suppress(OSError):
+                    pipe.close()
 
     def median_spacing(self, xyz: np.ndarray, reporter: Reporter) -> float | None:
         """``amrst.io.describe.median_spacing(xyz)`` (N, 3), computed in the helper;
