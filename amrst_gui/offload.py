@@ -63,6 +63,8 @@ class Helper:
             import amrst
 
             self.stop()  # a helper that died: its pipes
+            if getattr(sys, "frozen", False):  # sys.executable is the app itself
+                raise RuntimeError("no Python interpreter to run the helper")
 
             root = str(Path(amrst.__file__).resolve().parents[1])
             path = os.environ.get("PYTHONPATH")
