@@ -40,6 +40,15 @@ WORKER_MODULES = (
 _DONE = False
 
 
+def prepare() -> None:
+    """Before the window shows: :func:`import_worker_modules`, and start the helper
+    process that describes big scans (``offload``)."""
+    from amrst_gui import offload
+
+    import_worker_modules()
+    offload.start()
+
+
 def import_worker_modules() -> float:
     """Import :data:`WORKER_MODULES` once per process; the seconds it took.
 

@@ -187,6 +187,11 @@ class ScansPanel(QWidget):
         session.busy_changed.connect(self._on_busy_changed)
         self.refresh()
 
+    def close_jobs(self) -> None:
+        """Drop the descriptions still being computed (the window is closing)."""
+        for box in self.boxes.values():
+            box.close_jobs()
+
     def set_recent_files(self, paths: list[str]) -> None:
         """Fill both Recent menus."""
         for role, box in self.boxes.items():
