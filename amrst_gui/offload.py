@@ -14,7 +14,8 @@ script, as multiprocessing's spawn would) is started with the window, so its
 imports are done before the first scan arrives. The points go to it through
 shared memory (copied in chunks that release the GIL); the request and the answer
 are one line of JSON each over its stdin and stdout. Cancel kills the helper (a
-10M-point spacing would otherwise run on for seconds) and starts a fresh one. If
+10M-point spacing would otherwise run on for seconds); the next request starts a
+fresh one. If
 the helper cannot run, the spacing is computed in the calling thread as before.
 """
 
@@ -135,9 +136,8 @@ class Helper:
                 try:
                     reporter.check_cancelled()
                 except Cancelled:
-                    self.stop()  # it would compute on for seconds
-                    self._ensure()  # a fresh one for the next scan
-                    raise
+                    self.stop()  # it would compute on for seconds; the next
+                    raise  # request starts a fresh one
             line = proc.stdout.readline()
         except OSError as exc:  # a broken pipe: the helper is gone
             log.info("Helper process failed (%s); spacing computed here", exc)
