@@ -10,13 +10,13 @@ cores between it and the window fairly.
 
 One helper process (``python -m amrst_gui.offload_helper``: a plain interpreter
 that imports only numpy and the spacing code, never the app or the caller's main
-script, as multiprocessing's spawn would) is started with the window, so its
-imports are done before the first scan arrives. The points go to it through
-shared memory (copied in chunks that release the GIL); the request and the answer
-are one line of JSON each over its stdin and stdout. Cancel kills the helper (a
-10M-point spacing would otherwise run on for seconds); the next request starts a
-fresh one. If
-the helper cannot run, the spacing is computed in the calling thread as before.
+script, as multiprocessing's spawn would) starts with the first description (the
+descriptions wait until the views have drawn a new scan). The points go to it
+through shared memory (copied in chunks that release the GIL); the request and the
+answer are one line of JSON each over its stdin and stdout. Cancel kills the helper
+(a 10M-point spacing would otherwise run on for seconds); the next request starts a
+fresh one. If the helper cannot run, the spacing is computed in the calling thread
+as before.
 """
 
 from __future__ import annotations

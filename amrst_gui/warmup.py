@@ -41,12 +41,10 @@ _DONE = False
 
 
 def prepare() -> None:
-    """Before the window shows: :func:`import_worker_modules`, and start the helper
-    process that describes big scans (``offload``)."""
-    from amrst_gui import offload
-
+    """Before the window shows: :func:`import_worker_modules`. (The helper process
+    that describes big scans, ``offload``, starts with the first description: its
+    imports, a second of CPU, slowed the reading of a scan opened at once.)"""
     import_worker_modules()
-    offload.start()
 
 
 def import_worker_modules() -> float:

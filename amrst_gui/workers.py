@@ -298,9 +298,11 @@ class _Lanes:
         if not all(self.idle(o) for o in self.AFTER.get(lane, ())):
             return True
         now = time.perf_counter()
+        # From its own start too: the views' scenes of the same new scan may not
+        # have reached their lane yet.
         return (
             lane in self.QUIET
-            and now - self._last_draw < self.QUIET_S
+            and now - max(self._last_draw, since) < self.QUIET_S
             and now - since < self.MAX_DEFER_S
         )
 

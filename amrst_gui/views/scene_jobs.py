@@ -288,6 +288,7 @@ class SceneLoader(QObject):
         from amrst_gui import workers
 
         self.drop()
+        workers.LANES.drew()  # a scene is coming: descriptions wait
         if n_points <= SYNC_POINTS:
             scene = build(snapshot)
             self.view.update_scene(scene, prepare(scene))
