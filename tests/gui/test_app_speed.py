@@ -68,6 +68,11 @@ def _all_drawn(win) -> bool:
 
 
 def _load_big(make_main_window, qtbot, big_pair):
+    from amrst_gui import workers
+
+    # No earlier test's worker may still compute here (a cancelled step runs on
+    # to its next check point): the watchdog measures this load only.
+    assert workers.wait_for_workers(120)
     win = make_main_window()
     qtbot.wait(300)  # the window's first frames, as a user sees it open
     dog = Watchdog()
