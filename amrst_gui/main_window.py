@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
 
 from amrst.errors import AmrstError
 from amrst.resources import resource_path
-from amrst_gui import dialogs, menus
+from amrst_gui import dialogs, menus, warmup
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
 from amrst_gui.panels.campaign_panel import CampaignPanel
@@ -54,6 +54,7 @@ class MainWindow(QMainWindow):
     actions: WorkflowActions  # type: ignore[assignment]
 
     def __init__(self, session: Session | None = None, settings=None) -> None:
+        warmup.prepare()  # what would stall the window later (issue 15)
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")
@@ -235,11 +236,9 @@ class MainWindow(QMainWindow):
         folder = self.settings.value("dirs/export", "")
         fmt = self.settings.value("export/format", "ply")
         target = self.session.path("target")
+        base = target.parent if target is not None else None
         box = dialogs.ExportDialog(
-            self,
-            folder=str(folder),
-            cloud_format=str(fmt),
-            base=target.parent if target is not None else None,
+            self, folder=str(folder), cloud_format=str(fmt), base=base
         )
         box.accepted.connect(lambda: self._on_export_accepted(box))
         self.export_box = box
@@ -384,6 +383,7 @@ class MainWindow(QMainWindow):
             self._closed = True
             if self.session.busy:
                 self.status.show_message("Cancelling the running step…")
+            self.scans_panel.close_jobs()  # a description would hold the close
             self.session.shutdown()
             self.campaign_panel.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())

@@ -23,9 +23,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 import traceback
 import warnings
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
@@ -108,7 +109,13 @@ class StageJob(QObject):
         self._discarded = True
         self.cancel()
 
-    def _start(self, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
+    def _start(
+        self,
+        fn: Callable[..., Any],
+        args: tuple,
+        kwargs: dict,
+        lane: str | None = None,
+    ) -> None:
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
         # deleted in the worker thread and its timer would fire on freed memory
@@ -117,7 +124,11 @@ class StageJob(QObject):
 
         def work() -> Any:
             try:
-                return fn(*args, reporter, **kwargs)
+                if lane is None:
+                    return fn(*args, reporter, **kwargs)
+                with LANES.enter(lane, reporter):  # one job per lane at a time
+                    reporter.check_cancelled()
+                    return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses threads.
                 exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
@@ -201,6 +212,7 @@ def run_stage(
     on_progress: Callable[[float, str], None] | None = None,
     on_error: Callable[[BaseException], None] | None = None,
     on_finished: Callable[[], None] | None = None,
+    lane: str | None = None,
     **kwargs: Any,
 ) -> StageJob:
     """Run ``fn(*args, reporter, **kwargs)`` in a worker thread.
@@ -214,6 +226,9 @@ def run_stage(
     on_result, on_progress, on_error, on_finished : callables
         Called on the GUI thread with the return value, ``(fraction, message)``,
         the exception, and nothing, respectively.
+    lane : str, optional
+        ``"display"`` or ``"describe"`` (see ``_Lanes``): the job waits until no
+        other job of that lane runs (a job dropped meanwhile then ends at once).
 
     Returns
     -------
@@ -233,11 +248,86 @@ def run_stage(
     # Held here until the work is over, released on the GUI thread: the caller may
     # drop its reference (a newer scene replaces an older one) while it runs.
     _LIVE.add(job)
-    job._start(fn, args, kwargs)
+    if lane is not None and lane not in LANES:
+        raise ValueError(f"no lane {lane!r}")
+    job._start(fn, args, kwargs, lane)
     return job
 
 
 _LIVE: set[StageJob] = set()
+
+
+# Background work that runs one job at a time, whatever the pool allows (issue 15).
+# Every Python thread computing at once competes with the GUI thread for the GIL,
+# and CPython hands the GIL over unfairly: with a step, three views' scenes and two
+# scans' descriptions running together the GUI thread waited 0.2-0.5 s for it (a
+# 10M-point load), and one busy worker doubles the time of a frame. The views'
+# scenes (and stem slices) take turns in the "display" lane; the Scans dock's
+# descriptions in the "describe" lane, which also waits while a scene is being
+# built or waits to be: the views come first, a tooltip can wait.
+class _Lanes:
+    """One running job per lane; "describe" yields to "display", and waits until
+    the views have not drawn for ``QUIET_S`` (``MAX_DEFER_S`` at most): a view
+    steps its level of detail up for a few frames after a new scene."""
+
+    AFTER: ClassVar[dict[str, tuple[str, ...]]] = {"describe": ("display",)}
+    QUIET: ClassVar[tuple[str, ...]] = ("describe",)
+    QUIET_S = 0.3
+    MAX_DEFER_S = 5.0
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._running: dict[str, int] = {}
+        self._waiting: dict[str, int] = {}
+        self._last_draw = -1e9
+
+    def __contains__(self, lane: object) -> bool:
+        return lane in ("display", "describe")
+
+    def drew(self) -> None:
+        """A view drew a frame now, or has a scene to draw (GUI thread)."""
+        self._last_draw = time.perf_counter()
+
+    def idle(self, lane: str) -> bool:
+        """True if no job of ``lane`` runs or waits."""
+        return not (self._running.get(lane, 0) or self._waiting.get(lane, 0))
+
+    def _must_wait(self, lane: str, since: float) -> bool:
+        if self._running.get(lane, 0):
+            return True
+        if not all(self.idle(o) for o in self.AFTER.get(lane, ())):
+            return True
+        now = time.perf_counter()
+        # From its own start too: the views' scenes of the same new scan may not
+        # have reached their lane yet.
+        return (
+            lane in self.QUIET
+            and now - max(self._last_draw, since) < self.QUIET_S
+            and now - since < self.MAX_DEFER_S
+        )
+
+    @contextlib.contextmanager
+    def enter(self, lane: str, reporter: EventReporter):
+        with self._cond:
+            self._waiting[lane] = self._waiting.get(lane, 0) + 1
+            since = time.perf_counter()
+            try:
+                while self._must_wait(lane, since):
+                    self._cond.wait(0.05)
+                    reporter.check_cancelled()  # dropped while it waited
+            finally:
+                self._waiting[lane] -= 1
+            self._running[lane] = 1
+            self._cond.notify_all()
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._running[lane] = 0
+                self._cond.notify_all()
+
+
+LANES = _Lanes()
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from amrst.types import Cloud
 
@@ -19,12 +19,18 @@ _SPACING_SAMPLE = 20_000
 _SLAB_ROWS = 250_000  # rows sorted at once when looking for copies
 
 
-def describe(cloud: Cloud) -> dict[str, Any]:
+def describe(
+    cloud: Cloud,
+    spacing: Callable[[np.ndarray], float | None] | None = None,
+) -> dict[str, Any]:
     """Summary numbers for ``amrst info``: size, bounds, spacing, attributes, format.
 
     Parameters
     ----------
     cloud : Cloud
+    spacing : callable, optional
+        Computes :func:`median_spacing` of ``cloud.xyz`` (N, 3); the app passes one
+        that runs it in a helper process. Default: :func:`median_spacing` here.
 
     Returns
     -------
@@ -55,13 +61,13 @@ def describe(cloud: Cloud) -> dict[str, Any]:
         "bounds_min": lo.tolist(),
         "bounds_max": hi.tolist(),
         "extent": (hi - lo).tolist(),
-        "median_spacing_m": _median_spacing(cloud.xyz),
+        "median_spacing_m": (spacing or median_spacing)(cloud.xyz),
         "attributes": {k: _describe_array(v) for k, v in cloud.attributes.items()},
         "format": _plain_meta(cloud.meta),
     }
 
 
-def _median_spacing(xyz: np.ndarray) -> float | None:
+def median_spacing(xyz: np.ndarray) -> float | None:
     """Median nearest-neighbour distance of a seeded sample, in linear-ish time.
 
     Identical points are merged before the k-d trees are built: a tree holding
@@ -109,6 +115,9 @@ def _median_spacing(xyz: np.ndarray) -> float | None:
                 best[near] = np.minimum(best[near], tree.query(q[near], k=1)[0])
         dist[~copied] = best
     return float(np.median(dist))
+
+
+_median_spacing = median_spacing  # the name it had before
 
 
 def _slabs(xyz: np.ndarray) -> list[np.ndarray]:

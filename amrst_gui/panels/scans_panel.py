@@ -32,12 +32,22 @@ _TITLES = {
 
 def describe_job(cloud, reporter) -> str:
     """``amrst.io.describe`` as text, in a worker: bounds of every point and a
-    nearest-neighbour spacing take seconds on a 10M-point scan (issue 15)."""
+    nearest-neighbour spacing take seconds on a 10M-point scan (issue 15); the
+    spacing runs in the helper process (``offload``), where it cannot hold the
+    GUI thread's GIL."""
     from amrst import io
+    from amrst.errors import Cancelled
+    from amrst_gui import offload
 
     reporter.check_cancelled()
     try:
-        return str(io.describe(cloud))
+        return str(
+            io.describe(
+                cloud, spacing=lambda xyz: offload.median_spacing(xyz, reporter)
+            )
+        )
+    except Cancelled:
+        raise
     except Exception:  # describe is informative only; never block the panel
         return ""
 
@@ -121,7 +131,11 @@ class _RoleBox(FileDropMixin, QGroupBox):
                 self.setToolTip(text or "Drop a scan file here to replace it")
 
         self._describing = workers.run_stage(
-            describe_job, cloud, name=f"describe {self.role}", on_result=done
+            describe_job,
+            cloud,
+            name=f"describe {self.role}",
+            lane="describe",
+            on_result=done,
         )
 
     def close_jobs(self) -> None:
@@ -172,6 +186,11 @@ class ScansPanel(QWidget):
         session.scans_swapped.connect(self._on_scans_swapped)
         session.busy_changed.connect(self._on_busy_changed)
         self.refresh()
+
+    def close_jobs(self) -> None:
+        """Drop the descriptions still being computed (the window is closing)."""
+        for box in self.boxes.values():
+            box.close_jobs()
 
     def set_recent_files(self, paths: list[str]) -> None:
         """Fill both Recent menus."""

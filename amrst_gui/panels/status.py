@@ -90,17 +90,20 @@ class WorkflowStatusBar(QStatusBar):
     def _on_step_started(self, step: str) -> None:
         label = "Loading scans" if step == "load" else steps.plain_label(step)
         self.show_message(f"{label}…")
-        self.progress.setValue(0)
+        self._set_progress(0)
 
-    def _on_progressed(self, fraction: float, message: str) -> None:
+    def _set_progress(self, value: int) -> None:
         # QProgressBar.setValue repaints at once, and with the 3D views in the
         # window every repaint composes the whole window (software OpenGL: tens of
         # ms); many reports per second froze the window (issue 15). So the value
         # changes with updates off, and the bar is painted with the next frame.
         self.progress.setUpdatesEnabled(False)
-        self.progress.setValue(int(fraction * 1000))
+        self.progress.setValue(value)
         self.progress.setUpdatesEnabled(True)
         self.progress.update()
+
+    def _on_progressed(self, fraction: float, message: str) -> None:
+        self._set_progress(int(fraction * 1000))
         if message:
             step = self.session.running_step or ""
             label = (

@@ -31,7 +31,7 @@ from amrst_gui.views.layers import (
 )
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
-from amrst_gui.views.scene_jobs import Prepared, prepare
+from amrst_gui.views.scene_jobs import DRAW_GAP_MS, PACE, Prepared, prepare
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
@@ -352,6 +352,7 @@ class ScanView(QWidget):
         self._frame_start = time.perf_counter()
 
     def _on_frame_end(self, *_args) -> None:
+        PACE.mark()
         seconds = time.perf_counter() - self._frame_start
         drawn = self._points.drawn()
         if drawn:
@@ -360,13 +361,18 @@ class ScanView(QWidget):
                 lod.COST.record(drawn, seconds)
         if not (self._moving or self._adapt_queued or self._closed):
             self._adapt_queued = True
-            QTimer.singleShot(0, self, self._adapt)
+            QTimer.singleShot(DRAW_GAP_MS, self, self._adapt)
 
     def _adapt(self) -> None:
         """After a frame at rest: go up a level while it fits the budget, down
         when it did not fit; then draw again."""
         self._adapt_queued = False
         if self._closed or self._moving or self._rest_level is None:
+            return
+        wait = PACE.wait_ms()  # another view just drew: let the event loop turn
+        if wait:
+            self._adapt_queued = True
+            QTimer.singleShot(wait, self, self._adapt)
             return
         before = self._rest_level
         self._choose_level(False)

@@ -17,6 +17,7 @@ the builders need on the GUI thread (every result is a frozen engine object).
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -110,6 +111,9 @@ def level_slices(n: int, smallest: int = MIN_SET_POINTS) -> list[slice]:
     return out
 
 
+BOUNDS_SAMPLE = 50_000
+
+
 def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     """Bounds to frame: the points' 0.5-99.5 percentiles, plus 5 % each side.
 
@@ -119,7 +123,12 @@ def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     pts = [x for x in xyz_list if len(x)]
     if not pts:
         return None
-    xyz = np.concatenate(pts)
+    # An even sample of at most BOUNDS_SAMPLE points: the percentiles move by
+    # millimetres, and a partition of every displayed point held a worker for
+    # tens of milliseconds (issue 15).
+    total = sum(len(x) for x in pts)
+    step = max(1, -(-total // BOUNDS_SAMPLE))
+    xyz = np.concatenate([x[::step] for x in pts])
     lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
     pad = 0.05 * (hi - lo)
     return np.column_stack([lo - pad, hi + pad]).ravel()
@@ -155,27 +164,66 @@ def build_and_prepare(
     return scene, prepare(scene)
 
 
+# Milliseconds between two draws the app starts itself (the next view's scene, the
+# next level of detail): a zero-delay timer ran before timers already due, so two
+# renders could follow each other with nothing in between (input, repaints) and
+# the window stalled for their sum (issue 15).
+DRAW_GAP_MS = 15
+HOLD_S = 1.0  # the longest a finished scene waits for the other views' scenes
+
+
+class Pace:
+    """When the app's next draw of its own may start: ``DRAW_GAP_MS`` after the
+    last frame of any view ended (``mark``). Timers due together fired back to
+    back, so one view's next level of detail followed another view's new scene
+    with no turn of the event loop between them."""
+
+    def __init__(self) -> None:
+        self._end = -1.0
+
+    def mark(self) -> None:
+        """A frame ended now."""
+        from amrst_gui import workers
+
+        self._end = time.perf_counter()
+        workers.LANES.drew()
+
+    def wait_ms(self) -> int:
+        """Milliseconds until the next draw may start (0: now)."""
+        left = self._end + DRAW_GAP_MS / 1000 - time.perf_counter()
+        return max(0, int(left * 1000) + 1) if left > 0 else 0
+
+
+PACE = Pace()
+
+
 class _DrawQueue:
     """Hands finished scenes to their views one per turn of the event loop.
 
     Drawing a 200,000-point view is one render (a fraction of a second with
     software OpenGL); three views finishing together drew back to back, and the
-    window stalled for their sum.
+    window stalled for their sum. Draws are ``DRAW_GAP_MS`` apart.
     """
 
     def __init__(self) -> None:
         self._items: list[tuple[SceneLoader, Any]] = []
         self._timer: QTimer | None = None
+        self._since = 0.0  # when the oldest waiting scene arrived
 
     def put(self, loader: SceneLoader, out: Any) -> None:
         self.drop(loader)
+        if not self._items:
+            self._since = time.perf_counter()
         self._items.append((loader, out))
+        from amrst_gui import workers
+
+        workers.LANES.drew()  # a draw is coming: descriptions wait
         if self._timer is None:
             self._timer = QTimer()
             self._timer.setSingleShot(True)
             self._timer.timeout.connect(self._next)
         if not self._timer.isActive():
-            self._timer.start(0)
+            self._timer.start(DRAW_GAP_MS)
 
     def drop(self, loader: SceneLoader) -> None:
         self._items = [it for it in self._items if it[0] is not loader]
@@ -184,11 +232,27 @@ class _DrawQueue:
         return any(it[0] is loader for it in self._items)
 
     def _next(self) -> None:
+        from amrst_gui import workers
+
+        wait = PACE.wait_ms()
+        # The other views' scenes first: a frame drawn while a worker computes
+        # takes twice as long (the GIL), so the views draw once their scenes are
+        # built, unless that takes over HOLD_S.
+        if (
+            not wait
+            and not workers.LANES.idle("display")
+            and time.perf_counter() - self._since < HOLD_S
+        ):
+            wait = 20
+        workers.LANES.drew()  # a draw is coming: descriptions wait
+        if wait and self._timer is not None:
+            self._timer.start(wait)
+            return
         if self._items:
             loader, out = self._items.pop(0)
             loader._draw(out)
         if self._items and self._timer is not None:
-            self._timer.start(0)
+            self._timer.start(DRAW_GAP_MS)
 
 
 _DRAWS = _DrawQueue()
@@ -224,6 +288,7 @@ class SceneLoader(QObject):
         from amrst_gui import workers
 
         self.drop()
+        workers.LANES.drew()  # a scene is coming: descriptions wait
         if n_points <= SYNC_POINTS:
             scene = build(snapshot)
             self.view.update_scene(scene, prepare(scene))
@@ -234,6 +299,7 @@ class SceneLoader(QObject):
             build,
             snapshot,
             name="display",
+            lane="display",
             on_result=lambda out: self._apply(job, out),
             on_error=lambda exc: self._failed(job, exc),
         )

@@ -20,14 +20,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from dense_clouds import write_dense_pair
 
 BIG = 2_000_000
-# Longest time the GUI thread may go without turning its event loop while a
-# 2M + 2M pair loads. Before issue 15 it went 13.8 s (describing both scans on the
-# GUI thread, twice per scan, and building every view there); the first frame of a
-# 200,000-point view alone took 0.2-0.4 s with software OpenGL. Now a view draws
-# as many points as fit a 60 ms frame (``views.lod``): the longest stall is about
-# 0.1-0.3 s on a quiet machine; this margin is for a 2-core machine shared with
-# several other test runs (load 5-8: 0.3-0.6 s measured there).
-MAX_STALL_S = 1.0
+# Issue 15's target: no GUI-thread stall longer than 100 ms while a big scan loads.
+# Before issue 15 loading this 2M + 2M pair stalled the window 13.8 s (describing
+# both scans on the GUI thread, twice per scan, and building every view there);
+# before this bound (49b2e3a) still 0.26-0.31 s on this 2-core machine at load
+# average 4-5 (this test run on a copy of that commit): worker threads importing
+# scipy on the first load, a scan's spacing computed in a worker thread, three
+# views' scenes and two descriptions computing at once, first frames of 50,000
+# points drawn back to back. Now 0.07-0.13 s at the same load; the margin over the
+# 100 ms target is for a machine shared with other jobs.
+MAX_STALL_S = 0.15
 
 
 class Watchdog:
@@ -66,8 +68,13 @@ def _all_drawn(win) -> bool:
 
 
 def _load_big(make_main_window, qtbot, big_pair):
+    from amrst_gui import workers
+
+    # No earlier test's worker may still compute here (a cancelled step runs on
+    # to its next check point): the watchdog measures this load only.
+    assert workers.wait_for_workers(120)
     win = make_main_window()
-    qtbot.wait(50)
+    qtbot.wait(300)  # the window's first frames, as a user sees it open
     dog = Watchdog()
     start = time.perf_counter()
     win.open_pair(*big_pair)
@@ -80,11 +87,14 @@ def test_a_big_scan_loads_without_stalling_the_window(
     make_main_window, qtbot, big_pair
 ):
     win, dog, seconds = _load_big(make_main_window, qtbot, big_pair)
-    # The description (bounds, spacing of 2M points) arrives later, off the GUI
-    # thread too.
-    box = win.scans_panel.boxes["target"]
-    qtbot.waitUntil(lambda: "median_spacing_m" in box.toolTip(), timeout=60_000)
+    # The descriptions (bounds, spacing of 2M points) arrive later, off the GUI
+    # thread too: the watchdog runs until both are shown.
+    boxes = win.scans_panel.boxes.values()
+    qtbot.waitUntil(
+        lambda: all("median_spacing_m" in b.toolTip() for b in boxes), timeout=60_000
+    )
     dog.timer.stop()
+    print(f"longest GUI stall {dog.max_gap_s:.3f} s, load {seconds:.1f} s")
     assert dog.max_gap_s < MAX_STALL_S, (
         f"the GUI thread stalled {dog.max_gap_s:.2f} s (load took {seconds:.1f} s)"
     )
