@@ -234,7 +234,18 @@ def _crown(xy: np.ndarray) -> tuple[float, float]:
     """Convex-hull area (m2) and mean principal-axis width (m) of the points seen from above."""
     from scipy.spatial import ConvexHull, QhullError
 
-    cells = np.unique(np.floor(xy / _CROWN_GRID_M).astype(np.int64), axis=0)
+    cells = np.floor(xy / _CROWN_GRID_M).astype(np.int64)
+    low = cells.min(axis=0) if len(cells) else np.zeros(2, np.int64)
+    cells -= low
+    if len(cells) and cells.max() < 1 << 31:
+        # One int64 key per cell, in the same (x, y) order as unique(axis=0):
+        # 10x faster, and the sort lets other threads run (unique(axis=0) sorts
+        # a structured view holding the GIL: 0.4 s on 400k points froze the app).
+        keys = np.unique((cells[:, 0] << 32) | cells[:, 1])
+        cells = np.stack([keys >> 32, keys & 0xFFFFFFFF], axis=1)
+    else:
+        cells = np.unique(cells, axis=0)
+    cells += low
     pts = (cells + 0.5) * _CROWN_GRID_M
     if len(pts) < 3:
         return 0.0, 0.0
