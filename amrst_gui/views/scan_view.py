@@ -15,7 +15,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pyvista as pv
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
@@ -31,17 +30,18 @@ from amrst_gui.views.layers import (
 )
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
-from amrst_gui.views.scene_jobs import DRAW_GAP_MS, PACE, Prepared, prepare
+from amrst_gui.views.scene_jobs import (
+    DRAW_GAP_MS,
+    PACE,
+    Prepared,
+    lines_mesh,
+    prepare,
+    spheres_mesh,
+)
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
 _VIEW_ANGLE_DEG = 30.0
-
-
-def _lines_polydata(nodes: np.ndarray, edges: np.ndarray) -> pv.PolyData:
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
-    return pv.PolyData(np.asarray(nodes, np.float32), lines=cells)
 
 
 class ScanView(QWidget):
@@ -265,7 +265,9 @@ class ScanView(QWidget):
                 layer.name, prepared.sets[layer.name], layer.point_size
             )
         elif isinstance(layer, LinesLayer):
-            poly = _lines_polydata(layer.nodes, layer.edges)
+            poly = prepared.meshes.get(layer.name)
+            if poly is None:
+                poly = lines_mesh(layer)
             p.add_mesh(
                 poly,
                 color=layer.color,
@@ -276,12 +278,9 @@ class ScanView(QWidget):
                 pickable=False,
             )
         elif isinstance(layer, SpheresLayer):
-            centers = pv.PolyData(np.asarray(layer.centers, np.float32))
-            centers["rgb"] = layer.rgb
-            sphere = pv.Sphere(
-                radius=layer.radius, theta_resolution=12, phi_resolution=8
-            )
-            glyphs = centers.glyph(geom=sphere, scale=False, orient=False)
+            glyphs = prepared.meshes.get(layer.name)
+            if glyphs is None:
+                glyphs = spheres_mesh(layer)
             p.add_mesh(
                 glyphs,
                 scalars="rgb",

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from amrst_gui.views.layers import PointsLayer, Scene
+from amrst_gui.views.layers import LinesLayer, PointsLayer, Scene, SpheresLayer
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -88,6 +88,8 @@ class Prepared:
 
     sets: dict[str, tuple[Any, ...]] = field(default_factory=dict)
     bounds: np.ndarray | None = None
+    #: The skeleton's lines and the key points' spheres, by layer name.
+    meshes: dict[str, Any] = field(default_factory=dict)
 
     @property
     def still(self) -> dict[str, Any]:
@@ -142,8 +144,30 @@ def _polydata(xyz: np.ndarray, rgb: np.ndarray):
     return poly
 
 
+def lines_mesh(layer: LinesLayer):
+    """The skeleton's edges as VTK lines."""
+    import pyvista as pv
+
+    edges = np.asarray(layer.edges, dtype=np.int64).reshape(-1, 2)
+    cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
+    return pv.PolyData(np.asarray(layer.nodes, np.float32), lines=cells)
+
+
+def spheres_mesh(layer: SpheresLayer):
+    """One small sphere per centre, coloured by ``layer.rgb``."""
+    import pyvista as pv
+
+    centers = pv.PolyData(np.asarray(layer.centers, np.float32))
+    centers["rgb"] = layer.rgb
+    sphere = pv.Sphere(radius=layer.radius, theta_resolution=12, phi_resolution=8)
+    return centers.glyph(geom=sphere, scale=False, orient=False)
+
+
 def prepare(scene: Scene) -> Prepared:
-    """The point sets of ``scene``'s PointsLayers at every level, and its bounds."""
+    """The VTK data of ``scene``: its PointsLayers at every level, its lines and
+    spheres, and its bounds. In the worker: on the GUI thread, the glyphs' dozens
+    of VTK calls each waited for the GIL while a step's worker ran Python code,
+    0.1-0.4 s in all after Skeleton (issue 15)."""
     points = [ly for ly in scene.layers if isinstance(ly, PointsLayer)]
     out = Prepared(bounds=fit_bounds([ly.xyz for ly in points]))
     for layer in points:
@@ -151,6 +175,11 @@ def prepare(scene: Scene) -> Prepared:
             _polydata(layer.xyz[sl], layer.rgb[sl])
             for sl in level_slices(len(layer.xyz))
         )
+    for ly in scene.layers:
+        if isinstance(ly, LinesLayer):
+            out.meshes[ly.name] = lines_mesh(ly)
+        elif isinstance(ly, SpheresLayer):
+            out.meshes[ly.name] = spheres_mesh(ly)
     return out
 
 
