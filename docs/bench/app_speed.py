@@ -122,6 +122,8 @@ def report(before: dict | None, after: dict) -> str:
         for step in STEPS:
             row(f"Run all: {step}", lambda d, s=step: d["runall_steps_s"][s])
         row("Run all: longest GUI stall", lambda d: d["runall_max_stall_s"])
+        row("Run all: stalls over 100 ms", lambda d: d["runall_stalls_over_100ms"], "")
+        row("idle app, 3 s: longest GUI stall", lambda d: d["idle_max_stall_s"])
     for step in STEPS if "cancel" in after else ():
         row(f"{step}: idle after Cancel", lambda d, s=step: d["cancel"][s]["cancel_s"])
         row(
@@ -138,6 +140,11 @@ def report(before: dict | None, after: dict) -> str:
         row(
             f"{step}: longest GUI stall",
             lambda d, s=step: d["cancel"][s]["max_stall_s"],
+        )
+        row(
+            f"{step}: stalls over 100 ms",
+            lambda d, s=step: d["cancel"][s]["stalls_over_100ms"],
+            "",
         )
         row(f"{step}: whole step", lambda d, s=step: d["cancel"][s]["full_s"])
     if before and "orbit_fps" in after:
