@@ -96,6 +96,16 @@ class NearestCache:
         q : (K, 3) float64
             Their nearest target points.
         """
+        q = self.nearest(p, rows)
+        off = p - q
+        inside = np.flatnonzero(np.einsum("ij,ij->i", off, off) < self.max_dist**2)
+        return inside, q[inside]
+
+    def nearest(self, p: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Return the nearest target point of each point, ``inf`` where none is in reach.
+
+        (M, 3) float64; ``p`` and ``rows`` as in :meth:`match`.
+        """
         if rows is None:
             ref, slack2 = self.ref, self.slack2
         else:
@@ -122,7 +132,4 @@ class NearestCache:
             free = np.where(found, (d2 - d1) / 2, self.reach - self.max_dist)
             free -= 1e-9  # margin for rounding
             self.slack2[at] = np.where(free > 0, free * free, -1.0)
-        q = self.q if rows is None else self.q[rows]
-        off = p - q
-        inside = np.flatnonzero(np.einsum("ij,ij->i", off, off) < self.max_dist**2)
-        return inside, q[inside]
+        return self.q if rows is None else self.q[rows]
