@@ -55,7 +55,9 @@ def test_non_finite_rows_are_dropped_column_by_column() -> None:
     xyz = _trunk(rng, 3000)
     bad = np.array([5, 17, 2999])
     xyz[5, 0], xyz[17, 1], xyz[2999, 2] = np.nan, np.inf, -np.inf
-    got = preprocess_points(xyz, PreprocessParams(voxel_size_m=0.0, outlier_neighbours=0))
+    got = preprocess_points(
+        xyz, PreprocessParams(voxel_size_m=0.0, outlier_neighbours=0)
+    )
     assert got.n_invalid == 3
     np.testing.assert_array_equal(got.index, np.setdiff1d(np.arange(len(xyz)), bad))
 
