@@ -86,9 +86,11 @@ def _shared_k(params: RegistrationParams) -> int:
 # them back when freed, so every large temporary paid a page fault per 4 kB on first
 # write: two thirds of features._covariances' time on a 7,500 x 30 neighbourhood
 # (12.8 -> 4.5 ms with the settings below). Keeping freed memory in the heap for
-# reuse (arrays under 32 MB; up to 128 MB kept free per heap) made the two scans'
-# analysis 1.1-1.9x faster (wall, median over the 30 shared cases). Values are the
-# same; only where memory comes from changes.
+# reuse (arrays under 32 MB; up to 128 MB kept free per heap) took the two scans'
+# analysis to 0.88-0.92x its wall time and the registration compute to 0.87x
+# (median per-case ratio, 30 shared cases, settings alternated per case in one
+# process on a loaded 2-core machine). Values are the same; only where memory
+# comes from changes.
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
 _heap_kept = False
 
