@@ -85,12 +85,12 @@ def _shared_k(params: RegistrationParams) -> int:
 # glibc malloc gives arrays of 128 kB or more their own fresh pages (mmap) and hands
 # them back when freed, so every large temporary paid a page fault per 4 kB on first
 # write: two thirds of features._covariances' time on a 7,500 x 30 neighbourhood
-# (12.8 -> 4.5 ms with the settings below). Keeping freed memory in the heap for
-# reuse (arrays under 32 MB; up to 128 MB kept free per heap) took the two scans'
-# analysis to 0.88-0.92x its wall time and the registration compute to 0.87x
-# (median per-case ratio, 30 shared cases, settings alternated per case in one
-# process on a loaded 2-core machine). Values are the same; only where memory
-# comes from changes.
+# (12.8 -> 4.5 ms with the settings below, in a loop). In a whole run glibc's own
+# adaptive threshold catches most of it: keeping freed memory in the heap (arrays
+# under 32 MB; up to 128 MB kept free per heap) took the two scans' analysis to
+# 0.98x its wall time and the registration compute to 0.97-0.99x (median per-case
+# ratio, 30 shared cases, two worker processes alternated per case, twice, on a
+# loaded 2-core machine). Values are the same; only where memory comes from changes.
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
 _heap_kept = False
 
