@@ -254,13 +254,14 @@ def rank_candidates(
         Tps = polish(
             src_small, tgt_small, small_tree, T[rep[top]], params.polish_max_dist_m
         )
-        for j, Tp in zip(top, Tps, strict=True):
+        # One KD-tree query for every polished solution's moved sample.
+        d = tgt_tree.query(
+            np.concatenate([sample @ Tp[:3, :3].T + Tp[:3, 3] for Tp in Tps]),
+            distance_upper_bound=params.tight_dist_m,
+        )[0].reshape(len(Tps), len(sample))
+        for j, Tp, dj in zip(top, Tps, d, strict=True):
             polished_T[int(rep[j])] = Tp
-            d = tgt_tree.query(
-                sample @ Tp[:3, :3].T + Tp[:3, 3],
-                distance_upper_bound=params.tight_dist_m,
-            )[0]
-            score[j] = float(np.mean(d < params.tight_dist_m))
+            score[j] = float(np.mean(dj < params.tight_dist_m))
             is_polished[j] = True
         reporter.progress(0.9, "verified the best solutions")
     # Every listed solution gets the same tight score, so the column reads one way:

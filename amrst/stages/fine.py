@@ -322,6 +322,7 @@ def refine_registration(
         source_xyz = source_xyz[voxel_sample(source_xyz, params.voxel_size_m)]
         target_xyz = target_xyz[voxel_sample(target_xyz, params.voxel_size_m)]
     all_source = source_xyz  # fitness and inlier RMSE are reported on all of them
+    pick = None
     if 0 < params.max_points < len(source_xyz):
         pick = np.random.default_rng(0).choice(
             len(source_xyz), params.max_points, replace=False
@@ -363,7 +364,18 @@ def refine_registration(
                 f"scale {s + 1}/{params.scales}, {dist * 100:.0f} cm",
             )
             reporter.check_cancelled()
-    d = tree.query(all_source @ T[:3, :3].T + T[:3, 3])[0]
+    moved = all_source @ T[:3, :3].T + T[:3, 3]
+    d = np.full(len(moved), np.inf)
+    ask = np.ones(len(moved), dtype=bool)
+    if params.method == "lm_icp":
+        # The fitted points' nearest partners are still known (few are stale after
+        # the last small step): only those within the last distance (a hair wider:
+        # the tree's own distances decide below) are asked again. The distances stay
+        # the tree's; the final count cost as much as the whole ICP before.
+        fitted = np.arange(len(moved)) if pick is None else np.sort(pick)
+        off = moved[fitted] - nearest.nearest(moved[fitted])
+        ask[fitted] = np.einsum("ij,ij->i", off, off) < (dist * (1 + 1e-6)) ** 2
+    d[ask] = tree.query(moved[ask])[0]
     inl = d < dist
     return FineResult(
         T,

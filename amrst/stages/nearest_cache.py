@@ -38,8 +38,10 @@ class NearestCache:
 
     A query keeps the two nearest distances d1 <= d2 (within 1.5 max_dist). While a
     point has moved less than (d2 - d1) / 2 since, no other target point can have come
-    closer than the old one (triangle inequality); a point with nothing within
-    1.5 max_dist stays without a match while it has moved less than max_dist / 2.
+    closer than the old one (triangle inequality); while it has moved less than
+    d1 - max_dist, none can have come within max_dist (it stays without a match); a
+    point with nothing within 1.5 max_dist stays without a match while it has moved
+    less than max_dist / 2.
     ICP steps shrink fast: over a whole fine registration about 15 % of the point
     queries are made, and the transforms are the same bit for bit.
 
@@ -96,6 +98,18 @@ class NearestCache:
         q : (K, 3) float64
             Their nearest target points.
         """
+        q = self.nearest(p, rows)
+        off = p - q
+        inside = np.flatnonzero(np.einsum("ij,ij->i", off, off) < self.max_dist**2)
+        return inside, q[inside]
+
+    def nearest(self, p: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Return each point's partner: its nearest target point when within max_dist.
+
+        (M, 3) float64; ``p`` and ``rows`` as in :meth:`match`. A point with no target
+        point within max_dist gets some target point at least max_dist away, or
+        ``inf``.
+        """
         if rows is None:
             ref, slack2 = self.ref, self.slack2
         else:
@@ -119,10 +133,13 @@ class NearestCache:
             self.q[at[found]] = self.tgt[jj[found, 0]]
             self.q[at[~found]] = np.inf
             d1, d2 = d[:, 0], np.minimum(d[:, 1], self.reach)
-            free = np.where(found, (d2 - d1) / 2, self.reach - self.max_dist)
+            # A point farther than max_dist from every target point needs no new
+            # query while it stays farther: d1 - max_dist (max_dist only shrinks).
+            free = np.where(
+                found,
+                np.maximum((d2 - d1) / 2, d1 - self.max_dist),
+                self.reach - self.max_dist,
+            )
             free -= 1e-9  # margin for rounding
             self.slack2[at] = np.where(free > 0, free * free, -1.0)
-        q = self.q if rows is None else self.q[rows]
-        off = p - q
-        inside = np.flatnonzero(np.einsum("ij,ij->i", off, off) < self.max_dist**2)
-        return inside, q[inside]
+        return self.q if rows is None else self.q[rows]
