@@ -269,14 +269,14 @@ class NeighbourTable:
         inv = np.full(len(self._points), -1, dtype=np.int64)
         inv[self._pos] = np.arange(n)
         # np.take: several times faster than fancy indexing on these shapes.
-        j = np.take(inv, np.take(self._idx, root, axis=0))
+        idx = np.take(inv, np.take(self._idx[:, :k], root, axis=0))
         dist = np.take(self._dist[:, :k], root, axis=0)
-        idx = np.ascontiguousarray(j[:, :k])
         # Most rows (90-99 % on the shared cases) have their first k listed
         # neighbours in the view: those are the answer as they stand. The others
-        # take the first k of their listed neighbours that are in the view.
-        part = np.flatnonzero((idx < 0).any(axis=1))
-        jp = j[part]
+        # take the first k of their listed neighbours that are in the view (only
+        # their rows of all K are gathered).
+        part = np.unique(np.flatnonzero(idx.ravel() < 0) // k)  # rows with any missing
+        jp = np.take(inv, np.take(self._idx, root[part], axis=0))
         at = np.flatnonzero(jp.ravel() >= 0)
         count = np.bincount(at // jp.shape[1], minlength=len(part))
         ok = count >= k

@@ -127,7 +127,7 @@ def _covariances(
     sums: Any = 0.0  # then (9, M)
     done = 0
     for k in sorted(set(ks)):
-        sums = sums + _pairwise_rows(prods[:, done:k])
+        sums = sums + pairwise_rows(prods[:, done:k])
         done = k
         mx, my, mz = (v / k for v in sums[:3])
         a, b, c, d, e, f = (v / k for v in sums[3:])
@@ -145,7 +145,7 @@ def _covariances(
     return [by_k[k] for k in ks]
 
 
-def _pairwise_rows(a: np.ndarray) -> np.ndarray:
+def pairwise_rows(a: np.ndarray) -> np.ndarray:
     """Sum (P, n, M) over its middle axis in numpy's pairwise order for one row.
 
     numpy sums a contiguous run of n numbers with 8 partial sums (for 8 <= n <= 128;
@@ -162,7 +162,7 @@ def _pairwise_rows(a: np.ndarray) -> np.ndarray:
     if n > 128:
         half = n // 2
         half -= half % 8
-        both: np.ndarray = _pairwise_rows(a[:, :half]) + _pairwise_rows(a[:, half:])
+        both: np.ndarray = pairwise_rows(a[:, :half]) + pairwise_rows(a[:, half:])
         return both
     r = a[:, :8].copy()
     stop = n - n % 8

@@ -14,6 +14,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.stages.features import pairwise_rows
 from amrst.stages.voxels import voxel_sample
 
 if TYPE_CHECKING:
@@ -117,7 +118,9 @@ def _statistical_inliers(
     from amrst.neighbours import NeighbourTable
 
     table = NeighbourTable.build(pts, max(k + 1, share_k))
-    d = table.knn(k + 1)[0][:, 1:].mean(axis=1)
+    # The mean of neighbours 1..k, i.e. ``dist[:, 1:k + 1].mean(axis=1)`` bit for bit,
+    # summed as whole columns (numpy's per-row sum of k numbers is ~10x slower).
+    d = pairwise_rows(table.knn(k + 1)[0][:, 1:].T[None])[0] / k
     kept = np.flatnonzero(d <= d.mean() + std_ratio * d.std())
     return kept, table.subset(kept)
 
@@ -151,7 +154,10 @@ def preprocess_points(
         When fewer than ``params.min_points`` points survive.
     """
     n_input = len(xyz)
-    finite = np.isfinite(xyz).all(axis=1)
+    # Column by column: 8x faster than np.isfinite(xyz).all(axis=1) (short row reductions).
+    finite = np.isfinite(xyz[:, 0])
+    for col in (1, 2):
+        finite &= np.isfinite(xyz[:, col])
     if finite.all():  # the usual case: no copy of a scan of millions of points
         index, pts = np.arange(n_input), np.asarray(xyz)
     else:

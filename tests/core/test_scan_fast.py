@@ -10,7 +10,7 @@ import pytest
 
 from amrst import neighbours
 from amrst.neighbours import NeighbourTable, knn
-from amrst.stages.features import _covariances, _pairwise_rows
+from amrst.stages.features import _covariances, pairwise_rows
 
 
 def _covariances_before(
@@ -72,14 +72,14 @@ def test_covariances_equal_the_per_row_sums(
 
 
 @pytest.mark.parametrize("n", [1, 5, 8, 13, 16, 30, 129, 300])
-def test_pairwise_rows_is_a_sum(n: int) -> None:
+def testpairwise_rows_is_a_sum(n: int) -> None:
     rng = np.random.default_rng(n)
     a = rng.normal(size=(2, n, 50)) * 10.0 ** rng.integers(-8, 8, (2, n, 50))
     np.testing.assert_allclose(
-        _pairwise_rows(a), a.sum(axis=1), rtol=1e-9, atol=1e-9 * np.abs(a).max()
+        pairwise_rows(a), a.sum(axis=1), rtol=1e-9, atol=1e-9 * np.abs(a).max()
     )
     np.testing.assert_array_equal(
-        _pairwise_rows(a), np.ascontiguousarray(a.transpose(0, 2, 1)).sum(axis=2)
+        pairwise_rows(a), np.ascontiguousarray(a.transpose(0, 2, 1)).sum(axis=2)
     )
 
 
