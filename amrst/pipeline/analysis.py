@@ -82,39 +82,6 @@ def _shared_k(params: RegistrationParams) -> int:
     return max(sep, skel) + SHARED_MARGIN
 
 
-# glibc malloc gives arrays of 128 kB or more their own fresh pages (mmap) and hands
-# them back when freed, so every large temporary paid a page fault per 4 kB on first
-# write: two thirds of features._covariances' time on a 7,500 x 30 neighbourhood
-# (12.8 -> 4.5 ms with the settings below, in a loop). In a whole run glibc's own
-# adaptive threshold catches most of it: keeping freed memory in the heap (arrays
-# under 32 MB; up to 128 MB kept free per heap) took the two scans' analysis to
-# 0.98x its wall time and the registration compute to 0.97-0.99x (median per-case
-# ratio, 30 shared cases, two worker processes alternated per case, twice, on a
-# loaded 2-core machine). Values are the same; only where memory comes from changes.
-_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
-_heap_kept = False
-
-
-def keep_heap() -> None:
-    """Let glibc's malloc reuse freed large blocks instead of returning them (once).
-
-    No effect elsewhere than glibc (the settings are hints, failures are ignored).
-    """
-    global _heap_kept
-    if _heap_kept:
-        return
-    _heap_kept = True
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20)
-        libc.mallopt(_M_TRIM_THRESHOLD, 128 << 20)
-        libc.mallopt(_M_TOP_PAD, 64 << 20)
-    except (OSError, AttributeError):  # not glibc: nothing to tune
-        pass
-
-
 def _timed(timings: dict[str, float], key: str, t0: float) -> float:
     now = time.perf_counter()
     timings[key] = timings.get(key, 0.0) + now - t0
@@ -233,7 +200,6 @@ def both_scans(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    keep_heap()
     shared = SharedReporter(reporter, 2)
     if SCAN_THREADS.get() < 2:  # same results, one after the other
         first = fn(target_item, shared.task(0, "target"))

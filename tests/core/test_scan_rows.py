@@ -71,24 +71,3 @@ def test_table_view_full_rows_match_a_fresh_query() -> None:
     d_ref, i_ref = knn(xyz[keep], 17)
     np.testing.assert_array_equal(d, d_ref)
     np.testing.assert_array_equal(i, i_ref)
-
-
-def test_kept_heap_changes_no_value() -> None:
-    """keep_heap only changes where memory comes from: the covariances and the
-    outlier filter give the same bits before and after (and a second call is a no-op)."""
-    from amrst.pipeline.analysis import keep_heap
-    from amrst.stages.features import _covariances
-
-    rng = np.random.default_rng(6)
-    xyz = _trunk(rng, 20000)
-    idx = knn(xyz, 30, xyz[::2])[1]
-    before = _covariances(xyz, idx, (10, 30))
-    kept_before = preprocess_points(xyz, PreprocessParams(voxel_size_m=0.0)).index
-    keep_heap()
-    keep_heap()
-    for a, b in zip(before, _covariances(xyz, idx, (10, 30)), strict=True):
-        for u, v in zip(a, b, strict=True):
-            np.testing.assert_array_equal(u, v)
-    np.testing.assert_array_equal(
-        preprocess_points(xyz, PreprocessParams(voxel_size_m=0.0)).index, kept_before
-    )
