@@ -54,7 +54,7 @@ class MainWindow(QMainWindow):
     actions: WorkflowActions  # type: ignore[assignment]
 
     def __init__(self, session: Session | None = None, settings=None) -> None:
-        warmup.prepare()  # what would stall the window later (issue 15)
+        warmup.import_worker_modules()  # what would stall the window later (issue 15)
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")

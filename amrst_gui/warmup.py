@@ -40,18 +40,13 @@ WORKER_MODULES = (
 _DONE = False
 
 
-def prepare() -> None:
-    """Before the window shows: :func:`import_worker_modules`. (The helper process
-    that describes big scans, ``offload``, starts with the first description: its
-    imports, a second of CPU, slowed the reading of a scan opened at once.)"""
-    import_worker_modules()
-
-
 def import_worker_modules() -> float:
     """Import :data:`WORKER_MODULES` once per process; the seconds it took.
 
     A module that cannot be imported is skipped (the worker that needs it will
-    report the failure where it matters).
+    report the failure where it matters). The helper process that describes big
+    scans (``offload``) is not started here but with the first description: its
+    imports, a second of CPU, slowed the reading of a scan opened at once.
     """
     global _DONE
     if _DONE:

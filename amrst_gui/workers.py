@@ -281,8 +281,10 @@ class _Lanes:
         self._waiting: dict[str, int] = {}
         self._last_draw = -1e9
 
+    NAMES: ClassVar[tuple[str, ...]] = ("display", "describe")
+
     def __contains__(self, lane: object) -> bool:
-        return lane in ("display", "describe")
+        return lane in self.NAMES
 
     def drew(self) -> None:
         """A view drew a frame now, or has a scene to draw (GUI thread)."""

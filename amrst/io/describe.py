@@ -117,9 +117,6 @@ def median_spacing(xyz: np.ndarray) -> float | None:
     return float(np.median(dist))
 
 
-_median_spacing = median_spacing  # the name it had before
-
-
 def _slabs(xyz: np.ndarray) -> list[np.ndarray]:
     """Split the rows into slabs along x, at most about ``_SLAB_ROWS`` each.
 

@@ -34,9 +34,7 @@ from amrst_gui.views.scene_jobs import (
     DRAW_GAP_MS,
     PACE,
     Prepared,
-    lines_mesh,
     prepare,
-    spheres_mesh,
 )
 
 BACKGROUND = (0.12, 0.13, 0.15)
@@ -265,11 +263,8 @@ class ScanView(QWidget):
                 layer.name, prepared.sets[layer.name], layer.point_size
             )
         elif isinstance(layer, LinesLayer):
-            poly = prepared.meshes.get(layer.name)
-            if poly is None:
-                poly = lines_mesh(layer)
             p.add_mesh(
-                poly,
+                prepared.meshes[layer.name],
                 color=layer.color,
                 line_width=layer.width,
                 name=layer.name,
@@ -278,11 +273,8 @@ class ScanView(QWidget):
                 pickable=False,
             )
         elif isinstance(layer, SpheresLayer):
-            glyphs = prepared.meshes.get(layer.name)
-            if glyphs is None:
-                glyphs = spheres_mesh(layer)
             p.add_mesh(
-                glyphs,
+                prepared.meshes[layer.name],
                 scalars="rgb",
                 rgb=True,
                 name=layer.name,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from amrst.io.describe import _SPACING_SAMPLE, _median_spacing, _merge_sorted
+from amrst.io.describe import _SPACING_SAMPLE, _merge_sorted, median_spacing
 
 
 def _one_tree(xyz: np.ndarray) -> float:
@@ -33,12 +33,12 @@ def test_slabs_give_the_spacing_of_one_tree(case: str) -> None:
         xyz[: n // 2, 0] = np.round(rng.normal(0, 1e-4, n // 2), 6)  # thin slabs
     elif case == "spread":
         xyz[:, 0] *= 1000  # far apart along x: neighbours beyond the next slab
-    assert _median_spacing(xyz) == _one_tree(xyz)
+    assert median_spacing(xyz) == _one_tree(xyz)
 
 
 def test_one_x_for_every_row_is_one_slab() -> None:
     xyz = np.zeros((300_000, 3))
     xyz[:, 1] = np.arange(len(xyz)) % 1000 * 0.01
-    assert _median_spacing(xyz) == 0.0  # every point has copies
+    assert median_spacing(xyz) == 0.0  # every point has copies
     xyz[:1000, 2] = 5 + np.arange(1000)
-    assert _median_spacing(xyz) == _one_tree(xyz)
+    assert median_spacing(xyz) == _one_tree(xyz)
