@@ -8,13 +8,35 @@ registration of the sample pair per session (it takes a few seconds).
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_json_script(
+    script: str, *args: str, env: dict[str, str] | None = None, timeout: float = 300
+) -> Any:
+    """Run ``python -c script args`` in a fresh interpreter with the project on its
+    path; return the JSON document on the last line it prints."""
+    env = {**(os.environ if env is None else env), "PYTHONPATH": str(ROOT)}
+    out = subprocess.run(
+        [sys.executable, "-c", script, *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=timeout,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 SAMPLE_DIR = ROOT / "resources" / "sample"
 TINY_TREE = ROOT / "tests" / "data" / "tiny_tree" / "tree.ply"
 

@@ -7,18 +7,18 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 import threading
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
 from amrst.campaign import Campaign, TreeEntry, init_campaign, run_batch
 from amrst.campaign.plan import longest_first, scan_threads, time_left, tree_cost
+from tests.conftest import run_json_script
 
-ROOT = Path(__file__).resolve().parents[2]
+if TYPE_CHECKING:
+    from pathlib import Path
 
 
 def _tree(root: Path, tree_id: str, sizes: dict[str, int]) -> TreeEntry:
@@ -144,16 +144,7 @@ def test_after_warm_worker_a_tree_imports_nothing_heavy(tmp_path, tiny_tree) -> 
 
     write_scans(simulate_scans(tiny_tree, 2, seed=0, res_deg=0.2), tmp_path / "T01")
     init_campaign(tmp_path)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run(
-        [sys.executable, "-c", WARM_CHECK, str(tmp_path)],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=300,
-    )
-    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    doc = run_json_script(WARM_CHECK, str(tmp_path))
     assert doc["ok"]
     heavy = ("amrst", "scipy", "small_gicp", "kiss_matcher", "numpy", "threadpoolctl")
     late = [m for m in doc["new"] if m.split(".")[0] in heavy]
@@ -186,7 +177,9 @@ def test_threads_per_tree_reaches_every_tree(tmp_path, tiny_tree) -> None:
     from amrst.multiscan.simulate import simulate_scans, write_scans
 
     for k in range(2):
-        write_scans(simulate_scans(tiny_tree, 2, seed=k, res_deg=0.4), tmp_path / f"T{k}")
+        write_scans(
+            simulate_scans(tiny_tree, 2, seed=k, res_deg=0.4), tmp_path / f"T{k}"
+        )
     campaign, _ = init_campaign(tmp_path)
     with pytest.raises(InvalidInput, match="--threads-per-tree must be 1 or 2"):
         run_batch(campaign, workers=1, threads_per_tree=3)

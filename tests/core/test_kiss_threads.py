@@ -7,15 +7,10 @@ a fresh process: TBB starts its worker threads at its first parallel loop there.
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[2]
 
 SCRIPT = r"""
 import json, os, sys
@@ -50,19 +45,10 @@ print(json.dumps({
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="Linux /proc")
 def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
     pytest.importorskip("kiss_matcher")
-    from tests.conftest import TINY_TREE
+    from tests.conftest import TINY_TREE, run_json_script
 
     env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
-    env["PYTHONPATH"] = str(ROOT)
-    out = subprocess.run(
-        [sys.executable, "-c", SCRIPT, str(TINY_TREE)],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=120,
-    )
-    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    doc = run_json_script(SCRIPT, str(TINY_TREE), env=env, timeout=120)
     assert doc["tbb_limit"] == 1
     # Only inside the block: other KISS-Matcher calls (the bench's peer) keep theirs.
     assert doc["tbb_after"] == doc["tbb_default"]
@@ -70,7 +56,6 @@ def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
     assert doc["threads_after"] == doc["threads_before"], doc
     assert doc["inliers"][0] > 0
     assert all(p == doc["poses"][0] for p in doc["poses"]), doc["inliers"]
-
 
 
 def test_the_benchmark_baseline_runs_kiss_matcher_on_its_own_threads(
