@@ -15,7 +15,7 @@ import numpy as np
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import pairwise_rows
-from amrst.stages.voxels import voxel_sample
+from amrst.stages.voxels import finite_rows, voxel_sample
 
 if TYPE_CHECKING:
     from amrst.neighbours import NeighbourTable
@@ -154,10 +154,7 @@ def preprocess_points(
         When fewer than ``params.min_points`` points survive.
     """
     n_input = len(xyz)
-    # Column by column: 8x faster than np.isfinite(xyz).all(axis=1) (short row reductions).
-    finite = np.isfinite(xyz[:, 0])
-    for col in (1, 2):
-        finite &= np.isfinite(xyz[:, col])
+    finite = finite_rows(xyz)
     if finite.all():  # the usual case: no copy of a scan of millions of points
         index, pts = np.arange(n_input), np.asarray(xyz)
     else:

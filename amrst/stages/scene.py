@@ -29,6 +29,7 @@ import numpy as np
 
 from amrst.stages.ground import fit_ground
 from amrst.stages.stems import Stem, assign_to_stems, find_stems
+from amrst.stages.voxels import finite_rows
 
 TREE, GROUND, OTHER, OUTSIDE = 0, 1, 2, 3
 LABEL_NAMES = ("tree", "ground", "other", "outside")
@@ -280,10 +281,7 @@ def understand_scene(
             )
     gxyz = xyz if ground_xyz is None else np.asarray(ground_xyz, dtype=float)
     if not np.isfinite(gxyz).all():  # one pass; the rows only when needed
-        finite = np.isfinite(gxyz[:, 0])
-        finite &= np.isfinite(gxyz[:, 1])
-        finite &= np.isfinite(gxyz[:, 2])
-        gxyz = gxyz[finite]
+        gxyz = gxyz[finite_rows(gxyz)]
     if len(gxyz) > MAX_GROUND_POINTS:
         gxyz = gxyz[:: int(np.ceil(len(gxyz) / MAX_GROUND_POINTS))]
     ground = fit_ground(

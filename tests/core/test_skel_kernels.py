@@ -45,6 +45,18 @@ def test_column_min_equals_numpys_min_over_rows(dtype: type) -> None:
         np.testing.assert_array_equal(got, a.min(axis=0))
 
 
+def test_finite_rows_equals_numpys_all_over_rows() -> None:
+    from amrst.stages.voxels import finite_rows
+
+    rng = np.random.default_rng(5)
+    for cols in (1, 2, 3):
+        a = rng.normal(0, 1, (500, cols))
+        a[rng.choice(500, 40, replace=False), rng.integers(0, cols, 40)] = np.nan
+        a[rng.choice(500, 10, replace=False), rng.integers(0, cols, 10)] = np.inf
+        a[7, cols - 1] = -np.inf
+        np.testing.assert_array_equal(finite_rows(a), np.isfinite(a).all(axis=1))
+
+
 def test_nearest_set_equals_the_full_sort() -> None:
     """The k nearest by a partition are the sort's k, ties at the k-th included."""
     from amrst.stages.scene import _nearest
