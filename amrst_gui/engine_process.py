@@ -133,10 +133,12 @@ class EngineProcess:
                 return fn(*args, reporter, **kwargs)
             # Held until the answer is read: the process may name any of them.
             held = self._cache.alive()
+            writer = self._writer
+            assert writer is not None  # made with the process
             try:
-                self._writer.reporter = reporter
+                writer.reporter = reporter
                 wire.write_message(
-                    self._writer, ("call", fn, args, kwargs, list(held)), self._cache
+                    writer, ("call", fn, args, kwargs, list(held)), self._cache
                 )
                 return self._answer(proc, reporter)
             except Cancelled:
@@ -184,7 +186,7 @@ class _Writer:
         with contextlib.suppress(OSError, AttributeError):  # Linux: fewer turns
             import fcntl
 
-            fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)  # type: ignore[attr-defined]
+            fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
         self.reporter: Reporter | None = None
 
     def write(self, data) -> int:

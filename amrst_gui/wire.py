@@ -24,7 +24,7 @@ import struct
 import threading
 import weakref
 from types import MappingProxyType
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import numpy as np
 
@@ -34,6 +34,13 @@ _LEN = struct.Struct("<Q")
 # Written in slices: a pipe write of hundreds of MB in one call is fine, but
 # slices let a cancelled reader see the end of the pipe between them.
 SLICE = 16 << 20
+
+
+class Sink(Protocol):
+    """Where a message is written: a binary file or the engine's pipe."""
+
+    def write(self, data: Any, /) -> int | None: ...
+    def flush(self) -> None: ...
 
 
 class ArrayCache:
@@ -171,7 +178,7 @@ class _Unpickler(pickle.Unpickler):
         return arr
 
 
-def write_message(out: IO[bytes], obj: Any, cache: ArrayCache) -> None:
+def write_message(out: Sink, obj: Any, cache: ArrayCache) -> None:
     """Pickle ``obj`` into ``out`` (a binary file) as one frame, and flush."""
     buffers: list[pickle.PickleBuffer] = []
     body = io.BytesIO()
