@@ -6,7 +6,7 @@ import logging
 from pathlib import Path
 from typing import cast
 
-from PySide6.QtCore import QByteArray, Qt
+from PySide6.QtCore import QByteArray, Qt, QTimer
 from PySide6.QtGui import QIcon
 from PySide6.QtWidgets import (
     QDialog,
@@ -363,6 +363,24 @@ class MainWindow(QMainWindow):
             if not self._restored:
                 self._default_sizes()
             self._default_state = self.saveState()
+            QTimer.singleShot(0, self._warm_up_views)
+
+    def _warm_up_views(self) -> None:
+        """Set OpenGL up in the views of the other tabs now, before any scan
+        (``ScanView.warm_up``): shown one by one for a frame, then back."""
+        if self._closed:
+            return
+        current = self.tabs.currentIndex()
+        for i in range(self.tabs.count()):
+            if i == current:
+                continue
+            page = self.tabs.widget(i)
+            views = [v for v in self.views() if page and page.isAncestorOf(v)]
+            if views:
+                self.tabs.setCurrentIndex(i)
+                for view in views:
+                    view.warm_up()
+        self.tabs.setCurrentIndex(current)
 
     def _default_sizes(self) -> None:
         d = self.docks
