@@ -24,9 +24,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("amrst_gui.session")
 
-# The steps whose work runs in the engine process (``engine_process``): the
-# engine's own. Loading reads files in chunks here; exporting writes them.
-ENGINE_STEPS = frozenset({*steps.STEPS, "manual"})
+# The jobs that run in the engine process (``engine_process``): the engine's
+# steps and Export (it transforms and writes every point). Loading stays here: it
+# reads in chunks that release the GIL, and the scans are needed here first.
+ENGINE_STEPS = frozenset({*steps.STEPS, "manual", "export"})
 
 
 class RunnerMixin:
