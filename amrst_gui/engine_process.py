@@ -15,8 +15,8 @@ dataclasses and arrays) in the engine process, ``python -m amrst_gui.engine_host
 scans cross the pipe once (``wire``: each array names itself by a token after
 that). Cancel kills the process: the step stops at once, at any size, keeps
 nothing, and a fresh process starts for the next one. Where no process can be
-started (a frozen app has no interpreter), the function runs in the caller's
-thread as before.
+started (a frozen app has no interpreter; Windows pipes cannot be polled), the
+function runs in the caller's thread as before.
 """
 
 from __future__ import annotations
@@ -90,6 +90,8 @@ class EngineProcess:
     def _ensure(self) -> subprocess.Popen[bytes]:
         if self._proc is None or self._proc.poll() is not None:
             self._stop()  # one that died: its pipes and arrays
+            if os.name == "nt":  # select() and non-blocking writes need POSIX pipes
+                raise RuntimeError("the engine process needs POSIX pipes")
             command, env = helper_command("amrst_gui.engine_host")
             self._proc = subprocess.Popen(
                 command,
