@@ -66,6 +66,9 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
             message = wire.read_message(inp, cache, seen)
         except EOFError:
             return
+        except Exception as exc:  # read whole, but not understood: say so
+            send(("error", _portable(exc), traceback.format_exc()))
+            continue
         _kind, fn, args, kwargs, held = message
         # Keep what the app still holds and what this call names; no more.
         cache.keep_only(set(held) | seen)

@@ -93,6 +93,12 @@ class ArrayCache:
             for token in [t for t in self._by_token if t not in tokens]:
                 self._forget(token)
 
+    def forget(self, tokens: list[int]) -> None:
+        """Drop these tokens (arrays given a token but never sent)."""
+        with self._lock:
+            for token in tokens:
+                self._forget(token)
+
     def clear(self) -> None:
         """Forget every array (the other side was restarted)."""
         with self._lock:
@@ -147,6 +153,7 @@ class _Pickler(pickle.Pickler):
         super().__init__(file, protocol=5, buffer_callback=buffers.append)
         self._cache = cache
         self._inner: object = None
+        self.added: list[int] = []  # tokens given while pickling this message
 
     def persistent_id(self, obj: Any) -> Any:
         if type(obj) is not np.ndarray or obj.nbytes < BIG_BYTES:
@@ -158,7 +165,8 @@ class _Pickler(pickle.Pickler):
         if token is not None:
             return ("ref", token)
         self._inner = obj
-        return ("new", self._cache.add(obj), obj.flags.writeable, obj)
+        self.added.append(self._cache.add(obj))
+        return ("new", self.added[-1], obj.flags.writeable, obj)
 
 
 class _Unpickler(pickle.Unpickler):
@@ -182,7 +190,13 @@ def write_message(out: Sink, obj: Any, cache: ArrayCache) -> None:
     """Pickle ``obj`` into ``out`` (a binary file) as one frame, and flush."""
     buffers: list[pickle.PickleBuffer] = []
     body = io.BytesIO()
-    _Pickler(body, cache, buffers).dump(obj)
+    pickler = _Pickler(body, cache, buffers)
+    try:
+        pickler.dump(obj)
+    except BaseException:
+        # Nothing was sent: the other side must not be named what it never got.
+        cache.forget(pickler.added)
+        raise
     out.write(_HEAD.pack(body.tell(), len(buffers)))
     out.write(body.getbuffer())
     for buf in buffers:

@@ -241,3 +241,35 @@ def test_the_app_still_runs_steps_where_no_process_can_start(monkeypatch, sample
     )
     assert engine.pid is None
     assert analyses["target"].is_wood.any()
+
+
+def test_what_cannot_be_sent_is_refused_and_the_next_call_still_works(sample_pair):
+    """A call whose arguments do not pickle (a lambda) raises in the app and
+    sends nothing; an array it gave a token to is sent whole the next time."""
+    import pickle
+
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs, wire
+    from amrst_gui.engine_process import EngineProcess
+
+    app = wire.ArrayCache(weak=True, first_token=0)
+    big = np.zeros((100_000, 3))
+    refused = (pickle.PicklingError, AttributeError, TypeError)
+    with pytest.raises(refused):
+        wire.write_message(io.BytesIO(), {"a": big, "f": lambda: 0}, app)
+    assert app.token_of(big) is None
+    engine = EngineProcess()
+    try:
+        with pytest.raises(refused):
+            engine.call(
+                jobs.separate_pair, {"f": lambda: 0}, None, reporter=NULL_REPORTER
+            )
+        out, _ = engine.call(
+            jobs.separate_pair,
+            _sample_clouds(sample_pair),
+            RegistrationParams(),
+            reporter=NULL_REPORTER,
+        )
+        assert out["target"].is_wood.any()
+    finally:
+        engine.stop()
