@@ -107,6 +107,11 @@ class ScanView(QWidget):
         return set(self._keys)
 
     @property
+    def closed(self) -> bool:
+        """True once ``close_view`` was called."""
+        return self._closed
+
+    @property
     def moving(self) -> bool:
         """True while the user rotates, pans or zooms (fewer points drawn)."""
         return self._moving
@@ -248,34 +253,6 @@ class ScanView(QWidget):
         cam.SetViewUp(*up)
         self.plotter.reset_camera_clipping_range()
         self.plotter.render()
-
-    def warm_up(self) -> None:
-        """Render once what a scene holds (coloured points, a caption), then
-        drop it: a view's first render sets OpenGL up and compiles its shaders,
-        80 ms more with software OpenGL. The overlay was first shown by Accept
-        coarse, a 0.1-0.2 s stall then (issue 15); now it is when the window opens.
-        """
-        if self._closed or not self.isVisible() or self._scene is not None:
-            return
-        import pyvista as pv
-
-        p = self.plotter
-        dots = pv.PolyData(np.zeros((4, 3), np.float32))
-        dots["rgb"] = np.zeros((4, 3), np.uint8)
-        p.add_mesh(
-            dots,
-            scalars="rgb",
-            rgb=True,
-            style="points",
-            point_size=2,
-            name="_warm_up",
-            reset_camera=False,
-            render=False,
-            pickable=False,
-        )
-        p.add_text("-", position="upper_left", font_size=9, name="_warm_up_text")
-        p.render()
-        p.remove_actor(["_warm_up", "_warm_up_text"], render=False)
 
     def showEvent(self, event) -> None:
         super().showEvent(event)

@@ -32,8 +32,24 @@ BIG = 2_000_000
 MAX_STALL_S = 0.15
 
 
+def _waited_for_a_core() -> float:
+    """Seconds the calling thread has spent runnable but not running (Linux:
+    the second field of /proc/thread-self/schedstat); 0.0 elsewhere."""
+    try:
+        with open("/proc/thread-self/schedstat") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 class Watchdog:
-    """A 10 ms QTimer on the GUI thread; ``max_gap_s``: its longest silence."""
+    """A 10 ms QTimer on the GUI thread; ``max_gap_s``: its longest silence.
+
+    ``max_app_gap_s``: the same without the time the GUI thread waited for a
+    core the operating system gave to other programs (this machine is shared: a
+    benchmark running beside the tests stretches every frame). What is left is
+    the app's own doing: work on the GUI thread, or waiting for the GIL.
+    """
 
     def __init__(self) -> None:
         from PySide6.QtCore import QTimer
@@ -42,13 +58,17 @@ class Watchdog:
         self.timer.setInterval(10)
         self.timer.timeout.connect(self._tick)
         self.last = time.perf_counter()
+        self.queued = _waited_for_a_core()
         self.max_gap_s = 0.0
+        self.max_app_gap_s = 0.0
         self.timer.start()
 
     def _tick(self) -> None:
-        now = time.perf_counter()
-        self.max_gap_s = max(self.max_gap_s, now - self.last)
-        self.last = now
+        now, queued = time.perf_counter(), _waited_for_a_core()
+        gap = now - self.last
+        self.max_gap_s = max(self.max_gap_s, gap)
+        self.max_app_gap_s = max(self.max_app_gap_s, gap - (queued - self.queued))
+        self.last, self.queued = now, queued
 
 
 @pytest.fixture(scope="module")
@@ -138,9 +158,13 @@ def test_run_all_on_a_big_pair_never_stalls_the_window(
     seconds = time.perf_counter() - start
     dog.timer.stop()
     assert s.fine is not None, "Run all did not get to Fine"
-    print(f"Run all {seconds:.1f} s, longest GUI stall {dog.max_gap_s:.3f} s")
-    assert dog.max_gap_s < RUN_ALL_MAX_STALL_S, (
-        f"the GUI thread stalled {dog.max_gap_s:.2f} s during Run all"
+    print(
+        f"Run all {seconds:.1f} s, longest GUI stall {dog.max_gap_s:.3f} s, "
+        f"{dog.max_app_gap_s:.3f} s without waiting for a core"
+    )
+    assert dog.max_app_gap_s < RUN_ALL_MAX_STALL_S, (
+        f"the GUI thread stalled {dog.max_app_gap_s:.2f} s during Run all "
+        f"({dog.max_gap_s:.2f} s with the time it waited for a core)"
     )
 
 
