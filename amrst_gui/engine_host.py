@@ -19,7 +19,8 @@ import threading
 import traceback
 from typing import IO, Any
 
-NICE = 5  # the window's own process goes first for the cores
+# The window's own process goes first for the cores (AMRST_ENGINE_NICE to change).
+NICE = int(os.environ.get("AMRST_ENGINE_NICE", "5") or 0)
 
 
 class _PipeReporter:
@@ -83,7 +84,8 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
 
 def main() -> None:
     with contextlib.suppress(OSError, AttributeError):  # no nice() on Windows
-        os.nice(NICE)
+        if NICE:
+            os.nice(NICE)
     # The frames get the real stdout; print() and C libraries get stderr.
     out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
