@@ -273,3 +273,42 @@ def test_what_cannot_be_sent_is_refused_and_the_next_call_still_works(sample_pai
         assert out["target"].is_wood.any()
     finally:
         engine.stop()
+
+
+@pytest.mark.slow
+def test_an_engine_that_dies_mid_step_is_reported_and_replaced(big_clouds):
+    """Out of memory, the system kills the biggest process: the step fails with a
+    message that says what to do, and the next step starts a fresh engine."""
+    import signal
+
+    from amrst.errors import AmrstError
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    engine.start()
+    first = engine.pid
+
+    def kill_soon() -> None:
+        time.sleep(1.0)
+        if engine.pid is not None:
+            os.kill(engine.pid, signal.SIGKILL)
+
+    threading.Thread(target=kill_soon).start()
+    try:
+        with pytest.raises(AmrstError, match="engine process stopped"):
+            engine.call(
+                jobs.separate_pair,
+                big_clouds,
+                RegistrationParams(),
+                reporter=NULL_REPORTER,
+            )
+        small = {k: c.select(np.arange(0, len(c), 200)) for k, c in big_clouds.items()}
+        analyses, _ = engine.call(
+            jobs.separate_pair, small, RegistrationParams(), reporter=NULL_REPORTER
+        )
+        assert engine.pid not in (None, first)
+        assert analyses["source"].is_wood.any()
+    finally:
+        engine.stop()
