@@ -1,10 +1,10 @@
 """The engine process of the app: ``python -m amrst_gui.engine_host`` (no Qt).
 
 Runs the steps' worker functions (``amrst_gui.jobs``) for ``engine_process``:
-reads one call at a time on stdin (``wire`` frames: ``("call", fn, args, kwargs,
-tokens)``), sends ``("progress", fraction, message)`` frames while it runs and
-then ``("result", value)`` or ``("error", exception, traceback text)`` on the
-stream it was given as stdout. Python's own stdout goes to stderr here, so that
+reads one call at a time on stdin (``wire`` frames, see ``serve``), sends
+``("progress", fraction, message)`` and ``("log", logger, level, text)`` frames
+while it runs and then ``("result", value)`` or ``("error", exception, traceback
+text)`` on the stream it was given as stdout. Python's own stdout goes to stderr here, so that
 nothing a library prints can break a frame. Cancel is the app killing this
 process; it never waits for a check point.
 """
@@ -12,6 +12,7 @@ process; it never waits for a check point.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import pickle
 import sys
@@ -49,8 +50,35 @@ def _portable(exc: BaseException) -> BaseException:
         return kind(f"{exc}" if kind is AmrstError else f"{type(exc).__name__}: {exc}")
 
 
+class _LogFrames(logging.Handler):
+    """The engine's log records, and Python warnings, to the app as frames: the
+    app's Log panel shows them as it did when the steps ran in its threads."""
+
+    def __init__(self, send) -> None:
+        super().__init__(logging.INFO)
+        self._send = send
+        self._inside = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if getattr(self._inside, "on", False):
+            return  # a record logged while a frame is written: not re-entered
+        self._inside.on = True
+        try:
+            self._send(("log", record.name, record.levelno, record.getMessage()))
+        except Exception:
+            self.handleError(record)
+        finally:
+            self._inside.on = False
+
+
 def serve(inp: IO[bytes], out: IO[bytes]) -> None:
-    """Answer calls from ``inp`` on ``out`` until ``inp`` closes."""
+    """Answer calls from ``inp`` on ``out`` until ``inp`` closes.
+
+    Frames in: ``("keep", tokens)`` (drop every array the app no longer holds)
+    and ``("call", fn, args, kwargs)``. A frame that cannot be read whole is
+    fatal: the stream and the arrays' tokens can no longer be trusted, so the
+    answer says so and the process ends (the app starts a fresh one).
+    """
     from amrst_gui import wire
 
     cache = wire.ArrayCache(weak=False, first_token=1)
@@ -60,6 +88,12 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
         with lock:
             wire.write_message(out, message, cache)
 
+    handler = _LogFrames(send)
+    for name in ("amrst", "amrst_gui", "py.warnings"):
+        logger = logging.getLogger(name)
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+    logging.captureWarnings(True)
     reporter = _PipeReporter(send)
     while True:
         seen: set[int] = set()
@@ -67,12 +101,13 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
             message = wire.read_message(inp, cache, seen)
         except EOFError:
             return
-        except Exception as exc:  # read whole, but not understood: say so
-            send(("error", _portable(exc), traceback.format_exc()))
+        except BaseException as exc:
+            send(("fatal", _portable(exc), traceback.format_exc()))
+            return
+        if message[0] == "keep":
+            cache.keep_only(set(message[1]))
             continue
-        _kind, fn, args, kwargs, held = message
-        # Keep what the app still holds and what this call names; no more.
-        cache.keep_only(set(held) | seen)
+        _kind, fn, args, kwargs = message
         value = None
         try:
             value = fn(*args, reporter, **kwargs)

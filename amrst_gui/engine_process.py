@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from amrst.errors import AmrstError, Cancelled
+from amrst.progress import NULL_REPORTER
 from amrst_gui import wire
 
 if TYPE_CHECKING:
@@ -122,12 +123,20 @@ class EngineProcess:
                     pipe.close()
 
     def call(
-        self, fn: Callable[..., Any], *args: Any, reporter: Reporter, **kwargs: Any
+        self,
+        fn: Callable[..., Any],
+        *args: Any,
+        reporter: Reporter,
+        stoppable: bool = True,
+        **kwargs: Any,
     ) -> Any:
         """``fn(*args, reporter, **kwargs)`` in the engine process; raises what it
-        raised, and ``Cancelled`` within ``POLL_S`` of a Cancel."""
+        raised, and ``Cancelled`` within ``POLL_S`` of a Cancel. A call that is
+        not ``stoppable`` (Export: it writes files) runs to its end whatever
+        Cancel says, as it did in the app's thread."""
+        watch = reporter if stoppable else NULL_REPORTER
         with self._lock:
-            reporter.check_cancelled()
+            watch.check_cancelled()
             try:
                 proc = self._ensure()
             except Exception as exc:
@@ -138,43 +147,82 @@ class EngineProcess:
             writer = self._writer
             assert writer is not None  # made with the process
             try:
-                writer.reporter = reporter
-                wire.write_message(
-                    writer, ("call", fn, args, kwargs, list(held)), self._cache
-                )
-                return self._answer(proc, reporter)
+                writer.reporter = watch
+                # What the app no longer holds goes first, before the new arrays
+                # arrive: the process never holds the old scans and the new ones.
+                wire.write_message(writer, ("keep", list(held)), self._cache)
+                wire.write_message(writer, ("call", fn, args, kwargs), self._cache)
+                kind, payload = self._answer(proc, reporter, watch)
             except Cancelled:
                 self._stop()  # it would compute on; the next call starts afresh
                 raise
             except (OSError, EOFError) as exc:  # the process is gone
                 code = proc.poll()
                 self._stop()
-                reporter.check_cancelled()
-                raise AmrstError(
-                    f"The engine process stopped (exit code {code}: {exc}); "
-                    "the step was not finished. Run it again; if it stops again, "
-                    "free memory or thin the scans (Clip / Thin)."
+                watch.check_cancelled()
+                raise EngineStopped(
+                    f"The engine process stopped (exit code {code}: {exc}); the "
+                    "step was not finished. Run it again; if it stops again, "
+                    "free memory, or cut the tree out of the scans first "
+                    "(amrst clip)."
                 ) from exc
             finally:
                 del held
+            if kind == "result":
+                return payload
+            if kind == "fatal":  # it could not read the call: start afresh
+                self._stop()
+            error, text = payload
+            with contextlib.suppress(AttributeError, TypeError):
+                error.__traceback_text__ = text
+            raise error
 
-    def _answer(self, proc: subprocess.Popen[bytes], reporter: Reporter) -> Any:
+    def trim(self) -> None:
+        """Tell an idle engine process which arrays the app still holds, so it
+        lets go of the others now (a new pair was opened); never waits."""
+        if not self._lock.acquire(blocking=False):
+            return  # a call runs: it says so itself
+        try:
+            if (
+                self._writer is None
+                or self._proc is None
+                or self._proc.poll() is not None
+            ):
+                return
+            self._writer.reporter = NULL_REPORTER
+            wire.write_message(
+                self._writer, ("keep", list(self._cache.alive())), self._cache
+            )
+        except OSError:
+            self._stop()
+        finally:
+            self._lock.release()
+
+    def _answer(
+        self, proc: subprocess.Popen[bytes], reporter: Reporter, watch: Reporter
+    ) -> tuple[str, Any]:
+        """Relay progress and logs until the answer: ``("result", value)``, or
+        ``("error" | "fatal", (exception, traceback text))``."""
         assert proc.stdout is not None
         while True:
             while not select.select([proc.stdout], [], [], POLL_S)[0]:
-                reporter.check_cancelled()
+                watch.check_cancelled()
             message = wire.read_message(proc.stdout, self._cache)
             kind = message[0]
             if kind == "progress":
                 reporter.progress(message[1], message[2])
-                reporter.check_cancelled()
+                watch.check_cancelled()
+            elif kind == "log":
+                _, name, level, text = message
+                logging.getLogger(name).log(level, "%s", text)
             elif kind == "result":
-                return message[1]
+                return kind, message[1]
             else:
-                exc, text = message[1], message[2]
-                with contextlib.suppress(AttributeError, TypeError):
-                    exc.__traceback_text__ = text
-                raise exc
+                return kind, (message[1], message[2])
+
+
+class EngineStopped(AmrstError):
+    """The engine process ended during a call (killed, out of memory)."""
 
 
 class _Writer:
@@ -213,14 +261,14 @@ ENGINE = EngineProcess()
 atexit.register(ENGINE.stop)
 
 
-def in_engine(fn: Callable[..., Any]) -> Callable[..., Any]:
+def in_engine(fn: Callable[..., Any], stoppable: bool = True) -> Callable[..., Any]:
     """``fn`` (called as ``fn(*args, reporter, **kwargs)``) run in the engine
     process: the form ``workers.run_stage`` calls."""
 
     def run(*args: Any, **kwargs: Any) -> Any:
         *inputs, reporter = args
         start = time.perf_counter()
-        out = ENGINE.call(fn, *inputs, reporter=reporter, **kwargs)
+        out = ENGINE.call(fn, *inputs, reporter=reporter, stoppable=stoppable, **kwargs)
         log.debug("%s in the engine process: %.2f s", fn, time.perf_counter() - start)
         return out
 

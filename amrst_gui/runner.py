@@ -152,7 +152,7 @@ class RunnerMixin:
         # Parameters may change while the job runs: remember the ones it got.
         self._job_params = self._params
         if step in ENGINE_STEPS:  # their GIL would stall the window (issue 15)
-            fn = engine_process.in_engine(fn)
+            fn = engine_process.in_engine(fn, step not in steps.UNSTOPPABLE)
         self._job = workers.run_stage(
             fn,
             *args,
@@ -170,6 +170,8 @@ class RunnerMixin:
         if step == "load":  # its imports run while the user looks at the scans
             engine_process.ENGINE.start()
         emit = self._apply(step, result)
+        if step == "load":  # the old scans are dropped: the engine lets go too
+            engine_process.ENGINE.trim()
         log.info(
             "%s: finished in %.2f s. %s", self._label(step), seconds, self.summary(step)
         )
@@ -198,7 +200,12 @@ class RunnerMixin:
             self.cancelled.emit(f"{label} cancelled; earlier results are kept.")
             return
         if isinstance(exc, AmrstError):
-            hint = self._hint(step)
+            # No parameter hint when the process itself ended.
+            hint = (
+                ""
+                if isinstance(exc, engine_process.EngineStopped)
+                else self._hint(step)
+            )
             self._fail(f"{label} failed: {exc}{hint}")
         else:
             log.error(

@@ -44,7 +44,12 @@ class Sink(Protocol):
 
 
 class ArrayCache:
-    """Tokens of the arrays both sides hold; ``weak=True`` on the app's side."""
+    """Tokens of the arrays both sides hold; ``weak=True`` on the app's side.
+
+    The app's side keeps weak references without callbacks: a callback takes
+    the lock, and the garbage collector may run one inside a locked section of
+    the same thread (a hang). Dead entries are dropped when next looked at.
+    """
 
     def __init__(self, *, weak: bool, first_token: int) -> None:
         self._weak = weak
@@ -63,13 +68,12 @@ class ArrayCache:
 
     def add(self, arr: np.ndarray, token: int | None = None) -> int:
         """Give ``arr`` a token (a new one unless ``token`` is given)."""
+        ref = weakref.ref(arr) if self._weak else arr  # made outside the lock
         with self._lock:
+            self._purge()
             if token is None:
                 token, self._next = self._next, self._next + 2
-            if self._weak:
-                self._by_token[token] = weakref.ref(arr, self._dropper(token))
-            else:
-                self._by_token[token] = arr
+            self._by_token[token] = ref
             self._by_id[id(arr)] = token
             return token
 
@@ -84,6 +88,7 @@ class ArrayCache:
     def alive(self) -> dict[int, np.ndarray]:
         """Every array still held, by token (strong references)."""
         with self._lock:
+            self._purge()
             out = {t: self._get(t) for t in list(self._by_token)}
         return {t: a for t, a in out.items() if a is not None}
 
@@ -120,20 +125,15 @@ class ArrayCache:
         if arr is not None and self._by_id.get(id(arr)) == token:
             del self._by_id[id(arr)]
 
-    def _dropper(self, token: int):
-        cache = weakref.ref(self)
-
-        def dropped(_ref: weakref.ref) -> None:
-            me = cache()
-            if me is None:
-                return
-            with me._lock:
-                if me._by_token.get(token) is _ref:
-                    del me._by_token[token]
-                    for key in [k for k, t in me._by_id.items() if t == token]:
-                        del me._by_id[key]
-
-        return dropped
+    def _purge(self) -> None:
+        """Drop the entries of arrays that are gone (the app's side)."""
+        if not self._weak:
+            return
+        dead = {t for t, ref in self._by_token.items() if ref() is None}
+        if dead:
+            for token in dead:
+                del self._by_token[token]
+            self._by_id = {k: t for k, t in self._by_id.items() if t not in dead}
 
 
 def _mappingproxy(mp: MappingProxyType) -> tuple:

@@ -312,3 +312,137 @@ def test_an_engine_that_dies_mid_step_is_reported_and_replaced(big_clouds):
         assert analyses["source"].is_wood.any()
     finally:
         engine.stop()
+
+
+def test_a_call_the_engine_cannot_read_restarts_it_and_the_arrays_cross_again(
+    sample_pair,
+):
+    """The engine cannot import a function of this test module: it says so and
+    ends; the app starts a fresh engine, which gets every array whole."""
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    clouds = _sample_clouds(sample_pair)
+    big = {"target": clouds["target"], "extra": np.zeros((200_000, 3))}
+    try:
+        with pytest.raises(Exception, match="test_engine_process"):
+            engine.call(_not_importable_there, big, reporter=NULL_REPORTER)
+        assert engine.pid is None  # ended with the message it could not read
+        out, _ = engine.call(
+            jobs.separate_pair, clouds, RegistrationParams(), reporter=NULL_REPORTER
+        )
+        assert out["target"].is_wood.any()
+    finally:
+        engine.stop()
+
+
+def _not_importable_there(items, reporter):
+    return len(items)
+
+
+def test_a_jobs_own_os_error_arrives_as_itself_and_the_engine_lives_on():
+    """An OSError of the job (a folder gone while exporting) is the job's error,
+    not a dead engine."""
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    try:
+        with pytest.raises(FileNotFoundError):
+            engine.call(np.load, "/nonexistent/amrst/x.npy", reporter=NULL_REPORTER)
+        pid = engine.pid
+        assert pid is not None
+        with pytest.raises(FileNotFoundError):
+            engine.call(np.load, "/nonexistent/amrst/y.npy", reporter=NULL_REPORTER)
+        assert engine.pid == pid
+    finally:
+        engine.stop()
+
+
+def test_the_engines_log_reaches_the_apps_loggers(sample_pair, caplog):
+    """The Log panel listens to the ``amrst`` loggers of the app's process: the
+    engine's records are sent back and logged there."""
+    import dataclasses
+    import logging
+
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    params = RegistrationParams()
+    params = dataclasses.replace(
+        params, preprocess=dataclasses.replace(params.preprocess, max_points=1000)
+    )
+    engine = EngineProcess()
+    try:
+        with caplog.at_level(logging.INFO, logger="amrst"):
+            engine.call(
+                jobs.separate_pair,
+                _sample_clouds(sample_pair),
+                params,
+                reporter=NULL_REPORTER,
+            )
+    finally:
+        engine.stop()
+    thinned = [r for r in caplog.records if "Large scan: thinned" in r.getMessage()]
+    assert len(thinned) == 2  # one per scan
+    assert thinned[0].levelno == logging.WARNING
+    assert thinned[0].name.startswith("amrst.")
+
+
+def test_a_call_that_may_not_stop_runs_to_its_end_after_cancel(sample_pair):
+    """Export writes files: Cancel (or closing the window) lets it finish."""
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    reporter = EventReporter()
+    reporter.cancel()
+    engine = EngineProcess()
+    try:
+        out, _ = engine.call(
+            jobs.separate_pair,
+            _sample_clouds(sample_pair),
+            RegistrationParams(),
+            reporter=reporter,
+            stoppable=False,
+        )
+        assert out["target"].is_wood.any()
+        with pytest.raises(Cancelled):
+            engine.call(
+                jobs.separate_pair,
+                _sample_clouds(sample_pair),
+                RegistrationParams(),
+                reporter=reporter,
+            )
+    finally:
+        engine.stop()
+
+
+def _engine_rss_mb(pid: int) -> float:
+    status = Path(f"/proc/{pid}/status").read_text()
+    return (
+        next(int(ln.split()[1]) for ln in status.splitlines() if ln.startswith("VmRSS"))
+        / 1024
+    )
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+def test_the_engine_lets_go_of_what_the_app_dropped_when_told():
+    """After a new pair is opened, the engine frees the old scans at once, not
+    when the next step comes (then it held the old and the new together)."""
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    try:
+        scan = np.random.default_rng(0).random((4_000_000, 3))  # 96 MB
+        # Any call: the scan crosses and the engine keeps it.
+        assert not engine.call(np.array_equal, scan, reporter=NULL_REPORTER)
+        held = _engine_rss_mb(engine.pid)
+        del scan
+        engine.trim()
+        time.sleep(1.0)
+        assert _engine_rss_mb(engine.pid) < held - 60
+    finally:
+        engine.stop()
