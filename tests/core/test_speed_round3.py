@@ -63,3 +63,90 @@ def test_index_only_read_equals_the_full_read_on_the_whole_cloud() -> None:
         table.knn_idx(16), _brute_knn(xyz, 16, np.arange(len(xyz)))
     )
 
+
+
+def _merge_before(ranked, centre):  # type: ignore[no-untyped-def]
+    """pipeline.sources.merge_same_solutions as it was (every pair compared)."""
+    from dataclasses import replace
+
+    from amrst.stages.candidates import CandidateList, distinct_solutions
+
+    kept = []
+    for c in ranked.candidates:
+        for k, done in enumerate(kept):
+            if c.origin not in done.origins and not distinct_solutions(
+                c.T_target_source, done.T_target_source, centre
+            ):
+                kept[k] = replace(done, also_found_by=(*done.also_found_by, *c.origins))
+                break
+        else:
+            kept.append(c)
+    kept = [replace(c, rank=r) for r, c in enumerate(kept, start=1)]
+    return CandidateList(tuple(kept), ranked.n_matches)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_merge_same_solutions_equals_the_pairwise_loop(seed: int) -> None:
+    """Candidates of every origin, some poses repeated across origins (and within
+    one): the merged list is the one the all-pairs loop gave."""
+    from scipy.spatial.transform import Rotation
+
+    from amrst.pipeline.sources import merge_same_solutions
+    from amrst.stages.candidates import Candidate, CandidateList, Origin
+
+    rng = np.random.default_rng(seed)
+    poses = []
+    for _ in range(6):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        T[:3, 3] = rng.normal(0, 3, 3)
+        poses.append(T)
+    cands = []
+    for i in range(40):
+        T = poses[int(rng.integers(len(poses)))].copy()
+        T[:3, 3] += rng.normal(0, 0.05, 3)  # the same solution, slightly apart
+        cands.append(
+            Candidate(
+                id=i, rank=int(rng.integers(1, 50)), score=0.5, raw_score=0.4,
+                support=1, volume_m3=1.0, edge_error=0.01, svd_residual_m=0.01,
+                target_idx=np.arange(4), source_idx=np.arange(4), T_match=T,
+                T_target_source=T, polished=True, explanation="",
+                origin=list(Origin)[int(rng.choice(4, p=[0.7, 0.1, 0.1, 0.1]))],
+            )
+        )
+    ranked = CandidateList(tuple(cands), 40)
+    centre = np.array([0.3, -0.2, 4.0])
+    got, want = merge_same_solutions(ranked, centre), _merge_before(ranked, centre)
+    assert [(c.id, c.rank, c.origins) for c in got.candidates] == [
+        (c.id, c.rank, c.origins) for c in want.candidates
+    ]
+    assert len(got.candidates) < len(cands)
+
+
+def test_analysis_again_with_an_expected_ground_reuses_the_preprocessing() -> None:
+    """A scan analysed again for the ground the other scan found (register's second
+    pass) keeps its first preprocessing: the same analysis as one made afresh."""
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import analyse_scan
+    from amrst.types import Cloud
+
+    rng = np.random.default_rng(11)
+    t, z = rng.uniform(0, 2 * np.pi, 6000), rng.uniform(0, 4, 6000)
+    stem = np.column_stack([0.15 * np.cos(t), 0.15 * np.sin(t), z])
+    d = rng.normal(size=(6000, 3))
+    crown = d / np.linalg.norm(d, axis=1)[:, None] * [1.5, 1.5, 1.0] + [0, 0, 4.5]
+    xy = rng.uniform(-3, 3, (8000, 2))
+    ground = np.column_stack([xy, 0.1 * xy[:, 0] + rng.normal(0, 0.005, len(xy))])
+    cloud = Cloud(np.vstack([stem, crown, ground]) + rng.normal(0, 0.003, (20000, 3)))
+    params = RegistrationParams()
+    first = analyse_scan(cloud, params)
+    assert first.scene_pre is not None
+    fresh = analyse_scan(cloud, params, expect_ground=6.0)
+    again = analyse_scan(cloud, params, expect_ground=6.0, pre=first.scene_pre)
+    assert again.scene_pre is first.scene_pre
+    assert again.scene is not None and fresh.scene is not None
+    np.testing.assert_array_equal(again.scene.labels, fresh.scene.labels)
+    np.testing.assert_array_equal(again.xyz, fresh.xyz)
+    np.testing.assert_array_equal(again.is_wood, fresh.is_wood)
+    assert again.skeleton is not None and fresh.skeleton is not None
+    np.testing.assert_array_equal(again.skeleton.nodes, fresh.skeleton.nodes)
