@@ -47,9 +47,7 @@ def test_view_reads_equal_brute_force(share: float) -> None:
     np.testing.assert_array_equal(
         view.knn_idx(17), _brute_knn(sub, 17, np.arange(len(sub)))
     )
-    np.testing.assert_array_equal(
-        view.knn_idx(30, rows), _brute_knn(sub, 30, rows)
-    )
+    np.testing.assert_array_equal(view.knn_idx(30, rows), _brute_knn(sub, 30, rows))
 
 
 def test_index_only_read_equals_the_full_read_on_the_whole_cloud() -> None:
@@ -62,7 +60,6 @@ def test_index_only_read_equals_the_full_read_on_the_whole_cloud() -> None:
     np.testing.assert_array_equal(
         table.knn_idx(16), _brute_knn(xyz, 16, np.arange(len(xyz)))
     )
-
 
 
 def _merge_before(ranked, centre):  # type: ignore[no-untyped-def]
@@ -107,10 +104,20 @@ def test_merge_same_solutions_equals_the_pairwise_loop(seed: int) -> None:
         T[:3, 3] += rng.normal(0, 0.05, 3)  # the same solution, slightly apart
         cands.append(
             Candidate(
-                id=i, rank=int(rng.integers(1, 50)), score=0.5, raw_score=0.4,
-                support=1, volume_m3=1.0, edge_error=0.01, svd_residual_m=0.01,
-                target_idx=np.arange(4), source_idx=np.arange(4), T_match=T,
-                T_target_source=T, polished=True, explanation="",
+                id=i,
+                rank=int(rng.integers(1, 50)),
+                score=0.5,
+                raw_score=0.4,
+                support=1,
+                volume_m3=1.0,
+                edge_error=0.01,
+                svd_residual_m=0.01,
+                target_idx=np.arange(4),
+                source_idx=np.arange(4),
+                T_match=T,
+                T_target_source=T,
+                polished=True,
+                explanation="",
                 origin=list(Origin)[int(rng.choice(4, p=[0.7, 0.1, 0.1, 0.1]))],
             )
         )
@@ -144,9 +151,11 @@ def test_analysis_again_with_an_expected_ground_reuses_the_preprocessing() -> No
     fresh = analyse_scan(cloud, params, expect_ground=6.0)
     again = analyse_scan(cloud, params, expect_ground=6.0, pre=first.scene_pre)
     assert again.scene_pre is first.scene_pre
-    assert again.scene is not None and fresh.scene is not None
+    assert again.scene is not None
+    assert fresh.scene is not None
     np.testing.assert_array_equal(again.scene.labels, fresh.scene.labels)
     np.testing.assert_array_equal(again.xyz, fresh.xyz)
     np.testing.assert_array_equal(again.is_wood, fresh.is_wood)
-    assert again.skeleton is not None and fresh.skeleton is not None
+    assert again.skeleton is not None
+    assert fresh.skeleton is not None
     np.testing.assert_array_equal(again.skeleton.nodes, fresh.skeleton.nodes)
