@@ -159,3 +159,34 @@ def test_analysis_again_with_an_expected_ground_reuses_the_preprocessing() -> No
     assert again.skeleton is not None
     assert fresh.skeleton is not None
     np.testing.assert_array_equal(again.skeleton.nodes, fresh.skeleton.nodes)
+
+
+def test_covariances_in_chunks_equal_one_pass_and_the_row_sums(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """More neighbourhoods than one chunk (two boundaries crossed, a short last
+    chunk): the same bits as a single pass, and as numpy's per-row sums."""
+    from amrst.stages import features
+
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(6000, 3)) + np.array([40.0, -3.0, 12.0])
+    idx = rng.integers(0, len(xyz), (2 * features.COV_CHUNK + 123, 30))
+    chunked = features._covariances(xyz, idx, (10, 30))
+    monkeypatch.setattr(features, "COV_CHUNK", 10**9)
+    whole = features._covariances(xyz, idx, (10, 30))
+    g = xyz.T[:, idx] - xyz.T[:, idx[:, :1]]
+    x, y, z = g
+    terms = (x, y, z, x * x, y * y, z * z)
+    sums = [np.zeros(len(idx))] * 6
+    done = 0
+    for k, got, one in zip((10, 30), chunked, whole, strict=True):
+        # Runs summed per row as the code before summed them (0:10, then 10:30).
+        sums = [s + t[:, done:k].sum(axis=1) for s, t in zip(sums, terms, strict=True)]
+        done = k
+        mean, sq = [v / k for v in sums[:3]], [v / k for v in sums[3:]]
+        want = [s - m * m for s, m in zip(sq, mean, strict=True)]
+        for a, b, w in zip(got[:3], one[:3], want, strict=True):
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(a, w)
+        for a, b in zip(got[3:], one[3:], strict=True):
+            np.testing.assert_array_equal(a, b)
