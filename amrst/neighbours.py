@@ -19,6 +19,7 @@ Neighbours at exactly equal distances may come in another order than scipy's.
 from __future__ import annotations
 
 import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -116,6 +117,38 @@ def knn(
     return np.sqrt(sq, out=sq), idx.view(np.int64)
 
 
+class _Tree:
+    """A small_gicp KdTree on fixed points, built on first use after unpickling.
+
+    small_gicp's trees cannot be pickled; the app sends the analyses that hold
+    them to its engine process and back (issue 15). A tree pickles as nothing and
+    is built again, from the same points with the same code (so every answer is
+    the same), only where it is queried.
+    """
+
+    def __init__(self, points: np.ndarray, threads: int, tree: Any = None) -> None:
+        self._points, self._threads, self._tree = points, threads, tree
+        self._lock = threading.Lock()
+
+    def get(self) -> Any:
+        """Return the tree, built now if it was not yet."""
+        with self._lock:
+            if self._tree is None:
+                import small_gicp
+
+                n = len(self._points)
+                self._tree = small_gicp.KdTree(
+                    self._points, num_threads=_build_threads(n, self._threads)
+                )
+            return self._tree
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"points": self._points, "threads": self._threads}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["points"], state["threads"])  # type: ignore[misc]
+
+
 class NearestTree:
     """One KD-tree on fixed points for repeated nearest-neighbour queries.
 
@@ -133,9 +166,13 @@ class NearestTree:
         self.points = _points(points)
         self.n = len(self.points)
         self.threads = _threads if threads is None else threads
-        self._tree: Any = (
-            small_gicp.KdTree(
-                self.points, num_threads=_build_threads(self.n, self.threads)
+        self._tree: _Tree | None = (
+            _Tree(
+                self.points,
+                self.threads,
+                small_gicp.KdTree(
+                    self.points, num_threads=_build_threads(self.n, self.threads)
+                ),
             )
             if self.n
             else None
@@ -166,7 +203,8 @@ class NearestTree:
         if self.n == 0 or len(q) == 0:
             return np.full(shape, np.inf), np.full(shape, self.n, dtype=np.int64)
         kk = min(k, self.n)
-        idx, sq = self._tree.batch_knn_search(
+        assert self._tree is not None  # n > 0
+        idx, sq = self._tree.get().batch_knn_search(
             q, kk, _batch_threads(len(q), kk, self.threads)
         )
         dist = np.sqrt(sq)
@@ -217,7 +255,12 @@ class NeighbourTable:
         tree: Any = None,
     ) -> None:
         self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
-        self._tree = tree  # small_gicp.KdTree on points, for the rows left short
+        # small_gicp.KdTree on points, for the rows left short
+        self._tree = (
+            tree
+            if tree is None or isinstance(tree, _Tree)
+            else _Tree(points, _threads, tree)
+        )
 
     @classmethod
     def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
@@ -314,7 +357,7 @@ class NeighbourTable:
         if len(short) * (wide - k) > _BUILD_COST * n:
             wide = 0  # skip the wider reads
         while wide and len(short) and self._tree is not None:
-            w_idx, w_sq = self._tree.batch_knn_search(
+            w_idx, w_sq = self._tree.get().batch_knn_search(
                 self._points[root[short]],
                 wide,
                 num_threads=_batch_threads(len(short), wide),

@@ -286,3 +286,39 @@ class ShortcutsDialog(QDialog):
         layout = QVBoxLayout(self)
         layout.addWidget(text)
         layout.addWidget(buttons)
+
+
+def load_params(window) -> None:
+    """Ask for a parameter file and give it to the window's session."""
+    from PySide6.QtWidgets import QFileDialog
+
+    from amrst import params as params_io
+    from amrst.errors import AmrstError
+
+    path, _ = QFileDialog.getOpenFileName(
+        window, "Load parameters", "", "JSON (*.json)"
+    )
+    if path:
+        try:
+            window.session.set_params(params_io.load_params(path))
+        except AmrstError as exc:
+            window.session.report_error(f"Could not load parameters: {exc}")
+
+
+def save_params(window) -> None:
+    """Ask where to write the session's parameters as JSON, and write them."""
+    from PySide6.QtWidgets import QFileDialog
+
+    from amrst import params as params_io
+    from amrst.errors import AmrstError
+
+    path, _ = QFileDialog.getSaveFileName(
+        window, "Save parameters", "params.json", "JSON (*.json)"
+    )
+    if path:
+        try:
+            params_io.save_params(path, window.session.params)
+        except (OSError, AmrstError) as exc:
+            window.session.report_error(f"Could not save the parameters: {exc}")
+            return
+        window.status.show_message(f"Parameters saved to {path}")

@@ -6,7 +6,7 @@ import logging
 from pathlib import Path
 from typing import cast
 
-from PySide6.QtCore import QByteArray, Qt
+from PySide6.QtCore import QByteArray, Qt, QTimer
 from PySide6.QtGui import QIcon
 from PySide6.QtWidgets import (
     QDialog,
@@ -17,7 +17,6 @@ from PySide6.QtWidgets import (
     QTabWidget,
 )
 
-from amrst.errors import AmrstError
 from amrst.resources import resource_path
 from amrst_gui import dialogs, menus, warmup
 from amrst_gui.actions import WorkflowActions
@@ -31,6 +30,7 @@ from amrst_gui.panels.params_panel import ParamsPanel
 from amrst_gui.panels.scans_panel import ScansPanel
 from amrst_gui.panels.status import WorkflowStatusBar
 from amrst_gui.session import Session
+from amrst_gui.views.gl_warmup import warm_up_tabs
 from amrst_gui.views.quality_views import StemSlicesPane
 from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
@@ -205,31 +205,11 @@ class MainWindow(QMainWindow):
 
     def load_params_dialog(self) -> None:
         """Read parameters from JSON and use them."""
-        from amrst import params as params_io
-
-        path, _ = QFileDialog.getOpenFileName(
-            self, "Load parameters", "", "JSON (*.json)"
-        )
-        if path:
-            try:
-                self.session.set_params(params_io.load_params(path))
-            except AmrstError as exc:
-                self._on_failed(f"Could not load parameters: {exc}")
+        dialogs.load_params(self)
 
     def save_params_dialog(self) -> None:
         """Write the current parameters to JSON."""
-        from amrst import params as params_io
-
-        path, _ = QFileDialog.getSaveFileName(
-            self, "Save parameters", "params.json", "JSON (*.json)"
-        )
-        if path:
-            try:
-                params_io.save_params(path, self.session.params)
-            except (OSError, AmrstError) as exc:
-                self._on_failed(f"Could not save the parameters: {exc}")
-                return
-            self.status.show_message(f"Parameters saved to {path}")
+        dialogs.save_params(self)
 
     def export_dialog(self) -> dialogs.ExportDialog:
         """Open the export dialog (non-blocking); Export starts the job."""
@@ -363,6 +343,12 @@ class MainWindow(QMainWindow):
             if not self._restored:
                 self._default_sizes()
             self._default_state = self.saveState()
+            QTimer.singleShot(0, self.tabs, self._warm_up_views)
+
+    def _warm_up_views(self) -> None:
+        """Set OpenGL up in the other tabs' views before any scan (issue 15)."""
+        if self.isVisible() and not self._closed:
+            warm_up_tabs(self.tabs, self.views())
 
     def _default_sizes(self) -> None:
         d = self.docks

@@ -25,12 +25,9 @@ import atexit
 import contextlib
 import json
 import logging
-import os
 import select
 import subprocess
-import sys
 import threading
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -61,20 +58,12 @@ class Helper:
 
     def _ensure(self) -> subprocess.Popen[bytes]:
         if self._proc is None or self._proc.poll() is not None:
-            import amrst
+            from amrst_gui.engine_process import helper_command
 
             self.stop()  # a helper that died: its pipes
-            if getattr(sys, "frozen", False):  # sys.executable is the app itself
-                raise RuntimeError("no Python interpreter to run the helper")
-
-            root = str(Path(amrst.__file__).resolve().parents[1])
-            path = os.environ.get("PYTHONPATH")
-            env = {
-                **os.environ,
-                "PYTHONPATH": root if not path else os.pathsep.join([root, path]),
-            }
+            command, env = helper_command("amrst_gui.offload_helper")
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "amrst_gui.offload_helper"],
+                command,
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 env=env,

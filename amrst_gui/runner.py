@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import AmrstError, Cancelled
-from amrst_gui import jobs, steps, workers
+from amrst_gui import engine_process, jobs, steps, workers
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -23,6 +23,11 @@ if TYPE_CHECKING:
     from amrst.stages.fine import FineResult
 
 log = logging.getLogger("amrst_gui.session")
+
+# The jobs that run in the engine process (``engine_process``): the engine's
+# steps and Export (it transforms and writes every point). Loading stays here: it
+# reads in chunks that release the GIL, and the scans are needed here first.
+ENGINE_STEPS = frozenset({*steps.STEPS, "manual", "export"})
 
 
 class RunnerMixin:
@@ -146,6 +151,8 @@ class RunnerMixin:
         log.info("%s: started%s", self._label(step), self._params_text(step))
         # Parameters may change while the job runs: remember the ones it got.
         self._job_params = self._params
+        if step in ENGINE_STEPS:  # their GIL would stall the window (issue 15)
+            fn = engine_process.in_engine(fn)
         self._job = workers.run_stage(
             fn,
             *args,
@@ -160,6 +167,8 @@ class RunnerMixin:
         result, seconds = payload
         self._job = None
         self._timings[step] = seconds
+        if step == "load":  # its imports run while the user looks at the scans
+            engine_process.ENGINE.start()
         emit = self._apply(step, result)
         log.info(
             "%s: finished in %.2f s. %s", self._label(step), seconds, self.summary(step)

@@ -130,8 +130,10 @@ class StageJob(QObject):
                     reporter.check_cancelled()
                     return fn(*args, reporter, **kwargs)
             except BaseException as exc:
-                # Keep the worker traceback for the log; the exception crosses threads.
-                exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
+                # Keep the worker traceback for the log; the exception crosses
+                # threads (one from the engine process brings its own).
+                if not hasattr(exc, "__traceback_text__"):
+                    exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
                 raise
             finally:
                 worker_done.set()

@@ -107,6 +107,11 @@ class ScanView(QWidget):
         return set(self._keys)
 
     @property
+    def closed(self) -> bool:
+        """True once ``close_view`` was called."""
+        return self._closed
+
+    @property
     def moving(self) -> bool:
         """True while the user rotates, pans or zooms (fewer points drawn)."""
         return self._moving
@@ -175,7 +180,10 @@ class ScanView(QWidget):
         b = np.asarray(self._fit_bounds(), float)
         if not np.all(np.isfinite(b)):
             return
-        cam = self.plotter.camera
+        # Not ``plotter.camera``: the first time, pyvista fits the camera itself
+        # and renders, three renders in all (75 ms of software OpenGL on the
+        # overlay shown after Accept coarse, a GUI stall; issue 15).
+        cam = self.plotter.renderer.GetActiveCamera()
         centre = (b[0::2] + b[1::2]) / 2
         cam.SetViewAngle(_VIEW_ANGLE_DEG)
         cam.SetFocalPoint(*centre)
@@ -198,6 +206,7 @@ class ScanView(QWidget):
         if np.isfinite(fit) and fit > 1:
             cam.Dolly(fit)
         self.plotter.renderer.ResetCameraClippingRange(*b)
+        self.plotter.renderer.camera_set = True  # pyvista: do not fit it again
         if render:
             self.plotter.render()
 

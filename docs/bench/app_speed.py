@@ -124,6 +124,10 @@ def report(before: dict | None, after: dict) -> str:
         row("Run all: longest GUI stall", lambda d: d["runall_max_stall_s"])
         row("Run all: stalls over 100 ms", lambda d: d["runall_stalls_over_100ms"], "")
         row("idle app, 3 s: longest GUI stall", lambda d: d["idle_max_stall_s"])
+        row("peak memory: the app (MB)", lambda d: d["peak_mb"]["app"], "")
+        row(
+            "peak memory: its engine process (MB)", lambda d: d["peak_mb"]["engine"], ""
+        )
     for step in STEPS if "cancel" in after else ():
         row(f"{step}: idle after Cancel", lambda d, s=step: d["cancel"][s]["cancel_s"])
         row(

@@ -257,7 +257,28 @@ def _runall(app, win, target: Path, source: Path, dog: Watchdog) -> dict:
         "runall_stalls_over_100ms": dog.over_100ms,
         "idle_max_stall_s": idle,
         "runall_fine": None if s.fine is None else s.fine.method,
+        "peak_mb": _peak_mb(),
     }
+
+
+def _peak_mb() -> dict:
+    """Peak resident memory (VmHWM) of this process and of the engine process."""
+
+    def hwm(pid) -> float | None:
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            return None
+        kb = next((ln.split()[1] for ln in status.splitlines() if "VmHWM" in ln), None)
+        return None if kb is None else int(kb) / 1024
+
+    try:
+        from amrst_gui.engine_process import ENGINE
+    except ImportError:  # a version before the engine process
+        engine = None
+    else:
+        engine = hwm(ENGINE.pid) if ENGINE.pid else None
+    return {"app": hwm("self"), "engine": engine}
 
 
 def _result_of(s, step: str):

@@ -1,0 +1,227 @@
+"""The steps run in a process of their own (issue 15: a window that never freezes).
+
+In a worker thread of the app, a step's numpy, scipy and small_gicp calls hold
+the Python GIL for up to 170 ms each on a 2M-point scan (a voxel grid's cumulative
+sums, a fancy index of every point), five times that on 10M points, and the GUI
+thread waits behind every one of them: Run all on a 2M pair stalled the window
+3-5 times for 0.11-0.18 s, with the GUI thread itself idle. A separate process has
+its own GIL. The worker thread only waits on a pipe now; the operating system
+shares the cores, and the engine process runs niced so the window comes first.
+
+``call(fn, *args, reporter=..., **kwargs)`` runs ``fn(*args, reporter,
+**kwargs)`` (a function of ``amrst_gui.jobs``: inputs and results are engine
+dataclasses and arrays) in the engine process, ``python -m amrst_gui.engine_host``
+(plain Python: the engine and numpy, no Qt, not the caller's main script). The
+scans cross the pipe once (``wire``: each array names itself by a token after
+that). Cancel kills the process: the step stops at once, at any size, keeps
+nothing, and a fresh process starts for the next one. Where no process can be
+started (a frozen app has no interpreter; Windows pipes cannot be polled), the
+function runs in the caller's thread as before.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import logging
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from amrst.errors import AmrstError, Cancelled
+from amrst_gui import wire
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from amrst.progress import Reporter
+
+log = logging.getLogger("amrst_gui.engine")
+
+POLL_S = 0.05  # how often a waiting worker looks at Cancel
+PIPE_BYTES = 1 << 20  # the pipe to the engine process holds 1 MB (Linux)
+
+
+def helper_command(module: str) -> tuple[list[str], dict[str, str]]:
+    """The command and environment that run ``python -m module`` with this
+    checkout of the app importable; RuntimeError in a frozen app."""
+    import amrst
+
+    if getattr(sys, "frozen", False):  # sys.executable is the app itself
+        raise RuntimeError("no Python interpreter to run a helper process")
+    root = str(Path(amrst.__file__).resolve().parents[1])
+    path = os.environ.get("PYTHONPATH")
+    env = {
+        **os.environ,
+        "PYTHONPATH": root if not path else os.pathsep.join([root, path]),
+    }
+    return [sys.executable, "-m", module], env
+
+
+class EngineProcess:
+    """The engine process; one call at a time (callers queue on a lock)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._writer: _Writer | None = None
+        self._cache = wire.ArrayCache(weak=True, first_token=0)
+
+    @property
+    def pid(self) -> int | None:
+        """The process id of the running engine process, if one runs."""
+        proc = self._proc
+        return proc.pid if proc is not None and proc.poll() is None else None
+
+    def start(self) -> None:
+        """Start the process now (its imports take a second, in the process);
+        never raises: without it, steps run in the caller's thread."""
+        try:
+            with self._lock:
+                self._ensure()
+        except Exception as exc:
+            log.info("No engine process (%s); steps run in the app", exc)
+
+    def _ensure(self) -> subprocess.Popen[bytes]:
+        if self._proc is None or self._proc.poll() is not None:
+            self._stop()  # one that died: its pipes and arrays
+            if os.name == "nt":  # select() and non-blocking writes need POSIX pipes
+                raise RuntimeError("the engine process needs POSIX pipes")
+            command, env = helper_command("amrst_gui.engine_host")
+            self._proc = subprocess.Popen(
+                command,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                bufsize=0,  # reads: select() must see every byte not yet read
+                env=env,
+            )
+            assert self._proc.stdin is not None
+            self._writer = _Writer(self._proc.stdin.fileno())
+        return self._proc
+
+    def stop(self) -> None:
+        """End the process without waiting for what it computes."""
+        self._stop()
+
+    def _stop(self) -> None:
+        proc, self._proc, self._writer = self._proc, None, None
+        self._cache.clear()  # a new process holds none of the arrays
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        for pipe in (proc.stdin, proc.stdout):
+            if pipe is not None:
+                with contextlib.suppress(OSError):
+                    pipe.close()
+
+    def call(
+        self, fn: Callable[..., Any], *args: Any, reporter: Reporter, **kwargs: Any
+    ) -> Any:
+        """``fn(*args, reporter, **kwargs)`` in the engine process; raises what it
+        raised, and ``Cancelled`` within ``POLL_S`` of a Cancel."""
+        with self._lock:
+            reporter.check_cancelled()
+            try:
+                proc = self._ensure()
+            except Exception as exc:
+                log.info("No engine process (%s); the step runs in the app", exc)
+                return fn(*args, reporter, **kwargs)
+            # Held until the answer is read: the process may name any of them.
+            held = self._cache.alive()
+            writer = self._writer
+            assert writer is not None  # made with the process
+            try:
+                writer.reporter = reporter
+                wire.write_message(
+                    writer, ("call", fn, args, kwargs, list(held)), self._cache
+                )
+                return self._answer(proc, reporter)
+            except Cancelled:
+                self._stop()  # it would compute on; the next call starts afresh
+                raise
+            except (OSError, EOFError) as exc:  # the process is gone
+                code = proc.poll()
+                self._stop()
+                reporter.check_cancelled()
+                raise AmrstError(
+                    f"The engine process stopped (exit code {code}: {exc}); "
+                    "the step was not finished. Run it again; if it stops again, "
+                    "free memory or thin the scans (Clip / Thin)."
+                ) from exc
+            finally:
+                del held
+
+    def _answer(self, proc: subprocess.Popen[bytes], reporter: Reporter) -> Any:
+        assert proc.stdout is not None
+        while True:
+            while not select.select([proc.stdout], [], [], POLL_S)[0]:
+                reporter.check_cancelled()
+            message = wire.read_message(proc.stdout, self._cache)
+            kind = message[0]
+            if kind == "progress":
+                reporter.progress(message[1], message[2])
+                reporter.check_cancelled()
+            elif kind == "result":
+                return message[1]
+            else:
+                exc, text = message[1], message[2]
+                with contextlib.suppress(AttributeError, TypeError):
+                    exc.__traceback_text__ = text
+                raise exc
+
+
+class _Writer:
+    """Writes to the engine's stdin that look at Cancel while the pipe is full
+    (the process reads only once its imports are done, a second or two, and a
+    10M-point scan is 240 MB)."""
+
+    def __init__(self, fd: int) -> None:
+        self._fd = fd
+        os.set_blocking(fd, False)
+        with contextlib.suppress(OSError, AttributeError):  # Linux: fewer turns
+            import fcntl
+
+            fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        self.reporter: Reporter | None = None
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        done = 0
+        while done < len(view):
+            if not select.select([], [self._fd], [], POLL_S)[1]:
+                if self.reporter is not None:
+                    self.reporter.check_cancelled()
+                continue
+            try:
+                done += os.write(self._fd, view[done:])
+            except BlockingIOError:
+                continue
+        return done
+
+    def flush(self) -> None:
+        """Nothing: every write went to the pipe."""
+
+
+ENGINE = EngineProcess()
+atexit.register(ENGINE.stop)
+
+
+def in_engine(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` (called as ``fn(*args, reporter, **kwargs)``) run in the engine
+    process: the form ``workers.run_stage`` calls."""
+
+    def run(*args: Any, **kwargs: Any) -> Any:
+        *inputs, reporter = args
+        start = time.perf_counter()
+        out = ENGINE.call(fn, *inputs, reporter=reporter, **kwargs)
+        log.debug("%s in the engine process: %.2f s", fn, time.perf_counter() - start)
+        return out
+
+    return run

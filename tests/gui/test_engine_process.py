@@ -1,0 +1,314 @@
+"""The steps' engine process (issue 15): the same results as in the app's own
+threads, big arrays sent once, errors and Cancel as before, and a GUI thread that
+keeps running while a step computes on millions of points.
+
+No Qt here: the engine process and its messages are plain Python.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amrst.errors import Cancelled
+from amrst.progress import NULL_REPORTER, EventReporter
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+
+def _sample_clouds(paths) -> dict:
+    from amrst import io as cloud_io
+
+    return {"target": cloud_io.read(paths[0]), "source": cloud_io.read(paths[1])}
+
+
+def _round_trip(obj, send, receive):
+    from amrst_gui import wire
+
+    pipe = io.BytesIO()
+    wire.write_message(pipe, obj, send)
+    size = pipe.tell()
+    pipe.seek(0)
+    return wire.read_message(pipe, receive), size
+
+
+def test_a_big_array_crosses_once_and_comes_back_as_itself():
+    from amrst.types import Cloud
+    from amrst_gui import wire
+
+    app = wire.ArrayCache(weak=True, first_token=0)
+    engine = wire.ArrayCache(weak=False, first_token=1)
+    xyz = np.random.default_rng(0).random((200_000, 3))
+    cloud = Cloud(xyz, attributes={"intensity": np.arange(200_000.0)})
+    there, size = _round_trip({"target": cloud}, app, engine)
+    got = there["target"]
+    assert size > xyz.nbytes
+    np.testing.assert_array_equal(got.xyz, cloud.xyz)
+    np.testing.assert_array_equal(got.attributes["intensity"], np.arange(200_000.0))
+    assert not got.xyz.flags.writeable  # a Cloud's arrays stay read-only
+    # Sent again, the cloud names its arrays: a few hundred bytes.
+    again, size = _round_trip({"target": cloud}, app, engine)
+    assert size < 2_000
+    assert again["target"].xyz is got.xyz
+    # What the engine sends back of them is the app's own array, not a copy; a
+    # new array of the engine's crosses once too.
+    made = np.ones(300_000)
+    back, size = _round_trip((got.xyz, made), engine, app)
+    assert back[0] is cloud.xyz
+    assert size > made.nbytes
+    assert _round_trip(made, engine, app)[1] < 2_000
+    # Small arrays travel inside the message every time.
+    small = np.arange(10.0)
+    assert _round_trip(small, app, engine)[0] is not small
+
+
+def test_the_app_keeps_arrays_weakly_and_lists_what_it_still_holds():
+    from amrst_gui import wire
+
+    app = wire.ArrayCache(weak=True, first_token=0)
+    engine = wire.ArrayCache(weak=False, first_token=1)
+    a, b = np.zeros(200_000), np.ones(200_000)
+    _round_trip((a, b), app, engine)
+    assert len(app.alive()) == 2
+    del a
+    held = app.alive()
+    assert [arr is b for arr in held.values()] == [True]
+    engine.keep_only(set(held))
+    assert len(engine.alive()) == 1
+
+
+def test_a_step_in_the_engine_process_gives_the_same_analyses(sample_pair):
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    clouds = _sample_clouds(sample_pair)
+    params = RegistrationParams()
+    try:
+        here, _ = jobs.separate_pair(clouds, params, NULL_REPORTER)
+        here, _ = jobs.skeletonise_pair(here, params, NULL_REPORTER)
+        progress: list = []
+        reporter = EventReporter(lambda f, m: progress.append(m))
+        there, _ = engine.call(jobs.separate_pair, clouds, params, reporter=reporter)
+        assert engine.pid not in (None, os.getpid())
+        assert progress, "the engine process reports its progress"
+        there, _ = engine.call(jobs.skeletonise_pair, there, params, reporter=reporter)
+    finally:
+        engine.stop()
+    for role in ("target", "source"):
+        a, b = here[role], there[role]
+        np.testing.assert_array_equal(a.is_wood, b.is_wood)
+        np.testing.assert_array_equal(a.keypoints.xyz, b.keypoints.xyz)
+        np.testing.assert_array_equal(b.cloud.xyz, clouds[role].xyz)
+
+
+def test_an_engine_error_arrives_as_it_would_in_the_app(tmp_path):
+    from amrst.errors import AmrstError
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    bad = tmp_path / "scan.las"
+    bad.write_bytes(b"not a las file at all")
+    engine = EngineProcess()
+    try:
+        with pytest.raises(AmrstError) as there:
+            engine.call(jobs.load_pair, {"target": bad}, reporter=NULL_REPORTER)
+    finally:
+        engine.stop()
+    with pytest.raises(AmrstError) as here:
+        jobs.load_pair({"target": bad}, NULL_REPORTER)
+    assert str(there.value) == str(here.value)
+    assert type(there.value) is type(here.value)
+    assert "load_pair" in there.value.__traceback_text__  # the engine's traceback
+
+
+BIG = 2_000_000
+
+
+@pytest.fixture(scope="module")
+def big_clouds():
+    from dense_clouds import dense_cloud
+
+    return {"target": dense_cloud(BIG), "source": dense_cloud(BIG, "source")}
+
+
+def _longest_gap_while(fn) -> tuple[float, object]:
+    """Run ``fn`` in a thread; the longest gap between this thread's 1 ms ticks
+    (the GUI thread's view of it: every tick needs the GIL)."""
+    done = threading.Event()
+    out: list = []
+
+    def work() -> None:
+        try:
+            out.append(fn())
+        except BaseException as exc:
+            out.append(exc)
+        done.set()
+
+    worker = threading.Thread(target=work)
+    last = time.perf_counter()
+    worker.start()
+    longest = 0.0
+    while not done.is_set():
+        time.sleep(0.001)
+        now = time.perf_counter()
+        longest, last = max(longest, now - last), now
+    worker.join()
+    return longest, out[0]
+
+
+@pytest.mark.slow
+def test_a_step_on_millions_of_points_leaves_the_gui_thread_free(big_clouds):
+    """Separating wood from leaves on 2M + 2M points in a worker thread of the app
+    held the GIL 0.13-0.17 s at a time (the voxel grid of every point); in the
+    engine process the app's threads only wait on a pipe."""
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    engine.start()
+    try:
+        longest, out = _longest_gap_while(
+            lambda: engine.call(
+                jobs.separate_pair,
+                big_clouds,
+                RegistrationParams(),
+                reporter=NULL_REPORTER,
+            )
+        )
+    finally:
+        engine.stop()
+    assert not isinstance(out, BaseException), out
+    analyses, _seconds = out
+    assert analyses["target"].is_wood.any()
+    assert longest < 0.1, f"the calling process stalled {longest:.2f} s"
+
+
+@pytest.mark.slow
+def test_cancel_kills_the_step_at_once_and_the_next_call_starts_afresh(big_clouds):
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    reporter = EventReporter()
+    marks: dict[str, float] = {}
+
+    def cancel_soon() -> None:
+        time.sleep(0.5)  # the clouds are on their way or being separated
+        marks["cancel"] = time.perf_counter()
+        reporter.cancel()
+
+    threading.Thread(target=cancel_soon).start()
+    try:
+        with pytest.raises(Cancelled):
+            engine.call(
+                jobs.separate_pair, big_clouds, RegistrationParams(), reporter=reporter
+            )
+        stopped = time.perf_counter() - marks["cancel"]
+        assert engine.pid is None  # killed, nothing of it left running
+        assert stopped < 0.5, f"Cancel took {stopped:.2f} s"
+        small = {k: c.select(np.arange(0, len(c), 200)) for k, c in big_clouds.items()}
+        analyses, _ = engine.call(
+            jobs.separate_pair, small, RegistrationParams(), reporter=NULL_REPORTER
+        )
+        assert len(analyses["target"].is_wood) <= len(small["target"])
+    finally:
+        engine.stop()
+
+
+def test_the_app_still_runs_steps_where_no_process_can_start(monkeypatch, sample_pair):
+    """A frozen app has no interpreter for the engine process: the step runs in
+    the calling thread, as before."""
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    monkeypatch.setattr(sys, "frozen", True, raising=False)
+    engine = EngineProcess()
+    clouds = _sample_clouds(sample_pair)
+    analyses, _ = engine.call(
+        jobs.separate_pair, clouds, RegistrationParams(), reporter=NULL_REPORTER
+    )
+    assert engine.pid is None
+    assert analyses["target"].is_wood.any()
+
+
+def test_what_cannot_be_sent_is_refused_and_the_next_call_still_works(sample_pair):
+    """A call whose arguments do not pickle (a lambda) raises in the app and
+    sends nothing; an array it gave a token to is sent whole the next time."""
+    import pickle
+
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs, wire
+    from amrst_gui.engine_process import EngineProcess
+
+    app = wire.ArrayCache(weak=True, first_token=0)
+    big = np.zeros((100_000, 3))
+    refused = (pickle.PicklingError, AttributeError, TypeError)
+    with pytest.raises(refused):
+        wire.write_message(io.BytesIO(), {"a": big, "f": lambda: 0}, app)
+    assert app.token_of(big) is None
+    engine = EngineProcess()
+    try:
+        with pytest.raises(refused):
+            engine.call(
+                jobs.separate_pair, {"f": lambda: 0}, None, reporter=NULL_REPORTER
+            )
+        out, _ = engine.call(
+            jobs.separate_pair,
+            _sample_clouds(sample_pair),
+            RegistrationParams(),
+            reporter=NULL_REPORTER,
+        )
+        assert out["target"].is_wood.any()
+    finally:
+        engine.stop()
+
+
+@pytest.mark.slow
+def test_an_engine_that_dies_mid_step_is_reported_and_replaced(big_clouds):
+    """Out of memory, the system kills the biggest process: the step fails with a
+    message that says what to do, and the next step starts a fresh engine."""
+    import signal
+
+    from amrst.errors import AmrstError
+    from amrst.params import RegistrationParams
+    from amrst_gui import jobs
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    engine.start()
+    first = engine.pid
+
+    def kill_soon() -> None:
+        time.sleep(1.0)
+        if engine.pid is not None:
+            os.kill(engine.pid, signal.SIGKILL)
+
+    threading.Thread(target=kill_soon).start()
+    try:
+        with pytest.raises(AmrstError, match="engine process stopped"):
+            engine.call(
+                jobs.separate_pair,
+                big_clouds,
+                RegistrationParams(),
+                reporter=NULL_REPORTER,
+            )
+        small = {k: c.select(np.arange(0, len(c), 200)) for k, c in big_clouds.items()}
+        analyses, _ = engine.call(
+            jobs.separate_pair, small, RegistrationParams(), reporter=NULL_REPORTER
+        )
+        assert engine.pid not in (None, first)
+        assert analyses["source"].is_wood.any()
+    finally:
+        engine.stop()
