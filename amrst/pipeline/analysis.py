@@ -94,23 +94,27 @@ def prepare_scan(
     reporter: Reporter = NULL_REPORTER,
     stem_xy: np.ndarray | None = None,
     expect_ground: float | None = None,
+    pre: PreprocessResult | None = None,
 ) -> ScanAnalysis:
     """Preprocess one scan, label its scene, and separate wood from leaves.
 
     ``stem_xy`` (local frame) picks the tree of interest; ``expect_ground`` is the
     other scan's ground tilt (deg) when it has a ground (see ``understand_scene``).
+    ``pre``: this scan's preprocessing made before with the same parameters (an
+    earlier analysis's ``scene_pre``), used instead of a new one.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    try:
-        pre = preprocess_points(
-            cloud.xyz,
-            params.preprocess,
-            SubReporter(reporter, 0, 0.3, "preprocess"),
-            share_k=_shared_k(params),
-        )
-    except InvalidInput as exc:  # say which scan
-        raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
+    if pre is None:
+        try:
+            pre = preprocess_points(
+                cloud.xyz,
+                params.preprocess,
+                SubReporter(reporter, 0, 0.3, "preprocess"),
+                share_k=_shared_k(params),
+            )
+        except InvalidInput as exc:  # say which scan
+            raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
     t0 = _timed(timings, "preprocess", t0)
     # Ground, neighbours and shrubs (field scans); a clean tree stays as it is.
     scene = understand_scene(
@@ -168,14 +172,15 @@ def analyse_scan(
     reporter: Reporter = NULL_REPORTER,
     stem_xy: np.ndarray | None = None,
     expect_ground: float | None = None,
+    pre: PreprocessResult | None = None,
 ) -> ScanAnalysis:
     """Run every per-scan step: :func:`prepare_scan`, then :func:`skeletonise_scan`.
 
     The order is the step table's (``amrst.pipeline.steps.STEPS``, its ``per_scan``
-    entries); a test keeps the two in agreement.
+    entries); a test keeps the two in agreement. ``pre`` as in :func:`prepare_scan`.
     """
     an = prepare_scan(
-        cloud, params, SubReporter(reporter, 0.0, 0.7), stem_xy, expect_ground
+        cloud, params, SubReporter(reporter, 0.0, 0.7), stem_xy, expect_ground, pre
     )
     return skeletonise_scan(an, params, SubReporter(reporter, 0.7, 1.0))
 

@@ -64,11 +64,15 @@ def _expect_ground(
     t_scene, s_scene = tgt.scene, src.scene
     if t_scene is None or s_scene is None or t_scene.has_ground == s_scene.has_ground:
         return tgt, src
+    # The preprocessing does not depend on the ground expected: it is reused.
     if t_scene.has_ground:
         return tgt, analyse_scan(
-            src.cloud, params, rep, src_stem, t_scene.ground_tilt_deg
+            src.cloud, params, rep, src_stem, t_scene.ground_tilt_deg, src.scene_pre
         )
-    return analyse_scan(tgt.cloud, params, rep, tgt_stem, s_scene.ground_tilt_deg), src
+    again = analyse_scan(
+        tgt.cloud, params, rep, tgt_stem, s_scene.ground_tilt_deg, tgt.scene_pre
+    )
+    return again, src
 
 
 def register(

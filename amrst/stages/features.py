@@ -97,6 +97,10 @@ def shape_features(
     return out
 
 
+# Neighbourhoods per pass of _covariances (4096 x 30 neighbours: about 8 MB of work).
+COV_CHUNK = 4096
+
+
 def _covariances(
     xyz: np.ndarray, idx: np.ndarray, ks: tuple[int, ...]
 ) -> list[tuple[np.ndarray, ...]]:
@@ -110,7 +114,20 @@ def _covariances(
     whole (M,) rows in the order numpy's pairwise sum adds a row of (M, K), so the
     values are those of ``p[:, done:k].sum(axis=1)`` (bit for bit on numpy 2.x) at a
     third of the cost (numpy's per-row reduction of 10-30 numbers is slow).
+
+    Neighbourhoods are taken ``COV_CHUNK`` at a time (every column is computed on its
+    own, so the values do not change): the (9, K, M) working set of a whole scan
+    left the caches; chunks made it 1.2x faster on the shared scans.
     """
+    if len(idx) > COV_CHUNK:
+        parts = [
+            _covariances(xyz, idx[i : i + COV_CHUNK], ks)
+            for i in range(0, len(idx), COV_CHUNK)
+        ]
+        return [
+            tuple(np.concatenate([p[j][c] for p in parts]) for c in range(6))
+            for j in range(len(ks))
+        ]
     ks = tuple(min(k, idx.shape[1]) for k in ks)  # tiny clouds: fewer neighbours
     kmax = max(ks)
     m = len(idx)
@@ -118,19 +135,22 @@ def _covariances(
     order = np.ascontiguousarray(np.asarray(idx)[:, :kmax].T)
     g = np.take(np.ascontiguousarray(xyz.T, dtype=np.float64), order, axis=1)
     g -= g[:, :1].copy()
-    prods = np.empty((9, kmax, m))
-    prods[:3] = g
+    # The six products; the offsets are summed where they lie (not copied beside
+    # the products first: the same sums, a fifth less time).
+    prods = np.empty((6, kmax, m))
     x, y, z = g
-    for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z)), 3):
+    for i, (u, v) in enumerate(((x, x), (y, y), (z, z), (x, y), (x, z), (y, z))):
         np.multiply(u, v, out=prods[i])
     out: list[tuple[np.ndarray, ...]] = []
-    sums: Any = 0.0  # then (9, M)
+    s_off: Any = 0.0  # then (3, M)
+    s_prod: Any = 0.0  # then (6, M)
     done = 0
     for k in sorted(set(ks)):
-        sums = sums + pairwise_rows(prods[:, done:k])
+        s_off = s_off + pairwise_rows(g[:, done:k])
+        s_prod = s_prod + pairwise_rows(prods[:, done:k])
         done = k
-        mx, my, mz = (v / k for v in sums[:3])
-        a, b, c, d, e, f = (v / k for v in sums[3:])
+        mx, my, mz = (v / k for v in s_off)
+        a, b, c, d, e, f = (v / k for v in s_prod)
         out.append(
             (
                 a - mx * mx,

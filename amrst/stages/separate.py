@@ -200,7 +200,7 @@ def separate_wood(
     # One neighbour query serves every feature scale and the vote.
     k_max = int(min(max(*params.scales_k, params.vote_neighbours), n))
     if neighbours is not None and len(neighbours) == n:
-        nbr = neighbours.knn(k_max, reps)[1]
+        nbr = neighbours.knn_idx(k_max, reps)
     else:
         nbr = knn(xyz, k_max, xyz[reps])[1]
     votes, methods = [], []
