@@ -29,6 +29,9 @@ class NudgeMixin:
         session: Any
         fit: manual.PairFit | None
         _score_cache: tuple | None
+        _score_stale: bool
+
+        def isVisible(self) -> bool: ...
 
     def _nudge_box(self) -> QGroupBox:
         box = QGroupBox("Nudge the source")
@@ -121,6 +124,13 @@ class NudgeMixin:
         self.use_nudge.setEnabled(T is not None)
         if T is None:
             self.score_label.setText("Nothing to nudge yet: pick pairs or match.")
+            return
+        # Hidden behind another dock tab: scored when shown. The score builds a
+        # KD-tree of the target on the GUI thread (10-60 ms) with every new
+        # match list, a stall during Run all that nobody looked at (issue 15).
+        self._score_stale = not self.isVisible()
+        if self._score_stale:
+            self.score_label.setText("Score of this pose: shown with this tab.")
             return
         self.score_label.setText(
             f"Score of this pose: {self.live_score(T):.0%} of sampled source points "

@@ -62,6 +62,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self._pending: np.ndarray | None = None  # a target point waiting for its pair
         self.fit: manual.PairFit | None = None
         self._score_cache: tuple | None = None
+        self._score_stale = False  # the nudge's score waits until it is shown
         body = QWidget()
         layout = QVBoxLayout(body)
         layout.setContentsMargins(4, 4, 4, 4)
@@ -79,6 +80,11 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self._show_pairs()
 
     # ------------------------------------------------------------- building
+
+    def showEvent(self, event) -> None:
+        super().showEvent(event)
+        if self._score_stale:
+            self._on_nudged()
     def _pairs_box(self) -> QGroupBox:
         box = QGroupBox("Point pairs")
         grid = QVBoxLayout(box)

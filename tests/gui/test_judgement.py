@@ -172,6 +172,8 @@ def test_nudge_moves_the_live_score(loaded_window, qtbot):
     win = loaded_window
     s = win.session
     panel = win.manual_panel
+    win.docks["manual"].raise_()  # the score is computed where it is seen
+    qtbot.waitUntil(panel.isVisible)
     typed = _truth_local(win)
     # Two levelled pairs from the truth: the base pose of the nudge.
     src = s.cloud("source").xyz[[0, len(s.cloud("source")) // 2]]
