@@ -154,7 +154,11 @@ class EngineProcess:
                 wire.write_message(writer, ("call", fn, args, kwargs), self._cache)
                 kind, payload = self._answer(proc, reporter, watch)
             except Cancelled:
-                self._stop()  # it would compute on; the next call starts afresh
+                self._stop()  # it would compute on
+                # A fresh process imports now, while the user decides what next
+                # (a second of imports less for the step that follows).
+                with contextlib.suppress(Exception):
+                    self._ensure()
                 raise
             except (OSError, EOFError) as exc:  # the process is gone
                 code = proc.poll()
