@@ -140,8 +140,13 @@ class NudgeMixin:
     def live_score(self, T: np.ndarray) -> float:
         """Tight share of the nudged pose, on the verification's sample."""
         s = self.session
-        key = (id(s.analysis("target")), id(s.cloud("target")), id(s.cloud("source")))
-        if self._score_cache is None or self._score_cache[0] != key:
+        # The objects themselves, compared by identity: an id() of an object
+        # no longer held can come back for a new one (a stale tree).
+        key = (s.analysis("target"), s.cloud("target"), s.cloud("source"))
+        cached = self._score_cache
+        if cached is None or any(
+            a is not b for a, b in zip(cached[0], key, strict=True)
+        ):
             from scipy.spatial import cKDTree
 
             from amrst.stages.coarse import verification_sample
@@ -151,8 +156,8 @@ class NudgeMixin:
                 for r in ("target", "source")
             )
             sample, _ = verification_sample(src, s.params.coarse)
-            self._score_cache = (key, cKDTree(tgt), sample)
-        _, tree, sample = self._score_cache
+            cached = self._score_cache = (key, cKDTree(tgt), sample)
+        _, tree, sample = cached
         return manual.tight_share(T, tree, sample, s.params.coarse.tight_dist_m)
 
     def use_nudged(self) -> None:
