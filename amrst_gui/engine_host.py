@@ -129,7 +129,27 @@ def main() -> None:
     from amrst_gui.warmup import import_worker_modules
 
     import_worker_modules()
+    _leave_a_core_to_the_window()
     serve(inp, out)
+
+
+def _leave_a_core_to_the_window() -> None:
+    """Use every core but one (``AMRST_ENGINE_THREADS`` to choose).
+
+    On 2 cores the engine's two scan threads and two-thread KD queries kept both
+    busy, and the GUI thread waited 25-45 ms for a core whenever a result arrived.
+    The two scans' threads gain little (their numpy steps and small_gicp's queries
+    hold the GIL: 1.07x over one after the other), and the results are the same
+    either way (``both_scans``).
+    """
+    from amrst import neighbours
+    from amrst.pipeline.analysis import SCAN_THREADS
+
+    spare = int(os.environ.get("AMRST_ENGINE_THREADS", "0") or 0)
+    if spare < 1:
+        spare = max(1, (os.cpu_count() or 1) - 1)
+    neighbours.set_threads(min(2, spare))
+    SCAN_THREADS.set(2 if spare >= 2 else 1)
 
 
 if __name__ == "__main__":
