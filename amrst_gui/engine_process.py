@@ -64,6 +64,19 @@ def helper_command(module: str) -> tuple[list[str], dict[str, str]]:
     return [sys.executable, "-m", module], env
 
 
+def end_process(proc: subprocess.Popen[bytes] | None) -> None:
+    """Kill a helper process (if it still runs), reap it and close its pipes."""
+    if proc is None:
+        return
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    for pipe in (proc.stdin, proc.stdout):
+        if pipe is not None:
+            with contextlib.suppress(OSError):
+                pipe.close()
+
+
 class EngineProcess:
     """The engine process; one call at a time (callers queue on a lock)."""
 
@@ -112,15 +125,7 @@ class EngineProcess:
     def _stop(self) -> None:
         proc, self._proc, self._writer = self._proc, None, None
         self._cache.clear()  # a new process holds none of the arrays
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-        for pipe in (proc.stdin, proc.stdout):
-            if pipe is not None:
-                with contextlib.suppress(OSError):
-                    pipe.close()
+        end_process(proc)
 
     def call(
         self,

@@ -22,7 +22,6 @@ as before.
 from __future__ import annotations
 
 import atexit
-import contextlib
 import json
 import logging
 import select
@@ -72,16 +71,10 @@ class Helper:
 
     def stop(self) -> None:
         """End the helper without waiting for what it computes."""
+        from amrst_gui.engine_process import end_process
+
         proc, self._proc = self._proc, None
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-        for pipe in (proc.stdin, proc.stdout):
-            if pipe is not None:
-                with contextlib.suppress(OSError):
-                    pipe.close()
+        end_process(proc)
 
     def median_spacing(self, xyz: np.ndarray, reporter: Reporter) -> float | None:
         """``amrst.io.describe.median_spacing(xyz)`` (N, 3), computed in the helper;

@@ -140,31 +140,6 @@ def big_clouds():
     return {"target": dense_cloud(BIG), "source": dense_cloud(BIG, "source")}
 
 
-def _longest_gap_while(fn) -> tuple[float, object]:
-    """Run ``fn`` in a thread; the longest gap between this thread's 1 ms ticks
-    (the GUI thread's view of it: every tick needs the GIL)."""
-    done = threading.Event()
-    out: list = []
-
-    def work() -> None:
-        try:
-            out.append(fn())
-        except BaseException as exc:
-            out.append(exc)
-        done.set()
-
-    worker = threading.Thread(target=work)
-    last = time.perf_counter()
-    worker.start()
-    longest = 0.0
-    while not done.is_set():
-        time.sleep(0.001)
-        now = time.perf_counter()
-        longest, last = max(longest, now - last), now
-    worker.join()
-    return longest, out[0]
-
-
 @pytest.mark.slow
 def test_a_step_on_millions_of_points_leaves_the_gui_thread_free(big_clouds):
     """Separating wood from leaves on 2M + 2M points in a worker thread of the app
@@ -173,11 +148,12 @@ def test_a_step_on_millions_of_points_leaves_the_gui_thread_free(big_clouds):
     from amrst.params import RegistrationParams
     from amrst_gui import jobs
     from amrst_gui.engine_process import EngineProcess
+    from tests.gui.test_step_stalls import longest_gap_while
 
     engine = EngineProcess()
     engine.start()
     try:
-        longest, out = _longest_gap_while(
+        longest, out = longest_gap_while(
             lambda: engine.call(
                 jobs.separate_pair,
                 big_clouds,

@@ -18,14 +18,20 @@ import time
 import numpy as np
 
 
-def _longest_gap_while(fn) -> tuple[float, object]:
-    """Run ``fn`` in a thread; the longest gap between this thread's 1 ms ticks."""
+def longest_gap_while(fn) -> tuple[float, object]:
+    """Run ``fn`` in a thread; the longest gap between this thread's 1 ms ticks
+    (the GUI thread's view of it: every tick needs the GIL), and what ``fn``
+    returned or raised."""
     done = threading.Event()
     out: list = []
 
     def work() -> None:
-        out.append(fn())
-        done.set()
+        try:
+            out.append(fn())
+        except BaseException as exc:  # returned, so a failure cannot hang the test
+            out.append(exc)
+        finally:
+            done.set()
 
     worker = threading.Thread(target=work)
     last = time.perf_counter()
@@ -59,7 +65,7 @@ def test_crown_lets_other_threads_run_and_keeps_its_figures():
     # around a negative corner, so the cells' offsets are exercised.
     xy = rng.normal(size=(400_000, 2)) * 1.5 + (-7.3, 12.1)
     _crown(xy[:1000])  # the first call imports scipy.spatial
-    longest, (area, width) = _longest_gap_while(lambda: _crown(xy))
+    longest, (area, width) = longest_gap_while(lambda: _crown(xy))
     ref_area, ref_width = _crown_of_old_cells(xy, _CROWN_GRID_M)
     assert abs(area - ref_area) <= 1e-9 * ref_area
     assert abs(width - ref_width) <= 1e-9 * ref_width
