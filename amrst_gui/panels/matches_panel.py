@@ -64,13 +64,20 @@ class CandidateModel(QAbstractTableModel):
         super().__init__(parent)
         self.session = session
         self.rows: tuple = ()
+        # Per row: its cells' texts and its status, made once per reload or review.
+        # Qt asks data() for every role of every cell at each repaint and column
+        # fit (5,800 calls in a Run all), and the status asks the session for the
+        # coarse choice: 40 ms of GUI-thread work when a match list arrived.
+        self._cells: dict[int, tuple[tuple[str, ...], str]] = {}
 
     def reload(self) -> None:
         self.beginResetModel()
         self.rows = self.session.matches
+        self._cells = {}
         self.endResetModel()
 
     def review_changed(self) -> None:
+        self._cells = {}
         if self.rows:
             self.dataChanged.emit(
                 self.index(0, 0), self.index(len(self.rows) - 1, len(COLUMNS) - 1)
@@ -102,13 +109,12 @@ class CandidateModel(QAbstractTableModel):
             return "◀ coarse"
         return ""
 
-    def data(self, index, role=Qt.ItemDataRole.DisplayRole):
-        if not index.isValid():
-            return None
-        cand = self.rows[index.row()]
-        col = index.column()
-        if role == Qt.ItemDataRole.DisplayRole:
-            return (
+    def _row(self, row: int) -> tuple[tuple[str, ...], str]:
+        hit = self._cells.get(row)
+        if hit is None:
+            cand = self.rows[row]
+            status = self.status(cand)
+            texts = (
                 str(cand.rank),
                 f"{cand.score:.0%}",
                 _ORIGIN.get(str(cand.origin), str(cand.origin)),
@@ -117,13 +123,23 @@ class CandidateModel(QAbstractTableModel):
                 _num(cand.edge_error, "{:.1%}"),
                 _num(cand.svd_residual_m * 100, "{:.1f} cm"),
                 _num(getattr(cand, "precise_score", float("nan")), "{:.1%}"),
-                self.status(cand),
-            )[col]
+                status,
+            )
+            hit = self._cells[row] = (texts, status)
+        return hit
+
+    def data(self, index, role=Qt.ItemDataRole.DisplayRole):
+        if not index.isValid():
+            return None
+        cand = self.rows[index.row()]
+        col = index.column()
+        if role == Qt.ItemDataRole.DisplayRole:
+            return self._row(index.row())[0][col]
         if role == Qt.ItemDataRole.ToolTipRole:
             return str(cand.explanation)
         if role == Qt.ItemDataRole.TextAlignmentRole and col < len(COLUMNS) - 1:
             return int(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-        status = self.status(cand)
+        status = self._row(index.row())[1]
         if role == Qt.ItemDataRole.ForegroundRole and status == "rejected":
             return QColor("#999999")
         if role == Qt.ItemDataRole.FontRole and status:
