@@ -237,3 +237,25 @@ def opened_reports(monkeypatch):
 
     monkeypatch.setattr(dialogs, "open_report", record)
     return opened
+
+
+@pytest.fixture(scope="session")
+def sample_clouds(sample_pair) -> dict:
+    """The bundled sample's two scans, read with amrst.io, by role."""
+    from amrst import io
+
+    return {"target": io.read(sample_pair[0]), "source": io.read(sample_pair[1])}
+
+
+@pytest.fixture(scope="module")
+def big_clouds() -> dict:
+    """2,000,000 points a scan: jittered copies of the sample, seeded, in memory."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from dense_clouds import dense_cloud
+
+    return {
+        "target": dense_cloud(2_000_000),
+        "source": dense_cloud(2_000_000, "source"),
+    }

@@ -20,14 +20,6 @@ import pytest
 from amrst.errors import Cancelled
 from amrst.progress import NULL_REPORTER, EventReporter
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-
-def _sample_clouds(paths) -> dict:
-    from amrst import io as cloud_io
-
-    return {"target": cloud_io.read(paths[0]), "source": cloud_io.read(paths[1])}
-
 
 def _round_trip(obj, send, receive):
     from amrst_gui import wire
@@ -84,13 +76,13 @@ def test_the_app_keeps_arrays_weakly_and_lists_what_it_still_holds():
     assert len(engine.alive()) == 1
 
 
-def test_a_step_in_the_engine_process_gives_the_same_analyses(sample_pair):
+def test_a_step_in_the_engine_process_gives_the_same_analyses(sample_clouds):
     from amrst.params import RegistrationParams
     from amrst_gui import jobs
     from amrst_gui.engine_process import EngineProcess
 
     engine = EngineProcess()
-    clouds = _sample_clouds(sample_pair)
+    clouds = dict(sample_clouds)
     params = RegistrationParams()
     try:
         here, _ = jobs.separate_pair(clouds, params, NULL_REPORTER)
@@ -108,36 +100,6 @@ def test_a_step_in_the_engine_process_gives_the_same_analyses(sample_pair):
         np.testing.assert_array_equal(a.is_wood, b.is_wood)
         np.testing.assert_array_equal(a.keypoints.xyz, b.keypoints.xyz)
         np.testing.assert_array_equal(b.cloud.xyz, clouds[role].xyz)
-
-
-def test_an_engine_error_arrives_as_it_would_in_the_app(tmp_path):
-    from amrst.errors import AmrstError
-    from amrst_gui import jobs
-    from amrst_gui.engine_process import EngineProcess
-
-    bad = tmp_path / "scan.las"
-    bad.write_bytes(b"not a las file at all")
-    engine = EngineProcess()
-    try:
-        with pytest.raises(AmrstError) as there:
-            engine.call(jobs.load_pair, {"target": bad}, reporter=NULL_REPORTER)
-    finally:
-        engine.stop()
-    with pytest.raises(AmrstError) as here:
-        jobs.load_pair({"target": bad}, NULL_REPORTER)
-    assert str(there.value) == str(here.value)
-    assert type(there.value) is type(here.value)
-    assert "load_pair" in there.value.__traceback_text__  # the engine's traceback
-
-
-BIG = 2_000_000
-
-
-@pytest.fixture(scope="module")
-def big_clouds():
-    from dense_clouds import dense_cloud
-
-    return {"target": dense_cloud(BIG), "source": dense_cloud(BIG, "source")}
 
 
 @pytest.mark.slow
@@ -204,7 +166,9 @@ def test_cancel_kills_the_step_at_once_and_the_next_call_starts_afresh(big_cloud
         engine.stop()
 
 
-def test_the_app_still_runs_steps_where_no_process_can_start(monkeypatch, sample_pair):
+def test_the_app_still_runs_steps_where_no_process_can_start(
+    monkeypatch, sample_clouds
+):
     """A frozen app has no interpreter for the engine process: the step runs in
     the calling thread, as before."""
     from amrst.params import RegistrationParams
@@ -213,7 +177,7 @@ def test_the_app_still_runs_steps_where_no_process_can_start(monkeypatch, sample
 
     monkeypatch.setattr(sys, "frozen", True, raising=False)
     engine = EngineProcess()
-    clouds = _sample_clouds(sample_pair)
+    clouds = dict(sample_clouds)
     analyses, _ = engine.call(
         jobs.separate_pair, clouds, RegistrationParams(), reporter=NULL_REPORTER
     )
@@ -221,124 +185,7 @@ def test_the_app_still_runs_steps_where_no_process_can_start(monkeypatch, sample
     assert analyses["target"].is_wood.any()
 
 
-def test_what_cannot_be_sent_is_refused_and_the_next_call_still_works(sample_pair):
-    """A call whose arguments do not pickle (a lambda) raises in the app and
-    sends nothing; an array it gave a token to is sent whole the next time."""
-    import pickle
-
-    from amrst.params import RegistrationParams
-    from amrst_gui import jobs, wire
-    from amrst_gui.engine_process import EngineProcess
-
-    app = wire.ArrayCache(weak=True, first_token=0)
-    big = np.zeros((100_000, 3))
-    refused = (pickle.PicklingError, AttributeError, TypeError)
-    with pytest.raises(refused):
-        wire.write_message(io.BytesIO(), {"a": big, "f": lambda: 0}, app)
-    assert app.token_of(big) is None
-    engine = EngineProcess()
-    try:
-        with pytest.raises(refused):
-            engine.call(
-                jobs.separate_pair, {"f": lambda: 0}, None, reporter=NULL_REPORTER
-            )
-        out, _ = engine.call(
-            jobs.separate_pair,
-            _sample_clouds(sample_pair),
-            RegistrationParams(),
-            reporter=NULL_REPORTER,
-        )
-        assert out["target"].is_wood.any()
-    finally:
-        engine.stop()
-
-
-@pytest.mark.slow
-def test_an_engine_that_dies_mid_step_is_reported_and_replaced(big_clouds):
-    """Out of memory, the system kills the biggest process: the step fails with a
-    message that says what to do, and the next step starts a fresh engine."""
-    import signal
-
-    from amrst.errors import AmrstError
-    from amrst.params import RegistrationParams
-    from amrst_gui import jobs
-    from amrst_gui.engine_process import EngineProcess
-
-    engine = EngineProcess()
-    engine.start()
-    first = engine.pid
-
-    def kill_soon() -> None:
-        time.sleep(1.0)
-        if engine.pid is not None:
-            os.kill(engine.pid, signal.SIGKILL)
-
-    threading.Thread(target=kill_soon).start()
-    try:
-        with pytest.raises(AmrstError, match="engine process stopped"):
-            engine.call(
-                jobs.separate_pair,
-                big_clouds,
-                RegistrationParams(),
-                reporter=NULL_REPORTER,
-            )
-        small = {k: c.select(np.arange(0, len(c), 200)) for k, c in big_clouds.items()}
-        analyses, _ = engine.call(
-            jobs.separate_pair, small, RegistrationParams(), reporter=NULL_REPORTER
-        )
-        assert engine.pid not in (None, first)
-        assert analyses["source"].is_wood.any()
-    finally:
-        engine.stop()
-
-
-def test_a_call_the_engine_cannot_read_restarts_it_and_the_arrays_cross_again(
-    sample_pair,
-):
-    """The engine cannot import a function of this test module: it says so and
-    ends; the app starts a fresh engine, which gets every array whole."""
-    from amrst.params import RegistrationParams
-    from amrst_gui import jobs
-    from amrst_gui.engine_process import EngineProcess
-
-    engine = EngineProcess()
-    clouds = _sample_clouds(sample_pair)
-    big = {"target": clouds["target"], "extra": np.zeros((200_000, 3))}
-    try:
-        with pytest.raises(Exception, match="test_engine_process"):
-            engine.call(_not_importable_there, big, reporter=NULL_REPORTER)
-        assert engine.pid is None  # ended with the message it could not read
-        out, _ = engine.call(
-            jobs.separate_pair, clouds, RegistrationParams(), reporter=NULL_REPORTER
-        )
-        assert out["target"].is_wood.any()
-    finally:
-        engine.stop()
-
-
-def _not_importable_there(items, reporter):
-    return len(items)
-
-
-def test_a_jobs_own_os_error_arrives_as_itself_and_the_engine_lives_on():
-    """An OSError of the job (a folder gone while exporting) is the job's error,
-    not a dead engine."""
-    from amrst_gui.engine_process import EngineProcess
-
-    engine = EngineProcess()
-    try:
-        with pytest.raises(FileNotFoundError):
-            engine.call(np.load, "/nonexistent/amrst/x.npy", reporter=NULL_REPORTER)
-        pid = engine.pid
-        assert pid is not None
-        with pytest.raises(FileNotFoundError):
-            engine.call(np.load, "/nonexistent/amrst/y.npy", reporter=NULL_REPORTER)
-        assert engine.pid == pid
-    finally:
-        engine.stop()
-
-
-def test_the_engines_log_reaches_the_apps_loggers(sample_pair, caplog):
+def test_the_engines_log_reaches_the_apps_loggers(sample_clouds, caplog):
     """The Log panel listens to the ``amrst`` loggers of the app's process: the
     engine's records are sent back and logged there."""
     import dataclasses
@@ -357,7 +204,7 @@ def test_the_engines_log_reaches_the_apps_loggers(sample_pair, caplog):
         with caplog.at_level(logging.INFO, logger="amrst"):
             engine.call(
                 jobs.separate_pair,
-                _sample_clouds(sample_pair),
+                sample_clouds,
                 params,
                 reporter=NULL_REPORTER,
             )
@@ -367,35 +214,6 @@ def test_the_engines_log_reaches_the_apps_loggers(sample_pair, caplog):
     assert len(thinned) == 2  # one per scan
     assert thinned[0].levelno == logging.WARNING
     assert thinned[0].name.startswith("amrst.")
-
-
-def test_a_call_that_may_not_stop_runs_to_its_end_after_cancel(sample_pair):
-    """Export writes files: Cancel (or closing the window) lets it finish."""
-    from amrst.params import RegistrationParams
-    from amrst_gui import jobs
-    from amrst_gui.engine_process import EngineProcess
-
-    reporter = EventReporter()
-    reporter.cancel()
-    engine = EngineProcess()
-    try:
-        out, _ = engine.call(
-            jobs.separate_pair,
-            _sample_clouds(sample_pair),
-            RegistrationParams(),
-            reporter=reporter,
-            stoppable=False,
-        )
-        assert out["target"].is_wood.any()
-        with pytest.raises(Cancelled):
-            engine.call(
-                jobs.separate_pair,
-                _sample_clouds(sample_pair),
-                RegistrationParams(),
-                reporter=reporter,
-            )
-    finally:
-        engine.stop()
 
 
 def _engine_rss_mb(pid: int) -> float:
