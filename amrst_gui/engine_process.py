@@ -103,7 +103,7 @@ class EngineProcess:
 
     def _ensure(self) -> subprocess.Popen[bytes]:
         if self._proc is None or self._proc.poll() is not None:
-            self._stop()  # one that died: its pipes and arrays
+            self.stop()  # one that died: its pipes and arrays
             if os.name == "nt":  # select() and non-blocking writes need POSIX pipes
                 raise RuntimeError("the engine process needs POSIX pipes")
             command, env = helper_command("amrst_gui.engine_host")
@@ -120,9 +120,6 @@ class EngineProcess:
 
     def stop(self) -> None:
         """End the process without waiting for what it computes."""
-        self._stop()
-
-    def _stop(self) -> None:
         proc, self._proc, self._writer = self._proc, None, None
         self._cache.clear()  # a new process holds none of the arrays
         end_process(proc)
@@ -159,7 +156,7 @@ class EngineProcess:
                 wire.write_message(writer, ("call", fn, args, kwargs), self._cache)
                 kind, payload = self._answer(proc, reporter, watch)
             except Cancelled:
-                self._stop()  # it would compute on
+                self.stop()  # it would compute on
                 # A fresh process imports now, while the user decides what next
                 # (a second of imports less for the step that follows).
                 with contextlib.suppress(Exception):
@@ -167,7 +164,7 @@ class EngineProcess:
                 raise
             except (OSError, EOFError) as exc:  # the process is gone
                 code = proc.poll()
-                self._stop()
+                self.stop()
                 watch.check_cancelled()
                 raise EngineStopped(
                     f"The engine process stopped (exit code {code}: {exc}); the "
@@ -180,7 +177,7 @@ class EngineProcess:
             if kind == "result":
                 return payload
             if kind == "fatal":  # it could not read the call: start afresh
-                self._stop()
+                self.stop()
             error, text = payload
             with contextlib.suppress(AttributeError, TypeError):
                 error.__traceback_text__ = text
@@ -203,7 +200,7 @@ class EngineProcess:
                 self._writer, ("keep", list(self._cache.alive())), self._cache
             )
         except OSError:
-            self._stop()
+            self.stop()
         finally:
             self._lock.release()
 

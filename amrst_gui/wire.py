@@ -110,9 +110,6 @@ class ArrayCache:
             self._by_token.clear()
             self._by_id.clear()
 
-    def __len__(self) -> int:
-        return len(self.alive())
-
     def _get(self, token: int) -> np.ndarray | None:
         ref = self._by_token.get(token)
         if ref is None:
