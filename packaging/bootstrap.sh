@@ -58,9 +58,10 @@ case "$mode" in
     .venv/bin/ruff check .
     .venv/bin/python -m mypy
     # Own process group under a timeout, so a crash never leaves Xvfb behind.
+    # SIGABRT at the timeout: pytest's faulthandler prints every thread's stack.
     export QT_QPA_PLATFORM=xcb
     set +e
-    timeout --kill-after=30 1500 setsid .venv/bin/python -m pytest "$@"
+    timeout -s ABRT --kill-after=30 1500 setsid .venv/bin/python -m pytest "$@"
     rc=$?
     set -e
     exit $rc
