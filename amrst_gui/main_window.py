@@ -21,6 +21,7 @@ from amrst.resources import resource_path
 from amrst_gui import dialogs, menus, warmup
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
+from amrst_gui.pacing import DRAW_GAP_MS
 from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
 from amrst_gui.panels.manual_panel import ManualPanel
@@ -264,7 +265,15 @@ class MainWindow(QMainWindow):
         )
 
     def _show_overlay(self, *_args) -> None:
-        self.tabs.setCurrentWidget(self.registration)
+        # On the next turn of the event loop: the overlay's first frame is a stall
+        # of its own (30-45 ms with software OpenGL), not added to the panels'
+        # work on the same result (issue 15).
+        QTimer.singleShot(DRAW_GAP_MS, self, self._show_overlay_now)
+
+    def _show_overlay_now(self) -> None:
+        # Not once the views are closing: showing a closed view would paint it.
+        if not (self._closed or self.registration.view.closed):
+            self.tabs.setCurrentWidget(self.registration)
 
     def _on_failed(self, message: str) -> None:
         # Status bar and log show it too; the box does not block the window.

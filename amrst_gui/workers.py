@@ -23,16 +23,16 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-import time
 import traceback
 import warnings
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
 from superqt.utils import WorkerBase, create_worker
 
 from amrst.errors import Cancelled
 from amrst.progress import EventReporter
+from amrst_gui.pacing import LANES, PACE
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -66,6 +66,8 @@ class StageJob(QObject):
         self._done = False
         self._discarded = False
         self._abandon_timer: QTimer | None = None
+        self._held: tuple[object] | None = None  # a result delivered a turn later
+        self._release_after_delivery = False
         # Set when the worker thread itself has returned or raised.
         self.worker_done = threading.Event()
         # Emitted from the worker thread, delivered on this object's (GUI) thread.
@@ -123,6 +125,7 @@ class StageJob(QObject):
         reporter, worker_done = self.reporter, self.worker_done
 
         def work() -> Any:
+            _background_priority()
             try:
                 if lane is None:
                     return fn(*args, reporter, **kwargs)
@@ -156,6 +159,25 @@ class StageJob(QObject):
 
     @Slot(object)
     def _relay_returned(self, result: object) -> None:
+        wait = PACE.wait_ms()
+        if wait and self._held is None and not self._done:
+            # A view's frame just ended: the result is applied on a later turn of
+            # the event loop, not in the same stall (after Match: a view's new
+            # scene, then the match list, 0.1-0.15 s in one; issue 15).
+            self._held = (result,)
+            QTimer.singleShot(wait, self, self._deliver_held)
+            return
+        self._deliver(result)
+
+    def _deliver_held(self) -> None:
+        if self._held is None:
+            return
+        (result,), self._held = self._held, None
+        self._deliver(result)
+        if self._release_after_delivery:
+            self._release()
+
+    def _deliver(self, result: object) -> None:
         if self.reporter.cancelled:
             # Asked to stop: the step's result is dropped even if it got to the end.
             self._finish(self.errored, Cancelled())
@@ -177,6 +199,9 @@ class StageJob(QObject):
         ``QTimerInfoList::activateTimers`` in a later test, about one run in three.
         So the timer stops here and the connections go, on the GUI thread.
         """
+        if self._held is not None:  # the result is still to be delivered
+            self._release_after_delivery = True
+            return
         self._stop_abandon_timer()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -258,80 +283,22 @@ def run_stage(
 
 _LIVE: set[StageJob] = set()
 
-
-# Background work that runs one job at a time, whatever the pool allows (issue 15).
-# Every Python thread computing at once competes with the GUI thread for the GIL,
-# and CPython hands the GIL over unfairly: with a step, three views' scenes and two
-# scans' descriptions running together the GUI thread waited 0.2-0.5 s for it (a
-# 10M-point load), and one busy worker doubles the time of a frame. The views'
-# scenes (and stem slices) take turns in the "display" lane; the Scans dock's
-# descriptions in the "describe" lane, which also waits while a scene is being
-# built or waits to be: the views come first, a tooltip can wait.
-class _Lanes:
-    """One running job per lane; "describe" yields to "display", and waits until
-    the views have not drawn for ``QUIET_S`` (``MAX_DEFER_S`` at most): a view
-    steps its level of detail up for a few frames after a new scene."""
-
-    AFTER: ClassVar[dict[str, tuple[str, ...]]] = {"describe": ("display",)}
-    QUIET: ClassVar[tuple[str, ...]] = ("describe",)
-    QUIET_S = 0.3
-    MAX_DEFER_S = 5.0
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._running: dict[str, int] = {}
-        self._waiting: dict[str, int] = {}
-        self._last_draw = -1e9
-
-    NAMES: ClassVar[tuple[str, ...]] = ("display", "describe")
-
-    def __contains__(self, lane: object) -> bool:
-        return lane in self.NAMES
-
-    def drew(self) -> None:
-        """A view drew a frame now, or has a scene to draw (GUI thread)."""
-        self._last_draw = time.perf_counter()
-
-    def idle(self, lane: str) -> bool:
-        """True if no job of ``lane`` runs or waits."""
-        return not (self._running.get(lane, 0) or self._waiting.get(lane, 0))
-
-    def _must_wait(self, lane: str, since: float) -> bool:
-        if self._running.get(lane, 0):
-            return True
-        if not all(self.idle(o) for o in self.AFTER.get(lane, ())):
-            return True
-        now = time.perf_counter()
-        # From its own start too: the views' scenes of the same new scan may not
-        # have reached their lane yet.
-        return (
-            lane in self.QUIET
-            and now - max(self._last_draw, since) < self.QUIET_S
-            and now - since < self.MAX_DEFER_S
-        )
-
-    @contextlib.contextmanager
-    def enter(self, lane: str, reporter: EventReporter):
-        with self._cond:
-            self._waiting[lane] = self._waiting.get(lane, 0) + 1
-            since = time.perf_counter()
-            try:
-                while self._must_wait(lane, since):
-                    self._cond.wait(0.05)
-                    reporter.check_cancelled()  # dropped while it waited
-            finally:
-                self._waiting[lane] -= 1
-            self._running[lane] = 1
-            self._cond.notify_all()
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._running[lane] = 0
-                self._cond.notify_all()
+# The niceness of the worker threads (Linux: per thread), as the engine and helper
+# processes have: with two cores, a view's scene built in a worker while the
+# engine computed left the GUI thread waiting 30-80 ms for a core when a step's
+# result arrived (issue 15). A thread cannot undo it without privileges, so the
+# pool's threads stay niced: all of them only ever run background work.
+WORKER_NICE = 5
 
 
-LANES = _Lanes()
+def _background_priority() -> None:
+    """Lower the calling worker thread's priority to ``WORKER_NICE`` (once)."""
+    import os
+
+    with contextlib.suppress(OSError, AttributeError):  # not Linux: no-op
+        tid = threading.get_native_id()
+        if os.getpriority(os.PRIO_PROCESS, tid) < WORKER_NICE:
+            os.setpriority(os.PRIO_PROCESS, tid, WORKER_NICE)
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three

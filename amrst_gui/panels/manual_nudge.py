@@ -30,6 +30,7 @@ class NudgeMixin:
         fit: manual.PairFit | None
         _score_cache: tuple | None
         _score_stale: bool
+        _stem_cache: tuple | None
 
         def isVisible(self) -> bool: ...
 
@@ -103,9 +104,13 @@ class NudgeMixin:
         cloud = self.session.cloud("source")
         if cloud is None or not len(cloud):
             return np.zeros(3)
-        xyz = cloud.xyz[:: max(1, len(cloud) // 20000)]
-        low = xyz[xyz[:, 2] < xyz[:, 2].min() + 1.0]
-        c = low.mean(axis=0)
+        # Once per source scan: 5 ms on a 2M-point scan, at every new match list.
+        cached = self._stem_cache
+        if cached is None or cached[0] is not cloud:
+            xyz = cloud.xyz[:: max(1, len(cloud) // 20000)]
+            low = xyz[xyz[:, 2] < xyz[:, 2].min() + 1.0]
+            cached = self._stem_cache = (cloud, low.mean(axis=0))
+        c = cached[1]
         return np.asarray(base[:3, :3] @ c + base[:3, 3])
 
     def _reset_nudge(self) -> None:

@@ -62,6 +62,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self._pending: np.ndarray | None = None  # a target point waiting for its pair
         self.fit: manual.PairFit | None = None
         self._score_cache: tuple | None = None
+        self._stem_cache: tuple | None = None  # (source cloud, its stem's centre)
         self._score_stale = False  # the nudge's score waits until it is shown
         body = QWidget()
         layout = QVBoxLayout(body)
@@ -288,7 +289,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
     # --------------------------------------------------------------- slots
     def _on_scans_changed(self, *_args) -> None:
         self.pairs, self._undo, self._pending = [], [], None
-        self._score_cache = None
+        self._score_cache = self._stem_cache = None
         self.set_picking(False)
         self._show_pairs()
 

@@ -18,6 +18,7 @@ import numpy as np
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
+from amrst_gui.pacing import DRAW_GAP_MS, PACE
 from amrst_gui.views import lod
 from amrst_gui.views.detail import PointLevels, with_shown
 from amrst_gui.views.interactor import Interactor
@@ -30,12 +31,7 @@ from amrst_gui.views.layers import (
 )
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
-from amrst_gui.views.scene_jobs import (
-    DRAW_GAP_MS,
-    PACE,
-    Prepared,
-    prepare,
-)
+from amrst_gui.views.scene_jobs import Prepared, prepare
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
@@ -141,8 +137,15 @@ class ScanView(QWidget):
             self.plotter.remove_actor(name, render=False)
             self._points.remove(name)
             del self._keys[name]
-        if self._rest_level is None or not self._points.names():
-            self._rest_level = None  # a first frame: start low (lod.pick)
+        # New point sets (a first scene, a moved or recoloured scan) start low
+        # (lod.pick) and step up a level per frame: their first frame uploads
+        # them too, and at the rest level it was most of the stall when a step's
+        # result arrived (the overlay after Accept coarse: 45-68 ms; issue 15).
+        if not self._points.names() or any(
+            isinstance(layer, PointsLayer) and self._keys.get(layer.name) != layer.key
+            for layer in scene.layers
+        ):
+            self._rest_level = None
         for layer in scene.layers:
             if self._keys.get(layer.name) == layer.key:
                 continue
@@ -256,8 +259,19 @@ class ScanView(QWidget):
 
     def showEvent(self, event) -> None:
         super().showEvent(event)
-        if self._fit_pending and not self._closed:
-            self.reset_camera()
+        if self._closed:
+            return
+        # A view coming into sight (its tab chosen; the overlay after Accept
+        # coarse) starts at a low level of detail and steps up a level per frame,
+        # like a new scene: its first frame at the rest level was 30-45 ms of a
+        # stall with software OpenGL (issue 15).
+        if self._rest_level is not None:
+            self._choose_level(True)
+            self._sync_caption()
+        if self._fit_pending:
+            # The paint that shows the widget renders: one frame, not two.
+            self.reset_camera(render=False)
+        self.plotter.update()
 
     def close_view(self) -> None:
         """Close the plotter (before the widget goes; pyvistaqt#846)."""

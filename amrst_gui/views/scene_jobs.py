@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from amrst_gui.pacing import DRAW_GAP_MS, PACE
 from amrst_gui.views.layers import LinesLayer, PointsLayer, Scene, SpheresLayer
 
 if TYPE_CHECKING:
@@ -193,37 +194,7 @@ def build_and_prepare(
     return scene, prepare(scene)
 
 
-# Milliseconds between two draws the app starts itself (the next view's scene, the
-# next level of detail): a zero-delay timer ran before timers already due, so two
-# renders could follow each other with nothing in between (input, repaints) and
-# the window stalled for their sum (issue 15).
-DRAW_GAP_MS = 15
 HOLD_S = 1.0  # the longest a finished scene waits for the other views' scenes
-
-
-class Pace:
-    """When the app's next draw of its own may start: ``DRAW_GAP_MS`` after the
-    last frame of any view ended (``mark``). Timers due together fired back to
-    back, so one view's next level of detail followed another view's new scene
-    with no turn of the event loop between them."""
-
-    def __init__(self) -> None:
-        self._end = -1.0
-
-    def mark(self) -> None:
-        """A frame ended now."""
-        from amrst_gui import workers
-
-        self._end = time.perf_counter()
-        workers.LANES.drew()
-
-    def wait_ms(self) -> int:
-        """Milliseconds until the next draw may start (0: now)."""
-        left = self._end + DRAW_GAP_MS / 1000 - time.perf_counter()
-        return max(0, int(left * 1000) + 1) if left > 0 else 0
-
-
-PACE = Pace()
 
 
 class _DrawQueue:

@@ -165,7 +165,7 @@ def test_three_pairs_picked_in_the_views_recover_the_pose_then_fine(
     assert not errors
     assert s.truth_errors()["fine"].gt_rmse_m < 0.002
     assert s.verdict.status == "registered"
-    assert win.tabs.currentIndex() == 1  # the overlay is shown after Fine
+    qtbot.waitUntil(lambda: win.tabs.currentIndex() == 1)  # the overlay, after Fine
 
 
 def test_nudge_moves_the_live_score(loaded_window, qtbot):

@@ -18,7 +18,8 @@ def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish
     # Accept coarse and Fine leave the overlay tab on screen.
     win.tabs.setCurrentIndex(0)
     finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
-    assert win.tabs.currentWidget() is win.registration
+    # On the next turn of the event loop (its first frame is a stall of its own).
+    qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
     # Distance colouring and its histogram; the stem slices with centre offsets.
     win.registration.colour.setCurrentIndex(1)
     assert win.registration.histogram.isVisible()
