@@ -117,3 +117,44 @@ def test_the_view_draws_the_meshes_the_worker_made(qtbot):
         assert {"skeleton", "keypoints"} <= set(view.actor_names())
     finally:
         view.close_view()
+
+
+def test_new_point_sets_and_a_view_coming_into_sight_start_low(qtbot, monkeypatch):
+    """Issue 15: a view's first frame of new point sets (the overlay after Accept
+    coarse) or after its tab is chosen was drawn at the rest level: 30-45 ms of
+    one stall with software OpenGL. Both start at ``lod.START_POINTS`` and step up
+    a level per frame."""
+    from amrst_gui.views import lod
+    from amrst_gui.views.layers import PointsLayer, Scene
+    from amrst_gui.views.scan_view import ScanView
+    from amrst_gui.views.scene_jobs import prepare
+
+    # Any frame fits: the view steps up whatever this machine's speed, and what
+    # is checked is where it starts.
+    monkeypatch.setattr(lod, "REST_BUDGET_S", 60.0)
+    rng = np.random.default_rng(1)
+
+    def scene(key: str) -> Scene:
+        xyz = rng.random((200_000, 3)).astype(np.float32)
+        rgb = np.zeros((200_000, 3), np.uint8)
+        return Scene(("f",), (PointsLayer("points", (key,), xyz, rgb),))
+
+    view = ScanView()
+    qtbot.addWidget(view)
+    view.resize(320, 320)
+    view.show()
+    qtbot.waitExposed(view)
+    try:
+        view.update_scene(first := scene("a"), prepare(first))
+        assert view.drawn_points() <= lod.START_POINTS
+        qtbot.waitUntil(lambda: view.drawn_points() > lod.START_POINTS, timeout=10_000)
+        moved = scene("b")  # the same layer with new points
+        view.update_scene(moved, prepare(moved))
+        assert view.drawn_points() <= lod.START_POINTS
+        qtbot.waitUntil(lambda: view.drawn_points() > lod.START_POINTS, timeout=10_000)
+        view.hide()
+        view.show()  # its tab chosen again
+        assert view.drawn_points() <= lod.START_POINTS
+        qtbot.waitUntil(lambda: view.drawn_points() > lod.START_POINTS, timeout=10_000)
+    finally:
+        view.close_view()

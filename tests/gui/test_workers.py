@@ -99,3 +99,67 @@ def test_a_finished_job_is_freed_by_reference_counting_on_the_gui_thread(
     finally:
         gc.enable()
     assert deleted_on == [threading.main_thread().ident]
+
+
+def _held_result(qtbot):
+    """A job whose result reached the GUI thread within DRAW_GAP_MS of a frame:
+    (job, got, the moment the frame ended)."""
+    from amrst_gui.pacing import PACE
+
+    job, got = _run(lambda reporter: 7, qtbot)
+    assert job.worker_done.wait(5.0)
+    time.sleep(0.1)  # superqt posts the result: queued, the event loop not turned
+    PACE.mark()  # a view's frame ends ...
+    frame_end = time.perf_counter()
+    return job, got, frame_end
+
+
+def test_a_result_right_after_a_frame_is_applied_a_turn_later(qtbot):
+    """Issue 15: a step's result applied in the same turn of the event loop as a
+    view's frame made one stall of both (after Match: 0.1-0.15 s)."""
+    from amrst_gui.pacing import DRAW_GAP_MS
+
+    job, got, frame_end = _held_result(qtbot)
+    delivered: list[float] = []
+    job.returned.connect(lambda _r: delivered.append(time.perf_counter()))
+    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
+    assert got == {"result": [7], "error": []}
+    assert delivered[0] - frame_end >= DRAW_GAP_MS / 1000 * 0.9
+    assert job.done
+
+
+def test_a_held_result_is_dropped_by_cancel_and_the_job_lives_until_then(qtbot):
+    import weakref
+
+    job, got, _ = _held_result(qtbot)
+    qtbot.waitUntil(lambda: job._held is not None, timeout=5_000)
+    job.cancel()  # while the result waits for its turn
+    ref = weakref.ref(job)
+    del job
+    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
+    assert got["result"] == []
+    assert isinstance(got["error"][0], Cancelled)
+    qtbot.waitUntil(lambda: ref() is None, timeout=5_000)  # released after it
+
+
+def test_worker_threads_run_below_the_window_s_priority(qtbot):
+    """Linux: the pool's threads are niced like the engine process, so the GUI
+    thread gets a core first when a result arrives."""
+    import os
+    import sys
+    import threading
+
+    import pytest
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("per-thread niceness is Linux's")
+
+    def niceness(reporter):
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    _job, got = _run(niceness, qtbot)
+    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
+    assert got["result"][0] >= workers.WORKER_NICE
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) < (
+        workers.WORKER_NICE
+    )
