@@ -132,7 +132,7 @@ def test_a_held_result_is_dropped_by_cancel_and_the_job_lives_until_then(qtbot):
     import weakref
 
     job, got, _ = _held_result(qtbot)
-    qtbot.waitUntil(lambda: job._held is not None, timeout=5_000)
+    qtbot.waitUntil(lambda j=job: j._held is not None, timeout=5_000)
     job.cancel()  # while the result waits for its turn
     ref = weakref.ref(job)
     del job
