@@ -19,7 +19,7 @@ from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from amrst_gui.pacing import DRAW_GAP_MS, PACE
-from amrst_gui.views import lod
+from amrst_gui.views import framing, lod
 from amrst_gui.views.detail import PointLevels, with_shown
 from amrst_gui.views.interactor import Interactor
 from amrst_gui.views.layers import (
@@ -35,7 +35,6 @@ from amrst_gui.views.scene_jobs import Prepared, prepare
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
-_VIEW_ANGLE_DEG = 30.0
 
 
 class ScanView(QWidget):
@@ -168,12 +167,8 @@ class ScanView(QWidget):
         elevation: float = _ELEVATION_DEG,
     ) -> None:
         """Look at the tree from the side (z up), the way it stands in the field;
-        or along ``direction`` (from the camera to the tree) with ``up``.
-
-        Set on the vtkCamera directly: pyvista's ``view_xz`` and ``reset_camera``
-        recompute every actor's bounds and render, whatever ``render`` says (a
-        second each on a 200,000-point view with software OpenGL).
-        """
+        or along ``direction`` (from the camera to the tree) with ``up``
+        (``framing.side_view``)."""
         if self._closed:
             return
         if not self.isVisible():  # a hidden tab has no real size yet: fit when shown
@@ -186,29 +181,8 @@ class ScanView(QWidget):
         # Not ``plotter.camera``: the first time, pyvista fits the camera itself
         # and renders, three renders in all (75 ms of software OpenGL on the
         # overlay shown after Accept coarse, a GUI stall; issue 15).
-        cam = self.plotter.renderer.GetActiveCamera()
-        centre = (b[0::2] + b[1::2]) / 2
-        cam.SetViewAngle(_VIEW_ANGLE_DEG)
-        cam.SetFocalPoint(*centre)
-        cam.SetPosition(*(centre - np.asarray(direction, float)))
-        cam.SetViewUp(*up)
-        if elevation:
-            cam.Elevation(elevation)
-            cam.OrthogonalizeViewUp()
-        self.plotter.renderer.ResetCamera(*b)
-        # ResetCamera fits the bounding sphere; a tree is tall and thin, so come
-        # closer until its projected box fills the widget.
-        corners = np.array(np.meshgrid(*b.reshape(3, 2))).reshape(3, -1).T - centre
-        view_up = np.asarray(cam.GetViewUp())
-        right = np.cross(np.asarray(cam.GetDirectionOfProjection()), view_up)
-        need_w = np.ptp(corners @ right)
-        need_h = np.ptp(corners @ view_up)
-        span_h = 2 * cam.GetDistance() * np.tan(np.radians(_VIEW_ANGLE_DEG) / 2)
         aspect = max(self.plotter.width(), 1) / max(self.plotter.height(), 1)
-        fit = 0.9 * min(span_h / max(need_h, 1e-9), span_h * aspect / max(need_w, 1e-9))
-        if np.isfinite(fit) and fit > 1:
-            cam.Dolly(fit)
-        self.plotter.renderer.ResetCameraClippingRange(*b)
+        framing.side_view(self.plotter.renderer, b, aspect, direction, up, elevation)
         self.plotter.renderer.camera_set = True  # pyvista: do not fit it again
         if render:
             self.plotter.render()
@@ -223,37 +197,14 @@ class ScanView(QWidget):
     def frame_points(
         self, xyz: np.ndarray, margin: float = 1.2, min_radius: float = 0.05
     ) -> None:
-        """Aim at ``xyz`` (K, 3) from the current direction, filling the view.
-
-        The camera looks at the centre of the points' box and comes as close as
-        their extent across the screen (times ``margin``, at least ``2 *
-        min_radius``) allows. A bounding sphere around the mean, as before, framed
-        a tetrahedron with one vertex at the root and three in the crown from
-        further away than the whole tree (issue 15).
-        """
+        """Aim at ``xyz`` (K, 3) from the current direction, filling the view
+        (``framing.aim_at``)."""
         if self._closed or len(xyz) == 0:
             return
-        xyz = np.asarray(xyz, float)
-        cam = self.plotter.camera
-        centre = (xyz.min(axis=0) + xyz.max(axis=0)) / 2
-        toward = np.asarray(cam.focal_point) - np.asarray(cam.position)
-        toward /= max(np.linalg.norm(toward), 1e-12)
-        up = np.asarray(cam.GetViewUp(), float)
-        up -= toward * (up @ toward)
-        up /= max(np.linalg.norm(up), 1e-12)
-        right = np.cross(toward, up)
-        rel = xyz - centre
-        half_h = margin * max(np.ptp(rel @ up), 2 * min_radius) / 2
-        half_w = margin * max(np.ptp(rel @ right), 2 * min_radius) / 2
         aspect = max(self.plotter.width(), 1) / max(self.plotter.height(), 1)
-        tan_half = np.tan(np.radians(cam.GetViewAngle()) / 2)
-        # Distance to the nearest of the points' depths, so no point is cut off
-        # by perspective (nearer points look bigger).
-        distance = max(half_h / tan_half, half_w / (tan_half * aspect))
-        distance += float(np.max(-(rel @ toward), initial=0.0))
-        cam.SetFocalPoint(*centre)
-        cam.SetPosition(*(centre - toward * distance))
-        cam.SetViewUp(*up)
+        framing.aim_at(
+            self.plotter.camera, np.asarray(xyz, float), aspect, margin, min_radius
+        )
         self.plotter.reset_camera_clipping_range()
         self.plotter.render()
 
