@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 
+from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import (
     QButtonGroup,
     QComboBox,
@@ -15,6 +16,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst_gui.pacing import LANES, PACE
 from amrst_gui.views.bar_row import scrolling_row
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
@@ -95,6 +97,25 @@ class RegistrationPane(QWidget):
             slot = getattr(self, f"_on_{name}", self._on_results_changed)
             getattr(session, name).connect(slot)
         session.manual_preview_changed.connect(self._on_manual_preview_changed)
+        session.busy_changed.connect(self._on_busy_changed)
+        self._calm_tries = 0
+
+    def _on_busy_changed(self, busy: bool) -> None:
+        # Idle (a pair loaded, a step done) with the overlay in a hidden tab: its
+        # points are drawn once off screen while nothing runs (issue 15).
+        if not busy:
+            self._calm_tries = 0
+            QTimer.singleShot(300, self, self._prerender_when_calm)
+
+    def _prerender_when_calm(self) -> None:
+        if self.session.busy or self.view.isVisible():
+            return
+        if PACE.wait_ms() or not LANES.idle("display") or self.loader.pending:
+            self._calm_tries += 1
+            if self._calm_tries < 50:  # five seconds at most
+                QTimer.singleShot(100, self, self._prerender_when_calm)
+            return
+        self.view.prerender()
 
     def set_stage(self, stage: str) -> None:
         """Show "before", "coarse" or "fine"."""
