@@ -86,6 +86,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         super().showEvent(event)
         if self._score_stale:
             self._on_nudged()
+
     def _pairs_box(self) -> QGroupBox:
         box = QGroupBox("Point pairs")
         grid = QVBoxLayout(box)
