@@ -11,7 +11,6 @@ process; it never waits for a check point.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import pickle
@@ -118,9 +117,9 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
 
 
 def main() -> None:
-    with contextlib.suppress(OSError, AttributeError):  # no nice() on Windows
-        if NICE:
-            os.nice(NICE)
+    from amrst_gui.pacing import at_least_nice
+
+    at_least_nice(NICE)  # not more: started from a niced worker thread it is 5
     # The frames get the real stdout; print() and C libraries get stderr.
     out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)

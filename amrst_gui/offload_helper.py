@@ -3,14 +3,12 @@
 Reads one JSON request per line on stdin (``{"shm": name, "shape": [N, 3],
 "dtype": "<f8"}``: points in shared memory), answers one JSON line on stdout
 (``{"spacing": float or null}`` or ``{"error": text}``), until stdin closes. No Qt,
-no app: numpy and ``amrst.io.describe`` only.
+no app: numpy, ``amrst.io.describe`` and ``amrst_gui.pacing`` (no Qt) only.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import sys
 
 NICE = 5
@@ -22,10 +20,11 @@ def serve() -> None:
     import numpy as np
 
     from amrst.io.describe import median_spacing
+    from amrst_gui.pacing import at_least_nice
 
-    with contextlib.suppress(OSError, AttributeError):  # no nice() on Windows
-        # Background work: the window's own process goes first for the cores.
-        os.nice(NICE)
+    # Background work: the window's own process goes first for the cores (not
+    # more: started from a niced worker thread it already is).
+    at_least_nice(NICE)
     for line in sys.stdin:
         try:
             ask = json.loads(line)

@@ -10,6 +10,7 @@ last frame, so two pieces of work never share one stall. No widgets here.
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 import time
 from typing import TYPE_CHECKING, ClassVar
@@ -123,3 +124,13 @@ class Pace:
 
 
 PACE = Pace()
+
+
+def at_least_nice(nice: int) -> None:
+    """Run the calling thread (Linux: each thread has its own; threads started
+    after inherit it) at niceness ``nice``, or above if it already is: a process
+    started from a niced worker thread inherits that thread's niceness, and a
+    relative ``os.nice`` there made the engine and helper processes nice 10."""
+    with contextlib.suppress(OSError, AttributeError):  # not POSIX: no-op
+        if os.getpriority(os.PRIO_PROCESS, 0) < nice:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)

@@ -32,7 +32,7 @@ from superqt.utils import WorkerBase, create_worker
 
 from amrst.errors import Cancelled
 from amrst.progress import EventReporter
-from amrst_gui.pacing import LANES, PACE
+from amrst_gui.pacing import LANES, PACE, at_least_nice
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -125,7 +125,7 @@ class StageJob(QObject):
         reporter, worker_done = self.reporter, self.worker_done
 
         def work() -> Any:
-            _background_priority()
+            at_least_nice(WORKER_NICE)
             try:
                 if lane is None:
                     return fn(*args, reporter, **kwargs)
@@ -291,14 +291,6 @@ _LIVE: set[StageJob] = set()
 WORKER_NICE = 5
 
 
-def _background_priority() -> None:
-    """Lower the calling worker thread's priority to ``WORKER_NICE`` (once)."""
-    import os
-
-    with contextlib.suppress(OSError, AttributeError):  # not Linux: no-op
-        tid = threading.get_native_id()
-        if os.getpriority(os.PRIO_PROCESS, tid) < WORKER_NICE:
-            os.setpriority(os.PRIO_PROCESS, tid, WORKER_NICE)
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three
