@@ -112,6 +112,16 @@ def _open_interactors() -> list:
     ]
 
 
+def _top_level_widgets(qapp) -> list:
+    """``qapp.topLevelWidgets()``, widgets only. PySide keeps a wrapper per C++
+    address; pyvistaqt holds its context's ``surface()`` (a QSurface, which PySide
+    cannot see deleted), and a new window at the address of a deleted surface
+    came back as that stale QSurface wrapper (one teardown error in a CI run)."""
+    from PySide6.QtWidgets import QWidget
+
+    return [w for w in qapp.topLevelWidgets() if isinstance(w, QWidget)]
+
+
 @pytest.fixture
 def make_main_window(qtbot, qapp):
     """Factory: ``make_main_window()`` -> a shown MainWindow registered with qtbot.
@@ -122,7 +132,7 @@ def make_main_window(qtbot, qapp):
     """
     from amrst_gui.main_window import MainWindow
 
-    before = set(qapp.topLevelWidgets())
+    before = set(_top_level_widgets(qapp))
     windows = []
 
     def factory(**kwargs) -> MainWindow:
@@ -140,7 +150,7 @@ def make_main_window(qtbot, qapp):
     for win in windows:
         assert not win.session.busy
         assert all(view._closed for view in win.views())
-    leaked = [w for w in qapp.topLevelWidgets() if w.isVisible() and w not in before]
+    leaked = [w for w in _top_level_widgets(qapp) if w.isVisible() and w not in before]
     assert not leaked, f"widgets left open: {leaked}"
     assert not _open_interactors(), "a QtInteractor was not closed"
 
