@@ -19,8 +19,10 @@ import threading
 import traceback
 from typing import IO, Any
 
+from amrst_gui.pacing import BACKGROUND_NICE, at_least_nice
+
 # The window's own process goes first for the cores (AMRST_ENGINE_NICE to change).
-NICE = int(os.environ.get("AMRST_ENGINE_NICE", "5") or 0)
+NICE = int(os.environ.get("AMRST_ENGINE_NICE", "") or BACKGROUND_NICE)
 
 
 class _PipeReporter:
@@ -117,8 +119,6 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
 
 
 def main() -> None:
-    from amrst_gui.pacing import at_least_nice
-
     at_least_nice(NICE)  # not more: started from a niced worker thread it is 5
     # The frames get the real stdout; print() and C libraries get stderr.
     out = os.fdopen(os.dup(1), "wb")

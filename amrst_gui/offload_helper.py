@@ -11,8 +11,6 @@ from __future__ import annotations
 import json
 import sys
 
-NICE = 5
-
 
 def serve() -> None:
     from multiprocessing import resource_tracker, shared_memory
@@ -24,7 +22,7 @@ def serve() -> None:
 
     # Background work: the window's own process goes first for the cores (not
     # more: started from a niced worker thread it already is).
-    at_least_nice(NICE)
+    at_least_nice()
     for line in sys.stdin:
         try:
             ask = json.loads(line)

@@ -126,7 +126,13 @@ class Pace:
 PACE = Pace()
 
 
-def at_least_nice(nice: int) -> None:
+# Niceness of all background work (Linux, per thread; POSIX processes): the app's
+# worker threads, the engine process and the Scans dock's helper process, so the
+# window's own thread goes first for the cores.
+BACKGROUND_NICE = 5
+
+
+def at_least_nice(nice: int = BACKGROUND_NICE) -> None:
     """Run the calling thread (Linux: each thread has its own; threads started
     after inherit it) at niceness ``nice``, or above if it already is: a process
     started from a niced worker thread inherits that thread's niceness, and a

@@ -125,7 +125,12 @@ class StageJob(QObject):
         reporter, worker_done = self.reporter, self.worker_done
 
         def work() -> Any:
-            at_least_nice(WORKER_NICE)
+            # Niced like the engine process (pacing.BACKGROUND_NICE): with two
+            # cores, a view's scene built here while the engine computed left the
+            # GUI thread waiting 30-80 ms for a core when a step's result arrived
+            # (issue 15). A thread cannot undo it without privileges, so the
+            # pool's threads stay niced: they only ever run background work.
+            at_least_nice()
             try:
                 if lane is None:
                     return fn(*args, reporter, **kwargs)
@@ -282,15 +287,6 @@ def run_stage(
 
 
 _LIVE: set[StageJob] = set()
-
-# The niceness of the worker threads (Linux: per thread), as the engine and helper
-# processes have: with two cores, a view's scene built in a worker while the
-# engine computed left the GUI thread waiting 30-80 ms for a core when a step's
-# result arrived (issue 15). A thread cannot undo it without privileges, so the
-# pool's threads stay niced: all of them only ever run background work.
-WORKER_NICE = 5
-
-
 
 
 # Jobs that may run at once: a step, the Scans dock's descriptions and the three

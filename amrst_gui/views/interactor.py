@@ -25,6 +25,13 @@ class Interactor(QtInteractor):
             self._fresh_frame = True
         super()._cb_frame(obj, evt)
 
+    def render_offscreen(self) -> None:
+        """Render into the widget's framebuffer while it is hidden (its point
+        sets uploaded before it is shown); the paint that shows it renders again,
+        never this picture, whose camera may not be fitted yet."""
+        self.grabFramebuffer()
+        self._fresh_frame = False
+
     def resizeGL(self, w: int, h: int) -> None:
         self._fresh_frame = False
         super().resizeGL(w, h)

@@ -99,13 +99,16 @@ class RegistrationPane(QWidget):
         session.manual_preview_changed.connect(self._on_manual_preview_changed)
         session.busy_changed.connect(self._on_busy_changed)
         self._calm_tries = 0
+        self._calm = QTimer(self)  # one wait at a time, restarted
+        self._calm.setSingleShot(True)
+        self._calm.timeout.connect(self._prerender_when_calm)
 
     def _on_busy_changed(self, busy: bool) -> None:
         # Idle (a pair loaded, a step done) with the overlay in a hidden tab: its
         # points are drawn once off screen while nothing runs (issue 15).
         if not busy:
             self._calm_tries = 0
-            QTimer.singleShot(300, self, self._prerender_when_calm)
+            self._calm.start(300)
 
     def _prerender_when_calm(self) -> None:
         if self.session.busy or self.view.isVisible():
@@ -113,7 +116,7 @@ class RegistrationPane(QWidget):
         if PACE.wait_ms() or not LANES.idle("display") or self.loader.pending:
             self._calm_tries += 1
             if self._calm_tries < 50:  # five seconds at most
-                QTimer.singleShot(100, self, self._prerender_when_calm)
+                self._calm.start(100)
             return
         self.view.prerender()
 

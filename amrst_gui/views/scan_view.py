@@ -172,8 +172,7 @@ class ScanView(QWidget):
             return
         self._prerendered = self._scene
         self._choose_level(True)
-        self.plotter.grabFramebuffer()  # renders into the widget's framebuffer
-        self.plotter._fresh_frame = False  # the paint that shows it renders again
+        self.plotter.render_offscreen()
         PACE.mark()
 
     def reset_camera(

@@ -59,13 +59,13 @@ def test_cancel_stops_the_helper_within_a_poll_and_the_next_request_works():
 
 
 def test_a_helper_started_from_a_niced_worker_thread_is_nice_5_not_10():
-    """Worker threads run at nice 5 (``workers.WORKER_NICE``) and a process
+    """Worker threads run at nice 5 (``pacing.BACKGROUND_NICE``) and a process
     inherits its starting thread's niceness: the helper's relative ``os.nice(5)``
     made it 10, behind the app's own background threads."""
     import os
     import sys
 
-    from amrst_gui.pacing import at_least_nice
+    from amrst_gui.pacing import BACKGROUND_NICE, at_least_nice
 
     if not sys.platform.startswith("linux"):
         pytest.skip("per-thread niceness is Linux's")
@@ -73,19 +73,14 @@ def test_a_helper_started_from_a_niced_worker_thread_is_nice_5_not_10():
     seen: list[int] = []
 
     def in_a_worker() -> None:
-        at_least_nice(offload_helper_nice())
+        at_least_nice()
         helper.median_spacing(_cloud(1_000), EventReporter())  # starts it
         seen.append(os.getpriority(os.PRIO_PROCESS, helper._proc.pid))
-
-    def offload_helper_nice() -> int:
-        from amrst_gui.offload_helper import NICE
-
-        return NICE
 
     try:
         thread = threading.Thread(target=in_a_worker)
         thread.start()
         thread.join(60)
-        assert seen == [offload_helper_nice()]
+        assert seen == [BACKGROUND_NICE]
     finally:
         helper.stop()

@@ -154,12 +154,14 @@ def test_worker_threads_run_below_the_window_s_priority(qtbot):
     if not sys.platform.startswith("linux"):
         pytest.skip("per-thread niceness is Linux's")
 
+    from amrst_gui.pacing import BACKGROUND_NICE
+
     def niceness(reporter):
         return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
 
     _job, got = _run(niceness, qtbot)
     qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
-    assert got["result"][0] >= workers.WORKER_NICE
+    assert got["result"][0] >= BACKGROUND_NICE
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) < (
-        workers.WORKER_NICE
+        BACKGROUND_NICE
     )
