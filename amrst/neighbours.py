@@ -1,11 +1,15 @@
 """Nearest-neighbour queries on compiled KD-trees that import fast.
 
-The trees are pykdtree's or small_gicp's (:mod:`amrst.kdtree` says which, and
-why): both measured faster than ``scipy.spatial.cKDTree`` on this project's clouds
-(``docs/bench/scale/README.md``). :func:`knn` builds a tree, then finds the k nearest
-of many points (the outlier filter, the wood features, the skeleton graph);
-:class:`NearestTree` keeps one tree for many queries (ICP correspondences, cloud
-metrics); :class:`NeighbourTable` shares one query between the per-scan stages.
+small_gicp's KD-tree (imports in about 0.2 s) measured faster than
+``scipy.spatial.cKDTree`` on this project's clouds, one thread against scipy's
+``workers=-1`` (ratios in one run, tree geometry from case 08, see
+``docs/bench/scale/README.md``): 1.2-1.7x for :func:`knn` (build a tree, then the k
+nearest of many points: the outlier filter, the wood features, the skeleton graph)
+and 1.4-1.9x for :class:`NearestTree` queries (one tree, many queries: ICP
+correspondences, cloud metrics); :class:`NeighbourTable` shares one query between
+the per-scan stages. pykdtree was as fast with one OpenMP thread but
+5-12x slower than scipy with two on this loaded 2-core machine (OpenMP threads
+spin while they wait), so it is not used.
 
 Both return what ``cKDTree.query`` returns: Euclidean distances sorted ascending and
 int64 indices, ``inf`` and ``len(points)`` where no neighbour lies within the bound.
@@ -14,31 +18,59 @@ Neighbours at exactly equal distances may come in another order than scipy's.
 
 from __future__ import annotations
 
+import os
 import threading
 from typing import Any
 
 import numpy as np
 
-from amrst import kdtree
-from amrst.kdtree import (  # the names callers know from here
-    SMALL_BATCH,
-    set_threads,
-    threads,
+# Threads for each KD-tree build and query (AMRST_KD_THREADS, default: 2 on a machine
+# with 2 cores or more). small_gicp holds the GIL while it works, so the two scans'
+# threads never overlap there; two threads inside each query made the registration
+# compute 1.10-1.19x faster (median over the 30 shared cases, alternated runs on a
+# quiet 2-core machine). A batch worker with one core sets 1 (amrst.campaign.run).
+_threads = int(os.environ.get("AMRST_KD_THREADS", "0") or 0) or min(
+    2, os.cpu_count() or 1
 )
-from amrst.kdtree import batch_threads as _batch_threads
 
-__all__ = [
-    "SMALL_BATCH",
-    "NearestTree",
-    "NeighbourTable",
-    "knn",
-    "set_threads",
-    "threads",
-]
+
+def set_threads(n: int) -> None:
+    """Set the threads every KD-tree build and query uses from now on (>= 1)."""
+    global _threads
+    _threads = max(1, int(n))
+
+
+def threads() -> int:
+    """Return the threads KD-tree builds and queries use."""
+    return _threads
+
+
+# A query of less work than this (queries x (neighbours + 3), about 0.1 us each on one
+# thread) runs on one thread whatever threads() says: waking the second OpenMP thread
+# cost more than it saved on a loaded 2-core machine (6,000 nearest-point queries:
+# 1.8 ms on one thread, 11.7 ms on two; 351 queries of 64 neighbours: 0.7 and 16 ms).
+# The answers do not depend on the threads.
+SMALL_BATCH = 100_000
 
 # Building a tree costs about as much per point as finding this many neighbours of a
 # query (small_gicp, one thread: 0.16 us a point against 0.075 us a neighbour).
 _BUILD_COST = 2
+
+
+def _batch_threads(n_queries: int, k: int, threads: int | None = None) -> int:
+    """Threads for ``n_queries`` queries of ``k`` neighbours (one for a small batch)."""
+    n = _threads if threads is None else threads
+    return n if n_queries * (k + 3) >= SMALL_BATCH else 1
+
+
+def _build_threads(n_points: int, threads: int | None = None) -> int:
+    """Threads for building a tree on ``n_points`` points.
+
+    One below 100,000 points: 2-3 ms on one thread, and a second thread cost up to
+    25 ms of waiting on a loaded machine.
+    """
+    n = _threads if threads is None else threads
+    return n if n_points >= 100_000 else 1
 
 
 def _points(xyz: np.ndarray) -> np.ndarray:
@@ -68,37 +100,46 @@ def knn(
     dist : (M, k) float64, ascending
     idx : (M, k) int64
     """
+    import small_gicp
+
     pts = _points(points)
     if not 1 <= k <= len(pts):
         raise ValueError(f"k must be within 1..{len(pts)}, not {k}")
     q = pts if queries is None else _points(queries)
     if len(q) == 0:
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
-    tree = kdtree.build(pts, threads)
-    idx, sq = tree.knn(q, k, _batch_threads(len(q), k, threads))
-    return np.sqrt(sq, out=sq), idx
+    n_threads = _threads if threads is None else threads
+    tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), n_threads))
+    idx, sq = tree.batch_knn_search(
+        q, k, num_threads=_batch_threads(len(q), k, n_threads)
+    )
+    # Every index is valid (k <= N): the uint64 array reads as int64 without a copy.
+    return np.sqrt(sq, out=sq), idx.view(np.int64)
 
 
 class _Tree:
-    """A KD-tree (:func:`amrst.kdtree.build`) on fixed points, rebuilt after unpickling.
+    """A small_gicp KdTree on fixed points, built on first use after unpickling.
 
-    small_gicp's and pykdtree's trees cannot be pickled; the app sends the analyses
-    that hold them to its engine process and back (issue 15). A tree pickles as
-    nothing and is built again, from the same points with the same code (so every
-    answer is the same), only where it is queried.
+    small_gicp's trees cannot be pickled; the app sends the analyses that hold
+    them to its engine process and back (issue 15). A tree pickles as nothing and
+    is built again, from the same points with the same code (so every answer is
+    the same), only where it is queried.
     """
 
-    def __init__(
-        self, points: np.ndarray, threads: int, tree: kdtree.Tree | None = None
-    ) -> None:
+    def __init__(self, points: np.ndarray, threads: int, tree: Any = None) -> None:
         self._points, self._threads, self._tree = points, threads, tree
         self._lock = threading.Lock()
 
-    def get(self) -> kdtree.Tree:
+    def get(self) -> Any:
         """Return the tree, built now if it was not yet."""
         with self._lock:
             if self._tree is None:
-                self._tree = kdtree.build(self._points, self._threads)
+                import small_gicp
+
+                n = len(self._points)
+                self._tree = small_gicp.KdTree(
+                    self._points, num_threads=_build_threads(n, self._threads)
+                )
             return self._tree
 
     def __getstate__(self) -> dict[str, Any]:
@@ -120,11 +161,19 @@ class NearestTree:
     """
 
     def __init__(self, points: np.ndarray, threads: int | None = None) -> None:
+        import small_gicp
+
         self.points = _points(points)
         self.n = len(self.points)
-        self.threads = kdtree.threads() if threads is None else threads
+        self.threads = _threads if threads is None else threads
         self._tree: _Tree | None = (
-            _Tree(self.points, self.threads, kdtree.build(self.points, self.threads))
+            _Tree(
+                self.points,
+                self.threads,
+                small_gicp.KdTree(
+                    self.points, num_threads=_build_threads(self.n, self.threads)
+                ),
+            )
             if self.n
             else None
         )
@@ -155,8 +204,11 @@ class NearestTree:
             return np.full(shape, np.inf), np.full(shape, self.n, dtype=np.int64)
         kk = min(k, self.n)
         assert self._tree is not None  # n > 0
-        idx, sq = self._tree.get().knn(q, kk, _batch_threads(len(q), kk, self.threads))
+        idx, sq = self._tree.get().batch_knn_search(
+            q, kk, _batch_threads(len(q), kk, self.threads)
+        )
         dist = np.sqrt(sq)
+        idx = idx.astype(np.int64)
         if k > self.n:  # pad like scipy
             pad = k - self.n
             dist = np.hstack([dist, np.full((len(q), pad), np.inf)])
@@ -179,7 +231,8 @@ class NeighbourTable:
     8K, 32K, ...) neighbours of the rows where too few remain, and queries the subset
     afresh only when that would cost more than a tree on the subset. The answer equals :func:`knn` on the subset, but for the
     order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
-    build and one query per scan instead of three of each.
+    build and one query per scan instead of three of each (small_gicp holds the GIL
+    while it queries, so the two scans' queries did not overlap anyway).
 
     Parameters
     ----------
@@ -189,7 +242,7 @@ class NeighbourTable:
         :func:`knn` of every point of ``points`` (each point its own first neighbour).
     pos : (N,) int64 or None
         Sorted positions in ``points`` of the points this view stands for; None: all.
-    tree : amrst.kdtree.Tree or None
+    tree : small_gicp.KdTree or None
         The tree on ``points`` (None: rows left short are queried afresh).
     """
 
@@ -202,23 +255,25 @@ class NeighbourTable:
         tree: Any = None,
     ) -> None:
         self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
-        # the tree on points, for the rows left short
+        # small_gicp.KdTree on points, for the rows left short
         self._tree = (
             tree
             if tree is None or isinstance(tree, _Tree)
-            else _Tree(points, kdtree.threads(), tree)
+            else _Tree(points, _threads, tree)
         )
 
     @classmethod
     def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
         """Query the ``k`` nearest neighbours of every point (k capped at the points)."""
+        import small_gicp
+
         pts = _points(points)
         k = min(k, len(pts))
         if k < 1:
             raise ValueError("a neighbour table needs at least one point")
-        tree = kdtree.build(pts)
-        idx, sq = tree.knn(pts, k, _batch_threads(len(pts), k))
-        return cls(pts, np.sqrt(sq, out=sq), idx, None, tree)
+        tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts)))
+        idx, sq = tree.batch_knn_search(pts, k, num_threads=_batch_threads(len(pts), k))
+        return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree)
 
     @property
     def k(self) -> int:
@@ -288,9 +343,9 @@ class NeighbourTable:
         start = np.cumsum(count) - count
         take = at[(start[ok][:, None] + np.arange(k)).ravel()]
         if dist is not None:
-            dist[part[ok]] = (
-                np.take(self._dist, root[part], axis=0).ravel()[take].reshape(-1, k)
-            )
+            dist[part[ok]] = np.take(self._dist, root[part], axis=0).ravel()[
+                take
+            ].reshape(-1, k)
         idx[part[ok]] = jp.ravel()[take].reshape(-1, k)
         short = part[~ok]
         # More of the cloud's neighbours for the rows left short (a few %): 2K, then
@@ -302,10 +357,12 @@ class NeighbourTable:
         if len(short) * (wide - k) > _BUILD_COST * n:
             wide = 0  # skip the wider reads
         while wide and len(short) and self._tree is not None:
-            w_idx, w_sq = self._tree.get().knn(
-                self._points[root[short]], wide, _batch_threads(len(short), wide)
+            w_idx, w_sq = self._tree.get().batch_knn_search(
+                self._points[root[short]],
+                wide,
+                num_threads=_batch_threads(len(short), wide),
             )
-            jw = inv[w_idx]
+            jw = inv[w_idx.view(np.int64)]
             at = np.flatnonzero(jw.ravel() >= 0)
             count = np.bincount(at // wide, minlength=len(short))
             got = count >= k

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from amrst import kdtree, neighbours
+from amrst import neighbours
 from amrst.neighbours import NeighbourTable, knn
 from amrst.stages.features import _covariances, pairwise_rows
 
@@ -124,8 +124,8 @@ def test_small_batches_run_on_one_thread_with_the_same_answers() -> None:
         assert neighbours._batch_threads(351, 64) == 1
         assert neighbours._batch_threads(16_000, 32) == 2
         assert neighbours._batch_threads(16_000, 32, threads=1) == 1
-        assert kdtree.build_threads(16_000) == 1
-        assert kdtree.build_threads(200_000) == 2
+        assert neighbours._build_threads(16_000) == 1
+        assert neighbours._build_threads(200_000) == 2
         rng = np.random.default_rng(11)
         pts = np.round(rng.uniform(0, 2, (30_000, 3)), 3)
         queries = rng.uniform(0, 2, (40_000, 3))  # 40,000 x (1 + 3): two threads
