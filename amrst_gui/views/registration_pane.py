@@ -17,7 +17,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.pacing import LANES, PACE
-from amrst_gui.views.bar_row import scrolling_row
+from amrst_gui.views.bar_row import wrapping_row
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
@@ -90,7 +90,7 @@ class RegistrationPane(QWidget):
         self.histogram.hide()
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        layout.addWidget(scrolling_row(bar))
+        layout.addWidget(wrapping_row(bar))
         layout.addWidget(self.view, 1)
         layout.addWidget(self.histogram)
         for name in RESULT_SIGNALS:

@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.drops import FileDropMixin
-from amrst_gui.views.bar_row import scrolling_row
+from amrst_gui.views.bar_row import wrapping_row
 from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
@@ -118,7 +118,7 @@ class ScanPane(FileDropMixin, QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.setSpacing(0)
-        layout.addWidget(scrolling_row(bar))
+        layout.addWidget(wrapping_row(bar))
         layout.addWidget(self.view, 1)
         for name in RESULT_SIGNALS:
             slot = getattr(self, f"_on_{name}", self._on_results_changed)
@@ -195,7 +195,7 @@ class ScansArea(QWidget):
             pane.files_dropped.connect(self.files_dropped)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        layout.addWidget(scrolling_row(bar))
+        layout.addWidget(wrapping_row(bar))
         layout.addWidget(splitter, 1)
         self.link = CameraLink(
             session, self.panes["target"].view, self.panes["source"].view

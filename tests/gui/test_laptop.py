@@ -47,3 +47,35 @@ def test_big_scans_are_sliced_in_a_worker(loaded_window, qtbot, finish, monkeypa
     assert win.slices._job is not None  # the GUI thread did not slice
     qtbot.waitUntil(lambda: win.slices._job is None, timeout=20_000)
     assert win.slices.view.offsets_mm() == at_once
+
+
+def test_every_control_of_the_view_rows_is_in_sight_at_1366x768(
+    loaded_window, qtbot, finish
+):
+    """The rows over the views wrap instead of scrolling: at 1366x768 the overlay's
+    Top / Front / Side buttons were behind a scroll bar."""
+    from PySide6.QtWidgets import QWidget
+
+    win = loaded_window
+    finish(win.session, win.actions.run_all.trigger, "fine_finished")
+    checked = 0
+    for w, h in ((1366, 768), (1920, 1050)):
+        win.resize(w, h)
+        win._default_sizes()
+        for tab in range(win.tabs.count()):
+            win.tabs.setCurrentIndex(tab)
+            qtbot.wait(150)
+            for row in win.tabs.currentWidget().findChildren(QWidget, "control_row"):
+                if not row.isVisible():
+                    continue
+                parent = row.parentWidget()
+                assert parent.rect().contains(row.geometry()), (w, tab)
+                for control in row.findChildren(QWidget):
+                    if control.isVisible() and control.parentWidget() is row:
+                        assert row.rect().contains(control.geometry()), (
+                            w,
+                            tab,
+                            control.objectName() or type(control).__name__,
+                        )
+                        checked += 1
+    assert checked >= 20
