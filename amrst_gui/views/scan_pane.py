@@ -108,8 +108,12 @@ class ScanPane(FileDropMixin, QWidget):
         self.colour.currentIndexChanged.connect(
             lambda _i: self._set_option("colour", self.colour.currentData())
         )
-        bar.addWidget(QLabel("Colour:"))
-        bar.addWidget(self.colour)
+        colour_box = QWidget()  # the label wraps with its box, never apart
+        colour_row = QHBoxLayout(colour_box)
+        colour_row.setContentsMargins(0, 0, 0, 0)
+        colour_row.addWidget(QLabel("Colour:"))
+        colour_row.addWidget(self.colour)
+        bar.addWidget(colour_box)
         bar.addStretch(1)
 
         self.view = ScanView(self)
