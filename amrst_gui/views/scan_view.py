@@ -32,6 +32,7 @@ from amrst_gui.views.layers import (
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
 from amrst_gui.views.scene_jobs import Prepared, prepare
+from amrst_gui.views.vtk_lock import VTK_LOCK
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
@@ -131,6 +132,10 @@ class ScanView(QWidget):
         """
         if self._closed or scene is self._scene:
             return
+        with VTK_LOCK:  # actors replaced: not while a worker makes VTK objects
+            self._update_scene(scene, prepared)
+
+    def _update_scene(self, scene: Scene, prepared: Prepared | None) -> None:
         if prepared is None:
             prepared = prepare(scene)
         wanted = scene.names()
@@ -245,7 +250,8 @@ class ScanView(QWidget):
         """Close the plotter (before the widget goes; pyvistaqt#846)."""
         if not self._closed:
             self._closed = True
-            self.plotter.close()
+            with VTK_LOCK:  # not while a worker makes VTK objects (vtk_lock)
+                self.plotter.close()
 
     def _draw(self, layer, prepared: Prepared) -> None:
         p = self.plotter

@@ -26,6 +26,7 @@ from PySide6.QtCore import QObject, QTimer, Signal
 
 from amrst_gui.pacing import DRAW_GAP_MS, PACE
 from amrst_gui.views.layers import LinesLayer, PointsLayer, Scene, SpheresLayer
+from amrst_gui.views.vtk_lock import VTK_LOCK
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -172,15 +173,18 @@ def prepare(scene: Scene) -> Prepared:
     points = [ly for ly in scene.layers if isinstance(ly, PointsLayer)]
     out = Prepared(bounds=fit_bounds([ly.xyz for ly in points]))
     for layer in points:
-        out.sets[layer.name] = tuple(
-            _polydata(layer.xyz[sl], layer.rgb[sl])
-            for sl in level_slices(len(layer.xyz))
-        )
+        sets = []
+        for sl in level_slices(len(layer.xyz)):
+            with VTK_LOCK:  # never while the GUI thread drops VTK objects
+                sets.append(_polydata(layer.xyz[sl], layer.rgb[sl]))
+        out.sets[layer.name] = tuple(sets)
     for ly in scene.layers:
         if isinstance(ly, LinesLayer):
-            out.meshes[ly.name] = lines_mesh(ly)
+            with VTK_LOCK:
+                out.meshes[ly.name] = lines_mesh(ly)
         elif isinstance(ly, SpheresLayer):
-            out.meshes[ly.name] = spheres_mesh(ly)
+            with VTK_LOCK:
+                out.meshes[ly.name] = spheres_mesh(ly)
     return out
 
 
