@@ -1,6 +1,6 @@
 """One lock between making VTK objects in worker threads and dropping them on the GUI thread.
 
-The CI runs of two stops hung for good in a test's teardown (found with
+A CI run of an earlier stop and a fresh-clone run hung for good in a test's teardown (found with
 faulthandler's stacks and gdb, 2026-12-02). The GUI thread was closing a view:
 ``Renderer.RemoveAllViewProps`` destroyed an actor, VTK's garbage collector took its
 global mutex and, on finalizing a data object whose Python wrapper was gone, called

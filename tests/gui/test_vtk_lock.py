@@ -1,6 +1,6 @@
 """VTK objects are never made in a worker while the GUI thread drops a view's.
 
-Two CI runs hung for good in a test's teardown: closing a view ran VTK's garbage
+A CI run and a fresh-clone run hung for good in a test teardown: closing a view ran VTK's garbage
 collector, which called back into Python and let the GIL go to a scene worker
 making a ``pyvista.PolyData``; that worker then waited for the collector's mutex
 while holding the GIL (``amrst_gui/views/vtk_lock.py``). These tests check the
