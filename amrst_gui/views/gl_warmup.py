@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst_gui.views.vtk_lock import VTK_LOCK
+
 if TYPE_CHECKING:
     from PySide6.QtWidgets import QTabWidget
 
@@ -42,7 +44,8 @@ def warm_up(view: ScanView) -> None:
     )
     p.add_text("-", position="upper_left", font_size=9, name="_warm_up_text")
     p.render()
-    p.remove_actor(["_warm_up", "_warm_up_text"], render=False)
+    with VTK_LOCK:  # actors dropped: not while a worker makes VTK objects
+        p.remove_actor(["_warm_up", "_warm_up_text"], render=False)
 
 
 def warm_up_tabs(tabs: QTabWidget, views: list[ScanView]) -> None:
