@@ -343,9 +343,9 @@ class NeighbourTable:
         start = np.cumsum(count) - count
         take = at[(start[ok][:, None] + np.arange(k)).ravel()]
         if dist is not None:
-            dist[part[ok]] = (
-                np.take(self._dist, root[part], axis=0).ravel()[take].reshape(-1, k)
-            )
+            dist[part[ok]] = np.take(self._dist, root[part], axis=0).ravel()[
+                take
+            ].reshape(-1, k)
         idx[part[ok]] = jp.ravel()[take].reshape(-1, k)
         short = part[~ok]
         # More of the cloud's neighbours for the rows left short (a few %): 2K, then

@@ -92,9 +92,7 @@ def trunk_contenders(
         if (
             transforms is not None
             and centre is not None
-            and not all(
-                distinct_solutions(transforms[k], transforms[j], centre) for j in picked
-            )
+            and not all(distinct_solutions(transforms[k], transforms[j], centre) for j in picked)
         ):
             continue
         picked.append(k)

@@ -63,20 +63,12 @@ def _loaded_after(module: str, prefixes: tuple[str, ...]) -> list[str]:
 
 
 def test_simulate_loads_no_benchmark_or_baseline() -> None:
-    loaded = _loaded_after(
-        "amrst.simulate", ("amrst.bench", "amrst.baselines", "open3d")
-    )
+    loaded = _loaded_after("amrst.simulate", ("amrst.bench", "amrst.baselines", "open3d"))
     assert loaded == [], loaded
 
 
 def test_one_stage_loads_only_what_it_needs() -> None:
-    prefixes = (
-        "amrst.pipeline",
-        "amrst.bench",
-        "amrst.baselines",
-        "amrst.cli",
-        "amrst.io",
-    )
+    prefixes = ("amrst.pipeline", "amrst.bench", "amrst.baselines", "amrst.cli", "amrst.io")
     loaded = _loaded_after("amrst.stages.fine", prefixes)
     assert loaded == [], loaded
 
