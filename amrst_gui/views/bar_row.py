@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from PySide6.QtCore import QPoint, QRect, QSize, Qt
 from PySide6.QtWidgets import (
-    QHBoxLayout,
     QLayout,
     QLayoutItem,
     QSizePolicy,
@@ -100,19 +99,11 @@ class FlowLayout(QLayout):
         return y - rect.y() + m.bottom()
 
 
-def wrapping_row(layout: QHBoxLayout) -> QWidget:
-    """Move the controls of ``layout`` into a row that wraps when the window is narrow."""
-    flow = FlowLayout()
-    flow.setContentsMargins(layout.contentsMargins())
-    flow.setSpacing(layout.spacing())
-    while layout.count():
-        item = layout.takeAt(0)
-        widget = item.widget() if item is not None else None
-        if widget is not None:
-            flow.addWidget(widget)
+def wrapping_row(layout: FlowLayout) -> QWidget:
+    """Return a widget holding ``layout``: a row that wraps when the window is narrow."""
     row = QWidget()
     row.setObjectName("control_row")
-    row.setLayout(flow)
+    row.setLayout(layout)
     policy = QSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Preferred)
     policy.setHeightForWidth(True)
     row.setSizePolicy(policy)

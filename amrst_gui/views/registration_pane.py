@@ -8,7 +8,6 @@ from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import (
     QButtonGroup,
     QComboBox,
-    QHBoxLayout,
     QLabel,
     QPushButton,
     QRadioButton,
@@ -17,7 +16,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.pacing import LANES, PACE
-from amrst_gui.views.bar_row import wrapping_row
+from amrst_gui.views.bar_row import FlowLayout, wrapping_row
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
@@ -45,7 +44,7 @@ class RegistrationPane(QWidget):
         self.setObjectName("registration_pane")
         self.session = session
         self.stage = "before"
-        bar = QHBoxLayout()
+        bar = FlowLayout()
         bar.setContentsMargins(4, 2, 4, 2)
         bar.addWidget(QLabel("Show:"))
         self.buttons = QButtonGroup(self)
@@ -60,7 +59,6 @@ class RegistrationPane(QWidget):
             bar.addWidget(button)
         self.buttons.button(0).setChecked(True)
         self.buttons.idToggled.connect(self._on_stage_toggled)
-        bar.addStretch(1)
         self.colour = QComboBox()
         self.colour.addItem("Scan colours", "scans")
         self.colour.addItem("Distance (cm)", "distance")

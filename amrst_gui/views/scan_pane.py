@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.drops import FileDropMixin
-from amrst_gui.views.bar_row import wrapping_row
+from amrst_gui.views.bar_row import FlowLayout, wrapping_row
 from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
@@ -70,7 +70,7 @@ class ScanPane(FileDropMixin, QWidget):
         self.options = ViewOptions()
         self.setAcceptDrops(True)
 
-        bar = QHBoxLayout()
+        bar = FlowLayout()
         bar.setContentsMargins(4, 2, 4, 2)
         self.toggles: dict[str, QCheckBox] = {}
         for field, label, tip in (
@@ -114,7 +114,6 @@ class ScanPane(FileDropMixin, QWidget):
         colour_row.addWidget(QLabel("Colour:"))
         colour_row.addWidget(self.colour)
         bar.addWidget(colour_box)
-        bar.addStretch(1)
 
         self.view = ScanView(self)
         self.loader = SceneLoader(self.view, self)
@@ -173,7 +172,7 @@ class ScansArea(QWidget):
         self.panes = {
             role: ScanPane(session, role, self) for role in ("target", "source")
         }
-        bar = QHBoxLayout()
+        bar = FlowLayout()
         bar.setContentsMargins(4, 2, 4, 0)
         self.link_box = QCheckBox("Link cameras")
         self.link_box.setToolTip(
@@ -192,7 +191,6 @@ class ScansArea(QWidget):
         bar.addWidget(self.link_box)
         bar.addWidget(reset)
         bar.addWidget(self.frame_button)
-        bar.addStretch(1)
         splitter = QSplitter(Qt.Orientation.Horizontal)
         for pane in self.panes.values():
             splitter.addWidget(pane)

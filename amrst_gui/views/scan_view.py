@@ -134,6 +134,7 @@ class ScanView(QWidget):
             return
         with VTK_LOCK:  # actors replaced: not while a worker makes VTK objects
             self._update_scene(scene, prepared)
+        self.plotter.render()
 
     def _update_scene(self, scene: Scene, prepared: Prepared | None) -> None:
         if prepared is None:
@@ -164,7 +165,6 @@ class ScanView(QWidget):
         if scene.frame_key != self._frame_key:
             self._frame_key = scene.frame_key
             self.reset_camera(render=False)
-        self.plotter.render()
 
     def prerender(self) -> None:
         """Draw a hidden view's points once, off screen (its pane calls this
