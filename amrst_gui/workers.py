@@ -33,6 +33,7 @@ from superqt.utils import WorkerBase, create_worker
 from amrst.errors import Cancelled
 from amrst.progress import EventReporter
 from amrst_gui.pacing import LANES, PACE, at_least_nice
+from amrst_gui.views.vtk_lock import release_later
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -133,10 +134,10 @@ class StageJob(QObject):
             at_least_nice()
             try:
                 if lane is None:
-                    return fn(*args, reporter, **kwargs)
+                    return _Handed(fn(*args, reporter, **kwargs))
                 with LANES.enter(lane, reporter):  # one job per lane at a time
                     reporter.check_cancelled()
-                    return fn(*args, reporter, **kwargs)
+                    return _Handed(fn(*args, reporter, **kwargs))
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses
                 # threads (one from the engine process brings its own).
@@ -163,7 +164,9 @@ class StageJob(QObject):
             self.progressed.emit(fraction, message)
 
     @Slot(object)
-    def _relay_returned(self, result: object) -> None:
+    def _relay_returned(self, handed: object) -> None:
+        result = handed.take() if isinstance(handed, _Handed) else handed
+        release_later(result)  # its last reference goes under VTK_LOCK
         wait = PACE.wait_ms()
         if wait and self._held is None and not self._done:
             # A view's frame just ended: the result is applied on a later turn of
@@ -234,6 +237,24 @@ class StageJob(QObject):
             return
         signal.emit(value)
         self.finished.emit()
+
+
+class _Handed:
+    """A worker's result on its way to the GUI thread, which takes it out.
+
+    The worker thread lets go of the box, not of the result: whichever thread drops
+    the box last, the result's last reference is the GUI thread's, and
+    :func:`amrst_gui.views.vtk_lock.release_later` drops it under the VTK lock (a
+    scene's VTK objects never die in a worker while another makes some).
+    """
+
+    __slots__ = ("_value",)
+
+    def __init__(self, value: object) -> None:
+        self._value: list[object] = [value]
+
+    def take(self) -> object:
+        return self._value.pop()
 
 
 def run_stage(

@@ -13,6 +13,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 
 def _scene(n: int, key: str):
@@ -73,3 +74,46 @@ def test_closing_and_redrawing_a_view_wait_for_the_object_being_made(qtbot):
         worker.join(10)
         assert done >= released["at"]
     assert view.closed
+
+
+class _Probe:
+    """Records, when it dies, in which thread and whether that thread held the lock."""
+
+    def __init__(self, seen: list) -> None:
+        self.seen = seen
+
+    def __del__(self) -> None:
+        from amrst_gui.views.vtk_lock import VTK_LOCK
+
+        self.seen.append(
+            (
+                threading.current_thread() is threading.main_thread(),
+                VTK_LOCK._is_owned(),
+            )
+        )
+
+
+@pytest.mark.parametrize("stale", ["discarded", "ignored"])
+def test_a_result_nobody_takes_dies_on_the_gui_thread_under_the_lock(qtbot, stale):
+    """A stale scene (a newer one replaced it, its job was discarded) is dropped by
+    the GUI thread under the lock, never by the worker or by Qt's signal cleanup."""
+    from amrst_gui import workers
+
+    seen: list = []
+    started = threading.Event()
+
+    def work(reporter) -> _Probe:
+        started.set()
+        time.sleep(0.05)
+        return _Probe(seen)
+
+    got: list = []
+    job = workers.run_stage(work, name="probe", on_result=lambda out: None)
+    if stale == "discarded":
+        assert started.wait(10)
+        job.discard()
+    else:  # delivered to a slot that keeps nothing
+        job.returned.connect(lambda out: got.append(type(out).__name__))
+    qtbot.waitUntil(lambda: bool(seen), timeout=10_000)
+    assert seen == [(True, True)]
+    assert got == ([] if stale == "discarded" else ["_Probe"])
