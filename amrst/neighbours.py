@@ -7,9 +7,7 @@ small_gicp's KD-tree (imports in about 0.2 s) measured faster than
 nearest of many points: the outlier filter, the wood features, the skeleton graph)
 and 1.4-1.9x for :class:`NearestTree` queries (one tree, many queries: ICP
 correspondences, cloud metrics); :class:`NeighbourTable` shares one query between
-the per-scan stages. pykdtree was as fast with one OpenMP thread but
-5-12x slower than scipy with two on this loaded 2-core machine (OpenMP threads
-spin while they wait), so it is not used.
+the per-scan stages. pykdtree: see ``docs/bench/final10``.
 
 Both return what ``cKDTree.query`` returns: Euclidean distances sorted ascending and
 int64 indices, ``inf`` and ``len(points)`` where no neighbour lies within the bound.
@@ -20,18 +18,22 @@ from __future__ import annotations
 
 import os
 import threading
-from typing import Any
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-# Threads for each KD-tree build and query (AMRST_KD_THREADS, default: 2 on a machine
-# with 2 cores or more). small_gicp holds the GIL while it works, so the two scans'
-# threads never overlap there; two threads inside each query made the registration
-# compute 1.10-1.19x faster (median over the 30 shared cases, alternated runs on a
-# quiet 2-core machine). A batch worker with one core sets 1 (amrst.campaign.run).
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+# Threads for each KD-tree build and query (AMRST_KD_THREADS; default 2 with 2 cores or
+# more): small_gicp holds the GIL, so two threads inside each query made the registration
+# compute 1.10-1.19x faster (30 shared cases). A one-core batch worker sets 1.
 _threads = int(os.environ.get("AMRST_KD_THREADS", "0") or 0) or min(
     2, os.cpu_count() or 1
 )
+_HERE: ContextVar[int] = ContextVar("amrst_kd_threads", default=0)  # threads_here
 
 
 def set_threads(n: int) -> None:
@@ -40,9 +42,22 @@ def set_threads(n: int) -> None:
     _threads = max(1, int(n))
 
 
-def threads() -> int:
-    """Return the threads KD-tree builds and queries use."""
-    return _threads
+def _current() -> int:
+    """Return the threads KD-tree builds and queries use (here: see threads_here)."""
+    return _HERE.get() or _threads
+
+
+threads = _current  # the public name (functions below take a ``threads`` argument)
+
+
+@contextmanager
+def threads_here(n: int) -> Iterator[None]:
+    """Use ``n`` threads in this context only (``amrst.pipeline.scan_worker``)."""
+    token = _HERE.set(max(1, int(n)))
+    try:
+        yield
+    finally:
+        _HERE.reset(token)
 
 
 # A query of less work than this (queries x (neighbours + 3), about 0.1 us each on one
@@ -59,7 +74,7 @@ _BUILD_COST = 2
 
 def _batch_threads(n_queries: int, k: int, threads: int | None = None) -> int:
     """Threads for ``n_queries`` queries of ``k`` neighbours (one for a small batch)."""
-    n = _threads if threads is None else threads
+    n = _current() if threads is None else threads
     return n if n_queries * (k + 3) >= SMALL_BATCH else 1
 
 
@@ -69,7 +84,7 @@ def _build_threads(n_points: int, threads: int | None = None) -> int:
     One below 100,000 points: 2-3 ms on one thread, and a second thread cost up to
     25 ms of waiting on a loaded machine.
     """
-    n = _threads if threads is None else threads
+    n = _current() if threads is None else threads
     return n if n_points >= 100_000 else 1
 
 
@@ -108,7 +123,7 @@ def knn(
     q = pts if queries is None else _points(queries)
     if len(q) == 0:
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
-    n_threads = _threads if threads is None else threads
+    n_threads = _current() if threads is None else threads
     tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), n_threads))
     idx, sq = tree.batch_knn_search(
         q, k, num_threads=_batch_threads(len(q), k, n_threads)
@@ -165,7 +180,7 @@ class NearestTree:
 
         self.points = _points(points)
         self.n = len(self.points)
-        self.threads = _threads if threads is None else threads
+        self.threads = _current() if threads is None else threads
         self._tree: _Tree | None = (
             _Tree(
                 self.points,
@@ -259,7 +274,7 @@ class NeighbourTable:
         self._tree = (
             tree
             if tree is None or isinstance(tree, _Tree)
-            else _Tree(points, _threads, tree)
+            else _Tree(points, _current(), tree)
         )
 
     @classmethod
@@ -343,9 +358,9 @@ class NeighbourTable:
         start = np.cumsum(count) - count
         take = at[(start[ok][:, None] + np.arange(k)).ravel()]
         if dist is not None:
-            dist[part[ok]] = np.take(self._dist, root[part], axis=0).ravel()[
-                take
-            ].reshape(-1, k)
+            dist[part[ok]] = (
+                np.take(self._dist, root[part], axis=0).ravel()[take].reshape(-1, k)
+            )
         idx[part[ok]] = jp.ravel()[take].reshape(-1, k)
         short = part[~ok]
         # More of the cloud's neighbours for the rows left short (a few %): 2K, then
