@@ -8,10 +8,11 @@ while this one analyses the target, each on one core with one OpenMP thread, too
 0.80-0.86x the threads' time for the per-scan stages and 0.91x for the whole
 registration (median per case, 30 shared cases, ``docs/bench/final11``).
 
-The worker is forked on the first registration and kept: a child forked for every
-pair gained nothing (0.97-1.03x), because after a fork both processes copy each
-heap page they write (copy-on-write) and numpy's temporaries reuse the heap; a kept
-worker has its pages once. The source goes to it through a pipe (1.2 MB for 50,000
+The worker is forked at the second pair a process registers and kept: a child
+forked for every pair gained nothing (0.97-1.03x), because after a fork both
+processes copy each heap page they write (copy-on-write) and numpy's temporaries
+reuse the heap; a kept worker has copied its pages once. For the same reason a
+one-shot ``amrst register`` keeps the threads (with the worker it took 1.02x). The source goes to it through a pipe (1.2 MB for 50,000
 points; scans over :data:`MAX_POINTS` stay with the threads), its analysis comes
 back without the neighbour table (only the per-scan stages use it) and without the
 cloud (this process has it), and its progress as it goes. Cancel, an error here or
@@ -82,7 +83,9 @@ def analyse_source_apart(
     ``stems``: each scan's stem (local frame) or None. Raises what the analyses
     raise, the target's error first (as ``both_scans``).
     """
-    if not usable(source) or not _LOCK.acquire(blocking=False):
+    global _PAIRS
+    _PAIRS += 1
+    if _PAIRS < 2 or not usable(source) or not _LOCK.acquire(blocking=False):
         return None
     try:
         worker = _worker()
@@ -179,6 +182,9 @@ class _Worker:
 
 
 _LOCK = threading.Lock()  # one pair at a time in the worker
+# Pairs this process has registered: the worker serves from the second on (a
+# one-shot command was 1.02x slower with it: the fork's copy-on-write cost).
+_PAIRS = 0
 _WORKER: _Worker | None = None
 
 

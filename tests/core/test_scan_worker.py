@@ -48,9 +48,13 @@ def same(a, b):
         and np.array_equal(a.target.keypoints.xyz, b.target.keypoints.xyz)
     )
 
+os.environ["AMRST_SCAN_PROCESS"] = "1"
+one_shot = register(tgt, src)  # a process's first pair: the threads
+out["worker_at_first_pair"] = pid()
 os.environ["AMRST_SCAN_PROCESS"] = "0"
 threads = register(tgt, src)
 out["worker_when_off"] = pid()
+out["one_shot_same"] = same(one_shot, threads)
 os.environ["AMRST_SCAN_PROCESS"] = "1"
 messages = []
 first = register(tgt, src, reporter=EventReporter(lambda f, m: messages.append(m)))
@@ -102,6 +106,8 @@ print(json.dumps(out))
 def test_the_worker_gives_the_threads_results_and_recovers():
     out = run_json_script(SCRIPT, str(SAMPLE_DIR))
     assert out["worker_when_off"] is None
+    assert out["worker_at_first_pair"] is None
+    assert out["one_shot_same"]
     assert out["first_pid"] is not None
     assert out["same_as_threads"]
     assert out["second_same"]
