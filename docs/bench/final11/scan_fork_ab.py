@@ -26,22 +26,23 @@ VARIANTS = {
 }
 
 
-def main() -> None:
+def compare(variants: dict[str, dict[str, str]]) -> None:
+    """Time ``register`` on the cases of ``sys.argv[1:]`` under each environment."""
     cases = [read_case(p) for d in sys.argv[1:] for p in find_cases(d, None)]
     register(cases[0].target, cases[0].source)
-    best: dict[str, list[float]] = {k: [] for k in VARIANTS}
+    best: dict[str, list[float]] = {k: [] for k in variants}
     for c in cases:
-        runs: dict[str, list[float]] = {k: [] for k in VARIANTS}
+        runs: dict[str, list[float]] = {k: [] for k in variants}
         for i in range(5):
-            for name in list(VARIANTS) if i % 2 == 0 else list(VARIANTS)[::-1]:
-                os.environ.update(VARIANTS[name])
+            for name in list(variants) if i % 2 == 0 else list(variants)[::-1]:
+                os.environ.update(variants[name])
                 t = register(c.target, c.source).timings
                 runs[name].append(t["total"] - t["metrics"])
-        for k in VARIANTS:
+        for k in variants:
             best[k].append(min(runs[k]))
         print(c.name[:30], {k: round(min(v) * 1000, 1) for k, v in runs.items()})
     ref = np.array(best["threads"])
-    for k in VARIANTS:
+    for k in variants:
         r = np.array(best[k]) / ref
         print(
             f"{k}: sum {sum(best[k]):.3f} s; per case / threads median {np.median(r):.3f}"
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    compare(VARIANTS)

@@ -1,50 +1,17 @@
 """The kept scan worker (``amrst/pipeline/scan_worker.py``) against the two threads.
 
 ``AMRST_SCAN_PROCESS`` picks the path at each call (0: the two threads). Each case
-5 times per variant, the order alternating, the minimum counting; the warm-up pair
-makes the worker serve from the first case on.
+5 times per variant, the order alternating, the minimum counting (``scan_fork_ab``'s
+loop, without its patch); the warm-up pair makes the worker serve from the first case.
 
 Run: .venv/bin/python docs/bench/final11/worker_ab.py ../shared/data/cases ../shared/data/cases_field
 """
 
 from __future__ import annotations
 
-import os
-import sys
-
-import numpy as np
-
-from amrst.io.cases import find_cases, read_case
-from amrst.pipeline import register
-
-VARIANTS = {
-    "threads": {"AMRST_SCAN_PROCESS": "0"},
-    "worker": {"AMRST_SCAN_PROCESS": "1"},
-}
-
-
-def main() -> None:
-    cases = [read_case(p) for d in sys.argv[1:] for p in find_cases(d, None)]
-    register(cases[0].target, cases[0].source)
-    best: dict[str, list[float]] = {k: [] for k in VARIANTS}
-    for c in cases:
-        runs: dict[str, list[float]] = {k: [] for k in VARIANTS}
-        for i in range(5):
-            for name in list(VARIANTS) if i % 2 == 0 else list(VARIANTS)[::-1]:
-                os.environ.update(VARIANTS[name])
-                t = register(c.target, c.source).timings
-                runs[name].append(t["total"] - t["metrics"])
-        for k in VARIANTS:
-            best[k].append(min(runs[k]))
-        print(c.name[:30], {k: round(min(v) * 1000, 1) for k, v in runs.items()})
-    ref = np.array(best["threads"])
-    for k in VARIANTS:
-        r = np.array(best[k]) / ref
-        print(
-            f"{k}: sum {sum(best[k]):.3f} s; per case / threads median {np.median(r):.3f}"
-            f" (cases {np.median(r[:20]):.3f}, field {np.median(r[20:]):.3f})"
-        )
-
+from scan_fork_ab import compare
 
 if __name__ == "__main__":
-    main()
+    compare(
+        {"threads": {"AMRST_SCAN_PROCESS": "0"}, "worker": {"AMRST_SCAN_PROCESS": "1"}}
+    )
