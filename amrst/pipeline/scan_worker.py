@@ -12,10 +12,13 @@ The worker is forked at the second pair a process registers and kept: a child
 forked for every pair gained nothing (0.97-1.03x), because after a fork both
 processes copy each heap page they write (copy-on-write) and numpy's temporaries
 reuse the heap; a kept worker has copied its pages once. For the same reason a
-one-shot ``amrst register`` keeps the threads (with the worker it took 1.02x). The source goes to it through a pipe (1.2 MB for 50,000
-points; scans over :data:`MAX_POINTS` stay with the threads), its analysis comes
-back without the neighbour table (only the per-scan stages use it) and without the
-cloud (this process has it), and its progress as it goes. Cancel, an error here or
+one-shot ``amrst register`` keeps the threads (with the worker it took 1.02x).
+
+The source goes to it through a pipe (1.2 MB for 50,000 points; scans over :data:`MAX_POINTS` stay with the threads), its analysis comes
+back without the neighbour table (megabytes; only the per-scan stages use it, so a
+second analysis of the source for the ground rule queries again, one field case in
+ten) and without the cloud (this process has it); its progress and log records come
+as it goes (``scan_worker_child``). Cancel, an error here or
 Ctrl-C kill the worker (the next pair forks a new one); a worker that dies makes
 this pair's source analysed here. Results are the threads' bit for bit (tested).
 
@@ -24,7 +27,13 @@ calling thread the only Python thread when the worker is forked (a fork copies
 only the calling thread; locks other threads held would stay locked), and
 ``AMRST_SCAN_PROCESS`` not ``0``. The worker uses one OpenMP thread: libgomp's
 thread pool does not survive a fork (in the child of a process that had used
-OpenMP, a second OpenMP thread hung, tried here).
+OpenMP, a second OpenMP thread hung, tried here). It keeps every fd closed but its
+pipes (no inherited file lock), and a process forked from this one later forgets
+this one's worker (``os.register_at_fork``).
+
+The worker is a snapshot of this process at its fork: it keeps what this process
+held then (freed here later, still mapped there), and a change made to the
+engine's code afterwards (a monkeypatch) does not reach it.
 """
 
 from __future__ import annotations
@@ -36,15 +45,16 @@ import os
 import pickle
 import select
 import signal
-import struct
 import sys
 import threading
+import time
 import warnings
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from amrst.neighbours import set_threads, threads_here
+from amrst.neighbours import threads_here
 from amrst.pipeline.analysis import SCAN_THREADS, ScanAnalysis, analyse_scan
+from amrst.pipeline.scan_worker_child import HEAD, serve, write_all
 from amrst.progress import SharedReporter
 
 if TYPE_CHECKING:
@@ -57,8 +67,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MAX_POINTS = 1_000_000  # larger sources stay with the threads (copying them costs)
-_HEAD = struct.Struct("<Q")  # every message: its length, then a pickle
-_POLL_S = 0.05  # how often Cancel is checked while waiting for the worker
+_POLL_MS = 50  # how often Cancel is checked while waiting for the worker
 
 
 def usable(source: Cloud) -> bool:
@@ -92,26 +101,24 @@ def analyse_source_apart(
         if worker is None:
             return None
         shared = SharedReporter(reporter, 2)
-        request = (
-            (source.xyz, source.offset, dict(source.attributes), source.name),
-            params,
-            stems[1],
-        )
+        parts = (source.xyz, source.offset, dict(source.attributes), source.name)
         try:
-            worker.send(request)
-        except OSError:  # it died since the last pair: the threads, a new one next time
-            log.warning("The scan worker process had ended; a new one comes next time.")
-            _stop(kill=True)
-            return None
-        try:
+            # Anything that stops an exchange halfway kills the worker: a request
+            # or an answer left in a pipe would be read with the next pair's.
+            try:
+                seq = worker.send(parts, params, stems[1])
+            except OSError:  # it had ended: the threads now, a new one next time
+                log.warning("The scan worker process had ended; a new one next time.")
+                _stop(kill=True)
+                return None
             with threads_here(1):
                 tgt = analyse_scan(target, params, shared.task(0, "target"), stems[0])
-            answer = worker.receive(shared)
+            answer = worker.receive(seq, shared)
         except BaseException:
             _stop(kill=True)
             raise
         if answer is None:
-            log.warning("The scan worker process ended; analysing the source here.")
+            log.warning("The scan worker process failed; analysing the source here.")
             _stop(kill=True)
             rep = shared.task(1, "source")
             return tgt, analyse_scan(source, params, rep, stems[1])
@@ -129,56 +136,100 @@ class _Worker:
     def __init__(self) -> None:
         req_r, req_w = os.pipe()
         ans_r, ans_w = os.pipe()
-        with warnings.catch_warnings():  # 3.12+: "fork() may lead to deadlocks"
-            warnings.simplefilter("ignore", DeprecationWarning)
-            pid = os.fork()
+        # Ctrl-C between the fork and the worker's own handler would run this
+        # process's code in the worker: held back until the worker ignores it.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            with warnings.catch_warnings():  # 3.12+: "fork() may lead to deadlocks"
+                warnings.simplefilter("ignore", DeprecationWarning)
+                pid = os.fork()
+        except OSError:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+            for fd in (req_r, req_w, ans_r, ans_w):
+                os.close(fd)
+            raise
         if pid == 0:
-            # Only the two pipes and the standard streams: a file lock (flock) or a
-            # socket of the parent must not live on in the worker.
-            lo, hi = sorted((req_r, ans_w))
-            for a, b in ((3, lo), (lo + 1, hi), (hi + 1, os.sysconf("SC_OPEN_MAX"))):
-                os.closerange(a, b)
-            _serve(req_r, ans_w)  # never returns
+            try:
+                # Only the two pipes and the standard streams: a file lock (flock)
+                # or a socket of the parent must not live on in the worker.
+                lo, hi = sorted((req_r, ans_w))
+                for a, b in (
+                    (3, lo),
+                    (lo + 1, hi),
+                    (hi + 1, os.sysconf("SC_OPEN_MAX")),
+                ):
+                    os.closerange(a, b)
+                serve(req_r, ans_w)
+            finally:
+                os._exit(1)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # the worker: in serve()
         os.close(req_r)
         os.close(ans_w)
-        self.pid, self._req, self._ans = pid, os.fdopen(req_w, "wb"), ans_r
+        self.pid, self.req, self.ans, self.seq = pid, req_w, ans_r, 0
 
-    def send(self, request: object) -> None:
-        data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
-        self._req.write(_HEAD.pack(len(data)) + data)
-        self._req.flush()
+    def send(self, parts: tuple[Any, ...], params: Any, stem: Any) -> int:
+        """Send one source scan; return the request's number."""
+        self.seq += 1
+        data = (self.seq, parts, params, stem)
+        write_all(self.req, pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL))
+        return self.seq
 
-    def receive(self, shared: SharedReporter) -> tuple[str, Any] | None:
-        """Return the worker's answer (its progress relayed meanwhile); None if it died."""
+    def receive(self, seq: int, shared: SharedReporter) -> tuple[str, Any] | None:
+        """Return the answer to request ``seq``; None if the worker died or misspoke.
+
+        Progress and log records are relayed meanwhile.
+        """
         source = shared.task(1, "source")
+        poll = select.poll()  # select() fails on descriptors over 1023
+        poll.register(self.ans, select.POLLIN)
         buf = bytearray()
         while True:
             shared.check_cancelled()
-            if not select.select([self._ans], [], [], _POLL_S)[0]:
+            if not poll.poll(_POLL_MS):
                 continue
-            chunk = os.read(self._ans, 1 << 20)
+            chunk = os.read(self.ans, 1 << 20)
             if not chunk:
                 return None
             buf += chunk
-            while len(buf) >= _HEAD.size:
-                (n,) = _HEAD.unpack_from(buf)
-                if len(buf) < _HEAD.size + n:
+            while len(buf) >= HEAD.size:
+                (n,) = HEAD.unpack_from(buf)
+                if len(buf) < HEAD.size + n:
                     break
-                kind, value = pickle.loads(buf[_HEAD.size : _HEAD.size + n])
-                del buf[: _HEAD.size + n]
-                if kind != "progress":
+                try:
+                    kind, got, value = pickle.loads(buf[HEAD.size : HEAD.size + n])
+                except Exception:  # e.g. an error class that does not rebuild
+                    log.exception("An answer of the scan worker could not be read.")
+                    return None
+                del buf[: HEAD.size + n]
+                if got != seq:
+                    return None
+                if kind == "progress":
+                    source.progress(*value)
+                elif kind == "log":
+                    logging.getLogger(value.name).handle(value)
+                else:
                     return kind, value
-                source.progress(*value)
 
     def close(self, kill: bool) -> None:
+        """End the worker: killed, or told by the end of its input.
+
+        Killed all the same if it has not ended within a second (e.g. stopped).
+        """
         if kill:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.pid, signal.SIGKILL)
-        for close in (self._req.close, lambda: os.close(self._ans)):
-            with contextlib.suppress(OSError):  # killed while it read: a broken pipe
-                close()
+        for fd in (self.req, self.ans):
+            with contextlib.suppress(OSError):
+                os.close(fd)
         with contextlib.suppress(ChildProcessError):
-            os.waitpid(self.pid, 0)  # a kept worker ends at the end of its input
+            deadline = time.monotonic() + 1.0
+            while not os.waitpid(self.pid, os.WNOHANG)[0]:
+                if time.monotonic() > deadline:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(self.pid, signal.SIGKILL)
+                    os.waitpid(self.pid, 0)
+                    break
+                time.sleep(0.005)
 
 
 _LOCK = threading.Lock()  # one pair at a time in the worker
@@ -186,12 +237,18 @@ _LOCK = threading.Lock()  # one pair at a time in the worker
 # one-shot command was 1.02x slower with it: the fork's copy-on-write cost).
 _PAIRS = 0
 _WORKER: _Worker | None = None
+_FORK_FAILED = False
 
 
 def _worker() -> _Worker | None:
-    global _WORKER
-    if _WORKER is None and threading.active_count() == 1:
-        _WORKER = _Worker()
+    global _WORKER, _FORK_FAILED
+    if _WORKER is None and not _FORK_FAILED and threading.active_count() == 1:
+        try:
+            _WORKER = _Worker()
+        except OSError as exc:  # a process limit, memory: the threads from now on
+            _FORK_FAILED = True
+            log.warning("No scan worker process (%s); the scans use two threads.", exc)
+            return None
         log.info("Source scans go to a worker process (pid %d).", _WORKER.pid)
     return _WORKER
 
@@ -203,66 +260,18 @@ def _stop(kill: bool = False) -> None:
         worker.close(kill)
 
 
+def _forget() -> None:
+    """Forget this process's worker in a process forked from it.
+
+    Its pipes closed there, not waited for at exit, and no pair registered yet.
+    """
+    global _WORKER, _PAIRS, _LOCK
+    if _WORKER is not None:
+        for fd in (_WORKER.req, _WORKER.ans):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+    _WORKER, _PAIRS, _LOCK = None, 0, threading.Lock()
+
+
 atexit.register(_stop)
-
-
-def _serve(requests: int, answers: int) -> None:
-    """Serve one source scan per request until the input ends (the worker's loop)."""
-    code = 1
-    try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the parent kills it
-        set_threads(1)  # the parent's OpenMP threads are not here
-        reader = os.fdopen(requests, "rb")
-        while True:
-            head = reader.read(_HEAD.size)
-            if len(head) < _HEAD.size:
-                code = 0
-                break
-            parts, params, stem = pickle.loads(reader.read(_HEAD.unpack(head)[0]))
-            _answer(answers, parts, params, stem)
-    finally:
-        os._exit(code)  # no atexit handlers, no flushing of the parent's buffers
-
-
-def _answer(
-    fd: int, parts: tuple[Any, ...], params: RegistrationParams, stem: Any
-) -> None:
-    from amrst.types import Cloud
-
-    try:
-        an = analyse_scan(Cloud(*parts), params, _PipeReporter(fd), stem)
-        pre = replace(an.pre, neighbours=None)
-        scene_pre = an.scene_pre and replace(an.scene_pre, neighbours=None)
-        message: tuple[str, object] = (
-            "result",
-            # In transit only: the parent puts its own cloud back.
-            replace(an, pre=pre, scene_pre=scene_pre, cloud=None),  # type: ignore[arg-type]
-        )
-        data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-    except Exception as exc:  # raised in the parent
-        try:
-            data = pickle.dumps(("error", exc))
-        except Exception:  # an error that does not pickle
-            data = pickle.dumps(("error", RuntimeError(f"source scan: {exc!r}")))
-    os.set_blocking(fd, True)
-    os.write(fd, _HEAD.pack(len(data)))
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view) :]
-
-
-class _PipeReporter:
-    """The worker's reporter: progress goes to the parent; Cancel is a kill."""
-
-    def __init__(self, fd: int) -> None:
-        self._fd = fd
-        os.set_blocking(fd, False)
-
-    def progress(self, fraction: float, message: str = "") -> None:
-        data = pickle.dumps(("progress", (float(fraction), str(message)[:200])))
-        # Under PIPE_BUF: written whole or not at all (a full pipe drops it).
-        with contextlib.suppress(BlockingIOError):
-            os.write(self._fd, _HEAD.pack(len(data)) + data)
-
-    def check_cancelled(self) -> None:
-        pass
+os.register_at_fork(after_in_child=_forget)

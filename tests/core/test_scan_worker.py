@@ -29,6 +29,29 @@ from amrst.types import Cloud
 tgt, src = (io.read(os.path.join(sys.argv[1], n)) for n in ("target.ply", "source.ply"))
 out = {}
 
+# Made before the worker is forked (it is a snapshot): an error class that does not
+# rebuild from its pickle, and a log record from the source's analysis.
+import logging
+from amrst.pipeline import analysis
+
+class StageError(InvalidInput):
+    def __init__(self, scan, n):
+        super().__init__(f"{scan}: {n} points")
+
+real = analysis.analyse_scan
+def analyse_scan(cloud, *args, **kw):
+    if cloud.name == "bad.ply":
+        raise StageError(cloud.name, len(cloud.xyz))
+    if cloud.name == "logme.ply":
+        logging.getLogger("amrst.test").warning("hello from %s", cloud.name)
+    return real(cloud, *args, **kw)
+analysis.analyse_scan = analyse_scan
+records = []
+class Keep(logging.Handler):
+    def emit(self, record):
+        records.append(record.getMessage())
+logging.getLogger("amrst.test").addHandler(Keep())
+
 def pid():
     return None if scan_worker._WORKER is None else scan_worker._WORKER.pid
 
@@ -99,6 +122,23 @@ out["after_kill_same"] = same(after_kill, threads)
 again = register(tgt, src)
 out["new_worker"] = pid() not in (None, kept)
 out["again_same"] = same(again, threads)
+bad = Cloud(src.xyz, src.offset, name="bad.ply")
+try:
+    register(tgt, bad)
+except InvalidInput as exc:
+    out["bad"] = [type(exc).__name__, str(exc) == f"bad.ply: {len(src.xyz)} points"]
+out["worker_kept_after_bad"] = pid() is not None
+records.clear()
+register(tgt, Cloud(src.xyz, src.offset, name="logme.ply"))
+out["records"] = list(records)
+out["logged_by_worker"] = pid() is not None
+
+# A process forked from this one forgets this one's worker; this one keeps it.
+child = os.fork()
+if child == 0:
+    os._exit(0 if scan_worker._WORKER is None and scan_worker._PAIRS == 0 else 1)
+out["child_forgot"] = os.waitpid(child, 0)[1] == 0
+out["still_same"] = same(register(tgt, src), threads)
 print(json.dumps(out))
 """
 
@@ -123,3 +163,10 @@ def test_the_worker_gives_the_threads_results_and_recovers():
     assert out["after_kill_same"]
     assert out["again_same"]
     assert out["new_worker"]
+    # An error class that does not rebuild arrives as its nearest class that does.
+    assert out["bad"] == ["InvalidInput", True]
+    assert out["worker_kept_after_bad"]
+    assert out["records"] == ["hello from logme.ply"]  # the worker's log, here
+    assert out["logged_by_worker"]
+    assert out["child_forgot"]
+    assert out["still_same"]
