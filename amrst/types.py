@@ -88,6 +88,12 @@ class Cloud:
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Pickled as its fields (a mappingproxy does not pickle), for the scan
+        # worker and the app's engine process; see _cloud_from_fields.
+        attrs, meta = dict(self.attributes), dict(self.meta)
+        return _cloud_from_fields, (self.xyz, self.offset, attrs, self.name, meta)
+
     @property
     def world_xyz(self) -> np.ndarray:
         """(N, 3) float64 world coordinates (``xyz + offset``)."""
@@ -118,6 +124,31 @@ class Cloud:
             self.name,
             self.meta,
         )
+
+
+def _cloud_from_fields(
+    xyz: np.ndarray,
+    offset: np.ndarray,
+    attributes: dict[str, np.ndarray],
+    name: str,
+    meta: dict[str, Any],
+) -> Cloud:
+    """Rebuild an unpickled :class:`Cloud` from its fields, checked when it was made.
+
+    The arrays are kept as they arrive (the app's engine pipe names a big array it
+    sent before and hands back that very array), made read-only as a Cloud's are.
+    """
+    cloud = object.__new__(Cloud)
+    for arr in (xyz, offset, *attributes.values()):
+        arr.flags.writeable = False
+    fields = {"xyz": xyz, "offset": offset, "name": name}
+    fields |= {
+        "attributes": MappingProxyType(attributes),
+        "meta": MappingProxyType(meta),
+    }
+    for key, value in fields.items():
+        object.__setattr__(cloud, key, value)
+    return cloud
 
 
 def make_transform(R: np.ndarray, t: np.ndarray) -> Transform:

@@ -17,13 +17,11 @@ engine's odd, so the two never give the same token to different arrays.
 
 from __future__ import annotations
 
-import copyreg
 import io
 import pickle
 import struct
 import threading
 import weakref
-from types import MappingProxyType
 from typing import IO, Any, Protocol
 
 import numpy as np
@@ -133,19 +131,7 @@ class ArrayCache:
             self._by_id = {k: t for k, t in self._by_id.items() if t not in dead}
 
 
-def _mappingproxy(mp: MappingProxyType) -> tuple:
-    return proxy_of, (dict(mp),)
-
-
-def proxy_of(d: dict) -> MappingProxyType:
-    """A read-only view of ``d`` (how a pickled mappingproxy is rebuilt)."""
-    return MappingProxyType(d)
-
-
 class _Pickler(pickle.Pickler):
-    dispatch_table = copyreg.dispatch_table.copy()
-    dispatch_table[MappingProxyType] = _mappingproxy  # Cloud's attributes
-
     def __init__(self, file: IO[bytes], cache: ArrayCache, buffers: list) -> None:
         super().__init__(file, protocol=5, buffer_callback=buffers.append)
         self._cache = cache

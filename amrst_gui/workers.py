@@ -164,8 +164,8 @@ class StageJob(QObject):
             self.progressed.emit(fraction, message)
 
     @Slot(object)
-    def _relay_returned(self, handed: object) -> None:
-        result = handed.take() if isinstance(handed, _Handed) else handed
+    def _relay_returned(self, handed: _Handed) -> None:
+        result = handed.take()
         release_later(result)  # its last reference goes under VTK_LOCK
         wait = PACE.wait_ms()
         if wait and self._held is None and not self._done:

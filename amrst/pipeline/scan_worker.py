@@ -5,7 +5,7 @@ Two threads of one process analyse the two scans of a pair at once
 of a few milliseconds and small_gicp queries that hold the GIL: the threads were
 only 1.1x faster than one after the other. A second process analysing the source
 while this one analyses the target, each on one core with one OpenMP thread, took
-0.80-0.86x the threads' time for the per-scan stages and 0.91x for the whole
+0.80-0.86x the threads' time for the per-scan stages and 0.87-0.88x for the whole
 registration (median per case, 30 shared cases, ``docs/bench/final11``).
 
 The worker is forked at the second pair a process registers and kept: a child
@@ -14,13 +14,14 @@ processes copy each heap page they write (copy-on-write) and numpy's temporaries
 reuse the heap; a kept worker has copied its pages once. For the same reason a
 one-shot ``amrst register`` keeps the threads (with the worker it took 1.02x).
 
-The source goes to it through a pipe (1.2 MB for 50,000 points; scans over :data:`MAX_POINTS` stay with the threads), its analysis comes
-back without the neighbour table (megabytes; only the per-scan stages use it, so a
-second analysis of the source for the ground rule queries again, one field case in
-ten) and without the cloud (this process has it); its progress and log records come
-as it goes (``scan_worker_child``). Cancel, an error here or
-Ctrl-C kill the worker (the next pair forks a new one); a worker that dies makes
-this pair's source analysed here. Results are the threads' bit for bit (tested).
+The source goes to it through a pipe (1.2 MB for 50,000 points; scans over
+:data:`MAX_POINTS` stay with the threads). Its analysis comes back without the
+neighbour table (megabytes; only the per-scan stages use it, so a second analysis
+of the source for the ground rule queries again: one field case in ten) and
+without the cloud (this process has it); its progress and log records come as it
+goes (``scan_worker_child``). Cancel, an error here or Ctrl-C kill the worker (the
+next pair forks a new one); a worker that dies makes this pair's source analysed
+here. Results are the threads' bit for bit (tested).
 
 Used where a fork is safe: on Linux, with ``analysis.SCAN_THREADS`` at 2, the
 calling thread the only Python thread when the worker is forked (a fork copies
@@ -101,12 +102,11 @@ def analyse_source_apart(
         if worker is None:
             return None
         shared = SharedReporter(reporter, 2)
-        parts = (source.xyz, source.offset, dict(source.attributes), source.name)
         try:
             # Anything that stops an exchange halfway kills the worker: a request
             # or an answer left in a pipe would be read with the next pair's.
             try:
-                seq = worker.send(parts, params, stems[1])
+                seq = worker.send(source, params, stems[1])
             except OSError:  # it had ended: the threads now, a new one next time
                 log.warning("The scan worker process had ended; a new one next time.")
                 _stop(kill=True)
@@ -167,10 +167,10 @@ class _Worker:
         os.close(ans_w)
         self.pid, self.req, self.ans, self.seq = pid, req_w, ans_r, 0
 
-    def send(self, parts: tuple[Any, ...], params: Any, stem: Any) -> int:
+    def send(self, source: Cloud, params: RegistrationParams, stem: Any) -> int:
         """Send one source scan; return the request's number."""
         self.seq += 1
-        data = (self.seq, parts, params, stem)
+        data = (self.seq, source, params, stem)
         write_all(self.req, pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL))
         return self.seq
 

@@ -1,7 +1,7 @@
 """The scan worker's side (see ``scan_worker``): its loop, and what it sends back.
 
 Messages both ways are a length (:data:`HEAD`), then a pickle. A request is
-``(seq, cloud parts, params, stem)``; every answer frame is ``(kind, seq, value)``:
+``(seq, source cloud, params, stem)``; every answer frame is ``(kind, seq, value)``:
 ``progress`` and ``log`` frames while the scan is analysed (each small enough to
 be written whole or dropped when the pipe is full: the parent reads them only once
 its own scan is done), then one ``result`` or ``error``.
@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
+    from amrst.types import Cloud
 
 HEAD = struct.Struct("<Q")
 _SMALL = 4000  # under PIPE_BUF (4096 on Linux): a write of it is whole or nothing
@@ -54,21 +55,20 @@ def serve(requests: int, answers: int) -> None:
             if len(head) < HEAD.size:
                 code = 0
                 break
-            seq, parts, params, stem = pickle.loads(reader.read(HEAD.unpack(head)[0]))
-            _answer(answers, seq, parts, params, stem)
+            seq, cloud, params, stem = pickle.loads(reader.read(HEAD.unpack(head)[0]))
+            _answer(answers, seq, cloud, params, stem)
     finally:
         os._exit(code)
 
 
 def _answer(
-    fd: int, seq: int, parts: tuple[Any, ...], params: RegistrationParams, stem: Any
+    fd: int, seq: int, cloud: Cloud, params: RegistrationParams, stem: Any
 ) -> None:
     from amrst.pipeline.analysis import analyse_scan
-    from amrst.types import Cloud
 
     _Frames.seq = seq
     try:
-        an = analyse_scan(Cloud(*parts), params, _PipeReporter(fd), stem)
+        an = analyse_scan(cloud, params, _PipeReporter(fd), stem)
         pre = replace(an.pre, neighbours=None)
         scene_pre = an.scene_pre and replace(an.scene_pre, neighbours=None)
         # In transit only: the parent puts its own cloud back.

@@ -6,8 +6,10 @@ Python thread is the caller, and it is a snapshot of that process.
 
 from __future__ import annotations
 
+import pickle
 import sys
 
+import numpy as np
 import pytest
 
 from tests.conftest import SAMPLE_DIR, run_json_script
@@ -170,3 +172,29 @@ def test_the_worker_gives_the_threads_results_and_recovers():
     assert out["logged_by_worker"]
     assert out["child_forgot"]
     assert out["still_same"]
+
+
+def test_a_cloud_pickles_whole_and_frozen():
+    """The worker (and the app's engine process) receive clouds as pickles."""
+    from amrst.types import Cloud
+
+    rng = np.random.default_rng(3)
+    cloud = Cloud(
+        rng.random((50, 3)),
+        [500000.0, 5000000.0, 12.0],
+        {"intensity": rng.random(50), "classification": np.arange(50, dtype=np.uint8)},
+        "a.las",
+        {"point_format": 3},
+    )
+    back = pickle.loads(pickle.dumps(cloud, protocol=pickle.HIGHEST_PROTOCOL))
+    assert back.name == "a.las"
+    assert dict(back.meta) == {"point_format": 3}
+    assert np.array_equal(back.xyz, cloud.xyz)
+    assert np.array_equal(back.offset, cloud.offset)
+    assert set(back.attributes) == {"intensity", "classification"}
+    for key, value in cloud.attributes.items():
+        assert np.array_equal(back.attributes[key], value)
+        assert back.attributes[key].dtype == value.dtype
+    assert not back.xyz.flags.writeable  # checked and frozen again
+    with pytest.raises(TypeError):
+        back.attributes["intensity"] = None  # type: ignore[index]
