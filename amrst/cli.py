@@ -257,8 +257,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
     for flag, role in (("--stem", "TARGET"), ("--source-stem", "SOURCE")):
-        reg.add_argument(flag, nargs=2, type=float, metavar=("X", "Y"), help=f"stem of "
-            f"the tree in {role} (world x y): picks it and cuts a plot scan around it")
+        reg.add_argument(
+            flag,
+            nargs=2,
+            type=float,
+            metavar=("X", "Y"),
+            help=f"stem of "
+            f"the tree in {role} (world x y): picks it and cuts a plot scan around it",
+        )
     reg.set_defaults(func=_cmd_register)
 
     sim = sub.add_parser(

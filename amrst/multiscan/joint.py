@@ -156,7 +156,13 @@ def refine_jointly(
     # thread); with threads they differed by 0.1 mm on a 4-scan tree.
     with threadpool_limits(limits=1, user_api="blas"):
         current = _rounds(
-            points, current, movable, fine, rounds, reporter, refine_registration
+            points,
+            current,
+            movable,
+            fine,
+            rounds=rounds,
+            reporter=reporter,
+            refine_registration=refine_registration,
         )
     after = mutual_rmse(points, current, overlap)
     kept = bool(np.isfinite(after) and (not np.isfinite(before) or after <= before))
@@ -173,6 +179,7 @@ def _rounds(
     current: list[Transform | None],
     movable: list[int],
     fine: FineParams,
+    *,
     rounds: int,
     reporter: Reporter,
     refine_registration: Callable[..., FineResult],

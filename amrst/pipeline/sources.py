@@ -87,5 +87,7 @@ def merge_same_solutions(ranked: CandidateList, centre: np.ndarray) -> Candidate
             for origin in Origin:
                 if origin not in c.origins:
                     lacking.setdefault(origin, []).append(len(kept) - 1)
-    kept = [c if c.rank == r else replace(c, rank=r) for r, c in enumerate(kept, start=1)]
+    kept = [
+        c if c.rank == r else replace(c, rank=r) for r, c in enumerate(kept, start=1)
+    ]
     return CandidateList(tuple(kept), ranked.n_matches)

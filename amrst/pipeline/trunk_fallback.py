@@ -129,11 +129,11 @@ def add_trunk_solutions(
         ranked,
         search,
         refined,
-        tree,
-        source.xyz,
-        params.coarse,
-        params.trunk.score_dist_m,
-        used,
+        target_tree=tree,
+        source_xyz=source.xyz,
+        params=params.coarse,
+        precise_dist_m=params.trunk.score_dist_m,
+        fine_points=used,
     )
     # These headings already had their full fine registration: register() reuses it.
     # Heading k became the candidate with id first_id + k (merge_trunk_solutions).

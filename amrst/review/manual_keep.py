@@ -85,7 +85,9 @@ def judge_refinement(
     sample, _rng = verification_sample(source_xyz, params)
     tree = cKDTree(target_xyz)
 
-    def share(T: Transform) -> float:  # amrst.review.manual.tight_share, without the cycle
+    def share(
+        T: Transform,
+    ) -> float:  # amrst.review.manual.tight_share, without the cycle
         d = tree.query(sample @ T[:3, :3].T + T[:3, 3])[0]
         return float(np.mean(d < params.tight_dist_m)) if len(d) else 0.0
 

@@ -105,7 +105,9 @@ def distinct_solutions(a: Transform, b: Transform, centre: np.ndarray) -> bool:
     which tetrahedron matches are grouped into one candidate.
     """
     d = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
-    return bool(d > DISTINCT_M or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > DISTINCT_DEG)
+    return bool(
+        d > DISTINCT_M or rotation_angle_deg(a[:3, :3] @ b[:3, :3].T) > DISTINCT_DEG
+    )
 
 
 def same_solution(a: Transform, b: Transform, centre: np.ndarray) -> bool:

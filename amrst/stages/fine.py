@@ -185,6 +185,7 @@ def lm_icp(
     max_dist: float,
     iters: int,
     tol: float,
+    *,
     reporter: Reporter = NULL_REPORTER,
     tree: NearestTree | None = None,
     nearest: NearestCache | None = None,
@@ -344,9 +345,9 @@ def refine_registration(
                     dist,
                     params.max_iterations,
                     params.tolerance,
-                    reporter,
-                    tree,
-                    nearest,
+                    reporter=reporter,
+                    tree=tree,
+                    nearest=nearest,
                 )
             else:
                 T, it, conv = _robust_plane(

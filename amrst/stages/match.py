@@ -308,15 +308,15 @@ def match_tetrahedra(
         _correspond(
             target_kp,
             source_kp,
-            tq,
-            sq,
-            te,
-            se,
-            tv,
-            sv,
             ti[k : k + 20000],
             si[k : k + 20000],
             params,
+            tq=tq,
+            sq=sq,
+            te=te,
+            se=se,
+            tv=tv,
+            sv=sv,
         )
         for k in range(0, len(ti), 20000)
     ]

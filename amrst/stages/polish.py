@@ -163,6 +163,7 @@ def polish(
     tree: NearestQuery,
     Ts: np.ndarray,
     max_dist: float,
+    *,
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = rigid_steps,
     iterations: int = POLISH_ITERATIONS,
 ) -> np.ndarray:

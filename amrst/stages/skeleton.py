@@ -246,7 +246,9 @@ def build_skeleton(
     )
     keep = _prune(parent, seg, params.prune_length_m)
     reporter.progress(0.9, "pruned")
-    return _compact(nodes, parent, node_geo, counts, keep, root_node, bridged)
+    return _compact(
+        nodes, parent, node_geo, counts, keep, root=root_node, bridged=bridged
+    )
 
 
 def _compact(
@@ -255,6 +257,7 @@ def _compact(
     geo: np.ndarray,
     counts: np.ndarray,
     keep: np.ndarray,
+    *,
     root: int,
     bridged: int,
 ) -> SkeletonResult:

@@ -89,15 +89,16 @@ def _proper_candidates(
 def correspond(
     target_kp: np.ndarray,
     source_kp: np.ndarray,
+    ti: np.ndarray,
+    si: np.ndarray,
+    params: MatchParams,
+    *,
     tq: np.ndarray,
     sq: np.ndarray,
     te: np.ndarray,
     se: np.ndarray,
     tv: np.ndarray,
     sv: np.ndarray,
-    ti: np.ndarray,
-    si: np.ndarray,
-    params: MatchParams,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For descriptor pairs, the proper vertex permutation whose edges agree best.
 

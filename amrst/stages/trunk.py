@@ -27,7 +27,6 @@ from amrst.stages.polish import polish, weighted_centres
 from amrst.types import Transform, make_transform
 
 if TYPE_CHECKING:
-
     from scipy.spatial import cKDTree
 
 TRUNK_MODES = ("fallback", "always", "off")
@@ -314,7 +313,9 @@ def search_yaw(
     per = max(1, _BATCH_POINTS // max(len(src), len(sample), 1))
     for b0 in range(0, len(starts), per):
         reporter.check_cancelled()
-        Ts = polish_levelled(src, tgt, tree, starts[b0 : b0 + per], params.polish_dist_m)
+        Ts = polish_levelled(
+            src, tgt, tree, starts[b0 : b0 + per], params.polish_dist_m
+        )
         moved = sample @ Ts[:, :3, :3].transpose(0, 2, 1) + Ts[:, None, :3, 3]
         d = full_tree.query(
             moved.reshape(-1, 3), distance_upper_bound=params.score_dist_m
@@ -327,7 +328,10 @@ def search_yaw(
     centre = source_xyz.mean(axis=0)
     kept: list[YawSolution] = []
     for s in found:
-        if all(distinct_solutions(s.T_target_source, k.T_target_source, centre) for k in kept):
+        if all(
+            distinct_solutions(s.T_target_source, k.T_target_source, centre)
+            for k in kept
+        ):
             kept.append(s)
             if len(kept) == params.keep:
                 break

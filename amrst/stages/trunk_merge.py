@@ -92,7 +92,9 @@ def trunk_contenders(
         if (
             transforms is not None
             and centre is not None
-            and not all(distinct_solutions(transforms[k], transforms[j], centre) for j in picked)
+            and not all(
+                distinct_solutions(transforms[k], transforms[j], centre) for j in picked
+            )
         ):
             continue
         picked.append(k)
@@ -103,6 +105,7 @@ def merge_trunk_solutions(
     candidates: CandidateList,
     search: TrunkSearchResult,
     refined: list[Transform],
+    *,
     target_tree: cKDTree,
     source_xyz: np.ndarray,
     params: CoarseParams,

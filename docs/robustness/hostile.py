@@ -386,7 +386,10 @@ def main() -> int:
                     print(f"{v:8s} {name}")
         counts = {k: sum(v == k for _, v in verdicts)
                   for k in ("ok", "crash", "hang", "mixed", "unclear")}  # fmt: skip
-        print(f"{len(verdicts)} cases: " + ", ".join(f"{k} {n}" for k, n in counts.items()))
+        print(
+            f"{len(verdicts)} cases: "
+            + ", ".join(f"{k} {n}" for k, n in counts.items())
+        )
     finally:
         shutil.rmtree(work, ignore_errors=True)
         for sock in Path("/tmp").glob("amrst-h-*.sock"):

@@ -76,7 +76,9 @@ def main(case: Path, size: str, out: Path) -> int:
     run(lambda: None)
     win.grab().save(str(out))
     for stage, e in s.truth_errors().items():
-        print(f"{stage}: {e.rotation_error_deg:.3f} deg, gt_rmse {e.gt_rmse_m * 100:.2f} cm")
+        print(
+            f"{stage}: {e.rotation_error_deg:.3f} deg, gt_rmse {e.gt_rmse_m * 100:.2f} cm"
+        )
     print(s.fine_note)
     print(f"saved {out}")
     win.close()

@@ -60,7 +60,13 @@ def _check(result: MethodResult, source: Cloud, T_true, rot_deg=0.3, gt_m=0.02):
 
 def test_registry_names() -> None:
     assert set(METHODS) == {
-        "icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "kiss_matcher", "kiss_gicp",
+        "icp",
+        "icp_centroid",
+        "ndt",
+        "fpfh_ransac",
+        "fgr",
+        "kiss_matcher",
+        "kiss_gicp",
         "amrst",
     }
 

@@ -162,7 +162,13 @@ def test_cli_hooks(cases_dir: Path, tmp_path: Path, capsys) -> None:
     configure_parser(parser)
     args = parser.parse_args([str(cases_dir)])
     assert args.methods == [
-        "icp", "icp_centroid", "ndt", "fpfh_ransac", "fgr", "kiss_matcher", "kiss_gicp",
+        "icp",
+        "icp_centroid",
+        "ndt",
+        "fpfh_ransac",
+        "fgr",
+        "kiss_matcher",
+        "kiss_gicp",
         "amrst",
     ]
     assert args.out == "bench_out"

@@ -130,7 +130,10 @@ def test_newer_schema_is_refused() -> None:
 def test_bad_values_and_files_are_refused(tmp_path: Path) -> None:
     with pytest.raises(InvalidInput, match=r"fine\.method.*magic"):
         params_from_dict({"fine": {"method": "magic"}})
-    with pytest.raises(InvalidInput, match=r"separate\.scales_k = \[2\] \(item 2\) is outside its range \[4, 100\]"):
+    with pytest.raises(
+        InvalidInput,
+        match=r"separate\.scales_k = \[2\] \(item 2\) is outside its range \[4, 100\]",
+    ):
         params_from_dict({"separate": {"scales_k": [2]}})
     with pytest.raises(InvalidInput, match="table of values"):
         params_from_dict({"fine": 3})

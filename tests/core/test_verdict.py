@@ -79,11 +79,21 @@ def test_a_feature_matcher_pose_is_named_as_such() -> None:
     from amrst.stages.candidates import Candidate, CoarseResult, Origin
 
     cand = Candidate(
-        id=1, rank=1, score=0.35, raw_score=0.28, support=0, volume_m3=float("nan"),
-        edge_error=float("nan"), svd_residual_m=float("nan"),
-        target_idx=np.zeros(0, int), source_idx=np.zeros(0, int),
-        T_match=np.eye(4), T_target_source=np.eye(4), polished=True,
-        explanation="", origin=Origin.FEATURES,
+        id=1,
+        rank=1,
+        score=0.35,
+        raw_score=0.28,
+        support=0,
+        volume_m3=float("nan"),
+        edge_error=float("nan"),
+        svd_residual_m=float("nan"),
+        target_idx=np.zeros(0, int),
+        source_idx=np.zeros(0, int),
+        T_match=np.eye(4),
+        T_target_source=np.eye(4),
+        polished=True,
+        explanation="",
+        origin=Origin.FEATURES,
     )
     coarse = CoarseResult(cand, np.eye(4), 0.96, 0.0, "", True)
     text = verdict.judge(coarse).reason

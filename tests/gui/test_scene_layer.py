@@ -37,8 +37,14 @@ def test_the_scan_views_colour_a_field_pair_by_scene(make_main_window, qtbot) ->
     pane = win.scans_area.panes["target"]
     pane.colour.setCurrentIndex(pane.colour.findData("scene"))
     qtbot.waitUntil(
-        lambda: pane.view.scene is not None
-        and any(layer.key[0] == "scene" for layer in pane.view.scene.layers if layer.name == "points"),
+        lambda: (
+            pane.view.scene is not None
+            and any(
+                layer.key[0] == "scene"
+                for layer in pane.view.scene.layers
+                if layer.name == "points"
+            )
+        ),
         timeout=10_000,
     )
     points = next(layer for layer in pane.view.scene.layers if layer.name == "points")

@@ -60,14 +60,22 @@ def record(key: str, value: object) -> None:
 
 def amrst(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [PY, "-m", "amrst.cli", *args], env=ENV, capture_output=True, text=True, check=check
+        [PY, "-m", "amrst.cli", *args],
+        env=ENV,
+        capture_output=True,
+        text=True,
+        check=check,
     )
 
 
 def transforms(results: Path) -> dict[str, list[list[float]]]:
     out = {}
     for folder in sorted(results.iterdir()):
-        doc = json.loads((folder / "transform.json").read_text()) if (folder / "transform.json").is_file() else None
+        doc = (
+            json.loads((folder / "transform.json").read_text())
+            if (folder / "transform.json").is_file()
+            else None
+        )
         if doc is None:
             continue
         if "T_target_source" in doc:
@@ -86,7 +94,17 @@ def build() -> None:
             dest.mkdir()
             for name in ("target.ply", "source.ply", "truth.json"):
                 os.symlink(case / name, dest / name)
-    amrst("campaign", "simulate", str(DATA / "trees/itsme/tree_2_pc.txt"), "--out", str(CAMP / "sim4-itsme-tree2"), "--scans", "4", "--seed", "3")
+    amrst(
+        "campaign",
+        "simulate",
+        str(DATA / "trees/itsme/tree_2_pc.txt"),
+        "--out",
+        str(CAMP / "sim4-itsme-tree2"),
+        "--scans",
+        "4",
+        "--seed",
+        "3",
+    )
     init = amrst("campaign", "init", str(CAMP))
     print(init.stdout)
     # amrst register alone, one process per tree, as a user would run it
@@ -97,8 +115,16 @@ def build() -> None:
             args = [str(tree / "target.ply"), str(tree / "source.ply")]
         else:
             args = [str(f) for f in files]
-        amrst("register", *args, "--out", str(ALONE / tree.name), "--quiet", check=False)
-    record("register_alone", {"trees": len(list(ALONE.iterdir())), "seconds": round(time.perf_counter() - t0, 1)})
+        amrst(
+            "register", *args, "--out", str(ALONE / tree.name), "--quiet", check=False
+        )
+    record(
+        "register_alone",
+        {
+            "trees": len(list(ALONE.iterdir())),
+            "seconds": round(time.perf_counter() - t0, 1),
+        },
+    )
 
 
 def _child(arg: str) -> None:
@@ -107,40 +133,67 @@ def _child(arg: str) -> None:
     from amrst.campaign import load_campaign, run_batch
 
     load = os.getloadavg()[0]
-    pinned = int(os.environ.get("AMRST_BENCH_THREADS", "0")) or None  # --threads-per-tree
-    s = run_batch(load_campaign(CAMP), workers=job["workers"], scheduler=job["scheduler"], force=job["force"], threads_per_tree=pinned)
+    pinned = (
+        int(os.environ.get("AMRST_BENCH_THREADS", "0")) or None
+    )  # --threads-per-tree
+    s = run_batch(
+        load_campaign(CAMP),
+        workers=job["workers"],
+        scheduler=job["scheduler"],
+        force=job["force"],
+        threads_per_tree=pinned,
+    )
     cpu = sum(r.get("cpu_seconds", 0.0) for r in s.results)
     busy: dict[str, float] = {}
     for r in s.results:
         busy[r["worker"]] = busy.get(r["worker"], 0.0) + r.get("seconds", 0.0)
     n = len(s.registered) + len(s.failed)
-    print(json.dumps({
-        "code": job["code"],
-        "registered": len(s.registered),
-        "failed": s.failed,
-        "skipped": len(s.skipped),
-        "seconds_total": round(s.seconds, 1),
-        "seconds_running": round(s.run_seconds, 1),
-        "trees_per_hour": round(s.trees_per_hour),
-        # the whole call: cluster start (and, new code, the workers' imports) included
-        "trees_per_hour_whole_call": round(3600 * n / s.seconds) if s.seconds else 0,
-        "workers": s.workers,
-        # CPU time of the workers (every thread) over the wall time: the cores the
-        # batch got; with other jobs on the machine it cannot reach the worker count.
-        "cpu_seconds": round(cpu, 1),
-        "cores_used": round(cpu / s.run_seconds, 2) if s.run_seconds else 0.0,
-        # wall time the workers spent between trees or after their last one
-        "idle_worker_seconds": round(s.workers * s.run_seconds - sum(busy.values()), 1),
-        "load_average_1min_before": round(load, 2),
-    }))
+    print(
+        json.dumps(
+            {
+                "code": job["code"],
+                "registered": len(s.registered),
+                "failed": s.failed,
+                "skipped": len(s.skipped),
+                "seconds_total": round(s.seconds, 1),
+                "seconds_running": round(s.run_seconds, 1),
+                "trees_per_hour": round(s.trees_per_hour),
+                # the whole call: cluster start (and, new code, the workers' imports) included
+                "trees_per_hour_whole_call": round(3600 * n / s.seconds)
+                if s.seconds
+                else 0,
+                "workers": s.workers,
+                # CPU time of the workers (every thread) over the wall time: the cores the
+                # batch got; with other jobs on the machine it cannot reach the worker count.
+                "cpu_seconds": round(cpu, 1),
+                "cores_used": round(cpu / s.run_seconds, 2) if s.run_seconds else 0.0,
+                # wall time the workers spent between trees or after their last one
+                "idle_worker_seconds": round(
+                    s.workers * s.run_seconds - sum(busy.values()), 1
+                ),
+                "load_average_1min_before": round(load, 2),
+            }
+        )
+    )
 
 
-def _batch(workers: int, scheduler: str | None = None, force: bool = True, repo: Path = REPO, code: str = "new") -> dict[str, object]:
+def _batch(
+    workers: int,
+    scheduler: str | None = None,
+    force: bool = True,
+    repo: Path = REPO,
+    code: str = "new",
+) -> dict[str, object]:
     """Run one batch in a fresh process on the code at ``repo``."""
-    job = json.dumps({"workers": workers, "scheduler": scheduler, "force": force, "code": code})
+    job = json.dumps(
+        {"workers": workers, "scheduler": scheduler, "force": force, "code": code}
+    )
     out = subprocess.run(
         [PY, str(Path(__file__).resolve()), "_child", job],
-        env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True, check=True,
+        env={**os.environ, "PYTHONPATH": str(repo)},
+        capture_output=True,
+        text=True,
+        check=True,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
@@ -154,11 +207,29 @@ def workers() -> None:
     """
     load = os.getloadavg()
     old = os.environ.get("AMRST_BENCH_OLD")
-    sim = CAMP / "sim4-itsme-tree2"  # amrst register alone again for the multi-scan tree
-    amrst("register", *[str(f) for f in sorted(sim.glob("*.ply"))], "--out", str(ALONE / sim.name), "--quiet", check=False)
+    sim = (
+        CAMP / "sim4-itsme-tree2"
+    )  # amrst register alone again for the multi-scan tree
+    amrst(
+        "register",
+        *[str(f) for f in sorted(sim.glob("*.ply"))],
+        "--out",
+        str(ALONE / sim.name),
+        "--quiet",
+        check=False,
+    )
     plan = [("new", 1), ("new", 2), ("new", 1), ("new", 2)]
     if old:
-        plan = [("new", 1), ("new", 2), ("old", 1), ("old", 2), ("old", 2), ("old", 1), ("new", 2), ("new", 1)]
+        plan = [
+            ("new", 1),
+            ("new", 2),
+            ("old", 1),
+            ("old", 2),
+            ("old", 2),
+            ("old", 1),
+            ("new", 2),
+            ("new", 1),
+        ]
     runs = []
     ref: dict[str, dict[str, object]] = {}
     same = {"new": True, "old": True}
@@ -180,7 +251,9 @@ def workers() -> None:
         "trees_per_hour_1": round(rate("new", 1)),
         "trees_per_hour_2": round(rate("new", 2)),
         "speedup_trees_per_hour": round(rate("new", 2) / rate("new", 1), 2),
-        "speedup_whole_call": round(rate("new", 2, "seconds_total") / rate("new", 1, "seconds_total"), 2),
+        "speedup_whole_call": round(
+            rate("new", 2, "seconds_total") / rate("new", 1, "seconds_total"), 2
+        ),
         "all_runs_identical": same["new"],
         "trees_equal_register_alone": sum(equal_alone.values()),
         "trees_compared": len(equal_alone),
@@ -195,7 +268,9 @@ def workers() -> None:
         doc["new_over_old_2_workers"] = round(rate("new", 2) / rate("old", 2), 2)
         doc["new_over_old_1_worker"] = round(rate("new", 1) / rate("old", 1), 2)
         doc["old_runs_identical"] = same["old"]
-        doc["old_equal_new"] = sum(ref["old"].get(k) == v for k, v in ref["new"].items())
+        doc["old_equal_new"] = sum(
+            ref["old"].get(k) == v for k, v in ref["new"].items()
+        )
     record(os.environ.get("AMRST_BENCH_KEY", "workers"), doc)
 
 
@@ -204,12 +279,48 @@ def external() -> None:
     file = WORK / "scheduler.json"
     file.unlink(missing_ok=True)
     logs = [open(WORK / f"ext{i}.log", "w") for i in range(3)]  # noqa: SIM115 - closed below
-    procs = [subprocess.Popen([PY, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(file)], env=ENV, stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True)]
+    procs = [
+        subprocess.Popen(
+            [
+                PY,
+                "-m",
+                "distributed.cli.dask_scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(file),
+            ],
+            env=ENV,
+            stdout=logs[0],
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    ]
     try:
         while not file.is_file():
             time.sleep(0.1)
         for k in range(2):
-            procs.append(subprocess.Popen([PY, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(file), "--nthreads", "1", "--no-dashboard"], env=ENV, stdout=logs[k + 1], stderr=subprocess.STDOUT, start_new_session=True))
+            procs.append(
+                subprocess.Popen(
+                    [
+                        PY,
+                        "-m",
+                        "distributed.cli.dask_worker",
+                        "--scheduler-file",
+                        str(file),
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                    ],
+                    env=ENV,
+                    stdout=logs[k + 1],
+                    stderr=subprocess.STDOUT,
+                    start_new_session=True,
+                )
+            )
         address = json.loads(file.read_text())["address"]
         from distributed import Client
 
@@ -223,7 +334,14 @@ def external() -> None:
             p.wait(timeout=30)
         for f in logs:
             f.close()
-    record("external_cluster", {**run, "address": address, "same_as_local": transforms(CAMP / "results") == ref})
+    record(
+        "external_cluster",
+        {
+            **run,
+            "address": address,
+            "same_as_local": transforms(CAMP / "results") == ref,
+        },
+    )
 
 
 def kill() -> None:
@@ -232,18 +350,37 @@ def kill() -> None:
     rng = random.Random(14)
     rounds = []
     for _ in range(3):
-        before = {p.parent.name for p in (CAMP / "results").glob("*/stamp.json")} if (CAMP / "results").is_dir() else set()
+        before = (
+            {p.parent.name for p in (CAMP / "results").glob("*/stamp.json")}
+            if (CAMP / "results").is_dir()
+            else set()
+        )
         log = open(WORK / "kill.log", "a")  # noqa: SIM115 - closed below
-        p = subprocess.Popen([PY, "-m", "amrst.cli", "batch", str(CAMP), "--workers", "2", "--quiet"], env=ENV, stdout=log, stderr=subprocess.STDOUT)
+        p = subprocess.Popen(
+            [PY, "-m", "amrst.cli", "batch", str(CAMP), "--workers", "2", "--quiet"],
+            env=ENV,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
         wait = rng.uniform(8.0, 30.0)
         time.sleep(wait)
         os.kill(p.pid, signal.SIGKILL)  # the batch process alone, as kill -9 PID does
         p.wait()
         log.close()
         time.sleep(3.0)
-        orphans = subprocess.run(["pgrep", "-f", "distributed"], capture_output=True, text=True).stdout.split()
+        orphans = subprocess.run(
+            ["pgrep", "-f", "distributed"], capture_output=True, text=True
+        ).stdout.split()
         after = {q.parent.name for q in (CAMP / "results").glob("*/stamp.json")}
-        rounds.append({"killed_after_s": round(wait, 1), "stamped_before": len(before), "stamped_after": len(after), "lost_stamps": len(before - after), "orphan_processes_3s_later": len(orphans)})
+        rounds.append(
+            {
+                "killed_after_s": round(wait, 1),
+                "stamped_before": len(before),
+                "stamped_after": len(after),
+                "lost_stamps": len(before - after),
+                "orphan_processes_3s_later": len(orphans),
+            }
+        )
     time.sleep(5.0)
     stamped = {q.parent.name for q in (CAMP / "results").glob("*/stamp.json")}
     final = _batch(2, force=False)
@@ -253,7 +390,9 @@ def kill() -> None:
             "rounds": rounds,
             "stamped_before_final_run": len(stamped),
             "final_run": final,
-            "final_registered_equals_unstamped": final["registered"] + len(final["failed"]) == 31 - len(stamped),  # type: ignore[operator]
+            "final_registered_equals_unstamped": final["registered"]
+            + len(final["failed"])
+            == 31 - len(stamped),  # type: ignore[operator]
             "identical_to_uninterrupted": transforms(CAMP / "results") == ref,
         },
     )
@@ -270,9 +409,14 @@ def fourscan() -> None:
     for k, rel in enumerate(FOUR_TREES):
         tree = io.read(DATA / "trees" / rel)
         if len(tree) > 150_000:
-            tree = tree.select(np.random.default_rng(0).choice(len(tree), 150_000, replace=False))
+            tree = tree.select(
+                np.random.default_rng(0).choice(len(tree), 150_000, replace=False)
+            )
         sim = simulate_scans(tree, 4, seed=100 + k)
-        seps = [round((b["azimuth_deg"] - a["azimuth_deg"]) % 360) for a, b in zip(sim.specs, sim.specs[1:], strict=False)]
+        seps = [
+            round((b["azimuth_deg"] - a["azimuth_deg"]) % 360)
+            for a, b in zip(sim.specs, sim.specs[1:], strict=False)
+        ]
         t0 = time.perf_counter()
         res = register_scans(sim.scans, 0)
         secs = time.perf_counter() - t0
@@ -286,8 +430,20 @@ def fourscan() -> None:
                 continue
             e = truth_errors(T, truth[s], pts)
             et = truth_errors(T_tree, truth[s], pts)  # type: ignore[arg-type]
-            per.append({"rot_deg": round(e.rotation_error_deg, 4), "trans_cm": round(100 * e.translation_error_m, 2), "gt_rmse_cm": round(100 * e.gt_rmse_m, 3), "pairwise_gt_rmse_cm": round(100 * et.gt_rmse_m, 3), "path": res.paths[s]})
-        ok = all(p.get("reached", True) and p["rot_deg"] < 1 and p["trans_cm"] < 5 for p in per)
+            per.append(
+                {
+                    "rot_deg": round(e.rotation_error_deg, 4),
+                    "trans_cm": round(100 * e.translation_error_m, 2),
+                    "gt_rmse_cm": round(100 * e.gt_rmse_m, 3),
+                    "pairwise_gt_rmse_cm": round(100 * et.gt_rmse_m, 3),
+                    "path": res.paths[s],
+                }
+            )
+        ok = all(
+            p.get("reached", True) and p["rot_deg"] < 1 and p["trans_cm"] < 5
+            for p in per
+        )
+
         # worst link: the relative transform of every pair of scans vs the truth
         def worst(poses, truth=truth, sim=sim):
             out = 0.0
@@ -299,14 +455,31 @@ def fourscan() -> None:
                     tru = np.linalg.inv(truth[a]) @ truth[b]
                     out = max(out, truth_errors(est, tru, sim.scans[b].xyz).gt_rmse_m)
             return 100 * out
-        rows.append({"tree": rel, "separations_deg": seps, "ok": ok, "scans": per, "links_verified": sum(link.verified for link in res.links), "worst_link_gt_rmse_cm_joint": round(worst(res.T_reference_scan), 3), "worst_link_gt_rmse_cm_pairwise": round(worst(res.T_tree), 3), "joint_kept": None if res.joint is None else res.joint.kept, "seconds": round(secs, 1)})
+
+        rows.append(
+            {
+                "tree": rel,
+                "separations_deg": seps,
+                "ok": ok,
+                "scans": per,
+                "links_verified": sum(link.verified for link in res.links),
+                "worst_link_gt_rmse_cm_joint": round(worst(res.T_reference_scan), 3),
+                "worst_link_gt_rmse_cm_pairwise": round(worst(res.T_tree), 3),
+                "joint_kept": None if res.joint is None else res.joint.kept,
+                "seconds": round(secs, 1),
+            }
+        )
         print(rows[-1])
     record(
         "four_scan",
         {
             "trees_ok": sum(r["ok"] for r in rows),
             "trees": len(rows),
-            "joint_no_worse_than_pairwise": sum(r["worst_link_gt_rmse_cm_joint"] <= r["worst_link_gt_rmse_cm_pairwise"] + 1e-9 for r in rows),
+            "joint_no_worse_than_pairwise": sum(
+                r["worst_link_gt_rmse_cm_joint"]
+                <= r["worst_link_gt_rmse_cm_pairwise"] + 1e-9
+                for r in rows
+            ),
             "rows": rows,
         },
     )
@@ -316,6 +489,12 @@ if __name__ == "__main__":
     if sys.argv[1:2] == ["_child"]:
         _child(sys.argv[2])
         sys.exit(0)
-    steps = {"build": build, "workers": workers, "external": external, "kill": kill, "fourscan": fourscan}
+    steps = {
+        "build": build,
+        "workers": workers,
+        "external": external,
+        "kill": kill,
+        "fourscan": fourscan,
+    }
     for name in sys.argv[1:] or list(steps):
         steps[name]()

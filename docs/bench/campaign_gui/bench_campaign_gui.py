@@ -103,9 +103,7 @@ def main() -> int:
     every = [v for vs in switch.values() for v in vs]
     best = [min(vs) for vs in switch.values()]
     every_scans = [v for vs in scans_only.values() for v in vs]
-    ratios = [
-        a / b for t in ids for a, b in zip(switch[t], scans_only[t], strict=True)
-    ]
+    ratios = [a / b for t in ids for a, b in zip(switch[t], scans_only[t], strict=True)]
     doc = {
         "campaign": root,
         "trees": len(ids),
@@ -121,7 +119,9 @@ def main() -> int:
         "load": os.getloadavg(),
         "switch_by_tree_s": switch,
     }
-    print(json.dumps({k: v for k, v in doc.items() if k != "switch_by_tree_s"}, indent=1))
+    print(
+        json.dumps({k: v for k, v in doc.items() if k != "switch_by_tree_s"}, indent=1)
+    )
     if out:
         with open(out, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=1)

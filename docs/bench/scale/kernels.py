@@ -62,9 +62,15 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=7)
     args = ap.parse_args()
     case = read_case(args.case)
-    T = np.asarray(json.loads((Path(args.case) / "truth.json").read_text())["T_target_source"])
+    T = np.asarray(
+        json.loads((Path(args.case) / "truth.json").read_text())["T_target_source"]
+    )
     tgt = case.target.xyz
-    src = case.source.xyz @ T[:3, :3].T + T[:3, 3] + (case.source.offset - case.target.offset)
+    src = (
+        case.source.xyz @ T[:3, :3].T
+        + T[:3, 3]
+        + (case.source.offset - case.target.offset)
+    )
     dense = densify(case.target, 2_000_000, 0.003, 0).xyz
     rng = np.random.default_rng(0)
     fit = src[rng.choice(len(src), 5000, replace=False)]
@@ -74,7 +80,11 @@ def main() -> None:
         b = _best({"old": old, "new": new}, repeat)
         rows.append((name, b["old"], b["new"]))
 
-    for k, what in ((13, "outlier filter"), (30, "wood features"), (17, "skeleton graph")):
+    for k, what in (
+        (13, "outlier filter"),
+        (30, "wood features"),
+        (17, "skeleton graph"),
+    ):
         add(
             f"kNN self-query k={k} ({what}), {len(tgt):,} pts",
             lambda k=k: cKDTree(tgt).query(tgt, k=k, workers=-1),
@@ -89,7 +99,10 @@ def main() -> None:
     )
     add(
         f"cloud metrics: NN of {len(src):,} pts both ways (trees built)",
-        lambda: (cKDTree(tgt).query(src, workers=-1), cKDTree(src).query(tgt, workers=-1)),
+        lambda: (
+            cKDTree(tgt).query(src, workers=-1),
+            cKDTree(src).query(tgt, workers=-1),
+        ),
         lambda: (NearestTree(tgt).query(src), NearestTree(src).query(tgt)),
     )
     add(
