@@ -1,0 +1,60 @@
+"""Optional dependencies, imported on use with a one-line message when missing.
+
+The core install (``pip install amrst-studio``) is what ``amrst register`` needs. The
+app, the peer methods, campaigns on Dask and E57 files are extras; a command that needs
+one names the extra to install instead of failing with a traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+from amrst.errors import AmrstError
+
+#: The extra of ``pyproject.toml`` that brings each optional top-level module.
+EXTRA_OF = {
+    "open3d": "baselines",
+    "dask": "campaign",
+    "distributed": "campaign",
+    "openpyxl": "campaign",
+    "pye57": "e57",
+    "PySide6": "app",
+    "pyvista": "app",
+    "pyvistaqt": "app",
+    "superqt": "app",
+}
+
+
+class MissingExtra(AmrstError):
+    """An optional dependency is not installed; the message names the extra."""
+
+
+def require(module: str, purpose: str) -> ModuleType:
+    """Import ``module`` or raise :class:`MissingExtra` naming its extra.
+
+    Parameters
+    ----------
+    module : str
+        The module to import, e.g. ``"pye57"`` or ``"distributed"``.
+    purpose : str
+        What needs it, for the message, e.g. ``"reading E57 files"``.
+
+    Returns
+    -------
+    ModuleType
+        The imported module.
+
+    Raises
+    ------
+    MissingExtra
+        When the module (or one it needs) is not installed.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        extra = EXTRA_OF.get(module.split(".")[0], "all")
+        raise MissingExtra(
+            f"{purpose} needs {module.split('.')[0]}, which is not installed: "
+            f"pip install 'amrst-studio[{extra}]'"
+        ) from exc
