@@ -8,9 +8,12 @@ one names the extra to install instead of failing with a traceback.
 from __future__ import annotations
 
 import importlib
-from types import ModuleType
+from typing import TYPE_CHECKING
 
 from amrst.errors import AmrstError
+
+if TYPE_CHECKING:
+    from types import ModuleType
 
 #: The extra of ``pyproject.toml`` that brings each optional top-level module.
 EXTRA_OF = {
