@@ -12,7 +12,6 @@ from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
 from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
 from amrst.pipeline.refine import evaluate, refine
-from amrst.pipeline.scan_worker import analyse_source_apart
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.sampling import measure_pair
 from amrst.types import world_transform
@@ -123,11 +122,7 @@ def register(
     def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
         return analyse_scan(cloud, params, rep, local[id(cloud)])
 
-    # The source in a second process where that is safe (scan_worker), else threads.
-    scans = SubReporter(reporter, 0.0, 0.6)
-    stem_pair = (local[id(target)], local[id(source)])
-    apart = analyse_source_apart(target, source, params, stem_pair, scans)
-    tgt, src = apart or both_scans(analyse, target, source, scans)
+    tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.6))
     tgt, src = _expect_ground(
         tgt,
         src,
