@@ -33,6 +33,35 @@ class MissingExtra(AmrstError):
     """An optional dependency is not installed; the message names the extra."""
 
 
+def _message(module: str, purpose: str) -> str:
+    top = module.split(".")[0]
+    return (
+        f"{purpose} needs {top}, which is not installed: "
+        f"pip install 'amrst-studio[{EXTRA_OF.get(top, 'all')}]'"
+    )
+
+
+def missing_extra(exc: ImportError, purpose: str) -> MissingExtra | None:
+    """The :class:`MissingExtra` for an import error of an optional module, if it is one.
+
+    Parameters
+    ----------
+    exc : ImportError
+        An import error caught around a command.
+    purpose : str
+        What needed the module, for the message, e.g. ``"amrst bench"``.
+
+    Returns
+    -------
+    MissingExtra or None
+        None when the missing module is not an optional dependency (a real bug).
+    """
+    name = getattr(exc, "name", None) or ""
+    if name.split(".")[0] not in EXTRA_OF:
+        return None
+    return MissingExtra(_message(name, purpose))
+
+
 def require(module: str, purpose: str) -> ModuleType:
     """Import ``module`` or raise :class:`MissingExtra` naming its extra.
 
@@ -56,8 +85,4 @@ def require(module: str, purpose: str) -> ModuleType:
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        extra = EXTRA_OF.get(module.split(".")[0], "all")
-        raise MissingExtra(
-            f"{purpose} needs {module.split('.')[0]}, which is not installed: "
-            f"pip install 'amrst-studio[{extra}]'"
-        ) from exc
+        raise MissingExtra(_message(module, purpose)) from exc

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from amrst.extras import EXTRA_OF, MissingExtra, require
+from amrst.extras import EXTRA_OF, MissingExtra, missing_extra, require
 
 
 def test_require_returns_the_module() -> None:
@@ -19,6 +19,17 @@ def test_a_missing_module_names_its_extra(monkeypatch: pytest.MonkeyPatch) -> No
     with pytest.raises(MissingExtra, match=r"amrst-studio\[e57\]") as info:
         require("pye57_not_here", "reading E57 files")
     assert "\n" not in str(info.value)
+
+
+def test_an_import_error_of_an_optional_module_becomes_one_line() -> None:
+    exc = ModuleNotFoundError("No module named 'open3d'", name="open3d")
+    found = missing_extra(exc, "amrst bench")
+    assert found is not None
+    assert str(found) == (
+        "amrst bench needs open3d, which is not installed: "
+        "pip install 'amrst-studio[baselines]'"
+    )
+    assert missing_extra(ModuleNotFoundError("x", name="numpyx"), "x") is None
 
 
 def test_the_engine_imports_without_qt() -> None:
