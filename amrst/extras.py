@@ -42,7 +42,7 @@ def _message(module: str, purpose: str) -> str:
 
 
 def missing_extra(exc: ImportError, purpose: str) -> MissingExtra | None:
-    """The :class:`MissingExtra` for an import error of an optional module, if it is one.
+    """Return the :class:`MissingExtra` for an optional module's import error, if any.
 
     Parameters
     ----------
