@@ -1,4 +1,4 @@
-"""Take one screenshot per workflow step from the running app, for the README.
+"""Take one screenshot per workflow step from the running app, for the docs.
 
     xvfb-run -a -s "-screen 0 1600x1000x24" env QT_QPA_PLATFORM=xcb \
         LIBGL_ALWAYS_SOFTWARE=1 .venv/bin/python docs/screenshots/make_screenshots.py
@@ -80,6 +80,13 @@ def main() -> int:
     win.metrics_panel.tabs.setCurrentIndex(1)  # the Tree tab
     shot("12-tree-measures", tab=1)
     win.metrics_panel.tabs.setCurrentIndex(0)
+    win.registration.colour.setCurrentIndex(1)  # colour by distance
+    settle(1500)
+    shot("11-distance", tab=1)
+    win.registration.colour.setCurrentIndex(0)
+    win.tabs.setCurrentIndex(2)  # the stem slices are cut when the tab is shown
+    settle(1500)
+    shot("13-stem-slices", tab=2)
     win.docks["parameters"].raise_()
     shot("08-parameters", tab=1)
     win.docks["scans"].raise_()
