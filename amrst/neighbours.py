@@ -1,13 +1,10 @@
-"""Nearest-neighbour queries on compiled KD-trees that import fast.
+"""Nearest-neighbour queries on small_gicp's compiled KD-trees.
 
-small_gicp's KD-tree (imports in about 0.2 s) measured faster than
-``scipy.spatial.cKDTree`` on this project's clouds, one thread against scipy's
-``workers=-1`` (ratios in one run, tree geometry from case 08, see
-``docs/bench/scale/README.md``): 1.2-1.7x for :func:`knn` (build a tree, then the k
-nearest of many points: the outlier filter, the wood features, the skeleton graph)
-and 1.4-1.9x for :class:`NearestTree` queries (one tree, many queries: ICP
-correspondences, cloud metrics); :class:`NeighbourTable` shares one query between
-the per-scan stages. pykdtree: see ``docs/bench/final10``.
+small_gicp is used rather than ``scipy.spatial.cKDTree`` because it imports fast and
+answered these clouds' queries faster. :func:`knn` builds a tree and finds the k
+nearest of many points (the outlier filter, the wood features, the skeleton graph);
+:class:`NearestTree` keeps one tree for repeated queries (ICP correspondences, cloud
+metrics); :class:`NeighbourTable` shares one query between the per-scan stages.
 
 Both return what ``cKDTree.query`` returns: Euclidean distances sorted ascending and
 int64 indices, ``inf`` and ``len(points)`` where no neighbour lies within the bound.
@@ -18,74 +15,39 @@ from __future__ import annotations
 
 import os
 import threading
-from contextlib import contextmanager
-from contextvars import ContextVar
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from collections.abc import Iterator
-
-# Threads for each KD-tree build and query (AMRST_KD_THREADS; default 2 with 2 cores or
-# more): small_gicp holds the GIL, so two threads inside each query made the registration
-# compute 1.10-1.19x faster (30 shared cases). A one-core batch worker sets 1.
-_threads = int(os.environ.get("AMRST_KD_THREADS", "0") or 0) or min(
-    2, os.cpu_count() or 1
-)
-_HERE: ContextVar[int] = ContextVar("amrst_kd_threads", default=0)  # threads_here
+# The default threads of every KD-tree build and query, and of the two scans of a pair
+# (``amrst.pipeline.both_scans``): two where there are two cores, because small_gicp
+# holds the GIL while it queries, so threads inside a query are what runs it in
+# parallel. Callers that share the cores (a campaign worker, the app's engine) pass
+# fewer; the answers never depend on the threads.
+THREADS = min(2, os.cpu_count() or 1)
 
 
-def set_threads(n: int) -> None:
-    """Set the threads every KD-tree build and query uses from now on (>= 1)."""
-    global _threads
-    _threads = max(1, int(n))
-
-
-def _current() -> int:
-    """Return the threads KD-tree builds and queries use (here: see threads_here)."""
-    return _HERE.get() or _threads
-
-
-threads = _current  # the public name (functions below take a ``threads`` argument)
-
-
-@contextmanager
-def threads_here(n: int) -> Iterator[None]:
-    """Use ``n`` threads in this context only (``amrst.pipeline.scan_worker``)."""
-    token = _HERE.set(max(1, int(n)))
-    try:
-        yield
-    finally:
-        _HERE.reset(token)
-
-
-# A query of less work than this (queries x (neighbours + 3), about 0.1 us each on one
-# thread) runs on one thread whatever threads() says: waking the second OpenMP thread
-# cost more than it saved on a loaded 2-core machine (6,000 nearest-point queries:
-# 1.8 ms on one thread, 11.7 ms on two; 351 queries of 64 neighbours: 0.7 and 16 ms).
-# The answers do not depend on the threads.
+# A query of less work than this (queries x (neighbours + 3)) runs on one thread
+# whatever ``threads`` says: waking a second OpenMP thread costs more than it saves on
+# so little work. The answers do not depend on the threads.
 SMALL_BATCH = 100_000
 
 # Building a tree costs about as much per point as finding this many neighbours of a
-# query (small_gicp, one thread: 0.16 us a point against 0.075 us a neighbour).
+# query (decides when a view gets its own tree, ``NeighbourTable``).
 _BUILD_COST = 2
 
 
-def _batch_threads(n_queries: int, k: int, threads: int | None = None) -> int:
+def _batch_threads(n_queries: int, k: int, threads: int) -> int:
     """Threads for ``n_queries`` queries of ``k`` neighbours (one for a small batch)."""
-    n = _current() if threads is None else threads
-    return n if n_queries * (k + 3) >= SMALL_BATCH else 1
+    return threads if n_queries * (k + 3) >= SMALL_BATCH else 1
 
 
-def _build_threads(n_points: int, threads: int | None = None) -> int:
+def _build_threads(n_points: int, threads: int) -> int:
     """Threads for building a tree on ``n_points`` points.
 
-    One below 100,000 points: 2-3 ms on one thread, and a second thread cost up to
-    25 ms of waiting on a loaded machine.
+    One below 100,000 points, where a second thread costs more than it saves.
     """
-    n = _current() if threads is None else threads
-    return n if n_points >= 100_000 else 1
+    return threads if n_points >= 100_000 else 1
 
 
 def _points(xyz: np.ndarray) -> np.ndarray:
@@ -96,7 +58,7 @@ def knn(
     points: np.ndarray,
     k: int,
     queries: np.ndarray | None = None,
-    threads: int | None = None,
+    threads: int = THREADS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Find the ``k`` nearest ``points`` of each query (of every point by default).
 
@@ -108,7 +70,7 @@ def knn(
     queries : (M, 3) float64 or None
         None queries every point (each point is then its own first neighbour).
     threads : int
-        Threads for the build and the queries; None: :func:`threads`.
+        Threads for the build and the queries (a small batch uses one).
 
     Returns
     -------
@@ -123,10 +85,9 @@ def knn(
     q = pts if queries is None else _points(queries)
     if len(q) == 0:
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
-    n_threads = _current() if threads is None else threads
-    tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), n_threads))
+    tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), threads))
     idx, sq = tree.batch_knn_search(
-        q, k, num_threads=_batch_threads(len(q), k, n_threads)
+        q, k, num_threads=_batch_threads(len(q), k, threads)
     )
     # Every index is valid (k <= N): the uint64 array reads as int64 without a copy.
     return np.sqrt(sq, out=sq), idx.view(np.int64)
@@ -135,8 +96,8 @@ def knn(
 class _Tree:
     """A small_gicp KdTree on fixed points, built on first use after unpickling.
 
-    small_gicp's trees cannot be pickled; the app sends the analyses that hold
-    them to its engine process and back (issue 15). A tree pickles as nothing and
+    small_gicp's trees cannot be pickled, and the app sends the analyses that hold
+    them to its engine process and back. A tree pickles as nothing and
     is built again, from the same points with the same code (so every answer is
     the same), only where it is queried.
     """
@@ -171,16 +132,16 @@ class NearestTree:
     ----------
     points : (N, 3) float64
         Copied when not C-contiguous float64.
-    threads : int or None
-        Threads for the build and each query; None: :func:`threads`.
+    threads : int
+        Threads for the build and each query (a small one uses one).
     """
 
-    def __init__(self, points: np.ndarray, threads: int | None = None) -> None:
+    def __init__(self, points: np.ndarray, threads: int = THREADS) -> None:
         import small_gicp
 
         self.points = _points(points)
         self.n = len(self.points)
-        self.threads = _current() if threads is None else threads
+        self.threads = threads
         self._tree: _Tree | None = (
             _Tree(
                 self.points,
@@ -259,6 +220,8 @@ class NeighbourTable:
         Sorted positions in ``points`` of the points this view stands for; None: all.
     tree : small_gicp.KdTree or None
         The tree on ``points`` (None: rows left short are queried afresh).
+    threads : int
+        Threads for the queries this view makes (a small one uses one).
     """
 
     def __init__(
@@ -268,27 +231,36 @@ class NeighbourTable:
         idx: np.ndarray,
         pos: np.ndarray | None = None,
         tree: Any = None,
+        threads: int = THREADS,
     ) -> None:
         self._points, self._dist, self._idx, self._pos = points, dist, idx, pos
+        self.threads = threads
         # small_gicp.KdTree on points, for the rows left short
         self._tree = (
             tree
             if tree is None or isinstance(tree, _Tree)
-            else _Tree(points, _current(), tree)
+            else _Tree(points, threads, tree)
         )
 
     @classmethod
-    def build(cls, points: np.ndarray, k: int) -> NeighbourTable:
-        """Query the ``k`` nearest neighbours of every point (k capped at the points)."""
+    def build(
+        cls, points: np.ndarray, k: int, threads: int = THREADS
+    ) -> NeighbourTable:
+        """Query the ``k`` nearest neighbours of every point (k capped at the points).
+
+        ``threads``: for this query and the ones the table makes later.
+        """
         import small_gicp
 
         pts = _points(points)
         k = min(k, len(pts))
         if k < 1:
             raise ValueError("a neighbour table needs at least one point")
-        tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts)))
-        idx, sq = tree.batch_knn_search(pts, k, num_threads=_batch_threads(len(pts), k))
-        return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree)
+        tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), threads))
+        idx, sq = tree.batch_knn_search(
+            pts, k, num_threads=_batch_threads(len(pts), k, threads)
+        )
+        return cls(pts, np.sqrt(sq, out=sq), idx.view(np.int64), None, tree, threads)
 
     @property
     def k(self) -> int:
@@ -308,7 +280,9 @@ class NeighbourTable:
         pos = np.asarray(pos, dtype=np.int64)
         if self._pos is not None:
             pos = self._pos[pos]
-        return NeighbourTable(self._points, self._dist, self._idx, pos, self._tree)
+        return NeighbourTable(
+            self._points, self._dist, self._idx, pos, self._tree, self.threads
+        )
 
     def knn(
         self, k: int, rows: np.ndarray | None = None
@@ -338,13 +312,13 @@ class NeighbourTable:
                 np.take(self._idx[:, :k], root, axis=0),
             )
         if self._pos is None or k > self.k:
-            return knn(self.xyz, k, self.xyz[rows])
+            return knn(self.xyz, k, self.xyz[rows], self.threads)
         inv = np.full(len(self._points), -1, dtype=np.int64)
         inv[self._pos] = np.arange(n)
-        # np.take: several times faster than fancy indexing on these shapes.
+        # np.take rather than fancy indexing: faster on these shapes.
         idx = np.take(inv, np.take(self._idx[:, :k], root, axis=0))
         dist = np.take(self._dist[:, :k], root, axis=0) if with_dist else None
-        # Most rows (90-99 % on the shared cases) have their first k listed
+        # Most rows have their first k listed
         # neighbours in the view: those are the answer as they stand. The others
         # take the first k of their listed neighbours that are in the view (only
         # their rows of all K are gathered). Rows with any missing: the flat
@@ -363,9 +337,9 @@ class NeighbourTable:
             )
         idx[part[ok]] = jp.ravel()[take].reshape(-1, k)
         short = part[~ok]
-        # More of the cloud's neighbours for the rows left short (a few %): 2K, then
+        # More of the cloud's neighbours for the rows left short: 2K, then
         # four times more while that costs less than a tree on the view would. A
-        # sparse view (the skeleton's voxel sample: up to half its rows short) gets
+        # sparse view (the skeleton's voxel sample, with many rows short) gets
         # that tree straight away: building it costs about two neighbours' search per
         # point, and each short row then asks k neighbours instead of 2K.
         wide, n_all = min(2 * self.k, len(self._points)), len(self._points)
@@ -375,7 +349,7 @@ class NeighbourTable:
             w_idx, w_sq = self._tree.get().batch_knn_search(
                 self._points[root[short]],
                 wide,
-                num_threads=_batch_threads(len(short), wide),
+                num_threads=_batch_threads(len(short), wide, self.threads),
             )
             jw = inv[w_idx.view(np.int64)]
             at = np.flatnonzero(jw.ravel() >= 0)
@@ -393,7 +367,7 @@ class NeighbourTable:
             wide = wide_next
         if len(short):
             xyz = self.xyz
-            d_short, idx[short] = knn(xyz, k, xyz[rows[short]])
+            d_short, idx[short] = knn(xyz, k, xyz[rows[short]], self.threads)
             if dist is not None:
                 dist[short] = d_short
         return dist, idx

@@ -151,9 +151,9 @@ def run_tree(
         Also write the merged cloud (and the moved source of a pair) in this format
         ("ply", "las", "laz", "pcd"); "" writes none, as ``amrst register`` by default.
     threads : int
-        Threads for the two scans of a pair (``amrst.pipeline.SCAN_THREADS``): 1 when
-        every core already runs a task (``amrst.campaign.plan.scan_threads``). The
-        result is the same either way.
+        Threads for the tree's registration (``register_scans``): 1 when every core
+        already runs a task (``amrst.campaign.plan.scan_threads``). The result is the
+        same either way.
 
     Returns
     -------
@@ -245,7 +245,6 @@ def _register(
     from amrst.multiscan import register_scans
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
-    from amrst.pipeline import SCAN_THREADS
 
     params = params_from_dict(params_doc)
     scans = []
@@ -257,15 +256,7 @@ def _register(
     truth = None
     if entry.truth is not None:
         truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)
-    from amrst import neighbours
-
-    token, kd_threads = SCAN_THREADS.set(threads), neighbours.threads()
-    neighbours.set_threads(threads)  # a worker with one core: one-thread KD queries too
-    try:
-        result = register_scans(scans, entry.reference, params)
-    finally:
-        SCAN_THREADS.reset(token)
-        neighbours.set_threads(kd_threads)
+    result = register_scans(scans, entry.reference, params, threads=threads)
     written = export_scans(
         out,
         result,

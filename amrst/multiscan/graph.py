@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import RegistrationFailed
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.types import invert_transform
 
@@ -107,23 +108,34 @@ def register_link(
     indices: tuple[int, int],
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> Link:
-    """Register one pair with the two-scan engine and say how sure it is."""
+    """Register one pair with the two-scan engine and say how sure it is.
+
+    ``threads``: for the KD-tree queries.
+    """
     from amrst.pipeline import coarse_from_matches, evaluate, find_matches, refine
 
     t0 = time.perf_counter()
     try:
         matches = find_matches(
-            target, source, params, SubReporter(reporter, 0.0, 0.7, "")
+            target, source, params, SubReporter(reporter, 0.0, 0.7, ""), threads=threads
         )
         coarse = coarse_from_matches(matches)
     except RegistrationFailed as exc:
         return Link(*indices, "failed", 0.0, 0.0, 0.0, None, None, str(exc),
                     seconds=time.perf_counter() - t0)  # fmt: skip
     fine = refine(
-        target, source, coarse, params, SubReporter(reporter, 0.7, 0.95), matches
+        target,
+        source,
+        coarse,
+        params,
+        SubReporter(reporter, 0.7, 0.95),
+        matches,
+        threads=threads,
     )
-    metrics = evaluate(target, source, fine.T_target_source, params)
+    metrics = evaluate(target, source, fine.T_target_source, params, threads=threads)
     score = float(coarse.candidate.score)
     if not np.isfinite(score):
         score = 0.0
@@ -156,8 +168,13 @@ def register_links(
     reference: int,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> list[Link]:
-    """Register every pair of analysed scans (reference first in each of its pairs)."""
+    """Register every pair of analysed scans (reference first in each of its pairs).
+
+    ``threads``: for the KD-tree queries.
+    """
     pairs = link_pairs(len(analyses), reference)
     links = []
     for k, (i, j) in enumerate(pairs):
@@ -165,7 +182,11 @@ def register_links(
         step = SubReporter(
             reporter, k / len(pairs), (k + 1) / len(pairs), f"link {i}-{j}"
         )
-        links.append(register_link(analyses[i], analyses[j], (i, j), params, step))
+        links.append(
+            register_link(
+                analyses[i], analyses[j], (i, j), params, step, threads=threads
+            )
+        )
     return links
 
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.types import apply_transform
 
@@ -114,6 +115,8 @@ def refine_jointly(
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
     rounds: int = ROUNDS,
+    *,
+    threads: int = THREADS,
 ) -> JointResult:
     """Refine every reached non-reference pose against all the other scans.
 
@@ -130,6 +133,8 @@ def refine_jointly(
         the point set is ``JOINT_POINTS``.
     reporter : Reporter
     rounds : int
+    threads : int
+        Threads for the KD-tree queries.
 
     Returns
     -------
@@ -152,8 +157,8 @@ def refine_jointly(
     movable = [k for k, p in enumerate(current) if p is not None and k != reference]
     before = mutual_rmse(points, current, overlap)
     # One BLAS thread: the ICP's large sums then add up in one order, so the poses are
-    # the same bit for bit in the CLI (threaded BLAS) and in a Dask worker (one
-    # thread); with threads they differed by 0.1 mm on a 4-scan tree.
+    # the same bit for bit whatever BLAS threads the process has (the CLI's threaded
+    # BLAS, a Dask worker's one thread).
     with threadpool_limits(limits=1, user_api="blas"):
         current = _rounds(
             points,
@@ -163,6 +168,7 @@ def refine_jointly(
             rounds=rounds,
             reporter=reporter,
             refine_registration=refine_registration,
+            threads=threads,
         )
     after = mutual_rmse(points, current, overlap)
     kept = bool(np.isfinite(after) and (not np.isfinite(before) or after <= before))
@@ -183,6 +189,7 @@ def _rounds(
     rounds: int,
     reporter: Reporter,
     refine_registration: Callable[..., FineResult],
+    threads: int,
 ) -> list[Transform | None]:
     """Refine each movable scan against all the others, ``rounds`` times over."""
     steps = max(1, rounds * len(movable))
@@ -197,6 +204,7 @@ def _rounds(
                 source_xyz=points[k],
                 T_init=start,
                 params=fine,
+                threads=threads,
             )
             current[k] = result.T_target_source
             done += 1

@@ -22,6 +22,7 @@ import numpy as np
 from amrst.errors import InvalidInput
 from amrst.multiscan.graph import Link, loop_closures, register_links, spanning_tree
 from amrst.multiscan.joint import JointResult, refine_jointly
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.types import Cloud, Transform, world_transform
 
@@ -178,6 +179,7 @@ def register_scans(
     reporter: Reporter | None = None,
     *,
     joint: bool = True,
+    threads: int = THREADS,
 ) -> MultiScanResult:
     """Register several scans of one tree onto the reference scan.
 
@@ -192,6 +194,9 @@ def register_scans(
     reporter : Reporter or None
     joint : bool
         Refine all poses together after the spanning tree (more than two scans).
+    threads : int
+        Threads for a pair's two analyses and for each KD-tree query; the result is
+        the same for any number.
 
     Returns
     -------
@@ -213,19 +218,29 @@ def register_scans(
     params = params or RegistrationParams()
     reporter = reporter or NULL_REPORTER
     if len(scans) == 2:
-        result = register(scans[reference], scans[1 - reference], params, reporter)
+        result = register(
+            scans[reference], scans[1 - reference], params, reporter, threads=threads
+        )
         return _from_pair(scans, reference, result)
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     analyses = []
     for k, cloud in enumerate(scans):
         rep = SubReporter(reporter, 0.3 * k / len(scans), 0.3 * (k + 1) / len(scans))
-        an = prepare_scan(cloud, params, SubReporter(rep, 0.0, 0.7, f"scan {k}"))
-        analyses.append(skeletonise_scan(an, params, SubReporter(rep, 0.7, 1.0)))
+        an = prepare_scan(
+            cloud, params, SubReporter(rep, 0.0, 0.7, f"scan {k}"), threads=threads
+        )
+        analyses.append(
+            skeletonise_scan(an, params, SubReporter(rep, 0.7, 1.0), threads=threads)
+        )
     timings["analyse"] = time.perf_counter() - t_start
     t0 = time.perf_counter()
     links = register_links(
-        analyses, reference, params, SubReporter(reporter, 0.3, 0.85, "links")
+        analyses,
+        reference,
+        params,
+        SubReporter(reporter, 0.3, 0.85, "links"),
+        threads=threads,
     )
     timings["links"] = time.perf_counter() - t0
     graph = spanning_tree(links, len(scans), reference)
@@ -234,7 +249,12 @@ def register_scans(
     poses = graph.poses
     if joint and sum(p is not None for p in poses) > 2:
         joint_result = refine_jointly(
-            analyses, poses, reference, params, SubReporter(reporter, 0.85, 0.95)
+            analyses,
+            poses,
+            reference,
+            params,
+            SubReporter(reporter, 0.85, 0.95),
+            threads=threads,
         )
         poses = joint_result.poses
     timings["joint"] = time.perf_counter() - t0

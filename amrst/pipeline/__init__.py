@@ -22,7 +22,6 @@ register() and used by export are in world coordinates (see amrst.types.world_tr
 
 from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import (
-    SCAN_THREADS,
     ScanAnalysis,
     analyse_scan,
     both_scans,
@@ -35,7 +34,6 @@ from amrst.pipeline.register import RegistrationResult, register
 from amrst.pipeline.steps import STEP_NAMES, STEPS, Step, get_step
 
 __all__ = [
-    "SCAN_THREADS",
     "STEPS",
     "STEP_NAMES",
     "MatchResult",

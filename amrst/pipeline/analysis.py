@@ -8,13 +8,13 @@ scan's own local coordinates (``Cloud.xyz``).
 from __future__ import annotations
 
 import time
-from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
 from amrst.errors import Cancelled, InvalidInput
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
@@ -30,10 +30,6 @@ if TYPE_CHECKING:
 
 _Item = TypeVar("_Item")
 _Out = TypeVar("_Out")
-
-# Threads for the two scans of a pair in both_scans: 2 at once, 1 one after the other
-# (a campaign batch worker that has one core of its own, amrst.campaign.run).
-SCAN_THREADS: ContextVar[int] = ContextVar("amrst_scan_threads", default=2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,13 +91,16 @@ def prepare_scan(
     stem_xy: np.ndarray | None = None,
     expect_ground: float | None = None,
     pre: PreprocessResult | None = None,
+    *,
+    threads: int = THREADS,
 ) -> ScanAnalysis:
     """Preprocess one scan, label its scene, and separate wood from leaves.
 
     ``stem_xy`` (local frame) picks the tree of interest; ``expect_ground`` is the
     other scan's ground tilt (deg) when it has a ground (see ``understand_scene``).
     ``pre``: this scan's preprocessing made before with the same parameters (an
-    earlier analysis's ``scene_pre``), used instead of a new one.
+    earlier analysis's ``scene_pre``), used instead of a new one. ``threads``: for
+    the KD-tree queries.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -112,6 +111,7 @@ def prepare_scan(
                 params.preprocess,
                 SubReporter(reporter, 0, 0.3, "preprocess"),
                 share_k=_shared_k(params),
+                threads=threads,
             )
         except InvalidInput as exc:  # say which scan
             raise InvalidInput(f"{cloud.name or 'scan'}: {exc}") from exc
@@ -135,6 +135,7 @@ def prepare_scan(
         params.separate,
         SubReporter(reporter, 0.3, 1.0, "wood-leaf separation"),
         pre.neighbours,
+        threads=threads,
     )
     _timed(timings, "separate", t0)
     return ScanAnalysis(
@@ -146,8 +147,13 @@ def skeletonise_scan(
     analysis: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> ScanAnalysis:
-    """Add the skeleton and the key points to a prepared scan."""
+    """Add the skeleton and the key points to a prepared scan.
+
+    ``threads``: for the KD-tree queries.
+    """
     timings = dict(analysis.timings)
     t0 = time.perf_counter()
     pts = analysis.points(params.skeleton.points)
@@ -157,7 +163,11 @@ def skeletonise_scan(
     if table is not None and len(pts) != len(table):  # the wood points alone
         table = table.subset(np.flatnonzero(analysis.is_wood))
     skel = build_skeleton(
-        pts, params.skeleton, SubReporter(reporter, 0, 0.9, "skeleton"), table
+        pts,
+        params.skeleton,
+        SubReporter(reporter, 0, 0.9, "skeleton"),
+        table,
+        threads=threads,
     )
     t0 = _timed(timings, "skeleton", t0)
     kp = extract_keypoints(skel, params.keypoints)
@@ -173,16 +183,27 @@ def analyse_scan(
     stem_xy: np.ndarray | None = None,
     expect_ground: float | None = None,
     pre: PreprocessResult | None = None,
+    *,
+    threads: int = THREADS,
 ) -> ScanAnalysis:
     """Run every per-scan step: :func:`prepare_scan`, then :func:`skeletonise_scan`.
 
     The order is the step table's (``amrst.pipeline.steps.STEPS``, its ``per_scan``
-    entries); a test keeps the two in agreement. ``pre`` as in :func:`prepare_scan`.
+    entries); a test keeps the two in agreement. ``pre`` and ``threads`` as in
+    :func:`prepare_scan`.
     """
     an = prepare_scan(
-        cloud, params, SubReporter(reporter, 0.0, 0.7), stem_xy, expect_ground, pre
+        cloud,
+        params,
+        SubReporter(reporter, 0.0, 0.7),
+        stem_xy,
+        expect_ground,
+        pre,
+        threads=threads,
     )
-    return skeletonise_scan(an, params, SubReporter(reporter, 0.7, 1.0))
+    return skeletonise_scan(
+        an, params, SubReporter(reporter, 0.7, 1.0), threads=threads
+    )
 
 
 def both_scans(
@@ -190,23 +211,22 @@ def both_scans(
     target_item: _Item,
     source_item: _Item,
     reporter: Reporter = NULL_REPORTER,
+    threads: int = THREADS,
 ) -> tuple[_Out, _Out]:
     """Run ``fn(item, reporter)`` for the target's and the source's item at once.
 
-    One thread each (one after the other when :data:`SCAN_THREADS` is 1); returns
-    ``(target result, source result)``.
+    One thread each, or one after the other when ``threads`` is 1; the results are
+    the same either way. Returns ``(target result, source result)``.
 
-    The per-scan stages' KD-tree queries and large numpy steps release the GIL, which
-    made them 1.24-1.37x faster on this 2-core machine; results are the same as one
-    after the other. Progress is the mean of the two (monotonic). When one task fails
-    (or the caller is interrupted) the other stops at its next cancel check instead
-    of running to the end; the error is raised as the serial order would have raised
-    it (the target's first).
+    Progress is the mean of the two (monotonic). When one task fails (or the caller
+    is interrupted) the other stops at its next cancel check instead of running to
+    the end; the error is raised as the serial order would have raised it (the
+    target's first).
     """
     from concurrent.futures import ThreadPoolExecutor
 
     shared = SharedReporter(reporter, 2)
-    if SCAN_THREADS.get() < 2:  # same results, one after the other
+    if threads < 2:
         first = fn(target_item, shared.task(0, "target"))
         return first, fn(source_item, shared.task(1, "source"))
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:

@@ -49,10 +49,13 @@ def add_feature_solution(
     source: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter,
+    threads: int,
 ) -> tuple[CandidateList, dict[int, FineResult]]:
     """Match globally, polish and verify the pose, and merge it into the list.
 
-    Returns the merged list and no finished fine fits.
+    Returns the merged list and no finished fine fits. ``threads`` is not used: the
+    feature matcher always runs on one thread (``match_globally``), so that its pose
+    is the same on every run.
     """
     from scipy.spatial import cKDTree
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import RegistrationFailed
+from amrst.neighbours import THREADS
 from amrst.pipeline.analysis import _timed
 from amrst.pipeline.sources import CANDIDATE_SOURCES, merge_same_solutions
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
@@ -52,8 +53,13 @@ def find_matches(
     source: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> MatchResult:
-    """Match tetrahedra between the two key point sets, then verify and rank them."""
+    """Match tetrahedra between the two key point sets, then verify and rank them.
+
+    ``threads``: for the KD-tree queries.
+    """
     if target.keypoints is None or source.keypoints is None:
         raise RegistrationFailed(
             "Build the skeletons and key points of both scans first."
@@ -108,6 +114,7 @@ def find_matches(
         source.xyz,
         params.coarse,
         SubReporter(reporter, 0.4, 0.8, "verification"),
+        threads=threads,
     )
     t0 = _timed(timings, "verify", t0)
     centre = source.xyz.mean(axis=0)
@@ -119,7 +126,7 @@ def find_matches(
         step = SubReporter(
             reporter, 0.8 + 0.2 * k / n, 0.8 + 0.2 * (k + 1) / n, extra.label
         )
-        ranked, fits = extra.add(ranked, target, source, params, step)
+        ranked, fits = extra.add(ranked, target, source, params, step, threads)
         finished.update(fits)
         t0 = _timed(timings, extra.timing_key, t0)
     if len(ranked.candidates) > 1:

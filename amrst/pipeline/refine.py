@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.coarse import CoarseResult
 from amrst.stages.fine import FineResult, refine_registration
@@ -23,6 +24,8 @@ def refine(
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
     matches: MatchResult | None = None,
+    *,
+    threads: int = THREADS,
 ) -> FineResult:
     """Fine registration from a coarse local-frame transform or an accepted coarse result.
 
@@ -30,6 +33,7 @@ def refine(
     verification chose (``Candidate.fine_points``); anything else on ``fine.points``.
     When ``matches`` already holds this candidate's full fine registration (the trunk
     search makes one while verifying), that result is returned instead of a second run.
+    ``threads``: for the KD-tree queries.
     """
     which = params.fine.points
     if isinstance(start, CoarseResult):
@@ -42,7 +46,12 @@ def refine(
     else:
         T_init = start
     return refine_registration(
-        target.points(which), source.points(which), T_init, params.fine, reporter
+        target.points(which),
+        source.points(which),
+        T_init,
+        params.fine,
+        reporter,
+        threads=threads,
     )
 
 
@@ -51,7 +60,9 @@ def evaluate(
     source: ScanAnalysis,
     T_target_source: Transform,
     params: RegistrationParams,
+    *,
+    threads: int = THREADS,
 ) -> CloudMetrics:
     """NN-RMSE, Hausdorff and overlap of the preprocessed scans under a local-frame transform."""
     moved = source.xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
-    return measure_clouds(target.xyz, moved, params.metrics)
+    return measure_clouds(target.xyz, moved, params.metrics, threads=threads)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
 from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
@@ -51,28 +52,36 @@ def _expect_ground(
     src: ScanAnalysis,
     params: RegistrationParams,
     rep: Reporter,
-    tgt_stem: np.ndarray | None,
-    src_stem: np.ndarray | None,
+    stems: tuple[np.ndarray | None, np.ndarray | None],
+    threads: int,
 ) -> tuple[ScanAnalysis, ScanAnalysis]:
     """Analyse again the scan that found no ground when the other one found one.
 
     Both scans of a pair were made in one place: a scan half hidden by a neighbour
-    may show little ground (12 m² in field case 02's target, at the threshold), too
-    little to tell from a stem foot on its own (clean trees: up to 7.5 m²), but enough
-    once the other scan has a ground (``scene.expected_ground_area_m2``).
+    may show too little ground to tell from a stem foot on its own, but enough once
+    the other scan has a ground (``scene.expected_ground_area_m2``). ``stems``: each
+    scan's stem (local frame) or None.
     """
     t_scene, s_scene = tgt.scene, src.scene
     if t_scene is None or s_scene is None or t_scene.has_ground == s_scene.has_ground:
         return tgt, src
     # The preprocessing does not depend on the ground expected: it is reused.
     if t_scene.has_ground:
-        return tgt, analyse_scan(
-            src.cloud, params, rep, src_stem, t_scene.ground_tilt_deg, src.scene_pre
+        tilt, cloud, stem, pre = (
+            t_scene.ground_tilt_deg,
+            src.cloud,
+            stems[1],
+            src.scene_pre,
         )
-    again = analyse_scan(
-        tgt.cloud, params, rep, tgt_stem, s_scene.ground_tilt_deg, tgt.scene_pre
-    )
-    return again, src
+    else:
+        tilt, cloud, stem, pre = (
+            s_scene.ground_tilt_deg,
+            tgt.cloud,
+            stems[0],
+            tgt.scene_pre,
+        )
+    again = analyse_scan(cloud, params, rep, stem, tilt, pre, threads=threads)
+    return (tgt, again) if t_scene.has_ground else (again, src)
 
 
 def register(
@@ -81,6 +90,8 @@ def register(
     params: RegistrationParams | None = None,
     reporter: Reporter | None = None,
     stems: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    *,
+    threads: int = THREADS,
 ) -> RegistrationResult:
     """Register ``source`` onto ``target`` (the whole AMRST chain).
 
@@ -97,6 +108,9 @@ def register(
         The stem of the tree of interest in each scan, world x y (for whole plot
         scans: the scene stage cuts ``scene.crop_radius_m`` around it); None: the
         stem nearest the middle of the scan.
+    threads : int
+        Threads for the two scans' analyses and for each KD-tree query; the result
+        is the same for any number.
 
     Returns
     -------
@@ -120,18 +134,21 @@ def register(
     }
 
     def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
-        return analyse_scan(cloud, params, rep, local[id(cloud)])
+        return analyse_scan(cloud, params, rep, local[id(cloud)], threads=threads)
 
-    tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.6))
+    scans = SubReporter(reporter, 0.0, 0.6)
+    tgt, src = both_scans(analyse, target, source, scans, threads)
     tgt, src = _expect_ground(
         tgt,
         src,
         params,
         SubReporter(reporter, 0.55, 0.6),
-        local[id(target)],
-        local[id(source)],
+        (local[id(target)], local[id(source)]),
+        threads,
     )
-    matches = find_matches(tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""))
+    matches = find_matches(
+        tgt, src, params, SubReporter(reporter, 0.6, 0.85, ""), threads=threads
+    )
     coarse = coarse_from_matches(matches)
     t0 = time.perf_counter()
     fine = refine(
@@ -141,14 +158,19 @@ def register(
         params,
         SubReporter(reporter, 0.85, 0.95, "fine"),
         matches,
+        threads=threads,
     )
     t_fine = time.perf_counter() - t0
     t0 = time.perf_counter()
-    m_coarse = evaluate(tgt, src, coarse.T_target_source, params)
+    m_coarse = evaluate(tgt, src, coarse.T_target_source, params, threads=threads)
     # A trunk-search solution was fine-registered while it was verified: its coarse
     # and fine transforms are the same, and so are their metrics.
     same = np.array_equal(fine.T_target_source, coarse.T_target_source)
-    m_fine = m_coarse if same else evaluate(tgt, src, fine.T_target_source, params)
+    m_fine = (
+        m_coarse
+        if same
+        else evaluate(tgt, src, fine.T_target_source, params, threads=threads)
+    )
     T_world = world_transform(fine.T_target_source, target, source)
     tree = measure_pair(target, source, T_world, params.measure)
     timings: dict[str, float] = {}

@@ -41,14 +41,16 @@ class CandidateSource:
     label: str  # progress label
     timing_key: str  # key in MatchResult.timings
     wanted: Callable[[CandidateList, RegistrationParams, np.ndarray], bool]
+    # add(ranked, target, source, params, reporter, threads): the merged list and
+    # {candidate id: FineResult} of the candidates already fully refined.
     add: Callable[
-        [CandidateList, ScanAnalysis, ScanAnalysis, RegistrationParams, Reporter],
+        [CandidateList, ScanAnalysis, ScanAnalysis, RegistrationParams, Reporter, int],
         tuple[CandidateList, dict[int, FineResult]],
     ]
 
 
-# The feature matcher first: it is fast (0.1-0.5 s on the benchmark cases), and when
-# its pose verifies the trunk search (1-3 s) is not needed.
+# The feature matcher first: it is several times faster than the trunk search, which
+# is not needed when the feature matcher's pose verifies.
 CANDIDATE_SOURCES: tuple[CandidateSource, ...] = (
     CandidateSource(
         Origin.FEATURES,

@@ -51,11 +51,12 @@ def add_trunk_solutions(
     source: ScanAnalysis,
     params: RegistrationParams,
     reporter: Reporter,
+    threads: int,
 ) -> tuple[CandidateList, dict[int, FineResult]]:
     """Run the trunk heading search, refine its best headings, add them to the list.
 
     Returns the merged list and ``{candidate id: FineResult}`` for the solutions that
-    already had their full fine registration.
+    already had their full fine registration. ``threads``: for the KD-tree queries.
     """
     from scipy.spatial import cKDTree
 
@@ -66,6 +67,7 @@ def add_trunk_solutions(
         params.trunk,
         SubReporter(reporter, 0, 0.6, "search"),
         target_tree=tree,
+        threads=threads,
     )
     log.info("Trunk heading search kept %d heading(s)", len(search.solutions))
     # Rank the kept headings by a quick fine registration, then refine the best one
@@ -87,7 +89,9 @@ def add_trunk_solutions(
     for k, sol in enumerate(search.solutions):
         step = SubReporter(reporter, 0.6 + 0.3 * k / n, 0.6 + 0.3 * (k + 1) / n)
         refined.append(
-            refine(target, source, sol.T_target_source, quick, step).T_target_source
+            refine(
+                target, source, sol.T_target_source, quick, step, threads=threads
+            ).T_target_source
         )
         used.append(tries[0])
         step.progress(1.0, "refining the best headings")
@@ -95,8 +99,8 @@ def add_trunk_solutions(
     if refined:
         # The best quick fit, and every heading whose quick fit comes close to it,
         # gets the full fine registration (on each point set tried); then the
-        # close-point share decides. A quick fit that stopped short must not settle
-        # a close race (case 17 flipped on the fine stage's sample size).
+        # close-point share decides, so a quick fit that stopped short never settles
+        # a close race.
         close = _precise(refined, tree, source, params)
         contenders = trunk_contenders(
             close, params.trunk.contender_share, refined, source.xyz.mean(axis=0)
@@ -115,6 +119,7 @@ def add_trunk_solutions(
                         0.9 + 0.1 * i / len(runs),
                         0.9 + 0.1 * (i + 1) / len(runs),
                     ),
+                    threads=threads,
                 )
             )
         scores = _precise([f.T_target_source for f in fits], tree, source, params)

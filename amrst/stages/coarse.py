@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.candidates import (
     DISTINCT_DEG,
@@ -194,6 +195,8 @@ def rank_candidates(
     source_xyz: np.ndarray,
     params: CoarseParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> CandidateList:
     """Group, verify and rank tetrahedron matches.
 
@@ -206,6 +209,8 @@ def rank_candidates(
         Source points used for verification.
     params : CoarseParams
     reporter : Reporter
+    threads : int
+        Threads for the KD-tree queries.
 
     Returns
     -------
@@ -246,7 +251,7 @@ def rank_candidates(
             src_small = src_small[
                 rng.choice(len(src_small), POLISH_POINTS, replace=False)
             ]
-        small_tree = NearestTree(tgt_small)
+        small_tree = NearestTree(tgt_small, threads)
         top = np.argsort(-(raw + 0.01 * np.log1p(support)), kind="stable")[
             : params.polish_top
         ]

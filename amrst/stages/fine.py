@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.nearest_cache import NearestCache
 from amrst.types import Transform, make_transform
@@ -298,6 +299,8 @@ def refine_registration(
     T_init: Transform,
     params: FineParams,
     reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
 ) -> FineResult:
     """Refine a coarse ``T_target_source``.
 
@@ -311,6 +314,8 @@ def refine_registration(
         Coarse transform.
     params : FineParams
     reporter : Reporter
+    threads : int
+        Threads for the KD-tree queries.
 
     Returns
     -------
@@ -330,7 +335,7 @@ def refine_registration(
         )
         source_xyz = source_xyz[np.sort(pick)]
     T = np.asarray(T_init, float).copy()
-    tree = NearestTree(target_xyz)  # one tree for every scale and the final count
+    tree = NearestTree(target_xyz, threads)  # for every scale and the final count
     ladder = _ladder(params)  # the correspondence distance of each scale
     nearest = NearestCache(tree, target_xyz, len(source_xyz), ladder[0])
     total, converged, dist = 0, True, params.max_corr_dist_m

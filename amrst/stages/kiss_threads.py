@@ -1,15 +1,15 @@
-"""KISS-Matcher on one thread: the same pose on every run, in the CLI and in a worker.
+"""KISS-Matcher on one thread, so that its pose is the same on every run.
 
 KISS-Matcher parallelises its features and matching with oneTBB and its max-clique
-pruning with OpenMP. With two threads the correspondences come out in a varying
-order, and on field case 06 its pose differed from run to run (10 to 16 runs in 30 on
-the same input, inlier counts 2 to 8 apart); the fine ICP then ended 1e-14 to 6e-12
-apart, so a campaign tree was not bit for bit what ``amrst register`` gave alone.
-One TBB thread gave the same pose in 30 runs of 30. TBB has no environment variable
-for its thread count, only the C++ ``tbb::global_control``: :func:`kiss_one_thread`
-creates one through its binary interface (``tbb::detail::r1::create``/``destroy``,
-stable across oneTBB 2021+) on the TBB copy the kiss_matcher wheel loaded, around
-the call only, and holds OpenMP to one thread (threadpoolctl) there too.
+pruning with OpenMP; with more than one thread its correspondences come out in a
+varying order and its pose can differ from run to run. Its Python API has no thread
+setting and TBB reads no environment variable for one; the only control is the C++
+``tbb::global_control``. :func:`kiss_one_thread` therefore creates one through TBB's
+binary interface (``tbb::detail::r1::create``/``destroy``, stable across oneTBB
+2021+) on the TBB copy the kiss_matcher wheel loaded, around the call only, and
+holds OpenMP to one thread (threadpoolctl) there too. This is the one place the
+engine reaches into a library's threads; it goes when KISS-Matcher takes a thread
+count.
 """
 
 from __future__ import annotations

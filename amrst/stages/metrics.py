@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.types import Transform, rotation_angle_deg
 
 
@@ -99,6 +100,8 @@ def measure_clouds(
     target_xyz: np.ndarray,
     moved_source_xyz: np.ndarray,
     params: MetricsParams = MetricsParams(),
+    *,
+    threads: int = THREADS,
 ) -> CloudMetrics:
     """Nearest-neighbour distances between two clouds already in one frame.
 
@@ -108,6 +111,8 @@ def measure_clouds(
     moved_source_xyz : (M, 3) float64
         Source points mapped into the target frame.
     params : MetricsParams
+    threads : int
+        Threads for the KD-tree queries.
 
     Returns
     -------
@@ -121,8 +126,8 @@ def measure_clouds(
     if len(tgt) == 0 or len(src) == 0:
         nan = float("nan")
         return CloudMetrics(nan, nan, nan, nan, 0.0, len(tgt), len(src))
-    d_st = NearestTree(tgt).query(src)[0]
-    d_ts = NearestTree(src).query(tgt)[0]
+    d_st = NearestTree(tgt, threads).query(src)[0]
+    d_ts = NearestTree(src, threads).query(tgt)[0]
     inside = d_st < params.overlap_dist_m
     both = np.concatenate([d_st, d_ts])
     return CloudMetrics(

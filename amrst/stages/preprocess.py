@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import pairwise_rows
 from amrst.stages.voxels import finite_rows, voxel_sample
@@ -105,7 +106,7 @@ class PreprocessResult:
 
 
 def _statistical_inliers(
-    pts: np.ndarray, k: int, std_ratio: float, share_k: int = 0
+    pts: np.ndarray, k: int, std_ratio: float, share_k: int, threads: int
 ) -> tuple[np.ndarray, NeighbourTable]:
     """Return indices of the points that pass Open3D's statistical outlier rule.
 
@@ -117,7 +118,7 @@ def _statistical_inliers(
     """
     from amrst.neighbours import NeighbourTable
 
-    table = NeighbourTable.build(pts, max(k + 1, share_k))
+    table = NeighbourTable.build(pts, max(k + 1, share_k), threads)
     # The mean of neighbours 1..k, i.e. ``dist[:, 1:k + 1].mean(axis=1)`` bit for bit,
     # summed as whole columns (numpy's per-row sum of k numbers is ~10x slower).
     d = pairwise_rows(table.knn(k + 1)[0][:, 1:].T[None])[0] / k
@@ -130,6 +131,8 @@ def preprocess_points(
     params: PreprocessParams,
     reporter: Reporter = NULL_REPORTER,
     share_k: int = 0,
+    *,
+    threads: int = THREADS,
 ) -> PreprocessResult:
     """Filter noise and thin a scan.
 
@@ -187,7 +190,7 @@ def preprocess_points(
     table = None
     if params.outlier_neighbours > 0 and len(pts) > params.outlier_neighbours + 1:
         kept, table = _statistical_inliers(
-            pts, params.outlier_neighbours, params.outlier_std_ratio, share_k
+            pts, params.outlier_neighbours, params.outlier_std_ratio, share_k, threads
         )
         n_outliers = len(pts) - len(kept)
         index, pts = index[kept], pts[kept]

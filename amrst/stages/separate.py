@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.features import (
     otsu_threshold,
@@ -164,6 +165,8 @@ def separate_wood(
     params: SeparateParams,
     reporter: Reporter = NULL_REPORTER,
     neighbours: NeighbourTable | None = None,
+    *,
+    threads: int = THREADS,
 ) -> SeparationResult:
     """Label each point wood or leaf.
 
@@ -178,6 +181,8 @@ def separate_wood(
     neighbours : NeighbourTable or None
         The neighbours of exactly these points (the preprocess query), read instead
         of a new query; the same labels.
+    threads : int
+        Threads for a new neighbour query.
 
     Returns
     -------
@@ -202,7 +207,7 @@ def separate_wood(
     if neighbours is not None and len(neighbours) == n:
         nbr = neighbours.knn_idx(k_max, reps)
     else:
-        nbr = knn(xyz, k_max, xyz[reps])[1]
+        nbr = knn(xyz, k_max, xyz[reps], threads)[1]
     votes, methods = [], []
     curv_thr = int_thr = float("nan")
     use_intensity = intensity is not None and np.ptp(intensity) > 0

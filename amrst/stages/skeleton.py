@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.skeleton_graph import bin_clusters, wood_graph
 
@@ -162,6 +163,8 @@ def build_skeleton(
     params: SkeletonParams,
     reporter: Reporter = NULL_REPORTER,
     neighbours: NeighbourTable | None = None,
+    *,
+    threads: int = THREADS,
 ) -> SkeletonResult:
     """Skeletonise a wood point cloud.
 
@@ -174,6 +177,8 @@ def build_skeleton(
     neighbours : NeighbourTable or None
         The neighbours of exactly ``wood_xyz`` (the preprocess query): the graph's
         are read off it instead of a new query; the same skeleton.
+    threads : int
+        Threads for a new neighbour query.
 
     Returns
     -------
@@ -198,7 +203,7 @@ def build_skeleton(
     table = None
     if neighbours is not None and len(neighbours) == len(wood_xyz):
         table = neighbours.subset(sample)
-    graph, bridged = wood_graph(xyz, params, table)
+    graph, bridged = wood_graph(xyz, params, table, threads)
     reporter.progress(0.3, "graph built")
     reporter.check_cancelled()
     root = _find_root(xyz, params.root_slice_m)

@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
+
 if TYPE_CHECKING:
     from scipy.sparse import csr_matrix
 
@@ -33,7 +35,10 @@ def _min_edge_per_pair(
 
 
 def wood_graph(
-    xyz: np.ndarray, params: SkeletonParams, table: NeighbourTable | None = None
+    xyz: np.ndarray,
+    params: SkeletonParams,
+    table: NeighbourTable | None = None,
+    threads: int = THREADS,
 ) -> tuple[csr_matrix, int]:
     """Sparse symmetric graph: kNN edges plus the shortest bridges between components.
 
@@ -42,6 +47,7 @@ def wood_graph(
     the shortest set that links them (the paper's Delaunay graph links everything, at
     several times the cost). Components still apart are linked to the root's one by
     their nearest point. A bridge costs twice its length, so paths prefer real wood.
+    ``threads``: for the kNN query when there is no ``table``.
     """
     from scipy.sparse import coo_matrix, csr_matrix
     from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
@@ -50,7 +56,7 @@ def wood_graph(
 
     n = len(xyz)
     k = min(max(params.neighbours, 16) + 1, n)
-    dist, idx = knn(xyz, k) if table is None else table.knn(k)
+    dist, idx = knn(xyz, k, threads=threads) if table is None else table.knn(k)
     kn = min(params.neighbours + 1, n)
     # The kNN edges row by row: built as CSR straight away (rows are in order).
     ok = dist[:, 1:kn] <= params.max_edge_m

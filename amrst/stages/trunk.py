@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.coarse import (
     distinct_solutions,
@@ -266,6 +267,8 @@ def search_yaw(
     params: TrunkParams,
     reporter: Reporter = NULL_REPORTER,
     target_tree: cKDTree | None = None,
+    *,
+    threads: int = THREADS,
 ) -> TrunkSearchResult:
     """Sweep the source heading about its trunk base and keep the best distinct fits.
 
@@ -275,6 +278,10 @@ def search_yaw(
         Preprocessed scans in their local frames.
     params : TrunkParams
     reporter : Reporter
+    target_tree : cKDTree or None
+        A tree on ``target_xyz``, reused when given.
+    threads : int
+        Threads for the KD-tree queries.
 
     Returns
     -------
@@ -296,7 +303,7 @@ def search_yaw(
     sample = source_xyz[
         rng.choice(len(source_xyz), min(params.points, len(source_xyz)), replace=False)
     ]
-    tree = NearestTree(tgt)
+    tree = NearestTree(tgt, threads)
     full_tree = cKDTree(target_xyz) if target_tree is None else target_tree
     yaws = np.arange(0.0, 360.0, params.yaw_step_deg)
     starts = np.stack(

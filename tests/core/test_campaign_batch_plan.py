@@ -86,19 +86,15 @@ def test_a_task_gets_two_threads_only_with_two_cores_of_its_own(
 
 
 def test_one_scan_thread_runs_the_pair_in_the_calling_thread() -> None:
-    from amrst.pipeline import SCAN_THREADS, both_scans
+    from amrst.pipeline import both_scans
 
     def where(item: str, _rep: object) -> tuple[str, str]:
         return item, threading.current_thread().name
 
     here = threading.current_thread().name
-    token = SCAN_THREADS.set(1)
-    try:
-        serial = both_scans(where, "t", "s")
-    finally:
-        SCAN_THREADS.reset(token)
+    serial = both_scans(where, "t", "s", threads=1)
     assert serial == (("t", here), ("s", here))
-    threaded = both_scans(where, "t", "s")  # the default: one thread each
+    threaded = both_scans(where, "t", "s", threads=2)
     assert [r[0] for r in threaded] == ["t", "s"]
     assert all(r[1].startswith("amrst-scan") for r in threaded)
 

@@ -1,8 +1,8 @@
-"""KISS-Matcher runs on one thread: the same pose on every run (issue 14).
+"""KISS-Matcher runs on one thread: the same pose on every run.
 
-With its TBB and OpenMP threads its pose varied from run to run on field case 06, so
-a campaign tree was not bit for bit the ``amrst register`` result. The check runs in
-a fresh process: TBB starts its worker threads at its first parallel loop there.
+With its TBB and OpenMP threads its pose can vary from run to run, so a campaign
+tree would not be bit for bit the ``amrst register`` result. The check runs in a
+fresh process: TBB starts its worker threads at its first parallel loop there.
 """
 
 from __future__ import annotations

@@ -90,53 +90,44 @@ def test_table_subset_reads_every_path(keep_fraction: float) -> None:
     rng = np.random.default_rng(7)
     xyz = np.round(rng.uniform(0, 3, (8000, 3)), 3)  # mm grid: some ties
     keep = np.flatnonzero(rng.random(len(xyz)) < keep_fraction)
-    before = neighbours.threads()
-    try:
-        for threads in (1, 2):
-            neighbours.set_threads(threads)
-            view = NeighbourTable.build(xyz, 24).subset(keep)
-            rows = np.sort(rng.choice(len(keep), 3000, replace=False))
-            for k in (1, 10, 22):
-                d, i = view.knn(k, rows)
-                d_ref, i_ref = knn(xyz[keep], k, xyz[keep][rows])
-                np.testing.assert_array_equal(d, d_ref)
-                # Equal distances may list their points in another order.
-                same = i == i_ref
-                assert same.mean() > 0.99
-                np.testing.assert_allclose(
-                    np.linalg.norm(
-                        xyz[keep][i[~same]] - xyz[keep][rows][np.nonzero(~same)[0]],
-                        axis=1,
-                    ),
-                    d[~same],
-                )
-    finally:
-        neighbours.set_threads(before)
+    for threads in (1, 2):
+        view = NeighbourTable.build(xyz, 24, threads=threads).subset(keep)
+        rows = np.sort(rng.choice(len(keep), 3000, replace=False))
+        for k in (1, 10, 22):
+            d, i = view.knn(k, rows)
+            d_ref, i_ref = knn(xyz[keep], k, xyz[keep][rows], threads=threads)
+            np.testing.assert_array_equal(d, d_ref)
+            # Equal distances may list their points in another order.
+            same = i == i_ref
+            assert same.mean() > 0.99
+            np.testing.assert_allclose(
+                np.linalg.norm(
+                    xyz[keep][i[~same]] - xyz[keep][rows][np.nonzero(~same)[0]],
+                    axis=1,
+                ),
+                d[~same],
+            )
 
 
 def test_small_batches_run_on_one_thread_with_the_same_answers() -> None:
-    """Queries under SMALL_BATCH work run on one thread; big ones on threads(); the
-    neighbours are the same either way."""
-    before = neighbours.threads()
-    try:
-        neighbours.set_threads(2)
-        assert neighbours._batch_threads(100, 1) == 1
-        assert neighbours._batch_threads(351, 64) == 1
-        assert neighbours._batch_threads(16_000, 32) == 2
-        assert neighbours._batch_threads(16_000, 32, threads=1) == 1
-        assert neighbours._build_threads(16_000) == 1
-        assert neighbours._build_threads(200_000) == 2
-        rng = np.random.default_rng(11)
-        pts = np.round(rng.uniform(0, 2, (30_000, 3)), 3)
-        queries = rng.uniform(0, 2, (40_000, 3))  # 40,000 x (1 + 3): two threads
-        tree = neighbours.NearestTree(pts)
-        big = tree.query(queries, k=1, distance_upper_bound=0.05)
-        small = tree.query(queries[:500], k=1, distance_upper_bound=0.05)
-        neighbours.set_threads(1)
-        one = neighbours.NearestTree(pts).query(queries, k=1, distance_upper_bound=0.05)
-        for a, b in zip(big, one, strict=True):
-            np.testing.assert_array_equal(a, b)
-        for a, b in zip(small, one, strict=True):
-            np.testing.assert_array_equal(a, b[:500])
-    finally:
-        neighbours.set_threads(before)
+    """Queries under SMALL_BATCH work run on one thread; big ones on ``threads``;
+    the neighbours are the same either way."""
+    assert neighbours._batch_threads(100, 1, 2) == 1
+    assert neighbours._batch_threads(351, 64, 2) == 1
+    assert neighbours._batch_threads(16_000, 32, 2) == 2
+    assert neighbours._batch_threads(16_000, 32, 1) == 1
+    assert neighbours._build_threads(16_000, 2) == 1
+    assert neighbours._build_threads(200_000, 2) == 2
+    rng = np.random.default_rng(11)
+    pts = np.round(rng.uniform(0, 2, (30_000, 3)), 3)
+    queries = rng.uniform(0, 2, (40_000, 3))  # 40,000 x (1 + 3): two threads
+    tree = neighbours.NearestTree(pts, threads=2)
+    big = tree.query(queries, k=1, distance_upper_bound=0.05)
+    small = tree.query(queries[:500], k=1, distance_upper_bound=0.05)
+    one = neighbours.NearestTree(pts, threads=1).query(
+        queries, k=1, distance_upper_bound=0.05
+    )
+    for a, b in zip(big, one, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(small, one, strict=True):
+        np.testing.assert_array_equal(a, b[:500])
