@@ -3,7 +3,7 @@
 The GUI passes a reporter that forwards progress to a queued signal and holds the
 cancel request in a ``threading.Event``; the CLI passes a terminal one; tests pass
 ``NULL_REPORTER``. The check points live here, in ``amrst``, so every front end runs
-the same code (see STYLE.md section 3).
+the same code.
 """
 
 from __future__ import annotations

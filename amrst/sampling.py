@@ -5,14 +5,9 @@ width come out the same, within the measurement's own scatter, from a few hundre
 thousand of them. :func:`measure_pair` measures the registered pair on a seeded
 random sample of at most :data:`MEASURE_MAX_POINTS` points per scan (a random sample
 keeps the scan's density pattern, which the bark test's 12-neighbour normals depend
-on; a voxel grid would not). Scans at or under the bound are measured whole, so
-every shared benchmark case (at most 60,000 points a scan) gives the same figures
-as before. Exports always use every point.
-
-Measured on case 08 densified to 2,000,000 points per scan (3 mm jitter) against the
-whole clouds: height within 1 cm, crown area within 2 %, crown width within 1 cm,
-and DBH within 1.1 cm, which is the scatter of the stem fit itself (two seeds of a
-400,000-point sample differ by 0.7 cm). See ``docs/bench/scale/README.md``.
+on; a voxel grid would not). Scans at or under the bound are measured whole. Exports
+always use every point. The bound is set so that a sample's figures differ from the
+whole cloud's by no more than the stem fit's own scatter.
 """
 
 from __future__ import annotations

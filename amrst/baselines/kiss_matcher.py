@@ -7,7 +7,7 @@ Linux x86_64 and macOS arm64 (``pyproject.toml`` installs it there only); elsewh
 
 Two fine steps follow it here: ``register_kiss_matcher`` uses the same point-to-plane
 ICP as the other feature baselines (``features.refine_point_to_plane``), and
-``register_kiss_gicp`` uses small_gicp's GICP, the recipe the issues measured
+``register_kiss_gicp`` uses small_gicp's GICP, the peer the benchmark compares with
 ("KISS-Matcher + GICP": ``KISSMatcherConfig(0.1)``, then GICP at 2 cm, 0.2 m).
 """
 

@@ -6,8 +6,8 @@ The fastest generic peer we know: KISS-Matcher (``KISSMatcherConfig(0.1)``,
 :func:`kiss_ratio` runs it and ``amrst.register`` on the same clouds (local frame,
 already in memory), the peer before and after ours, and keeps the peer's faster
 run: the ratio is our compute time (``timings["total"]`` without the metrics stage)
-over the peer's. ``kiss-matcher`` is an optional dependency (``pip install
-amrst-studio[bench]``).
+over the peer's. ``kiss-matcher`` is a dependency where it has wheels (Linux
+x86_64, macOS arm64).
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def kiss_ratio(
     except ImportError:
         raise InvalidInput(
             "The KISS-Matcher comparison needs the kiss-matcher package: "
-            "pip install kiss-matcher (or amrst-studio[bench])."
+            "pip install kiss-matcher (wheels for Linux x86_64 and macOS arm64)."
         ) from None
     from amrst.baselines._common import local_pair, to_local
     from amrst.errors import RegistrationFailed

@@ -170,11 +170,11 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
         # is then kept to the end, and no tree waits behind another on a busy worker.
         "distributed.scheduler.worker-saturation": 1.0,
         # Dask's nanny sets MALLOC_TRIM_THRESHOLD_=65536 in its workers: glibc then
-        # hands freed memory back at once and faults it in again, 6x the page faults
-        # and 12-13% more CPU per tree than amrst register (14 trees, one run).
+        # hands freed memory back at once and faults it in again, which costs CPU on
+        # every tree; glibc's default keeps a tree's CPU what amrst register uses.
         "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-        # The dashboard's profiler samples the task's stack every 10 ms (about 3% of
-        # the CPU of a tree); a batch never shows it.
+        # The dashboard's profiler samples every task's stack, which costs CPU, and a
+        # batch never shows it.
         "distributed.worker.profile.enabled": False,
     }
     with dask.config.set(config):
@@ -314,9 +314,8 @@ def run_batch(
             else:
                 summary.failed[row["id"]] = row.get("error", "")
             # the table as trees end (each row read back from its results folder), at
-            # most once a second: written after every tree it took 20 ms of CPU a
-            # tree from the workers (2-3% of a 2-core batch). Nothing is lost by the
-            # wait: every tree's results are on disk and the table is rebuilt from
+            # most once a second, so that writing it takes no noticeable CPU from the
+            # workers. Nothing is lost by the wait: every tree's results are on disk and the table is rebuilt from
             # them on the next run.
             if row["id"] in index:
                 k = index[row["id"]]

@@ -1,14 +1,13 @@
 """How a batch spreads its trees over the workers: longest first, one core per task.
 
-Two measures made ``--workers 2`` run more trees per hour on a 2-core machine
-(docs/bench/campaign, issue 14):
+Two rules keep every worker busy until the batch ends:
 
-- **Longest first** (LPT scheduling): in manifest order the biggest trees (the field
-  cases, a 4-scan tree) came last, and one worker finished them alone while the other
-  waited. :func:`longest_first` orders the trees by the seconds they took last time
-  when a run is on record, else by the bytes of their scan files.
-- **One core per task**: a tree's two scans are analysed in two threads
-  (``amrst.pipeline.both_scans``), which helps one process on an idle machine but
+- **Longest first** (LPT scheduling): in manifest order the biggest trees may come
+  last, and one worker would finish them alone while the others wait.
+  :func:`longest_first` orders the trees by the seconds they took last time when a
+  run is on record, else by the bytes of their scan files.
+- **One core per task**: a tree's registration runs on two threads by default
+  (``amrst.neighbours.THREADS``), which helps one process on an idle machine but
   oversubscribes the cores when every core already has a worker. :func:`scan_threads`
   gives each task the threads its share of the host's cores allows (1 or 2).
 """

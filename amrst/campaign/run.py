@@ -89,8 +89,8 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-# What a tree task imports on first use (lazily, inside the functions): about 0.9 s of
-# a worker's first tree. warm_worker imports them when the worker starts.
+# What a tree task imports on first use (lazily, inside the functions), so that a
+# worker's first tree does not pay for it: warm_worker imports them when it starts.
 WARM_MODULES = (
     "amrst.files.outdir",
     "amrst.io.scans",

@@ -33,10 +33,8 @@ if TYPE_CHECKING:
 ROUNDS = 2
 #: Largest correspondence distance of the joint ICP (m): the poses are already close.
 JOINT_MAX_CORR_M = 0.05
-#: Points of the joint ICP: all preprocessed points. Measured on 4 simulated 4-scan
-#: trees, the worst pair's gt_rmse fell from 0.66/0.32/0.27/0.06 cm (tree of pairwise
-#: links) to 0.39/0.07/0.22/0.05 cm; with the leaf points alone the refinement was
-#: rejected (no lower mutual NN-RMSE) on all four.
+#: Points of the joint ICP: all preprocessed points (the leaf points alone leave too
+#: little overlap to lower the mutual NN-RMSE, so the refinement would be rejected).
 JOINT_POINTS = "all"
 
 

@@ -2,9 +2,9 @@
 
 ``RegistrationParams`` holds one field per stage (KISS-ICP style); each stage's own
 ``<Stage>Params`` lives in its stage module with the metadata (unit, help, range)
-that drives the app's editors, the files and the README table. Change a value with
-``dataclasses.replace``. Files and presets: :mod:`amrst.params.files`; the README's
-parameter table: :mod:`amrst.params.doc`.
+that drives the app's editors, the files and the parameter reference. Change a value
+with ``dataclasses.replace``. Files and presets: :mod:`amrst.params.files`; the
+parameter reference (``docs/parameters.md``): :mod:`amrst.params.doc`.
 """
 
 from __future__ import annotations

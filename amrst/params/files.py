@@ -187,7 +187,7 @@ def _check_value(
             f"Parameter {name} has {len(value)} values; give 1 to {MAX_LIST_ITEMS}, "
             f"e.g. {list(default)}."
         )
-    for item in items:  # list items too (issue 16: scales_k = [100000000])
+    for item in items:  # list items too (scales_k = [100000000] is out of range)
         if (
             isinstance(item, (int, float))
             and not isinstance(item, bool)

@@ -1,6 +1,6 @@
 """Manual recovery: a pose from picked point pairs, a nudge, or a typed transform.
 
-When automatic matching fails, the technician gives the pose by hand (issue 13). The
+When automatic matching fails, the technician gives the pose by hand. The
 result becomes a candidate like the others (origin ``"manual"``), polished and scored
 by the same verification as the tetrahedron candidates, so its verdict means the same.
 All transforms here are ``T_target_source`` between the scans' local frames.

@@ -1,11 +1,9 @@
-"""Keep the technician's pose when an automatic refinement leaves it (issue 13).
+"""Keep the technician's pose when an automatic refinement leaves it.
 
 A manual pose is made by hand because the automatic matching failed, usually because
 the scans share little. There, ICP (the candidate polish, Fine registration) can slide
-to another pose that happens to overlap more points: on case 20 (two scans of a palm
-sharing 37 points within 2 cm) six point pairs give 0.6 deg / 1.7 cm from the truth,
-the polish moves them to 5.8 deg / 78 cm with a *higher* score (the truth itself
-scores 1.7%). So a refinement of a manual pose is kept only when it stays the same
+to a wrong pose that happens to overlap more points, with a *higher* score than the
+true one. So a refinement of a manual pose is kept only when it stays the same
 solution (``CoarseParams.same_solution_m`` / ``_deg``) and does not halve the score;
 otherwise the manual pose stays, and the reason says so. No Qt.
 """
@@ -101,8 +99,8 @@ def judge_refinement(
         )
     )
     moved_away = turn > params.same_solution_deg or shift > params.same_solution_m
-    # Small score changes mean little (on the bundled sample Fine lowers the score
-    # from 66% to 63% while the true error falls from 2.5 cm to 2 mm); a halving does.
+    # Small score changes mean little (Fine may lower the score a little while the
+    # true error falls); a halving does.
     worse = after < CLEAR_LOSS * before
     scores = f"score {before:.1%} -> {after:.1%}"
     if moved_away:

@@ -19,9 +19,8 @@ DEFAULT_THICKNESS_M = 0.1
 _STEM_RADIUS_M = 1.5  # slice points farther than this from the stem axis are crown
 # A slice's circle is trusted to judge a centre offset only when it rests on this many
 # points, this share of the slice's points, over this arc, and both scans' radii agree
-# within the larger of these (a flared base or roots fit no single circle: on case 08
-# at 0.3 m the two fits were 0.51 and 0.57 m wide circles through a few root points,
-# "271 mm apart" while the pose was right to 1 mm).
+# within the larger of these (a flared base or roots fit no single circle, and circles
+# through a few root points lie far apart even when the pose is right).
 MIN_SLICE_POINTS = 20
 MIN_SLICE_SHARE = 0.4
 MIN_SLICE_ARC_DEG = 90.0

@@ -1,4 +1,4 @@
-"""One verdict per registration: registered, needs review, or failed (issue 13).
+"""One verdict per registration: registered, needs review, or failed.
 
 The command line, the app's status bar, Matches header and Metrics dock, the exported
 files and the report all say the same words, because they all call :func:`judge`.

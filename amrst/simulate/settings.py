@@ -86,7 +86,7 @@ def check_settings(
             f"{label('tilt_deg')} must be at most {MAX_TILT_DEG} degrees (a levelled "
             f"tripod tilts under 1), got {tilt_deg:g}."
         )
-    if noise_m > MAX_NOISE_M:  # issue 16: 1e6 m wrote a case with no valid point
+    if noise_m > MAX_NOISE_M:  # a huge noise would write a case with no valid point
         raise InvalidInput(
             f"{label('noise_m')} must be at most {MAX_NOISE_M} m (a scanner's range "
             f"noise is millimetres), got {noise_m:g}."

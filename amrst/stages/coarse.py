@@ -152,7 +152,7 @@ def _group(
     feat = np.hstack(
         [moved / params.same_solution_m, rotvec / params.same_solution_deg]
     )
-    # Neighbour pairs as arrays (query_ball_point's Python lists cost 4x more on
+    # Neighbour pairs as arrays (query_ball_point's Python lists are slow on
     # thousands of matches), then a CSR adjacency that lists each match's neighbours.
     n = len(T)
     pairs = cKDTree(feat).query_pairs(1.0, p=np.inf, output_type="ndarray")

@@ -3,8 +3,8 @@
 ``amrst.stages.match`` describes each tetrahedron by 7 (or 11, levelled) numbers
 scaled so that a Chebyshev distance of 1 is the tolerance on every entry, and needs
 all (target, source) pairs within it. A KD-tree in 11 dimensions prunes poorly on
-these clustered descriptors (a dual-tree ``cKDTree.sparse_distance_matrix`` took
-30-40 ms per case). Here the source descriptors are bucketed on a half-unit grid of
+these clustered descriptors (a dual-tree ``cKDTree.sparse_distance_matrix`` is
+slow on them). Here the source descriptors are bucketed on a half-unit grid of
 two entries (shortest edge and volume) and sorted by the first (longest edge) inside
 each bucket: each target reads, for each of the 25 neighbouring buckets, the exact
 range of sources within 1 on the longest edge (two ``searchsorted``), and the

@@ -117,7 +117,7 @@ def _covariances(
 
     Neighbourhoods are taken ``COV_CHUNK`` at a time (every column is computed on its
     own, so the values do not change): the (9, K, M) working set of a whole scan
-    left the caches; chunks made it 1.2x faster on the shared scans.
+    leaves the caches; chunks keep it in them.
     """
     if len(idx) > COV_CHUNK:
         parts = [
@@ -269,7 +269,7 @@ def voxel_components(keys: np.ndarray) -> np.ndarray:
     The same labels as ``connected_components(keys.astype(float), 1.75)`` (voxels
     touching by a face, an edge or a corner), found by looking up the 13 forward
     neighbours of each voxel among the sorted voxel codes instead of a KD-tree pair
-    search: 3-6x faster on the wood voxels of the shared cases.
+    search, which is faster.
 
     Parameters
     ----------

@@ -157,7 +157,7 @@ def _rotvec(w: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector, as scipy's ``Rotation.from_rotvec``.
 
     The same arithmetic as scipy's (quaternion with its small-angle series, then
-    its quaternion-to-matrix formula), bit for bit (tested), on Python floats: 8x
+    its quaternion-to-matrix formula), bit for bit (tested), on Python floats: much
     faster than building a ``Rotation`` for one 6-vector step of LM-ICP.
     """
     x, y, z = float(w[0]), float(w[1]), float(w[2])
@@ -217,7 +217,7 @@ def lm_icp(
         # instead of building the (N, 3, 6) Jacobian: H = [[Σ|p|²I - Σppᵀ, [Σp]x],
         # [-[Σp]x, N I]], g = [Σ p × e, Σ e]. The three column sums in one pass over
         # an (N, 9) buffer, p × e written out as np.cross computes it: the same sums
-        # bit for bit (numpy adds the rows in order either way), 3x faster.
+        # bit for bit (numpy adds the rows in order either way), and faster.
         w = np.empty((len(p), 9))
         w[:, :3] = p
         w[:, 3:6] = e
@@ -235,9 +235,9 @@ def lm_icp(
         H[3:, :3] = -sx
         H[3:, 3:] = np.eye(3) * len(p)
         g = np.concatenate([sums[6:], sums[3:6]])
-        # Not e @ e: OpenBLAS splits a dot product of over 10,000 terms over its
-        # threads, which cost more than the product itself on a busy 2-core machine
-        # (the fine stage took 1.9x as long; the sum differs in its last bits).
+        # Not e @ e: OpenBLAS splits a long dot product over its threads, which
+        # costs more than the product itself when the cores are busy, and makes the
+        # last bits of the sum depend on the thread count.
         cost = float(np.einsum("ij,ij->", e, e)) / len(p)
         for _ in range(10):  # LM: raise damping until the step lowers the cost
             dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)

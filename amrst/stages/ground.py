@@ -8,15 +8,12 @@ cell is the median residual of the nearest inlier cells (rough ground, small bum
 A clean, segmented tree has no such surface: its lowest points form the stem foot,
 a few square metres at most, so a ground is only declared above ``min_area_m2``.
 
-Measured on the 40 scans of ``cases`` (clean trees) and ``cases_field`` (field-like),
-on the scans before the outlier filter (which removes sparse far ground): the clean
-trees' best planes held at most 7.5 m² of 0.5 m cells; in every field pair at least
-one scan held 20 m² or more, but single field scans (half hidden by a neighbour) held
-as little as 2.8 m². So a ground is declared at 12 m², or at 4 m² when the other scan
-of the pair has one (``expect_ground`` in the scene stage): the 3 m² "ground" of a
-scan whose ground was hidden (field case 09) lay on shrub bases.
-A cloth-simulation filter (the ``cloth-simulation-filter`` package) was tried too; see
-the README ("Scene understanding") for the comparison.
+The planes are found on the scan before the outlier filter (which removes sparse far
+ground). A clean tree's best plane stays well under ``min_area_m2``; in a field pair
+at least one scan shows a large ground, but a single scan half hidden by a
+neighbour may show only a few square metres, and a small plane on shrub bases is
+not a ground. So a ground is declared above ``min_area_m2``, or above a smaller area
+when the other scan of the pair has one (``expect_ground`` in the scene stage).
 """
 
 from __future__ import annotations
@@ -203,8 +200,8 @@ def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:
     """Index of the lowest point of each occupied cell, cells in grid order.
 
     Ties go to the lowest index (what a stable sort by cell, then height, keeps
-    first). An unstable sort groups the points by cell (SIMD sorts: 2-3x faster than
-    a stable one); the minimum height of a run does not depend on the order inside
+    first). An unstable sort groups the points by cell (SIMD sorts are faster than a
+    stable one); the minimum height of a run does not depend on the order inside
     it, and the lowest index among a cell's lowest points is taken over the few
     points at that height, in index order.
     """
@@ -263,9 +260,8 @@ def _solve_draws(M: np.ndarray, b: np.ndarray) -> np.ndarray:
     np.linalg.solve refuses a whole batch for one singular system (a draw that
     repeats a cell often is; not every one, as LAPACK scales by a reciprocal pivot).
     Its kernel, called with the invalid-value flag ignored, solves each system with
-    the same LAPACK call and leaves NaN where one is singular: one call where the
-    batch used to be halved down to each singular draw (about 120 solves per fit).
-    Without that kernel (another numpy), the halving.
+    the same LAPACK call and leaves NaN where one is singular, in one call. Without
+    that kernel (another numpy) the batch is halved down to each singular system.
     """
     try:
         from numpy.linalg import _umath_linalg

@@ -42,8 +42,8 @@ class NearestCache:
     d1 - max_dist, none can have come within max_dist (it stays without a match); a
     point with nothing within 1.5 max_dist stays without a match while it has moved
     less than max_dist / 2.
-    ICP steps shrink fast: over a whole fine registration about 15 % of the point
-    queries are made, and the transforms are the same bit for bit.
+    ICP steps shrink fast, so most point queries are skipped, and the transforms are
+    the same bit for bit.
 
     Parameters
     ----------

@@ -120,7 +120,7 @@ def _statistical_inliers(
 
     table = NeighbourTable.build(pts, max(k + 1, share_k), threads)
     # The mean of neighbours 1..k, i.e. ``dist[:, 1:k + 1].mean(axis=1)`` bit for bit,
-    # summed as whole columns (numpy's per-row sum of k numbers is ~10x slower).
+    # summed as whole columns (numpy's per-row sum of k numbers is slow).
     d = pairwise_rows(table.knn(k + 1)[0][:, 1:].T[None])[0] / k
     kept = np.flatnonzero(d <= d.mean() + std_ratio * d.std())
     return kept, table.subset(kept)

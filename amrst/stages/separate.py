@@ -46,7 +46,7 @@ class SeparateParams:
         metadata={
             "unit": "points",
             "min": 4,
-            "max": 100,  # issue 16: 1e8 neighbours ran to 3.4 GB before any message
+            "max": 100,  # a huge k would exhaust memory before any message
             "help": "Neighbourhood sizes (k nearest) for the geometric features; more than one scale is sturdier.",
         },
     )

@@ -71,7 +71,7 @@ def wood_graph(
     if n_comp > 1:
         cross = labels[idx[:, 1:]] != labels[:, None]
         cross &= np.isfinite(dist[:, 1:])
-        # flatnonzero and divmod: np.nonzero's (row, column) order, 10x faster.
+        # flatnonzero and divmod: np.nonzero's (row, column) order, faster.
         e0, c = np.divmod(np.flatnonzero(cross), cross.shape[1])
         c += 1
         e1, el = idx[e0, c], dist[e0, c]
@@ -103,9 +103,8 @@ def wood_graph(
             # Far islands: link each to the largest component by its nearest point.
             main = np.argmax(np.bincount(labels))
             main_idx = np.flatnonzero(labels == main)
-            # One thread: a tree of a few thousand points, where a second OpenMP
-            # thread cost more than it gave (1.0 s against 0.4 s over the 43 scans
-            # with far islands, this loaded 2-core machine; the same answers).
+            # One thread: on a tree of a few thousand points a second OpenMP thread
+            # costs more than it gives (the answers are the same).
             main_tree = NearestTree(xyz[main_idx], threads=1)
             others = np.flatnonzero(labels != main)
             d, j = main_tree.query(xyz[others])

@@ -35,8 +35,7 @@ def column_min(a: np.ndarray) -> np.ndarray:
     """``a.min(axis=0)`` of an (N, D) array, one column at a time.
 
     The same values (a minimum is exact); numpy reduces a C-ordered (N, 3) array
-    across rows 10-15x slower than each strided column (61 ms against 4.5 ms at
-    2,000,000 points), which was most of the voxel codes' time.
+    across rows much slower than each strided column.
     """
     return np.array([a[:, d].min() for d in range(a.shape[1])], dtype=a.dtype)
 
@@ -44,7 +43,7 @@ def column_min(a: np.ndarray) -> np.ndarray:
 def finite_rows(a: np.ndarray) -> np.ndarray:
     """``np.isfinite(a).all(axis=1)`` of an (N, D) array, one column at a time.
 
-    8x faster at 2,000,000 points, for the same reason as :func:`column_min`.
+    Faster than the 2-D reduction, for the same reason as :func:`column_min`.
     """
     finite: np.ndarray = np.isfinite(a[:, 0])
     for d in range(1, a.shape[1]):
@@ -115,7 +114,7 @@ def _representatives(
     code = _packed_codes(xyz, voxel)
     if code is None:
         code = voxel_grid(xyz, voxel)[1]
-    # An unstable sort groups the points by voxel (4x faster than a stable one: SIMD
+    # An unstable sort groups the points by voxel (faster than a stable one: SIMD
     # sorts); every sum below runs over the points in index order (bincount over the
     # unsorted points), so the centroids, and the choice, are bit for bit those of a
     # stable grouping.

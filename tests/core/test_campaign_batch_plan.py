@@ -1,4 +1,4 @@
-"""How amrst batch spreads trees over workers (issue 14): longest first, one core per
+"""How amrst batch spreads trees over workers: longest first, one core per
 task, the workers' imports before the first tree; the result never depends on it.
 """
 

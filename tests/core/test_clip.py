@@ -1,4 +1,4 @@
-"""``amrst clip`` / ``io.read_region``: one tree cut out of a plot file (issue 17)."""
+"""``amrst clip`` / ``io.read_region``: one tree cut out of a plot file."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Per-scan kernels made faster (issue 15) against the code they replaced, kept here
+"""Per-scan kernels against the code they replaced, kept here
 verbatim: the neighbourhood covariances and the neighbour table's subset reads."""
 
 from __future__ import annotations

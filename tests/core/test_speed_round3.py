@@ -1,5 +1,4 @@
-"""Round-3 speed changes (issue 15) against a brute-force answer or the code they
-replaced: the neighbour table's index-only read (rows with missing neighbours found
+"""Fast kernels against a brute-force answer or the code they replaced: the neighbour table's index-only read (rows with missing neighbours found
 without a sort)."""
 
 from __future__ import annotations
