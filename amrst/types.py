@@ -19,6 +19,11 @@ if TYPE_CHECKING:
 
 Transform = np.ndarray  # (4, 4) float64 rigid transform, e.g. T_target_source
 
+#: Coordinates beyond this (m) are invalid like NaN: no Earth coordinate, not even
+#: geocentric (ECEF, about 6.4e6 m), comes near it. The readers drop such rows; a
+#: Cloud refuses them, so no compiled library ever sees them.
+MAX_COORD_M = 1e9
+
 
 def _frozen_array(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
@@ -65,8 +70,8 @@ class Cloud:
                 f"Cloud offset must be 3 numbers (x, y, z in metres); got "
                 f"{self.offset!r:.60}."
             ) from exc
+        _check_coordinates(xyz)
         if not np.isfinite(offset).all():
-            # issue 16: an infinite offset gave a NaN transform marked verified
             raise InvalidInput(
                 f"Cloud offset {offset.tolist()} is not finite; give 3 finite numbers "
                 "(x, y, z in metres, zeros for local data)."
@@ -124,6 +129,31 @@ class Cloud:
             self.name,
             self.meta,
         )
+
+
+def _check_coordinates(xyz: np.ndarray) -> None:
+    """Refuse NaN, inf, or local coordinates beyond ``MAX_COORD_M``.
+
+    Such values make no sense for a scan, and the compiled libraries the stages call
+    (voxel grids with integer keys, KD-trees) crash the process on them instead of
+    raising. Each column's minimum and maximum carry any NaN, so two reductions a
+    column check every value.
+    """
+    if not len(xyz):
+        return
+    for d in range(3):
+        lo, hi = float(xyz[:, d].min()), float(xyz[:, d].max())
+        if not (-MAX_COORD_M <= lo and hi <= MAX_COORD_M):  # False for NaN too
+            worst = (
+                "NaN/inf"
+                if not np.isfinite([lo, hi]).all()
+                else f"{max(-lo, hi):.3g} m"
+            )
+            raise InvalidInput(
+                f"Point coordinates hold {worst} (axis {'xyz'[d]}): a scan's local "
+                f"coordinates must be finite and within {MAX_COORD_M:.0e} m. Drop "
+                "those points, or put a georeferencing shift in the cloud's offset."
+            )
 
 
 def _cloud_from_fields(

@@ -34,15 +34,12 @@ from amrst.io.ptx import read_ptx
 from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
 from amrst.progress import NULL_REPORTER, Reporter
-from amrst.types import Cloud
+from amrst.types import MAX_COORD_M, Cloud
 
 logger = logging.getLogger(__name__)
 
 PathLike = str | os.PathLike[str]
 Reader = Callable[..., Cloud]
-#: World coordinates beyond this (m) are invalid like NaN: no Earth coordinate,
-#: not even geocentric (ECEF, about 6.4e6 m), comes near it. Messages say "1e9 m".
-MAX_COORD_M = 1e9
 
 
 @dataclass(frozen=True)
@@ -166,7 +163,6 @@ def read(
     path: PathLike,
     *,
     columns: Sequence[str] | None = None,
-    drop_invalid: bool = True,
     reporter: Reporter = NULL_REPORTER,
 ) -> Cloud:
     """Read a point cloud, keeping every attribute and georeferenced precision.
@@ -179,9 +175,6 @@ def read(
         Text files only: names of the columns in order, e.g.
         ``["x", "y", "z", "intensity", "red", "green", "blue"]``; must include
         x, y and z. Default: the header's names, else x, y, z, intensity, col4...
-    drop_invalid : bool
-        Drop points with NaN/inf coordinates or coordinates beyond 1e9 m (logged
-        as a warning; the count is kept in ``meta["n_dropped_invalid"]``).
     reporter : Reporter
         Progress and Cancel while LAS/LAZ points are decoded.
 
@@ -190,7 +183,9 @@ def read(
     Cloud
         ``xyz`` (N, 3) float64 local coordinates, ``offset`` (3,) float64,
         ``attributes`` per point, ``meta`` with ``format``, ``path`` and format
-        details.
+        details. Points with NaN/inf coordinates or coordinates beyond 1e9 m are
+        dropped (logged as a warning; the count is kept in
+        ``meta["n_dropped_invalid"]``): a Cloud cannot hold them.
 
     Raises
     ------
@@ -231,7 +226,7 @@ def read(
             f"({type(exc).__name__}). The file looks corrupt or truncated, or is "
             f"not really a {fmt.label} file; export it again."
         ) from exc
-    return _finish(raw, path, fmt.label, drop_invalid)
+    return _finish(raw, path, fmt.label)
 
 
 def _permission_denied(path: Path) -> InvalidInput:
@@ -241,11 +236,11 @@ def _permission_denied(path: Path) -> InvalidInput:
     )
 
 
-def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
+def _finish(raw: RawCloud, path: Path, label: str) -> Cloud:
     """Drop invalid rows, choose the offset and build the Cloud.
 
     Invalid rows have a NaN, inf or absurd (beyond ``MAX_COORD_M``) world
-    coordinate; kept when ``drop_invalid`` is false.
+    coordinate.
     """
     valid = _valid_rows(raw.xyz, raw.offset)
     n_valid = int(valid.sum())
@@ -260,7 +255,7 @@ def _finish(raw: RawCloud, path: Path, label: str, drop_invalid: bool) -> Cloud:
             "x, y, z within 1e9 m). Check the export, the units or the column "
             "order (columns=)."
         )
-    n_dropped = len(valid) - n_valid if drop_invalid else 0
+    n_dropped = len(valid) - n_valid
     xyz, attributes = raw.xyz, raw.attributes
     if n_dropped:
         logger.warning(

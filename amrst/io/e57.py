@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.errors import InvalidInput
 from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 
 if TYPE_CHECKING:
@@ -56,9 +57,27 @@ def _info(e57: Any, index: int) -> ScanInfo:
     )
 
 
-def _open(path: Path) -> Any:
-    import pye57
+# Every E57 file starts with this file signature (ASTM E2807, section 9.3).
+_SIGNATURE = b"ASTM-E57"
 
+
+def _open(path: Path) -> Any:
+    """Open ``path`` with pye57, after checking that it is an E57 file at all.
+
+    libE57 answers a file of another kind with a checksum or "internal state" error
+    and several lines of debug text; the signature check says what is wrong instead.
+    """
+    from amrst.extras import require
+
+    pye57 = require("pye57", "reading E57 files")
+    with open(path, "rb") as f:
+        head = f.read(len(_SIGNATURE))
+    if head != _SIGNATURE:
+        raise InvalidInput(
+            f"{path} is not a readable E57 file (it does not start with the E57 "
+            "signature 'ASTM-E57'): export it again as E57, or give the file the "
+            "extension of its real format."
+        )
     return pye57.E57(str(path))
 
 
@@ -147,8 +166,11 @@ def write_e57(
     poses : sequence of (4, 4) float64, optional
         ``T_world_scanner`` of each scan; identity when None.
     """
-    import pye57
     from scipy.spatial.transform import Rotation
+
+    from amrst.extras import require
+
+    pye57 = require("pye57", "writing E57 files")
 
     from amrst.files.atomic import write_atomic
 

@@ -137,10 +137,21 @@ def guarded(path: Path, label: str, fn: Callable[[], Any]) -> Any:
         ) from exc
     except MemoryError as exc:
         raise InvalidInput(f"{path} is too large to load into memory.") from exc
-    except Exception as exc:  # libE57 messages run over several lines: one line here
-        text = " ".join(str(exc).replace("****", " ").split())
+    except Exception as exc:
         raise InvalidInput(
-            f"Could not read {path}: {shorten(text, 200)} "
-            f"({type(exc).__name__}). The file looks corrupt or truncated, or is "
-            f"not really a {label} file; export it again."
+            f"Could not read {path}: {library_reason(exc)}. It is not a readable "
+            f"{label.upper()} file (corrupt or truncated): export it again."
         ) from exc
+
+
+def library_reason(exc: Exception) -> str:
+    """The first sentence of a library's error, on one line, without its debug text.
+
+    libE57 repeats its reason ("Got an e57 exception: ...") and appends "Debug info:"
+    with source file names and line numbers, over several lines; a user needs only
+    the reason.
+    """
+    text = " ".join(str(exc).replace("****", " ").split())
+    for cut in (" Got an e57 exception", " Debug info"):
+        text = text.split(cut, 1)[0]
+    return shorten(text.rstrip(" ."), 160) or type(exc).__name__

@@ -128,7 +128,7 @@ def read_region(
         ) from exc
     if raw is None:
         raise _nothing_inside(path, cylinder, str(how["clip_file_bounds"]))
-    cloud = io._finish(raw, path, fmt.label, drop_invalid=True)
+    cloud = io._finish(raw, path, fmt.label)
     return _with_meta(
         cloud,
         clip_method=how["clip_method"],
