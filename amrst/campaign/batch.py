@@ -29,7 +29,7 @@ from amrst.campaign.table import campaign_rows, tree_row, write_table
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from amrst.campaign.manifest import Campaign
+    from amrst.campaign.manifest import Campaign, TreeEntry
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
 
@@ -232,20 +232,8 @@ def run_batch(
     -------
     BatchSummary
     """
-    from distributed import as_completed as _as_completed
-
-    as_completed: Any = _as_completed
-
-    from amrst.errors import InvalidInput
-
     t0 = time.perf_counter()
-    todo, done, doc = pending_trees(campaign, params, force, clouds)
-    if only is not None:
-        unknown = set(only) - {t.id for t in campaign.trees}
-        if unknown:
-            raise InvalidInput(f"No tree {sorted(unknown)[0]!r} in the campaign.")
-        todo = [(e, s) for e, s in todo if e.id in only]
-        done = [i for i in done if i in only]
+    todo, done, doc = _select(campaign, params, force, clouds, only)
     summary = BatchSummary(skipped=done)
     total = len(todo) + len(done)
     if not todo:
@@ -253,17 +241,9 @@ def run_batch(
         if progress is not None:
             progress.update(len(done), 0, 0, total, 0.0, None)
         return summary
-    if workers < 1 and not scheduler:
-        raise InvalidInput(f"--workers must be at least 1, got {workers}.")
-    if threads_per_tree is not None and not 1 <= threads_per_tree <= 2:
-        raise InvalidInput(
-            f"--threads-per-tree must be 1 or 2, got {threads_per_tree}."
-        )
-    root = str(campaign.root.resolve())
+    _check_options(workers, scheduler, threads_per_tree)
     todo, costs = longest_first(campaign, todo)
-    total_cost, done_cost = sum(costs.values()), 0.0
     rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends
-    index = {entry.id: k for k, entry in enumerate(campaign.trees)}
     client, cluster = _client(workers, scheduler)
     try:
         summary.workers = len(client.scheduler_info().get("workers", {})) or workers
@@ -274,80 +254,162 @@ def run_batch(
             )
         client.run(warm_worker)  # imports on every worker at once, not in a tree
         threads = threads_per_tree or cluster_scan_threads(client)
-        futures = [
-            client.submit(
-                run_tree,
-                root,
-                entry,
-                doc,
-                stamp,
-                clouds,
-                threads,
-                key=f"amrst-tree-{entry.id}-{stamp[:12]}",
-                pure=False,
-                priority=len(todo) - k,  # longest first
-            )
-            for k, (entry, stamp) in enumerate(todo)
-        ]
-        started = time.perf_counter()
-        if progress is not None:
-            progress.update(
-                len(done), 0, min(len(todo), summary.workers), total, None, None
-            )
-        written = time.perf_counter()
-        for finished, future in enumerate(as_completed(futures), start=1):
-            try:
-                row = future.result()
-            except Exception as exc:  # the worker died (KilledWorker) or similar
-                key = str(future.key)
-                tree_id = next(
-                    (e.id for e, s in todo if key == f"amrst-tree-{e.id}-{s[:12]}"), key
-                )
-                row = {
-                    "id": tree_id,
-                    "ok": False,
-                    "error": f"{type(exc).__name__}: {exc}",
-                }
-            summary.results.append(row)
-            if row.get("ok"):
-                summary.registered.append(row["id"])
-            else:
-                summary.failed[row["id"]] = row.get("error", "")
-            # the table as trees end (each row read back from its results folder), at
-            # most once a second, so that writing it takes no noticeable CPU from the
-            # workers. Nothing is lost by the wait: every tree's results are on disk and the table is rebuilt from
-            # them on the next run.
-            if row["id"] in index:
-                k = index[row["id"]]
-                rows[k] = tree_row(campaign, campaign.trees[k])
-            if finished == len(todo) or time.perf_counter() - written >= TABLE_EVERY_S:
-                write_table(campaign, rows)
-                written = time.perf_counter()
-            done_cost += costs.get(row["id"], 0.0)
-            if progress is not None:
-                left = time_left(
-                    time.perf_counter() - started,
-                    finished,
-                    len(todo),
-                    done_cost,
-                    total_cost,
-                )
-                running = min(len(todo) - finished, summary.workers)
-                progress.update(
-                    len(done) + len(summary.registered),
-                    len(summary.failed),
-                    running,
-                    total,
-                    left,
-                    row,
-                )
-        summary.run_seconds = time.perf_counter() - started
+        futures = _submit(client, campaign, todo, doc, clouds, threads)
+        _collect(
+            futures,
+            campaign=campaign,
+            todo=todo,
+            costs=costs,
+            rows=rows,
+            summary=summary,
+            progress=progress,
+        )
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _select(
+    campaign: Campaign,
+    params: RegistrationParams | None,
+    force: bool,
+    clouds: str,
+    only: list[str] | None,
+) -> tuple[list[tuple[TreeEntry, str]], list[str], dict[str, Any]]:
+    """Return the trees to run (with stamps), the ids done, and the parameters' doc.
+
+    ``only`` keeps those tree ids; an id the campaign does not have is refused.
+    """
+    from amrst.errors import InvalidInput
+
+    todo, done, doc = pending_trees(campaign, params, force, clouds)
+    if only is not None:
+        unknown = set(only) - {t.id for t in campaign.trees}
+        if unknown:
+            raise InvalidInput(f"No tree {sorted(unknown)[0]!r} in the campaign.")
+        todo = [(e, s) for e, s in todo if e.id in only]
+        done = [i for i in done if i in only]
+    return todo, done, doc
+
+
+def _check_options(
+    workers: int, scheduler: str | None, threads_per_tree: int | None
+) -> None:
+    """Refuse a worker count or a thread count out of range, in one line."""
+    from amrst.errors import InvalidInput
+
+    if workers < 1 and not scheduler:
+        raise InvalidInput(f"--workers must be at least 1, got {workers}.")
+    if threads_per_tree is not None and not 1 <= threads_per_tree <= 2:
+        raise InvalidInput(
+            f"--threads-per-tree must be 1 or 2, got {threads_per_tree}."
+        )
+
+
+def _task_key(entry: TreeEntry, stamp: str) -> str:
+    return f"amrst-tree-{entry.id}-{stamp[:12]}"
+
+
+def _submit(
+    client: Any,
+    campaign: Campaign,
+    todo: list[tuple[TreeEntry, str]],
+    doc: dict[str, Any],
+    clouds: str,
+    threads: int,
+) -> list[Any]:
+    """Submit one task per tree, the first of ``todo`` with the highest priority."""
+    root = str(campaign.root.resolve())
+    return [
+        client.submit(
+            run_tree,
+            root,
+            entry,
+            doc,
+            stamp,
+            clouds,
+            threads,
+            key=_task_key(entry, stamp),
+            pure=False,
+            priority=len(todo) - k,  # longest first
+        )
+        for k, (entry, stamp) in enumerate(todo)
+    ]
+
+
+def _row_of(future: Any, todo: list[tuple[TreeEntry, str]]) -> dict[str, Any]:
+    """Return a finished task's row, or a failed row when its worker died."""
+    try:
+        row: dict[str, Any] = future.result()
+    except Exception as exc:  # the worker died (KilledWorker) or similar
+        key = str(future.key)
+        tree_id = next((e.id for e, s in todo if key == _task_key(e, s)), key)
+        return {"id": tree_id, "ok": False, "error": f"{type(exc).__name__}: {exc}"}
+    return row
+
+
+def _collect(
+    futures: list[Any],
+    *,
+    campaign: Campaign,
+    todo: list[tuple[TreeEntry, str]],
+    costs: dict[str, float],
+    rows: list[dict[str, Any]],
+    summary: BatchSummary,
+    progress: BatchProgress | None,
+) -> None:
+    """Record each tree as it ends: in ``summary``, the table and the progress."""
+    from distributed import as_completed as _as_completed
+
+    as_completed: Any = _as_completed
+
+    done = len(summary.skipped)
+    total = len(todo) + done
+    total_cost, done_cost = sum(costs.values()), 0.0
+    index = {entry.id: k for k, entry in enumerate(campaign.trees)}
+    started = time.perf_counter()
+    if progress is not None:
+        progress.update(done, 0, min(len(todo), summary.workers), total, None, None)
+    written = time.perf_counter()
+    for finished, future in enumerate(as_completed(futures), start=1):
+        row = _row_of(future, todo)
+        summary.results.append(row)
+        if row.get("ok"):
+            summary.registered.append(row["id"])
+        else:
+            summary.failed[row["id"]] = row.get("error", "")
+        # The table as trees end (each row read back from its results folder), at
+        # most once a second, so that writing it takes no noticeable CPU from the
+        # workers. Nothing is lost by the wait: every tree's results are on disk and
+        # the table is rebuilt from them on the next run.
+        if row["id"] in index:
+            k = index[row["id"]]
+            rows[k] = tree_row(campaign, campaign.trees[k])
+        if finished == len(todo) or time.perf_counter() - written >= TABLE_EVERY_S:
+            write_table(campaign, rows)
+            written = time.perf_counter()
+        done_cost += costs.get(row["id"], 0.0)
+        if progress is not None:
+            left = time_left(
+                time.perf_counter() - started,
+                finished,
+                len(todo),
+                done_cost,
+                total_cost,
+            )
+            running = min(len(todo) - finished, summary.workers)
+            progress.update(
+                done + len(summary.registered),
+                len(summary.failed),
+                running,
+                total,
+                left,
+                row,
+            )
+    summary.run_seconds = time.perf_counter() - started
 
 
 def table_rows(campaign: Campaign) -> list[dict[str, Any]]:

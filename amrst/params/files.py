@@ -138,27 +138,34 @@ def _finite(value: Any, as_float: bool) -> bool:
     return True  # integers and non-numbers: the type and range checks deal with them
 
 
+def _type_ok(default: Any, value: Any) -> bool:
+    """Tell whether ``value`` has the type of the field's ``default``.
+
+    A bool is not an int here, an int is a float, and a tuple's items take the type
+    of the default's first item.
+    """
+    if isinstance(default, bool):
+        return isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(default, float):
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, str):
+        return isinstance(value, str)
+    if isinstance(default, tuple):
+        return isinstance(value, tuple) and all(
+            isinstance(v, type(default[0])) for v in value
+        )
+    return True
+
+
 def _check_value(
     stage: str, f: dataclasses.Field[Any], default: Any, value: Any
 ) -> None:
     """Type and range of one value against the field's default and metadata."""
     name = f"{stage}.{f.name}"
     meta = f.metadata
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-    elif isinstance(default, int):
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif isinstance(default, float):
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    elif isinstance(default, str):
-        ok = isinstance(value, str)
-    elif isinstance(default, tuple):
-        ok = isinstance(value, tuple) and all(
-            isinstance(v, type(default[0])) for v in value
-        )
-    else:
-        ok = True
-    if not ok:
+    if not _type_ok(default, value):
         raise InvalidInput(
             f"Parameter {name} must be of type {type(default).__name__}, got {_short(value)}."
         )
