@@ -157,9 +157,25 @@ def _open_campaign(win, folder: Path, tree: str | None) -> bool:
     return True
 
 
+def _missing_extra() -> str | None:
+    """One line naming the extra to install if the app's libraries are missing."""
+    from amrst.extras import MissingExtra, require
+
+    try:
+        for module in ("PySide6", "pyvista", "pyvistaqt", "superqt"):
+            require(module, "amrst-gui")
+    except MissingExtra as exc:
+        return str(exc)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``amrst-gui``."""
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    missing = _missing_extra()
+    if missing is not None:
+        print(f"amrst-gui: {missing}", file=sys.stderr)
+        return 2
     logging.basicConfig(
         level=logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )

@@ -6,11 +6,14 @@ reads one call at a time on stdin (``wire`` frames, see ``serve``), sends
 while it runs and then ``("result", value)`` or ``("error", exception, traceback
 text)`` on the stream it was given as stdout. Python's own stdout goes to stderr here, so that
 nothing a library prints can break a frame. Cancel is the app killing this
-process; it never waits for a check point.
+process; it never waits for a check point. ``wire``'s array cache is only used
+under the writer's lock and by the reading loop between calls.
 """
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import logging
 import os
 import pickle
@@ -19,10 +22,13 @@ import threading
 import traceback
 from typing import IO, Any
 
-from amrst_gui.pacing import BACKGROUND_NICE, at_least_nice
+# Niceness of the engine process: the window's own process goes first for the
+# cores, so it stays responsive while a step computes.
+NICE = 5
 
-# The window's own process goes first for the cores (AMRST_ENGINE_NICE to change).
-NICE = int(os.environ.get("AMRST_ENGINE_NICE", "") or BACKGROUND_NICE)
+# What the steps import; imported when the process starts, while the user looks
+# at the scans, so that the first step does not wait for them.
+STEP_MODULES = ("amrst.io.describe", "amrst.pipeline", "amrst.review.quality")
 
 
 class _PipeReporter:
@@ -119,36 +125,18 @@ def serve(inp: IO[bytes], out: IO[bytes]) -> None:
 
 
 def main() -> None:
-    at_least_nice(NICE)  # not more: started from a niced worker thread it is 5
+    with contextlib.suppress(OSError, AttributeError):  # not POSIX: as it is
+        os.setpriority(
+            os.PRIO_PROCESS, 0, max(NICE, os.getpriority(os.PRIO_PROCESS, 0))
+        )
     # The frames get the real stdout; print() and C libraries get stderr.
     out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
     sys.stdout = sys.stderr
     inp = os.fdopen(os.dup(0), "rb")
-    from amrst_gui.warmup import import_worker_modules
-
-    import_worker_modules()
-    _leave_a_core_to_the_window()
+    for name in STEP_MODULES:
+        importlib.import_module(name)
     serve(inp, out)
-
-
-def _leave_a_core_to_the_window() -> None:
-    """Use every core but one (``AMRST_ENGINE_THREADS`` to choose).
-
-    On 2 cores the engine's two scan threads and two-thread KD queries kept both
-    busy, and the GUI thread waited 25-45 ms for a core whenever a result arrived.
-    The two scans' threads gain little (their numpy steps and small_gicp's queries
-    hold the GIL: 1.07x over one after the other), and the results are the same
-    either way (``both_scans``).
-    """
-    from amrst import neighbours
-    from amrst.pipeline.analysis import SCAN_THREADS
-
-    spare = int(os.environ.get("AMRST_ENGINE_THREADS", "0") or 0)
-    if spare < 1:
-        spare = max(1, (os.cpu_count() or 1) - 1)
-    neighbours.set_threads(min(2, spare))
-    SCAN_THREADS.set(2 if spare >= 2 else 1)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,10 @@
-"""The steps run in a process of their own (issue 15: a window that never freezes).
+"""The engine process: where the app's heavy work runs, so the window never waits.
 
-In a worker thread of the app, a step's numpy, scipy and small_gicp calls hold
-the Python GIL for up to 170 ms each on a 2M-point scan (a voxel grid's cumulative
-sums, a fancy index of every point), five times that on 10M points, and the GUI
-thread waits behind every one of them: Run all on a 2M pair stalled the window
-3-5 times for 0.11-0.18 s, with the GUI thread itself idle. A separate process has
-its own GIL. The worker thread only waits on a pipe now; the operating system
-shares the cores, and the engine process runs niced so the window comes first.
+A step's numpy, scipy and small_gicp calls hold the Python GIL for a long time on
+millions of points; in a thread of the app, the GUI thread would wait behind each
+of them. A separate process has its own GIL. The app's worker thread only waits
+on a pipe; the operating system shares the cores, and the engine process runs
+niced so that the window comes first.
 
 ``call(fn, *args, reporter=..., **kwargs)`` runs ``fn(*args, reporter,
 **kwargs)`` (a function of ``amrst_gui.jobs``: inputs and results are engine
@@ -16,7 +14,7 @@ scans cross the pipe once (``wire``: each array names itself by a token after
 that). Cancel kills the process: the step stops at once, at any size, keeps
 nothing, and a fresh process starts for the next one. Where no process can be
 started (a frozen app has no interpreter; Windows pipes cannot be polled), the
-function runs in the caller's thread as before.
+function runs in the caller's thread.
 """
 
 from __future__ import annotations
@@ -48,13 +46,13 @@ POLL_S = 0.05  # how often a waiting worker looks at Cancel
 PIPE_BYTES = 1 << 20  # the pipe to the engine process holds 1 MB (Linux)
 
 
-def helper_command(module: str) -> tuple[list[str], dict[str, str]]:
+def _command(module: str) -> tuple[list[str], dict[str, str]]:
     """The command and environment that run ``python -m module`` with this
     checkout of the app importable; RuntimeError in a frozen app."""
     import amrst
 
     if getattr(sys, "frozen", False):  # sys.executable is the app itself
-        raise RuntimeError("no Python interpreter to run a helper process")
+        raise RuntimeError("no Python interpreter to run the engine process")
     root = str(Path(amrst.__file__).resolve().parents[1])
     path = os.environ.get("PYTHONPATH")
     env = {
@@ -64,8 +62,8 @@ def helper_command(module: str) -> tuple[list[str], dict[str, str]]:
     return [sys.executable, "-m", module], env
 
 
-def end_process(proc: subprocess.Popen[bytes] | None) -> None:
-    """Kill a helper process (if it still runs), reap it and close its pipes."""
+def _end(proc: subprocess.Popen[bytes] | None) -> None:
+    """Kill the process (if it still runs), reap it and close its pipes."""
     if proc is None:
         return
     if proc.poll() is None:
@@ -106,7 +104,7 @@ class EngineProcess:
             self.stop()  # one that died: its pipes and arrays
             if os.name == "nt":  # select() and non-blocking writes need POSIX pipes
                 raise RuntimeError("the engine process needs POSIX pipes")
-            command, env = helper_command("amrst_gui.engine_host")
+            command, env = _command("amrst_gui.engine_host")
             self._proc = subprocess.Popen(
                 command,
                 stdin=subprocess.PIPE,
@@ -122,7 +120,7 @@ class EngineProcess:
         """End the process without waiting for what it computes."""
         proc, self._proc, self._writer = self._proc, None, None
         self._cache.clear()  # a new process holds none of the arrays
-        end_process(proc)
+        _end(proc)
 
     def call(
         self,

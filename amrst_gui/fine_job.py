@@ -47,6 +47,8 @@ def refine_keeping_manual(
             T_target_source=coarse.T_target_source,
             method=f"{fine.method} (result dropped: manual pose kept)",
         )
-        metrics = pipeline.evaluate(target, source, fine.T_target_source, params)
+        metrics = pipeline.evaluate(
+            target, source, fine.T_target_source, params, threads=jobs.THREADS
+        )
         tree = jobs.measure_tree_pair(analyses, fine.T_target_source, params, reporter)
     return (fine, metrics, tree, decision), time.perf_counter() - start

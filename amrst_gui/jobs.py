@@ -7,6 +7,7 @@ and returns ``(result, seconds)``. The session hands them to
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,6 +19,10 @@ if TYPE_CHECKING:
 
 ROLES = ("target", "source")
 
+# Threads of the engine's steps in the app: every core but one, two at most, so
+# that the window keeps a core for itself. The results do not depend on them.
+THREADS = max(1, min(2, (os.cpu_count() or 1) - 1))
+
 
 def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``."""
@@ -28,7 +33,7 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     for i, (role, path) in enumerate(paths.items()):
         reporter.check_cancelled()
         reporter.progress(i / len(paths), f"Reading {role} {Path(path).name}")
-        # LAS/LAZ are read in chunks with a cancel check between them (issue 15).
+        # LAS/LAZ are read in chunks with a cancel check between them.
         sub = SubReporter(
             reporter, i / len(paths), (i + 1) / len(paths), f"Reading {role}"
         )
@@ -38,6 +43,19 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
         )
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
+
+
+def describe_scan(cloud: Any, reporter: Reporter) -> str:
+    """``amrst.io.describe(cloud)`` as text for the Scans dock (bounds and a
+    nearest-neighbour spacing: seconds on ten million points); "" if it fails,
+    since the description is informative only."""
+    from amrst import io
+
+    reporter.check_cancelled()
+    try:
+        return str(io.describe(cloud))
+    except Exception:
+        return ""
 
 
 def is_scan_spec(path: Path) -> bool:
@@ -67,10 +85,11 @@ def _both(
 
     start = time.perf_counter()
     out = pipeline.both_scans(
-        lambda item, rep: step(item, params, rep),
+        lambda item, rep: step(item, params, rep, threads=THREADS),
         items["target"],
         items["source"],
         reporter,
+        threads=THREADS,
     )
     return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
 
@@ -98,13 +117,13 @@ def match_pair(
     ``((MatchResult, manual candidates), seconds)``.
 
     ``manual`` holds ``(T_as_given, id, how)`` of the technician's poses: they are
-    scored again with the new settings, so they stay in the list (issue 13).
+    scored again with the new settings, so they stay in the list.
     """
     from amrst import pipeline
 
     start = time.perf_counter()
     result = pipeline.find_matches(
-        analyses["target"], analyses["source"], params, reporter
+        analyses["target"], analyses["source"], params, reporter, threads=THREADS
     )
     rescored = tuple(
         _score_manual(analyses, T, cid, how, params) for T, cid, how in manual
@@ -156,7 +175,11 @@ def evaluate_coarse(
     reporter.progress(0.0, "Measuring the coarse alignment")
     reporter.check_cancelled()
     metrics = pipeline.evaluate(
-        analyses["target"], analyses["source"], coarse.T_target_source, params
+        analyses["target"],
+        analyses["source"],
+        coarse.T_target_source,
+        params,
+        threads=THREADS,
     )
     reporter.check_cancelled()
     reporter.progress(0.6, "Measuring the tree")
@@ -181,11 +204,16 @@ def refine_pair(
         params,
         SubReporter(reporter, 0, 0.9),
         matches,
+        threads=THREADS,
     )
     reporter.check_cancelled()
     reporter.progress(0.9, "Measuring the fine alignment")
     metrics = pipeline.evaluate(
-        analyses["target"], analyses["source"], fine.T_target_source, params
+        analyses["target"],
+        analyses["source"],
+        fine.T_target_source,
+        params,
+        threads=THREADS,
     )
     reporter.check_cancelled()
     reporter.progress(0.95, "Measuring the tree")

@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.resources import resource_path
-from amrst_gui import dialogs, menus, warmup
+from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings
 from amrst_gui.pacing import DRAW_GAP_MS
@@ -55,7 +55,6 @@ class MainWindow(QMainWindow):
     actions: WorkflowActions  # type: ignore[assignment]
 
     def __init__(self, session: Session | None = None, settings=None) -> None:
-        warmup.import_worker_modules()  # what would stall the window later (issue 15)
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")
@@ -75,6 +74,24 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.slices, "Stem slices")
         self.setCentralWidget(self.tabs)
         self.actions = WorkflowActions(self, s)
+        self._build_docks(s)
+        self.status = WorkflowStatusBar(s, self)
+        self.setStatusBar(self.status)
+        self.toolbar = menus.build(self)
+        self.error_box: QMessageBox | None = None
+        self.export_box: dialogs.ExportDialog | None = None
+        self._closed = False
+        self._connect(s)
+        self._fit_screen()
+        self._default_state: QByteArray | None = None
+        self._restored = self._restore_settings()
+        self.scans_area.refresh()
+        self.registration.refresh()
+
+    # ----------------------------------------------------------- building
+    def _build_docks(self, s: Session) -> None:
+        """The panels, each in a dock: Scans, Parameters and Campaign on the left,
+        Matches, Metrics and Manual pose on the right, the Log at the bottom."""
         self.scans_panel = ScansPanel(s)
         self.params_panel = ParamsPanel(s)
         self.matches_panel = MatchesPanel(s, self.actions.reject, self.actions.restore)
@@ -104,17 +121,13 @@ class MainWindow(QMainWindow):
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         # The side docks run the full height: the log sits under the views only, so
-        # the Matches table keeps its rows on a laptop screen (issue 13).
+        # the Matches table keeps its rows on a laptop screen.
         self.setCorner(Qt.Corner.BottomRightCorner, right)
         self.setCorner(Qt.Corner.BottomLeftCorner, left)
         self.docks["scans"].raise_()
-        self.status = WorkflowStatusBar(s, self)
-        self.setStatusBar(self.status)
-        self.toolbar = menus.build(self)
-        self.error_box: QMessageBox | None = None
-        self.export_box: dialogs.ExportDialog | None = None
-        self._closed = False
 
+    def _connect(self, s: Session) -> None:
+        """The session's signals to the window, the panels' requests to the session."""
         s.discard_guard = lambda action: dialogs.confirm_discard(self, action)
         s.failed.connect(self._on_failed)
         # After Accept coarse, Fine or Run all the result is what to look at.
@@ -130,11 +143,6 @@ class MainWindow(QMainWindow):
         self.scans_panel.swap_requested.connect(s.swap_scans)
         self.scans_panel.files_dropped.connect(self._on_files_dropped)
         self.scans_area.files_dropped.connect(self._on_files_dropped)
-        self._fit_screen()
-        self._default_state: QByteArray | None = None
-        self._restored = self._restore_settings()
-        self.scans_area.refresh()
-        self.registration.refresh()
 
     def _fit_screen(self) -> None:
         """Open at 1500x950 or the screen's free area, whichever is smaller."""

@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import pickle
 import struct
-import threading
 import weakref
 from typing import IO, Any, Protocol
 
@@ -44,69 +43,61 @@ class Sink(Protocol):
 class ArrayCache:
     """Tokens of the arrays both sides hold; ``weak=True`` on the app's side.
 
-    The app's side keeps weak references without callbacks: a callback takes
-    the lock, and the garbage collector may run one inside a locked section of
-    the same thread (a hang). Dead entries are dropped when next looked at.
+    Not thread-safe: each side reads and writes array frames under one lock of
+    its own (the app's engine call, the engine's writer). The app's side keeps
+    weak references without callbacks (the garbage collector could run one in
+    the middle of a frame); dead entries are dropped when next looked at.
     """
 
     def __init__(self, *, weak: bool, first_token: int) -> None:
         self._weak = weak
-        self._lock = threading.Lock()
         self._next = first_token
         self._by_token: dict[int, Any] = {}  # token -> array or weakref to it
         self._by_id: dict[int, int] = {}  # id(array) -> token
 
     def token_of(self, arr: np.ndarray) -> int | None:
         """The token of this very array object, if it has one."""
-        with self._lock:
-            token = self._by_id.get(id(arr))
-            if token is None or self._get(token) is not arr:
-                return None
-            return token
+        token = self._by_id.get(id(arr))
+        if token is None or self._get(token) is not arr:
+            return None
+        return token
 
     def add(self, arr: np.ndarray, token: int | None = None) -> int:
         """Give ``arr`` a token (a new one unless ``token`` is given)."""
-        ref = weakref.ref(arr) if self._weak else arr  # made outside the lock
-        with self._lock:
-            self._purge()
-            if token is None:
-                token, self._next = self._next, self._next + 2
-            self._by_token[token] = ref
-            self._by_id[id(arr)] = token
-            return token
+        self._purge()
+        if token is None:
+            token, self._next = self._next, self._next + 2
+        self._by_token[token] = weakref.ref(arr) if self._weak else arr
+        self._by_id[id(arr)] = token
+        return token
 
     def get(self, token: int) -> np.ndarray:
         """The array of ``token``; KeyError if it is gone."""
-        with self._lock:
-            arr = self._get(token)
+        arr = self._get(token)
         if arr is None:
             raise KeyError(f"array {token} is no longer held")
         return arr
 
     def alive(self) -> dict[int, np.ndarray]:
         """Every array still held, by token (strong references)."""
-        with self._lock:
-            self._purge()
-            out = {t: self._get(t) for t in list(self._by_token)}
+        self._purge()
+        out = {t: self._get(t) for t in list(self._by_token)}
         return {t: a for t, a in out.items() if a is not None}
 
     def keep_only(self, tokens: set[int]) -> None:
         """Drop every array whose token is not in ``tokens``."""
-        with self._lock:
-            for token in [t for t in self._by_token if t not in tokens]:
-                self._forget(token)
+        for token in [t for t in self._by_token if t not in tokens]:
+            self._forget(token)
 
     def forget(self, tokens: list[int]) -> None:
         """Drop these tokens (arrays given a token but never sent)."""
-        with self._lock:
-            for token in tokens:
-                self._forget(token)
+        for token in tokens:
+            self._forget(token)
 
     def clear(self) -> None:
         """Forget every array (the other side was restarted)."""
-        with self._lock:
-            self._by_token.clear()
-            self._by_id.clear()
+        self._by_token.clear()
+        self._by_id.clear()
 
     def _get(self, token: int) -> np.ndarray | None:
         ref = self._by_token.get(token)

@@ -1,21 +1,27 @@
-"""The one place that runs work off the GUI thread (STYLE.md section 4).
+"""The one place that runs work off the GUI thread.
 
 ``run_stage(fn, *args, on_result=..., on_progress=..., on_error=...)`` calls
 ``fn(*args, reporter)`` in superqt's thread pool and returns a :class:`StageJob`.
 The reporter is an :class:`amrst.progress.EventReporter`: ``cancel()`` sets its
-``threading.Event`` and the engine raises ``Cancelled`` at its next check point.
+``threading.Event`` and the work raises ``Cancelled`` at its next check point.
+
+The app's concurrency model: heavy computation runs in the engine process
+(``engine_process``), so a worker thread here only waits on that process, reads a
+file, or cuts arrays for a view. Results are plain data (engine objects and numpy
+arrays); VTK objects are made, changed and dropped on the GUI thread only. Jobs
+started with ``display=True`` (the views' scenes and slices) run one at a time,
+as napari's slicer does: they never compete with each other for the GIL.
 
 A cancelled job keeps nothing of its own result: once ``cancel()`` was called, a
-value the work still returns (it passed its last check point before the request)
-arrives as ``errored(Cancelled())``, so Cancel always means "drop this step". And
-Cancel answers within ``CANCEL_GRACE_S`` at any size: if the work has not reached
-a check point by then (one numpy call on millions of points can take seconds), the
-job ends as cancelled at once and the worker thread, already told to stop, ends at
-its next check point with nothing delivered (``worker_done`` is set then).
+value the work still returns arrives as ``errored(Cancelled())``, so Cancel always
+means "drop this step". And Cancel answers within ``CANCEL_GRACE_S`` at any size:
+if the work has not reached a check point by then (one numpy call on millions of
+points can take seconds), the job ends as cancelled at once and the worker thread,
+already told to stop, ends at its next check point with nothing delivered
+(``worker_done`` is set then).
 
 Every callback runs on the GUI thread: the worker's signals are relayed through a
-``StageJob`` (a QObject created on the GUI thread) with explicit queued
-connections, so no widget, plotter or session is ever touched from a worker.
+``StageJob`` (a QObject created on the GUI thread) with queued connections.
 """
 
 from __future__ import annotations
@@ -32,8 +38,6 @@ from superqt.utils import WorkerBase, create_worker
 
 from amrst.errors import Cancelled
 from amrst.progress import EventReporter
-from amrst_gui.pacing import LANES, PACE, at_least_nice
-from amrst_gui.views.vtk_lock import release_later
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -41,8 +45,11 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.workers")
 
 # After Cancel, the longest wait for the work's next check point before the job is
-# reported cancelled anyway (issue 15: Cancel within a second at any size).
+# reported cancelled anyway.
 CANCEL_GRACE_S = 0.5
+
+# Held by the running display job: display jobs take turns.
+_DISPLAY = threading.Lock()
 
 
 class StageJob(QObject):
@@ -67,8 +74,6 @@ class StageJob(QObject):
         self._done = False
         self._discarded = False
         self._abandon_timer: QTimer | None = None
-        self._held: tuple[object] | None = None  # a result delivered a turn later
-        self._release_after_delivery = False
         # Set when the worker thread itself has returned or raised.
         self.worker_done = threading.Event()
         # Emitted from the worker thread, delivered on this object's (GUI) thread.
@@ -113,31 +118,20 @@ class StageJob(QObject):
         self.cancel()
 
     def _start(
-        self,
-        fn: Callable[..., Any],
-        args: tuple,
-        kwargs: dict,
-        lane: str | None = None,
+        self, fn: Callable[..., Any], args: tuple, kwargs: dict, display: bool
     ) -> None:
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
-        # deleted in the worker thread and its timer would fire on freed memory
-        # (a segfault in QTimerInfoList::activateTimers, about one GUI run in three).
+        # deleted in the worker thread and its timer would fire on freed memory.
         reporter, worker_done = self.reporter, self.worker_done
 
         def work() -> Any:
-            # Niced like the engine process (pacing.BACKGROUND_NICE): with two
-            # cores, a view's scene built here while the engine computed left the
-            # GUI thread waiting 30-80 ms for a core when a step's result arrived
-            # (issue 15). A thread cannot undo it without privileges, so the
-            # pool's threads stay niced: they only ever run background work.
-            at_least_nice()
             try:
-                if lane is None:
-                    return _Handed(fn(*args, reporter, **kwargs))
-                with LANES.enter(lane, reporter):  # one job per lane at a time
-                    reporter.check_cancelled()
-                    return _Handed(fn(*args, reporter, **kwargs))
+                if not display:
+                    return fn(*args, reporter, **kwargs)
+                with _DISPLAY:
+                    reporter.check_cancelled()  # dropped while it waited its turn
+                    return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses
                 # threads (one from the engine process brings its own).
@@ -164,28 +158,7 @@ class StageJob(QObject):
             self.progressed.emit(fraction, message)
 
     @Slot(object)
-    def _relay_returned(self, handed: _Handed) -> None:
-        result = handed.take()
-        release_later(result)  # its last reference goes under VTK_LOCK
-        wait = PACE.wait_ms()
-        if wait and self._held is None and not self._done:
-            # A view's frame just ended: the result is applied on a later turn of
-            # the event loop, not in the same stall (after Match: a view's new
-            # scene, then the match list, 0.1-0.15 s in one; issue 15).
-            self._held = (result,)
-            QTimer.singleShot(wait, self, self._deliver_held)
-            return
-        self._deliver(result)
-
-    def _deliver_held(self) -> None:
-        if self._held is None:
-            return
-        (result,), self._held = self._held, None
-        self._deliver(result)
-        if self._release_after_delivery:
-            self._release()
-
-    def _deliver(self, result: object) -> None:
+    def _relay_returned(self, result: object) -> None:
         if self.reporter.cancelled:
             # Asked to stop: the step's result is dropped even if it got to the end.
             self._finish(self.errored, Cancelled())
@@ -201,15 +174,11 @@ class StageJob(QObject):
         """The worker thread is over (GUI thread): let go of everything it needed.
 
         Callers connect lambdas that hold the job (``lambda out: apply(job, out)``):
-        a cycle only Python's cyclic GC frees, in whatever thread it happens to run.
-        A job deleted in a worker thread while its Cancel timer was active left that
-        timer registered on the GUI thread: a segfault in
-        ``QTimerInfoList::activateTimers`` in a later test, about one run in three.
-        So the timer stops here and the connections go, on the GUI thread.
+        a cycle only Python's cyclic GC frees, in whatever thread it happens to
+        run, and a job deleted in a worker thread with an active Cancel timer
+        crashes Qt's timer list. So the timer stops here and the connections go,
+        on the GUI thread.
         """
-        if self._held is not None:  # the result is still to be delivered
-            self._release_after_delivery = True
-            return
         self._stop_abandon_timer()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -239,24 +208,6 @@ class StageJob(QObject):
         self.finished.emit()
 
 
-class _Handed:
-    """A worker's result on its way to the GUI thread, which takes it out.
-
-    The worker thread lets go of the box, not of the result: whichever thread drops
-    the box last, the result's last reference is the GUI thread's, and
-    :func:`amrst_gui.views.vtk_lock.release_later` drops it under the VTK lock (a
-    scene's VTK objects never die in a worker while another makes some).
-    """
-
-    __slots__ = ("_value",)
-
-    def __init__(self, value: object) -> None:
-        self._value: list[object] = [value]
-
-    def take(self) -> object:
-        return self._value.pop()
-
-
 def run_stage(
     fn: Callable[..., Any],
     *args: Any,
@@ -265,7 +216,7 @@ def run_stage(
     on_progress: Callable[[float, str], None] | None = None,
     on_error: Callable[[BaseException], None] | None = None,
     on_finished: Callable[[], None] | None = None,
-    lane: str | None = None,
+    display: bool = False,
     **kwargs: Any,
 ) -> StageJob:
     """Run ``fn(*args, reporter, **kwargs)`` in a worker thread.
@@ -273,15 +224,16 @@ def run_stage(
     Parameters
     ----------
     fn : callable
-        An engine function; its last positional argument is the reporter.
+        Its last positional argument is the reporter. It returns plain data:
+        never a VTK object.
     name : str
         A label for log messages.
     on_result, on_progress, on_error, on_finished : callables
         Called on the GUI thread with the return value, ``(fraction, message)``,
         the exception, and nothing, respectively.
-    lane : str, optional
-        ``"display"`` or ``"describe"`` (see ``_Lanes``): the job waits until no
-        other job of that lane runs (a job dropped meanwhile then ends at once).
+    display : bool
+        A view's job: it runs after the display jobs started before it, one at a
+        time (a job dropped meanwhile ends as soon as its turn comes).
 
     Returns
     -------
@@ -301,17 +253,15 @@ def run_stage(
     # Held here until the work is over, released on the GUI thread: the caller may
     # drop its reference (a newer scene replaces an older one) while it runs.
     _LIVE.add(job)
-    if lane is not None and lane not in LANES:
-        raise ValueError(f"no lane {lane!r}")
-    job._start(fn, args, kwargs, lane)
+    job._start(fn, args, kwargs, display)
     return job
 
 
 _LIVE: set[StageJob] = set()
 
 
-# Jobs that may run at once: a step, the Scans dock's descriptions and the three
-# views' scenes. Qt's default (one thread per core) queued the views behind a step.
+# Jobs that may wait at once: a step, the descriptions and the views' scenes. Qt's
+# default (one thread per core) would queue a view's scene behind a step.
 MIN_THREADS = 8
 
 
@@ -319,10 +269,6 @@ def _enough_threads() -> None:
     pool = QThreadPool.globalInstance()
     if pool.maxThreadCount() < MIN_THREADS:
         pool.setMaxThreadCount(MIN_THREADS)
-        # Idle threads stay: a new one cost 1.5 ms on the GUI thread at each start
-        # after 30 s of quiet (Qt's expiry), four of them when a step's result
-        # arrives (the next step and three views' scenes).
-        pool.setExpiryTimeout(-1)
 
 
 def wait_for_workers(timeout_s: float = 60.0) -> bool:

@@ -30,28 +30,6 @@ _TITLES = {
 }
 
 
-def describe_job(cloud, reporter) -> str:
-    """``amrst.io.describe`` as text, in a worker: bounds of every point and a
-    nearest-neighbour spacing take seconds on a 10M-point scan (issue 15); the
-    spacing runs in the helper process (``offload``), where it cannot hold the
-    GUI thread's GIL."""
-    from amrst import io
-    from amrst.errors import Cancelled
-    from amrst_gui import offload
-
-    reporter.check_cancelled()
-    try:
-        return str(
-            io.describe(
-                cloud, spacing=lambda xyz: offload.median_spacing(xyz, reporter)
-            )
-        )
-    except Cancelled:
-        raise
-    except Exception:  # describe is informative only; never block the panel
-        return ""
-
-
 class _RoleBox(FileDropMixin, QGroupBox):
     dropped = Signal(list)
 
@@ -116,8 +94,9 @@ class _RoleBox(FileDropMixin, QGroupBox):
         )
 
     def _describe_later(self, cloud) -> None:
-        """Describe ``cloud`` in a worker; the tooltip shows it once known."""
-        from amrst_gui import workers
+        """Describe ``cloud`` in the engine process; the tooltip shows it once
+        known."""
+        from amrst_gui import engine_process, jobs, workers
 
         if self._describing is not None:
             self._describing.discard()
@@ -131,10 +110,9 @@ class _RoleBox(FileDropMixin, QGroupBox):
                 self.setToolTip(text or "Drop a scan file here to replace it")
 
         self._describing = workers.run_stage(
-            describe_job,
+            engine_process.in_engine(jobs.describe_scan),
             cloud,
             name=f"describe {self.role}",
-            lane="describe",
             on_result=done,
         )
 

@@ -1,8 +1,9 @@
-"""The point actors of one view at its levels of detail (issue 15; see ``lod``).
+"""The point actors of one view at its levels of detail (see ``lod``).
 
-Each PointsLayer comes with its point sets at every level (``scene_jobs.prepare``:
-all displayed points, every 2nd, 4th, ...). An actor is made for a level only the
-first time it is shown, and exactly one level of each layer is visible. Level ``k``
+Each PointsLayer comes with its arrays at every level (``scene_jobs.prepare``:
+all displayed points, every 2nd, 4th, ...). A level's VTK point set and actor are
+made (on the GUI thread) only the first time it is shown, and exactly one level of
+each layer is visible. Level ``k``
 means the same for every layer (every ``2**k``-th point), so layers kept from an
 earlier scene and new ones halve together.
 """
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import re
 from typing import Any
+
+import numpy as np
 
 from amrst_gui.views.lod import MIN_LEVEL_POINTS
 from amrst_gui.views.scene import shown_text
@@ -24,14 +27,19 @@ class PointLevels:
 
     def __init__(self, plotter) -> None:
         self.plotter = plotter
-        self._sets: dict[str, tuple[Any, ...]] = {}
+        self._sets: dict[str, tuple[tuple[np.ndarray, np.ndarray], ...]] = {}
         self._styles: dict[str, float] = {}  # point size per layer
         self._actors: dict[str, dict[int, Any]] = {}
         self.level = 0  # the level shown
 
-    def set_layer(self, name: str, sets: tuple[Any, ...], point_size: float) -> None:
-        """Replace layer ``name``'s point sets; drawn at the next :meth:`show`
-        (no actor is made for a level never shown)."""
+    def set_layer(
+        self,
+        name: str,
+        sets: tuple[tuple[np.ndarray, np.ndarray], ...],
+        point_size: float,
+    ) -> None:
+        """Replace layer ``name``'s levels, ``(xyz, rgb)`` each; drawn at the next
+        :meth:`show` (nothing is made for a level never shown)."""
         self.remove(name)
         self._sets[name] = sets
         self._styles[name] = point_size
@@ -54,7 +62,7 @@ class PointLevels:
         depth = max(len(s) for s in self._sets.values())
         out: list[int] = []
         for k in range(depth):
-            out.append(sum(s[min(k, len(s) - 1)].n_points for s in self._sets.values()))
+            out.append(sum(len(s[min(k, len(s) - 1)][0]) for s in self._sets.values()))
             if out[-1] < 2 * MIN_LEVEL_POINTS:
                 break
         return tuple(out)
@@ -67,7 +75,7 @@ class PointLevels:
 
     def drawn(self) -> int:
         """Points of the visible actors."""
-        return sum(self._sets[name][self._k(name)].n_points for name in self._sets)
+        return sum(len(self._sets[name][self._k(name)][0]) for name in self._sets)
 
     def _k(self, name: str) -> int:
         return min(self.level, len(self._sets[name]) - 1)
@@ -77,7 +85,7 @@ class PointLevels:
         actors = self._actors[name]
         if k not in actors:
             actors[k] = self.plotter.add_mesh(
-                self._sets[name][k],
+                point_set(*self._sets[name][k]),
                 scalars="rgb",
                 rgb=True,
                 style="points",
@@ -89,6 +97,15 @@ class PointLevels:
             )
         for i, actor in actors.items():
             actor.SetVisibility(i == k)
+
+
+def point_set(xyz: np.ndarray, rgb: np.ndarray) -> Any:
+    """A pyvista point set of ``xyz`` (N, 3) coloured ``rgb`` (N, 3) uint8."""
+    import pyvista as pv
+
+    poly = pv.PolyData(np.ascontiguousarray(xyz, np.float32))
+    poly["rgb"] = np.ascontiguousarray(rgb, np.uint8)
+    return poly
 
 
 def _actor_name(name: str, k: int) -> str:

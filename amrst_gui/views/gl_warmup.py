@@ -1,10 +1,9 @@
-"""Set OpenGL up in views the user has not seen yet (issue 15).
+"""Set OpenGL up in views the user has not seen yet.
 
-A view's first render creates its OpenGL context state and compiles its shaders:
-80 ms more than a later frame with software OpenGL (110 ms against 30 ms for two
-coloured point sets and a caption). The overlay tab was first shown by Accept
-coarse, and that render was most of a 0.1-0.2 s stall. The window now shows each
-other tab for one frame of four dummy points when it opens, before any scan.
+A view's first render creates its OpenGL context state and compiles its shaders,
+several times the cost of a later frame. The overlay tab is first shown by Accept
+coarse, where that render would add to the stall of applying the result, so the
+window shows each other tab for one frame of four dummy points when it opens.
 """
 
 from __future__ import annotations
@@ -12,8 +11,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from amrst_gui.views.vtk_lock import VTK_LOCK
 
 if TYPE_CHECKING:
     from PySide6.QtWidgets import QTabWidget
@@ -44,8 +41,7 @@ def warm_up(view: ScanView) -> None:
     )
     p.add_text("-", position="upper_left", font_size=9, name="_warm_up_text")
     p.render()
-    with VTK_LOCK:  # actors dropped: not while a worker makes VTK objects
-        p.remove_actor(["_warm_up", "_warm_up_text"], render=False)
+    p.remove_actor(["_warm_up", "_warm_up_text"], render=False)
 
 
 def warm_up_tabs(tabs: QTabWidget, views: list[ScanView]) -> None:

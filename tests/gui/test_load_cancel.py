@@ -1,5 +1,5 @@
-"""Opening a big LAS/LAZ pair stops within a second of Cancel, the worker too,
-and nothing of the half-read files is kept (issue 15: loading ran to its end).
+"""Opening a big LAS/LAZ pair stops soon after Cancel, the reading too, and
+nothing of the half-read files is kept.
 
 The files are generated here (jittered copies of the bundled sample, seeded).
 """
@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from dense_clouds import dense_cloud
 
-# Reading both takes 3-4 s on this machine; before, Cancel did not stop it.
+# Reading both takes seconds; Cancel comes after the first chunk.
 BIG = 3_000_000
 
 
@@ -58,8 +58,10 @@ def test_cancel_stops_loading_a_big_pair_and_keeps_nothing(
     # The reading itself stops (the worker thread returns), not only the job.
     qtbot.waitUntil(marks["job"].worker_done.is_set, timeout=30_000)
     stopped = time.perf_counter() - marks["cancel"]
-    assert idle < 1.0, f"the app was busy {idle:.2f} s after Cancel"
-    assert stopped < 1.0, f"the reading went on {stopped:.2f} s after Cancel"
+    # Generous guards: the app answers within workers.CANCEL_GRACE_S, and the
+    # reading stops at its next chunk (the benchmark has the figures).
+    assert idle < 2.0, f"the app was busy {idle:.2f} s after Cancel"
+    assert stopped < 2.0, f"the reading went on {stopped:.2f} s after Cancel"
     assert loaded == []
     assert s.cloud("target") is None
     assert s.cloud("source") is None

@@ -1,48 +1,17 @@
-"""What stalled the window during the steps (issue 15), each checked on its own.
+"""The views' work split between a display job and the GUI thread.
 
-- The crown of a tree measurement (Accept coarse, Fine: three per step) took its
-  occupied cells with ``np.unique(axis=0)``, whose sort of a structured view holds
-  the GIL: 0.25-0.45 s on 200,000-400,000 points, during which the GUI thread
-  could not run. Checked here: another thread keeps ticking while the crown is
-  computed on 400,000 points, and the figures equal those of the old cells.
-- The skeleton lines and key-point spheres were built on the GUI thread, where
-  their VTK calls each waited for the GIL while a step's worker ran Python: the
-  scene worker builds them now (``prepare``), and the view draws what it made.
+- The crown of a tree measurement keeps its figures with cells keyed by one int64
+  (a sort that releases the GIL), and other threads keep running meanwhile (perf).
+- A display job hands over arrays only; the view makes every VTK object (the
+  skeleton's lines, the key points' spheres, the point sets) on the GUI thread.
+- New point sets, and a view coming into sight, start at a low level of detail.
 """
 
 from __future__ import annotations
 
-import threading
-import time
-
 import numpy as np
-
-
-def longest_gap_while(fn) -> tuple[float, object]:
-    """Run ``fn`` in a thread; the longest gap between this thread's 1 ms ticks
-    (the GUI thread's view of it: every tick needs the GIL), and what ``fn``
-    returned or raised."""
-    done = threading.Event()
-    out: list = []
-
-    def work() -> None:
-        try:
-            out.append(fn())
-        except BaseException as exc:  # returned, so a failure cannot hang the test
-            out.append(exc)
-        finally:
-            done.set()
-
-    worker = threading.Thread(target=work)
-    last = time.perf_counter()
-    worker.start()
-    longest = 0.0
-    while not done.is_set():
-        time.sleep(0.001)
-        now = time.perf_counter()
-        longest, last = max(longest, now - last), now
-    worker.join()
-    return longest, out[0]
+import pytest
+from _timing import longest_gap_while
 
 
 def _crown_of_old_cells(xy: np.ndarray, grid: float) -> tuple[float, float]:
@@ -57,6 +26,7 @@ def _crown_of_old_cells(xy: np.ndarray, grid: float) -> tuple[float, float]:
     return float(hull.volume), float(extents.mean())
 
 
+@pytest.mark.perf
 def test_crown_lets_other_threads_run_and_keeps_its_figures():
     from amrst.measure import _CROWN_GRID_M, _crown
 
@@ -69,8 +39,8 @@ def test_crown_lets_other_threads_run_and_keeps_its_figures():
     ref_area, ref_width = _crown_of_old_cells(xy, _CROWN_GRID_M)
     assert abs(area - ref_area) <= 1e-9 * ref_area
     assert abs(width - ref_width) <= 1e-9 * ref_width
-    # Before: 0.4-0.5 s on this machine; the sort of one int64 key per cell
-    # releases the GIL. 0.1 s is the window's stall target.
+    # The sort of one int64 key per cell releases the GIL; 0.1 s is the window's
+    # stall target.
     assert longest < 0.1, f"the crown held other threads back {longest:.2f} s"
 
 
@@ -91,11 +61,33 @@ def _skeleton_scene():
     )
 
 
-def test_the_worker_builds_the_skeleton_and_sphere_meshes():
+def test_a_display_job_hands_over_arrays_only():
+    from amrst_gui.views.layers import PointsLayer, Scene
     from amrst_gui.views.scene_jobs import prepare
 
-    prepared = prepare(_skeleton_scene())
-    lines, spheres = prepared.meshes["skeleton"], prepared.meshes["keypoints"]
+    rng = np.random.default_rng(2)
+    xyz = rng.random((5_000, 3))
+    rgb = np.zeros((5_000, 3), np.uint8)
+    scene = Scene(
+        ("t",), (PointsLayer("points", ("a",), xyz, rgb), *_skeleton_scene().layers)
+    )
+    prepared = prepare(scene)
+    assert set(prepared.sets) == {"points"}  # lines and spheres: made by the view
+    for pts, colours in prepared.sets["points"]:
+        assert type(pts) is np.ndarray
+        assert pts.dtype == np.float32
+        assert type(colours) is np.ndarray
+        assert colours.dtype == np.uint8
+        assert pts.flags.c_contiguous
+        assert colours.flags.c_contiguous
+
+
+def test_the_view_makes_the_skeleton_and_sphere_meshes(qtbot):
+    from amrst_gui.views.scan_view import ScanView, lines_mesh, spheres_mesh
+    from amrst_gui.views.scene_jobs import prepare
+
+    scene = _skeleton_scene()
+    lines, spheres = lines_mesh(scene.layers[0]), spheres_mesh(scene.layers[1])
     assert lines.n_points == 60
     assert lines.n_lines == 59
     # One 12 x 8 sphere per key point, coloured.
@@ -103,15 +95,8 @@ def test_the_worker_builds_the_skeleton_and_sphere_meshes():
     assert spheres.n_points == 25 * one
     assert one > 20
     assert "rgb" in spheres.point_data
-
-
-def test_the_view_draws_the_meshes_the_worker_made(qtbot):
-    from amrst_gui.views.scan_view import ScanView
-    from amrst_gui.views.scene_jobs import prepare
-
     view = ScanView()
     qtbot.addWidget(view)
-    scene = _skeleton_scene()
     try:
         view.update_scene(scene, prepare(scene))
         assert {"skeleton", "keypoints"} <= set(view.actor_names())
@@ -120,10 +105,9 @@ def test_the_view_draws_the_meshes_the_worker_made(qtbot):
 
 
 def test_new_point_sets_and_a_view_coming_into_sight_start_low(qtbot, monkeypatch):
-    """Issue 15: a view's first frame of new point sets (the overlay after Accept
-    coarse) or after its tab is chosen was drawn at the rest level: 30-45 ms of
-    one stall with software OpenGL. Both start at ``lod.START_POINTS`` and step up
-    a level per frame."""
+    """A view's first frame of new point sets (the overlay after Accept coarse),
+    or after its tab is chosen, starts at ``lod.START_POINTS`` and steps up a
+    level per frame: that frame also uploads the points."""
     from amrst_gui.views import lod
     from amrst_gui.views.layers import PointsLayer, Scene
     from amrst_gui.views.scan_view import ScanView
@@ -163,10 +147,9 @@ def test_new_point_sets_and_a_view_coming_into_sight_start_low(qtbot, monkeypatc
 def test_the_hidden_overlay_draws_its_points_once_while_nothing_runs(
     loaded_window, qtbot
 ):
-    """Issue 15: the overlay's first frame of point sets it never drew cost 35-45
-    ms more than the next, and came with Accept coarse in one stall with the
-    panels. Once a pair is loaded and no step runs, the hidden overlay draws its
-    points off screen; showing it then draws them again (not the stale picture)."""
+    """Once a pair is loaded and no step runs, the hidden overlay draws its points
+    off screen (a first frame of new point sets costs more than the next);
+    showing it then draws them again (not the stale picture)."""
     win = loaded_window
     view = win.registration.view
     assert not view.isVisible()  # the scans' tab is shown after loading

@@ -1,8 +1,9 @@
-"""workers.run_stage: Cancel answers within a second and drops the step's result."""
+"""workers.run_stage: Cancel answers before the work ends and drops the step's
+result; display jobs take turns."""
 
 from __future__ import annotations
 
-import time
+import threading
 
 from amrst.errors import Cancelled
 from amrst_gui import workers
@@ -22,18 +23,21 @@ def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
     """Work that never checks (one long library call) is reported cancelled after
     CANCEL_GRACE_S; its late result is never delivered."""
 
+    release = threading.Event()
+
     def long_call(reporter):
-        time.sleep(2.0)
+        release.wait(30)
         return "late"
 
     job, got = _run(long_call, qtbot)
     qtbot.wait(100)
-    start = time.perf_counter()
     job.cancel()
-    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
-    assert time.perf_counter() - start < workers.CANCEL_GRACE_S + 0.5
-    assert isinstance(got["error"][0], Cancelled)
-    assert not job.worker_done.is_set()  # the thread is still in its call ...
+    try:
+        qtbot.waitUntil(lambda: bool(got["error"]), timeout=10_000)
+        assert isinstance(got["error"][0], Cancelled)
+        assert not job.worker_done.is_set()  # the thread is still in its call ...
+    finally:
+        release.set()
     qtbot.waitUntil(job.worker_done.is_set, timeout=10_000)
     qtbot.wait(100)  # ... and what it returned then is dropped
     assert got["result"] == []
@@ -101,67 +105,37 @@ def test_a_finished_job_is_freed_by_reference_counting_on_the_gui_thread(
     assert deleted_on == [threading.main_thread().ident]
 
 
-def _held_result(qtbot):
-    """A job whose result reached the GUI thread within DRAW_GAP_MS of a frame:
-    (job, got, the moment the frame ended)."""
-    from amrst_gui.pacing import PACE
+def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
+    """The views' jobs run one at a time, in order; one discarded while it
+    waits for its turn ends without calling its function."""
+    gate = threading.Event()
+    running: list[str] = []
+    overlap: list[bool] = []
+    calls: list[str] = []
 
-    job, got = _run(lambda reporter: 7, qtbot)
-    assert job.worker_done.wait(5.0)
-    time.sleep(0.1)  # superqt posts the result: queued, the event loop not turned
-    PACE.mark()  # a view's frame ends ...
-    frame_end = time.perf_counter()
-    return job, got, frame_end
+    def job_fn(name):
+        def fn(reporter):
+            overlap.append(bool(running))
+            running.append(name)
+            calls.append(name)
+            if name == "first":
+                gate.wait(30)
+            running.remove(name)
+            return name
 
+        return fn
 
-def test_a_result_right_after_a_frame_is_applied_a_turn_later(qtbot):
-    """Issue 15: a step's result applied in the same turn of the event loop as a
-    view's frame made one stall of both (after Match: 0.1-0.15 s)."""
-    from amrst_gui.pacing import DRAW_GAP_MS
-
-    job, got, frame_end = _held_result(qtbot)
-    delivered: list[float] = []
-    job.returned.connect(lambda _r: delivered.append(time.perf_counter()))
-    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
-    assert got == {"result": [7], "error": []}
-    assert delivered[0] - frame_end >= DRAW_GAP_MS / 1000 * 0.9
-    assert job.done
-
-
-def test_a_held_result_is_dropped_by_cancel_and_the_job_lives_until_then(qtbot):
-    import weakref
-
-    job, got, _ = _held_result(qtbot)
-    qtbot.waitUntil(lambda j=job: j._held is not None, timeout=5_000)
-    job.cancel()  # while the result waits for its turn
-    ref = weakref.ref(job)
-    del job
-    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
-    assert got["result"] == []
-    assert isinstance(got["error"][0], Cancelled)
-    qtbot.waitUntil(lambda: ref() is None, timeout=5_000)  # released after it
-
-
-def test_worker_threads_run_below_the_window_s_priority(qtbot):
-    """Linux: the pool's threads are niced like the engine process, so the GUI
-    thread gets a core first when a result arrives."""
-    import os
-    import sys
-    import threading
-
-    import pytest
-
-    if not sys.platform.startswith("linux"):
-        pytest.skip("per-thread niceness is Linux's")
-
-    from amrst_gui.pacing import BACKGROUND_NICE
-
-    def niceness(reporter):
-        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-
-    _job, got = _run(niceness, qtbot)
-    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
-    assert got["result"][0] >= BACKGROUND_NICE
-    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) < (
-        BACKGROUND_NICE
-    )
+    got: list[str] = []
+    first = workers.run_stage(job_fn("first"), display=True, on_result=got.append)
+    qtbot.waitUntil(lambda: calls == ["first"], timeout=10_000)
+    dropped = workers.run_stage(job_fn("dropped"), display=True, on_result=got.append)
+    last = workers.run_stage(job_fn("last"), display=True, on_result=got.append)
+    qtbot.wait(200)
+    assert calls == ["first"]  # the others wait for its end
+    dropped.discard()
+    gate.set()
+    qtbot.waitUntil(lambda: got == ["first", "last"], timeout=10_000)
+    assert calls == ["first", "last"]
+    assert not any(overlap)
+    assert first.done
+    assert last.done
