@@ -1,0 +1,1 @@
+"""A forest plot: its scans registered by their stems, and every tree measured."""

@@ -1,0 +1,172 @@
+"""Candidate poses of a plot pair from its two stem maps.
+
+Stems are key points with an attribute: their breast-height centre on the ground, and
+their DBH. Every pair of stems in one scan is compared with every pair in the other
+(same length, DBH alike); two stems fix a levelled pose (heading and shift), which the
+other stems then confirm or not. Poses confirmed by three stems or more are the
+similar triangles of stem bases; poses with two stems only are kept too (a position
+that sees only two of the shared trees), ranked after them. The scanners' residual
+tilt is taken out by aligning the two scans' ground normals under the pose.
+The poses go through the same verification as every other candidate (``verify.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.review.manual import fit_levelled
+from amrst.stages.candidates import distinct_solutions
+
+if TYPE_CHECKING:
+    from amrst.plot.stemmap import StemMap
+    from amrst.types import Transform
+
+#: Two stem pairs match when their lengths differ by less than this plus LENGTH_REL.
+LENGTH_TOL_M = 0.15
+LENGTH_REL = 0.02
+#: A moved source stem confirms a pose within this of a target stem (m, horizontal).
+CONFIRM_M = 0.35
+#: Shortest stem pair that fixes a heading (m).
+MIN_PAIR_M = 1.5
+
+
+@dataclass(frozen=True, slots=True)
+class StemPose:
+    """One candidate pose: ``T_target_source`` and the stems that confirm it."""
+
+    T_target_source: Transform
+    pairs: np.ndarray  # (K, 2) target stem, source stem
+    rms_m: float  # horizontal RMS of the confirming stems
+    dbh_agree: int  # confirming stems whose DBH agree (both measured)
+
+
+def dbh_alike(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Tell whether DBHs agree (unknown ones agree with anything).
+
+    A single scan sees half a stem, so its DBH is rough: alike within 5 cm + 30 %.
+    """
+    both = np.isfinite(a) & np.isfinite(b)
+    close = np.abs(a - b) <= 0.05 + 0.3 * np.fmax(a, b)
+    return np.asarray(~both | close)
+
+
+def _segments(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    i, j = np.triu_indices(len(keys), k=1)
+    length = np.hypot(*(keys[j, :2] - keys[i, :2]).T)
+    keep = length >= MIN_PAIR_M
+    return np.column_stack([i[keep], j[keep]]), length[keep]
+
+
+def _tilt_fix(T: Transform, n_target: np.ndarray, n_source: np.ndarray) -> Transform:
+    """Turn the pose so the moved source's ground normal meets the target's."""
+    moved = T[:3, :3] @ n_source
+    axis = np.cross(moved, n_target)
+    s = np.linalg.norm(axis)
+    if s < 1e-9:
+        return T
+    angle = np.arcsin(min(s, 1.0))
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = R @ T[:3, 3]
+    return out
+
+
+def _confirm(
+    T: Transform, tk: np.ndarray, sk: np.ndarray, td: np.ndarray, sd: np.ndarray
+) -> np.ndarray:
+    """(K, 2) target/source stems that agree under T (nearest, each target once)."""
+    moved = sk @ T[:3, :3].T + T[:3, 3]
+    d = np.hypot(moved[:, None, 0] - tk[None, :, 0], moved[:, None, 1] - tk[None, :, 1])
+    best = np.argmin(d, axis=1)
+    ok = (d[np.arange(len(sk)), best] <= CONFIRM_M) & dbh_alike(td[best], sd)
+    pairs = [(int(best[s]), s) for s in np.flatnonzero(ok)]
+    seen: set[int] = set()
+    unique = []
+    for t, s in sorted(pairs, key=lambda p: d[p[1], p[0]]):
+        if t not in seen:
+            seen.add(t)
+            unique.append((t, s))
+    return np.array(sorted(unique), dtype=np.int64).reshape(-1, 2)
+
+
+def stem_poses(target: StemMap, source: StemMap, max_poses: int = 6) -> list[StemPose]:
+    """Candidate poses of ``source`` on ``target`` from their stems, best first.
+
+    Parameters
+    ----------
+    target, source : StemMap
+        Each scan's stem map (its local frame).
+    max_poses : int
+        Distinct poses returned at most.
+
+    Returns
+    -------
+    list of StemPose
+        Most confirming stems first, then smallest RMS; empty when either scan has
+        fewer than two stems.
+    """
+    tk, sk = target.keys(), source.keys()
+    td, sd = target.dbh(), source.dbh()
+    if len(tk) < 2 or len(sk) < 2:
+        return []
+    tseg, tlen = _segments(tk)
+    sseg, slen = _segments(sk)
+    if not len(tseg) or not len(sseg):
+        return []
+    close = np.abs(tlen[:, None] - slen[None, :]) <= LENGTH_TOL_M + LENGTH_REL * (
+        np.fmax(tlen[:, None], slen[None, :])
+    )
+    poses: list[StemPose] = []
+    tried: set[tuple[tuple[int, int], ...]] = set()
+    nt, ns = target.ground.normal, source.ground.normal
+    for a, b in zip(*np.nonzero(close), strict=True):
+        for flip in (False, True):
+            t2 = tseg[a]
+            s2 = sseg[b][::-1] if flip else sseg[b]
+            if not dbh_alike(td[t2], sd[s2]).all():
+                continue
+            T = _tilt_fix(fit_levelled(tk[t2], sk[s2]), nt, ns)
+            pairs = _confirm(T, tk, sk, td, sd)
+            key = tuple(map(tuple, pairs.tolist()))
+            if len(pairs) < 2 or key in tried:
+                continue
+            tried.add(key)
+            poses.append(_refit(pairs, tk, sk, td, sd, nt, ns))
+    poses.sort(key=lambda p: (-len(p.pairs), -p.dbh_agree, p.rms_m))
+    out: list[StemPose] = []
+    centre = sk.mean(axis=0)
+    for p in poses:
+        if all(
+            distinct_solutions(p.T_target_source, q.T_target_source, centre)
+            for q in out
+        ):
+            out.append(p)
+        if len(out) == max_poses:
+            break
+    return out
+
+
+def _refit(
+    pairs: np.ndarray,
+    tk: np.ndarray,
+    sk: np.ndarray,
+    td: np.ndarray,
+    sd: np.ndarray,
+    nt: np.ndarray,
+    ns: np.ndarray,
+) -> StemPose:
+    """Levelled fit on every confirming stem, tilt taken out, and its figures."""
+    t, s = tk[pairs[:, 0]], sk[pairs[:, 1]]
+    T = _tilt_fix(fit_levelled(t, s), nt, ns)
+    T[:3, 3] += np.mean(t - (s @ T[:3, :3].T + T[:3, 3]), axis=0)
+    moved = s @ T[:3, :3].T + T[:3, 3]
+    rms = float(np.sqrt(np.mean(np.sum((moved[:, :2] - t[:, :2]) ** 2, axis=1))))
+    a, b = td[pairs[:, 0]], sd[pairs[:, 1]]
+    agree = int(np.sum(np.isfinite(a) & np.isfinite(b) & dbh_alike(a, b)))
+    return StemPose(T, pairs, rms, agree)

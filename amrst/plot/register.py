@@ -1,0 +1,307 @@
+"""Registration of a plot's scans by their stem maps.
+
+Each scan is analysed once: preprocessed (the points every candidate is verified on
+and the fine registration uses; the scene stage is not needed, the stem map finds the
+ground and every stem itself) and its stem map made. Each pair of scans is a *link*:
+the stem poses (``match.py``) are verified as the technician's manual poses are
+(``review.manual.score_manual``: the same sample, polish and tight score as the
+tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). When no
+stem pose verifies, the two-scan engine runs as the fallback (tetrahedra, feature
+matcher, trunk search). The links then form the multiscan spanning tree, and a joint
+refinement is kept when it lowers the error (``amrst.multiscan``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.multiscan.graph import Link, link_pairs, loop_closures, spanning_tree
+from amrst.multiscan.joint import JointResult, mutual_rmse, refine_jointly
+from amrst.neighbours import THREADS
+from amrst.plot.match import stem_poses
+from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.stages.candidates import CandidateList, choose_coarse
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import ScanAnalysis
+    from amrst.types import Cloud, Transform
+
+#: Origin named by the links the stem map registered.
+STEMS_ORIGIN = "stems"
+
+
+@dataclass(frozen=True, slots=True)
+class PlotScan:
+    """One scan of the plot, analysed once: preprocessed points and stem map."""
+
+    analysis: ScanAnalysis
+    stems: StemMap
+
+
+@dataclass(frozen=True, slots=True)
+class PlotLink:
+    """A link and the stems it shares (target stem, source stem), empty when none."""
+
+    link: Link
+    shared: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class PlotRegistration:
+    """Every scan's pose on the reference (local frames), the links and the bundle.
+
+    ``poses[k]`` maps scan k's local coordinates into the reference's (None: not
+    reached); ``bundle_rmse_m`` is the mean NN-RMSE of each scan against the others
+    in their overlap, at the final poses (after the joint refinement when it was
+    kept; ``joint`` is None for two scans, whose link is already their fine fit).
+    """
+
+    scans: tuple[PlotScan, ...]
+    reference: int
+    poses: tuple[Transform | None, ...]
+    links: tuple[PlotLink, ...]
+    paths: tuple[tuple[int, ...] | None, ...]
+    joint: JointResult | None
+    loops: dict[str, float]
+    bundle_rmse_m: float
+    timings: dict[str, float]
+
+
+def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
+    """The registration settings of a plot: no scene stage, fine on all points."""
+    from amrst.params import RegistrationParams
+
+    params = params or RegistrationParams()
+    return replace(
+        params,
+        scene=replace(params.scene, mode="off"),
+        fine=replace(params.fine, points="all"),
+    )
+
+
+def analyse_plot_scan(
+    cloud: Cloud,
+    params: RegistrationParams,
+    stem_params: StemMapParams,
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
+) -> PlotScan:
+    """Preprocess one scan and make its stem map."""
+    from amrst.pipeline import prepare_scan
+
+    an = prepare_scan(
+        cloud, params, SubReporter(reporter, 0.0, 0.5, "preprocess"), threads=threads
+    )
+    return PlotScan(an, map_stems(cloud.xyz, stem_params, reporter))
+
+
+def register_plot_link(
+    target: PlotScan,
+    source: PlotScan,
+    indices: tuple[int, int],
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
+) -> PlotLink:
+    """Register one pair by its stems; the two-scan engine when they do not verify."""
+    from amrst.pipeline import evaluate, refine
+    from amrst.review.manual import MANUAL_ID_BASE, score_manual
+
+    t0 = time.perf_counter()
+    poses = stem_poses(target.stems, source.stems)
+    cands = []
+    for k, pose in enumerate(poses):
+        reporter.check_cancelled()
+        cand = score_manual(
+            pose.T_target_source,
+            target.analysis.xyz,
+            source.analysis.xyz,
+            params.coarse,
+            MANUAL_ID_BASE + k,
+            f"{len(pose.pairs)} shared stems",
+        )
+        cands.append(cand)
+    cands.sort(key=lambda c: -c.score)
+    ranked = CandidateList(
+        tuple(replace(c, rank=r) for r, c in enumerate(cands, 1)), len(poses)
+    )
+    centre = np.r_[source.analysis.xyz[:, :2].mean(axis=0), 0.0]
+    coarse = choose_coarse(ranked, frozenset(), centre) if cands else None
+    if coarse is None or not coarse.verified:
+        return _fallback(target, source, indices, params, reporter, threads, t0)
+    fine = refine(
+        target.analysis,
+        source.analysis,
+        coarse.T_target_source,
+        params,
+        SubReporter(reporter, 0.5, 0.95),
+        threads=threads,
+    )
+    T = fine.T_target_source
+    metrics = evaluate(target.analysis, source.analysis, T, params, threads=threads)
+    won = poses[coarse.candidate.id - MANUAL_ID_BASE]
+    link = Link(
+        target=indices[0],
+        source=indices[1],
+        verdict="verified",
+        score=float(coarse.candidate.score),
+        confidence=float(coarse.confidence),
+        weight=float(coarse.candidate.score) * float(metrics.overlap_fraction),
+        T_local=T,
+        metrics=metrics,
+        message=f"{len(won.pairs)} shared stems; {coarse.message}",
+        origin=STEMS_ORIGIN,
+        seconds=time.perf_counter() - t0,
+    )
+    return PlotLink(link, _shared(target.stems, source.stems, T))
+
+
+def _fallback(
+    target: PlotScan,
+    source: PlotScan,
+    indices: tuple[int, int],
+    params: RegistrationParams,
+    reporter: Reporter,
+    threads: int,
+    t0: float,
+) -> PlotLink:
+    """The two-scan engine on the pair (its own analyses, scene stage on)."""
+    from amrst.multiscan.graph import register_link
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import prepare_scan, skeletonise_scan
+
+    full = replace(params, scene=RegistrationParams().scene)
+    ans = []
+    for scan in (target, source):
+        an = prepare_scan(scan.analysis.cloud, full, reporter, threads=threads)
+        ans.append(skeletonise_scan(an, full, reporter, threads=threads))
+    link = register_link(ans[0], ans[1], indices, full, reporter, threads=threads)
+    link = replace(
+        link,
+        message=f"no stem pose verified; {link.message}",
+        seconds=time.perf_counter() - t0,
+    )
+    shared = (
+        np.zeros((0, 2), np.int64)
+        if link.T_local is None
+        else _shared(target.stems, source.stems, link.T_local)
+    )
+    return PlotLink(link, shared)
+
+
+def _shared(target: StemMap, source: StemMap, T: Transform) -> np.ndarray:
+    """(K, 2) stems of the two scans that meet under the pose (within 0.3 m)."""
+    tk, sk = target.keys(), source.keys()
+    if not len(tk) or not len(sk):
+        return np.zeros((0, 2), np.int64)
+    moved = sk @ T[:3, :3].T + T[:3, 3]
+    d = np.hypot(moved[:, None, 0] - tk[None, :, 0], moved[:, None, 1] - tk[None, :, 1])
+    best = np.argmin(d, axis=1)
+    ok = d[np.arange(len(sk)), best] <= 0.3
+    return np.column_stack([best[ok], np.flatnonzero(ok)]).astype(np.int64)
+
+
+def register_plot(
+    clouds: Sequence[Cloud],
+    reference: int = 0,
+    params: RegistrationParams | None = None,
+    stem_params: StemMapParams | None = None,
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
+) -> PlotRegistration:
+    """Register the scans of a plot onto the reference scan.
+
+    Parameters
+    ----------
+    clouds : sequence of Cloud
+        Two or more scans of one plot.
+    reference : int
+    params : RegistrationParams or None
+        Made plot settings with :func:`plot_params`.
+    stem_params : StemMapParams or None
+    reporter : Reporter
+    threads : int
+
+    Returns
+    -------
+    PlotRegistration
+    """
+    params = plot_params(params)
+    stem_params = stem_params or StemMapParams()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    n = len(clouds)
+    scans = tuple(
+        analyse_plot_scan(
+            c,
+            params,
+            stem_params,
+            SubReporter(reporter, 0.4 * k / n, 0.4 * (k + 1) / n, f"scan {k + 1}"),
+            threads=threads,
+        )
+        for k, c in enumerate(clouds)
+    )
+    timings["analyse"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    pairs = link_pairs(n, reference)
+    links = [
+        register_plot_link(
+            scans[i],
+            scans[j],
+            (i, j),
+            params,
+            SubReporter(
+                reporter,
+                0.4 + 0.45 * m / len(pairs),
+                0.4 + 0.45 * (m + 1) / len(pairs),
+                f"link {i + 1}-{j + 1}",
+            ),
+            threads=threads,
+        )
+        for m, (i, j) in enumerate(pairs)
+    ]
+    timings["links"] = time.perf_counter() - t1
+    graph = spanning_tree([pl.link for pl in links], n, reference)
+    in_tree = {(ln.target, ln.source): ln for ln in graph.links}
+    links = [replace(pl, link=in_tree[pl.link.target, pl.link.source]) for pl in links]
+    t1 = time.perf_counter()
+    analyses = [s.analysis for s in scans]
+    joint = None
+    poses = graph.poses
+    if sum(p is not None for p in poses) > 2:  # a pair's link is its fine fit
+        joint = refine_jointly(
+            analyses,
+            graph.poses,
+            reference,
+            params,
+            SubReporter(reporter, 0.85, 1.0, "joint refinement"),
+            threads=threads,
+        )
+        poses = joint.poses
+    bundle = mutual_rmse(
+        [an.xyz for an in analyses], poses, params.metrics.overlap_dist_m
+    )
+    timings["joint"] = time.perf_counter() - t1
+    timings["total"] = time.perf_counter() - t0
+    return PlotRegistration(
+        scans=scans,
+        reference=reference,
+        poses=poses,
+        links=tuple(links),
+        paths=graph.paths,
+        joint=joint,
+        loops=loop_closures(graph.links, graph.poses),
+        bundle_rmse_m=float(bundle),
+        timings=timings,
+    )

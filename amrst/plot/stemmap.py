@@ -1,0 +1,300 @@
+"""The stem map of a plot: every stem with its base, DBH, height, lean and quality.
+
+One function, :func:`map_stems`, serves a single scan (the key points of the plot
+registration) and the merged plot (the inventory):
+
+1. the ground surface (``stages/ground.py``) and each point's height above it;
+2. stems: clusters of a slice above the ground that cross it and are narrow enough
+   (``stages/stems.py``);
+3. per stem, circles on bark-like points (``measure/stem.py``) in thin slices at a few
+   heights: the one at breast height gives the DBH, all of them the lean, and the base
+   is the stem line where it meets the ground;
+4. every point above the ground goes to the stem it reaches through neighbouring
+   points, and the tree's highest such point gives its height.
+
+The DBH quality follows 3DFin's section checks: the arc of the stem the circle's
+inliers cover, the fit residual, and the share of slice points off the circle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.measure import MeasureParams, fit_stem_circle
+from amrst.measure.stem import stem_surface
+from amrst.stages.ground import GroundFit, fit_ground
+from amrst.stages.scene import SceneParams
+from amrst.stages.stems import assign_to_stems, find_stems
+from amrst.stages.voxels import voxel_sample
+
+if TYPE_CHECKING:
+    from amrst.measure.stem import StemCircle
+    from amrst.progress import Reporter
+
+#: Heights above the ground of the slices the stem line is fitted to (m).
+LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
+#: Points around a stem the slices take (m beyond the stem cluster's extent).
+STEM_MARGIN_M = 0.15
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StemMapParams:
+    """Settings of the stem map (a plot's trees found and measured)."""
+
+    voxel_m: float = 0.01  # thinning of the input before anything else
+    max_points: int = 4_000_000  # after thinning, an even stride beyond this
+    ground_cell_m: float = 0.5
+    ground_tol_m: float = 0.15
+    ground_dist_m: float = 0.15  # points lower than this above the ground are ground
+    max_slope_deg: float = 25.0
+    min_ground_area_m2: float = 12.0
+    dbh_low_m: float = 1.25  # the DBH slice, above the local ground
+    dbh_high_m: float = 1.35
+    circle_inlier_m: float = 0.01
+    # DBH quality: ok needs all three.
+    ok_arc_deg: float = 150.0
+    ok_rmse_m: float = 0.006
+    ok_outlier_share: float = 0.4
+    # Height flags: a stem leaning more than this, or fewer points than this in the
+    # top metre of the tree (its top was hidden or out of range).
+    lean_flag_deg: float = 8.0
+    min_top_points: int = 15
+    min_circles: int = 2  # bark circles a stem shows among the slices
+    scene: SceneParams = field(default_factory=SceneParams)
+
+
+@dataclass(frozen=True, slots=True)
+class StemRecord:
+    """One stem of a stem map (local frame of the cloud it was found in).
+
+    ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
+    breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle);
+    ``height_flag``: ``ok``, ``lean`` or ``top not seen``.
+    """
+
+    base: np.ndarray  # (3,)
+    dbh_xy: np.ndarray  # (2,)
+    dbh_m: float
+    arc_deg: float
+    rmse_m: float
+    outlier_share: float
+    dbh_quality: str
+    height_m: float
+    height_flag: str
+    lean_deg: float
+    crown_width_m: float
+    n_points: int
+
+    @property
+    def key_xyz(self) -> np.ndarray:
+        """(3,) the stem's key point: breast-height centre, ground height."""
+        return np.r_[self.dbh_xy, self.base[2]]
+
+
+@dataclass(frozen=True, slots=True)
+class StemMap:
+    """The stems of a cloud, the ground under them, and which stem owns each point.
+
+    ``xyz`` are the working points (thinned input); ``owner[i]`` is the stem of
+    ``xyz[i]`` (-1: ground, shrub or nothing).
+    """
+
+    stems: tuple[StemRecord, ...]
+    ground: GroundFit
+    xyz: np.ndarray
+    owner: np.ndarray
+
+    def keys(self) -> np.ndarray:
+        """(S, 3) key points of the stems."""
+        return np.array([s.key_xyz for s in self.stems]).reshape(-1, 3)
+
+    def dbh(self) -> np.ndarray:
+        """(S,) DBH of the stems (NaN where none)."""
+        return np.array([s.dbh_m for s in self.stems], dtype=float)
+
+
+def working_points(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
+    """The points the stem map works on: thinned to ``voxel_m``, at most ``max_points``."""
+    xyz = np.asarray(xyz, dtype=float)
+    if params.voxel_m > 0 and len(xyz):
+        xyz = xyz[voxel_sample(xyz, params.voxel_m)]
+    if len(xyz) > params.max_points:
+        xyz = xyz[:: int(np.ceil(len(xyz) / params.max_points))]
+    return xyz
+
+
+def map_stems(
+    xyz: np.ndarray,
+    params: StemMapParams | None = None,
+    reporter: Reporter | None = None,
+) -> StemMap:
+    """Find and measure every stem of a plot cloud.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+        One scan or several merged, z up (m).
+    params : StemMapParams or None
+    reporter : Reporter or None
+        Checked for Cancel between the stems.
+
+    Returns
+    -------
+    StemMap
+        No stems when the cloud has no ground (a plot always shows one).
+    """
+    params = params or StemMapParams()
+    pts = working_points(xyz, params)
+    ground = fit_ground(
+        pts,
+        cell_m=params.ground_cell_m,
+        tol_m=params.ground_tol_m,
+        max_slope_deg=params.max_slope_deg,
+        min_area_m2=params.min_ground_area_m2,
+        iterations=300,
+        seed=params.scene.seed,
+    )
+    owner = np.full(len(pts), -1, dtype=np.int64)
+    if not ground.found:
+        return StemMap((), ground, pts, owner)
+    h = ground.height(pts)
+    above = np.flatnonzero(h >= params.ground_dist_m)
+    found, slice_lab, slice_idx = find_stems(pts, h, above, params.scene)
+    if not found:
+        return StemMap((), ground, pts, owner)
+    seeds = [slice_idx[slice_lab == k] for k in range(len(found))]
+    # Paths through a 5 cm graph: crowns go to the stem they hang from.
+    owner[above] = assign_to_stems(pts, h, above, seeds, params.scene)
+    stems: list[StemRecord] = []
+    kept = np.full(len(seeds) + 1, -1, dtype=np.int64)  # cluster -> stem (-1: none)
+    for k, seed in enumerate(seeds):
+        if reporter is not None:
+            reporter.check_cancelled()
+        stem = _measure_stem(pts, h, ground, seed, owner == k, params)
+        if stem is not None:
+            kept[k] = len(stems)
+            stems.append(stem)
+    return StemMap(tuple(stems), ground, pts, kept[owner])
+
+
+def _ground_z(ground: GroundFit, xy: np.ndarray) -> float:
+    """Height of the ground surface at one (2,) position."""
+    p = np.r_[xy, 0.0][None]
+    return float(-ground.height(p)[0])
+
+
+def _measure_stem(
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    seed: np.ndarray,
+    mine: np.ndarray,
+    params: StemMapParams,
+) -> StemRecord | None:
+    """Base, DBH, lean, height and flags of one stem (``seed``: its slice points).
+
+    None when bark circles fit at fewer than ``min_circles`` heights: a shrub or a
+    hanging branch crosses the slice too, but it is no upright stem.
+    """
+    lo = pts[seed, :2].min(axis=0) - STEM_MARGIN_M
+    hi = pts[seed, :2].max(axis=0) + STEM_MARGIN_M
+    box = np.flatnonzero(
+        np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
+        & (h > 0.3)
+        & (h < max(LINE_HEIGHTS_M) + 0.3)
+    )
+    near, hn = pts[box], h[box]
+    centre = pts[seed, :2].mean(axis=0)
+    z0 = _ground_z(ground, centre)
+    mp = MeasureParams(inlier_m=params.circle_inlier_m, max_radius_m=1.0)
+    half = (params.dbh_high_m - params.dbh_low_m) / 2
+    dbh_h = (params.dbh_low_m + params.dbh_high_m) / 2
+    line: list[tuple[float, float, float]] = []
+    dbh_fit: tuple[StemCircle, float] | None = None
+    for at in sorted({*LINE_HEIGHTS_M, dbh_h}):
+        width = half if at == dbh_h else 0.05
+        in_slice = np.abs(hn - at) <= width
+        if in_slice.sum() < 12:
+            continue
+        bark = stem_surface(near, z0 + at, width)
+        circle = fit_stem_circle(near[in_slice & bark, :2], mp)
+        if circle is None:
+            continue
+        line.append((at, *circle.centre_xy))
+        if at == dbh_h:
+            dbh_fit = (circle, _outlier_share(near[in_slice, :2], circle))
+    if len(line) < params.min_circles:
+        return None
+    base_xy, lean = _stem_line(line, centre)
+    base = np.r_[base_xy, _ground_z(ground, base_xy)]
+    dbh_xy = np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy
+    top_h, crown, n_top = _top_and_crown(pts[mine], base[2])
+    return StemRecord(
+        base=base,
+        dbh_xy=dbh_xy,
+        dbh_m=2 * dbh_fit[0].radius_m if dbh_fit else float("nan"),
+        arc_deg=dbh_fit[0].arc_deg if dbh_fit else 0.0,
+        rmse_m=dbh_fit[0].rmse_m if dbh_fit else float("nan"),
+        outlier_share=dbh_fit[1] if dbh_fit else float("nan"),
+        dbh_quality=_dbh_quality(dbh_fit, params),
+        height_m=top_h,
+        height_flag=(
+            "lean"
+            if lean > params.lean_flag_deg
+            else "top not seen"
+            if n_top < params.min_top_points
+            else "ok"
+        ),
+        lean_deg=lean,
+        crown_width_m=crown,
+        n_points=int(mine.sum()),
+    )
+
+
+def _outlier_share(xy: np.ndarray, circle: StemCircle) -> float:
+    """Share of slice points near the stem (within 10 cm of the circle) off it."""
+    d = np.abs(np.linalg.norm(xy - circle.centre_xy, axis=1) - circle.radius_m)
+    near = d <= 0.1
+    return float(np.mean(d[near] > 0.02)) if near.any() else 1.0
+
+
+def _dbh_quality(fit: tuple[StemCircle, float] | None, params: StemMapParams) -> str:
+    if fit is None:
+        return "none"
+    circle, outliers = fit
+    good = (
+        circle.arc_deg >= params.ok_arc_deg
+        and circle.rmse_m <= params.ok_rmse_m
+        and outliers <= params.ok_outlier_share
+    )
+    return "ok" if good else "check"
+
+
+def _stem_line(
+    line: list[tuple[float, float, float]], centre: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """Base (x, y) at height 0 and lean (deg) from circle centres (height, x, y)."""
+    if not line:
+        return centre, 0.0
+    a = np.asarray(line)
+    if len(a) < 3 or np.ptp(a[:, 0]) < 0.5:
+        return np.asarray(a[:, 1:].mean(axis=0)), 0.0
+    A = np.column_stack([a[:, 0], np.ones(len(a))])
+    coef = np.linalg.lstsq(A, a[:, 1:], rcond=None)[0]  # rows: slope, intercept
+    lean = float(np.degrees(np.arctan(np.linalg.norm(coef[0]))))
+    return np.asarray(coef[1]), lean
+
+
+def _top_and_crown(tree: np.ndarray, base_z: float) -> tuple[float, float, int]:
+    """Height of the highest non-isolated point, crown width, points in the top metre."""
+    if len(tree) < 3:
+        return float("nan"), float("nan"), 0
+    from amrst.measure import measure_tree
+
+    m = measure_tree(tree, replace(MeasureParams(), iterations=10))
+    top = m.base_z + m.height_m
+    n_top = int(np.sum(tree[:, 2] >= top - 1.0))
+    return top - base_z, m.crown_width_m, n_top
