@@ -83,6 +83,19 @@ def tiny_tree():
 
 
 @pytest.fixture(scope="session")
+def tiny_tree_path() -> Path:
+    """The path of tests/data/tiny_tree/tree.ply (for a script in a fresh process)."""
+    assert TINY_TREE.is_file(), f"missing test data {TINY_TREE}"
+    return TINY_TREE
+
+
+@pytest.fixture(scope="session")
+def json_script() -> Any:
+    """:func:`run_json_script`: a script in a fresh interpreter, its last JSON line."""
+    return run_json_script
+
+
+@pytest.fixture(scope="session")
 def sample_run(sample_pair: SamplePair) -> SampleRun:
     """amrst.register on the sample pair with default parameters, run once."""
     import amrst

@@ -15,7 +15,6 @@ import pytest
 
 from amrst.campaign import Campaign, TreeEntry, init_campaign, run_batch
 from amrst.campaign.plan import longest_first, scan_threads, time_left, tree_cost
-from tests.conftest import run_json_script
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -135,12 +134,14 @@ print(json.dumps({"ok": row["ok"], "new": sorted(set(sys.modules) - before)}))
 
 
 @pytest.mark.slow
-def test_after_warm_worker_a_tree_imports_nothing_heavy(tmp_path, tiny_tree) -> None:
+def test_after_warm_worker_a_tree_imports_nothing_heavy(
+    tmp_path, tiny_tree, json_script
+) -> None:
     from amrst.multiscan.simulate import simulate_scans, write_scans
 
     write_scans(simulate_scans(tiny_tree, 2, seed=0, res_deg=0.2), tmp_path / "T01")
     init_campaign(tmp_path)
-    doc = run_json_script(WARM_CHECK, str(tmp_path))
+    doc = json_script(WARM_CHECK, str(tmp_path))
     assert doc["ok"]
     heavy = ("amrst", "scipy", "small_gicp", "kiss_matcher", "numpy", "threadpoolctl")
     late = [m for m in doc["new"] if m.split(".")[0] in heavy]

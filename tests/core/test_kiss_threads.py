@@ -43,12 +43,12 @@ print(json.dumps({
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="Linux /proc")
-def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
+def test_kiss_matcher_starts_no_thread_and_repeats_its_pose(
+    json_script, tiny_tree_path
+) -> None:
     pytest.importorskip("kiss_matcher")
-    from tests.conftest import TINY_TREE, run_json_script
-
     env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
-    doc = run_json_script(SCRIPT, str(TINY_TREE), env=env, timeout=120)
+    doc = json_script(SCRIPT, str(tiny_tree_path), env=env, timeout=120)
     assert doc["tbb_limit"] == 1
     # Only inside the block: other KISS-Matcher calls (the bench's peer) keep theirs.
     assert doc["tbb_after"] == doc["tbb_default"]
@@ -59,7 +59,7 @@ def test_kiss_matcher_starts_no_thread_and_repeats_its_pose() -> None:
 
 
 def test_the_benchmark_baseline_runs_kiss_matcher_on_its_own_threads(
-    monkeypatch,
+    monkeypatch, tiny_tree_path
 ) -> None:
     """The peer is timed as shipped: our one-thread limit must not reach it."""
     pytest.importorskip("kiss_matcher")
@@ -69,7 +69,6 @@ def test_the_benchmark_baseline_runs_kiss_matcher_on_its_own_threads(
     from amrst.baselines.kiss_matcher import KissParams, _global
     from amrst.stages import kiss_threads
     from amrst.stages.global_match import kiss_global
-    from tests.conftest import TINY_TREE
 
     entered = []
 
@@ -79,7 +78,7 @@ def test_the_benchmark_baseline_runs_kiss_matcher_on_its_own_threads(
         yield
 
     monkeypatch.setattr(kiss_threads, "kiss_one_thread", recording)
-    xyz = io.read(TINY_TREE).xyz
+    xyz = io.read(tiny_tree_path).xyz
     _global(xyz, xyz[::2] + 0.5, KissParams())
     assert entered == []
     kiss_global(xyz, xyz[::2] + 0.5, 0.1)  # our pipeline's call
