@@ -97,12 +97,12 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     target, source = io.read(args.target), io.read(args.source)
     t_read = time.perf_counter() - t_start
-    stems = (args.stem, args.source_stem)  # --stem / --source-stem (issue 12)
+    stems = (args.stem, args.source_stem)  # --stem / --source-stem
     result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
     from amrst.review.verdict import FAILED, REGISTERED, judge_result
 
     verdict = judge_result(result, params)
-    # One layout for the CLI, the app and the benchmark (amrst.results.documents, issue 11).
+    # One layout for the CLI, the app and the benchmark (amrst.results.documents).
     documents = result_documents(
         record_from_registration(
             result,
@@ -126,7 +126,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         remove_stale=True,
         documents=documents,
     )
-    if args.report:  # issue 13: the registration report, pictures drawn with Agg
+    if args.report:  # the registration report, pictures drawn with Agg
         from amrst.results.report_html import inputs_from_result, write_report
 
         report = inputs_from_result(
@@ -167,7 +167,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    # issue 13: one verdict, the same words as the app (amrst.review.verdict).
+    # One verdict, the same words as the app (amrst.review.verdict).
     if verdict.status == FAILED:
         print(
             f"Registration failed: {verdict.reason} The files above are marked "
@@ -185,7 +185,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
     from amrst import bench, clip
-    from amrst.bench import scale  # issue 15: dense pairs, per-stage time, memory
+    from amrst.bench import scale  # dense pairs, per-stage time, memory
     from amrst.simulate import cli as simulate_cli
 
     p = argparse.ArgumentParser(
@@ -348,7 +348,7 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help()
         return 0
     # Library noise (numpy RuntimeWarnings, laspy's) never reaches the user: every
-    # problem worth telling is an AmrstError or a logged line (issue 16). --debug
+    # problem worth telling is an AmrstError or a logged line. --debug
     # shows the warnings as log lines.
     with warnings.catch_warnings():
         if args.debug:

@@ -4,7 +4,7 @@ A path argument can name a FIFO (reading blocks forever), a device such as /dev/
 (reading never ends), a socket, a symbolic-link loop, a folder, a file behind a folder
 the user may not enter, or a huge file. Each gets its own one-line message before
 anything is read, and the file is opened without blocking and checked again on the open
-descriptor, so it cannot change between the check and the read (issue 16).
+descriptor, so it cannot change between the check and the read.
 """
 
 from __future__ import annotations

@@ -159,7 +159,7 @@ def check_case_folder(out_dir: PathLike) -> Path:
     InvalidInput
         With what to change.
     """
-    from amrst.files.outcheck import check_output_folder  # issue 16: permissions, loops
+    from amrst.files.outcheck import check_output_folder  # permissions, loops
 
     return check_output_folder(out_dir, "case folder")
 

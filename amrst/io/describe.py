@@ -41,8 +41,8 @@ def describe(
         ``{"dtype", "shape", "min", "max"}``) and ``format`` (JSON-friendly meta).
     """
     n = len(cloud)
-    # Column by column: min(axis=0) of an (N, 3) array is 15x slower (10M points:
-    # 0.7 s against 0.05 s), and the app describes every scan it opens.
+    # Column by column: numpy reduces a C-ordered (N, 3) array across rows much
+    # slower than each strided column, and the app describes every scan it opens.
     xyz = cloud.xyz
     lo = (
         np.array([xyz[:, k].min() for k in range(3)]) + cloud.offset

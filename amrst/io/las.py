@@ -82,9 +82,8 @@ def all_standard_names() -> frozenset[str]:
 
 
 # Points decoded per step of a read, so a Cancel (the reporter's check point between
-# steps) stops a read within a second. lazrs holds the GIL while it decodes a step:
-# 500,000 points held it 0.15 s (the app's window froze that long per step); 100,000
-# hold it under 0.05 s, for the same reading time (2M-point LAZ, issue 15).
+# steps) stops a read promptly; lazrs holds the GIL while it decodes a step, so a
+# small step also keeps the app's window responsive.
 CHUNK_POINTS = 100_000
 
 

@@ -111,7 +111,12 @@ _MIN_SLENDERNESS = 15.0
 
 @dataclass(frozen=True, slots=True)
 class TreeMeasures:
-    """What a forester reads off one (merged) tree cloud."""
+    """What a forester reads off one (merged) tree cloud.
+
+    ``n_points`` is the size of the tree cloud; ``n_points_measured`` the points the
+    figures came from (a bounded sample of a big cloud, see :mod:`amrst.sampling`),
+    None in documents written before it was recorded.
+    """
 
     n_points: int
     base_z: float  # world z of the base (m)
@@ -121,11 +126,13 @@ class TreeMeasures:
     crown_area_m2: float
     crown_width_m: float
     note: str  # why DBH is missing, or ""
+    n_points_measured: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Return plain numbers for JSON/CSV (stem fields flattened, NaN kept)."""
         out: dict[str, Any] = {
             "n_points": self.n_points,
+            "n_points_measured": self.n_points_measured,
             "height_m": self.height_m,
             "dbh_m": self.dbh_m,
             "crown_area_m2": self.crown_area_m2,
@@ -165,7 +172,7 @@ def _kept(xyz: np.ndarray, weight: np.ndarray, candidates: np.ndarray) -> np.nda
     """Of the candidate rows, the ones with neighbours (not isolated strays).
 
     ``xyz`` holds distinct points; ``weight`` how many input points each stands for,
-    so a point repeated many times still counts as its copies (issue 16).
+    so a point repeated many times still counts as its copies.
     """
     from scipy.spatial import cKDTree
 
@@ -201,7 +208,7 @@ def distinct_points(
 ) -> tuple[np.ndarray, np.ndarray]:
     """One point per ``cell_m`` cube that holds any, and how many each stands for.
 
-    TLS exports keep no-return points as copies of one position (issue 16: a million
+    TLS exports keep no-return points as copies of one position (a million
     at the origin); neighbour searches among copies cost the square of their number.
     Points closer than ``cell_m`` carry no shape the measurements can see.
 
@@ -238,9 +245,9 @@ def _crown(xy: np.ndarray) -> tuple[float, float]:
     low = cells.min(axis=0) if len(cells) else np.zeros(2, np.int64)
     cells -= low
     if len(cells) and cells.max() < 1 << 31:
-        # One int64 key per cell, in the same (x, y) order as unique(axis=0):
-        # 10x faster, and the sort lets other threads run (unique(axis=0) sorts
-        # a structured view holding the GIL: 0.4 s on 400k points froze the app).
+        # One int64 key per cell, in the same (x, y) order as unique(axis=0): a
+        # plain sort, which releases the GIL (unique(axis=0) sorts a structured
+        # view holding it, which stalls the app's window).
         keys = np.unique((cells[:, 0] << 32) | cells[:, 1])
         cells = np.stack([keys >> 32, keys & 0xFFFFFFFF], axis=1)
     else:
@@ -263,14 +270,18 @@ def measure_tree(
     xyz: np.ndarray,
     params: MeasureParams | None = None,
     reporter: Reporter = NULL_REPORTER,
+    n_points: int | None = None,
 ) -> TreeMeasures:
     """Measure one tree cloud.
 
     Parameters
     ----------
     xyz : (N, 3) float64
-        World (or any common-frame) coordinates of one tree, z up (m).
+        World (or any common-frame) coordinates of one tree, z up (m), or a sample
+        of them.
     params : MeasureParams, optional
+    n_points : int, optional
+        Size of the tree cloud ``xyz`` was sampled from; ``len(xyz)`` when None.
 
     Returns
     -------
@@ -278,13 +289,16 @@ def measure_tree(
     """
     params = params or MeasureParams()
     xyz = np.asarray(xyz, dtype=np.float64)
+    size = len(xyz) if n_points is None else n_points
     xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
-    if len(xyz) < 3:
+    n_measured = len(xyz)
+    if n_measured < 3:
         nan = float("nan")
-        return TreeMeasures(len(xyz), nan, nan, nan, None, nan, nan, "too few points")
-    n_points = len(xyz)
-    xyz, weight = distinct_points(xyz)  # linear in the copies (issue 16)
-    reporter.check_cancelled()  # between the parts: Cancel in the app (issue 15)
+        return TreeMeasures(
+            size, nan, nan, nan, None, nan, nan, "too few points", n_measured
+        )
+    xyz, weight = distinct_points(xyz)  # linear in the copies
+    reporter.check_cancelled()
     base, top = _base_and_top(xyz, weight)
     reporter.check_cancelled()
     z = xyz[:, 2]
@@ -317,7 +331,8 @@ def measure_tree(
     reporter.check_cancelled()
     area, width = _crown(xyz[:, :2])
     return TreeMeasures(
-        n_points=n_points,
+        n_points=size,
+        n_points_measured=n_measured,
         base_z=base,
         height_m=height,
         dbh_m=2 * stem.radius_m if stem is not None else float("nan"),
@@ -334,16 +349,20 @@ def measure_registration(
     T_target_source: Transform,
     params: MeasureParams | None = None,
     reporter: Reporter = NULL_REPORTER,
+    sizes: tuple[int, int] | None = None,
 ) -> dict[str, TreeMeasures]:
     """Measure the target, the moved source and both merged, in the target frame.
 
     Parameters
     ----------
     target, source : Cloud
-        The scans as read.
+        The scans as read, or samples of them.
     T_target_source : (4, 4) float64
         World-frame transform from source to target.
     params : MeasureParams, optional
+    sizes : (int, int), optional
+        Sizes of the target and source scans the samples were drawn from, for each
+        measure's ``n_points``; the clouds' own sizes when None.
 
     Returns
     -------
@@ -355,8 +374,9 @@ def measure_registration(
     tgt = target.world_xyz
     src = source.world_xyz @ T[:3, :3].T + T[:3, 3]
     reporter.check_cancelled()
+    n_tgt, n_src = (len(target), len(source)) if sizes is None else sizes
     return {
-        "target": measure_tree(tgt, params, reporter),
-        "source": measure_tree(src, params, reporter),
-        "merged": measure_tree(np.vstack([tgt, src]), params, reporter),
+        "target": measure_tree(tgt, params, reporter, n_tgt),
+        "source": measure_tree(src, params, reporter, n_src),
+        "merged": measure_tree(np.vstack([tgt, src]), params, reporter, n_tgt + n_src),
     }

@@ -1,9 +1,8 @@
 """The result documents: transform.json, metrics.json and metrics.csv, built in one place.
 
-Issue 11: the CLI and the app wrote the same files with different keys
-(``coarse_candidate`` vs ``coarse_match_rank``, a ``truth`` section vs inline
-``truth_*`` keys). Both now fill a :class:`ResultRecord` and call
-:func:`result_documents`; the export writes what it returns. The documents carry
+The CLI and the app both fill a :class:`ResultRecord` and call
+:func:`result_documents`, so they write the same keys; the export writes what it
+returns. The documents carry
 ``schema_version`` (2); :func:`upgrade_result` reads the files written before (no
 ``schema_version``, by the CLI or by the app) into the current layout.
 """
@@ -90,7 +89,7 @@ def _candidate(coarse: CoarseResult | None) -> dict[str, Any] | None:
         "rank": int(c.rank),
         "id": int(c.id),
         "origin": str(c.origin),
-        # Every source that proposed this pose (issue 12: one candidate names both).
+        # Every source that proposed this pose (one candidate may name both).
         "found_by": [str(o) for o in c.origins],
         "explanation": str(c.explanation),
         "verification_score": float(c.score),

@@ -231,9 +231,7 @@ def export_registration(
             writers[f"merged.{cloud_format}"] = lambda p: amrst_io.write(
                 p, merge_clouds(target, moved)
             )
-    if (
-        documents is not None
-    ):  # the one result layout (amrst.results.documents, issue 11)
+    if documents is not None:  # the one result layout (amrst.results.documents)
         doc, mdoc = documents.transform, documents.metrics
         text, table = documents.transform_txt, documents.metrics_csv
     else:

@@ -7,7 +7,7 @@ table of metrics with their meaning). No Qt.
 from __future__ import annotations
 
 # (key, name, kind, tooltip: what it is and what a good value looks like). One
-# format per kind everywhere (issue 13): distances in cm, fractions in %.
+# format per kind everywhere: distances in cm, fractions in %.
 METRIC_ROWS: tuple[tuple[str, str, str, str], ...] = (
     (
         "rmse_overlap_m",

@@ -1,4 +1,4 @@
-"""The registration report (issue 13): one self-contained HTML file a browser opens alone.
+"""The registration report: one self-contained HTML file a browser opens alone.
 
 Everything a technician signs off by, in one page: the inputs, the verdict and why,
 the chosen candidate and its alternatives, the metrics with their meaning, the
