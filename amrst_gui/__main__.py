@@ -132,7 +132,7 @@ class _Screenshot:
         self.app.exit(0)
 
     def _on_failed(self, message: str) -> None:
-        # A failed verdict is worth a picture too (issue 13): save, then quit.
+        # A failed verdict is worth a picture too: save, then quit.
         print(f"amrst-gui: {message}", file=sys.stderr)
         self.ran = True
 

@@ -121,7 +121,7 @@ class WorkflowActions(QObject):
             )
             setattr(self, attr, action)
             self.step_actions[step] = action
-        self.find_matches = self.match  # the name STYLE.md's sketch uses
+        self.find_matches = self.match  # the name of the step's engine function
         self.run_all = self._make(
             "Run &all",
             "Ctrl+R",

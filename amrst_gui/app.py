@@ -43,7 +43,7 @@ def configure_qt() -> None:
     """Settings that only work before the QApplication exists.
 
     Without shared GL contexts a dock holding a QtInteractor froze after being
-    floated and docked again (shared/notes/headless-gui-testing.md).
+    floated and docked again.
     """
     os.environ.setdefault("QT_API", "pyside6")
     QCoreApplication.setAttribute(Qt.ApplicationAttribute.AA_ShareOpenGLContexts)

@@ -39,7 +39,7 @@ from amrst_gui.views.scan_pane import ScansArea
 log = logging.getLogger("amrst_gui.main_window")
 
 MAX_RECENT = 10
-LAYOUT_VERSION = 2  # 2: the Manual pose dock, full-height side docks (issue 13)
+LAYOUT_VERSION = 2  # 2: the Manual pose dock, full-height side docks
 
 
 class MainWindow(QMainWindow):
@@ -263,7 +263,7 @@ class MainWindow(QMainWindow):
         verdict = self.session.verdict
         override = False
         if verdict is not None and not verdict.ok:
-            # issue 13: a result that is not "registered" leaves only on purpose.
+            # A result that is not "registered" leaves only on purpose.
             if not dialogs.confirm_override(self, verdict):
                 self.status.show_message("Export cancelled: " + verdict.text())
                 return
@@ -274,8 +274,7 @@ class MainWindow(QMainWindow):
 
     def _show_overlay(self, *_args) -> None:
         # On the next turn of the event loop: the overlay's first frame is a stall
-        # of its own (30-45 ms with software OpenGL), not added to the panels'
-        # work on the same result (issue 15).
+        # of its own, not added to the panels' work on the same result.
         QTimer.singleShot(DRAW_GAP_MS, self, self._show_overlay_now)
 
     def _show_overlay_now(self) -> None:
@@ -363,7 +362,7 @@ class MainWindow(QMainWindow):
             QTimer.singleShot(0, self.tabs, self._warm_up_views)
 
     def _warm_up_views(self) -> None:
-        """Set OpenGL up in the other tabs' views before any scan (issue 15)."""
+        """Set OpenGL up in the other tabs' views before any scan (gl_warmup)."""
         if self.isVisible() and not self._closed:
             warm_up_tabs(self.tabs, self.views())
 

@@ -230,7 +230,7 @@ class ResultsMixin(ReviewMixin):
         target, source = self.cloud("target"), self.cloud("source")
         assert target is not None  # a result needs both scans
         assert source is not None
-        # The one result layout of the CLI, the app and the benchmark (issue 11).
+        # The one result layout of the CLI, the app and the benchmark.
         record = ResultRecord(
             # The engine works between local frames; the files hold world transforms.
             T_target_source=self.world(T_final),
@@ -290,7 +290,7 @@ class ResultsMixin(ReviewMixin):
         if verdict is not None:
             extra["verdict"] = verdict.as_dict()
         if self._override is not None:
-            # issue 13: a result that is not "registered" leaves only on purpose.
+            # A result that is not "registered" leaves only on purpose.
             extra["override"] = dict(self._override)
         if coarse.candidate is not None and coarse.candidate.origin == "manual":
             extra["manual_pose"] = {

@@ -1,7 +1,7 @@
 """The review of one target/source link: rejections, manual poses, the verdict.
 
 Review decisions are data kept by pose, not by candidate id, so they survive every
-re-run, preset and parameter change (issue 13): a rejected pose stays rejected when
+re-run, preset and parameter change: a rejected pose stays rejected when
 matching finds it again under a new id; a manual pose stays in the list and is scored
 again with the new settings. A mixin of :class:`~amrst_gui.session.Session`; no Qt.
 """

@@ -81,7 +81,7 @@ class RunnerMixin:
             self._fail("Open a target and a source scan first (File > Open).")
             return
         chain = self.plan(step)
-        # Run all stops before it accepts an unverified candidate (issue 13); an
+        # Run all stops before it accepts an unverified candidate; an
         # explicit Accept coarse or Fine is the technician's own decision.
         self._stop_unverified = auto
         if self._replaces_result(chain[0]) and not self.may_discard(
@@ -151,7 +151,7 @@ class RunnerMixin:
         log.info("%s: started%s", self._label(step), self._params_text(step))
         # Parameters may change while the job runs: remember the ones it got.
         self._job_params = self._params
-        if step in ENGINE_STEPS:  # their GIL would stall the window (issue 15)
+        if step in ENGINE_STEPS:  # their GIL would stall the window
             fn = engine_process.in_engine(fn, step not in steps.UNSTOPPABLE)
         self._job = workers.run_stage(
             fn,

@@ -2,7 +2,7 @@
 
 State is exposed through read-only properties holding frozen engine results;
 each change goes through a method that validates it, stores it and emits one
-signal (STYLE.md section 4). Work runs through ``workers.run_stage``; results
+signal. Work runs through ``workers.run_stage``; results
 are applied here, on the GUI thread. This module imports no widgets.
 """
 

@@ -36,7 +36,7 @@ class ScanState:
 
 @dataclass(slots=True)
 class LinkReview:
-    """The review of one link, kept by pose so it survives every re-run (issue 13).
+    """The review of one link, kept by pose so it survives every re-run.
 
     Attributes
     ----------

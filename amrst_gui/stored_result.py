@@ -174,7 +174,7 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         )
         source = self.cloud("source")
         # On the GUI thread: the centre (for "same solution" tests) from every n-th
-        # point, at most about 100,000; a 10M-point mean(axis=0) takes 0.1-0.7 s.
+        # point, at most about 100,000, so that a big scan does not stall it.
         centre = (
             source.xyz[:: max(1, len(source.xyz) // 100_000)].mean(axis=0)
             if source is not None

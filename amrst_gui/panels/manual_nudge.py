@@ -104,7 +104,7 @@ class NudgeMixin:
         cloud = self.session.cloud("source")
         if cloud is None or not len(cloud):
             return np.zeros(3)
-        # Once per source scan: 5 ms on a 2M-point scan, at every new match list.
+        # Once per source scan, not at every new match list.
         cached = self._stem_cache
         if cached is None or cached[0] is not cloud:
             xyz = cloud.xyz[:: max(1, len(cloud) // 20000)]
@@ -131,8 +131,8 @@ class NudgeMixin:
             self.score_label.setText("Nothing to nudge yet: pick pairs or match.")
             return
         # Hidden behind another dock tab: scored when shown. The score builds a
-        # KD-tree of the target on the GUI thread (10-60 ms) with every new
-        # match list, a stall during Run all that nobody looked at (issue 15).
+        # KD-tree of the target on the GUI thread with every new match list, a
+        # stall during Run all that nobody would look at.
         self._score_stale = not self.isVisible()
         if self._score_stale:
             self.score_label.setText("Score of this pose: shown with this tab.")

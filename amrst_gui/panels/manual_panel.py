@@ -1,4 +1,4 @@
-"""ManualPanel: recover the pose by hand when matching fails (issue 13).
+"""ManualPanel: recover the pose by hand when matching fails.
 
 Point pairs picked in the two scan views (each click snaps to the nearest point), a
 nudge (turn about the vertical, shift) with a live verification score, or a typed or

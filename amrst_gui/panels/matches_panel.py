@@ -66,8 +66,8 @@ class CandidateModel(QAbstractTableModel):
         self.rows: tuple = ()
         # Per row: its cells' texts and its status, made once per reload or review.
         # Qt asks data() for every role of every cell at each repaint and column
-        # fit (5,800 calls in a Run all), and the status asks the session for the
-        # coarse choice: 40 ms of GUI-thread work when a match list arrived.
+        # fit, and the status asks the session for the coarse choice: computed
+        # each time, that was GUI-thread work at every new match list.
         self._cells: dict[int, tuple[tuple[str, ...], str]] = {}
 
     def reload(self) -> None:
@@ -178,10 +178,9 @@ class MatchesPanel(QWidget):
             QHeaderView.ResizeMode.ResizeToContents
         )
         # Fit the columns to the first rows only: measuring every row (Qt's default:
-        # 1000) called the model's data() thousands of times on the GUI thread while
-        # a step ran in a worker, each call waiting for the GIL (issue 15). 40 rows
-        # still cost 1,400 calls and 14 ms at every new match list; the best-ranked
-        # rows' texts are as wide as the others' (the same formats).
+        # 1000) calls the model's data() thousands of times on the GUI thread at
+        # every new match list; the best-ranked rows' texts are as wide as the
+        # others' (the same formats).
         self.table.horizontalHeader().setResizeContentsPrecision(12)
         self.table.horizontalHeader().setStretchLastSection(True)
         self.table.selectionModel().currentRowChanged.connect(

@@ -1,7 +1,7 @@
 """ParamsPanel: every stage's parameters, built from the dataclass fields.
 
 The form edits a draft; Apply makes a new frozen RegistrationParams with
-``dataclasses.replace`` and emits it (STYLE.md section 4, magicgui's lesson).
+``dataclasses.replace`` and emits it (as magicgui does).
 """
 
 from __future__ import annotations

@@ -94,9 +94,9 @@ class WorkflowStatusBar(QStatusBar):
 
     def _set_progress(self, value: int) -> None:
         # QProgressBar.setValue repaints at once, and with the 3D views in the
-        # window every repaint composes the whole window (software OpenGL: tens of
-        # ms); many reports per second froze the window (issue 15). So the value
-        # changes with updates off, and the bar is painted with the next frame.
+        # window every repaint composes the whole window; many reports per second
+        # would freeze it. So the value changes with updates off, and the bar is
+        # painted with the next frame.
         self.progress.setUpdatesEnabled(False)
         self.progress.setValue(value)
         self.progress.setUpdatesEnabled(True)

@@ -1,8 +1,7 @@
 """A row of controls that wraps onto a second line instead of widening the window.
 
-Issue 13: the window must fit 1366x768. The rows first scrolled sideways, which at
-1366x768 hid the overlay's Top / Front / Side buttons behind a scroll bar; now a row
-that does not fit its width goes on over more lines, every control in sight.
+The window must fit 1366x768: a row that does not fit its width goes on over more
+lines, so every control stays in sight (a scrolling row would hide some of them).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Where a view's camera looks (no Qt): the side view of a tree, and aiming at
 points. Set on the vtkCamera directly: pyvista's ``view_xz`` and
-``reset_camera`` recompute every actor's bounds and render (a second each on a
-200,000-point view with software OpenGL; issue 15)."""
+``reset_camera`` recompute every actor's bounds and render, which is slow on a
+big view."""
 
 from __future__ import annotations
 

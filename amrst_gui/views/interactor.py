@@ -1,4 +1,4 @@
-"""The QtInteractor of the scan views: one render per frame (issue 15)."""
+"""The QtInteractor of the scan views: one render per frame."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ class Interactor(QtInteractor):
 
     pyvistaqt renders in ``paintGL`` every time, also for the repaint that only
     shows a render just finished (``WindowFrameEvent``), so every frame cost two
-    renders: 0.2-1 s each for 200,000 points with software OpenGL. Here that
+    renders. Here that
     repaint only copies the finished frame to the widget, as VTK's own C++ widget
     does. Other repaints (expose, resize, grab) still render: pyvistaqt renders
     there because pyvista may change a scene without rendering; ScanView renders

@@ -111,7 +111,7 @@ SCENE_COLOURS = np.array(
 def scene_layer(
     xyz: np.ndarray, labels: np.ndarray, name: str = "scene"
 ) -> PointsLayer:
-    """Points coloured by their scene label (issue 12's scene layer).
+    """Points coloured by their scene label (the scene layer).
 
     xyz (N, 3) are the preprocessed points the labels refer to
     (``ScanAnalysis.scene_pre.xyz``); labels (N,) the ``SceneResult.labels``.

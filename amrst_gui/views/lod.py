@@ -1,8 +1,7 @@
-"""Adaptive level of detail: how many points a view can draw in one frame (issue 15).
+"""Adaptive level of detail: how many points a view can draw in one frame.
 
 A frame of a point view costs about a fixed time per point, which depends on the
-machine (software OpenGL under Xvfb: 0.5-1.5 us per point, more when the cores
-are busy; a GPU: far less). A frame on the GUI thread longer than 100 ms is a
+machine (software OpenGL far more than a GPU). A frame on the GUI thread longer than 100 ms is a
 stall, so the views measure every frame they render (:class:`FrameCost`, one
 for the process: every view runs on the same machine) and draw, at rest, the
 largest level of their ladder (:func:`ladder`: the displayed points, then halves)
@@ -101,8 +100,7 @@ def pick(
         limit = min(limit, 2 * max(drawn, 1))
     else:
         # A view's first frame of a scene also uploads its point sets, caption and
-        # camera: start small even when frames were measured (a first frame of
-        # 50,000 points took 0.19 s while a 10M scan was being described).
+        # camera: start small even when frames were measured.
         limit = min(limit, START_POINTS)
     for i, n in enumerate(levels):
         if n > limit and i < len(levels) - 1:

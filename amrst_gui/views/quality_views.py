@@ -1,4 +1,4 @@
-"""Quality views (issue 13): distance histogram with its colour bar, stem slices.
+"""Quality views: distance histogram with its colour bar, stem slices.
 
 ``DistanceHistogram`` draws the distances of the overlay's distance colouring: each bar
 in the colour its points have in the 3D view, with the scale in cm under it.
@@ -311,7 +311,7 @@ class StemSlicesPane(QWidget):
         if len(target) + len(source) <= SYNC_POINTS:  # a few ms: at once
             self.view.set_slices(_slice_pair(*args), caption)
             return
-        # Big scans are sliced in a worker: the window never waits for them (issue 15).
+        # Big scans are sliced in a display job: the window never waits for them.
         from amrst_gui import workers
 
         self._job = workers.run_stage(

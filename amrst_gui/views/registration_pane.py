@@ -103,7 +103,7 @@ class RegistrationPane(QWidget):
 
     def _on_busy_changed(self, busy: bool) -> None:
         # Idle (a pair loaded, a step done) with the overlay in a hidden tab: its
-        # points are drawn once off screen while nothing runs (issue 15).
+        # points are drawn once off screen while nothing runs.
         if not busy:
             self._calm_tries = 0
             self._calm.start(300)

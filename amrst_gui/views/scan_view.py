@@ -167,8 +167,8 @@ class ScanView(QWidget):
     def prerender(self) -> None:
         """Draw a hidden view's points once, off screen (its pane calls this
         while no step runs): the first frame of point sets a view never drew
-        costs 35-45 ms more than the next ones with software OpenGL, and the
-        overlay's came with Accept coarse, in one stall with its panels."""
+        costs more than the next ones, and the overlay's would come with Accept
+        coarse, in one stall with its panels."""
         if self._closed or self.isVisible() or not self._shown_once:
             return
         if not self._points.names() or self._prerendered is self._scene:
@@ -198,8 +198,7 @@ class ScanView(QWidget):
         if not np.all(np.isfinite(b)):
             return
         # Not ``plotter.camera``: the first time, pyvista fits the camera itself
-        # and renders, three renders in all (75 ms of software OpenGL on the
-        # overlay shown after Accept coarse, a GUI stall; issue 15).
+        # and renders, three renders in all.
         aspect = max(self.plotter.width(), 1) / max(self.plotter.height(), 1)
         framing.side_view(self.plotter.renderer, b, aspect, direction, up, elevation)
         self.plotter.renderer.camera_set = True  # pyvista: do not fit it again
@@ -234,8 +233,7 @@ class ScanView(QWidget):
         self._shown_once = True
         # A view coming into sight (its tab chosen; the overlay after Accept
         # coarse) starts at a low level of detail and steps up a level per frame,
-        # like a new scene: its first frame at the rest level was 30-45 ms of a
-        # stall with software OpenGL (issue 15).
+        # like a new scene: its first frame at the rest level would stall.
         if self._rest_level is not None:
             self._choose_level(True)
             self._sync_caption()

@@ -23,8 +23,8 @@ from amrst_gui.views.layers import (
 )
 
 MAX_DISPLAY_POINTS = 200_000
-# Points drawn per view while the camera moves (rotate, pan, zoom): a frame of
-# 30,000 points takes ~30 ms with software OpenGL, against ~200 ms for 200,000.
+# Points drawn per view while the camera moves (rotate, pan, zoom), at most: few
+# enough for a smooth orbit with software OpenGL.
 MOVING_POINTS = 30_000
 
 WOOD_RGB = (139, 90, 43)  # brown, as in the paper's figures
@@ -201,7 +201,7 @@ def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
     mode = options.colour
     scene = None if an is None else an.scene
     if mode == "scene" and scene is not None and an.scene_pre is not None:
-        # Issue 12's scene layer: tree, ground, other (neighbours, shrubs), cut off.
+        # The scene layer: tree, ground, other (neighbours, shrubs), cut off.
         from amrst_gui.views.layers import scene_layer
 
         sl = display_index(len(an.scene_pre.xyz), options.max_points)

@@ -1,4 +1,4 @@
-"""``truncated_texts(window)``: visible texts that do not fit their widget (issue 13).
+"""``truncated_texts(window)``: visible texts that do not fit their widget.
 
 Checks what a technician reads: labels that do not wrap, buttons, line edits, tab
 titles and the visible table headers. Elided labels (the status bar) and word-wrapped

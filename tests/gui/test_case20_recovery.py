@@ -1,4 +1,4 @@
-"""Manual recovery of case 20 (issue 13): two real scans of a palm that share little.
+"""Manual recovery of case 20: two real scans of a palm that share little.
 
 Automatic matching fails there (no candidate verifies). A technician picks six
 well-spread point pairs on points both scans hold (found here with the truth, as a

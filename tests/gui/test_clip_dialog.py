@@ -2,7 +2,7 @@
 
 Each sample scan is put in a "plot" beside a copy of itself 20 m away (a second
 tree); the dialog cuts the scan's own tree back out of each plot, loads it as
-target and source, and the pair then registers as the sample does (issue 17).
+target and source, and the pair then registers as the sample does.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The engine process when things go wrong (issue 15): an engine error, a job's
+"""The engine process when things go wrong: an engine error, a job's
 own OSError, a call it cannot read or cannot be sent, an engine killed mid-step,
 Cancel on a job that may not stop. Each arrives as it would in the app's own
 thread, with a fresh engine where the old one can no longer be trusted.

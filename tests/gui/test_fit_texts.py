@@ -1,4 +1,4 @@
-"""No header, field, button, tab or status text is cut off (issue 13), on a laptop
+"""No header, field, button, tab or status text is cut off, on a laptop
 (1366x768) and a full-HD screen, after Run all, with every dock raised; the status bar
 stays short and keeps the whole verdict in its tooltip."""
 

@@ -1,4 +1,4 @@
-"""The technician's judgement (issue 13), through the real window: the verdict,
+"""The technician's judgement, through the real window: the verdict,
 Export's override, manual recovery (pairs picked in the views, nudge, typed
 transform) and a review that survives a preset change and a re-run."""
 

@@ -1,4 +1,4 @@
-"""The window fits a laptop screen (issue 13): 1366x768, Matches shows 8 rows."""
+"""The window fits a laptop screen: 1366x768, Matches shows 8 rows."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish
 
 
 def test_big_scans_are_sliced_in_a_worker(loaded_window, qtbot, finish, monkeypatch):
-    """Issue 15: the Stem slices tab sliced both full clouds on the GUI thread; above
-    SYNC_POINTS it now slices in a worker and shows the same slices when done."""
+    """Above SYNC_POINTS the Stem slices tab slices in a display job, off the GUI
+    thread, and shows the same slices as the GUI thread would when done."""
     from amrst_gui.views import quality_views
 
     win = loaded_window

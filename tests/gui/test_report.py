@@ -1,4 +1,4 @@
-"""The registration report (issue 13 item 5), through the real window: Export writes
+"""The registration report, through the real window: Export writes
 report.html with the verdict and the pictures embedded; View report opens it."""
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ def test_scene_layer_colours_by_label() -> None:
 
 
 def test_the_scan_views_colour_a_field_pair_by_scene(make_main_window, qtbot) -> None:
-    """Issue 12: after Separate, "Scene" colours ground, tree and neighbours apart."""
+    """After Separate, "Scene" colours ground, tree and neighbours apart."""
     from pathlib import Path
 
     from tests.gui._run import run_until_idle

@@ -1,4 +1,4 @@
-"""The app reads the engine's step table (issue 11): every step has its code in
+"""The app reads the engine's step table: every step has its code in
 ``amrst_gui/step_jobs.py``, an action, a label; scans are keyed by id, reviews by link."""
 
 from __future__ import annotations
