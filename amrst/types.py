@@ -143,7 +143,7 @@ def _check_coordinates(xyz: np.ndarray) -> None:
         return
     for d in range(3):
         lo, hi = float(xyz[:, d].min()), float(xyz[:, d].max())
-        if not (-MAX_COORD_M <= lo and hi <= MAX_COORD_M):  # False for NaN too
+        if not (lo >= -MAX_COORD_M and hi <= MAX_COORD_M):  # False for NaN too
             worst = (
                 "NaN/inf"
                 if not np.isfinite([lo, hi]).all()

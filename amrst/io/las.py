@@ -235,9 +235,26 @@ def check_header(path: Path) -> FixedHeader:
             f"{path} is not a LAS/LAZ file (it does not start with 'LASF'). "
             "Export it again as LAS/LAZ, or give it its real extension."
         )
-    header_size, point_start, n_vlrs = struct.unpack_from("<HII", head, 94)
+    _check_layout(path, head, size)
     values = np.array(struct.unpack_from("<12d", head, 131))
     scales, offsets = values[0:3], values[3:6]
+    _check_scales(path, scales, offsets)
+    laz = None
+    if head[104] & 0xC0 == 0x80:  # LAZ: bit 7 of the point format id
+        laz = laz_info(path, head)
+        legacy = head[25] < 4 or len(head) < 255  # LAS 1.4 counts points in 64 bits
+        (n_points,) = struct.unpack_from(
+            "<I" if legacy else "<Q", head, 107 if legacy else 247
+        )
+        if laz is not None:
+            check_laz_vlr(path, laz, struct.unpack_from("<H", head, 105)[0], n_points)
+            check_laz_count(path, n_points, laz)
+    return FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
+
+
+def _check_layout(path: Path, head: bytes, size: int) -> None:
+    """Refuse a header whose header size, records and point start do not fit the file."""
+    header_size, point_start, n_vlrs = struct.unpack_from("<HII", head, 94)
     corrupt = f"{path}: corrupt LAS header:"
     if not _HEADER_MIN <= header_size <= size:
         raise InvalidInput(
@@ -265,6 +282,11 @@ def check_header(path: Path) -> FixedHeader:
                 f"records from byte {evlr_start:,} that cannot fit in the file "
                 f"({size:,} bytes). Export the file again."
             )
+
+
+def _check_scales(path: Path, scales: np.ndarray, offsets: np.ndarray) -> None:
+    """Refuse scale factors that are not positive and offsets that are not finite."""
+    corrupt = f"{path}: corrupt LAS header:"
     for axis, scale, offset in zip("xyz", scales, offsets, strict=True):
         if not (math.isfinite(scale) and scale > 0):
             consequence = (
@@ -280,17 +302,6 @@ def check_header(path: Path) -> FixedHeader:
                 f"{corrupt} the header offset is {offset:g} for {axis}; it must be "
                 "a finite number. Export the file again."
             )
-    laz = None
-    if head[104] & 0xC0 == 0x80:  # LAZ: bit 7 of the point format id
-        laz = laz_info(path, head)
-        legacy = head[25] < 4 or len(head) < 255  # LAS 1.4 counts points in 64 bits
-        (n_points,) = struct.unpack_from(
-            "<I" if legacy else "<Q", head, 107 if legacy else 247
-        )
-        if laz is not None:
-            check_laz_vlr(path, laz, struct.unpack_from("<H", head, 105)[0], n_points)
-            check_laz_count(path, n_points, laz)
-    return FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
 
 
 def _check_bounds(
@@ -309,6 +320,17 @@ def _check_bounds(
     share = _outside_share(world, fixed.mins, fixed.maxs, fixed.scales)
     axis = int(np.argmax(share))
     if share[axis] <= 0.5:
+        if share[axis] > 0:
+            logger.warning(
+                "%s: %.1f%% of the points lie outside the bounds its header gives for "
+                "%s (%.3f to %.3f); they were read as stored. If points look out of "
+                "place, export the file again.",
+                path.name,
+                100 * share[axis],
+                "xyz"[axis],
+                fixed.mins[axis],
+                fixed.maxs[axis],
+            )
         return
     lo, hi = fixed.mins, fixed.maxs
     as_raw = _outside_share(

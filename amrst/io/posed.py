@@ -145,7 +145,7 @@ def guarded(path: Path, label: str, fn: Callable[[], Any]) -> Any:
 
 
 def library_reason(exc: Exception) -> str:
-    """The first sentence of a library's error, on one line, without its debug text.
+    """Return a library error's reason on one line, without its debug text.
 
     libE57 repeats its reason ("Got an e57 exception: ...") and appends "Debug info:"
     with source file names and line numbers, over several lines; a user needs only
