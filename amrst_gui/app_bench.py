@@ -24,6 +24,7 @@ It prints a table and, last, the same figures as one JSON line.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import os
 import sys
@@ -35,11 +36,16 @@ STEPS = ("separate", "skeleton", "match", "coarse", "fine")
 
 
 class Watchdog:
-    """A 10 ms QTimer on the GUI thread; ``max_gap_s`` is its longest silence."""
+    """A 10 ms QTimer on the GUI thread; ``max_gap_s`` is its longest silence.
 
-    def __init__(self) -> None:
+    With ``trace_s``, every thread's stack goes to stderr whenever the GUI thread
+    has not ticked for that long (``faulthandler``), to find what stalls it.
+    """
+
+    def __init__(self, trace_s: float | None = None) -> None:
         from PySide6.QtCore import QTimer
 
+        self.trace_s = trace_s
         self.timer = QTimer()
         self.timer.setInterval(10)
         self.timer.timeout.connect(self._tick)
@@ -56,6 +62,9 @@ class Watchdog:
         self.max_gap_s = max(self.max_gap_s, now - self.last)
         self.over_100ms += now - self.last > 0.1
         self.last = now
+        if self.trace_s:
+            faulthandler.cancel_dump_traceback_later()
+            faulthandler.dump_traceback_later(self.trace_s)
 
 
 def _wait(app, cond, timeout_s: float) -> bool:
@@ -242,17 +251,24 @@ def main(argv: list[str] | None = None) -> int:
         help="where the generated pair is kept",
     )
     p.add_argument("--no-cancel", action="store_true", help="skip the cancel phase")
+    p.add_argument(
+        "--trace",
+        type=float,
+        metavar="S",
+        help="print every thread's stack when the GUI thread stalls S seconds",
+    )
     args = p.parse_args(argv)
     os.environ.setdefault("QT_API", "pyside6")
     pair = make_pair(args.data, args.points)
     app, win = _window()
-    dog = Watchdog()
+    dog = Watchdog(args.trace)
     out = {"points_per_scan": args.points}
     out.update(load(app, win, pair, dog))
     out.update(orbit(app, win))
     out.update(run_all(app, win, dog))
     if not args.no_cancel:
         out["cancel"] = cancel_each(app, win, dog)
+    faulthandler.cancel_dump_traceback_later()
     win.close()
     print(report(out))
     print(json.dumps(out))
