@@ -89,8 +89,19 @@ def run_cli(args: argparse.Namespace) -> int:
         130 when interrupted.
     """
     from amrst.bench.run import run_bench
-    from amrst.errors import AmrstError
+    from amrst.errors import AmrstError, InvalidInput
+    from amrst.io.cases import find_cases
 
+    try:
+        if not args.cases and not find_cases(args.cases_dir):
+            raise InvalidInput(
+                f"No case folders (with truth.json) under {args.cases_dir}: give the "
+                "folder that holds them (each with target.ply, source.ply and "
+                "truth.json), or make cases with 'amrst simulate'."
+            )
+    except AmrstError as exc:
+        print(f"amrst bench: {exc}", file=sys.stderr)
+        return 2
     command = shlex.join(["amrst", "bench", *sys.argv[2:]]) if len(sys.argv) > 1 else ""
     try:
         result = run_bench(

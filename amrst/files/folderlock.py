@@ -56,6 +56,31 @@ def holder_text(raw: bytes) -> str:
         return "a process that has not written its name yet"
 
 
+def holder_alive(lock_file: Path) -> bool:
+    """Tell whether the process a lock file names may still run.
+
+    True when the record names another process on this host that exists; False
+    for a dead process, this process, or an unreadable record. A holder on another
+    host cannot be checked from here and counts as alive.
+    """
+    try:
+        info = json.loads(lock_file.read_bytes().decode("utf-8"))
+        pid, host = int(info["pid"]), str(info["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    if host != socket.gethostname():
+        return True
+    if pid == os.getpid() or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
 def _holder_record() -> bytes:
     info = {
         "pid": os.getpid(),

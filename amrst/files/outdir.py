@@ -43,7 +43,13 @@ from typing import TYPE_CHECKING
 
 from amrst.errors import AmrstError, InvalidInput
 from amrst.files.atomic import write_json_atomic
-from amrst.files.folderlock import DEFAULT_TIMEOUT_S, LOCK_NAME, FolderLock
+from amrst.files.folderlock import (
+    DEFAULT_TIMEOUT_S,
+    LOCK_NAME,
+    FolderBusy,
+    FolderLock,
+    holder_alive,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Mapping
@@ -344,6 +350,28 @@ def recover(folder: str | os.PathLike[str]) -> None:
         ]
         for sibling in siblings:
             discard_old_set(sibling, real)
+
+
+def clear_dead_run(folder: str | os.PathLike[str]) -> None:
+    """Clear the lock and the temporary files a killed run left in ``folder``.
+
+    Only what is proved dead is touched: the lock is taken without waiting (the
+    kernel lets go of a dead holder's lock at once), and a holder recorded on this
+    host whose process still runs is left alone, for file systems without locks.
+    A live writer's folder is left as it is; the export waits for it later.
+    """
+    real = Path(os.path.realpath(folder))
+    lock_file = real / LOCK_NAME
+    if not lock_file.is_file():
+        return
+    if holder_alive(lock_file):
+        return
+    try:
+        with FolderLock(real, timeout_s=0):
+            recover(real)
+    except FolderBusy:
+        return
+    logger.info("Cleared what a stopped run left in %s.", real)
 
 
 def discard_old_set(old: Path, real: Path) -> None:

@@ -70,7 +70,12 @@ def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
     """
     root = Path(cases_dir)
     if not root.is_dir():
-        raise InvalidInput(f"{root} is not a folder of cases.")
+        what = "is not a folder" if root.exists() else "does not exist"
+        raise InvalidInput(
+            f"{root} {what}: give the folder that holds the case folders (each "
+            "with target.ply, source.ply and truth.json), or make cases with "
+            "'amrst simulate'."
+        )
     found = sorted(p.parent for p in root.glob("*/truth.json"))
     if (root / "truth.json").is_file():
         found.insert(0, root)

@@ -20,7 +20,7 @@ from amrst.errors import InvalidInput
 from amrst.files.atomic import write_json_atomic, write_text_atomic
 from amrst.files.folderlock import DEFAULT_TIMEOUT_S
 from amrst.files.outcheck import check_output_folder
-from amrst.files.outdir import replace_files
+from amrst.files.outdir import clear_dead_run, replace_files
 from amrst.params import RegistrationParams, params_to_dict
 from amrst.results.documents import CONVENTION, metrics_csv
 from amrst.types import Cloud, Transform, transform_cloud
@@ -90,12 +90,15 @@ def check_output_dir(
     """Check, before any long work, that ``out_dir`` can take the export files.
 
     See :func:`amrst.files.outcheck.check_output_folder` (nothing is left behind).
+    What a killed run left in the folder (its lock, temporary files) is cleared
+    first (:func:`amrst.files.outdir.clear_dead_run`).
 
     Raises
     ------
     InvalidInput
         With what to change.
     """
+    clear_dead_run(out_dir)
     return check_output_folder(out_dir, "export folder", names)
 
 
