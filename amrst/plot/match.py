@@ -64,7 +64,7 @@ def _tilt_fix(T: Transform, n_target: np.ndarray, n_source: np.ndarray) -> Trans
     """Turn the pose so the moved source's ground normal meets the target's."""
     moved = T[:3, :3] @ n_source
     axis = np.cross(moved, n_target)
-    s = np.linalg.norm(axis)
+    s = float(np.linalg.norm(axis))
     if s < 1e-9:
         return T
     angle = np.arcsin(min(s, 1.0))
@@ -137,7 +137,7 @@ def stem_poses(target: StemMap, source: StemMap, max_poses: int = 6) -> list[Ste
             if len(pairs) < 2 or key in tried:
                 continue
             tried.add(key)
-            poses.append(_refit(pairs, tk, sk, td, sd, nt, ns))
+            poses.append(_refit(pairs, tk, sk, td, sd, normals=(nt, ns)))
     poses.sort(key=lambda p: (-len(p.pairs), -p.dbh_agree, p.rms_m))
     out: list[StemPose] = []
     centre = sk.mean(axis=0)
@@ -158,12 +158,12 @@ def _refit(
     sk: np.ndarray,
     td: np.ndarray,
     sd: np.ndarray,
-    nt: np.ndarray,
-    ns: np.ndarray,
+    *,
+    normals: tuple[np.ndarray, np.ndarray],
 ) -> StemPose:
     """Levelled fit on every confirming stem, tilt taken out, and its figures."""
     t, s = tk[pairs[:, 0]], sk[pairs[:, 1]]
-    T = _tilt_fix(fit_levelled(t, s), nt, ns)
+    T = _tilt_fix(fit_levelled(t, s), *normals)
     T[:3, 3] += np.mean(t - (s @ T[:3, :3].T + T[:3, 3]), axis=0)
     moved = s @ T[:3, :3].T + T[:3, 3]
     rms = float(np.sqrt(np.mean(np.sum((moved[:, :2] - t[:, :2]) ** 2, axis=1))))

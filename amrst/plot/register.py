@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.multiscan.graph import Link, link_pairs, loop_closures, spanning_tree
-from amrst.multiscan.joint import JointResult, mutual_rmse, refine_jointly
+from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.plot.match import stem_poses
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
@@ -76,7 +76,7 @@ class PlotRegistration:
 
 
 def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
-    """The registration settings of a plot: no scene stage, fine on all points."""
+    """Return the registration settings of a plot: no scene stage, fine on all points."""
     from amrst.params import RegistrationParams
 
     params = params or RegistrationParams()
@@ -138,7 +138,9 @@ def register_plot_link(
     centre = np.r_[source.analysis.xyz[:, :2].mean(axis=0), 0.0]
     coarse = choose_coarse(ranked, frozenset(), centre) if cands else None
     if coarse is None or not coarse.verified:
-        return _fallback(target, source, indices, params, reporter, threads, t0)
+        return _fallback(
+            target, source, indices, params, reporter=reporter, threads=threads, t0=t0
+        )
     fine = refine(
         target.analysis,
         source.analysis,
@@ -171,11 +173,12 @@ def _fallback(
     source: PlotScan,
     indices: tuple[int, int],
     params: RegistrationParams,
+    *,
     reporter: Reporter,
     threads: int,
     t0: float,
 ) -> PlotLink:
-    """The two-scan engine on the pair (its own analyses, scene stage on)."""
+    """Register the pair with the two-scan engine (its own analyses, scene stage on)."""
     from amrst.multiscan.graph import register_link
     from amrst.params import RegistrationParams
     from amrst.pipeline import prepare_scan, skeletonise_scan
@@ -289,9 +292,10 @@ def register_plot(
             threads=threads,
         )
         poses = joint.poses
-    bundle = mutual_rmse(
-        [an.xyz for an in analyses], poses, params.metrics.overlap_dist_m
-    )
+    if joint is not None:
+        bundle = joint.rmse_after_m if joint.kept else joint.rmse_before_m
+    else:  # a pair: its link's NN-RMSE in the overlap
+        bundle = _pair_rmse(links)
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return PlotRegistration(
@@ -305,3 +309,11 @@ def register_plot(
         bundle_rmse_m=float(bundle),
         timings=timings,
     )
+
+
+def _pair_rmse(links: Sequence[PlotLink]) -> float:
+    """NN-RMSE in the overlap of the verified link of a pair (NaN when none)."""
+    for pl in links:
+        if pl.link.in_tree and pl.link.metrics is not None:
+            return float(pl.link.metrics.rmse_overlap_m)
+    return float("nan")

@@ -91,7 +91,7 @@ class StemRecord:
     @property
     def key_xyz(self) -> np.ndarray:
         """(3,) the stem's key point: breast-height centre, ground height."""
-        return np.r_[self.dbh_xy, self.base[2]]
+        return np.asarray(np.r_[self.dbh_xy, self.base[2]])
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +117,7 @@ class StemMap:
 
 
 def working_points(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
-    """The points the stem map works on: thinned to ``voxel_m``, at most ``max_points``."""
+    """Return the points the stem map works on: thinned, at most ``max_points``."""
     xyz = np.asarray(xyz, dtype=float)
     if params.voxel_m > 0 and len(xyz):
         xyz = xyz[voxel_sample(xyz, params.voxel_m)]
@@ -194,7 +194,7 @@ def _measure_stem(
     mine: np.ndarray,
     params: StemMapParams,
 ) -> StemRecord | None:
-    """Base, DBH, lean, height and flags of one stem (``seed``: its slice points).
+    """Measure one stem (``seed``: its slice points): base, DBH, lean, height, flags.
 
     None when bark circles fit at fewer than ``min_circles`` heights: a shrub or a
     hanging branch crosses the slice too, but it is no upright stem.
@@ -276,7 +276,10 @@ def _dbh_quality(fit: tuple[StemCircle, float] | None, params: StemMapParams) ->
 def _stem_line(
     line: list[tuple[float, float, float]], centre: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """Base (x, y) at height 0 and lean (deg) from circle centres (height, x, y)."""
+    """Return the base (x, y) at height 0 and the lean (deg) of circle centres.
+
+    ``line`` holds (height above the ground, x, y) of each slice's circle.
+    """
     if not line:
         return centre, 0.0
     a = np.asarray(line)

@@ -1,0 +1,184 @@
+"""The inventory of a registered plot: every tree listed once, measured on all scans.
+
+The scans are merged on the reference's frame and the stem map is made once on the
+merged plot, so a tree seen from several positions is one stem there (with more of
+its circumference, hence a better DBH). Each tree records the scans whose points
+reach its stem (``seen_from``). Trees are numbered by position (west to east, then
+south to north, on a 10 cm grid), so the same files give the same ids.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from amrst.plot.stemmap import StemRecord
+    from amrst.progress import Reporter
+    from amrst.types import Cloud, Transform
+
+#: Columns of trees.csv, in order.
+TREE_COLUMNS = (
+    "tree_id",
+    "x_m",
+    "y_m",
+    "z_m",
+    "height_m",
+    "height_flag",
+    "dbh_m",
+    "dbh_quality",
+    "dbh_arc_deg",
+    "dbh_rmse_m",
+    "dbh_outlier_share",
+    "lean_deg",
+    "crown_width_m",
+    "n_points",
+    "seen_from",
+)
+#: A scan sees a stem when this many of its points lie on it (1 cm thinned).
+SEEN_POINTS = 30
+#: Around the stem: its radius plus this (m), 0.3-2.5 m above the ground.
+SEEN_MARGIN_M = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class Tree:
+    """One tree of the plot: its stem record and where it stands in the output frame."""
+
+    tree_id: str
+    stem: StemRecord
+    xyz: np.ndarray  # (3,) stem base in the reference frame, world when offset
+    seen_from: tuple[int, ...]  # 1-based scan numbers
+
+    def row(self) -> dict[str, Any]:
+        """Return the tree's trees.csv row (numbers rounded to what they mean)."""
+        s = self.stem
+        return {
+            "tree_id": self.tree_id,
+            "x_m": round(float(self.xyz[0]), 3),
+            "y_m": round(float(self.xyz[1]), 3),
+            "z_m": round(float(self.xyz[2]), 3),
+            "height_m": _rounded(s.height_m, 2),
+            "height_flag": s.height_flag,
+            "dbh_m": _rounded(s.dbh_m, 4),
+            "dbh_quality": s.dbh_quality,
+            "dbh_arc_deg": _rounded(s.arc_deg, 0),
+            "dbh_rmse_m": _rounded(s.rmse_m, 4),
+            "dbh_outlier_share": _rounded(s.outlier_share, 2),
+            "lean_deg": _rounded(s.lean_deg, 1),
+            "crown_width_m": _rounded(s.crown_width_m, 2),
+            "n_points": s.n_points,
+            "seen_from": ";".join(str(k) for k in self.seen_from),
+        }
+
+
+def _rounded(value: float, digits: int) -> float | str:
+    return "" if not np.isfinite(value) else round(float(value), digits)
+
+
+@dataclass(frozen=True, slots=True)
+class Inventory:
+    """Every tree of the plot, and the merged stem map it was read from."""
+
+    trees: tuple[Tree, ...]
+    stem_map: StemMap
+    scan_of_point: np.ndarray  # (N,) scan index of each stem-map working point
+
+    def tree_points(self, k: int) -> np.ndarray:
+        """(M, 3) the points of tree k (reference local frame)."""
+        return np.asarray(self.stem_map.xyz[self.stem_map.owner == k])
+
+
+def merge_scans(
+    clouds: Sequence[Cloud],
+    poses: Sequence[Transform | None],
+    params: StemMapParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every reached scan's working points on the reference frame, and their scan."""
+    parts, owners = [], []
+    for k, (cloud, pose) in enumerate(zip(clouds, poses, strict=True)):
+        if pose is None:
+            continue
+        pts = working_points(cloud.xyz, params)
+        parts.append(pts @ pose[:3, :3].T + pose[:3, 3])
+        owners.append(np.full(len(pts), k, dtype=np.int64))
+    return np.vstack(parts), np.concatenate(owners)
+
+
+def take_inventory(
+    clouds: Sequence[Cloud],
+    poses: Sequence[Transform | None],
+    reference: int = 0,
+    params: StemMapParams | None = None,
+    reporter: Reporter | None = None,
+) -> Inventory:
+    """List every tree of the registered plot once.
+
+    Parameters
+    ----------
+    clouds : sequence of Cloud
+        The plot's scans as read.
+    poses : sequence of (4, 4) float64 or None
+        Scan k's local frame -> the reference's local frame (None: not placed).
+    reference : int
+        The frame of the output; its offset makes the positions world coordinates.
+    params : StemMapParams or None
+    reporter : Reporter or None
+
+    Returns
+    -------
+    Inventory
+    """
+    params = params or StemMapParams()
+    xyz, scan = merge_scans(clouds, poses, params)
+    # The merged points are thinned once more: overlapping scans double the density.
+    stem_map = map_stems(xyz, params, reporter)
+    keep = _index_of_working(xyz, stem_map.xyz)
+    scan = scan[keep]
+    offset = np.asarray(clouds[reference].offset, dtype=float)
+    order = sorted(
+        range(len(stem_map.stems)),
+        key=lambda k: tuple(np.round(stem_map.stems[k].base[:2], 1)),
+    )
+    trees = []
+    for n, k in enumerate(order, start=1):
+        stem = stem_map.stems[k]
+        trees.append(
+            Tree(f"T{n:03d}", stem, stem.base + offset, _seen_from(stem_map, scan, k))
+        )
+    renumber = np.full(len(order) + 1, -1, dtype=np.int64)
+    renumber[np.array(order, dtype=np.int64)] = np.arange(len(order))
+    owner = renumber[stem_map.owner]
+    stems = tuple(stem_map.stems[k] for k in order)
+    merged = StemMap(stems, stem_map.ground, stem_map.xyz, owner)
+    return Inventory(tuple(trees), merged, scan)
+
+
+def _index_of_working(xyz: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Row of ``xyz`` each row of ``kept`` is (kept rows are rows of xyz)."""
+    if len(kept) == len(xyz):
+        return np.arange(len(xyz))
+    from scipy.spatial import cKDTree
+
+    return np.asarray(cKDTree(xyz).query(kept)[1])
+
+
+def _seen_from(stem_map: StemMap, scan: np.ndarray, k: int) -> tuple[int, ...]:
+    """1-based scans with at least ``SEEN_POINTS`` points on stem k's lower part."""
+    stem = stem_map.stems[k]
+    xyz = stem_map.xyz
+    r = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.15) + SEEN_MARGIN_M
+    h = xyz[:, 2] - stem.base[2]
+    on = (
+        (np.hypot(xyz[:, 0] - stem.dbh_xy[0], xyz[:, 1] - stem.dbh_xy[1]) <= r)
+        & (h >= 0.3)
+        & (h <= 2.5)
+    )
+    counts = np.bincount(scan[on], minlength=int(scan.max()) + 1 if len(scan) else 0)
+    return tuple(int(s) + 1 for s in np.flatnonzero(counts >= SEEN_POINTS))
