@@ -1,6 +1,6 @@
 """Read-only views of the session's results: derived values, never stored twice.
 
-A mixin so ``session.py`` stays small; it holds no Qt code and emits nothing.
+A mixin of the Session; it holds no Qt code and emits nothing.
 """
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import dataclasses
 from typing import TYPE_CHECKING, Any
 
 from amrst_gui import jobs, steps
-from amrst_gui.review import ReviewMixin
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -19,21 +18,24 @@ if TYPE_CHECKING:
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
-    from amrst.stages.candidates import CoarseResult
+    from amrst.review.verdict import Verdict
+    from amrst.stages.candidates import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics, TruthErrors
     from amrst.types import Cloud
+    from amrst_gui.review import Review
 
 _TRUTH_SAMPLE = 20_000
 
 
-class ResultsMixin(ReviewMixin):
+class ResultsMixin:
     """Results and derived state of a :class:`~amrst_gui.session.Session`."""
 
     if TYPE_CHECKING:
         # Set by the host class, Session.__init__; declared here for mypy.
         _params: RegistrationParams
         _truth: np.ndarray | None
+        review: Review
 
         def cloud(self, role: str) -> Cloud | None: ...
         def path(self, role: str) -> Path | None: ...
@@ -42,9 +44,7 @@ class ResultsMixin(ReviewMixin):
 
     def _reset_results(self) -> None:
         self._reset_analyses()
-        self._matches: MatchResult | None = None
-        self._rejected: frozenset[int] = frozenset()
-        self._selected: int | None = None
+        self.review.reset()
         self._accepted: CoarseResult | None = None
         self._fine: FineResult | None = None
         self._fine_note = ""  # from a manual pose: what Fine's check decided
@@ -55,10 +55,8 @@ class ResultsMixin(ReviewMixin):
             k: v for k, v in getattr(self, "_timings", {}).items() if k == "load"
         }
         self._step_params: dict[str, RegistrationParams] = {}
-        self._coarse_cache: tuple | None = None
         self._exported_result: CoarseResult | FineResult | None = None
         self._override: dict[str, str] | None = None
-        self._reset_review()
 
     def _clear_after(self, step: str) -> None:
         """Drop the results built on ``step``'s (each later step clears its own)."""
@@ -66,6 +64,53 @@ class ResultsMixin(ReviewMixin):
             getattr(self, f"_clear_{name}")()  # step_jobs.py, per step
             self._step_params.pop(name, None)
             self._timings.pop(name, None)
+
+    # ---------------------------------------------------------------- review
+    @property
+    def matches(self) -> tuple[Candidate, ...]:
+        """Ranked candidates, manual poses first, then the automatic ones."""
+        return self.review.matches
+
+    @property
+    def match_result(self) -> MatchResult | None:
+        """The MatchResult with the manual candidates in front, or None."""
+        return self.review.match_result
+
+    @property
+    def manual_candidates(self) -> tuple[Candidate, ...]:
+        """The manual candidates (origin "manual"), newest first."""
+        return self.review.manual_candidates
+
+    @property
+    def manual_labels(self) -> dict[int, str]:
+        """How each manual candidate was made ("3 point pairs", "typed", ...), by id."""
+        return self.review.manual_labels
+
+    @property
+    def rejected(self) -> frozenset[int]:
+        """Ids of the candidates the user rejected."""
+        return self.review.rejected
+
+    @property
+    def selected_match(self) -> Candidate | None:
+        """The Candidate shown in the views, or None."""
+        return self.review.selected_match
+
+    @property
+    def coarse(self) -> CoarseResult | None:
+        """CoarseResult from the best candidate not rejected (None if none is left)."""
+        return self.review.coarse
+
+    @property
+    def coarse_message(self) -> str:
+        """Why the coarse solution is what it is (or why there is none)."""
+        return self.review.coarse_message
+
+    @property
+    def verdict(self) -> Verdict | None:
+        """The verdict of the current registration, or None before matching."""
+        params = self._step_params.get("match") or self._params
+        return self.review.verdict(self._accepted, self._fine, params)
 
     # ----------------------------------------------------------------- state
     @property
@@ -250,7 +295,7 @@ class ResultsMixin(ReviewMixin):
             truth=self.truth_errors(),
             tree=self.tree,
             timings_s=dict(self._timings),
-            rejected_match_ids=tuple(sorted(int(i) for i in self._rejected)),
+            rejected_match_ids=tuple(sorted(int(i) for i in self.review.rejected)),
             verdict=None if verdict is None else verdict.as_dict(),
             override=None if self._override is None else dict(self._override),
             extra={k: context[k] for k in ("manual_pose",) if k in context},
@@ -284,7 +329,7 @@ class ResultsMixin(ReviewMixin):
             if coarse.candidate is None
             else str(coarse.candidate.origin),
             "verified": bool(coarse.verified),
-            "rejected_match_ids": sorted(int(i) for i in self._rejected),
+            "rejected_match_ids": sorted(int(i) for i in self.review.rejected),
         }
         verdict = self.verdict
         if verdict is not None:
@@ -294,7 +339,7 @@ class ResultsMixin(ReviewMixin):
             extra["override"] = dict(self._override)
         if coarse.candidate is not None and coarse.candidate.origin == "manual":
             extra["manual_pose"] = {
-                "how": self._review.manual_labels.get(int(coarse.candidate.id), ""),
+                "how": self.review.manual_labels.get(int(coarse.candidate.id), ""),
                 "T_target_source_as_given": self.world(
                     coarse.candidate.T_match
                 ).tolist(),
@@ -315,7 +360,7 @@ class ResultsMixin(ReviewMixin):
             report.setdefault("coarse", {}).update(
                 confidence=float(c.confidence),
                 candidate_id=None if c.candidate is None else int(c.candidate.id),
-                rejected_ids=sorted(int(i) for i in self._rejected),
+                rejected_ids=sorted(int(i) for i in self.review.rejected),
             )
         if self._fine is not None:
             f = self._fine

@@ -3,7 +3,7 @@
 Review decisions are data kept by pose, not by candidate id, so they survive every
 re-run, preset and parameter change: a rejected pose stays rejected when
 matching finds it again under a new id; a manual pose stays in the list and is scored
-again with the new settings. A mixin of :class:`~amrst_gui.session.Session`; no Qt.
+again with the new settings. The Session owns one :class:`Review`; no Qt.
 """
 
 from __future__ import annotations
@@ -14,9 +14,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst_gui.state import LinkId, LinkReview, ScanId
+from amrst_gui.state import LinkId, LinkReview
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
     from amrst.review.verdict import Verdict
@@ -26,34 +28,48 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.session")
 
 
-class ReviewMixin:
-    """Review state of the links: rejected poses, manual candidates, accepted pose."""
+class Review:
+    """The candidates of the current link and the technician's decisions on them.
 
-    if TYPE_CHECKING:
-        _matches: MatchResult | None
-        _rejected: frozenset[int]
-        _selected: int | None
-        _accepted: CoarseResult | None
-        _fine: FineResult | None
-        _params: RegistrationParams
-        _step_params: dict[str, RegistrationParams]
-        _coarse_cache: tuple | None
-        _roles: dict[str, ScanId]
+    Holds the last Match's result (``automatic``), the rejected candidate ids
+    (``rejected``), the candidate shown (``selected``) and, per link, the review
+    kept by pose (rejected poses, manual poses, the accepted pose).
 
-        def analysis(self, role: str) -> ScanAnalysis | None: ...
+    Parameters
+    ----------
+    link : callable
+        Returns the current link, ``(target scan id, source scan id)``.
+    source_analysis : callable
+        Returns the source scan's ScanAnalysis, or None (for the centre that
+        tells poses apart when there is no match result yet).
+    """
 
-        def _fail(self, message: str) -> None: ...
+    def __init__(
+        self,
+        link: Callable[[], LinkId],
+        source_analysis: Callable[[], ScanAnalysis | None],
+    ) -> None:
+        self._link = link
+        self._source_analysis = source_analysis
+        self.reset()
 
-    def _reset_review(self) -> None:
-        """Forget every review (new scans or swapped roles: other links)."""
+    def reset(self) -> None:
+        """Forget the candidates and every link's review (new scans, swapped roles)."""
+        self.automatic: MatchResult | None = None
+        self.rejected: frozenset[int] = frozenset()
+        self.selected: int | None = None
         self._reviews: dict[LinkId, LinkReview] = {}
         self._combined: tuple[tuple, MatchResult | None] | None = None
+        self._coarse_cache: tuple | None = None
+
+    def clear_matches(self) -> None:
+        """Forget the candidates (the match step's result is out of date)."""
+        self.automatic, self.rejected, self.selected = None, frozenset(), None
 
     @property
-    def _review(self) -> LinkReview:
+    def link_review(self) -> LinkReview:
         """The review of the current link (target scan, source scan)."""
-        link = (self._roles["target"], self._roles["source"])
-        return self._reviews.setdefault(link, LinkReview())
+        return self._reviews.setdefault(self._link(), LinkReview())
 
     # ------------------------------------------------------------ candidates
     @property
@@ -65,7 +81,7 @@ class ReviewMixin:
     @property
     def match_result(self) -> MatchResult | None:
         """The MatchResult with the manual candidates in front, or None."""
-        key = (id(self._matches), self._review.manual)
+        key = (id(self.automatic), self.link_review.manual)
         if self._combined is not None and self._combined[0] == key:
             return self._combined[1]
         value = self._combine()
@@ -80,34 +96,30 @@ class ReviewMixin:
     @property
     def manual_labels(self) -> dict[int, str]:
         """How each manual candidate was made ("3 point pairs", "typed", ...), by id."""
-        return dict(self._review.manual_labels)
+        return dict(self.link_review.manual_labels)
 
     def _combine(self) -> MatchResult | None:
         from amrst.pipeline import MatchResult
         from amrst.stages.match import TetraMatches
 
-        auto = () if self._matches is None else tuple(self._matches.candidates)
-        if not self._review.manual:
-            return self._matches
+        review = self.link_review
+        auto = () if self.automatic is None else tuple(self.automatic.candidates)
+        if not review.manual:
+            return self.automatic
         ranked = [
             dataclasses.replace(c, rank=i)
-            for i, c in enumerate((*self._review.manual, *auto), start=1)
+            for i, c in enumerate((*review.manual, *auto), start=1)
         ]
-        if self._matches is not None:
-            return dataclasses.replace(self._matches, candidates=tuple(ranked))
-        source = self.analysis("source")
+        if self.automatic is not None:
+            return dataclasses.replace(self.automatic, candidates=tuple(ranked))
+        source = self._source_analysis()
         centre = source.xyz.mean(axis=0) if source is not None else np.zeros(3)
         return MatchResult(TetraMatches.empty(), tuple(ranked), 0, {}, centre)
 
     @property
-    def rejected(self) -> frozenset[int]:
-        """Ids of the candidates the user rejected."""
-        return self._rejected
-
-    @property
     def selected_match(self) -> Candidate | None:
         """The Candidate shown in the views, or None."""
-        return self._candidate(self._selected)
+        return self.candidate(self.selected)
 
     @property
     def coarse(self) -> CoarseResult | None:
@@ -123,99 +135,118 @@ class ReviewMixin:
         combined = self.match_result
         if combined is None:
             return None, "No matches yet: run Match."
-        key = (id(combined), self._rejected)
+        key = (id(combined), self.rejected)
         if self._coarse_cache is None or self._coarse_cache[0] != key:
             from amrst import pipeline
             from amrst.errors import RegistrationFailed
 
             value: tuple[CoarseResult | None, str]
             try:
-                coarse = pipeline.coarse_from_matches(combined, self._rejected)
+                coarse = pipeline.coarse_from_matches(combined, self.rejected)
                 value = (coarse, str(coarse.message))
             except RegistrationFailed as exc:
                 value = (None, str(exc))
             self._coarse_cache = (key, value)
         return self._coarse_cache[1]
 
-    def _candidate_ids(self) -> set[int]:
+    def candidate_ids(self) -> set[int]:
+        """The ids of every candidate in the list."""
         return {int(c.id) for c in self.matches}
 
-    def _candidate(self, match_id: int | None) -> Candidate | None:
+    def candidate(self, match_id: int | None) -> Candidate | None:
+        """The candidate with ``match_id``, or None."""
         for c in self.matches:
             if c.id == match_id:
                 return c
         return None
 
-    def _describe_match(self, match_id: int) -> str:
-        c = self._candidate(match_id)
+    def describe(self, match_id: int) -> str:
+        """``#rank (id, score)`` of a candidate, for the log."""
+        c = self.candidate(match_id)
         return f"#{c.rank} (id {c.id}, score {c.score:.0%})" if c else str(match_id)
 
     # ---------------------------------------------------------------- review
-    def _remember_rejection(self, match_id: int) -> None:
-        c = self._candidate(match_id)
+    def reject(self, match_id: int) -> None:
+        """Reject a candidate, and its pose for every later candidate list."""
+        self.rejected = self.rejected | {match_id}
+        c = self.candidate(match_id)
         if c is not None:
-            self._review.rejected_poses = (
-                *self._review.rejected_poses,
-                c.T_target_source,
-            )
+            review = self.link_review
+            review.rejected_poses = (*review.rejected_poses, c.T_target_source)
 
-    def _forget_rejection(self, match_id: int) -> None:
+    def restore(self, match_id: int) -> None:
+        """Undo the rejection of a candidate and of its pose."""
         from amrst.stages.coarse import same_solution
 
-        c = self._candidate(match_id)
-        if c is None:
-            return
-        centre = self._centre()
-        self._review.rejected_poses = tuple(
-            T
-            for T in self._review.rejected_poses
-            if not same_solution(T, c.T_target_source, centre)
-        )
+        c = self.candidate(match_id)
+        if c is not None:
+            centre = self.centre()
+            review = self.link_review
+            review.rejected_poses = tuple(
+                T
+                for T in review.rejected_poses
+                if not same_solution(T, c.T_target_source, centre)
+            )
+        self.rejected = self.rejected - {match_id}
 
-    def _centre(self) -> np.ndarray:
+    def centre(self) -> np.ndarray:
+        """The source centre that tells two poses apart (``same_solution``)."""
         combined = self.match_result
         if combined is not None:
             return np.asarray(combined.source_centre)
-        source = self.analysis("source")
+        source = self._source_analysis()
         return source.xyz.mean(axis=0) if source is not None else np.zeros(3)
 
-    def _carry_review(self) -> frozenset[int]:
+    def set_matches(self, automatic: MatchResult, manual: tuple) -> None:
+        """A new Match result and the manual poses scored again: the rejected
+        poses carry over to the new ids, and the best candidate left is shown."""
+        self.automatic = automatic
+        self.link_review.manual = manual
+        self.rejected = self._carry()
+        left = [c for c in self.matches if c.id not in self.rejected]
+        self.selected = left[0].id if left else None
+
+    def add_manual(self, candidate: Candidate) -> None:
+        """A scored manual pose goes first in the list, shown and not rejected."""
+        review = self.link_review
+        review.manual = (candidate, *review.manual)
+        self.rejected = self.rejected - {int(candidate.id)}
+        self.selected = int(candidate.id)
+
+    def _carry(self) -> frozenset[int]:
         """Rejected ids of the new candidate list, found by pose; log what carried."""
         from amrst.stages.coarse import same_solution
 
-        centre = self._centre()
+        centre = self.centre()
+        review = self.link_review
         kept = frozenset(
             int(c.id)
             for c in self.matches
             if any(
                 same_solution(c.T_target_source, T, centre)
-                for T in self._review.rejected_poses
+                for T in review.rejected_poses
             )
         )
         notes = []
-        if self._review.rejected_poses:
+        if review.rejected_poses:
             notes.append(
                 f"{len(kept)} candidate(s) start rejected because they are pose(s) you "
-                f"rejected before ({len(self._review.rejected_poses)} rejected pose(s) kept)"
+                f"rejected before ({len(review.rejected_poses)} rejected pose(s) kept)"
                 + (
-                    f": {', '.join(self._describe_match(i) for i in sorted(kept))}"
+                    f": {', '.join(self.describe(i) for i in sorted(kept))}"
                     if kept
                     else ""
                 )
             )
-        if self._review.manual:
-            notes.append(
-                f"{len(self._review.manual)} manual pose(s) kept and scored again"
-            )
-        if self._review.accepted_pose is not None:
+        if review.manual:
+            notes.append(f"{len(review.manual)} manual pose(s) kept and scored again")
+        if review.accepted_pose is not None:
             same = next(
                 (
                     c
                     for c in self.matches
                     if c.id not in kept
-                    and same_solution(
-                        c.T_target_source, self._review.accepted_pose, centre
-                    )
+                    and same_solution(c.T_target_source, review.accepted_pose, centre)
                 ),
                 None,
             )
@@ -229,28 +260,35 @@ class ReviewMixin:
         return kept
 
     # --------------------------------------------------------------- verdict
-    @property
-    def verdict(self) -> Verdict | None:
-        """The verdict of the current registration, or None before matching."""
+    def verdict(
+        self,
+        accepted: CoarseResult | None,
+        fine: FineResult | None,
+        params: RegistrationParams,
+    ) -> Verdict | None:
+        """The verdict of the registration (``accepted`` coarse, else the coarse
+        solution of the list, then ``fine``), or None before matching.
+        ``params``: those the match step ran with."""
         from amrst.review.verdict import judge
 
         if self.match_result is None:
             return None
-        params = self._step_params.get("match") or self._params
-        coarse = self._accepted if self._accepted is not None else self.coarse
+        coarse = accepted if accepted is not None else self.coarse
         return judge(
             coarse,
             candidates=self.matches,
             no_coarse_message=self.coarse_message,
-            fine=self._fine,
+            fine=fine,
             tight_dist_m=params.coarse.tight_dist_m,
             score_dist_m=params.trunk.score_dist_m,
-            trunk_searched=self._matches is not None
-            and "trunk" in self._matches.timings,
+            trunk_searched=self.automatic is not None
+            and "trunk" in self.automatic.timings,
         )
 
-    def _next_manual_id(self) -> int:
+    def next_manual_id(self) -> int:
+        """A new id for a manual candidate of this link."""
         from amrst.review.manual import MANUAL_ID_BASE
 
-        self._review.manual_next += 1
-        return MANUAL_ID_BASE + self._review.manual_next
+        review = self.link_review
+        review.manual_next += 1
+        return MANUAL_ID_BASE + review.manual_next

@@ -17,6 +17,7 @@ import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from amrst_gui import jobs, steps, workers
+from amrst_gui.review import Review
 from amrst_gui.runner import RunnerMixin
 from amrst_gui.state import ScanId, ScanState
 from amrst_gui.stored_result import StoredResultMixin
@@ -74,6 +75,10 @@ class Session(RunnerMixin, StoredResultMixin, QObject):
         self._scans: dict[ScanId, ScanState] = {
             sid: ScanState(sid) for sid in self._roles.values()
         }
+        self.review = Review(
+            lambda: (self._roles["target"], self._roles["source"]),
+            lambda: self.analysis("source"),
+        )
         self._reset_results()
         self._truth: np.ndarray | None = None
         self._truth_path: Path | None = None
@@ -185,32 +190,30 @@ class Session(RunnerMixin, StoredResultMixin, QObject):
 
     def select_match(self, match_id: int | None) -> None:
         """Show one candidate in the views; emits ``selection_changed``."""
-        if match_id == self._selected:
+        if match_id == self.review.selected:
             return
-        if match_id is not None and match_id not in self._candidate_ids():
+        if match_id is not None and match_id not in self.review.candidate_ids():
             raise ValueError(f"no candidate with id {match_id}")
-        self._selected = match_id
+        self.review.selected = match_id
         self.selection_changed.emit(match_id)
 
     def reject_match(self, match_id: int) -> None:
         """Exclude a candidate from the coarse solution; emits ``review_changed``."""
-        if match_id in self._rejected:
+        if match_id in self.review.rejected:
             return
-        if match_id not in self._candidate_ids():
+        if match_id not in self.review.candidate_ids():
             raise ValueError(f"no candidate with id {match_id}")
-        self._rejected = self._rejected | {match_id}
-        self._remember_rejection(match_id)
-        log.info("Rejected match %s", self._describe_match(match_id))
-        self.review_changed.emit(self._rejected)
+        self.review.reject(match_id)
+        log.info("Rejected match %s", self.review.describe(match_id))
+        self.review_changed.emit(self.review.rejected)
 
     def restore_match(self, match_id: int) -> None:
         """Undo a rejection; emits ``review_changed``."""
-        if match_id not in self._rejected:
+        if match_id not in self.review.rejected:
             return
-        self._forget_rejection(match_id)
-        self._rejected = self._rejected - {match_id}
-        log.info("Restored match %s", self._describe_match(match_id))
-        self.review_changed.emit(self._rejected)
+        self.review.restore(match_id)
+        log.info("Restored match %s", self.review.describe(match_id))
+        self.review_changed.emit(self.review.rejected)
 
     def load_truth(self, path: str | Path) -> None:
         """Read ``T_target_source`` from a truth JSON.

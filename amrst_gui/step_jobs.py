@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
     from amrst.types import Cloud
-    from amrst_gui.state import LinkReview
+    from amrst_gui.review import Review
 
 log = logging.getLogger("amrst_gui.session")
 
@@ -61,7 +61,7 @@ class StepJobsMixin:
         _pending_paths: dict[str, Path]
         _exported_result: CoarseResult | FineResult | None
         _last_report: Path | None
-        _review: LinkReview
+        review: Review
         separation_finished: Any
         skeletons_finished: Any
         matches_changed: Any
@@ -74,8 +74,6 @@ class StepJobsMixin:
         def _set_busy(self, busy: bool) -> None: ...
         def _fail(self, message: str) -> None: ...
         def _clear_after(self, step: str) -> None: ...
-        def _carry_review(self) -> frozenset[int]: ...
-        def _next_manual_id(self) -> int: ...
         def _set_loaded(self, clouds: dict[str, Cloud]) -> None: ...
         def _by_role(self, what: str) -> dict[str, Any]: ...
         def _set_analyses(self, analyses: dict[str, ScanAnalysis]) -> None: ...
@@ -158,26 +156,23 @@ class StepJobsMixin:
 
     # ----------------------------------------------------------------- match
     def _start_match(self) -> None:
-        labels = self._review.manual_labels
+        labels = self.review.link_review.manual_labels
         manual = tuple(
             (c.T_match, int(c.id), labels.get(int(c.id), ""))
-            for c in self._review.manual
+            for c in self.review.link_review.manual
         )
         match = functools.partial(jobs.match_pair, manual=manual)
         self._launch("match", match, self._by_role("analysis"), self._params)
 
     def _apply_match(self, result: tuple) -> Callable[[], None]:
-        self._matches, self._review.manual = result
-        self._rejected = self._carry_review()
-        cands = [c for c in self.matches if c.id not in self._rejected]
-        self._selected = cands[0].id if cands else None
+        self.review.set_matches(*result)
         return self.matches_changed.emit
 
     def _done_match(self) -> bool:
-        return self._matches is not None
+        return self.review.automatic is not None
 
     def _clear_match(self) -> None:
-        self._matches, self._rejected, self._selected = None, frozenset(), None
+        self.review.clear_matches()
 
     def _summary_match(self) -> str:
         return f"{len(self.matches)} candidates. {self.coarse_message}"
@@ -186,15 +181,13 @@ class StepJobsMixin:
     def _start_manual(self) -> None:
         assert self._pending_manual is not None  # set by add_manual_pose
         T, how = self._pending_manual
-        cid = self._next_manual_id()
-        self._review.manual_labels[cid] = how
+        cid = self.review.next_manual_id()
+        self.review.link_review.manual_labels[cid] = how
         an = self._by_role("analysis")
         self._launch("manual", jobs.score_manual_pair, an, T, cid, how, self._params)
 
     def _apply_manual(self, result: Candidate) -> Callable[[], None]:
-        self._review.manual = (result, *self._review.manual)
-        self._rejected = self._rejected - {int(result.id)}
-        self._selected = int(result.id)
+        self.review.add_manual(result)
         log.info("Manual pose added: %s", result.explanation)
         return self.matches_changed.emit
 
@@ -225,7 +218,7 @@ class StepJobsMixin:
         self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
         accepted = self._accepted
         assert accepted is not None
-        self._review.accepted_pose = accepted.T_target_source
+        self.review.link_review.accepted_pose = accepted.T_target_source
         return lambda: self.coarse_accepted.emit(accepted)
 
     def _done_coarse(self) -> bool:
@@ -253,7 +246,7 @@ class StepJobsMixin:
             )
         # A trunk solution's full fit was made while matching: reuse it. From a
         # manual pose, Fine never silently replaces a better one.
-        refine = functools.partial(refine_keeping_manual, matches=self._matches)
+        refine = functools.partial(refine_keeping_manual, matches=self.review.automatic)
         self._launch("fine", refine, self._by_role("analysis"), accepted, self._params)
 
     def _apply_fine(self, result: tuple) -> Callable[[], None]:

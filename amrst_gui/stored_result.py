@@ -96,7 +96,9 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
 
     def _stored_stands(self) -> bool:
         """True while the candidates are the stored pose's (no Match ran since)."""
-        return self._stored is not None and self._matches is self._stored_matches
+        return (
+            self._stored is not None and self.review.automatic is self._stored_matches
+        )
 
     def plan(self, step: str) -> list[str]:
         """As for any pair, but from a stored pose Accept coarse and Fine only
@@ -180,7 +182,7 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
             if source is not None
             else np.zeros(3)
         )
-        self._matches = MatchResult(
+        self.review.automatic = MatchResult(
             TetraMatches.empty(), (candidate,), 0, {}, np.asarray(centre)
         )
         confidence = 0.0 if math.isnan(stored.confidence) else stored.confidence
@@ -207,8 +209,8 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         self._accepted, self._fine = coarse, fine
         # Already on disk: switching trees never asks to discard it.
         self._exported_result = fine
-        self._selected = STORED_ID
-        self._review.accepted_pose = T
+        self.review.selected = STORED_ID
+        self.review.link_review.accepted_pose = T
         for stage, values in (
             ("coarse", stored.metrics_coarse),
             ("fine", stored.metrics_fine),
@@ -224,7 +226,7 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
         for step in ("match", "coarse", "fine"):
             self._step_params[step] = params
         self._stored = stored
-        self._stored_matches, self._stored_fine = self._matches, fine
+        self._stored_matches, self._stored_fine = self.review.automatic, fine
         truth = None if stored.T_truth is None else np.asarray(stored.T_truth, float)
         if truth is not None:  # the tree's truth file, for this link
             self._truth, self._truth_path = truth, None

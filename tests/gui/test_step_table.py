@@ -29,7 +29,7 @@ def test_scan_ids_stay_with_their_files_and_the_review_with_its_link(
     target_id, source_id = s.scan_id("target"), s.scan_id("source")
     assert target_id != source_id
     assert s.cloud("target") is s._scans[target_id].cloud
-    s._review.manual_labels[1] = "kept for this link only"
+    s.review.link_review.manual_labels[1] = "kept for this link only"
     s.swap_scans()
     # The files keep their ids, in the other roles; the swapped link has its own
     # (empty) review.
