@@ -81,6 +81,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
         return run_register(args, params, TerminalReporter(args.quiet))
     args.source = args.source[0]
+    from amrst.guards import into_grid
     from amrst.io.truth import read_truth
 
     T_truth = read_truth(args.truth) if args.truth is not None else None
@@ -96,6 +97,9 @@ def _cmd_register(args: argparse.Namespace) -> int:
             args.target,
         )
     target, source = io.read(args.target), io.read(args.source)
+    for cloud, path in ((target, args.target), (source, args.source)):
+        # the feature matcher's voxel grid bounds the span a scan may have
+        into_grid(cloud.xyz, params.global_match.voxel_size_m, Path(path).name)
     t_read = time.perf_counter() - t_start
     stems = (args.stem, args.source_stem)  # --stem / --source-stem
     result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
