@@ -1,0 +1,95 @@
+"""``amrst plot SCAN1 SCAN2 [SCAN ...] --out DIR``: register a plot and inventory it.
+
+The first scan is the reference. Exit 0 when every scan is placed by verified links,
+2 on unusable input, 3 when a scan could not be registered (the inventory is still
+written for the scans that were, and the message names the others).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import argparse
+
+EXIT_BAD_INPUT = 2
+EXIT_NOT_REGISTERED = 3
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Add the ``amrst plot`` arguments to ``p``."""
+    p.add_argument(
+        "scans",
+        nargs="+",
+        metavar="SCAN",
+        help="the plot's scans (the first is the reference); FILE.e57 gives all its "
+        "scans, FILE.e57#k one of them",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument(
+        "--write-trees",
+        action="store_true",
+        help="also write one cloud per tree (trees/T001.ply, ...)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the plot another run wrote in --out",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Register and inventory the plot ``args`` names (see :func:`configure_parser`)."""
+    from amrst.errors import AmrstError, InvalidInput
+    from amrst.multiscan.cli import read_specs
+    from amrst.plot.export import check_out, write_plot
+    from amrst.plot.inventory import take_inventory
+    from amrst.plot.register import register_plot
+    from amrst.terminal import TerminalReporter
+
+    out = Path(args.out)
+    try:
+        check_out(out, args.overwrite)
+        clouds, labels = read_specs(list(args.scans))
+        if len(clouds) < 2:
+            raise InvalidInput(
+                f"{len(clouds)} scan given: a plot needs at least two positions."
+            )
+        reporter = TerminalReporter(args.quiet)
+        reg = register_plot(clouds, 0, reporter=reporter)
+        inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
+        write_plot(out, reg, inventory, labels, clouds[0], write_trees=args.write_trees)
+    except AmrstError as exc:
+        print(f"amrst plot: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    missing = [lab for lab, p in zip(labels, reg.poses, strict=True) if p is None]
+    print(
+        f"{out}: {len(inventory.trees)} trees; {len(clouds) - len(missing)} of "
+        f"{len(clouds)} scans registered, bundle error "
+        f"{100 * reg.bundle_rmse_m:.1f} cm",
+        file=sys.stderr,
+    )
+    if missing:
+        print(
+            f"amrst plot: not registered (no verified link): {', '.join(missing)}; "
+            "check those scans overlap the others, or register them by hand.",
+            file=sys.stderr,
+        )
+        return EXIT_NOT_REGISTERED
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``amrst plot`` on its own (``python -m amrst.plot.cli``)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="amrst plot", description=__doc__)
+    configure_parser(parser)
+    return run_cli(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
