@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from amrst.errors import InvalidInput
 
@@ -120,8 +121,6 @@ def feature_points(xyz: np.ndarray, voxel_m: float, radius_m: float) -> int:
     ``xyz`` must lie within the grid (:func:`into_grid`), so each key packs into one
     int64 as the library packs it.
     """
-    from scipy.spatial import cKDTree
-
     keys = np.floor(xyz / voxel_m).astype(np.int64) + GRID_HALF_VOXELS
     code = (keys[:, 0] << 42) | (keys[:, 1] << 21) | keys[:, 2]
     thinned = xyz[np.sort(np.unique(code, return_index=True)[1])]

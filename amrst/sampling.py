@@ -75,8 +75,8 @@ def measure_pair(
     Returns
     -------
     dict
-        What :func:`amrst.measure.measure_registration` returns; ``n_points`` counts
-        the points measured.
+        What :func:`amrst.measure.measure_registration` returns: ``n_points`` is
+        each cloud's size, ``n_points_measured`` the sample measured.
     """
     from amrst.measure import measure_registration
     from amrst.progress import NULL_REPORTER
@@ -87,4 +87,5 @@ def measure_pair(
         T_target_source,
         params,
         reporter=reporter or NULL_REPORTER,
+        sizes=(len(target), len(source)),
     )

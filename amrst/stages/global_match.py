@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.guards import kiss_pair
+
 if TYPE_CHECKING:
     from amrst.types import Transform
 
@@ -104,18 +106,23 @@ def kiss_global(
 
     from amrst.stages.kiss_threads import kiss_one_thread
 
-    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size_m))
+    config = kiss_matcher.KISSMatcherConfig(voxel_size_m)
+    # It ends the process on a cloud without feature points: no pose instead.
+    pair = kiss_pair(target_xyz, source_xyz, voxel_size_m, config.normal_radius)
+    if pair is None:
+        return np.eye(4), 0
+    matcher = kiss_matcher.KISSMatcher(config)
     # threads made its pose vary from run to run
     with kiss_one_thread() if one_thread else contextlib.nullcontext():
         sol = matcher.estimate(
-            np.asarray(source_xyz, dtype=np.float32),
-            np.asarray(target_xyz, dtype=np.float32),
+            pair.source.astype(np.float32), pair.target.astype(np.float32)
         )
+    if not sol.valid:
+        return np.eye(4), 0
     T = np.eye(4)
-    if sol.valid:
-        T[:3, :3] = np.asarray(sol.rotation, dtype=float)
-        T[:3, 3] = np.asarray(sol.translation, dtype=float).reshape(3)
-    return T, int(matcher.get_num_final_inliers()) if sol.valid else 0
+    T[:3, :3] = np.asarray(sol.rotation, dtype=float)
+    T[:3, 3] = np.asarray(sol.translation, dtype=float).reshape(3)
+    return pair.unshift(T), int(matcher.get_num_final_inliers())
 
 
 def match_globally(
