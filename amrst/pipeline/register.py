@@ -160,7 +160,40 @@ def register(
         matches,
         threads=threads,
     )
-    t_fine = time.perf_counter() - t0
+    return finish_registration(
+        (target, source),
+        (tgt, src),
+        matches,
+        coarse,
+        fine,
+        params=params,
+        reporter=reporter,
+        timings={"fine": time.perf_counter() - t0},
+        t_start=t_start,
+        threads=threads,
+    )
+
+
+def finish_registration(
+    clouds: tuple[Cloud, Cloud],
+    scans: tuple[ScanAnalysis, ScanAnalysis],
+    matches: MatchResult,
+    coarse: CoarseResult,
+    fine: FineResult,
+    *,
+    params: RegistrationParams,
+    reporter: Reporter,
+    timings: dict[str, float],
+    t_start: float,
+    threads: int = THREADS,
+) -> RegistrationResult:
+    """Measure a registered pair and gather its :class:`RegistrationResult`.
+
+    The metrics of the coarse and fine poses, the tree of both scans merged, and the
+    timings of every stage; shared by the automatic chain and the point-pair one.
+    """
+    target, source = clouds
+    tgt, src = scans
     t0 = time.perf_counter()
     m_coarse = evaluate(tgt, src, coarse.T_target_source, params, threads=threads)
     # A trunk-search solution was fine-registered while it was verified: its coarse
@@ -173,14 +206,14 @@ def register(
     )
     T_world = world_transform(fine.T_target_source, target, source)
     tree = measure_pair(target, source, T_world, params.measure)
-    timings: dict[str, float] = {}
+    all_timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
-            timings[k] = timings.get(k, 0.0) + v
-    timings.update(matches.timings)
-    timings["fine"] = t_fine
-    timings["metrics"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_start
+            all_timings[k] = all_timings.get(k, 0.0) + v
+    all_timings.update(matches.timings)
+    all_timings.update(timings)
+    all_timings["metrics"] = time.perf_counter() - t0
+    all_timings["total"] = time.perf_counter() - t_start
     reporter.progress(1.0, "done")
     return RegistrationResult(
         T_target_source=T_world,
@@ -194,7 +227,7 @@ def register(
         fine=fine,
         metrics_coarse=m_coarse,
         metrics_fine=m_fine,
-        timings=timings,
+        timings=all_timings,
         params=params,
         tree=tree,
     )
