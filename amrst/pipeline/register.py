@@ -14,6 +14,8 @@ from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
 from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
 from amrst.pipeline.refine import evaluate, refine
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.review.overlap import OverlapDistances, overlap_distances
+from amrst.review.strength import Strength, axis_strength
 from amrst.sampling import measure_pair
 from amrst.types import world_transform
 
@@ -45,6 +47,10 @@ class RegistrationResult:
     # Height, DBH and crown of "target", "source" (moved) and "merged"; scans over
     # amrst.sampling.MEASURE_MAX_POINTS points are measured on a seeded sample.
     tree: dict[str, TreeMeasures] = field(default_factory=dict)
+    # Distances where both scans saw the tree of interest, and how firmly the final
+    # pose holds each axis: what a technician judges the result by.
+    overlap: OverlapDistances | None = None
+    strength: Strength | None = None
 
 
 def _expect_ground(
@@ -206,6 +212,10 @@ def finish_registration(
     )
     T_world = world_transform(fine.T_target_source, target, source)
     tree = measure_pair(target, source, T_world, params.measure)
+    overlap = overlap_distances(tgt.xyz, src.xyz, fine.T_target_source)
+    strength = axis_strength(
+        tgt.xyz, src.xyz, fine.T_target_source, params.metrics.overlap_dist_m
+    )
     all_timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
@@ -230,4 +240,6 @@ def finish_registration(
         timings=all_timings,
         params=params,
         tree=tree,
+        overlap=overlap,
+        strength=strength,
     )
