@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.strength import Strength
     from amrst.stages.coarse import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
 
@@ -22,6 +24,13 @@ STATUSES = (REGISTERED, NEEDS_REVIEW, FAILED)
 
 # Below this confidence a verified winner still needs a look (the runner-up is close).
 LOW_CONFIDENCE = 0.3
+
+# A manual pose stands on its own evidence when, where both scans saw the tree, the
+# median distance is at most this, this share lies within 2 cm, on this many points,
+# and no axis is weak: what a right pose of two field scans shows.
+MANUAL_MEDIAN_M = 0.015
+MANUAL_WITHIN_2CM = 0.5
+MANUAL_MIN_POINTS = 200
 
 # The way out when no candidate verifies, for the CLI and the app alike.
 RECOVER = (
@@ -94,7 +103,7 @@ def _why_unverified(
             "symmetric stem, or scans that share little, fit several headings "
             "equally well)."
         )
-    what = "Your manual pose" if best.origin == "manual" else "The best solution"
+    what = "The best solution"
     return (
         f"{what} puts only {best.score:.0%} of the sampled source points within "
         f"{tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or more on "
@@ -102,9 +111,46 @@ def _why_unverified(
         + (
             ", and the trunk heading search found no heading that clearly beats the "
             "others."
-            if trunk_searched and best.origin != "manual"
+            if trunk_searched
             else "."
         )
+    )
+
+
+def _manual_verdict(
+    overlap: OverlapDistances | None, strength: Strength | None
+) -> Verdict:
+    """Judge the technician's own pose by what it shows, not by a benchmark share."""
+    if overlap is None or overlap.n_points == 0:
+        return Verdict(
+            NEEDS_REVIEW,
+            "Your manual pose leaves no part of the tree seen by both scans, so "
+            "nothing confirms it.",
+            "Check the overlay and the stem slices; refine the point pairs.",
+        )
+    seen = (
+        f"Your manual pose: where both scans saw the tree ({overlap.n_points} "
+        f"points), the median distance is {overlap.median_m * 100:.1f} cm and "
+        f"{overlap.within_2cm_fraction:.0%} lie within 2 cm."
+    )
+    weak = strength.advice() if strength is not None else ""
+    good = (
+        overlap.median_m <= MANUAL_MEDIAN_M
+        and overlap.within_2cm_fraction >= MANUAL_WITHIN_2CM
+        and overlap.n_points >= MANUAL_MIN_POINTS
+        and not weak
+    )
+    if good:
+        return Verdict(
+            REGISTERED,
+            seen,
+            "Look at the stem slices once, then export.",
+        )
+    return Verdict(
+        NEEDS_REVIEW,
+        f"{seen} {weak}".strip(),
+        "Check the overlay, the distance colours and the stem slices; run Fine "
+        "registration and look again, or refine the point pairs.",
     )
 
 
@@ -117,6 +163,8 @@ def judge(
     tight_dist_m: float = 0.04,
     score_dist_m: float = 0.015,
     trunk_searched: bool = False,
+    overlap: OverlapDistances | None = None,
+    strength: Strength | None = None,
 ) -> Verdict:
     """Judge a registration from its coarse choice and (optionally) its fine result.
 
@@ -135,6 +183,9 @@ def judge(
         trunk.score_dist_m), named in the reason.
     trunk_searched : bool
         Whether the trunk heading search ran.
+    overlap, strength : OverlapDistances, Strength or None
+        The final pose's distances where both scans saw the tree and its strength
+        per axis: a manual pose is judged by them, and a weak axis is named.
 
     Returns
     -------
@@ -155,17 +206,11 @@ def judge(
         )
     best = coarse.candidate
     if not coarse.verified:
+        if best.origin == "manual":
+            return _manual_verdict(overlap, strength)
         why = _why_unverified(
             best, coarse.runner_up_score, tight_dist_m, score_dist_m, trunk_searched
         )
-        if best.origin == "manual":
-            # The technician's own pose: it may well be right, but nothing confirms it.
-            return Verdict(
-                NEEDS_REVIEW,
-                why,
-                "Check the overlay, the distance colours and the stem slices; run Fine "
-                "registration and look again, or refine the point pairs.",
-            )
         return Verdict(FAILED, f"No candidate verifies. {why}", RECOVER)
     if fine is not None and not fine.converged:
         return Verdict(
@@ -189,11 +234,13 @@ def judge(
         f"sampled source points lie within {tight_dist_m * 100:.0f} cm of the target, "
         f"confidence {coarse.confidence:.0%}."
     )
-    nxt = (
-        "Nothing more is needed; the stem slices of the report confirm it at a glance."
-        if fine is not None
-        else "Run Fine registration, then export."
-    )
+    weak = strength.advice() if strength is not None else ""
+    if weak:
+        nxt = weak
+    elif fine is not None:
+        nxt = "Nothing more is needed; a look at the stem slices confirms it."
+    else:
+        nxt = "Run Fine registration, then export."
     return Verdict(REGISTERED, reason, nxt)
 
 
@@ -216,4 +263,6 @@ def judge_result(result: Any, params: Any) -> Verdict:
         tight_dist_m=params.coarse.tight_dist_m,
         score_dist_m=params.trunk.score_dist_m,
         trunk_searched="trunk" in result.timings,
+        overlap=getattr(result, "overlap", None),
+        strength=getattr(result, "strength", None),
     )

@@ -101,3 +101,43 @@ def test_a_feature_matcher_pose_is_named_as_such() -> None:
     assert "tetrahedron" not in text
     tetra = replace(coarse, candidate=replace(cand, origin=Origin.TETRAHEDRA))
     assert "tetrahedron matches" in verdict.judge(tetra).reason
+
+
+def _manual(overlap, strength=None):
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.strength import Strength
+
+    lst = CandidateList((_cand(0, 0.02, origin="manual"),), 1)
+    return verdict.judge(
+        choose_coarse(lst),
+        overlap=OverlapDistances(*overlap),
+        strength=None if strength is None else Strength(strength, 1000),
+    )
+
+
+HELD = dict.fromkeys(("tx", "ty", "tz", "rx", "ry", "rz"), 0.4)
+
+
+def test_a_manual_pose_is_judged_by_its_own_evidence_not_a_share():
+    good = _manual((0.008, 0.05, 0.7, 0.4, 5000), HELD)
+    assert good.status == verdict.REGISTERED
+    assert "0.8 cm" in good.reason
+    assert "45%" not in good.reason
+    off = _manual((0.03, 0.2, 0.2, 0.4, 5000), HELD)
+    assert off.status == verdict.NEEDS_REVIEW
+    assert "3.0 cm" in off.reason
+
+
+def test_a_weak_axis_is_named_and_holds_a_manual_pose_back():
+    weak = _manual((0.008, 0.05, 0.7, 0.4, 5000), {**HELD, "rz": 0.01})
+    assert weak.status == verdict.NEEDS_REVIEW
+    assert "rotation about the stem" in weak.reason
+
+
+def test_a_weak_axis_of_a_verified_pose_is_the_next_step():
+    from amrst.review.strength import Strength
+
+    lst = CandidateList((_cand(0, 0.66), _cand(1, 0.05)), 2)
+    v = verdict.judge(choose_coarse(lst), strength=Strength({**HELD, "rz": 0.01}, 1000))
+    assert v.status == verdict.REGISTERED
+    assert "rotation about the stem" in v.next_step
