@@ -18,7 +18,7 @@ from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
-from amrst.stages.scene import SceneResult, understand_scene
+from amrst.stages.scene import TREE, SceneResult, understand_scene
 from amrst.stages.separate import SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonResult, build_skeleton
 
@@ -56,6 +56,18 @@ class ScanAnalysis:
     def is_wood(self) -> np.ndarray:
         """(N,) bool wood label of the preprocessed points."""
         return self.separation.is_wood
+
+    @property
+    def tree_xyz(self) -> np.ndarray:
+        """(K, 3) points of the tree of interest alone, local coordinates.
+
+        Without ground, neighbours and shrubs; all preprocessed points when the scene
+        stage found no ground (a clean, segmented tree).
+        """
+        scene, pre = self.scene, self.scene_pre
+        if scene is None or pre is None or not scene.has_ground:
+            return self.xyz
+        return np.asarray(pre.xyz[scene.labels == TREE])
 
     def points(self, which: str) -> np.ndarray:
         """Preprocessed points: 'all', 'wood' or 'leaf' (falls back to all when too few)."""

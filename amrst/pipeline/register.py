@@ -15,6 +15,7 @@ from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
 from amrst.pipeline.refine import evaluate, refine
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.review.overlap import OverlapDistances, overlap_distances
+from amrst.review.quality import StemSlice, stem_slices
 from amrst.review.strength import Strength, axis_strength
 from amrst.sampling import measure_pair
 from amrst.types import world_transform
@@ -51,6 +52,8 @@ class RegistrationResult:
     # pose holds each axis: what a technician judges the result by.
     overlap: OverlapDistances | None = None
     strength: Strength | None = None
+    # Stem slices of the tree of interest (ground, neighbours and shrubs out).
+    slices: tuple[StemSlice, ...] = ()
 
 
 def _expect_ground(
@@ -216,6 +219,8 @@ def finish_registration(
     strength = axis_strength(
         tgt.xyz, src.xyz, fine.T_target_source, params.metrics.overlap_dist_m
     )
+    R, t = fine.T_target_source[:3, :3], fine.T_target_source[:3, 3]
+    slices = tuple(stem_slices(tgt.tree_xyz, src.tree_xyz @ R.T + t))
     all_timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
@@ -242,4 +247,5 @@ def finish_registration(
         tree=tree,
         overlap=overlap,
         strength=strength,
+        slices=slices,
     )

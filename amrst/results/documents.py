@@ -69,6 +69,10 @@ class ResultRecord:
     override: Mapping[str, Any] | None = None
     # More context for transform.json (e.g. how a manual pose was given).
     extra: Mapping[str, Any] = field(default_factory=dict)
+    # What the technician judges by (quality_section): distances where both scans
+    # saw the tree and the stem slices; and the pose's strength per axis.
+    quality: Mapping[str, Any] | None = None
+    strength: Mapping[str, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -177,6 +181,10 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
     if record.tree:
         # Height, DBH and crown of each scan alone and of the merged tree.
         metrics["tree"] = {name: m.as_dict() for name, m in record.tree.items()}
+    if record.quality is not None:
+        metrics["quality"] = dict(record.quality)
+    if record.strength is not None:
+        metrics["strength"] = dict(record.strength)
     if record.truth:
         metrics["truth"] = {k: e.as_dict() for k, e in record.truth.items()}
         final = record.truth.get("fine") or record.truth.get("coarse")
@@ -209,6 +217,16 @@ def metrics_csv(metrics: Mapping[str, Any]) -> str:
     w.writerow(["metric", "value"])
     w.writerows(flat.items())
     return buf.getvalue()
+
+
+def quality_section(result: RegistrationResult) -> dict[str, Any] | None:
+    """Build the ``quality`` section of metrics.json: overlap distances, stem slices."""
+    if result.overlap is None:
+        return None
+    return {
+        "distance": result.overlap.as_dict(),
+        "stem_slices": [s.as_dict() for s in result.slices],
+    }
 
 
 def record_from_registration(
@@ -268,6 +286,8 @@ def record_from_registration(
         confidence=result.confidence,
         message=result.message,
         counts=counts,
+        quality=quality_section(result),
+        strength=None if result.strength is None else dict(result.strength.values),
         **context,
     )
 

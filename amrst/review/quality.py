@@ -111,6 +111,17 @@ class StemSlice:
             why if why else f"centres {self.offset_m * 1000:.1f} mm apart",
         )
 
+    def as_dict(self) -> dict[str, object]:
+        """Height, both diameters, the centre offset and ``status``: "ok" or why not."""
+        tc, sc = self.target_circle, self.source_circle
+        return {
+            "height_m": self.height_m,
+            "target_diameter_m": None if tc is None else 2 * tc.radius_m,
+            "source_diameter_m": None if sc is None else 2 * sc.radius_m,
+            "offset_m": self.offset_m,
+            "status": self.problem() or "ok",
+        }
+
     @property
     def offset_m(self) -> float:
         """Distance between the two circle centres (m); NaN without both circles."""
