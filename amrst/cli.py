@@ -14,7 +14,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from amrst import __version__
 from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
@@ -22,6 +22,7 @@ from amrst.terminal import TerminalReporter
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
+    from amrst.pipeline.register import RegistrationResult
 
 EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
 EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
@@ -67,11 +68,65 @@ def _same_file(a: str, b: str) -> bool:
             return False
 
 
+def _print_summary(
+    result: RegistrationResult,
+    summary: dict[str, Any],
+    names: tuple[str, str],
+    t_read: float,
+) -> None:
+    """Print what a registration found: poses, quality, the tree, truth errors."""
+    fine = summary["fine"]
+    cand = result.coarse.candidate
+    print(
+        f"Registered {names[1]} onto {names[0]} in {result.timings['total']:.2f} s "
+        f"(read {t_read:.2f} s)."
+    )
+    print(
+        f"  coarse: candidate {cand.rank} of {len(result.matches.candidates)}"
+        f"{' (trunk heading search)' if cand.origin == 'trunk' else ''}"
+        f"{' (point pairs)' if cand.origin == 'manual' else ''}, "
+        f"verification score {cand.score:.0%}, confidence {result.confidence:.2f}"
+    )
+    print(
+        f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in "
+        f"the overlap, Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap "
+        f"{fine['overlap_fraction']:.0%}"
+    )
+    if result.overlap is not None and result.overlap.n_points:
+        o = result.overlap
+        line = (
+            f"  quality: where both scans saw the scene, median distance "
+            f"{o.median_m * 100:.1f} cm, {o.within_2cm_fraction:.0%} within 2 cm"
+        )
+        if result.strength is not None and result.strength.weak:
+            line += f"; weak axes: {', '.join(result.strength.weak)}"
+        print(line)
+    if "merged" in result.tree:
+        merged = result.tree["merged"]
+        print(f"  tree (merged): {merged.summary()}")
+        if merged.note:
+            print(f"    {merged.note}")
+    if "truth" in summary:
+        tf = summary["truth"]["fine"]
+        print(
+            f"  truth: rotation error {tf['rotation_error_deg']:.3f} deg, translation "
+            f"error {tf['translation_error_m'] * 100:.1f} cm, gt_rmse "
+            f"{tf['gt_rmse_m'] * 100:.2f} cm -> "
+            f"{'registered' if summary['truth']['registered'] else 'NOT registered'}"
+        )
+
+
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.pipeline import register
     from amrst.results.documents import record_from_registration, result_documents
-    from amrst.results.export import check_output_dir, export_registration, output_names
+    from amrst.results.export import (
+        check_output_dir,
+        export_registration,
+        output_names,
+        refuse_other_pair,
+    )
+    from amrst.review.pairs_file import read_pairs
 
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
@@ -90,6 +145,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
     )
     report_name = ["report.html"] if args.report else []  # amrst.results.report_html
     check_output_dir(args.out, output_names(parts, args.format) + report_name)
+    refuse_other_pair(
+        args.out, str(args.target), str(args.source), overwrite=args.overwrite
+    )
+    pairs = read_pairs(Path(args.pairs)) if args.pairs else None
     if _same_file(args.target, args.source):
         logger.warning(
             "TARGET and SOURCE are the same file (%s): the result will be the "
@@ -101,8 +160,14 @@ def _cmd_register(args: argparse.Namespace) -> int:
         # the feature matcher's voxel grid bounds the span a scan may have
         into_grid(cloud.xyz, params.global_match.voxel_size_m, Path(path).name)
     t_read = time.perf_counter() - t_start
-    stems = (args.stem, args.source_stem)  # --stem / --source-stem
-    result = register(target, source, params, TerminalReporter(args.quiet), stems=stems)
+    reporter = TerminalReporter(args.quiet)
+    if pairs is not None:
+        from amrst.pipeline.manual import register_from_pairs
+
+        result = register_from_pairs(target, source, pairs, params, reporter)
+    else:
+        stems = (args.stem, args.source_stem)  # --stem / --source-stem
+        result = register(target, source, params, reporter, stems=stems)
     from amrst.review.verdict import FAILED, REGISTERED, judge_result
 
     verdict = judge_result(result, params)
@@ -142,32 +207,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
             T_truth=T_truth,
         )
         files = [*files, write_report(Path(args.out) / "report.html", report)]
-    fine = summary["fine"]
-    print(
-        f"Registered {source.name} onto {target.name} in {result.timings['total']:.2f} s "
-        f"(read {t_read:.2f} s)."
-    )
-    print(
-        f"  coarse: candidate {result.coarse.candidate.rank} of {len(result.matches.candidates)}"
-        f"{' (trunk heading search)' if result.coarse.candidate.origin == 'trunk' else ''}, "
-        f"verification score {result.coarse.candidate.score:.0%}, confidence {result.confidence:.2f}"
-    )
-    print(
-        f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in the overlap, "
-        f"Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap {fine['overlap_fraction']:.0%}"
-    )
-    if "merged" in result.tree:
-        merged = result.tree["merged"]
-        print(f"  tree (merged): {merged.summary()}")
-        if merged.note:
-            print(f"    {merged.note}")
-    if T_truth is not None:
-        tf = summary["truth"]["fine"]
-        print(
-            f"  truth: rotation error {tf['rotation_error_deg']:.3f} deg, translation error "
-            f"{tf['translation_error_m'] * 100:.1f} cm, gt_rmse {tf['gt_rmse_m'] * 100:.2f} cm "
-            f"-> {'registered' if summary['truth']['registered'] else 'NOT registered'}"
-        )
+    _print_summary(result, summary, (target.name, source.name), t_read)
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
@@ -260,6 +300,19 @@ def build_parser() -> argparse.ArgumentParser:
         "display needed)",
     )
     reg.add_argument("--quiet", action="store_true", help="no progress output")
+    reg.add_argument(
+        "--pairs",
+        metavar="PAIRS.csv",
+        help="register from point pairs picked in both scans instead of the "
+        "automatic match: columns target_x,target_y,target_z,source_x,source_y,"
+        "source_z in the files' coordinates, at least 3 pairs spread over the tree",
+    )
+    reg.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an export of another pair of scans found in --out (the same "
+        "pair's export is always replaced)",
+    )
     for flag, role in (("--stem", "TARGET"), ("--source-stem", "SOURCE")):
         reg.add_argument(
             flag,
@@ -370,39 +423,50 @@ def _run(args: argparse.Namespace) -> int:
     except Cancelled:
         print("Cancelled.", file=sys.stderr)
         return EXIT_CANCELLED
-    except RegistrationFailed as exc:
-        print(f"Registration failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    except AmrstError as exc:
-        print(f"Error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
     except KeyboardInterrupt:
         print("Interrupted.", file=sys.stderr)
         return EXIT_CANCELLED
-    except OSError as exc:  # a file-system refusal no check above put in words
-        if args.debug:
+    except RegistrationFailed as exc:
+        print(f"Registration failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except Exception as exc:  # last line of defence: never a raw traceback for users
+        message, code = _explain(exc, args)
+        if message is None:
             raise
+        print(message, file=sys.stderr)
+        return code
+
+
+def _explain(exc: Exception, args: argparse.Namespace) -> tuple[str | None, int]:
+    """Give the one line and exit code for an error; no line: re-raise (--debug)."""
+    if isinstance(exc, AmrstError):
+        return f"Error: {exc}", EXIT_INPUT
+    if isinstance(exc, MemoryError):
+        return (
+            "Error: out of memory. Thin the clouds first (e.g. a larger preprocess "
+            "voxel size).",
+            EXIT_INPUT,
+        )
+    if args.debug:
+        return None, 1
+    if isinstance(exc, ImportError):
+        from amrst.extras import missing_extra
+
+        found = missing_extra(exc, f"amrst {args.command}")
+        if found is not None:
+            return f"Error: {found}", EXIT_INPUT
+    if isinstance(exc, OSError):  # a file-system refusal no check put in words
         where = f" ({exc.filename})" if exc.filename else ""
-        print(
+        return (
             f"Error: {exc.strerror or exc}{where}. Check the path, its length and "
             "its permissions, or choose another file or folder.",
-            file=sys.stderr,
+            EXIT_INPUT,
         )
-        return EXIT_INPUT
-    except MemoryError:
-        print(
-            "Error: out of memory. Thin the clouds first (e.g. a larger preprocess voxel size).",
-            file=sys.stderr,
-        )
-        return EXIT_INPUT
-    except Exception as exc:  # last line of defence: never a raw traceback for users
-        if args.debug:
-            raise
-        print(
-            f"Internal error: {type(exc).__name__}: {exc}. Run again with --debug and report it.",
-            file=sys.stderr,
-        )
-        return 1
+    return (
+        f"Internal error: {type(exc).__name__}: {exc}. Run again with --debug and "
+        "report it.",
+        1,
+    )
 
 
 if __name__ == "__main__":

@@ -80,8 +80,11 @@ def register_from_pairs(
 
     tgt, src = both_scans(analyse, target, source, SubReporter(reporter, 0.0, 0.7))
     how = f"{len(t_pts)} point pairs, residual RMS {fit.rmse_m * 100:.1f} cm"
-    cand = score_manual(
-        fit.T_target_source, tgt.xyz, src.xyz, params.coarse, MANUAL_ID_BASE, how
+    cand = dataclasses.replace(
+        score_manual(
+            fit.T_target_source, tgt.xyz, src.xyz, params.coarse, MANUAL_ID_BASE, how
+        ),
+        rank=1,
     )
     matches = MatchResult(
         TetraMatches.empty(), (cand,), 0, source_centre=src.xyz.mean(axis=0)

@@ -10,7 +10,10 @@ config next to its poses for the same reason).
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import logging
+import os
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -26,9 +29,7 @@ from amrst.results.documents import CONVENTION, metrics_csv
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
-    import os
     from collections.abc import Callable, Iterable
-    from pathlib import Path
 
     from amrst.results.documents import ResultDocuments
 
@@ -100,6 +101,57 @@ def check_output_dir(
     """
     clear_dead_run(out_dir)
     return check_output_folder(out_dir, "export folder", names)
+
+
+def previous_pair(out_dir: str | os.PathLike[str]) -> tuple[str, str] | None:
+    """Return the (target, source) files of the export in ``out_dir``, if any.
+
+    Read from its ``transform.json``; None when the folder holds no readable one.
+    """
+    path = Path(out_dir) / "transform.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        return str(doc["target_file"]), str(doc["source_file"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _same_path(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
+
+
+def refuse_other_pair(
+    out_dir: str | os.PathLike[str],
+    target_file: str,
+    source_file: str,
+    *,
+    overwrite: bool = False,
+) -> None:
+    """Refuse to replace the export of another pair of scans, unless asked to.
+
+    Running the same pair again replaces its own export; a folder that holds the
+    export of other files is kept as it is.
+
+    Raises
+    ------
+    InvalidInput
+        When ``out_dir`` holds another pair's export and ``overwrite`` is False.
+    """
+    before = previous_pair(out_dir)
+    if overwrite or before is None:
+        return
+    if all(
+        _same_path(a, b)
+        for a, b in zip(before, (target_file, source_file), strict=True)
+    ):
+        return
+    raise InvalidInput(
+        f"{out_dir} holds the export of {before[1]} onto {before[0]}: choose another "
+        "--out folder, or add --overwrite to replace it."
+    )
 
 
 def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:

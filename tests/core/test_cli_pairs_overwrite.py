@@ -1,0 +1,76 @@
+"""amrst register --pairs, and no silent overwrite of another pair's export."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+
+from amrst.cli import main
+from amrst.review.pairs_file import write_pairs
+
+
+def _register(*args: str) -> int:
+    return main(["register", *args, "--quiet"])
+
+
+def test_an_export_of_another_pair_is_kept_unless_overwrite(
+    tmp_path, sample_pair, capsys
+) -> None:
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    out = tmp_path / "out"
+    assert _register(t, s, "--out", str(out)) == 0
+    first = (out / "transform.json").read_bytes()
+    other = tmp_path / "other_source.ply"
+    shutil.copyfile(s, other)
+    capsys.readouterr()
+    assert _register(t, str(other), "--out", str(out)) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--overwrite" in err
+    assert len(err.splitlines()) == 1
+    assert (out / "transform.json").read_bytes() == first
+    assert _register(t, s, "--out", str(out)) == 0  # the same pair again
+    assert _register(t, str(other), "--out", str(out), "--overwrite") == 0
+    doc = json.loads((out / "transform.json").read_text())
+    assert doc["source_file"] == str(other)
+
+
+def test_register_from_a_pairs_file(tmp_path, sample_pair, capsys) -> None:
+    src = sample_pair.source.xyz + sample_pair.source.offset
+    picked = src[[0, len(src) // 3, 2 * len(src) // 3, len(src) - 1]]
+    T = sample_pair.T_true
+    write_pairs(tmp_path / "pairs.csv", picked @ T[:3, :3].T + T[:3, 3], picked)
+    code = _register(
+        str(sample_pair.target_path),
+        str(sample_pair.source_path),
+        "--out",
+        str(tmp_path / "out"),
+        "--pairs",
+        str(tmp_path / "pairs.csv"),
+        "--truth",
+        str(sample_pair.truth_path),
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "(point pairs)" in out
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["truth"]["fine"]["rotation_error_deg"] < 0.5
+    assert metrics["coarse"]["candidate_origin"] == "manual"
+    assert np.isfinite(metrics["quality"]["distance"]["median_m"])
+
+
+def test_a_bad_pairs_file_is_one_line_and_exit_2(tmp_path, sample_pair, capsys):
+    (tmp_path / "pairs.csv").write_text("x,y\n1,2\n")
+    code = _register(
+        str(sample_pair.target_path),
+        str(sample_pair.source_path),
+        "--out",
+        str(tmp_path / "out"),
+        "--pairs",
+        str(tmp_path / "pairs.csv"),
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert "target_x" in err
+    assert len(err.splitlines()) == 1
