@@ -1,10 +1,11 @@
-"""Cloud-to-cloud distances on what both scans saw of the tree of interest.
+"""Cloud-to-cloud distances on what both scans saw.
 
 Distances over everything in two field scans mostly measure what only one of them
 saw: the far side of the stem, the ground behind a neighbour, a shrub. A right
 registration then reads as centimetres off. Here the distances are taken only where
 both scans have points: source points (moved) whose voxel the target also occupies,
-on the points of the tree of interest the scene stage kept. No Qt, no pyvista.
+on the points above the ground the scene stage kept (the scene is rigid, so a
+neighbour both scans saw is evidence too). No Qt, no pyvista.
 """
 
 from __future__ import annotations
