@@ -331,6 +331,15 @@ def build_parser() -> argparse.ArgumentParser:
     simulate_cli.configure_parser(sim)
     sim.set_defaults(func=simulate_cli.run_cli)
 
+    from amrst.plot import cli as plot_cli  # amrst plot
+
+    plot = sub.add_parser(
+        "plot",
+        help="register the scans of a forest plot by its stems and list its trees",
+    )
+    plot_cli.configure_parser(plot)
+    plot.set_defaults(func=plot_cli.run_cli)
+
     cut = sub.add_parser(
         "clip", help="cut one tree (a cylinder around its stem) out of a plot file"
     )
