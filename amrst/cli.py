@@ -106,6 +106,9 @@ def _print_summary(
         print(f"  tree (merged): {merged.summary()}")
         if merged.note:
             print(f"    {merged.note}")
+        check = summary["tree"]["merged"].get("dbh_check", "ok")
+        if check != "ok":
+            print(f"    DBH doubtful: {check}")
     if "truth" in summary:
         tf = summary["truth"]["fine"]
         print(

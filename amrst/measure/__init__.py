@@ -21,6 +21,7 @@ registration also assumes.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +31,8 @@ from amrst.measure.stem import StemCircle, fit_stem_circle, stem_surface
 from amrst.progress import NULL_REPORTER
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
@@ -37,6 +40,7 @@ __all__ = [
     "MeasureParams",
     "StemCircle",
     "TreeMeasures",
+    "dbh_check",
     "distinct_points",
     "fit_stem_circle",
     "measure_registration",
@@ -380,3 +384,56 @@ def measure_registration(
         "source": measure_tree(src, params, reporter, n_src),
         "merged": measure_tree(np.vstack([tgt, src]), params, reporter, n_tgt + n_src),
     }
+
+
+#: Two DBHs agree within the larger of these; a DBH above this share of the tree's
+#: height is implausible (the stoutest trees stay under about 6 cm per metre).
+DBH_AGREE_M = 0.03
+DBH_AGREE_FRACTION = 0.15
+DBH_PER_HEIGHT = 0.06
+
+
+def dbh_check(tree: Mapping[str, TreeMeasures]) -> str:
+    """Say why the merged tree's DBH should not be trusted; "" when nothing is wrong.
+
+    The merged DBH is doubted when the scans' own DBHs disagree, when it lies outside
+    both of them, or when it is implausible for the tree's height.
+
+    Parameters
+    ----------
+    tree : mapping of str to TreeMeasures
+        ``"target"``, ``"source"`` and ``"merged"``, as a registration measures them.
+
+    Returns
+    -------
+    str
+        One sentence for the technician, or "".
+    """
+    merged = tree.get("merged")
+    if merged is None or not math.isfinite(merged.dbh_m):
+        return ""
+    own = [
+        m.dbh_m
+        for k in ("target", "source")
+        if (m := tree.get(k)) is not None and math.isfinite(m.dbh_m)
+    ]
+
+    def apart(a: float, b: float) -> bool:
+        return abs(a - b) > max(DBH_AGREE_M, DBH_AGREE_FRACTION * min(a, b))
+
+    if len(own) == 2 and apart(*own):
+        return (
+            f"the scans' DBHs disagree ({own[0] * 100:.1f} and {own[1] * 100:.1f} cm): "
+            "check the 1.3 m stem slice"
+        )
+    if own and all(apart(merged.dbh_m, d) for d in own):
+        return (
+            f"the merged DBH ({merged.dbh_m * 100:.1f} cm) differs from each scan's "
+            f"({', '.join(f'{d * 100:.1f}' for d in own)} cm): check the 1.3 m slice"
+        )
+    if merged.height_m > 0 and merged.dbh_m > DBH_PER_HEIGHT * merged.height_m:
+        return (
+            f"a DBH of {merged.dbh_m * 100:.0f} cm is implausible for a "
+            f"{merged.height_m:.1f} m tree: check the 1.3 m slice"
+        )
+    return ""

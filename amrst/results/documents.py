@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from amrst.measure import dbh_check
 from amrst.stages.metrics import truth_errors
 
 if TYPE_CHECKING:
@@ -146,6 +147,23 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         "timings_s": timings,
     }
     transform.update({k: v for k, v in record.extra.items() if k not in transform})
+    metrics = _metrics(record, transform, verified)
+    metrics["timings_s"] = timings
+    text = (
+        "\n".join(
+            " ".join(f"{v:.12g}" for v in row)
+            for row in np.asarray(record.T_target_source, float)
+        )
+        + "\n"
+    )
+    return ResultDocuments(transform, text, metrics, metrics_csv(metrics))
+
+
+def _metrics(
+    record: ResultRecord, transform: Mapping[str, Any], verified: bool
+) -> dict[str, Any]:
+    """metrics.json but its timings: verdict, both poses' metrics, tree, quality."""
+    coarse, fine = record.coarse, record.fine
     metrics: dict[str, Any] = {"schema_version": RESULT_SCHEMA_VERSION}
     if record.verdict is not None:
         metrics["verdict"] = dict(record.verdict)
@@ -178,9 +196,17 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
             )
         metrics["fine"] = section
     metrics.update(record.counts)
+    _add_judgement(metrics, record)
+    return metrics
+
+
+def _add_judgement(metrics: dict[str, Any], record: ResultRecord) -> None:
+    """Add what a technician judges by: the tree, quality, strength, truth errors."""
     if record.tree:
         # Height, DBH and crown of each scan alone and of the merged tree.
         metrics["tree"] = {name: m.as_dict() for name, m in record.tree.items()}
+        if "merged" in record.tree:
+            metrics["tree"]["merged"]["dbh_check"] = dbh_check(record.tree) or "ok"
     if record.quality is not None:
         metrics["quality"] = dict(record.quality)
     if record.strength is not None:
@@ -189,15 +215,6 @@ def result_documents(record: ResultRecord) -> ResultDocuments:
         metrics["truth"] = {k: e.as_dict() for k, e in record.truth.items()}
         final = record.truth.get("fine") or record.truth.get("coarse")
         metrics["truth"]["registered"] = bool(final is not None and final.registered())
-    metrics["timings_s"] = timings
-    text = (
-        "\n".join(
-            " ".join(f"{v:.12g}" for v in row)
-            for row in np.asarray(record.T_target_source, float)
-        )
-        + "\n"
-    )
-    return ResultDocuments(transform, text, metrics, metrics_csv(metrics))
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
