@@ -150,6 +150,7 @@ def orbit(app, win, frames: int = 30) -> dict:
 def run_all(app, win, dog: Watchdog) -> dict:
     """Run all on the open pair; click to idle, each step, the stalls."""
     s = win.session
+    print("--- run all", file=sys.stderr, flush=True)
     dog.reset()
     start = time.perf_counter()
     s.run_all()

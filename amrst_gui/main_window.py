@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import logging
 from pathlib import Path
 from typing import cast
@@ -39,6 +40,11 @@ from amrst_gui.views.scan_pane import ScansArea
 log = logging.getLogger("amrst_gui.main_window")
 
 MAX_RECENT = 10
+
+# Imported before the window shows: the GUI thread needs them when the first scans
+# and results arrive (reading, candidates' rotations, the coarse choice), and a
+# first import there would stall the window for a good part of a second.
+EARLY_IMPORTS = ("laspy", "scipy.spatial.transform", "amrst.io", "amrst.pipeline")
 LAYOUT_VERSION = 2  # 2: the Manual pose dock, full-height side docks
 
 
@@ -55,6 +61,8 @@ class MainWindow(QMainWindow):
     actions: WorkflowActions  # type: ignore[assignment]
 
     def __init__(self, session: Session | None = None, settings=None) -> None:
+        for name in EARLY_IMPORTS:
+            importlib.import_module(name)
         super().__init__()
         self.setObjectName("main_window")
         self.setWindowTitle("AMRST Studio")
