@@ -2,8 +2,11 @@
 
 State is exposed through read-only properties holding frozen engine results;
 each change goes through a method that validates it, stores it and emits one
-signal. Work runs through ``workers.run_stage``; results
-are applied here, on the GUI thread. This module imports no widgets.
+signal. The Session owns a :class:`~amrst_gui.runner.StepRunner` (the running job
+and the steps still to run; the Session is its host) and a
+:class:`~amrst_gui.review.Review` (the candidates and the technician's decisions);
+each step's start, result and summary are in ``step_jobs``, the derived values in
+``results``. Results are applied here, on the GUI thread. No widgets.
 """
 
 from __future__ import annotations
@@ -16,9 +19,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
-from amrst_gui import jobs, steps, workers
+from amrst.errors import AmrstError, Cancelled
+from amrst_gui import jobs, steps
+from amrst_gui.engine_process import EngineStopped
 from amrst_gui.review import Review
-from amrst_gui.runner import RunnerMixin
+from amrst_gui.runner import StepRunner
 from amrst_gui.state import ScanId, ScanState
 from amrst_gui.stored_result import StoredResultMixin
 
@@ -32,7 +37,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.session")
 
 
-class Session(RunnerMixin, StoredResultMixin, QObject):
+class Session(StoredResultMixin, QObject):
     """One target/source pair, its parameters, results and review decisions.
 
     Signals (all emitted on the GUI thread):
@@ -82,13 +87,9 @@ class Session(RunnerMixin, StoredResultMixin, QObject):
         self._reset_results()
         self._truth: np.ndarray | None = None
         self._truth_path: Path | None = None
-        self._job: workers.StageJob | None = None
-        self._chain: list[str] = []
-        self._chain_dropped = False
-        self._busy = False
+        self.runner = StepRunner(self)
         self._job_params = self._params
         self._pending_paths: dict[str, Path] = {}
-        self._closing = False
         self._stop_unverified = False
         self._manual_preview: np.ndarray | None = None
         self._pending_manual: tuple[np.ndarray, str] | None = None
@@ -107,12 +108,12 @@ class Session(RunnerMixin, StoredResultMixin, QObject):
     @property
     def busy(self) -> bool:
         """True from the start of a job (or chain of steps) until its end."""
-        return self._busy
+        return self.runner.busy
 
     @property
     def running_step(self) -> str | None:
         """The step the running job computes, or None."""
-        return self._job.name if self._job is not None else None
+        return self.runner.running_step
 
     def path(self, role: str) -> Path | None:
         """The file the ``role`` scan was read from."""
@@ -292,39 +293,207 @@ class Session(RunnerMixin, StoredResultMixin, QObject):
         kwargs = self.export_arguments(cloud_format, parts)
         from amrst_gui.report import export_with_report, report_inputs
 
-        self._chain = []
-        self._set_busy(True)
         self._launch(
-            "export", export_with_report, Path(out_dir), kwargs, report_inputs(self)
+            "export",
+            export_with_report,
+            Path(out_dir),
+            kwargs,
+            report_inputs(self),
+            alone=True,
         )
 
     def cancel(self) -> None:
         """Ask the running job to stop; earlier results are kept."""
-        if self._job is not None:
-            if self._job.name in steps.UNSTOPPABLE and not self._chain:
+        step = self.runner.running_step
+        if step is not None:
+            if step in steps.UNSTOPPABLE and not self.runner.chained:
                 message = (
-                    f"{self._label(self._job.name)} cannot be stopped midway; "
+                    f"{self._label(step)} cannot be stopped midway; "
                     "it finishes in a moment."
                 )
                 log.info(message)
                 self.cancelled.emit(message)
                 return
-            log.info("Cancelling %s", self._label(self._job.name))
+            log.info("Cancelling %s", self._label(step))
             # The running step may still finish (its result is kept); what
             # would have followed it is dropped either way.
-            self._chain_dropped = bool(self._chain)
-            self._chain = []
-            self._job.cancel()
+            self.runner.cancel()
 
     def shutdown(self, timeout_s: float = 60.0) -> bool:
         """Cancel the running job and wait for the worker (window closing)."""
-        self._closing = True
-        self._chain = []
-        if self._job is not None:
-            self._job.discard()
-            self._job = None
-        self._busy = False
-        return workers.wait_for_workers(timeout_s)
+        return self.runner.shutdown(timeout_s)
+
+    # ------------------------------------------------------------------ steps
+    def run_step(self, step: str, auto: bool = False) -> None:
+        """Run ``step`` and whatever earlier step is missing or stale, in order."""
+        if self._refuse_if_busy(steps.plain_label(step)):
+            return
+        if not self.has_scans:
+            self._fail("Open a target and a source scan first (File > Open).")
+            return
+        chain = self.plan(step)
+        # Run all stops before it accepts an unverified candidate; an
+        # explicit Accept coarse or Fine is the technician's own decision.
+        self._stop_unverified = auto
+        if self._replaces_result(chain[0]) and not self.may_discard(
+            f"{steps.plain_label(chain[0])} again"
+        ):
+            return
+        self.runner.run(chain)
+
+    def run_all(self) -> None:
+        """The automatic path: everything up to fine registration."""
+        self.run_step("fine", auto=True)
+
+    def accept_coarse(self) -> None:
+        """Accept the coarse solution (best candidate not rejected) and measure it."""
+        self.run_step("coarse")
+
+    def add_manual_pose(self, T_local: np.ndarray, how: str) -> None:
+        """Score a hand-made ``T_target_source`` (local frames) as a candidate.
+
+        It goes first in the candidate list (origin "manual"), verified and scored
+        like the others; emits ``matches_changed``. Separates the scans first when
+        that is missing (the score is measured on the preprocessed points).
+        """
+        if self._refuse_if_busy("add a manual pose"):
+            return
+        if not self.has_scans:
+            self._fail("Open a target and a source scan first (File > Open).")
+            return
+        self._pending_manual = (np.asarray(T_local, float), how)
+        chain = [s for s in self.plan("separate") if s == "separate"]
+        if self.is_done("separate") and not self.is_stale("separate"):
+            chain = []
+        self._stop_unverified = False
+        self.runner.run([*chain, "manual"])
+
+    def _start_load(self, paths: dict[str, Path]) -> None:
+        if self._refuse_if_busy("open scans"):
+            return
+        for path in paths.values():
+            if path.is_dir():
+                self._fail(
+                    f"{path} is a folder, not a point-cloud file: open or drop the "
+                    "scan files themselves."
+                )
+                return
+            if not path.is_file() and not jobs.is_scan_spec(path):  # plot.e57#2
+                self._fail(f"The file {path} does not exist.")
+                return
+        if not self.may_discard("Opening other scans"):
+            return
+        self._truth_at_load = self._truth
+        self._pending_paths = dict(paths)
+        self._launch("load", jobs.load_pair, paths, alone=True)
+
+    # ----------------------------------------------------------- job running
+    def _launch(self, step: str, fn, *args, alone: bool = False) -> None:
+        """Start ``step``'s job (``alone``: not in a chain of steps)."""
+        log.info("%s: started%s", self._label(step), self._params_text(step))
+        # Parameters may change while the job runs: remember the ones it got.
+        self._job_params = self._params
+        if alone:
+            self.runner.run_alone(step, fn, *args)
+        else:
+            self.runner.launch(step, fn, *args)
+
+    def start_step(self, step: str) -> None:
+        """Start ``step``'s job (the runner's host: ``step_jobs``' ``_start_<step>``)."""
+        getattr(self, f"_start_{step}")()
+
+    def step_returned(
+        self, step: str, result: Any, seconds: float
+    ) -> Callable[[], None]:
+        """Store ``step``'s result and log it; returns what emits its signal."""
+        self._timings[step] = seconds
+        emit = self._apply(step, result)
+        log.info(
+            "%s: finished in %.2f s. %s", self._label(step), seconds, self.summary(step)
+        )
+        return emit
+
+    def step_failed(self, step: str, exc: BaseException) -> None:
+        """Report a job that raised: cancelled, an engine error, or a bug."""
+        label = self._label(step)
+        if isinstance(exc, Cancelled):
+            log.warning("%s cancelled; earlier results are kept.", label)
+            self.cancelled.emit(f"{label} cancelled; earlier results are kept.")
+            return
+        if isinstance(exc, AmrstError):
+            # No parameter hint when the process itself ended.
+            hint = "" if isinstance(exc, EngineStopped) else self._hint(step)
+            self._fail(f"{label} failed: {exc}{hint}")
+        else:
+            log.error(
+                "Unexpected error in %s:\n%s",
+                label,
+                getattr(exc, "__traceback_text__", repr(exc)),
+            )
+            self._fail(
+                f"{label} failed with an unexpected error: {type(exc).__name__}: {exc}"
+            )
+
+    def emit_started(self, step: str) -> None:
+        """Emit ``step_started``."""
+        self.step_started.emit(step)
+
+    def emit_progress(self, fraction: float, message: str) -> None:
+        """Emit ``progressed``."""
+        self.progressed.emit(fraction, message)
+
+    def emit_busy(self, busy: bool) -> None:
+        """Emit ``busy_changed``."""
+        self.busy_changed.emit(busy)
+
+    def emit_chain_dropped(self, step: str) -> None:
+        """Say that the steps after ``step`` were cancelled."""
+        message = f"Stopped after {self._label(step)}; the later steps were cancelled."
+        log.warning(message)
+        self.cancelled.emit(message)
+
+    def _apply(self, step: str, result: Any) -> Callable[[], None]:
+        """Store a step's result and clear what was built on the old one.
+
+        Returns the function that emits the step's signal.
+        """
+        if step in steps.STEPS:  # an engine step: later results are now stale
+            self._clear_after(step)
+            self._step_params[step] = self._job_params
+        return getattr(self, f"_apply_{step}")(result)
+
+    def may_discard(self, action: str) -> bool:
+        """Ask ``discard_guard`` before ``action`` throws an unexported result away."""
+        if not self.has_unexported_result or self.discard_guard is None:
+            return True
+        return self.discard_guard(action)
+
+    def _replaces_result(self, first_step: str) -> bool:
+        """Would a chain starting at ``first_step`` replace an unexported fine result?
+
+        Only the fine result: accepting coarse again after a change of mind is part of
+        the review and must not ask each time.
+        """
+        if self._fine is None or not self.has_unexported_result:
+            return False
+        # A result nobody wants (not "registered") is replaced without asking.
+        verdict = self.verdict
+        return verdict is not None and verdict.ok
+
+    @staticmethod
+    def _label(step: str) -> str:
+        return steps.plain_label(step) if step in steps.LABELS else step
+
+    def _refuse_if_busy(self, what: str) -> bool:
+        if not self.runner.busy:
+            return False
+        running = self._label(self.running_step or "a step")
+        self._fail(f"Cannot {what} while {running} runs; wait or cancel it first.")
+        return True
+
+    def _fail(self, message: str) -> None:
+        log.error(message)
+        self.failed.emit(message)
 
     # ------------------------------------------------------------ scan state
     def _scan(self, role: str) -> ScanState:

@@ -1,9 +1,10 @@
 """The app's code for each step of the step table, one block per step.
 
 For a step called ``name`` (``amrst.pipeline.steps.STEPS``, plus the app's own jobs
-``load``, ``manual`` and ``export``) the runner calls, by name:
+``load``, ``manual`` and ``export``) the Session calls, by name:
 
-- ``_start_<name>()``: launch its worker job (``self._launch``); may refuse;
+- ``_start_<name>()``: launch its job (``self._launch``); may refuse
+  (``self.runner.stop()``);
 - ``_apply_<name>(result)``: store the result on the GUI thread, return the function
   that emits the step's signal;
 - ``_done_<name>()``: does its result exist (engine steps);
@@ -11,7 +12,8 @@ For a step called ``name`` (``amrst.pipeline.steps.STEPS``, plus the app's own j
 - ``_clear_<name>()``: drop its result when an earlier step ran again.
 
 Adding a step: one entry in the step table, one block here.
-``tests/gui/test_step_table.py`` checks that every step has its four methods. No Qt.
+``tests/gui/test_step_table.py`` checks that every step has its four methods. A
+mixin of the Session; no Qt.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ if TYPE_CHECKING:
     from amrst.stages.metrics import CloudMetrics
     from amrst.types import Cloud
     from amrst_gui.review import Review
+    from amrst_gui.runner import StepRunner
 
 log = logging.getLogger("amrst_gui.session")
 
@@ -55,7 +58,7 @@ class StepJobsMixin:
         _metrics: dict[str, CloudMetrics]
         _tree: dict[str, dict]
         _step_params: dict[str, RegistrationParams]
-        _chain: list[str]
+        runner: StepRunner
         _stop_unverified: bool
         _pending_manual: tuple[np.ndarray, str] | None
         _pending_paths: dict[str, Path]
@@ -71,7 +74,6 @@ class StepJobsMixin:
         scan_loaded: Any
 
         def _launch(self, step: str, fn: Callable, *args: Any) -> None: ...
-        def _set_busy(self, busy: bool) -> None: ...
         def _fail(self, message: str) -> None: ...
         def _clear_after(self, step: str) -> None: ...
         def _set_loaded(self, clouds: dict[str, Cloud]) -> None: ...
@@ -198,13 +200,11 @@ class StepJobsMixin:
     def _start_coarse(self) -> None:
         coarse = self.coarse
         if coarse is None:
-            self._chain = []
-            self._set_busy(False)
+            self.runner.stop()
             self._fail(f"No coarse solution to accept: {self.coarse_message}")
             return
         if self._stop_unverified and not coarse.verified:
-            self._chain = []
-            self._set_busy(False)
+            self.runner.stop()
             verdict = self.verdict
             self._fail(
                 "Run all stopped before accepting an unverified candidate. "

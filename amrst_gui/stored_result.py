@@ -70,8 +70,7 @@ class StoredResultMixin(StepJobsMixin, ResultsMixin):
 
         self._pending_stored = stored
         self._start_load({"target": Path(target), "source": Path(source)})
-        job = getattr(self, "_job", None)
-        if job is None or job.name != "load":  # refused: nothing pending
+        if self.runner.running_step != "load":  # refused: nothing pending
             self._pending_stored = None
 
     @property

@@ -46,7 +46,7 @@ def test_cancel_stops_loading_a_big_pair_and_keeps_nothing(
     def on_progress(_fraction: float, message: str) -> None:
         # Cancel once the first chunk of points was read: mid-file.
         if "cancel" not in marks and "points read" in message:
-            marks["job"] = s._job
+            marks["job"] = s.runner.job
             marks["cancel"] = time.perf_counter()
             s.cancel()
 
