@@ -34,7 +34,8 @@ _KISS_MIN_NEIGHBOURS = 3
 #: voxel and ours.
 KISS_MIN_FEATURE_POINTS = 10
 
-_TARGET, _SOURCE = "the target scan", "the source scan"
+#: How messages name the two clouds of a pair.
+TARGET, SOURCE = "the target scan", "the source scan"
 
 
 def require_points(xyz: np.ndarray, what: str, at_least: int = 1) -> np.ndarray:
@@ -137,6 +138,12 @@ class ShiftedPair:
     target_shift: np.ndarray  # (3,) float64
     source_shift: np.ndarray  # (3,) float64
 
+    def shift(self, T: np.ndarray) -> np.ndarray:
+        """Return the (4, 4) pose between the moved clouds, from theirs as given."""
+        T_shifted = np.array(T, dtype=np.float64)
+        T_shifted[:3, 3] += T_shifted[:3, :3] @ self.source_shift - self.target_shift
+        return T_shifted
+
     def unshift(self, T_shifted: np.ndarray) -> np.ndarray:
         """Return the (4, 4) pose between the clouds as given, from the moved ones'."""
         T = np.array(T_shifted, dtype=np.float64)
@@ -157,8 +164,8 @@ def grid_pair(
     """
     if not (np.isfinite(voxel_m) and voxel_m > 0):
         raise InvalidInput(f"The voxel size must be > 0 m; got {voxel_m}.")
-    tgt, t_shift = into_grid(require_points(target_xyz, _TARGET), voxel_m, _TARGET)
-    src, s_shift = into_grid(require_points(source_xyz, _SOURCE), voxel_m, _SOURCE)
+    tgt, t_shift = into_grid(require_points(target_xyz, TARGET), voxel_m, TARGET)
+    src, s_shift = into_grid(require_points(source_xyz, SOURCE), voxel_m, SOURCE)
     return ShiftedPair(tgt, src, t_shift, s_shift)
 
 
@@ -209,7 +216,8 @@ def open3d_points(xyz: np.ndarray, voxel_m: float, what: str) -> np.ndarray:
     """
     pts = require_points(xyz, what)
     span = float(np.ptp(pts, axis=0).max())
-    if span / voxel_m >= np.iinfo(np.int32).max:
+    # Open3D's bound: the span plus one voxel within INT_MAX voxels (a margin of 2).
+    if span >= (np.iinfo(np.int32).max - 2) * voxel_m:
         raise InvalidInput(
             f"{what} spans {span:.3g} m, too wide for {voxel_m:g} m voxels: clip the "
             "scan to the tree (amrst clip) or remove its far outliers."

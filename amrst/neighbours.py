@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from amrst.guards import require_points
+
 # The default threads of every KD-tree build and query, and of the two scans of a pair
 # (``amrst.pipeline.both_scans``): two where there are two cores, because small_gicp
 # holds the GIL while it queries, so threads inside a query are what runs it in
@@ -54,6 +56,23 @@ def _points(xyz: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3)
 
 
+def _kdtree(points: np.ndarray, threads: int) -> Any:
+    """Build small_gicp's KD-tree on ``points`` (C-contiguous (N, 3) float64).
+
+    A query of a tree on no points ends the process, and a NaN or infinite point
+    makes its answers wrong without an error: both are refused first.
+
+    Raises
+    ------
+    InvalidInput
+        No points, or a NaN/inf coordinate.
+    """
+    import small_gicp
+
+    require_points(points, "the cloud searched for neighbours")
+    return small_gicp.KdTree(points, num_threads=_build_threads(len(points), threads))
+
+
 def knn(
     points: np.ndarray,
     k: int,
@@ -77,15 +96,13 @@ def knn(
     dist : (M, k) float64, ascending
     idx : (M, k) int64
     """
-    import small_gicp
-
     pts = _points(points)
     if not 1 <= k <= len(pts):
         raise ValueError(f"k must be within 1..{len(pts)}, not {k}")
     q = pts if queries is None else _points(queries)
     if len(q) == 0:
         return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
-    tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), threads))
+    tree = _kdtree(pts, threads)
     idx, sq = tree.batch_knn_search(
         q, k, num_threads=_batch_threads(len(q), k, threads)
     )
@@ -110,12 +127,7 @@ class _Tree:
         """Return the tree, built now if it was not yet."""
         with self._lock:
             if self._tree is None:
-                import small_gicp
-
-                n = len(self._points)
-                self._tree = small_gicp.KdTree(
-                    self._points, num_threads=_build_threads(n, self._threads)
-                )
+                self._tree = _kdtree(self._points, self._threads)
             return self._tree
 
     def __getstate__(self) -> dict[str, Any]:
@@ -137,19 +149,11 @@ class NearestTree:
     """
 
     def __init__(self, points: np.ndarray, threads: int = THREADS) -> None:
-        import small_gicp
-
         self.points = _points(points)
         self.n = len(self.points)
         self.threads = threads
         self._tree: _Tree | None = (
-            _Tree(
-                self.points,
-                self.threads,
-                small_gicp.KdTree(
-                    self.points, num_threads=_build_threads(self.n, self.threads)
-                ),
-            )
+            _Tree(self.points, self.threads, _kdtree(self.points, self.threads))
             if self.n
             else None
         )
@@ -250,13 +254,11 @@ class NeighbourTable:
 
         ``threads``: for this query and the ones the table makes later.
         """
-        import small_gicp
-
         pts = _points(points)
         k = min(k, len(pts))
         if k < 1:
             raise ValueError("a neighbour table needs at least one point")
-        tree = small_gicp.KdTree(pts, num_threads=_build_threads(len(pts), threads))
+        tree = _kdtree(pts, threads)
         idx, sq = tree.batch_knn_search(
             pts, k, num_threads=_batch_threads(len(pts), k, threads)
         )

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from amrst.guards import open3d_points
 from amrst.types import Cloud, Transform, make_transform
 
 if TYPE_CHECKING:
@@ -102,13 +103,31 @@ def to_local(T_world: Transform, origin: np.ndarray) -> Transform:
     return to_world(T_world, -np.asarray(origin, dtype=float))
 
 
-def to_o3d(xyz: np.ndarray) -> o3d.geometry.PointCloud:
-    """Make an Open3D point cloud of (N, 3) float64 points."""
+def to_o3d(xyz: np.ndarray, voxel_m: float, what: str) -> o3d.geometry.PointCloud:
+    """Make an Open3D point cloud of one centroid per ``voxel_m`` voxel of ``xyz``.
+
+    The points are checked first (:func:`~amrst.guards.open3d_points`): Open3D
+    raises its own multi-line RuntimeError on a span its voxel keys cannot hold, and
+    its features and point-to-plane ICP on a cloud of no points.
+
+    Parameters
+    ----------
+    xyz : (N, 3) array_like
+    voxel_m : float
+    what : str
+        Names the cloud in a message, e.g. ``"the source scan"``.
+
+    Raises
+    ------
+    InvalidInput
+        No points, NaN/inf coordinates, or a span too wide for ``voxel_m`` voxels.
+    """
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud()
-    pcd.points = o3d.utility.Vector3dVector(np.array(xyz, dtype=np.float64))
-    return pcd
+    # a copy: Vector3dVector refuses read-only arrays such as Cloud.xyz
+    pcd.points = o3d.utility.Vector3dVector(np.array(open3d_points(xyz, voxel_m, what)))
+    return pcd.voxel_down_sample(voxel_m)
 
 
 def voxel_down(xyz: np.ndarray, voxel_m: float) -> np.ndarray:

@@ -18,6 +18,7 @@ from amrst.baselines._common import (
     local_pair,
     to_o3d,
 )
+from amrst.guards import SOURCE, TARGET
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -54,11 +55,11 @@ class FeatureParams:
 
 
 def _with_normals(
-    xyz: np.ndarray, voxel_m: float, radius_m: float
+    xyz: np.ndarray, voxel_m: float, radius_m: float, what: str
 ) -> o3d.geometry.PointCloud:
     import open3d as o3d
 
-    pcd = to_o3d(xyz).voxel_down_sample(voxel_m)
+    pcd = to_o3d(xyz, voxel_m, what)
     pcd.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=30)
     )
@@ -66,12 +67,12 @@ def _with_normals(
 
 
 def _features(
-    xyz: np.ndarray, params: FeatureParams
+    xyz: np.ndarray, params: FeatureParams, what: str
 ) -> tuple[o3d.geometry.PointCloud, o3d.pipelines.registration.Feature]:
     import open3d as o3d
 
     v = params.voxel_size_m
-    pcd = _with_normals(xyz, v, params.normal_radius_factor * v)
+    pcd = _with_normals(xyz, v, params.normal_radius_factor * v, what)
     # open3d's stub marks ``indices`` required; it defaults to all points.
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
         pcd,
@@ -104,8 +105,8 @@ def refine_point_to_plane(
 
     reg = o3d.pipelines.registration
     radius = 3.0 * params.refine_voxel_m
-    tgt = _with_normals(target_xyz, params.refine_voxel_m, radius)
-    src = to_o3d(source_xyz).voxel_down_sample(params.refine_voxel_m)
+    tgt = _with_normals(target_xyz, params.refine_voxel_m, radius, TARGET)
+    src = to_o3d(source_xyz, params.refine_voxel_m, SOURCE)
     T = np.asarray(T_init, dtype=float).copy()
     for dist in params.refine_dists_m:
         res = reg.registration_icp(
@@ -136,8 +137,8 @@ def global_ransac(
     -------
     (4, 4) float64
     """
-    tgt_pcd, tgt_fpfh = _features(target_xyz, params)
-    src_pcd, src_fpfh = _features(source_xyz, params)
+    tgt_pcd, tgt_fpfh = _features(target_xyz, params, TARGET)
+    src_pcd, src_fpfh = _features(source_xyz, params, SOURCE)
     res = _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, "ransac")
     return cast("np.ndarray", np.asarray(res.transformation).copy())
 
@@ -188,8 +189,8 @@ def _register(
     clock = Stopwatch()
     tgt, src, origin = local_pair(target, source)
     with clock.stage("features"):
-        tgt_pcd, tgt_fpfh = _features(tgt, params)
-        src_pcd, src_fpfh = _features(src, params)
+        tgt_pcd, tgt_fpfh = _features(tgt, params, TARGET)
+        src_pcd, src_fpfh = _features(src, params, SOURCE)
     with clock.stage(global_method):
         res = _global(tgt_pcd, src_pcd, tgt_fpfh, src_fpfh, params, global_method)
     T_global = np.asarray(res.transformation).copy()

@@ -19,6 +19,7 @@ from amrst.baselines._common import (
     local_pair,
     to_o3d,
 )
+from amrst.guards import SOURCE, TARGET
 from amrst.types import Cloud, Transform, make_transform
 
 
@@ -70,8 +71,8 @@ def icp_point_to_point(
 
     reg = o3d.pipelines.registration
     with clock.stage("downsample"):
-        tgt = to_o3d(target_xyz).voxel_down_sample(params.voxel_size_m)
-        src = to_o3d(source_xyz).voxel_down_sample(params.voxel_size_m)
+        tgt = to_o3d(target_xyz, params.voxel_size_m, TARGET)
+        src = to_o3d(source_xyz, params.voxel_size_m, SOURCE)
     T = np.asarray(T_init, dtype=float).copy()
     with clock.stage("icp"):
         for dist, iters in zip(

@@ -17,12 +17,13 @@ import importlib.util
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from amrst.baselines._common import MethodResult, Stopwatch, finish, local_pair
+from amrst.guards import grid_pair
 from amrst.stages.global_match import kiss_global, kiss_matcher_available
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from amrst.types import Cloud, Transform
 
 
@@ -57,22 +58,31 @@ def refine_gicp(
 ) -> Transform:
     """small_gicp GICP from ``T_init`` (2 threads).
 
+    small_gicp ends the process on an empty target and drops points beyond its voxel
+    grid silently: the clouds pass :func:`~amrst.guards.grid_pair` first.
+
     Returns
     -------
     (4, 4) float64
+
+    Raises
+    ------
+    InvalidInput
+        An empty cloud, NaN/inf coordinates, or a span the voxel grid cannot hold.
     """
     import small_gicp
 
+    pair = grid_pair(target_xyz, source_xyz, params.gicp_voxel_m)
     res = small_gicp.align(
-        np.asarray(target_xyz, dtype=np.float64),
-        np.asarray(source_xyz, dtype=np.float64),
-        np.asarray(T_init, dtype=np.float64),
+        pair.target,
+        pair.source,
+        pair.shift(T_init),
         registration_type="GICP",
         downsampling_resolution=params.gicp_voxel_m,
         max_correspondence_distance=params.gicp_max_dist_m,
         num_threads=2,
     )
-    return np.asarray(res.T_target_source, dtype=float)
+    return pair.unshift(res.T_target_source)
 
 
 def _global(

@@ -6,8 +6,9 @@ The fastest generic peer we know: KISS-Matcher (``KISSMatcherConfig(0.1)``,
 :func:`kiss_ratio` runs it and ``amrst.register`` on the same clouds (local frame,
 already in memory), the peer before and after ours, and keeps the peer's faster
 run: the ratio is our compute time (``timings["total"]`` without the metrics stage)
-over the peer's. ``kiss-matcher`` is a dependency where it has wheels (Linux
-x86_64, macOS arm64).
+over the peer's. The peer's inputs are checked for its libraries
+(:func:`peer_input`) before its clock starts. ``kiss-matcher`` is a dependency
+where it has wheels (Linux x86_64, macOS arm64).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.guards import ShiftedPair, grid_pair, kiss_pair
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -45,26 +47,63 @@ class KissRow:
         return self.ours_s / self.kiss_s
 
 
-def kiss_gicp(target_xyz: np.ndarray, source_xyz: np.ndarray) -> Transform:
+#: The peer's settings: KISS-Matcher's voxel, then GICP's voxel and distance (m).
+KISS_VOXEL_M, GICP_VOXEL_M, GICP_MAX_DIST_M = 0.1, 0.02, 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class PeerInput:
+    """Two local clouds checked for the peer's compiled libraries.
+
+    ``pair`` lies within small_gicp's voxel grid (so within KISS-Matcher's coarser
+    one too); ``kiss_runs`` is False where KISS-Matcher would find no feature point
+    and end the process: GICP then starts from the identity.
+    """
+
+    pair: ShiftedPair
+    kiss_runs: bool
+
+
+def peer_input(target_xyz: np.ndarray, source_xyz: np.ndarray) -> PeerInput:
+    """Check and move two local clouds for :func:`kiss_gicp` (outside its timing).
+
+    Raises
+    ------
+    InvalidInput
+        An empty cloud, NaN/inf coordinates, or a span the voxel grids cannot hold.
+    """
+    import kiss_matcher
+
+    pair = grid_pair(target_xyz, source_xyz, GICP_VOXEL_M)
+    radius = kiss_matcher.KISSMatcherConfig(KISS_VOXEL_M).normal_radius
+    features = kiss_pair(pair.target, pair.source, KISS_VOXEL_M, radius)
+    return PeerInput(pair, features is not None)
+
+
+def kiss_gicp(peer: PeerInput) -> Transform:
     """KISS-Matcher, then small_gicp GICP: ``T_target_source`` of two local clouds."""
     import kiss_matcher
     import small_gicp
 
-    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(0.1))
-    sol = matcher.estimate(source_xyz.astype(np.float32), target_xyz.astype(np.float32))
+    pair = peer.pair
     T = np.eye(4)
-    T[:3, :3] = np.asarray(sol.rotation)
-    T[:3, 3] = np.asarray(sol.translation).ravel()
+    if peer.kiss_runs:
+        config = kiss_matcher.KISSMatcherConfig(KISS_VOXEL_M)
+        sol = kiss_matcher.KISSMatcher(config).estimate(
+            pair.source.astype(np.float32), pair.target.astype(np.float32)
+        )
+        T[:3, :3] = np.asarray(sol.rotation)
+        T[:3, 3] = np.asarray(sol.translation).ravel()
     out = small_gicp.align(
-        target_xyz,
-        source_xyz,
+        pair.target,
+        pair.source,
         T,
         registration_type="GICP",
-        downsampling_resolution=0.02,
-        max_correspondence_distance=0.2,
+        downsampling_resolution=GICP_VOXEL_M,
+        max_correspondence_distance=GICP_MAX_DIST_M,
         num_threads=2,
     )
-    return np.asarray(out.T_target_source, dtype=np.float64)
+    return pair.unshift(out.T_target_source)
 
 
 def kiss_ratio(
@@ -99,12 +138,13 @@ def kiss_ratio(
             reporter.progress(n / len(paths), path.name)
         case = read_case(path)
         tgt, src, origin = local_pair(case.target, case.source)
+        peer = peer_input(tgt, src)
         if n == 0:  # load both libraries and warm their code paths first
-            kiss_gicp(tgt, src)
+            kiss_gicp(peer)
             register(case.target, case.source)
         kiss_times = []
         t0 = time.perf_counter()
-        T_kiss = kiss_gicp(tgt, src)
+        T_kiss = kiss_gicp(peer)
         kiss_times.append(time.perf_counter() - t0)
         try:
             res = register(case.target, case.source)
@@ -113,7 +153,7 @@ def kiss_ratio(
         except RegistrationFailed:
             ours, T_ours = float("nan"), np.full((4, 4), np.nan)
         t0 = time.perf_counter()
-        kiss_gicp(tgt, src)
+        kiss_gicp(peer)
         kiss_times.append(time.perf_counter() - t0)
         T_true = to_local(case.T_target_source, origin)
         e_ours = truth_errors(T_ours, T_true, src)

@@ -264,12 +264,16 @@ def _robust_plane(
 ) -> tuple[Transform, int, bool]:
     import open3d as o3d
 
+    from amrst.guards import SOURCE, TARGET, require_points
+
     reg = o3d.pipelines.registration
+    # Open3D's point-to-plane ICP raises its own multi-line error on a target of no
+    # points (it has no normals): refused here with one line.
     s = o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.array(src, dtype=np.float64))
+        o3d.utility.Vector3dVector(np.array(require_points(src, SOURCE)))
     )
     t = o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.array(tgt, dtype=np.float64))
+        o3d.utility.Vector3dVector(np.array(require_points(tgt, TARGET)))
     )
     t.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=max(max_dist, 0.05), max_nn=20)

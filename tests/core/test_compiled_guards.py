@@ -233,3 +233,147 @@ def test_e57_that_is_not_e57_is_one_line(tmp_path):
     assert proc.stderr.count("\n") == 1
     assert "not a readable E57 file" in proc.stderr
     assert "Debug info" not in proc.stderr
+
+
+# --- each call site of a compiled library, with the input that ended it ------------
+
+FAR_SOURCES = {
+    "empty": "np.zeros((0, 3))",
+    "sparse": "np.random.default_rng(0).uniform(0, 1e4, (1000, 3))",  # no features
+    "far": "base + 1e7",  # beyond small_gicp's 2 cm voxel keys
+    "wide": "np.column_stack([np.linspace(0, 1e6, 3000), base[:, 1:]])",
+}
+
+
+@pytest.mark.parametrize("source", sorted(FAR_SOURCES))
+def test_bench_peer_never_dies(source):
+    pytest.importorskip("kiss_matcher")
+    pytest.importorskip("small_gicp")
+    proc = run_child(
+        f"""
+        base = np.random.default_rng(1).uniform(0, 1, (3000, 3)) * [5, 5, 20]
+        from amrst.bench.kiss import kiss_gicp, peer_input
+        source = {FAR_SOURCES[source]}
+
+        def go():
+            T = kiss_gicp(peer_input(base, source))
+            assert np.isfinite(T).all(), T
+            if "{source}" == "far":  # GICP from the identity, within its reach
+                move = base.mean(axis=0) - source.mean(axis=0)
+                assert np.allclose(T[:3, 3], move, atol=0.01), T
+            return "ok"
+
+        finish(go)
+        """
+    )
+    assert_exit(proc, (2,) if source in ("empty", "wide") else (0,))
+
+
+@pytest.mark.parametrize("case", ["empty_target", "empty_source", "far", "nan"])
+def test_baseline_refine_gicp_never_dies(case):
+    pytest.importorskip("small_gicp")
+    proc = run_child(
+        f"""
+        base = np.random.default_rng(1).uniform(0, 1, (3000, 3)) * [5, 5, 20]
+        from amrst.baselines.kiss_matcher import KissParams, refine_gicp
+        target, source = {{
+            "empty_target": (np.zeros((0, 3)), base),  # ended the process
+            "empty_source": (base, np.zeros((0, 3))),
+            "far": (base + 1e7, base),  # its points dropped by the voxel grid
+            "nan": (base, np.vstack([base, [[np.nan] * 3]])),
+        }}["{case}"]
+        T0 = np.eye(4)
+        T0[:3, 3] = 1e7 if "{case}" == "far" else 0.0
+
+        def go():
+            T = refine_gicp(target, source, T0, KissParams())
+            assert np.allclose(T[:3, 3], T0[:3, 3], atol=0.01), T
+            return "ok"
+
+        finish(go)
+        """
+    )
+    assert_exit(proc, (0,) if case == "far" else (2,))
+    assert proc.stderr.count("\n") <= 1
+
+
+@pytest.mark.parametrize("build", ["knn", "nearest", "table"])
+@pytest.mark.parametrize("points", ["empty", "nan", "inf"])
+def test_kd_tree_builds_never_die(build, points):
+    proc = run_child(
+        f"""
+        base = np.random.default_rng(1).uniform(0, 1, (3000, 3)) * [5, 5, 20]
+        import pickle
+        from amrst.neighbours import NearestTree, NeighbourTable, knn
+        points = {{"empty": np.zeros((0, 3)), "nan": base.copy(), "inf": base.copy()}}[
+            "{points}"
+        ]
+        if len(points):
+            points[7] = np.nan if "{points}" == "nan" else np.inf
+
+        def go():
+            if "{build}" == "knn":
+                return knn(points, 1, base[:5])[1].ravel()
+            if "{build}" == "table":
+                return NeighbourTable.build(points, 8).knn(4)[1][:2]
+            # a tree sent to another process is built again where it is queried
+            tree = pickle.loads(pickle.dumps(NearestTree(points)))
+            return tree.query(base[:5])[1]
+
+        finish(go)
+        """
+    )
+    if points == "empty" and build == "nearest":  # no tree: every query finds none
+        assert_exit(proc, (0,))
+        assert proc.stdout.split() == ["[0", "0", "0", "0", "0]"]
+    elif points == "empty":  # a k no cloud of no points can give: the caller's bug
+        assert proc.returncode == 1, proc.stderr
+        assert "ValueError" in proc.stderr
+    else:
+        assert_exit(proc, (2,))
+        assert "the cloud searched for neighbours holds NaN or infinite" in proc.stderr
+
+
+WIDE = "base * [5e7, 1, 1]"  # a 2.5e8 m span: beyond Open3D's voxel keys
+
+OPEN3D_CASES = {
+    # Open3D raised a RuntimeError ("voxel_size is too small") with its source path
+    "icp_wide": f"b.register_icp(Cloud(base), Cloud({WIDE}))",
+    "fpfh_wide": f"b.register_fpfh_ransac(Cloud({WIDE}), Cloud(base))",
+    "refine_wide": f"features.refine_point_to_plane(base, {WIDE}, np.eye(4), params)",
+    # ... and on FPFH features of no points
+    "fgr_empty": "features.global_ransac(base, np.zeros((0, 3)), params)",
+}
+
+
+@pytest.mark.parametrize("case", sorted(OPEN3D_CASES))
+def test_open3d_baselines_refuse_in_one_line(case):
+    pytest.importorskip("open3d")
+    proc = run_child(
+        f"""
+        base = np.random.default_rng(1).uniform(0, 1, (3000, 3)) * [5, 5, 20]
+        import amrst.baselines as b
+        from amrst.baselines import features
+        from amrst.types import Cloud
+        params = features.FeatureParams()
+        finish(lambda: {OPEN3D_CASES[case]})
+        """
+    )
+    assert_exit(proc, (2,))
+    assert proc.stderr.count("\n") == 1, proc.stderr
+    assert "Open3D" not in proc.stderr
+
+
+def test_robust_plane_on_an_empty_target_is_one_line():
+    pytest.importorskip("open3d")
+    proc = run_child(
+        """
+        base = np.random.default_rng(1).uniform(0, 1, (3000, 3)) * [5, 5, 20]
+        from amrst.stages.fine import FineParams, refine_registration
+        params = FineParams(method="robust_plane")
+        # Open3D's point-to-plane ICP raised its own error here (no target normals)
+        finish(lambda: refine_registration(np.zeros((0, 3)), base, np.eye(4), params))
+        """
+    )
+    assert_exit(proc, (2,))
+    assert "the target scan has 0 point(s)" in proc.stderr
