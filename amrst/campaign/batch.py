@@ -42,19 +42,23 @@ class BatchProgress(Protocol):
     def update(
         self,
         done: int,
-        failed: int,
+        errors: int,
         running: int,
         total: int,
         left_s: float | None,
         row: dict[str, Any] | None,
     ) -> None:
-        """Report the counts after a change; ``row`` is the tree just finished."""
+        """Report the counts after a change; ``row`` is the tree just finished.
+
+        ``done``: trees with a result (whatever its state), skipped ones included;
+        ``errors``: trees that ended without one.
+        """
 
 
 class ReporterProgress:
     """A BatchProgress that tells an amrst Reporter (the app's worker) and can cancel.
 
-    Each finished tree calls ``progress(done share, "<id>: <verdict or error>")``; a
+    Each finished tree calls ``progress(done share, "<id>: <status or error>")``; a
     tree starting or ending on a worker ``progress(done share, STARTED + "<id>")`` or
     ``FINISHED + "<id>"`` (worker events: "running" means running, not submitted);
     ``check_cancelled`` is asked between trees, so a cancel stops the batch there (the
@@ -76,18 +80,18 @@ class ReporterProgress:
     def update(
         self,
         done: int,
-        failed: int,
+        errors: int,
         running: int,
         total: int,
         left_s: float | None,
         row: dict[str, Any] | None,
     ) -> None:
         """Forward the share of trees finished and the tree just finished."""
-        share = self.share = (done + failed) / total if total else 1.0
+        share = self.share = (done + errors) / total if total else 1.0
         text = (
             ""
             if row is None
-            else f"{row['id']}: {row.get('verdict') or row.get('error', '')}"
+            else f"{row['id']}: {row.get('status') or row.get('error', '')}"
         )
         self.reporter.progress(share, text)
         self.reporter.check_cancelled()
@@ -95,11 +99,17 @@ class ReporterProgress:
 
 @dataclass
 class BatchSummary:
-    """What one batch run did: trees skipped (already done), run, failed."""
+    """What one batch run did: trees skipped (already done), run to a result, errors.
+
+    ``finished`` trees have a result, whose state (registered, needs review, failed)
+    ``statuses`` gives; ``errors`` holds the trees that ended without one (a file that
+    cannot be read, a worker that died), with the one-line reason.
+    """
 
     skipped: list[str] = field(default_factory=list)
-    registered: list[str] = field(default_factory=list)
-    failed: dict[str, str] = field(default_factory=dict)
+    finished: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
+    statuses: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0  # wall time of the whole call, cluster start included
     run_seconds: float = 0.0  # first submission to last result
     workers: int = 0
@@ -107,9 +117,26 @@ class BatchSummary:
 
     @property
     def trees_per_hour(self) -> float:
-        """Trees this run registered (ok or failed) per hour of wall time."""
-        n = len(self.registered) + len(self.failed)
+        """Trees this run ran (with a result or an error) per hour of wall time."""
+        n = len(self.finished) + len(self.errors)
         return 3600.0 * n / self.run_seconds if self.run_seconds > 0 else 0.0
+
+    def counts(self) -> str:
+        """Say what the trees of this run came to, in the states' words.
+
+        ``"2 registered, 1 needs review, 1 failed (1 with an error), 3 already done"``:
+        a tree that ended in an error counts as failed.
+        """
+        from amrst.review.verdict import FAILED, STATUSES
+
+        n = dict.fromkeys(STATUSES, 0)
+        for status in self.statuses.values():
+            n[status] = n.get(status, 0) + 1
+        n[FAILED] += len(self.errors)
+        parts = [f"{count} {status}" for status, count in n.items()]
+        if self.errors:
+            parts[-1] += f" ({len(self.errors)} with an error)"
+        return ", ".join([*parts, f"{len(self.skipped)} already done"])
 
 
 def _params(
@@ -378,9 +405,10 @@ def _collect(
         row = _row_of(future, todo)
         summary.results.append(row)
         if row.get("ok"):
-            summary.registered.append(row["id"])
+            summary.finished.append(row["id"])
+            summary.statuses[row["id"]] = str(row.get("status", ""))
         else:
-            summary.failed[row["id"]] = row.get("error", "")
+            summary.errors[row["id"]] = row.get("error", "")
         # The table as trees end (each row read back from its results folder), at
         # most once a second, so that writing it takes no noticeable CPU from the
         # workers. Nothing is lost by the wait: every tree's results are on disk and
@@ -388,7 +416,9 @@ def _collect(
         if row["id"] in index:
             k = index[row["id"]]
             rows[k] = tree_row(campaign, campaign.trees[k])
-        if finished == len(todo) or time.perf_counter() - written >= TABLE_EVERY_S:
+        if finished == len(todo):  # read afresh: decisions made while it ran
+            write_table(campaign)
+        elif time.perf_counter() - written >= TABLE_EVERY_S:
             write_table(campaign, rows)
             written = time.perf_counter()
         done_cost += costs.get(row["id"], 0.0)
@@ -402,8 +432,8 @@ def _collect(
             )
             running = min(len(todo) - finished, summary.workers)
             progress.update(
-                done + len(summary.registered),
-                len(summary.failed),
+                done + len(summary.finished),
+                len(summary.errors),
                 running,
                 total,
                 left,

@@ -1,4 +1,4 @@
-"""``amrst campaign init|status|simulate`` and ``amrst batch``.
+"""``amrst campaign init|status|decide|export|simulate`` and ``amrst batch``.
 
 amrst.cli adds these with a few lines: ``configure_campaign`` / ``run_campaign`` for
 ``amrst campaign``, ``configure_batch`` / ``run_batch_cli`` for ``amrst batch``.
@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import argparse
+
+    from amrst.campaign.manifest import Campaign
 
 EXIT_FAILED = 3
 
@@ -27,7 +29,7 @@ class TerminalBar:
     def update(
         self,
         done: int,
-        failed: int,
+        errors: int,
         running: int,
         total: int,
         left_s: float | None,
@@ -37,18 +39,21 @@ class TerminalBar:
         if self._quiet:
             return
         left = "" if left_s is None else f", {_clock(left_s)} left"
-        text = f"{done}/{total} trees done, {failed} failed, {running} running{left}"
+        text = (
+            f"{done}/{total} trees done, {errors} with an error, {running} running"
+            f"{left}"
+        )
         if self._tty:
-            share = (done + failed) / total if total else 1.0
+            share = (done + errors) / total if total else 1.0
             bar = "#" * int(30 * share)
             sys.stderr.write(f"\r[{bar:<30}] {text:<70}")
-            if done + failed >= total:
+            if done + errors >= total:
                 sys.stderr.write("\n")
         elif row is not None:
             what = (
-                row.get("verdict")
+                row.get("status")
                 if row.get("ok")
-                else f"FAILED: {row.get('error', '')}"
+                else f"failed with an error: {row.get('error', '')}"
             )
             sys.stderr.write(
                 f"{time.perf_counter() - self._t0:7.1f}s {row['id']}: {what} ({text})\n"
@@ -66,7 +71,7 @@ def _clock(seconds: float) -> str:
 
 
 def configure_campaign(p: argparse.ArgumentParser) -> None:
-    """Add ``init``, ``status`` and ``simulate`` under ``amrst campaign``."""
+    """Add ``init``, ``status``, ``decide``, ``export``, ``simulate`` under ``amrst campaign``."""
     from amrst.multiscan import simulate
 
     sub = p.add_subparsers(dest="campaign_command", metavar="ACTION", required=True)
@@ -74,8 +79,33 @@ def configure_campaign(p: argparse.ArgumentParser) -> None:
         "init", help="write campaign.toml from one subfolder per tree"
     )
     init.add_argument("folder", metavar="DIR")
-    status = sub.add_parser("status", help="one line per tree: done, failed, not run")
+    status = sub.add_parser(
+        "status", help="one line per tree: its state and the decision on it"
+    )
     status.add_argument("folder", metavar="DIR")
+    decide = sub.add_parser(
+        "decide", help="accept or reject trees, or clear the decision on them"
+    )
+    decide.add_argument("folder", metavar="DIR")
+    decide.add_argument("trees", nargs="+", metavar="TREE", help="tree ids")
+    decide.add_argument(
+        "decision", choices=("accepted", "rejected", "clear"), metavar="DECISION"
+    )
+    decide.add_argument(
+        "--confirm-unregistered",
+        action="store_true",
+        help="accept trees the batch did not register (failed, needs review)",
+    )
+    export = sub.add_parser(
+        "export", help="write the merged cloud of every accepted tree"
+    )
+    export.add_argument("folder", metavar="DIR")
+    export.add_argument(
+        "--format",
+        default="ply",
+        choices=("ply", "las", "laz", "pcd"),
+        help="cloud format (default ply)",
+    )
     sim = sub.add_parser(
         "simulate", help="several simulated scans of one tree, with truth"
     )
@@ -84,33 +114,83 @@ def configure_campaign(p: argparse.ArgumentParser) -> None:
 
 def run_campaign(args: argparse.Namespace) -> int:
     """Run ``amrst campaign ACTION``."""
-    from amrst.campaign.init import init_campaign
     from amrst.campaign.manifest import load_campaign
-    from amrst.campaign.table import campaign_rows
     from amrst.multiscan import simulate
 
     if args.campaign_command == "simulate":
         return simulate.run_cli(args)
     if args.campaign_command == "init":
-        campaign, skipped = init_campaign(args.folder)
-        print(f"{campaign.root / campaign.source}: {len(campaign.trees)} tree(s).")
-        for t in campaign.trees:
-            print(f"  {t.id}: {len(t.scans)} scans, reference {t.scans[t.reference]}")
-        for line in skipped:
-            print(f"  not paired: {line}")
-        return 0
+        return _init(args.folder)
     campaign = load_campaign(args.folder)
+    if args.campaign_command == "decide":
+        return _decide(campaign, args)
+    if args.campaign_command == "export":
+        return _export(campaign, args.format)
+    return _status(campaign)
+
+
+def _init(folder: str) -> int:
+    from amrst.campaign.init import init_campaign
+
+    campaign, skipped = init_campaign(folder)
+    print(f"{campaign.root / campaign.source}: {len(campaign.trees)} tree(s).")
+    for t in campaign.trees:
+        print(f"  {t.id}: {len(t.scans)} scans, reference {t.scans[t.reference]}")
+    for line in skipped:
+        print(f"  not paired: {line}")
+    return 0
+
+
+def _status(campaign: Campaign) -> int:
+    """One line per tree: state, decision, confidence or error; then the counts."""
+    from amrst.campaign.table import campaign_rows
+
     rows = campaign_rows(campaign)
     for row in rows:
         extra = row["error"] or (
             f"confidence {row['confidence']:.2f}" if row["confidence"] != "" else ""
         )
-        print(f"{row['tree_id']:<24} {row['status']:<13} {extra}")
+        print(f"{row['tree_id']:<24} {row['status']:<13} {row['decision']:<9} {extra}")
     counts: dict[str, int] = {}
     for row in rows:
-        counts[row["status"]] = counts.get(row["status"], 0) + 1
+        for word in (row["status"], row["decision"]):
+            if word:
+                counts[word] = counts.get(word, 0) + 1
     print(", ".join(f"{n} {s}" for s, n in sorted(counts.items())))
     return 0
+
+
+def _decide(campaign: Campaign, args: argparse.Namespace) -> int:
+    from amrst.campaign.review import CLEAR, decide
+    from amrst.campaign.table import TABLE
+
+    decide(
+        campaign,
+        args.trees,
+        args.decision,
+        confirm_unregistered=args.confirm_unregistered,
+    )
+    what = "decision cleared" if args.decision == CLEAR else args.decision
+    for tree_id in args.trees:
+        print(f"{tree_id}: {what}")
+    print(f"table: {campaign.root / TABLE}")
+    return 0
+
+
+def _export(campaign: Campaign, cloud_format: str) -> int:
+    from amrst.campaign.review import export_accepted
+
+    written, errors = export_accepted(campaign, cloud_format)
+    for path in written:
+        print(f"wrote {path}")
+    for tree_id, error in errors.items():
+        print(f"  {tree_id}: {error}", file=sys.stderr)
+    if not written and not errors:
+        print(
+            "No tree is accepted yet: accept trees first "
+            "(amrst campaign decide DIR TREE accepted)."
+        )
+    return EXIT_FAILED if errors else 0
 
 
 def configure_batch(p: argparse.ArgumentParser) -> None:
@@ -184,10 +264,8 @@ def run_batch_cli(args: argparse.Namespace) -> int:
         threads_per_tree=args.threads_per_tree,
     )
     print(
-        f"{len(summary.registered)} registered, {len(summary.failed)} failed, "
-        f"{len(summary.skipped)} already done (skipped) in {summary.seconds:.1f} s; "
-        f"table: {campaign.root / TABLE}"
+        f"{summary.counts()} in {summary.seconds:.1f} s; table: {campaign.root / TABLE}"
     )
-    for tree_id, error in summary.failed.items():
+    for tree_id, error in summary.errors.items():
         print(f"  {tree_id}: {error}", file=sys.stderr)
-    return EXIT_FAILED if summary.failed else 0
+    return EXIT_FAILED if summary.errors else 0

@@ -1,11 +1,14 @@
-"""A person's review of a campaign: decisions written at once, and the export.
+"""A person's review of a campaign: decisions written at once, undone, and the export.
 
-The decision on a tree (``accepted``, ``rejected``) is written to
+The decision on a tree (``accepted`` or ``rejected``) is written to
 ``results/<id>/review.json`` the moment it is made (atomically), so a crash loses
-nothing. :func:`review_state` combines it with the batch's results into the state the
-app lists: not run, registered, needs review, failed, accepted, exported.
-:func:`export_tree` writes a tree's merged cloud (``scan_id`` per point) from its stored
-transforms without registering again.
+nothing, and can be cleared again (the tree is back to its batch state). Accepting a
+tree the batch did not register (failed, needs review) takes an explicit
+confirmation. :func:`review_state` combines the decision with the batch's results into
+the state the app lists: the decision when one was made, else the registration's
+(registered, needs review, failed) or not run. :func:`export_tree` writes a tree's
+merged cloud (``scan_id`` per point) from its stored transforms without registering
+again; :func:`export_accepted` does so for every accepted tree and returns the paths.
 """
 
 from __future__ import annotations
@@ -16,15 +19,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.campaign.table import read_doc
-from amrst.errors import InvalidInput
+from amrst.errors import AmrstError, InvalidInput
+from amrst.review.verdict import FAILED, REGISTERED
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from pathlib import Path
 
     from amrst.campaign.manifest import Campaign
 
 REVIEW = "review.json"
-DECISIONS = ("accepted", "rejected")
+ACCEPTED = "accepted"
+REJECTED = "rejected"
+DECISIONS = (ACCEPTED, REJECTED)
+#: Given to :func:`decide` instead of a decision: remove the tree's decision.
+CLEAR = "clear"
 #: States needing a person come first when the app sorts.
 STATE_ORDER = (
     "needs review",
@@ -33,21 +42,37 @@ STATE_ORDER = (
     "running",
     "queued",
     "not run",
-    "rejected",
-    "accepted",
-    "exported",
+    REJECTED,
+    ACCEPTED,
 )
+
+
+def decision_of(campaign: Campaign, tree_id: str) -> str:
+    """Return the decision on a tree's result: accepted, rejected, or "" (none).
+
+    A tree whose last run ended in an error has no result, so no decision either.
+    """
+    from amrst.campaign.run import ERROR
+
+    out = campaign.results_dir(tree_id)
+    if (out / ERROR).is_file():
+        return ""
+    decision = str((read_doc(out / REVIEW) or {}).get("decision", ""))
+    return decision if decision in DECISIONS else ""
 
 
 def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:
     """Return the tree's state for the app: the decision when one was made, else the batch's."""
-    doc = read_doc(campaign.results_dir(tree_id) / REVIEW)
-    if doc is None or batch_status in ("not run", "failed"):
+    if batch_status == "not run":
         return batch_status
-    if doc.get("exported_utc"):
-        return "exported"
-    decision = str(doc.get("decision", ""))
-    return decision if decision in DECISIONS else batch_status
+    return decision_of(campaign, tree_id) or batch_status
+
+
+def exported_path(campaign: Campaign, tree_id: str) -> Path | None:
+    """Return the merged cloud :func:`export_tree` last wrote for a tree, if any."""
+    out = campaign.results_dir(tree_id)
+    name = (read_doc(out / REVIEW) or {}).get("exported")
+    return out / str(name) if name and (out / str(name)).is_file() else None
 
 
 def batch_state(state: str, tree_id: str, queued: set[str], running: set[str]) -> str:
@@ -64,25 +89,102 @@ def batch_state(state: str, tree_id: str, queued: set[str], running: set[str]) -
     return state
 
 
-def set_decision(campaign: Campaign, tree_id: str, decision: str) -> Path:
-    """Record a decision on a tree now (atomic write); return the file written."""
-    from amrst.files.atomic import write_json_atomic
+def acceptance_warning(campaign: Campaign, tree_id: str) -> str:
+    """Say why accepting a tree needs a confirmation; "" when the batch registered it.
 
-    if decision not in DECISIONS:
-        raise InvalidInput(f"Unknown decision {decision!r}; choose one of {DECISIONS}.")
+    The app asks with these words before it accepts with ``confirm_unregistered``.
+    """
+    from amrst.campaign.table import tree_row
+
+    status = tree_row(campaign, campaign.tree(tree_id))["status"]
+    if status == REGISTERED:
+        return ""
+    if status == FAILED:
+        return f"Tree {tree_id} failed: no candidate verified, so its pose is a guess."
+    return f"Tree {tree_id} needs review: nothing clearly confirms its pose."
+
+
+def _check_decision(
+    campaign: Campaign, tree_id: str, decision: str, confirm_unregistered: bool
+) -> None:
+    """Refuse, in one line, a decision that cannot be recorded as asked."""
     campaign.tree(tree_id)  # refuses an unknown id
-    out = campaign.results_dir(tree_id)
-    if not (out / "scans.json").is_file():
+    if decision == CLEAR:
+        return
+    if not (campaign.results_dir(tree_id) / "scans.json").is_file():
         raise InvalidInput(
             f"Tree {tree_id} has no result to {decision[:-2]} yet; run it first."
         )
+    if decision == ACCEPTED and not confirm_unregistered:
+        warning = acceptance_warning(campaign, tree_id)
+        if warning:
+            raise InvalidInput(
+                f"{warning} Look at it first; to accept it anyway, confirm "
+                "(--confirm-unregistered)."
+            )
+
+
+def decide(
+    campaign: Campaign,
+    tree_ids: Sequence[str],
+    decision: str,
+    *,
+    confirm_unregistered: bool = False,
+) -> list[Path]:
+    """Record a decision on trees now, or clear it; then rewrite the campaign table.
+
+    Parameters
+    ----------
+    campaign : Campaign
+    tree_ids : sequence of str
+    decision : str
+        ``accepted``, ``rejected``, or ``clear`` (:data:`CLEAR`): the tree is back to
+        its batch state.
+    confirm_unregistered : bool
+        Accept trees the batch did not register (failed, needs review); without it
+        such a tree is refused with :func:`acceptance_warning`'s words.
+
+    Returns
+    -------
+    list of Path
+        The ``review.json`` of each tree (missing once a cleared one holds nothing).
+
+    Raises
+    ------
+    InvalidInput
+        An unknown decision or tree, a tree with no result, or an unconfirmed
+        acceptance; nothing is written then.
+    """
+    from amrst.campaign.table import tree_row, write_table
+    from amrst.files.atomic import write_json_atomic
+
+    if decision not in (*DECISIONS, CLEAR):
+        raise InvalidInput(
+            f"Unknown decision {decision!r}; choose accepted, rejected or clear."
+        )
+    for tree_id in tree_ids:
+        _check_decision(campaign, tree_id, decision, confirm_unregistered)
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    write_json_atomic(out / REVIEW, {"decision": decision, "decided_utc": now})
-    return out / REVIEW
+    written = []
+    for tree_id in tree_ids:
+        path = campaign.results_dir(tree_id) / REVIEW
+        doc = read_doc(path) or {}
+        for key in ("decision", "decided_utc", "registration_status"):
+            doc.pop(key, None)
+        if decision != CLEAR:
+            status = tree_row(campaign, campaign.tree(tree_id))["status"]
+            doc.update(decision=decision, decided_utc=now, registration_status=status)
+        if doc:
+            write_json_atomic(path, doc)
+        else:
+            path.unlink(missing_ok=True)
+        written.append(path)
+    write_table(campaign)
+    return written
 
 
 def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> Path:
-    """Write ``merged.<fmt>`` of a tree from its stored transforms; mark it exported."""
+    """Write ``merged.<fmt>`` of a tree from its stored transforms; return its path."""
     from amrst import io
     from amrst.files.atomic import write_json_atomic
     from amrst.io.scans import read_scans
@@ -111,3 +213,27 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     doc["exported"] = path.name
     write_json_atomic(out / REVIEW, doc)
     return path
+
+
+def export_accepted(
+    campaign: Campaign, cloud_format: str = "ply"
+) -> tuple[list[Path], dict[str, str]]:
+    """Export every accepted tree (:func:`export_tree`).
+
+    Returns
+    -------
+    list of Path
+        The merged clouds written, in manifest order.
+    dict
+        Tree id -> why its export failed (one line), for the trees that did.
+    """
+    written: list[Path] = []
+    errors: dict[str, str] = {}
+    for entry in campaign.trees:
+        if decision_of(campaign, entry.id) != ACCEPTED:
+            continue
+        try:
+            written.append(export_tree(campaign, entry.id, cloud_format))
+        except AmrstError as exc:
+            errors[entry.id] = str(exc)
+    return written, errors

@@ -1,8 +1,8 @@
 """One tree of a campaign: the task every Dask worker runs, and its resume stamp.
 
 :func:`run_tree` reads the tree's scans, registers them (:func:`amrst.register_scans`),
-writes the results into ``results/<id>/`` (the files ``amrst register`` writes, plus
-scans.json) and writes ``stamp.json`` LAST. The stamp holds a hash of everything the
+writes the results into ``results/<id>/`` (the files ``amrst register --report``
+writes, plus scans.json) and writes ``stamp.json`` LAST. The stamp holds a hash of everything the
 result depends on (the content of every scan and truth file, the scan specs, the
 reference, the parameters and the amrst version) and the list of files written; a tree
 is done when its stamp matches the current hash and those files exist. A run killed
@@ -96,12 +96,16 @@ WARM_MODULES = (
     "amrst.io.scans",
     "amrst.io.truth",
     "amrst.multiscan",
+    "amrst.multiscan.cli",
     "amrst.multiscan.export",
     "amrst.multiscan.joint",
     "amrst.neighbours",
     "amrst.pipeline",
     "amrst.results.documents",
     "amrst.results.export",
+    "amrst.results.report_html",
+    "amrst.results.report_images",
+    "amrst.results.report_multi",
     "amrst.review.verdict",
     "amrst.stages.kiss_threads",
     "scipy.linalg",
@@ -110,6 +114,9 @@ WARM_MODULES = (
     "scipy.special",
     "small_gicp",
     "kiss_matcher",
+    "matplotlib.backends.backend_agg",
+    "matplotlib.figure",
+    "matplotlib.patches",
     "threadpoolctl",
 )
 
@@ -158,7 +165,8 @@ def run_tree(
     Returns
     -------
     dict
-        ``id``, ``ok``, ``seconds``, ``verdict`` or ``error``, ``worker`` (pid@host).
+        ``id``, ``ok``, ``seconds``, ``status`` (registered, needs review, failed)
+        or ``error``, ``worker`` (pid@host).
     """
     from amrst.errors import AmrstError
     from amrst.files.atomic import make_folder, write_json_atomic
@@ -172,7 +180,7 @@ def run_tree(
         make_folder(out, "results folder")
         for name in (STAMP, ERROR):
             (out / name).unlink(missing_ok=True)
-        verdict, files = _register(base, entry, params, out, clouds, threads)
+        status, files = _register(base, entry, params, out, clouds, threads)
     except Exception as exc:  # one tree's failure is data for the table, not a crash
         message = (
             str(exc) if isinstance(exc, AmrstError) else f"{type(exc).__name__}: {exc}"
@@ -203,7 +211,7 @@ def run_tree(
         {
             "stamp": stamp,
             "files": files,
-            "verdict": verdict,
+            "status": status,
             "seconds": seconds,
             "cpu_seconds": cpu,
             "threads": threads,
@@ -215,7 +223,7 @@ def run_tree(
     return {
         "id": entry.id,
         "ok": True,
-        "verdict": verdict,
+        "status": status,
         "seconds": seconds,
         "cpu_seconds": cpu,
         "worker": worker,
@@ -243,6 +251,7 @@ def _register(
 ) -> tuple[str, list[str]]:
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
+    from amrst.multiscan.cli import write_scan_report
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
 
@@ -265,7 +274,8 @@ def _register(
         clouds=bool(clouds),
         cloud_format=clouds or "ply",
     )
-    return result.verdict, [p.name for p in written]
+    report = write_scan_report(str(out), result, list(entry.scans), truth)
+    return result.status, [p.name for p in (*written, report)]
 
 
 def raise_many(spec: str, count: int) -> None:

@@ -1,13 +1,15 @@
 """A tree's stored result, read back from ``results/<id>/`` without registering again.
 
 The app shows a campaign tree from these files alone: every scan with its pose on the
-reference and the path it took, every link with its verdict and score, the tree's
-verdict and measures. :meth:`StoredTree.link_result` gives one link as the app's pair
+reference and the path it took, every link with its state and score, the tree's
+state and measures. :meth:`StoredTree.link_result` gives one link as the app's pair
 workflow needs it (the world transform between its two scans, metrics, verdict), so
 review, manual recovery, Fine and Export start from the stored result.
 
 Read from ``scans.json`` (written by every run) and, for a two-scan tree, the pair's
-``metrics.json`` (candidate score, verdict, coarse and fine metrics). No Qt.
+``metrics.json`` (candidate score, verdict, coarse and fine metrics). Files of older
+versions, which said ``verdict`` (verified, unverified, partial, failed) where these
+say ``status`` (registered, needs review, failed), read as the same states. No Qt.
 """
 
 from __future__ import annotations
@@ -18,6 +20,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.campaign.table import read_doc
+from amrst.review.verdict import (
+    FAILED,
+    NEEDS_REVIEW,
+    REGISTERED,
+    STATUSES,
+    scans_status,
+)
 from amrst.types import invert_transform
 
 if TYPE_CHECKING:
@@ -26,12 +35,38 @@ if TYPE_CHECKING:
     from amrst.campaign.manifest import Campaign
     from amrst.types import Transform
 
-#: How a link's verdict reads as the pair verdict (amrst.review.verdict.STATUSES).
-LINK_STATUS = {
-    "verified": "registered",
-    "unverified": "needs review",
-    "failed": "failed",
-}
+#: The words of older scans.json files as states (amrst.review.verdict.STATUSES): a
+#: pair's candidate that did not verify is what the pair verdict calls failed; a
+#: verified one is registered with a clear lead, else needs review.
+OLD_STATUS = {"unverified": FAILED, "partial": NEEDS_REVIEW, "failed": FAILED}
+
+
+def summary_status(doc: dict[str, Any], folder: Path) -> str:
+    """Return the state of the tree whose scans.json is ``doc`` (any version's words).
+
+    A two-scan tree of an older version takes its pair's verdict from ``metrics.json``
+    in ``folder``, as the app shows it.
+    """
+    status = doc.get("status")
+    if status in STATUSES:
+        return str(status)
+    if doc.get("n_scans") == 2:
+        pair = (read_doc(folder / "metrics.json") or {}).get("verdict") or {}
+        if pair.get("status") in STATUSES:
+            return str(pair["status"])
+    old = str(doc.get("verdict", ""))
+    if old == "verified":
+        return scans_status((True, True), float(doc.get("confidence", 0.0)))
+    return OLD_STATUS.get(old, NEEDS_REVIEW)
+
+
+def _link_status(d: dict[str, Any]) -> tuple[str, bool]:
+    """Return a stored link's state and whether its candidate verified (any version)."""
+    if d.get("status") in STATUSES:
+        return str(d["status"]), bool(d.get("verified"))
+    verified = d.get("verdict") == "verified"
+    confidence = float(d.get("confidence", 0.0))
+    return scans_status((True, verified), confidence), verified
 
 
 @dataclass(frozen=True)
@@ -52,7 +87,8 @@ class StoredLink:
 
     target: int
     source: int
-    verdict: str  # verified, unverified, failed
+    status: str  # registered, needs review, failed
+    verified: bool  # its candidate verified
     score: float
     confidence: float
     in_tree: bool
@@ -97,7 +133,7 @@ class StoredTree:
     reference: int
     scans: tuple[StoredScan, ...]
     links: tuple[StoredLink, ...]
-    verdict: str  # verified, partial, failed
+    status: str  # registered, needs review, failed
     confidence: float
     tree: dict[str, dict[str, Any]]
     params: dict[str, Any] | None
@@ -161,7 +197,7 @@ class StoredTree:
             verdict=_verdict_of(link, label),
             score=np.nan if link is None else link.score,
             confidence=np.nan if link is None else link.confidence,
-            verified=link is not None and link.verdict == "verified",
+            verified=link is not None and link.verified,
             origin="tetrahedra" if link is None else (link.origin or "tetrahedra"),
             metrics_fine=None if link is None else link.metrics,
             metrics_coarse=None,
@@ -175,20 +211,20 @@ class StoredTree:
 def _verdict_of(link: StoredLink | None, label: str) -> dict[str, str]:
     if link is None:
         return {
-            "status": "needs review",
+            "status": NEEDS_REVIEW,
             "reason": f"No link of its own was registered for {label}; the pose comes "
             "from the poses of both scans on the reference.",
             "next_step": "Check the overlay; run Fine to refine this pair.",
         }
-    status = LINK_STATUS.get(link.verdict, "needs review")
+    status = link.status
     how = "in the spanning tree" if link.in_tree else "not used by the spanning tree"
     return {
         "status": status,
-        "reason": f"Link {link.target}-{link.source} was {link.verdict} by the batch "
+        "reason": f"Link {link.target}-{link.source}: {status} by the batch "
         f"(score {link.score:.0%}, confidence {link.confidence:.2f}, {how}); the pose "
         f"shown comes from both scans' final poses. {link.message}".strip(),
         "next_step": "Accept the tree in the Campaign dock."
-        if status == "registered"
+        if status == REGISTERED
         else "Review the overlay; recover the pose by hand or run Fine if it is wrong.",
     }
 
@@ -225,9 +261,9 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
     )
     links = tuple(
         StoredLink(
-            target=int(d["target"]),
-            source=int(d["source"]),
-            verdict=str(d.get("verdict", "")),
+            int(d["target"]),
+            int(d["source"]),
+            *_link_status(d),
             score=float(d.get("score", np.nan)),
             confidence=float(d.get("confidence", np.nan)),
             in_tree=bool(d.get("in_tree")),
@@ -255,7 +291,7 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         reference=int(doc.get("reference", entry.reference)),
         scans=scans,
         links=links,
-        verdict=str(doc.get("verdict", "")),
+        status=summary_status(doc, out),
         confidence=float(doc.get("confidence", np.nan)),
         tree=dict(doc.get("tree") or {}),
         params=read_doc(out / "params.json"),

@@ -2,8 +2,10 @@
 
 Column names follow what 3DFin and TreeQSM users read: ``TH`` (total height, m),
 ``DBH`` (diameter at breast height, m), ``X``, ``Y`` (stem position, world
-coordinates). The table is rebuilt from every tree's ``scans.json``, ``stamp.json`` and
-``error.json``, so it is the same whichever run (or resumed run) produced them.
+coordinates). The table is rebuilt from every tree's ``scans.json``, ``stamp.json``,
+``error.json`` and ``review.json``, so it is the same whichever run (or resumed run)
+produced them. ``status`` is the registration's state (registered, needs review,
+failed; or not run), ``decision`` the technician's (accepted, rejected, or empty).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ if TYPE_CHECKING:
 COLUMNS = (
     "tree_id",
     "status",
-    "verdict",
+    "decision",
     "confidence",
     "n_scans",
     "n_reached",
@@ -46,7 +48,6 @@ COLUMNS = (
 )
 TABLE = "campaign.csv"
 TABLE_XLSX = "campaign.xlsx"
-STATUS_ORDER = ("failed", "needs review", "not run", "registered")
 
 
 def read_doc(path: Path) -> dict[str, Any] | None:
@@ -92,11 +93,13 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
     if stamp is None or summary is None:
         row["status"] = "not run"
         return row
+    from amrst.campaign.review import decision_of
+    from amrst.campaign.stored import summary_status
+
     merged = summary.get("tree", {}).get("merged", {})
-    verdict = summary.get("verdict", "")
     row.update(
-        status="registered" if verdict == "verified" else "needs review",
-        verdict=verdict,
+        status=summary_status(summary, out),
+        decision=decision_of(campaign, entry.id),
         confidence=_num(summary.get("confidence")),
         n_reached=summary.get("n_reached", ""),
         links_verified=summary.get("links_verified", ""),

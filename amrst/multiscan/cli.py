@@ -4,7 +4,7 @@ amrst.cli hands the parsed arguments here when more than two scans are given; th
 options are those of the pair command (--out, --params/--preset, --truth,
 --write-clouds, --format, --report, --quiet). ``--report`` writes report.html: the
 pair report for two scans, else :mod:`amrst.results.report_multi` (every link with its
-verdict and score, every scan with its path).
+state and score, every scan with its path).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def read_specs(specs: list[str]) -> tuple[list[Cloud], list[str]]:
 
 
 def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
-    """Human lines: every link with its verdict, every scan with its path."""
+    """Human lines: every link with its state, every scan with its path."""
     lines = []
     for link in result.links:
         rmse = (
@@ -52,7 +52,7 @@ def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
         )
         used = " [tree]" if link.in_tree else ""
         lines.append(
-            f"  link {link.target}-{link.source}: {link.verdict}, score {link.score:.0%}, "
+            f"  link {link.target}-{link.source}: {link.status}, score {link.score:.0%}, "
             f"confidence {link.confidence:.2f}{rmse}{used}"
         )
     for k, label in enumerate(labels):
@@ -85,6 +85,7 @@ def run_register(
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.multiscan.register import register_scans
     from amrst.results.export import check_output_dir
+    from amrst.review.verdict import FAILED, REGISTERED
 
     report = bool(getattr(args, "report", False))
     check_output_dir(args.out, ["report.html"] if report else [])
@@ -106,20 +107,26 @@ def run_register(
         files = [*files, write_scan_report(args.out, result, labels, truth)]
     print(
         f"Registered {len(clouds)} scans onto {labels[0]} in "
-        f"{time.perf_counter() - t0:.2f} s: {result.verdict}."
+        f"{time.perf_counter() - t0:.2f} s: {result.status}."
     )
     for line in describe(result, labels):
         print(line)
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
-    if result.verdict != "verified":
+    if not all(result.reached) or result.status == FAILED:
         print(
-            "Registration failed for some scans: no verified link reaches them. Check "
+            f"{result.status.capitalize()}: no verified link reaches some scans. Check "
             "that they show the same tree, or review the links in amrst-gui.",
             file=sys.stderr,
         )
         return EXIT_FAILED
+    if result.status != REGISTERED:
+        print(
+            f"  WARNING: {result.status}: the weakest link has confidence "
+            f"{result.confidence:.2f}; compare the links in amrst-gui.",
+            file=sys.stderr,
+        )
     return 0
 
 

@@ -8,8 +8,9 @@ metrics.csv hold every link, the joint refinement and the tree measures; params.
 ``merged.<fmt>`` (all reached scans, ``scan_id`` = scan number) on request. All of them
 are staged and renamed into place together (amrst.results.export's staging folder).
 
-Both write ``scans.json`` last: the same summary for any number of scans (verdict,
-links, paths, per-scan transforms, tree measures), which the campaign table reads.
+Both write ``scans.json`` last: the same summary for any number of scans (``status``:
+registered, needs review or failed; links, paths, per-scan transforms, tree measures),
+which the campaign table reads.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def summary(
     truth: Sequence[Transform | None] | None = None,
     files: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Return the scans.json content: verdict, links, paths, transforms, measures.
+    """Return the scans.json content: state, links, paths, transforms, measures.
 
     Parameters
     ----------
@@ -102,7 +103,7 @@ def summary(
     rmse = [link.metrics.rmse_overlap_m for link in tree_links if link.metrics]
     overlap = [link.metrics.overlap_fraction for link in tree_links if link.metrics]
     return {
-        "verdict": result.verdict,
+        "status": result.status,
         "confidence": result.confidence,
         "reference": result.reference,
         "n_scans": len(result.scans),
@@ -218,7 +219,7 @@ def _many_files(
     out.mkdir(parents=True, exist_ok=True)
     transform = {
         "reference": result.reference,
-        "verdict": doc["verdict"],
+        "status": doc["status"],
         "scans": [
             {
                 k: s[k]

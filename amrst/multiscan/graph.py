@@ -42,8 +42,9 @@ class Link:
     Attributes
     ----------
     verdict : str
-        ``verified`` (safe unattended), ``unverified`` (a best guess a person should
-        check) or ``failed`` (no candidate at all; ``message`` says why).
+        What the candidate check gave, an internal word: ``verified``,
+        ``unverified`` (a best guess that did not verify) or ``failed`` (no candidate
+        at all; ``message`` says why). Files and messages say :attr:`status`.
     score : float
         Verification score of the chosen candidate, 0..1.
     weight : float
@@ -70,12 +71,20 @@ class Link:
         """True when the engine verified this link."""
         return self.verdict == "verified"
 
+    @property
+    def status(self) -> str:
+        """``registered``, ``needs review`` or ``failed`` (amrst.review.verdict)."""
+        from amrst.review.verdict import scans_status
+
+        return scans_status((True, self.verified), self.confidence)
+
     def as_dict(self) -> dict[str, object]:
         """Plain numbers for JSON (the transform as nested lists, local frames)."""
         return {
             "target": self.target,
             "source": self.source,
-            "verdict": self.verdict,
+            "status": self.status,
+            "verified": self.verified,
             "score": self.score,
             "confidence": self.confidence,
             "weight": self.weight,

@@ -49,7 +49,7 @@ class MultiScanResult:
     T_tree : tuple of (4, 4) float64 or None
         The same, composed along the spanning tree before the joint refinement.
     links : tuple of Link
-        Every pair, with verdict, score and whether the tree uses it.
+        Every pair, with its state, score and whether the tree uses it.
     paths : tuple of (tuple of int) or None
         Scans from the reference to scan k along the tree.
     joint : JointResult or None
@@ -82,27 +82,24 @@ class MultiScanResult:
         return tuple(T is not None for T in self.T_reference_scan)
 
     @property
-    def verdict(self) -> str:
-        """``verified`` (every scan reached by verified links), else what is missing.
+    def status(self) -> str:
+        """``registered``, ``needs review`` or ``failed`` (amrst.review.verdict).
 
-        ``unverified``: every scan is placed but some only by a link that did not
-        verify (two scans: ``amrst register``'s flagged best guess); ``partial``: some
-        scans are not placed; ``failed``: only the reference is.
+        Two scans: the pair's own verdict. More: from which scans reach the reference
+        through verified links (:func:`amrst.review.verdict.scans_status`).
         """
+        from amrst.review.verdict import judge_result, scans_status
+
+        if self.pair is not None:
+            return judge_result(self.pair, self.params).status
         verified = {(ln.target, ln.source) for ln in self.links if ln.verified}
         verified |= {(b, a) for a, b in verified}
-
-        def by_verified_links(path: tuple[int, ...] | None) -> bool:
-            return path is not None and all(
-                step in verified for step in itertools.pairwise(path)
-            )
-
-        n = sum(self.reached)
-        if n == len(self.scans):
-            if all(by_verified_links(p) for p in self.paths):
-                return "verified"
-            return "unverified"
-        return "partial" if n > 1 else "failed"
+        by_verified_links = [
+            path is not None
+            and all(step in verified for step in itertools.pairwise(path))
+            for path in self.paths
+        ]
+        return scans_status(by_verified_links, self.confidence)
 
     @property
     def confidence(self) -> float:

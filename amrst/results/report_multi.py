@@ -1,7 +1,7 @@
 """The report of a multi-scan registration: one HTML file, as for a pair.
 
 ``amrst register REF S2 S3 ... --report`` writes it. It lists every scan with the path
-it took to the reference (or "not reached"), every link with its verdict, score,
+it took to the reference (or "not reached"), every link with its state, score,
 confidence and NN-RMSE, the joint refinement, the loop closures, the pictures of the
 reference against all other scans moved onto it (the pair report's pictures, drawn
 by :mod:`amrst.results.report_images`), the tree measurements and the parameters.
@@ -30,8 +30,6 @@ if TYPE_CHECKING:
 
     from amrst.multiscan.register import MultiScanResult
 
-#: The multi-scan verdict as the pair report's words and colours read it.
-STATUS = {"verified": "registered", "partial": "needs review", "failed": "failed"}
 _COLOURS = {"registered": "#1b7f2a", "needs review": "#b26a00", "failed": "#b00020"}
 
 
@@ -56,7 +54,7 @@ def how_reached(result: MultiScanResult, k: int) -> str:
 
 
 def _verdict(result: MultiScanResult) -> str:
-    status = STATUS.get(result.verdict, "needs review")
+    status = result.status
     colour = _COLOURS[status]
     n, reached = len(result.scans), sum(result.reached)
     why = (
@@ -66,8 +64,9 @@ def _verdict(result: MultiScanResult) -> str:
     nxt = (
         "Nothing more is needed; check the links below at a glance."
         if status == "registered"
-        else "Open the scans in amrst-gui, review the unverified links and recover "
-        "the scans not reached by hand (point pairs, nudge or a typed transform)."
+        else "Open the scans in amrst-gui, review the links that are not registered "
+        "and recover the scans not reached by hand (point pairs, nudge or a typed "
+        "transform)."
     )
     return (
         f'<div class="verdict" style="border-color:{colour}">'
@@ -110,7 +109,7 @@ def _links(result: MultiScanResult) -> str:
         rows.append(
             [
                 f"{link.target} ← {link.source}",
-                _e(link.verdict),
+                _e(link.status),
                 f"{link.score:.0%}",
                 f"{link.confidence:.2f}",
                 "–" if m is None else _cm(m.rmse_overlap_m),
@@ -121,7 +120,7 @@ def _links(result: MultiScanResult) -> str:
         )
     head = [
         "Link",
-        "Verdict",
+        "State",
         "Score",
         "Confidence",
         "NN-RMSE (overlap)",

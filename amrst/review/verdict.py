@@ -244,6 +244,21 @@ def judge(
     return Verdict(REGISTERED, reason, nxt)
 
 
+def scans_status(verified: Sequence[bool], confidence: float) -> str:
+    """Return the state of scans registered together, in the words of :func:`judge`.
+
+    ``verified[k]`` tells whether scan k reaches the reference through links whose
+    candidate verified (the reference itself counts); ``confidence`` is the weakest
+    such link's. Every scan reached: registered, or needs review below
+    ``LOW_CONFIDENCE`` as for a pair; some: needs review (the others are recovered by
+    hand); none but the reference: failed. One link is ``[True, link verified]``.
+    """
+    n = sum(bool(v) for v in verified)
+    if n == len(verified):
+        return REGISTERED if confidence >= LOW_CONFIDENCE else NEEDS_REVIEW
+    return NEEDS_REVIEW if n > 1 else FAILED
+
+
 def judge_result(result: Any, params: Any) -> Verdict:
     """Judge a finished ``amrst.pipeline.RegistrationResult``.
 

@@ -62,9 +62,9 @@ def test_local_cluster_corrupt_scan_and_resume(
     _corrupt_tree(tmp_path, "T03", sample_pair)
     campaign, _ = init_campaign(tmp_path)
     summary = run_batch(campaign, workers=2, clouds="ply")
-    assert sorted(summary.registered) == ["T01", "T02"]
-    assert list(summary.failed) == ["T03"]
-    assert "b.ply" in summary.failed["T03"]
+    assert sorted(summary.finished) == ["T01", "T02"]
+    assert list(summary.errors) == ["T03"]
+    assert "b.ply" in summary.errors["T03"]
     # the batch gives exactly what amrst.register gives alone
     assert np.array_equal(
         _transform(tmp_path, "T01"), sample_run.result.T_target_source
@@ -76,6 +76,13 @@ def test_local_cluster_corrupt_scan_and_resume(
     assert rows["T02"]["links_verified"] == "3"
     assert rows["T03"]["status"] == "failed"
     assert "b.ply" in rows["T03"]["error"]
+    assert summary.statuses == {"T01": "registered", "T02": "registered"}
+    assert summary.counts() == (
+        "2 registered, 0 needs review, 1 failed (1 with an error), 0 already done"
+    )
+    for tree in ("T01", "T02"):  # each tree's report, the pair's or the many scans'
+        page = (tmp_path / "results" / tree / "report.html").read_text()
+        assert ">Registered<" in page
     for tree in ("T01", "T02"):  # truth read from the tree folder's truth.json
         scans = json.loads((tmp_path / "results" / tree / "scans.json").read_text())
         assert all(s["truth"]["registered"] for s in scans["scans"])
@@ -87,7 +94,7 @@ def test_local_cluster_corrupt_scan_and_resume(
     shutil.copy(sample_pair.source_path, tmp_path / "T03" / "b.ply")
     again = run_batch(load_campaign(tmp_path), workers=1, clouds="ply")
     assert sorted(again.skipped) == ["T01", "T02"]
-    assert again.registered == ["T03"]
+    assert again.finished == ["T03"]
     assert _rows(tmp_path)["T03"]["status"] == "registered"
     # changed parameters invalidate every stamp
     from dataclasses import replace
@@ -182,8 +189,8 @@ def test_separately_started_scheduler_and_workers(tmp_path, sample_pair, sample_
             client.wait_for_workers(2, timeout=30)
         summary = run_batch(campaign, scheduler=address)
         assert summary.workers == 2
-        assert summary.registered == ["T01"]
-        assert list(summary.failed) == ["T02"]
+        assert summary.finished == ["T01"]
+        assert list(summary.errors) == ["T02"]
         assert np.array_equal(
             _transform(tmp_path / "camp", "T01"), sample_run.result.T_target_source
         )
@@ -215,7 +222,7 @@ def test_sigkill_then_resume_loses_only_trees_in_flight(
     assert len(done_before) < 4, "the batch finished before it was killed"
     summary = run_batch(load_campaign(tmp_path), workers=1)
     assert set(summary.skipped) == done_before
-    assert set(summary.registered) == {f"T{k}" for k in range(4)} - done_before
+    assert set(summary.finished) == {f"T{k}" for k in range(4)} - done_before
     for k in range(4):
         assert np.array_equal(
             _transform(tmp_path, f"T{k}"), sample_run.result.T_target_source

@@ -30,7 +30,7 @@ def test_one_worker_runs_one_tree_at_a_time(tmp_path, sample_pair):
             events.append((tree_id, event))
 
     summary = run_batch(campaign, workers=1, on_worker_event=record)
-    assert sorted(summary.registered) == ["T01", "T02"]
+    assert sorted(summary.finished) == ["T01", "T02"]
     open_trees: set[str] = set()
     for tree_id, event in events:
         if event == "started":

@@ -181,7 +181,7 @@ def test_threads_per_tree_reaches_every_tree(tmp_path, tiny_tree) -> None:
     with pytest.raises(InvalidInput, match="--threads-per-tree must be 1 or 2"):
         run_batch(campaign, workers=1, threads_per_tree=3)
     summary = run_batch(campaign, workers=1, threads_per_tree=1)
-    assert sorted(summary.registered) == ["T0", "T1"]
+    assert sorted(summary.finished) == ["T0", "T1"]
     for tree in ("T0", "T1"):
         stamp = json.loads((tmp_path / "results" / tree / "stamp.json").read_text())
         assert stamp["threads"] == 1

@@ -37,7 +37,8 @@ def test_two_scans_give_the_pair_result_exactly(sample_pair, sample_run):
     assert result.pair.metrics_fine == pair.metrics_fine
     (link,) = result.links
     assert (link.target, link.source, link.in_tree) == (0, 1, True)
-    assert link.verdict == "verified"
+    assert link.verified
+    assert link.status == result.status == "registered"
     assert result.paths == ((0,), (0, 1))
 
 
@@ -48,7 +49,7 @@ def test_reference_other_than_first(sample_pair, sample_run):
 
 def test_three_scans_all_placed_within_truth(three_scans, three_result):
     truth = three_scans.T_reference_scan(0)
-    assert three_result.verdict == "verified"
+    assert three_result.status == "registered"
     assert len(three_result.links) == 3
     assert all(link.verified for link in three_result.links)
     for k in range(3):
@@ -140,7 +141,11 @@ def test_export_many_scans(tmp_path, three_scans, three_result):
         "scans.json",
     } <= names
     doc = json.loads((tmp_path / "out" / "scans.json").read_text())
-    assert doc["verdict"] == "verified"
+    assert doc["status"] == "registered"
+    assert "verdict" not in doc
+    assert {(d["status"], d["verified"]) for d in doc["links"]} == {
+        ("registered", True)
+    }
     assert doc["links_total"] == 3
     assert all(s["truth"]["registered"] for s in doc["scans"])
     merged = io.read(tmp_path / "out" / "merged.ply")

@@ -38,7 +38,7 @@ def test_cli_report_lists_every_link_and_scan(tmp_path, three_scans, capsys):
     doc = json.loads((out / "scans.json").read_text(encoding="utf-8"))
     assert "Registration of 3 scans onto" in page
     for link in doc["links"]:
-        row = f"<td>{link['target']} ← {link['source']}</td><td>{link['verdict']}</td>"
+        row = f"<td>{link['target']} ← {link['source']}</td><td>{link['status']}</td>"
         assert row + f"<td>{link['score']:.0%}</td>" in page
     for k, scan in enumerate(doc["scans"]):
         how = "reference" if k == 0 else "via " + " → ".join(map(str, scan["path"]))
@@ -56,7 +56,7 @@ def test_a_scan_not_reached_reads_so(three_scans):
     rng = np.random.default_rng(0)
     box = Cloud(rng.uniform(-3, 3, (3000, 3)), np.zeros(3), {}, "box", {})
     result = amrst.register_scans([*three_scans.scans[:2], box])
-    assert result.verdict == "partial"
+    assert result.status == "needs review"
     page = build_multi_html(result, ["a.ply", "b.ply", "other.ply"], images={})
     assert how_reached(result, 2) == "NOT reached (no verified link)"
     assert "<td>other.ply</td>" in page
