@@ -146,11 +146,15 @@ def _status(campaign: Campaign) -> int:
     from amrst.campaign.table import campaign_rows
 
     rows = campaign_rows(campaign)
+    width = max((len(row["tree_id"]) for row in rows), default=0)
     for row in rows:
         extra = row["error"] or (
             f"confidence {row['confidence']:.2f}" if row["confidence"] != "" else ""
         )
-        print(f"{row['tree_id']:<24} {row['status']:<13} {row['decision']:<9} {extra}")
+        print(
+            f"{row['tree_id']:<{width}}  {row['status']:<13} {row['decision']:<9} "
+            f"{extra}".rstrip()
+        )
     counts: dict[str, int] = {}
     for row in rows:
         for word in (row["status"], row["decision"]):
