@@ -61,7 +61,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     """
     from amrst.bench.run import DEFAULT_METHODS
 
-    p.add_argument("cases_dir", metavar="CASES_DIR", help="folder of case folders")
+    p.add_argument(
+        "cases_dir",
+        metavar="CASES_DIR",
+        help="folder of case folders (plot cases, whose truth lists the stems, "
+        "run amrst plot, KISS-Matcher + GICP and FPFH + RANSAC)",
+    )
     p.add_argument(
         "--methods",
         nargs="+",
@@ -88,10 +93,18 @@ def run_cli(args: argparse.Namespace) -> int:
         0 when it ran (even if methods failed on cases), 2 on unusable input,
         130 when interrupted.
     """
+    from amrst.bench.plot import is_plot_case
     from amrst.bench.run import run_bench
     from amrst.errors import AmrstError, InvalidInput
     from amrst.io.cases import find_cases
 
+    try:
+        folders = find_cases(args.cases_dir, args.cases)
+    except AmrstError as exc:
+        print(f"amrst bench: {exc}", file=sys.stderr)
+        return 2
+    if folders and all(is_plot_case(f) for f in folders):
+        return _run_plot_bench(args)
     try:
         if not args.cases and not find_cases(args.cases_dir):
             raise InvalidInput(
@@ -136,4 +149,26 @@ def run_cli(args: argparse.Namespace) -> int:
         f"summary: {result.out_dir / 'summary.md'}",
         file=sys.stderr,
     )
+    return 0
+
+
+def _run_plot_bench(args: argparse.Namespace) -> int:
+    """Plot cases: ``amrst plot`` and the baselines per scan, and the inventory."""
+    from amrst.bench.plot import run_plot_bench
+    from amrst.errors import AmrstError
+
+    try:
+        records = run_plot_bench(
+            args.cases_dir, args.out, TerminalProgress(), pattern=args.cases
+        )
+    except KeyboardInterrupt:
+        print(
+            "\namrst bench: interrupted; partial results are in the output folder.",
+            file=sys.stderr,
+        )
+        return 130
+    except AmrstError as exc:
+        print(f"amrst bench: {exc}", file=sys.stderr)
+        return 2
+    print(f"{len(records)} plot runs; summary: {args.out}/summary.md", file=sys.stderr)
     return 0

@@ -1,0 +1,470 @@
+"""``amrst bench`` on plot cases: every scan's pose and the inventory against the truth.
+
+A plot case is a folder with the scans of one plot (``target.ply`` + ``source.ply``,
+or ``scan_1.ply`` ... ``scan_N.ply``) and a ``truth.json`` with ``T_scan1_scank``
+(scan k into scan 1) and ``stems_target_frame`` (every tree: ``x``, ``y``,
+``z_base``, ``dbh_m``, ``height_m`` in scan 1's frame). On each case, read once:
+
+- ``amrst plot`` registers all scans (timed: the registration, clouds in memory) and
+  takes the inventory (timed apart);
+- the baselines register every other scan on scan 1, the same pairs for each:
+  KISS-Matcher (0.2 m voxel) + GICP, and FPFH + RANSAC (their ``timings["total"]``).
+
+A scan is registered within 1 deg and 5 cm (``TruthErrors.registered``). A listed tree
+is found when its stem base lies within 0.5 m of a true stem, each true stem matched
+once, closest pairs first. The pair time of a method is its time on the case over the
+number of scans placed on scan 1.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import AmrstError, Cancelled, InvalidInput
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Sequence
+
+    from amrst.progress import Reporter
+    from amrst.types import Cloud, Transform
+
+#: A listed tree is a true one within this horizontal distance of its base (m).
+FOUND_M = 0.5
+#: The baselines, as the summary names them.
+KISS, FPFH = "kiss_gicp_0.2", "fpfh_ransac"
+PLOT = "amrst_plot"
+METHOD_NAMES = (PLOT, KISS, FPFH)
+NAN = float("nan")
+
+
+@dataclass(frozen=True, slots=True)
+class PlotCase:
+    """One plot case: its scans (scan 1 first), their true poses and the true trees.
+
+    ``stems`` rows: x, y, z_base, dbh_m, height_m (scan 1's frame; DBH NaN where the
+    truth has none).
+    """
+
+    name: str
+    clouds: tuple[Cloud, ...]
+    T_scan1_scank: tuple[Transform, ...]
+    stems: np.ndarray
+
+
+def is_plot_case(folder: str | os.PathLike[str]) -> bool:
+    """Tell whether ``folder`` holds a plot case (its truth has the stem list)."""
+    path = Path(folder) / "truth.json"
+    if not path.is_file():
+        return False
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return (
+        isinstance(doc, dict) and "T_scan1_scank" in doc and "stems_target_frame" in doc
+    )
+
+
+def _scan_files(folder: Path) -> list[Path]:
+    if (folder / "target.ply").is_file():
+        return [folder / "target.ply", folder / "source.ply"]
+    found = [p for p in folder.glob("scan_*.ply") if re.fullmatch(r"scan_\d+", p.stem)]
+    return sorted(found, key=lambda p: int(p.stem.split("_")[1]))
+
+
+def read_plot_case(folder: str | os.PathLike[str]) -> PlotCase:
+    """Read one plot case folder.
+
+    Raises
+    ------
+    InvalidInput
+        A missing scan, fewer than two scans, or a truth that does not match them.
+    """
+    from amrst import io
+    from amrst.types import check_rigid
+
+    root = Path(folder)
+    doc = json.loads((root / "truth.json").read_text())
+    files = _scan_files(root)
+    poses = doc["T_scan1_scank"]
+    if len(files) < 2 or len(files) != len(poses):
+        raise InvalidInput(
+            f"{root}: {len(files)} scan files for {len(poses)} poses in truth.json; "
+            "a plot case holds target.ply + source.ply or scan_1.ply ... scan_N.ply, "
+            "one pose per scan."
+        )
+    for p in files:
+        if not p.is_file():
+            raise InvalidInput(f"{root}: {p.name} is missing.")
+    stems = np.array(
+        [
+            [s["x"], s["y"], s["z_base"], s["dbh_m"], s["height_m"]]
+            for s in doc["stems_target_frame"]
+        ],
+        dtype=float,
+    ).reshape(-1, 5)
+    return PlotCase(
+        root.name,
+        tuple(io.read(p) for p in files),
+        tuple(check_rigid(T, f"T_scan1_scank in {root}") for T in poses),
+        stems,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class InventoryScore:
+    """A listed inventory against the true trees (see :func:`score_inventory`)."""
+
+    n_true: int
+    found: int
+    listed: int
+    real: int
+    dbh_errors_m: tuple[float, ...]  # listed minus true, both defined
+    dbh_ok_errors_m: tuple[float, ...]  # the same, trees whose DBH is flagged ok
+    dbh_missing: int  # found trees with a true DBH but none listed
+    height_errors_m: tuple[float, ...]
+
+
+def match_trees(listed_xy: np.ndarray, true_xy: np.ndarray) -> list[tuple[int, int]]:
+    """Pair listed and true trees within ``FOUND_M``, each once, closest first."""
+    if not len(listed_xy) or not len(true_xy):
+        return []
+    d = np.hypot(
+        listed_xy[:, None, 0] - true_xy[None, :, 0],
+        listed_xy[:, None, 1] - true_xy[None, :, 1],
+    )
+    pairs = []
+    used_l: set[int] = set()
+    used_t: set[int] = set()
+    for flat in np.argsort(d, axis=None):
+        i, j = divmod(int(flat), d.shape[1])
+        if d[i, j] > FOUND_M:
+            break
+        if i not in used_l and j not in used_t:
+            used_l.add(i)
+            used_t.add(j)
+            pairs.append((i, j))
+    return pairs
+
+
+def score_inventory(
+    listed: np.ndarray, quality: Sequence[str], truth: np.ndarray
+) -> InventoryScore:
+    """Score listed trees (rows x, y, z, dbh_m, height_m) against the true ones."""
+    listed = np.asarray(listed, dtype=float).reshape(-1, 5)
+    pairs = match_trees(listed[:, :2], truth[:, :2])
+    dbh, dbh_ok, heights = [], [], []
+    missing = 0
+    for i, j in pairs:
+        if np.isfinite(truth[j, 3]):
+            if np.isfinite(listed[i, 3]):
+                dbh.append(float(listed[i, 3] - truth[j, 3]))
+                if quality[i] == "ok":
+                    dbh_ok.append(dbh[-1])
+            else:
+                missing += 1
+        if np.isfinite(listed[i, 4]):
+            heights.append(float(listed[i, 4] - truth[j, 4]))
+    return InventoryScore(
+        n_true=len(truth),
+        found=len(pairs),
+        listed=len(listed),
+        real=len(pairs),
+        dbh_errors_m=tuple(dbh),
+        dbh_ok_errors_m=tuple(dbh_ok),
+        dbh_missing=missing,
+        height_errors_m=tuple(heights),
+    )
+
+
+@dataclass(slots=True)
+class PlotRecord:
+    """One method on one plot case: per-scan truth errors and time per pair."""
+
+    case: str
+    method: str
+    n_scans: int
+    registered: int = 0  # scans 2..N within 1 deg / 5 cm
+    rotation_error_deg: list[float] = field(default_factory=list)
+    translation_error_m: list[float] = field(default_factory=list)
+    gt_rmse_m: list[float] = field(default_factory=list)
+    time_s: float = NAN  # registration of all scans
+    pair_s: float = NAN
+    inventory_s: float = NAN
+    inventory: InventoryScore | None = None
+    origins: list[str] = field(default_factory=list)  # plot: each link's source
+    error: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return asdict(self)
+
+
+def _score_poses(
+    case: PlotCase, record: PlotRecord, poses: Sequence[Transform | None]
+) -> None:
+    from amrst.stages.metrics import truth_errors
+
+    for k in range(1, len(case.clouds)):
+        T = poses[k]
+        if T is None:
+            for values in (
+                record.rotation_error_deg,
+                record.translation_error_m,
+                record.gt_rmse_m,
+            ):
+                values.append(NAN)
+            continue
+        e = truth_errors(T, case.T_scan1_scank[k], case.clouds[k].xyz)
+        record.rotation_error_deg.append(e.rotation_error_deg)
+        record.translation_error_m.append(e.translation_error_m)
+        record.gt_rmse_m.append(e.gt_rmse_m)
+        record.registered += int(e.registered())
+
+
+def _local(case: PlotCase) -> PlotCase:
+    """Return the case with every scan in scan 1's local frame (as its truth)."""
+    from amrst.types import Cloud
+
+    origin = np.asarray(case.clouds[0].offset, dtype=float)
+    clouds = tuple(
+        Cloud(c.xyz + (np.asarray(c.offset, dtype=float) - origin), name=c.name)
+        for c in case.clouds
+    )
+    return PlotCase(case.name, clouds, case.T_scan1_scank, case.stems)
+
+
+def run_plot(case: PlotCase) -> PlotRecord:
+    """Register and inventory the plot with ``amrst plot``'s engine; score both."""
+    from amrst.plot.inventory import take_inventory
+    from amrst.plot.register import register_plot
+
+    n = len(case.clouds)
+    record = PlotRecord(case.name, PLOT, n)
+    t0 = time.perf_counter()
+    reg = register_plot(case.clouds)
+    record.time_s = time.perf_counter() - t0
+    record.pair_s = record.time_s / (n - 1)
+    record.origins = [pl.link.origin for pl in reg.links if pl.link.in_tree]
+    _score_poses(case, record, reg.poses)
+    t0 = time.perf_counter()
+    inv = take_inventory(case.clouds, reg.poses)
+    record.inventory_s = time.perf_counter() - t0
+    listed = np.array(
+        [[*t.stem.base, t.stem.dbh_m, t.stem.height_m] for t in inv.trees]
+    ).reshape(-1, 5)
+    record.inventory = score_inventory(
+        listed, [t.stem.dbh_quality for t in inv.trees], case.stems
+    )
+    return record
+
+
+def run_baseline(case: PlotCase, name: str) -> PlotRecord:
+    """Register every scan on scan 1 with one baseline; score the poses."""
+    from amrst.baselines import (
+        KissParams,
+        register_fpfh_ransac,
+        register_kiss_gicp,
+    )
+
+    n = len(case.clouds)
+    record = PlotRecord(case.name, name, n)
+    poses: list[Transform | None] = [np.eye(4)]
+    total = 0.0
+    for k in range(1, n):
+        if name == KISS:
+            res = register_kiss_gicp(
+                case.clouds[0], case.clouds[k], KissParams(voxel_size_m=0.2)
+            )
+        else:
+            res = register_fpfh_ransac(case.clouds[0], case.clouds[k])
+        total += float(res.timings["total"])
+        poses.append(np.asarray(res.T_target_source, dtype=float))
+    record.time_s = total
+    record.pair_s = total / (n - 1)
+    _score_poses(case, record, poses)
+    return record
+
+
+def _run_guarded(case: PlotCase, name: str) -> PlotRecord:
+    """Run one method; an exception becomes the record's error (the run goes on)."""
+    try:
+        return run_plot(case) if name == PLOT else run_baseline(case, name)
+    except Cancelled:
+        raise
+    except Exception as exc:  # one failing method must not stop the benchmark
+        text = (
+            str(exc) if isinstance(exc, AmrstError) else f"{type(exc).__name__}: {exc}"
+        )
+        return PlotRecord(case.name, name, len(case.clouds), error=text)
+
+
+def run_plot_bench(
+    cases_dir: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str] = "bench_out",
+    reporter: Reporter | None = None,
+    *,
+    pattern: str | None = None,
+    methods: Sequence[str] = METHOD_NAMES,
+) -> list[PlotRecord]:
+    """Run ``amrst plot`` and the baselines on every plot case; write the summary.
+
+    Writes ``plot_results.json`` and ``summary.md`` into ``out_dir`` after every case.
+    ``methods``: some of ``METHOD_NAMES``.
+
+    Raises
+    ------
+    InvalidInput
+        No plot case under ``cases_dir``.
+    """
+    from amrst.bench.run import warm_up
+    from amrst.files.atomic import make_folder, write_json_atomic, write_text_atomic
+    from amrst.io.cases import find_cases
+
+    unknown = sorted(set(methods) - set(METHOD_NAMES))
+    if unknown:
+        raise InvalidInput(
+            f"Unknown plot method(s) {unknown}; choose from {METHOD_NAMES}."
+        )
+    folders = [f for f in find_cases(cases_dir, pattern) if is_plot_case(f)]
+    if not folders:
+        raise InvalidInput(
+            f"No plot case folders under {cases_dir}: each needs its scans and a "
+            "truth.json with T_scan1_scank and stems_target_frame."
+        )
+    out = make_folder(out_dir, "output folder")
+    warm_up(["amrst", "fpfh_ransac"])
+    records: list[PlotRecord] = []
+    for i, folder in enumerate(folders):
+        case = _local(read_plot_case(folder))
+        for name in methods:
+            if reporter is not None:
+                reporter.check_cancelled()
+                reporter.progress(
+                    i / len(folders),
+                    f"case {i + 1}/{len(folders)} {case.name} | {name}",
+                )
+            records.append(_run_guarded(case, name))
+        write_json_atomic(out / "plot_results.json", [r.as_dict() for r in records])
+        write_text_atomic(out / "summary.md", plot_summary(records))
+    if reporter is not None:
+        reporter.progress(1.0, "done")
+    return records
+
+
+def _fmt(value: float, scale: float = 1.0, digits: int = 2) -> str:
+    return "-" if not np.isfinite(value) else f"{scale * value:.{digits}f}"
+
+
+def _worst(values: Sequence[float]) -> float:
+    a = np.asarray(values, dtype=float)
+    return NAN if not len(a) or np.isnan(a).any() else float(a.max())
+
+
+def _rms(values: Sequence[float]) -> float:
+    return NAN if not values else float(np.sqrt(np.mean(np.square(values))))
+
+
+def _median_abs(values: Sequence[float]) -> float:
+    return NAN if not values else float(np.median(np.abs(values)))
+
+
+def _registration_table(records: Sequence[PlotRecord]) -> list[str]:
+    cases = list(dict.fromkeys(r.case for r in records))
+    names = [m for m in METHOD_NAMES if any(r.method == m for r in records)]
+    by = {(r.case, r.method): r for r in records}
+    head = "| case | scans |" + "".join(
+        f" {m}: ok, worst deg / cm, s per pair |" for m in names
+    )
+    lines = [head, "|---|---|" + "---|" * len(names)]
+    for c in cases:
+        cells = []
+        for m in names:
+            r = by.get((c, m))
+            if r is None or r.error:
+                cells.append(f" failed: {r.error[:60] if r else '-'} |")
+                continue
+            cells.append(
+                f" {r.registered}/{r.n_scans - 1}, "
+                f"{_fmt(_worst(r.rotation_error_deg), digits=3)} / "
+                f"{_fmt(_worst(r.gt_rmse_m), 100, 1)}, {_fmt(r.pair_s)} |"
+            )
+        n = next(r.n_scans for r in records if r.case == c)
+        lines.append(f"| {c} | {n} |" + "".join(cells))
+    lines.append("")
+    for m in names:
+        rs = [r for r in records if r.method == m and not r.error]
+        ok = sum(r.registered for r in rs)
+        total = sum(r.n_scans - 1 for r in records if r.method == m)
+        med = np.median([r.pair_s for r in rs]) if rs else NAN
+        lines.append(
+            f"- {m}: {ok}/{total} scans registered; median time per pair "
+            f"{_fmt(float(med))} s"
+        )
+    return lines
+
+
+def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
+    rows = [r for r in records if r.method == PLOT and r.inventory is not None]
+    lines = [
+        "| case | true trees | found | listed | real | DBH RMSE cm (n) | "
+        "DBH RMSE ok cm (n) | DBH missing | median height error m | inventory s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r, s in ((r, r.inventory) for r in rows):
+        if s is None:
+            continue
+        lines.append(
+            f"| {r.case} | {s.n_true} | {s.found} | {s.listed} | {s.real} | "
+            f"{_fmt(_rms(s.dbh_errors_m), 100, 1)} ({len(s.dbh_errors_m)}) | "
+            f"{_fmt(_rms(s.dbh_ok_errors_m), 100, 1)} ({len(s.dbh_ok_errors_m)}) | "
+            f"{s.dbh_missing} | {_fmt(_median_abs(s.height_errors_m))} | "
+            f"{_fmt(r.inventory_s, digits=1)} |"
+        )
+    scores = [r.inventory for r in rows if r.inventory is not None]
+    if scores:
+        true = sum(s.n_true for s in scores)
+        found = sum(s.found for s in scores)
+        listed = sum(s.listed for s in scores)
+        dbh = [e for s in scores for e in s.dbh_errors_m]
+        dbh_ok = [e for s in scores for e in s.dbh_ok_errors_m]
+        heights = [e for s in scores for e in s.height_errors_m]
+        lines += [
+            "",
+            f"- trees found: {found}/{true} = {found / max(true, 1):.0%}; listed "
+            f"trees real: {found}/{listed} = {found / max(listed, 1):.0%}",
+            f"- DBH RMSE {_fmt(_rms(dbh), 100)} cm over {len(dbh)} trees "
+            f"({_fmt(_rms(dbh_ok), 100)} cm over the {len(dbh_ok)} flagged ok); "
+            f"{sum(s.dbh_missing for s in scores)} found trees with a true DBH "
+            "have none listed",
+            f"- median height error {_fmt(_median_abs(heights))} m over "
+            f"{len(heights)} trees",
+        ]
+    return lines
+
+
+def plot_summary(records: Sequence[PlotRecord]) -> str:
+    """Markdown: the per-case registration table and the inventory table."""
+    return "\n".join(
+        [
+            "# Plot benchmark",
+            "",
+            "Registration: scans within 1 deg / 5 cm of the truth, worst rotation "
+            "error and gt_rmse of the case's scans, time per pair.",
+            "",
+            *_registration_table(records),
+            "",
+            "## Inventory (amrst plot)",
+            "",
+            *_inventory_table(records),
+            "",
+        ]
+    )

@@ -1,0 +1,95 @@
+"""``amrst bench`` on plot cases: tree matching, inventory scores, and a whole run."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from test_plot import STEMS, _pose, _scan
+
+from amrst.bench.plot import (
+    KISS,
+    PLOT,
+    is_plot_case,
+    match_trees,
+    run_plot_bench,
+    score_inventory,
+)
+from amrst.errors import InvalidInput
+from amrst.types import Cloud, invert_transform
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+NAN = float("nan")
+
+
+def test_each_true_tree_is_matched_once_closest_first() -> None:
+    true_xy = np.array([[0.0, 0.0], [5.0, 0.0]])
+    listed = np.array([[0.3, 0.0], [0.1, 0.0], [5.6, 0.0], [9.0, 9.0]])
+    assert sorted(match_trees(listed, true_xy)) == [(1, 0)]
+    assert match_trees(listed[:0], true_xy) == []
+
+
+def test_inventory_score_uses_defined_truth_only() -> None:
+    truth = np.array([[0, 0, 0, 0.30, 20.0], [5, 0, 0, NAN, 15.0], [9, 0, 0, 0.2, 9.0]])
+    listed = np.array(
+        [[0.1, 0, 0, 0.32, 19.5], [5.1, 0, 0, 0.5, 16.0], [9, 0, 0, NAN, 9.2]]
+    )
+    s = score_inventory(listed, ["ok", "check", "check"], truth)
+    assert (s.n_true, s.found, s.listed, s.real) == (3, 3, 3, 3)
+    assert np.allclose(s.dbh_errors_m, [0.02])
+    assert np.allclose(s.dbh_ok_errors_m, [0.02])
+    assert s.dbh_missing == 1
+    assert np.allclose(sorted(s.height_errors_m), [-0.5, 0.2, 1.0])
+
+
+def _sparse_ground(xyz: np.ndarray) -> np.ndarray:
+    """Every fourth ground point (the feature baseline's time grows with the area)."""
+    ground = xyz[:, 2] < 0.03 * xyz[:, 0] - 0.02 * xyz[:, 1] + 0.01
+    return xyz[~ground | (np.arange(len(xyz)) % 4 == 0)]
+
+
+def _plot_case(folder: Path) -> None:
+    from amrst import io
+
+    folder.mkdir(parents=True)
+    T = _pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
+    io.write(folder / "target.ply", Cloud(_sparse_ground(_scan((-2.0, 0.0), STEMS, 1))))
+    world = _sparse_ground(_scan((3.0, 1.0), STEMS, 2))
+    inv = invert_transform(T)
+    io.write(folder / "source.ply", Cloud(world @ inv[:3, :3].T + inv[:3, 3]))
+    z = 0.03 * np.array([s[0] for s in STEMS]) - 0.02 * np.array([s[1] for s in STEMS])
+    stems = [
+        {"x": x, "y": y, "z_base": float(zb), "dbh_m": 2 * r, "height_m": h}
+        for (x, y, r, h), zb in zip(STEMS, z, strict=True)
+    ]
+    doc = {
+        "T_scan1_scank": [np.eye(4).tolist(), T.tolist()],
+        "stems_target_frame": stems,
+    }
+    (folder / "truth.json").write_text(json.dumps(doc))
+
+
+def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> None:
+    root = tmp_path / "cases"
+    _plot_case(root / "01_plot")
+    (root / "02_empty").mkdir()
+    assert is_plot_case(root / "01_plot")
+    assert not is_plot_case(root / "02_empty")
+    out = tmp_path / "out"
+    # FPFH + RANSAC runs in the command's default set; its time on this plot is long.
+    records = run_plot_bench(root, out, methods=(PLOT, KISS))
+    assert [r.method for r in records] == [PLOT, KISS]
+    plot = json.loads((out / "plot_results.json").read_text())[0]
+    assert plot["registered"] == 1
+    assert plot["inventory"]["found"] == len(STEMS)
+    assert plot["inventory"]["listed"] == len(STEMS)
+    assert np.sqrt(np.mean(np.square(plot["inventory"]["dbh_errors_m"]))) < 0.01
+    summary = (out / "summary.md").read_text()
+    assert "| 01_plot | 2 |" in summary
+    assert "trees found: 6/6" in summary
+    with pytest.raises(InvalidInput, match="Unknown plot method"):
+        run_plot_bench(root, out, methods=("icp",))
