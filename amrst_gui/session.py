@@ -2,15 +2,28 @@
 
 State is exposed through read-only properties holding frozen engine results;
 each change goes through a method that validates it, stores it and emits one
-signal. The Session owns a :class:`~amrst_gui.runner.StepRunner` (the running job
-and the steps still to run; the Session is its host) and a
-:class:`~amrst_gui.review.Review` (the candidates and the technician's decisions);
-each step's start, result and summary are in ``step_jobs``, the derived values in
-``results``. Results are applied here, on the GUI thread. No widgets.
+signal. Results are applied here, on the GUI thread. No widgets.
+
+The Session owns a :class:`~amrst_gui.runner.StepRunner` (the running job and the
+steps still to run; the Session is its host) and a :class:`~amrst_gui.review.Review`
+(the candidates and the technician's decisions on them). A campaign's stored result
+becomes result objects in ``stored_result``.
+
+Each step of the step table (``amrst.pipeline.steps.STEPS``, plus the app's own
+jobs ``load``, ``manual`` and ``export``) has one block of methods here, found by
+the step's name: ``_start_<name>()`` launches its job (``_launch``) or refuses
+(``runner.stop()``); ``_apply_<name>(result)`` stores the result and returns the
+function that emits the step's signal; ``_done_<name>()`` says whether its result
+exists (engine steps); ``_summary_<name>()`` is one line for the log;
+``_clear_<name>()`` drops its result when an earlier step ran again. Adding a step:
+one entry in the step table, one block here (``tests/gui/test_step_table.py``
+checks that every step has its methods).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import itertools
 import logging
 from pathlib import Path
@@ -25,19 +38,28 @@ from amrst_gui.engine_process import EngineStopped
 from amrst_gui.review import Review
 from amrst_gui.runner import StepRunner
 from amrst_gui.state import ScanId, ScanState
-from amrst_gui.stored_result import StoredResultMixin
+from amrst_gui.stored_result import STORED_ID, stored_params, stored_results
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from amrst.campaign.stored import StoredLinkResult
+    from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
-    from amrst.pipeline import ScanAnalysis
+    from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.review.verdict import Verdict
+    from amrst.stages.candidates import Candidate, CoarseResult
+    from amrst.stages.fine import FineResult
+    from amrst.stages.metrics import CloudMetrics, TruthErrors
     from amrst.types import Cloud
 
 log = logging.getLogger("amrst_gui.session")
 
+# Source points sampled for the truth errors.
+_TRUTH_SAMPLE = 20_000
 
-class Session(StoredResultMixin, QObject):
+
+class Session(QObject):
     """One target/source pair, its parameters, results and review decisions.
 
     Signals (all emitted on the GUI thread):
@@ -69,6 +91,9 @@ class Session(StoredResultMixin, QObject):
     cancelled = Signal(str)
     manual_preview_changed = Signal(object)
 
+    # How the last export overrode a verdict that was not *registered*.
+    _override: dict[str, str] | None
+
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
         from amrst.params import RegistrationParams
@@ -94,6 +119,7 @@ class Session(StoredResultMixin, QObject):
         self._manual_preview: np.ndarray | None = None
         self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
+        self._pending_stored: StoredLinkResult | None = None
         self._last_report: Path | None = None
         # Asked before an unexported registration result is thrown away (closing,
         # new scans, swap, a re-run); the window sets it. Returns True to go on.
@@ -399,7 +425,7 @@ class Session(StoredResultMixin, QObject):
             self.runner.launch(step, fn, *args)
 
     def start_step(self, step: str) -> None:
-        """Start ``step``'s job (the runner's host: ``step_jobs``' ``_start_<step>``)."""
+        """Start ``step``'s job (``_start_<step>``)."""
         getattr(self, f"_start_{step}")()
 
     def step_returned(
@@ -526,3 +552,697 @@ class Session(StoredResultMixin, QObject):
                 self._truth_path.name if self._truth_path else "truth",
             )
             self._truth, self._truth_path = None, None
+
+    # ======================================================== results
+    def _reset_results(self) -> None:
+        self._reset_analyses()
+        self.review.reset()
+        self._accepted: CoarseResult | None = None
+        self._fine: FineResult | None = None
+        self._fine_note = ""  # from a manual pose: what Fine's check decided
+        self._metrics: dict[str, CloudMetrics] = {}
+        # stage -> {"target"|"source"|"merged": TreeMeasures}
+        self._tree: dict[str, dict[str, TreeMeasures]] = {}
+        self._timings: dict[str, float] = {
+            k: v for k, v in getattr(self, "_timings", {}).items() if k == "load"
+        }
+        self._step_params: dict[str, RegistrationParams] = {}
+        self._exported_result: CoarseResult | FineResult | None = None
+        self._override = None
+        self._stored: StoredLinkResult | None = None
+        self._stored_matches: MatchResult | None = None
+        self._stored_fine: FineResult | None = None
+
+    def _clear_after(self, step: str) -> None:
+        """Drop the results built on ``step``'s (each later step clears its own)."""
+        # A stored pose and its candidate do not depend on the app's analyses.
+        if step in ("separate", "skeleton") and self._stored_stands():
+            return
+        for name in steps.later_steps(step):
+            getattr(self, f"_clear_{name}")()  # per step, below
+            self._step_params.pop(name, None)
+            self._timings.pop(name, None)
+
+    # ---------------------------------------------------------------- review
+    @property
+    def matches(self) -> tuple[Candidate, ...]:
+        """Ranked candidates, manual poses first, then the automatic ones."""
+        return self.review.matches
+
+    @property
+    def match_result(self) -> MatchResult | None:
+        """The MatchResult with the manual candidates in front, or None."""
+        return self.review.match_result
+
+    @property
+    def manual_candidates(self) -> tuple[Candidate, ...]:
+        """The manual candidates (origin "manual"), newest first."""
+        return self.review.manual_candidates
+
+    @property
+    def manual_labels(self) -> dict[int, str]:
+        """How each manual candidate was made ("3 point pairs", "typed", ...), by id."""
+        return self.review.manual_labels
+
+    @property
+    def rejected(self) -> frozenset[int]:
+        """Ids of the candidates the user rejected."""
+        return self.review.rejected
+
+    @property
+    def selected_match(self) -> Candidate | None:
+        """The Candidate shown in the views, or None."""
+        return self.review.selected_match
+
+    @property
+    def coarse(self) -> CoarseResult | None:
+        """CoarseResult from the best candidate not rejected (None if none is left)."""
+        return self.review.coarse
+
+    @property
+    def coarse_message(self) -> str:
+        """Why the coarse solution is what it is (or why there is none)."""
+        return self.review.coarse_message
+
+    @property
+    def verdict(self) -> Verdict | None:
+        """The verdict of the current registration, or None before matching; the
+        stored verdict while a stored result stands."""
+        stored = self.stored
+        if stored is not None and self._stored_fine is not None:
+            from amrst.review.verdict import Verdict
+
+            v = stored.verdict
+            return Verdict(
+                str(v.get("status", "needs review")),
+                str(v.get("reason", "")),
+                str(v.get("next_step", "")),
+            )
+        params = self._step_params.get("match") or self._params
+        return self.review.verdict(self._accepted, self._fine, params)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def has_scans(self) -> bool:
+        """True when both target and source are loaded."""
+        return all(self.cloud(r) is not None for r in jobs.ROLES)
+
+    @property
+    def accepted_coarse(self) -> CoarseResult | None:
+        """The CoarseResult the user accepted, or None."""
+        return self._accepted
+
+    @property
+    def fine(self) -> FineResult | None:
+        """The FineResult, or None."""
+        return self._fine
+
+    @property
+    def fine_note(self) -> str:
+        """From a manual pose: whether Fine's result was kept, and why ("" else)."""
+        return self._fine_note if self._fine is not None else ""
+
+    @property
+    def metrics(self) -> dict[str, CloudMetrics]:
+        """CloudMetrics by stage ("coarse", "fine")."""
+        return dict(self._metrics)
+
+    @property
+    def tree(self) -> dict[str, TreeMeasures]:
+        """TreeMeasures of "target", "source" and "merged" under the best result so far
+        (fine if done, else the accepted coarse); empty before."""
+        return dict(self._tree.get("fine") or self._tree.get("coarse") or {})
+
+    @property
+    def timings(self) -> dict[str, float]:
+        """Seconds per step that ran."""
+        return dict(self._timings)
+
+    @property
+    def has_unexported_result(self) -> bool:
+        """True when a coarse or fine result exists that was not exported."""
+        final = self._fine or self._accepted
+        return final is not None and final is not self._exported_result
+
+    @property
+    def final_transform(self) -> np.ndarray | None:
+        """The best T_target_source so far (local frames, as the engine works):
+        fine if done, else the accepted coarse."""
+        if self._fine is not None:
+            return self._fine.T_target_source
+        if self._accepted is not None:
+            return self._accepted.T_target_source
+        return None
+
+    def world(self, T_local: np.ndarray) -> np.ndarray:
+        """A local-frame T_target_source in world coordinates (export, truth)."""
+        from amrst.types import world_transform
+
+        return world_transform(T_local, *self._pair_clouds())
+
+    def local(self, T_world: np.ndarray) -> np.ndarray:
+        """A world T_target_source between the scans' local frames (the views)."""
+        from amrst.types import local_transform
+
+        return local_transform(T_world, *self._pair_clouds())
+
+    def _pair_clouds(self) -> tuple[Cloud, Cloud]:
+        target, source = self.cloud("target"), self.cloud("source")
+        assert target is not None  # no transform before both scans are loaded
+        assert source is not None
+        return target, source
+
+    @property
+    def result_params(self) -> RegistrationParams:
+        """The parameters the current result was computed with (else the current)."""
+        used = self._step_params.get("fine" if self._fine is not None else "coarse")
+        return used or self._params
+
+    @property
+    def export_override(self) -> dict[str, str] | None:
+        """How the last export overrode a verdict that was not *registered*."""
+        return None if self._override is None else dict(self._override)
+
+    def is_done(self, step: str) -> bool:
+        """True when the step's result exists (stale or not)."""
+        done = getattr(self, f"_done_{step}", None)  # per step, below
+        return bool(done()) if done is not None else False
+
+    def is_stale(self, step: str) -> bool:
+        """True when a result exists but was computed with other parameters."""
+        if not self.is_done(step):
+            return False
+        used = self._step_params.get(step)
+        if used is None:
+            return True
+        from amrst.stages.candidates import Origin
+
+        groups = steps.groups_for(step)
+        if step in ("match", "coarse") and any(
+            c.origin == Origin.TRUNK for c in self.matches
+        ):
+            # Trunk-search solutions were refined and verified with the fine settings.
+            groups = (*groups, "fine")
+        for group in groups:
+            if not steps.values_equal(
+                getattr(used, group), getattr(self._params, group)
+            ):
+                return True
+        if step in ("coarse", "fine"):
+            current = self.coarse
+            assert self._accepted is not None  # is_done(step) holds
+            accepted = self._accepted.candidate
+            if (
+                current is None
+                or accepted is None
+                or current.candidate.id != accepted.id
+            ):
+                return True
+        return step == "fine" and self.is_stale("coarse")
+
+    def plan(self, step: str) -> list[str]:
+        """Steps ``run_step(step)`` runs: the missing or stale ones, then ``step``.
+
+        From a stored pose, Accept coarse and Fine only separate first: the stored
+        candidate needs no skeleton or match.
+        """
+        if step in ("coarse", "fine") and self._stored_stands():
+            fresh = self.is_done("separate") and not self.is_stale("separate")
+            chain = [] if fresh else ["separate"]
+            if (
+                step == "coarse"
+                or not self.is_done("coarse")
+                or self.is_stale("coarse")
+            ):
+                chain.append("coarse")
+            if step == "fine":
+                chain.append("fine")
+            return chain
+        out: list[str] = []
+        for name in steps.STEPS[: steps.STEPS.index(step) + 1]:
+            if out or name == step or not self.is_done(name) or self.is_stale(name):
+                out.append(name)
+        return out
+
+    # --------------------------------------------------------- derived values
+    def truth_errors(self) -> dict[str, TruthErrors]:
+        """TruthErrors by stage ("coarse", "fine") when a truth file is loaded."""
+        source = self.cloud("source")
+        if self._truth is None or source is None:
+            return {}
+        from amrst.stages.metrics import truth_errors
+
+        xyz = source.world_xyz[:: max(1, len(source) // _TRUTH_SAMPLE)]
+        out = {}
+        coarse = self._accepted or self.coarse
+        if coarse is not None:
+            out["coarse"] = truth_errors(
+                self.world(coarse.T_target_source), self._truth, xyz
+            )
+        if self._fine is not None:
+            out["fine"] = truth_errors(
+                self.world(self._fine.T_target_source), self._truth, xyz
+            )
+        return out
+
+    def export_arguments(self, cloud_format: str, parts=None) -> dict[str, Any]:
+        """Keyword arguments of ``amrst.results.export.export_registration`` (but out_dir)."""
+        T_final = self.final_transform
+        # Session.export, the only caller, returns early while this is None.
+        assert T_final is not None
+        assert self._accepted is not None  # a final transform needs an accepted one
+        from amrst import __version__
+        from amrst.results.documents import ResultRecord, result_documents
+
+        fine = self._fine
+        verdict = self.verdict
+        context = self._transform_context()
+        target, source = self.cloud("target"), self.cloud("source")
+        assert target is not None  # a result needs both scans
+        assert source is not None
+        # The one result layout of the CLI, the app and the benchmark.
+        record = ResultRecord(
+            # The engine works between local frames; the files hold world transforms.
+            T_target_source=self.world(T_final),
+            T_coarse=self.world(self._accepted.T_target_source),
+            target_name=target.name,
+            source_name=source.name,
+            target_file=context["target_file"],
+            source_file=context["source_file"],
+            coarse=self._accepted,
+            fine=fine,
+            metrics_coarse=self._metrics["coarse"].as_dict()
+            if "coarse" in self._metrics
+            else None,
+            metrics_fine=self._metrics["fine"].as_dict()
+            if "fine" in self._metrics and fine is not None
+            else None,
+            truth=self.truth_errors(),
+            tree=self.tree,
+            timings_s=dict(self._timings),
+            rejected_match_ids=tuple(sorted(int(i) for i in self.review.rejected)),
+            verdict=None if verdict is None else verdict.as_dict(),
+            override=None if self._override is None else dict(self._override),
+            extra={k: context[k] for k in ("manual_pose",) if k in context},
+            amrst_version=__version__,
+        )
+        kwargs: dict[str, Any] = {
+            "target": target,
+            "source": source,
+            "T_target_source": record.T_target_source,
+            # The parameters the result was computed with (export refuses stale ones).
+            "params": self.result_params,
+            "cloud_format": cloud_format,
+            "documents": result_documents(record),
+        }
+        if parts is not None:
+            kwargs["parts"] = tuple(parts)
+        return kwargs
+
+    def _transform_context(self) -> dict[str, Any]:
+        coarse, fine = self._accepted, self._fine
+        assert coarse is not None  # only exported results have a context
+        extra: dict[str, Any] = {
+            "target_file": str(self.path("target") or ""),
+            "source_file": str(self.path("source") or ""),
+            "stage": "fine" if fine is not None else "coarse",
+            "coarse_confidence": float(coarse.confidence),
+            "coarse_match_rank": None
+            if coarse.candidate is None
+            else int(coarse.candidate.rank),
+            "coarse_origin": None
+            if coarse.candidate is None
+            else str(coarse.candidate.origin),
+            "verified": bool(coarse.verified),
+            "rejected_match_ids": sorted(int(i) for i in self.review.rejected),
+        }
+        verdict = self.verdict
+        if verdict is not None:
+            extra["verdict"] = verdict.as_dict()
+        if self._override is not None:
+            # A result that is not "registered" leaves only on purpose.
+            extra["override"] = dict(self._override)
+        if coarse.candidate is not None and coarse.candidate.origin == "manual":
+            extra["manual_pose"] = {
+                "how": self.review.manual_labels.get(int(coarse.candidate.id), ""),
+                "T_target_source_as_given": self.world(
+                    coarse.candidate.T_match
+                ).tolist(),
+            }
+        if fine is not None:
+            extra.update(
+                fine_method=str(fine.method), fine_converged=bool(fine.converged)
+            )
+        return extra
+
+    def metrics_report(self) -> dict[str, dict]:
+        """Everything measured, as plain dicts for the export."""
+        report: dict[str, dict] = {}
+        for stage, m in self._metrics.items():
+            report[stage] = dict(m.as_dict())
+        if self._accepted is not None:
+            c = self._accepted
+            report.setdefault("coarse", {}).update(
+                confidence=float(c.confidence),
+                candidate_id=None if c.candidate is None else int(c.candidate.id),
+                rejected_ids=sorted(int(i) for i in self.review.rejected),
+            )
+        if self._fine is not None:
+            f = self._fine
+            report.setdefault("fine", {}).update(
+                converged=bool(f.converged),
+                iterations=int(f.iterations),
+                fitness=float(f.fitness),
+                inlier_rmse_m=float(f.inlier_rmse_m),
+                method=str(f.method),
+            )
+        for stage, err in self.truth_errors().items():
+            report.setdefault(stage, {}).update(
+                {f"truth_{k}": v for k, v in err.as_dict().items()}
+            )
+        if self.tree:
+            report["tree"] = {name: m.as_dict() for name, m in self.tree.items()}
+        report["timings_s"] = dict(self._timings)
+        verdict = self.verdict
+        if verdict is not None:
+            report["verdict"] = verdict.as_dict()
+        if self._override is not None:
+            report["override"] = dict(self._override)
+        return report
+
+    def summary(self, step: str) -> str:
+        """One line about a step's result, for the log."""
+        line = getattr(self, f"_summary_{step}", None)  # per step, below
+        return str(line()) if line is not None else ""
+
+    # --------------------------------------------------------------- helpers
+    def _name(self, role: str) -> str:
+        path, cloud = self.path(role), self.cloud(role)
+        return path.name if path else (cloud.name if cloud is not None else "-")
+
+    def _groups(self) -> list[str]:
+        return [f.name for f in dataclasses.fields(self._params)]
+
+    def _params_text(self, step: str) -> str:
+        if step not in steps.STEPS:
+            return ""
+        parts = []
+        for group in steps.own_groups(step):
+            values = getattr(self._params, group, None)
+            if values is None:
+                continue
+            fields = ", ".join(
+                f"{f.name}={getattr(values, f.name)}"
+                for f in dataclasses.fields(values)
+            )
+            parts.append(f"{group}({fields})")
+        return " with " + "; ".join(parts) if parts else ""
+
+    def _hint(self, step: str) -> str:
+        groups = steps.own_groups(step)
+        if not groups:
+            return ""
+        return (
+            f" (Try other '{', '.join(groups)}' values in the Parameters dock, "
+            "or a preset, and run the step again.)"
+        )
+
+    # ======================================================== the steps, one block each
+    # ------------------------------------------------------------------ load
+    def _apply_load(self, result: dict[str, Cloud]) -> Callable[[], None]:
+        self._set_loaded(result)
+        roles = list(result)
+        stored, self._pending_stored = self._pending_stored, None
+        emit_stored = (
+            None
+            if stored is None or self.cloud("target") is None
+            else self._apply_stored(stored)
+        )
+
+        def emit() -> None:
+            for r in roles:
+                self.scan_loaded.emit(r)
+            if emit_stored is not None:
+                emit_stored()
+
+        return emit
+
+    def _summary_load(self) -> str:
+        return "; ".join(
+            f"{r}: {self._name(r)} ({len(c):,} points)"
+            for r, c in self._by_role("cloud").items()
+            if c is not None
+        )
+
+    # -------------------------------------------------------------- separate
+    def _start_separate(self) -> None:
+        self._launch(
+            "separate", jobs.separate_pair, self._by_role("cloud"), self._params
+        )
+
+    def _apply_separate(self, result: dict[str, ScanAnalysis]) -> Callable[[], None]:
+        self._set_analyses(result)
+        return self.separation_finished.emit
+
+    def _done_separate(self) -> bool:
+        return self.analysis("target") is not None
+
+    def _clear_separate(self) -> None:
+        """Nothing: the analyses are replaced by the separate/skeleton result."""
+
+    def _summary_separate(self) -> str:
+        return "; ".join(
+            f"{r}: {int(np.count_nonzero(a.is_wood)):,} wood "
+            f"of {len(a.is_wood):,} points"
+            for r, a in self._by_role("analysis").items()
+        )
+
+    # -------------------------------------------------------------- skeleton
+    def _start_skeleton(self) -> None:
+        self._launch(
+            "skeleton", jobs.skeletonise_pair, self._by_role("analysis"), self._params
+        )
+
+    def _apply_skeleton(self, result: dict[str, ScanAnalysis]) -> Callable[[], None]:
+        self._set_analyses(result)
+        return self.skeletons_finished.emit
+
+    def _done_skeleton(self) -> bool:
+        an = self.analysis("target")
+        return an is not None and an.keypoints is not None
+
+    def _clear_skeleton(self) -> None:
+        """Nothing: the analyses are replaced by the skeleton result."""
+
+    def _summary_skeleton(self) -> str:
+        return "; ".join(
+            f"{r}: {len(a.skeleton.nodes)} skeleton nodes, "
+            f"{len(a.keypoints.xyz)} key points"
+            for r, a in self._by_role("analysis").items()
+        )
+
+    # ----------------------------------------------------------------- match
+    def _start_match(self) -> None:
+        labels = self.review.link_review.manual_labels
+        manual = tuple(
+            (c.T_match, int(c.id), labels.get(int(c.id), ""))
+            for c in self.review.link_review.manual
+        )
+        match = functools.partial(jobs.match_pair, manual=manual)
+        self._launch("match", match, self._by_role("analysis"), self._params)
+
+    def _apply_match(self, result: tuple) -> Callable[[], None]:
+        self.review.set_matches(*result)
+        return self.matches_changed.emit
+
+    def _done_match(self) -> bool:
+        return self.review.automatic is not None
+
+    def _clear_match(self) -> None:
+        self.review.clear_matches()
+
+    def _summary_match(self) -> str:
+        return f"{len(self.matches)} candidates. {self.coarse_message}"
+
+    # ---------------------------------------------------------------- manual
+    def _start_manual(self) -> None:
+        assert self._pending_manual is not None  # set by add_manual_pose
+        T, how = self._pending_manual
+        cid = self.review.next_manual_id()
+        self.review.link_review.manual_labels[cid] = how
+        an = self._by_role("analysis")
+        self._launch("manual", jobs.score_manual_pair, an, T, cid, how, self._params)
+
+    def _apply_manual(self, result: Candidate) -> Callable[[], None]:
+        self.review.add_manual(result)
+        log.info("Manual pose added: %s", result.explanation)
+        return self.matches_changed.emit
+
+    def _summary_manual(self) -> str:
+        return ""
+
+    # ---------------------------------------------------------------- coarse
+    def _start_coarse(self) -> None:
+        coarse = self.coarse
+        if coarse is None:
+            self.runner.stop()
+            self._fail(f"No coarse solution to accept: {self.coarse_message}")
+            return
+        if self._stop_unverified and not coarse.verified:
+            self.runner.stop()
+            verdict = self.verdict
+            self._fail(
+                "Run all stopped before accepting an unverified candidate. "
+                + (verdict.text() if verdict is not None else coarse.message)
+            )
+            return
+        an = self._by_role("analysis")
+        self._launch("coarse", jobs.evaluate_coarse, an, coarse, self._params)
+
+    def _apply_coarse(self, result: tuple) -> Callable[[], None]:
+        self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
+        accepted = self._accepted
+        assert accepted is not None
+        self.review.link_review.accepted_pose = accepted.T_target_source
+        return lambda: self.coarse_accepted.emit(accepted)
+
+    def _done_coarse(self) -> bool:
+        return self._accepted is not None
+
+    def _clear_coarse(self) -> None:
+        self._accepted = None
+        self._metrics.pop("coarse", None)
+        self._tree.pop("coarse", None)
+
+    def _summary_coarse(self) -> str:
+        return self._metrics_line("coarse")
+
+    # ------------------------------------------------------------------ fine
+    def _start_fine(self) -> None:
+        from amrst_gui.fine_job import refine_keeping_manual
+
+        accepted = self._accepted
+        assert accepted is not None  # plan() puts Accept coarse first
+        if accepted.candidate.fine_points:
+            log.info(
+                "Fine registration runs on %s points, the set the trunk heading "
+                "search verified this solution with (not fine.points).",
+                accepted.candidate.fine_points,
+            )
+        # A trunk solution's full fit was made while matching: reuse it. From a
+        # manual pose, Fine never silently replaces a better one.
+        refine = functools.partial(refine_keeping_manual, matches=self.review.automatic)
+        self._launch("fine", refine, self._by_role("analysis"), accepted, self._params)
+
+    def _apply_fine(self, result: tuple) -> Callable[[], None]:
+        self._fine, self._metrics["fine"], self._tree["fine"], decision = result
+        self._fine_note = "" if decision is None else decision.why
+        if decision is not None:
+            (log.warning if decision.keep_manual else log.info)(self._fine_note)
+        fine = self._fine
+        return lambda: self.fine_finished.emit(fine)
+
+    def _done_fine(self) -> bool:
+        return self._fine is not None
+
+    def _clear_fine(self) -> None:
+        self._fine = None
+        self._metrics.pop("fine", None)
+        self._tree.pop("fine", None)
+
+    def _summary_fine(self) -> str:
+        return self._metrics_line("fine")
+
+    # ---------------------------------------------------------------- export
+    def _apply_export(self, result: list[Path]) -> Callable[[], None]:
+        self._exported_result = self._fine or self._accepted
+        reports = [p for p in result if p.name == "report.html"]
+        self._last_report = reports[0] if reports else None
+        folder = result[0].parent if result else "-"
+        log.info("Exported to %s: %s", folder, ", ".join(p.name for p in result))
+        return lambda: self.exported.emit(result)
+
+    def _summary_export(self) -> str:
+        return ""
+
+    # --------------------------------------------------------------- helpers
+    def _metrics_line(self, stage: str) -> str:
+        m = self._metrics.get(stage)
+        if m is None:
+            return ""
+        return f"RMSE {m.rmse_m:.4f} m, overlap {m.overlap_fraction:.0%}"
+
+    # ------------------------------------------------------------ stored results
+    def load_stored(
+        self, target: str | Path, source: str | Path, stored: StoredLinkResult | None
+    ) -> None:
+        """Read both scans (a worker job), then show ``stored`` as their result.
+
+        ``stored`` None loads the scans alone (a link with no stored pose).
+        """
+        from pathlib import Path
+
+        self._pending_stored = stored
+        self._start_load({"target": Path(target), "source": Path(source)})
+        if self.runner.running_step != "load":  # refused: nothing pending
+            self._pending_stored = None
+
+    @property
+    def stored(self) -> StoredLinkResult | None:
+        """The stored result shown, until a step replaces its fine result."""
+        return self._stored if self._fine is self._stored_fine else None
+
+    def _stored_stands(self) -> bool:
+        """True while the candidates are the stored pose's (no Match ran since)."""
+        return (
+            self._stored is not None and self.review.automatic is self._stored_matches
+        )
+
+    def _apply_stored(self, stored: StoredLinkResult) -> Callable[[], None]:
+        """Put a stored link result in place of the computed steps."""
+        params = stored_params(stored, self._params)
+        same_params = steps.values_equal(params, self._params)
+        self._params = params
+        source = self.cloud("source")
+        # On the GUI thread: the centre (for "same solution" tests) from every n-th
+        # point, at most about 100,000, so that a big scan does not stall it.
+        centre = (
+            source.xyz[:: max(1, len(source.xyz) // 100_000)].mean(axis=0)
+            if source is not None
+            else np.zeros(3)
+        )
+        T = self.local(np.asarray(stored.T_world, float))
+        got = stored_results(stored, params, T, centre)
+        self.review.automatic = got.matches
+        self._accepted, self._fine = got.coarse, got.fine
+        # Already on disk: switching trees never asks to discard it.
+        self._exported_result = got.fine
+        self.review.selected = STORED_ID
+        self.review.link_review.accepted_pose = T
+        self._metrics.update(got.metrics)
+        self._tree["fine"] = got.tree
+        for step in ("match", "coarse", "fine"):
+            self._step_params[step] = params
+        self._stored = stored
+        self._stored_matches, self._stored_fine = got.matches, got.fine
+        truth, fine = got.truth, got.fine
+        if truth is not None:  # the tree's truth file, for this link
+            self._truth, self._truth_path = truth, None
+        log.info(
+            "Showing the stored result of %s: %s (no step ran).",
+            stored.label,
+            stored.verdict.get("status", ""),
+        )
+
+        def emit() -> None:
+            # Not coarse_accepted: every view drawn on it draws again on
+            # fine_finished (the fine result is the stored pose too), and each
+            # redraw costs a switch between trees time.
+            if not same_params:  # the Parameters dock rebuilds on it
+                self.params_changed.emit(params)
+            if truth is not None:
+                self.truth_loaded.emit(truth)
+            self.matches_changed.emit()
+            self.fine_finished.emit(fine)
+
+        return emit

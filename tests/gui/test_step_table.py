@@ -1,5 +1,5 @@
 """The app reads the engine's step table: every step has its code in
-``amrst_gui/step_jobs.py``, an action, a label; scans are keyed by id, reviews by link."""
+``amrst_gui/session.py``, an action, a label; scans are keyed by id, reviews by link."""
 
 from __future__ import annotations
 
