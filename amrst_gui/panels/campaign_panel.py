@@ -1,7 +1,7 @@
 """CampaignPanel: the trees of a campaign, their state, and the batch run behind them.
 
 The table lists every tree with its state (not run, queued, running, registered,
-needs review, failed, rejected, accepted, exported), those needing a person first, and
+needs review, failed, rejected, accepted), those needing a person first, and
 can be filtered by text and by "needs a person". The state comes from the campaign
 folder (amrst.campaign.table and amrst.campaign.review), so opening a campaign reads
 files, never registers. Decisions are written to the folder the moment they are made.
@@ -32,6 +32,7 @@ from PySide6.QtWidgets import (
     QHeaderView,
     QLabel,
     QLineEdit,
+    QMessageBox,
     QPushButton,
     QSplitter,
     QTableWidget,
@@ -191,17 +192,36 @@ class CampaignPanel(QWidget):
         return "" if item is None else item.text()
 
     def decide(self, decision: str) -> None:
-        """Accept or reject the selected trees; written to the campaign folder now."""
-        from amrst.campaign.review import set_decision
+        """Accept or reject the selected trees; written to the campaign folder now.
+
+        Accepting a tree the batch did not register asks first (:meth:`confirm`,
+        with ``amrst.campaign.review.acceptance_warning``'s words).
+        """
+        from amrst.campaign.review import ACCEPTED, acceptance_warning, decide
 
         if self.campaign is None:
             return
         for tree_id in self.selected_ids():
+            warning = ""
+            if decision == ACCEPTED:
+                warning = acceptance_warning(self.campaign, tree_id)
+                if warning and not self.confirm(f"{warning} Accept it anyway?"):
+                    continue
             try:
-                set_decision(self.campaign, tree_id, decision)
+                decide(
+                    self.campaign,
+                    [tree_id],
+                    decision,
+                    confirm_unregistered=bool(warning),
+                )
             except AmrstError as exc:
                 self._say(str(exc))
         self.refresh()
+
+    def confirm(self, question: str) -> bool:
+        """Ask a yes/no question; True for yes."""
+        answer = QMessageBox.question(self, "AMRST Studio", question)
+        return answer == QMessageBox.StandardButton.Yes
 
     def export_accepted(self) -> None:
         """Write the merged cloud of every accepted tree (from stored transforms)."""
@@ -342,10 +362,7 @@ class CampaignPanel(QWidget):
         self.refresh()
 
     def _on_done(self, summary) -> None:
-        self._say(
-            f"Batch done: {len(summary.registered)} registered, {len(summary.failed)} "
-            f"failed, {len(summary.skipped)} already done."
-        )
+        self._say(f"Batch done: {summary.counts()}.")
 
     def _on_error(self, exc: BaseException) -> None:
         self._say(f"Batch stopped: {exc}")

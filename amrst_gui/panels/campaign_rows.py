@@ -55,7 +55,7 @@ class BatchTracker:
 
     ``amrst.campaign.batch.ReporterProgress`` tells ``STARTED + id`` and
     ``FINISHED + id`` when a Dask worker starts and ends a tree (worker events), and
-    ``"<id>: <verdict or error>"`` when the batch has its result. A tree is *queued*
+    ``"<id>: <state or error>"`` when the batch has its result. A tree is *queued*
     from submission until a worker starts it, then *running* until it ends.
     """
 

@@ -2,7 +2,7 @@
 
 The scans list names each scan, marks the reference and says how each other scan
 reached it (the path through the links, or "not reached"); the links list gives each
-link's verdict, score, confidence and NN-RMSE, and whether the spanning tree uses it.
+link's state, score, confidence and NN-RMSE, and whether the spanning tree uses it.
 Selecting a link (or a scan: its link to the reference) emits
 ``link_selected(target, source)``, and the window shows those two scans with the
 stored pose between them. Everything comes from
@@ -32,7 +32,11 @@ if TYPE_CHECKING:
 
 SCAN_COLUMNS = ("Scan", "File", "Reaches the reference")
 LINK_COLUMNS = ("Link", "Verdict", "Score", "Conf.", "NN-RMSE cm", "In tree")
-_VERDICT_COLOURS = {"verified": "#1b7f2a", "unverified": "#b26a00", "failed": "#b00020"}
+_STATUS_COLOURS = {
+    "registered": "#1b7f2a",
+    "needs review": "#b26a00",
+    "failed": "#b00020",
+}
 
 
 def scan_how(stored: StoredTree | None, k: int, reference: int) -> str:
@@ -55,7 +59,7 @@ def link_cells(stored: StoredTree) -> list[tuple[str, ...]]:
         rows.append(
             (
                 f"{link.target} ← {link.source}",
-                link.verdict,
+                link.status,
                 "" if math.isnan(link.score) else f"{link.score:.0%}",
                 "" if math.isnan(link.confidence) else f"{link.confidence:.2f}",
                 "" if rmse is None else f"{float(rmse) * 100:.1f}",
@@ -130,9 +134,9 @@ class TreeScansPanel(QWidget):
             return
         self.show()
         self.reference = stored.reference if stored is not None else entry.reference
-        verdict = "not run" if stored is None else stored.verdict
+        status = "not run" if stored is None else stored.status
         self.title.setText(
-            f"<b>{entry.id}</b>: {len(entry.scans)} scans, {verdict}; showing "
+            f"<b>{entry.id}</b>: {len(entry.scans)} scans, {status}; showing "
             f"{shown[1]} onto {shown[0]}"
         )
         self.scans.setRowCount(len(entry.scans))
@@ -158,7 +162,7 @@ class TreeScansPanel(QWidget):
                     item = QTableWidgetItem(text)
                     item.setToolTip(link.message)
                     if j == 1:
-                        colour = _VERDICT_COLOURS.get(link.verdict, "#333333")
+                        colour = _STATUS_COLOURS.get(link.status, "#333333")
                         item.setForeground(QBrush(QColor(colour)))
                     self.links.setItem(i, j, item)
         self.mark_shown(shown)

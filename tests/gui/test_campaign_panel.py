@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amrst.campaign.review import exported_path
 from amrst_gui.panels.campaign_panel import CampaignPanel
 
 SAMPLE = Path(__file__).resolve().parents[2] / "resources" / "sample"
@@ -63,7 +64,7 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     qtbot.waitUntil(lambda: panel.job is None, timeout=120_000)
     # the selected tree finished: its link is listed at once
     assert panel.tree_scans.links.rowCount() == 1
-    assert panel.tree_scans.links.item(0, 1).text() == "verified"
+    assert panel.tree_scans.links.item(0, 1).text() == "registered"
     running = [sorted(t for t, s in snap.items() if s == "running") for snap in seen]
     # one worker: at most one tree running at a time, and T01 was seen running on it
     # while T02 waited (T01 is submitted first; T02's corrupt scan fails in no time)
@@ -98,10 +99,30 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     panel.export_accepted()
     merged = io.read(tmp_path / "results" / "T01" / "merged.ply")
     assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
-    assert panel.state_of("T01") == "exported"
+    # the export is on record; the tree stays accepted
+    assert panel.state_of("T01") == "accepted"
+    assert exported_path(panel.campaign, "T01") is not None
     # a new panel (the app restarted) shows the same states from the folder alone
     again = CampaignPanel()
     qtbot.addWidget(again)
     again.open_campaign(tmp_path)
-    assert again.state_of("T01") == "exported"
+    assert again.state_of("T01") == "accepted"
     assert again.state_of("T02") == "failed"
+    # accepting a tree the batch did not register asks first, in the engine's words
+    questions: list[str] = []
+    answer = [False]
+
+    def confirm(question: str) -> bool:
+        questions.append(question)
+        return answer[0]
+
+    again.confirm = confirm
+    again.select_tree("T02")
+    again.decide("accepted")
+    assert again.state_of("T02") == "failed"  # declined: nothing written
+    assert questions
+    assert questions[0].startswith("Tree T02 failed")
+    answer[0] = True  # confirmed: the engine still refuses a tree with no result
+    again.decide("accepted")
+    assert again.state_of("T02") == "failed"
+    assert "has no result" in again.status.text()

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amrst.campaign.review import exported_path
+
 SAMPLE = Path(__file__).resolve().parents[2] / "resources" / "sample"
 TINY_TREE = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.ply"
 
@@ -100,7 +102,7 @@ def test_select_review_accept_export_a_stored_tree(
         map(str, scans["scans"][2]["path"])
     )
     assert [listing.links.item(i, 1).text() for i in range(3)] == [
-        link["verdict"] for link in scans["links"]
+        link["status"] for link in scans["links"]
     ]
     row = next(
         i
@@ -152,7 +154,8 @@ def test_select_review_accept_export_a_stored_tree(
     panel.export_accepted()
     merged = io.read(campaign / "results" / "T01" / "merged.ply")
     assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
-    assert panel.state_of("T01") == "exported"
+    assert panel.state_of("T01") == "accepted"  # the export is on record
+    assert exported_path(panel.campaign, "T01") is not None
     assert discard_answers.asked == []  # a stored result is never "unexported"
 
     # Fine from the stored pose: separate, then refine; no match, no new coarse
@@ -178,7 +181,7 @@ def test_stored_tree_and_link_list(campaign):
     assert tree is not None
     assert (len(tree.scans), len(tree.links)) == (3, 3)
     doc = _doc(campaign, "T02", "scans.json")
-    assert [c[1] for c in link_cells(tree)] == [d["verdict"] for d in doc["links"]]
+    assert [c[1] for c in link_cells(tree)] == [d["status"] for d in doc["links"]]
     assert [c[5] == "yes" for c in link_cells(tree)] == [
         d["in_tree"] for d in doc["links"]
     ]
