@@ -247,8 +247,9 @@ def check_header(path: Path) -> FixedHeader:
             "<I" if legacy else "<Q", head, 107 if legacy else 247
         )
         if laz is not None:
-            check_laz_vlr(path, laz, struct.unpack_from("<H", head, 105)[0], n_points)
-            check_laz_count(path, n_points, laz)
+            record_length = struct.unpack_from("<H", head, 105)[0]
+            check_laz_vlr(path, laz, record_length, n_points)
+            check_laz_count(path, n_points, laz, record_length)
     return FixedHeader(scales, offsets, values[7:12:2], values[6:12:2], laz)
 
 

@@ -46,6 +46,9 @@ class LazInfo(NamedTuple):
     n_chunks: int | None  # from the chunk table; None when there is none
     coder: int = 0  # 0: arithmetic, the only one LASzip defines
     items: tuple[tuple[int, int, int], ...] = ()  # (type, size, version) per item
+    point_start: int = 0  # where the points (the chunk table's offset) begin
+    table_start: int = -1  # where the chunk table begins
+    record: bytes = b""  # the VLR's record data, as lazrs takes it
 
     def describe(self) -> str:
         """Name the LASzip version and compressor, for messages."""
@@ -94,7 +97,18 @@ def laz_info(path: Path, head: bytes) -> LazInfo | None:
             version, count = struct.unpack("<II", f.read(8))
             if version == 0:
                 n_chunks = count
-    return LazInfo(compressor, f"{major}.{minor}r{rev}", chunk, n_chunks, coder, items)
+    version = f"{major}.{minor}r{rev}"
+    return LazInfo(
+        compressor,
+        version,
+        chunk,
+        n_chunks,
+        coder,
+        items,
+        point_start,
+        table_start,
+        data,
+    )
 
 
 def _items(data: bytes) -> tuple[tuple[int, int, int], ...]:
@@ -171,15 +185,22 @@ def check_laz_vlr(path: Path, info: LazInfo, record_length: int, n_points: int) 
         )
 
 
-def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:
+def check_laz_count(
+    path: Path, n_points: int, info: LazInfo, record_length: int
+) -> None:
     """Refuse a LAZ whose header announces more points than its chunks can hold.
 
     LASzip stores points in chunks of a fixed size and lists the chunks in a table
     at the end. The decoder allocates the announced count first: 2**28 announced
     points take 5 GB and many seconds before failing. A header announcing fewer
-    points than all but the last chunk hold is reported (the rest are not read).
+    points than the chunks hold is reported (the rest are not read): fewer than
+    all but the last chunk hold, from the table alone, and fewer than the last
+    chunk holds by :func:`_check_last_chunk`.
     """
-    if info.n_chunks is None or info.chunk_size in (0, _VARIABLE_CHUNKS):
+    if info.n_chunks is None or info.chunk_size == 0:
+        return
+    if info.chunk_size == _VARIABLE_CHUNKS:
+        _check_last_chunk(path, n_points, info, record_length)
         return
     capacity = info.n_chunks * info.chunk_size
     if n_points > capacity:
@@ -189,17 +210,108 @@ def check_laz_count(path: Path, n_points: int, info: LazInfo) -> None:
             "The file is corrupt or truncated; copy or export it again."
         )
     at_least = (info.n_chunks - 1) * info.chunk_size + 1
-    if n_points < at_least:
-        logger.warning(
-            "%s: the LAZ header announces %d points but its %d compressed chunks "
-            "hold at least %d; only the announced %d were read. If points are "
-            "missing, export the file again.",
-            path.name,
+    if n_points >= at_least:
+        _check_last_chunk(path, n_points, info, record_length)
+        return
+    _warn_more(
+        path,
+        n_points,
+        f"its {info.n_chunks} compressed chunks hold at least {at_least}",
+    )
+
+
+#: An honest chunk compresses back to its own size (LASzip's coder is
+#: deterministic); a last chunk larger than this many times what its announced
+#: points take, plus _SPARE_BYTES, holds points the header does not count. The
+#: margin leaves room for writers whose coder differs in details.
+_CHUNK_SLACK = 1.5
+_SPARE_BYTES = 64
+
+
+def _check_last_chunk(
+    path: Path, n_points: int, info: LazInfo, record_length: int
+) -> None:
+    """Warn when the last chunk holds more points than the header announces.
+
+    A chunk has no end a decoder stops at: the header's count decides how many
+    points are read. Variable-size chunks list their point counts in the chunk
+    table, which are added up; a fixed-size chunk's announced points are decoded
+    and compressed again, and compared with the chunk's size in the table. A file
+    lazrs cannot decode is left to the full decode, which reports it.
+    """
+    if info.needs_laszip or info.n_chunks is None or info.n_chunks > n_points + 1:
+        return  # a table longer than the points: nothing to compare with
+    with quiet_decoders():
+        try:
+            found = _last_chunk(path, n_points, info, record_length)
+        except BaseException as exc:
+            if not (isinstance(exc, Exception) or is_panic(exc)):
+                raise
+            return
+    if found is None:
+        return  # a damaged table: the full decode reports what it can
+    table, needed = found
+    if info.chunk_size == _VARIABLE_CHUNKS:
+        held = sum(count for count, _ in table)
+        if n_points < held:
+            _warn_more(path, n_points, f"its chunk table counts {held:,}")
+    elif table and table[-1][1] > _CHUNK_SLACK * needed + _SPARE_BYTES:
+        _warn_more(
+            path,
             n_points,
-            info.n_chunks,
-            at_least,
-            n_points,
+            f"its last compressed chunk takes {table[-1][1]:,} bytes, more than "
+            f"the {needed:,} its announced points take (it holds more points)",
         )
+
+
+def _last_chunk(
+    path: Path, n_points: int, info: LazInfo, record_length: int
+) -> tuple[list[tuple[int, int]], int] | None:
+    """Read the chunk table and compress the last chunk's announced points again.
+
+    Returns
+    -------
+    table : list of (points, bytes)
+        One entry a chunk.
+    needed : int
+        The bytes the last chunk's announced points take compressed (0 for
+        variable-size chunks, whose table counts their points).
+    None
+        The table's chunks do not fill the space between the points' start and
+        the table: it is damaged.
+    """
+    import lazrs  # type: ignore[import-untyped]  # no stubs, no py.typed
+
+    vlr = lazrs.LazVlr(info.record)
+    with open(path, "rb") as f:
+        f.seek(info.point_start)
+        table = [(int(c), int(b)) for c, b in lazrs.read_chunk_table(f, vlr)]
+        if sum(b for _, b in table) != info.table_start - info.point_start - 8:
+            return None
+        if info.chunk_size == _VARIABLE_CHUNKS or not table:
+            return table, 0
+        first = (len(table) - 1) * info.chunk_size
+        points = bytearray((n_points - first) * record_length)
+        if points:
+            f.seek(info.point_start)
+            decoder = lazrs.LasZipDecompressor(f, info.record)
+            decoder.seek(first)
+            decoder.decompress_many(points)
+    packed = bytes(lazrs.compress_points(vlr, bytes(points), False))
+    # lazrs writes the chunk table's offset, the chunk, then the table
+    (table_at,) = struct.unpack_from("<q", packed)
+    return table, table_at - 8
+
+
+def _warn_more(path: Path, n_points: int, held: str) -> None:
+    logger.warning(
+        "%s: the LAZ header announces %d points but %s; only the announced %d "
+        "were read. If points are missing, export the file again.",
+        path.name,
+        n_points,
+        held,
+        n_points,
+    )
 
 
 def lazrs_backends() -> tuple[Any, ...]:

@@ -104,6 +104,52 @@ def test_laz_header_undercounting_its_chunks_is_reported(tmp_path, caplog):
     assert "hold at least 100001" in caplog.text
 
 
+def _laz_announcing(tmp_path: Path, n: int, announced: int, point_format: int) -> Path:
+    """Write ``n`` points as LAZ with laspy, then make its header announce fewer."""
+    import laspy
+
+    header = laspy.LasHeader(
+        point_format=point_format, version="1.4" if point_format >= 6 else "1.2"
+    )
+    header.scales, header.offsets = [0.001] * 3, [0.0] * 3
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.random.default_rng(7).uniform(0, 10, (n, 3)).T
+    path = tmp_path / f"f{point_format}_{n}_{announced}.laz"
+    las.write(path, laz_backend=laspy.LazBackend.Lazrs)
+    data = bytearray(path.read_bytes())
+    if struct.unpack_from("<I", data, 107)[0]:  # the legacy count, 0 for formats 6+
+        struct.pack_into("<I", data, 107, announced)
+    if data[25] >= 4:
+        struct.pack_into("<Q", data, 247, announced)
+    path.write_bytes(data)
+    return path
+
+
+@pytest.mark.parametrize("point_format", [3, 6])  # pointwise and layered LASzip
+@pytest.mark.parametrize(
+    ("n", "announced"),
+    [(10_000, 5_000), (120_000, 110_000)],  # one chunk; the last of three
+)
+def test_laz_header_undercounting_its_last_chunk_is_reported(
+    tmp_path, caplog, point_format, n, announced
+):
+    path = _laz_announcing(tmp_path, n, announced, point_format)
+    with caplog.at_level(logging.WARNING):
+        assert len(io.read(path)) == announced
+    assert f"announces {announced} points but its last compressed chunk" in (
+        caplog.text
+    )
+    assert "holds more points" in caplog.text
+
+
+@pytest.mark.parametrize("point_format", [3, 6])
+def test_laz_header_counting_right_is_read_silently(tmp_path, caplog, point_format):
+    path = _laz_announcing(tmp_path, 120_000, 120_000, point_format)
+    with caplog.at_level(logging.WARNING):
+        assert len(io.read(path)) == 120_000
+    assert "announces" not in caplog.text
+
+
 def test_truncated_laz_gives_one_line_without_laspy_log_lines(tmp_path):
     """Issue 16: laspy printed 'ERROR: IoError ...' twice before our message."""
     cloud = Cloud(np.random.default_rng(7).uniform(0, 10, (5000, 3)))
