@@ -163,7 +163,7 @@ def _missing_extra() -> str | None:
 
     try:
         for module in ("PySide6", "pyvista", "pyvistaqt", "superqt"):
-            require(module, "amrst-gui")
+            require(module, "the app")
     except MissingExtra as exc:
         return str(exc)
     return None
