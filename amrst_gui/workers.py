@@ -5,12 +5,14 @@
 The reporter is an :class:`amrst.progress.EventReporter`: ``cancel()`` sets its
 ``threading.Event`` and the work raises ``Cancelled`` at its next check point.
 
-The app's concurrency model: heavy computation runs in the engine process
-(``engine_process``), so a worker thread here only waits on that process, reads a
-file, or cuts arrays for a view. Results are plain data (engine objects and numpy
-arrays); VTK objects are made, changed and dropped on the GUI thread only. Jobs
-started with ``display=True`` (the views' scenes and slices) run one at a time,
-as napari's slicer does: they never compete with each other for the GIL.
+The app's concurrency model: the heavy computation (every engine step, a scan's
+description, export) runs in the engine process (``engine_process``), so a worker
+thread here only waits on that process, reads a file, or prepares a view's arrays
+from at most the points it displays (picking, colouring, stem slices, the overlay's
+distances). Results are plain data (engine objects and numpy arrays); VTK objects
+are made, changed and dropped on the GUI thread only. Jobs started with
+``display=True`` (the views' scenes and slices) run one at a time, as napari's
+slicer does: they never compete with each other for the GIL.
 
 A cancelled job keeps nothing of its own result: once ``cancel()`` was called, a
 value the work still returns arrives as ``errored(Cancelled())``, so Cancel always
