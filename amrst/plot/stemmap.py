@@ -62,7 +62,15 @@ class StemMapParams:
     # top metre of the tree (its top was hidden or out of range).
     lean_flag_deg: float = 8.0
     min_top_points: int = 15
-    min_circles: int = 2  # bark circles a stem shows among the slices
+    min_circles: int = 1  # bark circles a stem shows among the slices
+    min_height_m: float = 2.0  # a lower stem is a shrub
+    # Stems inside wide slice clusters (bark_seeds).
+    bark_link_m: float = 0.06
+    bark_min_points: int = 30
+    bark_min_rise_m: float = 0.6
+    bark_max_width_m: float = 1.0
+    # The DBH circle is checked against the circles just below and above it.
+    taper_tol: float = 0.15
     scene: SceneParams = field(default_factory=SceneParams)
 
 
@@ -163,9 +171,10 @@ def map_stems(
     h = ground.height(pts)
     above = np.flatnonzero(h >= params.ground_dist_m)
     found, slice_lab, slice_idx = find_stems(pts, h, above, params.scene)
-    if not found:
-        return StemMap((), ground, pts, owner)
     seeds = [slice_idx[slice_lab == k] for k in range(len(found))]
+    seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
+    if not seeds:
+        return StemMap((), ground, pts, owner)
     # Paths through a 5 cm graph: crowns go to the stem they hang from.
     owner[above] = assign_to_stems(pts, h, above, seeds, params.scene)
     stems: list[StemRecord] = []
@@ -178,6 +187,42 @@ def map_stems(
             kept[k] = len(stems)
             stems.append(stem)
     return StemMap(tuple(stems), ground, pts, kept[owner])
+
+
+def bark_seeds(
+    pts: np.ndarray, h: np.ndarray, rest: np.ndarray, params: StemMapParams
+) -> list[np.ndarray]:
+    """Stems inside the slice clusters that are no stem as a whole.
+
+    A stem among shrubs or its own low branches makes one cluster too wide to be a
+    stem; its bark still shows as an upright, smooth surface: such points, linked
+    within ``bark_link_m``, that rise ``bark_min_rise_m`` within a narrow footprint,
+    are the stem.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    if len(rest) < params.bark_min_points:
+        return []
+    bark = rest[stem_surface(pts[rest], 0.0, np.inf)]
+    if len(bark) < params.bark_min_points:
+        return []
+    pairs = cKDTree(pts[bark]).query_pairs(params.bark_link_m, output_type="ndarray")
+    graph = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(bark),) * 2
+    )
+    n, lab = connected_components(graph, directed=False)
+    seeds = []
+    for k in range(n):
+        idx = bark[lab == k]
+        if (
+            len(idx) >= params.bark_min_points
+            and np.ptp(h[idx]) >= params.bark_min_rise_m
+            and np.ptp(pts[idx, :2], axis=0).max() <= params.bark_max_width_m
+        ):
+            seeds.append(idx)
+    return seeds
 
 
 def _ground_z(ground: GroundFit, xy: np.ndarray) -> float:
@@ -213,6 +258,7 @@ def _measure_stem(
     half = (params.dbh_high_m - params.dbh_low_m) / 2
     dbh_h = (params.dbh_low_m + params.dbh_high_m) / 2
     line: list[tuple[float, float, float]] = []
+    radii: dict[float, float] = {}
     dbh_fit: tuple[StemCircle, float] | None = None
     for at in sorted({*LINE_HEIGHTS_M, dbh_h}):
         width = half if at == dbh_h else 0.05
@@ -224,6 +270,7 @@ def _measure_stem(
         if circle is None:
             continue
         line.append((at, *circle.centre_xy))
+        radii[at] = circle.radius_m
         if at == dbh_h:
             dbh_fit = (circle, _outlier_share(near[in_slice, :2], circle))
     if len(line) < params.min_circles:
@@ -232,6 +279,8 @@ def _measure_stem(
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
     dbh_xy = np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy
     top_h, crown, n_top = _top_and_crown(pts[mine], base[2])
+    if not top_h >= params.min_height_m:
+        return None
     return StemRecord(
         base=base,
         dbh_xy=dbh_xy,
@@ -239,7 +288,7 @@ def _measure_stem(
         arc_deg=dbh_fit[0].arc_deg if dbh_fit else 0.0,
         rmse_m=dbh_fit[0].rmse_m if dbh_fit else float("nan"),
         outlier_share=dbh_fit[1] if dbh_fit else float("nan"),
-        dbh_quality=_dbh_quality(dbh_fit, params),
+        dbh_quality=_dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params),
         height_m=top_h,
         height_flag=(
             "lean"
@@ -261,12 +310,30 @@ def _outlier_share(xy: np.ndarray, circle: StemCircle) -> float:
     return float(np.mean(d[near] > 0.02)) if near.any() else 1.0
 
 
-def _dbh_quality(fit: tuple[StemCircle, float] | None, params: StemMapParams) -> str:
+def _tapers(radii: dict[float, float], dbh_h: float, params: StemMapParams) -> bool:
+    """Tell whether the DBH circle agrees with the stem's circles below and above it.
+
+    A circle through a branch or a buttress differs from its neighbours, the stem
+    tapers slowly; with no neighbour circle there is nothing to check against.
+    """
+    if dbh_h not in radii:
+        return False
+    others = [r for at, r in radii.items() if at != dbh_h and abs(at - dbh_h) <= 0.5]
+    if not others:
+        return True
+    ref = float(np.median(others))
+    return abs(radii[dbh_h] - ref) <= params.taper_tol * ref + 0.005
+
+
+def _dbh_quality(
+    fit: tuple[StemCircle, float] | None, tapers: bool, params: StemMapParams
+) -> str:
     if fit is None:
         return "none"
     circle, outliers = fit
     good = (
-        circle.arc_deg >= params.ok_arc_deg
+        tapers
+        and circle.arc_deg >= params.ok_arc_deg
         and circle.rmse_m <= params.ok_rmse_m
         and outliers <= params.ok_outlier_share
     )

@@ -155,3 +155,18 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     assert plot_main(args) == 2  # another run's output is not replaced
     assert plot_main([*args, "--overwrite"]) == 0
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
+
+
+def test_a_stem_inside_a_wide_thicket_is_found() -> None:
+    stems = ((0.0, 0.0, 0.14, 6.0), (4.0, 3.0, 0.12, 6.0))
+    xyz = _scan((0.0, -5.0), stems, 5)
+    rng = np.random.default_rng(6)
+    # Leaves and twigs 0.3-1.6 m high over 3 m around the first stem: one slice
+    # cluster far wider than a stem.
+    leaves = rng.uniform((-1.5, -1.5, 0.3), (1.5, 1.5, 1.6), (20_000, 3))
+    leaves = leaves[np.hypot(leaves[:, 0], leaves[:, 1]) > 0.17]
+    leaves[:, 2] += _ground_z(leaves[:, :2])
+    m = map_stems(np.vstack([xyz, leaves]))
+    bases = np.array([s.base[:2] for s in m.stems])
+    assert len(m.stems) == 2
+    assert np.hypot(*bases[np.argmin(np.hypot(*bases.T))]) < 0.1
