@@ -18,7 +18,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.campaign.table import read_doc
+from amrst.campaign.folder import (
+    ACCEPTED,
+    DECISIONS,
+    REJECTED,
+    REVIEW,
+    decision_of,
+    read_doc,
+)
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
 
@@ -28,10 +35,6 @@ if TYPE_CHECKING:
 
     from amrst.campaign.manifest import Campaign
 
-REVIEW = "review.json"
-ACCEPTED = "accepted"
-REJECTED = "rejected"
-DECISIONS = (ACCEPTED, REJECTED)
 #: Given to :func:`decide` instead of a decision: remove the tree's decision.
 CLEAR = "clear"
 #: States needing a person come first when the app sorts.
@@ -45,20 +48,6 @@ STATE_ORDER = (
     REJECTED,
     ACCEPTED,
 )
-
-
-def decision_of(campaign: Campaign, tree_id: str) -> str:
-    """Return the decision on a tree's result: accepted, rejected, or "" (none).
-
-    A tree whose last run ended in an error has no result, so no decision either.
-    """
-    from amrst.campaign.run import ERROR
-
-    out = campaign.results_dir(tree_id)
-    if (out / ERROR).is_file():
-        return ""
-    decision = str((read_doc(out / REVIEW) or {}).get("decision", ""))
-    return decision if decision in DECISIONS else ""
 
 
 def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.campaign.table import read_doc
+from amrst.campaign.folder import read_doc
 from amrst.review.verdict import (
     FAILED,
     NEEDS_REVIEW,

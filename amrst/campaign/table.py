@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
-import json
 import math
 from typing import TYPE_CHECKING, Any
 
+from amrst.campaign.folder import decision_of, read_doc
 from amrst.campaign.run import ERROR, STAMP
 
 if TYPE_CHECKING:
@@ -48,15 +48,6 @@ COLUMNS = (
 )
 TABLE = "campaign.csv"
 TABLE_XLSX = "campaign.xlsx"
-
-
-def read_doc(path: Path) -> dict[str, Any] | None:
-    """Return a result folder's JSON object (None: missing, unreadable or not one)."""
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) else None
 
 
 def _num(value: Any) -> float | str:
@@ -93,7 +84,6 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
     if stamp is None or summary is None:
         row["status"] = "not run"
         return row
-    from amrst.campaign.review import decision_of
     from amrst.campaign.stored import summary_status
 
     merged = summary.get("tree", {}).get("merged", {})
