@@ -92,7 +92,7 @@ def _print_summary(
         f"the overlap, Hausdorff p95 {fine['hausdorff_p95_m']:.2f} m, overlap "
         f"{fine['overlap_fraction']:.0%}"
     )
-    if result.overlap is not None and result.overlap.n_points:
+    if result.overlap is not None and result.overlap.n_points_measured:
         o = result.overlap
         line = (
             f"  quality: where both scans saw the scene, median distance "

@@ -18,14 +18,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.campaign.folder import (
-    ACCEPTED,
-    DECISIONS,
-    REJECTED,
-    REVIEW,
-    decision_of,
-    read_doc,
-)
+# The decisions and their file are part of this module's interface (the app's).
+from amrst.campaign.folder import ACCEPTED as ACCEPTED
+from amrst.campaign.folder import DECISIONS as DECISIONS
+from amrst.campaign.folder import REJECTED as REJECTED
+from amrst.campaign.folder import REVIEW as REVIEW
+from amrst.campaign.folder import decision_of as decision_of
+from amrst.campaign.folder import read_doc
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
 

@@ -280,7 +280,7 @@ def _last_chunk(
         The table's chunks do not fill the space between the points' start and
         the table: it is damaged.
     """
-    import lazrs  # type: ignore[import-untyped]  # no stubs, no py.typed
+    import lazrs
 
     vlr = lazrs.LazVlr(info.record)
     with open(path, "rb") as f:

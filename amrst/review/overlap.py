@@ -36,15 +36,15 @@ class OverlapDistances:
         Share of overlap points within 2 cm of the target.
     overlap_fraction : float
         Share of the source's points that lie in the overlap.
-    n_points : int
-        Source points in the overlap.
+    n_points_measured : int
+        Source points in the overlap, the distances were measured on.
     """
 
     median_m: float
     p95_m: float
     within_2cm_fraction: float
     overlap_fraction: float
-    n_points: int
+    n_points_measured: int
 
     def as_dict(self) -> dict[str, float]:
         """Return the figures by name, as in ``metrics.json``'s ``quality.distance``."""
@@ -53,7 +53,7 @@ class OverlapDistances:
             "p95_m": self.p95_m,
             "within_2cm_fraction": self.within_2cm_fraction,
             "overlap_fraction": self.overlap_fraction,
-            "n_points": float(self.n_points),
+            "n_points_measured": float(self.n_points_measured),
         }
 
 
@@ -95,5 +95,5 @@ def overlap_distances(
         p95_m=float(np.percentile(d, 95)),
         within_2cm_fraction=float(np.mean(d <= WITHIN_M)),
         overlap_fraction=float(both.mean()),
-        n_points=int(both.sum()),
+        n_points_measured=int(both.sum()),
     )

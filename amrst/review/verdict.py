@@ -121,7 +121,7 @@ def _manual_verdict(
     overlap: OverlapDistances | None, strength: Strength | None
 ) -> Verdict:
     """Judge the technician's own pose by what it shows, not by a benchmark share."""
-    if overlap is None or overlap.n_points == 0:
+    if overlap is None or overlap.n_points_measured == 0:
         return Verdict(
             NEEDS_REVIEW,
             "Your manual pose leaves no part of the tree seen by both scans, so "
@@ -129,7 +129,7 @@ def _manual_verdict(
             "Check the overlay and the stem slices; refine the point pairs.",
         )
     seen = (
-        f"Your manual pose: where both scans saw the tree ({overlap.n_points} "
+        f"Your manual pose: where both scans saw the tree ({overlap.n_points_measured} "
         f"points), the median distance is {overlap.median_m * 100:.1f} cm and "
         f"{overlap.within_2cm_fraction:.0%} lie within 2 cm."
     )
@@ -137,7 +137,7 @@ def _manual_verdict(
     good = (
         overlap.median_m <= MANUAL_MEDIAN_M
         and overlap.within_2cm_fraction >= MANUAL_WITHIN_2CM
-        and overlap.n_points >= MANUAL_MIN_POINTS
+        and overlap.n_points_measured >= MANUAL_MIN_POINTS
         and not weak
     )
     if good:

@@ -97,11 +97,6 @@ def test_tree_counts_are_the_written_clouds_sizes(export):
         assert tree["merged"]["n_points_measured"] == 2 * MEASURE_MAX_POINTS
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="quality.distance.n_points counts the overlap points the distances "
-    "were measured on (amrst/review/overlap.py), not a cloud: to be renamed",
-)
 def test_every_n_points_is_a_clouds_size(export):
     sizes = {export["target"], export["source"], export["merged"]}
     counts = _counts(export["metrics"])

@@ -41,6 +41,6 @@ def test_no_overlap_gives_nan_not_an_error() -> None:
     T = np.eye(4)
     T[:3, 3] = (50.0, 0.0, 0.0)
     q = overlap_distances(target, target, T)
-    assert q.n_points == 0
+    assert q.n_points_measured == 0
     assert np.isnan(q.median_m)
-    assert overlap_distances(np.zeros((0, 3)), target, np.eye(4)).n_points == 0
+    assert overlap_distances(np.zeros((0, 3)), target, np.eye(4)).n_points_measured == 0
