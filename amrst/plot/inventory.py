@@ -9,7 +9,7 @@ south to north, on a 10 cm grid), so the same files give the same ids.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -45,6 +45,8 @@ TREE_COLUMNS = (
 SEEN_POINTS = 30
 #: Around the stem: its radius plus this (m), 0.3-2.5 m above the ground.
 SEEN_MARGIN_M = 0.05
+#: A tree top this close to the farthest range of every scan may be cut off (m).
+RANGE_MARGIN_M = 0.3
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,6 +143,7 @@ def take_inventory(
     stem_map = map_stems(xyz, params, reporter)
     keep = _index_of_working(xyz, stem_map.xyz)
     scan = scan[keep]
+    stem_map = _flag_tops_out_of_range(stem_map, _scanner_reach(clouds, poses))
     offset = np.asarray(clouds[reference].offset, dtype=float)
     order = sorted(
         range(len(stem_map.stems)),
@@ -182,3 +185,41 @@ def _seen_from(stem_map: StemMap, scan: np.ndarray, k: int) -> tuple[int, ...]:
     )
     counts = np.bincount(scan[on], minlength=int(scan.max()) + 1 if len(scan) else 0)
     return tuple(int(s) + 1 for s in np.flatnonzero(counts >= SEEN_POINTS))
+
+
+def _scanner_reach(
+    clouds: Sequence[Cloud], poses: Sequence[Transform | None]
+) -> list[tuple[np.ndarray, float]]:
+    """Each placed scan's position (its local origin, reference frame) and range.
+
+    The range is the 99.9th percentile of its points' distances from the scanner.
+    """
+    out = []
+    for cloud, pose in zip(clouds, poses, strict=True):
+        if pose is None or not len(cloud.xyz):
+            continue
+        reach = float(np.percentile(np.linalg.norm(cloud.xyz, axis=1), 99.9))
+        out.append((np.asarray(pose[:3, 3], dtype=float), reach))
+    return out
+
+
+def _flag_tops_out_of_range(
+    stem_map: StemMap, reach: Sequence[tuple[np.ndarray, float]]
+) -> StemMap:
+    """Flag ``top not seen`` where a tree's top lies at the edge of every scan's range.
+
+    A scan keeps what lies within its range: a tall tree far from every position
+    shows its crown cut at that distance, and its highest point is no top.
+    """
+    stems = []
+    for k, s in enumerate(stem_map.stems):
+        mine = stem_map.xyz[stem_map.owner == k]
+        if not len(mine):
+            stems.append(s)
+            continue
+        top = mine[np.argmax(mine[:, 2])]
+        cut = bool(reach) and all(
+            np.linalg.norm(top - origin) > r - RANGE_MARGIN_M for origin, r in reach
+        )
+        stems.append(replace(s, height_flag="top not seen") if cut else s)
+    return replace(stem_map, stems=tuple(stems))

@@ -170,3 +170,12 @@ def test_a_stem_inside_a_wide_thicket_is_found() -> None:
     bases = np.array([s.base[:2] for s in m.stems])
     assert len(m.stems) == 2
     assert np.hypot(*bases[np.argmin(np.hypot(*bases.T))]) < 0.1
+
+
+def test_a_top_cut_by_the_scanner_range_is_flagged() -> None:
+    stems = ((4.0, 0.0, 0.15, 14.0), (-3.0, 2.0, 0.12, 5.0), (0.0, -4.0, 0.1, 4.0))
+    xyz = _scan((0.0, 0.0), stems, 7)
+    xyz = xyz[np.linalg.norm(xyz, axis=1) <= 10.0]  # the scanner's range
+    inv = take_inventory([Cloud(xyz)], [np.eye(4)])
+    flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
+    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}

@@ -38,12 +38,13 @@ def test_inventory_score_uses_defined_truth_only() -> None:
     listed = np.array(
         [[0.1, 0, 0, 0.32, 19.5], [5.1, 0, 0, 0.5, 16.0], [9, 0, 0, NAN, 9.2]]
     )
-    s = score_inventory(listed, ["ok", "check", "check"], truth)
+    s = score_inventory(listed, ["ok", "check", "check"], truth, ["ok", "lean", "ok"])
     assert (s.n_true, s.found, s.listed, s.real) == (3, 3, 3, 3)
     assert np.allclose(s.dbh_errors_m, [0.02])
     assert np.allclose(s.dbh_ok_errors_m, [0.02])
     assert s.dbh_missing == 1
     assert np.allclose(sorted(s.height_errors_m), [-0.5, 0.2, 1.0])
+    assert np.allclose(sorted(s.height_ok_errors_m), [-0.5, 0.2])
 
 
 def _sparse_ground(xyz: np.ndarray) -> np.ndarray:
