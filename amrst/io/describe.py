@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Sequence
 
     from amrst.types import Cloud
 
@@ -19,18 +19,12 @@ _SPACING_SAMPLE = 20_000
 _SLAB_ROWS = 250_000  # rows sorted at once when looking for copies
 
 
-def describe(
-    cloud: Cloud,
-    spacing: Callable[[np.ndarray], float | None] | None = None,
-) -> dict[str, Any]:
+def describe(cloud: Cloud) -> dict[str, Any]:
     """Summary numbers for ``amrst info``: size, bounds, spacing, attributes, format.
 
     Parameters
     ----------
     cloud : Cloud
-    spacing : callable, optional
-        Computes :func:`median_spacing` of ``cloud.xyz`` (N, 3); the app passes one
-        that runs it in a helper process. Default: :func:`median_spacing` here.
 
     Returns
     -------
@@ -61,7 +55,7 @@ def describe(
         "bounds_min": lo.tolist(),
         "bounds_max": hi.tolist(),
         "extent": (hi - lo).tolist(),
-        "median_spacing_m": (spacing or median_spacing)(cloud.xyz),
+        "median_spacing_m": median_spacing(cloud.xyz),
         "attributes": {k: _describe_array(v) for k, v in cloud.attributes.items()},
         "format": _plain_meta(cloud.meta),
     }
