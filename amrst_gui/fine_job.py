@@ -15,24 +15,26 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from amrst.progress import Reporter
     from amrst.review.manual_keep import KeepDecision
+    from amrst_gui.jobs import PoseQuality
 
 
 def refine_keeping_manual(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter, matches: Any = None
-) -> tuple[tuple[Any, Any, dict, KeepDecision | None], float]:
-    """``jobs.refine_pair``, then the manual-pose check; adds the decision (or None)."""
+) -> tuple[tuple[Any, Any, dict, PoseQuality, KeepDecision | None], float]:
+    """``jobs.refine_pair``, then the manual-pose check; adds the decision (or None):
+    ``((fine, metrics, tree, PoseQuality, decision), seconds)``."""
     from amrst import pipeline
     from amrst.review.manual_keep import judge_refinement
     from amrst.stages.candidates import Origin
     from amrst_gui import jobs
 
     start = time.perf_counter()
-    (fine, metrics, tree), _s = jobs.refine_pair(
+    (fine, metrics, tree, quality), _s = jobs.refine_pair(
         analyses, coarse, params, reporter, matches=matches
     )
     cand = coarse.candidate
     if cand is None or cand.origin != Origin.MANUAL:
-        return (fine, metrics, tree, None), time.perf_counter() - start
+        return (fine, metrics, tree, quality, None), time.perf_counter() - start
     target, source = analyses["target"], analyses["source"]
     decision = judge_refinement(
         coarse.T_target_source,
@@ -51,4 +53,5 @@ def refine_keeping_manual(
             target, source, fine.T_target_source, params, threads=jobs.THREADS
         )
         tree = jobs.measure_tree_pair(analyses, fine.T_target_source, params, reporter)
-    return (fine, metrics, tree, decision), time.perf_counter() - start
+        quality = jobs.pose_quality(analyses, fine.T_target_source, params)
+    return (fine, metrics, tree, quality, decision), time.perf_counter() - start

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,6 +17,10 @@ from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 
 if TYPE_CHECKING:
     import numpy as np
+
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.quality import StemSlice
+    from amrst.review.strength import Strength
 
 ROLES = ("target", "source")
 
@@ -142,12 +147,16 @@ def _score_manual(analyses: dict, T: Any, cid: int, how: str, params: Any) -> An
 def score_manual_pair(
     analyses: dict, T: Any, cid: int, how: str, params: Any, reporter: Reporter
 ) -> tuple[Any, float]:
-    """A manual pose as a candidate, verified like the automatic ones."""
+    """A manual pose as a candidate, verified like the automatic ones, and its
+    :class:`PoseQuality` (the verdict judges a manual pose by it)."""
     start = time.perf_counter()
     reporter.progress(0.0, "Scoring the manual pose")
     cand = _score_manual(analyses, T, cid, how, params)
+    reporter.check_cancelled()
+    reporter.progress(0.5, "Measuring the manual pose where both scans saw the tree")
+    quality = pose_quality(analyses, cand.T_target_source, params)
     reporter.progress(1.0, f"Manual pose: score {cand.score:.0%}")
-    return cand, time.perf_counter() - start
+    return (cand, quality), time.perf_counter() - start
 
 
 def measure_tree_pair(
@@ -167,8 +176,9 @@ def measure_tree_pair(
 
 def evaluate_coarse(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter
-) -> tuple[tuple[Any, Any, dict], float]:
-    """Measure the accepted coarse transform; ``(coarse, CloudMetrics, tree)``."""
+) -> tuple[tuple[Any, Any, dict, PoseQuality], float]:
+    """Measure the accepted coarse transform; ``(coarse, CloudMetrics, tree,
+    PoseQuality)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -184,16 +194,19 @@ def evaluate_coarse(
     reporter.check_cancelled()
     reporter.progress(0.6, "Measuring the tree")
     tree = measure_tree_pair(analyses, coarse.T_target_source, params, reporter)
+    reporter.check_cancelled()
+    reporter.progress(0.8, "Measuring where both scans saw the tree")
+    quality = pose_quality(analyses, coarse.T_target_source, params)
     reporter.progress(1.0, "Coarse alignment measured")
-    return (coarse, metrics, tree), time.perf_counter() - start
+    return (coarse, metrics, tree, quality), time.perf_counter() - start
 
 
 def refine_pair(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter, matches: Any = None
-) -> tuple[tuple[Any, Any, dict], float]:
+) -> tuple[tuple[Any, Any, dict, PoseQuality], float]:
     """Fine registration from the accepted ``coarse`` result (a CoarseResult or a
     transform), reusing a fit the match step already made for it (``matches``);
-    returns ``(FineResult, CloudMetrics, tree measures)``."""
+    returns ``(FineResult, CloudMetrics, tree measures, PoseQuality)``."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -218,8 +231,56 @@ def refine_pair(
     reporter.check_cancelled()
     reporter.progress(0.95, "Measuring the tree")
     tree = measure_tree_pair(analyses, fine.T_target_source, params, reporter)
+    reporter.check_cancelled()
+    reporter.progress(0.97, "Measuring where both scans saw the tree")
+    quality = pose_quality(analyses, fine.T_target_source, params)
     reporter.progress(1.0, "Fine registration done")
-    return (fine, metrics, tree), time.perf_counter() - start
+    return (fine, metrics, tree, quality), time.perf_counter() - start
+
+
+@dataclass(frozen=True, slots=True)
+class PoseQuality:
+    """What a technician judges one pose by, as ``amrst register`` measures it.
+
+    Attributes
+    ----------
+    overlap : OverlapDistances
+        Distances from the moved source to the target where both scans saw the scene.
+    strength : Strength
+        How firmly the pose holds each of its six axes.
+    slices : tuple of StemSlice
+        Stem slices of the tree of interest alone (ground, neighbours, shrubs out).
+    """
+
+    overlap: OverlapDistances
+    strength: Strength
+    slices: tuple[StemSlice, ...]
+
+    def section(self) -> dict[str, Any]:
+        """The ``quality`` section of metrics.json (``distance``, ``stem_slices``)."""
+        return {
+            "distance": self.overlap.as_dict(),
+            "stem_slices": [s.as_dict() for s in self.slices],
+        }
+
+
+def pose_quality(analyses: dict, T_local: Any, params: Any) -> PoseQuality:
+    """Overlap distances, strength per axis and stem slices of ``T_local`` (local
+    frames), on the same points as ``amrst.pipeline.register.finish_registration``."""
+    import numpy as np
+
+    from amrst.review.overlap import overlap_distances
+    from amrst.review.quality import stem_slices
+    from amrst.review.strength import axis_strength
+
+    tgt, src = analyses["target"], analyses["source"]
+    T = np.asarray(T_local, float)
+    R, t = T[:3, :3], T[:3, 3]
+    return PoseQuality(
+        overlap=overlap_distances(tgt.xyz, src.xyz, T),
+        strength=axis_strength(tgt.xyz, src.xyz, T, params.metrics.overlap_dist_m),
+        slices=tuple(stem_slices(tgt.tree_xyz, src.tree_xyz @ R.T + t)),
+    )
 
 
 def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, float]:

@@ -21,6 +21,8 @@ if TYPE_CHECKING:
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.strength import Strength
     from amrst.review.verdict import Verdict
     from amrst.stages.candidates import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
@@ -265,10 +267,13 @@ class Review:
         accepted: CoarseResult | None,
         fine: FineResult | None,
         params: RegistrationParams,
+        overlap: OverlapDistances | None = None,
+        strength: Strength | None = None,
     ) -> Verdict | None:
         """The verdict of the registration (``accepted`` coarse, else the coarse
         solution of the list, then ``fine``), or None before matching.
-        ``params``: those the match step ran with."""
+        ``params``: those the match step ran with; ``overlap`` and ``strength``: the
+        final pose's (a manual pose is judged by them, weak axes are named)."""
         from amrst.review.verdict import judge
 
         if self.match_result is None:
@@ -283,6 +288,8 @@ class Review:
             score_dist_m=params.trunk.score_dist_m,
             trunk_searched=self.automatic is not None
             and "trunk" in self.automatic.timings,
+            overlap=overlap,
+            strength=strength,
         )
 
     def next_manual_id(self) -> int:

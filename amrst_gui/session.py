@@ -560,6 +560,10 @@ class Session(QObject):
         self._accepted: CoarseResult | None = None
         self._fine: FineResult | None = None
         self._fine_note = ""  # from a manual pose: what Fine's check decided
+        self._fine_dropped = False  # Fine's result dropped: the manual pose kept
+        # What the technician judges a pose by, per stage and per manual candidate.
+        self._quality: dict[str, jobs.PoseQuality] = {}
+        self._manual_quality: dict[int, jobs.PoseQuality] = {}
         self._metrics: dict[str, CloudMetrics] = {}
         # stage -> {"target"|"source"|"merged": TreeMeasures}
         self._tree: dict[str, dict[str, TreeMeasures]] = {}
@@ -639,7 +643,35 @@ class Session(QObject):
                 str(v.get("next_step", "")),
             )
         params = self._step_params.get("match") or self._params
-        return self.review.verdict(self._accepted, self._fine, params)
+        quality = self.pose_quality
+        return self.review.verdict(
+            self._accepted,
+            self._fine,
+            params,
+            overlap=None if quality is None else quality.overlap,
+            strength=None if quality is None else quality.strength,
+        )
+
+    @property
+    def pose_quality(self) -> jobs.PoseQuality | None:
+        """Overlap distances, strength and stem slices of the best pose so far (fine,
+        else the accepted coarse, else the manual candidate proposed), or None."""
+        for stage in ("fine", "coarse"):
+            if stage in self._quality:
+                return self._quality[stage]
+        coarse = self.coarse
+        if self._accepted is None and coarse is not None:
+            return self._manual_quality.get(int(coarse.candidate.id))
+        return None
+
+    def stage_quality(self, stage: str) -> jobs.PoseQuality | None:
+        """The PoseQuality of "coarse" or "fine", or None."""
+        return self._quality.get(stage)
+
+    @property
+    def fine_dropped(self) -> bool:
+        """True when Fine's result was dropped and the manual pose kept."""
+        return self._fine is not None and self._fine_dropped
 
     # ----------------------------------------------------------------- state
     @property
@@ -816,6 +848,7 @@ class Session(QObject):
 
         fine = self._fine
         verdict = self.verdict
+        quality = self.pose_quality
         context = self._transform_context()
         target, source = self.cloud("target"), self.cloud("source")
         assert target is not None  # a result needs both scans
@@ -843,6 +876,8 @@ class Session(QObject):
             rejected_match_ids=tuple(sorted(int(i) for i in self.review.rejected)),
             verdict=None if verdict is None else verdict.as_dict(),
             override=None if self._override is None else dict(self._override),
+            quality=None if quality is None else quality.section(),
+            strength=None if quality is None else dict(quality.strength.values),
             extra={k: context[k] for k in ("manual_pose",) if k in context},
             amrst_version=__version__,
         )
@@ -922,6 +957,10 @@ class Session(QObject):
             )
         if self.tree:
             report["tree"] = {name: m.as_dict() for name, m in self.tree.items()}
+        quality = self.pose_quality
+        if quality is not None:
+            report["quality"] = quality.section()
+            report["strength"] = dict(quality.strength.values)
         report["timings_s"] = dict(self._timings)
         verdict = self.verdict
         if verdict is not None:
@@ -1073,9 +1112,13 @@ class Session(QObject):
         an = self._by_role("analysis")
         self._launch("manual", jobs.score_manual_pair, an, T, cid, how, self._params)
 
-    def _apply_manual(self, result: Candidate) -> Callable[[], None]:
-        self.review.add_manual(result)
-        log.info("Manual pose added: %s", result.explanation)
+    def _apply_manual(
+        self, result: tuple[Candidate, jobs.PoseQuality]
+    ) -> Callable[[], None]:
+        cand, quality = result
+        self._manual_quality[int(cand.id)] = quality
+        self.review.add_manual(cand)
+        log.info("Manual pose added: %s", cand.explanation)
         return self.matches_changed.emit
 
     def _summary_manual(self) -> str:
@@ -1100,7 +1143,12 @@ class Session(QObject):
         self._launch("coarse", jobs.evaluate_coarse, an, coarse, self._params)
 
     def _apply_coarse(self, result: tuple) -> Callable[[], None]:
-        self._accepted, self._metrics["coarse"], self._tree["coarse"] = result
+        (
+            self._accepted,
+            self._metrics["coarse"],
+            self._tree["coarse"],
+            self._quality["coarse"],
+        ) = result
         accepted = self._accepted
         assert accepted is not None
         self.review.link_review.accepted_pose = accepted.T_target_source
@@ -1113,6 +1161,7 @@ class Session(QObject):
         self._accepted = None
         self._metrics.pop("coarse", None)
         self._tree.pop("coarse", None)
+        self._quality.pop("coarse", None)
 
     def _summary_coarse(self) -> str:
         return self._metrics_line("coarse")
@@ -1135,8 +1184,15 @@ class Session(QObject):
         self._launch("fine", refine, self._by_role("analysis"), accepted, self._params)
 
     def _apply_fine(self, result: tuple) -> Callable[[], None]:
-        self._fine, self._metrics["fine"], self._tree["fine"], decision = result
+        (
+            self._fine,
+            self._metrics["fine"],
+            self._tree["fine"],
+            self._quality["fine"],
+            decision,
+        ) = result
         self._fine_note = "" if decision is None else decision.why
+        self._fine_dropped = decision is not None and decision.keep_manual
         if decision is not None:
             (log.warning if decision.keep_manual else log.info)(self._fine_note)
         fine = self._fine
@@ -1147,8 +1203,10 @@ class Session(QObject):
 
     def _clear_fine(self) -> None:
         self._fine = None
+        self._fine_dropped = False
         self._metrics.pop("fine", None)
         self._tree.pop("fine", None)
+        self._quality.pop("fine", None)
 
     def _summary_fine(self) -> str:
         return self._metrics_line("fine")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (
     QHeaderView,
     QLabel,
@@ -14,11 +15,50 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst.results.metric_doc import METRIC_ROWS as _ROWS
+from amrst.results.metric_doc import METRIC_ROWS
+from amrst.review.strength import AXES, WEAK_STRENGTH
 from amrst_gui import steps
 from amrst_gui.panels.verdict_style import verdict_style
 
 _STAGES = ("coarse", "fine")
+# Where both scans saw the tree: the figures to judge a pose by, first.
+_OVERLAP_ROWS: tuple[tuple[str, str, str, str], ...] = (
+    (
+        "both_median_m",
+        "Distance median, both saw",
+        "cm",
+        "Median distance from the moved source to the target where both scans saw "
+        "the scene (voxels both occupy, above the ground). Good: under 1.5 cm.",
+    ),
+    (
+        "both_within_2cm",
+        "Within 2 cm, both saw",
+        "%",
+        "Share of those points within 2 cm of the target. Good: 60% or more.",
+    ),
+    (
+        "both_p95_m",
+        "Distance 95th pct., both saw",
+        "cm",
+        "95% of the points both scans saw lie closer than this to the target.",
+    ),
+)
+_TRUTH = tuple(
+    r for r in METRIC_ROWS if r[0].startswith(("rotation_err", "transl"))
+) + (tuple(r for r in METRIC_ROWS if r[0] in ("gt_rmse_m", "registered")))
+# Overlap figures, then the truth (above the fold on a laptop), then the rest: the
+# figures over every point last, since parts one scan alone saw inflate them.
+_ROWS = _OVERLAP_ROWS + _TRUTH + tuple(r for r in METRIC_ROWS if r not in _TRUTH)
+# Rows that describe the ICP's own run: blank when Fine's result was dropped.
+_ICP_KEYS = ("iterations", "fitness", "inlier_rmse_m", "converged")
+_AXIS_NAMES = {
+    "tx": "Shift along x",
+    "ty": "Shift along y",
+    "tz": "Height (z)",
+    "rx": "Tilt about x",
+    "ry": "Tilt about y",
+    "rz": "Turn about the stem (z)",
+}
 _SCANS = ("target", "source", "merged")
 # Tree tab rows: key of TreeMeasures.as_dict(), label, scale to the unit, decimals
 # shown, tooltip.
@@ -111,7 +151,23 @@ class MetricsPanel(QWidget):
         for table in (self.table, self.timings, self.tree_table):
             table.verticalHeader().setDefaultSectionSize(22)
         self.tabs = QTabWidget()
+        self.strength_table = QTableWidget(len(AXES), len(_STAGES))
+        self.strength_table.setObjectName("strength_table")
+        self.strength_table.setHorizontalHeaderLabels(["Coarse", "Fine"])
+        self.strength_table.setVerticalHeaderLabels([_AXIS_NAMES[a] for a in AXES])
+        self.strength_table.horizontalHeader().setSectionResizeMode(
+            QHeaderView.ResizeMode.Stretch
+        )
+        self.strength_table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.strength_table.setToolTip(
+            "How firmly the pose holds each axis (0-1, from the final alignment's "
+            "normal equations, as Cyclone's strength): 1 when the surfaces face "
+            f"along it, under {WEAK_STRENGTH:g} weak (they slide: a bare stem turns "
+            "freely about itself). Check the stem slices when an axis is weak."
+        )
+        self.strength_table.verticalHeader().setDefaultSectionSize(22)
         self.tabs.addTab(self.table, "Quality")
+        self.tabs.addTab(self.strength_table, "Strength")
         self.tabs.addTab(tree_page, "Tree")
         self.tabs.addTab(self.timings, "Time per stage")
         layout = QVBoxLayout(self)
@@ -143,10 +199,18 @@ class MetricsPanel(QWidget):
         out: dict[str, dict[str, object]] = {stage: {} for stage in _STAGES}
         for stage, m in s.metrics.items():
             out[stage].update(m.as_dict())
+            quality = s.stage_quality(stage)
+            if quality is not None:
+                d = quality.overlap
+                out[stage].update(
+                    both_median_m=d.median_m,
+                    both_within_2cm=d.within_2cm_fraction,
+                    both_p95_m=d.p95_m,
+                )
         coarse = s.accepted_coarse or s.coarse
         if coarse is not None:
             out["coarse"]["confidence"] = float(coarse.confidence)
-        if s.fine is not None:
+        if s.fine is not None and not s.fine_dropped:
             f = s.fine
             out["fine"].update(
                 iterations=int(f.iterations),
@@ -162,11 +226,16 @@ class MetricsPanel(QWidget):
     def refresh(self) -> None:
         """Show the session's current numbers."""
         values = self.values()
+        dropped = self.session.fine_dropped
         for col, stage in enumerate(_STAGES):
             for row, (key, _, kind, tip) in enumerate(_ROWS):
-                item = QTableWidgetItem(_fmt(values[stage].get(key), kind))
+                text = _fmt(values[stage].get(key), kind)
+                if dropped and stage == "fine" and key in _ICP_KEYS:
+                    text, tip = "dropped", self.session.fine_note or tip
+                item = QTableWidgetItem(text)
                 item.setToolTip(tip)
                 self.table.setItem(row, col, item)
+        self._show_strength()
         verdict = self.session.verdict
         if verdict is None:
             self.verdict_label.setText("Verdict: none yet (run Match or Run all).")
@@ -199,6 +268,29 @@ class MetricsPanel(QWidget):
         for row, seconds in enumerate(timings.values()):
             self.timings.setItem(row, 0, QTableWidgetItem(f"{seconds:.2f}"))
 
+    def strength_values(self) -> dict[str, dict[str, float]]:
+        """What the Strength tab shows: stage -> axis -> strength (0-1)."""
+        out: dict[str, dict[str, float]] = {}
+        for stage in _STAGES:
+            quality = self.session.stage_quality(stage)
+            out[stage] = {} if quality is None else dict(quality.strength.values)
+        return out
+
+    def _show_strength(self) -> None:
+        for col, (stage, values) in enumerate(self.strength_values().items()):
+            for row, axis in enumerate(AXES):
+                v = values.get(axis)
+                weak = v is not None and math.isfinite(v) and v < WEAK_STRENGTH
+                text = "" if v is None else ("n/a" if math.isnan(v) else f"{v:.2f}")
+                item = QTableWidgetItem(text + ("  weak" if weak else ""))
+                if weak:
+                    item.setForeground(QColor(200, 40, 40))
+                    item.setToolTip(
+                        f"{_AXIS_NAMES[axis]} is poorly held by the {stage} pose: "
+                        "check the stem slices before accepting."
+                    )
+                self.strength_table.setItem(row, col, item)
+
     def tree_values(self) -> dict[str, dict[str, float]]:
         """What the Tree tab shows: scan -> row key -> value in the row's unit."""
         tree = self.session.tree
@@ -219,8 +311,19 @@ class MetricsPanel(QWidget):
                 value = values[scan].get(key)
                 text = "" if value is None else f"{value:.{decimals}f}"
                 self.tree_table.setItem(row, col, QTableWidgetItem(text))
+        from amrst.measure import dbh_check
+
         tree = self.session.tree
         merged = tree.get("merged")
+        doubt = dbh_check(tree) if merged is not None else ""
+        if doubt:
+            row = [r[0] for r in _TREE_ROWS].index("dbh_m")
+            item = self.tree_table.item(row, _SCANS.index("merged"))
+            assert item is not None  # set just above
+            item.setText(f"⚠ {item.text()}")
+            item.setForeground(QColor(200, 40, 40))
+            item.setToolTip(f"Doubtful DBH: {doubt}.")
+        self.tree_note.setStyleSheet("color: #c62828;" if doubt else "")
         if merged is None:
             self.tree_note.setText(
                 "Measured once a coarse solution is accepted (and again after fine)."
@@ -228,7 +331,9 @@ class MetricsPanel(QWidget):
         else:
             stage = "fine" if self.session.fine is not None else "coarse"
             self.tree_note.setText(
-                f"Under the {stage} transform. " + (merged.note or "")
+                (f"Doubtful DBH: {doubt}. " if doubt else "")
+                + f"Under the {stage} transform. "
+                + (merged.note or "")
             )
 
     def _timings(self) -> dict[str, float]:

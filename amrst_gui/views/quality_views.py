@@ -34,24 +34,31 @@ class DistanceHistogram(QWidget):
         self.setMaximumHeight(90)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
         self.distances = np.zeros(0)
+        self.headline = ""
         self.setToolTip(
             "Distance from each point to the nearest point of the other scan, both "
-            "ways. A right pose: most points under 1-2 cm (scan noise); parts only "
-            "one scan sees pile up at the right end."
+            "ways, where both scans saw the scene (points only one scan saw are grey "
+            "and left out). A right pose: most points under 1-2 cm (scan noise)."
         )
 
-    def set_distances(self, distances: np.ndarray) -> None:
+    def set_distances(self, distances: np.ndarray, headline: str = "") -> None:
+        """Show ``distances`` (m); ``headline``: the registration's own figures
+        (the Quality table's), shown before the drawn points' own."""
         self.distances = np.asarray(distances, float)
+        self.headline = headline
         self.update()
 
     def summary(self) -> str:
         d = self.distances[np.isfinite(self.distances)]
         if not len(d):
-            return ""
-        return (
+            return self.headline
+        drawn = (
             f"median {np.median(d) * 100:.1f} cm, 95th pct. "
             f"{np.percentile(d, 95) * 100:.1f} cm, within 2 cm {np.mean(d < 0.02):.0%}"
         )
+        if self.headline:
+            return f"{self.headline}  (points drawn: {drawn})"
+        return f"where both scans saw: {drawn}"
 
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
@@ -298,11 +305,20 @@ class StemSlicesPane(QWidget):
                 "Stem slices: heights in m separated by commas, thickness in cm."
             )
             return
-        target, source = s.cloud("target").xyz, s.cloud("source").xyz
+        # The tree of interest alone once the scans are separated: ground,
+        # neighbours and shrubs spoil the circle fits.
+        an_t, an_s = s.analysis("target"), s.analysis("source")
+        alone = an_t is not None and an_s is not None
+        if alone:
+            target, source = an_t.tree_xyz, an_s.tree_xyz
+        else:
+            target, source = s.cloud("target").xyz, s.cloud("source").xyz
         stage = "fine" if s.fine is not None else "coarse"
         caption = (
-            f"Stem slices after {stage} registration: amber target, blue source, "
-            "circles fitted to each (good: centres under 5 mm apart)"
+            f"Stem slices after {stage} registration"
+            + (" (tree of interest alone)" if alone else " (all points)")
+            + ": amber target, blue source, circles fitted to each (good: centres "
+            "under 5 mm apart)"
         )
         if self._job is not None:  # a newer transform or setting replaces it
             self._job.discard()

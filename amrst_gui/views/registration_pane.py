@@ -137,7 +137,21 @@ class RegistrationPane(QWidget):
         mode = self.colour.currentData()
         self.histogram.setVisible(mode == "distance")
         self.histogram.set_distances(
-            scene.extra.get("distances", []) if scene is not None else []
+            scene.extra.get("distances", []) if scene is not None else [],
+            self._headline(),
+        )
+
+    def _headline(self) -> str:
+        """The shown stage's distances where both scans saw the tree, as measured
+        by the registration (its Quality table and metrics.json), or ""."""
+        stage = self.stage if self.stage in ("coarse", "fine") else None
+        quality = self.session.stage_quality(stage) if stage else None
+        if quality is None or quality.overlap.n_points_measured == 0:
+            return ""
+        d = quality.overlap
+        return (
+            f"{stage}, both saw: median {d.median_m * 100:.1f} cm, within 2 cm "
+            f"{d.within_2cm_fraction:.0%}"
         )
 
     def look(self, direction: str) -> None:

@@ -266,6 +266,37 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
     return None, "No fine registration yet: accept a coarse solution, then run Fine."
 
 
+# Grey of the points only one scan saw: neither right nor wrong, so not coloured.
+ONE_SCAN_RGB = (95, 95, 100)
+
+
+def overlap_colours(
+    t_xyz: np.ndarray, s_xyz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Distances and colours of both scans' points where both saw the scene.
+
+    A point counts when the overlap's voxel (``amrst.review.overlap``) it lies in
+    holds points of both scans; the others are grey and left out of the distances
+    (a stem's far side, ground behind a neighbour). Returns ``(target distances,
+    target colours, source distances, source colours)``, distances of overlap
+    points only.
+    """
+    from amrst.review.overlap import OVERLAP_VOXEL_M
+    from amrst.review.quality import nn_distances
+    from amrst.stages.voxels import voxel_grid
+
+    code = voxel_grid(np.vstack([t_xyz, s_xyz]).astype(float), OVERLAP_VOXEL_M)[1]
+    c_t, c_s = code[: len(t_xyz)], code[len(t_xyz) :]
+    out: list[np.ndarray] = []
+    for xyz, other, own, theirs in ((t_xyz, s_xyz, c_t, c_s), (s_xyz, t_xyz, c_s, c_t)):
+        both = np.isin(own, theirs)
+        d = nn_distances(xyz[both], other, 1.0)
+        rgb = np.tile(np.array(ONE_SCAN_RGB, np.uint8), (len(xyz), 1))
+        rgb[both] = distance_rgb(d)
+        out += [d, rgb]
+    return out[0], out[1], out[2], out[3]
+
+
 def build_registration_scene(
     session, stage: str, max_points: int = MAX_DISPLAY_POINTS, colour: str = "scans"
 ) -> Scene:
@@ -297,21 +328,17 @@ def build_registration_scene(
         key = ("source", Ref(source), half, T.tobytes(), colour)
         rgb = np.tile(np.array(SOURCE_RGB, np.uint8), (len(s_xyz), 1))
         if colour == "distance":
-            from amrst.review.quality import nn_distances
-
-            d_s = nn_distances(s_xyz, t_xyz, 1.0)
-            d_t = nn_distances(t_xyz, s_xyz, 1.0)
-            rgb = distance_rgb(d_s)
+            d_t, rgb_t, d_s, rgb = overlap_colours(t_xyz, s_xyz)
             layers[0] = PointsLayer(
                 "target_points",
                 ("target", Ref(target), half, T.tobytes(), colour),
                 t_xyz,
-                distance_rgb(d_t),
+                rgb_t,
             )
             distances = np.concatenate([d_s, d_t])
             legend = (
-                "colour: distance to the other scan, both ways "
-                "(blue 0 cm ... red 10 cm and more)"
+                "colour: distance to the other scan where both saw the scene "
+                "(blue 0 cm ... red 10 cm and more); grey: seen by one scan only"
             )
         layers.append(PointsLayer("source_points", key, s_xyz, rgb))
     shown = shown_text(
