@@ -45,6 +45,7 @@ class NudgeMixin:
         self.yaw_slider = QSlider(Qt.Orientation.Horizontal)
         self.yaw_slider.setRange(-180, 180)
         self.yaw_slider.valueChanged.connect(lambda v: self.yaw.setValue(float(v)))
+        self.yaw.valueChanged.connect(self._sync_slider)
         self.yaw.valueChanged.connect(self._on_nudged)
         grid.addWidget(QLabel("Turn:"), 0, 0)
         grid.addWidget(self.yaw, 0, 1)
@@ -64,8 +65,10 @@ class NudgeMixin:
         self.score_label.setObjectName("nudge_score")
         self.score_label.setWordWrap(True)
         self.score_label.setToolTip(
-            "Share of sampled source points within 4 cm of the target under the "
-            "nudged pose (no polish). A right pose scores 45% or more."
+            "Under the nudged pose (no polish): the median distance of sampled source "
+            "points to the target, which falls steadily as the pose comes right, and "
+            "their share within 4 cm, which rises only near it. Turn to the lowest "
+            "median, then use the pose and run Fine."
         )
         self.use_nudge = QPushButton("Use nudged pose")
         self.use_nudge.clicked.connect(self.use_nudged)
@@ -113,6 +116,12 @@ class NudgeMixin:
         c = cached[1]
         return np.asarray(base[:3, :3] @ c + base[:3, 3])
 
+    def _sync_slider(self, value: float) -> None:
+        """The slider follows a typed turn (without turning again)."""
+        self.yaw_slider.blockSignals(True)
+        self.yaw_slider.setValue(round(value))
+        self.yaw_slider.blockSignals(False)
+
     def _reset_nudge(self) -> None:
         for w in (self.yaw, *self.shift):
             w.blockSignals(True)
@@ -137,13 +146,17 @@ class NudgeMixin:
         if self._score_stale:
             self.score_label.setText("Score of this pose: shown with this tab.")
             return
+        median_m, share = self.live_score(T)
         self.score_label.setText(
-            f"Score of this pose: {self.live_score(T):.0%} of sampled source points "
-            "within 4 cm of the target."
+            f"This pose: median distance {median_m * 100:.1f} cm, "
+            f"{share:.0%} of sampled source points within "
+            f"{self.session.params.coarse.tight_dist_m * 100:.0f} cm of the target."
         )
 
-    def live_score(self, T: np.ndarray) -> float:
-        """Tight share of the nudged pose, on the verification's sample."""
+    def live_score(self, T: np.ndarray) -> tuple[float, float]:
+        """The nudged pose's median distance (m, up to 1 m) and tight share, on the
+        verification's sample: the median changes with every turn, far from the
+        right pose too, where the tight share stays near zero."""
         s = self.session
         # The objects themselves, compared by identity: an id() of an object
         # no longer held can come back for a new one (a stale tree).
@@ -163,7 +176,11 @@ class NudgeMixin:
             sample, _ = verification_sample(src, s.params.coarse)
             cached = self._score_cache = (key, cKDTree(tgt), sample)
         _, tree, sample = cached
-        return manual.tight_share(T, tree, sample, s.params.coarse.tight_dist_m)
+        if not len(sample):
+            return float("nan"), 0.0
+        moved = sample @ T[:3, :3].T + T[:3, 3]
+        d = np.minimum(tree.query(moved, distance_upper_bound=1.0)[0], 1.0)
+        return float(np.median(d)), float(np.mean(d < s.params.coarse.tight_dist_m))
 
     def use_nudged(self) -> None:
         T = self.nudged_pose()

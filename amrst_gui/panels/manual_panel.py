@@ -1,8 +1,9 @@
 """ManualPanel: recover the pose by hand when matching fails.
 
-Point pairs picked in the two scan views (each click snaps to the nearest point), a
-nudge (turn about the vertical, shift) with a live verification score, or a typed or
-loaded 4x4 transform. Each makes a candidate of origin "manual" through
+Point pairs picked in the two scan views (each click snaps to the nearest point;
+each picked point marked and numbered in its view; the pairs loaded from or saved to
+a CSV file), a nudge (turn about the vertical, shift) with a live score, or a typed
+or loaded 4x4 transform. Each makes a candidate of origin "manual" through
 ``session.add_manual_pose``; Accept coarse and Fine then start from it.
 """
 
@@ -32,9 +33,12 @@ from PySide6.QtWidgets import (
 from amrst.errors import InvalidInput
 from amrst.review import manual
 from amrst.types import local_transform, rotation_angle_deg
+from amrst_gui.panels import pair_fit
 from amrst_gui.panels.manual_nudge import NudgeMixin
 
-_PAIR_COLUMNS = ("#", "Target point (m)", "Source point (m)", "Residual")
+_PAIR_COLUMNS = ("#", "Target point (m)", "dX", "dY", "dZ", "Dist.")
+# Points of each scan drawn as the other's ghost while picking under a rough pose.
+_GHOST_POINTS = 60_000
 
 
 def _xyz(p) -> str:
@@ -107,16 +111,19 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.levelled.toggled.connect(lambda _on: self._show_pairs())
         self.hint = QLabel("")
         self.hint.setWordWrap(True)
+        lock_row = self._pick_options()
         self.table = QTableWidget(0, len(_PAIR_COLUMNS))
         self.table.setObjectName("pairs_table")
         self.table.setHorizontalHeaderLabels(list(_PAIR_COLUMNS))
-        header_item = self.table.horizontalHeaderItem(3)
-        assert header_item is not None
-        header_item.setToolTip(
-            "Distance between the target point and its source point moved by the fit. "
-            "Good: about the point spacing (1-3 cm); a pair far above the others was "
-            "mis-picked: delete it."
-        )
+        for col in range(2, len(_PAIR_COLUMNS)):
+            header_item = self.table.horizontalHeaderItem(col)
+            assert header_item is not None
+            header_item.setToolTip(
+                "Source point moved by the fit minus its target point (cm), along "
+                "x, y, z of the target and as a distance. Good: about the point "
+                "spacing (1-3 cm); a pair far above the others was mis-picked: "
+                "delete it."
+            )
         self.table.verticalHeader().hide()
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
@@ -138,12 +145,54 @@ class ManualPanel(NudgeMixin, QScrollArea):
         for b in (self.delete_button, self.undo_button, self.use_pairs):
             buttons.addWidget(b)
         self.fit_label = QLabel("")
+        self.fit_label.setObjectName("pairs_fit")
         self.fit_label.setWordWrap(True)
-        for w in (self.pick_button, self.levelled, self.hint, self.table):
-            grid.addWidget(w)
-        grid.addLayout(buttons)
+        grid.addWidget(self.pick_button)
+        grid.addWidget(self.levelled)
+        grid.addLayout(lock_row)
+        for widget in (self.ghost, self.hint, self.table):
+            grid.addWidget(widget)
         grid.addWidget(self.fit_label)
+        grid.addLayout(buttons)
+        grid.addLayout(self._files_row())
         return box
+
+    def _pick_options(self) -> QHBoxLayout:
+        """The shift locks (their row) and the ghost check box."""
+        self.locks = [QCheckBox(f"no {axis} shift") for axis in "xyz"]
+        row = QHBoxLayout()
+        for lock, axis in zip(self.locks, "xyz", strict=True):
+            lock.setToolTip(
+                f"Hold the world shift along {axis} at zero (levelled fit only): "
+                "scanners set up on the same line or at the same height."
+            )
+            lock.toggled.connect(lambda _on: self._show_pairs())
+            row.addWidget(lock)
+        self.levelled.toggled.connect(self._enable_locks)
+        self.ghost = QCheckBox("Show the other scan in each view (rough pose)")
+        self.ghost.setToolTip(
+            "Once a rough pose exists (a pair fit, the nudge, a candidate), draw the "
+            "other scan faintly in each view, moved by it: the same side of the trunk "
+            "is then easy to find. Clicks still pick the view's own scan."
+        )
+        self.ghost.toggled.connect(lambda _on: self._show_ghosts())
+        self.session.manual_preview_changed.connect(lambda _T: self._show_ghosts())
+        return row
+
+    def _files_row(self) -> QHBoxLayout:
+        files = QHBoxLayout()
+        load = QPushButton("Load pairs…")
+        load.setToolTip(
+            "Read pairs from a CSV file: target_x,target_y,target_z,source_x,"
+            "source_y,source_z in world coordinates (as amrst register --pairs)"
+        )
+        load.clicked.connect(self._load_pairs_dialog)
+        self.save_button = QPushButton("Save pairs…")
+        self.save_button.setToolTip("Write the pairs to a CSV file (world coordinates)")
+        self.save_button.clicked.connect(self._save_pairs_dialog)
+        files.addWidget(load)
+        files.addWidget(self.save_button)
+        return files
 
     def _typed_box(self) -> QGroupBox:
         box = QGroupBox("Type or load a transform")
@@ -213,31 +262,91 @@ class ManualPanel(NudgeMixin, QScrollArea):
             self.pairs = self._undo.pop()
             self._show_pairs()
 
-    def _show_pairs(self) -> None:
+    def _enable_locks(self, levelled: bool) -> None:
+        for lock in self.locks:
+            lock.setEnabled(levelled)
+
+    def _fit_pairs(self) -> None:
+        """Fit the pairs when there are enough (the label says why not)."""
         self.fit = None
         need = 2 if self.levelled.isChecked() else 3
-        if len(self.pairs) >= need:
-            t = np.array([p[0] for p in self.pairs])
-            s = np.array([p[1] for p in self.pairs])
-            try:
-                self.fit = manual.fit_pairs(t, s, self.levelled.isChecked())
-            except InvalidInput as exc:
-                self.fit_label.setText(str(exc))
-        self.table.setRowCount(len(self.pairs))
-        for i, (tp, sp) in enumerate(self.pairs):
-            res = "" if self.fit is None else f"{self.fit.residuals_m[i] * 100:.1f} cm"
-            for j, text in enumerate((str(i + 1), _xyz(tp), _xyz(sp), res)):
-                self.table.setItem(i, j, QTableWidgetItem(text))
-        if self.fit is not None:
-            T = self.fit.T_target_source
-            self.fit_label.setText(
-                f"Fit of {len(self.pairs)} pairs: residual RMS "
-                f"{self.fit.rmse_m * 100:.1f} cm; turn "
-                f"{rotation_angle_deg(T[:3, :3]):.1f}°, shift "
-                f"{np.linalg.norm(T[:3, 3]):.2f} m. The overlay's Manual view shows it."
-            )
-        elif len(self.pairs) < need:
+        s = self.session
+        if len(self.pairs) < need or not s.has_scans:
             self.fit_label.setText(f"{len(self.pairs)} of {need} pairs needed.")
+            return
+        locks = tuple(b.isChecked() for b in self.locks)
+        try:
+            self.fit = pair_fit.fit_pairs(
+                s.cloud("target"),
+                s.cloud("source"),
+                self.pairs,
+                self.levelled.isChecked(),
+                (locks[0], locks[1], locks[2]),
+            )
+        except InvalidInput as exc:
+            self.fit_label.setText(str(exc))
+            return
+        T = self.fit.T_target_source
+        self.fit_label.setText(
+            f"Achievable RMS of {len(self.pairs)} pairs: "
+            f"{self.fit.rmse_m * 100:.1f} cm; turn "
+            f"{rotation_angle_deg(T[:3, :3]):.1f}°, shift "
+            f"{np.linalg.norm(T[:3, 3]):.2f} m. The overlay's Manual view shows it."
+        )
+
+    def _fill_table(self) -> None:
+        """One row per pair (dX, dY, dZ and distance under the fit, cm), and one for
+        a target point waiting for its source point."""
+        d = (
+            pair_fit.residual_vectors(self.fit.T_target_source, self.pairs) * 100
+            if self.fit is not None
+            else None
+        )
+        pending = self._pending is not None
+        self.table.setRowCount(len(self.pairs) + pending)
+        for i, (tp, sp) in enumerate(self.pairs):
+            cells = [str(i + 1), _xyz(tp)]
+            if d is not None:
+                cells += [f"{v:+.1f}" for v in d[i]]
+                cells.append(f"{np.linalg.norm(d[i]):.1f} cm")
+            for j, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                item.setToolTip(f"target {_xyz(tp)} m, source {_xyz(sp)} m (local)")
+                self.table.setItem(i, j, item)
+            for j in range(len(cells), len(_PAIR_COLUMNS)):
+                self.table.setItem(i, j, QTableWidgetItem(""))
+        if self._pending is not None:
+            row = len(self.pairs)
+            cells = [str(row + 1), _xyz(self._pending), "", "", "", "source?"]
+            for j, text in enumerate(cells):
+                self.table.setItem(row, j, QTableWidgetItem(text))
+
+    def _show_marks(self) -> None:
+        """Number every picked point in its view; the waiting one in its colour."""
+        labels = [str(i + 1) for i in range(len(self.pairs))]
+        for k, (role, view) in enumerate(self.views.items()):
+            xyz = np.array([p[k] for p in self.pairs], float).reshape(-1, 3)
+            pending = self._pending if role == "target" else None
+            view.marks.set_markers(xyz, labels, pending)
+
+    def _show_ghosts(self) -> None:
+        """The other scan faintly in each view under the rough pose, if wanted."""
+        s = self.session
+        T = s.manual_preview
+        if not self.ghost.isChecked() or T is None or not s.has_scans:
+            for view in self.views.values():
+                view.marks.set_ghost(None)
+            return
+        in_target, in_source = pair_fit.ghosts(
+            s.cloud("target"), s.cloud("source"), T, _GHOST_POINTS
+        )
+        self.views["target"].marks.set_ghost(in_target)
+        self.views["source"].marks.set_ghost(in_source)
+
+    def _show_pairs(self) -> None:
+        self._fit_pairs()
+        self._fill_table()
+        self._show_marks()
         if self.pick_button.isChecked():
             self.hint.setText(
                 "Now click the same point in the SOURCE view."
@@ -247,6 +356,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         else:
             self.hint.setText("")
         self.use_pairs.setEnabled(self.fit is not None)
+        self.save_button.setEnabled(bool(self.pairs))
         self.delete_button.setEnabled(bool(self.pairs))
         self.undo_button.setEnabled(bool(self._undo))
         self._reset_nudge()
@@ -259,7 +369,51 @@ class ManualPanel(NudgeMixin, QScrollArea):
             )
             self.session.add_manual_pose(self.fit.T_target_source, how)
 
-    # --------------------------------------------------------------- nudge
+    def _load_pairs_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(
+            self, "Load point pairs", "", "Point pairs (*.csv);;All files (*)"
+        )
+        if path:
+            self.load_pairs(Path(path))
+
+    def _save_pairs_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(
+            self, "Save point pairs", "pairs.csv", "Point pairs (*.csv)"
+        )
+        if path:
+            self.save_pairs(Path(path))
+
+    def load_pairs(self, path: Path) -> None:
+        """Replace the pairs by those of a pairs CSV file (world coordinates)."""
+        from amrst.review.pairs_file import read_pairs
+
+        s = self.session
+        if not s.has_scans:
+            s.report_error("Open a target and a source scan first (File > Open).")
+            return
+        try:
+            t, src = read_pairs(path)
+        except InvalidInput as exc:
+            s.report_error(str(exc))
+            return
+        self._undo.append(list(self.pairs))
+        self.pairs = pair_fit.local_pairs(s.cloud("target"), s.cloud("source"), t, src)
+        self._pending = None
+        self._show_pairs()
+
+    def save_pairs(self, path: Path) -> None:
+        """Write the pairs to a pairs CSV file (world coordinates)."""
+        from amrst.review.pairs_file import write_pairs
+
+        s = self.session
+        if not self.pairs or not s.has_scans:
+            return
+        t, src = pair_fit.world_pairs(s.cloud("target"), s.cloud("source"), self.pairs)
+        try:
+            write_pairs(path, t, src)
+        except (InvalidInput, OSError) as exc:
+            s.report_error(f"Could not write {path}: {exc}")
+
     # ----------------------------------------------------------- transform
     def _load_dialog(self) -> None:
         path, _ = QFileDialog.getOpenFileName(

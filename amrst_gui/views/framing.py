@@ -66,3 +66,30 @@ def aim_at(
     cam.SetFocalPoint(*centre)
     cam.SetPosition(*(centre - toward * distance))
     cam.SetViewUp(*up)
+
+
+def zoom_towards(renderer, x: float, y: float, factor: float) -> None:
+    """Zoom by ``factor`` (> 1 closer) keeping what lies under display (x, y) there.
+
+    The camera and its focal point move together toward the point of the focal
+    plane under the cursor, so what the user points at stays under the pointer.
+    """
+    cam = renderer.GetActiveCamera()
+    fp = np.array(cam.GetFocalPoint(), float)
+    renderer.SetWorldPoint(*fp, 1.0)
+    renderer.WorldToDisplay()
+    depth = renderer.GetDisplayPoint()[2]
+    renderer.SetDisplayPoint(float(x), float(y), depth)
+    renderer.DisplayToWorld()
+    w = np.array(renderer.GetWorldPoint(), float)
+    if w[3] == 0:
+        return
+    target = w[:3] / w[3]
+    step = 1.0 - 1.0 / factor
+    if cam.GetParallelProjection():
+        cam.SetParallelScale(cam.GetParallelScale() / factor)
+    else:
+        pos = np.array(cam.GetPosition(), float)
+        cam.SetPosition(*(pos + step * (target - pos)))
+    cam.SetFocalPoint(*(fp + step * (target - fp)))
+    renderer.ResetCameraClippingRange()

@@ -1,8 +1,14 @@
-"""The QtInteractor of the scan views: one render per frame."""
+"""The QtInteractor of the scan views: one render per frame, the wheel zooms to
+the cursor."""
 
 from __future__ import annotations
 
 from pyvistaqt import QtInteractor
+
+from amrst_gui.views.framing import zoom_towards
+
+# One wheel notch (120 eighths of a degree) zooms by this factor.
+WHEEL_ZOOM = 1.2
 
 
 class Interactor(QtInteractor):
@@ -19,6 +25,24 @@ class Interactor(QtInteractor):
 
     _fresh_frame = False
     _in_paint: bool  # pyvistaqt's (set in its __init__)
+
+    def wheelEvent(self, ev) -> None:
+        """Zoom toward the point under the cursor, not the view's centre (VTK's
+        own wheel zoom), so a technician can close in on a feature to pick."""
+        notches = ev.angleDelta().y() / 120.0
+        if not notches or self.iren is None:
+            return
+        ratio = self.devicePixelRatioF()
+        pos = ev.position()
+        x = pos.x() * ratio
+        y = (self.height() - pos.y() - 1) * ratio
+        iren = self.iren.interactor
+        # Start/End interaction: the view draws fewer points while it moves and
+        # tells linked cameras when it stops, as for a drag.
+        iren.InvokeEvent("StartInteractionEvent")
+        zoom_towards(self.renderer, x, y, WHEEL_ZOOM**notches)
+        iren.InvokeEvent("EndInteractionEvent")
+        ev.accept()
 
     def _cb_frame(self, obj, evt) -> None:
         if not self._in_paint:

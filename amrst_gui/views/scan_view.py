@@ -30,6 +30,7 @@ from amrst_gui.views.layers import (
     SpheresLayer,
     TextLayer,
 )
+from amrst_gui.views.pick_marks import PickMarks
 from amrst_gui.views.picking import ClickPicker
 from amrst_gui.views.scene import MOVING_POINTS
 from amrst_gui.views.scene_jobs import Prepared, prepare
@@ -87,6 +88,7 @@ class ScanView(QWidget):
                 "EndInteractionEvent", self._on_interaction_ended
             )
         self.picker = ClickPicker(self.plotter, self.point_picked.emit)
+        self.marks = PickMarks(self.plotter)  # point pairs' markers, a ghost
 
     def set_picking(self, on: bool, points: np.ndarray | None = None) -> None:
         """Let a left click pick (snap to) one of ``points`` (N, 3); emits

@@ -180,15 +180,15 @@ def test_nudge_moves_the_live_score(loaded_window, qtbot):
     tgt = src @ typed[:3, :3].T + typed[:3, 3]
     for a, b in zip(tgt, src, strict=True):
         panel.add_pair(a, b)
-    right = panel.live_score(panel.nudged_pose())
+    right = panel.live_score(panel.nudged_pose())[1]
     panel.yaw.setValue(25.0)
-    turned = panel.live_score(panel.nudged_pose())
+    turned = panel.live_score(panel.nudged_pose())[1]
     assert f"{turned:.0%}" in panel.score_label.text()
     assert turned < right - 0.2
     assert s.manual_preview is not None
     panel.yaw.setValue(0.0)
     panel.shift[0].setValue(30.0)
-    assert panel.live_score(panel.nudged_pose()) < right - 0.2
+    assert panel.live_score(panel.nudged_pose())[1] < right - 0.2
 
 
 def test_a_typed_transform_becomes_the_candidate_fine_starts_from(
