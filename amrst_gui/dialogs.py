@@ -45,6 +45,42 @@ EXPORT_PARTS = (
     ("params", "Parameters (params.json)", "Everything needed to run it again"),
 )
 CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
+# The folder proposed for a case's first export, inside the target scan's folder.
+EXPORT_SUBFOLDER = "registration"
+
+
+def export_folder(remembered: str, base: Path | None) -> str:
+    """The folder the export dialog starts from: the one used last when it lies in
+    the current case's folder ``base`` (the target scan's), else one inside ``base``
+    (the previous case's folder is never proposed for another case)."""
+    if base is None:
+        return remembered
+    if remembered:
+        path = Path(remembered).expanduser()
+        if path.is_absolute() and path.resolve().is_relative_to(base.resolve()):
+            return remembered
+    return str(base / EXPORT_SUBFOLDER)
+
+
+def confirm_replace(parent, folder: Path, before: tuple[str, str]) -> bool:
+    """Ask whether the export of another pair of scans in ``folder`` is replaced."""
+    box = QMessageBox(
+        QMessageBox.Icon.Warning,
+        "Replace another pair's export?",
+        f"{folder} holds the export of {Path(before[1]).name} onto "
+        f"{Path(before[0]).name}, not of the scans open now.",
+        QMessageBox.StandardButton.Cancel,
+        parent,
+    )
+    box.setObjectName("replace_box")
+    box.setInformativeText(
+        "Cancel, then choose another folder, to keep it; Replace writes this pair's "
+        "files over it."
+    )
+    replace = box.addButton("Replace", QMessageBox.ButtonRole.DestructiveRole)
+    box.setDefaultButton(QMessageBox.StandardButton.Cancel)
+    box.exec()
+    return box.clickedButton() is replace
 
 
 def confirm_discard(parent, action: str) -> bool:
@@ -95,7 +131,10 @@ class ExportDialog(QDialog):
 
     Emits QDialog's ``accepted``; read ``folder()``, ``cloud_format()`` and ``parts()``.
     A relative folder is taken relative to ``base`` (the target scan's folder), not to
-    wherever the app was started from.
+    wherever the app was started from; the folder proposed lies in ``base``
+    (:func:`export_folder`). A folder holding another pair's export is accepted
+    only once the user agrees to replace it (``session.allow_replacing``);
+    ``session`` defaults to the parent window's.
     """
 
     def __init__(
@@ -104,15 +143,21 @@ class ExportDialog(QDialog):
         folder: str = "",
         cloud_format: str = "ply",
         base: Path | None = None,
+        session=None,
     ) -> None:
         super().__init__(parent)
         self.base = base
+        self.session = (
+            session if session is not None else getattr(parent, "session", None)
+        )
+        folder = export_folder(folder, base)
         self.setObjectName("export_dialog")
         self.setWindowTitle("Export registration")
         self.folder_edit = QLineEdit(folder)
         self.folder_edit.setPlaceholderText("Output folder")
         self.folder_edit.setToolTip(
-            "Files are written here; existing ones are replaced"
+            "Files are written here; the same pair's earlier export is replaced, "
+            "another pair's only if you agree"
         )
         browse = QPushButton("Browse…")
         browse.clicked.connect(self._browse)
@@ -169,6 +214,28 @@ class ExportDialog(QDialog):
         if not path.is_absolute():
             path = (self.base or Path.cwd()) / path
         return path
+
+    def accept(self) -> None:
+        """Close with Export, unless the folder holds another pair's export and the
+        user keeps it."""
+        if self._may_write():
+            super().accept()
+
+    def _may_write(self) -> bool:
+        s = self.session
+        folder = self.folder()
+        if s is None:
+            return True
+        before = s.other_pair_export(folder)
+        if before is None:
+            return True
+        if confirm_replace(self, folder, before):
+            s.allow_replacing(folder)
+            return True
+        self.problem.setText(
+            "That folder holds another pair's export: choose another folder."
+        )
+        return False
 
     def cloud_format(self) -> str:
         """ "ply", "las", "laz" or "pcd"."""

@@ -121,6 +121,8 @@ class Session(QObject):
         self._truth_at_load: np.ndarray | None = None
         self._pending_stored: StoredLinkResult | None = None
         self._last_report: Path | None = None
+        # The folder whose other pair's export the user agreed to replace.
+        self._replace_folder: Path | None = None
         # Asked before an unexported registration result is thrown away (closing,
         # new scans, swap, a re-run); the window sets it. Returns True to go on.
         self.discard_guard: Callable[[str], bool] | None = None
@@ -316,6 +318,15 @@ class Session(QObject):
                 "change), then export."
             )
             return
+        before = self.other_pair_export(Path(out_dir))
+        if before is not None and self._replace_folder != Path(out_dir).resolve():
+            self._fail(
+                f"Not exported: {out_dir} holds the export of {Path(before[1]).name} "
+                f"onto {Path(before[0]).name}. Choose another folder, or agree to "
+                "replace it in the Export dialog."
+            )
+            return
+        self._replace_folder = None
         kwargs = self.export_arguments(cloud_format, parts)
         from amrst_gui.report import export_with_report, report_inputs
 
@@ -327,6 +338,26 @@ class Session(QObject):
             report_inputs(self),
             alone=True,
         )
+
+    def other_pair_export(self, out_dir: Path) -> tuple[str, str] | None:
+        """The (target, source) files of another pair's export in ``out_dir``, or
+        None (no export there, or this pair's own)."""
+        from amrst.errors import InvalidInput
+        from amrst.results.export import previous_pair, refuse_other_pair
+
+        target, source = self.path("target"), self.path("source")
+        if target is None or source is None:
+            return None
+        try:
+            refuse_other_pair(out_dir, str(target), str(source))
+        except InvalidInput:
+            return previous_pair(out_dir)
+        return None
+
+    def allow_replacing(self, out_dir: Path) -> None:
+        """Let the next export replace another pair's export in ``out_dir`` (the
+        user agreed)."""
+        self._replace_folder = Path(out_dir).resolve()
 
     def cancel(self) -> None:
         """Ask the running job to stop; earlier results are kept."""

@@ -86,6 +86,27 @@ def override_answers(monkeypatch):
     return answers
 
 
+@pytest.fixture(autouse=True)
+def replace_answers(monkeypatch):
+    """The question before replacing another pair's export never blocks: it
+    answers from this list (True: Replace); each folder asked about is recorded in
+    ``replace_answers.asked``. With the list empty the answer is Cancel."""
+    from amrst_gui import dialogs
+
+    class Answers(list):
+        asked: list
+
+    answers = Answers()
+    answers.asked = []
+
+    def answer(_parent, folder, _before) -> bool:
+        answers.asked.append(folder)
+        return answers.pop(0) if answers else False
+
+    monkeypatch.setattr(dialogs, "confirm_replace", answer)
+    return answers
+
+
 @pytest.fixture(scope="session")
 def sample_pair():
     """The bundled sample: (target, source, truth) paths from resources/sample."""

@@ -1,0 +1,98 @@
+"""Export never silently overwrites: the dialog starts from the current case's
+folder, and an export into a folder holding another pair's export asks first."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+from amrst_gui import dialogs
+
+
+def _run(qtbot, session, trigger, timeout=60_000):
+    with qtbot.waitSignal(
+        session.busy_changed, timeout=timeout, check_params_cb=lambda b: not b
+    ):
+        trigger()
+
+
+def _case(tmp_path, sample_pair, name):
+    """A copy of the sample pair in its own case folder."""
+    folder = tmp_path / name
+    folder.mkdir()
+    for path in sample_pair:
+        shutil.copy(path, folder / path.name)
+    return [folder / p.name for p in sample_pair]
+
+
+def test_the_dialog_proposes_the_current_cases_folder(
+    make_main_window, qtbot, sample_pair, tmp_path
+):
+    win = make_main_window()
+    s = win.session
+    one = _case(tmp_path, sample_pair, "case_one")
+    two = _case(tmp_path, sample_pair, "case_two")
+    with qtbot.waitSignal(s.scan_loaded, timeout=30_000):
+        s.load_scans(one[0], one[1])
+    qtbot.waitUntil(lambda: not s.busy)
+    box = win.export_dialog()
+    assert box.folder().is_relative_to(one[0].parent)
+    # The previous case's folder is remembered, but not proposed for another case.
+    win.settings.setValue("dirs/export", str(one[0].parent / "registration"))
+    box.reject()
+    with qtbot.waitSignal(s.scan_loaded, timeout=30_000):
+        s.load_scans(two[0], two[1])
+    qtbot.waitUntil(lambda: not s.busy)
+    box = win.export_dialog()
+    assert box.folder() == two[0].parent / dialogs.EXPORT_SUBFOLDER
+    box.reject()
+    # Within the current case, the folder used last is proposed again.
+    mine = two[0].parent / "mine"
+    win.settings.setValue("dirs/export", str(mine))
+    box = win.export_dialog()
+    assert box.folder() == mine
+    box.reject()
+
+
+def test_export_into_another_pairs_folder_asks(
+    make_main_window, qtbot, sample_pair, tmp_path, replace_answers
+):
+    win = make_main_window()
+    s = win.session
+    one = _case(tmp_path, sample_pair, "case_one")
+    two = _case(tmp_path, sample_pair, "case_two")
+    out = tmp_path / "out"
+    for k, (target, source, _truth) in enumerate((one, two)):
+        with qtbot.waitSignal(s.scan_loaded, timeout=30_000):
+            s.load_scans(target, source)
+        qtbot.waitUntil(lambda: not s.busy)
+        _run(qtbot, s, win.actions.run_all.trigger, timeout=120_000)
+        assert s.verdict.ok
+        box = win.export_dialog()
+        box.folder_edit.setText(str(out))
+        if k == 0:
+            with qtbot.waitSignal(s.exported, timeout=30_000):
+                box.accept()
+            assert not replace_answers.asked
+            first = (out / "transform.json").read_text()
+            continue
+        # Another pair: asked; Cancel keeps the first export as it was.
+        box.accept()
+        assert replace_answers.asked == [out]
+        assert box.isVisible()
+        assert "another pair" in box.problem.text()
+        assert (out / "transform.json").read_text() == first
+        # The session refuses too, whoever calls it.
+        s.export(out)
+        assert (out / "transform.json").read_text() == first
+        # Replace: written over, on purpose.
+        replace_answers.append(True)
+        with qtbot.waitSignal(s.exported, timeout=30_000):
+            box.accept()
+        data = json.loads((out / "transform.json").read_text())
+        assert data["target_file"] == str(target)
+        # The app's metrics.json holds quality and strength as the CLI's does.
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert set(metrics["strength"]) == {"tx", "ty", "tz", "rx", "ry", "rz"}
+        assert metrics["quality"]["distance"]["median_m"] < 0.015
+        assert metrics["quality"]["stem_slices"]
