@@ -3,6 +3,8 @@
 With no files it opens the bundled sample pair (resources/sample), ready to run.
 ``--campaign DIR [--tree ID]`` opens a campaign in the Campaign dock instead and shows
 one tree (default: the first listed) from its stored result.
+``--plot SCAN SCAN [SCAN ...] [--out DIR]`` opens a forest plot's scans in the Plot
+window (the first is the reference; DIR: its results folder); ``--run all`` runs it.
 ``--screenshot PATH`` saves the window once the scans are shown (after ``--run
 STEP`` if given) and quits: used for the README and for checking headless runs.
 """
@@ -63,11 +65,27 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--tree", metavar="ID", help="with --campaign: the tree to show first"
     )
     parser.add_argument(
+        "--plot",
+        nargs="+",
+        type=Path,
+        metavar="SCAN",
+        help="open a forest plot's scans in the Plot window (the first is the "
+        "reference)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help="with --plot: the results folder (--run all writes the plot there)",
+    )
+    parser.add_argument(
         "--size",
         metavar="WxH",
         help="window size for --screenshot, e.g. 1366x768 (default: fit the screen)",
     )
     args = parser.parse_args(argv)
+    if args.plot is not None and len(args.plot) < 2:
+        parser.error("--plot needs two or more scans (the first is the reference)")
     if (args.target is None) != (args.source is None):
         parser.error(
             "give both TARGET and SOURCE, or neither (to open the bundled sample)"
@@ -157,6 +175,35 @@ def _open_campaign(win, folder: Path, tree: str | None) -> bool:
     return True
 
 
+def _open_plot(app, win, args: argparse.Namespace) -> None:
+    """Open the plot's scans in the Plot window; run it and save a screenshot if
+    asked (after the run, or at once without ``--run``), then quit."""
+    from PySide6.QtCore import QTimer
+
+    plot = win.open_plot(list(args.plot), args.out)
+    if args.size:
+        w, _x, h = args.size.partition("x")
+        plot.resize(int(w), int(h))
+
+    def save() -> None:
+        if plot.outcome is not None and plot.outcome.trees:
+            plot.select_tree(0)  # a tree's figures and slice in the picture
+        args.screenshot.parent.mkdir(parents=True, exist_ok=True)
+        plot.grab().save(str(args.screenshot))
+        print(f"Saved {args.screenshot}")
+        win.close()
+        app.exit(0)
+
+    if args.run is not None:
+        plot.run()
+    if args.screenshot is None:
+        return
+    if plot.busy:
+        plot.job.finished.connect(lambda: QTimer.singleShot(300, save))
+    else:
+        QTimer.singleShot(500, save)
+
+
 def _missing_extra() -> str | None:
     """One line naming the extra to install if the app's libraries are missing."""
     from amrst.extras import MissingExtra, require
@@ -192,10 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     target, source, truth = resolve_inputs(args)
     shot = (
         _Screenshot(app, win, args.screenshot, args.run, args.tab)
-        if args.screenshot
+        if args.screenshot and args.plot is None
         else None
     )
-    if args.campaign is not None:
+    if args.plot is not None:
+        _open_plot(app, win, args)
+    elif args.campaign is not None:
         if not _open_campaign(win, args.campaign, args.tree):
             return 2
     elif target is None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import logging
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 from PySide6.QtCore import QByteArray, Qt, QTimer
 from PySide6.QtGui import QIcon
@@ -36,6 +36,9 @@ from amrst_gui.views.gl_warmup import warm_up_tabs
 from amrst_gui.views.quality_views import StemSlicesPane
 from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
+
+if TYPE_CHECKING:
+    from amrst_gui.plot_panel import PlotWindow
 
 log = logging.getLogger("amrst_gui.main_window")
 
@@ -88,6 +91,7 @@ class MainWindow(QMainWindow):
         self.toolbar = menus.build(self)
         self.error_box: QMessageBox | None = None
         self.export_box: dialogs.ExportDialog | None = None
+        self.plot_window: PlotWindow | None = None  # made when a plot is opened
         self._closed = False
         self._connect(s)
         self._fit_screen()
@@ -258,6 +262,26 @@ class MainWindow(QMainWindow):
                 f"No web browser opened {path}; open the file by hand.", error=True
             )
 
+    # --------------------------------------------------------------- plot
+    def open_plot_dialog(self) -> None:
+        """Ask for a plot's scans (the first by name is the reference); open them."""
+        from amrst_gui.plot_panel import ask_scans
+
+        paths = ask_scans(self, self.settings)
+        if paths:
+            self.open_plot(paths)
+
+    def open_plot(self, paths: list, out: Path | None = None) -> PlotWindow:
+        """Show the Plot window with these scans (and results folder, if given)."""
+        from amrst_gui.plot_panel import PlotWindow
+
+        if self.plot_window is None:
+            self.plot_window = PlotWindow(self)  # a window of its own
+        self.plot_window.open_scans(paths, out)
+        self.plot_window.show()
+        self.plot_window.raise_()
+        return self.plot_window
+
     def about_dialog(self) -> None:
         dialogs.AboutDialog(self).open()
 
@@ -396,6 +420,8 @@ class MainWindow(QMainWindow):
             self.scans_panel.close_jobs()  # a description would hold the close
             self.session.shutdown()
             self.campaign_panel.shutdown()
+            if self.plot_window is not None:
+                self.plot_window.close()
             self.settings.setValue("window/geometry", self.saveGeometry())
             self.settings.setValue("window/state", self.saveState(LAYOUT_VERSION))
             self.settings.sync()

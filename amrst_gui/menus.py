@@ -14,6 +14,7 @@ def build(window) -> QToolBar:
     for action in (a.open_target, a.open_source, a.swap, a.load_truth):
         file_menu.addAction(action)
     file_menu.addAction("Cut a &tree from a plot file…", lambda: _clip_dialog(window))
+    file_menu.addAction("Open &plot…", window.open_plot_dialog)
     file_menu.addSeparator()
     file_menu.addAction(a.load_params)
     file_menu.addAction(a.save_params)

@@ -1,0 +1,262 @@
+"""What the Plot window runs in the engine process, and its review file. No Qt.
+
+:func:`run_plot` is ``amrst plot SCANS --out DIR`` for the app: it reads the scans,
+registers them (``amrst.plot.register``), takes the inventory
+(``amrst.plot.inventory``) and writes the plot into the results folder
+(``amrst.plot.export``), then hands back a :class:`PlotOutcome`: what the stem map
+and the tree view draw, a few thousand points at most, never the scans.
+
+The technician's marks (``ok`` / ``check`` per tree id) are kept in ``review.json``
+beside the inventory, with the scans they belong to: marks of another plot written
+into the same folder are not applied.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.progress import Reporter, SubReporter
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from pathlib import Path
+
+    from amrst.plot.inventory import Inventory, Tree
+    from amrst.plot.register import PlotRegistration
+
+REVIEW_JSON = "review.json"
+#: The technician's marks; an unmarked tree has none.
+MARKS = ("ok", "check")
+#: The slice shown per tree: its middle above the local ground, half its thickness.
+SLICE_HEIGHT_M = 1.3
+SLICE_HALF_M = 0.05
+#: Points kept around the stem in the slice (m beyond its radius).
+SLICE_MARGIN_M = 0.3
+#: Cell of the top view drawn under the stem map (m).
+TOP_CELL_M = 0.25
+#: Vegetation in the top view: points this high above the ground.
+TOP_MIN_HEIGHT_M = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class ScanPlace:
+    """One scan of the plot: its label, where it stood (reference frame), its stems."""
+
+    label: str
+    xy: np.ndarray | None  # (2,) the scanner's position; None: not placed
+    stems: int
+
+
+@dataclass(frozen=True, slots=True)
+class LinkLine:
+    """One link between two scans as the stem map draws it."""
+
+    target: int
+    source: int
+    status: str  # registered / needs review / failed
+    in_tree: bool
+    origin: str
+    overlap: float
+    rmse_m: float
+    shared: int
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class TreeSlice:
+    """The points around one stem at breast height and the scan each came from."""
+
+    xy: np.ndarray  # (N, 2) reference local frame
+    scan: np.ndarray  # (N,) 0-based scan index
+
+
+@dataclass(frozen=True, slots=True)
+class TopView:
+    """Vegetation density seen from above: ``image[row, col]``, row 0 at ``y0``."""
+
+    image: np.ndarray  # (H, W) uint8
+    x0: float
+    y0: float
+    cell_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class PlotOutcome:
+    """A registered and inventoried plot, as the Plot window shows it.
+
+    Positions are in the reference scan's local frame (``Tree.xyz`` holds the world
+    ones, as trees.csv lists them).
+    """
+
+    out: Path
+    labels: tuple[str, ...]
+    trees: tuple[Tree, ...]
+    scans: tuple[ScanPlace, ...]
+    links: tuple[LinkLine, ...]
+    bundle_rmse_m: float
+    slices: tuple[TreeSlice, ...]
+    top: TopView | None
+    seconds: float
+
+    @property
+    def tree_xy(self) -> np.ndarray:
+        """(S, 2) the breast-height centre of every tree (reference local frame)."""
+        return np.array([t.stem.dbh_xy for t in self.trees], float).reshape(-1, 2)
+
+    @property
+    def missing(self) -> list[str]:
+        """Labels of the scans no verified link placed."""
+        return [s.label for s in self.scans if s.xy is None]
+
+
+def run_plot(
+    specs: Sequence[str], out: Path, overwrite: bool, reporter: Reporter
+) -> PlotOutcome:
+    """Register and inventory the plot ``specs`` names; write it into ``out``."""
+    from amrst.multiscan.cli import read_specs
+    from amrst.plot.export import check_out, write_plot
+    from amrst.plot.inventory import take_inventory
+    from amrst.plot.register import register_plot
+
+    start = time.perf_counter()
+    check_out(out, overwrite)
+    reporter.progress(0.0, "Reading the scans")
+    clouds, labels = read_specs(list(specs))
+    if len(clouds) < 2:
+        raise InvalidInput(
+            f"{len(clouds)} scan given: a plot needs at least two positions; "
+            "open two or more scans."
+        )
+    reporter.check_cancelled()
+    reg = register_plot(clouds, 0, reporter=SubReporter(reporter, 0.05, 0.8))
+    inventory = take_inventory(
+        clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")
+    )
+    reporter.progress(0.95, "Writing the plot")
+    write_plot(out, reg, inventory, labels, clouds[0])
+    reporter.progress(1.0, "Plot written")
+    return PlotOutcome(
+        out=out,
+        labels=tuple(labels),
+        trees=inventory.trees,
+        scans=_scan_places(reg, labels),
+        links=tuple(_link_line(pl) for pl in reg.links),
+        bundle_rmse_m=reg.bundle_rmse_m,
+        slices=tuple(tree_slice(inventory, k) for k in range(len(inventory.trees))),
+        top=top_view(inventory),
+        seconds=time.perf_counter() - start,
+    )
+
+
+def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlace, ...]:
+    return tuple(
+        ScanPlace(
+            label,
+            None if pose is None else np.asarray(pose[:2, 3], float),
+            len(scan.stems.stems),
+        )
+        for label, pose, scan in zip(labels, reg.poses, reg.scans, strict=True)
+    )
+
+
+def _link_line(pl: Any) -> LinkLine:
+    link, m = pl.link, pl.link.metrics
+    return LinkLine(
+        target=link.target,
+        source=link.source,
+        status=link.status,
+        in_tree=link.in_tree,
+        origin=link.origin,
+        overlap=float("nan") if m is None else float(m.overlap_fraction),
+        rmse_m=float("nan") if m is None else float(m.rmse_overlap_m),
+        shared=len(pl.shared),
+        message=link.message,
+    )
+
+
+def tree_slice(inventory: Inventory, k: int) -> TreeSlice:
+    """The merged plot's points around tree k, 1.25-1.35 m above the local ground."""
+    sm = inventory.stem_map
+    stem = inventory.trees[k].stem
+    radius = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.2) + SLICE_MARGIN_M
+    near = np.flatnonzero(
+        np.hypot(sm.xyz[:, 0] - stem.dbh_xy[0], sm.xyz[:, 1] - stem.dbh_xy[1]) <= radius
+    )
+    h = sm.ground.height(sm.xyz[near]) if len(near) else np.zeros(0)
+    keep = near[np.abs(h - SLICE_HEIGHT_M) <= SLICE_HALF_M]
+    return TreeSlice(
+        np.asarray(sm.xyz[keep, :2], float),
+        np.asarray(inventory.scan_of_point[keep], np.int64),
+    )
+
+
+def top_view(inventory: Inventory) -> TopView | None:
+    """The plot's vegetation seen from above (log density), None without ground."""
+    sm = inventory.stem_map
+    if not sm.ground.found or not len(sm.xyz):
+        return None
+    pts = sm.xyz[sm.ground.height(sm.xyz) >= TOP_MIN_HEIGHT_M]
+    if not len(pts):
+        return None
+    lo = np.floor(pts[:, :2].min(axis=0) / TOP_CELL_M) * TOP_CELL_M
+    cells = np.floor((pts[:, :2] - lo) / TOP_CELL_M).astype(np.int64)
+    shape = cells.max(axis=0) + 1
+    counts = np.zeros((shape[1], shape[0]), np.float64)
+    np.add.at(counts, (cells[:, 1], cells[:, 0]), 1.0)
+    scaled = np.log1p(counts) / max(float(np.log1p(counts.max())), 1e-9)
+    image = np.round(255 * scaled).astype(np.uint8)
+    return TopView(image, float(lo[0]), float(lo[1]), TOP_CELL_M)
+
+
+def same_plot(out: Path, labels: Sequence[str]) -> bool:
+    """Tell whether ``out`` holds a plot of exactly these scans (a run again)."""
+    from amrst.plot.export import PLOT_JSON
+
+    try:
+        doc = json.loads((out / PLOT_JSON).read_text())
+        return [s["label"] for s in doc["scans"]] == list(labels)
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def read_marks(out: Path, labels: Sequence[str]) -> dict[str, str]:
+    """The marks ``review.json`` in ``out`` holds for this plot ({} when none).
+
+    Raises InvalidInput when the file cannot be read as marks.
+    """
+    path = out / REVIEW_JSON
+    if not path.is_file():
+        return {}
+    try:
+        doc = json.loads(path.read_text())
+        marks = doc["marks"]
+        scans = doc["scans"]
+        ok = isinstance(marks, dict) and all(v in MARKS for v in marks.values())
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"{path} is no review file ({exc}); move it away to mark the trees again."
+        ) from exc
+    if not ok:
+        raise InvalidInput(
+            f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
+        )
+    return {str(k): str(v) for k, v in marks.items()} if scans == list(labels) else {}
+
+
+def write_marks(out: Path, labels: Sequence[str], marks: Mapping[str, str]) -> None:
+    """Write the marks into ``review.json`` beside the inventory (atomically)."""
+    from amrst.files.atomic import write_json_atomic
+
+    bad = sorted(v for v in marks.values() if v not in MARKS)
+    if bad:
+        raise InvalidInput(f"marks are {' or '.join(MARKS)}, not {bad[0]!r}")
+    write_json_atomic(
+        out / REVIEW_JSON,
+        {"scans": list(labels), "marks": dict(sorted(marks.items()))},
+    )

@@ -1,0 +1,399 @@
+"""The Plot window: a plot's scans, registered and inventoried, and its stem map.
+
+``open_scans(paths)`` takes the plot's scans (the first is the reference); Run asks
+for the results folder if none is set, asks before replacing a plot already there,
+and runs ``plot_jobs.run_plot`` (``amrst plot SCANS --out DIR``) in the engine
+process through ``workers.run_stage``: progress below the buttons, Cancel stops it
+at once, a failure is one line. The result shows as the stem map (centre), the
+links and trees (left) and the selected tree (right). A mark (ok / check) is written
+to ``review.json`` in the results folder the moment it is made.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QListWidget,
+    QMainWindow,
+    QMessageBox,
+    QProgressBar,
+    QPushButton,
+    QSplitter,
+    QVBoxLayout,
+    QWidget,
+)
+
+from amrst.errors import AmrstError, Cancelled
+from amrst_gui import plot_jobs
+from amrst_gui.plot_tables import (
+    LINK_COLUMNS,
+    ROW_PX,
+    TREE_COLUMNS,
+    fill,
+    link_rows,
+    number,
+    scan_lines,
+    table,
+    tree_rows,
+)
+from amrst_gui.plot_tree import TreePanel
+from amrst_gui.views.stem_map import StemMapView
+
+if TYPE_CHECKING:
+    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.workers import StageJob
+
+log = logging.getLogger("amrst_gui.plot")
+
+
+def ask_scans(parent: QWidget, settings) -> list[str]:
+    """Ask for a plot's scans; sorted by name, so scan_1 is the reference."""
+    from amrst import io
+
+    patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
+    start = str(settings.value("dirs/open", "", type=str) or Path.home())
+    paths, _ = QFileDialog.getOpenFileNames(
+        parent,
+        "Open a plot: its scans (the first by name is the reference)",
+        start,
+        f"Point clouds ({patterns});;All files (*)",
+    )
+    if paths:
+        settings.setValue("dirs/open", str(Path(paths[0]).parent))
+    return sorted(paths)
+
+
+def ask_replace(parent: QWidget, text: str) -> bool:
+    """Ask whether to replace a plot's output (tests answer it themselves)."""
+    answer = QMessageBox.question(
+        parent,
+        "Replace the plot?",
+        text,
+        QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
+        QMessageBox.StandardButton.Cancel,
+    )
+    return answer == QMessageBox.StandardButton.Yes
+
+
+class PlotWindow(QMainWindow):
+    """Open, run and review one plot. Emits ``plot_done(outcome)`` after a run."""
+
+    plot_done = Signal(object)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("plot_window")
+        self.setWindowTitle("AMRST Studio: plot")
+        self.specs: list[str] = []
+        self.outcome: PlotOutcome | None = None
+        self.marks: dict[str, str] = {}
+        self.job: StageJob | None = None
+        self.stem_map = StemMapView()
+        self.tree_panel = TreePanel()
+        split = QSplitter(Qt.Orientation.Horizontal)
+        split.addWidget(self._build_side())
+        split.addWidget(self.stem_map)
+        split.addWidget(self.tree_panel)
+        split.setStretchFactor(1, 1)
+        split.setSizes([380, 620, 330])
+        self.setCentralWidget(split)
+        self.stem_map.tree_clicked.connect(self.select_tree)
+        self.tree_panel.mark_chosen.connect(self.set_mark)
+        self.trees.itemSelectionChanged.connect(self._on_row_selected)
+        self._fit_screen()
+
+    def _build_side(self) -> QWidget:
+        side = QWidget()
+        self.scan_list = QListWidget()
+        self.scan_list.setObjectName("plot_scans")
+        self.scan_list.setMaximumHeight(96)
+        self.out_edit = QLineEdit()
+        self.out_edit.setPlaceholderText("results folder (asked at Run)")
+        choose = QPushButton("Choose…")
+        choose.clicked.connect(self.choose_out)
+        self.run_button = QPushButton("Run plot")
+        self.run_button.setToolTip(
+            "Register the scans by their stems and list every tree (amrst plot); "
+            "the results are written into the results folder"
+        )
+        self.run_button.clicked.connect(self.run)
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setEnabled(False)
+        self.cancel_button.clicked.connect(self.cancel)
+        self.progress = QProgressBar()
+        self.progress.setRange(0, 1000)
+        self.progress.setTextVisible(False)
+        self.progress.setMaximumHeight(10)
+        self.status = QLabel(
+            "Open a plot's scans: File ▸ Open plot… in the main window."
+        )
+        self.status.setObjectName("plot_status")
+        self.status.setWordWrap(True)
+        self.links = table(LINK_COLUMNS, "plot_links")
+        self.links.setMaximumHeight(ROW_PX * 6 + 30)
+        self.links.setToolTip(
+            "Every pair of scans: its state, the stems it shares, the overlap and the "
+            "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
+            "★: in the spanning tree that places the scans."
+        )
+        self.trees = table(TREE_COLUMNS, "plot_trees")
+        folder = QHBoxLayout()
+        folder.addWidget(self.out_edit, 1)
+        folder.addWidget(choose)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.run_button)
+        buttons.addWidget(self.cancel_button)
+        layout = QVBoxLayout(side)
+        layout.setContentsMargins(6, 4, 6, 4)
+        layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
+        layout.addWidget(self.scan_list)
+        layout.addWidget(QLabel("<b>Results folder</b>"))
+        layout.addLayout(folder)
+        layout.addLayout(buttons)
+        layout.addWidget(self.progress)
+        layout.addWidget(self.status)
+        layout.addWidget(QLabel("<b>Links</b>"))
+        layout.addWidget(self.links)
+        layout.addWidget(QLabel("<b>Trees</b>"))
+        layout.addWidget(self.trees, 1)
+        return side
+
+    def _fit_screen(self) -> None:
+        screen = self.screen().availableGeometry() if self.screen() else None
+        w, h = 1500, 950
+        if screen is not None:
+            w, h = min(w, screen.width()), min(h, screen.height())
+        self.resize(w, h)
+
+    # ------------------------------------------------------------- public
+    @property
+    def busy(self) -> bool:
+        return self.job is not None
+
+    def open_scans(self, paths: list, out: Path | None = None) -> bool:
+        """Take the plot's scans (and a results folder); False while a run goes on."""
+        if self.busy:
+            self._say("A plot is running: cancel it first.", error=True)
+            return False
+        self.specs = [str(Path(p).resolve()) for p in paths]
+        self.outcome, self.marks = None, {}
+        self.stem_map.set_plot(None)
+        self.tree_panel.show_tree(None, None, None)
+        fill(self.links, [])
+        fill(self.trees, [])
+        self.scan_list.clear()
+        for k, spec in enumerate(self.specs):
+            self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
+        if out is not None:
+            self.out_edit.setText(str(out))
+        names = ", ".join(Path(s).name for s in self.specs)
+        self.setWindowTitle(f"AMRST Studio: plot of {names}")
+        if len(self.specs) < 2:
+            self._say("A plot needs two or more scans: open them together.", error=True)
+        else:
+            self._say(
+                f"{len(self.specs)} scans. Run plot registers and inventories them."
+            )
+        return True
+
+    def choose_out(self) -> None:
+        """Ask for the results folder."""
+        start = self.out_edit.text() or (
+            str(Path(self.specs[0]).parent) if self.specs else str(Path.home())
+        )
+        folder = QFileDialog.getExistingDirectory(
+            self, "Results folder of the plot", start
+        )
+        if folder:
+            self.out_edit.setText(folder)
+
+    def run(self) -> None:
+        """Register and inventory the plot in the engine process."""
+        from amrst_gui import engine_process, workers
+
+        if self.busy or len(self.specs) < 2:
+            return
+        if not self.out_edit.text().strip():
+            self.choose_out()
+        text = self.out_edit.text().strip()
+        if not text:
+            self._say("Choose a results folder to run the plot.", error=True)
+            return
+        out = Path(text).expanduser()
+        overwrite = self._may_replace(out)
+        if overwrite is None:
+            self._say(f"Not run: {out} keeps its plot.", error=True)
+            return
+        self.progress.setValue(0)
+        self._set_running(True)
+        self._say("Running the plot…")
+        self.job = workers.run_stage(
+            engine_process.in_engine(plot_jobs.run_plot),
+            list(self.specs),
+            out,
+            overwrite,
+            name="plot",
+            on_result=self._on_result,
+            on_error=self._on_error,
+            on_progress=self._on_progress,
+        )
+
+    def cancel(self) -> None:
+        if self.job is not None:
+            self.job.cancel()
+
+    def select_tree(self, k: int | None) -> None:
+        """Show tree ``k`` (index into the outcome's trees) everywhere."""
+        o = self.outcome
+        if o is None or k is None or not 0 <= k < len(o.trees):
+            return
+        self.stem_map.select(k)
+        self.tree_panel.show_tree(o, k, self.marks.get(o.trees[k].tree_id))
+        if self.trees.currentRow() != k:
+            self.trees.selectRow(k)
+
+    def set_mark(self, tree_id: str, mark: str) -> None:
+        """Mark a tree ``ok`` or ``check`` ("" clears) and write review.json."""
+        o = self.outcome
+        if o is None:
+            return
+        marks = dict(self.marks)
+        if mark:
+            marks[tree_id] = mark
+        else:
+            marks.pop(tree_id, None)
+        try:
+            plot_jobs.write_marks(o.out, o.labels, marks)
+        except (AmrstError, OSError) as exc:
+            self._say(f"The mark was not saved: {exc}", error=True)
+            return
+        self.marks = marks
+        self._show_marks()
+        self._say(
+            f"{tree_id}: {mark or 'mark cleared'} (saved in {plot_jobs.REVIEW_JSON})"
+        )
+
+    def shutdown(self) -> None:
+        """Drop a running plot (the main window closes)."""
+        if self.job is not None:
+            self.job.discard()
+            self.job = None
+
+    # -------------------------------------------------------------- slots
+    def _may_replace(self, out: Path) -> bool | None:
+        """False: nothing to replace; True: replace (asked); None: keep it."""
+        from amrst.plot.export import PLOT_JSON
+
+        if not (out / PLOT_JSON).exists():
+            return False
+        same = plot_jobs.same_plot(out, self.specs)
+        what = (
+            "a plot of these scans (its marks are kept: tree ids stay the same)"
+            if same
+            else "ANOTHER plot (other scans; its marks no longer apply)"
+        )
+        text = f"{out} holds {what}. Replace its files with this run's?"
+        return True if ask_replace(self, text) else None
+
+    def _on_progress(self, fraction: float, message: str) -> None:
+        self.progress.setValue(int(1000 * max(0.0, min(1.0, fraction))))
+        if message:
+            self._say(f"Running: {message}")
+
+    def _on_result(self, outcome: PlotOutcome) -> None:
+        self.job = None
+        self._set_running(False)
+        self.outcome = outcome
+        try:
+            self.marks = plot_jobs.read_marks(outcome.out, outcome.labels)
+        except AmrstError as exc:
+            self.marks = {}
+            self._say(str(exc), error=True)
+        self.stem_map.set_plot(outcome)
+        self._show_scans(outcome)
+        self._show_links(outcome)
+        self._show_marks()
+        self.tree_panel.show_tree(None, None, None)
+        missing = outcome.missing
+        line = (
+            f"{len(outcome.trees)} trees; {len(outcome.scans) - len(missing)} of "
+            f"{len(outcome.scans)} scans placed, bundle error "
+            f"{number(outcome.bundle_rmse_m * 100, '.1f')} cm ({outcome.seconds:.0f} s); "
+            f"written to {outcome.out}"
+        )
+        if missing:
+            line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
+        self._say(line, error=bool(missing))
+        self.plot_done.emit(outcome)
+
+    def _on_error(self, exc: BaseException) -> None:
+        self.job = None
+        self._set_running(False)
+        self.progress.setValue(0)
+        if isinstance(exc, Cancelled):
+            self._say("Plot cancelled; nothing was written.")
+            return
+        if not isinstance(exc, AmrstError):
+            log.error(
+                "The plot failed:\n%s", getattr(exc, "__traceback_text__", repr(exc))
+            )
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        self._say(f"The plot failed: {text}", error=True)
+
+    def _on_row_selected(self) -> None:
+        rows = self.trees.selectionModel().selectedRows()
+        if rows:
+            self.select_tree(rows[0].row())
+
+    # ---------------------------------------------------------- showing
+    def _show_scans(self, o: PlotOutcome) -> None:
+        for k, text in enumerate(scan_lines(o)):
+            item = self.scan_list.item(k)
+            if item is not None:
+                item.setText(text)
+
+    def _show_links(self, o: PlotOutcome) -> None:
+        fill(self.links, link_rows(o))
+        for r, ln in enumerate(o.links):
+            item = self.links.item(r, 0)
+            assert item is not None  # just filled
+            item.setToolTip(
+                ln.message + ("; in the spanning tree (★)" if ln.in_tree else "")
+            )
+
+    def _show_marks(self) -> None:
+        o = self.outcome
+        if o is None:
+            return
+        current = self.trees.currentRow()
+        self.trees.blockSignals(True)
+        fill(self.trees, tree_rows(o, self.marks))
+        if current >= 0:
+            self.trees.selectRow(current)
+        self.trees.blockSignals(False)
+        self.stem_map.set_marks(self.marks)
+        k = self.stem_map.selected
+        if k is not None:
+            self.tree_panel.show_tree(o, k, self.marks.get(o.trees[k].tree_id))
+
+    def _set_running(self, running: bool) -> None:
+        self.run_button.setEnabled(not running)
+        self.cancel_button.setEnabled(running)
+
+    def _say(self, text: str, error: bool = False) -> None:
+        self.status.setText(text)
+        self.status.setStyleSheet("color: #ff8a80;" if error else "")
+        (log.warning if error else log.info)("%s", text)
+
+    def closeEvent(self, event) -> None:
+        """Closing the window drops a running plot."""
+        self.shutdown()
+        super().closeEvent(event)

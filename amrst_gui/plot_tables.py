@@ -1,0 +1,99 @@
+"""The Plot window's two tables: the links between the scans, and the trees."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QHeaderView,
+    QTableWidget,
+    QTableWidgetItem,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+    from amrst_gui.plot_jobs import PlotOutcome
+
+TREE_COLUMNS = ("Tree", "DBH cm", "DBH", "Height m", "Height", "Mark")
+LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
+ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
+
+
+def table(columns: tuple[str, ...], name: str) -> QTableWidget:
+    table = QTableWidget(0, len(columns))
+    table.setObjectName(name)
+    table.setHorizontalHeaderLabels(list(columns))
+    table.verticalHeader().setVisible(False)
+    table.verticalHeader().setDefaultSectionSize(ROW_PX)
+    table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+    table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+    table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+    table.horizontalHeader().setSectionResizeMode(
+        QHeaderView.ResizeMode.ResizeToContents
+    )
+    table.horizontalHeader().setStretchLastSection(True)
+    # The columns fit the side column; a scroll bar would take a row's height.
+    table.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    return table
+
+
+def fill(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
+    table.setRowCount(len(rows))
+    for r, row in enumerate(rows):
+        for c, text in enumerate(row):
+            table.setItem(r, c, QTableWidgetItem(text))
+
+
+def number(value: float, fmt: str) -> str:
+    return "–" if value != value else format(value, fmt)  # NaN
+
+
+def scan_lines(o: PlotOutcome) -> list[str]:
+    """One line per scan: its file, where it stood, how many stems it shows."""
+    from pathlib import Path
+
+    lines = []
+    for k, scan in enumerate(o.scans):
+        where = (
+            "reference"
+            if k == 0
+            else "not placed"
+            if scan.xy is None
+            else f"at {scan.xy[0]:.1f}, {scan.xy[1]:.1f} m"
+        )
+        lines.append(f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems")
+    return lines
+
+
+def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:
+    """One row per link: scans (★ in the spanning tree), state, stems, overlap,
+    NN-RMSE in the overlap, and what found the pose."""
+    return [
+        (
+            f"S{ln.target + 1}–S{ln.source + 1}" + (" ★" if ln.in_tree else ""),
+            ln.status,
+            str(ln.shared),
+            number(ln.overlap * 100, ".0f") + " %",
+            number(ln.rmse_m * 100, ".1f") + " cm",
+            ln.origin or "–",
+        )
+        for ln in o.links
+    ]
+
+
+def tree_rows(o: PlotOutcome, marks: Mapping[str, str]) -> list[tuple[str, ...]]:
+    """One row per tree: id, DBH, its quality, height, its flag, the mark."""
+    return [
+        (
+            t.tree_id,
+            number(t.stem.dbh_m * 100, ".1f"),
+            t.stem.dbh_quality,
+            number(t.stem.height_m, ".1f"),
+            t.stem.height_flag,
+            marks.get(t.tree_id, ""),
+        )
+        for t in o.trees
+    ]

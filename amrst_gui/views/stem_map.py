@@ -1,0 +1,341 @@
+"""The stem map of a plot seen from above, and one tree's slice at breast height.
+
+``StemMapView`` draws every tree as its DBH circle to scale (a few pixels at least,
+so a thin stem stays visible), filled by its DBH quality and ringed by the
+technician's mark, with its id; the scan positions as triangles; the links between
+them coloured by their state (dashed: not in the spanning tree); the vegetation's
+density from above in grey under it all. A click on a tree emits ``tree_clicked``.
+
+``TreeSliceView`` draws the points around one stem at 1.3 m, each in the colour of
+the scan it came from, and the fitted DBH circle.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, Qt, Signal
+from PySide6.QtGui import QColor, QFont, QImage, QPainter, QPen, QPolygonF
+from PySide6.QtWidgets import QSizePolicy, QWidget
+
+if TYPE_CHECKING:
+    from amrst_gui.plot_jobs import PlotOutcome, TreeSlice
+
+BACKGROUND = QColor(31, 33, 38)
+TEXT = QColor(230, 230, 230)
+#: Fill of a tree by its DBH quality.
+QUALITY_RGB = {"ok": (76, 175, 80), "check": (255, 179, 0), "none": (150, 150, 150)}
+#: Ring of a tree by the technician's mark (unmarked: none).
+MARK_RGB = {"ok": (255, 255, 255), "check": (244, 67, 54)}
+#: Colour of a link by its state.
+LINK_RGB = {
+    "registered": (76, 175, 80),
+    "needs review": (255, 179, 0),
+    "failed": (244, 67, 54),
+}
+#: One colour per scan (repeats after eight).
+SCAN_RGB = (
+    (255, 183, 77),
+    (79, 195, 247),
+    (174, 213, 129),
+    (240, 98, 146),
+    (149, 117, 205),
+    (77, 208, 225),
+    (255, 241, 118),
+    (161, 136, 127),
+)
+MIN_TREE_PX = 3.0
+CLICK_PX = 12.0
+LEGEND_PX = 44.0  # the legend's band at the top
+
+
+def scan_colour(k: int) -> QColor:
+    """The colour of scan ``k`` (0-based) in the slice and the scan markers."""
+    return QColor(*SCAN_RGB[k % len(SCAN_RGB)])
+
+
+class StemMapView(QWidget):
+    """The plot from above; ``set_plot(outcome)``, ``set_marks``, ``select``."""
+
+    tree_clicked = Signal(int)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("stem_map")
+        self.setMinimumSize(320, 260)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.outcome: PlotOutcome | None = None
+        self.marks: dict[str, str] = {}
+        self.selected: int | None = None
+        self._image: QImage | None = None
+        self.setToolTip(
+            "The plot from above: each tree is its DBH circle to scale (green ok, "
+            "amber check, grey no DBH), ringed white when marked ok, red when marked "
+            "check. Triangles are the scan positions, lines the links. Click a tree."
+        )
+
+    def set_plot(self, outcome: PlotOutcome | None) -> None:
+        """Show ``outcome`` (None: nothing)."""
+        self.outcome, self.selected = outcome, None
+        self._image = None
+        top = None if outcome is None else outcome.top
+        if top is not None:
+            grey = np.ascontiguousarray(top.image[::-1])  # row 0 at the top
+            h, w = grey.shape
+            self._image = QImage(grey.data, w, h, w, QImage.Format.Format_Grayscale8)
+            self._image = self._image.copy()  # owns its pixels
+        self.update()
+
+    def set_marks(self, marks: dict[str, str]) -> None:
+        self.marks = dict(marks)
+        self.update()
+
+    def select(self, index: int | None) -> None:
+        self.selected = index
+        self.update()
+
+    # ------------------------------------------------------------ geometry
+    def _extent(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower-left and upper-right corners (m) of everything drawn."""
+        o = self.outcome
+        assert o is not None
+        pts = [o.tree_xy, *(s.xy[None] for s in o.scans if s.xy is not None)]
+        allp = np.vstack([p for p in pts if len(p)] or [np.zeros((1, 2))])
+        lo, hi = allp.min(axis=0) - 2.0, allp.max(axis=0) + 2.0
+        return lo, hi
+
+    def _mapping(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """(pixels per m, lower-left corner, pixel offset) fitting the plot."""
+        lo, hi = self._extent()
+        margin = 30.0
+        size = np.maximum(hi - lo, 1.0)
+        scale = min(
+            (self.width() - 2 * margin) / size[0],
+            (self.height() - LEGEND_PX - 2 * margin) / size[1],
+        )
+        scale = max(scale, 1e-3)
+        pad = (np.array([self.width(), self.height() - LEGEND_PX]) - size * scale) / 2
+        return scale, lo, pad
+
+    def to_px(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) plot positions (m) -> widget pixels."""
+        scale, lo, pad = self._mapping()
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        px = pad[0] + (xy[:, 0] - lo[0]) * scale
+        py = self.height() - (pad[1] + (xy[:, 1] - lo[1]) * scale)
+        return np.column_stack([px, py])
+
+    def tree_at(self, x: float, y: float) -> int | None:
+        """The tree drawn nearest the pixel (x, y), within its circle or a few px."""
+        o = self.outcome
+        if o is None or not o.trees:
+            return None
+        px = self.to_px(o.tree_xy)
+        d = np.hypot(px[:, 0] - x, px[:, 1] - y)
+        k = int(np.argmin(d))
+        return k if d[k] <= max(CLICK_PX, self._radius_px(k)) else None
+
+    def _radius_px(self, k: int) -> float:
+        assert self.outcome is not None
+        dbh = self.outcome.trees[k].stem.dbh_m
+        r = dbh / 2 * self._mapping()[0] if np.isfinite(dbh) else 0.0
+        return max(float(r), MIN_TREE_PX)
+
+    # -------------------------------------------------------------- events
+    def mousePressEvent(self, event) -> None:
+        if event.button() == Qt.MouseButton.LeftButton:
+            pos = event.position()
+            k = self.tree_at(pos.x(), pos.y())
+            if k is not None:
+                self.tree_clicked.emit(k)
+        super().mousePressEvent(event)
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
+        p.fillRect(self.rect(), BACKGROUND)
+        p.setFont(QFont(self.font().family(), 8))
+        if self.outcome is None:
+            p.setPen(TEXT)
+            p.drawText(
+                self.rect(),
+                Qt.AlignmentFlag.AlignCenter,
+                "No plot yet: open its scans (File ▸ Open plot…) and run it.",
+            )
+            p.end()
+            return
+        self._draw_top(p)
+        self._draw_links(p)
+        self._draw_scans(p)
+        self._draw_trees(p)
+        self._draw_scale(p)
+        self._draw_legend(p)
+        p.end()
+
+    # ------------------------------------------------------------- drawing
+    def _draw_top(self, p: QPainter) -> None:
+        top = None if self.outcome is None else self.outcome.top
+        if top is None or self._image is None:
+            return
+        h, w = top.image.shape
+        corners = self.to_px(
+            np.array(
+                [[top.x0, top.y0 + h * top.cell_m], [top.x0 + w * top.cell_m, top.y0]]
+            )
+        )
+        p.setOpacity(0.45)
+        p.drawImage(QRectF(QPointF(*corners[0]), QPointF(*corners[1])), self._image)
+        p.setOpacity(1.0)
+
+    def _draw_links(self, p: QPainter) -> None:
+        assert self.outcome is not None
+        scans = self.outcome.scans
+        for link in self.outcome.links:
+            a, b = scans[link.target].xy, scans[link.source].xy
+            if a is None or b is None:
+                continue
+            pen = QPen(QColor(*LINK_RGB.get(link.status, (200, 200, 200))))
+            pen.setWidthF(3.0 if link.in_tree else 1.5)
+            if not link.in_tree:
+                pen.setStyle(Qt.PenStyle.DashLine)
+            p.setPen(pen)
+            (x0, y0), (x1, y1) = self.to_px(np.array([a, b]))
+            p.drawLine(QPointF(x0, y0), QPointF(x1, y1))
+
+    def _draw_scans(self, p: QPainter) -> None:
+        assert self.outcome is not None
+        for k, scan in enumerate(self.outcome.scans):
+            if scan.xy is None:
+                continue
+            (x, y), s = self.to_px(scan.xy)[0], 8.0
+            tri = QPolygonF(
+                [
+                    QPointF(x, y - s),
+                    QPointF(x - s, y + s * 0.7),
+                    QPointF(x + s, y + s * 0.7),
+                ]
+            )
+            p.setPen(QPen(QColor(20, 20, 20), 1))
+            p.setBrush(scan_colour(k))
+            p.drawPolygon(tri)
+            p.setPen(TEXT)
+            p.drawText(QPointF(x + s + 2, y + 4), f"S{k + 1}")
+
+    def _draw_trees(self, p: QPainter) -> None:
+        assert self.outcome is not None
+        px = self.to_px(self.outcome.tree_xy)
+        for k, tree in enumerate(self.outcome.trees):
+            x, y = px[k]
+            r = self._radius_px(k)
+            rgb = QUALITY_RGB.get(tree.stem.dbh_quality, QUALITY_RGB["none"])
+            mark = self.marks.get(tree.tree_id)
+            ring = QPen(QColor(*MARK_RGB[mark]) if mark else QColor(15, 15, 15))
+            ring.setWidthF(2.5 if mark else 1.0)
+            p.setPen(ring)
+            p.setBrush(QColor(*rgb))
+            p.drawEllipse(QPointF(x, y), r, r)
+            if k == self.selected:
+                p.setBrush(Qt.BrushStyle.NoBrush)
+                p.setPen(QPen(QColor(255, 235, 59), 2.0))
+                p.drawEllipse(QPointF(x, y), r + 6, r + 6)
+            p.setPen(TEXT)
+            p.drawText(QPointF(x + r + 3, y - 3), tree.tree_id)
+
+    def _draw_scale(self, p: QPainter) -> None:
+        scale = self._mapping()[0]
+        metres = next((m for m in (1, 2, 5, 10, 20, 50) if m * scale >= 60), 100)
+        x0, y0 = 12.0, self.height() - 12.0
+        p.setPen(QPen(TEXT, 2))
+        p.drawLine(QPointF(x0, y0), QPointF(x0 + metres * scale, y0))
+        p.drawText(QPointF(x0, y0 - 5), f"{metres} m   (the reference scan's x, y)")
+
+    def _draw_legend(self, p: QPainter) -> None:
+        """DBH quality fills, mark rings and link states, in the top-left corner."""
+        x, y, step = 10.0, 14.0, 15.0
+        p.setPen(TEXT)
+        p.drawText(QPointF(x, y), "DBH:")
+        cx = x + 34
+        for name, rgb in QUALITY_RGB.items():
+            p.setPen(QPen(QColor(15, 15, 15), 1))
+            p.setBrush(QColor(*rgb))
+            p.drawEllipse(QPointF(cx + 5, y - 4), 5, 5)
+            p.setPen(TEXT)
+            p.drawText(QPointF(cx + 13, y), name)
+            cx += 22 + 7 * len(name)
+        y += step
+        p.drawText(QPointF(x, y), "Links:")
+        cx = x + 40
+        for name, rgb in LINK_RGB.items():
+            p.setPen(QPen(QColor(*rgb), 3))
+            p.drawLine(QPointF(cx, y - 4), QPointF(cx + 16, y - 4))
+            p.setPen(TEXT)
+            p.drawText(QPointF(cx + 20, y), name)
+            cx += 30 + 7 * len(name)
+        y += step
+        p.drawText(
+            QPointF(x, y),
+            "Solid: the spanning tree; ring: your mark (white ok, red check)",
+        )
+
+
+class TreeSliceView(QWidget):
+    """One stem at breast height: its slice points by scan and the DBH circle."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("tree_slice")
+        self.setMinimumSize(160, 160)
+        policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.setSizePolicy(policy)
+        self.slice: TreeSlice | None = None
+        self.centre = np.zeros(2)
+        self.radius_m = float("nan")
+        self.note = "Click a tree on the stem map."
+
+    def set_slice(
+        self, sl: TreeSlice | None, centre: np.ndarray, radius_m: float, note: str
+    ) -> None:
+        self.slice, self.centre, self.radius_m = sl, np.asarray(centre, float), radius_m
+        self.note = note
+        self.update()
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
+        p.fillRect(self.rect(), BACKGROUND)
+        side = max(min(self.width(), self.height() - 18) - 8, 10)
+        box = QRectF((self.width() - side) / 2, 4, side, side)
+        p.setPen(QColor(120, 120, 120))
+        p.drawRect(box)
+        p.setPen(TEXT)
+        p.setFont(QFont(self.font().family(), 8))
+        p.drawText(QPointF(6, self.height() - 5), self.note)
+        if self.slice is not None:
+            self._draw(p, box)
+        p.end()
+
+    def _draw(self, p: QPainter, box: QRectF) -> None:
+        assert self.slice is not None
+        r = self.radius_m if np.isfinite(self.radius_m) else 0.15
+        half = max(r * 1.8, 0.1)
+        scale = box.width() / (2 * half)
+        cx, cy = box.center().x(), box.center().y()
+        xy, scan = self.slice.xy, self.slice.scan
+        step = max(1, len(xy) // 4000)
+        for k in np.unique(scan):
+            p.setPen(QPen(scan_colour(int(k)), 3))
+            mine = xy[scan == k][::step]
+            for qx, qy in mine:
+                x = cx + (qx - self.centre[0]) * scale
+                y = cy - (qy - self.centre[1]) * scale
+                if box.contains(QPointF(x, y)):
+                    p.drawPoint(QPointF(x, y))
+        if np.isfinite(self.radius_m):
+            p.setBrush(Qt.BrushStyle.NoBrush)
+            p.setPen(QPen(QColor(255, 255, 255), 1.5))
+            p.drawEllipse(QPointF(cx, cy), r * scale, r * scale)
+        p.setPen(TEXT)
+        p.drawText(
+            QPointF(box.left() + 4, box.top() + 12), f"box {2 * half * 100:.0f} cm wide"
+        )

@@ -1,0 +1,180 @@
+"""The Plot window: a plot's scans opened, run in the engine process, its stem map.
+
+The plot is built here as the engine tests build theirs: a gently sloped ground and
+upright stems (cylinders), each scan seeing the half of every stem that faces it, in
+its own frame (the second turned and moved).
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QPoint, Qt
+
+from amrst.types import Cloud, invert_transform
+
+# (x, y, radius, height) of the stems, in the first scan's frame.
+STEMS = (
+    (0.0, 4.0, 0.15, 6.0),
+    (5.0, 1.0, 0.22, 7.0),
+    (-4.0, -3.0, 0.10, 5.0),
+    (2.0, -5.0, 0.18, 6.5),
+    (-6.0, 3.5, 0.12, 5.5),
+    (6.5, -4.0, 0.25, 7.5),
+)
+
+
+def _ground_z(xy: np.ndarray) -> np.ndarray:
+    return np.asarray(0.03 * xy[..., 0] - 0.02 * xy[..., 1])
+
+
+def _scan(position: tuple[float, float], seed: int) -> np.ndarray:
+    """Ground and the near half of each stem, seen from ``position``."""
+    rng = np.random.default_rng(seed)
+    g = np.mgrid[-12:12:0.08, -12:12:0.08].reshape(2, -1).T
+    g = g[np.hypot(*(g - position).T) > 1.0]
+    parts = [np.column_stack([g, _ground_z(g)])]
+    p = np.asarray(position, float)
+    for x, y, r, h in STEMS:
+        c = np.array([x, y])
+        facing = np.arctan2(*(p - c)[::-1])
+        theta = facing + np.linspace(-np.pi / 2, np.pi / 2, int(np.pi * r / 0.01))
+        z0 = float(_ground_z(c))
+        tt, zz = np.meshgrid(theta, np.arange(z0 - 0.05, z0 + h, 0.02))
+        parts.append(
+            np.column_stack(
+                [x + r * np.cos(tt.ravel()), y + r * np.sin(tt.ravel()), zz.ravel()]
+            )
+        )
+    xyz = np.vstack(parts)
+    return xyz + rng.normal(0, 0.002, xyz.shape)
+
+
+@pytest.fixture(scope="module")
+def plot_files(tmp_path_factory) -> list[str]:
+    """Two scans of the plot as PLY files; the first is the reference."""
+    from amrst import io
+
+    a = np.radians(70.0)
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+    T[:3, 3] = (3.0, 1.0, 0.0)
+    inv = invert_transform(T)
+    source = _scan((3.0, 1.0), 2) @ inv[:3, :3].T + inv[:3, 3]
+    folder = tmp_path_factory.mktemp("plot")
+    files = [folder / "scan_1.ply", folder / "scan_2.ply"]
+    for f, xyz in zip(files, (_scan((-2.0, 0.0), 1), source), strict=True):
+        io.write(f, Cloud(xyz))
+    return [str(f) for f in files]
+
+
+def _run(qtbot, plot) -> None:
+    with qtbot.waitSignal(plot.plot_done, timeout=300_000):
+        plot.run()
+
+
+def test_a_plot_runs_and_its_stem_map_shows_every_tree(
+    make_main_window, qtbot, plot_files, tmp_path, monkeypatch
+) -> None:
+    from amrst.plot.export import TREES_CSV
+    from amrst_gui import plot_jobs, plot_panel
+
+    win = make_main_window()
+    out = tmp_path / "out"
+    plot = win.open_plot(plot_files, out)
+    assert plot.isVisible()
+    assert plot.scan_list.count() == 2
+    _run(qtbot, plot)
+    o = plot.outcome
+    assert o is not None
+    assert not o.missing
+    assert [ln.status for ln in o.links] == ["registered"]
+    # Every tree once, where it stands in the reference scan, its DBH measured.
+    assert len(o.trees) == len(STEMS)
+    for x, y, r, _h in STEMS:
+        d = np.hypot(*(o.tree_xy - (x, y)).T)
+        k = int(np.argmin(d))
+        assert d[k] < 0.1
+        assert abs(o.trees[k].stem.dbh_m - 2 * r) < 0.02
+    assert plot.trees.rowCount() == len(STEMS)
+    with (out / TREES_CSV).open() as fh:
+        assert len(list(csv.DictReader(fh))) == len(STEMS)
+
+    # Each tree is drawn where a click finds it; a click selects it everywhere.
+    px = plot.stem_map.to_px(o.tree_xy)
+    assert [plot.stem_map.tree_at(x, y) for x, y in px] == list(range(len(STEMS)))
+    k = 2
+    qtbot.mouseClick(
+        plot.stem_map,
+        Qt.MouseButton.LeftButton,
+        pos=QPoint(round(px[k, 0]), round(px[k, 1])),
+    )
+    tree = o.trees[k]
+    assert plot.stem_map.selected == k
+    assert plot.tree_panel.tree_id == tree.tree_id
+    assert plot.trees.currentRow() == k
+    assert f"{tree.stem.dbh_m * 100:.1f} cm" in plot.tree_panel.values["DBH"].text()
+    # Its slice: the points around the stem at 1.3 m lie on its DBH circle.
+    sl = o.slices[k]
+    assert len(sl.xy) > 20
+    rim = np.hypot(*(sl.xy - tree.stem.dbh_xy).T)
+    assert abs(np.median(rim) - tree.stem.dbh_m / 2) < 0.01
+    assert set(np.unique(sl.scan)) <= {0, 1}
+
+    # A mark is saved beside the inventory at once, and read back with it.
+    plot.tree_panel.buttons["check"].click()
+    assert plot_jobs.read_marks(out, o.labels) == {tree.tree_id: "check"}
+    assert plot.trees.item(k, 5).text() == "check"
+    plot.tree_panel.buttons[""].click()
+    assert plot_jobs.read_marks(out, o.labels) == {}
+
+    # Another run into the same folder asks first; "keep it" runs nothing.
+    asked: list[str] = []
+    monkeypatch.setattr(
+        plot_panel, "ask_replace", lambda _p, text: asked.append(text) or False
+    )
+    plot.run()
+    assert len(asked) == 1
+    assert "these scans" in asked[0]
+    assert not plot.busy
+    assert "keeps its plot" in plot.status.text()
+
+
+def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
+    make_main_window, qtbot, plot_files, tmp_path
+) -> None:
+    from amrst.plot.export import PLOT_JSON
+
+    win = make_main_window()
+    out = tmp_path / "out"
+    plot = win.open_plot(plot_files, out)
+    plot.run()
+    assert plot.busy
+    assert plot.cancel_button.isEnabled()
+    qtbot.wait(300)
+    plot.cancel()
+    qtbot.waitUntil(lambda: not plot.busy, timeout=5_000)
+    assert "cancelled" in plot.status.text()
+    assert not (out / PLOT_JSON).exists()
+    assert plot.run_button.isEnabled()
+
+    plot.open_scans([plot_files[0], str(tmp_path / "missing.ply")], out)
+    plot.run()
+    qtbot.waitUntil(lambda: not plot.busy, timeout=60_000)
+    text = plot.status.text()
+    assert text.startswith("The plot failed:")
+    assert "missing.ply" in text
+    assert "\n" not in text
+    assert plot.outcome is None
+
+
+def test_the_command_line_opens_a_plot() -> None:
+    from amrst_gui.__main__ import parse_args
+
+    args = parse_args(["--plot", "a.ply", "b.ply", "--out", "res"])
+    assert [p.name for p in args.plot] == ["a.ply", "b.ply"]
+    assert args.out.name == "res"
+    with pytest.raises(SystemExit):
+        parse_args(["--plot", "a.ply"])
