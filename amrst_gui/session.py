@@ -1259,7 +1259,17 @@ class Session(QObject):
         m = self._metrics.get(stage)
         if m is None:
             return ""
-        return f"RMSE {m.rmse_m:.4f} m, overlap {m.overlap_fraction:.0%}"
+        over_all = (
+            f"RMSE over all points {m.rmse_m:.4f} m, overlap {m.overlap_fraction:.0%}"
+        )
+        quality = self._quality.get(stage)
+        if quality is None or quality.overlap.n_points_measured == 0:
+            return over_all
+        d = quality.overlap
+        return (
+            f"Where both scans saw the tree: median distance {d.median_m * 100:.1f} cm, "
+            f"{d.within_2cm_fraction:.0%} within 2 cm ({over_all})."
+        )
 
     # ------------------------------------------------------------ stored results
     def load_stored(

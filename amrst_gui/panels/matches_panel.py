@@ -6,9 +6,11 @@ from PySide6.QtCore import QAbstractTableModel, QItemSelectionModel, QModelIndex
 from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (
     QAbstractItemView,
+    QFrame,
     QHBoxLayout,
     QHeaderView,
     QLabel,
+    QScrollArea,
     QTableView,
     QToolButton,
     QVBoxLayout,
@@ -50,6 +52,40 @@ _TIPS = (
 
 _ROOT = QModelIndex()
 _ORIGIN = {"tetrahedra": "tetra", "trunk": "trunk", "manual": "manual"}
+
+
+# Rows the table always shows, whatever the header above it says.
+MIN_ROWS = 4
+_ROW_PX = 22
+# The verdict above the table scrolls beyond this height instead of pushing it out.
+_HEADER_MAX_PX = 96
+
+
+def rank_reason(cand) -> str:
+    """Why a candidate stands where it does in the list, in one sentence."""
+    from amrst.stages.candidates import MIN_VERIFIED_SCORE
+
+    origin = str(cand.origin)
+    if origin == "manual":
+        return "your own pose: manual poses come first, judged by what they show."
+    if origin == "trunk":
+        return (
+            f"a trunk heading, ranked among the headings by its close fit "
+            f"({_num(cand.precise_score, '{:.0%}')} within the tight 1.5 cm, the "
+            "Close column), not by Score: after fine registration even a wrong "
+            "heading lands some points within 4 cm, so Score says little here."
+        )
+    if cand.polished and cand.score >= MIN_VERIFIED_SCORE:
+        return (
+            f"verified: polished and scoring {cand.score:.0%} "
+            f"(at least {MIN_VERIFIED_SCORE:.0%}); verified solutions come first."
+        )
+    if cand.polished:
+        return (
+            f"polished but not verified (score under {MIN_VERIFIED_SCORE:.0%}): "
+            "ranked by its score after the verified ones."
+        )
+    return "not polished (raw score only): ranked after the polished ones."
 
 
 def _num(value: float, fmt: str, missing: str = "—") -> str:
@@ -183,6 +219,14 @@ class MatchesPanel(QWidget):
         # others' (the same formats).
         self.table.horizontalHeader().setResizeContentsPrecision(12)
         self.table.horizontalHeader().setStretchLastSection(True)
+        # Status right after the rank: never cut off at the dock's right edge.
+        self.table.horizontalHeader().moveSection(len(COLUMNS) - 1, 1)
+        self.table.setMinimumHeight(
+            self.table.horizontalHeader().sizeHint().height()
+            + MIN_ROWS * _ROW_PX
+            + 2 * self.table.frameWidth()
+            + 18  # a horizontal scroll bar
+        )
         self.table.selectionModel().currentRowChanged.connect(
             self._on_current_row_changed
         )
@@ -204,7 +248,15 @@ class MatchesPanel(QWidget):
         buttons.addStretch(1)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
-        layout.addWidget(self.coarse_label)
+        header = QScrollArea()
+        header.setObjectName("matches_header")
+        header.setWidget(self.coarse_label)
+        header.setWidgetResizable(True)
+        header.setFrameShape(QFrame.Shape.NoFrame)
+        header.setMaximumHeight(_HEADER_MAX_PX)
+        header.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.header = header
+        layout.addWidget(header)
         layout.addWidget(self.table, 1)
         layout.addLayout(buttons)
         layout.addWidget(self.explanation)
@@ -243,7 +295,10 @@ class MatchesPanel(QWidget):
     def _on_selection_changed(self, match_id) -> None:
         cand = self.session.selected_match
         self.explanation.setText(
-            "" if cand is None else f"Match #{cand.rank}: {cand.explanation}"
+            ""
+            if cand is None
+            else f"Match #{cand.rank}: {cand.explanation}\n"
+            f"Why #{cand.rank}: {rank_reason(cand)}"
         )
         row = next((i for i, c in enumerate(self.model.rows) if c.id == match_id), None)
         sel = self.table.selectionModel()

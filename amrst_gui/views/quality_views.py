@@ -35,11 +35,12 @@ class DistanceHistogram(QWidget):
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
         self.distances = np.zeros(0)
         self.headline = ""
-        self.setToolTip(
+        self._tip = (
             "Distance from each point to the nearest point of the other scan, both "
             "ways, where both scans saw the scene (points only one scan saw are grey "
             "and left out). A right pose: most points under 1-2 cm (scan noise)."
         )
+        self.setToolTip(self._tip)
 
     def set_distances(self, distances: np.ndarray, headline: str = "") -> None:
         """Show ``distances`` (m); ``headline``: the registration's own figures
@@ -56,9 +57,10 @@ class DistanceHistogram(QWidget):
             f"median {np.median(d) * 100:.1f} cm, 95th pct. "
             f"{np.percentile(d, 95) * 100:.1f} cm, within 2 cm {np.mean(d < 0.02):.0%}"
         )
-        if self.headline:
-            return f"{self.headline}  (points drawn: {drawn})"
-        return f"where both scans saw: {drawn}"
+        # The registration's own figures when known (the drawn points' in the
+        # tooltip): one line that fits the view's width.
+        self.setToolTip(f"{self._tip}\nPoints drawn, where both scans saw: {drawn}.")
+        return self.headline or f"where both scans saw: {drawn}"
 
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
