@@ -39,6 +39,7 @@ def report_inputs(session: Session) -> ReportInputs | None:
     if session.fine is None:
         metrics.pop("fine")
     paths = (session.path("target"), session.path("source"))
+    quality = session.pose_quality
     return ReportInputs(
         target=target,
         source=source,
@@ -58,6 +59,8 @@ def report_inputs(session: Session) -> ReportInputs | None:
         override=session.export_override,
         manual_labels=session.manual_labels,
         notes=(session.fine_note,) if session.fine_note else (),
+        quality=None if quality is None else quality.section(),
+        strength=None if quality is None else dict(quality.strength.values),
     )
 
 

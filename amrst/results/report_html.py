@@ -68,6 +68,9 @@ class ReportInputs:
     override: Mapping[str, str] | None = None
     manual_labels: Mapping[int, str] = field(default_factory=dict)
     notes: tuple[str, ...] = ()  # e.g. why Fine's result was dropped for a manual pose
+    # metrics.json's ``quality`` (overlap distances, stem slices) and ``strength``.
+    quality: Mapping[str, Any] | None = None
+    strength: Mapping[str, float] | None = None
 
     @property
     def moved_source_xyz(self) -> np.ndarray:
@@ -86,6 +89,7 @@ def inputs_from_result(
     T_truth: np.ndarray | None = None,
 ) -> ReportInputs:
     """Report inputs of a finished ``amrst.pipeline.RegistrationResult`` (the CLI)."""
+    from amrst.results.documents import quality_section
     from amrst.review.verdict import judge_result
     from amrst.types import local_transform
 
@@ -127,6 +131,8 @@ def inputs_from_result(
         truth=truth,
         tree=dict(result.tree),
         timings=dict(result.timings),
+        quality=quality_section(result),
+        strength=None if result.strength is None else dict(result.strength.values),
     )
 
 
@@ -273,6 +279,67 @@ def _metrics(r: ReportInputs) -> str:
     )
 
 
+_AXIS_WORDS = {
+    "tx": "shift along x",
+    "ty": "shift along y",
+    "tz": "height (z)",
+    "rx": "tilt about x",
+    "ry": "tilt about y",
+    "rz": "turn about the stem (z)",
+}
+
+
+def quality_html(r: ReportInputs) -> str:
+    """Return the section of what both scans saw: distances, slices, strength."""
+    from amrst.review.strength import WEAK_STRENGTH
+
+    parts = []
+    d = (r.quality or {}).get("distance")
+    if d:
+        parts.append(
+            f"<p>Where both scans saw the tree ({int(d['n_points_measured'])} source "
+            f"points, {d['overlap_fraction']:.0%} of them): median distance "
+            f"{_fmt('cm', d['median_m'])}, {_fmt('%', d['within_2cm_fraction'])} "
+            f"within 2 cm, 95th percentile {_fmt('cm', d['p95_m'])}. Good: a median "
+            "under 1.5 cm and 60 % or more within 2 cm. These are the figures to "
+            "judge the pose by; the metrics over every point above include parts "
+            "one scan alone saw.</p>"
+        )
+    slices = (r.quality or {}).get("stem_slices") or []
+    if slices:
+        rows = [
+            [
+                _e(f"{sl['height_m']:g} m"),
+                _fmt("cm", sl["target_diameter_m"]),
+                _fmt("cm", sl["source_diameter_m"]),
+                _fmt("cm", sl["offset_m"]),
+                _e(sl["status"]),
+            ]
+            for sl in slices
+        ]
+        head = ["Slice", "Target ⌀", "Source ⌀", "Centres apart", "Status"]
+        parts.append(
+            "<p>Stem slices of the tree of interest alone:</p>" + html_table(head, rows)
+        )
+    if r.strength:
+        rows = [
+            [
+                _e(_AXIS_WORDS.get(k, k)),
+                _e(f"{v:.2f}" if v == v else "n/a"),
+                _e("weak: check the slices" if v == v and v < WEAK_STRENGTH else ""),
+            ]
+            for k, v in r.strength.items()
+        ]
+        parts.append(
+            "<p>Strength per axis (0-1): how firmly the final alignment holds each "
+            f"axis; under {WEAK_STRENGTH:g} the surfaces slide along it.</p>"
+            + html_table(["Axis", "Strength", ""], rows)
+        )
+    if not parts:
+        return ""
+    return "<h2>Where both scans saw the tree</h2>" + "".join(parts)
+
+
 def _with_registered(truth: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(truth)
     if "registered" not in out and "rotation_error_deg" in out:
@@ -364,6 +431,7 @@ def build_html(inputs: ReportInputs, images: Mapping[str, bytes]) -> str:
         + _verdict(inputs)
         + _inputs(inputs)
         + _candidates(inputs)
+        + quality_html(inputs)
         + _metrics(inputs)
         + images_section(images)
         + tree_section(inputs.tree)

@@ -147,13 +147,15 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.fit_label = QLabel("")
         self.fit_label.setObjectName("pairs_fit")
         self.fit_label.setWordWrap(True)
+        # The buttons and the fit first: in sight on a laptop screen, with the
+        # table and the options below them.
         grid.addWidget(self.pick_button)
+        grid.addLayout(buttons)
+        for widget in (self.fit_label, self.hint, self.table):
+            grid.addWidget(widget)
         grid.addWidget(self.levelled)
         grid.addLayout(lock_row)
-        for widget in (self.ghost, self.hint, self.table):
-            grid.addWidget(widget)
-        grid.addWidget(self.fit_label)
-        grid.addLayout(buttons)
+        grid.addWidget(self.ghost)
         grid.addLayout(self._files_row())
         return box
 

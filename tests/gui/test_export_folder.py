@@ -96,3 +96,7 @@ def test_export_into_another_pairs_folder_asks(
         assert set(metrics["strength"]) == {"tx", "ty", "tz", "rx", "ry", "rz"}
         assert metrics["quality"]["distance"]["median_m"] < 0.015
         assert metrics["quality"]["stem_slices"]
+        # So does the report, with the strength per axis.
+        report = (out / "report.html").read_text()
+        assert "Where both scans saw the tree" in report
+        assert "turn about the stem" in report
