@@ -53,6 +53,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("amrst_gui.plot")
 
+RESULT_FILES = "trees.csv, plot.json, review.json"
+
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
     """Ask for a plot's scans; sorted by name, so scan_1 is the reference."""
@@ -108,7 +110,8 @@ class PlotWindow(QMainWindow):
         self.stem_map.tree_clicked.connect(self.select_tree)
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
-        self._fit_screen()
+        if parent is not None:  # the main window already fits the screen
+            self.resize(parent.size())
 
     def _build_side(self) -> QWidget:
         side = QWidget()
@@ -155,7 +158,7 @@ class PlotWindow(QMainWindow):
         layout.setContentsMargins(6, 4, 6, 4)
         layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
         layout.addWidget(self.scan_list)
-        layout.addWidget(QLabel("<b>Results folder</b>"))
+        layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
         layout.addLayout(buttons)
         layout.addWidget(self.progress)
@@ -165,13 +168,6 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel("<b>Trees</b>"))
         layout.addWidget(self.trees, 1)
         return side
-
-    def _fit_screen(self) -> None:
-        screen = self.screen().availableGeometry() if self.screen() else None
-        w, h = 1500, 950
-        if screen is not None:
-            w, h = min(w, screen.width()), min(h, screen.height())
-        self.resize(w, h)
 
     # ------------------------------------------------------------- public
     @property

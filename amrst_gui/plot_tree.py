@@ -38,6 +38,14 @@ FIGURES = (
     "Your mark",
 )
 
+FIGURE_TIPS = {
+    "Position": "The stem base, in the reference scan's frame (world coordinates "
+    "when the files carry an offset), as trees.csv lists it",
+    "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
+    "residual, and the share of slice points off the circle (3DFin's checks)",
+    "Seen from": "The scans whose points reach the stem",
+}
+
 
 def _value(value: object, unit: str = "", scale: float = 1.0, digits: int = 2) -> str:
     if isinstance(value, str) or value is None:
@@ -60,9 +68,9 @@ def figures(tree: Tree, mark: str | None) -> list[tuple[str, str]]:
         ("DBH", f"{_value(s.dbh_m, ' cm', 100, 1)} ({s.dbh_quality})"),
         (
             "DBH fit",
-            f"arc {_value(s.arc_deg, '°', digits=0)}, residual "
-            f"{_value(s.rmse_m, ' mm', 1000, 1)}, off the circle "
-            f"{_value(s.outlier_share, ' %', 100, 0)}",
+            f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
+            f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
+            f"{_value(s.outlier_share, ' %', 100, 0)} off",
         ),
         ("Lean", _value(s.lean_deg, "°", digits=1)),
         ("Crown", f"{_value(s.crown_width_m, ' m')} wide"),
@@ -91,7 +99,7 @@ class TreePanel(QWidget):
         self.values: dict[str, QLabel] = {}
         for name in FIGURES:
             value = QLabel("–")
-            value.setWordWrap(True)
+            value.setToolTip(FIGURE_TIPS.get(name, ""))
             value.setObjectName(f"tree_{name.lower().replace(' ', '_')}")
             form.addRow(f"<b>{name}</b>", value)
             self.values[name] = value

@@ -8,12 +8,23 @@ its own frame (the second turned and moved).
 from __future__ import annotations
 
 import csv
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 from PySide6.QtCore import QPoint, Qt
+from PySide6.QtTest import QTest
 
 from amrst.types import Cloud, invert_transform
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from pytestqt.qtbot import QtBot
+
+    from amrst_gui.main_window import MainWindow
+    from amrst_gui.plot_panel import PlotWindow
 
 # (x, y, radius, height) of the stems, in the first scan's frame.
 STEMS = (
@@ -53,7 +64,7 @@ def _scan(position: tuple[float, float], seed: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def plot_files(tmp_path_factory) -> list[str]:
+def plot_files(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     """Two scans of the plot as PLY files; the first is the reference."""
     from amrst import io
 
@@ -70,13 +81,17 @@ def plot_files(tmp_path_factory) -> list[str]:
     return [str(f) for f in files]
 
 
-def _run(qtbot, plot) -> None:
+def _run(qtbot: QtBot, plot: PlotWindow) -> None:
     with qtbot.waitSignal(plot.plot_done, timeout=300_000):
         plot.run()
 
 
 def test_a_plot_runs_and_its_stem_map_shows_every_tree(
-    make_main_window, qtbot, plot_files, tmp_path, monkeypatch
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from amrst.plot.export import TREES_CSV
     from amrst_gui import plot_jobs, plot_panel
@@ -106,10 +121,11 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     px = plot.stem_map.to_px(o.tree_xy)
     assert [plot.stem_map.tree_at(x, y) for x, y in px] == list(range(len(STEMS)))
     k = 2
-    qtbot.mouseClick(
+    QTest.mouseClick(
         plot.stem_map,
         Qt.MouseButton.LeftButton,
-        pos=QPoint(round(px[k, 0]), round(px[k, 1])),
+        Qt.KeyboardModifier.NoModifier,
+        QPoint(round(px[k, 0]), round(px[k, 1])),
     )
     tree = o.trees[k]
     assert plot.stem_map.selected == k
@@ -126,15 +142,20 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     # A mark is saved beside the inventory at once, and read back with it.
     plot.tree_panel.buttons["check"].click()
     assert plot_jobs.read_marks(out, o.labels) == {tree.tree_id: "check"}
-    assert plot.trees.item(k, 5).text() == "check"
+    cell = plot.trees.item(k, 5)
+    assert cell is not None
+    assert cell.text() == "check"
     plot.tree_panel.buttons[""].click()
     assert plot_jobs.read_marks(out, o.labels) == {}
 
     # Another run into the same folder asks first; "keep it" runs nothing.
     asked: list[str] = []
-    monkeypatch.setattr(
-        plot_panel, "ask_replace", lambda _p, text: asked.append(text) or False
-    )
+
+    def keep_it(_parent: object, text: str) -> bool:
+        asked.append(text)
+        return False
+
+    monkeypatch.setattr(plot_panel, "ask_replace", keep_it)
     plot.run()
     assert len(asked) == 1
     assert "these scans" in asked[0]
@@ -143,7 +164,10 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
 
 
 def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
-    make_main_window, qtbot, plot_files, tmp_path
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
 ) -> None:
     from amrst.plot.export import PLOT_JSON
 
