@@ -362,9 +362,10 @@ def clear_dead_run(folder: str | os.PathLike[str]) -> None:
     """
     real = Path(os.path.realpath(folder))
     lock_file = real / LOCK_NAME
-    if not lock_file.is_file():
-        return
-    if holder_alive(lock_file):
+    try:
+        if not lock_file.is_file() or holder_alive(lock_file):
+            return
+    except OSError:  # a folder we may not enter: the folder check says so in words
         return
     try:
         with FolderLock(real, timeout_s=0):

@@ -78,7 +78,9 @@ def test_measure_pair_is_the_whole_measurement_under_the_bound(sample_pair) -> N
     few = measure_pair(
         sample_pair.target, sample_pair.source, sample_pair.T_true, max_points=2000
     )
-    assert few["merged"].n_points == 4000
+    # The figures come from the sample; the count is still the clouds' size.
+    assert few["merged"].n_points_measured == 4000
+    assert few["merged"].n_points == len(sample_pair.target) + len(sample_pair.source)
 
 
 @pytest.mark.slow
