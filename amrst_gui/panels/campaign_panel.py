@@ -41,6 +41,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst.campaign.review import CLEAR
 from amrst.errors import AmrstError
 from amrst_gui.panels.campaign_rows import (
     COLUMNS,
@@ -95,19 +96,8 @@ class CampaignPanel(QWidget):
         )
         self._fit_columns()
         self.open_button = QPushButton("Open campaign…")
-        self.run_button = QPushButton("Run remaining")
-        self.accept_button = QPushButton("Accept")
-        self.reject_button = QPushButton("Reject")
-        self.export_button = QPushButton("Export accepted")
+        buttons = self._decision_buttons()
         self.status = QLabel("")
-        buttons = QHBoxLayout()
-        for b in (
-            self.run_button,
-            self.accept_button,
-            self.reject_button,
-            self.export_button,
-        ):
-            buttons.addWidget(b)
         filters = QHBoxLayout()
         filters.addWidget(self.filter_edit)
         filters.addWidget(self.needs_person)
@@ -130,12 +120,32 @@ class CampaignPanel(QWidget):
         self.needs_person.toggled.connect(self._apply_filter)
         self.table.itemSelectionChanged.connect(self._on_selection)
         self.open_button.clicked.connect(self._choose_folder)
+        self.tree_scans.link_selected.connect(self.show_link)
+        self._update_buttons()
+
+    def _decision_buttons(self) -> QHBoxLayout:
+        """Run, Accept, Reject, Clear and Export accepted, in one row, connected."""
+        self.run_button = QPushButton("Run remaining")
+        self.accept_button = QPushButton("Accept")
+        self.reject_button = QPushButton("Reject")
+        self.clear_button = QPushButton("Clear")
+        self.clear_button.setToolTip("Take the decision on the selected trees back")
+        self.export_button = QPushButton("Export accepted")
+        row = QHBoxLayout()
+        for b in (
+            self.run_button,
+            self.accept_button,
+            self.reject_button,
+            self.clear_button,
+            self.export_button,
+        ):
+            row.addWidget(b)
         self.run_button.clicked.connect(self.run_remaining)
         self.accept_button.clicked.connect(lambda: self.decide("accepted"))
         self.reject_button.clicked.connect(lambda: self.decide("rejected"))
+        self.clear_button.clicked.connect(lambda: self.decide(CLEAR))
         self.export_button.clicked.connect(self.export_accepted)
-        self.tree_scans.link_selected.connect(self.show_link)
-        self._update_buttons()
+        return row
 
     # ------------------------------------------------------------- public
     def open_campaign(self, folder: str | Path) -> bool:
@@ -192,7 +202,7 @@ class CampaignPanel(QWidget):
         return "" if item is None else item.text()
 
     def decide(self, decision: str) -> None:
-        """Accept or reject the selected trees; written to the campaign folder now.
+        """Accept, reject or clear the selected trees; written to the folder now.
 
         Accepting a tree the batch did not register asks first (:meth:`confirm`,
         with ``amrst.campaign.review.acceptance_warning``'s words).
@@ -224,22 +234,21 @@ class CampaignPanel(QWidget):
         return answer == QMessageBox.StandardButton.Yes
 
     def export_accepted(self) -> None:
-        """Write the merged cloud of every accepted tree (from stored transforms)."""
-        from amrst.campaign.review import export_tree
+        """Write the merged cloud of every accepted tree and say where it went."""
+        from amrst.campaign.review import export_accepted
 
         if self.campaign is None:
             return
-        done = 0
-        for row in list(self.rows):
-            if row["state"] != "accepted":
-                continue
-            try:
-                export_tree(self.campaign, row["tree_id"])
-                done += 1
-            except AmrstError as exc:
-                self._say(f"{row['tree_id']}: {exc}")
+        written, errors = export_accepted(self.campaign)
         self.refresh()
-        self._say(f"Exported {done} accepted tree(s).")
+        where = sorted({str(p.parent.parent) for p in written})
+        text = f"Exported {len(written)} accepted tree(s)" + (
+            f" to {', '.join(where)} (merged.ply in each tree's folder)."
+            if written
+            else "."
+        )
+        text += "".join(f" {tree}: {why}" for tree, why in errors.items())
+        self._say(text)
 
     def run_remaining(self) -> None:
         """Register every tree not done yet, in the background (Dask)."""
@@ -385,6 +394,7 @@ class CampaignPanel(QWidget):
         picked = bool(self.selected_ids())
         self.accept_button.setEnabled(has and picked)
         self.reject_button.setEnabled(has and picked)
+        self.clear_button.setEnabled(has and picked)
         self.export_button.setEnabled(
             has and any(r["state"] == "accepted" for r in self.rows)
         )

@@ -152,11 +152,15 @@ def test_select_review_accept_export_a_stored_tree(
     exported = json.loads((out / "transform.json").read_text(encoding="utf-8"))
     np.testing.assert_allclose(exported["T_target_source"], stored_T)
     panel.export_accepted()
+    assert str(campaign / "results") in panel.status.text()  # says where it wrote
     merged = io.read(campaign / "results" / "T01" / "merged.ply")
     assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
     assert panel.state_of("T01") == "accepted"  # the export is on record
     assert exported_path(panel.campaign, "T01") is not None
     assert discard_answers.asked == []  # a stored result is never "unexported"
+    panel.decide("clear")  # a decision can be taken back
+    assert panel.state_of("T01") == "registered"
+    panel.decide("accepted")
 
     # Fine from the stored pose: separate, then refine; no match, no new coarse
     steps.clear()
