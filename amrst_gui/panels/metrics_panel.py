@@ -25,20 +25,20 @@ _STAGES = ("coarse", "fine")
 _OVERLAP_ROWS: tuple[tuple[str, str, str, str], ...] = (
     (
         "both_median_m",
-        "Distance median, both saw",
+        "Median dist. (both saw)",
         "cm",
         "Median distance from the moved source to the target where both scans saw "
         "the scene (voxels both occupy, above the ground). Good: under 1.5 cm.",
     ),
     (
         "both_within_2cm",
-        "Within 2 cm, both saw",
+        "Within 2 cm (both saw)",
         "%",
         "Share of those points within 2 cm of the target. Good: 60% or more.",
     ),
     (
         "both_p95_m",
-        "Distance 95th pct., both saw",
+        "95th pct. (both saw)",
         "cm",
         "95% of the points both scans saw lie closer than this to the target.",
     ),
@@ -121,7 +121,8 @@ class MetricsPanel(QWidget):
         self.table.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.Stretch
         )
-        self.table.horizontalHeader().setMinimumSectionSize(90)
+        # Two value columns fit beside the labels in a 330 px dock (1366x768).
+        self.table.horizontalHeader().setMinimumSectionSize(64)
         self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.timings = QTableWidget(0, 1)
         self.timings.setHorizontalHeaderLabels(["Seconds"])
