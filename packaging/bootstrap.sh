@@ -64,7 +64,7 @@ case "$mode" in
     set +e
     # Wall-clock checks (the perf marker) depend on how loaded the machine is: they
     # run on request only (pytest -m perf), never in this command.
-    timeout -s ABRT --kill-after=30 1500 setsid .venv/bin/python -m pytest -m "not perf" --durations=15 "$@"
+    timeout -s ABRT --kill-after=30 1500 setsid .venv/bin/python -m pytest -m "not perf" -n 2 --durations=15 "$@"
     rc=$?
     set -e
     exit $rc
