@@ -128,15 +128,8 @@ def run_cli(args: argparse.Namespace) -> int:
             command=command,
             plots=not args.no_plots,
         )
-    except KeyboardInterrupt:
-        print(
-            "\namrst bench: interrupted; partial results are in the output folder.",
-            file=sys.stderr,
-        )
-        return 130
-    except AmrstError as exc:
-        print(f"amrst bench: {exc}", file=sys.stderr)
-        return 2
+    except (KeyboardInterrupt, AmrstError) as exc:
+        return _stopped(exc)
     ok = sum(r.success for r in result.runs)
     unreadable = result.meta.get("unreadable_cases") or {}
     skipped = (
@@ -151,6 +144,18 @@ def run_cli(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def _stopped(exc: BaseException) -> int:
+    """Say why a bench run stopped early, in one line; return the exit code."""
+    if isinstance(exc, KeyboardInterrupt):
+        print(
+            "\namrst bench: interrupted; partial results are in the output folder.",
+            file=sys.stderr,
+        )
+        return 130
+    print(f"amrst bench: {exc}", file=sys.stderr)
+    return 2
 
 
 def _run_plot_bench(args: argparse.Namespace) -> int:
@@ -169,14 +174,7 @@ def _run_plot_bench(args: argparse.Namespace) -> int:
             pattern=args.cases,
             methods=methods,
         )
-    except KeyboardInterrupt:
-        print(
-            "\namrst bench: interrupted; partial results are in the output folder.",
-            file=sys.stderr,
-        )
-        return 130
-    except AmrstError as exc:
-        print(f"amrst bench: {exc}", file=sys.stderr)
-        return 2
+    except (KeyboardInterrupt, AmrstError) as exc:
+        return _stopped(exc)
     print(f"{len(records)} plot runs; summary: {args.out}/summary.md", file=sys.stderr)
     return 0

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from _plots import STEMS, ground_z, pose, scan
 
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv
@@ -22,70 +23,13 @@ from amrst.types import Cloud, invert_transform, rotation_angle_deg
 if TYPE_CHECKING:
     from pathlib import Path
 
-# (x, y, radius, height) of the stems, plot frame.
-STEMS = (
-    (0.0, 4.0, 0.15, 6.0),
-    (5.0, 1.0, 0.22, 7.0),
-    (-4.0, -3.0, 0.10, 5.0),
-    (2.0, -5.0, 0.18, 6.5),
-    (-6.0, 3.5, 0.12, 5.5),
-    (6.5, -4.0, 0.25, 7.5),
-)
-
-
-def _ground_z(xy: np.ndarray) -> np.ndarray:
-    return np.asarray(0.03 * xy[..., 0] - 0.02 * xy[..., 1])
-
-
-def _scan(
-    position: tuple[float, float],
-    stems: tuple[tuple[float, ...], ...],
-    seed: int,
-    hidden_tops: bool = False,
-) -> np.ndarray:
-    """Points a scanner at ``position`` sees: ground, and the near half of each stem.
-
-    ``hidden_tops``: each stem is seen up to a random height only (crowns hide the
-    rest differently from each position).
-    """
-    rng = np.random.default_rng(seed)
-    g = np.mgrid[-12:12:0.08, -12:12:0.08].reshape(2, -1).T
-    g = g[np.hypot(*(g - position).T) > 1.0]
-    parts = [np.column_stack([g, _ground_z(g)])]
-    p = np.asarray(position, float)
-    for x, y, r, h in stems:
-        c = np.array([x, y])
-        facing = np.arctan2(*(p - c)[::-1])
-        theta = facing + np.linspace(-np.pi / 2, np.pi / 2, int(np.pi * r / 0.01))
-        z0 = float(_ground_z(c))
-        top = rng.uniform(2.0, h) if hidden_tops else h
-        z = np.arange(z0 - 0.05, z0 + top, 0.02)
-        tt, zz = np.meshgrid(theta, z)
-        parts.append(
-            np.column_stack(
-                [x + r * np.cos(tt.ravel()), y + r * np.sin(tt.ravel()), zz.ravel()]
-            )
-        )
-    xyz = np.vstack(parts)
-    return xyz + rng.normal(0, 0.002, xyz.shape)
-
-
-def _pose(yaw_deg: float, shift: tuple[float, float, float], tilt_deg: float = 0.0):
-    a, t = np.radians(yaw_deg), np.radians(tilt_deg)
-    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-    Rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
-    T = np.eye(4)
-    T[:3, :3] = Rz @ Rx
-    T[:3, 3] = shift
-    return T
-
 
 @pytest.fixture(scope="module")
 def plot_pair() -> tuple[Cloud, Cloud, np.ndarray]:
     """Target and source scans of one plot, and the true T_target_source."""
-    target = _scan((-2.0, 0.0), STEMS, 1, hidden_tops=True)
-    T_plot_source = _pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
-    world = _scan((3.0, 1.0), STEMS, 2, hidden_tops=True)
+    target = scan((-2.0, 0.0), STEMS, 1, hidden_tops=True)
+    T_plot_source = pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
+    world = scan((3.0, 1.0), STEMS, 2, hidden_tops=True)
     source = (
         world @ invert_transform(T_plot_source)[:3, :3].T
         + (invert_transform(T_plot_source)[:3, 3])
@@ -94,7 +38,7 @@ def plot_pair() -> tuple[Cloud, Cloud, np.ndarray]:
 
 
 def test_stem_map_finds_every_stem_with_its_dbh() -> None:
-    m = map_stems(_scan((0.5, 0.5), STEMS, 3))
+    m = map_stems(scan((0.5, 0.5), STEMS, 3))
     assert len(m.stems) == len(STEMS)
     for x, y, r, h in STEMS:
         d = [np.hypot(*(s.base[:2] - (x, y))) for s in m.stems]
@@ -131,7 +75,7 @@ def test_a_tree_seen_from_two_scans_is_listed_once(plot_pair) -> None:
 
 def test_two_stems_0_6_m_apart_are_two_trees() -> None:
     stems = ((0.0, 0.0, 0.12, 6.0), (0.6, 0.0, 0.12, 6.0), (3.0, 3.0, 0.15, 6.0))
-    inv = take_inventory([Cloud(_scan((0.3, -4.0), stems, 4))], [np.eye(4)])
+    inv = take_inventory([Cloud(scan((0.3, -4.0), stems, 4))], [np.eye(4)])
     xs = sorted(round(float(t.xyz[0]), 1) for t in inv.trees if abs(t.xyz[1]) < 0.3)
     assert xs == [0.0, 0.6]
 
@@ -159,13 +103,13 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
 
 def test_a_stem_inside_a_wide_thicket_is_found() -> None:
     stems = ((0.0, 0.0, 0.14, 6.0), (4.0, 3.0, 0.12, 6.0))
-    xyz = _scan((0.0, -5.0), stems, 5)
+    xyz = scan((0.0, -5.0), stems, 5)
     rng = np.random.default_rng(6)
     # Leaves and twigs 0.3-1.6 m high over 3 m around the first stem: one slice
     # cluster far wider than a stem.
     leaves = rng.uniform((-1.5, -1.5, 0.3), (1.5, 1.5, 1.6), (20_000, 3))
     leaves = leaves[np.hypot(leaves[:, 0], leaves[:, 1]) > 0.17]
-    leaves[:, 2] += _ground_z(leaves[:, :2])
+    leaves[:, 2] += ground_z(leaves[:, :2])
     m = map_stems(np.vstack([xyz, leaves]))
     bases = np.array([s.base[:2] for s in m.stems])
     assert len(m.stems) == 2
@@ -174,7 +118,7 @@ def test_a_stem_inside_a_wide_thicket_is_found() -> None:
 
 def test_a_top_cut_by_the_scanner_range_is_flagged() -> None:
     stems = ((4.0, 0.0, 0.15, 14.0), (-3.0, 2.0, 0.12, 5.0), (0.0, -4.0, 0.1, 4.0))
-    xyz = _scan((0.0, 0.0), stems, 7)
+    xyz = scan((0.0, 0.0), stems, 7)
     xyz = xyz[np.linalg.norm(xyz, axis=1) <= 10.0]  # the scanner's range
     inv = take_inventory([Cloud(xyz)], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from test_plot import STEMS, _pose, _scan
+from _plots import STEMS, pose, scan
 
 from amrst.bench.plot import (
     KISS,
@@ -57,9 +57,9 @@ def _plot_case(folder: Path) -> None:
     from amrst import io
 
     folder.mkdir(parents=True)
-    T = _pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
-    io.write(folder / "target.ply", Cloud(_sparse_ground(_scan((-2.0, 0.0), STEMS, 1))))
-    world = _sparse_ground(_scan((3.0, 1.0), STEMS, 2))
+    T = pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
+    io.write(folder / "target.ply", Cloud(_sparse_ground(scan((-2.0, 0.0), STEMS, 1))))
+    world = _sparse_ground(scan((3.0, 1.0), STEMS, 2))
     inv = invert_transform(T)
     io.write(folder / "source.ply", Cloud(world @ inv[:3, :3].T + inv[:3, 3]))
     z = 0.03 * np.array([s[0] for s in STEMS]) - 0.02 * np.array([s[1] for s in STEMS])

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from _plots import STEMS, scan
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
@@ -26,42 +27,6 @@ if TYPE_CHECKING:
     from amrst_gui.main_window import MainWindow
     from amrst_gui.plot_panel import PlotWindow
 
-# (x, y, radius, height) of the stems, in the first scan's frame.
-STEMS = (
-    (0.0, 4.0, 0.15, 6.0),
-    (5.0, 1.0, 0.22, 7.0),
-    (-4.0, -3.0, 0.10, 5.0),
-    (2.0, -5.0, 0.18, 6.5),
-    (-6.0, 3.5, 0.12, 5.5),
-    (6.5, -4.0, 0.25, 7.5),
-)
-
-
-def _ground_z(xy: np.ndarray) -> np.ndarray:
-    return np.asarray(0.03 * xy[..., 0] - 0.02 * xy[..., 1])
-
-
-def _scan(position: tuple[float, float], seed: int) -> np.ndarray:
-    """Ground and the near half of each stem, seen from ``position``."""
-    rng = np.random.default_rng(seed)
-    g = np.mgrid[-12:12:0.08, -12:12:0.08].reshape(2, -1).T
-    g = g[np.hypot(*(g - position).T) > 1.0]
-    parts = [np.column_stack([g, _ground_z(g)])]
-    p = np.asarray(position, float)
-    for x, y, r, h in STEMS:
-        c = np.array([x, y])
-        facing = np.arctan2(*(p - c)[::-1])
-        theta = facing + np.linspace(-np.pi / 2, np.pi / 2, int(np.pi * r / 0.01))
-        z0 = float(_ground_z(c))
-        tt, zz = np.meshgrid(theta, np.arange(z0 - 0.05, z0 + h, 0.02))
-        parts.append(
-            np.column_stack(
-                [x + r * np.cos(tt.ravel()), y + r * np.sin(tt.ravel()), zz.ravel()]
-            )
-        )
-    xyz = np.vstack(parts)
-    return xyz + rng.normal(0, 0.002, xyz.shape)
-
 
 @pytest.fixture(scope="module")
 def plot_files(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
@@ -73,10 +38,10 @@ def plot_files(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     T[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
     T[:3, 3] = (3.0, 1.0, 0.0)
     inv = invert_transform(T)
-    source = _scan((3.0, 1.0), 2) @ inv[:3, :3].T + inv[:3, 3]
+    source = scan((3.0, 1.0), STEMS, 2) @ inv[:3, :3].T + inv[:3, 3]
     folder = tmp_path_factory.mktemp("plot")
     files = [folder / "scan_1.ply", folder / "scan_2.ply"]
-    for f, xyz in zip(files, (_scan((-2.0, 0.0), 1), source), strict=True):
+    for f, xyz in zip(files, (scan((-2.0, 0.0), STEMS, 1), source), strict=True):
         io.write(f, Cloud(xyz))
     return [str(f) for f in files]
 

@@ -1,0 +1,68 @@
+"""A synthetic forest plot for tests: rough ground and upright stems, seen from a spot.
+
+Shared by the engine's and the app's plot tests; imported as ``_plots`` (this folder
+is on ``sys.path`` because it holds ``conftest.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# (x, y, radius, height) of the stems, in the plot's frame.
+STEMS = (
+    (0.0, 4.0, 0.15, 6.0),
+    (5.0, 1.0, 0.22, 7.0),
+    (-4.0, -3.0, 0.10, 5.0),
+    (2.0, -5.0, 0.18, 6.5),
+    (-6.0, 3.5, 0.12, 5.5),
+    (6.5, -4.0, 0.25, 7.5),
+)
+
+
+def ground_z(xy: np.ndarray) -> np.ndarray:
+    """Height of the gently sloped ground under ``xy`` (..., 2)."""
+    return np.asarray(0.03 * xy[..., 0] - 0.02 * xy[..., 1])
+
+
+def scan(
+    position: tuple[float, float],
+    stems: tuple[tuple[float, ...], ...],
+    seed: int,
+    hidden_tops: bool = False,
+) -> np.ndarray:
+    """Points a scanner at ``position`` sees: ground, and the near half of each stem.
+
+    ``hidden_tops``: each stem is seen up to a random height only (crowns hide the
+    rest differently from each position).
+    """
+    rng = np.random.default_rng(seed)
+    g = np.mgrid[-12:12:0.08, -12:12:0.08].reshape(2, -1).T
+    g = g[np.hypot(*(g - position).T) > 1.0]
+    parts = [np.column_stack([g, ground_z(g)])]
+    p = np.asarray(position, float)
+    for x, y, r, h in stems:
+        c = np.array([x, y])
+        facing = np.arctan2(*(p - c)[::-1])
+        theta = facing + np.linspace(-np.pi / 2, np.pi / 2, int(np.pi * r / 0.01))
+        z0 = float(ground_z(c))
+        top = rng.uniform(2.0, h) if hidden_tops else h
+        z = np.arange(z0 - 0.05, z0 + top, 0.02)
+        tt, zz = np.meshgrid(theta, z)
+        parts.append(
+            np.column_stack(
+                [x + r * np.cos(tt.ravel()), y + r * np.sin(tt.ravel()), zz.ravel()]
+            )
+        )
+    xyz = np.vstack(parts)
+    return xyz + rng.normal(0, 0.002, xyz.shape)
+
+
+def pose(yaw_deg: float, shift: tuple[float, float, float], tilt_deg: float = 0.0):
+    """T of a scan: a turn about z, a tilt about x, then a shift."""
+    a, t = np.radians(yaw_deg), np.radians(tilt_deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Rx
+    T[:3, 3] = shift
+    return T
