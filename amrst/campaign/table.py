@@ -118,7 +118,7 @@ def write_table(
     campaign: Campaign, rows: list[dict[str, Any]] | None = None
 ) -> list[Path]:
     """Write campaign.csv (and .xlsx when openpyxl is installed), atomically."""
-    from amrst.files.atomic import write_atomic, write_text_atomic
+    from amrst.files.atomic import write_atomic, write_text_atomic, xlsx_book
 
     rows = campaign_rows(campaign) if rows is None else rows
     buf = _stdio.StringIO()
@@ -127,17 +127,9 @@ def write_table(
     writer.writerows(rows)
     written = [campaign.root / TABLE]
     write_text_atomic(written[0], buf.getvalue())
-    try:
-        import openpyxl
-    except ImportError:
+    book = xlsx_book("trees", COLUMNS, rows)
+    if book is None:
         return written
-    book = openpyxl.Workbook()
-    sheet = book.active
-    sheet.title = "trees"
-    sheet.append(list(COLUMNS))
-    for row in rows:
-        sheet.append([row[c] for c in COLUMNS])
-    sheet.freeze_panes = "B2"
     write_atomic(campaign.root / TABLE_XLSX, lambda tmp: book.save(tmp))
     written.append(campaign.root / TABLE_XLSX)
     return written

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from amrst.errors import AmrstError
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
 
 def write_atomic(
@@ -142,3 +142,25 @@ def make_folder(path: str | os.PathLike[str], what: str) -> Path:
             "folder."
         ) from exc
     return out
+
+
+def xlsx_book(
+    title: str, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]
+) -> Any | None:
+    """Return an openpyxl workbook of ``rows`` under ``columns``; None without openpyxl.
+
+    One sheet named ``title``, a header row, the first column and the header frozen.
+    Save it with :func:`write_atomic` (``lambda tmp: book.save(tmp)``).
+    """
+    try:
+        import openpyxl
+    except ImportError:
+        return None
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = title
+    sheet.append(list(columns))
+    for row in rows:
+        sheet.append([row[c] for c in columns])
+    sheet.freeze_panes = "B2"
+    return book

@@ -130,16 +130,7 @@ def _tree_writer(points: np.ndarray, reference: Cloud) -> Callable[[Path], objec
 
 def _xlsx_writer(inventory: Inventory) -> Callable[[Path], object] | None:
     """trees.xlsx when openpyxl is installed."""
-    try:
-        import openpyxl
-    except ImportError:
-        return None
-    book = openpyxl.Workbook()
-    sheet = book.active
-    sheet.title = "trees"
-    sheet.append(list(TREE_COLUMNS))
-    for tree in inventory.trees:
-        row = tree.row()
-        sheet.append([row[c] for c in TREE_COLUMNS])
-    sheet.freeze_panes = "B2"
-    return lambda p: book.save(p)
+    from amrst.files.atomic import xlsx_book
+
+    book = xlsx_book("trees", TREE_COLUMNS, (t.row() for t in inventory.trees))
+    return None if book is None else book.save
