@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from _picking import click
 
 from amrst.types import local_transform
 
@@ -76,20 +77,6 @@ def test_failed_verdict_everywhere_run_all_stops_and_export_needs_override(
     assert metrics["verdict"]["status"] == "failed"
 
 
-def _click(view, xyz) -> None:
-    """Zoom onto ``xyz`` as a user would, then click (press, release) where it is
-    drawn, through VTK's own events."""
-    view.frame_points(np.asarray([xyz]), min_radius=0.5)
-    ren = view.plotter.renderer
-    ren.SetWorldPoint(*xyz, 1.0)
-    ren.WorldToDisplay()
-    x, y, _ = ren.GetDisplayPoint()
-    iren = view.plotter.iren.interactor
-    iren.SetEventInformation(round(x), round(y))
-    iren.InvokeEvent("LeftButtonPressEvent")
-    iren.InvokeEvent("LeftButtonReleaseEvent")
-
-
 def _off_axis(src, idx):
     r = np.hypot(*(src[idx, :2] - np.median(src[idx, :2], axis=0)).T)
     order = idx[np.argsort(r)]
@@ -132,8 +119,8 @@ def test_three_pairs_picked_in_the_views_recover_the_pose_then_fine(
     for spot in spots:
         for k in spot[:40]:
             before = len(panel.pairs)
-            _click(views[0], tgt[j[k]])
-            _click(views[1], src[k])
+            click(views[0], tgt[j[k]])
+            click(views[1], src[k])
             if len(panel.pairs) > before:
                 a, b = panel.pairs[-1]
                 # A click snaps to the front point under the cursor: keep the pair if

@@ -5,6 +5,7 @@ turn, pairs saved and loaded as CSV, and the wheel zooming to the cursor."""
 from __future__ import annotations
 
 import numpy as np
+from _picking import click
 
 from amrst.types import local_transform
 from amrst_gui.views.pick_marks import LABELS_ACTOR
@@ -13,19 +14,6 @@ from amrst_gui.views.pick_marks import LABELS_ACTOR
 def _truth_local(win):
     s = win.session
     return local_transform(s.truth, s.cloud("target"), s.cloud("source"))
-
-
-def _click(view, xyz) -> None:
-    """Click (press, release) where ``xyz`` is drawn, through VTK's own events."""
-    view.frame_points(np.asarray([xyz]), min_radius=0.5)
-    ren = view.plotter.renderer
-    ren.SetWorldPoint(*xyz, 1.0)
-    ren.WorldToDisplay()
-    x, y, _ = ren.GetDisplayPoint()
-    iren = view.plotter.iren.interactor
-    iren.SetEventInformation(round(x), round(y))
-    iren.InvokeEvent("LeftButtonPressEvent")
-    iren.InvokeEvent("LeftButtonReleaseEvent")
 
 
 def _scan_views(win, qtbot):
@@ -48,12 +36,12 @@ def test_picked_points_are_marked_and_numbered_with_dx_dy_dz(loaded_window, qtbo
     for k, p in enumerate(picks):
         # The target point: the target's point nearest the truly moved source point.
         q = tgt[np.argmin(np.linalg.norm(tgt - (T[:3, :3] @ p + T[:3, 3]), axis=1))]
-        _click(views[0], q)
+        click(views[0], q)
         # Shown at once: a marker in the target view and a row with its point.
         assert views[0].marks.pending is not None
         assert panel.table.rowCount() == k + 1
         assert panel.table.item(k, 5).text() == "source?"
-        _click(views[1], p)
+        click(views[1], p)
         assert len(panel.pairs) == k + 1
         assert views[0].marks.pending is None
     assert views[0].marks.labels == ["1", "2", "3"]
