@@ -13,9 +13,9 @@ import time
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from amrst.pipeline.refine import PoseQuality
     from amrst.progress import Reporter
     from amrst.review.manual_keep import KeepDecision
-    from amrst_gui.jobs import PoseQuality
 
 
 def refine_keeping_manual(

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,9 +17,7 @@ from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 if TYPE_CHECKING:
     import numpy as np
 
-    from amrst.review.overlap import OverlapDistances
-    from amrst.review.quality import StemSlice
-    from amrst.review.strength import Strength
+    from amrst.pipeline.refine import PoseQuality
 
 ROLES = ("target", "source")
 
@@ -238,49 +235,12 @@ def refine_pair(
     return (fine, metrics, tree, quality), time.perf_counter() - start
 
 
-@dataclass(frozen=True, slots=True)
-class PoseQuality:
-    """What a technician judges one pose by, as ``amrst register`` measures it.
-
-    Attributes
-    ----------
-    overlap : OverlapDistances
-        Distances from the moved source to the target where both scans saw the scene.
-    strength : Strength
-        How firmly the pose holds each of its six axes.
-    slices : tuple of StemSlice
-        Stem slices of the tree of interest alone (ground, neighbours, shrubs out).
-    """
-
-    overlap: OverlapDistances
-    strength: Strength
-    slices: tuple[StemSlice, ...]
-
-    def section(self) -> dict[str, Any]:
-        """The ``quality`` section of metrics.json (``distance``, ``stem_slices``)."""
-        return {
-            "distance": self.overlap.as_dict(),
-            "stem_slices": [s.as_dict() for s in self.slices],
-        }
-
-
 def pose_quality(analyses: dict, T_local: Any, params: Any) -> PoseQuality:
     """Overlap distances, strength per axis and stem slices of ``T_local`` (local
-    frames), on the same points as ``amrst.pipeline.register.finish_registration``."""
-    import numpy as np
+    frames), as ``amrst register`` measures them."""
+    from amrst.pipeline.refine import pose_quality as measure
 
-    from amrst.review.overlap import overlap_distances
-    from amrst.review.quality import stem_slices
-    from amrst.review.strength import axis_strength
-
-    tgt, src = analyses["target"], analyses["source"]
-    T = np.asarray(T_local, float)
-    R, t = T[:3, :3], T[:3, 3]
-    return PoseQuality(
-        overlap=overlap_distances(tgt.xyz, src.xyz, T),
-        strength=axis_strength(tgt.xyz, src.xyz, T, params.metrics.overlap_dist_m),
-        slices=tuple(stem_slices(tgt.tree_xyz, src.tree_xyz @ R.T + t)),
-    )
+    return measure(analyses["target"], analyses["source"], T_local, params)
 
 
 def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, float]:

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult, ScanAnalysis
+    from amrst.pipeline.refine import PoseQuality
     from amrst.review.verdict import Verdict
     from amrst.stages.candidates import Candidate, CoarseResult
     from amrst.stages.fine import FineResult
@@ -593,8 +594,8 @@ class Session(QObject):
         self._fine_note = ""  # from a manual pose: what Fine's check decided
         self._fine_dropped = False  # Fine's result dropped: the manual pose kept
         # What the technician judges a pose by, per stage and per manual candidate.
-        self._quality: dict[str, jobs.PoseQuality] = {}
-        self._manual_quality: dict[int, jobs.PoseQuality] = {}
+        self._quality: dict[str, PoseQuality] = {}
+        self._manual_quality: dict[int, PoseQuality] = {}
         self._metrics: dict[str, CloudMetrics] = {}
         # stage -> {"target"|"source"|"merged": TreeMeasures}
         self._tree: dict[str, dict[str, TreeMeasures]] = {}
@@ -684,7 +685,7 @@ class Session(QObject):
         )
 
     @property
-    def pose_quality(self) -> jobs.PoseQuality | None:
+    def pose_quality(self) -> PoseQuality | None:
         """Overlap distances, strength and stem slices of the best pose so far (fine,
         else the accepted coarse, else the manual candidate proposed), or None."""
         for stage in ("fine", "coarse"):
@@ -695,7 +696,7 @@ class Session(QObject):
             return self._manual_quality.get(int(coarse.candidate.id))
         return None
 
-    def stage_quality(self, stage: str) -> jobs.PoseQuality | None:
+    def stage_quality(self, stage: str) -> PoseQuality | None:
         """The PoseQuality of "coarse" or "fine", or None."""
         return self._quality.get(stage)
 
@@ -1144,7 +1145,7 @@ class Session(QObject):
         self._launch("manual", jobs.score_manual_pair, an, T, cid, how, self._params)
 
     def _apply_manual(
-        self, result: tuple[Candidate, jobs.PoseQuality]
+        self, result: tuple[Candidate, PoseQuality]
     ) -> Callable[[], None]:
         cand, quality = result
         self._manual_quality[int(cand.id)] = quality

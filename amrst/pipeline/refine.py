@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
@@ -14,6 +17,9 @@ if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.pipeline.analysis import ScanAnalysis
     from amrst.pipeline.link import MatchResult
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.quality import StemSlice
+    from amrst.review.strength import Strength
     from amrst.types import Transform
 
 
@@ -66,3 +72,51 @@ def evaluate(
     """NN-RMSE, Hausdorff and overlap of the preprocessed scans under a local-frame transform."""
     moved = source.xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
     return measure_clouds(target.xyz, moved, params.metrics, threads=threads)
+
+
+@dataclass(frozen=True, slots=True)
+class PoseQuality:
+    """What a technician judges one pose by.
+
+    Attributes
+    ----------
+    overlap : OverlapDistances
+        Distances from the moved source to the target where both scans saw the scene.
+    strength : Strength
+        How firmly the pose holds each of its six axes.
+    slices : tuple of StemSlice
+        Stem slices of the tree of interest alone (ground, neighbours, shrubs out).
+    """
+
+    overlap: OverlapDistances
+    strength: Strength
+    slices: tuple[StemSlice, ...]
+
+    def section(self) -> dict[str, Any]:
+        """Return the ``quality`` section of metrics.json (distance, stem slices)."""
+        return {
+            "distance": self.overlap.as_dict(),
+            "stem_slices": [s.as_dict() for s in self.slices],
+        }
+
+
+def pose_quality(
+    target: ScanAnalysis,
+    source: ScanAnalysis,
+    T_target_source: Transform,
+    params: RegistrationParams,
+) -> PoseQuality:
+    """Measure a local-frame pose as the CLI, the app and the reports judge it."""
+    from amrst.review.overlap import overlap_distances
+    from amrst.review.quality import stem_slices
+    from amrst.review.strength import axis_strength
+
+    T = np.asarray(T_target_source, float)
+    R, t = T[:3, :3], T[:3, 3]
+    return PoseQuality(
+        overlap=overlap_distances(target.xyz, source.xyz, T),
+        strength=axis_strength(
+            target.xyz, source.xyz, T, params.metrics.overlap_dist_m
+        ),
+        slices=tuple(stem_slices(target.tree_xyz, source.tree_xyz @ R.T + t)),
+    )

@@ -12,16 +12,16 @@ from amrst.neighbours import THREADS
 from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
 from amrst.pipeline.link import MatchResult, coarse_from_matches, find_matches
-from amrst.pipeline.refine import evaluate, refine
+from amrst.pipeline.refine import evaluate, pose_quality, refine
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.review.overlap import OverlapDistances, overlap_distances
-from amrst.review.quality import StemSlice, stem_slices
-from amrst.review.strength import Strength, axis_strength
 from amrst.sampling import measure_pair
 from amrst.types import world_transform
 
 if TYPE_CHECKING:
     from amrst.measure import TreeMeasures
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.quality import StemSlice
+    from amrst.review.strength import Strength
     from amrst.stages.coarse import CoarseResult
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
@@ -215,12 +215,7 @@ def finish_registration(
     )
     T_world = world_transform(fine.T_target_source, target, source)
     tree = measure_pair(target, source, T_world, params.measure)
-    overlap = overlap_distances(tgt.xyz, src.xyz, fine.T_target_source)
-    strength = axis_strength(
-        tgt.xyz, src.xyz, fine.T_target_source, params.metrics.overlap_dist_m
-    )
-    R, t = fine.T_target_source[:3, :3], fine.T_target_source[:3, 3]
-    slices = tuple(stem_slices(tgt.tree_xyz, src.tree_xyz @ R.T + t))
+    quality = pose_quality(tgt, src, fine.T_target_source, params)
     all_timings: dict[str, float] = {}
     for an in (tgt, src):
         for k, v in an.timings.items():
@@ -245,7 +240,7 @@ def finish_registration(
         timings=all_timings,
         params=params,
         tree=tree,
-        overlap=overlap,
-        strength=strength,
-        slices=slices,
+        overlap=quality.overlap,
+        strength=quality.strength,
+        slices=quality.slices,
     )

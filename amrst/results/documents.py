@@ -238,12 +238,11 @@ def metrics_csv(metrics: Mapping[str, Any]) -> str:
 
 def quality_section(result: RegistrationResult) -> dict[str, Any] | None:
     """Build the ``quality`` section of metrics.json: overlap distances, stem slices."""
-    if result.overlap is None:
+    from amrst.pipeline.refine import PoseQuality
+
+    if result.overlap is None or result.strength is None:
         return None
-    return {
-        "distance": result.overlap.as_dict(),
-        "stem_slices": [s.as_dict() for s in result.slices],
-    }
+    return PoseQuality(result.overlap, result.strength, result.slices).section()
 
 
 def record_from_registration(
