@@ -150,7 +150,7 @@ def score_manual_pair(
     reporter.progress(0.0, "Scoring the manual pose")
     cand = _score_manual(analyses, T, cid, how, params)
     reporter.check_cancelled()
-    reporter.progress(0.5, "Measuring the manual pose where both scans saw the tree")
+    reporter.progress(0.5, "Measuring the manual pose where both scans saw the scene")
     quality = pose_quality(analyses, cand.T_target_source, params)
     reporter.progress(1.0, f"Manual pose: score {cand.score:.0%}")
     return (cand, quality), time.perf_counter() - start
@@ -192,7 +192,7 @@ def evaluate_coarse(
     reporter.progress(0.6, "Measuring the tree")
     tree = measure_tree_pair(analyses, coarse.T_target_source, params, reporter)
     reporter.check_cancelled()
-    reporter.progress(0.8, "Measuring where both scans saw the tree")
+    reporter.progress(0.8, "Measuring where both scans saw the scene")
     quality = pose_quality(analyses, coarse.T_target_source, params)
     reporter.progress(1.0, "Coarse alignment measured")
     return (coarse, metrics, tree, quality), time.perf_counter() - start
@@ -229,7 +229,7 @@ def refine_pair(
     reporter.progress(0.95, "Measuring the tree")
     tree = measure_tree_pair(analyses, fine.T_target_source, params, reporter)
     reporter.check_cancelled()
-    reporter.progress(0.97, "Measuring where both scans saw the tree")
+    reporter.progress(0.97, "Measuring where both scans saw the scene")
     quality = pose_quality(analyses, fine.T_target_source, params)
     reporter.progress(1.0, "Fine registration done")
     return (fine, metrics, tree, quality), time.perf_counter() - start

@@ -1268,7 +1268,7 @@ class Session(QObject):
             return over_all
         d = quality.overlap
         return (
-            f"Where both scans saw the tree: median distance {d.median_m * 100:.1f} cm, "
+            f"Where both scans saw the scene: median distance {d.median_m * 100:.1f} cm, "
             f"{d.within_2cm_fraction:.0%} within 2 cm ({over_all})."
         )
 

@@ -48,8 +48,8 @@ class RegistrationResult:
     # Height, DBH and crown of "target", "source" (moved) and "merged"; scans over
     # amrst.sampling.MEASURE_MAX_POINTS points are measured on a seeded sample.
     tree: dict[str, TreeMeasures] = field(default_factory=dict)
-    # Distances where both scans saw the tree of interest, and how firmly the final
-    # pose holds each axis: what a technician judges the result by.
+    # Distances where both scans saw the scene above the ground, and how firmly
+    # the final pose holds each axis: what a technician judges the result by.
     overlap: OverlapDistances | None = None
     strength: Strength | None = None
     # Stem slices of the tree of interest (ground, neighbours and shrubs out).

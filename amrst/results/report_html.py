@@ -297,7 +297,7 @@ def quality_html(r: ReportInputs) -> str:
     d = (r.quality or {}).get("distance")
     if d:
         parts.append(
-            f"<p>Where both scans saw the tree ({int(d['n_points_measured'])} source "
+            f"<p>Where both scans saw the scene ({int(d['n_points_measured'])} source "
             f"points, {d['overlap_fraction']:.0%} of them): median distance "
             f"{_fmt('cm', d['median_m'])}, {_fmt('%', d['within_2cm_fraction'])} "
             f"within 2 cm, 95th percentile {_fmt('cm', d['p95_m'])}. Good: a median "
@@ -337,7 +337,7 @@ def quality_html(r: ReportInputs) -> str:
         )
     if not parts:
         return ""
-    return "<h2>Where both scans saw the tree</h2>" + "".join(parts)
+    return "<h2>Where both scans saw the scene</h2>" + "".join(parts)
 
 
 def _with_registered(truth: Mapping[str, Any]) -> dict[str, Any]:

@@ -24,7 +24,7 @@ WITHIN_M = 0.02
 
 @dataclass(frozen=True, slots=True)
 class OverlapDistances:
-    """Distances from the moved source to the target where both scans saw the tree.
+    """Distances from the moved source to the target where both scans saw the scene.
 
     Attributes
     ----------

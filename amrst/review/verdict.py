@@ -25,7 +25,7 @@ STATUSES = (REGISTERED, NEEDS_REVIEW, FAILED)
 # Below this confidence a verified winner still needs a look (the runner-up is close).
 LOW_CONFIDENCE = 0.3
 
-# A manual pose stands on its own evidence when, where both scans saw the tree, the
+# A manual pose stands on its own evidence when, where both scans saw the scene, the
 # median distance is at most this, this share lies within 2 cm, on this many points,
 # and no axis is weak: what a right pose of two field scans shows.
 MANUAL_MEDIAN_M = 0.015
@@ -129,7 +129,7 @@ def _manual_verdict(
             "Check the overlay and the stem slices; refine the point pairs.",
         )
     seen = (
-        f"Your manual pose: where both scans saw the tree ({overlap.n_points_measured} "
+        f"Your manual pose: where both scans saw the scene ({overlap.n_points_measured} "
         f"points), the median distance is {overlap.median_m * 100:.1f} cm and "
         f"{overlap.within_2cm_fraction:.0%} lie within 2 cm."
     )
@@ -184,7 +184,7 @@ def judge(
     trunk_searched : bool
         Whether the trunk heading search ran.
     overlap, strength : OverlapDistances, Strength or None
-        The final pose's distances where both scans saw the tree and its strength
+        The final pose's distances where both scans saw the scene and its strength
         per axis: a manual pose is judged by them, and a weak axis is named.
 
     Returns

@@ -21,7 +21,7 @@ from amrst_gui import steps
 from amrst_gui.panels.verdict_style import verdict_style
 
 _STAGES = ("coarse", "fine")
-# Where both scans saw the tree: the figures to judge a pose by, first.
+# Where both scans saw the scene: the figures to judge a pose by, first.
 _OVERLAP_ROWS: tuple[tuple[str, str, str, str], ...] = (
     (
         "both_median_m",

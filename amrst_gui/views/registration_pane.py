@@ -142,7 +142,7 @@ class RegistrationPane(QWidget):
         )
 
     def _headline(self) -> str:
-        """The shown stage's distances where both scans saw the tree, as measured
+        """The shown stage's distances where both scans saw the scene, as measured
         by the registration (its Quality table and metrics.json), or ""."""
         stage = self.stage if self.stage in ("coarse", "fine") else None
         quality = self.session.stage_quality(stage) if stage else None
