@@ -9,6 +9,9 @@ import numpy as np
 
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.review.overlap import OverlapDistances, overlap_distances
+from amrst.review.quality import StemSlice, stem_slices
+from amrst.review.strength import Strength, axis_strength
 from amrst.stages.coarse import CoarseResult
 from amrst.stages.fine import FineResult, refine_registration
 from amrst.stages.metrics import CloudMetrics, measure_clouds
@@ -17,9 +20,6 @@ if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.pipeline.analysis import ScanAnalysis
     from amrst.pipeline.link import MatchResult
-    from amrst.review.overlap import OverlapDistances
-    from amrst.review.quality import StemSlice
-    from amrst.review.strength import Strength
     from amrst.types import Transform
 
 
@@ -107,10 +107,6 @@ def pose_quality(
     params: RegistrationParams,
 ) -> PoseQuality:
     """Measure a local-frame pose as the CLI, the app and the reports judge it."""
-    from amrst.review.overlap import overlap_distances
-    from amrst.review.quality import stem_slices
-    from amrst.review.strength import axis_strength
-
     T = np.asarray(T_target_source, float)
     R, t = T[:3, :3], T[:3, 3]
     return PoseQuality(
