@@ -98,5 +98,5 @@ def test_export_into_another_pairs_folder_asks(
         assert metrics["quality"]["stem_slices"]
         # So does the report, with the strength per axis.
         report = (out / "report.html").read_text()
-        assert "Where both scans saw the tree" in report
+        assert "Where both scans saw the scene" in report
         assert "turn about the stem" in report
