@@ -8,7 +8,8 @@ truth. :func:`time_register` runs the whole ``amrst register`` command on a pair
 child process and reads back its per-stage timings and its peak resident memory;
 ``kiss_ratio`` times our registration against KISS-Matcher + small_gicp GICP on
 the same clouds in one process (``amrst.bench.kiss``). ``amrst bench-scale`` prints
-both as tables.
+both as tables; on a plot case it times ``amrst plot`` instead
+(``amrst.bench.scale_plot``).
 """
 
 from __future__ import annotations
@@ -228,7 +229,9 @@ def format_scale_table(rows: Sequence[ScaleRow]) -> str:
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Add the ``amrst bench-scale`` arguments to ``p``."""
     p.add_argument(
-        "case_dir", metavar="CASE_DIR", help="the case to densify (e.g. case 08)"
+        "case_dir",
+        metavar="CASE_DIR",
+        help="the case to densify (e.g. case 08); a plot case times amrst plot",
     )
     p.add_argument(
         "--points",
@@ -236,12 +239,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         nargs="+",
         default=[2_000_000],
         metavar="N",
-        help="points per scan of each dense pair (default 2000000)",
+        help="points per scan of each dense pair or plot (default 2000000)",
     )
     p.add_argument("--noise-m", type=float, default=0.003, help="jitter (m)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
-        "--out", default="bench_scale", metavar="DIR", help="pairs and tables go here"
+        "--out",
+        default="bench_scale",
+        metavar="DIR",
+        help="dense scans and tables go here",
     )
     p.add_argument(
         "--kiss",
@@ -252,12 +258,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run_cli(args: argparse.Namespace) -> int:
-    """Make the dense pairs (kept for the next run), time them, print the tables."""
-    from amrst.files.atomic import make_folder, write_text_atomic
-
-    out = make_folder(args.out, "output folder")
-    parts = [f"Command: `amrst bench-scale {' '.join(sys.argv[2:])}`", ""]
+def _pair_rows(args: argparse.Namespace, out: Path) -> list[ScaleRow]:
+    """Make the dense pairs ``args`` asks for (kept for the next run); time them."""
     rows = []
     for n in args.points:
         pair = out / f"{Path(args.case_dir).name}-{n // 1000}k-seed{args.seed}"
@@ -266,7 +268,27 @@ def run_cli(args: argparse.Namespace) -> int:
             make_scale_pair(args.case_dir, pair, n, args.noise_m, args.seed)
         print(f"timing amrst register on {pair.name} ...", file=sys.stderr)
         rows.append(time_register(pair, n))
-    parts += [format_scale_table(rows), ""]
+    return rows
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Make the dense pairs or plots (kept for the next run), time them, print tables.
+
+    A case whose truth lists the stems is a plot: ``amrst plot`` is timed on it.
+    """
+    from amrst.bench.plot import is_plot_case
+    from amrst.files.atomic import make_folder, write_text_atomic
+
+    out = make_folder(args.out, "output folder")
+    parts = [f"Command: `amrst bench-scale {' '.join(sys.argv[2:])}`", ""]
+    if is_plot_case(args.case_dir):
+        from amrst.bench.scale_plot import plot_scale_report
+
+        parts.append(
+            plot_scale_report(args.case_dir, out, args.points, args.noise_m, args.seed)
+        )
+    else:
+        parts += [format_scale_table(_pair_rows(args, out)), ""]
     if args.kiss is not None:
         from amrst.bench.cli import TerminalProgress
         from amrst.bench.kiss import format_kiss_table, kiss_ratio
