@@ -4,7 +4,7 @@ Each scan is analysed once: preprocessed (the points every candidate is verified
 and the fine registration uses; the scene stage is not needed, the stem map finds the
 ground and every stem itself) and its stem map made. Each pair of scans is a *link*:
 the stem poses (``match.py``) are verified as the technician's manual poses are
-(``review.manual.score_manual``: the same sample, polish and tight score as the
+(``review.manual.ManualScorer``: the same sample, polish and tight score as the
 tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). When no
 stem pose verifies, the two-scan engine runs as the fallback (tetrahedra, feature
 matcher, trunk search). The links then form the multiscan spanning tree, and a joint
@@ -76,13 +76,18 @@ class PlotRegistration:
 
 
 def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
-    """Return the registration settings of a plot: no scene stage, fine on all points."""
+    """Return the registration settings of a plot: no scene stage, fine on all points.
+
+    Neither the scene stage nor the wood-leaf separation is needed: the stem map
+    finds the ground and every stem itself, and the fine registration uses all points.
+    """
     from amrst.params import RegistrationParams
 
     params = params or RegistrationParams()
     return replace(
         params,
         scene=replace(params.scene, mode="off"),
+        separate=replace(params.separate, mode="all_wood"),
         fine=replace(params.fine, points="all"),
     )
 
@@ -101,7 +106,7 @@ def analyse_plot_scan(
     an = prepare_scan(
         cloud, params, SubReporter(reporter, 0.0, 0.5, "preprocess"), threads=threads
     )
-    return PlotScan(an, map_stems(cloud.xyz, stem_params, reporter))
+    return PlotScan(an, map_stems(cloud.xyz, stem_params, reporter, trees=False))
 
 
 def register_plot_link(
@@ -115,22 +120,17 @@ def register_plot_link(
 ) -> PlotLink:
     """Register one pair by its stems; the two-scan engine when they do not verify."""
     from amrst.pipeline import evaluate, refine
-    from amrst.review.manual import MANUAL_ID_BASE, score_manual
+    from amrst.review.manual import MANUAL_ID_BASE, ManualScorer
 
     t0 = time.perf_counter()
     poses = stem_poses(target.stems, source.stems)
     cands = []
+    if poses:
+        scorer = ManualScorer(target.analysis.xyz, source.analysis.xyz, params.coarse)
     for k, pose in enumerate(poses):
         reporter.check_cancelled()
-        cand = score_manual(
-            pose.T_target_source,
-            target.analysis.xyz,
-            source.analysis.xyz,
-            params.coarse,
-            MANUAL_ID_BASE + k,
-            f"{len(pose.pairs)} shared stems",
-        )
-        cands.append(cand)
+        label = f"{len(pose.pairs)} shared stems"
+        cands.append(scorer.score(pose.T_target_source, MANUAL_ID_BASE + k, label))
     cands.sort(key=lambda c: -c.score)
     ranked = CandidateList(
         tuple(replace(c, rank=r) for r, c in enumerate(cands, 1)), len(poses)
@@ -178,12 +178,13 @@ def _fallback(
     threads: int,
     t0: float,
 ) -> PlotLink:
-    """Register the pair with the two-scan engine (its own analyses, scene stage on)."""
+    """Register the pair with the two-scan engine (scene stage and separation on)."""
     from amrst.multiscan.graph import register_link
     from amrst.params import RegistrationParams
     from amrst.pipeline import prepare_scan, skeletonise_scan
 
-    full = replace(params, scene=RegistrationParams().scene)
+    default = RegistrationParams()
+    full = replace(params, scene=default.scene, separate=default.separate)
     ans = []
     for scan in (target, source):
         an = prepare_scan(scan.analysis.cloud, full, reporter, threads=threads)

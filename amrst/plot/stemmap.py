@@ -80,7 +80,7 @@ class StemRecord:
 
     ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
     breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle);
-    ``height_flag``: ``ok``, ``lean`` or ``top not seen``.
+    ``height_flag``: ``ok``, ``lean``, ``top not seen`` or ``not measured``.
     """
 
     base: np.ndarray  # (3,)
@@ -138,6 +138,8 @@ def map_stems(
     xyz: np.ndarray,
     params: StemMapParams | None = None,
     reporter: Reporter | None = None,
+    *,
+    trees: bool = True,
 ) -> StemMap:
     """Find and measure every stem of a plot cloud.
 
@@ -148,6 +150,11 @@ def map_stems(
     params : StemMapParams or None
     reporter : Reporter or None
         Checked for Cancel between the stems.
+    trees : bool
+        Also give every point above the ground to its stem and measure each tree's
+        height and crown. Without it (the key points of a registration) the stems
+        carry NaN heights, no point is owned, and a stem is kept on its bark circles
+        alone.
 
     Returns
     -------
@@ -175,14 +182,15 @@ def map_stems(
     seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
     if not seeds:
         return StemMap((), ground, pts, owner)
-    # Paths through a 5 cm graph: crowns go to the stem they hang from.
-    owner[above] = assign_to_stems(pts, h, above, seeds, params.scene)
+    if trees:  # paths through a 5 cm graph: crowns go to the stem they hang from
+        owner[above] = assign_to_stems(pts, h, above, seeds, params.scene)
     stems: list[StemRecord] = []
     kept = np.full(len(seeds) + 1, -1, dtype=np.int64)  # cluster -> stem (-1: none)
     for k, seed in enumerate(seeds):
         if reporter is not None:
             reporter.check_cancelled()
-        stem = _measure_stem(pts, h, ground, seed, owner == k, params)
+        mine = owner == k if trees else None
+        stem = _measure_stem(pts, h, ground, seed, mine, params)
         if stem is not None:
             kept[k] = len(stems)
             stems.append(stem)
@@ -236,13 +244,14 @@ def _measure_stem(
     h: np.ndarray,
     ground: GroundFit,
     seed: np.ndarray,
-    mine: np.ndarray,
+    mine: np.ndarray | None,
     params: StemMapParams,
 ) -> StemRecord | None:
     """Measure one stem (``seed``: its slice points): base, DBH, lean, height, flags.
 
-    None when bark circles fit at fewer than ``min_circles`` heights: a shrub or a
-    hanging branch crosses the slice too, but it is no upright stem.
+    ``mine``: the tree's points (None: height and crown not measured). None when bark
+    circles fit at fewer than ``min_circles`` heights: a shrub or a hanging branch
+    crosses the slice too, but it is no upright stem.
     """
     lo = pts[seed, :2].min(axis=0) - STEM_MARGIN_M
     hi = pts[seed, :2].max(axis=0) + STEM_MARGIN_M
@@ -278,8 +287,11 @@ def _measure_stem(
     base_xy, lean = _stem_line(line, centre)
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
     dbh_xy = np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy
-    top_h, crown, n_top = _top_and_crown(pts[mine], base[2])
-    if not top_h >= params.min_height_m:
+    nan = float("nan")
+    top_h, crown, n_top = (
+        _top_and_crown(pts[mine], base[2]) if mine is not None else (nan, nan, 0)
+    )
+    if mine is not None and not top_h >= params.min_height_m:
         return None
     return StemRecord(
         base=base,
@@ -291,7 +303,9 @@ def _measure_stem(
         dbh_quality=_dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params),
         height_m=top_h,
         height_flag=(
-            "lean"
+            "not measured"
+            if mine is None
+            else "lean"
             if lean > params.lean_flag_deg
             else "top not seen"
             if n_top < params.min_top_points
@@ -299,7 +313,7 @@ def _measure_stem(
         ),
         lean_deg=lean,
         crown_width_m=crown,
-        n_points=int(mine.sum()),
+        n_points=int(mine.sum()) if mine is not None else len(seed),
     )
 
 

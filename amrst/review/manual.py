@@ -316,70 +316,99 @@ def score_manual(
         Origin ``"manual"``; ``T_match`` is the pose as given, ``T_target_source`` the
         polished one.
     """
-    from scipy.spatial import cKDTree
+    return ManualScorer(target_xyz, source_xyz, params).score(T_start, cand_id, label)
 
-    from amrst.stages.candidates import Candidate, Origin
-    from amrst.stages.coarse import POLISH_POINTS, verification_sample
-    from amrst.stages.polish import Occupancy, polish
-    from amrst.stages.voxels import voxel_sample
 
-    T_start = np.asarray(T_start, float)
-    sample, rng = verification_sample(source_xyz, params)
-    raw = float(
-        Occupancy(target_xyz, params.verify_voxel_m).fraction_many(
-            (sample @ T_start[:3, :3].T + T_start[:3, 3])[None]
-        )[0]
-    )
-    T_pol = T_start
-    if params.polish_top > 0:
-        tgt_small = target_xyz[voxel_sample(target_xyz, params.verify_voxel_m)]
-        src_small = source_xyz[voxel_sample(source_xyz, params.verify_voxel_m)]
-        if len(src_small) > POLISH_POINTS:
-            src_small = src_small[
-                rng.choice(len(src_small), POLISH_POINTS, replace=False)
-            ]
-        T_pol = polish(
-            src_small,
-            tgt_small,
-            cKDTree(tgt_small),
-            T_start[None],
-            params.polish_max_dist_m,
-        )[0]
-    note = ""
-    if params.polish_top > 0:
+class ManualScorer:
+    """Scores given poses of one pair of scans as :func:`score_manual` does.
+
+    The verification sample and the target's search structures are made once, so
+    several poses of the same pair (the stem poses of a plot link) cost one build.
+    """
+
+    def __init__(
+        self, target_xyz: np.ndarray, source_xyz: np.ndarray, params: CoarseParams
+    ) -> None:
+        from scipy.spatial import cKDTree
+
+        from amrst.stages.coarse import POLISH_POINTS, verification_sample
+        from amrst.stages.polish import Occupancy
+        from amrst.stages.voxels import voxel_sample
+
+        self.target_xyz, self.source_xyz, self.params = target_xyz, source_xyz, params
+        self.sample, rng = verification_sample(source_xyz, params)
+        self.occupancy = Occupancy(target_xyz, params.verify_voxel_m)
+        self.tree = cKDTree(target_xyz)
+        if params.polish_top > 0:
+            self.tgt_small = target_xyz[voxel_sample(target_xyz, params.verify_voxel_m)]
+            src_small = source_xyz[voxel_sample(source_xyz, params.verify_voxel_m)]
+            if len(src_small) > POLISH_POINTS:
+                src_small = src_small[
+                    rng.choice(len(src_small), POLISH_POINTS, replace=False)
+                ]
+            self.src_small = src_small
+            self.small_tree = cKDTree(self.tgt_small)
+
+    def score(self, T_start: Transform, cand_id: int, label: str) -> Candidate:
+        """Return the pose ``T_start`` as a candidate (see :func:`score_manual`)."""
         from amrst.review.manual_keep import judge_refinement
+        from amrst.stages.candidates import Candidate, Origin
+        from amrst.stages.polish import polish
 
-        kept = judge_refinement(
-            T_start, T_pol, target_xyz, source_xyz, params, "The short ICP polish"
+        params, sample = self.params, self.sample
+        T_start = np.asarray(T_start, float)
+        raw = float(
+            self.occupancy.fraction_many(
+                (sample @ T_start[:3, :3].T + T_start[:3, 3])[None]
+            )[0]
         )
-        if kept.keep_manual:  # the polish left the technician's solution
-            T_pol, note = T_start, " " + kept.why
-    d = cKDTree(target_xyz).query(
-        sample @ T_pol[:3, :3].T + T_pol[:3, 3],
-        distance_upper_bound=params.tight_dist_m,
-    )[0]
-    score = float(np.mean(d < params.tight_dist_m))
-    nan = float("nan")
-    return Candidate(
-        id=int(cand_id),
-        rank=0,
-        score=score,
-        raw_score=raw,
-        support=0,
-        volume_m3=nan,
-        edge_error=nan,
-        svd_residual_m=nan,
-        target_idx=np.zeros(0, np.int64),
-        source_idx=np.zeros(0, np.int64),
-        T_match=T_start,
-        T_target_source=np.asarray(T_pol),
-        polished=params.polish_top > 0 and not note,
-        explanation=(
-            f"Manual pose ({label}); {score:.0%} of sampled source points lie within "
-            f"{params.tight_dist_m * 100:.0f} cm of the target "
-            f"{'as given' if note else 'after a short ICP polish'} "
-            f"({raw:.0%} on or next to a {params.verify_voxel_m * 100:.0f} cm target "
-            "voxel as given)." + note
-        ),
-        origin=Origin.MANUAL,
-    )
+        T_pol = T_start
+        note = ""
+        if params.polish_top > 0:
+            T_pol = polish(
+                self.src_small,
+                self.tgt_small,
+                self.small_tree,
+                T_start[None],
+                params.polish_max_dist_m,
+            )[0]
+            kept = judge_refinement(
+                T_start,
+                T_pol,
+                self.target_xyz,
+                self.source_xyz,
+                params,
+                "The short ICP polish",
+                tree=self.tree,
+            )
+            if kept.keep_manual:  # the polish left the technician's solution
+                T_pol, note = T_start, " " + kept.why
+        d = self.tree.query(
+            sample @ T_pol[:3, :3].T + T_pol[:3, 3],
+            distance_upper_bound=params.tight_dist_m,
+        )[0]
+        score = float(np.mean(d < params.tight_dist_m))
+        nan = float("nan")
+        return Candidate(
+            id=int(cand_id),
+            rank=0,
+            score=score,
+            raw_score=raw,
+            support=0,
+            volume_m3=nan,
+            edge_error=nan,
+            svd_residual_m=nan,
+            target_idx=np.zeros(0, np.int64),
+            source_idx=np.zeros(0, np.int64),
+            T_match=T_start,
+            T_target_source=np.asarray(T_pol),
+            polished=params.polish_top > 0 and not note,
+            explanation=(
+                f"Manual pose ({label}); {score:.0%} of sampled source points lie "
+                f"within {params.tight_dist_m * 100:.0f} cm of the target "
+                f"{'as given' if note else 'after a short ICP polish'} "
+                f"({raw:.0%} on or next to a {params.verify_voxel_m * 100:.0f} cm "
+                "target voxel as given)." + note
+            ),
+            origin=Origin.MANUAL,
+        )

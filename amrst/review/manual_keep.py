@@ -18,6 +18,8 @@ import numpy as np
 from amrst.types import rotation_angle_deg
 
 if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
     from amrst.stages.coarse import CoarseParams
     from amrst.types import Transform
 
@@ -58,6 +60,8 @@ def judge_refinement(
     source_xyz: np.ndarray,
     params: CoarseParams,
     what: str = "Fine registration",
+    *,
+    tree: cKDTree | None = None,
 ) -> KeepDecision:
     """Decide whether ``T_refined`` (from ``T_manual``) replaces the manual pose.
 
@@ -71,6 +75,8 @@ def judge_refinement(
         Verification sample, ``tight_dist_m`` and the same-solution thresholds.
     what : str
         The refinement's name, for the sentence.
+    tree : scipy.spatial.cKDTree or None
+        A KD-tree of ``target_xyz`` already built (None: built here).
 
     Returns
     -------
@@ -81,7 +87,7 @@ def judge_refinement(
     from amrst.stages.coarse import verification_sample
 
     sample, _rng = verification_sample(source_xyz, params)
-    tree = cKDTree(target_xyz)
+    tree = cKDTree(target_xyz) if tree is None else tree
 
     def share(
         T: Transform,
