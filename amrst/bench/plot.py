@@ -38,6 +38,10 @@ if TYPE_CHECKING:
 
 #: A listed tree is a true one within this horizontal distance of its base (m).
 FOUND_M = 0.5
+#: A true tree is in view when a scan holds this many points on its lower stem:
+#: within its radius + ``IN_VIEW_MARGIN_M`` of the base, 0.5-2 m above it.
+IN_VIEW_POINTS = 20
+IN_VIEW_MARGIN_M = 0.1
 #: The baselines, as the summary names them.
 KISS, FPFH = "kiss_gicp_0.2", "fpfh_ransac"
 PLOT = "amrst_plot"
@@ -125,6 +129,8 @@ class InventoryScore:
 
     n_true: int
     found: int
+    in_view: int  # true trees some scan sees (see ``trees_in_view``)
+    found_in_view: int
     listed: int
     real: int
     dbh_errors_m: tuple[float, ...]  # listed minus true, both defined
@@ -156,16 +162,34 @@ def match_trees(listed_xy: np.ndarray, true_xy: np.ndarray) -> list[tuple[int, i
     return pairs
 
 
+def trees_in_view(case: PlotCase) -> np.ndarray:
+    """(T,) bool: the true trees whose lower stem some scan holds points of.
+
+    A tree behind others or beyond every scan's range cannot be found; the share of
+    trees found is also given over the trees in view.
+    """
+    seen = np.zeros(len(case.stems), dtype=bool)
+    for cloud, T in zip(case.clouds, case.T_scan1_scank, strict=True):
+        xyz = cloud.xyz @ T[:3, :3].T + T[:3, 3]
+        for j, (x, y, z, dbh, _h) in enumerate(case.stems):
+            r = (dbh / 2 if np.isfinite(dbh) else 0.15) + IN_VIEW_MARGIN_M
+            h = xyz[:, 2] - z
+            near = (np.hypot(xyz[:, 0] - x, xyz[:, 1] - y) <= r) & (h >= 0.5) & (h <= 2)
+            seen[j] |= int(near.sum()) >= IN_VIEW_POINTS
+    return seen
+
+
 def score_inventory(
     listed: np.ndarray,
     quality: Sequence[str],
     truth: np.ndarray,
     height_flags: Sequence[str] | None = None,
+    in_view: np.ndarray | None = None,
 ) -> InventoryScore:
     """Score listed trees (rows x, y, z, dbh_m, height_m) against the true ones.
 
     ``quality``: each listed tree's DBH flag; ``height_flags``: its height flag
-    (None: all ok).
+    (None: all ok); ``in_view``: which true trees a scan sees (None: all).
     """
     flags = height_flags if height_flags is not None else ["ok"] * len(listed)
     listed = np.asarray(listed, dtype=float).reshape(-1, 5)
@@ -184,9 +208,12 @@ def score_inventory(
             heights.append(float(listed[i, 4] - truth[j, 4]))
             if flags[i] == "ok":
                 heights_ok.append(heights[-1])
+    seen = np.ones(len(truth), bool) if in_view is None else np.asarray(in_view)
     return InventoryScore(
         n_true=len(truth),
         found=len(pairs),
+        in_view=int(seen.sum()),
+        found_in_view=sum(int(seen[j]) for _i, j in pairs),
         listed=len(listed),
         real=len(pairs),
         dbh_errors_m=tuple(dbh),
@@ -278,6 +305,7 @@ def run_plot(case: PlotCase) -> PlotRecord:
         [t.stem.dbh_quality for t in inv.trees],
         case.stems,
         [t.stem.height_flag for t in inv.trees],
+        trees_in_view(case),
     )
     return record
 
@@ -430,16 +458,17 @@ def _registration_table(records: Sequence[PlotRecord]) -> list[str]:
 def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
     rows = [r for r in records if r.method == PLOT and r.inventory is not None]
     lines = [
-        "| case | true trees | found | listed | real | DBH RMSE cm (n) | "
+        "| case | true trees | in view | found | listed | real | DBH RMSE cm (n) | "
         "DBH RMSE ok cm (n) | DBH missing | median height error m | "
         "the same, heights ok (n) | inventory s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r, s in ((r, r.inventory) for r in rows):
         if s is None:
             continue
         lines.append(
-            f"| {r.case} | {s.n_true} | {s.found} | {s.listed} | {s.real} | "
+            f"| {r.case} | {s.n_true} | {s.in_view} | {s.found} | {s.listed} | "
+            f"{s.real} | "
             f"{_fmt(_rms(s.dbh_errors_m), 100, 1)} ({len(s.dbh_errors_m)}) | "
             f"{_fmt(_rms(s.dbh_ok_errors_m), 100, 1)} ({len(s.dbh_ok_errors_m)}) | "
             f"{s.dbh_missing} | {_fmt(_median_abs(s.height_errors_m))} | "
@@ -451,6 +480,8 @@ def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
     if scores:
         true = sum(s.n_true for s in scores)
         found = sum(s.found for s in scores)
+        in_view = sum(s.in_view for s in scores)
+        found_in_view = sum(s.found_in_view for s in scores)
         listed = sum(s.listed for s in scores)
         dbh = [e for s in scores for e in s.dbh_errors_m]
         dbh_ok = [e for s in scores for e in s.dbh_ok_errors_m]
@@ -458,8 +489,10 @@ def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
         heights_ok = [e for s in scores for e in s.height_ok_errors_m]
         lines += [
             "",
-            f"- trees found: {found}/{true} = {found / max(true, 1):.0%}; listed "
-            f"trees real: {found}/{listed} = {found / max(listed, 1):.0%}",
+            f"- trees found: {found}/{true} = {found / max(true, 1):.0%}; of the "
+            f"trees in view {found_in_view}/{in_view} = "
+            f"{found_in_view / max(in_view, 1):.0%}; listed trees real: "
+            f"{found}/{listed} = {found / max(listed, 1):.0%}",
             f"- DBH RMSE {_fmt(_rms(dbh), 100)} cm over {len(dbh)} trees "
             f"({_fmt(_rms(dbh_ok), 100)} cm over the {len(dbh_ok)} flagged ok); "
             f"{sum(s.dbh_missing for s in scores)} found trees with a true DBH "
