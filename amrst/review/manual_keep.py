@@ -92,7 +92,9 @@ def judge_refinement(
     def share(
         T: Transform,
     ) -> float:  # amrst.review.manual.tight_share, without the cycle
-        d = tree.query(sample @ T[:3, :3].T + T[:3, 3])[0]
+        d = tree.query(
+            sample @ T[:3, :3].T + T[:3, 3], distance_upper_bound=params.tight_dist_m
+        )[0]
         return float(np.mean(d < params.tight_dist_m)) if len(d) else 0.0
 
     before, after = share(T_manual), share(T_refined)
