@@ -18,13 +18,16 @@ and clips both scans with a cylinder of ``clip_radius_m`` around the stem.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.simulate import SimulatedPair, simulate_pair, trunk_base
 from amrst.types import Cloud, apply_transform
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 TREE, GROUND, OTHER = 0, 1, 2  # scene labels, as amrst.stages.scene numbers them
 
@@ -79,40 +82,69 @@ class FieldScene:
     base: np.ndarray  # (3,) stem foot of the tree, on the ground, at the xy origin
 
 
-def _ground_height(rng: np.random.Generator, options: FieldOptions) -> Any:
-    slope = np.tan(np.radians(rng.uniform(0.0, options.slope_deg)))
+def ground_height(
+    rng: np.random.Generator,
+    slope_deg: float,
+    roughness_m: float,
+    extent_m: float = 15.0,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Return a random ground: a plane of slope up to ``slope_deg`` plus smooth bumps.
+
+    Bumps of about ``roughness_m`` are centred within ``extent_m`` of the origin (40
+    of them in 15 m, as many per square metre beyond).
+
+    Returns
+    -------
+    callable
+        Maps (M, 2) xy to (M,) ground heights.
+    """
+    slope = np.tan(np.radians(rng.uniform(0.0, slope_deg)))
     direction = rng.uniform(0.0, 2 * np.pi)
     gx, gy = slope * np.cos(direction), slope * np.sin(direction)
     bumps = [
-        (rng.uniform(-15, 15, 2), rng.uniform(0.5, 2.0), rng.normal(0.0, 1.0))
-        for _ in range(40)
+        (
+            rng.uniform(-extent_m, extent_m, 2),
+            rng.uniform(0.5, 2.0),
+            rng.normal(0.0, 1.0),
+        )
+        for _ in range(round(40 * (extent_m / 15.0) ** 2))
     ]
 
     def height(xy: np.ndarray) -> np.ndarray:
         z = gx * xy[:, 0] + gy * xy[:, 1]
         for centre, width, amp in bumps:
             d2 = np.sum((xy - centre) ** 2, axis=1)
-            z = z + options.roughness_m * amp * np.exp(-d2 / (2 * width**2))
+            z = z + roughness_m * amp * np.exp(-d2 / (2 * width**2))
         return np.asarray(z)
 
     return height
 
 
-def _standing(
-    tree: Cloud, at_xy: np.ndarray, heading: float, height: Any
+def standing(
+    tree: Cloud,
+    at_xy: np.ndarray,
+    heading: float,
+    height: Callable[[np.ndarray], np.ndarray],
+    scale: float = 1.0,
 ) -> np.ndarray:
-    """Tree points turned by ``heading`` about its foot, the foot put on the ground."""
+    """Tree points turned by ``heading`` and scaled about its foot, the foot on the ground.
+
+    Returns
+    -------
+    (N, 3) float64
+    """
     xyz = np.asarray(tree.xyz, dtype=float)
     foot = trunk_base(xyz)
     c, s = np.cos(heading), np.sin(heading)
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    local = (xyz - foot) @ R.T
+    local = (xyz - foot) @ R.T * scale
     z0 = float(height(at_xy[None])[0])
     # Sink the foot 5 cm: the stem enters the ground instead of floating over bumps.
     return np.asarray(local + np.r_[at_xy, z0 - 0.05])
 
 
-def _shrub(rng: np.random.Generator, at_xy: np.ndarray, z0: float) -> np.ndarray:
+def shrub(rng: np.random.Generator, at_xy: np.ndarray, z0: float) -> np.ndarray:
+    """Return a leafy blob 0.3-1.2 m tall standing at ``at_xy`` on the height ``z0``."""
     h = rng.uniform(0.3, 1.2)
     r = rng.uniform(0.3, 0.8) * max(h, 0.5)
     n = int(600 * r * h + 100)
@@ -121,6 +153,27 @@ def _shrub(rng: np.random.Generator, at_xy: np.ndarray, z0: float) -> np.ndarray
     shell = d * (rng.uniform(0.6, 1.0, n) ** (1 / 3))[:, None]
     pts = shell * np.array([r, r, h / 2]) + np.r_[at_xy, z0 + h / 2]
     return np.asarray(pts)
+
+
+def ground_disc(
+    rng: np.random.Generator,
+    height: Callable[[np.ndarray], np.ndarray],
+    spacing_m: float,
+    reach_m: float,
+) -> np.ndarray:
+    """Ground points every ``spacing_m`` (jittered) within ``reach_m`` of the origin.
+
+    Returns
+    -------
+    (M, 3) float64
+    """
+    axis = np.arange(-reach_m, reach_m + spacing_m / 2, spacing_m)
+    gx, gy = np.meshgrid(axis, axis)
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    xy = xy[np.hypot(xy[:, 0], xy[:, 1]) <= reach_m]
+    jitter = spacing_m / 3
+    xy = xy + rng.uniform(-jitter, jitter, xy.shape)  # no regular lattice
+    return np.column_stack([xy, height(xy)])
 
 
 def field_scene(tree: Cloud, options: FieldOptions, seed: int = 0) -> FieldScene:
@@ -138,31 +191,25 @@ def field_scene(tree: Cloud, options: FieldOptions, seed: int = 0) -> FieldScene
     FieldScene
     """
     rng = np.random.default_rng(seed + 7919)
-    height = _ground_height(rng, options)
-    parts = [_standing(tree, np.zeros(2), 0.0, height)]
+    height = ground_height(rng, options.slope_deg, options.roughness_m)
+    parts = [standing(tree, np.zeros(2), 0.0, height)]
     labels = [np.full(len(parts[0]), TREE, dtype=np.int8)]
     for other in options.neighbours:
         az = rng.uniform(0.0, 2 * np.pi)
         dist = rng.uniform(*options.neighbour_distance_m)
         xy = dist * np.array([np.cos(az), np.sin(az)])
-        parts.append(_standing(other, xy, rng.uniform(0.0, 2 * np.pi), height))
+        parts.append(standing(other, xy, rng.uniform(0.0, 2 * np.pi), height))
         labels.append(np.full(len(parts[-1]), OTHER, dtype=np.int8))
     reach = (options.clip_radius_m or 12.0) + 1.0
     for _ in range(options.shrubs):
         xy = rng.uniform(0.8, reach - 0.5) * np.array(
             (lambda a: (np.cos(a), np.sin(a)))(rng.uniform(0.0, 2 * np.pi))
         )
-        parts.append(_shrub(rng, xy, float(height(xy[None])[0])))
+        parts.append(shrub(rng, xy, float(height(xy[None])[0])))
         labels.append(np.full(len(parts[-1]), OTHER, dtype=np.int8))
     if options.ground:
-        g = options.ground_spacing_m
-        axis = np.arange(-reach, reach + g / 2, g)
-        gx, gy = np.meshgrid(axis, axis)
-        xy = np.column_stack([gx.ravel(), gy.ravel()])
-        xy = xy[np.hypot(xy[:, 0], xy[:, 1]) <= reach]
-        xy = xy + rng.uniform(-g / 3, g / 3, xy.shape)  # no regular lattice
-        parts.append(np.column_stack([xy, height(xy)]))
-        labels.append(np.full(len(xy), GROUND, dtype=np.int8))
+        parts.append(ground_disc(rng, height, options.ground_spacing_m, reach))
+        labels.append(np.full(len(parts[-1]), GROUND, dtype=np.int8))
     xyz = np.vstack(parts)
     base = np.array([0.0, 0.0, float(height(np.zeros((1, 2)))[0])])
     return FieldScene(Cloud(xyz, name=tree.name), np.concatenate(labels), base)
