@@ -104,7 +104,7 @@ class PlotOptions:
     ground_spacing_m, slope_deg, roughness_m : float
         Ground point spacing, largest slope, bump height.
     shrubs : int
-        Leafy blobs within 4 m beyond the plot.
+        Leafy blobs inside the plot or up to 4 m beyond its edge.
     """
 
     kind: str = "normal"
@@ -466,7 +466,9 @@ def _scan(
 
     Each sector is scanned (:func:`amrst.simulate.simulate_scan`) with the points of
     a margin on both sides, every point whose disc can share a beam with one of its
-    own, and keeps its own points.
+    own, and keeps its own points. Each sector's beam grid is coarsened from its own
+    points as :func:`amrst.simulate.visible_points` does (beams finer than a quarter
+    of a disc change which edge points win a beam, not what is hidden).
     """
     from amrst.simulate.scanner import _CELLS_PER_RADIUS, _MAX_HALF_BINS
 
