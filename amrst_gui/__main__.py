@@ -132,11 +132,19 @@ class _Screenshot:
             else:
                 self.win.session.run_step(self.step)
             return
-        QTimer.singleShot(0, self._show_tab)
+        QTimer.singleShot(0, self._after_results)
+
+    def _after_results(self) -> None:
+        from PySide6.QtCore import QTimer
+
+        from amrst_gui.pacing import DRAW_GAP_MS
+
+        # The step's results are emitted after busy_changed(False); the window then
+        # switches to the overlay DRAW_GAP_MS later, and the requested tab comes after.
+        QTimer.singleShot(2 * DRAW_GAP_MS, self._show_tab)
         QTimer.singleShot(500, self._save)
 
     def _show_tab(self) -> None:
-        # After the result signals (Fine shows the overlay on its own).
         tab = {"registration": 1, "distance": 1, "slices": 2}.get(self.tab, 0)
         self.win.tabs.setCurrentIndex(tab)
         if self.tab == "distance":
