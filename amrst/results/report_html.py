@@ -37,7 +37,7 @@ _IMAGES = (
     ("overlay", "Overlay: target amber, moved source blue"),
     ("distance", "Distance colouring"),
     ("histogram", "Distance histogram"),
-    ("slices", "Stem slices (good: circles coincide, centres under 5 mm apart)"),
+    ("slices", "Stem slices (good: circles coincide, centres under 15 mm apart)"),
 )
 
 
@@ -310,14 +310,13 @@ def quality_html(r: ReportInputs) -> str:
         rows = [
             [
                 _e(f"{sl['height_m']:g} m"),
-                _fmt("cm", sl["target_diameter_m"]),
-                _fmt("cm", sl["source_diameter_m"]),
+                _fmt("cm", sl.get("diameter_m")),
                 _fmt("cm", sl["offset_m"]),
                 _e(sl["status"]),
             ]
             for sl in slices
         ]
-        head = ["Slice", "Target ⌀", "Source ⌀", "Centres apart", "Status"]
+        head = ["Slice", "⌀ (both scans)", "Centres apart", "Status"]
         parts.append(
             "<p>Stem slices of the tree of interest alone:</p>" + html_table(head, rows)
         )

@@ -1,9 +1,14 @@
 """What the technician judges a registration by: distances and stem slices.
 
 Cloud-to-cloud distances both ways (CloudCompare's check) and horizontal stem slices
-with the fitted circle of each scan and the offset between the centres (the
-forester's own check: stems must overlap in every slice). Used by the app's quality
-views and by the registration report. No Qt, no pyvista.
+with the circle of each scan and the offset between the centres (the forester's own
+check: stems must overlap in every slice). Used by the app's quality views and by the
+registration report. No Qt, no pyvista.
+
+Each scan sees about half of a stem, and a circle fitted to half an arc trades its
+radius against its centre: on an irregular stem two correct scans' circles lie
+centimetres apart. So the radius comes from one circle fitted to both scans' points,
+and each scan's centre is fitted at that radius.
 """
 
 from __future__ import annotations
@@ -24,8 +29,8 @@ _STEM_RADIUS_M = 1.5  # slice points farther than this from the stem axis are cr
 MIN_SLICE_POINTS = 20
 MIN_SLICE_SHARE = 0.4
 MIN_SLICE_ARC_DEG = 90.0
-MAX_RADIUS_DIFF_M = 0.02
-MAX_RADIUS_DIFF_FRACTION = 0.15
+#: Slice points this close to the common circle are its inliers (m).
+_INLIER_BAND_M = 0.03
 
 
 def nn_distances(
@@ -63,7 +68,7 @@ class StemSlice:
     target_xy, source_xy : (N, 2), (M, 2) float64
         Slice points near the stem (source already moved into the target frame).
     target_circle, source_circle : StemCircle or None
-        The fitted stem circle of each scan, None when none was found.
+        Each scan's circle at the common radius, None when none was found.
     """
 
     height_m: float
@@ -94,13 +99,6 @@ class StemSlice:
                     f"{n} points ({share:.0%}) over {c.arc_deg:.0f}°, residual "
                     f"{c.rmse_m * 1000:.1f} mm"
                 )
-        r_t, r_s = (c.radius_m for _n, c, _k in fits if c is not None)
-        limit = max(MAX_RADIUS_DIFF_M, MAX_RADIUS_DIFF_FRACTION * min(r_t, r_s))
-        if abs(r_t - r_s) > limit:
-            return (
-                f"fit unreliable: the circles differ in size (radius {r_t * 100:.1f} "
-                f"vs {r_s * 100:.1f} cm), no single stem circle here"
-            )
         return ""
 
     def caption(self) -> tuple[str, str]:
@@ -112,12 +110,11 @@ class StemSlice:
         )
 
     def as_dict(self) -> dict[str, object]:
-        """Height, both diameters, the centre offset and ``status``: "ok" or why not."""
-        tc, sc = self.target_circle, self.source_circle
+        """Height, the common diameter, the centre offset and ``status``."""
+        tc = self.target_circle
         return {
             "height_m": self.height_m,
-            "target_diameter_m": None if tc is None else 2 * tc.radius_m,
-            "source_diameter_m": None if sc is None else 2 * sc.radius_m,
+            "diameter_m": None if tc is None else 2 * tc.radius_m,
             "offset_m": self.offset_m,
             "status": self.problem() or "ok",
         }
@@ -155,6 +152,9 @@ def stem_slices(
 ) -> list[StemSlice]:
     """Slice both scans at heights above the target's base and fit each stem circle.
 
+    The radius is the one of a circle through both scans' slice points; each scan's
+    centre is then fitted at that radius (see the module's note).
+
     Parameters
     ----------
     target_xyz : (N, 3) float64
@@ -183,6 +183,44 @@ def stem_slices(
             sl = xyz[(xyz[:, 2] >= z0) & (xyz[:, 2] < z1), :2]
             sl = sl[np.hypot(*(sl - axis).T) < _STEM_RADIUS_M] if len(sl) else sl
             parts.append(np.asarray(sl, float))
-        circles = [fit_stem_circle(p, params) for p in parts]
+        common = fit_stem_circle(np.vstack(parts), params)
+        circles = [
+            None if common is None else circle_at_radius(p, common) for p in parts
+        ]
         out.append(StemSlice(float(h), parts[0], parts[1], circles[0], circles[1]))
     return out
+
+
+def circle_at_radius(xy: np.ndarray, start: StemCircle) -> StemCircle | None:
+    """Fit the centre of a circle of ``start``'s radius to one scan's slice points.
+
+    Robust least squares on the points within 3 cm of ``start``; None when fewer
+    than five lie there.
+    """
+    from scipy.optimize import least_squares
+
+    radius = start.radius_m
+    c0 = np.asarray(start.centre_xy, float)
+    near = (
+        xy[np.abs(np.hypot(*(xy - c0).T) - radius) < _INLIER_BAND_M] if len(xy) else xy
+    )
+    if len(near) < 5:
+        return None
+
+    def residuals(c: np.ndarray) -> np.ndarray:
+        return np.asarray(np.hypot(*(near - c).T) - radius)
+
+    centre = least_squares(residuals, c0, loss="soft_l1", f_scale=0.005).x
+    r = residuals(centre)
+    inliers = near[np.abs(r) < _INLIER_BAND_M / 2]
+    if not len(inliers):
+        return None
+    angles = np.arctan2(*(inliers - centre).T[::-1])
+    bins = np.unique(np.floor((angles + np.pi) / np.radians(10)).astype(int))
+    return StemCircle(
+        centre_xy=(float(centre[0]), float(centre[1])),
+        radius_m=float(radius),
+        rmse_m=float(np.sqrt(np.mean(r[np.abs(r) < _INLIER_BAND_M / 2] ** 2))),
+        n_points=len(inliers),
+        arc_deg=float(10 * len(bins)),
+    )

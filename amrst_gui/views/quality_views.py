@@ -207,7 +207,8 @@ class StemSlicesView(QWidget):
         self.caption_label.setText(caption)
         self.setToolTip(
             "Horizontal slices at heights above the tree base: amber target, blue "
-            "source. Good: the two circles coincide, offset under 5 mm; ghosting "
+            "source, each scan's circle at the radius of both. Good: the circles "
+            "coincide, centres under 15 mm apart; ghosting "
             "that grows with height is wind, not misregistration. A circle resting "
             "on few points, a short arc or a flared base is marked unreliable."
         )
@@ -319,8 +320,8 @@ class StemSlicesPane(QWidget):
         caption = (
             f"Stem slices after {stage} registration"
             + (" (tree of interest alone)" if alone else " (all points)")
-            + ": amber target, blue source, circles fitted to each (good: centres "
-            "under 5 mm apart)"
+            + ": amber target, blue source, circles of one radius fitted to each "
+            "(good: centres under 15 mm apart)"
         )
         if self._job is not None:  # a newer transform or setting replaces it
             self._job.discard()
