@@ -71,7 +71,7 @@ class ResultRecord:
     # More context for transform.json (e.g. how a manual pose was given).
     extra: Mapping[str, Any] = field(default_factory=dict)
     # What the technician judges by (quality_section): distances where both scans
-    # saw the tree and the stem slices; and the pose's strength per axis.
+    # saw the scene and the stem slices; and the pose's strength per axis.
     quality: Mapping[str, Any] | None = None
     strength: Mapping[str, float] | None = None
 
