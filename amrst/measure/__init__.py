@@ -6,17 +6,22 @@ sees only the half of the stem facing the scanner, so its DBH rests on a half ci
 so the report shows what the merge gained (the stem arc seen, in degrees).
 
 - **Height**: top minus base, both taken on points that have neighbours (a stray point
-  metres above the crown or below the base is not the tree).
-- **DBH**: a circle fitted to the stem in a thin horizontal slice at breast height
-  above the base: RANSAC on three-point circles (branches and leaves in the slice do
-  not pull it), then a geometric least-squares fit on the inliers. ``arc_deg`` is how
-  much of the circumference the inliers cover (360 minus the largest angular gap).
+  metres above the crown or below the base is not the tree). The base is the lowest
+  points at the stem (:mod:`amrst.measure.dbh`): in a field clip with ground, the
+  ground under the stem, not the lowest ground of the clip.
+- **DBH**: circles fitted to the stem in thin horizontal slices around breast height
+  above the base (RANSAC on three-point circles, so branches and leaves in a slice do
+  not pull it, then a geometric least-squares fit on the inliers); the DBH is the
+  median diameter of the slices' circles that agree (:mod:`amrst.measure.dbh`).
+  ``arc_deg`` is how much of the circumference the inliers cover (360 minus the
+  largest angular gap). On the merged cloud the circles rest on both scans' arcs.
 - **Crown**: the area of the convex hull of all points seen from above, and the crown
   width, the mean of its extents along the hull's two principal axes (the mean of two
   perpendicular crown widths that field crews measure).
 
-The base is the lowest points: segment the tree and remove the ground first, as the
-registration also assumes.
+The cloud should hold one tree; in a field clip around the tree, ground, shrubs and
+neighbours may stay (the stem nearest the middle of the clip is measured).
+:func:`dbh_check` says when a DBH should not be trusted.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.measure.stem import StemCircle, fit_stem_circle, stem_surface
+from amrst.measure.dbh import breast_height_stem, with_company
+from amrst.measure.stem import StemCircle, fit_stem_circle
 from amrst.progress import NULL_REPORTER
 
 if TYPE_CHECKING:
@@ -102,15 +108,9 @@ class MeasureParams:
     )
 
 
-# Height: a point with fewer than this many others within _ISOLATION_M is a stray.
-_ISOLATION_M = 0.3
-_MIN_NEIGHBOURS = 2
 _CROWN_GRID_M = 0.05
 # Points closer than this are one point to the measurements (no-return copies, ...).
 _DUPLICATE_M = 0.0005
-# Height over stem diameter of real trees stays above this (open-grown broadleaves and
-# palms about 30-40, forest conifers 60-100).
-_MIN_SLENDERNESS = 15.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,7 +123,7 @@ class TreeMeasures:
     """
 
     n_points: int
-    base_z: float  # world z of the base (m)
+    base_z: float  # world z of the base under the stem (m)
     height_m: float
     dbh_m: float  # NaN when no stem circle was found at breast height
     stem: StemCircle | None
@@ -131,6 +131,7 @@ class TreeMeasures:
     crown_width_m: float
     note: str  # why DBH is missing, or ""
     n_points_measured: int | None = None
+    dbh_doubt: str = ""  # why the stem circles do not bear the DBH out, or ""
 
     def as_dict(self) -> dict[str, Any]:
         """Return plain numbers for JSON/CSV (stem fields flattened, NaN kept)."""
@@ -154,6 +155,8 @@ class TreeMeasures:
             )
         if self.note:
             out["note"] = self.note
+        if self.dbh_doubt:
+            out["dbh_doubt"] = self.dbh_doubt
         return out
 
     def summary(self) -> str:
@@ -172,36 +175,12 @@ class TreeMeasures:
         return ", ".join(parts)
 
 
-def _kept(xyz: np.ndarray, weight: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """Of the candidate rows, the ones with neighbours (not isolated strays).
-
-    ``xyz`` holds distinct points; ``weight`` how many input points each stands for,
-    so a point repeated many times still counts as its copies.
-    """
-    from scipy.spatial import cKDTree
-
-    # Only points near the candidates' heights can be their neighbours.
-    z = xyz[candidates, 2]
-    band = (xyz[:, 2] >= z.min() - _ISOLATION_M) & (xyz[:, 2] <= z.max() + _ISOLATION_M)
-    near, near_weight = xyz[band], weight[band]
-    tree = cKDTree(near)
-    counts = np.asarray(
-        tree.query_ball_point(xyz[candidates], _ISOLATION_M, return_length=True)
-    )
-    # Few distinct neighbours: count their copies too (short lists, cheap).
-    few = np.flatnonzero(counts <= _MIN_NEIGHBOURS)
-    if len(few):
-        lists = tree.query_ball_point(xyz[candidates[few]], _ISOLATION_M)
-        counts[few] = [int(near_weight[ix].sum()) for ix in lists]
-    return candidates[counts > _MIN_NEIGHBOURS]  # counts include the point itself
-
-
 def _base_and_top(xyz: np.ndarray, weight: np.ndarray) -> tuple[float, float]:
     z = xyz[:, 2]
     k = min(len(z), max(50, len(z) // 200))  # the lowest and highest 0.5 %
     order = np.argpartition(z, (k - 1, len(z) - k)) if len(z) > 2 * k else np.argsort(z)
-    low = _kept(xyz, weight, order[:k])
-    high = _kept(xyz, weight, order[-k:])
+    low = with_company(xyz, weight, order[:k])
+    high = with_company(xyz, weight, order[-k:])
     base = float(z[low].min()) if len(low) else float(np.percentile(z, 0.5))
     top = float(z[high].max()) if len(high) else float(np.percentile(z, 99.5))
     return base, top
@@ -305,45 +284,21 @@ def measure_tree(
     reporter.check_cancelled()
     base, top = _base_and_top(xyz, weight)
     reporter.check_cancelled()
-    z = xyz[:, 2]
-    centre = base + params.breast_height_m
-    in_slice = np.abs(z - centre) <= params.slice_m / 2
-    # Only bark-like points: branches and needles crowd the slice of many conifers,
-    # and a circle through them is no stem. No bark in view: no DBH (said in note).
-    surface = stem_surface(xyz, centre, params.slice_m / 2)
-    reporter.check_cancelled()
-    stem = fit_stem_circle(xyz[in_slice & surface, :2], params)
-    note = ""
-    height = top - base
-    if stem is not None and height < _MIN_SLENDERNESS * 2 * stem.radius_m:
-        # A conifer's crown envelope can look like bark to the surface test; no tree
-        # is this thick for its height, so that circle is not the stem.
-        note = (
-            f"the only circle at {params.breast_height_m} m above the base "
-            f"({200 * stem.radius_m:.0f} cm across) is too thick for a "
-            f"{height:.1f} m tree (height/diameter under {_MIN_SLENDERNESS:.0f}): "
-            "it follows branches, not the stem, which is hidden"
-        )
-        stem = None
-    elif stem is None:
-        note = (
-            f"no stem circle at {params.breast_height_m} m above the base "
-            f"({int(in_slice.sum())} points in the slice, "
-            f"{int((in_slice & surface).sum())} on bark-like surfaces): the stem may "
-            "be hidden by branches, or the cloud holds ground or several trees"
-        )
+    at = breast_height_stem(xyz, weight, base, top, params, reporter)
+    stem = at.stem
     reporter.check_cancelled()
     area, width = _crown(xyz[:, :2])
     return TreeMeasures(
         n_points=size,
         n_points_measured=n_measured,
-        base_z=base,
-        height_m=height,
+        base_z=at.base_z,
+        height_m=top - at.base_z,
         dbh_m=2 * stem.radius_m if stem is not None else float("nan"),
         stem=stem,
         crown_area_m2=area,
         crown_width_m=width,
-        note=note,
+        note=at.note,
+        dbh_doubt=at.doubt,
     )
 
 
@@ -371,8 +326,8 @@ def measure_registration(
     Returns
     -------
     dict
-        ``{"target": ..., "source": ..., "merged": ...}`` of TreeMeasures. The merged
-        base is the lower of the two; each scan is measured on its own points.
+        ``{"target": ..., "source": ..., "merged": ...}`` of TreeMeasures, each
+        measured on its own points.
     """
     T = np.asarray(T_target_source, dtype=np.float64)
     tgt = target.world_xyz
@@ -391,13 +346,18 @@ def measure_registration(
 DBH_AGREE_M = 0.03
 DBH_AGREE_FRACTION = 0.15
 DBH_PER_HEIGHT = 0.06
+#: A merged stem circle seen over less of the circumference than this rests on one
+#: side of the stem, no more than one scan sees: the scans saw the same side, and a
+#: short arc of an irregular stem fits circles of many sizes.
+MERGED_MIN_ARC_DEG = 180.0
 
 
 def dbh_check(tree: Mapping[str, TreeMeasures]) -> str:
     """Say why the merged tree's DBH should not be trusted; "" when nothing is wrong.
 
-    The merged DBH is doubted when the scans' own DBHs disagree, when it lies outside
-    both of them, or when it is implausible for the tree's height.
+    The merged DBH is doubted when its stem circles around breast height disagree,
+    when they rest on one side of the stem, when the scans' own DBHs disagree, when
+    it lies outside both of them, or when it is implausible for the tree's height.
 
     Parameters
     ----------
@@ -421,6 +381,13 @@ def dbh_check(tree: Mapping[str, TreeMeasures]) -> str:
     def apart(a: float, b: float) -> bool:
         return abs(a - b) > max(DBH_AGREE_M, DBH_AGREE_FRACTION * min(a, b))
 
+    if merged.dbh_doubt:
+        return f"{merged.dbh_doubt}: check the 1.3 m stem slice"
+    if merged.stem is not None and merged.stem.arc_deg < MERGED_MIN_ARC_DEG:
+        return (
+            f"the merged stem circle rests on {merged.stem.arc_deg:.0f}° of the stem, "
+            "one side of it: check the 1.3 m stem slice"
+        )
     if len(own) == 2 and apart(*own):
         return (
             f"the scans' DBHs disagree ({own[0] * 100:.1f} and {own[1] * 100:.1f} cm): "
