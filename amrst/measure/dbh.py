@@ -222,11 +222,17 @@ def _slices_around(
     xyz: np.ndarray, stem: StemCircle, z: float, params: MeasureParams
 ) -> list[StemCircle]:
     """Fit the stem's circles in the slices around height ``z``."""
-    reach = max(abs(o) for o in _SLICE_OFFSETS_M) + params.slice_m / 2
-    bark = stem_surface(xyz, z, reach)
+    # Bark is told on the points around the stem only (not the neighbours' stems).
+    half = max(abs(o) for o in _SLICE_OFFSETS_M) + params.slice_m / 2
+    around = _NEAR_FACTOR * stem.radius_m + _NEAR_MARGIN_M + _NEAR_MARGIN_M
+    near = xyz[
+        (np.abs(xyz[:, 2] - z) <= half + _NEAR_MARGIN_M)
+        & (np.hypot(*(xyz[:, :2] - stem.centre_xy).T) <= around)
+    ]
+    bark = stem_surface(near, z, half)
     out = []
     for dz in _SLICE_OFFSETS_M:
-        out += _slice_stems(xyz, bark, z + dz, params, stem)
+        out += _slice_stems(near, bark, z + dz, params, stem)
     return out
 
 

@@ -127,7 +127,7 @@ def test_a_field_clip_measures_the_middle_stem_from_the_ground_under_it():
 
 def test_a_leaning_stem_keeps_its_base():
     rng = np.random.default_rng(3)
-    tree = np.vstack([_stem(rng, lean=0.5), _crown(rng) + [3.0, 0, 0]])
+    tree = np.vstack([_stem(rng, lean=0.5), _crown(rng) + np.array([3.0, 0, 0])])
     m = measure_tree(tree)
     # A vertical cylinder around the stem at breast height would end 0.7 m up the
     # stem, and the height would lose as much.

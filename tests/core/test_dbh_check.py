@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import math
 
-from amrst.measure import TreeMeasures, dbh_check
+from amrst.measure import StemCircle, TreeMeasures, dbh_check
 
 
-def _tree(dbh: float, height: float = 18.0) -> TreeMeasures:
+def _tree(
+    dbh: float, height: float = 18.0, arc_deg: float | None = None
+) -> TreeMeasures:
+    stem = None
+    if arc_deg is not None:
+        stem = StemCircle((0.0, 0.0), dbh / 2, 0.004, 200, arc_deg)
     return TreeMeasures(
         n_points=1000,
         base_z=0.0,
         height_m=height,
         dbh_m=dbh,
-        stem=None,
+        stem=stem,
         crown_area_m2=10.0,
         crown_width_m=4.0,
         note="",
@@ -50,3 +55,10 @@ def test_an_implausible_dbh_for_the_height_is_flagged() -> None:
 
 def test_no_dbh_is_not_a_doubt() -> None:
     assert dbh_check({"merged": _tree(math.nan)}) == ""
+
+
+def test_a_merged_circle_on_one_side_of_the_stem_is_flagged() -> None:
+    scans = {"target": _tree(0.30), "source": _tree(0.31)}
+    assert dbh_check({**scans, "merged": _tree(0.305, arc_deg=250)}) == ""
+    why = dbh_check({**scans, "merged": _tree(0.305, arc_deg=160)})
+    assert "160° of the stem, one side" in why
