@@ -86,6 +86,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.plot is not None and len(args.plot) < 2:
         parser.error("--plot needs two or more scans (the first is the reference)")
+    if args.plot is not None and args.run is not None and args.out is None:
+        parser.error("--plot with --run needs --out DIR: where the plot is written")
     if (args.target is None) != (args.source is None):
         parser.error(
             "give both TARGET and SOURCE, or neither (to open the bundled sample)"
