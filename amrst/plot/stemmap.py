@@ -25,9 +25,10 @@ import numpy as np
 
 from amrst.measure import MeasureParams, fit_stem_circle
 from amrst.measure.stem import stem_surface
+from amrst.plot.crowns import assign_crowns, tree_top
 from amrst.stages.ground import GroundFit, fit_ground
 from amrst.stages.scene import SceneParams
-from amrst.stages.stems import assign_to_stems, find_stems
+from amrst.stages.stems import find_stems
 from amrst.stages.voxels import voxel_sample
 
 if TYPE_CHECKING:
@@ -183,7 +184,7 @@ def map_stems(
     if not seeds:
         return StemMap((), ground, pts, owner)
     if trees:  # paths through a 5 cm graph: crowns go to the stem they hang from
-        owner[above] = assign_to_stems(pts, h, above, seeds, params.scene)
+        owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
     kept = np.full(len(seeds) + 1, -1, dtype=np.int64)  # cluster -> stem (-1: none)
     for k, seed in enumerate(seeds):
@@ -379,6 +380,6 @@ def _top_and_crown(tree: np.ndarray, base_z: float) -> tuple[float, float, int]:
     from amrst.measure import measure_tree
 
     m = measure_tree(tree, replace(MeasureParams(), iterations=10))
-    top = m.base_z + m.height_m
+    top = tree_top(tree)
     n_top = int(np.sum(tree[:, 2] >= top - 1.0))
     return top - base_z, m.crown_width_m, n_top

@@ -1,0 +1,135 @@
+"""Which tree each point above the ground belongs to, and how tall each tree is.
+
+Every point goes to the stem it reaches at the least cost through neighbouring points
+(one point per 5 cm voxel). A crown seen from two positions breaks into pieces where
+one side is hidden and the other out of range, so a path may also jump a gap: links
+up to ``GAPS`` long join points above the crown height, and cost their length times
+a factor that grows with the gap. A chain of small gaps thus beats one long jump, and
+a piece of crown goes with the crown it continues rather than with the nearest tree.
+Pieces no path reaches (a tree whose stem was not found, beyond every gap) belong to
+no tree.
+
+This is not ``stages/stems.assign_to_stems`` (the scene stage of a registration,
+which must not change): that gives every unreached piece above the crown height to
+the nearest reached point one point at a time, which hands the pieces of a big crown
+over a small tree to the small tree.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.stages.voxels import voxel_representatives
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+#: Voxel of the path graph (m): one node per voxel.
+NODE_VOXEL_M = 0.05
+#: (longest link (m), cost per metre) of each kind of link: neighbouring points, then
+#: gaps in a crown. The gap links join one node per voxel of a third of their length.
+GAPS = ((0.15, 1.0), (0.45, 3.0), (2.0, 10.0))
+
+
+def assign_crowns(
+    xyz: np.ndarray,
+    h: np.ndarray,
+    above: np.ndarray,
+    seeds: Sequence[np.ndarray],
+    crown_height_m: float,
+) -> np.ndarray:
+    """Stem number of every point (the index of its seed), -1 for none.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+    h : (N,) float64
+        Height of each point above the ground (m).
+    above : (M,) int64
+        The points above the ground (indices into ``xyz``); the others get -1.
+    seeds : sequence of (K,) int64
+        Each stem's points (indices into ``xyz``, among ``above``); where two share a
+        voxel, the first stem keeps it.
+    crown_height_m : float
+        Gap links join points higher than this only: a shrub beside a stem stays
+        apart.
+
+    Returns
+    -------
+    (N,) int64
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    owner = np.full(len(xyz), -1, dtype=np.int64)
+    if not len(above) or not len(seeds):
+        return owner
+    reps, node_of = voxel_representatives(xyz[above], NODE_VOXEL_M)
+    nodes = xyz[above][reps]
+    crown = h[above][reps] > crown_height_m
+    rows, cols, cost = [], [], []
+    shorter = 0.0
+    for link, per_m in GAPS:
+        i, j, length = _links(nodes, crown, link, shorter, first=shorter == 0.0)
+        rows.append(i)
+        cols.append(j)
+        cost.append(length * per_m)
+        shorter = link
+    graph = coo_matrix(
+        (np.concatenate(cost), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(len(nodes), len(nodes)),
+    ).tocsr()
+    node_of_point = np.full(len(xyz), -1, dtype=np.int64)
+    node_of_point[above] = node_of
+    stem_of_node = np.full(len(nodes), -1, dtype=np.int64)
+    for k in range(len(seeds) - 1, -1, -1):
+        stem_of_node[node_of_point[seeds[k]]] = k
+    sources = np.flatnonzero(stem_of_node >= 0)
+    _, _, nearest = dijkstra(
+        graph, directed=False, indices=sources, min_only=True, return_predecessors=True
+    )
+    stem = np.where(nearest >= 0, stem_of_node[np.maximum(nearest, 0)], -1)
+    owner[above] = stem[node_of]
+    return owner
+
+
+def _links(
+    nodes: np.ndarray, crown: np.ndarray, link: float, shorter: float, *, first: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Links between nodes longer than ``shorter`` and up to ``link`` (m).
+
+    The first kind joins every node; a gap link joins crown nodes only, one per voxel
+    of a third of its length (a few links per node whatever the length).
+    """
+    from scipy.spatial import cKDTree
+
+    if first:
+        sub = np.arange(len(nodes))
+    else:
+        sub = voxel_representatives(nodes, link / 3)[0]
+        sub = sub[crown[sub]]
+    pairs = cKDTree(nodes[sub]).query_pairs(link, output_type="ndarray")
+    length = np.linalg.norm(nodes[sub[pairs[:, 0]]] - nodes[sub[pairs[:, 1]]], axis=1)
+    keep = length > shorter
+    return sub[pairs[keep, 0]], sub[pairs[keep, 1]], length[keep]
+
+
+def tree_top(tree: np.ndarray) -> float:
+    """Height (z) of a tree's highest point that is no stray (has neighbours).
+
+    ``nan`` for no points.
+    """
+    from amrst.measure.dbh import with_company
+
+    if not len(tree):
+        return float("nan")
+    order = np.argsort(-tree[:, 2])
+    for start in range(0, len(order), 200):
+        kept = with_company(
+            tree, np.ones(len(tree), np.int64), order[start : start + 200]
+        )
+        if len(kept):
+            return float(tree[kept, 2].max())
+    return float(tree[:, 2].max())
