@@ -1,14 +1,12 @@
-"""The stem at breast height of one tree cloud: where it stands, the ground under it.
-
-And its diameter, from circles at several heights around breast height.
+"""Find a tree cloud's stem at breast height, the ground under it, and its circle.
 
 A scan clipped around a tree in the field holds ground, shrubs and neighbours: its
 lowest point is the ground downhill at the edge of the clip, and a neighbour's stem may
 cross the breast-height slice. So the stem is found first: of the stems in the slice,
 the one nearest the middle of the cloud's footprint, where a clip around the tree puts
 it (circles with a small share of the best one's support, twigs and shrubs, do not
-count). The base is then the lowest points at that stem, and breast height is taken
-from there.
+count). The base is then the lowest points at that stem, followed down a leaning stem,
+and breast height is taken from there.
 
 The diameter comes from circles fitted to five slices 10 cm apart around breast
 height: of the circles, the one most others agree with (centre and size), and the
@@ -36,7 +34,7 @@ _ISOLATION_M = 0.3
 _MIN_NEIGHBOURS = 2
 # Height over stem diameter of real trees stays above this (open-grown broadleaves and
 # palms about 30-40, forest conifers 60-100).
-MIN_SLENDERNESS = 15.0
+_MIN_SLENDERNESS = 15.0
 # Stems told apart in one slice at most, and the gap between two (closer: a buttress,
 # a branch stub or a bump of the same stem). A stem has at least this share of the
 # best-supported circle's points times arc.
@@ -206,11 +204,20 @@ def _agree(a: StemCircle, b: StemCircle) -> bool:
     return size and offset <= max(_CENTRE_M, _CENTRE_FRACTION * r)
 
 
-def _consensus(circles: list[StemCircle]) -> tuple[StemCircle, int]:
-    """Pick the circle most others agree with (ties: the widest arc).
+def consensus(circles: list[StemCircle]) -> tuple[StemCircle, int]:
+    """Pick the circle most others agree with in centre and size (ties: widest arc).
 
-    Returns it at the median radius of those that agree, and how many agree (itself
-    included).
+    Parameters
+    ----------
+    circles : list of StemCircle
+        One stem's circles at several heights (at least one).
+
+    Returns
+    -------
+    StemCircle
+        That circle, at the median radius of the circles that agree with it.
+    int
+        How many agree, itself included.
     """
     groups = [[b for b in circles if _agree(a, b)] for a in circles]
     best = max(range(len(circles)), key=lambda i: (len(groups[i]), circles[i].arc_deg))
@@ -218,10 +225,28 @@ def _consensus(circles: list[StemCircle]) -> tuple[StemCircle, int]:
     return replace(circles[best], radius_m=radius), len(groups[best])
 
 
-def _slices_around(
+def circles_around(
     xyz: np.ndarray, stem: StemCircle, z: float, params: MeasureParams
 ) -> list[StemCircle]:
-    """Fit the stem's circles in the slices around height ``z``."""
+    """Fit a stem's circles in five slices 10 cm apart around height ``z``.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64
+        Points around the stem (others are left out).
+    stem : StemCircle
+        Roughly where the stem is: each slice is searched within 1.5 of its radii
+        plus 0.2 m of its centre.
+    z : float
+        Height of the middle slice.
+    params : MeasureParams
+        The slices' thickness and the circle fit.
+
+    Returns
+    -------
+    list of StemCircle
+        One per slice that has a stem circle, lowest first.
+    """
     # Bark is told on the points around the stem only (not the neighbours' stems).
     half = max(abs(o) for o in _SLICE_OFFSETS_M) + params.slice_m / 2
     around = _NEAR_FACTOR * stem.radius_m + _NEAR_MARGIN_M + _NEAR_MARGIN_M
@@ -254,7 +279,7 @@ def _too_thick(circle: StemCircle, height: float, params: MeasureParams) -> str:
     return (
         f"the only circle at {params.breast_height_m} m above the base "
         f"({200 * circle.radius_m:.0f} cm across) is too thick for a "
-        f"{height:.1f} m tree (height/diameter under {MIN_SLENDERNESS:.0f}): "
+        f"{height:.1f} m tree (height/diameter under {_MIN_SLENDERNESS:.0f}): "
         "it follows branches, not the stem, which is hidden"
     )
 
@@ -288,7 +313,7 @@ def breast_height_stem(
     """
     # Circles thicker than the tree's height allows are not candidates at all: a
     # wide circle through branches would hide the stem inside it.
-    limit = min(params.max_radius_m, (top - base) / (2 * MIN_SLENDERNESS))
+    limit = min(params.max_radius_m, (top - base) / (2 * _MIN_SLENDERNESS))
     capped = replace(params, max_radius_m=max(limit, 0.0))
     stem, z = _locate(xyz, base, capped)
     reporter.check_cancelled()
@@ -303,18 +328,18 @@ def breast_height_stem(
         moved = local is not None and abs(local - base) >= _BASE_TOL_M
         base = base if local is None else local
         z = base + params.breast_height_m
-        found = _slices_around(xyz, stem, z, capped)
+        found = circles_around(xyz, stem, z, capped)
         reporter.check_cancelled()
         if not found:
             break
         circles = found
-        stem = _consensus(circles)[0]
+        stem = consensus(circles)[0]
         if not moved:
             break
     if not circles:
         return BreastHeightStem(None, base, _no_stem(xyz, base, params))
-    stem, agreeing = _consensus(circles)
-    if top - base < MIN_SLENDERNESS * 2 * stem.radius_m:
+    stem, agreeing = consensus(circles)
+    if top - base < _MIN_SLENDERNESS * 2 * stem.radius_m:
         return BreastHeightStem(None, base, _too_thick(stem, top - base, params))
     doubt = ""
     if agreeing < _MIN_AGREEING:
