@@ -26,6 +26,7 @@ import numpy as np
 from amrst.measure import MeasureParams, fit_stem_circle
 from amrst.measure.stem import stem_surface
 from amrst.plot.crowns import assign_crowns, tree_top
+from amrst.plot.diameter import BREAST_HEIGHT_M, WINDOW_MARGIN_M, taper_dbh
 from amrst.stages.ground import GroundFit, fit_ground
 from amrst.stages.scene import SceneParams
 from amrst.stages.stems import find_stems
@@ -70,8 +71,10 @@ class StemMapParams:
     bark_min_points: int = 30
     bark_min_rise_m: float = 0.6
     bark_max_width_m: float = 1.0
-    # The DBH circle is checked against the circles just below and above it.
+    # The DBH circle is checked against the circles just below and above it; in the
+    # inventory, all but this many of the slice circles 1.0-1.6 m lie on one taper.
     taper_tol: float = 0.15
+    taper_misfits: int = 2
     scene: SceneParams = field(default_factory=SceneParams)
 
 
@@ -285,36 +288,78 @@ def _measure_stem(
             dbh_fit = (circle, _outlier_share(near[in_slice, :2], circle))
     if len(line) < params.min_circles:
         return None
-    base_xy, lean = _stem_line(line, centre)
+    base_xy, slope, lean = _stem_line(line, centre)
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
-    dbh_xy = np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy
     nan = float("nan")
-    top_h, crown, n_top = (
-        _top_and_crown(pts[mine], base[2]) if mine is not None else (nan, nan, 0)
-    )
-    if mine is not None and not top_h >= params.min_height_m:
-        return None
-    return StemRecord(
+    stem = StemRecord(
         base=base,
-        dbh_xy=dbh_xy,
-        dbh_m=2 * dbh_fit[0].radius_m if dbh_fit else float("nan"),
+        dbh_xy=np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy,
+        dbh_m=2 * dbh_fit[0].radius_m if dbh_fit else nan,
         arc_deg=dbh_fit[0].arc_deg if dbh_fit else 0.0,
-        rmse_m=dbh_fit[0].rmse_m if dbh_fit else float("nan"),
-        outlier_share=dbh_fit[1] if dbh_fit else float("nan"),
+        rmse_m=dbh_fit[0].rmse_m if dbh_fit else nan,
+        outlier_share=dbh_fit[1] if dbh_fit else nan,
         dbh_quality=_dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params),
+        height_m=nan,
+        height_flag="not measured",
+        lean_deg=lean,
+        crown_width_m=nan,
+        n_points=len(seed),
+    )
+    if mine is None:
+        return stem
+    radius = float(np.median(list(radii.values()))) if radii else 0.15
+    return _as_tree(stem, pts, h, mine, (base_xy, slope, radius), params)
+
+
+def _as_tree(
+    stem: StemRecord,
+    pts: np.ndarray,
+    h: np.ndarray,
+    mine: np.ndarray,
+    axis: tuple[np.ndarray, np.ndarray, float],
+    params: StemMapParams,
+) -> StemRecord | None:
+    """Measure the stem as a tree of the inventory: DBH over slices, height, flags.
+
+    ``axis``: the stem line (base, shift per metre up) and a radius guess. None when
+    the tree is lower than ``min_height_m`` (a shrub).
+    """
+    top_h, crown, n_top = _top_and_crown(pts[mine], stem.base[2])
+    if not top_h >= params.min_height_m:
+        return None
+    base_xy, slope, radius = axis
+    reach = radius + WINDOW_MARGIN_M + float(np.linalg.norm(slope)) * 1.6
+    around = np.flatnonzero(
+        (np.abs(h - BREAST_HEIGHT_M) <= 0.4)
+        & (np.hypot(*(pts[:, :2] - (base_xy + slope * BREAST_HEIGHT_M)).T) <= reach)
+    )
+    fit = taper_dbh(
+        pts[around], h[around], (base_xy, slope), radius, params.circle_inlier_m
+    )
+    if fit is not None:
+        outliers = _outlier_share(fit.slice_xy, fit.circle)
+        consistent = fit.agreeing >= max(3, fit.fitted - params.taper_misfits)
+        stem = replace(
+            stem,
+            dbh_xy=np.asarray(fit.circle.centre_xy),
+            dbh_m=fit.dbh_m,
+            arc_deg=fit.circle.arc_deg,
+            rmse_m=fit.circle.rmse_m,
+            outlier_share=outliers,
+            dbh_quality=_dbh_quality((fit.circle, outliers), consistent, params),
+        )
+    return replace(
+        stem,
         height_m=top_h,
         height_flag=(
-            "not measured"
-            if mine is None
-            else "lean"
-            if lean > params.lean_flag_deg
+            "lean"
+            if stem.lean_deg > params.lean_flag_deg
             else "top not seen"
             if n_top < params.min_top_points
             else "ok"
         ),
-        lean_deg=lean,
         crown_width_m=crown,
-        n_points=int(mine.sum()) if mine is not None else len(seed),
+        n_points=int(mine.sum()),
     )
 
 
@@ -357,20 +402,20 @@ def _dbh_quality(
 
 def _stem_line(
     line: list[tuple[float, float, float]], centre: np.ndarray
-) -> tuple[np.ndarray, float]:
-    """Return the base (x, y) at height 0 and the lean (deg) of circle centres.
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Return the base (x, y) at height 0, the shift per metre up and the lean (deg).
 
     ``line`` holds (height above the ground, x, y) of each slice's circle.
     """
     if not line:
-        return centre, 0.0
+        return centre, np.zeros(2), 0.0
     a = np.asarray(line)
     if len(a) < 3 or np.ptp(a[:, 0]) < 0.5:
-        return np.asarray(a[:, 1:].mean(axis=0)), 0.0
+        return np.asarray(a[:, 1:].mean(axis=0)), np.zeros(2), 0.0
     A = np.column_stack([a[:, 0], np.ones(len(a))])
     coef = np.linalg.lstsq(A, a[:, 1:], rcond=None)[0]  # rows: slope, intercept
     lean = float(np.degrees(np.arctan(np.linalg.norm(coef[0]))))
-    return np.asarray(coef[1]), lean
+    return np.asarray(coef[1]), np.asarray(coef[0]), lean
 
 
 def _top_and_crown(tree: np.ndarray, base_z: float) -> tuple[float, float, int]:
