@@ -182,4 +182,5 @@ def tree_measures(d: dict[str, Any]) -> TreeMeasures | None:
         crown_area_m2=num("crown_area_m2"),
         crown_width_m=num("crown_width_m"),
         note=str(d.get("note", "")),
+        dbh_doubt=str(d.get("dbh_doubt", "")),
     )
