@@ -36,17 +36,24 @@ WINDOW_MARGIN_M = 0.15
 
 @dataclass(frozen=True, slots=True)
 class TaperFit:
-    """The DBH over several slices.
+    """The stem's diameter over several slices.
 
-    ``circle``: the agreeing circle nearest breast height (its centre, arc, residual);
-    ``agreeing`` of ``fitted`` slice circles lie on the taper line.
+    ``dbh_m`` and ``per_m`` (change per metre up) make the taper line; ``circles``
+    are the slice circles on it, (height above the ground, circle), of ``fitted``;
+    ``circle`` is the one nearest breast height, ``slice_xy`` its slice's points.
     """
 
     dbh_m: float
-    circle: StemCircle
-    agreeing: int
+    per_m: float
+    circles: tuple[tuple[float, StemCircle], ...]
     fitted: int
-    slice_xy: np.ndarray  # (M, 2) the points of that circle's slice
+    circle: StemCircle
+    slice_xy: np.ndarray  # (M, 2)
+
+    def agrees(self, at: float, diameter_m: float) -> bool:
+        """Tell whether a circle of ``diameter_m`` at height ``at`` lies on the line."""
+        line = self.dbh_m + self.per_m * (at - BREAST_HEIGHT_M)
+        return abs(diameter_m - line) <= max(AGREE_M, AGREE_SHARE * line)
 
 
 def taper_dbh(
@@ -97,11 +104,19 @@ def taper_dbh(
     z = heights[agree] - BREAST_HEIGHT_M
     if agree.sum() >= 3 and np.ptp(z) >= 0.3:
         A = np.column_stack([np.ones(len(z)), z])
-        dbh = float(np.linalg.lstsq(A, d[agree], rcond=None)[0][0])
+        dbh, per_m = np.linalg.lstsq(A, d[agree], rcond=None)[0]
     else:
-        dbh = float(np.median(d[agree]))
-    best = np.flatnonzero(agree)[np.argmin(np.abs(z))]
-    return TaperFit(dbh, fits[best][1], int(agree.sum()), len(fits), fits[best][2])
+        dbh, per_m = np.median(d[agree]), 0.0
+    on = np.flatnonzero(agree)
+    best = on[np.argmin(np.abs(z))]
+    return TaperFit(
+        float(dbh),
+        float(per_m),
+        tuple((fits[i][0], fits[i][1]) for i in on),
+        len(fits),
+        fits[best][1],
+        fits[best][2],
+    )
 
 
 def _taper_inliers(at: np.ndarray, d: np.ndarray) -> np.ndarray:

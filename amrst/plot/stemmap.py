@@ -75,6 +75,13 @@ class StemMapParams:
     # inventory, all but this many of the slice circles 1.0-1.6 m lie on one taper.
     taper_tol: float = 0.15
     taper_misfits: int = 2
+    refit_circles: int = 4  # the stem line refitted leans on this many circles
+    # Stems hidden at their foot (inventory only): bark seeds this high above the
+    # ground, this far from every stem found; bases this close are one stem.
+    hidden_low_m: float = 1.0
+    hidden_high_m: float = 3.0
+    hidden_gap_m: float = 1.0
+    same_stem_m: float = 0.3
     scene: SceneParams = field(default_factory=SceneParams)
 
 
@@ -186,19 +193,70 @@ def map_stems(
     seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
     if not seeds:
         return StemMap((), ground, pts, owner)
-    if trees:  # paths through a 5 cm graph: crowns go to the stem they hang from
+    fits: list[_StemFit | None] = []
+    for seed in seeds:
+        if reporter is not None:
+            reporter.check_cancelled()
+        fits.append(_measure_stem(pts, h, ground, seed, params))
+    if trees:
+        _add_hidden_stems(pts, h, ground, seeds, fits, params)
+        # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
     kept = np.full(len(seeds) + 1, -1, dtype=np.int64)  # cluster -> stem (-1: none)
-    for k, seed in enumerate(seeds):
+    for k, fit in enumerate(fits):
         if reporter is not None:
             reporter.check_cancelled()
-        mine = owner == k if trees else None
-        stem = _measure_stem(pts, h, ground, seed, mine, params)
+        stem = (
+            _as_tree(fit, pts, h, ground, owner == k, params)
+            if trees and fit is not None
+            else fit.stem
+            if fit is not None
+            else None
+        )
         if stem is not None:
             kept[k] = len(stems)
             stems.append(stem)
     return StemMap(tuple(stems), ground, pts, kept[owner])
+
+
+def _add_hidden_stems(
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    seeds: list[np.ndarray],
+    fits: list[_StemFit | None],
+    params: StemMapParams,
+) -> None:
+    """Add the stems whose foot is hidden to ``seeds`` and ``fits`` (in place).
+
+    Undergrowth, or a spruce's own branches down to the ground, hide a stem in the
+    slice; higher up its bark still shows. Bark seeds ``hidden_low_m``-
+    ``hidden_high_m`` above the ground, farther than ``hidden_gap_m`` from every stem
+    found, are such stems; two that measure to the same base are one.
+    """
+    from scipy.spatial import cKDTree
+
+    band = np.flatnonzero((h >= params.hidden_low_m) & (h <= params.hidden_high_m))
+    found = [f.stem.dbh_xy for f in fits if f is not None]
+    if found and len(band):
+        gap = cKDTree(np.array(found)).query(pts[band, :2])[0]
+        band = band[gap > params.hidden_gap_m]
+    for seed in bark_seeds(pts, h, band, params):
+        fit = _measure_stem(pts, h, ground, seed, params)
+        if fit is None:
+            continue
+        same = [
+            k
+            for k, f in enumerate(fits)
+            if f is not None
+            and np.hypot(*(f.stem.base[:2] - fit.stem.base[:2])) <= params.same_stem_m
+        ]
+        if same:
+            seeds[same[0]] = np.concatenate([seeds[same[0]], seed])
+            continue
+        seeds.append(seed)
+        fits.append(replace(fit, hidden=True))
 
 
 def bark_seeds(
@@ -243,19 +301,27 @@ def _ground_z(ground: GroundFit, xy: np.ndarray) -> float:
     return float(-ground.height(p)[0])
 
 
+@dataclass(frozen=True, slots=True)
+class _StemFit:
+    """A stem measured on its bark circles, and the circles: (height, x, y), radii."""
+
+    stem: StemRecord
+    line: list[tuple[float, float, float]]
+    radii: dict[float, float]
+    hidden: bool = False  # found above its foot (see _add_hidden_stems)
+
+
 def _measure_stem(
     pts: np.ndarray,
     h: np.ndarray,
     ground: GroundFit,
     seed: np.ndarray,
-    mine: np.ndarray | None,
     params: StemMapParams,
-) -> StemRecord | None:
-    """Measure one stem (``seed``: its slice points): base, DBH, lean, height, flags.
+) -> _StemFit | None:
+    """Measure one stem (``seed``: its slice points): base, DBH, lean.
 
-    ``mine``: the tree's points (None: height and crown not measured). None when bark
-    circles fit at fewer than ``min_circles`` heights: a shrub or a hanging branch
-    crosses the slice too, but it is no upright stem.
+    None when bark circles fit at fewer than ``min_circles`` heights: a shrub or a
+    hanging branch crosses the slice too, but it is no upright stem.
     """
     lo = pts[seed, :2].min(axis=0) - STEM_MARGIN_M
     hi = pts[seed, :2].max(axis=0) + STEM_MARGIN_M
@@ -288,7 +354,7 @@ def _measure_stem(
             dbh_fit = (circle, _outlier_share(near[in_slice, :2], circle))
     if len(line) < params.min_circles:
         return None
-    base_xy, slope, lean = _stem_line(line, centre)
+    base_xy, _, lean = _stem_line(line, centre)
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
     nan = float("nan")
     stem = StemRecord(
@@ -305,49 +371,25 @@ def _measure_stem(
         crown_width_m=nan,
         n_points=len(seed),
     )
-    if mine is None:
-        return stem
-    radius = float(np.median(list(radii.values()))) if radii else 0.15
-    return _as_tree(stem, pts, h, mine, (base_xy, slope, radius), params)
+    return _StemFit(stem, line, radii)
 
 
 def _as_tree(
-    stem: StemRecord,
+    fit: _StemFit,
     pts: np.ndarray,
     h: np.ndarray,
+    ground: GroundFit,
     mine: np.ndarray,
-    axis: tuple[np.ndarray, np.ndarray, float],
     params: StemMapParams,
 ) -> StemRecord | None:
     """Measure the stem as a tree of the inventory: DBH over slices, height, flags.
 
-    ``axis``: the stem line (base, shift per metre up) and a radius guess. None when
-    the tree is lower than ``min_height_m`` (a shrub).
+    None when the tree is lower than ``min_height_m`` (a shrub).
     """
-    top_h, crown, n_top = _top_and_crown(pts[mine], stem.base[2])
+    top_h, crown, n_top = _top_and_crown(pts[mine], fit.stem.base[2])
     if not top_h >= params.min_height_m:
         return None
-    base_xy, slope, radius = axis
-    reach = radius + WINDOW_MARGIN_M + float(np.linalg.norm(slope)) * 1.6
-    around = np.flatnonzero(
-        (np.abs(h - BREAST_HEIGHT_M) <= 0.4)
-        & (np.hypot(*(pts[:, :2] - (base_xy + slope * BREAST_HEIGHT_M)).T) <= reach)
-    )
-    fit = taper_dbh(
-        pts[around], h[around], (base_xy, slope), radius, params.circle_inlier_m
-    )
-    if fit is not None:
-        outliers = _outlier_share(fit.slice_xy, fit.circle)
-        consistent = fit.agreeing >= max(3, fit.fitted - params.taper_misfits)
-        stem = replace(
-            stem,
-            dbh_xy=np.asarray(fit.circle.centre_xy),
-            dbh_m=fit.dbh_m,
-            arc_deg=fit.circle.arc_deg,
-            rmse_m=fit.circle.rmse_m,
-            outlier_share=outliers,
-            dbh_quality=_dbh_quality((fit.circle, outliers), consistent, params),
-        )
+    stem = _taper_stem(fit, pts, h, ground, params)
     return replace(
         stem,
         height_m=top_h,
@@ -360,6 +402,66 @@ def _as_tree(
         ),
         crown_width_m=crown,
         n_points=int(mine.sum()),
+    )
+
+
+def _taper_stem(
+    fit: _StemFit,
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    params: StemMapParams,
+) -> StemRecord:
+    """Measure the DBH on the taper line and fit the stem line to its circles.
+
+    The stem line is fitted again to the circles on the taper line (slice circles
+    and bark circles that agree with it): a circle through a branch no longer tilts
+    it. A stem found above its foot keeps no DBH unless a bark circle agrees with the
+    taper line (its slices at breast height show whatever hides it).
+    """
+    base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
+    radius = float(np.median(list(fit.radii.values()))) if fit.radii else 0.15
+    reach = radius + WINDOW_MARGIN_M + float(np.linalg.norm(slope)) * 1.6
+    around = np.flatnonzero(
+        (np.abs(h - BREAST_HEIGHT_M) <= 0.4)
+        & (np.hypot(*(pts[:, :2] - (base_xy + slope * BREAST_HEIGHT_M)).T) <= reach)
+    )
+    taper = taper_dbh(
+        pts[around], h[around], (base_xy, slope), radius, params.circle_inlier_m
+    )
+    bark = (
+        []
+        if taper is None
+        else [
+            (at, x, y) for at, x, y in fit.line if taper.agrees(at, 2 * fit.radii[at])
+        ]
+    )
+    if taper is None or (fit.hidden and not bark):
+        if not fit.hidden:
+            return fit.stem
+        nan = float("nan")
+        return replace(
+            fit.stem,
+            dbh_m=nan,
+            arc_deg=0.0,
+            rmse_m=nan,
+            outlier_share=nan,
+            dbh_quality="none",
+        )
+    on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
+    base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
+    outliers = _outlier_share(taper.slice_xy, taper.circle)
+    consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
+    return replace(
+        fit.stem,
+        base=np.r_[base_xy, _ground_z(ground, base_xy)],
+        dbh_xy=np.asarray(taper.circle.centre_xy),
+        dbh_m=taper.dbh_m,
+        arc_deg=taper.circle.arc_deg,
+        rmse_m=taper.circle.rmse_m,
+        outlier_share=outliers,
+        dbh_quality=_dbh_quality((taper.circle, outliers), consistent, params),
+        lean_deg=lean,
     )
 
 
@@ -401,16 +503,18 @@ def _dbh_quality(
 
 
 def _stem_line(
-    line: list[tuple[float, float, float]], centre: np.ndarray
+    line: list[tuple[float, float, float]], centre: np.ndarray, min_circles: int = 3
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Return the base (x, y) at height 0, the shift per metre up and the lean (deg).
 
-    ``line`` holds (height above the ground, x, y) of each slice's circle.
+    ``line`` holds (height above the ground, x, y) of each slice's circle; fewer than
+    ``min_circles`` circles, or spread over less than 0.5 m of height, make an
+    upright stem through their mean centre.
     """
     if not line:
         return centre, np.zeros(2), 0.0
     a = np.asarray(line)
-    if len(a) < 3 or np.ptp(a[:, 0]) < 0.5:
+    if len(a) < min_circles or np.ptp(a[:, 0]) < 0.5:
         return np.asarray(a[:, 1:].mean(axis=0)), np.zeros(2), 0.0
     A = np.column_stack([a[:, 0], np.ones(len(a))])
     coef = np.linalg.lstsq(A, a[:, 1:], rcond=None)[0]  # rows: slope, intercept
