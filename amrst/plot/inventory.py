@@ -45,8 +45,16 @@ TREE_COLUMNS = (
 SEEN_POINTS = 30
 #: Around the stem: its radius plus this (m), 0.3-2.5 m above the ground.
 SEEN_MARGIN_M = 0.05
-#: A tree top this close to the farthest range of every scan may be cut off (m).
-RANGE_MARGIN_M = 0.3
+#: A crown this close to the farthest range of every scan may be cut off (m).
+RANGE_MARGIN_M = 0.5
+#: A tree's top is seen when a scan saw this far above it (m) ...
+PROBE_M = 0.5
+#: ... through a line of sight with fewer than SIGHT_POINTS points within
+#: SIGHT_RADIUS_M of it (sampled every SIGHT_STEP_M, up to SIGHT_END_M short).
+SIGHT_POINTS = 5
+SIGHT_RADIUS_M = 0.1
+SIGHT_STEP_M = 0.05
+SIGHT_END_M = 0.3
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,7 +151,7 @@ def take_inventory(
     stem_map = map_stems(xyz, params, reporter)
     keep = _index_of_working(xyz, stem_map.xyz)
     scan = scan[keep]
-    stem_map = _flag_tops_out_of_range(stem_map, _scanner_reach(clouds, poses))
+    stem_map = _flag_hidden_tops(stem_map, _scanner_reach(clouds, poses))
     offset = np.asarray(clouds[reference].offset, dtype=float)
     order = sorted(
         range(len(stem_map.stems)),
@@ -203,23 +211,51 @@ def _scanner_reach(
     return out
 
 
-def _flag_tops_out_of_range(
+def _flag_hidden_tops(
     stem_map: StemMap, reach: Sequence[tuple[np.ndarray, float]]
 ) -> StemMap:
-    """Flag ``top not seen`` where a tree's top lies at the edge of every scan's range.
+    """Flag ``top not seen`` where no scan could have seen above a tree's top.
 
-    A scan keeps what lies within its range: a tall tree far from every position
-    shows its crown cut at that distance, and its highest point is no top.
+    A tree's highest point is its top only if a scan saw the space just above it
+    (``PROBE_M`` higher) empty: within that scan's range, and with no point near the
+    line of sight in front of it. A crown that reaches the edge of every scan's range
+    is cut there, wherever its highest point lies.
     """
+    if not reach:
+        return stem_map
+    from scipy.spatial import cKDTree
+
+    kd = cKDTree(stem_map.xyz)
     stems = []
     for k, s in enumerate(stem_map.stems):
         mine = stem_map.xyz[stem_map.owner == k]
-        if not len(mine):
+        if not len(mine) or not np.isfinite(s.height_m):
             stems.append(s)
             continue
-        top = mine[np.argmax(mine[:, 2])]
-        cut = bool(reach) and all(
-            np.linalg.norm(top - origin) > r - RANGE_MARGIN_M for origin, r in reach
+        top = mine[np.argmin(np.abs(mine[:, 2] - (s.base[2] + s.height_m)))]
+        probe = top + np.array([0.0, 0.0, PROBE_M])
+        seen = any(
+            np.linalg.norm(probe - origin) <= r and _clear(kd, origin, probe)
+            for origin, r in reach
         )
-        stems.append(replace(s, height_flag="top not seen") if cut else s)
+        to_edge = np.array(
+            [r - np.linalg.norm(mine - origin, axis=1) for origin, r in reach]
+        )
+        cut = bool(np.any(np.all(to_edge < RANGE_MARGIN_M, axis=0)))
+        hidden = cut or not seen
+        stems.append(replace(s, height_flag="top not seen") if hidden else s)
     return replace(stem_map, stems=tuple(stems))
+
+
+def _clear(kd: Any, origin: np.ndarray, target: np.ndarray) -> bool:
+    """Tell whether the line of sight from ``origin`` to ``target`` passes no points.
+
+    Samples every ``SIGHT_STEP_M`` from half a metre out to ``SIGHT_END_M`` short of
+    the target; at most ``SIGHT_POINTS`` points within ``SIGHT_RADIUS_M`` of them.
+    """
+    ray = target - origin
+    length = float(np.linalg.norm(ray))
+    t = np.arange(0.5, max(length - SIGHT_END_M, 0.5), SIGHT_STEP_M)
+    samples = origin + np.outer(t / length, ray)
+    near = kd.query_ball_point(samples, SIGHT_RADIUS_M, return_length=True)
+    return int(np.sum(near)) < SIGHT_POINTS
