@@ -66,3 +66,13 @@ def pose(yaw_deg: float, shift: tuple[float, float, float], tilt_deg: float = 0.
     T[:3, :3] = Rz @ Rx
     T[:3, 3] = shift
     return T
+
+
+def blob(
+    centre: tuple[float, float, float], radius: float, n: int, seed: int
+) -> np.ndarray:
+    """``n`` points spread through a ball (leaves, a piece of crown)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return np.asarray(centre) + d * radius * rng.uniform(0, 1, (n, 1)) ** (1 / 3)

@@ -8,12 +8,19 @@ registration) and the merged plot (the inventory):
    (``stages/stems.py``);
 3. per stem, circles on bark-like points (``measure/stem.py``) in thin slices at a few
    heights: the one at breast height gives the DBH, all of them the lean, and the base
-   is the stem line where it meets the ground;
-4. every point above the ground goes to the stem it reaches through neighbouring
-   points, and the tree's highest such point gives its height.
+   is the stem line where it meets the ground.
+
+The inventory (``trees=True``) goes on:
+
+4. stems hidden at their foot: bark seen higher up, away from the stems found;
+5. every point above the ground goes to the stem it reaches at the least path cost
+   (``plot/crowns.py``), and the tree's highest point gives its height;
+6. the DBH is the taper line of circles in slices 1.0-1.6 m (``plot/diameter.py``),
+   and the stem line is fitted again to the circles on it.
 
 The DBH quality follows 3DFin's section checks: the arc of the stem the circle's
-inliers cover, the fit residual, and the share of slice points off the circle.
+inliers cover, the fit residual, the share of slice points off the circle, and the
+agreement of the circle with the stem's other circles.
 """
 
 from __future__ import annotations

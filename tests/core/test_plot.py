@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from _plots import STEMS, ground_z, pose, scan
+from _plots import STEMS, blob, ground_z, pose, scan
 
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv
@@ -83,10 +83,40 @@ def test_two_stems_0_6_m_apart_are_two_trees() -> None:
 def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     from amrst import io
 
-    target, source, _ = plot_pair
-    header = trees_csv(take_inventory([target], [np.eye(4)])).splitlines()[0]
-    need = "tree_id,x_m,y_m,z_m,height_m,dbh_m,dbh_quality,crown_width_m,n_points"
-    assert set(need.split(",")) | {"seen_from"} <= set(header.split(","))
+    target, source, T_true = plot_pair
+    rows = list(
+        csv.DictReader(
+            trees_csv(
+                take_inventory([target, source], [np.eye(4), T_true])
+            ).splitlines()
+        )
+    )
+    assert list(rows[0]) == [
+        "tree_id",
+        "x_m",
+        "y_m",
+        "z_m",
+        "height_m",
+        "height_flag",
+        "dbh_m",
+        "dbh_quality",
+        "dbh_arc_deg",
+        "dbh_rmse_m",
+        "dbh_outlier_share",
+        "lean_deg",
+        "crown_width_m",
+        "n_points",
+        "seen_from",
+    ]
+    for row in rows:
+        assert row["height_flag"] in {"ok", "lean", "top not seen"}
+        assert row["dbh_quality"] in {"ok", "check", "none"}
+        assert 0 < float(row["dbh_m"]) < 0.6
+        assert 0 <= float(row["dbh_outlier_share"]) <= 1
+        assert 60 <= float(row["dbh_arc_deg"]) <= 360
+        assert float(row["lean_deg"]) < 5
+        assert int(row["n_points"]) > 0
+        assert row["seen_from"] == "1;2"
     files = [tmp_path / "t.ply", tmp_path / "s.ply"]
     for f, c in zip(files, (target, source), strict=True):
         io.write(f, c)
@@ -123,3 +153,72 @@ def test_a_top_cut_by_the_scanner_range_is_flagged() -> None:
     inv = take_inventory([Cloud(xyz)], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+
+
+def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:
+    """A whole cylinder of bark points (2 cm apart) from ``z0`` to ``z1``."""
+    theta = np.linspace(0, 2 * np.pi, int(2 * np.pi * r / 0.02), endpoint=False)
+    tt, zz = np.meshgrid(theta, np.arange(z0, z1, 0.02))
+    return np.column_stack(
+        [x + r * np.cos(tt.ravel()), y + r * np.sin(tt.ravel()), zz.ravel()]
+    )
+
+
+def _ground(half: float = 8.0) -> np.ndarray:
+    g = np.mgrid[-half:half:0.08, -half:half:0.08].reshape(2, -1).T
+    return np.column_stack([g, ground_z(g)])
+
+
+def test_crown_pieces_go_with_the_crown_they_continue() -> None:
+    # A tall tree's branch droops over a small tree in pieces 0.3 m apart (a crown
+    # seen in parts); its last piece hangs 1.2 m above the small tree's top.
+    tall = _stem(0.0, 0.0, 0.15, -0.05, 10.0)
+    small = _stem(4.0, 0.0, 0.06, 0.07, 4.0)
+    pieces = [blob((0.3 + 0.7 * k, 0.0, 9.0 - 0.5 * k), 0.2, 300, k) for k in range(6)]
+    xyz = np.vstack([_ground(), tall, small, *pieces])
+    m = map_stems(xyz)
+    heights = {round(float(s.base[0])): s.height_m for s in m.stems}
+    assert heights[4] == pytest.approx(4.0, abs=0.2)
+    assert heights[0] == pytest.approx(10.0, abs=0.2)
+
+
+def test_the_dbh_follows_the_stem_not_a_bulge_at_breast_height() -> None:
+    xyz = scan((0.0, -4.0), ((0.0, 0.0, 0.12, 6.0), (3.0, 2.0, 0.1, 5.0)), 8)
+    z0 = float(ground_z(np.zeros(2)))
+    # The stem 3 cm thicker at 1.2-1.4 m (a burl, a whorl of branch stubs).
+    ring = (np.hypot(xyz[:, 0], xyz[:, 1]) < 0.2) & (np.abs(xyz[:, 2] - z0 - 1.3) < 0.1)
+    bulge = _stem(0.0, 0.0, 0.15, z0 + 1.2, z0 + 1.4)
+    xyz = np.vstack([xyz[~ring], bulge[bulge[:, 1] < 0]])  # the side the scan sees
+    key = map_stems(xyz, trees=False).stems
+    tree = map_stems(xyz).stems
+    at = int(np.argmin([np.hypot(*s.base[:2]) for s in tree]))
+    assert tree[at].dbh_m == pytest.approx(0.24, abs=0.01)
+    # The registration's key points keep the one bark circle at breast height.
+    assert min(abs(s.dbh_m - 0.30) for s in key) < 0.01
+
+
+def test_a_stem_hidden_at_its_foot_is_a_tree_not_a_key_point() -> None:
+    # Below 1.6 m the stem is out of sight; its own twigs fill 1.0-1.6 m around it.
+    seen = scan((0.0, -5.0), ((0.0, 0.0, 0.12, 7.0), (3.0, 2.0, 0.1, 5.0)), 9)
+    z0 = float(ground_z(np.zeros(2)))
+    near = (np.hypot(seen[:, 0], seen[:, 1]) < 0.2) & (seen[:, 2] < z0 + 1.6)
+    twigs = blob((0.0, 0.0, z0 + 1.3), 0.8, 6000, 10)
+    twigs = twigs[
+        (twigs[:, 2] > z0 + 1.0) & (np.hypot(twigs[:, 0], twigs[:, 1]) > 0.14)
+    ]
+    xyz = np.vstack([seen[~near], twigs])
+    inv = take_inventory([Cloud(xyz)], [np.eye(4)])
+    d = [np.hypot(*t.xyz[:2]) for t in inv.trees]
+    assert len(inv.trees) == 2
+    assert min(d) < 0.1
+    assert min(np.hypot(*s.base[:2]) for s in map_stems(xyz, trees=False).stems) > 1
+
+
+def test_a_top_hidden_behind_another_crown_is_flagged() -> None:
+    stems = ((6.0, 0.0, 0.12, 5.0), (-3.0, 4.0, 0.12, 5.0))
+    xyz = scan((0.0, 0.0), stems, 11)
+    # A dense piece of some crown between the scanner and the first tree's top.
+    xyz = np.vstack([xyz, blob((3.0, 0.0, 3.0), 0.5, 8000, 12)])
+    inv = take_inventory([Cloud(xyz)], [np.eye(4)])
+    flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
+    assert flags == {6: "top not seen", -3: "ok"}
