@@ -329,7 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser(
         "simulate",
-        help="make two virtual tripod scans (with truth) from one complete tree cloud",
+        help="make virtual tripod scans with truth: two of one complete tree cloud, or "
+        "with --plot a forest plot of several trees from N positions",
     )
     simulate_cli.configure_parser(sim)
     sim.set_defaults(func=simulate_cli.run_cli)
