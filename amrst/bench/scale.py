@@ -1,7 +1,7 @@
 """Scale benchmark: dense pairs made from a case, timed per stage with peak memory.
 
 Real TLS scans of one tree hold millions of points; the shared cases hold thousands.
-:func:`densify` makes a dense scan from a sparse one by jittered copies of its points
+:func:`~amrst.bench.densify.densify` makes a dense scan from a sparse one by jittered copies of its points
 (seeded Gaussian noise, 3 mm by default, in the scan's own frame, so the case's truth
 still holds); :func:`make_scale_pair` writes such a pair as LAZ beside a copy of the
 truth. :func:`time_register` runs the whole ``amrst register`` command on a pair in a
@@ -24,10 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
+from amrst.bench.densify import densify
 from amrst.errors import InvalidInput
-from amrst.types import Cloud
 
 if TYPE_CHECKING:
     import argparse
@@ -47,41 +45,6 @@ STAGES = (
     "fine",
     "metrics",
 )
-
-
-def densify(
-    cloud: Cloud, n_points: int, noise_m: float = 0.003, seed: int = 0
-) -> Cloud:
-    """Make an ``n_points`` scan from ``cloud`` by jittered copies of its points.
-
-    Point ``i`` of the result is input point ``i mod N`` plus seeded Gaussian noise of
-    ``noise_m`` per axis; attributes are copied along. The first N points are jittered
-    too, so no input point survives exactly.
-
-    Parameters
-    ----------
-    cloud : Cloud
-    n_points : int
-        Points of the result (>= 1).
-    noise_m : float
-        Standard deviation of the jitter per axis (m).
-    seed : int
-
-    Returns
-    -------
-    Cloud
-        Same offset, name and meta as ``cloud``.
-    """
-    if len(cloud) == 0:
-        raise InvalidInput(f"{cloud.name or 'The scan'} is empty: nothing to densify.")
-    if n_points < 1:
-        raise InvalidInput(f"Give at least 1 point to make, not {n_points}.")
-    rng = np.random.default_rng(seed)
-    idx = np.arange(n_points, dtype=np.int64) % len(cloud)
-    xyz = cloud.xyz[idx]
-    xyz += rng.normal(0.0, noise_m, size=xyz.shape)
-    attrs = {k: v[idx] for k, v in cloud.attributes.items()}
-    return Cloud(xyz, cloud.offset, attrs, cloud.name, {})
 
 
 def make_scale_pair(

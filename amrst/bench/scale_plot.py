@@ -2,7 +2,7 @@
 
 :func:`make_scale_plot` writes every scan of a plot case (``target.ply`` +
 ``source.ply``, or ``scan_1.ply`` ... ``scan_N.ply``) with ``n_points`` points, made by
-:func:`amrst.bench.scale.densify` in the scan's own frame, so the case's truth still
+:func:`amrst.bench.densify.densify` in the scan's own frame, so the case's truth still
 holds; the folder written is itself a plot case. :func:`time_plot` runs ``amrst plot``
 on its scans in a child process, as a user does, and returns the whole time, the
 child's peak resident memory, the time of each stage, and every scan's pose and the
@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.bench.densify import densify
 from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
-from amrst.bench.scale import densify
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -194,11 +194,10 @@ def stem_slices(
 def circle_at_radius(xy: np.ndarray, start: StemCircle) -> StemCircle | None:
     """Fit the centre of a circle of ``start``'s radius to one scan's slice points.
 
-    Robust least squares on the points within 3 cm of ``start``; None when fewer
-    than five lie there.
+    Gauss-Newton with soft-L1 weights (as ``least_squares(loss="soft_l1")``, without
+    importing scipy.optimize, which costs 0.6 s) on the points within 3 cm of
+    ``start``; None when fewer than five lie there.
     """
-    from scipy.optimize import least_squares
-
     radius = start.radius_m
     c0 = np.asarray(start.centre_xy, float)
     near = (
@@ -207,11 +206,18 @@ def circle_at_radius(xy: np.ndarray, start: StemCircle) -> StemCircle | None:
     if len(near) < 5:
         return None
 
-    def residuals(c: np.ndarray) -> np.ndarray:
-        return np.asarray(np.hypot(*(near - c).T) - radius)
-
-    centre = least_squares(residuals, c0, loss="soft_l1", f_scale=0.005).x
-    r = residuals(centre)
+    centre = c0.copy()
+    for _ in range(20):
+        d = near - centre
+        dist = np.maximum(np.hypot(*d.T), 1e-12)
+        r = dist - radius
+        w = 1.0 / np.sqrt(1.0 + (r / 0.005) ** 2)
+        J = -d / dist[:, None]
+        step = np.linalg.lstsq(J * w[:, None], -r * w, rcond=None)[0]
+        centre += step
+        if np.abs(step).max() < 1e-7:
+            break
+    r = np.hypot(*(near - centre).T) - radius
     inliers = near[np.abs(r) < _INLIER_BAND_M / 2]
     if not len(inliers):
         return None
