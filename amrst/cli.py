@@ -357,7 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.configure_parser(ben)
     ben.set_defaults(func=bench.run_cli)
 
-    sca = sub.add_parser("bench-scale", help="time amrst register on densified pairs")
+    sca = sub.add_parser(
+        "bench-scale", help="time amrst register (or amrst plot) on densified scans"
+    )
     scale.configure_parser(sca)
     sca.set_defaults(func=scale.run_cli)
 
