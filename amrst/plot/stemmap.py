@@ -82,6 +82,9 @@ class StemMapParams:
     # inventory, all but this many of the slice circles 1.0-1.6 m lie on one taper.
     taper_tol: float = 0.15
     taper_misfits: int = 2
+    # In the inventory, a DBH needs this many slice circles on the taper line and a
+    # bark circle (0.6-2.2 m) that agrees with it.
+    taper_min_circles: int = 3
     refit_circles: int = 4  # the stem line refitted leans on this many circles
     # Stems hidden at their foot (inventory only): bark seeds this high above the
     # ground, this far from every stem found; bases this close are one stem.
@@ -423,8 +426,11 @@ def _taper_stem(
 
     The stem line is fitted again to the circles on the taper line (slice circles
     and bark circles that agree with it): a circle through a branch no longer tilts
-    it. A stem found above its foot keeps no DBH unless a bark circle agrees with the
-    taper line (its slices at breast height show whatever hides it).
+    it. The DBH needs ``taper_min_circles`` slice circles on the line and a bark
+    circle that agrees with it; else the stem has none: circles through the twigs and
+    branches of a thin or hidden stem agree by chance, and one wrong diameter weighs
+    more than a missing one. A stem without slice circles keeps its bark circle's
+    DBH, unless it was found above its foot.
     """
     base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
     radius = float(np.median(list(fit.radii.values()))) if fit.radii else 0.15
@@ -443,32 +449,33 @@ def _taper_stem(
             (at, x, y) for at, x, y in fit.line if taper.agrees(at, 2 * fit.radii[at])
         ]
     )
-    if taper is None or (fit.hidden and not bark):
-        if not fit.hidden:
-            return fit.stem
-        nan = float("nan")
-        return replace(
-            fit.stem,
-            dbh_m=nan,
-            arc_deg=0.0,
-            rmse_m=nan,
-            outlier_share=nan,
-            dbh_quality="none",
-        )
+    if taper is None:
+        return _without_dbh(fit.stem) if fit.hidden else fit.stem
     on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
     base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
+    stem = replace(
+        fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
+    )
+    if not bark or len(taper.circles) < params.taper_min_circles:
+        return _without_dbh(stem)
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
     return replace(
-        fit.stem,
-        base=np.r_[base_xy, _ground_z(ground, base_xy)],
+        stem,
         dbh_xy=np.asarray(taper.circle.centre_xy),
         dbh_m=taper.dbh_m,
         arc_deg=taper.circle.arc_deg,
         rmse_m=taper.circle.rmse_m,
         outlier_share=outliers,
         dbh_quality=_dbh_quality((taper.circle, outliers), consistent, params),
-        lean_deg=lean,
+    )
+
+
+def _without_dbh(stem: StemRecord) -> StemRecord:
+    """Return the stem with no DBH (``none``)."""
+    nan = float("nan")
+    return replace(
+        stem, dbh_m=nan, arc_deg=0.0, rmse_m=nan, outlier_share=nan, dbh_quality="none"
     )
 
 
