@@ -172,8 +172,9 @@ def map_stems(
     reporter : Reporter or None
         Checked for Cancel between the stems.
     trees : bool
-        Also give every point above the ground to its stem and measure each tree's
-        height and crown. Without it (the key points of a registration) the stems
+        The inventory: also find stems hidden at their foot, give every point above
+        the ground to its stem, measure each tree's height and crown, and the DBH
+        over several slices. Without it (the key points of a registration) the stems
         carry NaN heights, no point is owned, and a stem is kept on its bark circles
         alone.
 
@@ -217,13 +218,9 @@ def map_stems(
     for k, fit in enumerate(fits):
         if reporter is not None:
             reporter.check_cancelled()
-        stem = (
-            _as_tree(fit, pts, h, ground, owner == k, params)
-            if trees and fit is not None
-            else fit.stem
-            if fit is not None
-            else None
-        )
+        if fit is None:
+            continue
+        stem = _as_tree(fit, pts, h, ground, owner == k, params) if trees else fit.stem
         if stem is not None:
             kept[k] = len(stems)
             stems.append(stem)
