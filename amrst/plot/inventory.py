@@ -109,12 +109,16 @@ def merge_scans(
     clouds: Sequence[Cloud],
     poses: Sequence[Transform | None],
     params: StemMapParams,
+    reporter: Reporter | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every reached scan's working points on the reference frame, and their scan."""
     parts, owners = [], []
     for k, (cloud, pose) in enumerate(zip(clouds, poses, strict=True)):
         if pose is None:
             continue
+        if reporter is not None:
+            reporter.check_cancelled()
+            reporter.progress(0.2 * k / len(clouds), f"merging scan {k + 1}")
         pts = working_points(cloud.xyz, params)
         parts.append(pts @ pose[:3, :3].T + pose[:3, 3])
         owners.append(np.full(len(pts), k, dtype=np.int64))
@@ -145,12 +149,18 @@ def take_inventory(
     -------
     Inventory
     """
+    from amrst.progress import SubReporter
+
     params = params or StemMapParams()
-    xyz, scan = merge_scans(clouds, poses, params)
+    xyz, scan = merge_scans(clouds, poses, params, reporter)
     # The merged points are thinned once more: overlapping scans double the density.
-    stem_map = map_stems(xyz, params, reporter)
-    keep = _index_of_working(xyz, stem_map.xyz)
-    scan = scan[keep]
+    stem_map = map_stems(
+        xyz, params, None if reporter is None else SubReporter(reporter, 0.2, 0.95)
+    )
+    assert stem_map.index is not None  # map_stems gives the rows it kept
+    scan = scan[stem_map.index]
+    if reporter is not None:
+        reporter.progress(0.95, "tops out of every scan's sight")
     stem_map = _flag_hidden_tops(stem_map, _scanner_reach(clouds, poses))
     offset = np.asarray(clouds[reference].offset, dtype=float)
     order = sorted(
@@ -169,15 +179,6 @@ def take_inventory(
     stems = tuple(stem_map.stems[k] for k in order)
     merged = StemMap(stems, stem_map.ground, stem_map.xyz, owner)
     return Inventory(tuple(trees), merged, scan)
-
-
-def _index_of_working(xyz: np.ndarray, kept: np.ndarray) -> np.ndarray:
-    """Row of ``xyz`` each row of ``kept`` is (kept rows are rows of xyz)."""
-    if len(kept) == len(xyz):
-        return np.arange(len(xyz))
-    from scipy.spatial import cKDTree
-
-    return np.asarray(cKDTree(xyz).query(kept)[1])
 
 
 def _seen_from(stem_map: StemMap, scan: np.ndarray, k: int) -> tuple[int, ...]:

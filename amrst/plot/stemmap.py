@@ -127,14 +127,16 @@ class StemRecord:
 class StemMap:
     """The stems of a cloud, the ground under them, and which stem owns each point.
 
-    ``xyz`` are the working points (thinned input); ``owner[i]`` is the stem of
-    ``xyz[i]`` (-1: ground, shrub or nothing).
+    ``xyz`` are the working points (thinned input), ``index`` their rows in the
+    input (None: not known); ``owner[i]`` is the stem of ``xyz[i]`` (-1: ground,
+    shrub or nothing).
     """
 
     stems: tuple[StemRecord, ...]
     ground: GroundFit
     xyz: np.ndarray
     owner: np.ndarray
+    index: np.ndarray | None = None
 
     def keys(self) -> np.ndarray:
         """(S, 3) key points of the stems."""
@@ -145,14 +147,19 @@ class StemMap:
         return np.array([s.dbh_m for s in self.stems], dtype=float)
 
 
+def working_index(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
+    """Rows of ``xyz`` the stem map works on: thinned, at most ``max_points``."""
+    index = np.arange(len(xyz))
+    if params.voxel_m > 0 and len(xyz):
+        index = np.asarray(voxel_sample(np.asarray(xyz, float), params.voxel_m))
+    if len(index) > params.max_points:
+        index = index[:: int(np.ceil(len(index) / params.max_points))]
+    return index
+
+
 def working_points(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
     """Return the points the stem map works on: thinned, at most ``max_points``."""
-    xyz = np.asarray(xyz, dtype=float)
-    if params.voxel_m > 0 and len(xyz):
-        xyz = xyz[voxel_sample(xyz, params.voxel_m)]
-    if len(xyz) > params.max_points:
-        xyz = xyz[:: int(np.ceil(len(xyz) / params.max_points))]
-    return xyz
+    return np.asarray(np.asarray(xyz, dtype=float)[working_index(xyz, params)])
 
 
 def map_stems(
@@ -184,7 +191,10 @@ def map_stems(
         No stems when the cloud has no ground (a plot always shows one).
     """
     params = params or StemMapParams()
-    pts = working_points(xyz, params)
+    index = working_index(xyz, params)
+    pts = np.asarray(xyz, dtype=float)[index]
+    say = reporter.progress if reporter is not None else lambda _f, _m="": None
+    say(0.05, f"ground under {len(pts):,} points")
     ground = fit_ground(
         pts,
         cell_m=params.ground_cell_m,
@@ -196,20 +206,22 @@ def map_stems(
     )
     owner = np.full(len(pts), -1, dtype=np.int64)
     if not ground.found:
-        return StemMap((), ground, pts, owner)
+        return StemMap((), ground, pts, owner, index)
     h = ground.height(pts)
     above = np.flatnonzero(h >= params.ground_dist_m)
     found, slice_lab, slice_idx = find_stems(pts, h, above, params.scene)
     seeds = [slice_idx[slice_lab == k] for k in range(len(found))]
     seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
     if not seeds:
-        return StemMap((), ground, pts, owner)
+        return StemMap((), ground, pts, owner, index)
+    say(0.3, f"measuring {len(seeds)} stem candidates")
     fits: list[_StemFit | None] = []
     for seed in seeds:
         if reporter is not None:
             reporter.check_cancelled()
         fits.append(_measure_stem(pts, h, ground, seed, params))
     if trees:
+        say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
@@ -224,7 +236,7 @@ def map_stems(
         if stem is not None:
             kept[k] = len(stems)
             stems.append(stem)
-    return StemMap(tuple(stems), ground, pts, kept[owner])
+    return StemMap(tuple(stems), ground, pts, kept[owner], index)
 
 
 def _add_hidden_stems(
