@@ -1,4 +1,4 @@
-"""STYLE.md section 1: the engine runs where Qt and pyvista cannot be imported."""
+"""The engine runs where Qt and pyvista cannot be imported."""
 
 from __future__ import annotations
 

@@ -128,7 +128,7 @@ def test_register_subprocess_writes_transform_and_truth_errors(
     assert np.asarray(doc["T_coarse"]).shape == (4, 4)
     assert doc["amrst_version"] == amrst.__version__
     metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
-    # One layout, from amrst.results.documents.result_documents (issue 11).
+    # One layout, from amrst.results.documents.result_documents.
     assert doc["schema_version"] == metrics["schema_version"] == 2
     assert doc["timings_s"]["read"] > 0
     truth = metrics["truth"]

@@ -16,8 +16,9 @@ import amrst
 from amrst import io
 from amrst.errors import InvalidInput
 from amrst.guards import feature_points, grid_pair, kiss_pair, require_points
+from amrst.resources import resource_path
 
-CASE = "/work/shared/data/cases/01_itsme-tree1-normal"
+CASE = str(resource_path("sample"))  # the bundled pair: a real tree from two scans
 
 PRELUDE = """
 import sys

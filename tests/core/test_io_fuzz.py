@@ -1,4 +1,4 @@
-"""Property-based fuzzing of every reader (issue 16).
+"""Property-based fuzzing of every reader.
 
 Valid files of each format are cut short, have bytes of their header replaced or
 their text re-encoded; whatever hypothesis draws, ``io.read`` either returns a

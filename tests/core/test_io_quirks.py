@@ -33,7 +33,7 @@ def _written(tmp_path, cloud: Cloud, ext: str) -> bytearray:
     return bytearray((tmp_path / f"valid{ext}").read_bytes())
 
 
-# --- LAS header quirks (issue 17) ----------------------------------------------------
+# --- LAS header quirks ---------------------------------------------------------------
 
 
 def test_las_bounds_in_raw_integer_units_read_with_a_warning(tmp_path, caplog):
@@ -169,7 +169,7 @@ def test_truncated_laz_gives_one_line_without_laspy_log_lines(tmp_path):
     assert "export it again" in lines[0]
 
 
-# --- undercounting headers of the other formats (issue 16) --------------------------
+# --- undercounting headers of the other formats -------------------------------------
 
 
 def test_ascii_ply_header_undercounting_is_reported(tmp_path, caplog):
@@ -196,7 +196,7 @@ def test_pcd_header_undercounting_is_reported(tmp_path, caplog, binary):
     assert "announces 150 points but the file holds about 50 more" in caplog.text
 
 
-# --- PCD (issues 16 and 17) ----------------------------------------------------------
+# --- PCD -------------------------------------------------------------------------------
 
 
 def test_pcd_upper_case_fields_read(tmp_path):
@@ -241,7 +241,7 @@ def test_pcd_compressed_data_running_short_is_refused_fast(tmp_path):
     assert time.perf_counter() - start < 2.0
 
 
-# --- paths that are not regular files (issue 16) -------------------------------------
+# --- paths that are not regular files ------------------------------------------------
 
 
 @pytest.mark.timeout(10)
@@ -288,7 +288,7 @@ def test_pts_holding_only_its_count_has_no_points(tmp_path):
         io.read(tmp_path / "z.pts")
 
 
-# --- duplicate points (issue 16) -----------------------------------------------------
+# --- duplicate points ----------------------------------------------------------------
 
 
 @pytest.mark.timeout(60)

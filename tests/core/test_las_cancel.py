@@ -1,5 +1,5 @@
-"""Reading a LAS/LAZ file stops within a second of Cancel, keeping nothing
-(issue 15): the points are decoded in chunks with a cancel check between them.
+"""Reading a LAS/LAZ file stops within a second of Cancel, keeping nothing:
+the points are decoded in chunks with a cancel check between them.
 
 The file is generated here (jittered copies of the bundled sample, seeded).
 """

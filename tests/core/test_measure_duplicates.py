@@ -1,4 +1,4 @@
-"""Tree measurements stay linear in repeated points (issue 16).
+"""Tree measurements stay linear in repeated points.
 
 TLS exports keep no-return points as copies of one position; a million at the origin
 made the measurements of ``register`` take 25 s (neighbour counts among copies).

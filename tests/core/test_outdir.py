@@ -1,4 +1,4 @@
-"""An output folder is replaced as one unit, and two writers never interleave (issue 16).
+"""An output folder is replaced as one unit, and two writers never interleave.
 
 The kill tests fork a child that runs a real export and SIGKILLs itself at the k-th
 file-system step (rename, exchange, unlink), for every k until the export finishes.

@@ -1,4 +1,4 @@
-"""One result layout for the CLI, the app and the benchmark (issue 11).
+"""One result layout for the CLI, the app and the benchmark.
 
 transform.json, metrics.json and metrics.csv come from amrst.results.documents.result_documents;
 files written before (no schema_version, by the CLI or the app) keep being read.

@@ -1,4 +1,4 @@
-"""Hostile path arguments and values (issue 16): one line, exit 2, never a hang.
+"""Hostile path arguments and values: one line, exit 2, never a hang.
 
 Each case once gave a hang, "Internal error", a traceback, raw numpy warnings, or exit 0
 on bad input. FIFOs and devices run in a subprocess with a timeout, so a regression

@@ -1,5 +1,5 @@
 """Fine registration on the tiny tree: source = target moved by a known transform plus
-3 mm noise, started 5 deg / 0.3 m away from the truth (STYLE.md section 5)."""
+3 mm noise, started 5 deg / 0.3 m away from the truth (a start the fine stage must recover from)."""
 
 from __future__ import annotations
 
