@@ -65,28 +65,46 @@ def _circles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _refine_circle(
-    xy: np.ndarray, centre: np.ndarray, radius: float, scale: float
+    xy: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    scale: float,
+    *,
+    fit_radius: bool = True,
 ) -> tuple[np.ndarray, float]:
     """Geometric circle fit (distances to the circle), Gauss-Newton with soft-L1 weights.
 
     What scipy.optimize.least_squares(loss="soft_l1") does, in a few lines: importing
-    scipy.optimize alone costs 0.6 s per command.
+    scipy.optimize alone costs 0.6 s per command. ``fit_radius=False`` keeps the
+    radius and fits the centre alone.
     """
     v = np.r_[centre, radius].astype(np.float64)
+    n = 3 if fit_radius else 2
     for _ in range(_REFINE_ITERATIONS):
         d = xy - v[:2]
         dist = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
         r = dist - v[2]
         w = 1.0 / np.sqrt(1.0 + (r / scale) ** 2)  # soft-L1 (IRLS weights)
-        J = np.column_stack([-d[:, 0] / dist, -d[:, 1] / dist, -np.ones(len(r))])
+        J = np.column_stack([-d[:, 0] / dist, -d[:, 1] / dist, -np.ones(len(r))])[:, :n]
         step = np.linalg.lstsq(J * w[:, None], -r * w, rcond=None)[0]
-        v += step
+        v[:n] += step
         if np.abs(step).max() < 1e-7:
             break
     return v[:2], float(abs(v[2]))
 
 
-def _arc_deg(xy: np.ndarray, centre: np.ndarray) -> float:
+def centre_at_radius(
+    xy: np.ndarray, centre: np.ndarray, radius: float, scale: float
+) -> np.ndarray:
+    """(2,) centre of the circle of ``radius`` that fits ``xy`` (soft-L1, ``scale`` m)."""
+    return _refine_circle(xy, centre, radius, scale, fit_radius=False)[0]
+
+
+def arc_deg(xy: np.ndarray, centre: np.ndarray) -> float:
+    """Degrees of the circumference around ``centre`` that ``xy`` covers.
+
+    360 minus the largest gap between neighbouring points' angles.
+    """
     angles = np.sort(np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0]))
     gaps = np.diff(np.r_[angles, angles[0] + 2 * np.pi])
     return float(np.degrees(2 * np.pi - gaps.max()))
@@ -147,7 +165,7 @@ def fit_stem_circle(xy: np.ndarray, params: MeasureParams) -> StemCircle | None:
         return None
     weight = [
         counts[j]
-        * _arc_deg(
+        * arc_deg(
             few[
                 np.abs(np.linalg.norm(few - centres[j], axis=1) - radii[j])
                 <= params.inlier_m
@@ -164,7 +182,7 @@ def fit_stem_circle(xy: np.ndarray, params: MeasureParams) -> StemCircle | None:
     inl = np.abs(resid) <= params.inlier_m
     if inl.sum() < _MIN_STEM_POINTS or radius > params.max_radius_m:
         return None
-    arc = _arc_deg(pts[inl], centre)
+    arc = arc_deg(pts[inl], centre)
     if arc < _MIN_ARC_DEG:
         return None
     return StemCircle(

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amrst.measure import MeasureParams, StemCircle, fit_stem_circle
+from amrst.measure.stem import arc_deg, centre_at_radius
 
 DEFAULT_HEIGHTS_M = (0.3, 1.3, 3.0)
 DEFAULT_THICKNESS_M = 0.1
@@ -194,9 +195,8 @@ def stem_slices(
 def circle_at_radius(xy: np.ndarray, start: StemCircle) -> StemCircle | None:
     """Fit the centre of a circle of ``start``'s radius to one scan's slice points.
 
-    Gauss-Newton with soft-L1 weights (as ``least_squares(loss="soft_l1")``, without
-    importing scipy.optimize, which costs 0.6 s) on the points within 3 cm of
-    ``start``; None when fewer than five lie there.
+    A soft-L1 fit of the centre on the points within 3 cm of ``start``; None when
+    fewer than five lie there.
     """
     radius = start.radius_m
     c0 = np.asarray(start.centre_xy, float)
@@ -206,27 +206,15 @@ def circle_at_radius(xy: np.ndarray, start: StemCircle) -> StemCircle | None:
     if len(near) < 5:
         return None
 
-    centre = c0.copy()
-    for _ in range(20):
-        d = near - centre
-        dist = np.maximum(np.hypot(*d.T), 1e-12)
-        r = dist - radius
-        w = 1.0 / np.sqrt(1.0 + (r / 0.005) ** 2)
-        J = -d / dist[:, None]
-        step = np.linalg.lstsq(J * w[:, None], -r * w, rcond=None)[0]
-        centre += step
-        if np.abs(step).max() < 1e-7:
-            break
+    centre = centre_at_radius(near, c0, radius, 0.005)
     r = np.hypot(*(near - centre).T) - radius
     inliers = near[np.abs(r) < _INLIER_BAND_M / 2]
     if not len(inliers):
         return None
-    angles = np.arctan2(*(inliers - centre).T[::-1])
-    bins = np.unique(np.floor((angles + np.pi) / np.radians(10)).astype(int))
     return StemCircle(
         centre_xy=(float(centre[0]), float(centre[1])),
         radius_m=float(radius),
         rmse_m=float(np.sqrt(np.mean(r[np.abs(r) < _INLIER_BAND_M / 2] ** 2))),
         n_points=len(inliers),
-        arc_deg=float(10 * len(bins)),
+        arc_deg=arc_deg(inliers, centre),
     )
