@@ -73,6 +73,11 @@ class StemMapParams:
     min_top_points: int = 15
     min_circles: int = 1  # bark circles a stem shows among the slices
     min_height_m: float = 2.0  # a lower stem is a shrub
+    # In the inventory, a stem with bark circles at fewer than ``bark_heights`` of the
+    # slice heights is listed only when its tree is at least ``hidden_tree_m`` high: the
+    # tip of a branch that droops to the ground shows no more stem than that.
+    bark_heights: int = 2
+    hidden_tree_m: float = 10.0
     # Stems inside wide slice clusters (bark_seeds).
     bark_link_m: float = 0.06
     bark_min_points: int = 30
@@ -403,10 +408,14 @@ def _as_tree(
 ) -> StemRecord | None:
     """Measure the stem as a tree of the inventory: DBH over slices, height, flags.
 
-    None when the tree is lower than ``min_height_m`` (a shrub).
+    None when the tree is lower than ``min_height_m`` (a shrub), or its stem shows
+    bark circles at fewer than ``bark_heights`` heights and it is lower than
+    ``hidden_tree_m`` (a branch tip or a bush, not a tree with a hidden stem).
     """
     top_h, crown, n_top = _top_and_crown(pts[mine], fit.stem.base[2])
     if not top_h >= params.min_height_m:
+        return None
+    if len(fit.line) < params.bark_heights and not top_h >= params.hidden_tree_m:
         return None
     stem = _taper_stem(fit, pts, h, ground, params)
     return replace(

@@ -7,6 +7,7 @@ scan seeing the half of every stem that faces its position, in its own frame.
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -222,3 +223,22 @@ def test_a_top_hidden_behind_another_crown_is_flagged() -> None:
     inv = take_inventory([Cloud(xyz)], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {6: "top not seen", -3: "ok"}
+
+
+def test_a_branch_drooping_to_the_ground_is_no_tree() -> None:
+    xyz = scan((0.0, -5.0), ((0.0, 0.0, 0.15, 12.0), (-3.0, 3.0, 0.1, 5.0)), 13)
+    z0 = float(ground_z(np.array([3.5, 0.0])))
+    # The tall tree's branch bends down to 1.2 m above the ground 3.5 m away; its
+    # tip shows a bark circle at breast height only, twigs and leaves hang around it.
+    s = np.linspace(0.0, 1.0, 300)
+    branch = np.column_stack([3.5 - 3.3 * s, 0.0 * s, z0 + 1.5 + 5.5 * s**2])
+    tip = _stem(3.5, 0.0, 0.04, z0 + 1.2, z0 + 1.5)
+    rng = np.random.default_rng(15)
+    twigs = rng.uniform((3.2, -0.3, z0 + 0.35), (3.8, 0.3, z0 + 1.2), (600, 3))
+    leaves = blob((3.5, 0.0, z0 + 2.0), 0.5, 3000, 14)
+    pts = np.vstack([xyz, branch, tip[tip[:, 1] < 0], twigs, leaves])
+    bases = sorted(np.round(s.base[:2]).tolist() for s in map_stems(pts).stems)
+    assert bases == [[-3, 3], [0, 0]]
+    # One bark circle taken as enough stem would list the tip as a 6 m tree.
+    one_circle = replace(StemMapParams(), bark_heights=1)
+    assert len(map_stems(pts, one_circle).stems) == 3
