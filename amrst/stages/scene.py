@@ -110,7 +110,7 @@ class SceneParams:
             "unit": "m²",
             "min": 0.0,
             "max": 1e6,
-            "help": "The same test when the other scan of the pair has a ground (field case 09: a scan whose ground is hidden showed a 3 m² plane on shrub bases, which is not a ground).",
+            "help": "The same test when the other scan of the pair has a ground (a scan whose ground is hidden by undergrowth can show a few m² plane on shrub bases, which is not a ground).",
         },
     )
     stem_low_m: float = field(
