@@ -5,13 +5,17 @@ lowest point is the ground downhill at the edge of the clip, and a neighbour's s
 cross the breast-height slice. So the stem is found first: of the stems in the slice,
 the one nearest the middle of the cloud's footprint, where a clip around the tree puts
 it (circles with a small share of the best one's support, twigs and shrubs, do not
-count). The base is then the lowest points at that stem, followed down a leaning stem,
-and breast height is taken from there.
+count). A stem is solid, so a circle with more points well inside it than on it runs
+through branches around something (often the stem) and is no stem. The base is then
+the lowest points at that stem, followed down a leaning stem, and breast height is
+taken from there.
 
 The diameter comes from circles fitted to five slices 10 cm apart around breast
 height: of the circles, the one most others agree with (centre and size), and the
 median diameter of those that agree. One slice through a branch, a bump of bark or a
 short arc does not decide it; when fewer than three slices agree, the DBH is doubtful.
+When fewer than three slices have a circle at all (a stem behind its branches shows
+little bark), one circle on the bark of the five slices together gives the DBH.
 A circle thicker than the tree's height allows (height over diameter under 15) is no
 stem: a conifer's branch whorls can look like bark to the surface test.
 """
@@ -41,6 +45,10 @@ _MIN_SLENDERNESS = 15.0
 _MAX_STEMS = 3
 _STEM_GAP_M = 0.3
 _MIN_SUPPORT = 0.25
+# A stem is solid: a circle with more of the slice's points over _INSIDE_M inside it
+# than on it is no stem. Circles tried per slice at most.
+_INSIDE_M = 0.05
+_MAX_TRIES = 6
 # No stem at breast height above the cloud's lowest point (a slope, a shrub): look
 # this much higher, this many times.
 _SEARCH_STEP_M = 0.5
@@ -123,15 +131,31 @@ def _slice_stems(
         reach = _NEAR_FACTOR * near.radius_m + _NEAR_MARGIN_M
         pick &= np.hypot(*(xyz[:, :2] - near.centre_xy).T) <= reach
     xy = xyz[pick, :2]
+    every = xyz[np.abs(xyz[:, 2] - z_centre) <= params.slice_m / 2, :2]
     found: list[StemCircle] = []
-    while len(found) < (1 if near is not None else _MAX_STEMS):
+    for _ in range(_MAX_TRIES):
         circle = fit_stem_circle(xy, params)
         if circle is None:
             break
-        found.append(circle)
         gap = np.hypot(*(xy - circle.centre_xy).T) - circle.radius_m
+        if _hollow(every, circle):
+            # Only its own points go: the stem it ran around may be inside.
+            xy = xy[np.abs(gap) > params.inlier_m]
+            continue
+        found.append(circle)
+        if len(found) == (1 if near is not None else _MAX_STEMS):
+            break
         xy = xy[gap > _STEM_GAP_M]
     return found
+
+
+def _hollow(xy: np.ndarray, circle: StemCircle) -> bool:
+    """Tell whether more of a slice's points lie well inside the circle than on it.
+
+    A stem is solid: a scan sees nothing inside it.
+    """
+    inside = np.hypot(*(xy - circle.centre_xy).T) < circle.radius_m - _INSIDE_M
+    return bool(inside.sum() > circle.n_points)
 
 
 def _locate(
@@ -226,7 +250,12 @@ def consensus(circles: list[StemCircle]) -> tuple[StemCircle, int]:
 
 
 def circles_around(
-    xyz: np.ndarray, stem: StemCircle, z: float, params: MeasureParams
+    xyz: np.ndarray,
+    stem: StemCircle,
+    z: float,
+    params: MeasureParams,
+    *,
+    stacked: bool = False,
 ) -> list[StemCircle]:
     """Fit a stem's circles in five slices 10 cm apart around height ``z``.
 
@@ -241,6 +270,8 @@ def circles_around(
         Height of the middle slice.
     params : MeasureParams
         The slices' thickness and the circle fit.
+    stacked : bool
+        One circle on the bark points of the five slices together instead.
 
     Returns
     -------
@@ -255,6 +286,8 @@ def circles_around(
         & (np.hypot(*(xyz[:, :2] - stem.centre_xy).T) <= around)
     ]
     bark = stem_surface(near, z, half)
+    if stacked:
+        return _slice_stems(near, bark, z, replace(params, slice_m=2 * half), stem)
     out = []
     for dz in _SLICE_OFFSETS_M:
         out += _slice_stems(near, bark, z + dz, params, stem)
@@ -339,16 +372,27 @@ def breast_height_stem(
     if not circles:
         return BreastHeightStem(None, base, _no_stem(xyz, base, params))
     stem, agreeing = consensus(circles)
+    if len(circles) < _MIN_AGREEING:
+        stem = next(iter(circles_around(xyz, stem, z, capped, stacked=True)), stem)
     if top - base < _MIN_SLENDERNESS * 2 * stem.radius_m:
         return BreastHeightStem(None, base, _too_thick(stem, top - base, params))
-    doubt = ""
-    if agreeing < _MIN_AGREEING:
-        across = [200 * c.radius_m for c in circles]
-        low = params.breast_height_m + min(_SLICE_OFFSETS_M)
-        high = params.breast_height_m + max(_SLICE_OFFSETS_M)
-        doubt = (
-            f"only {agreeing} of the {len(_SLICE_OFFSETS_M)} slices from {low:g} to "
-            f"{high:g} m fit the same stem circle (circles {min(across):.0f} to "
-            f"{max(across):.0f} cm across)"
+    return BreastHeightStem(stem, base, "", _doubt(circles, agreeing, params))
+
+
+def _doubt(circles: list[StemCircle], agreeing: int, params: MeasureParams) -> str:
+    """Why the slices' circles do not bear the DBH out, or ""."""
+    if agreeing >= _MIN_AGREEING:
+        return ""
+    across = [200 * c.radius_m for c in circles]
+    low = params.breast_height_m + min(_SLICE_OFFSETS_M)
+    high = params.breast_height_m + max(_SLICE_OFFSETS_M)
+    slices = f"{len(_SLICE_OFFSETS_M)} slices from {low:g} to {high:g} m"
+    if len(circles) < _MIN_AGREEING:
+        return (
+            f"only {len(circles)} of the {slices} show a stem circle: the stem is "
+            "mostly hidden"
         )
-    return BreastHeightStem(stem, base, "", doubt)
+    return (
+        f"only {agreeing} of the {slices} fit the same stem circle (circles "
+        f"{min(across):.0f} to {max(across):.0f} cm across)"
+    )
