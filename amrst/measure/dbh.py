@@ -373,7 +373,10 @@ def breast_height_stem(
         return BreastHeightStem(None, base, _no_stem(xyz, base, params))
     stem, agreeing = consensus(circles)
     if len(circles) < _MIN_AGREEING:
-        stem = next(iter(circles_around(xyz, stem, z, capped, stacked=True)), stem)
+        # Little bark around breast height (a stem behind its branches): one circle
+        # on the bark of the five slices together, when it is the same stem.
+        stacked = circles_around(xyz, stem, z, capped, stacked=True)
+        stem = next((c for c in stacked if _agree(c, stem)), stem)
     if top - base < _MIN_SLENDERNESS * 2 * stem.radius_m:
         return BreastHeightStem(None, base, _too_thick(stem, top - base, params))
     return BreastHeightStem(stem, base, "", _doubt(circles, agreeing, params))

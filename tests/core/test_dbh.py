@@ -168,6 +168,44 @@ def test_slices_that_fit_no_common_circle_make_the_dbh_doubtful():
         assert "slices" in dbh_check({"merged": m})
 
 
+def test_a_ring_of_branches_around_the_stem_is_no_stem():
+    # A conifer's branch tips make an upright, bark-like sheet on a ring 76 cm across
+    # around a stem seen from one side, with needles between them: the ring holds
+    # more points inside it than on it, so it is not the stem.
+    rng = np.random.default_rng(7)
+    a = rng.uniform(np.radians(-150), np.radians(150), 1500)
+    centre, ring = np.array([0.1, 0.0]), 0.38
+    tips = np.column_stack(
+        [ring * np.cos(a) + centre[0], ring * np.sin(a), rng.uniform(0.9, 2.0, 1500)]
+    )
+    r = ring * np.sqrt(rng.uniform(0, 1, 6000))
+    b = rng.uniform(0, 2 * np.pi, 6000)
+    needles = np.column_stack(
+        [r * np.cos(b) + centre[0], r * np.sin(b), rng.uniform(0.9, 2.0, 6000)]
+    )
+    needles = needles[np.hypot(*needles[:, :2].T) > RADIUS + 0.03]
+    stem = _stem(rng, seen_from=(8.0, 3.0), n=3000)
+    m = measure_tree(np.vstack([stem, tips, needles, _crown(rng)]))
+    assert m.stem.centre_xy == pytest.approx((0.0, 0.0), abs=0.03)
+    assert m.dbh_m == pytest.approx(2 * RADIUS, abs=0.02)
+
+
+def test_a_stem_mostly_hidden_at_breast_height_is_measured_on_all_its_bark():
+    # Twigs hide the stem from 0.9 to 1.8 m: one scan sees a fifth of its bark there,
+    # too little for circles in most slices, but enough in all five together.
+    rng = np.random.default_rng(0)
+    stem = _stem(rng, seen_from=(8.0, 3.0))
+    hidden = (stem[:, 2] > 0.9) & (stem[:, 2] < 1.8)
+    r = rng.uniform(RADIUS + 0.05, 0.8, 500)
+    a = rng.uniform(0, 2 * np.pi, 500)
+    twigs = np.column_stack([r * np.cos(a), r * np.sin(a), rng.uniform(0.9, 1.8, 500)])
+    tree = np.vstack([stem[~hidden], stem[hidden][::5], twigs, _crown(rng)])
+    m = measure_tree(tree)
+    assert m.dbh_m == pytest.approx(2 * RADIUS, abs=0.015)
+    assert "show a stem circle" in m.dbh_doubt
+    assert "mostly hidden" in dbh_check({"merged": m})
+
+
 def test_the_doubt_travels_with_the_measures():
     m = measure_tree(_crown(np.random.default_rng(6)))
     assert "dbh_doubt" not in m.as_dict()
