@@ -31,6 +31,10 @@ LENGTH_REL = 0.02
 CONFIRM_M = 0.35
 #: Shortest stem pair that fixes a heading (m).
 MIN_PAIR_M = 1.5
+#: A pose the point score cannot judge is held by its stems alone when at least this
+#: many meet within HELD_RMS_M and no other pose is confirmed by as many.
+HELD_STEMS = 4
+HELD_RMS_M = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,6 +154,27 @@ def stem_poses(target: StemMap, source: StemMap, max_poses: int = 6) -> list[Ste
         if len(out) == max_poses:
             break
     return out
+
+
+def held_by_stems(poses: list[StemPose]) -> int | None:
+    """Return the index of the pose its stems alone verify, or None.
+
+    Scans of a plot taken far apart share too little surface for the share of points
+    that meet (the verification score) to tell a right pose from a wrong one; the
+    stems still can: four or more stems that meet within 10 cm after the fit make a
+    pose, and a pattern that repeats would give another pose as many stems.
+    ``poses`` as :func:`stem_poses` returns them (most confirming stems first).
+    """
+    if not poses:
+        return None
+    best = poses[0]
+    rival = len(poses[1].pairs) if len(poses) > 1 else 0
+    held = (
+        len(best.pairs) >= HELD_STEMS
+        and best.rms_m <= HELD_RMS_M
+        and rival < len(best.pairs)
+    )
+    return 0 if held else None
 
 
 def _refit(

@@ -5,8 +5,10 @@ and the fine registration uses; the scene stage is not needed, the stem map find
 ground and every stem itself) and its stem map made. Each pair of scans is a *link*:
 the stem poses (``match.py``) are verified as the technician's manual poses are
 (``review.manual.ManualScorer``: the same sample, polish and tight score as the
-tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). When no
-stem pose verifies, the two-scan engine runs as the fallback (tetrahedra, feature
+tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). Scans
+far apart share too little surface for that score to judge; a pose held by four or
+more stems with no rival as well held (``match.held_by_stems``) is taken then. When
+no stem pose holds, the two-scan engine runs as the fallback (tetrahedra, feature
 matcher, trunk search). The links then form the multiscan spanning tree, and a joint
 refinement is kept when it lowers the error (``amrst.multiscan``).
 """
@@ -22,7 +24,7 @@ import numpy as np
 from amrst.multiscan.graph import Link, link_pairs, loop_closures, spanning_tree
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
-from amrst.plot.match import stem_poses
+from amrst.plot.match import held_by_stems, stem_poses
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import CandidateList, choose_coarse
@@ -137,31 +139,43 @@ def register_plot_link(
     )
     centre = np.r_[source.analysis.xyz[:, :2].mean(axis=0), 0.0]
     coarse = choose_coarse(ranked, frozenset(), centre) if cands else None
-    if coarse is None or not coarse.verified:
+    if coarse is not None and coarse.verified:
+        won = poses[coarse.candidate.id - MANUAL_ID_BASE]
+        score, confidence = coarse.candidate.score, coarse.confidence
+        message = f"{len(won.pairs)} shared stems; {coarse.message}"
+    elif (held := held_by_stems(poses)) is not None:
+        won = poses[held]
+        score = next(c.score for c in cands if c.id == MANUAL_ID_BASE + held)
+        confidence = 1.0
+        message = (
+            f"{len(won.pairs)} shared stems meet within {100 * won.rms_m:.0f} cm and "
+            f"no other pose is held by as many; the scans share too little surface "
+            f"for the point score to judge ({score:.0%})"
+        )
+    else:
         return _fallback(
             target, source, indices, params, reporter=reporter, threads=threads, t0=t0
         )
     fine = refine(
         target.analysis,
         source.analysis,
-        coarse.T_target_source,
+        won.T_target_source,
         params,
         SubReporter(reporter, 0.5, 0.95),
         threads=threads,
     )
     T = fine.T_target_source
     metrics = evaluate(target.analysis, source.analysis, T, params, threads=threads)
-    won = poses[coarse.candidate.id - MANUAL_ID_BASE]
     link = Link(
         target=indices[0],
         source=indices[1],
         verdict="verified",
-        score=float(coarse.candidate.score),
-        confidence=float(coarse.confidence),
-        weight=float(coarse.candidate.score) * float(metrics.overlap_fraction),
+        score=float(score),
+        confidence=float(confidence),
+        weight=float(score) * float(metrics.overlap_fraction),
         T_local=T,
         metrics=metrics,
-        message=f"{len(won.pairs)} shared stems; {coarse.message}",
+        message=message,
         origin=STEMS_ORIGIN,
         seconds=time.perf_counter() - t0,
     )

@@ -17,6 +17,7 @@ from _plots import STEMS, blob, ground_z, pose, scan
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv
 from amrst.plot.inventory import take_inventory
+from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
 from amrst.plot.stemmap import StemMapParams, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
@@ -242,3 +243,17 @@ def test_a_branch_drooping_to_the_ground_is_no_tree() -> None:
     # One bark circle taken as enough stem would list the tip as a 6 m tree.
     one_circle = replace(StemMapParams(), bark_heights=1)
     assert len(map_stems(pts, one_circle).stems) == 3
+
+
+def test_stems_alone_hold_a_pose_only_with_a_clear_lead() -> None:
+    def pose_of(stems: int, rms_m: float) -> StemPose:
+        pairs = np.column_stack([np.arange(stems), np.arange(stems)])
+        return StemPose(np.eye(4), pairs, rms_m, stems)
+
+    assert held_by_stems([pose_of(5, 0.02), pose_of(2, 0.0)]) == 0
+    assert held_by_stems([pose_of(4, 0.02)]) == 0
+    # Fewer stems, a loose fit, or a rival as well confirmed: the points must judge.
+    assert held_by_stems([pose_of(3, 0.02), pose_of(2, 0.0)]) is None
+    assert held_by_stems([pose_of(5, 0.15), pose_of(2, 0.0)]) is None
+    assert held_by_stems([pose_of(5, 0.02), pose_of(5, 0.03)]) is None
+    assert held_by_stems([]) is None
