@@ -20,11 +20,11 @@ from amrst.types import Transform, rotation_angle_deg
 DISTINCT_M = 0.5
 DISTINCT_DEG = 5.0
 SCORE_FULL_CREDIT = 0.3
-# Below this polished score no candidate counts as verified (benchmark: right winners
-# scored >= 0.45, wrong ones <= 0.10).
+# Below this polished score no candidate counts as verified: it lies between what right
+# and wrong winners of the benchmark cases score after the polish.
 MIN_VERIFIED_SCORE = 0.15
 # Trunk solutions: verified also when this share lands within the tight distance and the
-# next heading scores at most half as much (see README, "Trunk heading search").
+# next heading scores at most half as much (docs/how-it-works.md, trunk heading search).
 MIN_PRECISE_SCORE = 0.03
 MIN_SEPARATION = 0.5
 
@@ -183,8 +183,7 @@ def choose_coarse(
         runner_key = max((c.score for c in rivals), default=0.0)
     runner = max((c.score for c in rivals), default=0.0)
     # Confidence: how clearly the winner beats a different solution, times how well it
-    # fits at all (on the 20 benchmark cases every right winner scored >= 0.45 after the
-    # polish and every wrong one <= 0.08; full credit from SCORE_FULL_CREDIT).
+    # fits at all (full credit from SCORE_FULL_CREDIT, a score wrong winners do not reach).
     separation = float(np.clip(1 - runner_key / key, 0, 1)) if key > 0 else 0.0
     if best.origin is Origin.TRUNK:
         fit = min(1.0, best.precise_score / (2 * MIN_PRECISE_SCORE))
