@@ -227,6 +227,7 @@ def map_stems(
         fits.append(_measure_stem(pts, h, ground, seed, params))
     if trees:
         say(0.5, "stems hidden at their foot, crowns")
+        _merge_same_stems(seeds, fits, params)
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
@@ -242,6 +243,27 @@ def map_stems(
             kept[k] = len(stems)
             stems.append(stem)
     return StemMap(tuple(stems), ground, pts, kept[owner], index)
+
+
+def _merge_same_stems(
+    seeds: list[np.ndarray], fits: list[_StemFit | None], params: StemMapParams
+) -> None:
+    """Keep one fit of a stem found twice (in place): its seeds join the first.
+
+    A thin stem among its own twigs can be found twice, as a slice cluster and as
+    bark beside it; fits whose bases lie within ``same_stem_m`` are one stem.
+    """
+    kept: list[tuple[int, np.ndarray]] = []  # (seed, base x y)
+    for k, fit in enumerate(fits):
+        if fit is None:
+            continue
+        xy = fit.stem.base[:2]
+        same = [j for j, b in kept if np.hypot(*(b - xy)) <= params.same_stem_m]
+        if same:
+            seeds[same[0]] = np.concatenate([seeds[same[0]], seeds[k]])
+            fits[k] = None
+        else:
+            kept.append((k, xy))
 
 
 def _add_hidden_stems(

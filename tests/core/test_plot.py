@@ -257,3 +257,29 @@ def test_stems_alone_hold_a_pose_only_with_a_clear_lead() -> None:
     assert held_by_stems([pose_of(5, 0.15), pose_of(2, 0.0)]) is None
     assert held_by_stems([pose_of(5, 0.02), pose_of(5, 0.03)]) is None
     assert held_by_stems([]) is None
+
+
+def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
+    xyz = scan((0.0, -5.0), ((4.0, 3.0, 0.12, 6.0),), 16)
+    z0 = float(ground_z(np.zeros(2)))
+    # Two positions north and south each see a quarter of a 24 cm stem: two pieces
+    # too far apart to link, each a stem of its own in the slice.
+    pieces = []
+    for mid in (np.pi / 2, -np.pi / 2):
+        theta = mid + np.linspace(-np.pi / 4, np.pi / 4, 25)
+        tt, zz = np.meshgrid(theta, np.arange(z0 - 0.05, z0 + 4.0, 0.02))
+        r = 0.12
+        pieces.append(
+            np.column_stack(
+                [r * np.cos(tt.ravel()), r * np.sin(tt.ravel()), zz.ravel()]
+            )
+        )
+    pts = np.vstack([xyz, *pieces])
+    stems = map_stems(pts).stems
+    assert len(stems) == 2
+    at = min(stems, key=lambda s: float(np.hypot(*s.base[:2])))
+    assert at.dbh_m == pytest.approx(0.24, abs=0.01)
+    assert at.height_m == pytest.approx(4.0, abs=0.1)
+    # Without the merge the one stem is two trees.
+    apart = replace(StemMapParams(), same_stem_m=0.0)
+    assert len(map_stems(pts, apart).stems) == 3
