@@ -28,6 +28,7 @@ from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
+    QGridLayout,
     QHBoxLayout,
     QHeaderView,
     QLabel,
@@ -123,29 +124,31 @@ class CampaignPanel(QWidget):
         self.tree_scans.link_selected.connect(self.show_link)
         self._update_buttons()
 
-    def _decision_buttons(self) -> QHBoxLayout:
-        """Run, Accept, Reject, Clear and Export accepted, in one row, connected."""
+    def _decision_buttons(self) -> QGridLayout:
+        """Accept, Reject, Clear; Run and Export accepted under them, connected.
+
+        Two rows keep the dock narrow enough for the Scans dock it shares the side
+        with on a laptop screen.
+        """
         self.run_button = QPushButton("Run remaining")
         self.accept_button = QPushButton("Accept")
         self.reject_button = QPushButton("Reject")
         self.clear_button = QPushButton("Clear")
         self.clear_button.setToolTip("Take the decision on the selected trees back")
         self.export_button = QPushButton("Export accepted")
-        row = QHBoxLayout()
-        for b in (
-            self.run_button,
-            self.accept_button,
-            self.reject_button,
-            self.clear_button,
-            self.export_button,
+        grid = QGridLayout()
+        for col, b in enumerate(
+            (self.accept_button, self.reject_button, self.clear_button)
         ):
-            row.addWidget(b)
+            grid.addWidget(b, 0, 2 * col, 1, 2)
+        grid.addWidget(self.run_button, 1, 0, 1, 3)
+        grid.addWidget(self.export_button, 1, 3, 1, 3)
         self.run_button.clicked.connect(self.run_remaining)
         self.accept_button.clicked.connect(lambda: self.decide("accepted"))
         self.reject_button.clicked.connect(lambda: self.decide("rejected"))
         self.clear_button.clicked.connect(lambda: self.decide(CLEAR))
         self.export_button.clicked.connect(self.export_accepted)
-        return row
+        return grid
 
     # ------------------------------------------------------------- public
     def open_campaign(self, folder: str | Path) -> bool:

@@ -34,3 +34,24 @@ def test_no_text_is_cut_off_at_1366x768_and_1920x1080(loaded_window, qtbot, fini
         label = win.status.message
         assert label.shown_text() == " ".join(label.text().split())
         assert s.verdict.next_step.split(";")[0] in label.toolTip()
+
+
+def test_the_side_docks_keep_their_widths_at_1366x768(loaded_window, qtbot):
+    from PySide6.QtWidgets import QPushButton
+
+    # No dock tabbed on the left may be so wide that the Matches and Manual pose
+    # docks on the right are squeezed below the width they are laid out for.
+    win = loaded_window
+    win.resize(1366, 768)
+    win._default_sizes()
+    _wait(qtbot, 300)
+    assert win.docks["scans"].width() <= 360
+    assert win.docks["matches"].width() >= 400
+    dock = win.docks["manual"]
+    dock.raise_()
+    _wait(qtbot)
+    edge = dock.mapTo(win, dock.rect().topRight()).x()
+    buttons = [b for b in win.manual_panel.findChildren(QPushButton) if b.isVisible()]
+    assert "Use as candidate" in [b.text() for b in buttons]
+    for b in buttons:
+        assert b.mapTo(win, b.rect().topRight()).x() <= edge, b.text()
