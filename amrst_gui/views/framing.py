@@ -8,6 +8,12 @@ from __future__ import annotations
 import numpy as np
 
 VIEW_ANGLE_DEG = 30.0
+#: The Top, Front and Side views: from the camera to the tree, and the screen's up.
+LOOKS = {
+    "Top": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+    "Front": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "Side": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+}
 
 
 def side_view(

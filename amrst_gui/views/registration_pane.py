@@ -17,6 +17,7 @@ from PySide6.QtWidgets import (
 
 from amrst_gui.pacing import PACE
 from amrst_gui.views.bar_row import FlowLayout, wrapping_row
+from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
@@ -156,13 +157,7 @@ class RegistrationPane(QWidget):
 
     def look(self, direction: str) -> None:
         """Top, Front or Side view of the whole tree."""
-        # From the camera to the tree, and the screen's up (pyvista's view_xy,
-        # view_xz and view_yz, without their bounds pass over every actor).
-        toward, up = {
-            "Top": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
-            "Front": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
-            "Side": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        }[direction]
+        toward, up = LOOKS[direction]
         self.view.reset_camera(direction=toward, up=up, elevation=0.0)
 
     def _on_stage_toggled(self, index: int, checked: bool) -> None:

@@ -20,6 +20,7 @@ from PySide6.QtWidgets import (
 
 from amrst_gui.drops import FileDropMixin
 from amrst_gui.views.bar_row import FlowLayout, wrapping_row
+from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
 from amrst_gui.views.scan_view import ScanView
@@ -190,6 +191,14 @@ class ScansArea(QWidget):
         self.frame_button.clicked.connect(self.frame_match)
         bar.addWidget(self.link_box)
         bar.addWidget(reset)
+        for name, tip in (
+            ("Top", "Look down both stems: find the same side of the crowns"),
+            ("Side", "Look at both trees along x, level"),
+        ):
+            look = QPushButton(name)
+            look.setToolTip(tip)
+            look.clicked.connect(lambda _=False, n=name: self.look(n))
+            bar.addWidget(look)
         bar.addWidget(self.frame_button)
         splitter = QSplitter(Qt.Orientation.Horizontal)
         for pane in self.panes.values():
@@ -217,6 +226,12 @@ class ScansArea(QWidget):
         """Side views of both trees."""
         for view in self.views():
             view.reset_camera()
+
+    def look(self, direction: str) -> None:
+        """Top or Side view of both trees, level (framing.LOOKS)."""
+        toward, up = LOOKS[direction]
+        for view in self.views():
+            view.reset_camera(direction=toward, up=up, elevation=0.0)
 
     def frame_match(self) -> None:
         """Zoom each view onto its tetrahedron of the selected match."""

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
+from PySide6.QtWidgets import QPushButton
+
 DOCKS = (
     "scans_dock",
     "parameters_dock",
@@ -101,6 +104,17 @@ def test_linked_cameras_follow_each_other(loaded_window):
     target_view.plotter.camera.azimuth = 40
     target_view.camera_moved.emit()
     assert source_view.plotter.camera.position != before
+
+
+def test_top_shows_both_picking_views_from_above(loaded_window, qtbot):
+    area = loaded_window.scans_area
+    top = next(b for b in area.findChildren(QPushButton) if b.text() == "Top")
+    top.click()
+    for view in area.views():
+        look = np.asarray(
+            view.plotter.renderer.GetActiveCamera().GetDirectionOfProjection()
+        )
+        assert look @ (0.0, 0.0, -1.0) > 0.99
 
 
 def test_about_and_shortcuts_dialogs(make_main_window, qtbot):
