@@ -33,16 +33,17 @@ def side_view(
         cam.OrthogonalizeViewUp()
     renderer.ResetCamera(*b)
     # ResetCamera fits the bounding sphere; a tree is tall and thin, so come
-    # closer until its projected box fills the widget.
+    # closer until its box fills the widget. Each corner must fit at its own
+    # depth: seen from above, the crown is nearer the camera than the stem foot.
     corners = np.array(np.meshgrid(*b.reshape(3, 2))).reshape(3, -1).T - centre
     view_up = np.asarray(cam.GetViewUp())
-    right = np.cross(np.asarray(cam.GetDirectionOfProjection()), view_up)
-    need_w = np.ptp(corners @ right)
-    need_h = np.ptp(corners @ view_up)
-    span_h = 2 * cam.GetDistance() * np.tan(np.radians(VIEW_ANGLE_DEG) / 2)
-    fit = 0.9 * min(span_h / max(need_h, 1e-9), span_h * aspect / max(need_w, 1e-9))
-    if np.isfinite(fit) and fit > 1:
-        cam.Dolly(fit)
+    toward = np.asarray(cam.GetDirectionOfProjection())
+    right = np.cross(toward, view_up)
+    half = 0.9 * np.tan(np.radians(VIEW_ANGLE_DEG) / 2)  # of the span per metre
+    across = np.maximum(np.abs(corners @ view_up), np.abs(corners @ right) / aspect)
+    distance = float(np.max(across / half - corners @ toward))
+    if np.isfinite(distance) and 0 < distance < cam.GetDistance():
+        cam.SetPosition(*(centre - toward * distance))
     renderer.ResetCameraClippingRange(*b)
 
 

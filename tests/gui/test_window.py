@@ -111,10 +111,18 @@ def test_top_shows_both_picking_views_from_above(loaded_window, qtbot):
     top = next(b for b in area.findChildren(QPushButton) if b.text() == "Top")
     top.click()
     for view in area.views():
-        look = np.asarray(
-            view.plotter.renderer.GetActiveCamera().GetDirectionOfProjection()
-        )
+        ren = view.plotter.renderer
+        look = np.asarray(ren.GetActiveCamera().GetDirectionOfProjection())
         assert look @ (0.0, 0.0, -1.0) > 0.99
+        # The whole tree is in sight: the crown, nearest the camera, too.
+        w, h = ren.GetSize()
+        b = np.asarray(view._fit_bounds(), float)
+        for corner in np.array(np.meshgrid(*b.reshape(3, 2))).reshape(3, -1).T:
+            ren.SetWorldPoint(*corner, 1.0)
+            ren.WorldToDisplay()
+            x, y, _ = ren.GetDisplayPoint()
+            assert 0 <= x <= w
+            assert 0 <= y <= h
 
 
 def test_about_and_shortcuts_dialogs(make_main_window, qtbot):
