@@ -141,12 +141,13 @@ def register_plot_link(
     coarse = choose_coarse(ranked, frozenset(), centre) if cands else None
     if coarse is not None and coarse.verified:
         won = poses[coarse.candidate.id - MANUAL_ID_BASE]
-        score, confidence = coarse.candidate.score, coarse.confidence
+        start, confidence = coarse.T_target_source, coarse.confidence
+        score = coarse.candidate.score
         message = f"{len(won.pairs)} shared stems; {coarse.message}"
     elif (held := held_by_stems(poses)) is not None:
         won = poses[held]
+        start, confidence = won.T_target_source, 1.0
         score = next(c.score for c in cands if c.id == MANUAL_ID_BASE + held)
-        confidence = 1.0
         message = (
             f"{len(won.pairs)} shared stems meet within {100 * won.rms_m:.0f} cm and "
             f"no other pose is held by as many; the scans share too little surface "
@@ -159,7 +160,7 @@ def register_plot_link(
     fine = refine(
         target.analysis,
         source.analysis,
-        won.T_target_source,
+        start,
         params,
         SubReporter(reporter, 0.5, 0.95),
         threads=threads,
