@@ -1321,6 +1321,8 @@ class Session(QObject):
         self.review.link_review.accepted_pose = T
         self._metrics.update(got.metrics)
         self._tree["fine"] = got.tree
+        if got.quality is not None:
+            self._quality["fine"] = got.quality
         for step in ("match", "coarse", "fine"):
             self._step_params[step] = params
         self._stored = stored

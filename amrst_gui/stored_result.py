@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
     from amrst.pipeline import MatchResult
+    from amrst.pipeline.refine import PoseQuality
     from amrst.stages.candidates import CoarseResult
     from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
@@ -43,6 +44,7 @@ class StoredResults:
     metrics: dict[str, CloudMetrics]
     tree: dict[str, TreeMeasures]
     truth: np.ndarray | None
+    quality: PoseQuality | None  # the stored figures; no stem slices (no points)
 
 
 def stored_params(
@@ -136,7 +138,38 @@ def stored_results(
         if (m := tree_measures(d)) is not None
     }
     truth = None if stored.T_truth is None else np.asarray(stored.T_truth, float)
-    return StoredResults(params, matches, coarse, fine, metrics, tree, truth)
+    quality = pose_quality(stored.quality, stored.strength)
+    return StoredResults(params, matches, coarse, fine, metrics, tree, truth, quality)
+
+
+def pose_quality(
+    quality: dict[str, Any] | None, strength: dict[str, Any] | None
+) -> PoseQuality | None:
+    """PoseQuality from metrics.json's ``quality`` and ``strength`` sections.
+
+    None when the distances are missing; the stem slices are not stored as points,
+    so the Stem slices tab makes its own.
+    """
+    from amrst.pipeline.refine import PoseQuality
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.strength import AXES, Strength
+
+    d = (quality or {}).get("distance")
+    if not isinstance(d, dict):
+        return None
+
+    def num(value: Any) -> float:
+        return math.nan if value is None else float(value)
+
+    overlap = OverlapDistances(
+        median_m=num(d.get("median_m")),
+        p95_m=num(d.get("p95_m")),
+        within_2cm_fraction=num(d.get("within_2cm_fraction")),
+        overlap_fraction=num(d.get("overlap_fraction")),
+        n_points_measured=int(num(d.get("n_points", d.get("n_points_measured", 0)))),
+    )
+    values = {axis: num((strength or {}).get(axis)) for axis in AXES}
+    return PoseQuality(overlap, Strength(values, 0), ())
 
 
 def cloud_metrics(values: dict[str, Any] | None) -> Any:

@@ -123,6 +123,9 @@ class StoredLinkResult:
     params: dict[str, Any] | None
     label: str
     T_truth: Transform | None = None  # world T_target_source from the tree's truth
+    # metrics.json's ``quality`` and ``strength`` sections (pair trees only).
+    quality: dict[str, Any] | None = None
+    strength: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -189,6 +192,8 @@ class StoredTree:
                 params=self.params,
                 label=label,
                 T_truth=truth,
+                quality=pair.get("quality"),
+                strength=pair.get("strength"),
             )
         return StoredLinkResult(
             target=target,

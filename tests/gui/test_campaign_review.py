@@ -86,6 +86,15 @@ def test_select_review_accept_export_a_stored_tree(
     assert session.verdict.status == metrics["verdict"]["status"]
     assert session.metrics["fine"].rmse_overlap_m == metrics["fine"]["rmse_overlap_m"]
     assert session.tree["merged"].height_m == metrics["tree"]["merged"]["height_m"]
+    # The Quality table and the verdict read the stored overlap figures and strength.
+    quality = session.stage_quality("fine")
+    assert quality is not None
+    stored = metrics["quality"]["distance"]
+    assert quality.overlap.median_m == pytest.approx(stored["median_m"])
+    assert quality.overlap.within_2cm_fraction == pytest.approx(
+        stored["within_2cm_fraction"]
+    )
+    assert quality.strength.values["rz"] == pytest.approx(metrics["strength"]["rz"])
     # The overlay shows the pose (from the next turn of the event loop).
     qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
     assert seconds < 10  # measured well under 1 s; a loaded machine gets slack
