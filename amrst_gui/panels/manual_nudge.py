@@ -66,9 +66,11 @@ class NudgeMixin:
         self.score_label.setWordWrap(True)
         self.score_label.setToolTip(
             "Under the nudged pose (no polish): the median distance of sampled source "
-            "points to the target, which falls steadily as the pose comes right, and "
-            "their share within 4 cm, which rises only near it. Turn to the lowest "
-            "median, then use the pose and run Fine."
+            "points to the target (up to 1 m), and their share within 4 cm, which "
+            "rises only near the right pose. Where the scans share little the median "
+            "can stay flat or lead astray: judge the pose in the overlay and the stem "
+            "slices too. Measured on the prepared points once Separate has run, on "
+            "all points before: the two read differently."
         )
         self.use_nudge = QPushButton("Use nudged pose")
         self.use_nudge.clicked.connect(self.use_nudged)
@@ -147,8 +149,13 @@ class NudgeMixin:
             self.score_label.setText("Score of this pose: shown with this tab.")
             return
         median_m, share = self.live_score(T)
+        points = (
+            "prepared points"
+            if self.session.analysis("target") is not None
+            else "all points"
+        )
         self.score_label.setText(
-            f"This pose: median distance {median_m * 100:.1f} cm, "
+            f"This pose ({points}): median distance {median_m * 100:.1f} cm, "
             f"{share:.0%} of sampled source points within "
             f"{self.session.params.coarse.tight_dist_m * 100:.0f} cm of the target."
         )
