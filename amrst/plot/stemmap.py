@@ -250,8 +250,9 @@ def _merge_same_stems(
 ) -> None:
     """Keep one fit of a stem found twice (in place): its seeds join the first.
 
-    A thin stem among its own twigs can be found twice, as a slice cluster and as
-    bark beside it; fits whose bases lie within ``same_stem_m`` are one stem.
+    A stem can be found twice: in two pieces (two positions each see one side, too
+    far apart to link in the slice), or as a slice cluster and bark beside it. Fits
+    whose bases lie within ``same_stem_m`` are one stem.
     """
     kept: list[tuple[int, np.ndarray]] = []  # (seed, base x y)
     for k, fit in enumerate(fits):
