@@ -152,6 +152,34 @@ def pair_residuals(
     return np.asarray(np.linalg.norm(moved - t, axis=1))
 
 
+#: How far a point picked by eye may miss the feature meant (m).
+PICK_ERROR_M = 0.05
+#: A turn about the vertical that such a miss swings by more than this is weak (deg).
+WEAK_TURN_DEG = 5.0
+
+
+def turn_swing(target_pts: np.ndarray) -> tuple[float, float]:
+    """How firmly the pairs fix the turn about the vertical.
+
+    The turn's lever is how far the picked points spread across the ground (from
+    their middle); a pick that misses by :data:`PICK_ERROR_M` at that lever turns the
+    pose by the returned angle. Two points on one stem, a few cm apart across the
+    ground however far apart in height, fix almost no turn.
+
+    Returns
+    -------
+    (float, float)
+        The lever (m) and the swing (deg; 180 when the points stand on one vertical).
+    """
+    t = np.asarray(target_pts, float).reshape(-1, 3)
+    if not len(t):
+        return 0.0, 180.0
+    lever = float(np.linalg.norm(t[:, :2] - t[:, :2].mean(axis=0), axis=1).max())
+    if lever <= 0:
+        return 0.0, 180.0
+    return lever, float(np.degrees(np.arctan2(PICK_ERROR_M, lever)))
+
+
 def fit_pairs(
     target_pts: np.ndarray, source_pts: np.ndarray, levelled: bool = False
 ) -> PairFit:

@@ -137,3 +137,17 @@ def test_a_manual_pose_is_scored_like_the_automatic_ones():
     assert right.origin == "manual"
     assert right.score > 0.9
     assert wrong.score < right.score
+
+
+def test_turn_swing_is_large_for_points_up_one_stem() -> None:
+    from amrst.review.manual import PICK_ERROR_M, turn_swing
+
+    stem = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 3.0]])
+    lever, swing = turn_swing(stem)
+    assert lever == pytest.approx(0.025)
+    assert swing > 60
+    crown = np.vstack([stem, [[3.0, 1.0, 6.0]]])
+    lever, swing = turn_swing(crown)
+    assert swing == pytest.approx(np.degrees(np.arctan2(PICK_ERROR_M, lever)))
+    assert swing < 2
+    assert turn_swing(np.zeros((2, 3)))[1] == 180.0

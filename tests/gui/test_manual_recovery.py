@@ -190,3 +190,19 @@ def test_the_wheel_zooms_toward_the_cursor(loaded_window, qtbot):
     assert cam.GetDistance() < distance * 0.9
     # What was under the cursor is still under it.
     assert np.linalg.norm(under_cursor() - before) < 0.02 * distance
+
+
+def test_two_pairs_on_one_stem_warn_of_a_weak_turn(loaded_window):
+    panel = loaded_window.manual_panel
+    panel.levelled.setChecked(True)
+    T = _truth_local(loaded_window)
+    # Two points 3 m apart up a stem that leans 10 cm: the heading hangs on that.
+    src = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 3.0]])
+    for a, b in zip(src @ T[:3, :3].T + T[:3, 3], src, strict=True):
+        panel.add_pair(a, b)
+    assert "Weak turn" in panel.fit_label.text()
+    # A third point 2 m out in the crown holds the turn.
+    far = np.array([2.0, 0.5, 4.0])
+    panel.add_pair(T[:3, :3] @ far + T[:3, 3], far)
+    assert "Achievable RMS" in panel.fit_label.text()
+    assert "Weak turn" not in panel.fit_label.text()
