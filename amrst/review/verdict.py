@@ -134,21 +134,36 @@ def _manual_verdict(
         f"{overlap.within_2cm_fraction:.0%} lie within 2 cm."
     )
     weak = strength.advice() if strength is not None else ""
-    good = (
-        overlap.median_m <= MANUAL_MEDIAN_M
-        and overlap.within_2cm_fraction >= MANUAL_WITHIN_2CM
-        and overlap.n_points_measured >= MANUAL_MIN_POINTS
-        and not weak
-    )
-    if good:
+    # What a right pose shows and this one does not, named so that the figures
+    # quoted are not read as evidence.
+    short = [
+        text
+        for failed, text in (
+            (
+                not overlap.median_m <= MANUAL_MEDIAN_M,
+                f"a median under {MANUAL_MEDIAN_M * 100:.1f} cm",
+            ),
+            (
+                not overlap.within_2cm_fraction >= MANUAL_WITHIN_2CM,
+                f"{MANUAL_WITHIN_2CM:.0%} or more within 2 cm",
+            ),
+            (
+                overlap.n_points_measured < MANUAL_MIN_POINTS,
+                f"{MANUAL_MIN_POINTS} or more points seen by both",
+            ),
+        )
+        if failed
+    ]
+    if not short and not weak:
         return Verdict(
             REGISTERED,
             seen,
             "Look at the stem slices once, then export.",
         )
+    unconfirmed = f"A right pose shows {', '.join(short)}." if short else ""
     return Verdict(
         NEEDS_REVIEW,
-        f"{seen} {weak}".strip(),
+        " ".join(part for part in (seen, unconfirmed, weak) if part),
         "Check the overlay, the distance colours and the stem slices; run Fine "
         "registration and look again, or refine the point pairs.",
     )

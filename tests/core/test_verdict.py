@@ -126,6 +126,14 @@ def test_a_manual_pose_is_judged_by_its_own_evidence_not_a_share():
     off = _manual((0.03, 0.2, 0.2, 0.4, 5000), HELD)
     assert off.status == verdict.NEEDS_REVIEW
     assert "3.0 cm" in off.reason
+    # The reason says what a right pose would show, so the figures are not read
+    # as evidence; only what falls short is named.
+    assert "A right pose shows a median under 1.5 cm, 50% or more within 2 cm." in (
+        off.reason
+    )
+    few = _manual((0.008, 0.05, 0.7, 0.4, 150), HELD)
+    assert few.status == verdict.NEEDS_REVIEW
+    assert "A right pose shows 200 or more points seen by both." in few.reason
 
 
 def test_a_weak_axis_is_named_and_holds_a_manual_pose_back():
