@@ -138,8 +138,9 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.undo_button.clicked.connect(self.undo)
         self.use_pairs = QPushButton("Use as candidate")
         self.use_pairs.setToolTip(
-            "Add the fitted pose to the Matches list (origin manual), verified like "
-            "the others; then Accept coarse and Fine start from it."
+            "Add the pose the point pairs fit to the Matches list (origin manual), "
+            "verified like the others; then Accept coarse and Fine start from it. "
+            "The Nudge's turn and shift are not in it: 'Use nudged pose' adds those."
         )
         self.use_pairs.clicked.connect(self.use_pair_fit)
         for b in (self.delete_button, self.undo_button, self.use_pairs):
