@@ -6,13 +6,19 @@ lines, so every control stays in sight (a scrolling row would hide some of them)
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from PySide6.QtCore import QPoint, QRect, QSize, Qt
 from PySide6.QtWidgets import (
     QLayout,
     QLayoutItem,
+    QPushButton,
     QSizePolicy,
     QWidget,
 )
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 class FlowLayout(QLayout):
@@ -107,3 +113,17 @@ def wrapping_row(layout: FlowLayout) -> QWidget:
     policy.setHeightForWidth(True)
     row.setSizePolicy(policy)
     return row
+
+
+def add_look_buttons(
+    bar: FlowLayout, tips: dict[str, str], look: Callable[[str], None]
+) -> dict[str, QPushButton]:
+    """Add a button per view name (``framing.LOOKS``) to ``bar`` calling ``look``."""
+    buttons = {}
+    for name, tip in tips.items():
+        button = QPushButton(name)
+        button.setToolTip(tip)
+        button.clicked.connect(lambda _=False, n=name: look(n))
+        bar.addWidget(button)
+        buttons[name] = button
+    return buttons

@@ -9,14 +9,13 @@ from PySide6.QtWidgets import (
     QButtonGroup,
     QComboBox,
     QLabel,
-    QPushButton,
     QRadioButton,
     QVBoxLayout,
     QWidget,
 )
 
 from amrst_gui.pacing import PACE
-from amrst_gui.views.bar_row import FlowLayout, wrapping_row
+from amrst_gui.views.bar_row import FlowLayout, add_look_buttons, wrapping_row
 from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
@@ -70,17 +69,15 @@ class RegistrationPane(QWidget):
         )
         self.colour.currentIndexChanged.connect(lambda _i: self.refresh())
         bar.addWidget(self.colour)
-        self.view_buttons = {}
-        for name, tip in (
-            ("Top", "Look down the stem"),
-            ("Front", "Look along y"),
-            ("Side", "Look along x"),
-        ):
-            look = QPushButton(name)
-            look.setToolTip(tip)
-            look.clicked.connect(lambda _=False, n=name: self.look(n))
-            bar.addWidget(look)
-            self.view_buttons[name] = look
+        self.view_buttons = add_look_buttons(
+            bar,
+            {
+                "Top": "Look down the stem",
+                "Front": "Look along y",
+                "Side": "Look along x",
+            },
+            self.look,
+        )
         self.view = ScanView(self)
         self.loader = SceneLoader(self.view, self)
         self.loader.drawn.connect(self._on_drawn)

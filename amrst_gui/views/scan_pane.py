@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst_gui.drops import FileDropMixin
-from amrst_gui.views.bar_row import FlowLayout, wrapping_row
+from amrst_gui.views.bar_row import FlowLayout, add_look_buttons, wrapping_row
 from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.layers import SpheresLayer
 from amrst_gui.views.linking import CameraLink
@@ -191,14 +191,14 @@ class ScansArea(QWidget):
         self.frame_button.clicked.connect(self.frame_match)
         bar.addWidget(self.link_box)
         bar.addWidget(reset)
-        for name, tip in (
-            ("Top", "Look down both stems: find the same side of the crowns"),
-            ("Side", "Look at both trees along x, level"),
-        ):
-            look = QPushButton(name)
-            look.setToolTip(tip)
-            look.clicked.connect(lambda _=False, n=name: self.look(n))
-            bar.addWidget(look)
+        add_look_buttons(
+            bar,
+            {
+                "Top": "Look down both stems: find the same side of the crowns",
+                "Side": "Look at both trees along x, level",
+            },
+            self.look,
+        )
         bar.addWidget(self.frame_button)
         splitter = QSplitter(Qt.Orientation.Horizontal)
         for pane in self.panes.values():
