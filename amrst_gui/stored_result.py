@@ -159,14 +159,18 @@ def pose_quality(
         return None
 
     def num(value: Any) -> float:
-        return math.nan if value is None else float(value)
+        # null (NaN in metrics.json) or anything not a number reads as unknown
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        return float(value) if ok else math.nan
 
+    # Files of older versions call the count n_points.
+    n = num(d.get("n_points_measured", d.get("n_points")))
     overlap = OverlapDistances(
         median_m=num(d.get("median_m")),
         p95_m=num(d.get("p95_m")),
         within_2cm_fraction=num(d.get("within_2cm_fraction")),
         overlap_fraction=num(d.get("overlap_fraction")),
-        n_points_measured=int(num(d.get("n_points", d.get("n_points_measured", 0)))),
+        n_points_measured=int(n) if math.isfinite(n) else 0,
     )
     values = {axis: num((strength or {}).get(axis)) for axis in AXES}
     return PoseQuality(overlap, Strength(values, 0), ())

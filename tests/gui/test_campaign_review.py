@@ -289,3 +289,31 @@ def test_batch_tracker_running_only_between_worker_events():
     assert batch.state("failed", "B") == "failed"
     batch.clear()
     assert batch.state("not run", "A") == "not run"
+
+
+def test_stored_quality_reads_nulls_and_old_names_without_failing():
+    import math
+
+    from amrst_gui.stored_result import pose_quality
+
+    assert pose_quality(None, None) is None
+    assert pose_quality({"distance": "broken"}, None) is None
+    q = pose_quality(
+        {
+            "distance": {
+                "median_m": None,
+                "p95_m": "x",
+                "within_2cm_fraction": 0.5,
+                "overlap_fraction": 0.4,
+                "n_points": 120,
+            }
+        },
+        {"rz": None, "tx": 0.6},
+    )
+    assert q is not None
+    assert math.isnan(q.overlap.median_m)
+    assert math.isnan(q.overlap.p95_m)
+    assert q.overlap.within_2cm_fraction == 0.5
+    assert q.overlap.n_points_measured == 120
+    assert q.strength.values["tx"] == 0.6
+    assert math.isnan(q.strength.values["rz"])
