@@ -227,8 +227,8 @@ def map_stems(
         fits.append(_measure_stem(pts, h, ground, seed, params))
     if trees:
         say(0.5, "stems hidden at their foot, crowns")
-        _merge_same_stems(seeds, fits, params)
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
+        _merge_same_stems(seeds, fits, params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
@@ -251,8 +251,8 @@ def _merge_same_stems(
     """Keep one fit of a stem found twice (in place): its seeds join the first.
 
     A stem can be found twice: in two pieces (two positions each see one side, too
-    far apart to link in the slice), or as a slice cluster and bark beside it. Fits
-    whose bases lie within ``same_stem_m`` are one stem.
+    far apart to link in the slice), as a slice cluster and bark beside it, or again
+    above its foot. Fits whose bases lie within ``same_stem_m`` are one stem.
     """
     kept: list[tuple[int, np.ndarray]] = []  # (seed, base x y)
     for k, fit in enumerate(fits):
@@ -280,7 +280,8 @@ def _add_hidden_stems(
     Undergrowth, or a spruce's own branches down to the ground, hide a stem in the
     slice; higher up its bark still shows. Bark seeds ``hidden_low_m``-
     ``hidden_high_m`` above the ground, farther than ``hidden_gap_m`` from every stem
-    found, are such stems; two that measure to the same base are one.
+    found, are such stems (one that measures to a stem's base joins it in
+    :func:`_merge_same_stems`).
     """
     from scipy.spatial import cKDTree
 
@@ -291,19 +292,9 @@ def _add_hidden_stems(
         band = band[gap > params.hidden_gap_m]
     for seed in bark_seeds(pts, h, band, params):
         fit = _measure_stem(pts, h, ground, seed, params)
-        if fit is None:
-            continue
-        same = [
-            k
-            for k, f in enumerate(fits)
-            if f is not None
-            and np.hypot(*(f.stem.base[:2] - fit.stem.base[:2])) <= params.same_stem_m
-        ]
-        if same:
-            seeds[same[0]] = np.concatenate([seeds[same[0]], seed])
-            continue
-        seeds.append(seed)
-        fits.append(replace(fit, hidden=True))
+        if fit is not None:
+            seeds.append(seed)
+            fits.append(replace(fit, hidden=True))
 
 
 def bark_seeds(
