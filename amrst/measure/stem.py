@@ -75,7 +75,7 @@ def _refine_circle(
     """Geometric circle fit (distances to the circle), Gauss-Newton with soft-L1 weights.
 
     What scipy.optimize.least_squares(loss="soft_l1") does, in a few lines: importing
-    scipy.optimize alone costs 0.6 s per command. ``fit_radius=False`` keeps the
+    scipy.optimize alone is a noticeable share of a short command. ``fit_radius=False`` keeps the
     radius and fits the centre alone.
     """
     v = np.r_[centre, radius].astype(np.float64)
