@@ -75,8 +75,8 @@ def _refine_circle(
     """Geometric circle fit (distances to the circle), Gauss-Newton with soft-L1 weights.
 
     What scipy.optimize.least_squares(loss="soft_l1") does, in a few lines: importing
-    scipy.optimize alone is a noticeable share of a short command. ``fit_radius=False`` keeps the
-    radius and fits the centre alone.
+    scipy.optimize alone is a noticeable share of a short command.
+    ``fit_radius=False`` keeps the radius and fits the centre alone.
     """
     v = np.r_[centre, radius].astype(np.float64)
     n = 3 if fit_radius else 2
