@@ -10,6 +10,7 @@ wrong pose the pairs ruled out.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from typing import TYPE_CHECKING
 
@@ -21,7 +22,7 @@ from amrst.pipeline.link import MatchResult
 from amrst.pipeline.refine import refine
 from amrst.pipeline.register import finish_registration
 from amrst.progress import NULL_REPORTER, SubReporter
-from amrst.review.manual import MANUAL_ID_BASE, fit_pairs, score_manual
+from amrst.review.manual import MANUAL_ID_BASE, fit_pairs, score_manual, weak_turn
 from amrst.review.manual_keep import judge_refinement
 from amrst.stages.candidates import CandidateList, choose_coarse
 from amrst.stages.match import TetraMatches
@@ -32,6 +33,8 @@ if TYPE_CHECKING:
     from amrst.pipeline.register import RegistrationResult
     from amrst.progress import Reporter
     from amrst.types import Cloud
+
+log = logging.getLogger(__name__)
 
 
 def register_from_pairs(
@@ -74,6 +77,8 @@ def register_from_pairs(
         raise InvalidInput(
             "The point pairs do not fix a pose: pick them farther apart."
         )
+    if advice := weak_turn(t_pts):
+        log.warning("%s", advice)
 
     def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
         return analyse_scan(cloud, params, rep)

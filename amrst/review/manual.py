@@ -180,6 +180,18 @@ def turn_swing(target_pts: np.ndarray) -> tuple[float, float]:
     return lever, float(np.degrees(np.arctan2(PICK_ERROR_M, lever)))
 
 
+def weak_turn(target_pts: np.ndarray) -> str:
+    """One sentence when the pairs hardly fix the turn (:func:`turn_swing`), else ""."""
+    lever, swing = turn_swing(target_pts)
+    if swing <= WEAK_TURN_DEG:
+        return ""
+    return (
+        f"Weak turn: the points spread {lever:.2f} m across the ground, so a "
+        f"{PICK_ERROR_M * 100:.0f} cm miss turns the pose {swing:.0f}°; add a pair "
+        "far from the stem (a crown tip, a branch end)."
+    )
+
+
 def fit_pairs(
     target_pts: np.ndarray, source_pts: np.ndarray, levelled: bool = False
 ) -> PairFit:

@@ -290,21 +290,14 @@ class ManualPanel(NudgeMixin, QScrollArea):
             self.fit_label.setText(str(exc))
             return
         T = self.fit.T_target_source
-        lever, swing = manual.turn_swing(np.array([tp for tp, _sp in self.pairs]))
-        weak = (
-            f" Weak turn: the points spread {lever:.2f} m across the ground, so a "
-            f"{manual.PICK_ERROR_M * 100:.0f} cm miss turns the pose {swing:.0f}°; "
-            "add a pair far from the stem (a crown tip, a branch end)."
-            if swing > manual.WEAK_TURN_DEG
-            else ""
-        )
-        self.fit_label.setText(
+        weak = manual.weak_turn(np.array([tp for tp, _sp in self.pairs]))
+        text = (
             f"Achievable RMS of {len(self.pairs)} pairs: "
             f"{self.fit.rmse_m * 100:.1f} cm; turn "
             f"{rotation_angle_deg(T[:3, :3]):.1f}°, shift "
             f"{np.linalg.norm(T[:3, 3]):.2f} m. The overlay's Manual view shows it."
-            + weak
         )
+        self.fit_label.setText(f"{text} {weak}" if weak else text)
 
     def _fill_table(self) -> None:
         """One row per pair (dX, dY, dZ and distance under the fit, cm), and one for

@@ -50,3 +50,26 @@ def test_pairs_on_one_line_are_refused(sample_pair) -> None:
             (t[:1] + line, s[:1] + line),
             RegistrationParams(),
         )
+
+
+def test_pairs_up_one_stem_warn_of_a_weak_turn(sample_pair, caplog) -> None:
+    t, s = _spread_pairs(sample_pair, 2)
+    up = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 3.0]])  # 2 cm apart across the ground
+    with caplog.at_level("WARNING"):
+        register_from_pairs(
+            sample_pair.target,
+            sample_pair.source,
+            (t[:1] + up, s[:1] + up),
+            RegistrationParams(),
+            levelled=True,
+        )
+    assert "Weak turn" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        register_from_pairs(
+            sample_pair.target,
+            sample_pair.source,
+            _spread_pairs(sample_pair, 6),
+            RegistrationParams(),
+        )
+    assert "Weak turn" not in caplog.text
