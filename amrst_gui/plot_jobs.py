@@ -46,11 +46,13 @@ TOP_MIN_HEIGHT_M = 0.5
 
 @dataclass(frozen=True, slots=True)
 class ScanPlace:
-    """One scan of the plot: its label, where it stood (reference frame), its stems."""
+    """One scan of the plot: its label, where it stood (reference frame), its stems
+    and its state (registered / needs review / failed)."""
 
     label: str
     xy: np.ndarray | None  # (2,) the scanner's position; None: not placed
     stems: int
+    status: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +116,10 @@ class PlotOutcome:
         """Labels of the scans no verified link placed."""
         return [s.label for s in self.scans if s.xy is None]
 
+    def labelled(self, status: str) -> list[str]:
+        """Labels of the scans in ``status``."""
+        return [s.label for s in self.scans if s.status == status]
+
 
 def run_plot(
     specs: Sequence[str], out: Path, overwrite: bool, reporter: Reporter
@@ -160,8 +166,11 @@ def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlac
             label,
             None if pose is None else np.asarray(pose[:2, 3], float),
             len(scan.stems.stems),
+            status,
         )
-        for label, pose, scan in zip(labels, reg.poses, reg.scans, strict=True)
+        for label, pose, scan, status in zip(
+            labels, reg.poses, reg.scans, reg.statuses, strict=True
+        )
     )
 
 

@@ -32,6 +32,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError, Cancelled
+from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui import plot_jobs
 from amrst_gui.plot_tables import (
     LINK_COLUMNS,
@@ -318,16 +319,22 @@ class PlotWindow(QMainWindow):
         self._show_links(outcome)
         self._show_marks()
         self.tree_panel.show_tree(None, None, None)
-        missing = outcome.missing
+        missing, review = outcome.missing, outcome.labelled(NEEDS_REVIEW)
         line = (
-            f"{len(outcome.trees)} trees; {len(outcome.scans) - len(missing)} of "
-            f"{len(outcome.scans)} scans placed, bundle error "
+            f"{len(outcome.trees)} trees; {len(outcome.labelled(REGISTERED))} of "
+            f"{len(outcome.scans)} scans registered, bundle error "
             f"{number(outcome.bundle_rmse_m * 100, '.1f')} cm ({outcome.seconds:.0f} s); "
             f"written to {outcome.out}"
         )
+        if review:
+            line += (
+                ". Needs review: "
+                + ", ".join(Path(m).name for m in review)
+                + " (check its links)"
+            )
         if missing:
             line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
-        self._say(line, error=bool(missing))
+        self._say(line, error=bool(missing or review))
         self.plot_done.emit(outcome)
 
     def _on_error(self, exc: BaseException) -> None:

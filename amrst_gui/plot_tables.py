@@ -12,6 +12,8 @@ from PySide6.QtWidgets import (
     QTableWidgetItem,
 )
 
+from amrst.review.verdict import NEEDS_REVIEW
+
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
@@ -64,7 +66,12 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             if scan.xy is None
             else f"at {scan.xy[0]:.1f}, {scan.xy[1]:.1f} m"
         )
-        lines.append(f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems")
+        # Only a placed scan that is not sure says its state.
+        unsure = scan.xy is not None and scan.status == NEEDS_REVIEW
+        state = f", {NEEDS_REVIEW}" if unsure else ""
+        lines.append(
+            f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems{state}"
+        )
     return lines
 
 

@@ -240,6 +240,10 @@ class PlotRecord:
     inventory_s: float = NAN
     inventory: InventoryScore | None = None
     origins: list[str] = field(default_factory=list)  # plot: each link's source
+    #: Scans 2..N the method itself flags (plot: not registered); a scan off the
+    #: truth and not flagged is a silent failure. The peers flag nothing.
+    flagged: list[bool] = field(default_factory=list)
+    silent: int = 0
     error: str = ""
 
     def as_dict(self) -> dict[str, Any]:
@@ -267,6 +271,8 @@ def _score_poses(
         record.translation_error_m.append(e.translation_error_m)
         record.gt_rmse_m.append(e.gt_rmse_m)
         record.registered += int(e.registered())
+        flagged = bool(record.flagged) and record.flagged[k - 1]
+        record.silent += int(not e.registered() and not flagged)
 
 
 def _local(case: PlotCase) -> PlotCase:
@@ -285,6 +291,7 @@ def run_plot(case: PlotCase) -> PlotRecord:
     """Register and inventory the plot with ``amrst plot``'s engine; score both."""
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
+    from amrst.review.verdict import REGISTERED
 
     n = len(case.clouds)
     record = PlotRecord(case.name, PLOT, n)
@@ -293,6 +300,7 @@ def run_plot(case: PlotCase) -> PlotRecord:
     record.time_s = time.perf_counter() - t0
     record.pair_s = record.time_s / (n - 1)
     record.origins = [pl.link.origin for pl in reg.links if pl.link.in_tree]
+    record.flagged = [status != REGISTERED for status in reg.statuses[1:]]
     _score_poses(case, record, reg.poses)
     t0 = time.perf_counter()
     inv = take_inventory(case.clouds, reg.poses)
@@ -448,9 +456,12 @@ def _registration_table(records: Sequence[PlotRecord]) -> list[str]:
         ok = sum(r.registered for r in rs)
         total = sum(r.n_scans - 1 for r in records if r.method == m)
         med = np.median([r.pair_s for r in rs]) if rs else NAN
+        silent = sum(r.silent for r in rs)
+        flagged = sum(sum(r.flagged) for r in rs)
         lines.append(
             f"- {m}: {ok}/{total} scans registered; median time per pair "
             f"{_fmt(float(med))} s"
+            + (f"; flagged {flagged}, silent failures {silent}" if m == PLOT else "")
         )
     return lines
 

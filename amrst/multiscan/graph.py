@@ -20,6 +20,7 @@ import numpy as np
 from amrst.errors import RegistrationFailed
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 from amrst.types import invert_transform
 
 if TYPE_CHECKING:
@@ -33,6 +34,9 @@ if TYPE_CHECKING:
 
 #: Cost of a weak link, in links: below 1, so one more link never beats a weaker one.
 HOP_QUALITY = 0.5
+#: A registered link left out of the tree that moves the source's points (at 10 m)
+#: this far from where the tree's poses put them contradicts the tree (m).
+LOOP_TOLERANCE_M = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,9 +207,12 @@ def spanning_tree(links: Sequence[Link], n: int, reference: int) -> LinkGraph:
     """Keep the best verified links as a tree; compose each reached scan's pose.
 
     The tree is the shortest-path tree of the verified links from the reference:
-    fewest links first (every link adds its error), then the best ones (a link costs
-    ``1 + HOP_QUALITY * (1 - weight)``). A scan verified with the reference is
-    therefore joined to it directly; the others go through the scans they verify with.
+    registered links before those that need review (a verified candidate whose
+    runner-up scored almost as well is often the wrong one), then fewest links (every
+    link adds its error), then the best ones (a link costs ``1 + HOP_QUALITY * (1 -
+    weight)``, plus ``2 n`` when it needs review). A scan verified with the reference
+    is therefore joined to it directly; the others go through the scans they verify
+    with.
 
     Parameters
     ----------
@@ -227,6 +234,8 @@ def spanning_tree(links: Sequence[Link], n: int, reference: int) -> LinkGraph:
     for k, link in enumerate(links):
         if link.verified:
             cost = 1.0 + HOP_QUALITY * (1.0 - min(max(link.weight, 0.0), 1.0))
+            if link.status != REGISTERED:
+                cost += 2.0 * n  # more than any path of registered links
             graph.add_edge(link.target, link.source, cost=cost, link=k)
     reach = nx.single_source_dijkstra_path(graph, reference, weight="cost")
     chosen = {
@@ -289,3 +298,34 @@ def loop_closures(
             np.linalg.norm(delta[:3, 3]) + 10.0 * angle
         )
     return out
+
+
+def scan_statuses(
+    links: Sequence[Link],
+    paths: Sequence[tuple[int, ...] | None],
+    loops: dict[str, float],
+) -> tuple[str, ...]:
+    """Each scan's state, in the words of :mod:`amrst.review.verdict`.
+
+    ``failed``: no verified link reaches it. ``needs review``: a link of its path
+    needs review, or its path goes through a scan at either end of a registered link
+    that :func:`loop_closures` finds more than ``LOOP_TOLERANCE_M`` from the tree's
+    poses (two confident links disagree: one of them is wrong). Else ``registered``;
+    the reference (its path is itself) is registered.
+    """
+    doubtful = {(ln.target, ln.source) for ln in links if ln.status != REGISTERED}
+    doubtful |= {(b, a) for a, b in doubtful}
+    contradicted: set[int] = set()
+    for link in links:
+        key = f"{link.target}-{link.source}"
+        if link.status == REGISTERED and loops.get(key, 0.0) > LOOP_TOLERANCE_M:
+            contradicted |= {link.target, link.source}
+    out = []
+    for path in paths:
+        if path is None:
+            out.append(FAILED)
+            continue
+        steps = set(itertools.pairwise(path))
+        shaky = bool(steps & doubtful) or bool(set(path[1:]) & contradicted)
+        out.append(NEEDS_REVIEW if shaky else REGISTERED)
+    return tuple(out)

@@ -1,8 +1,8 @@
 """``amrst plot SCAN1 SCAN2 [SCAN ...] --out DIR``: register a plot and inventory it.
 
-The first scan is the reference. Exit 0 when every scan is placed by verified links,
-2 on unusable input, 3 when a scan could not be registered (the inventory is still
-written for the scans that were, and the message names the others).
+The first scan is the reference. Exit 0 when every scan is registered, 2 on unusable
+input, 3 when a scan could not be registered or needs review (the inventory is still
+written for the scans that were placed, and the message names the others).
 """
 
 from __future__ import annotations
@@ -65,21 +65,33 @@ def run_cli(args: argparse.Namespace) -> int:
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    missing = [lab for lab, p in zip(labels, reg.poses, strict=True) if p is None]
+    from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
+
+    named: dict[str, list[str]] = {REGISTERED: [], NEEDS_REVIEW: [], FAILED: []}
+    for label, status in zip(labels, reg.statuses, strict=True):
+        named[status].append(label)
+    review = f", {len(named[NEEDS_REVIEW])} need review" if named[NEEDS_REVIEW] else ""
     print(
-        f"{out}: {len(inventory.trees)} trees; {len(clouds) - len(missing)} of "
-        f"{len(clouds)} scans registered, bundle error "
+        f"{out}: {len(inventory.trees)} trees; {len(named[REGISTERED])} of "
+        f"{len(clouds)} scans registered{review}, bundle error "
         f"{100 * reg.bundle_rmse_m:.1f} cm",
         file=sys.stderr,
     )
-    if missing:
+    if named[NEEDS_REVIEW]:
         print(
-            f"amrst plot: not registered (no verified link): {', '.join(missing)}; "
-            "check those scans overlap the others, or register them by hand.",
+            f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
+            "the way to the reference is unsure or two links disagree: check the "
+            "links in plot.json or the app's Plot window.",
             file=sys.stderr,
         )
-        return EXIT_NOT_REGISTERED
-    return 0
+    if named[FAILED]:
+        print(
+            f"amrst plot: not registered (no verified link): "
+            f"{', '.join(named[FAILED])}; check those scans overlap the others, or "
+            "register them by hand.",
+            file=sys.stderr,
+        )
+    return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,13 +62,14 @@ def plot_document(
         "scans": [
             {
                 "label": label,
+                "status": status,
                 "reached": pose is not None,
                 "T_reference_scan": None if pose is None else pose.tolist(),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
             }
-            for label, pose, path, scan in zip(
-                labels, reg.poses, reg.paths, reg.scans, strict=True
+            for label, pose, path, scan, status in zip(
+                labels, reg.poses, reg.paths, reg.scans, reg.statuses, strict=True
             )
         ],
         "links": links,

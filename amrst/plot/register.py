@@ -21,13 +21,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.multiscan.graph import Link, link_pairs, loop_closures, spanning_tree
+from amrst.multiscan.graph import (
+    Link,
+    link_pairs,
+    loop_closures,
+    scan_statuses,
+    spanning_tree,
+)
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.plot.match import held_by_stems, stem_poses
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.stages.candidates import CandidateList, choose_coarse
+from amrst.stages.candidates import CandidateList, CoarseResult, choose_coarse
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -64,6 +70,8 @@ class PlotRegistration:
     reached); ``bundle_rmse_m`` is the mean NN-RMSE of each scan against the others
     in their overlap, at the final poses (after the joint refinement when it was
     kept; ``joint`` is None for two scans, whose link is already their fine fit).
+    ``statuses[k]`` is scan k's state: registered, needs review or failed
+    (:func:`amrst.multiscan.graph.scan_statuses`).
     """
 
     scans: tuple[PlotScan, ...]
@@ -73,6 +81,7 @@ class PlotRegistration:
     paths: tuple[tuple[int, ...] | None, ...]
     joint: JointResult | None
     loops: dict[str, float]
+    statuses: tuple[str, ...]
     bundle_rmse_m: float
     timings: dict[str, float]
 
@@ -139,12 +148,13 @@ def register_plot_link(
     )
     centre = np.r_[source.analysis.xyz[:, :2].mean(axis=0), 0.0]
     coarse = choose_coarse(ranked, frozenset(), centre) if cands else None
-    if coarse is not None and coarse.verified:
+    held = held_by_stems(poses)
+    if coarse is not None and coarse.verified and not _outvoted(coarse, held):
         won = poses[coarse.candidate.id - MANUAL_ID_BASE]
         start, confidence = coarse.T_target_source, coarse.confidence
         score = coarse.candidate.score
         message = f"{len(won.pairs)} shared stems; {coarse.message}"
-    elif (held := held_by_stems(poses)) is not None:
+    elif held is not None:
         won = poses[held]
         start, confidence = won.T_target_source, 1.0
         score = next(c.score for c in cands if c.id == MANUAL_ID_BASE + held)
@@ -181,6 +191,22 @@ def register_plot_link(
         seconds=time.perf_counter() - t0,
     )
     return PlotLink(link, _shared(target.stems, source.stems, T))
+
+
+def _outvoted(coarse: CoarseResult, held: int | None) -> bool:
+    """Tell whether the stems hold another pose than an unsure point-score winner.
+
+    The point score of far-apart plot scans can rank a two-stem coincidence just
+    above the pose four or more stems meet at; the stems settle what it cannot.
+    """
+    from amrst.review.manual import MANUAL_ID_BASE
+    from amrst.review.verdict import LOW_CONFIDENCE
+
+    return (
+        held is not None
+        and coarse.confidence < LOW_CONFIDENCE
+        and coarse.candidate.id != MANUAL_ID_BASE + held
+    )
 
 
 def _fallback(
@@ -314,6 +340,7 @@ def register_plot(
         bundle = _pair_rmse(links)
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
+    loops = loop_closures(graph.links, graph.poses)
     return PlotRegistration(
         scans=scans,
         reference=reference,
@@ -321,7 +348,8 @@ def register_plot(
         links=tuple(links),
         paths=graph.paths,
         joint=joint,
-        loops=loop_closures(graph.links, graph.poses),
+        loops=loops,
+        statuses=scan_statuses(graph.links, graph.paths, loops),
         bundle_rmse_m=float(bundle),
         timings=timings,
     )

@@ -11,7 +11,7 @@ import amrst
 from amrst import io
 from amrst.cli import main
 from amrst.multiscan.export import export_scans, read_scan_truth
-from amrst.multiscan.graph import Link, spanning_tree
+from amrst.multiscan.graph import Link, loop_closures, scan_statuses, spanning_tree
 from amrst.multiscan.simulate import simulate_scans, write_scans
 from amrst.stages.metrics import truth_errors
 from amrst.types import make_transform
@@ -80,15 +80,15 @@ def test_three_scans_all_placed_within_truth(three_scans, three_result):
     assert worst(three_result.T_reference_scan) <= worst(three_result.T_tree)
 
 
-def _link(a, b, verdict, weight=0.5):
+def _link(a, b, verdict, weight=0.5, confidence=1.0, shift=None):
     return Link(
         a,
         b,
         verdict,
         weight,
-        1.0,
+        confidence,
         weight,
-        make_transform(np.eye(3), [b - a, 0, 0]),
+        make_transform(np.eye(3), [b - a if shift is None else shift, 0, 0]),
         None,
         "",
     )
@@ -204,3 +204,45 @@ def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
     err = capsys.readouterr().err
     assert code == 2
     assert "no scan 7" in err
+
+
+def test_unsure_direct_link_gives_way_to_registered_detour():
+    # 0-2 verified but its runner-up scored almost as well (low confidence): the
+    # scan goes through 1, whose two links are sure, and the unsure link is left out.
+    links = [
+        _link(0, 1, "verified", 0.3),
+        _link(0, 2, "verified", 0.9, confidence=0.05, shift=-40.0),
+        _link(1, 2, "verified", 0.2),
+    ]
+    graph = spanning_tree(links, 3, 0)
+    assert graph.paths[2] == (0, 1, 2)
+    loops = loop_closures(graph.links, graph.poses)
+    assert loops["0-2"] > 1.0  # the unsure link disagrees, and says nothing
+    assert scan_statuses(graph.links, graph.paths, loops) == ("registered",) * 3
+
+
+def test_unsure_link_on_the_only_path_needs_review():
+    links = [_link(0, 1, "verified", 0.3, confidence=0.05), _link(0, 2, "failed", 0.0)]
+    graph = spanning_tree(links, 3, 0)
+    statuses = scan_statuses(graph.links, graph.paths, {})
+    assert statuses == ("registered", "needs review", "failed")
+
+
+def test_registered_links_that_disagree_flag_the_scans_behind_them():
+    links = [
+        _link(0, 1, "verified", 0.5),
+        _link(1, 2, "verified", 0.5),
+        _link(0, 2, "verified", 0.1, shift=3.0),  # sure, and 1 m off the tree
+        _link(0, 3, "verified", 0.5),
+    ]
+    graph = spanning_tree(links, 4, 0)
+    assert graph.paths[2] == (0, 2)
+    # The tree joins 2 directly; the left-out 1-2 puts it 1 m elsewhere.
+    loops = loop_closures(graph.links, graph.poses)
+    assert loops["1-2"] == pytest.approx(1.0)
+    assert scan_statuses(graph.links, graph.paths, loops) == (
+        "registered",
+        "needs review",
+        "needs review",
+        "registered",
+    )

@@ -7,6 +7,7 @@ scan seeing the half of every stem that faces its position, in its own frame.
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -128,6 +129,8 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     with (out / TREES_CSV).open() as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == len(STEMS)
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert plot_main(args) == 2  # another run's output is not replaced
     assert plot_main([*args, "--overwrite"]) == 0
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
