@@ -44,6 +44,11 @@ if TYPE_CHECKING:
 
 #: Origin named by the links the stem map registered.
 STEMS_ORIGIN = "stems"
+#: The fine registration of a plot link: source points, first correspondence
+#: distance (m) and scales down to the usual last one.
+PLOT_FINE_POINTS = 20_000
+PLOT_FINE_REACH_M = 0.5
+PLOT_FINE_SCALES = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +95,10 @@ def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
     """Return the registration settings of a plot: no scene stage, fine on all points.
 
     Neither the scene stage nor the wood-leaf separation is needed: the stem map
-    finds the ground and every stem itself, and the fine registration uses all points.
+    finds the ground and every stem itself. The fine registration uses all points,
+    more of them and a wider first scale than for one tree: a stem pose a degree off
+    moves a crown 20 m away by 35 cm, and a few thousand points spread over a plot
+    are mostly ground.
     """
     from amrst.params import RegistrationParams
 
@@ -99,7 +107,13 @@ def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
         params,
         scene=replace(params.scene, mode="off"),
         separate=replace(params.separate, mode="all_wood"),
-        fine=replace(params.fine, points="all"),
+        fine=replace(
+            params.fine,
+            points="all",
+            max_points=PLOT_FINE_POINTS,
+            max_corr_dist_m=PLOT_FINE_REACH_M,
+            scales=PLOT_FINE_SCALES,
+        ),
     )
 
 
@@ -154,6 +168,14 @@ def register_plot_link(
         start, confidence = coarse.T_target_source, coarse.confidence
         score = coarse.candidate.score
         message = f"{len(won.pairs)} shared stems; {coarse.message}"
+        if held is not None and won is poses[held]:
+            # The stems hold what the point score ranked first: as sure as a pose
+            # they hold alone, however close the point score's runner-up came.
+            confidence = 1.0
+            message = (
+                f"{len(won.pairs)} shared stems meet within {100 * won.rms_m:.0f} cm "
+                f"and no other pose is held by as many; point score {score:.0%}"
+            )
     elif held is not None:
         won = poses[held]
         start, confidence = won.T_target_source, 1.0
