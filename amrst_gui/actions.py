@@ -32,7 +32,8 @@ _STEP_EXTRAS = {
     "coarse": (
         "accept_coarse",
         QStyle.StandardPixmap.SP_DialogApplyButton,
-        "Accept the coarse solution: the best candidate you did not reject.",
+        "Accept the candidate shown in the Matches list (its selected row; the best "
+        "one you did not reject when none is selected).",
     ),
     "fine": (
         "run_fine",

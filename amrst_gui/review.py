@@ -60,6 +60,9 @@ class Review:
         self.automatic: MatchResult | None = None
         self.rejected: frozenset[int] = frozenset()
         self.selected: int | None = None
+        # The candidate the technician accepted by name (Accept coarse on a selected
+        # row), taken before a better-ranked one until rejected or a new list.
+        self.preferred: int | None = None
         self._reviews: dict[LinkId, LinkReview] = {}
         self._combined: tuple[tuple, MatchResult | None] | None = None
         self._coarse_cache: tuple | None = None
@@ -67,6 +70,7 @@ class Review:
     def clear_matches(self) -> None:
         """Forget the candidates (the match step's result is out of date)."""
         self.automatic, self.rejected, self.selected = None, frozenset(), None
+        self.preferred = None
 
     @property
     def link_review(self) -> LinkReview:
@@ -125,7 +129,8 @@ class Review:
 
     @property
     def coarse(self) -> CoarseResult | None:
-        """CoarseResult from the best candidate not rejected (None if none is left)."""
+        """CoarseResult from the preferred candidate, else the best not rejected
+        (None if none is left)."""
         return self._coarse_state()[0]
 
     @property
@@ -137,14 +142,17 @@ class Review:
         combined = self.match_result
         if combined is None:
             return None, "No matches yet: run Match."
-        key = (id(combined), self.rejected)
+        key = (id(combined), self.rejected, self.preferred)
         if self._coarse_cache is None or self._coarse_cache[0] != key:
             from amrst import pipeline
             from amrst.errors import RegistrationFailed
 
+            excluded = self.rejected
+            if self.preferred is not None and self.preferred not in self.rejected:
+                excluded = frozenset(self.candidate_ids() - {self.preferred})
             value: tuple[CoarseResult | None, str]
             try:
-                coarse = pipeline.coarse_from_matches(combined, self.rejected)
+                coarse = pipeline.coarse_from_matches(combined, excluded)
                 value = (coarse, str(coarse.message))
             except RegistrationFailed as exc:
                 value = (None, str(exc))
@@ -205,6 +213,7 @@ class Review:
         self.automatic = automatic
         self.link_review.manual = manual
         self.rejected = self._carry()
+        self.preferred = None
         left = [c for c in self.matches if c.id not in self.rejected]
         self.selected = left[0].id if left else None
 
@@ -214,6 +223,7 @@ class Review:
         review.manual = (candidate, *review.manual)
         self.rejected = self.rejected - {int(candidate.id)}
         self.selected = int(candidate.id)
+        self.preferred = None
 
     def _carry(self) -> frozenset[int]:
         """Rejected ids of the new candidate list, found by pose; log what carried."""

@@ -404,7 +404,18 @@ class Session(QObject):
         self.run_step("fine", auto=True)
 
     def accept_coarse(self) -> None:
-        """Accept the coarse solution (best candidate not rejected) and measure it."""
+        """Accept the candidate shown (the selected row), else the best one not
+        rejected, and measure it."""
+        chosen, coarse = self.review.selected, self.coarse
+        if (
+            chosen is not None
+            and chosen not in self.rejected
+            and (coarse is None or int(coarse.candidate.id) != chosen)
+            and not self.runner.busy
+        ):
+            self.review.preferred = chosen
+            log.info("Accepting the selected match %s", self.review.describe(chosen))
+            self.review_changed.emit(self.rejected)
         self.run_step("coarse")
 
     def add_manual_pose(self, T_local: np.ndarray, how: str) -> None:
@@ -652,7 +663,8 @@ class Session(QObject):
 
     @property
     def coarse(self) -> CoarseResult | None:
-        """CoarseResult from the best candidate not rejected (None if none is left)."""
+        """CoarseResult from the candidate accepted by name, else the best not
+        rejected (None if none is left)."""
         return self.review.coarse
 
     @property

@@ -34,6 +34,7 @@ def session(matched):
     """The matched session with no rejection, the first match selected."""
     for match_id in list(matched.rejected):
         matched.restore_match(match_id)
+    matched.review.preferred = None
     matched.select_match(matched.matches[0].id)
     return matched
 
@@ -86,6 +87,19 @@ def test_coarse_follows_best_candidate_not_rejected(session):
     assert session.coarse.candidate.id == ranked[1].id
     session.restore_match(ranked[0].id)
     assert session.coarse.candidate.id == ranked[0].id
+
+
+def test_accept_coarse_takes_the_selected_row(session):
+    ranked = session.matches
+    session.select_match(ranked[1].id)
+    _run_until_idle(session, session.accept_coarse)
+    assert session.accepted_coarse.candidate.id == ranked[1].id
+    assert session.coarse.candidate.id == ranked[1].id
+    assert not session.is_stale("coarse")
+    # Rejecting the chosen one hands the coarse solution back to the best left.
+    session.reject_match(ranked[1].id)
+    assert session.coarse.candidate.id == ranked[0].id
+    assert session.is_stale("coarse")
 
 
 def test_rejecting_everything_leaves_no_coarse_solution(session):
