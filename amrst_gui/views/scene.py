@@ -71,14 +71,26 @@ def display_index(n: int, max_points: int) -> slice:
     return slice(None, None, step)
 
 
-def height_rgb(xyz: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 colours by height (viridis)."""
+def height_rgb(xyz: np.ndarray, span_m: float | None = None) -> np.ndarray:
+    """(N, 3) uint8 colours by height above the lowest point (viridis).
+
+    ``span_m`` is the height the scale's top colour stands for (default: this
+    cloud's own height range); two views given the same span show the same height
+    above their lowest point in the same colour.
+    """
     from matplotlib import colormaps
 
     z = xyz[:, 2]
-    lo, hi = (z.min(), z.max()) if len(z) else (0.0, 1.0)
-    t = np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)
+    lo = z.min() if len(z) else 0.0
+    span = span_m if span_m is not None else (z.max() - lo if len(z) else 1.0)
+    t = np.clip((z - lo) / max(span, 1e-9), 0, 1)
     return (colormaps["viridis"](t)[:, :3] * 255).astype(np.uint8)
+
+
+def shared_height_span(clouds) -> float | None:
+    """The larger height range (m) of the given clouds (None when there is none)."""
+    spans = [float(np.ptp(c.xyz[:, 2])) for c in clouds if c is not None and len(c)]
+    return max(spans) if spans else None
 
 
 def intensity_rgb(values: np.ndarray) -> np.ndarray:
@@ -148,7 +160,8 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
     layers: list = []
     shown = 0
     if options.show_points:
-        layers.append(_points_layer(cloud, an, options))
+        both = (session.cloud("target"), session.cloud("source"))
+        layers.append(_points_layer(cloud, an, options, both))
         shown = len(layers[-1].xyz)
     radius = _marker_radius(cloud.xyz)
     skel = None if an is None else an.skeleton
@@ -197,7 +210,7 @@ def build_scan_scene(session, role: str, options: ViewOptions) -> Scene:
     )
 
 
-def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
+def _points_layer(cloud, an, options: ViewOptions, both=()) -> PointsLayer:
     mode = options.colour
     scene = None if an is None else an.scene
     if mode == "scene" and scene is not None and an.scene_pre is not None:
@@ -223,8 +236,15 @@ def _points_layer(cloud, an, options: ViewOptions) -> PointsLayer:
     if mode == "intensity" and intensity is not None:
         rgb = intensity_rgb(intensity[sl])
     else:
+        # Both views on one scale, so the same colour is the same height in both.
         mode = "height"
-        rgb = height_rgb(xyz)
+        rgb = height_rgb(xyz, shared_height_span(both))
+        return PointsLayer(
+            "points",
+            (mode, Ref(cloud), *map(Ref, both), options.max_points),
+            xyz.astype(np.float32),
+            rgb,
+        )
     return PointsLayer(
         "points", (mode, Ref(cloud), options.max_points), xyz.astype(np.float32), rgb
     )

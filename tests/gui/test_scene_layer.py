@@ -54,3 +54,37 @@ def test_the_scan_views_colour_a_field_pair_by_scene(make_main_window, qtbot) ->
     assert tuple(SCENE_COLOURS[TREE]) in colours
     title = next(layer for layer in pane.view.scene.layers if layer.name == "title")
     assert "brown ground" in title.text
+
+
+def test_both_scan_views_share_one_height_scale() -> None:
+    """The same height above the lowest point is the same colour in both views."""
+    from amrst.types import Cloud
+    from amrst_gui.views.scene import ViewOptions, build_scan_scene
+
+    class _Two:
+        def __init__(self, target: Cloud, source: Cloud) -> None:
+            self.clouds = {"target": target, "source": source}
+            self.selected_match = None
+
+        def cloud(self, role: str) -> Cloud:
+            return self.clouds[role]
+
+        def analysis(self, role: str) -> None:
+            return None
+
+        def path(self, role: str) -> None:
+            return None
+
+    z = np.linspace(0.0, 1.0, 101)
+    tall = Cloud(np.column_stack([z, z, 20.0 * z]))  # 0-20 m
+    short = Cloud(np.column_stack([z, z, 100.0 + 10.0 * z]))  # 10 m, higher up
+    both = _Two(tall, short)
+
+    def rgb_at(role: str, height_m: float) -> tuple[int, ...]:
+        scene = build_scan_scene(both, role, ViewOptions())
+        points = next(lay for lay in scene.layers if lay.name == "points")
+        z = points.xyz[:, 2] - points.xyz[:, 2].min()
+        return tuple(points.rgb[int(np.argmin(np.abs(z - height_m)))])
+
+    assert rgb_at("target", 10.0) == rgb_at("source", 10.0)
+    assert rgb_at("source", 10.0) != rgb_at("target", 20.0)  # the short tree's top
