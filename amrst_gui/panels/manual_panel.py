@@ -35,6 +35,7 @@ from amrst.review import manual
 from amrst.types import local_transform, rotation_angle_deg
 from amrst_gui.panels import pair_fit
 from amrst_gui.panels.manual_nudge import NudgeMixin
+from amrst_gui.panels.wheel_guard import WheelGuard
 
 _PAIR_COLUMNS = ("#", "Target point (m)", "dX", "dY", "dZ", "Dist.")
 # Points of each scan drawn as the other's ghost while picking under a rough pose.
@@ -76,6 +77,8 @@ class ManualPanel(NudgeMixin, QScrollArea):
         layout.addWidget(self._typed_box())
         layout.addStretch(1)
         self.setWidget(body)
+        self._wheel = WheelGuard(self)
+        self._wheel.guard(body)
         for view in self.views.values():
             view.point_picked.connect(self._on_point_picked)
         for name in ("scan_loaded", "scans_swapped"):

@@ -28,6 +28,7 @@ from amrst_gui.panels.param_editors import (
     make_editor,
     set_editor_value,
 )
+from amrst_gui.panels.wheel_guard import WheelGuard
 
 _GROUP_TITLES = {
     "preprocess": "Preprocess (outliers, thinning)",
@@ -100,6 +101,8 @@ class ParamsPanel(QWidget):
         scroll.setWidgetResizable(True)
         scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         scroll.setWidget(body)
+        self._wheel = WheelGuard(scroll)
+        self._wheel.guard(body)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addLayout(top)

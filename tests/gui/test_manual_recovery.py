@@ -206,3 +206,45 @@ def test_two_pairs_on_one_stem_warn_of_a_weak_turn(loaded_window):
     panel.add_pair(T[:3, :3] @ far + T[:3, 3], far)
     assert "Achievable RMS" in panel.fit_label.text()
     assert "Weak turn" not in panel.fit_label.text()
+
+
+def test_the_wheel_over_the_turn_scrolls_the_dock_until_it_is_clicked(
+    loaded_window, qtbot
+):
+    from PySide6.QtCore import QPoint, QPointF, Qt
+    from PySide6.QtGui import QWheelEvent
+    from PySide6.QtWidgets import QApplication
+
+    win = loaded_window
+    panel = win.manual_panel
+    win.docks["manual"].raise_()
+    qtbot.waitUntil(panel.isVisible)
+    panel.resize(panel.width(), 200)  # short enough to scroll
+    bar = panel.verticalScrollBar()
+    qtbot.waitUntil(lambda: bar.maximum() > 0)
+    bar.setValue(0)
+    panel.setFocus()
+
+    def wheel(widget, notches: int) -> None:
+        pos = QPointF(widget.width() / 2, widget.height() / 2)
+        event = QWheelEvent(
+            pos,
+            QPointF(widget.mapToGlobal(pos.toPoint())),
+            QPoint(0, 0),
+            QPoint(0, 120 * notches),
+            Qt.MouseButton.NoButton,
+            Qt.KeyboardModifier.NoModifier,
+            Qt.ScrollPhase.NoScrollPhase,
+            False,
+        )
+        QApplication.sendEvent(widget, event)
+
+    turn = panel.yaw.value()
+    wheel(panel.yaw, -3)  # scroll down over the unfocused Turn box
+    assert panel.yaw.value() == turn
+    assert bar.value() > 0
+    win.activateWindow()
+    panel.yaw.setFocus()  # clicked: now the wheel turns
+    qtbot.waitUntil(panel.yaw.hasFocus)
+    wheel(panel.yaw, 1)
+    assert panel.yaw.value() != turn
