@@ -88,6 +88,16 @@ class NudgeMixin:
                 return np.asarray(cand.T_target_source)
         return None
 
+    def base_name(self) -> str:
+        """What :meth:`base_pose` is, in a few words ("the fit of 3 pairs")."""
+        if self.fit is not None:
+            return f"the fit of {len(self.fit.residuals_m)} pairs"
+        s = self.session
+        for cand in (s.selected_match, s.coarse and s.coarse.candidate):
+            if cand:
+                return f"match #{cand.rank}"
+        return "no pose yet"
+
     def nudged_pose(self) -> np.ndarray | None:
         """The base pose turned and moved by the nudge controls."""
         base = self.base_pose()

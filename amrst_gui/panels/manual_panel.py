@@ -175,11 +175,12 @@ class ManualPanel(NudgeMixin, QScrollArea):
             lock.toggled.connect(lambda _on: self._show_pairs())
             row.addWidget(lock)
         self.levelled.toggled.connect(self._enable_locks)
-        self.ghost = QCheckBox("Show the other scan in each view (rough pose)")
+        self.ghost = QCheckBox("Show the other scan under the rough pose")
         self.ghost.setToolTip(
-            "Once a rough pose exists (a pair fit, the nudge, a candidate), draw the "
-            "other scan faintly in each view, moved by it: the same side of the trunk "
-            "is then easy to find. Clicks still pick the view's own scan."
+            "Once a rough pose exists, draw the other scan faintly in each view, moved "
+            "by it: the same side of the trunk is then easy to find. The pose is the "
+            "fit of the pairs while there are any, else the selected match, turned "
+            "and moved by the nudge. Clicks still pick the view's own scan."
         )
         self.ghost.toggled.connect(lambda _on: self._show_ghosts())
         self.session.manual_preview_changed.connect(lambda _T: self._show_ghosts())
@@ -341,6 +342,9 @@ class ManualPanel(NudgeMixin, QScrollArea):
         """The other scan faintly in each view under the rough pose, if wanted."""
         s = self.session
         T = s.manual_preview
+        # Say which pose moves the ghost: the pair fit wins over a chosen match.
+        turned = f", turned {self.yaw.value():+.0f}°" if self.yaw.value() else ""
+        self.ghost.setText(f"Show the other scan under {self.base_name()}{turned}")
         if not self.ghost.isChecked() or T is None or not s.has_scans:
             for view in self.views.values():
                 view.marks.set_ghost(None)

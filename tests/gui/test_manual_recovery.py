@@ -122,6 +122,7 @@ def test_pairs_saved_and_loaded_as_csv_and_the_ghost_of_the_other_scan(
     # Under the pairs' rough pose, each view can show the other scan moved into it.
     panel.ghost.setChecked(True)
     assert views[0].marks.ghost_points > 0
+    assert "under the fit of" in panel.ghost.text()  # which pose moves it
     assert "pick_ghost" in views[1].plotter.actors
     panel.ghost.setChecked(False)
     assert "pick_ghost" not in views[0].plotter.actors
