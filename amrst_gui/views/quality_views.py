@@ -213,7 +213,9 @@ class StemSlicesView(QWidget):
             "on few points, a short arc or a flared base is marked unreliable."
         )
         for cell in self.cells:
-            self.row.removeWidget(cell)
+            # Off the view at once: deleteLater alone leaves the old cell a visible
+            # child of the view, drawn with the new ones until Qt gets to delete it.
+            cell.setParent(None)
             cell.deleteLater()
         self.cells = []
         for sl in self.slices:

@@ -1,0 +1,41 @@
+"""Stem slices: new heights replace the panels, never draw over the old ones."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QWidget
+
+
+def _cells(view) -> list[QWidget]:
+    return view.findChildren(
+        QWidget, "slice_cell", Qt.FindChildOption.FindDirectChildrenOnly
+    )
+
+
+def test_new_heights_replace_the_slice_panels(loaded_window, qtbot, finish):
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
+    qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
+    win.tabs.setCurrentWidget(win.slices)
+    view = win.slices.view
+    qtbot.waitUntil(lambda: len(view.slices) == 3)
+    edit = win.slices.heights
+    for heights in ("0.5, 3, 6, 8", "0.3, 1.3, 3", "1, 2"):
+        n = len(heights.split(","))
+        edit.setFocus()
+        edit.selectAll()
+        qtbot.keyClicks(edit, heights)
+        qtbot.keyClick(edit, Qt.Key.Key_Return)
+        assert len(view.slices) == n
+        # At once, before the event loop turns: only the new panels are in the view.
+        assert len(_cells(view)) == n
+        assert view.row.count() == n
+        qtbot.waitUntil(lambda n=n: sum(c.isVisible() for c in _cells(view)) == n)
+        rects = [c.geometry() for c in _cells(view)]
+        assert not any(a.intersects(b) for i, a in enumerate(rects) for b in rects[:i])
+        captions = [t for t, _note in view.captions()]
+        assert [c.split(" m ")[0] for c in captions] == [
+            f"{float(h):g}" for h in heights.split(",")
+        ]
