@@ -168,14 +168,6 @@ def register_plot_link(
         start, confidence = coarse.T_target_source, coarse.confidence
         score = coarse.candidate.score
         message = f"{len(won.pairs)} shared stems; {coarse.message}"
-        if held is not None and won is poses[held]:
-            # The stems hold what the point score ranked first: as sure as a pose
-            # they hold alone, however close the point score's runner-up came.
-            confidence = 1.0
-            message = (
-                f"{len(won.pairs)} shared stems meet within {100 * won.rms_m:.0f} cm "
-                f"and no other pose is held by as many; point score {score:.0%}"
-            )
     elif held is not None:
         won = poses[held]
         start, confidence = won.T_target_source, 1.0
