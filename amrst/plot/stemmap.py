@@ -65,6 +65,9 @@ class StemMapParams:
     circle_inlier_m: float = 0.01
     # DBH quality: ok needs all three.
     ok_arc_deg: float = 150.0
+    # A stem wider than this seen over less than ok_arc_deg gets no DBH: a wide stem's
+    # section is seldom round, and a short arc of it does not fix the circle.
+    wide_stem_m: float = 0.5
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
     # Height flags: a stem leaning more than this, or fewer points than this in the
@@ -489,6 +492,8 @@ def _taper_stem(
         fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
     )
     if not bark or len(taper.circles) < params.taper_min_circles:
+        return _without_dbh(stem)
+    if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.ok_arc_deg:
         return _without_dbh(stem)
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)

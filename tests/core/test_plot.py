@@ -286,3 +286,20 @@ def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
     # Without the merge the one stem is two trees.
     apart = replace(StemMapParams(), same_stem_m=0.0)
     assert len(map_stems(pts, apart).stems) == 3
+
+
+def test_a_wide_stem_seen_on_a_short_arc_has_no_dbh() -> None:
+    def arc(x: float, r: float, half_deg: float) -> np.ndarray:
+        z0 = float(ground_z(np.array([x, 0.0])))
+        cyl = _stem(x, 0.0, r, z0 - 0.05, z0 + 6.0)
+        # Seen from -y: the bark within half_deg of facing the scanner.
+        facing = np.degrees(np.arctan2(cyl[:, 1], cyl[:, 0] - x)) + 90.0
+        return cyl[np.abs((facing + 180.0) % 360.0 - 180.0) <= half_deg]
+
+    xyz = np.vstack(
+        [_ground(), arc(-3.0, 0.4, 65.0), arc(0.0, 0.1, 65.0), arc(3.0, 0.4, 110.0)]
+    )
+    dbh = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
+    assert dbh[-3].dbh_quality == "none"  # 80 cm wide, 130 deg of it
+    assert dbh[0].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 130 deg: round
+    assert dbh[3].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 220 deg
