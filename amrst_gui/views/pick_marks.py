@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-PAIR_RGB = (1.0, 0.2, 0.8)  # magenta: stands out on amber, blue, brown and green
+# Red markers and a white ghost: colours neither the height map (viridis: purple to
+# yellow) nor the overlay (amber, blue) nor wood / leaf (brown, green) uses.
+PAIR_RGB = (1.0, 0.1, 0.1)
 PENDING_RGB = (1.0, 1.0, 0.2)
-GHOST_RGB = (0.55, 0.8, 1.0)
+GHOST_RGB = (0.95, 0.95, 0.95)
 # pyvista names the labels' actor after the name given, plus "-labels".
 LABELS_ACTOR = "pick_labels-labels"
 _NAMES = ("pick_markers", "pick_pending", LABELS_ACTOR, "pick_ghost")
@@ -47,8 +49,9 @@ class PickMarks:
             p.add_points(
                 self.points.astype(np.float32),
                 color=PAIR_RGB,
-                point_size=14,
+                point_size=16,
                 render_points_as_spheres=True,
+                ambient=0.5,  # lit from any side: shading would darken the red
                 name="pick_markers",
                 pickable=False,
                 reset_camera=False,
@@ -94,7 +97,7 @@ class PickMarks:
                 np.asarray(xyz, np.float32),
                 color=GHOST_RGB,
                 point_size=2,
-                opacity=0.6,
+                opacity=0.35,
                 name="pick_ghost",
                 pickable=False,
                 reset_camera=False,
