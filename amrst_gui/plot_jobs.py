@@ -22,6 +22,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import Reporter, SubReporter
+from amrst.review.verdict import FAILED
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -114,7 +115,7 @@ class PlotOutcome:
     @property
     def missing(self) -> list[str]:
         """Labels of the scans no verified link placed."""
-        return [s.label for s in self.scans if s.xy is None]
+        return self.labelled(FAILED)
 
     def labelled(self, status: str) -> list[str]:
         """Labels of the scans in ``status``."""

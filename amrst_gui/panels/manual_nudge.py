@@ -78,29 +78,23 @@ class NudgeMixin:
         grid.addWidget(self.use_nudge, 5, 0, 1, 3)
         return box
 
-    def base_pose(self) -> np.ndarray | None:
-        """The pose the nudge starts from: the pair fit, else the shown candidate."""
+    def base(self) -> tuple[np.ndarray | None, str]:
+        """The pose the nudge starts from and what it is, in a few words: the pair
+        fit ("the fit of 3 pairs"), else the shown candidate ("match #2")."""
         if self.fit is not None:
-            return self.fit.T_target_source
+            return (
+                self.fit.T_target_source,
+                f"the fit of {len(self.fit.residuals_m)} pairs",
+            )
         s = self.session
         for cand in (s.selected_match, s.coarse and s.coarse.candidate):
             if cand:
-                return np.asarray(cand.T_target_source)
-        return None
-
-    def base_name(self) -> str:
-        """What :meth:`base_pose` is, in a few words ("the fit of 3 pairs")."""
-        if self.fit is not None:
-            return f"the fit of {len(self.fit.residuals_m)} pairs"
-        s = self.session
-        for cand in (s.selected_match, s.coarse and s.coarse.candidate):
-            if cand:
-                return f"match #{cand.rank}"
-        return "no pose yet"
+                return np.asarray(cand.T_target_source), f"match #{cand.rank}"
+        return None, "no pose yet"
 
     def nudged_pose(self) -> np.ndarray | None:
         """The base pose turned and moved by the nudge controls."""
-        base = self.base_pose()
+        base, _ = self.base()
         if base is None:
             return None
         return manual.nudge(

@@ -344,7 +344,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         T = s.manual_preview
         # Say which pose moves the ghost: the pair fit wins over a chosen match.
         turned = f", turned {self.yaw.value():+.0f}°" if self.yaw.value() else ""
-        self.ghost.setText(f"Show the other scan under {self.base_name()}{turned}")
+        self.ghost.setText(f"Show the other scan under {self.base()[1]}{turned}")
         if not self.ghost.isChecked() or T is None or not s.has_scans:
             for view in self.views.values():
                 view.marks.set_ghost(None)
