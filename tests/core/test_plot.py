@@ -303,3 +303,19 @@ def test_a_wide_stem_seen_on_a_short_arc_has_no_dbh() -> None:
     assert dbh[-3].dbh_quality == "none"  # 80 cm wide, 130 deg of it
     assert dbh[0].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 130 deg: round
     assert dbh[3].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 220 deg
+
+
+def test_stems_outvote_only_an_unsure_winner_they_do_not_hold() -> None:
+    from types import SimpleNamespace
+
+    from amrst.plot.register import _outvoted
+    from amrst.review.manual import MANUAL_ID_BASE
+
+    def winner(pose: int, confidence: float) -> SimpleNamespace:
+        cand = SimpleNamespace(id=MANUAL_ID_BASE + pose)
+        return SimpleNamespace(candidate=cand, confidence=confidence)
+
+    assert _outvoted(winner(1, 0.05), held=0)  # unsure, another pose held
+    assert not _outvoted(winner(0, 0.05), held=0)  # the held pose itself
+    assert not _outvoted(winner(1, 0.9), held=0)  # sure: the points decide
+    assert not _outvoted(winner(1, 0.05), held=None)  # no pose held
