@@ -283,7 +283,8 @@ class Review:
         """The verdict of the registration (``accepted`` coarse, else the coarse
         solution of the list, then ``fine``), or None before matching.
         ``params``: those the match step ran with; ``overlap`` and ``strength``: the
-        final pose's (a manual pose is judged by them, weak axes are named)."""
+        final pose's (a manual pose, or an unverified candidate the technician
+        accepted, is judged by them; weak axes are named)."""
         from amrst.review.verdict import judge
 
         if self.match_result is None:
@@ -300,6 +301,7 @@ class Review:
             and "trunk" in self.automatic.timings,
             overlap=overlap,
             strength=strength,
+            accepted_by_hand=accepted is not None and not accepted.verified,
         )
 
     def next_manual_id(self) -> int:

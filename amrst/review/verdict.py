@@ -117,19 +117,33 @@ def _why_unverified(
     )
 
 
+def _source(candidate: Candidate) -> str:
+    """Name the source of a candidate, as the reason says it."""
+    return {
+        "manual": "your manual pose",
+        "trunk": "the trunk heading search",
+        "features": "the feature matcher",
+    }.get(str(candidate.origin), "the tetrahedron matches")
+
+
 def _manual_verdict(
-    overlap: OverlapDistances | None, strength: Strength | None
+    overlap: OverlapDistances | None,
+    strength: Strength | None,
+    pose: str = "Your manual pose",
 ) -> Verdict:
-    """Judge the technician's own pose by what it shows, not by a benchmark share."""
+    """Judge the technician's own pose by what it shows, not by a benchmark share.
+
+    ``pose`` names it in the reason.
+    """
     if overlap is None or overlap.n_points_measured == 0:
         return Verdict(
             NEEDS_REVIEW,
-            "Your manual pose leaves no part of the tree seen by both scans, so "
-            "nothing confirms it.",
+            f"{pose} leaves no part of the tree seen by both scans, so nothing "
+            "confirms it.",
             "Check the overlay and the stem slices; refine the point pairs.",
         )
     seen = (
-        f"Your manual pose: where both scans saw the scene ({overlap.n_points_measured} "
+        f"{pose}: where both scans saw the scene ({overlap.n_points_measured} "
         f"points), the median distance is {overlap.median_m * 100:.1f} cm and "
         f"{overlap.within_2cm_fraction:.0%} lie within 2 cm."
     )
@@ -180,6 +194,7 @@ def judge(
     trunk_searched: bool = False,
     overlap: OverlapDistances | None = None,
     strength: Strength | None = None,
+    accepted_by_hand: bool = False,
 ) -> Verdict:
     """Judge a registration from its coarse choice and (optionally) its fine result.
 
@@ -201,6 +216,9 @@ def judge(
     overlap, strength : OverlapDistances, Strength or None
         The final pose's distances where both scans saw the scene and its strength
         per axis: a manual pose is judged by them, and a weak axis is named.
+    accepted_by_hand : bool
+        Whether the technician accepted ``coarse`` though it does not verify: it is
+        then judged by its evidence, as a manual pose is, not failed.
 
     Returns
     -------
@@ -223,6 +241,13 @@ def judge(
     if not coarse.verified:
         if best.origin == "manual":
             return _manual_verdict(overlap, strength)
+        if accepted_by_hand:
+            return _manual_verdict(
+                overlap,
+                strength,
+                f"Candidate {best.rank} from {_source(best)}, which you accepted "
+                "though it does not verify",
+            )
         why = _why_unverified(
             best, coarse.runner_up_score, tight_dist_m, score_dist_m, trunk_searched
         )
@@ -239,11 +264,7 @@ def judge(
             f"Low confidence ({coarse.confidence:.0%}): {coarse.message}",
             "Compare the top candidates in the overlay and reject the wrong ones.",
         )
-    source = {
-        "manual": "your manual pose",
-        "trunk": "the trunk heading search",
-        "features": "the feature matcher",
-    }.get(str(best.origin), "the tetrahedron matches")
+    source = _source(best)
     reason = (
         f"Candidate {best.rank} from {source} verifies: {best.score:.0%} of the "
         f"sampled source points lie within {tight_dist_m * 100:.0f} cm of the target, "

@@ -149,3 +149,35 @@ def test_a_weak_axis_of_a_verified_pose_is_the_next_step():
     v = verdict.judge(choose_coarse(lst), strength=Strength({**HELD, "rz": 0.01}, 1000))
     assert v.status == verdict.REGISTERED
     assert "rotation about the stem" in v.next_step
+
+
+def test_an_unverified_candidate_accepted_by_hand_is_judged_by_its_evidence():
+    """The technician may accept a candidate that does not verify: it is judged by
+    its distances and strength, as a manual pose is, not failed; left to the
+    automatic path, the same candidate fails."""
+    from amrst.review.overlap import OverlapDistances
+    from amrst.review.strength import Strength
+
+    coarse = choose_coarse(CandidateList((_cand(0, 0.08, origin="trunk"),), 1))
+    assert not coarse.verified
+
+    def judged(overlap, by_hand=True):
+        return verdict.judge(
+            coarse,
+            candidates=[coarse.candidate],
+            overlap=OverlapDistances(*overlap),
+            strength=Strength(HELD, 1000),
+            accepted_by_hand=by_hand,
+        )
+
+    good = judged((0.008, 0.05, 0.7, 0.4, 5000))
+    assert good.status == verdict.REGISTERED
+    assert good.reason.startswith(
+        "Candidate 1 from the trunk heading search, which you accepted"
+    )
+    off = judged((0.03, 0.2, 0.2, 0.4, 5000))
+    assert off.status == verdict.NEEDS_REVIEW
+    assert "A right pose shows" in off.reason
+    assert judged((0.008, 0.05, 0.7, 0.4, 5000), by_hand=False).status == (
+        verdict.FAILED
+    )

@@ -31,7 +31,7 @@ def _run(qtbot, session, trigger, timeout=60_000):
         trigger()
 
 
-def test_failed_verdict_everywhere_run_all_stops_and_export_needs_override(
+def test_failed_verdict_everywhere_run_all_stops_and_export_asks_after_accept(
     loaded_window, qtbot, errors, override_answers, tmp_path
 ):
     win = loaded_window
@@ -53,11 +53,15 @@ def test_failed_verdict_everywhere_run_all_stops_and_export_needs_override(
     assert "Failed" in win.metrics_panel.verdict_label.text()
     assert "Failed" in win.status.message.text()
 
-    # The technician accepts it anyway (own decision), then runs Fine.
+    # The technician accepts it anyway (own decision), then runs Fine: the pose is
+    # judged by its own evidence now, and its weak axis is named.
     _run(qtbot, s, win.actions.accept_coarse.trigger)
     _run(qtbot, s, win.actions.run_fine.trigger)
     assert s.fine is not None
-    assert s.verdict.status == "failed"
+    v = s.verdict
+    assert v.status == "needs review"
+    assert "which you accepted though it does not verify" in v.reason
+    assert "rotation about the stem" in v.reason
     # Export asks; Cancel writes nothing.
     box = win.export_dialog()
     box.folder_edit.setText(str(tmp_path / "out"))
@@ -71,10 +75,10 @@ def test_failed_verdict_everywhere_run_all_stops_and_export_needs_override(
     with qtbot.waitSignal(s.exported, timeout=30_000):
         box.accept()
     data = json.loads((tmp_path / "out" / "transform.json").read_text())
-    assert data["verdict"]["status"] == "failed"
-    assert data["override"]["verdict_status"] == "failed"
+    assert data["verdict"]["status"] == "needs review"
+    assert data["override"]["verdict_status"] == "needs review"
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert metrics["verdict"]["status"] == "failed"
+    assert metrics["verdict"]["status"] == "needs review"
 
 
 def _off_axis(src, idx):
@@ -254,7 +258,7 @@ def test_rerunning_fine_from_a_result_nobody_wants_does_not_ask(
     _run(qtbot, s, win.actions.match.trigger)
     _run(qtbot, s, win.actions.accept_coarse.trigger)
     _run(qtbot, s, win.actions.run_fine.trigger)
-    assert s.verdict.status == "failed"
+    assert "which you accepted" in s.verdict.reason
     s.reject_match(s.accepted_coarse.candidate.id)
     _run(qtbot, s, win.actions.accept_coarse.trigger)
     _run(qtbot, s, win.actions.run_fine.trigger)

@@ -29,8 +29,9 @@ def test_header_follows_new_manual_poses_and_rejections(loaded_window, finish):
     finish(s, win.actions.match.trigger, "matches_changed")
     finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
     assert s.accepted_coarse.candidate.origin == "trunk"
-    assert _verdict_line(win).startswith("<b>Failed</b>")
-    assert "trunk heading search" in _verdict_line(win)
+    # Accepted by hand though it does not verify: judged by its own evidence.
+    assert _verdict_line(win).startswith("<b>Needs review</b>: Candidate 1 from the")
+    assert "trunk heading search, which you accepted" in _verdict_line(win)
 
     # A new manual pose (5 cm off the truth) goes first: the header is about it now.
     T = local_transform(s.truth, s.cloud("target"), s.cloud("source"))
@@ -39,7 +40,7 @@ def test_header_follows_new_manual_poses_and_rejections(loaded_window, finish):
     manual = s.matches[0]
     assert s.coarse.candidate.id == manual.id
     line = _verdict_line(win)
-    assert "Failed" not in line
+    assert "which you accepted" not in line
     assert "trunk heading search" not in line
     assert "Accept coarse now takes candidate #1 (your manual pose" in line
 
