@@ -20,7 +20,11 @@ from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.quality_views import DistanceHistogram
 from amrst_gui.views.scan_pane import RESULT_SIGNALS
 from amrst_gui.views.scan_view import ScanView
-from amrst_gui.views.scene import REGISTRATION_STAGES, build_registration_scene
+from amrst_gui.views.scene import (
+    REGISTRATION_STAGES,
+    build_registration_scene,
+    previewed_candidate,
+)
 from amrst_gui.views.scene_jobs import SceneLoader, Snapshot
 
 _LABELS = {
@@ -143,6 +147,8 @@ class RegistrationPane(QWidget):
         """The shown stage's distances where both scans saw the scene, as measured
         by the registration (its Quality table and metrics.json), or ""."""
         stage = self.stage if self.stage in ("coarse", "fine") else None
+        if stage == "coarse" and previewed_candidate(self.session) is not None:
+            return ""  # a selected row's preview: nothing measured it yet
         quality = self.session.stage_quality(stage) if stage else None
         if quality is None or quality.overlap.n_points_measured == 0:
             return ""

@@ -264,22 +264,28 @@ def moved_local(T_target_source: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     return xyz @ T_target_source[:3, :3].T + T_target_source[:3, 3]
 
 
+def previewed_candidate(session):
+    """The selected row when the *After coarse* overlay previews it, else None.
+
+    Selecting a candidate other than the one accepted (or proposed) shows its pose,
+    as Accept coarse would take it; a rejected row is not offered.
+    """
+    chosen = session.selected_match
+    if chosen is None or chosen.id in session.rejected:
+        return None
+    shown = session.accepted_coarse or session.coarse
+    if shown is not None and shown.candidate.id == chosen.id:
+        return None
+    return chosen
+
+
 def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]:
     """The T_target_source shown for ``stage`` and a caption describing it."""
     if stage == "before":
         # As scanned: the identity in world coordinates, in local terms.
         return session.local(np.eye(4)), "Before registration (source as scanned)"
     if stage == "coarse":
-        accepted = session.accepted_coarse
-        if accepted is not None:
-            return accepted.T_target_source, "After coarse registration (accepted)"
-        coarse = session.coarse
-        if coarse is not None:
-            return (
-                coarse.T_target_source,
-                "After coarse registration (proposed, not accepted)",
-            )
-        return None, f"No coarse solution yet. {session.coarse_message}"
+        return _coarse_transform(session)
     if stage == "manual":
         T = session.manual_preview
         if T is not None:
@@ -289,6 +295,26 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
     if fine is not None:
         return fine.T_target_source, f"After fine registration ({fine.method})"
     return None, "No fine registration yet: accept a coarse solution, then run Fine."
+
+
+def _coarse_transform(session) -> tuple[np.ndarray | None, str]:
+    """The *After coarse* overlay's pose: the selected row, accepted, or proposed."""
+    chosen = previewed_candidate(session)
+    if chosen is not None:
+        return (
+            chosen.T_target_source,
+            f"Candidate #{chosen.rank}, selected, not accepted (Accept coarse takes it)",
+        )
+    accepted = session.accepted_coarse
+    if accepted is not None:
+        return accepted.T_target_source, "After coarse registration (accepted)"
+    coarse = session.coarse
+    if coarse is not None:
+        return (
+            coarse.T_target_source,
+            "After coarse registration (proposed, not accepted)",
+        )
+    return None, f"No coarse solution yet. {session.coarse_message}"
 
 
 # Grey of the points only one scan saw: neither right nor wrong, so not coloured.

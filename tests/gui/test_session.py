@@ -102,6 +102,24 @@ def test_accept_coarse_takes_the_selected_row(session):
     assert session.is_stale("coarse")
 
 
+def test_the_coarse_overlay_previews_the_selected_row(session):
+    from amrst_gui.views.scene import registration_transform
+
+    ranked = session.matches
+    shown = session.accepted_coarse or session.coarse
+    session.select_match(shown.candidate.id)
+    T, caption = registration_transform(session, "coarse")
+    assert caption.startswith("After coarse registration")
+    np.testing.assert_array_equal(T, shown.T_target_source)
+    assert shown.candidate.id != ranked[2].id
+    session.select_match(ranked[2].id)
+    T, caption = registration_transform(session, "coarse")
+    assert caption.startswith(f"Candidate #{ranked[2].rank}, selected, not accepted")
+    np.testing.assert_array_equal(T, ranked[2].T_target_source)
+    session.reject_match(ranked[2].id)  # Accept coarse would not take it
+    assert registration_transform(session, "coarse")[1].startswith("After coarse")
+
+
 def test_rejecting_everything_leaves_no_coarse_solution(session):
     for cand in session.matches:
         session.reject_match(cand.id)
