@@ -126,6 +126,8 @@ class MainWindow(QMainWindow):
         self._add_dock("manual", "Manual pose", self.manual_panel, right)
         self.tabifyDockWidget(self.docks["metrics"], self.docks["manual"])
         self.docks["metrics"].raise_()
+        self.manual_panel.pick_button.toggled.connect(self._make_room_for_picking)
+        self._heights_before_picking: list[int] | None = None
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
         self._add_dock("campaign", "Campaign", self.campaign_panel, left)
@@ -397,6 +399,27 @@ class MainWindow(QMainWindow):
         """Set OpenGL up in the other tabs' views before any scan (gl_warmup)."""
         if self.isVisible() and not self._closed:
             warm_up_tabs(self.tabs, self.views())
+
+    def _make_room_for_picking(self, on: bool) -> None:
+        """Give the Manual pose dock most of the right column while pairs are
+        picked (its pair table and Nudge, not the Matches table, are in use), and
+        hand the room back after."""
+        pair = [self.docks["matches"], self.docks["manual"]]
+        vertical = Qt.Orientation.Vertical
+        closed = not all(d.toggleViewAction().isChecked() for d in pair)
+        if (
+            closed
+            or any(d.isFloating() for d in pair)
+            or len({self.dockWidgetArea(d) for d in pair}) > 1
+        ):
+            return  # the technician's own layout: left as it is
+        if on and self._heights_before_picking is None:
+            self._heights_before_picking = [d.height() for d in pair]
+            total = sum(self._heights_before_picking)
+            self.resizeDocks(pair, [total * 3 // 10, total * 7 // 10], vertical)
+        elif not on and self._heights_before_picking is not None:
+            self.resizeDocks(pair, self._heights_before_picking, vertical)
+            self._heights_before_picking = None
 
     def _default_sizes(self) -> None:
         d = self.docks

@@ -133,7 +133,10 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.table.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.ResizeToContents
         )
+        # About six pairs in view: more scroll in the table, so the locks and the
+        # Nudge below stay within reach on a laptop screen.
         self.table.setMinimumHeight(110)
+        self.table.setMaximumHeight(180)
         buttons = QHBoxLayout()
         self.delete_button = QPushButton("Delete pair")
         self.delete_button.clicked.connect(self.delete_selected)

@@ -79,3 +79,22 @@ def test_every_control_of_the_view_rows_is_in_sight_at_1366x768(
                         )
                         checked += 1
     assert checked >= 20
+
+
+def test_picking_gives_the_manual_dock_room_and_hands_it_back(loaded_window, qtbot):
+    """At 1366x768 the pair table and the rotation locks under it are in sight while
+    picking, without scrolling; after picking, the Matches table gets its room back."""
+    win = loaded_window
+    win.resize(1366, 768)
+    win._default_sizes()
+    win.docks["manual"].raise_()
+    panel = win.manual_panel
+    qtbot.waitUntil(lambda: panel.isVisible())
+    before = win.docks["manual"].height()
+    panel.set_picking(True)
+    qtbot.waitUntil(lambda: win.docks["manual"].height() > before + 50, timeout=3_000)
+    viewport = panel.viewport()
+    corner = panel.levelled.mapTo(viewport, panel.levelled.rect().bottomLeft())
+    assert 0 <= corner.y() <= viewport.height()  # the locks are on screen
+    panel.set_picking(False)
+    qtbot.waitUntil(lambda: abs(win.docks["manual"].height() - before) <= 20)
