@@ -15,7 +15,13 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QFont, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
-from amrst_gui.views.scene import DISTANCE_CLIP_M, SOURCE_RGB, TARGET_RGB, distance_rgb
+from amrst_gui.views.scene import (
+    DISTANCE_CLIP_M,
+    SOURCE_RGB,
+    TARGET_RGB,
+    distance_rgb,
+    previewed_candidate,
+)
 from amrst_gui.views.scene_jobs import SYNC_POINTS
 
 if TYPE_CHECKING:
@@ -249,10 +255,12 @@ class StemSlicesView(QWidget):
 
 
 class StemSlicesPane(QWidget):
-    """Heights and thickness above a StemSlicesView of the session's best result.
+    """Heights and thickness above a StemSlicesView of the session's best result,
+    or of the candidate selected in the Matches list (as the *After coarse* overlay
+    previews it).
 
-    Listens to ``coarse_accepted``, ``fine_finished``, ``scan_loaded`` and
-    ``scans_swapped``; emits nothing.
+    Listens to ``coarse_accepted``, ``fine_finished``, ``scan_loaded``,
+    ``scans_swapped``, ``selection_changed`` and ``review_changed``; emits nothing.
     """
 
     def __init__(self, session, parent=None) -> None:
@@ -285,13 +293,21 @@ class StemSlicesPane(QWidget):
             "fine_finished",
             "scan_loaded",
             "scans_swapped",
+            "selection_changed",
+            "review_changed",
         ):
             getattr(session, name).connect(self._on_result)
 
     def refresh(self) -> None:
-        """Slice both scans under the best transform so far."""
+        """Slice both scans under the selected candidate, else the best transform."""
         s = self.session
-        T = s.final_transform
+        chosen = previewed_candidate(s)
+        if chosen is not None:
+            T = chosen.T_target_source
+            what = f"of candidate #{chosen.rank} (selected, not accepted)"
+        else:
+            T = s.final_transform
+            what = f"after {'fine' if s.fine is not None else 'coarse'} registration"
         if T is None or not s.has_scans:
             self.view.set_slices(
                 [],
@@ -318,9 +334,8 @@ class StemSlicesPane(QWidget):
             target, source = an_t.tree_xyz, an_s.tree_xyz
         else:
             target, source = s.cloud("target").xyz, s.cloud("source").xyz
-        stage = "fine" if s.fine is not None else "coarse"
         caption = (
-            f"Stem slices after {stage} registration"
+            f"Stem slices {what}"
             + (" (tree of interest alone)" if alone else " (all points)")
             + ": amber target, blue source, circles of one radius fitted to each "
             "(good: centres under 15 mm apart)"

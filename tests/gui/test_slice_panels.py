@@ -39,3 +39,27 @@ def test_new_heights_replace_the_slice_panels(loaded_window, qtbot, finish):
         assert [c.split(" m ")[0] for c in captions] == [
             f"{float(h):g}" for h in heights.split(",")
         ]
+
+
+def test_slices_follow_the_selected_candidate(loaded_window, qtbot, finish):
+    """Selecting a candidate before accepting it slices both scans under its pose,
+    as the After coarse overlay previews it; the accepted one again when selected."""
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
+    qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
+    win.tabs.setCurrentWidget(win.slices)
+    view = win.slices.view
+    qtbot.waitUntil(lambda: len(view.slices) == 3)
+    assert view.caption.startswith("Stem slices after coarse registration")
+    accepted = s.accepted_coarse.candidate
+    other = next(c for c in s.matches if c.id != accepted.id)
+    s.select_match(other.id)
+    assert view.caption.startswith(
+        f"Stem slices of candidate #{other.rank} (selected, not accepted)"
+    )
+    s.select_match(accepted.id)
+    assert view.caption.startswith("Stem slices after coarse registration")
+    qtbot.waitUntil(lambda: sum(c.isVisible() for c in _cells(view)) == 3)
+    qtbot.wait(50)  # the replaced panels are deleted on the next turn
