@@ -11,6 +11,7 @@ from PySide6.QtWidgets import (
     QHeaderView,
     QLabel,
     QScrollArea,
+    QSizePolicy,
     QTableView,
     QToolButton,
     QVBoxLayout,
@@ -65,6 +66,9 @@ MIN_ROWS = 4
 _ROW_PX = 22
 # The verdict above the table scrolls beyond this height instead of pushing it out.
 _HEADER_MAX_PX = 96
+# Squeezed, the verdict keeps two lines and the explanation one (both scroll).
+_HEADER_MIN_PX = 36
+_EXPLANATION_MIN_PX = 20
 
 
 def rank_reason(cand) -> str:
@@ -227,6 +231,20 @@ class CandidateModel(QAbstractTableModel):
         return None
 
 
+def _text_box(label: QLabel, min_px: int, max_px: int) -> QScrollArea:
+    """A wrapped text that scrolls past ``max_px`` and keeps ``min_px`` (a wrapped
+    label's own height depends on its width, which a dock's layout does not ask:
+    squeezed, it drew over the table and its buttons)."""
+    box = QScrollArea()
+    box.setWidget(label)
+    box.setWidgetResizable(True)
+    box.setFrameShape(QFrame.Shape.NoFrame)
+    box.setMinimumHeight(min_px)
+    box.setMaximumHeight(max_px)
+    box.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    return box
+
+
 class MatchesPanel(QWidget):
     """Ranked candidates; selecting a row shows that match in both views.
 
@@ -287,18 +305,18 @@ class MatchesPanel(QWidget):
         buttons.addStretch(1)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
-        header = QScrollArea()
+        header = _text_box(self.coarse_label, _HEADER_MIN_PX, _HEADER_MAX_PX)
         header.setObjectName("matches_header")
-        header.setWidget(self.coarse_label)
-        header.setWidgetResizable(True)
-        header.setFrameShape(QFrame.Shape.NoFrame)
-        header.setMaximumHeight(_HEADER_MAX_PX)
-        header.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.header = header
         layout.addWidget(header)
-        layout.addWidget(self.table, 1)
+        layout.addWidget(self.table, 3)
         layout.addLayout(buttons)
-        layout.addWidget(self.explanation)
+        box = _text_box(self.explanation, _EXPLANATION_MIN_PX, _HEADER_MAX_PX)
+        # The table first: the explanation takes a quarter of the room left over.
+        box.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Ignored)
+        box.hide()
+        self.explanation_box = box
+        layout.addWidget(box, 1)
         session.matches_changed.connect(self._on_matches_changed)
         session.review_changed.connect(self._on_review_changed)
         session.selection_changed.connect(self._on_selection_changed)
@@ -339,6 +357,7 @@ class MatchesPanel(QWidget):
             else f"Match #{cand.rank}: {cand.explanation}\n"
             f"Why #{cand.rank}: {rank_reason(cand)}"
         )
+        self.explanation_box.setVisible(cand is not None)  # no room for nothing
         row = next((i for i, c in enumerate(self.model.rows) if c.id == match_id), None)
         sel = self.table.selectionModel()
         if row is None:

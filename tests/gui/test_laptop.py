@@ -1,9 +1,11 @@
-"""The window fits a laptop screen: 1366x768, Matches shows 8 rows."""
+"""The window fits a laptop screen: 1366x768, Matches shows 7 rows and why."""
 
 from __future__ import annotations
 
 
-def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish):
+def test_fits_1366x768_and_matches_shows_seven_rows_and_why(
+    loaded_window, qtbot, finish
+):
     win = loaded_window
     hint = win.minimumSizeHint()
     assert hint.width() <= 1366
@@ -13,8 +15,10 @@ def test_fits_1366x768_and_matches_shows_eight_rows(loaded_window, qtbot, finish
     s = win.session
     finish(s, win.actions.match.trigger, "matches_changed")
     table = win.matches_panel.table
-    qtbot.waitUntil(lambda: table.viewport().height() >= 8 * 22, timeout=3_000)
-    assert table.rowAt(7 * 22 + 5) == 7  # the 8th row is on screen
+    box = win.matches_panel.explanation_box  # the selected row's explanation
+    qtbot.waitUntil(lambda: box.isVisible() and box.height() >= 2 * 18, timeout=3_000)
+    qtbot.waitUntil(lambda: table.viewport().height() >= 7 * 22, timeout=3_000)
+    assert table.rowAt(6 * 22 + 5) == 6  # the 7th row is on screen
     # Accept coarse and Fine leave the overlay tab on screen.
     win.tabs.setCurrentIndex(0)
     finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
@@ -81,12 +85,16 @@ def test_every_control_of_the_view_rows_is_in_sight_at_1366x768(
     assert checked >= 20
 
 
-def test_picking_gives_the_manual_dock_room_and_hands_it_back(loaded_window, qtbot):
+def test_picking_gives_the_manual_dock_room_and_hands_it_back(
+    loaded_window, qtbot, finish
+):
     """At 1366x768 the pair table and the rotation locks under it are in sight while
-    picking, without scrolling; after picking, the Matches table gets its room back."""
+    picking, without scrolling, and the squeezed Matches dock still shows four rows
+    with nothing drawn over them; after picking, it gets its room back."""
     win = loaded_window
     win.resize(1366, 768)
     win._default_sizes()
+    finish(win.session, win.actions.match.trigger, "matches_changed")
     win.docks["manual"].raise_()
     panel = win.manual_panel
     qtbot.waitUntil(lambda: panel.isVisible())
@@ -96,5 +104,13 @@ def test_picking_gives_the_manual_dock_room_and_hands_it_back(loaded_window, qtb
     viewport = panel.viewport()
     corner = panel.levelled.mapTo(viewport, panel.levelled.rect().bottomLeft())
     assert 0 <= corner.y() <= viewport.height()  # the locks are on screen
+    matches = win.matches_panel
+    table, button = matches.table, matches.reject_button
+    assert table.viewport().height() >= 4 * 22
+    below_table = table.mapTo(matches, table.rect().bottomLeft()).y()
+    assert button.mapTo(matches, button.rect().topLeft()).y() >= below_table
+    text = matches.explanation.parentWidget().parentWidget()  # its scroll area
+    below_button = button.mapTo(matches, button.rect().bottomLeft()).y()
+    assert text.mapTo(matches, text.rect().topLeft()).y() >= below_button
     panel.set_picking(False)
     qtbot.waitUntil(lambda: abs(win.docks["manual"].height() - before) <= 20)
