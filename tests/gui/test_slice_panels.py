@@ -12,8 +12,8 @@ def _cells(view) -> list[QWidget]:
     )
 
 
-def test_new_heights_replace_the_slice_panels(loaded_window, qtbot, finish):
-    win = loaded_window
+def _slices_of_the_accepted_match(win, qtbot, finish):
+    """Match, accept, then show the Stem slices tab; return its view."""
     s = win.session
     finish(s, win.actions.match.trigger, "matches_changed")
     finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
@@ -21,6 +21,12 @@ def test_new_heights_replace_the_slice_panels(loaded_window, qtbot, finish):
     win.tabs.setCurrentWidget(win.slices)
     view = win.slices.view
     qtbot.waitUntil(lambda: len(view.slices) == 3)
+    return view
+
+
+def test_new_heights_replace_the_slice_panels(loaded_window, qtbot, finish):
+    win = loaded_window
+    view = _slices_of_the_accepted_match(win, qtbot, finish)
     edit = win.slices.heights
     for heights in ("0.5, 3, 6, 8", "0.3, 1.3, 3", "1, 2"):
         n = len(heights.split(","))
@@ -46,12 +52,7 @@ def test_slices_follow_the_selected_candidate(loaded_window, qtbot, finish):
     as the After coarse overlay previews it; the accepted one again when selected."""
     win = loaded_window
     s = win.session
-    finish(s, win.actions.match.trigger, "matches_changed")
-    finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
-    qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
-    win.tabs.setCurrentWidget(win.slices)
-    view = win.slices.view
-    qtbot.waitUntil(lambda: len(view.slices) == 3)
+    view = _slices_of_the_accepted_match(win, qtbot, finish)
     assert view.caption.startswith("Stem slices after coarse registration")
     accepted = s.accepted_coarse.candidate
     other = next(c for c in s.matches if c.id != accepted.id)
