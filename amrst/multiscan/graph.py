@@ -37,6 +37,10 @@ HOP_QUALITY = 0.5
 #: A registered link left out of the tree that moves the source's points (at 10 m)
 #: this far from where the tree's poses put them contradicts the tree (m).
 LOOP_TOLERANCE_M = 0.25
+#: A cycle of verified links that closes this well (m, at 10 m) confirms every link
+#: on it: a wrong pose moves the points by far more (distinct candidates differ by
+#: 3 deg, 50 cm at 10 m), and links matched pair by pair do not err alike.
+LOOP_CONFIRM_M = 0.02
 
 
 @dataclass(frozen=True, slots=True)
@@ -308,13 +312,17 @@ def scan_statuses(
     """Each scan's state, in the words of :mod:`amrst.review.verdict`.
 
     ``failed``: no verified link reaches it. ``needs review``: a link of its path
-    needs review, or its path goes through a scan at either end of a registered link
-    that :func:`loop_closures` finds more than ``LOOP_TOLERANCE_M`` from the tree's
-    poses (two confident links disagree: one of them is wrong). Else ``registered``;
-    the reference (its path is itself) is registered.
+    needs review and no loop confirms it (a cycle through it of verified links that
+    closes within ``LOOP_CONFIRM_M``), or its path goes through a scan at either end
+    of a registered link that :func:`loop_closures` finds more than
+    ``LOOP_TOLERANCE_M`` from the tree's poses (two confident links disagree: one of
+    them is wrong). Else ``registered``; the reference (its path is itself) is
+    registered.
     """
-    doubtful = {(ln.target, ln.source) for ln in links if ln.status != REGISTERED}
-    doubtful |= {(b, a) for a, b in doubtful}
+    doubtful = {
+        frozenset((ln.target, ln.source)) for ln in links if ln.status != REGISTERED
+    }
+    doubtful -= _confirmed(links, paths, loops)
     contradicted: set[int] = set()
     for link in links:
         key = f"{link.target}-{link.source}"
@@ -325,7 +333,30 @@ def scan_statuses(
         if path is None:
             out.append(FAILED)
             continue
-        steps = set(itertools.pairwise(path))
+        steps = {frozenset(step) for step in itertools.pairwise(path)}
         shaky = bool(steps & doubtful) or bool(set(path[1:]) & contradicted)
         out.append(NEEDS_REVIEW if shaky else REGISTERED)
     return tuple(out)
+
+
+def _confirmed(
+    links: Sequence[Link],
+    paths: Sequence[tuple[int, ...] | None],
+    loops: dict[str, float],
+) -> set[frozenset[int]]:
+    """Return the links (scan pairs) on a cycle closing within ``LOOP_CONFIRM_M``.
+
+    A verified link left out of the tree closes the cycle of the tree's paths to its
+    two scans; :func:`loop_closures` measured how well.
+    """
+    out: set[frozenset[int]] = set()
+    for link in links:
+        a, b = link.target, link.source
+        closes = loops.get(f"{a}-{b}", np.inf) <= LOOP_CONFIRM_M
+        pa, pb = paths[a], paths[b]
+        if link.in_tree or not closes or pa is None or pb is None:
+            continue
+        steps_a = {frozenset(s) for s in itertools.pairwise(pa)}
+        steps_b = {frozenset(s) for s in itertools.pairwise(pb)}
+        out |= (steps_a ^ steps_b) | {frozenset((a, b))}
+    return out

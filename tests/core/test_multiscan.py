@@ -246,3 +246,34 @@ def test_registered_links_that_disagree_flag_the_scans_behind_them():
         "needs review",
         "registered",
     )
+
+
+def test_a_loop_that_closes_confirms_its_unsure_links():
+    # Three scans, every link verified but unsure (a runner-up close behind): the
+    # cycle 0-1-2 closes exactly, so no link of it can be wrong.
+    links = [
+        _link(0, 1, "verified", 0.5, confidence=0.1),
+        _link(1, 2, "verified", 0.5, confidence=0.1),
+        _link(0, 2, "verified", 0.4, confidence=0.1),
+        _link(0, 3, "verified", 0.5, confidence=0.1),  # no loop through scan 3
+    ]
+    graph = spanning_tree(links, 4, 0)
+    loops = loop_closures(graph.links, graph.poses)
+    assert max(loops.values()) < 1e-9
+    assert scan_statuses(graph.links, graph.paths, loops) == (
+        "registered",
+        "registered",
+        "registered",
+        "needs review",
+    )
+    # 10 cm off at 10 m: no longer confirmed, nor contradicted.
+    links[2] = _link(0, 2, "verified", 0.4, confidence=0.1, shift=2.1)
+    graph = spanning_tree(links, 4, 0)
+    loops = loop_closures(graph.links, graph.poses)
+    assert list(loops.values()) == [pytest.approx(0.1)]
+    assert scan_statuses(graph.links, graph.paths, loops) == (
+        "registered",
+        "needs review",
+        "needs review",
+        "needs review",
+    )
