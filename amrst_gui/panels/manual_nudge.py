@@ -6,6 +6,7 @@ and its score), so the panel module stays under 400 lines.
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,6 +21,8 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.review import manual
+
+log = logging.getLogger("amrst_gui.manual")
 
 
 class NudgeMixin:
@@ -129,6 +132,8 @@ class NudgeMixin:
         self.yaw_slider.blockSignals(False)
 
     def _reset_nudge(self) -> None:
+        if any(w.value() for w in (self.yaw, *self.shift)):
+            log.info("Nudge back to zero: it now moves %s.", self.base()[1])
         for w in (self.yaw, *self.shift):
             w.blockSignals(True)
             w.setValue(0.0)
@@ -159,8 +164,9 @@ class NudgeMixin:
             else "all points"
         )
         self.score_label.setText(
-            f"This pose ({points}): median distance {median_m * 100:.1f} cm, "
-            f"{share:.0%} of sampled source points within "
+            f"This pose ({points}): median distance of all sampled source points "
+            f"{median_m * 100:.1f} cm (not only where both scans saw the scene, as "
+            f"the verdict measures), {share:.0%} of them within "
             f"{self.session.params.coarse.tight_dist_m * 100:.0f} cm of the target."
         )
 

@@ -154,6 +154,9 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.fit_label = QLabel("")
         self.fit_label.setObjectName("pairs_fit")
         self.fit_label.setWordWrap(True)
+        # Room for a fit's usual three lines: the controls below do not jump
+        # under the cursor when a pair is added or undone.
+        self.fit_label.setMinimumHeight(3 * self.fit_label.fontMetrics().lineSpacing())
         # The buttons and the fit first: in sight on a laptop screen, with the
         # table and the options below them.
         grid.addWidget(self.pick_button)

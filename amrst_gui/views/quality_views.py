@@ -260,7 +260,8 @@ class StemSlicesPane(QWidget):
     previews it).
 
     Listens to ``coarse_accepted``, ``fine_finished``, ``scan_loaded``,
-    ``scans_swapped``, ``selection_changed`` and ``review_changed``; emits nothing.
+    ``scans_swapped``, ``matches_changed``, ``selection_changed`` and
+    ``review_changed``; emits nothing.
     """
 
     def __init__(self, session, parent=None) -> None:
@@ -293,25 +294,20 @@ class StemSlicesPane(QWidget):
             "fine_finished",
             "scan_loaded",
             "scans_swapped",
+            "matches_changed",
             "selection_changed",
             "review_changed",
         ):
             getattr(session, name).connect(self._on_result)
 
     def refresh(self) -> None:
-        """Slice both scans under the selected candidate, else the best transform."""
+        """Slice both scans under the pose :func:`_slice_pose` picks."""
         s = self.session
-        chosen = previewed_candidate(s)
-        if chosen is not None:
-            T = chosen.T_target_source
-            what = f"of candidate #{chosen.rank} (selected, not accepted)"
-        else:
-            T = s.final_transform
-            what = f"after {'fine' if s.fine is not None else 'coarse'} registration"
+        T, what = _slice_pose(s)
         if T is None or not s.has_scans:
             self.view.set_slices(
                 [],
-                "No registration to slice yet: accept a coarse solution or run Fine.",
+                "No pose to slice yet: match, or make a manual pose.",
             )
             return
         try:
@@ -373,6 +369,25 @@ class StemSlicesPane(QWidget):
     def showEvent(self, event) -> None:
         super().showEvent(event)
         self.refresh()
+
+
+def _slice_pose(session) -> tuple[np.ndarray | None, str]:
+    """The pose the slices show and how to name it: the selected candidate, else the
+    best result, else the candidate Accept coarse would take."""
+    chosen = previewed_candidate(session)
+    if chosen is not None:
+        return (
+            chosen.T_target_source,
+            f"of candidate #{chosen.rank} (selected, not accepted)",
+        )
+    if session.final_transform is not None:
+        stage = "fine" if session.fine is not None else "coarse"
+        return session.final_transform, f"after {stage} registration"
+    coarse = session.coarse
+    if coarse is not None:
+        rank = coarse.candidate.rank
+        return coarse.T_target_source, f"of candidate #{rank} (proposed, not accepted)"
+    return None, ""
 
 
 def _slice_pair(target, source, T, heights, thickness, reporter=None):

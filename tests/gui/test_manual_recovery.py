@@ -92,6 +92,23 @@ def test_nudge_score_changes_with_the_turn_and_the_slider_follows(loaded_window,
     # The right turn (0°) has the lowest median distance.
     assert int(np.argmin(medians)) == 3
     assert f"{medians[3] * 100:.1f} cm" in texts[3]
+    assert "not only where both scans saw the scene" in texts[3]
+
+
+def test_a_new_pair_resets_the_nudge_and_says_so(loaded_window, qtbot, caplog):
+    win = loaded_window
+    s = win.session
+    panel = win.manual_panel
+    T = _truth_local(win)
+    src = s.cloud("source").xyz[[0, len(s.cloud("source")) // 2, -1]]
+    moved = src @ T[:3, :3].T + T[:3, 3]
+    panel.add_pair(moved[0], src[0])
+    panel.add_pair(moved[1], src[1])
+    panel.yaw.setValue(25.0)
+    with caplog.at_level("INFO", logger="amrst_gui.manual"):
+        panel.add_pair(moved[2], src[2])
+    assert panel.yaw.value() == 0.0
+    assert "Nudge back to zero: it now moves the fit of 3 pairs." in caplog.text
 
 
 def test_pairs_saved_and_loaded_as_csv_and_the_ghost_of_the_other_scan(

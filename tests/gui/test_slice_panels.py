@@ -64,3 +64,23 @@ def test_slices_follow_the_selected_candidate(loaded_window, qtbot, finish):
     assert view.caption.startswith("Stem slices after coarse registration")
     qtbot.waitUntil(lambda: sum(c.isVisible() for c in _cells(view)) == 3)
     qtbot.wait(50)  # the replaced panels are deleted on the next turn
+
+
+def test_slices_show_the_proposed_candidate_before_any_accept(
+    loaded_window, qtbot, finish
+):
+    """Before Accept coarse, the candidate it would take is sliced (a technician
+    judging a failed pair had only "No registration to slice yet")."""
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    assert s.accepted_coarse is None
+    s.select_match(s.coarse.candidate.id)
+    win.tabs.setCurrentWidget(win.slices)
+    view = win.slices.view
+    qtbot.waitUntil(lambda: len(view.slices) == 3)
+    rank = s.coarse.candidate.rank
+    assert view.caption.startswith(
+        f"Stem slices of candidate #{rank} (proposed, not accepted)"
+    )
+    qtbot.wait(50)  # the replaced panels are deleted on the next turn
