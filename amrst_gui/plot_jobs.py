@@ -22,7 +22,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import Reporter, SubReporter
-from amrst.review.verdict import FAILED
+from amrst.review.verdict import FAILED, REGISTERED
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -63,6 +63,7 @@ class LinkLine:
     target: int
     source: int
     status: str  # registered / needs review / failed
+    confirmed: bool  # registered by a loop of links, unsure on its own
     in_tree: bool
     origin: str
     overlap: float
@@ -153,7 +154,7 @@ def run_plot(
         labels=tuple(labels),
         trees=inventory.trees,
         scans=_scan_places(reg, labels),
-        links=tuple(_link_line(pl) for pl in reg.links),
+        links=tuple(_link_line(pl, reg.loop_confirms(pl.link)) for pl in reg.links),
         bundle_rmse_m=reg.bundle_rmse_m,
         slices=tuple(tree_slice(inventory, k) for k in range(len(inventory.trees))),
         top=top_view(inventory),
@@ -175,12 +176,14 @@ def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlac
     )
 
 
-def _link_line(pl: Any) -> LinkLine:
+def _link_line(pl: Any, confirmed: bool) -> LinkLine:
+    """The link as drawn: registered when a loop of links confirms it."""
     link, m = pl.link, pl.link.metrics
     return LinkLine(
         target=link.target,
         source=link.source,
-        status=link.status,
+        status=REGISTERED if confirmed else link.status,
+        confirmed=confirmed and link.status != REGISTERED,
         in_tree=link.in_tree,
         origin=link.origin,
         overlap=float("nan") if m is None else float(m.overlap_fraction),

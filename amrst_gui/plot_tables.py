@@ -76,12 +76,13 @@ def scan_lines(o: PlotOutcome) -> list[str]:
 
 
 def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:
-    """One row per link: scans (★ in the spanning tree), state, stems, overlap,
-    NN-RMSE in the overlap, and what found the pose."""
+    """One row per link: scans (★ in the spanning tree), state ("(loop)": a loop of
+    links confirms it), stems, overlap, NN-RMSE in the overlap, and what found the
+    pose."""
     return [
         (
             f"S{ln.target + 1}–S{ln.source + 1}" + (" ★" if ln.in_tree else ""),
-            ln.status,
+            ln.status + (" (loop)" if ln.confirmed else ""),
             str(ln.shared),
             number(ln.overlap * 100, ".0f") + " %",
             number(ln.rmse_m * 100, ".1f") + " cm",

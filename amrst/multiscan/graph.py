@@ -322,7 +322,7 @@ def scan_statuses(
     doubtful = {
         frozenset((ln.target, ln.source)) for ln in links if ln.status != REGISTERED
     }
-    doubtful -= _confirmed(links, paths, loops)
+    doubtful -= loop_confirmed(links, paths, loops)
     contradicted: set[int] = set()
     for link in links:
         key = f"{link.target}-{link.source}"
@@ -339,7 +339,7 @@ def scan_statuses(
     return tuple(out)
 
 
-def _confirmed(
+def loop_confirmed(
     links: Sequence[Link],
     paths: Sequence[tuple[int, ...] | None],
     loops: dict[str, float],

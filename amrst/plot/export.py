@@ -56,6 +56,7 @@ def plot_document(
     for pl in reg.links:
         entry = pl.link.as_dict()
         entry["stems_shared"] = len(pl.shared)
+        entry["loop_confirmed"] = reg.loop_confirms(pl.link)
         links.append(entry)
     return {
         "reference": labels[reg.reference],

@@ -11,7 +11,13 @@ import amrst
 from amrst import io
 from amrst.cli import main
 from amrst.multiscan.export import export_scans, read_scan_truth
-from amrst.multiscan.graph import Link, loop_closures, scan_statuses, spanning_tree
+from amrst.multiscan.graph import (
+    Link,
+    loop_closures,
+    loop_confirmed,
+    scan_statuses,
+    spanning_tree,
+)
 from amrst.multiscan.simulate import simulate_scans, write_scans
 from amrst.stages.metrics import truth_errors
 from amrst.types import make_transform
@@ -260,6 +266,8 @@ def test_a_loop_that_closes_confirms_its_unsure_links():
     graph = spanning_tree(links, 4, 0)
     loops = loop_closures(graph.links, graph.poses)
     assert max(loops.values()) < 1e-9
+    pairs = {frozenset(p) for p in ((0, 1), (1, 2), (0, 2))}
+    assert loop_confirmed(graph.links, graph.paths, loops) == pairs
     assert scan_statuses(graph.links, graph.paths, loops) == (
         "registered",
         "registered",

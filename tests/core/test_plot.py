@@ -131,6 +131,7 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     assert len(rows) == len(STEMS)
     doc = json.loads((out / "plot.json").read_text())
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
+    assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
     assert plot_main(args) == 2  # another run's output is not replaced
     assert plot_main([*args, "--overwrite"]) == 0
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2

@@ -167,3 +167,18 @@ def test_the_command_line_opens_a_plot() -> None:
     assert args.out.name == "res"
     with pytest.raises(SystemExit):
         parse_args(["--plot", "a.ply"])
+
+
+def test_a_link_a_loop_confirms_reads_registered_in_the_links_table():
+    from amrst_gui.plot_jobs import LinkLine
+    from amrst_gui.plot_tables import link_rows
+
+    def line(confirmed):
+        status = "registered" if confirmed else "needs review"
+        return LinkLine(0, 1, status, confirmed, True, "stems", 0.4, 0.06, 8, "")
+
+    class Outcome:
+        links = (line(True), line(False))
+
+    rows = link_rows(Outcome())  # type: ignore[arg-type]
+    assert [r[1] for r in rows] == ["registered (loop)", "needs review"]
