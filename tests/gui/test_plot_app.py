@@ -169,16 +169,16 @@ def test_the_command_line_opens_a_plot() -> None:
         parse_args(["--plot", "a.ply"])
 
 
-def test_a_link_a_loop_confirms_reads_registered_in_the_links_table():
-    from amrst_gui.plot_jobs import LinkLine
+def test_a_link_a_loop_confirms_reads_registered_in_the_links_table(tmp_path):
+    from amrst_gui.plot_jobs import LinkLine, PlotOutcome
     from amrst_gui.plot_tables import link_rows
 
     def line(confirmed):
         status = "registered" if confirmed else "needs review"
         return LinkLine(0, 1, status, confirmed, True, "stems", 0.4, 0.06, 8, "")
 
-    class Outcome:
-        links = (line(True), line(False))
-
-    rows = link_rows(Outcome())  # type: ignore[arg-type]
+    outcome = PlotOutcome(
+        tmp_path, ("a", "b"), (), (), (line(True), line(False)), 0.01, (), None, 1.0
+    )
+    rows = link_rows(outcome)
     assert [r[1] for r in rows] == ["registered (loop)", "needs review"]
