@@ -25,6 +25,15 @@ if TYPE_CHECKING:
 MEASURE_MAX_POINTS = 200_000
 
 
+def strided(xyz: np.ndarray, max_points: int) -> np.ndarray:
+    """Every k-th row of ``xyz``, about ``max_points`` of them (all when fewer).
+
+    For a figure of the whole cloud (a range, a height span) where a random sample's
+    cost buys nothing: a scan's rows follow its sweep, so a stride spreads evenly.
+    """
+    return xyz[:: max(1, len(xyz) // max(1, max_points))]
+
+
 def bounded_sample(cloud: Cloud, max_points: int, seed: int = 0) -> Cloud:
     """Return ``cloud`` itself when it has at most ``max_points`` points, else a sample.
 

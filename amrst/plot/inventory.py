@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
+from amrst.sampling import strided
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -204,14 +205,14 @@ def _scanner_reach(
     """Each placed scan's position (its local origin, reference frame) and range.
 
     The range is the 99.9th percentile of its points' distances from the scanner,
-    over every k-th point (at most about ``REACH_POINTS``): a scan's order follows
-    its sweep, so the stride samples it evenly, and a 10M-point scan costs no more.
+    over about ``REACH_POINTS`` of them (:func:`amrst.sampling.strided`): a 10M-point
+    scan costs no more.
     """
     out = []
     for cloud, pose in zip(clouds, poses, strict=True):
         if pose is None or not len(cloud.xyz):
             continue
-        every = cloud.xyz[:: max(1, len(cloud.xyz) // REACH_POINTS)]
+        every = strided(cloud.xyz, REACH_POINTS)
         reach = float(np.percentile(np.linalg.norm(every, axis=1), 99.9))
         out.append((np.asarray(pose[:3, 3], dtype=float), reach))
     return out

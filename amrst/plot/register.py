@@ -77,8 +77,7 @@ class PlotRegistration:
     in their overlap, at the final poses (after the joint refinement when it was
     kept; ``joint`` is None for two scans, whose link is already their fine fit).
     ``statuses[k]`` is scan k's state: registered, needs review or failed
-    (:func:`amrst.multiscan.graph.scan_statuses`); ``confirmed`` holds the links (as
-    pairs of scans) a loop of links confirms whatever their own state.
+    (:func:`amrst.multiscan.graph.scan_statuses`).
     """
 
     scans: tuple[PlotScan, ...]
@@ -89,13 +88,17 @@ class PlotRegistration:
     joint: JointResult | None
     loops: dict[str, float]
     statuses: tuple[str, ...]
-    confirmed: frozenset[frozenset[int]]
     bundle_rmse_m: float
     timings: dict[str, float]
 
     def loop_confirms(self, link: Link) -> bool:
-        """Tell whether a loop of links confirms ``link`` (see ``confirmed``)."""
-        return frozenset((link.target, link.source)) in self.confirmed
+        """Tell whether a loop of links confirms ``link``, whatever its own state.
+
+        Derived from the links, paths and loops (``graph.loop_confirmed``).
+        """
+        links = [pl.link for pl in self.links]
+        confirmed = loop_confirmed(links, self.paths, self.loops)
+        return frozenset((link.target, link.source)) in confirmed
 
 
 def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
@@ -371,7 +374,6 @@ def register_plot(
         joint=joint,
         loops=loops,
         statuses=scan_statuses(graph.links, graph.paths, loops),
-        confirmed=frozenset(loop_confirmed(graph.links, graph.paths, loops)),
         bundle_rmse_m=float(bundle),
         timings=timings,
     )

@@ -20,7 +20,7 @@ from amrst_gui.views.scene import (
     SOURCE_RGB,
     TARGET_RGB,
     distance_rgb,
-    previewed_candidate,
+    shown_coarse,
 )
 from amrst_gui.views.scene_jobs import SYNC_POINTS
 
@@ -372,22 +372,17 @@ class StemSlicesPane(QWidget):
 
 
 def _slice_pose(session) -> tuple[np.ndarray | None, str]:
-    """The pose the slices show and how to name it: the selected candidate, else the
-    best result, else the candidate Accept coarse would take."""
-    chosen = previewed_candidate(session)
-    if chosen is not None:
-        return (
-            chosen.T_target_source,
-            f"of candidate #{chosen.rank} (selected, not accepted)",
-        )
-    if session.final_transform is not None:
-        stage = "fine" if session.fine is not None else "coarse"
-        return session.final_transform, f"after {stage} registration"
-    coarse = session.coarse
-    if coarse is not None:
-        rank = coarse.candidate.rank
-        return coarse.T_target_source, f"of candidate #{rank} (proposed, not accepted)"
-    return None, ""
+    """The pose the slices show and how to name it: a selected row, else Fine's
+    result, else the coarse pose the overlay shows (:func:`shown_coarse`)."""
+    shown = shown_coarse(session)
+    if session.fine is not None and (shown is None or shown[2] != "selected"):
+        return session.fine.T_target_source, "after fine registration"
+    if shown is None:
+        return None, ""
+    T, rank, how = shown
+    if how == "accepted":
+        return T, "after coarse registration"
+    return T, f"of candidate #{rank} ({how}, not accepted)"
 
 
 def _slice_pair(target, source, T, heights, thickness, reporter=None):

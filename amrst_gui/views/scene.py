@@ -89,9 +89,11 @@ def height_rgb(xyz: np.ndarray, span_m: float | None = None) -> np.ndarray:
 
 def shared_height_span(clouds) -> float | None:
     """The larger height range (m) of the given clouds (None when there is none)."""
+    from amrst.sampling import strided
+
     # Every rebuild of either view asks: a sample is as good and costs no full pass.
     spans = [
-        float(np.ptp(c.xyz[:: max(1, len(c) // 200_000), 2]))
+        float(np.ptp(strided(c.xyz, 200_000)[:, 2]))
         for c in clouds
         if c is not None and len(c)
     ]
@@ -297,24 +299,34 @@ def registration_transform(session, stage: str) -> tuple[np.ndarray | None, str]
     return None, "No fine registration yet: accept a coarse solution, then run Fine."
 
 
-def _coarse_transform(session) -> tuple[np.ndarray | None, str]:
-    """The *After coarse* overlay's pose: the selected row, accepted, or proposed."""
+def shown_coarse(session) -> tuple[np.ndarray, int, str] | None:
+    """The coarse pose the views show: ``(T_target_source, candidate rank, how)``,
+    ``how`` being "selected" (a row previewed), "accepted" or "proposed" (what
+    Accept coarse would take); None before matching or with every row rejected."""
     chosen = previewed_candidate(session)
     if chosen is not None:
-        return (
-            chosen.T_target_source,
-            f"Candidate #{chosen.rank}, selected, not accepted (Accept coarse takes it)",
-        )
-    accepted = session.accepted_coarse
-    if accepted is not None:
-        return accepted.T_target_source, "After coarse registration (accepted)"
-    coarse = session.coarse
-    if coarse is not None:
-        return (
-            coarse.T_target_source,
-            "After coarse registration (proposed, not accepted)",
-        )
-    return None, f"No coarse solution yet. {session.coarse_message}"
+        return np.asarray(chosen.T_target_source), int(chosen.rank), "selected"
+    for how, coarse in (
+        ("accepted", session.accepted_coarse),
+        ("proposed", session.coarse),
+    ):
+        if coarse is not None:
+            return np.asarray(coarse.T_target_source), int(coarse.candidate.rank), how
+    return None
+
+
+def _coarse_transform(session) -> tuple[np.ndarray | None, str]:
+    """The *After coarse* overlay's pose (:func:`shown_coarse`) and its caption."""
+    shown = shown_coarse(session)
+    if shown is None:
+        return None, f"No coarse solution yet. {session.coarse_message}"
+    T, rank, how = shown
+    return T, {
+        "selected": f"Candidate #{rank}, selected, not accepted "
+        "(Accept coarse takes it)",
+        "accepted": "After coarse registration (accepted)",
+        "proposed": "After coarse registration (proposed, not accepted)",
+    }[how]
 
 
 # Grey of the points only one scan saw: neither right nor wrong, so not coloured.

@@ -111,3 +111,15 @@ def test_time_register_on_a_densified_sample(tmp_path, sample_pair) -> None:
     table = format_scale_table([row])
     assert f"{n:,}" in table
     assert table.count("\n") == 2
+
+
+def test_strided_keeps_small_clouds_whole_and_spreads_over_big_ones() -> None:
+    from amrst.sampling import strided
+
+    small = np.arange(30.0).reshape(10, 3)
+    np.testing.assert_array_equal(strided(small, 100), small)
+    big = np.arange(3_000_000.0).reshape(-1, 3)  # 1,000,000 rows
+    rows = strided(big, 200_000)
+    assert len(rows) == 200_000
+    np.testing.assert_array_equal(rows[:2], big[[0, 5]])
+    assert rows[-1, 0] >= big[-6, 0]  # reaches the end of the sweep
