@@ -7,8 +7,8 @@ registration) and the merged plot (the inventory):
 2. stems: clusters of a slice above the ground that cross it and are narrow enough
    (``stages/stems.py``);
 3. per stem, circles on bark-like points (``measure/stem.py``) in thin slices at a few
-   heights: the one at breast height gives the DBH, all of them the lean, and the base
-   is the stem line where it meets the ground.
+   heights: the one at breast height gives the DBH, all of them the lean, and the
+   lowest (0.6 m up) the base, or the stem line where it meets the ground.
 
 The inventory (``trees=True``) goes on:
 
@@ -396,6 +396,7 @@ def _measure_stem(
     if len(line) < params.min_circles:
         return None
     base_xy, _, lean = _stem_line(line, centre)
+    base_xy = _foot_xy(line, base_xy)
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
     nan = float("nan")
     stem = StemRecord(
@@ -488,6 +489,7 @@ def _taper_stem(
         return _without_dbh(fit.stem) if fit.hidden else fit.stem
     on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
     base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
+    base_xy = _foot_xy(fit.line, base_xy)
     stem = replace(
         fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
     )
@@ -571,6 +573,17 @@ def _stem_line(
     coef = np.linalg.lstsq(A, a[:, 1:], rcond=None)[0]  # rows: slope, intercept
     lean = float(np.degrees(np.arctan(np.linalg.norm(coef[0]))))
     return np.asarray(coef[1]), np.asarray(coef[0]), lean
+
+
+def _foot_xy(line: list[tuple[float, float, float]], line_xy: np.ndarray) -> np.ndarray:
+    """Return the stem's foot: its circle's centre 0.6 m up, else ``line_xy``.
+
+    The centre ``LINE_HEIGHTS_M[0]`` up is nearer the foot than the stem line drawn
+    down to the ground: a lean fitted on circles a few centimetres off, over a metre
+    or two of stem, tilts the line more than most stems lean.
+    """
+    low = [(x, y) for at, x, y in line if at == LINE_HEIGHTS_M[0]]
+    return np.asarray(low[0]) if low else line_xy
 
 
 def _top_and_crown(tree: np.ndarray, base_z: float) -> tuple[float, float, int]:

@@ -320,3 +320,22 @@ def test_stems_outvote_only_an_unsure_winner_they_do_not_hold() -> None:
     assert not _outvoted(winner(0, 0.05), held=0)  # the held pose itself
     assert not _outvoted(winner(1, 0.9), held=0)  # sure: the points decide
     assert not _outvoted(winner(1, 0.05), held=None)  # no pose held
+
+
+def test_a_tree_stands_where_its_stem_leaves_the_ground() -> None:
+    # An upright broadleaf: root flare below 0.9 m, a fork at 1.65 m, and between
+    # 1.0 and 1.6 m a sweep of 8 cm, so the stem line through its circles leans;
+    # drawn down to the ground it would put the tree 12 cm off its foot.
+    z0 = float(ground_z(np.zeros(2)))
+    hz = np.arange(-0.05, 1.65, 0.02)
+    r = 0.15 + 0.06 * np.clip((0.9 - hz) / 0.4, 0.0, 1.0)
+    x = 0.08 * np.clip((hz - 1.0) / 0.6, 0.0, 1.0)
+    rings = zip(x, r, hz, strict=True)
+    trunk = np.vstack(
+        [_stem(xi, 0.0, ri, z0 + h, z0 + h + 0.02) for xi, ri, h in rings]
+    )
+    forks = [_stem(0.08, dy, 0.09, z0 + 1.65, z0 + 8.0) for dy in (-0.1, 0.1)]
+    tree = map_stems(np.vstack([_ground(), trunk, *forks])).stems
+    assert len(tree) == 1
+    assert tree[0].dbh_m == pytest.approx(0.3, abs=0.01)
+    assert np.hypot(*tree[0].base[:2]) < 0.02
