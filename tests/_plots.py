@@ -76,3 +76,16 @@ def blob(
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1)[:, None]
     return np.asarray(centre) + d * radius * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
+
+
+def plot_pair() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Target and source scans of one plot (each in its own frame), true T_target_source.
+
+    The source stands 5 m from the target, turned 70 deg and tilted 1 deg; crowns hide
+    each stem's top at another height from each position.
+    """
+    target = scan((-2.0, 0.0), STEMS, 1, hidden_tops=True)
+    T_plot_source = pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
+    world = scan((3.0, 1.0), STEMS, 2, hidden_tops=True)
+    T_source_plot = np.linalg.inv(T_plot_source)
+    return target, world @ T_source_plot[:3, :3].T + T_source_plot[:3, 3], T_plot_source

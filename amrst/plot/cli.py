@@ -1,6 +1,7 @@
 """``amrst plot SCAN1 SCAN2 [SCAN ...] --out DIR``: register a plot and inventory it.
 
-The first scan is the reference. Exit 0 when every scan is registered, 2 on unusable
+The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
+from point pairs picked by hand (the app's Manual pose dock saves them). Exit 0 when every scan is registered, 2 on unusable
 input, 3 when a scan could not be registered or needs review (the inventory is still
 written for the scans that were placed, and the message names the others).
 """
@@ -13,6 +14,8 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import argparse
+
+    import numpy as np
 
 EXIT_BAD_INPUT = 2
 EXIT_NOT_REGISTERED = 3
@@ -38,6 +41,16 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replace the plot another run wrote in --out",
     )
+    p.add_argument(
+        "--pairs",
+        nargs=3,
+        action="append",
+        default=[],
+        metavar=("I", "J", "PAIRS.csv"),
+        help="place the link of scans I and J (numbered from 1 in the order given) "
+        "from point pairs instead of the automatic match: the CSV of amrst register "
+        "--pairs, scan I's points as target_*, scan J's as source_* (repeatable)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -58,8 +71,9 @@ def run_cli(args: argparse.Namespace) -> int:
             raise InvalidInput(
                 f"{len(clouds)} scan given: a plot needs at least two positions."
             )
+        by_hand = read_hand_pairs(args.pairs)
         reporter = TerminalReporter(args.quiet)
-        reg = register_plot(clouds, 0, reporter=reporter)
+        reg = register_plot(clouds, 0, reporter=reporter, by_hand=by_hand)
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
         write_plot(out, reg, inventory, labels, clouds[0], write_trees=args.write_trees)
     except AmrstError as exc:
@@ -88,10 +102,35 @@ def run_cli(args: argparse.Namespace) -> int:
         print(
             f"amrst plot: not registered (no verified link): "
             f"{', '.join(named[FAILED])}; check those scans overlap the others, or "
-            "register them by hand.",
+            "place each by hand: point pairs with a scan it overlaps, then --pairs I J "
+            "PAIRS.csv.",
             file=sys.stderr,
         )
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
+
+
+def read_hand_pairs(
+    given: list[list[str]],
+) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """Read ``--pairs I J FILE`` arguments: {(i, j) from 0: (scan i's, scan j's)}.
+
+    Raises
+    ------
+    InvalidInput
+        A scan number that is not a whole number from 1, or an unreadable file.
+    """
+    from amrst.errors import InvalidInput
+    from amrst.review.pairs_file import read_pairs
+
+    out = {}
+    for i, j, path in given:
+        if not (i.isdigit() and j.isdigit() and int(i) >= 1 and int(j) >= 1):
+            raise InvalidInput(
+                f"--pairs {i} {j} {path}: name the two scans by their numbers from 1 "
+                "in the order given, e.g. --pairs 1 3 pairs.csv."
+            )
+        out[int(i) - 1, int(j) - 1] = read_pairs(Path(path))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,8 +9,10 @@ tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). S
 far apart share too little surface for that score to judge; a pose held by four or
 more stems with no rival as well held (``match.held_by_stems``) is taken then. When
 no stem pose holds, the two-scan engine runs as the fallback (tetrahedra, feature
-matcher, trunk search). The links then form the multiscan spanning tree, and a joint
-refinement is kept when it lowers the error (``amrst.multiscan``).
+matcher, trunk search). A link the technician gives as point pairs is taken from
+them instead (:func:`register_plot_link_by_hand`). The links then form the multiscan
+spanning tree, and a joint refinement is kept when it lowers the error
+(``amrst.multiscan``).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import CandidateList, CoarseResult, choose_coarse
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import ScanAnalysis
@@ -45,6 +47,8 @@ if TYPE_CHECKING:
 
 #: Origin named by the links the stem map registered.
 STEMS_ORIGIN = "stems"
+#: Origin named by the links placed from the technician's point pairs.
+HAND_ORIGIN = "manual"
 #: The fine registration of a plot link: source points, first correspondence
 #: distance (m) and scales down to the usual last one.
 PLOT_FINE_POINTS = 20_000
@@ -217,6 +221,81 @@ def register_plot_link(
     return PlotLink(link, _shared(target.stems, source.stems, T))
 
 
+def register_plot_link_by_hand(
+    target: PlotScan,
+    source: PlotScan,
+    indices: tuple[int, int],
+    pairs: tuple[np.ndarray, np.ndarray],
+    params: RegistrationParams,
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
+) -> PlotLink:
+    """Register one pair from point pairs the technician picked in both scans.
+
+    ``pairs``: (target points, source points), each (K, 3) in the files' (world)
+    coordinates. The pairs' pose is fine-registered as a stem pose is, and the result
+    kept only where it fits the scans better (as for a pair). The link is used
+    whatever it shows; it is *registered* when, where both scans saw the plot, it
+    shows what a right pose shows, else *needs review* with the reason.
+
+    Raises
+    ------
+    InvalidInput
+        Pairs that cannot fix a pose.
+    """
+    from amrst.errors import InvalidInput
+    from amrst.pipeline import evaluate, refine
+    from amrst.review.manual import MANUAL_ID_BASE, ManualScorer, fit_pairs, weak_turn
+    from amrst.review.manual_keep import judge_refinement
+    from amrst.review.overlap import overlap_distances
+    from amrst.review.strength import axis_strength
+    from amrst.review.verdict import REGISTERED, manual_verdict
+
+    t0 = time.perf_counter()
+    tgt, src = target.analysis, source.analysis
+    t_pts = np.asarray(pairs[0], float) - tgt.cloud.offset
+    s_pts = np.asarray(pairs[1], float) - src.cloud.offset
+    start = fit_pairs(t_pts, s_pts).T_target_source
+    if not np.all(np.isfinite(start)):
+        raise InvalidInput(
+            f"The point pairs of scans {indices[0] + 1} and {indices[1] + 1} do not "
+            "fix a pose: pick them farther apart."
+        )
+    fine = refine(tgt, src, start, params, reporter, threads=threads)
+    kept = judge_refinement(
+        start, fine.T_target_source, tgt.xyz, src.xyz, params.coarse
+    )
+    T = start if kept.keep_manual else fine.T_target_source
+    # Against the stem map's points (1 cm voxel): the preprocessed points of a big
+    # scan are thinned to a 10 cm voxel, too coarse to show a right pose's distances.
+    verdict = manual_verdict(
+        overlap_distances(target.stems.xyz, src.xyz, T),
+        axis_strength(tgt.xyz, src.xyz, T, params.metrics.overlap_dist_m),
+        f"Your {len(t_pts)} point pairs",
+    )
+    score = (
+        ManualScorer(tgt.xyz, src.xyz, params.coarse)
+        .score(T, MANUAL_ID_BASE, "point pairs")
+        .score
+    )
+    metrics = evaluate(tgt, src, T, params, threads=threads)
+    link = Link(
+        target=indices[0],
+        source=indices[1],
+        verdict="verified",
+        score=float(score),
+        confidence=1.0 if verdict.status == REGISTERED else 0.0,
+        weight=float(score) * float(metrics.overlap_fraction),
+        T_local=T,
+        metrics=metrics,
+        message=" ".join(filter(None, (verdict.reason, weak_turn(t_pts)))),
+        origin=HAND_ORIGIN,
+        seconds=time.perf_counter() - t0,
+    )
+    return PlotLink(link, _shared(target.stems, source.stems, T))
+
+
 def _outvoted(coarse: CoarseResult, held: int | None) -> bool:
     """Tell whether the stems hold another pose than an unsure point-score winner.
 
@@ -287,6 +366,7 @@ def register_plot(
     stem_params: StemMapParams | None = None,
     reporter: Reporter = NULL_REPORTER,
     *,
+    by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
     threads: int = THREADS,
 ) -> PlotRegistration:
     """Register the scans of a plot onto the reference scan.
@@ -300,6 +380,10 @@ def register_plot(
         Made plot settings with :func:`plot_params`.
     stem_params : StemMapParams or None
     reporter : Reporter
+    by_hand : mapping or None
+        Point pairs that place a link instead of the automatic match:
+        ``{(i, j): (points in scan i, the same points in scan j)}``, world
+        coordinates, scan indices from 0.
     threads : int
 
     Returns
@@ -324,22 +408,24 @@ def register_plot(
     timings["analyse"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     pairs = link_pairs(n, reference)
-    links = [
-        register_plot_link(
-            scans[i],
-            scans[j],
-            (i, j),
-            params,
-            SubReporter(
-                reporter,
-                0.4 + 0.45 * m / len(pairs),
-                0.4 + 0.45 * (m + 1) / len(pairs),
-                f"link {i + 1}-{j + 1}",
-            ),
-            threads=threads,
+    hand = _oriented(by_hand or {}, pairs, n)
+    links = []
+    for m, (i, j) in enumerate(pairs):
+        sub = SubReporter(
+            reporter,
+            0.4 + 0.45 * m / len(pairs),
+            0.4 + 0.45 * (m + 1) / len(pairs),
+            f"link {i + 1}-{j + 1}",
         )
-        for m, (i, j) in enumerate(pairs)
-    ]
+        if (i, j) in hand:
+            link = register_plot_link_by_hand(
+                scans[i], scans[j], (i, j), hand[i, j], params, sub, threads=threads
+            )
+        else:
+            link = register_plot_link(
+                scans[i], scans[j], (i, j), params, sub, threads=threads
+            )
+        links.append(link)
     timings["links"] = time.perf_counter() - t1
     graph = spanning_tree([pl.link for pl in links], n, reference)
     in_tree = {(ln.target, ln.source): ln for ln in graph.links}
@@ -377,6 +463,35 @@ def register_plot(
         bundle_rmse_m=float(bundle),
         timings=timings,
     )
+
+
+def _oriented(
+    by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    pairs: Sequence[tuple[int, int]],
+    n: int,
+) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """Key the hand pairs by the links' own (target, source) order.
+
+    Raises
+    ------
+    InvalidInput
+        Pairs for a link that is not one of the plot's (a scan number out of range,
+        or one scan twice).
+    """
+    from amrst.errors import InvalidInput
+
+    out = {}
+    for (i, j), (t, s) in by_hand.items():
+        if (i, j) in pairs:
+            out[i, j] = (t, s)
+        elif (j, i) in pairs:
+            out[j, i] = (s, t)
+        else:
+            raise InvalidInput(
+                f"Point pairs given for scans {i + 1} and {j + 1}: the plot has scans "
+                f"1 to {n}; name two different ones."
+            )
+    return out
 
 
 def _pair_rmse(links: Sequence[PlotLink]) -> float:

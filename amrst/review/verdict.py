@@ -126,7 +126,7 @@ def _source(candidate: Candidate) -> str:
     }.get(str(candidate.origin), "the tetrahedron matches")
 
 
-def _manual_verdict(
+def manual_verdict(
     overlap: OverlapDistances | None,
     strength: Strength | None,
     pose: str = "Your manual pose",
@@ -240,9 +240,9 @@ def judge(
     best = coarse.candidate
     if not coarse.verified:
         if best.origin == "manual":
-            return _manual_verdict(overlap, strength)
+            return manual_verdict(overlap, strength)
         if accepted_by_hand:
-            return _manual_verdict(
+            return manual_verdict(
                 overlap,
                 strength,
                 f"Candidate {best.rank} from {_source(best)}, which you accepted "

@@ -11,9 +11,10 @@ import json
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import _plots
 import numpy as np
 import pytest
-from _plots import STEMS, blob, ground_z, pose, scan
+from _plots import STEMS, blob, ground_z, scan
 
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv
@@ -30,14 +31,8 @@ if TYPE_CHECKING:
 @pytest.fixture(scope="module")
 def plot_pair() -> tuple[Cloud, Cloud, np.ndarray]:
     """Target and source scans of one plot, and the true T_target_source."""
-    target = scan((-2.0, 0.0), STEMS, 1, hidden_tops=True)
-    T_plot_source = pose(70.0, (3.0, 1.0, 0.0), tilt_deg=1.0)
-    world = scan((3.0, 1.0), STEMS, 2, hidden_tops=True)
-    source = (
-        world @ invert_transform(T_plot_source)[:3, :3].T
-        + (invert_transform(T_plot_source)[:3, 3])
-    )
-    return Cloud(target, name="t"), Cloud(source, name="s"), T_plot_source
+    target, source, T_true = _plots.plot_pair()
+    return Cloud(target, name="t"), Cloud(source, name="s"), T_true
 
 
 def test_stem_map_finds_every_stem_with_its_dbh() -> None:

@@ -1,0 +1,87 @@
+"""A plot link placed from point pairs the technician picked (``amrst plot --pairs``)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from _plots import STEMS, ground_z, plot_pair
+
+from amrst import io
+from amrst.plot.cli import main as plot_main
+from amrst.plot.register import HAND_ORIGIN, register_plot
+from amrst.review.pairs_file import write_pairs
+from amrst.types import Cloud, invert_transform, rotation_angle_deg
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+@pytest.fixture(scope="module")
+def pair_and_picks() -> tuple[list[Cloud], np.ndarray, np.ndarray, np.ndarray]:
+    """The plot pair, and four stem points picked in each scan (1 cm pick error)."""
+    target, source, T_true = plot_pair()
+    picked = np.array(
+        [(x, y, float(ground_z(np.array([x, y]))) + 1.0) for x, y, *_ in STEMS[:4]]
+    )
+    in_source = (
+        picked @ invert_transform(T_true)[:3, :3].T + invert_transform(T_true)[:3, 3]
+    )
+    rng = np.random.default_rng(5)
+    in_source += rng.normal(0.0, 0.01, in_source.shape)
+    clouds = [Cloud(target, name="t"), Cloud(source, name="s")]
+    return clouds, picked, in_source, T_true
+
+
+def test_point_pairs_place_the_link(pair_and_picks) -> None:
+    clouds, t_pts, s_pts, T_true = pair_and_picks
+    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, s_pts)})
+    link = reg.links[0].link
+    assert link.origin == HAND_ORIGIN
+    assert link.status == "registered", link.message
+    assert "point pairs" in link.message
+    E = invert_transform(T_true) @ reg.poses[1]
+    assert rotation_angle_deg(E[:3, :3]) < 0.2
+    assert np.linalg.norm(E[:3, 3]) < 0.02
+    assert reg.statuses == ("registered", "registered")
+    # The same pairs named the other way round (scan 2's points first) agree.
+    again = register_plot(clouds, by_hand={(1, 0): (s_pts, t_pts)})
+    assert np.allclose(again.poses[1], reg.poses[1], atol=1e-6)
+
+
+def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -> None:
+    clouds, t_pts, s_pts, _ = pair_and_picks
+    wrong = s_pts[[1, 2, 3, 0]]  # every pick on another stem
+    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, wrong)})
+    assert reg.links[0].link.origin == HAND_ORIGIN
+    assert reg.statuses[1] == "needs review"
+
+
+def test_the_command_reads_pairs_and_refuses_bad_ones(
+    pair_and_picks, tmp_path: Path
+) -> None:
+    clouds, t_pts, s_pts, _ = pair_and_picks
+    files = [tmp_path / "s1.ply", tmp_path / "s2.ply"]
+    for f, c in zip(files, clouds, strict=True):
+        io.write(f, c)
+    pairs = tmp_path / "pairs.csv"
+    write_pairs(pairs, t_pts, s_pts)
+    scans = [str(f) for f in files]
+    out = tmp_path / "out"
+    assert (
+        plot_main(
+            [*scans, "--out", str(out), "--quiet", "--pairs", "1", "2", str(pairs)]
+        )
+        == 0
+    )
+    doc = json.loads((out / "plot.json").read_text())
+    assert doc["links"][0]["origin"] == HAND_ORIGIN
+    for bad in (
+        ["1", "3", str(pairs)],
+        ["0", "2", str(pairs)],
+        ["1", "2", str(tmp_path / "no.csv")],
+    ):
+        args = [*scans, "--out", str(tmp_path / "bad"), "--quiet", "--pairs", *bad]
+        assert plot_main(args) == 2
