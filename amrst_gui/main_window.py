@@ -279,10 +279,19 @@ class MainWindow(QMainWindow):
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
+            self.plot_window.pair_chosen.connect(self.pick_plot_pairs)
         self.plot_window.open_scans(paths, out)
         self.plot_window.show()
         self.plot_window.raise_()
         return self.plot_window
+
+    def pick_plot_pairs(self, target: str, source: str) -> None:
+        """Open two scans of the plot as the pair, the Manual pose dock in front."""
+        self.session.load_stored(target, source, None)  # no registration
+        self.docks["manual"].show()
+        self.docks["manual"].raise_()
+        self.raise_()
+        self.activateWindow()
 
     def about_dialog(self) -> None:
         dialogs.AboutDialog(self).open()

@@ -124,16 +124,28 @@ class PlotOutcome:
 
 
 def run_plot(
-    specs: Sequence[str], out: Path, overwrite: bool, reporter: Reporter
+    specs: Sequence[str],
+    out: Path,
+    overwrite: bool,
+    reporter: Reporter,
+    pairs: Mapping[tuple[int, int], str] | None = None,
 ) -> PlotOutcome:
-    """Register and inventory the plot ``specs`` names; write it into ``out``."""
+    """Register and inventory the plot ``specs`` names; write it into ``out``.
+
+    ``pairs``: links to place from point pairs, ``{(i, j): pairs CSV}`` (as ``amrst
+    plot --pairs``, scans from 0).
+    """
+    from pathlib import Path
+
     from amrst.multiscan.cli import read_specs
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
+    from amrst.review.pairs_file import read_pairs
 
     start = time.perf_counter()
     check_out(out, overwrite)
+    by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     if len(clouds) < 2:
@@ -142,7 +154,9 @@ def run_plot(
             "open two or more scans."
         )
     reporter.check_cancelled()
-    reg = register_plot(clouds, 0, reporter=SubReporter(reporter, 0.05, 0.8))
+    reg = register_plot(
+        clouds, 0, reporter=SubReporter(reporter, 0.05, 0.8), by_hand=by_hand
+    )
     inventory = take_inventory(
         clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")
     )

@@ -7,6 +7,11 @@ process through ``workers.run_stage``: progress below the buttons, Cancel stops 
 at once, a failure is one line. The result shows as the stem map (centre), the
 links and trees (left) and the selected tree (right). A mark (ok / check) is written
 to ``review.json`` in the results folder the moment it is made.
+
+A link is placed by hand in two steps: **Pick pairs** emits ``pair_chosen(scan i,
+scan j)`` so the main window opens the two scans for the Manual pose dock, whose
+pairs are saved as a CSV; **Use pairs…** takes that file for the selected link, and
+the next run places the link from it (``amrst plot --pairs``).
 """
 
 from __future__ import annotations
@@ -90,6 +95,7 @@ class PlotWindow(QMainWindow):
     """Open, run and review one plot. Emits ``plot_done(outcome)`` after a run."""
 
     plot_done = Signal(object)
+    pair_chosen = Signal(str, str)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -98,6 +104,7 @@ class PlotWindow(QMainWindow):
         self.specs: list[str] = []
         self.outcome: PlotOutcome | None = None
         self.marks: dict[str, str] = {}
+        self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         self.job: StageJob | None = None
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
@@ -111,6 +118,7 @@ class PlotWindow(QMainWindow):
         self.stem_map.tree_clicked.connect(self.select_tree)
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
+        self.links.itemSelectionChanged.connect(self._update_link_buttons)
         if parent is not None:  # the main window already fits the screen
             self.resize(parent.size())
 
@@ -148,6 +156,18 @@ class PlotWindow(QMainWindow):
             "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
             "★: in the spanning tree that places the scans."
         )
+        self.pick_button = QPushButton("Pick pairs")
+        self.pick_button.setToolTip(
+            "Open the selected link's two scans in the main window: pick three or "
+            "more points in both in the Manual pose dock and save them"
+        )
+        self.pick_button.clicked.connect(self.pick_pairs)
+        self.pairs_button = QPushButton("Use pairs…")
+        self.pairs_button.setToolTip(
+            "Place the selected link from a point pairs CSV (first scan's points as "
+            "target) at the next run, instead of the automatic match"
+        )
+        self.pairs_button.clicked.connect(self.toggle_pairs)
         self.trees = table(TREE_COLUMNS, "plot_trees")
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
@@ -166,8 +186,13 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.status)
         layout.addWidget(QLabel("<b>Links</b>"))
         layout.addWidget(self.links)
+        by_hand = QHBoxLayout()
+        by_hand.addWidget(self.pick_button)
+        by_hand.addWidget(self.pairs_button)
+        layout.addLayout(by_hand)
         layout.addWidget(QLabel("<b>Trees</b>"))
         layout.addWidget(self.trees, 1)
+        self._update_link_buttons()
         return side
 
     # ------------------------------------------------------------- public
@@ -181,7 +206,7 @@ class PlotWindow(QMainWindow):
             self._say("A plot is running: cancel it first.", error=True)
             return False
         self.specs = [str(Path(p).resolve()) for p in paths]
-        self.outcome, self.marks = None, {}
+        self.outcome, self.marks, self.hand_pairs = None, {}, {}
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
         fill(self.links, [])
@@ -238,6 +263,7 @@ class PlotWindow(QMainWindow):
             out,
             overwrite,
             name="plot",
+            pairs=dict(self.hand_pairs),
             on_result=self._on_result,
             on_error=self._on_error,
             on_progress=self._on_progress,
@@ -246,6 +272,58 @@ class PlotWindow(QMainWindow):
     def cancel(self) -> None:
         if self.job is not None:
             self.job.cancel()
+
+    def selected_link(self) -> tuple[int, int] | None:
+        """(target, source) of the link selected in the links table, or None."""
+        rows = self.links.selectionModel().selectedRows()
+        if self.outcome is None or not rows:
+            return None
+        ln = self.outcome.links[rows[0].row()]
+        return ln.target, ln.source
+
+    def pick_pairs(self) -> None:
+        """Open the selected link's scans in the main window to pick point pairs."""
+        link = self.selected_link()
+        if link is None:
+            return
+        i, j = link
+        self.pair_chosen.emit(self.specs[i], self.specs[j])
+        self._say(
+            f"S{i + 1} (target) and S{j + 1} (source) are open in the main window: "
+            "pick three or more points in both in the Manual pose dock, Save them, "
+            "then Use pairs… here and Run plot."
+        )
+
+    def toggle_pairs(self, path: str | None = None) -> None:
+        """Take a pairs CSV for the selected link (asked when not given), or drop it."""
+        from amrst.review.pairs_file import read_pairs
+
+        link = self.selected_link()
+        if link is None:
+            return
+        name = f"S{link[0] + 1}–S{link[1] + 1}"
+        if link in self.hand_pairs:
+            del self.hand_pairs[link]
+            self._say(f"Link {name}: the automatic match again at the next run.")
+            self._update_link_buttons()
+            return
+        if path is None:
+            path, _ = QFileDialog.getOpenFileName(
+                self, f"Point pairs of link {name}", "", "Point pairs (*.csv)"
+            )
+        if not path:
+            return
+        try:
+            n = len(read_pairs(Path(path))[0])
+        except AmrstError as exc:
+            self._say(f"Not used: {exc}", error=True)
+            return
+        self.hand_pairs[link] = path
+        self._say(
+            f"Link {name} comes from {n} point pairs ({Path(path).name}) at the next "
+            "run: Run plot."
+        )
+        self._update_link_buttons()
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere."""
@@ -390,6 +468,15 @@ class PlotWindow(QMainWindow):
     def _set_running(self, running: bool) -> None:
         self.run_button.setEnabled(not running)
         self.cancel_button.setEnabled(running)
+        self._update_link_buttons()
+
+    def _update_link_buttons(self) -> None:
+        link = None if self.busy else self.selected_link()
+        self.pick_button.setEnabled(link is not None)
+        self.pairs_button.setEnabled(link is not None)
+        self.pairs_button.setText(
+            "Drop pairs" if link in self.hand_pairs else "Use pairs…"
+        )
 
     def _say(self, text: str, error: bool = False) -> None:
         self.status.setText(text)

@@ -182,3 +182,54 @@ def test_a_link_a_loop_confirms_reads_registered_in_the_links_table(tmp_path):
     )
     rows = link_rows(outcome)
     assert [r[1] for r in rows] == ["registered (loop)", "needs review"]
+
+
+def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst.plot.register import HAND_ORIGIN
+    from amrst.review.pairs_file import write_pairs
+    from amrst_gui import plot_panel
+
+    win = make_main_window()
+    plot = win.open_plot(plot_files, tmp_path / "out")
+    assert not plot.pick_button.isEnabled()  # no link yet
+    _run(qtbot, plot)
+    assert plot.outcome is not None
+    assert plot.outcome.links[0].origin != HAND_ORIGIN
+    plot.links.selectRow(0)
+    assert plot.pick_button.isEnabled()
+
+    # Pick pairs opens the link's two scans in the main window, Manual pose in front.
+    session = win.session
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        plot.pick_button.click()
+    qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
+    assert [session.path(r).name for r in ("target", "source")] == [
+        "scan_1.ply",
+        "scan_2.ply",
+    ]
+    assert not win.docks["manual"].visibleRegion().isEmpty()
+
+    # Four stem points picked in both scans (the source's under its true pose).
+    picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])
+    a = np.radians(70.0)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    in_source = (picked - (3.0, 1.0, 0.0)) @ R
+    pairs = tmp_path / "pairs.csv"
+    write_pairs(pairs, picked, in_source)
+    plot.toggle_pairs(str(pairs))
+    assert plot.hand_pairs == {(0, 1): str(pairs)}
+    assert plot.pairs_button.text() == "Drop pairs"
+    monkeypatch.setattr(plot_panel, "ask_replace", lambda *_: True)  # the same plot
+    _run(qtbot, plot)
+    link = plot.outcome.links[0]
+    assert link.origin == HAND_ORIGIN
+    assert link.status == "registered", link.message
+    cell = plot.links.item(0, 5)
+    assert cell is not None
+    assert cell.text() == HAND_ORIGIN
