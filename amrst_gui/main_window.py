@@ -38,6 +38,7 @@ from amrst_gui.views.registration_pane import RegistrationPane
 from amrst_gui.views.scan_pane import ScansArea
 
 if TYPE_CHECKING:
+    from amrst.campaign.stored import StoredLinkResult
     from amrst_gui.plot_panel import PlotWindow
 
 log = logging.getLogger("amrst_gui.main_window")
@@ -285,9 +286,12 @@ class MainWindow(QMainWindow):
         self.plot_window.raise_()
         return self.plot_window
 
-    def pick_plot_pairs(self, target: str, source: str) -> None:
-        """Open two scans of the plot as the pair, the Manual pose dock in front."""
-        self.session.load_stored(target, source, None)  # no registration
+    def pick_plot_pairs(
+        self, target: str, source: str, stored: StoredLinkResult | None
+    ) -> None:
+        """Open two scans of the plot at their link's pose (``stored``; None: none),
+        the Manual pose dock in front."""
+        self.session.load_stored(target, source, stored)  # no registration
         self.docks["manual"].show()
         self.docks["manual"].raise_()
         self.raise_()

@@ -28,8 +28,10 @@ if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
     from pathlib import Path
 
+    from amrst.campaign.stored import StoredLinkResult
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
+    from amrst.types import Cloud
 
 REVIEW_JSON = "review.json"
 #: The technician's marks; an unmarked tree has none.
@@ -70,6 +72,9 @@ class LinkLine:
     rmse_m: float
     shared: int
     message: str
+    score: float = float("nan")  # the point score of its pose
+    # Its pose: the source scan's file coordinates into the target's (None: failed).
+    T_world: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,7 +173,9 @@ def run_plot(
         labels=tuple(labels),
         trees=inventory.trees,
         scans=_scan_places(reg, labels),
-        links=tuple(_link_line(pl, reg.loop_confirms(pl.link)) for pl in reg.links),
+        links=tuple(
+            _link_line(pl, reg.loop_confirms(pl.link), clouds) for pl in reg.links
+        ),
         bundle_rmse_m=reg.bundle_rmse_m,
         slices=tuple(tree_slice(inventory, k) for k in range(len(inventory.trees))),
         top=top_view(inventory),
@@ -190,9 +197,16 @@ def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlac
     )
 
 
-def _link_line(pl: Any, confirmed: bool) -> LinkLine:
+def _link_line(pl: Any, confirmed: bool, clouds: Sequence[Cloud]) -> LinkLine:
     """The link as drawn: registered when a loop of links confirms it."""
+    from amrst.types import world_transform
+
     link, m = pl.link, pl.link.metrics
+    T_world = None
+    if link.T_local is not None:
+        T_world = world_transform(
+            link.T_local, clouds[link.target], clouds[link.source]
+        )
     return LinkLine(
         target=link.target,
         source=link.source,
@@ -204,6 +218,43 @@ def _link_line(pl: Any, confirmed: bool) -> LinkLine:
         rmse_m=float("nan") if m is None else float(m.rmse_overlap_m),
         shared=len(pl.shared),
         message=link.message,
+        score=float(link.score),
+        T_world=T_world,
+    )
+
+
+def stored_link(link: LinkLine) -> StoredLinkResult | None:
+    """The link's pose as the main window shows a stored result (None: failed).
+
+    The overlay and the verdict then show the plot link as it stands, with no step
+    run; the Manual pose dock can pick pairs on it.
+    """
+    from amrst.campaign.stored import StoredLinkResult
+
+    if link.T_world is None:
+        return None
+    name = f"plot link S{link.target + 1}–S{link.source + 1}"
+    return StoredLinkResult(
+        target=link.target,
+        source=link.source,
+        T_world=link.T_world,
+        verdict={
+            "status": link.status,
+            "reason": f"The {name} is {link.status} (by {link.origin}). "
+            f"{link.message}".strip(),
+            "next_step": "Check the overlay, and each tree's slice in the plot "
+            "window; when the pose is wrong, pick point pairs in the Manual pose dock, "
+            "save them, and use them for this link in the plot window.",
+        },
+        score=link.score,
+        confidence=float("nan"),
+        verified=link.status != FAILED,
+        origin=link.origin,
+        metrics_fine=None,
+        metrics_coarse=None,
+        tree={},
+        params=None,
+        label=name,
     )
 
 

@@ -8,10 +8,11 @@ at once, a failure is one line. The result shows as the stem map (centre), the
 links and trees (left) and the selected tree (right). A mark (ok / check) is written
 to ``review.json`` in the results folder the moment it is made.
 
-A link is placed by hand in two steps: **Pick pairs** emits ``pair_chosen(scan i,
-scan j)`` so the main window opens the two scans for the Manual pose dock, whose
-pairs are saved as a CSV; **Use pairs…** takes that file for the selected link, and
-the next run places the link from it (``amrst plot --pairs``).
+A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
+j, its pose as a stored result or None)`` so the main window shows the two scans at
+the link's pose (overlay, verdict), where the Manual pose dock picks
+point pairs and saves them as a CSV; **Use pairs…** takes that file for the selected
+link, and the next run places the link from it (``amrst plot --pairs``).
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ class PlotWindow(QMainWindow):
     """Open, run and review one plot. Emits ``plot_done(outcome)`` after a run."""
 
     plot_done = Signal(object)
-    pair_chosen = Signal(str, str)
+    pair_chosen = Signal(str, str, object)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -156,10 +157,10 @@ class PlotWindow(QMainWindow):
             "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
             "★: in the spanning tree that places the scans."
         )
-        self.pick_button = QPushButton("Pick pairs")
+        self.pick_button = QPushButton("Open pair")
         self.pick_button.setToolTip(
-            "Open the selected link's two scans in the main window: pick three or "
-            "more points in both in the Manual pose dock and save them"
+            "Show the selected link's two scans at its pose in the main window: check "
+            "the overlay, or pick point pairs in the Manual pose dock and save them"
         )
         self.pick_button.clicked.connect(self.pick_pairs)
         self.pairs_button = QPushButton("Use pairs…")
@@ -282,16 +283,19 @@ class PlotWindow(QMainWindow):
         return ln.target, ln.source
 
     def pick_pairs(self) -> None:
-        """Open the selected link's scans in the main window to pick point pairs."""
-        link = self.selected_link()
-        if link is None:
+        """Show the selected link's scans at its pose in the main window."""
+        rows = self.links.selectionModel().selectedRows()
+        if self.outcome is None or not rows:
             return
-        i, j = link
-        self.pair_chosen.emit(self.specs[i], self.specs[j])
+        line = self.outcome.links[rows[0].row()]
+        i, j = line.target, line.source
+        self.pair_chosen.emit(self.specs[i], self.specs[j], plot_jobs.stored_link(line))
+        at = "at the link's pose" if line.T_world is not None else "(no pose)"
         self._say(
-            f"S{i + 1} (target) and S{j + 1} (source) are open in the main window: "
-            "pick three or more points in both in the Manual pose dock, Save them, "
-            "then Use pairs… here and Run plot."
+            f"S{i + 1} (target) and S{j + 1} (source) are open in the main window "
+            f"{at}: check them there; to place the link by hand, pick three or more "
+            "points in both in the Manual pose dock, Save them, then Use pairs… here "
+            "and Run plot."
         )
 
     def toggle_pairs(self, path: str | None = None) -> None:

@@ -1,10 +1,11 @@
-"""A campaign's stored link result as the app's result objects (no Qt, no session).
+"""A stored link result as the app's result objects (no Qt, no session).
 
-A campaign tree opens without registering: the Session reads the link's two scans
-and then puts :func:`stored_results` in place of the computed steps: one candidate
-(the stored pose), the accepted coarse result and the fine result at that pose, the
-stored metrics, tree measures, parameters and verdict. Match, Accept coarse and Fine
-then read as done, so the overlay shows the stored pose at once and no step runs.
+A campaign tree, or a link of a plot, opens without registering: the Session reads
+the link's two scans and then puts :func:`stored_results` in place of the computed
+steps: one candidate (the stored pose), the accepted coarse result and the fine
+result at that pose, the stored metrics, tree measures, parameters and verdict.
+Match, Accept coarse and Fine then read as done, so the overlay shows the stored pose
+at once and no step runs.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ log = logging.getLogger("amrst_gui.session")
 
 #: The id of the stored pose among the candidates (no match produces negative ids).
 STORED_ID = -1
-STORED_METHOD = "stored by the campaign batch"
+STORED_METHOD = "stored by the campaign batch or the plot"
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ def stored_results(
         T_match=T,
         T_target_source=T,
         polished=True,
-        explanation=f"Stored result of the campaign batch ({stored.label})",
+        explanation=f"Stored result: {stored.label}",
         origin=origin,
     )
     matches = MatchResult(

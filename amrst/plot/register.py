@@ -36,7 +36,7 @@ from amrst.neighbours import THREADS
 from amrst.plot.match import held_by_stems, stem_poses
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.stages.candidates import CandidateList, CoarseResult, choose_coarse
+from amrst.stages.candidates import CandidateList, CoarseResult, Origin, choose_coarse
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -46,9 +46,9 @@ if TYPE_CHECKING:
     from amrst.types import Cloud, Transform
 
 #: Origin named by the links the stem map registered.
-STEMS_ORIGIN = "stems"
+STEMS_ORIGIN = Origin.STEMS.value
 #: Origin named by the links placed from the technician's point pairs.
-HAND_ORIGIN = "manual"
+HAND_ORIGIN = Origin.MANUAL.value
 #: The fine registration of a plot link: source points, first correspondence
 #: distance (m) and scales down to the usual last one.
 PLOT_FINE_POINTS = 20_000

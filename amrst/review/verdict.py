@@ -123,6 +123,7 @@ def _source(candidate: Candidate) -> str:
         "manual": "your manual pose",
         "trunk": "the trunk heading search",
         "features": "the feature matcher",
+        "stems": "the stem map",
     }.get(str(candidate.origin), "the tetrahedron matches")
 
 

@@ -36,6 +36,7 @@ class Origin(str, Enum):
     TRUNK = "trunk"  # the trunk-anchored heading search (levelled scans)
     FEATURES = "features"  # a generic feature matcher (e.g. KISS-Matcher)
     MANUAL = "manual"  # given by the user: point pairs, nudge or a typed transform
+    STEMS = "stems"  # a plot's stem map: stem bases and DBH of both scans
 
     def __str__(self) -> str:
         return self.value

@@ -58,6 +58,7 @@ _SOURCE = {
     "tetrahedra": "tetrahedron matches",
     "trunk": "trunk heading search",
     "manual": "your manual pose",
+    "stems": "stem map",
 }
 
 
@@ -78,6 +79,12 @@ def rank_reason(cand) -> str:
     origin = str(cand.origin)
     if origin == "manual":
         return "your own pose: manual poses come first, judged by what they show."
+    if origin == "stems":
+        return (
+            "a plot link's pose from the stems both scans share, verified by its "
+            "score or, where far-apart scans share little surface, held by four or "
+            "more stems (the verdict says which)."
+        )
     if origin == "trunk":
         return (
             f"a trunk heading, ranked among the headings by its close fit "

@@ -204,7 +204,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     plot.links.selectRow(0)
     assert plot.pick_button.isEnabled()
 
-    # Pick pairs opens the link's two scans in the main window, Manual pose in front.
+    # Open pair shows the link's two scans at its pose, Manual pose in front.
     session = win.session
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
         plot.pick_button.click()
@@ -214,6 +214,13 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
         "scan_2.ply",
     ]
     assert not win.docks["manual"].visibleRegion().isEmpty()
+    stored = session.stored
+    assert stored is not None
+    assert stored.label == "plot link S1–S2"
+    assert stored.verdict["status"] == "registered"
+    assert session.fine is not None
+    shown = session.world(session.fine.T_target_source)
+    assert np.allclose(shown, plot.outcome.links[0].T_world, atol=1e-9)
 
     # Four stem points picked in both scans (the source's under its true pose).
     picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])
