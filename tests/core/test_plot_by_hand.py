@@ -21,7 +21,8 @@ if TYPE_CHECKING:
 
 @pytest.fixture(scope="module")
 def pair_and_picks() -> tuple[list[Cloud], np.ndarray, np.ndarray, np.ndarray]:
-    """The plot pair, and four stem points picked in each scan (1 cm pick error)."""
+    """The plot pair with world offsets, four stem points picked in each scan (1 cm
+    pick error, world coordinates), and the true pose between the local frames."""
     target, source, T_true = plot_pair()
     picked = np.array(
         [(x, y, float(ground_z(np.array([x, y]))) + 1.0) for x, y, *_ in STEMS[:4]]
@@ -31,8 +32,15 @@ def pair_and_picks() -> tuple[list[Cloud], np.ndarray, np.ndarray, np.ndarray]:
     )
     rng = np.random.default_rng(5)
     in_source += rng.normal(0.0, 0.01, in_source.shape)
-    clouds = [Cloud(target, name="t"), Cloud(source, name="s")]
-    return clouds, picked, in_source, T_true
+    # Georeferenced files: the pairs are picked in world coordinates.
+    offsets = np.array(
+        [[512_000.0, 4_200_000.0, 300.0], [512_004.0, 4_200_001.0, 300.5]]
+    )
+    clouds = [
+        Cloud(target, offset=offsets[0], name="t"),
+        Cloud(source, offset=offsets[1], name="s"),
+    ]
+    return clouds, picked + offsets[0], in_source + offsets[1], T_true
 
 
 def test_point_pairs_place_the_link(pair_and_picks) -> None:
