@@ -280,13 +280,13 @@ class MainWindow(QMainWindow):
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
-            self.plot_window.pair_chosen.connect(self.pick_plot_pairs)
+            self.plot_window.pair_chosen.connect(self.open_plot_pair)
         self.plot_window.open_scans(paths, out)
         self.plot_window.show()
         self.plot_window.raise_()
         return self.plot_window
 
-    def pick_plot_pairs(
+    def open_plot_pair(
         self, target: str, source: str, stored: StoredLinkResult | None
     ) -> None:
         """Open two scans of the plot at their link's pose (``stored``; None: none),

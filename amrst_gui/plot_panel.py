@@ -10,9 +10,9 @@ to ``review.json`` in the results folder the moment it is made.
 
 A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
 j, its pose as a stored result or None)`` so the main window shows the two scans at
-the link's pose (overlay, verdict), where the Manual pose dock picks
-point pairs and saves them as a CSV; **Use pairs…** takes that file for the selected
-link, and the next run places the link from it (``amrst plot --pairs``).
+the link's pose (overlay, verdict), where the Manual pose dock picks point pairs and
+saves them as a CSV; **Use pairs…** takes that file for the selected link, and the
+next run places the link from it (``amrst plot --pairs``).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from amrst_gui.plot_tree import TreePanel
 from amrst_gui.views.stem_map import StemMapView
 
 if TYPE_CHECKING:
-    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.plot_jobs import LinkLine, PlotOutcome
     from amrst_gui.workers import StageJob
 
 log = logging.getLogger("amrst_gui.plot")
@@ -157,12 +157,12 @@ class PlotWindow(QMainWindow):
             "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
             "★: in the spanning tree that places the scans."
         )
-        self.pick_button = QPushButton("Open pair")
-        self.pick_button.setToolTip(
+        self.open_button = QPushButton("Open pair")
+        self.open_button.setToolTip(
             "Show the selected link's two scans at its pose in the main window: check "
             "the overlay, or pick point pairs in the Manual pose dock and save them"
         )
-        self.pick_button.clicked.connect(self.pick_pairs)
+        self.open_button.clicked.connect(self.open_pair)
         self.pairs_button = QPushButton("Use pairs…")
         self.pairs_button.setToolTip(
             "Place the selected link from a point pairs CSV (first scan's points as "
@@ -188,7 +188,7 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel("<b>Links</b>"))
         layout.addWidget(self.links)
         by_hand = QHBoxLayout()
-        by_hand.addWidget(self.pick_button)
+        by_hand.addWidget(self.open_button)
         by_hand.addWidget(self.pairs_button)
         layout.addLayout(by_hand)
         layout.addWidget(QLabel("<b>Trees</b>"))
@@ -276,18 +276,20 @@ class PlotWindow(QMainWindow):
 
     def selected_link(self) -> tuple[int, int] | None:
         """(target, source) of the link selected in the links table, or None."""
+        line = self._selected_line()
+        return None if line is None else (line.target, line.source)
+
+    def _selected_line(self) -> LinkLine | None:
         rows = self.links.selectionModel().selectedRows()
         if self.outcome is None or not rows:
             return None
-        ln = self.outcome.links[rows[0].row()]
-        return ln.target, ln.source
+        return self.outcome.links[rows[0].row()]
 
-    def pick_pairs(self) -> None:
+    def open_pair(self) -> None:
         """Show the selected link's scans at its pose in the main window."""
-        rows = self.links.selectionModel().selectedRows()
-        if self.outcome is None or not rows:
+        line = self._selected_line()
+        if line is None:
             return
-        line = self.outcome.links[rows[0].row()]
         i, j = line.target, line.source
         self.pair_chosen.emit(self.specs[i], self.specs[j], plot_jobs.stored_link(line))
         at = "at the link's pose" if line.T_world is not None else "(no pose)"
@@ -476,7 +478,7 @@ class PlotWindow(QMainWindow):
 
     def _update_link_buttons(self) -> None:
         link = None if self.busy else self.selected_link()
-        self.pick_button.setEnabled(link is not None)
+        self.open_button.setEnabled(link is not None)
         self.pairs_button.setEnabled(link is not None)
         self.pairs_button.setText(
             "Drop pairs" if link in self.hand_pairs else "Use pairs…"

@@ -1,9 +1,10 @@
 """``amrst plot SCAN1 SCAN2 [SCAN ...] --out DIR``: register a plot and inventory it.
 
 The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
-from point pairs picked by hand (the app's Manual pose dock saves them). Exit 0 when every scan is registered, 2 on unusable
-input, 3 when a scan could not be registered or needs review (the inventory is still
-written for the scans that were placed, and the message names the others).
+from point pairs picked by hand (the app's Manual pose dock saves them). Exit 0 when
+every scan is registered, 2 on unusable input, 3 when a scan could not be registered
+or needs review (the inventory is still written for the scans that were placed, and
+the message names the others).
 """
 
 from __future__ import annotations

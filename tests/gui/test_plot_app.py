@@ -197,17 +197,17 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
 
     win = make_main_window()
     plot = win.open_plot(plot_files, tmp_path / "out")
-    assert not plot.pick_button.isEnabled()  # no link yet
+    assert not plot.open_button.isEnabled()  # no link yet
     _run(qtbot, plot)
     assert plot.outcome is not None
     assert plot.outcome.links[0].origin != HAND_ORIGIN
     plot.links.selectRow(0)
-    assert plot.pick_button.isEnabled()
+    assert plot.open_button.isEnabled()
 
     # Open pair shows the link's two scans at its pose, Manual pose in front.
     session = win.session
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
-        plot.pick_button.click()
+        plot.open_button.click()
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
     assert [session.path(r).name for r in ("target", "source")] == [
         "scan_1.ply",
