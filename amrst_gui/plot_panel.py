@@ -312,6 +312,7 @@ class PlotWindow(QMainWindow):
             del self.hand_pairs[link]
             self._say(f"Link {name}: the automatic match again at the next run.")
             self._update_link_buttons()
+            self._show_hand_pairs()
             return
         if path is None:
             path, _ = QFileDialog.getOpenFileName(
@@ -330,6 +331,7 @@ class PlotWindow(QMainWindow):
             "run: Run plot."
         )
         self._update_link_buttons()
+        self._show_hand_pairs()
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere."""
@@ -455,6 +457,17 @@ class PlotWindow(QMainWindow):
             item.setToolTip(
                 ln.message + ("; in the spanning tree (★)" if ln.in_tree else "")
             )
+        self._show_hand_pairs()
+
+    def _show_hand_pairs(self) -> None:
+        """Name, in the By column, the links the next run places from point pairs."""
+        if self.outcome is None:
+            return
+        for r, ln in enumerate(self.outcome.links):
+            item = self.links.item(r, len(LINK_COLUMNS) - 1)
+            if item is not None:
+                hand = (ln.target, ln.source) in self.hand_pairs
+                item.setText(f"{ln.origin or '–'}{' → pairs' if hand else ''}")
 
     def _show_marks(self) -> None:
         o = self.outcome

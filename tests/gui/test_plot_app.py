@@ -232,6 +232,9 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     plot.toggle_pairs(str(pairs))
     assert plot.hand_pairs == {(0, 1): str(pairs)}
     assert plot.pairs_button.text() == "Drop pairs"
+    by = plot.links.item(0, 5)
+    assert by is not None
+    assert by.text().endswith("→ pairs")  # the next run places it from the file
     monkeypatch.setattr(plot_panel, "ask_replace", lambda *_: True)  # the same plot
     _run(qtbot, plot)
     link = plot.outcome.links[0]
@@ -239,4 +242,4 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert link.status == "registered", link.message
     cell = plot.links.item(0, 5)
     assert cell is not None
-    assert cell.text() == HAND_ORIGIN
+    assert cell.text() == f"{HAND_ORIGIN} → pairs"  # and again at the next run
