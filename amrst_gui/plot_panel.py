@@ -465,9 +465,15 @@ class PlotWindow(QMainWindow):
             return
         for r, ln in enumerate(self.outcome.links):
             item = self.links.item(r, len(LINK_COLUMNS) - 1)
-            if item is not None:
-                hand = (ln.target, ln.source) in self.hand_pairs
-                item.setText(f"{ln.origin or '–'}{' → pairs' if hand else ''}")
+            if item is None:
+                continue
+            path = self.hand_pairs.get((ln.target, ln.source))
+            item.setText("your pairs" if path else ln.origin or "–")
+            item.setToolTip(
+                f"Placed from the point pairs of {Path(path).name} at each run"
+                if path
+                else ""
+            )
 
     def _show_marks(self) -> None:
         o = self.outcome

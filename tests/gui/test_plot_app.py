@@ -234,7 +234,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert plot.pairs_button.text() == "Drop pairs"
     by = plot.links.item(0, 5)
     assert by is not None
-    assert by.text().endswith("→ pairs")  # the next run places it from the file
+    assert by.text() == "your pairs"  # the next run places it from the file
     monkeypatch.setattr(plot_panel, "ask_replace", lambda *_: True)  # the same plot
     _run(qtbot, plot)
     link = plot.outcome.links[0]
@@ -242,4 +242,4 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert link.status == "registered", link.message
     cell = plot.links.item(0, 5)
     assert cell is not None
-    assert cell.text() == f"{HAND_ORIGIN} → pairs"  # and again at the next run
+    assert cell.text() == "your pairs"  # and again at the next run
