@@ -96,7 +96,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
             "the way to the reference is unsure or two links disagree: check the "
-            "links in plot.json or the app's Plot window.",
+            "links in the app's Plot window (Open pair) or plot.json, and place a "
+            "wrong one by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,
         )
     if named[FAILED]:
