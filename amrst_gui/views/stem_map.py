@@ -97,12 +97,18 @@ class StemMapView(QWidget):
 
     # ------------------------------------------------------------ geometry
     def _extent(self) -> tuple[np.ndarray, np.ndarray]:
-        """Lower-left and upper-right corners (m) of everything drawn."""
+        """Lower-left and upper-right corners (m) of the trees' crowns and the scans."""
         o = self.outcome
         assert o is not None
-        pts = [o.tree_xy, *(s.xy[None] for s in o.scans if s.xy is not None)]
-        allp = np.vstack([p for p in pts if len(p)] or [np.zeros((1, 2))])
-        lo, hi = allp.min(axis=0) - 2.0, allp.max(axis=0) + 2.0
+        half = np.array([t.stem.crown_width_m / 2 for t in o.trees], float)
+        reach = np.fmax(np.nan_to_num(half, nan=0.0), 2.0)[:, None]
+        scans = [s.xy[None] for s in o.scans if s.xy is not None]
+        lows = [o.tree_xy - reach, *(xy - 2.0 for xy in scans)]
+        highs = [o.tree_xy + reach, *(xy + 2.0 for xy in scans)]
+        if not any(len(p) for p in lows):
+            return np.full(2, -2.0), np.full(2, 2.0)
+        lo = np.vstack([p for p in lows if len(p)]).min(axis=0)
+        hi = np.vstack([p for p in highs if len(p)]).max(axis=0)
         return lo, hi
 
     def _mapping(self) -> tuple[float, np.ndarray, np.ndarray]:
