@@ -274,12 +274,8 @@ class PlotWindow(QMainWindow):
         if self.job is not None:
             self.job.cancel()
 
-    def selected_link(self) -> tuple[int, int] | None:
-        """(target, source) of the link selected in the links table, or None."""
-        line = self._selected_line()
-        return None if line is None else (line.target, line.source)
-
-    def _selected_line(self) -> LinkLine | None:
+    def selected_link(self) -> LinkLine | None:
+        """The link selected in the links table, or None."""
         rows = self.links.selectionModel().selectedRows()
         if self.outcome is None or not rows:
             return None
@@ -287,7 +283,7 @@ class PlotWindow(QMainWindow):
 
     def open_pair(self) -> None:
         """Show the selected link's scans at its pose in the main window."""
-        line = self._selected_line()
+        line = self.selected_link()
         if line is None:
             return
         i, j = line.target, line.source
@@ -304,9 +300,10 @@ class PlotWindow(QMainWindow):
         """Take a pairs CSV for the selected link (asked when not given), or drop it."""
         from amrst.review.pairs_file import read_pairs
 
-        link = self.selected_link()
-        if link is None:
+        line = self.selected_link()
+        if line is None:
             return
+        link = line.target, line.source
         name = f"S{link[0] + 1}–S{link[1] + 1}"
         if link in self.hand_pairs:
             del self.hand_pairs[link]
@@ -496,7 +493,8 @@ class PlotWindow(QMainWindow):
         self._update_link_buttons()
 
     def _update_link_buttons(self) -> None:
-        link = None if self.busy else self.selected_link()
+        line = None if self.busy else self.selected_link()
+        link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
         self.pairs_button.setEnabled(link is not None)
         self.pairs_button.setText(

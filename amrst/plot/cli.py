@@ -67,12 +67,12 @@ def run_cli(args: argparse.Namespace) -> int:
     out = Path(args.out)
     try:
         check_out(out, args.overwrite)
+        by_hand = read_hand_pairs(args.pairs)  # a bad file before minutes of reading
         clouds, labels = read_specs(list(args.scans))
         if len(clouds) < 2:
             raise InvalidInput(
                 f"{len(clouds)} scan given: a plot needs at least two positions."
             )
-        by_hand = read_hand_pairs(args.pairs)
         reporter = TerminalReporter(args.quiet)
         reg = register_plot(clouds, 0, reporter=reporter, by_hand=by_hand)
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)

@@ -263,8 +263,14 @@ def register_plot_link_by_hand(
             "fix a pose: pick them farther apart."
         )
     fine = refine(tgt, src, start, params, reporter, threads=threads)
+    scorer = ManualScorer(tgt.xyz, src.xyz, params.coarse)
     kept = judge_refinement(
-        start, fine.T_target_source, tgt.xyz, src.xyz, params.coarse
+        start,
+        fine.T_target_source,
+        tgt.xyz,
+        src.xyz,
+        params.coarse,
+        tree=scorer.tree,
     )
     T = start if kept.keep_manual else fine.T_target_source
     # Against the stem map's points (1 cm voxel): the preprocessed points of a big
@@ -274,11 +280,7 @@ def register_plot_link_by_hand(
         axis_strength(tgt.xyz, src.xyz, T, params.metrics.overlap_dist_m),
         f"Your {len(t_pts)} point pairs",
     )
-    score = (
-        ManualScorer(tgt.xyz, src.xyz, params.coarse)
-        .score(T, MANUAL_ID_BASE, "point pairs")
-        .score
-    )
+    score = scorer.score(T, MANUAL_ID_BASE, "point pairs").score
     metrics = evaluate(tgt, src, T, params, threads=threads)
     link = Link(
         target=indices[0],

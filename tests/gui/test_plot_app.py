@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from _plots import STEMS, scan
+from _plots import STEMS, pose, scan
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
@@ -28,16 +28,16 @@ if TYPE_CHECKING:
     from amrst_gui.plot_panel import PlotWindow
 
 
+# The second scan's pose in the first's frame: turned 70 deg and moved.
+SOURCE_POSE = pose(70.0, (3.0, 1.0, 0.0))
+
+
 @pytest.fixture(scope="module")
 def plot_files(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     """Two scans of the plot as PLY files; the first is the reference."""
     from amrst import io
 
-    a = np.radians(70.0)
-    T = np.eye(4)
-    T[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
-    T[:3, 3] = (3.0, 1.0, 0.0)
-    inv = invert_transform(T)
+    inv = invert_transform(SOURCE_POSE)
     source = scan((3.0, 1.0), STEMS, 2) @ inv[:3, :3].T + inv[:3, 3]
     folder = tmp_path_factory.mktemp("plot")
     files = [folder / "scan_1.ply", folder / "scan_2.ply"]
@@ -224,9 +224,8 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
 
     # Four stem points picked in both scans (the source's under its true pose).
     picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])
-    a = np.radians(70.0)
-    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-    in_source = (picked - (3.0, 1.0, 0.0)) @ R
+    inv = invert_transform(SOURCE_POSE)
+    in_source = picked @ inv[:3, :3].T + inv[:3, 3]
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, picked, in_source)
     plot.toggle_pairs(str(pairs))
