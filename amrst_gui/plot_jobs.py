@@ -6,9 +6,8 @@ registers them (``amrst.plot.register``), takes the inventory
 (``amrst.plot.export``), then hands back a :class:`PlotOutcome`: what the stem map
 and the tree view draw, a few thousand points at most, never the scans.
 
-The technician's marks (``ok`` / ``check`` per tree id) are kept in ``review.json``
-beside the inventory, with the scans they belong to: marks of another plot written
-into the same folder are not applied.
+:func:`reviewed` shows the outcome with the technician's review
+(``amrst.plot.review``): the links they accepted, and the scans those place.
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import Reporter, SubReporter
-from amrst.review.verdict import FAILED, REGISTERED
+from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -33,9 +32,6 @@ if TYPE_CHECKING:
     from amrst.plot.register import PlotRegistration
     from amrst.types import Cloud
 
-REVIEW_JSON = "review.json"
-#: The technician's marks; an unmarked tree has none.
-MARKS = ("ok", "check")
 #: The slice shown per tree: its middle above the local ground, half its thickness.
 SLICE_HEIGHT_M = 1.3
 SLICE_HALF_M = 0.05
@@ -56,6 +52,8 @@ class ScanPlace:
     xy: np.ndarray | None  # (2,) the scanner's position; None: not placed
     stems: int
     status: str
+    # The unsure links its pose rests on (None: none a person can clear).
+    doubts: frozenset[tuple[int, int]] | None = frozenset()
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,8 +71,14 @@ class LinkLine:
     shared: int
     message: str
     score: float = float("nan")  # the point score of its pose
-    # Its pose: the source scan's file coordinates into the target's (None: failed).
+    # Its pose: the source scan's file coordinates into the target's (None: failed),
+    # and in the scans' local frames (as plot.json and review.json keep it).
     T_world: np.ndarray | None = None
+    T_local: np.ndarray | None = None
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return self.target, self.source
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,11 +194,50 @@ def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlac
             None if pose is None else np.asarray(pose[:2, 3], float),
             len(scan.stems.stems),
             status,
+            doubts,
         )
-        for label, pose, scan, status in zip(
-            labels, reg.poses, reg.scans, reg.statuses, strict=True
+        for label, pose, scan, status, doubts in zip(
+            labels, reg.poses, reg.scans, reg.statuses, reg.doubts(), strict=True
         )
     )
+
+
+def reviewed(
+    found: PlotOutcome, accepted: Mapping[tuple[int, int], Any]
+) -> PlotOutcome:
+    """The outcome as the technician's review leaves it.
+
+    A link that needs review and keeps the pose it was accepted at reads
+    ``accepted``, and so does each scan that needs review for accepted links alone
+    (``amrst.plot.review.scan_state``). An acceptance of another pose is named in the
+    link's message; the link stays as the run found it.
+    """
+    from dataclasses import replace
+
+    from amrst.plot.review import ACCEPTED, pose_change, scan_state, still_holds
+
+    holding: set[tuple[int, int]] = set()
+    links = []
+    for ln in found.links:
+        T = accepted.get(ln.key)
+        if T is not None and ln.status == NEEDS_REVIEW:
+            if still_holds(T, ln.T_local):
+                holding.add(ln.key)
+                ln = replace(
+                    ln, status=ACCEPTED, message=f"Accepted by you. {ln.message}"
+                )
+            elif ln.T_local is not None:
+                turn, shift = pose_change(T, ln.T_local)
+                ln = replace(
+                    ln,
+                    message=f"You accepted a pose {turn:.2f} deg / {100 * shift:.1f} cm "
+                    f"from this one: check it again. {ln.message}",
+                )
+        links.append(ln)
+    scans = tuple(
+        replace(s, status=scan_state(s.status, s.doubts, holding)) for s in found.scans
+    )
+    return replace(found, links=tuple(links), scans=scans)
 
 
 def _link_line(pl: Any, confirmed: bool, clouds: Sequence[Cloud]) -> LinkLine:
@@ -220,6 +263,7 @@ def _link_line(pl: Any, confirmed: bool, clouds: Sequence[Cloud]) -> LinkLine:
         message=link.message,
         score=float(link.score),
         T_world=T_world,
+        T_local=link.T_local,
     )
 
 
@@ -301,40 +345,3 @@ def same_plot(out: Path, labels: Sequence[str]) -> bool:
         return [s["label"] for s in doc["scans"]] == list(labels)
     except (OSError, ValueError, KeyError, TypeError):
         return False
-
-
-def read_marks(out: Path, labels: Sequence[str]) -> dict[str, str]:
-    """The marks ``review.json`` in ``out`` holds for this plot ({} when none).
-
-    Raises InvalidInput when the file cannot be read as marks.
-    """
-    path = out / REVIEW_JSON
-    if not path.is_file():
-        return {}
-    try:
-        doc = json.loads(path.read_text())
-        marks = doc["marks"]
-        scans = doc["scans"]
-        ok = isinstance(marks, dict) and all(v in MARKS for v in marks.values())
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InvalidInput(
-            f"{path} is no review file ({exc}); move it away to mark the trees again."
-        ) from exc
-    if not ok:
-        raise InvalidInput(
-            f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
-        )
-    return {str(k): str(v) for k, v in marks.items()} if scans == list(labels) else {}
-
-
-def write_marks(out: Path, labels: Sequence[str], marks: Mapping[str, str]) -> None:
-    """Write the marks into ``review.json`` beside the inventory (atomically)."""
-    from amrst.files.atomic import write_json_atomic
-
-    bad = sorted(v for v in marks.values() if v not in MARKS)
-    if bad:
-        raise InvalidInput(f"marks are {' or '.join(MARKS)}, not {bad[0]!r}")
-    write_json_atomic(
-        out / REVIEW_JSON,
-        {"scans": list(labels), "marks": dict(sorted(marks.items()))},
-    )

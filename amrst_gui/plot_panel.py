@@ -5,14 +5,18 @@ for the results folder if none is set, asks before replacing a plot already ther
 and runs ``plot_jobs.run_plot`` (``amrst plot SCANS --out DIR``) in the engine
 process through ``workers.run_stage``: progress below the buttons, Cancel stops it
 at once, a failure is one line. The result shows as the stem map (centre), the
-links and trees (left) and the selected tree (right). A mark (ok / check) is written
-to ``review.json`` in the results folder the moment it is made.
+links and trees (left) and the selected tree (right). A mark (ok / check) and an
+accepted link are written to ``review.json`` in the results folder the moment they are
+made (``amrst.plot.review``); the window shows the run as that review leaves it
+(``plot_jobs.reviewed``).
 
 A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
 j, its pose as a stored result or None)`` so the main window shows the two scans at
 the link's pose (overlay, verdict), where the Manual pose dock picks point pairs and
 saves them as a CSV; **Use pairs…** takes that file for the selected link, and the
-next run places the link from it (``amrst plot --pairs``).
+next run places the link from it (``amrst plot --pairs``). A link that needs review
+and looks right is accepted at its pose (**Accept**, asked first); the scans it places
+then read *accepted*.
 """
 
 from __future__ import annotations
@@ -38,6 +42,13 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError, Cancelled
+from amrst.plot.review import (
+    ACCEPTED,
+    REVIEW_JSON,
+    PlotReview,
+    read_review,
+    write_review,
+)
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui import plot_jobs
 from amrst_gui.plot_tables import (
@@ -60,7 +71,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("amrst_gui.plot")
 
-RESULT_FILES = "trees.csv, plot.json, review.json"
+RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -92,6 +103,18 @@ def ask_replace(parent: QWidget, text: str) -> bool:
     return answer == QMessageBox.StandardButton.Yes
 
 
+def ask_accept(parent: QWidget, text: str) -> bool:
+    """Ask whether to accept a link that needs review (tests answer it themselves)."""
+    answer = QMessageBox.question(
+        parent,
+        "Accept the link?",
+        text,
+        QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
+        QMessageBox.StandardButton.Cancel,
+    )
+    return answer == QMessageBox.StandardButton.Yes
+
+
 class PlotWindow(QMainWindow):
     """Open, run and review one plot. Emits ``plot_done(outcome)`` after a run."""
 
@@ -103,8 +126,10 @@ class PlotWindow(QMainWindow):
         self.setObjectName("plot_window")
         self.setWindowTitle("AMRST Studio: plot")
         self.specs: list[str] = []
-        self.outcome: PlotOutcome | None = None
+        self.found: PlotOutcome | None = None  # the run's outcome
+        self.outcome: PlotOutcome | None = None  # as the review leaves it
         self.marks: dict[str, str] = {}
+        self.accepted: dict[tuple[int, int], object] = {}  # link -> pose accepted
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         self.job: StageJob | None = None
         self.stem_map = StemMapView()
@@ -169,6 +194,13 @@ class PlotWindow(QMainWindow):
             "target) at the next run, instead of the automatic match"
         )
         self.pairs_button.clicked.connect(self.toggle_pairs)
+        self.accept_button = QPushButton("Accept")
+        self.accept_button.setToolTip(
+            "Accept the selected link at its pose after checking it (Open pair): the "
+            f"scans it places read accepted; kept in {REVIEW_JSON} while a run gives "
+            "the link the same pose"
+        )
+        self.accept_button.clicked.connect(self.toggle_accept)
         self.trees = table(TREE_COLUMNS, "plot_trees")
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
@@ -189,6 +221,7 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.links)
         by_hand = QHBoxLayout()
         by_hand.addWidget(self.open_button)
+        by_hand.addWidget(self.accept_button)
         by_hand.addWidget(self.pairs_button)
         layout.addLayout(by_hand)
         layout.addWidget(QLabel("<b>Trees</b>"))
@@ -207,7 +240,8 @@ class PlotWindow(QMainWindow):
             self._say("A plot is running: cancel it first.", error=True)
             return False
         self.specs = [str(Path(p).resolve()) for p in paths]
-        self.outcome, self.marks, self.hand_pairs = None, {}, {}
+        self.found = self.outcome = None
+        self.marks, self.accepted, self.hand_pairs = {}, {}, {}
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
         fill(self.links, [])
@@ -350,16 +384,36 @@ class PlotWindow(QMainWindow):
             marks[tree_id] = mark
         else:
             marks.pop(tree_id, None)
-        try:
-            plot_jobs.write_marks(o.out, o.labels, marks)
-        except (AmrstError, OSError) as exc:
-            self._say(f"The mark was not saved: {exc}", error=True)
+        if not self._save_review(marks, self.accepted, "The mark"):
             return
-        self.marks = marks
         self._show_marks()
-        self._say(
-            f"{tree_id}: {mark or 'mark cleared'} (saved in {plot_jobs.REVIEW_JSON})"
-        )
+        self._say(f"{tree_id}: {mark or 'mark cleared'} (saved in {REVIEW_JSON})")
+
+    def toggle_accept(self) -> None:
+        """Accept the selected link at its pose (asked first), or undo that."""
+        line = self.selected_link()
+        if line is None or self.outcome is None:
+            return
+        name = f"S{line.target + 1}–S{line.source + 1}"
+        accepted = dict(self.accepted)
+        if line.status == ACCEPTED:
+            del accepted[line.key]
+            done = f"Link {name} needs review again"
+        else:
+            if line.status != NEEDS_REVIEW or line.T_local is None:
+                return
+            text = (
+                f"Link {name} needs review: {line.message}\n\nAccept it at its pose? "
+                "Do so only after checking it (Open pair: the overlay; each tree's "
+                "slice here). The scans it places will read accepted."
+            )
+            if not ask_accept(self, text):
+                return
+            accepted[line.key] = line.T_local
+            done = f"Link {name} accepted at its pose"
+        if self._save_review(self.marks, accepted, "The link"):
+            self._show_review()
+            self._say(f"{done} (saved in {REVIEW_JSON}). {self._summary()}")
 
     def shutdown(self) -> None:
         """Drop a running plot (the main window closes)."""
@@ -391,24 +445,48 @@ class PlotWindow(QMainWindow):
     def _on_result(self, outcome: PlotOutcome) -> None:
         self.job = None
         self._set_running(False)
-        self.outcome = outcome
+        self.found = outcome
         try:
-            self.marks = plot_jobs.read_marks(outcome.out, outcome.labels)
+            review = read_review(outcome.out, outcome.labels)
         except AmrstError as exc:
-            self.marks = {}
+            review = PlotReview()
             self._say(str(exc), error=True)
-        self.stem_map.set_plot(outcome)
-        self._show_scans(outcome)
-        self._show_links(outcome)
-        self._show_marks()
+        self.marks, self.accepted = review.marks, dict(review.accepted)
+        self.outcome = None
+        self._show_review()
         self.tree_panel.show_tree(None, None, None)
-        missing, review = outcome.missing, outcome.labelled(NEEDS_REVIEW)
-        line = (
-            f"{len(outcome.trees)} trees; {len(outcome.labelled(REGISTERED))} of "
-            f"{len(outcome.scans)} scans registered, bundle error "
-            f"{number(outcome.bundle_rmse_m * 100, '.1f')} cm ({outcome.seconds:.0f} s); "
-            f"written to {outcome.out}"
+        assert self.outcome is not None
+        o = self.outcome
+        unsure = bool(o.missing or o.labelled(NEEDS_REVIEW))
+        self._say(
+            f"{self._summary()} ({o.seconds:.0f} s); written to {o.out}", error=unsure
         )
+        self.plot_done.emit(o)
+
+    def _save_review(self, marks: dict, accepted: dict, what: str) -> bool:
+        """Write the review; keep it as the window's when written."""
+        o = self.outcome
+        assert o is not None
+        try:
+            write_review(o.out, o.labels, PlotReview(marks, accepted))
+        except (AmrstError, OSError) as exc:
+            self._say(f"{what} was not saved: {exc}", error=True)
+            return False
+        self.marks, self.accepted = marks, accepted
+        return True
+
+    def _summary(self) -> str:
+        """The plot in a line: trees, scans by state, the bundle error."""
+        o = self.outcome
+        assert o is not None
+        accepted = o.labelled(ACCEPTED)
+        line = (
+            f"{len(o.trees)} trees; {len(o.labelled(REGISTERED))} of "
+            f"{len(o.scans)} scans registered"
+            + (f", {len(accepted)} accepted by you" if accepted else "")
+            + f", bundle error {number(o.bundle_rmse_m * 100, '.1f')} cm"
+        )
+        review, missing = o.labelled(NEEDS_REVIEW), o.missing
         if review:
             line += (
                 ". Needs review: "
@@ -417,8 +495,7 @@ class PlotWindow(QMainWindow):
             )
         if missing:
             line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
-        self._say(line, error=bool(missing or review))
-        self.plot_done.emit(outcome)
+        return line
 
     def _on_error(self, exc: BaseException) -> None:
         self.job = None
@@ -440,6 +517,22 @@ class PlotWindow(QMainWindow):
             self.select_tree(rows[0].row())
 
     # ---------------------------------------------------------- showing
+    def _show_review(self) -> None:
+        """Show the run as the review leaves it: map, scans, links, marks."""
+        assert self.found is not None
+        selected = self.stem_map.selected
+        link_row = self.links.currentRow()
+        self.outcome = plot_jobs.reviewed(self.found, self.accepted)
+        self.stem_map.set_plot(self.outcome)
+        self._show_scans(self.outcome)
+        self._show_links(self.outcome)
+        if link_row >= 0:
+            self.links.selectRow(link_row)
+        self._show_marks()
+        if selected is not None:
+            self.select_tree(selected)
+        self._update_link_buttons()
+
     def _show_scans(self, o: PlotOutcome) -> None:
         for k, text in enumerate(scan_lines(o)):
             item = self.scan_list.item(k)
@@ -496,6 +589,16 @@ class PlotWindow(QMainWindow):
         line = None if self.busy else self.selected_link()
         link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
+        accepted = line is not None and line.status == ACCEPTED
+        self.accept_button.setEnabled(
+            accepted
+            or (
+                line is not None
+                and line.status == NEEDS_REVIEW
+                and line.T_local is not None
+            )
+        )
+        self.accept_button.setText("Undo accept" if accepted else "Accept")
         self.pairs_button.setEnabled(link is not None)
         self.pairs_button.setText(
             "Drop pairs" if link in self.hand_pairs else "Use pairs…"

@@ -12,6 +12,7 @@ from PySide6.QtWidgets import (
     QTableWidgetItem,
 )
 
+from amrst.plot.review import ACCEPTED
 from amrst.review.verdict import NEEDS_REVIEW
 
 if TYPE_CHECKING:
@@ -66,9 +67,9 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             if scan.xy is None
             else f"at {scan.xy[0]:.1f}, {scan.xy[1]:.1f} m"
         )
-        # Only a placed scan that is not sure says its state.
-        unsure = scan.xy is not None and scan.status == NEEDS_REVIEW
-        state = f", {NEEDS_REVIEW}" if unsure else ""
+        # Only a placed scan the registration was not sure of says its state.
+        unsure = scan.xy is not None and scan.status in (NEEDS_REVIEW, ACCEPTED)
+        state = f", {scan.status}" if unsure else ""
         lines.append(
             f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems{state}"
         )

@@ -319,23 +319,43 @@ def scan_statuses(
     them is wrong). Else ``registered``; the reference (its path is itself) is
     registered.
     """
-    doubtful = {
-        frozenset((ln.target, ln.source)) for ln in links if ln.status != REGISTERED
-    }
+    return tuple(
+        FAILED
+        if path is None
+        else NEEDS_REVIEW
+        if doubts is None or doubts
+        else REGISTERED
+        for path, doubts in zip(paths, scan_doubts(links, paths, loops), strict=True)
+    )
+
+
+def scan_doubts(
+    links: Sequence[Link],
+    paths: Sequence[tuple[int, ...] | None],
+    loops: dict[str, float],
+) -> tuple[frozenset[tuple[int, int]] | None, ...]:
+    """Return the unsure links each scan's pose rests on, as (target, source).
+
+    Empty for a registered scan; the links of its path that need review and that no
+    loop confirms (:func:`scan_statuses`) for one that needs review for them alone;
+    None for a failed scan and for one two registered links disagree about (no one
+    link of its path to check).
+    """
+    by_pair = {frozenset((ln.target, ln.source)): ln for ln in links}
+    doubtful = {pair for pair, ln in by_pair.items() if ln.status != REGISTERED}
     doubtful -= loop_confirmed(links, paths, loops)
     contradicted: set[int] = set()
     for link in links:
         key = f"{link.target}-{link.source}"
         if link.status == REGISTERED and loops.get(key, 0.0) > LOOP_TOLERANCE_M:
             contradicted |= {link.target, link.source}
-    out = []
+    out: list[frozenset[tuple[int, int]] | None] = []
     for path in paths:
-        if path is None:
-            out.append(FAILED)
+        if path is None or set(path[1:]) & contradicted:
+            out.append(None)
             continue
-        steps = {frozenset(step) for step in itertools.pairwise(path)}
-        shaky = bool(steps & doubtful) or bool(set(path[1:]) & contradicted)
-        out.append(NEEDS_REVIEW if shaky else REGISTERED)
+        steps = {frozenset(step) for step in itertools.pairwise(path)} & doubtful
+        out.append(frozenset((by_pair[s].target, by_pair[s].source) for s in steps))
     return tuple(out)
 
 

@@ -28,6 +28,7 @@ from amrst.multiscan.graph import (
     link_pairs,
     loop_closures,
     loop_confirmed,
+    scan_doubts,
     scan_statuses,
     spanning_tree,
 )
@@ -103,6 +104,10 @@ class PlotRegistration:
         links = [pl.link for pl in self.links]
         confirmed = loop_confirmed(links, self.paths, self.loops)
         return frozenset((link.target, link.source)) in confirmed
+
+    def doubts(self) -> tuple[frozenset[tuple[int, int]] | None, ...]:
+        """Per scan, the unsure links its pose rests on (``graph.scan_doubts``)."""
+        return scan_doubts([pl.link for pl in self.links], self.paths, self.loops)
 
 
 def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:

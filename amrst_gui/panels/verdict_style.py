@@ -4,6 +4,7 @@ from __future__ import annotations
 
 _STYLE = {
     "registered": "color: #1b6e20;",
+    "accepted": "color: #1b6e20;",
     "needs review": "color: #9a6200;",
     "failed": "color: #c00000;",
 }

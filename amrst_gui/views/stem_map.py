@@ -31,6 +31,7 @@ MARK_RGB = {"ok": (255, 255, 255), "check": (244, 67, 54)}
 #: Colour of a link by its state.
 LINK_RGB = {
     "registered": (76, 175, 80),
+    "accepted": (38, 166, 154),
     "needs review": (255, 179, 0),
     "failed": (244, 67, 54),
 }

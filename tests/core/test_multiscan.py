@@ -6,13 +6,13 @@ import json
 
 import numpy as np
 import pytest
+from _graphs import link
 
 import amrst
 from amrst import io
 from amrst.cli import main
 from amrst.multiscan.export import export_scans, read_scan_truth
 from amrst.multiscan.graph import (
-    Link,
     loop_closures,
     loop_confirmed,
     scan_statuses,
@@ -20,7 +20,6 @@ from amrst.multiscan.graph import (
 )
 from amrst.multiscan.simulate import simulate_scans, write_scans
 from amrst.stages.metrics import truth_errors
-from amrst.types import make_transform
 
 
 @pytest.fixture(scope="module")
@@ -86,28 +85,14 @@ def test_three_scans_all_placed_within_truth(three_scans, three_result):
     assert worst(three_result.T_reference_scan) <= worst(three_result.T_tree)
 
 
-def _link(a, b, verdict, weight=0.5, confidence=1.0, shift=None):
-    return Link(
-        a,
-        b,
-        verdict,
-        weight,
-        confidence,
-        weight,
-        make_transform(np.eye(3), [b - a if shift is None else shift, 0, 0]),
-        None,
-        "",
-    )
-
-
 def test_scan_unverified_with_reference_reached_through_another():
     links = [
-        _link(0, 1, "verified", 0.6),
-        _link(0, 2, "unverified", 0.9),
-        _link(1, 2, "verified", 0.4),
-        _link(0, 3, "failed", 0.0),
-        _link(1, 3, "unverified", 0.5),
-        _link(2, 3, "unverified", 0.5),
+        link(0, 1, "verified", 0.6),
+        link(0, 2, "unverified", 0.9),
+        link(1, 2, "verified", 0.4),
+        link(0, 3, "failed", 0.0),
+        link(1, 3, "unverified", 0.5),
+        link(2, 3, "unverified", 0.5),
     ]
     graph = spanning_tree(links, 4, 0)
     assert graph.paths[:3] == ((0,), (0, 1), (0, 1, 2))
@@ -128,9 +113,9 @@ def test_scan_unverified_with_reference_reached_through_another():
 
 def test_direct_verified_link_is_preferred_to_a_better_detour():
     links = [
-        _link(0, 1, "verified", 0.2),
-        _link(0, 2, "verified", 0.9),
-        _link(1, 2, "verified", 0.9),
+        link(0, 1, "verified", 0.2),
+        link(0, 2, "verified", 0.9),
+        link(1, 2, "verified", 0.9),
     ]
     assert spanning_tree(links, 3, 0).paths[1] == (0, 1)
 
@@ -216,9 +201,9 @@ def test_unsure_direct_link_gives_way_to_registered_detour():
     # 0-2 verified but its runner-up scored almost as well (low confidence): the
     # scan goes through 1, whose two links are sure, and the unsure link is left out.
     links = [
-        _link(0, 1, "verified", 0.3),
-        _link(0, 2, "verified", 0.9, confidence=0.05, shift=-40.0),
-        _link(1, 2, "verified", 0.2),
+        link(0, 1, "verified", 0.3),
+        link(0, 2, "verified", 0.9, confidence=0.05, shift=-40.0),
+        link(1, 2, "verified", 0.2),
     ]
     graph = spanning_tree(links, 3, 0)
     assert graph.paths[2] == (0, 1, 2)
@@ -228,7 +213,7 @@ def test_unsure_direct_link_gives_way_to_registered_detour():
 
 
 def test_unsure_link_on_the_only_path_needs_review():
-    links = [_link(0, 1, "verified", 0.3, confidence=0.05), _link(0, 2, "failed", 0.0)]
+    links = [link(0, 1, "verified", 0.3, confidence=0.05), link(0, 2, "failed", 0.0)]
     graph = spanning_tree(links, 3, 0)
     statuses = scan_statuses(graph.links, graph.paths, {})
     assert statuses == ("registered", "needs review", "failed")
@@ -236,10 +221,10 @@ def test_unsure_link_on_the_only_path_needs_review():
 
 def test_registered_links_that_disagree_flag_the_scans_behind_them():
     links = [
-        _link(0, 1, "verified", 0.5),
-        _link(1, 2, "verified", 0.5),
-        _link(0, 2, "verified", 0.1, shift=3.0),  # sure, and 1 m off the tree
-        _link(0, 3, "verified", 0.5),
+        link(0, 1, "verified", 0.5),
+        link(1, 2, "verified", 0.5),
+        link(0, 2, "verified", 0.1, shift=3.0),  # sure, and 1 m off the tree
+        link(0, 3, "verified", 0.5),
     ]
     graph = spanning_tree(links, 4, 0)
     assert graph.paths[2] == (0, 2)
@@ -258,10 +243,10 @@ def test_a_loop_that_closes_confirms_its_unsure_links():
     # Three scans, every link verified but unsure (a runner-up close behind): the
     # cycle 0-1-2 closes exactly, so no link of it can be wrong.
     links = [
-        _link(0, 1, "verified", 0.5, confidence=0.1),
-        _link(1, 2, "verified", 0.5, confidence=0.1),
-        _link(0, 2, "verified", 0.4, confidence=0.1),
-        _link(0, 3, "verified", 0.5, confidence=0.1),  # no loop through scan 3
+        link(0, 1, "verified", 0.5, confidence=0.1),
+        link(1, 2, "verified", 0.5, confidence=0.1),
+        link(0, 2, "verified", 0.4, confidence=0.1),
+        link(0, 3, "verified", 0.5, confidence=0.1),  # no loop through scan 3
     ]
     graph = spanning_tree(links, 4, 0)
     loops = loop_closures(graph.links, graph.poses)
@@ -275,7 +260,7 @@ def test_a_loop_that_closes_confirms_its_unsure_links():
         "needs review",
     )
     # 10 cm off at 10 m: no longer confirmed, nor contradicted.
-    links[2] = _link(0, 2, "verified", 0.4, confidence=0.1, shift=2.1)
+    links[2] = link(0, 2, "verified", 0.4, confidence=0.1, shift=2.1)
     graph = spanning_tree(links, 4, 0)
     loops = loop_closures(graph.links, graph.poses)
     assert list(loops.values()) == [pytest.approx(0.1)]

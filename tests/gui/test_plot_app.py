@@ -16,6 +16,7 @@ from _plots import STEMS, pose, scan
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
+from amrst.plot.review import read_review
 from amrst.types import Cloud, invert_transform
 
 if TYPE_CHECKING:
@@ -59,7 +60,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from amrst.plot.export import TREES_CSV
-    from amrst_gui import plot_jobs, plot_panel
+    from amrst_gui import plot_panel
 
     win = make_main_window()
     out = tmp_path / "out"
@@ -106,12 +107,12 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
 
     # A mark is saved beside the inventory at once, and read back with it.
     plot.tree_panel.buttons["check"].click()
-    assert plot_jobs.read_marks(out, o.labels) == {tree.tree_id: "check"}
+    assert read_review(out, o.labels).marks == {tree.tree_id: "check"}
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
     plot.tree_panel.buttons[""].click()
-    assert plot_jobs.read_marks(out, o.labels) == {}
+    assert read_review(out, o.labels).marks == {}
 
     # Another run into the same folder asks first; "keep it" runs nothing.
     asked: list[str] = []
@@ -242,3 +243,65 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     cell = plot.links.item(0, 5)
     assert cell is not None
     assert cell.text() == "your pairs"  # and again at the next run
+
+
+def test_a_link_that_needs_review_is_accepted_at_its_pose(
+    qtbot: QtBot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from dataclasses import replace
+
+    from amrst_gui import plot_panel
+    from amrst_gui.plot_jobs import LinkLine, PlotOutcome, ScanPlace
+
+    plot = plot_panel.PlotWindow()
+    qtbot.addWidget(plot)
+    T = SOURCE_POSE
+    line = LinkLine(
+        0, 1, "needs review", False, True, "stems", 0.4, 0.02, 5, "unsure", T, T, T
+    )
+    scans = (
+        ScanPlace("a.ply", np.zeros(2), 5, "registered"),
+        ScanPlace("b.ply", T[:2, 3], 5, "needs review", frozenset({(0, 1)})),
+    )
+    found = PlotOutcome(
+        tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
+    )
+    plot.open_scans(["a.ply", "b.ply"], tmp_path)
+    plot._on_result(found)
+    plot.links.selectRow(0)
+    assert plot.accept_button.isEnabled()
+    assert plot.accept_button.text() == "Accept"
+
+    # Asked first; "Cancel" accepts nothing.
+    monkeypatch.setattr(plot_panel, "ask_accept", lambda *_: False)
+    plot.accept_button.click()
+    assert read_review(tmp_path, found.labels).accepted == {}
+    monkeypatch.setattr(plot_panel, "ask_accept", lambda *_: True)
+    plot.accept_button.click()
+    o = plot.outcome
+    assert o is not None
+    assert [ln.status for ln in o.links] == ["accepted"]
+    assert [s.status for s in o.scans] == ["registered", "accepted"]
+    assert "accepted" in plot.scan_list.item(1).text()
+    assert "1 accepted by you" in plot.status.text()
+    assert plot.accept_button.text() == "Undo accept"
+    (kept,) = read_review(tmp_path, found.labels).accepted.items()
+    assert kept[0] == (0, 1)
+    assert np.array_equal(kept[1], T)
+
+    # A run again that finds the same pose keeps it accepted; another pose does not.
+    plot._on_result(found)
+    assert plot.outcome.links[0].status == "accepted"
+    moved = replace(line, T_local=T @ pose(1.0, (0, 0, 0)))
+    plot._on_result(replace(found, links=(moved,)))
+    shown = plot.outcome.links[0]
+    assert shown.status == "needs review"
+    assert "You accepted a pose 1.00 deg" in shown.message
+    assert plot.outcome.scans[1].status == "needs review"
+
+    # Undo: the link needs review again, and the file says so.
+    plot._on_result(found)
+    plot.links.selectRow(0)
+    plot.accept_button.click()
+    assert plot.outcome.links[0].status == "needs review"
+    assert read_review(tmp_path, found.labels).accepted == {}

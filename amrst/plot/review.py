@@ -1,0 +1,140 @@
+"""The technician's review of a plot, kept in ``review.json`` beside the inventory.
+
+It names the scans it belongs to (a review of other scans is not applied) and holds
+
+- ``marks``: ``ok`` / ``check`` per tree id; tree ids are stable between runs on the
+  same files, so marks hold across a run again;
+- ``accepted``: links the registration left unsure that the technician checked by eye
+  and accepted, each with the pose accepted (the source scan's local frame into the
+  target's). An acceptance holds only while the link keeps that pose (within
+  ``SAME_POSE_DEG`` and ``SAME_POSE_M``): a run that places the link elsewhere asks
+  for a new look.
+
+``plot.json`` stays what the registration found; :func:`scan_state` combines the two
+into what a person sees: a scan every unsure link of whose path was accepted is
+``accepted``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.campaign.folder import ACCEPTED as ACCEPTED  # a scan the review accepted
+from amrst.errors import InvalidInput
+from amrst.review.verdict import NEEDS_REVIEW
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+    from amrst.types import Transform
+
+REVIEW_JSON = "review.json"
+#: The technician's marks of a tree; an unmarked tree has none.
+MARKS = ("ok", "check")
+#: An accepted pose holds for a link within this turn (deg) and shift (m): under what
+#: the overlay shows, over the few-thread rounding of one run to the next.
+SAME_POSE_DEG = 0.05
+SAME_POSE_M = 0.01
+
+LinkKey = tuple[int, int]  # (target scan, source scan), from 0
+
+
+@dataclass(frozen=True, slots=True)
+class PlotReview:
+    """Marks per tree id, and the accepted links with the pose each was accepted at."""
+
+    marks: dict[str, str] = field(default_factory=dict)
+    accepted: dict[LinkKey, np.ndarray] = field(default_factory=dict)
+
+
+def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
+    """Return the review ``out`` holds for this plot (empty: none, or other scans').
+
+    Raises InvalidInput when the file cannot be read as a review.
+    """
+    path = out / REVIEW_JSON
+    if not path.is_file():
+        return PlotReview()
+    try:
+        doc = json.loads(path.read_text())
+        scans = doc["scans"]
+        marks = {str(k): str(v) for k, v in dict(doc["marks"]).items()}
+        accepted = {
+            _key(k): np.asarray(T, float).reshape(4, 4)
+            for k, T in dict(doc.get("accepted") or {}).items()
+        }
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"{path} is no review file ({exc}); move it away to review the plot again."
+        ) from exc
+    if any(v not in MARKS for v in marks.values()):
+        raise InvalidInput(
+            f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
+        )
+    if scans != list(labels):
+        return PlotReview()
+    return PlotReview(marks, accepted)
+
+
+def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
+    """Write the review into ``out`` (atomically)."""
+    from amrst.files.atomic import write_json_atomic
+
+    bad = sorted(v for v in review.marks.values() if v not in MARKS)
+    if bad:
+        raise InvalidInput(f"marks are {' or '.join(MARKS)}, not {bad[0]!r}")
+    accepted = {
+        f"{i + 1}-{j + 1}": np.asarray(T, float).tolist()
+        for (i, j), T in sorted(review.accepted.items())
+    }
+    write_json_atomic(
+        out / REVIEW_JSON,
+        {
+            "scans": list(labels),
+            "marks": dict(sorted(review.marks.items())),
+            "accepted": accepted,
+        },
+    )
+
+
+def pose_change(accepted: Transform, T: Transform) -> tuple[float, float]:
+    """How far ``T`` is from the accepted pose: (turn in deg, shift of the origin in m)."""
+    dR = np.asarray(accepted)[:3, :3].T @ np.asarray(T)[:3, :3]
+    cos = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
+    shift = np.linalg.norm(np.asarray(accepted)[:3, 3] - np.asarray(T)[:3, 3])
+    return float(np.degrees(np.arccos(cos))), float(shift)
+
+
+def still_holds(accepted: Transform, T: Transform | None) -> bool:
+    """Tell whether an acceptance of ``accepted`` still holds for a link at ``T``."""
+    if T is None:
+        return False
+    turn, shift = pose_change(accepted, T)
+    return turn <= SAME_POSE_DEG and shift <= SAME_POSE_M
+
+
+def scan_state(
+    status: str, doubts: frozenset[LinkKey] | None, accepted: set[LinkKey]
+) -> str:
+    """Return a scan's state with the review (``accepted``, or its ``status``).
+
+    ``accepted`` when it needs review only for links the technician accepted.
+
+    ``doubts``: the unsure links its pose rests on (None: none a person can clear,
+    e.g. two registered links disagree about it).
+    """
+    if status == NEEDS_REVIEW and doubts and doubts <= accepted:
+        return ACCEPTED
+    return status
+
+
+def _key(text: str) -> LinkKey:
+    i, j = (int(v) for v in str(text).split("-"))
+    if i < 1 or j < 1:
+        raise ValueError(f"link {text!r}: scans are numbered from 1")
+    return i - 1, j - 1

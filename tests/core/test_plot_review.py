@@ -1,0 +1,113 @@
+"""A plot's review: marks and accepted links in review.json, and the states they give."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from _graphs import link
+
+from amrst.errors import InvalidInput
+from amrst.multiscan.graph import loop_closures, scan_doubts, spanning_tree
+from amrst.plot.review import (
+    ACCEPTED,
+    REVIEW_JSON,
+    PlotReview,
+    read_review,
+    scan_state,
+    still_holds,
+    write_review,
+)
+from amrst.types import make_transform
+
+LABELS = ["/plots/a.ply", "/plots/b.ply"]
+
+
+def _turned(deg: float, shift: float = 0.0) -> np.ndarray:
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return make_transform(R, np.array([3.0 + shift, -1.0, 0.2]))
+
+
+def test_the_review_is_written_and_read_back(tmp_path):
+    review = PlotReview({"T003": "check", "T001": "ok"}, {(0, 1): _turned(30.0)})
+    write_review(tmp_path, LABELS, review)
+    back = read_review(tmp_path, LABELS)
+    assert back.marks == review.marks
+    assert list(back.accepted) == [(0, 1)]
+    assert np.array_equal(back.accepted[0, 1], _turned(30.0))
+    doc = json.loads((tmp_path / REVIEW_JSON).read_text())
+    assert list(doc["accepted"]) == ["1-2"]  # scans numbered as the user sees them
+
+
+def test_a_review_of_other_scans_is_not_applied(tmp_path):
+    write_review(tmp_path, LABELS, PlotReview({"T001": "ok"}, {(0, 1): np.eye(4)}))
+    assert read_review(tmp_path, ["/plots/c.ply", "/plots/b.ply"]) == PlotReview()
+    assert read_review(tmp_path / "none", LABELS) == PlotReview()
+
+
+@pytest.mark.parametrize(
+    "doc",
+    [
+        "not json",
+        {"scans": LABELS, "marks": {"T001": "great"}},
+        {"scans": LABELS, "marks": {}, "accepted": {"1-2": [[1, 0], [0, 1]]}},
+        {"scans": LABELS, "marks": {}, "accepted": {"0-2": np.eye(4).tolist()}},
+    ],
+)
+def test_a_broken_review_is_refused_in_one_line(tmp_path, doc):
+    text = doc if isinstance(doc, str) else json.dumps(doc)
+    (tmp_path / REVIEW_JSON).write_text(text)
+    with pytest.raises(InvalidInput) as err:
+        read_review(tmp_path, LABELS)
+    assert "\n" not in str(err.value)
+    assert REVIEW_JSON in str(err.value)
+
+
+def test_a_bad_mark_is_not_written(tmp_path):
+    with pytest.raises(InvalidInput):
+        write_review(tmp_path, LABELS, PlotReview({"T001": "maybe"}))
+    assert not (tmp_path / REVIEW_JSON).exists()
+
+
+def test_an_acceptance_holds_for_its_pose_only():
+    accepted = _turned(30.0)
+    assert still_holds(accepted, _turned(30.0 + 0.01, 0.002))
+    assert not still_holds(accepted, _turned(30.2))
+    assert not still_holds(accepted, _turned(30.0, 0.03))
+    assert not still_holds(accepted, None)
+
+
+def test_a_scan_reads_accepted_when_each_unsure_link_it_rests_on_is():
+    # Scan 2 hangs on two unsure links (0-1, 1-2); scan 3's link failed.
+    links = [
+        link(0, 1, "verified", 0.5, confidence=0.1),
+        link(1, 2, "verified", 0.5, confidence=0.1),
+        link(0, 3, "failed", 0.0),
+    ]
+    graph = spanning_tree(links, 4, 0)
+    loops = loop_closures(graph.links, graph.poses)
+    doubts = scan_doubts(graph.links, graph.paths, loops)
+    assert doubts == (frozenset(), {(0, 1)}, {(0, 1), (1, 2)}, None)
+    statuses = ("registered", "needs review", "needs review", "failed")
+    states = [scan_state(s, d, {(0, 1)}) for s, d in zip(statuses, doubts, strict=True)]
+    assert states == ["registered", ACCEPTED, "needs review", "failed"]
+    both = {(0, 1), (1, 2)}
+    states = [scan_state(s, d, both) for s, d in zip(statuses, doubts, strict=True)]
+    assert states == ["registered", ACCEPTED, ACCEPTED, "failed"]
+
+
+def test_no_acceptance_clears_two_registered_links_that_disagree():
+    links = [
+        link(0, 1, "verified", 0.5),
+        link(1, 2, "verified", 0.5),
+        link(0, 2, "verified", 0.1, shift=3.0),
+    ]
+    graph = spanning_tree(links, 3, 0)
+    loops = loop_closures(graph.links, graph.poses)
+    doubts = scan_doubts(graph.links, graph.paths, loops)
+    assert doubts[1] is None
+    assert doubts[2] is None
+    every = {(0, 1), (1, 2), (0, 2)}
+    assert scan_state("needs review", doubts[2], every) == "needs review"
