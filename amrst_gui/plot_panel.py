@@ -375,7 +375,9 @@ class PlotWindow(QMainWindow):
             self.trees.selectRow(k)
 
     def set_mark(self, tree_id: str, mark: str) -> None:
-        """Mark a tree ``ok`` or ``check`` ("" clears) and write review.json."""
+        """Mark a tree ``ok`` or ``check`` ("" clears); write the review and trees.csv."""
+        from amrst.plot.export import TREES_CSV, write_inventory
+
         o = self.outcome
         if o is None:
             return
@@ -387,7 +389,17 @@ class PlotWindow(QMainWindow):
         if not self._save_review(marks, self.accepted, "The mark"):
             return
         self._show_marks()
-        self._say(f"{tree_id}: {mark or 'mark cleared'} (saved in {REVIEW_JSON})")
+        done = f"{tree_id}: {mark or 'mark cleared'}"
+        try:
+            write_inventory(o.out, o.trees, marks)
+        except (AmrstError, OSError) as exc:
+            self._say(
+                f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "
+                f"({exc}): close it where it is open, and mark again.",
+                error=True,
+            )
+            return
+        self._say(f"{done} (saved in {REVIEW_JSON} and {TREES_CSV})")
 
     def toggle_accept(self) -> None:
         """Accept the selected link at its pose (asked first), or undo that."""

@@ -2,7 +2,10 @@
 
 Every file of a run is written into the output folder as one unit
 (``files.outdir.replace_files``). A folder holding another run's ``plot.json`` is
-refused unless the caller says to overwrite it.
+refused unless the caller says to overwrite it. The inventory's last column, ``mark``,
+is the technician's (``amrst.plot.review``): a run writes the marks the folder's
+review holds for the same scans, and :func:`write_inventory` writes the inventory
+again when a mark changes.
 """
 
 from __future__ import annotations
@@ -13,14 +16,15 @@ from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS
+from amrst.plot.review import read_review
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from pathlib import Path
 
     import numpy as np
 
-    from amrst.plot.inventory import Inventory
+    from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
     from amrst.types import Cloud
 
@@ -28,24 +32,41 @@ PLOT_JSON = "plot.json"
 TREES_CSV = "trees.csv"
 TREES_XLSX = "trees.xlsx"
 TREES_DIR = "trees"
+#: trees.csv's columns: the tree's figures, then the technician's mark.
+INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark")
 
 
 def check_out(out: Path, overwrite: bool) -> None:
-    """Refuse a folder that holds another run's output, unless ``overwrite``."""
+    """Refuse a folder that holds another run's output, unless ``overwrite``.
+
+    Its review must be readable (its marks go into the inventory): refused before
+    the run rather than after it.
+    """
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} already holds a plot ({PLOT_JSON}): give another --out folder, or "
             "--overwrite to replace it."
         )
+    read_review(out, ())
 
 
-def trees_csv(inventory: Inventory) -> str:
-    """Return trees.csv: one row per tree, the columns of ``TREE_COLUMNS``."""
+def trees_csv(trees: Sequence[Tree], marks: Mapping[str, str] | None = None) -> str:
+    """Return trees.csv: one row per tree, the columns of ``INVENTORY_COLUMNS``."""
     buf = _stdio.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=TREE_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(t.row() for t in inventory.trees)
+    writer.writerows(_rows(trees, marks or {}))
     return buf.getvalue()
+
+
+def write_inventory(
+    out: Path, trees: Sequence[Tree], marks: Mapping[str, str]
+) -> list[Path]:
+    """Write trees.csv (and trees.xlsx) again with these marks, as one unit."""
+    from amrst.files.outdir import replace_files
+
+    written, _ = replace_files(out, _inventory_writers(trees, marks), managed=MANAGED)
+    return written
 
 
 def plot_document(
@@ -96,21 +117,40 @@ def write_plot(
     from amrst.files.outdir import replace_files
 
     doc, _ = strict_json(plot_document(reg, inventory, labels))
-    writers: dict[str, Callable[[Path], object]] = {
-        PLOT_JSON: lambda p: p.write_text(_json_text(doc)),
-        TREES_CSV: lambda p: p.write_text(trees_csv(inventory)),
-    }
-    xlsx = _xlsx_writer(inventory)
-    if xlsx is not None:
-        writers[TREES_XLSX] = xlsx
+    marks = read_review(out, labels).marks
+    writers = _inventory_writers(inventory.trees, marks)
+    writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     if write_trees:
         for k, tree in enumerate(inventory.trees):
             writers[f"{TREES_DIR}/{tree.tree_id}.ply"] = _tree_writer(
                 inventory.tree_points(k), reference
             )
-    managed = {PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR}
-    written, _ = replace_files(out, writers, managed=managed)
+    written, _ = replace_files(out, writers, managed=MANAGED)
     return written
+
+
+#: Every name a plot's run writes into its folder.
+MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR})
+
+
+def _rows(trees: Sequence[Tree], marks: Mapping[str, str]) -> list[dict[str, Any]]:
+    return [{**t.row(), "mark": marks.get(t.tree_id, "")} for t in trees]
+
+
+def _inventory_writers(
+    trees: Sequence[Tree], marks: Mapping[str, str]
+) -> dict[str, Callable[[Path], object]]:
+    """trees.csv's writer, and trees.xlsx's when openpyxl is installed."""
+    from amrst.files.atomic import xlsx_book
+
+    text = trees_csv(trees, marks)
+    writers: dict[str, Callable[[Path], object]] = {
+        TREES_CSV: lambda p: p.write_text(text)
+    }
+    book = xlsx_book("trees", INVENTORY_COLUMNS, _rows(trees, marks))
+    if book is not None:
+        writers[TREES_XLSX] = book.save
+    return writers
 
 
 def _json_text(doc: Any) -> str:
@@ -128,11 +168,3 @@ def _tree_writer(points: np.ndarray, reference: Cloud) -> Callable[[Path], objec
         io.write(path, Cloud(points, offset=reference.offset))
 
     return write
-
-
-def _xlsx_writer(inventory: Inventory) -> Callable[[Path], object] | None:
-    """trees.xlsx when openpyxl is installed."""
-    from amrst.files.atomic import xlsx_book
-
-    book = xlsx_book("trees", TREE_COLUMNS, (t.row() for t in inventory.trees))
-    return None if book is None else book.save

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
-#: Columns of trees.csv, in order.
+#: Columns of a tree's figures in trees.csv, in order (``mark`` follows them).
 TREE_COLUMNS = (
     "tree_id",
     "x_m",

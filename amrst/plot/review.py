@@ -104,10 +104,11 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
 
 def pose_change(accepted: Transform, T: Transform) -> tuple[float, float]:
     """How far ``T`` is from the accepted pose: (turn in deg, shift of the origin in m)."""
-    dR = np.asarray(accepted)[:3, :3].T @ np.asarray(T)[:3, :3]
-    cos = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
-    shift = np.linalg.norm(np.asarray(accepted)[:3, 3] - np.asarray(T)[:3, 3])
-    return float(np.degrees(np.arccos(cos))), float(shift)
+    from amrst.types import rotation_angle_deg
+
+    a, b = np.asarray(accepted, float), np.asarray(T, float)
+    turn = rotation_angle_deg(a[:3, :3].T @ b[:3, :3])
+    return turn, float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
 
 
 def still_holds(accepted: Transform, T: Transform | None) -> bool:

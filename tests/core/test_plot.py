@@ -17,10 +17,11 @@ import pytest
 from _plots import STEMS, blob, ground_z, scan
 
 from amrst.plot.cli import main as plot_main
-from amrst.plot.export import TREES_CSV, trees_csv
+from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
+from amrst.plot.review import PlotReview, write_review
 from amrst.plot.stemmap import StemMapParams, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
 
@@ -85,7 +86,7 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     rows = list(
         csv.DictReader(
             trees_csv(
-                take_inventory([target, source], [np.eye(4), T_true])
+                take_inventory([target, source], [np.eye(4), T_true]).trees
             ).splitlines()
         )
     )
@@ -105,6 +106,7 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
         "crown_width_m",
         "n_points",
         "seen_from",
+        "mark",
     ]
     for row in rows:
         assert row["height_flag"] in {"ok", "lean", "top not seen"}
@@ -115,6 +117,7 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
         assert float(row["lean_deg"]) < 5
         assert int(row["n_points"]) > 0
         assert row["seen_from"] == "1;2"
+        assert row["mark"] == ""
     files = [tmp_path / "t.ply", tmp_path / "s.ply"]
     for f, c in zip(files, (target, source), strict=True):
         io.write(f, c)
@@ -128,8 +131,24 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
     assert plot_main(args) == 2  # another run's output is not replaced
+    # The technician's marks (the app's review) go into the inventory of a run
+    # again, and so does a mark made after it.
+    labels = [s["label"] for s in doc["scans"]]
+    first = rows[0]["tree_id"]
+    write_review(out, labels, PlotReview({first: "check"}))
     assert plot_main([*args, "--overwrite"]) == 0
+    assert _marks(out) == {first: "check"}
+    trees = take_inventory([target, source], [np.eye(4), T_true]).trees
+    write_inventory(out, trees, {first: "ok", rows[1]["tree_id"]: "check"})
+    assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
+    (out / "review.json").write_text("{")
+    assert plot_main([*args, "--overwrite"]) == 2  # refused before reading scans
+
+
+def _marks(out: Path) -> dict[str, str]:
+    with (out / TREES_CSV).open() as fh:
+        return {r["tree_id"]: r["mark"] for r in csv.DictReader(fh) if r["mark"]}
 
 
 def test_a_stem_inside_a_wide_thicket_is_found() -> None:

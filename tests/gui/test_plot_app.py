@@ -108,6 +108,9 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     # A mark is saved beside the inventory at once, and read back with it.
     plot.tree_panel.buttons["check"].click()
     assert read_review(out, o.labels).marks == {tree.tree_id: "check"}
+    with (out / TREES_CSV).open() as fh:  # and the inventory handed over says it
+        marked = {r["tree_id"]: r["mark"] for r in csv.DictReader(fh) if r["mark"]}
+    assert marked == {tree.tree_id: "check"}
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
