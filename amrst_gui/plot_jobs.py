@@ -214,28 +214,24 @@ def reviewed(
     """
     from dataclasses import replace
 
-    from amrst.plot.review import ACCEPTED, pose_change, scan_state, still_holds
+    from amrst.plot.review import ACCEPTED, holding, pose_change, scan_state
 
-    holding: set[tuple[int, int]] = set()
+    keep = holding(accepted, ((ln.key, ln.status, ln.T_local) for ln in found.links))
     links = []
     for ln in found.links:
         T = accepted.get(ln.key)
-        if T is not None and ln.status == NEEDS_REVIEW:
-            if still_holds(T, ln.T_local):
-                holding.add(ln.key)
-                ln = replace(
-                    ln, status=ACCEPTED, message=f"Accepted by you. {ln.message}"
-                )
-            elif ln.T_local is not None:
-                turn, shift = pose_change(T, ln.T_local)
-                ln = replace(
-                    ln,
-                    message=f"You accepted a pose {turn:.2f} deg / {100 * shift:.1f} cm "
-                    f"from this one: check it again. {ln.message}",
-                )
+        if ln.key in keep:
+            ln = replace(ln, status=ACCEPTED, message=f"Accepted by you. {ln.message}")
+        elif T is not None and ln.status == NEEDS_REVIEW and ln.T_local is not None:
+            turn, shift = pose_change(T, ln.T_local)
+            ln = replace(
+                ln,
+                message=f"You accepted a pose {turn:.2f} deg / {100 * shift:.1f} cm "
+                f"from this one: check it again. {ln.message}",
+            )
         links.append(ln)
     scans = tuple(
-        replace(s, status=scan_state(s.status, s.doubts, holding)) for s in found.scans
+        replace(s, status=scan_state(s.status, s.doubts, keep)) for s in found.scans
     )
     return replace(found, links=tuple(links), scans=scans)
 

@@ -2,9 +2,10 @@
 
 The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
 from point pairs picked by hand (the app's Manual pose dock saves them). Exit 0 when
-every scan is registered, 2 on unusable input, 3 when a scan could not be registered
-or needs review (the inventory is still written for the scans that were placed, and
-the message names the others).
+every scan is registered, or accepted by the technician (a link they accepted in the
+app at the pose it has, kept in the folder's review.json), 2 on unusable input, 3
+when a scan could not be registered or needs review (the inventory is still written
+for the scans that were placed, and the message names the others).
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
+    from amrst.plot.review import ACCEPTED, read_review
     from amrst.terminal import TerminalReporter
 
     out = Path(args.out)
@@ -77,18 +79,28 @@ def run_cli(args: argparse.Namespace) -> int:
         reg = register_plot(clouds, 0, reporter=reporter, by_hand=by_hand)
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
         write_plot(out, reg, inventory, labels, clouds[0], write_trees=args.write_trees)
+        states = reg.states(read_review(out, labels).accepted)
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
-    named: dict[str, list[str]] = {REGISTERED: [], NEEDS_REVIEW: [], FAILED: []}
-    for label, status in zip(labels, reg.statuses, strict=True):
-        named[status].append(label)
-    review = f", {len(named[NEEDS_REVIEW])} need review" if named[NEEDS_REVIEW] else ""
+    named: dict[str, list[str]] = {
+        REGISTERED: [],
+        ACCEPTED: [],
+        NEEDS_REVIEW: [],
+        FAILED: [],
+    }
+    for label, state in zip(labels, states, strict=True):
+        named[state].append(label)
+    counts = "".join(
+        f", {len(named[s])} {text}"
+        for s, text in ((ACCEPTED, "accepted by you"), (NEEDS_REVIEW, "need review"))
+        if named[s]
+    )
     print(
         f"{out}: {len(inventory.trees)} trees; {len(named[REGISTERED])} of "
-        f"{len(clouds)} scans registered{review}, bundle error "
+        f"{len(clouds)} scans registered{counts}, bundle error "
         f"{100 * reg.bundle_rmse_m:.1f} cm",
         file=sys.stderr,
     )
@@ -96,8 +108,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
             "the way to the reference is unsure or two links disagree: check the "
-            "links in the app's Plot window (Open pair) or plot.json, and place a "
-            "wrong one by hand with --pairs I J PAIRS.csv.",
+            "links in the app's Plot window (Open pair) and Accept a right one, or "
+            "place a wrong one by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,
         )
     if named[FAILED]:

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS
-from amrst.plot.review import read_review
+from amrst.plot.review import PlotReview, read_review
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -70,14 +70,24 @@ def write_inventory(
 
 
 def plot_document(
-    reg: PlotRegistration, inventory: Inventory, labels: Sequence[str]
+    reg: PlotRegistration,
+    inventory: Inventory,
+    labels: Sequence[str],
+    review: PlotReview | None = None,
 ) -> dict[str, Any]:
-    """Return plot.json's content: scans and poses, links, bundle, tree count."""
+    """Return plot.json's content: scans and poses, links, bundle, tree count.
+
+    A scan's ``status`` is the registration's, its ``state`` that with the links
+    the technician accepted (``review``); a link says whether it is one of those.
+    """
+    accepted = (review or PlotReview()).accepted
+    keep = reg.accepted(accepted)
     links = []
     for pl in reg.links:
         entry = pl.link.as_dict()
         entry["stems_shared"] = len(pl.shared)
         entry["loop_confirmed"] = reg.loop_confirms(pl.link)
+        entry["accepted"] = (pl.link.target, pl.link.source) in keep
         links.append(entry)
     return {
         "reference": labels[reg.reference],
@@ -85,13 +95,20 @@ def plot_document(
             {
                 "label": label,
                 "status": status,
+                "state": state,
                 "reached": pose is not None,
                 "T_reference_scan": None if pose is None else pose.tolist(),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
             }
-            for label, pose, path, scan, status in zip(
-                labels, reg.poses, reg.paths, reg.scans, reg.statuses, strict=True
+            for label, pose, path, scan, status, state in zip(
+                labels,
+                reg.poses,
+                reg.paths,
+                reg.scans,
+                reg.statuses,
+                reg.states(accepted),
+                strict=True,
             )
         ],
         "links": links,
@@ -116,9 +133,9 @@ def write_plot(
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
 
-    doc, _ = strict_json(plot_document(reg, inventory, labels))
-    marks = read_review(out, labels).marks
-    writers = _inventory_writers(inventory.trees, marks)
+    review = read_review(out, labels)
+    doc, _ = strict_json(plot_document(reg, inventory, labels, review))
+    writers = _inventory_writers(inventory.trees, review.marks)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     if write_trees:
         for k, tree in enumerate(inventory.trees):

@@ -101,13 +101,36 @@ class PlotRegistration:
 
         Derived from the links, paths and loops (``graph.loop_confirmed``).
         """
-        links = [pl.link for pl in self.links]
-        confirmed = loop_confirmed(links, self.paths, self.loops)
+        confirmed = loop_confirmed(self._links(), self.paths, self.loops)
         return frozenset((link.target, link.source)) in confirmed
 
     def doubts(self) -> tuple[frozenset[tuple[int, int]] | None, ...]:
         """Per scan, the unsure links its pose rests on (``graph.scan_doubts``)."""
-        return scan_doubts([pl.link for pl in self.links], self.paths, self.loops)
+        return scan_doubts(self._links(), self.paths, self.loops)
+
+    def accepted(
+        self, review: Mapping[tuple[int, int], Transform]
+    ) -> set[tuple[int, int]]:
+        """Return the links the technician accepted, at the pose they have."""
+        from amrst.plot.review import holding
+
+        return holding(
+            review,
+            (((ln.target, ln.source), ln.status, ln.T_local) for ln in self._links()),
+        )
+
+    def states(self, review: Mapping[tuple[int, int], Transform]) -> tuple[str, ...]:
+        """Each scan's state with the accepted links ``review`` holds (its status else)."""
+        from amrst.plot.review import scan_state
+
+        keep = self.accepted(review)
+        return tuple(
+            scan_state(s, d, keep)
+            for s, d in zip(self.statuses, self.doubts(), strict=True)
+        )
+
+    def _links(self) -> list[Link]:
+        return [pl.link for pl in self.links]
 
 
 def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:

@@ -10,9 +10,9 @@ It names the scans it belongs to (a review of other scans is not applied) and ho
   ``SAME_POSE_DEG`` and ``SAME_POSE_M``): a run that places the link elsewhere asks
   for a new look.
 
-``plot.json`` stays what the registration found; :func:`scan_state` combines the two
-into what a person sees: a scan every unsure link of whose path was accepted is
-``accepted``.
+A scan's ``status`` in ``plot.json`` stays what the registration found; its ``state``
+(:func:`scan_state`) is what a person sees with the review: ``accepted`` when every
+unsure link of its path was accepted at the pose it has.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from amrst.errors import InvalidInput
 from amrst.review.verdict import NEEDS_REVIEW
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterable, Mapping, Sequence
     from pathlib import Path
 
     from amrst.types import Transform
@@ -109,6 +109,18 @@ def pose_change(accepted: Transform, T: Transform) -> tuple[float, float]:
     a, b = np.asarray(accepted, float), np.asarray(T, float)
     turn = rotation_angle_deg(a[:3, :3].T @ b[:3, :3])
     return turn, float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+
+
+def holding(
+    accepted: Mapping[LinkKey, Transform],
+    links: Iterable[tuple[LinkKey, str, Transform | None]],
+) -> set[LinkKey]:
+    """Return the links, given as (key, status, pose), that keep their accepted pose."""
+    return {
+        key
+        for key, status, T in links
+        if status == NEEDS_REVIEW and key in accepted and still_holds(accepted[key], T)
+    }
 
 
 def still_holds(accepted: Transform, T: Transform | None) -> bool:

@@ -93,3 +93,39 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     ):
         args = [*scans, "--out", str(tmp_path / "bad"), "--quiet", "--pairs", *bad]
         assert plot_main(args) == 2
+
+
+def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
+    pair_and_picks, tmp_path: Path
+) -> None:
+    from amrst.plot.review import PlotReview, write_review
+
+    clouds, t_pts, s_pts, _ = pair_and_picks
+    files = [tmp_path / "s1.ply", tmp_path / "s2.ply"]
+    for f, c in zip(files, clouds, strict=True):
+        io.write(f, c)
+    wrong = tmp_path / "wrong.csv"
+    write_pairs(wrong, t_pts, s_pts[[1, 2, 3, 0]])  # a pose that needs review
+    out = tmp_path / "out"
+    args = [*map(str, files), "--out", str(out), "--quiet", "--pairs", "1", "2"]
+    assert plot_main([*args, str(wrong)]) == 3
+    doc = json.loads((out / "plot.json").read_text())
+    labels = [s["label"] for s in doc["scans"]]
+    T = np.array(doc["scans"][1]["T_reference_scan"])
+    assert [s["state"] for s in doc["scans"]] == ["registered", "needs review"]
+
+    write_review(out, labels, PlotReview(accepted={(0, 1): T}))
+    assert plot_main([*args, str(wrong), "--overwrite"]) == 0
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
+    assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
+    assert doc["links"][0]["accepted"]
+
+    # The right pairs move the link: the acceptance of the other pose no longer holds
+    # (the link is registered on its own).
+    right = tmp_path / "right.csv"
+    write_pairs(right, t_pts, s_pts)
+    assert plot_main([*args, str(right), "--overwrite"]) == 0
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["state"] for s in doc["scans"]] == ["registered", "registered"]
+    assert not doc["links"][0]["accepted"]
