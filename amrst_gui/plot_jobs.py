@@ -32,9 +32,15 @@ if TYPE_CHECKING:
     from amrst.plot.register import PlotRegistration
     from amrst.types import Cloud
 
-#: The slice shown per tree: its middle above the local ground, half its thickness.
-SLICE_HEIGHT_M = 1.3
+#: The slices shown per tree: their middles above the local ground (breast height
+#: the DBH's, the others to see the stem below and above it), half their thickness.
+SLICE_HEIGHTS_M = (0.6, 1.3, 2.0, 3.0)
+BREAST_HEIGHT_M = 1.3
 SLICE_HALF_M = 0.05
+#: The stem's foot is its centre this high (amrst.plot.stemmap); with the DBH centre
+#: it gives the stem line the slices follow, its lean at most ``MAX_LEAN_PER_M``.
+FOOT_HEIGHT_M = 0.6
+MAX_LEAN_PER_M = 0.2
 #: Points kept around the stem in the slice (m beyond its radius).
 SLICE_MARGIN_M = 0.3
 #: Cell of the top view drawn under the stem map (m).
@@ -83,10 +89,12 @@ class LinkLine:
 
 @dataclass(frozen=True, slots=True)
 class TreeSlice:
-    """The points around one stem at breast height and the scan each came from."""
+    """The points around one stem at one height and the scan each came from."""
 
     xy: np.ndarray  # (N, 2) reference local frame
     scan: np.ndarray  # (N,) 0-based scan index
+    height_m: float = BREAST_HEIGHT_M  # above the local ground
+    centre: np.ndarray | None = None  # (2,) the stem line there; None: the DBH's
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,7 +121,7 @@ class PlotOutcome:
     scans: tuple[ScanPlace, ...]
     links: tuple[LinkLine, ...]
     bundle_rmse_m: float
-    slices: tuple[TreeSlice, ...]
+    slices: tuple[tuple[TreeSlice, ...], ...]  # per tree, one per SLICE_HEIGHTS_M
     top: TopView | None
     seconds: float
 
@@ -181,7 +189,7 @@ def run_plot(
             _link_line(pl, reg.loop_confirms(pl.link), clouds) for pl in reg.links
         ),
         bundle_rmse_m=reg.bundle_rmse_m,
-        slices=tuple(tree_slice(inventory, k) for k in range(len(inventory.trees))),
+        slices=tuple(tree_slices(inventory, k) for k in range(len(inventory.trees))),
         top=top_view(inventory),
         seconds=time.perf_counter() - start,
     )
@@ -298,20 +306,36 @@ def stored_link(link: LinkLine) -> StoredLinkResult | None:
     )
 
 
-def tree_slice(inventory: Inventory, k: int) -> TreeSlice:
-    """The merged plot's points around tree k, 1.25-1.35 m above the local ground."""
+def tree_slices(inventory: Inventory, k: int) -> tuple[TreeSlice, ...]:
+    """The merged plot's points around tree k at each of ``SLICE_HEIGHTS_M`` (± 5 cm
+    above the local ground), around the stem line through its foot and DBH centre."""
     sm = inventory.stem_map
     stem = inventory.trees[k].stem
+    dbh_xy = np.asarray(stem.dbh_xy, float)
+    lean = (dbh_xy - stem.base[:2]) / (BREAST_HEIGHT_M - FOOT_HEIGHT_M)
+    lean *= min(1.0, MAX_LEAN_PER_M / max(float(np.hypot(*lean)), 1e-9))
     radius = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.2) + SLICE_MARGIN_M
-    near = np.flatnonzero(
-        np.hypot(sm.xyz[:, 0] - stem.dbh_xy[0], sm.xyz[:, 1] - stem.dbh_xy[1]) <= radius
+    reach = radius + MAX_LEAN_PER_M * max(
+        abs(z - BREAST_HEIGHT_M) for z in SLICE_HEIGHTS_M
     )
+    near = np.flatnonzero(np.hypot(*(sm.xyz[:, :2] - dbh_xy).T) <= reach)
     h = sm.ground.height(sm.xyz[near]) if len(near) else np.zeros(0)
-    keep = near[np.abs(h - SLICE_HEIGHT_M) <= SLICE_HALF_M]
-    return TreeSlice(
-        np.asarray(sm.xyz[keep, :2], float),
-        np.asarray(inventory.scan_of_point[keep], np.int64),
-    )
+    out = []
+    for z in SLICE_HEIGHTS_M:
+        centre = dbh_xy + lean * (z - BREAST_HEIGHT_M)
+        keep = near[
+            (np.abs(h - z) <= SLICE_HALF_M)
+            & (np.hypot(*(sm.xyz[near, :2] - centre).T) <= radius)
+        ]
+        out.append(
+            TreeSlice(
+                np.asarray(sm.xyz[keep, :2], float),
+                np.asarray(inventory.scan_of_point[keep], np.int64),
+                z,
+                centre,
+            )
+        )
+    return tuple(out)
 
 
 def top_view(inventory: Inventory) -> TopView | None:

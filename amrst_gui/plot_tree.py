@@ -1,4 +1,7 @@
-"""The Plot window's tree view: one tree's figures, its slice at 1.3 m, its mark.
+"""The Plot window's tree view: one tree's figures, its stem slices, its mark.
+
+The slice shown is chosen by height (``plot_jobs.SLICE_HEIGHTS_M``; breast height
+first), and the choice holds from one tree to the next.
 
 Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear).
 """
@@ -10,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
+    QButtonGroup,
     QFormLayout,
     QHBoxLayout,
     QLabel,
@@ -18,7 +22,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui.plot_jobs import SLICE_HEIGHT_M
+from amrst_gui.plot_jobs import BREAST_HEIGHT_M, SLICE_HEIGHTS_M
 from amrst_gui.views.stem_map import TreeSliceView, scan_colour
 
 if TYPE_CHECKING:
@@ -89,6 +93,8 @@ class TreePanel(QWidget):
         super().__init__(parent)
         self.setObjectName("tree_panel")
         self.tree_id: str | None = None
+        self._shown: tuple[PlotOutcome, int] | None = None
+        self.height_index = SLICE_HEIGHTS_M.index(BREAST_HEIGHT_M)
         self.title = QLabel("No tree selected")
         self.title.setStyleSheet("font-weight: bold; font-size: 11pt;")
         self.hint = QLabel("Click a tree on the stem map, or a row of the list.")
@@ -105,11 +111,23 @@ class TreePanel(QWidget):
             self.values[name] = value
         self.slice_view = TreeSliceView(self)
         self.slice_view.setToolTip(
-            f"The points around the stem {SLICE_HEIGHT_M:g} m above the ground, "
-            "coloured by the scan they came from, and the fitted DBH circle (white). "
-            "Good: the points lie on the circle all round; a short arc, a branch or "
-            "points off the circle make the DBH doubtful."
+            "The points around the stem at the chosen height above the ground, "
+            "coloured by the scan they came from, and the DBH circle (white; dashed "
+            f"away from {BREAST_HEIGHT_M:g} m, where it was not fitted). Good: the "
+            "points lie on the circle all round; a short arc, a branch or points off "
+            "the circle make the DBH doubtful."
         )
+        heights = QHBoxLayout()
+        heights.addWidget(QLabel("Slice at"))
+        self.height_buttons = QButtonGroup(self)
+        for k, z in enumerate(SLICE_HEIGHTS_M):
+            button = QPushButton(f"{z:g} m")
+            button.setCheckable(True)
+            button.setChecked(k == self.height_index)
+            button.setToolTip(f"The stem {z:g} m above the ground")
+            self.height_buttons.addButton(button, k)
+            heights.addWidget(button)
+        self.height_buttons.idClicked.connect(self.show_height)
         self.buttons = {}
         row = QHBoxLayout()
         for mark, text, tip in (
@@ -128,6 +146,7 @@ class TreePanel(QWidget):
         layout.addWidget(self.title)
         layout.addWidget(self.hint)
         layout.addLayout(form)
+        layout.addLayout(heights)
         layout.addWidget(self.slice_view, 1)
         layout.addLayout(row)
 
@@ -135,6 +154,7 @@ class TreePanel(QWidget):
         self, outcome: PlotOutcome | None, k: int | None, mark: str | None
     ) -> None:
         """Show tree ``k`` of ``outcome`` (None: no tree)."""
+        self._shown = None if outcome is None or k is None else (outcome, k)
         if outcome is None or k is None:
             self.tree_id = None
             self.title.setText("No tree selected")
@@ -149,15 +169,27 @@ class TreePanel(QWidget):
             self.hint.hide()
             for name, text in figures(tree, mark):
                 self.values[name].setText(text)
-            n = len(outcome.slices[k].xy)
-            self.slice_view.set_slice(
-                outcome.slices[k],
-                tree.stem.dbh_xy,
-                tree.stem.dbh_m / 2,
-                f"{n} points at {SLICE_HEIGHT_M:g} m ± 5 cm; circle: the DBH fit",
-            )
+            self.show_height(self.height_index)
         for button in self.buttons.values():
             button.setEnabled(self.tree_id is not None)
+
+    def show_height(self, index: int) -> None:
+        """Show the shown tree's slice at ``SLICE_HEIGHTS_M[index]``."""
+        self.height_index = index
+        self.height_buttons.button(index).setChecked(True)
+        if self._shown is None:
+            return
+        outcome, k = self._shown
+        sl = outcome.slices[k][index]
+        fitted = sl.height_m == BREAST_HEIGHT_M
+        circle = "the DBH fit" if fitted else "the DBH, for comparison"
+        self.slice_view.set_slice(
+            sl,
+            outcome.trees[k].stem.dbh_xy if sl.centre is None else sl.centre,
+            outcome.trees[k].stem.dbh_m / 2,
+            f"{len(sl.xy)} points at {sl.height_m:g} m ± 5 cm; circle: {circle}",
+            fitted,
+        )
 
     def _mark(self, mark: str) -> None:
         if self.tree_id is not None:

@@ -287,7 +287,8 @@ class StemMapView(QWidget):
 
 
 class TreeSliceView(QWidget):
-    """One stem at breast height: its slice points by scan and the DBH circle."""
+    """One stem at one height: its slice points by scan and the DBH circle (solid at
+    breast height, dashed elsewhere: there it is only a yardstick)."""
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -298,13 +299,21 @@ class TreeSliceView(QWidget):
         self.slice: TreeSlice | None = None
         self.centre = np.zeros(2)
         self.radius_m = float("nan")
+        self.fitted = True
         self.note = "Click a tree on the stem map."
 
     def set_slice(
-        self, sl: TreeSlice | None, centre: np.ndarray, radius_m: float, note: str
+        self,
+        sl: TreeSlice | None,
+        centre: np.ndarray,
+        radius_m: float,
+        note: str,
+        fitted: bool = True,
     ) -> None:
+        """Show ``sl`` around ``centre`` with a circle of ``radius_m`` (dashed when
+        not ``fitted`` at this height)."""
         self.slice, self.centre, self.radius_m = sl, np.asarray(centre, float), radius_m
-        self.note = note
+        self.note, self.fitted = note, fitted
         self.update()
 
     def paintEvent(self, _event) -> None:
@@ -340,7 +349,10 @@ class TreeSliceView(QWidget):
                     p.drawPoint(QPointF(x, y))
         if np.isfinite(self.radius_m):
             p.setBrush(Qt.BrushStyle.NoBrush)
-            p.setPen(QPen(QColor(255, 255, 255), 1.5))
+            pen = QPen(QColor(255, 255, 255), 1.5)
+            if not self.fitted:
+                pen.setStyle(Qt.PenStyle.DashLine)
+            p.setPen(pen)
             p.drawEllipse(QPointF(cx, cy), r * scale, r * scale)
         p.setPen(TEXT)
         p.drawText(

@@ -98,12 +98,26 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert plot.tree_panel.tree_id == tree.tree_id
     assert plot.trees.currentRow() == k
     assert f"{tree.stem.dbh_m * 100:.1f} cm" in plot.tree_panel.values["DBH"].text()
-    # Its slice: the points around the stem at 1.3 m lie on its DBH circle.
-    sl = o.slices[k]
-    assert len(sl.xy) > 20
-    rim = np.hypot(*(sl.xy - tree.stem.dbh_xy).T)
-    assert abs(np.median(rim) - tree.stem.dbh_m / 2) < 0.01
-    assert set(np.unique(sl.scan)) <= {0, 1}
+    # Its slices: the points around the stem at 0.6-3 m lie on its circle (these
+    # stems are straight cylinders), the 1.3 m one shown first, the fitted one.
+    assert plot.tree_panel.slice_view.fitted
+    assert "at 1.3 m" in plot.tree_panel.slice_view.note
+    for sl in o.slices[k]:
+        assert len(sl.xy) > 20
+        rim = np.hypot(*(sl.xy - tree.stem.dbh_xy).T)
+        assert abs(np.median(rim) - tree.stem.dbh_m / 2) < 0.01, sl.height_m
+        assert set(np.unique(sl.scan)) <= {0, 1}
+    plot.tree_panel.height_buttons.button(3).click()
+    assert "at 3 m" in plot.tree_panel.slice_view.note
+    assert not plot.tree_panel.slice_view.fitted  # the DBH circle only to compare
+    QTest.mouseClick(
+        plot.stem_map,
+        Qt.MouseButton.LeftButton,
+        Qt.KeyboardModifier.NoModifier,
+        QPoint(round(px[0, 0]), round(px[0, 1])),
+    )
+    assert "at 3 m" in plot.tree_panel.slice_view.note  # the height holds
+    plot.select_tree(k)
 
     # A mark is saved beside the inventory at once, and read back with it.
     plot.tree_panel.buttons["check"].click()
