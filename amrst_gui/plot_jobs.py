@@ -24,7 +24,7 @@ from amrst.progress import Reporter, SubReporter
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Collection, Mapping, Sequence
     from pathlib import Path
 
     from amrst.campaign.stored import StoredLinkResult
@@ -146,11 +146,13 @@ def run_plot(
     overwrite: bool,
     reporter: Reporter,
     pairs: Mapping[tuple[int, int], str] | None = None,
+    left_out: Collection[tuple[int, int]] = (),
 ) -> PlotOutcome:
     """Register and inventory the plot ``specs`` names; write it into ``out``.
 
     ``pairs``: links to place from point pairs, ``{(i, j): pairs CSV}`` (as ``amrst
-    plot --pairs``, scans from 0).
+    plot --pairs``, scans from 0); ``left_out``: links not to register (``amrst plot
+    --leave-out``).
     """
     from pathlib import Path
 
@@ -172,7 +174,11 @@ def run_plot(
         )
     reporter.check_cancelled()
     reg = register_plot(
-        clouds, 0, reporter=SubReporter(reporter, 0.05, 0.8), by_hand=by_hand
+        clouds,
+        0,
+        reporter=SubReporter(reporter, 0.05, 0.8),
+        by_hand=by_hand,
+        left_out=left_out,
     )
     inventory = take_inventory(
         clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")

@@ -131,6 +131,7 @@ class PlotWindow(QMainWindow):
         self.marks: dict[str, str] = {}
         self.accepted: dict[tuple[int, int], object] = {}  # link -> pose accepted
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
+        self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
@@ -182,6 +183,32 @@ class PlotWindow(QMainWindow):
             "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
             "★: in the spanning tree that places the scans."
         )
+        self.trees = table(TREE_COLUMNS, "plot_trees")
+        folder = QHBoxLayout()
+        folder.addWidget(self.out_edit, 1)
+        folder.addWidget(choose)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.run_button)
+        buttons.addWidget(self.cancel_button)
+        layout = QVBoxLayout(side)
+        layout.setContentsMargins(6, 4, 6, 4)
+        layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
+        layout.addWidget(self.scan_list)
+        layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
+        layout.addLayout(folder)
+        layout.addLayout(buttons)
+        layout.addWidget(self.progress)
+        layout.addWidget(self.status)
+        layout.addWidget(QLabel("<b>Links</b>"))
+        layout.addWidget(self.links)
+        layout.addLayout(self._build_link_buttons())
+        layout.addWidget(QLabel("<b>Trees</b>"))
+        layout.addWidget(self.trees, 1)
+        self._update_link_buttons()
+        return side
+
+    def _build_link_buttons(self) -> QHBoxLayout:
+        """The selected link's buttons: open, accept, pairs, leave out."""
         self.open_button = QPushButton("Open pair")
         self.open_button.setToolTip(
             "Show the selected link's two scans at its pose in the main window: check "
@@ -201,33 +228,21 @@ class PlotWindow(QMainWindow):
             "the link the same pose"
         )
         self.accept_button.clicked.connect(self.toggle_accept)
-        self.trees = table(TREE_COLUMNS, "plot_trees")
-        folder = QHBoxLayout()
-        folder.addWidget(self.out_edit, 1)
-        folder.addWidget(choose)
-        buttons = QHBoxLayout()
-        buttons.addWidget(self.run_button)
-        buttons.addWidget(self.cancel_button)
-        layout = QVBoxLayout(side)
-        layout.setContentsMargins(6, 4, 6, 4)
-        layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
-        layout.addWidget(self.scan_list)
-        layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
-        layout.addLayout(folder)
-        layout.addLayout(buttons)
-        layout.addWidget(self.progress)
-        layout.addWidget(self.status)
-        layout.addWidget(QLabel("<b>Links</b>"))
-        layout.addWidget(self.links)
-        by_hand = QHBoxLayout()
-        by_hand.addWidget(self.open_button)
-        by_hand.addWidget(self.accept_button)
-        by_hand.addWidget(self.pairs_button)
-        layout.addLayout(by_hand)
-        layout.addWidget(QLabel("<b>Trees</b>"))
-        layout.addWidget(self.trees, 1)
-        self._update_link_buttons()
-        return side
+        self.leave_button = QPushButton("Leave out")
+        self.leave_button.setToolTip(
+            "Leave the selected link out of the next run (one you found wrong): the "
+            "plot then joins its scans through the other links"
+        )
+        self.leave_button.clicked.connect(self.toggle_left_out)
+        row = QHBoxLayout()
+        for button in (
+            self.open_button,
+            self.accept_button,
+            self.pairs_button,
+            self.leave_button,
+        ):
+            row.addWidget(button)
+        return row
 
     # ------------------------------------------------------------- public
     @property
@@ -242,6 +257,7 @@ class PlotWindow(QMainWindow):
         self.specs = [str(Path(p).resolve()) for p in paths]
         self.found = self.outcome = None
         self.marks, self.accepted, self.hand_pairs = {}, {}, {}
+        self.left_out = set()
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
         fill(self.links, [])
@@ -299,6 +315,7 @@ class PlotWindow(QMainWindow):
             overwrite,
             name="plot",
             pairs=dict(self.hand_pairs),
+            left_out=set(self.left_out),
             on_result=self._on_result,
             on_error=self._on_error,
             on_progress=self._on_progress,
@@ -357,10 +374,30 @@ class PlotWindow(QMainWindow):
             self._say(f"Not used: {exc}", error=True)
             return
         self.hand_pairs[link] = path
+        self.left_out.discard(link)
         self._say(
             f"Link {name} comes from {n} point pairs ({Path(path).name}) at the next "
             "run: Run plot."
         )
+        self._update_link_buttons()
+        self._show_hand_pairs()
+
+    def toggle_left_out(self) -> None:
+        """Leave the selected link out of the next runs, or take it in again."""
+        line = self.selected_link()
+        if line is None:
+            return
+        name = f"S{line.target + 1}–S{line.source + 1}"
+        if line.key in self.left_out:
+            self.left_out.discard(line.key)
+            self._say(f"Link {name} is registered again at the next run.")
+        else:
+            self.left_out.add(line.key)
+            self.hand_pairs.pop(line.key, None)
+            self._say(
+                f"Link {name} is left out at the next run: Run plot joins its scans "
+                "through the other links."
+            )
         self._update_link_buttons()
         self._show_hand_pairs()
 
@@ -562,20 +599,23 @@ class PlotWindow(QMainWindow):
         self._show_hand_pairs()
 
     def _show_hand_pairs(self) -> None:
-        """Name, in the By column, the links the next run places from point pairs."""
+        """Name, in the By column, the links the next run places from point pairs
+        or leaves out."""
         if self.outcome is None:
             return
         for r, ln in enumerate(self.outcome.links):
             item = self.links.item(r, len(LINK_COLUMNS) - 1)
             if item is None:
                 continue
-            path = self.hand_pairs.get((ln.target, ln.source))
-            item.setText("your pairs" if path else ln.origin or "–")
-            item.setToolTip(
-                f"Placed from the point pairs of {Path(path).name} at each run"
-                if path
-                else ""
-            )
+            path = self.hand_pairs.get(ln.key)
+            if path:
+                text, tip = "your pairs", f"Placed from {Path(path).name} at each run"
+            elif ln.key in self.left_out:
+                text, tip = "left out", "Left out at each run (Take in undoes it)"
+            else:
+                text, tip = ln.origin or "–", ""
+            item.setText(text)
+            item.setToolTip(tip)
 
     def _show_marks(self) -> None:
         o = self.outcome
@@ -615,6 +655,8 @@ class PlotWindow(QMainWindow):
         self.pairs_button.setText(
             "Drop pairs" if link in self.hand_pairs else "Use pairs…"
         )
+        self.leave_button.setEnabled(link is not None)
+        self.leave_button.setText("Take in" if link in self.left_out else "Leave out")
 
     def _say(self, text: str, error: bool = False) -> None:
         self.status.setText(text)

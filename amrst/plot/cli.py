@@ -1,7 +1,8 @@
 """``amrst plot SCAN1 SCAN2 [SCAN ...] --out DIR``: register a plot and inventory it.
 
 The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
-from point pairs picked by hand (the app's Manual pose dock saves them). Exit 0 when
+from point pairs picked by hand (the app's Manual pose dock saves them), ``--leave-out
+I J`` leaves a link found wrong out, so the scans are joined through others. Exit 0 when
 every scan is registered, or accepted by the technician (a link they accepted in the
 app at the pose it has, kept in the folder's review.json), 2 on unusable input, 3
 when a scan could not be registered or needs review (the inventory is still written
@@ -53,6 +54,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "from point pairs instead of the automatic match: the CSV of amrst register "
         "--pairs, scan I's points as target_*, scan J's as source_* (repeatable)",
     )
+    p.add_argument(
+        "--leave-out",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("I", "J"),
+        help="do not register the link of scans I and J (one you found wrong): the "
+        "plot joins them through other scans (repeatable)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -70,13 +80,18 @@ def run_cli(args: argparse.Namespace) -> int:
     try:
         check_out(out, args.overwrite)
         by_hand = read_hand_pairs(args.pairs)  # a bad file before minutes of reading
+        left_out = [
+            scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
+        ]
         clouds, labels = read_specs(list(args.scans))
         if len(clouds) < 2:
             raise InvalidInput(
                 f"{len(clouds)} scan given: a plot needs at least two positions."
             )
         reporter = TerminalReporter(args.quiet)
-        reg = register_plot(clouds, 0, reporter=reporter, by_hand=by_hand)
+        reg = register_plot(
+            clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
+        )
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
         write_plot(out, reg, inventory, labels, clouds[0], write_trees=args.write_trees)
         states = reg.states(read_review(out, labels).accepted)
@@ -108,8 +123,9 @@ def run_cli(args: argparse.Namespace) -> int:
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
             "the way to the reference is unsure or two links disagree: check the "
-            "links in the app's Plot window (Open pair) and Accept a right one, or "
-            "place a wrong one by hand with --pairs I J PAIRS.csv.",
+            "links in the app's Plot window (Open pair) and Accept a right one; leave "
+            "a wrong one out (--leave-out I J) when other links join its scans, or "
+            "place it by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,
         )
     if named[FAILED]:
@@ -133,18 +149,27 @@ def read_hand_pairs(
     InvalidInput
         A scan number that is not a whole number from 1, or an unreadable file.
     """
-    from amrst.errors import InvalidInput
     from amrst.review.pairs_file import read_pairs
 
-    out = {}
-    for i, j, path in given:
-        if not (i.isdigit() and j.isdigit() and int(i) >= 1 and int(j) >= 1):
-            raise InvalidInput(
-                f"--pairs {i} {j} {path}: name the two scans by their numbers from 1 "
-                "in the order given, e.g. --pairs 1 3 pairs.csv."
-            )
-        out[int(i) - 1, int(j) - 1] = read_pairs(Path(path))
-    return out
+    return {
+        scan_numbers(i, j, f"--pairs {i} {j} {path}"): read_pairs(Path(path))
+        for i, j, path in given
+    }
+
+
+def scan_numbers(i: str, j: str, given: str) -> tuple[int, int]:
+    """Return scans ``i`` and ``j`` (numbered from 1 on the command line) from 0.
+
+    Raises InvalidInput when either is not a whole number from 1.
+    """
+    from amrst.errors import InvalidInput
+
+    if not (i.isdigit() and j.isdigit() and int(i) >= 1 and int(j) >= 1):
+        raise InvalidInput(
+            f"{given}: name the two scans by their numbers from 1 in the order given, "
+            "e.g. 1 3."
+        )
+    return int(i) - 1, int(j) - 1
 
 
 def main(argv: list[str] | None = None) -> int:

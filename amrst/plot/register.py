@@ -10,7 +10,9 @@ far apart share too little surface for that score to judge; a pose held by four 
 more stems with no rival as well held (``match.held_by_stems``) is taken then. When
 no stem pose holds, the two-scan engine runs as the fallback (tetrahedra, feature
 matcher, trunk search). A link the technician gives as point pairs is taken from
-them instead (:func:`register_plot_link_by_hand`). The links then form the multiscan
+them instead (:func:`register_plot_link_by_hand`), and one they leave out (a link they
+found wrong, so that the scans are joined through others) is not registered. The
+links then form the multiscan
 spanning tree, and a joint refinement is kept when it lowers the error
 (``amrst.multiscan``).
 """
@@ -23,6 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.errors import InvalidInput
 from amrst.multiscan.graph import (
     Link,
     link_pairs,
@@ -40,7 +43,7 @@ from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import CandidateList, CoarseResult, Origin, choose_coarse
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Collection, Mapping, Sequence
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import ScanAnalysis
@@ -50,6 +53,8 @@ if TYPE_CHECKING:
 STEMS_ORIGIN = Origin.STEMS.value
 #: Origin named by the links placed from the technician's point pairs.
 HAND_ORIGIN = Origin.MANUAL.value
+#: Origin named by the links the technician left out.
+LEFT_OUT_ORIGIN = "left out"
 #: The fine registration of a plot link: source points, first correspondence
 #: distance (m) and scales down to the usual last one.
 PLOT_FINE_POINTS = 20_000
@@ -272,7 +277,6 @@ def register_plot_link_by_hand(
     InvalidInput
         Pairs that cannot fix a pose.
     """
-    from amrst.errors import InvalidInput
     from amrst.pipeline import evaluate, refine
     from amrst.review.manual import MANUAL_ID_BASE, ManualScorer, fit_pairs, weak_turn
     from amrst.review.manual_keep import judge_refinement
@@ -397,6 +401,7 @@ def register_plot(
     reporter: Reporter = NULL_REPORTER,
     *,
     by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
+    left_out: Collection[tuple[int, int]] = (),
     threads: int = THREADS,
 ) -> PlotRegistration:
     """Register the scans of a plot onto the reference scan.
@@ -414,7 +419,15 @@ def register_plot(
         Point pairs that place a link instead of the automatic match:
         ``{(i, j): (points in scan i, the same points in scan j)}``, world
         coordinates, scan indices from 0.
+    left_out : collection of (int, int)
+        Links not to register (scan indices from 0, either order).
     threads : int
+
+    Raises
+    ------
+    InvalidInput
+        Pairs or a left-out link that is not one of the plot's, or a link both
+        given pairs and left out.
 
     Returns
     -------
@@ -439,6 +452,13 @@ def register_plot(
     t1 = time.perf_counter()
     pairs = link_pairs(n, reference)
     hand = _oriented(by_hand or {}, pairs, n)
+    dropped = {_link_key(i, j, pairs, n) for i, j in left_out}
+    if dropped & set(hand):
+        i, j = min(dropped & set(hand))
+        raise InvalidInput(
+            f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
+            "out: do one or the other."
+        )
     links = []
     for m, (i, j) in enumerate(pairs):
         sub = SubReporter(
@@ -447,7 +467,9 @@ def register_plot(
             0.4 + 0.45 * (m + 1) / len(pairs),
             f"link {i + 1}-{j + 1}",
         )
-        if (i, j) in hand:
+        if (i, j) in dropped:
+            link = _left_out(i, j)
+        elif (i, j) in hand:
             link = register_plot_link_by_hand(
                 scans[i], scans[j], (i, j), hand[i, j], params, sub, threads=threads
             )
@@ -500,28 +522,48 @@ def _oriented(
     pairs: Sequence[tuple[int, int]],
     n: int,
 ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-    """Key the hand pairs by the links' own (target, source) order.
+    """Key the hand pairs by the links' own (target, source) order."""
+    out = {}
+    for (i, j), (t, s) in by_hand.items():
+        key = _link_key(i, j, pairs, n)
+        out[key] = (t, s) if key == (i, j) else (s, t)
+    return out
+
+
+def _link_key(
+    i: int, j: int, pairs: Sequence[tuple[int, int]], n: int
+) -> tuple[int, int]:
+    """Return the link of scans i and j in its own (target, source) order.
 
     Raises
     ------
     InvalidInput
-        Pairs for a link that is not one of the plot's (a scan number out of range,
-        or one scan twice).
+        No such link (a scan number out of range, or one scan twice).
     """
-    from amrst.errors import InvalidInput
+    if (i, j) in pairs:
+        return i, j
+    if (j, i) in pairs:
+        return j, i
+    raise InvalidInput(
+        f"Scans {i + 1} and {j + 1} named for a link: the plot has scans 1 to {n}; "
+        "name two different ones."
+    )
 
-    out = {}
-    for (i, j), (t, s) in by_hand.items():
-        if (i, j) in pairs:
-            out[i, j] = (t, s)
-        elif (j, i) in pairs:
-            out[j, i] = (s, t)
-        else:
-            raise InvalidInput(
-                f"Point pairs given for scans {i + 1} and {j + 1}: the plot has scans "
-                f"1 to {n}; name two different ones."
-            )
-    return out
+
+def _left_out(i: int, j: int) -> PlotLink:
+    link = Link(
+        target=i,
+        source=j,
+        verdict="failed",
+        score=0.0,
+        confidence=0.0,
+        weight=0.0,
+        T_local=None,
+        metrics=None,
+        message="left out by you: not registered",
+        origin=LEFT_OUT_ORIGIN,
+    )
+    return PlotLink(link, np.zeros((0, 2), np.int64))
 
 
 def _pair_rmse(links: Sequence[PlotLink]) -> float:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from _plots import STEMS, ground_z, plot_pair
+from _plots import STEMS, ground_z, plot_pair, pose, scan
 
 from amrst import io
 from amrst.plot.cli import main as plot_main
@@ -129,3 +129,41 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     doc = json.loads((out / "plot.json").read_text())
     assert [s["state"] for s in doc["scans"]] == ["registered", "registered"]
     assert not doc["links"][0]["accepted"]
+
+
+def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
+    tmp_path: Path,
+) -> None:
+    from amrst.errors import InvalidInput
+    from amrst.plot.register import LEFT_OUT_ORIGIN
+
+    target, source, T_source = plot_pair()
+    T_third = pose(-40.0, (0.5, -6.0, 0.0))
+    world = scan((0.5, -6.0), STEMS, 3, hidden_tops=True)
+    inv = invert_transform(T_third)
+    third = world @ inv[:3, :3].T + inv[:3, 3]
+    clouds = [Cloud(c) for c in (target, source, third)]
+    reg = register_plot(clouds, left_out=[(2, 0)])  # either order
+    by_pair = {(pl.link.target, pl.link.source): pl.link for pl in reg.links}
+    assert by_pair[0, 2].origin == LEFT_OUT_ORIGIN
+    assert by_pair[0, 2].status == "failed"
+    assert reg.paths[2] == (0, 1, 2)
+    assert reg.poses[2] is not None  # placed, as sure as the 2-3 link alone
+    for T_true, T in ((T_source, reg.poses[1]), (T_third, reg.poses[2])):
+        err = invert_transform(T_true) @ T
+        assert rotation_angle_deg(err[:3, :3]) < 0.1
+        assert np.linalg.norm(err[:3, 3]) < 0.02
+
+    picks = np.zeros((3, 3)), np.eye(3)
+    with pytest.raises(InvalidInput, match="both given point pairs and left out"):
+        register_plot(clouds, by_hand={(0, 2): picks}, left_out=[(0, 2)])
+    with pytest.raises(InvalidInput, match="scans 1 to 3"):
+        register_plot(clouds, left_out=[(0, 3)])
+    files = [tmp_path / f"s{k}.ply" for k in range(3)]
+    for f, c in zip(files, clouds, strict=True):
+        io.write(f, c)
+    args = [*map(str, files), "--out", str(tmp_path / "o"), "--quiet"]
+    assert plot_main([*args, "--leave-out", "1", "x"]) == 2
+    assert plot_main([*args, "--leave-out", "1", "3"]) == 3  # 2-3 alone: unsure
+    doc = json.loads((tmp_path / "o" / "plot.json").read_text())
+    assert [ln["origin"] for ln in doc["links"] if ln["target"] == 0][1] == "left out"

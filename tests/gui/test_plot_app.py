@@ -322,3 +322,43 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     plot.accept_button.click()
     assert plot.outcome.links[0].status == "needs review"
     assert read_review(tmp_path, found.labels).accepted == {}
+
+
+def test_a_link_is_left_out_of_the_next_run_until_taken_in(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from amrst.review.pairs_file import write_pairs
+    from amrst_gui import plot_panel
+    from amrst_gui.plot_jobs import LinkLine, PlotOutcome, ScanPlace
+
+    plot = plot_panel.PlotWindow()
+    qtbot.addWidget(plot)
+    line = LinkLine(0, 1, "registered", False, True, "stems", 0.4, 0.02, 5, "")
+    scans = (
+        ScanPlace("a.ply", np.zeros(2), 5, "registered"),
+        ScanPlace("b.ply", np.ones(2), 5, "registered"),
+    )
+    found = PlotOutcome(
+        tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
+    )
+    plot.open_scans(["a.ply", "b.ply"], tmp_path)
+    plot._on_result(found)
+    plot.links.selectRow(0)
+    by = plot.links.item(0, 5)
+    assert by is not None
+    plot.leave_button.click()
+    assert plot.left_out == {(0, 1)}
+    assert by.text() == "left out"
+    assert plot.leave_button.text() == "Take in"
+    # Point pairs for the link take it in again; leaving it out drops the pairs.
+    pairs = tmp_path / "pairs.csv"
+    write_pairs(pairs, np.eye(3), np.eye(3))
+    plot.toggle_pairs(str(pairs))
+    assert plot.left_out == set()
+    assert by.text() == "your pairs"
+    plot.leave_button.click()
+    assert plot.hand_pairs == {}
+    assert by.text() == "left out"
+    plot.leave_button.click()
+    assert plot.left_out == set()
+    assert by.text() == "stems"
