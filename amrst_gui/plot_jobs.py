@@ -145,14 +145,16 @@ def run_plot(
     out: Path,
     overwrite: bool,
     reporter: Reporter,
+    *,
     pairs: Mapping[tuple[int, int], str] | None = None,
     left_out: Collection[tuple[int, int]] = (),
+    write_cloud: bool = False,
 ) -> PlotOutcome:
     """Register and inventory the plot ``specs`` names; write it into ``out``.
 
     ``pairs``: links to place from point pairs, ``{(i, j): pairs CSV}`` (as ``amrst
     plot --pairs``, scans from 0); ``left_out``: links not to register (``amrst plot
-    --leave-out``).
+    --leave-out``); ``write_cloud``: also the registered plot (``--write-cloud``).
     """
     from pathlib import Path
 
@@ -184,7 +186,7 @@ def run_plot(
         clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")
     )
     reporter.progress(0.95, "Writing the plot")
-    write_plot(out, reg, inventory, labels, clouds[0])
+    write_plot(out, reg, inventory, labels, clouds, write_cloud=write_cloud)
     reporter.progress(1.0, "Plot written")
     return PlotOutcome(
         out=out,

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
+    QCheckBox,
     QFileDialog,
     QHBoxLayout,
     QLabel,
@@ -167,6 +168,11 @@ class PlotWindow(QMainWindow):
         self.cancel_button = QPushButton("Cancel")
         self.cancel_button.setEnabled(False)
         self.cancel_button.clicked.connect(self.cancel)
+        self.cloud_check = QCheckBox("plot.laz")
+        self.cloud_check.setToolTip(
+            "Also write the registered plot, plot.laz: every placed scan in the "
+            "reference's frame, scan_id its number (amrst plot --write-cloud)"
+        )
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setTextVisible(False)
@@ -190,6 +196,7 @@ class PlotWindow(QMainWindow):
         buttons = QHBoxLayout()
         buttons.addWidget(self.run_button)
         buttons.addWidget(self.cancel_button)
+        buttons.addWidget(self.cloud_check)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
         layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
@@ -316,6 +323,7 @@ class PlotWindow(QMainWindow):
             name="plot",
             pairs=dict(self.hand_pairs),
             left_out=set(self.left_out),
+            write_cloud=self.cloud_check.isChecked(),
             on_result=self._on_result,
             on_error=self._on_error,
             on_progress=self._on_progress,

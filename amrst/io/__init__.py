@@ -27,14 +27,14 @@ from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
 from amrst.io.e57 import read_e57
 from amrst.io.las import read_las
-from amrst.io.las_write import write_las
+from amrst.io.las_write import write_las, write_las_parts
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
 from amrst.io.ptx import read_ptx
 from amrst.io.region import read_overview, read_region
 from amrst.io.text import read_text, write_text
 from amrst.progress import NULL_REPORTER, Reporter
-from amrst.types import MAX_COORD_M, Cloud
+from amrst.types import MAX_COORD_M, Cloud, Transform
 
 logger = logging.getLogger(__name__)
 
@@ -316,6 +316,41 @@ def write(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
     write_atomic(path, lambda tmp: writer(tmp, cloud, binary=binary))
 
 
+def write_merged(
+    path: PathLike,
+    parts: Sequence[Cloud],
+    moves: Sequence[Transform],
+    offset: np.ndarray,
+    ids: Sequence[int],
+) -> None:
+    """Write clouds moved into one frame as one LAS or LAZ file, atomically.
+
+    ``moves[k]`` takes ``parts[k]``'s local coordinates into the frame whose origin is
+    ``offset`` (world coordinates); part k's points get ``scan_id`` ``ids[k]``. The
+    attributes every part has are kept. Written a chunk at a time: memory holds the
+    parts and one chunk, never a merged copy.
+
+    Raises
+    ------
+    InvalidInput
+        A path not ending in ``.las`` or ``.laz``, or in a missing folder.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        raise InvalidInput(
+            f"Cannot write {path.name} as one merged cloud: give it a .laz or .las name."
+        )
+    if not path.parent.is_dir():
+        raise InvalidInput(
+            f"Cannot write {path}: the folder {path.parent} does not exist."
+        )
+    compress = path.suffix.lower() == ".laz"
+    write_atomic(
+        path,
+        lambda tmp: write_las_parts(tmp, parts, moves, offset, ids, compress=compress),
+    )
+
+
 __all__ = [
     "MAX_COORD_M",
     "PathLike",
@@ -329,4 +364,5 @@ __all__ = [
     "supported_extensions",
     "writable_extensions",
     "write",
+    "write_merged",
 ]

@@ -4,6 +4,10 @@ Attributes named like a standard LAS dimension go there; every other attribute g
 into an extra-bytes dimension. A standard-named attribute whose values the standard
 field cannot hold (e.g. a float intensity of 0.37) is also stored exactly in an
 extra dimension ``amrst_<name>``, which the reader (:mod:`amrst.io.las`) maps back.
+
+:func:`write_las_parts` writes several clouds moved into one frame as one file, a
+chunk at a time, so a registered plot of tens of millions of points is never held
+twice in memory.
 """
 
 from __future__ import annotations
@@ -17,16 +21,18 @@ from amrst.io.common import flat_attributes, storable
 from amrst.io.las import PREFIX, all_standard_names, dimension_names
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
     from pathlib import Path
 
-    from amrst.types import Cloud
+    from amrst.types import Cloud, Transform
 
 logger = logging.getLogger(__name__)
 
 _CANDIDATE_FORMATS = (0, 1, 2, 3, 6, 7, 8)
 _DEFAULT_SCALE_M = 1e-4  # 0.1 mm: keeps millimetres after any transform
 _INT32_MAX = 2**31 - 1
+#: Points moved and written at a time by :func:`write_las_parts`.
+CHUNK_POINTS = 2_000_000
 
 
 def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
@@ -45,21 +51,38 @@ def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
 
 def _quantize(cloud: Cloud) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scales (3,), offsets (3,) and the (N, 3) int32 coordinates for the header."""
+    if len(cloud) == 0:
+        scales, offsets = _frame(None, cloud.offset, cloud.meta)
+        return scales, offsets, np.zeros((0, 3), np.int32)
+    box = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
+    scales, offsets = _frame(box, cloud.offset, cloud.meta)
+    local = cloud.xyz + (cloud.offset - offsets)
+    return scales, offsets, np.round(local / scales).astype(np.int32)
+
+
+def _frame(
+    box: tuple[np.ndarray, np.ndarray] | None,
+    offset: np.ndarray,
+    meta: Mapping[str, Any],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the header's scales and offsets for points in ``box`` + ``offset``.
+
+    0.1 mm (or the file's finer scale), coarsened only where 32-bit integers could
+    not span the points.
+    """
     scales = np.minimum(
-        np.asarray(cloud.meta.get("las_scales", [_DEFAULT_SCALE_M] * 3), float),
+        np.asarray(meta.get("las_scales", [_DEFAULT_SCALE_M] * 3), float),
         _DEFAULT_SCALE_M,
     )
-    offsets = np.round(cloud.offset)
-    if len(cloud) == 0:
-        return scales, offsets, np.zeros((0, 3), np.int32)
-    lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
+    offsets = np.round(offset)
+    if box is None:
+        return scales, offsets
+    lo, hi = box
     if np.any(
-        np.maximum(abs(lo), abs(hi)) + abs(cloud.offset - offsets) > _INT32_MAX * scales
+        np.maximum(abs(lo), abs(hi)) + abs(offset - offsets) > _INT32_MAX * scales
     ):
-        offsets = np.round(cloud.offset + (lo + hi) / 2)  # re-centre on the points
-    reach = np.maximum(
-        abs(lo + cloud.offset - offsets), abs(hi + cloud.offset - offsets)
-    )
+        offsets = np.round(offset + (lo + hi) / 2)  # re-centre on the points
+    reach = np.maximum(abs(lo + offset - offsets), abs(hi + offset - offsets))
     too_fine = reach > 0.99 * _INT32_MAX * scales
     if too_fine.any():
         coarse = 10.0 ** np.ceil(np.log10(reach / (0.99 * _INT32_MAX)))
@@ -69,8 +92,7 @@ def _quantize(cloud: Cloud) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.round(hi - lo).tolist(),
             scales.tolist(),
         )
-    local = cloud.xyz + (cloud.offset - offsets)
-    return scales, offsets, np.round(local / scales).astype(np.int32)
+    return scales, offsets
 
 
 def _fit(dim: Any, values: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -134,3 +156,91 @@ def write_las(
         las[name] = values
     with open(path, "wb") as f:
         las.write(f, do_compress=compress)
+
+
+def write_las_parts(
+    path: Path,
+    parts: Sequence[Cloud],
+    moves: Sequence[Transform],
+    offset: np.ndarray,
+    ids: Sequence[int],
+    *,
+    compress: bool = True,
+) -> None:
+    """Write clouds moved into one frame as one LAS (LAZ when ``compress``) file.
+
+    ``moves[k]`` takes ``parts[k]``'s local coordinates into the frame whose origin
+    is ``offset`` (world coordinates); every point of part k gets ``scan_id`` =
+    ``ids[k]``. The attributes every part has are kept, as :func:`write_las` keeps
+    them; no more than ``CHUNK_POINTS`` points are moved at a time.
+    """
+    import laspy
+
+    offset = np.asarray(offset, float)
+    every = [set(flat_attributes(c)) for c in parts]
+    names = (set.intersection(*every) if every else set()) - {"scan_id"}
+    meta = parts[0].meta if parts else {}
+    point_format = _choose_format(names, meta)
+    fmt = laspy.PointFormat(point_format)
+    standard: set[str] = set()
+    extra: dict[str, tuple[str, np.dtype[Any]]] = {}  # dimension: (attribute, dtype)
+    for name in sorted(names):
+        columns = [flat_attributes(c)[name] for c in parts]
+        if name in dimension_names(point_format) and all(
+            _fit(fmt.dimension_by_name(name), v)[1] for v in columns
+        ):
+            standard.add(name)
+            continue
+        kept = [storable(v, allow_int64=True, name=name) for v in columns]
+        if all(v is not None for v in kept):
+            key = PREFIX + name if name in dimension_names(point_format) else name
+            dtype = np.result_type(*(v.dtype for v in kept if v is not None))
+            extra[key[:32]] = (name, dtype)
+    header = laspy.LasHeader(point_format=point_format)
+    header.scales, header.offsets = _frame(_moved_box(parts, moves), offset, meta)
+    dims = {"scan_id": np.dtype(np.uint8)} | {k: dt for k, (_, dt) in extra.items()}
+    header.add_extra_dims(
+        [laspy.ExtraBytesParams(name, dtype.str[1:]) for name, dtype in dims.items()]
+    )
+    with laspy.open(path, mode="w", header=header, do_compress=compress) as writer:
+        for cloud, T, scan_id in zip(parts, moves, ids, strict=True):
+            attrs = flat_attributes(cloud)
+            R, t = np.asarray(T, float)[:3, :3], np.asarray(T, float)[:3, 3]
+            shift = t + offset - header.offsets
+            for lo in range(0, len(cloud), CHUNK_POINTS):
+                rows = slice(lo, lo + CHUNK_POINTS)
+                xyz = cloud.xyz[rows] @ R.T + shift
+                record = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
+                ints = np.round(xyz / header.scales).astype(np.int32)
+                record.X, record.Y, record.Z = ints[:, 0], ints[:, 1], ints[:, 2]
+                record["scan_id"] = np.full(len(xyz), scan_id, np.uint8)
+                for name in standard:
+                    dim = fmt.dimension_by_name(name)
+                    record[name] = _fit(dim, attrs[name][rows])[0]
+                for key, (name, dtype) in extra.items():
+                    record[key] = np.asarray(attrs[name][rows], dtype)
+                writer.write_points(record)
+
+
+def _moved_box(
+    parts: Sequence[Cloud], moves: Sequence[Transform]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Low and high corners of the parts' bounding boxes, moved."""
+    corners = []
+    for cloud, T in zip(parts, moves, strict=True):
+        if not len(cloud):
+            continue
+        lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
+        box = np.array(
+            [
+                [x, y, z]
+                for x in (lo[0], hi[0])
+                for y in (lo[1], hi[1])
+                for z in (lo[2], hi[2])
+            ]
+        )
+        corners.append(box @ np.asarray(T)[:3, :3].T + np.asarray(T)[:3, 3])
+    if not corners:
+        return None
+    every = np.vstack(corners)
+    return every.min(axis=0), every.max(axis=0)

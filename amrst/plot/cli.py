@@ -40,6 +40,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="also write one cloud per tree (trees/T001.ply, ...)",
     )
     p.add_argument(
+        "--write-cloud",
+        action="store_true",
+        help="also write the registered plot, plot.laz: every placed scan in the "
+        "reference's frame, scan_id its number from 1",
+    )
+    p.add_argument(
         "--overwrite",
         action="store_true",
         help="replace the plot another run wrote in --out",
@@ -93,7 +99,15 @@ def run_cli(args: argparse.Namespace) -> int:
             clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
         )
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
-        write_plot(out, reg, inventory, labels, clouds[0], write_trees=args.write_trees)
+        write_plot(
+            out,
+            reg,
+            inventory,
+            labels,
+            clouds,
+            write_trees=args.write_trees,
+            write_cloud=args.write_cloud,
+        )
         states = reg.states(read_review(out, labels).accepted)
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)

@@ -32,6 +32,7 @@ PLOT_JSON = "plot.json"
 TREES_CSV = "trees.csv"
 TREES_XLSX = "trees.xlsx"
 TREES_DIR = "trees"
+PLOT_CLOUD = "plot.laz"
 #: trees.csv's columns: the tree's figures, then the technician's mark.
 INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark")
 
@@ -125,13 +126,21 @@ def write_plot(
     reg: PlotRegistration,
     inventory: Inventory,
     labels: Sequence[str],
-    reference: Cloud,
+    clouds: Sequence[Cloud],
     *,
     write_trees: bool = False,
+    write_cloud: bool = False,
 ) -> list[Path]:
-    """Write the run's files into ``out`` as one unit; return the files written."""
+    """Write the run's files into ``out`` as one unit; return the files written.
+
+    ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
+    reference's frame, world coordinates, ``scan_id`` its number from 1); without it
+    an earlier run's ``plot.laz`` is removed, as it no longer matches the poses.
+    """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
+
+    reference = clouds[reg.reference]
 
     review = read_review(out, labels)
     doc, _ = strict_json(plot_document(reg, inventory, labels, review))
@@ -142,12 +151,29 @@ def write_plot(
             writers[f"{TREES_DIR}/{tree.tree_id}.ply"] = _tree_writer(
                 inventory.tree_points(k), reference
             )
-    written, _ = replace_files(out, writers, managed=MANAGED)
+    if write_cloud:
+        writers[PLOT_CLOUD] = _plot_cloud_writer(reg, clouds)
+    gone = () if write_cloud else (PLOT_CLOUD,)
+    written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     return written
 
 
 #: Every name a plot's run writes into its folder.
-MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR})
+MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR, PLOT_CLOUD})
+
+
+def _plot_cloud_writer(
+    reg: PlotRegistration, clouds: Sequence[Cloud]
+) -> Callable[[Path], object]:
+    """plot.laz: the placed scans moved into the reference frame, streamed."""
+    from amrst import io
+
+    placed = [(k, pose) for k, pose in enumerate(reg.poses) if pose is not None]
+    parts = [clouds[k] for k, _ in placed]
+    moves = [pose for _, pose in placed]
+    ids = [k + 1 for k, _ in placed]
+    offset = clouds[reg.reference].offset
+    return lambda p: io.write_merged(p, parts, moves, offset, ids)
 
 
 def _rows(trees: Sequence[Tree], marks: Mapping[str, str]) -> list[dict[str, Any]]:

@@ -131,12 +131,22 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
     assert plot_main(args) == 2  # another run's output is not replaced
+    # The registered plot: both scans in the reference frame, by scan number.
+    assert plot_main([*args, "--overwrite", "--write-cloud"]) == 0
+    merged = io.read(out / "plot.laz")
+    ids = merged.attributes["scan_id"]
+    assert np.bincount(ids).tolist() == [0, len(target), len(source)]
+    world = merged.xyz + merged.offset
+    moved = source.xyz @ T_true[:3, :3].T + T_true[:3, 3]
+    assert np.abs(world[ids == 2] - moved).max() < 0.01
+    assert np.abs(world[ids == 1] - target.xyz).max() < 1e-4
     # The technician's marks (the app's review) go into the inventory of a run
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
     write_review(out, labels, PlotReview({first: "check"}))
     assert plot_main([*args, "--overwrite"]) == 0
+    assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
     write_inventory(out, trees, {first: "ok", rows[1]["tree_id"]: "check"})

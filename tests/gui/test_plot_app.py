@@ -253,7 +253,9 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert by is not None
     assert by.text() == "your pairs"  # the next run places it from the file
     monkeypatch.setattr(plot_panel, "ask_replace", lambda *_: True)  # the same plot
+    plot.cloud_check.setChecked(True)  # and the registered plot this time
     _run(qtbot, plot)
+    assert (tmp_path / "out" / "plot.laz").is_file()
     link = plot.outcome.links[0]
     assert link.origin == HAND_ORIGIN
     assert link.status == "registered", link.message

@@ -1,0 +1,60 @@
+"""Several clouds moved into one frame and written as one LAS/LAZ, a chunk at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amrst import io
+from amrst.errors import InvalidInput
+from amrst.io import las_write
+from amrst.types import Cloud, make_transform
+
+
+def _turn(deg: float, shift: tuple[float, float, float]) -> np.ndarray:
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return make_transform(R, np.asarray(shift, float))
+
+
+@pytest.mark.parametrize("name", ["plot.laz", "plot.las"])
+def test_moved_parts_are_one_file_with_their_scan_ids(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, name: str
+) -> None:
+    monkeypatch.setattr(las_write, "CHUNK_POINTS", 700)  # several chunks a part
+    rng = np.random.default_rng(0)
+    offset = np.array([512_000.0, 4_200_000.0, 300.0])  # georeferenced reference
+    a = Cloud(
+        rng.uniform(-20, 20, (2_000, 3)),
+        offset=offset,
+        attributes={"intensity": rng.integers(0, 60_000, 2_000).astype(np.uint16)},
+    )
+    b = Cloud(
+        rng.uniform(-20, 20, (1_500, 3)),
+        offset=np.zeros(3),
+        attributes={
+            "intensity": rng.integers(0, 60_000, 1_500).astype(np.uint16),
+            "only_here": np.ones(1_500),
+        },
+    )
+    moves = [np.eye(4), _turn(30.0, (4.0, -2.0, 0.5))]
+    path = tmp_path / name
+    io.write_merged(path, [a, b], moves, offset, [1, 2])
+    back = io.read(path)
+    world = back.xyz + back.offset
+    expect = np.vstack(
+        [a.xyz + offset, b.xyz @ moves[1][:3, :3].T + moves[1][:3, 3] + offset]
+    )
+    assert np.abs(world - expect).max() < 1e-4  # 0.1 mm
+    assert np.array_equal(back.attributes["scan_id"], np.r_[[1] * 2_000, [2] * 1_500])
+    expect_i = np.r_[a.attributes["intensity"], b.attributes["intensity"]]
+    assert np.array_equal(back.attributes["intensity"], expect_i)
+    assert "only_here" not in back.attributes  # kept only when every part has it
+
+
+def test_a_merged_cloud_needs_a_las_name(tmp_path) -> None:
+    c = Cloud(np.zeros((3, 3)))
+    with pytest.raises(InvalidInput, match=".laz or .las"):
+        io.write_merged(tmp_path / "plot.ply", [c], [np.eye(4)], np.zeros(3), [1])
+    with pytest.raises(InvalidInput, match="does not exist"):
+        io.write_merged(tmp_path / "no" / "p.laz", [c], [np.eye(4)], np.zeros(3), [1])
