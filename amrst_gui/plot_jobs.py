@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -37,9 +37,8 @@ if TYPE_CHECKING:
 SLICE_HEIGHTS_M = (0.6, 1.3, 2.0, 3.0)
 BREAST_HEIGHT_M = 1.3
 SLICE_HALF_M = 0.05
-#: The stem's foot is its centre this high (amrst.plot.stemmap); with the DBH centre
-#: it gives the stem line the slices follow, its lean at most ``MAX_LEAN_PER_M``.
-FOOT_HEIGHT_M = 0.6
+#: The slices follow the stem line: through the DBH centre, leaning as the stem map
+#: measured, towards the DBH centre from the foot; at most ``MAX_LEAN_PER_M``.
 MAX_LEAN_PER_M = 0.2
 #: Points kept around the stem in the slice (m beyond its radius).
 SLICE_MARGIN_M = 0.3
@@ -78,9 +77,9 @@ class LinkLine:
     message: str
     score: float = float("nan")  # the point score of its pose
     # Its pose: the source scan's file coordinates into the target's (None: failed),
-    # and in the scans' local frames (as plot.json and review.json keep it).
+    # as plot.json and review.json give it; a point among the source's (its offset).
     T_world: np.ndarray | None = None
-    T_local: np.ndarray | None = None
+    at: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def key(self) -> tuple[int, int]:
@@ -232,14 +231,16 @@ def reviewed(
 
     from amrst.plot.review import ACCEPTED, holding, pose_change, scan_state
 
-    keep = holding(accepted, ((ln.key, ln.status, ln.T_local) for ln in found.links))
+    keep = holding(
+        accepted, ((ln.key, ln.status, ln.T_world, ln.at) for ln in found.links)
+    )
     links = []
     for ln in found.links:
         T = accepted.get(ln.key)
         if ln.key in keep:
             ln = replace(ln, status=ACCEPTED, message=f"Accepted by you. {ln.message}")
-        elif T is not None and ln.status == NEEDS_REVIEW and ln.T_local is not None:
-            turn, shift = pose_change(T, ln.T_local)
+        elif T is not None and ln.status == NEEDS_REVIEW and ln.T_world is not None:
+            turn, shift = pose_change(T, ln.T_world, ln.at)
             ln = replace(
                 ln,
                 message=f"You accepted a pose {turn:.2f} deg / {100 * shift:.1f} cm "
@@ -275,7 +276,7 @@ def _link_line(pl: Any, confirmed: bool, clouds: Sequence[Cloud]) -> LinkLine:
         message=link.message,
         score=float(link.score),
         T_world=T_world,
-        T_local=link.T_local,
+        at=np.asarray(clouds[link.source].offset, float),
     )
 
 
@@ -316,12 +317,14 @@ def stored_link(link: LinkLine) -> StoredLinkResult | None:
 
 def tree_slices(inventory: Inventory, k: int) -> tuple[TreeSlice, ...]:
     """The merged plot's points around tree k at each of ``SLICE_HEIGHTS_M`` (± 5 cm
-    above the local ground), around the stem line through its foot and DBH centre."""
+    above the local ground), around its stem line (``MAX_LEAN_PER_M``)."""
     sm = inventory.stem_map
     stem = inventory.trees[k].stem
     dbh_xy = np.asarray(stem.dbh_xy, float)
-    lean = (dbh_xy - stem.base[:2]) / (BREAST_HEIGHT_M - FOOT_HEIGHT_M)
-    lean *= min(1.0, MAX_LEAN_PER_M / max(float(np.hypot(*lean)), 1e-9))
+    towards = dbh_xy - np.asarray(stem.base[:2], float)
+    norm = float(np.hypot(*towards))
+    per_m = min(np.tan(np.radians(np.nan_to_num(stem.lean_deg))), MAX_LEAN_PER_M)
+    lean = towards / norm * per_m if norm > 1e-3 else np.zeros(2)
     radius = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.2) + SLICE_MARGIN_M
     reach = radius + MAX_LEAN_PER_M * max(
         abs(z - BREAST_HEIGHT_M) for z in SLICE_HEIGHTS_M
@@ -367,9 +370,10 @@ def top_view(inventory: Inventory) -> TopView | None:
 def same_plot(out: Path, labels: Sequence[str]) -> bool:
     """Tell whether ``out`` holds a plot of exactly these scans (a run again)."""
     from amrst.plot.export import PLOT_JSON
+    from amrst.plot.review import same_scans
 
     try:
         doc = json.loads((out / PLOT_JSON).read_text())
-        return [s["label"] for s in doc["scans"]] == list(labels)
+        return same_scans([s["label"] for s in doc["scans"]], labels)
     except (OSError, ValueError, KeyError, TypeError):
         return False

@@ -448,6 +448,8 @@ class PlotWindow(QMainWindow):
 
     def toggle_accept(self) -> None:
         """Accept the selected link at its pose (asked first), or undo that."""
+        from amrst.plot.export import write_states
+
         line = self.selected_link()
         if line is None or self.outcome is None:
             return
@@ -457,7 +459,7 @@ class PlotWindow(QMainWindow):
             del accepted[line.key]
             done = f"Link {name} needs review again"
         else:
-            if line.status != NEEDS_REVIEW or line.T_local is None:
+            if line.status != NEEDS_REVIEW or line.T_world is None:
                 return
             text = (
                 f"Link {name} needs review: {line.message}\n\nAccept it at its pose? "
@@ -466,11 +468,25 @@ class PlotWindow(QMainWindow):
             )
             if not ask_accept(self, text):
                 return
-            accepted[line.key] = line.T_local
+            accepted[line.key] = line.T_world
             done = f"Link {name} accepted at its pose"
-        if self._save_review(self.marks, accepted, "The link"):
-            self._show_review()
-            self._say(f"{done} (saved in {REVIEW_JSON}). {self._summary()}")
+        if not self._save_review(self.marks, accepted, "The link"):
+            return
+        self._show_review()
+        o = self.outcome
+        assert o is not None
+        try:
+            write_states(
+                o.out,
+                [s.status for s in o.scans],
+                {ln.key for ln in o.links if ln.status == ACCEPTED},
+            )
+        except (AmrstError, OSError) as exc:
+            self._say(
+                f"{done}, saved in {REVIEW_JSON}; plot.json not: {exc}", error=True
+            )
+            return
+        self._say(f"{done} (saved in {REVIEW_JSON} and plot.json). {self._summary()}")
 
     def shutdown(self) -> None:
         """Drop a running plot (the main window closes)."""
@@ -481,7 +497,7 @@ class PlotWindow(QMainWindow):
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
         """False: nothing to replace; True: replace (asked); None: keep it."""
-        from amrst.plot.export import PLOT_JSON
+        from amrst.plot.export import PLOT_CLOUD, PLOT_JSON
 
         if not (out / PLOT_JSON).exists():
             return False
@@ -492,6 +508,10 @@ class PlotWindow(QMainWindow):
             else "ANOTHER plot (other scans; its marks no longer apply)"
         )
         text = f"{out} holds {what}. Replace its files with this run's?"
+        if (out / PLOT_CLOUD).exists() and not self.cloud_check.isChecked():
+            text += (
+                f" Its {PLOT_CLOUD} is removed (tick {PLOT_CLOUD} to write it again)."
+            )
         return True if ask_replace(self, text) else None
 
     def _on_progress(self, fraction: float, message: str) -> None:
@@ -510,6 +530,7 @@ class PlotWindow(QMainWindow):
             self._say(str(exc), error=True)
         self.marks, self.accepted = review.marks, dict(review.accepted)
         self.outcome = None
+        self.stem_map.select(None)  # tree k of the last run is not tree k of this one
         self._show_review()
         self.tree_panel.show_tree(None, None, None)
         assert self.outcome is not None
@@ -655,7 +676,7 @@ class PlotWindow(QMainWindow):
             or (
                 line is not None
                 and line.status == NEEDS_REVIEW
-                and line.T_local is not None
+                and line.T_world is not None
             )
         )
         self.accept_button.setText("Undo accept" if accepted else "Accept")

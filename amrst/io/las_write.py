@@ -186,19 +186,22 @@ def write_las_parts(
     extra: dict[str, tuple[str, np.dtype[Any]]] = {}  # dimension: (attribute, dtype)
     for name in sorted(names):
         columns = [flat_attributes(c)[name] for c in parts]
-        if name in dimension_names(point_format) and all(
-            _fit(fmt.dimension_by_name(name), v)[1] for v in columns
-        ):
+        key = name
+        if name in dimension_names(point_format):
+            # As write_las: the standard field, and the exact values beside it
+            # when the field cannot hold them.
             standard.add(name)
-            continue
+            dim = fmt.dimension_by_name(name)
+            if all(_fit(dim, v)[1] for v in columns):
+                continue
+            key = PREFIX + name
         kept = [storable(v, allow_int64=True, name=name) for v in columns]
         if all(v is not None for v in kept):
-            key = PREFIX + name if name in dimension_names(point_format) else name
             dtype = np.result_type(*(v.dtype for v in kept if v is not None))
             extra[key[:32]] = (name, dtype)
     header = laspy.LasHeader(point_format=point_format)
     header.scales, header.offsets = _frame(_moved_box(parts, moves), offset, meta)
-    dims = {"scan_id": np.dtype(np.uint8)} | {k: dt for k, (_, dt) in extra.items()}
+    dims = {"scan_id": np.dtype(np.uint16)} | {k: dt for k, (_, dt) in extra.items()}
     header.add_extra_dims(
         [laspy.ExtraBytesParams(name, dtype.str[1:]) for name, dtype in dims.items()]
     )
@@ -213,7 +216,7 @@ def write_las_parts(
                 record = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
                 ints = np.round(xyz / header.scales).astype(np.int32)
                 record.X, record.Y, record.Z = ints[:, 0], ints[:, 1], ints[:, 2]
-                record["scan_id"] = np.full(len(xyz), scan_id, np.uint8)
+                record["scan_id"] = np.full(len(xyz), scan_id, np.uint16)
                 for name in standard:
                     dim = fmt.dimension_by_name(name)
                     record[name] = _fit(dim, attrs[name][rows])[0]

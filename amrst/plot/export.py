@@ -19,7 +19,7 @@ from amrst.plot.inventory import TREE_COLUMNS
 from amrst.plot.review import PlotReview, read_review
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping, Sequence
+    from collections.abc import Callable, Collection, Mapping, Sequence
     from pathlib import Path
 
     import numpy as np
@@ -80,7 +80,13 @@ def plot_document(
 
     A scan's ``status`` is the registration's, its ``state`` that with the links
     the technician accepted (``review``); a link says whether it is one of those.
+    ``T_reference_scan`` maps the scan's file coordinates into the reference's (world
+    coordinates when the files carry an offset), as ``amrst register`` writes it.
     """
+    from amrst.types import world_transform
+
+    clouds = [scan.analysis.cloud for scan in reg.scans]
+    reference = clouds[reg.reference]
     accepted = (review or PlotReview()).accepted
     keep = reg.accepted(accepted)
     links = []
@@ -98,20 +104,27 @@ def plot_document(
                 "status": status,
                 "state": state,
                 "reached": pose is not None,
-                "T_reference_scan": None if pose is None else pose.tolist(),
+                "T_reference_scan": (
+                    None
+                    if pose is None
+                    else world_transform(pose, reference, cloud).tolist()
+                ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
             }
-            for label, pose, path, scan, status, state in zip(
+            for label, pose, path, scan, status, state, cloud in zip(
                 labels,
                 reg.poses,
                 reg.paths,
                 reg.scans,
                 reg.statuses,
                 reg.states(accepted),
+                clouds,
                 strict=True,
             )
         ],
+        "convention": "x_reference = T_reference_scan @ [x_scan, 1]; the files' "
+        "coordinates, row-major, metres",
         "links": links,
         "bundle_rmse_m": reg.bundle_rmse_m,
         "joint": None if reg.joint is None else reg.joint.as_dict(),
@@ -119,6 +132,41 @@ def plot_document(
         "trees": len(inventory.trees),
         "timings_s": {k: round(v, 3) for k, v in reg.timings.items()},
     }
+
+
+def write_states(
+    out: Path, states: Sequence[str], accepted: Collection[tuple[int, int]]
+) -> None:
+    """Write the scans' states and the accepted links into ``out``'s plot.json.
+
+    For a review made after the run (the app's Accept): the rest of the file stays
+    what the run wrote.
+
+    Raises
+    ------
+    InvalidInput
+        No readable plot.json of that many scans in ``out``.
+    """
+    import json
+
+    from amrst.files.outdir import replace_files
+
+    path = out / PLOT_JSON
+    try:
+        doc = json.loads(path.read_text())
+        scans, links = doc["scans"], doc["links"]
+        if len(scans) != len(states):
+            raise ValueError(f"{len(scans)} scans, not {len(states)}")
+        for scan, state in zip(scans, states, strict=True):
+            scan["state"] = state
+        for link in links:
+            link["accepted"] = (link["target"], link["source"]) in accepted
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"{path} cannot take the review ({exc}); run the plot again."
+        ) from exc
+    text = _json_text(doc)
+    replace_files(out, {PLOT_JSON: lambda p: p.write_text(text)}, managed=MANAGED)
 
 
 def write_plot(

@@ -118,10 +118,25 @@ class PlotRegistration:
     ) -> set[tuple[int, int]]:
         """Return the links the technician accepted, at the pose they have."""
         from amrst.plot.review import holding
+        from amrst.review.verdict import REGISTERED
+        from amrst.types import world_transform
 
+        clouds = [scan.analysis.cloud for scan in self.scans]
         return holding(
             review,
-            (((ln.target, ln.source), ln.status, ln.T_local) for ln in self._links()),
+            (
+                (
+                    (ln.target, ln.source),
+                    REGISTERED if self.loop_confirms(ln) else ln.status,
+                    None
+                    if ln.T_local is None
+                    else world_transform(
+                        ln.T_local, clouds[ln.target], clouds[ln.source]
+                    ),
+                    clouds[ln.source].offset,
+                )
+                for ln in self._links()
+            ),
         )
 
     def states(self, review: Mapping[tuple[int, int], Transform]) -> tuple[str, ...]:

@@ -5,10 +5,11 @@ It names the scans it belongs to (a review of other scans is not applied) and ho
 - ``marks``: ``ok`` / ``check`` per tree id; tree ids are stable between runs on the
   same files, so marks hold across a run again;
 - ``accepted``: links the registration left unsure that the technician checked by eye
-  and accepted, each with the pose accepted (the source scan's local frame into the
-  target's). An acceptance holds only while the link keeps that pose (within
-  ``SAME_POSE_DEG`` and ``SAME_POSE_M``): a run that places the link elsewhere asks
-  for a new look.
+  and accepted, each with the pose accepted (the source scan's file coordinates into
+  the target's, as ``plot.json`` gives poses). An acceptance holds only while the
+  link keeps that pose (within ``SAME_POSE_DEG``, and ``SAME_POSE_M`` where the
+  source scan's points are): a run that places the link elsewhere asks for a new
+  look.
 
 A scan's ``status`` in ``plot.json`` stays what the registration found; its ``state``
 (:func:`scan_state`) is what a person sees with the review: ``accepted`` when every
@@ -76,9 +77,30 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         raise InvalidInput(
             f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
         )
-    if scans != list(labels):
+    if not same_scans(scans, labels):
         return PlotReview()
     return PlotReview(marks, accepted)
+
+
+def same_scans(a: Sequence[str], b: Sequence[str]) -> bool:
+    """Tell whether two lists of scan labels name the same scans in the same order.
+
+    A label is a file (``FILE`` or ``FILE#k``, one scan of several); files are
+    compared as resolved paths, so the app's absolute paths and the ones typed on
+    the command line match.
+    """
+    return len(a) == len(b) and all(
+        _scan_key(x) == _scan_key(y) for x, y in zip(a, b, strict=True)
+    )
+
+
+def _scan_key(label: str) -> str:
+    from pathlib import Path
+
+    head, sep, tail = str(label).rpartition("#")
+    if sep and tail.isdigit():
+        return f"{Path(head).resolve()}#{tail}"
+    return str(Path(str(label)).resolve())
 
 
 def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
@@ -102,32 +124,45 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
     )
 
 
-def pose_change(accepted: Transform, T: Transform) -> tuple[float, float]:
-    """How far ``T`` is from the accepted pose: (turn in deg, shift of the origin in m)."""
+def pose_change(
+    accepted: Transform, T: Transform, at: np.ndarray
+) -> tuple[float, float]:
+    """How far ``T`` is from the accepted pose: (turn in deg, shift in m of ``at``).
+
+    ``at`` is a point among the source scan's (file coordinates, e.g. its offset):
+    at the origin of a georeferenced frame the tiniest turn would read metres.
+    """
     from amrst.types import rotation_angle_deg
 
     a, b = np.asarray(accepted, float), np.asarray(T, float)
+    p = np.asarray(at, float)
     turn = rotation_angle_deg(a[:3, :3].T @ b[:3, :3])
-    return turn, float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+    moved = (a[:3, :3] - b[:3, :3]) @ p + a[:3, 3] - b[:3, 3]
+    return turn, float(np.linalg.norm(moved))
 
 
 def holding(
     accepted: Mapping[LinkKey, Transform],
-    links: Iterable[tuple[LinkKey, str, Transform | None]],
+    links: Iterable[tuple[LinkKey, str, Transform | None, np.ndarray]],
 ) -> set[LinkKey]:
-    """Return the links, given as (key, status, pose), that keep their accepted pose."""
+    """Return the links that need review and keep the pose accepted for them.
+
+    ``links``: (key, status, pose, a point among the source scan's) of each link.
+    """
     return {
         key
-        for key, status, T in links
-        if status == NEEDS_REVIEW and key in accepted and still_holds(accepted[key], T)
+        for key, status, T, at in links
+        if status == NEEDS_REVIEW
+        and key in accepted
+        and still_holds(accepted[key], T, at)
     }
 
 
-def still_holds(accepted: Transform, T: Transform | None) -> bool:
+def still_holds(accepted: Transform, T: Transform | None, at: np.ndarray) -> bool:
     """Tell whether an acceptance of ``accepted`` still holds for a link at ``T``."""
     if T is None:
         return False
-    turn, shift = pose_change(accepted, T)
+    turn, shift = pose_change(accepted, T, at)
     return turn <= SAME_POSE_DEG and shift <= SAME_POSE_M
 
 

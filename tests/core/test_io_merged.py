@@ -54,7 +54,45 @@ def test_moved_parts_are_one_file_with_their_scan_ids(
 
 def test_a_merged_cloud_needs_a_las_name(tmp_path) -> None:
     c = Cloud(np.zeros((3, 3)))
-    with pytest.raises(InvalidInput, match=".laz or .las"):
+    with pytest.raises(InvalidInput, match=r"\.laz or \.las"):
         io.write_merged(tmp_path / "plot.ply", [c], [np.eye(4)], np.zeros(3), [1])
     with pytest.raises(InvalidInput, match="does not exist"):
         io.write_merged(tmp_path / "no" / "p.laz", [c], [np.eye(4)], np.zeros(3), [1])
+
+
+def test_values_a_standard_field_cannot_hold_are_kept_exactly(tmp_path) -> None:
+    # A float intensity (0..1) in parts with two different offsets: the LAS field
+    # gets the rounded values, amrst_intensity the exact ones, as io.write keeps them.
+    rng = np.random.default_rng(1)
+    parts = [
+        Cloud(
+            rng.uniform(-5, 5, (400, 3)),
+            offset=np.array([512_000.0, 4_200_000.0, 300.0]),
+            attributes={"intensity": rng.uniform(0, 1, 400)},
+        ),
+        Cloud(
+            rng.uniform(-5, 5, (300, 3)),
+            offset=np.array([512_010.0, 4_199_990.0, 301.0]),
+            attributes={"intensity": rng.uniform(0, 1, 300)},
+        ),
+    ]
+    moves = [np.eye(4), _turn(-15.0, (1.0, 2.0, 0.0))]
+    world = np.array([512_000.0, 4_200_000.0, 300.0])
+    # A part's move takes its own local frame into the reference's: here the second
+    # part's offset differs from the reference's by (10, -10, 1).
+    moves[1] = moves[1] @ make_transform(np.eye(3), parts[1].offset - world)
+    path = tmp_path / "plot.laz"
+    io.write_merged(path, parts, moves, world, [1, 7])
+    back = io.read(path)
+    expect = np.vstack(
+        [
+            parts[0].xyz + world,
+            (parts[1].xyz + parts[1].offset - world) @ moves[1][:3, :3].T
+            + _turn(-15.0, (1.0, 2.0, 0.0))[:3, 3]
+            + world,
+        ]
+    )
+    assert np.abs(back.xyz + back.offset - expect).max() < 1e-4
+    exact = np.r_[parts[0].attributes["intensity"], parts[1].attributes["intensity"]]
+    assert np.allclose(back.attributes["intensity"], exact)
+    assert set(np.unique(back.attributes["scan_id"])) == {1, 7}

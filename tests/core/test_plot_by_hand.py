@@ -13,7 +13,12 @@ from amrst import io
 from amrst.plot.cli import main as plot_main
 from amrst.plot.register import HAND_ORIGIN, register_plot
 from amrst.review.pairs_file import write_pairs
-from amrst.types import Cloud, invert_transform, rotation_angle_deg
+from amrst.types import (
+    Cloud,
+    invert_transform,
+    rotation_angle_deg,
+    world_transform,
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -70,7 +75,7 @@ def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -
 def test_the_command_reads_pairs_and_refuses_bad_ones(
     pair_and_picks, tmp_path: Path
 ) -> None:
-    clouds, t_pts, s_pts, _ = pair_and_picks
+    clouds, t_pts, s_pts, T_true = pair_and_picks
     files = [tmp_path / "s1.ply", tmp_path / "s2.ply"]
     for f, c in zip(files, clouds, strict=True):
         io.write(f, c)
@@ -86,6 +91,13 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     )
     doc = json.loads((out / "plot.json").read_text())
     assert doc["links"][0]["origin"] == HAND_ORIGIN
+    # The pose handed over moves the source file's coordinates onto the target's.
+    T_file = np.array(doc["scans"][1]["T_reference_scan"])
+    T_world = world_transform(T_true, clouds[0], clouds[1])
+    at = clouds[1].xyz[::500] + clouds[1].offset
+    assert (
+        np.abs(at @ T_file[:3, :3].T + T_file[:3, 3] - _moved(T_world, at)).max() < 0.01
+    )
     for bad in (
         ["1", "3", str(pairs)],
         ["0", "2", str(pairs)],
@@ -111,7 +123,7 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     assert plot_main([*args, str(wrong)]) == 3
     doc = json.loads((out / "plot.json").read_text())
     labels = [s["label"] for s in doc["scans"]]
-    T = np.array(doc["scans"][1]["T_reference_scan"])
+    T = np.array(doc["scans"][1]["T_reference_scan"])  # the pose to accept
     assert [s["state"] for s in doc["scans"]] == ["registered", "needs review"]
 
     write_review(out, labels, PlotReview(accepted={(0, 1): T}))
@@ -167,3 +179,7 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
     assert plot_main([*args, "--leave-out", "1", "3"]) == 3  # 2-3 alone: unsure
     doc = json.loads((tmp_path / "o" / "plot.json").read_text())
     assert [ln["origin"] for ln in doc["links"] if ln["target"] == 0][1] == "left out"
+
+
+def _moved(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    return xyz @ T[:3, :3].T + T[:3, 3]

@@ -72,11 +72,23 @@ def test_a_bad_mark_is_not_written(tmp_path):
 
 
 def test_an_acceptance_holds_for_its_pose_only():
-    accepted = _turned(30.0)
-    assert still_holds(accepted, _turned(30.0 + 0.01, 0.002))
-    assert not still_holds(accepted, _turned(30.2))
-    assert not still_holds(accepted, _turned(30.0, 0.03))
-    assert not still_holds(accepted, None)
+    accepted, near = _turned(30.0), np.array([5.0, 3.0, 1.0])
+    assert still_holds(accepted, _turned(30.0 + 0.01, 0.002), near)
+    assert not still_holds(accepted, _turned(30.2), near)
+    assert not still_holds(accepted, _turned(30.0, 0.03), near)
+    assert not still_holds(accepted, None, near)
+
+
+def test_an_acceptance_of_georeferenced_scans_is_judged_where_they_are():
+    # The same turn by 0.001 deg about the scans moves them 0.2 mm, but the origin of
+    # the frame (4,200 km away) by metres: judged at the scans, it holds.
+    at = np.array([512_004.0, 4_200_001.0, 300.5])
+    T = make_transform(np.eye(3), [-4.0, -1.0, -0.5])
+    a = np.radians(0.001)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    about_at = make_transform(R, at - R @ at)  # a turn about the point ``at``
+    assert still_holds(T, T @ about_at, at)
+    assert np.linalg.norm((T @ about_at)[:3, 3] - T[:3, 3]) > 0.01
 
 
 def test_a_scan_reads_accepted_when_each_unsure_link_it_rests_on_is():
@@ -111,3 +123,14 @@ def test_no_acceptance_clears_two_registered_links_that_disagree():
     assert doubts[2] is None
     every = {(0, 1), (1, 2), (0, 2)}
     assert scan_state("needs review", doubts[2], every) == "needs review"
+
+
+def test_the_app_s_review_holds_for_the_same_files_typed_as_relative_paths(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+):
+    absolute = [str(tmp_path / "s" / "a.ply"), str(tmp_path / "s" / "b.e57") + "#1"]
+    write_review(tmp_path, absolute, PlotReview({"T001": "ok"}))
+    monkeypatch.chdir(tmp_path / "..")
+    typed = [f"{tmp_path.name}/s/a.ply", f"./{tmp_path.name}/s/../s/b.e57#1"]
+    assert read_review(tmp_path, typed).marks == {"T001": "ok"}
+    assert read_review(tmp_path, [typed[0], typed[1][:-1] + "0"]) == PlotReview()

@@ -8,6 +8,7 @@ its own frame (the second turned and moved).
 from __future__ import annotations
 
 import csv
+import json
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -276,7 +277,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     qtbot.addWidget(plot)
     T = SOURCE_POSE
     line = LinkLine(
-        0, 1, "needs review", False, True, "stems", 0.4, 0.02, 5, "unsure", T, T, T
+        0, 1, "needs review", False, True, "stems", 0.4, 0.02, 5, "unsure", 0.2, T
     )
     scans = (
         ScanPlace("a.ply", np.zeros(2), 5, "registered"),
@@ -285,6 +286,11 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     found = PlotOutcome(
         tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
     )
+    doc = {
+        "scans": [{"status": s.status, "state": s.status} for s in scans],
+        "links": [{"target": 0, "source": 1, "accepted": False}],
+    }
+    (tmp_path / "plot.json").write_text(json.dumps(doc))
     plot.open_scans(["a.ply", "b.ply"], tmp_path)
     plot._on_result(found)
     plot.links.selectRow(0)
@@ -307,11 +313,15 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     (kept,) = read_review(tmp_path, found.labels).accepted.items()
     assert kept[0] == (0, 1)
     assert np.array_equal(kept[1], T)
+    doc = json.loads((tmp_path / "plot.json").read_text())  # the handed-over states
+    assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
+    assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
+    assert doc["links"][0]["accepted"]
 
     # A run again that finds the same pose keeps it accepted; another pose does not.
     plot._on_result(found)
     assert plot.outcome.links[0].status == "accepted"
-    moved = replace(line, T_local=T @ pose(1.0, (0, 0, 0)))
+    moved = replace(line, T_world=T @ pose(1.0, (0, 0, 0)))
     plot._on_result(replace(found, links=(moved,)))
     shown = plot.outcome.links[0]
     assert shown.status == "needs review"
@@ -324,6 +334,8 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     plot.accept_button.click()
     assert plot.outcome.links[0].status == "needs review"
     assert read_review(tmp_path, found.labels).accepted == {}
+    doc = json.loads((tmp_path / "plot.json").read_text())
+    assert [s["state"] for s in doc["scans"]] == ["registered", "needs review"]
 
 
 def test_a_link_is_left_out_of_the_next_run_until_taken_in(
@@ -364,3 +376,16 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
     plot.leave_button.click()
     assert plot.left_out == set()
     assert by.text() == "stems"
+
+
+def test_the_plot_run_leaves_out_the_links_the_window_names(
+    plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst.plot.register import LEFT_OUT_ORIGIN
+    from amrst.progress import NULL_REPORTER
+    from amrst_gui.plot_jobs import run_plot
+
+    o = run_plot(plot_files, tmp_path, False, NULL_REPORTER, left_out={(1, 0)})
+    assert [ln.origin for ln in o.links] == [LEFT_OUT_ORIGIN]
+    assert [s.status for s in o.scans] == ["registered", "failed"]
+    assert o.missing == [plot_files[1]]
