@@ -190,6 +190,12 @@ class PlotWindow(QMainWindow):
             "★: in the spanning tree that places the scans."
         )
         self.trees = table(TREE_COLUMNS, "plot_trees")
+        self.export_button = QPushButton("Export inventory…")
+        self.export_button.setToolTip(
+            "Save the tree list with your marks as a CSV or Excel file elsewhere (the "
+            "results folder's trees.csv always holds it too)"
+        )
+        self.export_button.clicked.connect(lambda: self.export_inventory())
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
         folder.addWidget(choose)
@@ -209,7 +215,10 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel("<b>Links</b>"))
         layout.addWidget(self.links)
         layout.addLayout(self._build_link_buttons())
-        layout.addWidget(QLabel("<b>Trees</b>"))
+        trees_head = QHBoxLayout()
+        trees_head.addWidget(QLabel("<b>Trees</b>"), 1)
+        trees_head.addWidget(self.export_button)
+        layout.addLayout(trees_head)
         layout.addWidget(self.trees, 1)
         self._update_link_buttons()
         return side
@@ -269,6 +278,7 @@ class PlotWindow(QMainWindow):
         self.tree_panel.show_tree(None, None, None)
         fill(self.links, [])
         fill(self.trees, [])
+        self._update_link_buttons()
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
             self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
@@ -408,6 +418,29 @@ class PlotWindow(QMainWindow):
             )
         self._update_link_buttons()
         self._show_hand_pairs()
+
+    def export_inventory(self, path: str | None = None) -> None:
+        """Save the inventory with the marks as CSV or XLSX (asked when not given)."""
+        from amrst.plot.export import export_inventory
+
+        o = self.outcome
+        if o is None:
+            return
+        if path is None:
+            path, _ = QFileDialog.getSaveFileName(
+                self,
+                "Export the inventory",
+                str(o.out / "inventory.csv"),
+                "CSV (*.csv);;Excel (*.xlsx)",
+            )
+        if not path:
+            return
+        try:
+            export_inventory(Path(path), o.trees, self.marks)
+        except (AmrstError, OSError) as exc:
+            self._say(f"Not exported: {exc}", error=True)
+            return
+        self._say(f"{len(o.trees)} trees, with your marks, exported to {path}")
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere."""
@@ -670,6 +703,7 @@ class PlotWindow(QMainWindow):
         line = None if self.busy else self.selected_link()
         link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
+        self.export_button.setEnabled(self.outcome is not None and not self.busy)
         accepted = line is not None and line.status == ACCEPTED
         self.accept_button.setEnabled(
             accepted

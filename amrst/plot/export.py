@@ -70,6 +70,35 @@ def write_inventory(
     return written
 
 
+def export_inventory(
+    path: Path, trees: Sequence[Tree], marks: Mapping[str, str]
+) -> None:
+    """Write the inventory with the marks to ``path`` (``.csv`` or ``.xlsx``), atomically.
+
+    Raises
+    ------
+    InvalidInput
+        Another extension, a missing folder, or ``.xlsx`` without openpyxl.
+    """
+    from amrst.files.atomic import write_atomic
+
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".xlsx"):
+        raise InvalidInput(
+            f"Cannot export the inventory as {path.name}: name it .csv or .xlsx."
+        )
+    if not path.parent.is_dir():
+        raise InvalidInput(f"Cannot write {path}: its folder does not exist.")
+    writers = _inventory_writers(trees, marks)
+    name = TREES_CSV if suffix == ".csv" else TREES_XLSX
+    if name not in writers:
+        raise InvalidInput(
+            "Writing .xlsx needs openpyxl (pip install amrst-studio[campaign]); "
+            "export as .csv instead."
+        )
+    write_atomic(path, writers[name])
+
+
 def plot_document(
     reg: PlotRegistration,
     inventory: Inventory,

@@ -126,6 +126,17 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     with (out / TREES_CSV).open() as fh:  # and the inventory handed over says it
         marked = {r["tree_id"]: r["mark"] for r in csv.DictReader(fh) if r["mark"]}
     assert marked == {tree.tree_id: "check"}
+    # Exported elsewhere with the marks; a name it cannot write is one line.
+    plot.export_inventory(str(tmp_path / "inventory.csv"))
+    with (tmp_path / "inventory.csv").open() as fh:
+        exported = {r["tree_id"]: r["mark"] for r in csv.DictReader(fh)}
+    assert len(exported) == len(STEMS)
+    assert exported[tree.tree_id] == "check"
+    plot.export_inventory(str(tmp_path / "inventory.ods"))
+    assert plot.status.text().startswith("Not exported:")
+    assert ".csv or .xlsx" in plot.status.text()
+    plot.export_inventory(str(tmp_path / "inventory.xlsx"))
+    assert (tmp_path / "inventory.xlsx").stat().st_size > 0
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
