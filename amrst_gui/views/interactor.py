@@ -44,6 +44,17 @@ class Interactor(QtInteractor):
         iren.InvokeEvent("EndInteractionEvent")
         ev.accept()
 
+    def close(self) -> None:
+        """Close as pyvistaqt does, then let go of its GL context and surface.
+
+        pyvistaqt keeps ``context().surface()`` until the context is destroyed. A
+        surface is no QObject, so PySide cannot see it deleted, and a Qt object
+        made later at its address (a table's selection model) came back as that
+        stale QSurface wrapper. Nothing draws through them once closed.
+        """
+        super().close()
+        self._forget_context()
+
     def _cb_frame(self, obj, evt) -> None:
         if not self._in_paint:
             self._fresh_frame = True
