@@ -104,6 +104,14 @@ def ask_replace(parent: QWidget, text: str) -> bool:
     return answer == QMessageBox.StandardButton.Yes
 
 
+def open_in_browser(path: Path) -> None:
+    """Open a written file in the desktop's browser (tests replace it)."""
+    from PySide6.QtCore import QUrl
+    from PySide6.QtGui import QDesktopServices
+
+    QDesktopServices.openUrl(QUrl.fromLocalFile(str(path)))
+
+
 def ask_accept(parent: QWidget, text: str) -> bool:
     """Ask whether to accept a link that needs review (tests answer it themselves)."""
     answer = QMessageBox.question(
@@ -196,6 +204,12 @@ class PlotWindow(QMainWindow):
             "results folder's trees.csv always holds it too)"
         )
         self.export_button.clicked.connect(lambda: self.export_inventory())
+        self.report_button = QPushButton("Report")
+        self.report_button.setToolTip(
+            "Write report.html in the results folder (scans, links, the stem map and "
+            "the trees, with your review) and open it"
+        )
+        self.report_button.clicked.connect(self.write_report)
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
         folder.addWidget(choose)
@@ -217,6 +231,7 @@ class PlotWindow(QMainWindow):
         layout.addLayout(self._build_link_buttons())
         trees_head = QHBoxLayout()
         trees_head.addWidget(QLabel("<b>Trees</b>"), 1)
+        trees_head.addWidget(self.report_button)
         trees_head.addWidget(self.export_button)
         layout.addLayout(trees_head)
         layout.addWidget(self.trees, 1)
@@ -441,6 +456,21 @@ class PlotWindow(QMainWindow):
             self._say(f"Not exported: {exc}", error=True)
             return
         self._say(f"{len(o.trees)} trees, with your marks, exported to {path}")
+
+    def write_report(self) -> Path | None:
+        """Write report.html from the results folder's files and open it."""
+        from amrst.plot.report import write_report_from_folder
+
+        if self.outcome is None:
+            return None
+        try:
+            path = write_report_from_folder(self.outcome.out)
+        except (AmrstError, OSError) as exc:
+            self._say(f"No report: {exc}", error=True)
+            return None
+        self._say(f"Report written: {path}")
+        open_in_browser(path)
+        return path
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere."""
@@ -704,6 +734,7 @@ class PlotWindow(QMainWindow):
         link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
         self.export_button.setEnabled(self.outcome is not None and not self.busy)
+        self.report_button.setEnabled(self.outcome is not None and not self.busy)
         accepted = line is not None and line.status == ACCEPTED
         self.accept_button.setEnabled(
             accepted

@@ -46,6 +46,11 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "reference's frame, scan_id its number from 1",
     )
     p.add_argument(
+        "--report",
+        action="store_true",
+        help="also write report.html: scans, links, the stem map and the trees",
+    )
+    p.add_argument(
         "--overwrite",
         action="store_true",
         help="replace the plot another run wrote in --out",
@@ -107,6 +112,7 @@ def run_cli(args: argparse.Namespace) -> int:
             clouds,
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
+            report=args.report,
         )
         states = reg.states(read_review(out, labels).accepted)
     except AmrstError as exc:

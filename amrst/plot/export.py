@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS
+from amrst.plot.report import REPORT
 from amrst.plot.review import PlotReview, read_review
 
 if TYPE_CHECKING:
@@ -207,12 +208,14 @@ def write_plot(
     *,
     write_trees: bool = False,
     write_cloud: bool = False,
+    report: bool = False,
 ) -> list[Path]:
     """Write the run's files into ``out`` as one unit; return the files written.
 
     ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
     reference's frame, world coordinates, ``scan_id`` its number from 1); without it
     an earlier run's ``plot.laz`` is removed, as it no longer matches the poses.
+    ``report``: also ``report.html`` (``amrst.plot.report``).
     """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
@@ -230,13 +233,18 @@ def write_plot(
             )
     if write_cloud:
         writers[PLOT_CLOUD] = _plot_cloud_writer(reg, clouds)
+    if report:
+        from amrst.plot.report import build_report
+
+        page = build_report(doc, _rows(inventory.trees, review.marks))
+        writers[REPORT] = lambda p: p.write_text(page)
     gone = () if write_cloud else (PLOT_CLOUD,)
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     return written
 
 
 #: Every name a plot's run writes into its folder.
-MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR, PLOT_CLOUD})
+MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR, PLOT_CLOUD, REPORT})
 
 
 def _plot_cloud_writer(

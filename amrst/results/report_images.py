@@ -35,7 +35,8 @@ def sample(xyz: np.ndarray, n: int = MAX_POINTS, seed: int = 0) -> np.ndarray:
     return xyz[np.random.default_rng(seed).choice(len(xyz), n, replace=False)]
 
 
-def _png(fig: Figure) -> bytes:
+def png_bytes(fig: Figure) -> bytes:
+    """Render ``fig`` with Agg at 100 dpi; return the PNG."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
@@ -44,8 +45,11 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def _figure(width_in: float, height_in: float) -> Figure:
-    # A bare Figure renders with Agg and leaves pyplot's global backend alone.
+def new_figure(width_in: float, height_in: float) -> Figure:
+    """Return a bare Figure (constrained layout) of this size in inches.
+
+    A bare Figure renders with Agg and leaves pyplot's global backend alone.
+    """
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width_in, height_in), layout="constrained")
@@ -53,7 +57,7 @@ def _figure(width_in: float, height_in: float) -> Figure:
 
 def overlay_png(target_xyz: np.ndarray, moved_source_xyz: np.ndarray) -> bytes:
     """Top (x-y) and side (x-z, y-z) views of both scans in their colours."""
-    fig = _figure(11, 4.6)
+    fig = new_figure(11, 4.6)
     axes = fig.subplots(1, 3)
     t, s = sample(target_xyz), sample(moved_source_xyz, seed=1)
     for ax, (i, j, name) in zip(
@@ -68,12 +72,12 @@ def overlay_png(target_xyz: np.ndarray, moved_source_xyz: np.ndarray) -> bytes:
         ax.set_xlabel("xyz"[i] + " (m)")
         ax.set_ylabel("xyz"[j] + " (m)")
     axes[0].legend(markerscale=20, loc="upper right", fontsize=8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def distance_png(moved_source_xyz: np.ndarray, distances_m: np.ndarray) -> bytes:
     """Colour the moved source by its distance to the target (front and side)."""
-    fig = _figure(11, 4.6)
+    fig = new_figure(11, 4.6)
     axes = fig.subplots(1, 2)
     keep = np.isfinite(distances_m)
     xyz, d = moved_source_xyz[keep], distances_m[keep]
@@ -101,12 +105,12 @@ def distance_png(moved_source_xyz: np.ndarray, distances_m: np.ndarray) -> bytes
     if art is not None:
         bar = fig.colorbar(art, ax=list(axes), shrink=0.8)
         bar.set_label(f"distance (cm, {DISTANCE_CLIP_M * 100:.0f} and more at the top)")
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def histogram_png(to_target_m: np.ndarray, to_source_m: np.ndarray) -> bytes:
     """Histogram of the nearest-neighbour distances both ways, in cm."""
-    fig = _figure(8, 3.2)
+    fig = new_figure(8, 3.2)
     ax = fig.subplots()
     bins = [float(b) for b in np.linspace(0, DISTANCE_CLIP_M * 100, 26)]
     for d, colour, name in (
@@ -127,7 +131,7 @@ def histogram_png(to_target_m: np.ndarray, to_source_m: np.ndarray) -> bytes:
     )
     ax.set_ylabel("points")
     ax.legend(fontsize=8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def slices_png(slices: Sequence[StemSlice]) -> bytes:
@@ -135,7 +139,7 @@ def slices_png(slices: Sequence[StemSlice]) -> bytes:
     import matplotlib.patches as mpatches
 
     n = max(len(slices), 1)
-    fig = _figure(3.6 * n, 4.2)
+    fig = new_figure(3.6 * n, 4.2)
     axes = np.atleast_1d(fig.subplots(1, n))
     for ax, sl in zip(axes, slices, strict=False):
         circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
@@ -161,7 +165,7 @@ def slices_png(slices: Sequence[StemSlice]) -> bytes:
         ax.set_title(first, fontsize=10)
         note_colour = "#b00020" if sl.problem() else "black"
         ax.set_xlabel(_wrap(second, 40), fontsize=8, color=note_colour)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _wrap(text: str, width: int) -> str:

@@ -145,9 +145,14 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
     write_review(out, labels, PlotReview({first: "check"}))
-    assert plot_main([*args, "--overwrite"]) == 0
+    assert plot_main([*args, "--overwrite", "--report"]) == 0
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
+    assert f"<td>{first}</td>" in page
+    assert "1 trees marked check by you" in page
+    assert "2 registered" in page
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
     write_inventory(out, trees, {first: "ok", rows[1]["tree_id"]: "check"})
     assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}

@@ -134,3 +134,11 @@ def test_the_app_s_review_holds_for_the_same_files_typed_as_relative_paths(
     typed = [f"{tmp_path.name}/s/a.ply", f"./{tmp_path.name}/s/../s/b.e57#1"]
     assert read_review(tmp_path, typed).marks == {"T001": "ok"}
     assert read_review(tmp_path, [typed[0], typed[1][:-1] + "0"]) == PlotReview()
+
+
+def test_a_report_of_a_folder_without_a_plot_is_one_line(tmp_path):
+    from amrst.plot.report import write_report_from_folder
+
+    with pytest.raises(InvalidInput, match="run the plot again") as err:
+        write_report_from_folder(tmp_path)
+    assert "\n" not in str(err.value)

@@ -137,6 +137,13 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert ".csv or .xlsx" in plot.status.text()
     plot.export_inventory(str(tmp_path / "inventory.xlsx"))
     assert (tmp_path / "inventory.xlsx").stat().st_size > 0
+    # The report says what the folder's files say, the mark included, and opens.
+    opened: list[Path] = []
+    monkeypatch.setattr(plot_panel, "open_in_browser", opened.append)
+    plot.report_button.click()
+    assert opened == [out / "report.html"]
+    assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
+    assert "1 trees marked check by you" in opened[0].read_text()
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"

@@ -1,0 +1,275 @@
+"""The plot's report: one self-contained HTML page of what the run handed over.
+
+It is built from ``plot.json`` and the inventory's rows (with the technician's
+marks): the scans and their states, the links, the stem map (matplotlib's Agg, a PNG
+embedded as base64) and the tree list. ``amrst plot --report`` writes it with the run;
+the app writes it again from the folder's files after a review
+(:func:`write_report_from_folder`), so it says what those files say. No Qt.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.results.report_html import STYLE, html_table
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from pathlib import Path
+
+REPORT = "report.html"
+#: Tree fills by DBH quality and scan-link colours by state, as the app draws them.
+QUALITY_RGB = {"ok": "#4caf50", "check": "#ffb300", "none": "#9e9e9e"}
+STATE_RGB = {
+    "registered": "#4caf50",
+    "accepted": "#26a69a",
+    "needs review": "#ffb300",
+    "failed": "#f44336",
+}
+#: A scan whose file origin maps this far from every tree is not drawn (its file
+#: is georeferenced: the origin is no scanner position).
+SCAN_REACH_M = 60.0
+#: Large (georeferenced) coordinates are drawn from a round origin, in these steps.
+ORIGIN_STEP_M = 100.0
+
+
+def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
+    """Return the report page for plot.json's ``doc`` and the inventory's ``rows``."""
+    from amrst import __version__
+
+    scans = doc["scans"]
+    title = f"Forest plot of {len(scans)} scans"
+    png = base64.b64encode(stem_map_png(doc, rows)).decode("ascii")
+    return (
+        f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        f"<title>{_e(title)}</title><style>{STYLE}</style></head><body>"
+        f"<h1>{_e(title)}</h1>"
+        + _summary(doc, rows)
+        + '<h2>Stem map</h2><figure><img alt="stem map" '
+        + f'src="data:image/png;base64,{png}"><figcaption>Every tree at its stem '
+        "base, its dot sized by its DBH and filled by the DBH's quality (green ok, "
+        "amber check, grey none), ringed red where you marked it check; the scans "
+        "(triangles) and their links by state.</figcaption></figure>"
+        + _scans(doc)
+        + _links(doc)
+        + _trees(rows)
+        + f"<p><small>Written by AMRST {__version__}; coordinates as in trees.csv."
+        "</small></p></body></html>"
+    )
+
+
+def write_report_from_folder(out: Path) -> Path:
+    """Write ``report.html`` in ``out`` from its plot.json and trees.csv; return it.
+
+    Raises
+    ------
+    InvalidInput
+        The folder holds no readable plot.json and trees.csv (run the plot first).
+    """
+    import json
+
+    from amrst.files.atomic import write_text_atomic
+    from amrst.plot.export import PLOT_JSON, TREES_CSV
+
+    try:
+        doc = json.loads((out / PLOT_JSON).read_text())
+        with (out / TREES_CSV).open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        page = build_report(doc, rows)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"No report: {out} holds no readable plot ({exc}); run the plot again."
+        ) from exc
+    path = out / REPORT
+    write_text_atomic(path, page)
+    return path
+
+
+def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> bytes:
+    """Draw the plot from above: trees, scans and links; return the PNG."""
+    from amrst.results.report_images import new_figure, png_bytes
+
+    xy = np.array([[_num(r["x_m"]), _num(r["y_m"])] for r in rows], float)
+    xy = xy.reshape(-1, 2)
+    scans = _scan_xy(doc, xy)
+    every = np.vstack([xy, *(p[None] for p in scans.values())]) if scans else xy
+    origin = _origin(every)
+    fig = new_figure(8, 8)
+    ax = fig.subplots()
+    ax.set_aspect("equal")
+    for link in doc.get("links", []):
+        a, b = scans.get(link["target"]), scans.get(link["source"])
+        if a is None or b is None:
+            continue
+        state = "accepted" if link.get("accepted") else link.get("status", "")
+        (x0, y0), (x1, y1) = a - origin, b - origin
+        ax.plot(
+            [x0, x1],
+            [y0, y1],
+            color=STATE_RGB.get(state, "#bdbdbd"),
+            lw=2.5 if link.get("in_tree") else 1.2,
+            ls="-" if link.get("in_tree") else "--",
+            zorder=1,
+        )
+    for k, p in scans.items():
+        x, y = p - origin
+        ax.plot(x, y, marker="^", ms=11, color="#455a64", zorder=3)
+        ax.annotate(f"S{k + 1}", (x, y), xytext=(6, -12), textcoords="offset points")
+    for r, (x, y) in zip(rows, xy - origin, strict=True):
+        dbh = _num(r.get("dbh_m"))
+        size = 30 + 900 * (dbh if np.isfinite(dbh) else 0.05)
+        ring = "#f44336" if r.get("mark") == "check" else "#212121"
+        ax.scatter(
+            x,
+            y,
+            s=size,
+            c=QUALITY_RGB.get(str(r.get("dbh_quality")), "#9e9e9e"),
+            edgecolors=ring,
+            linewidths=2.0 if r.get("mark") == "check" else 0.6,
+            zorder=2,
+        )
+        ax.annotate(
+            str(r["tree_id"]), (x, y), xytext=(5, 5), textcoords="offset points"
+        )
+    unit = "m" if not origin.any() else f"m (from {origin[0]:.0f}, {origin[1]:.0f})"
+    ax.set_xlabel(f"x, {unit}")
+    ax.set_ylabel("y, m")
+    ax.grid(alpha=0.3)
+    return png_bytes(fig)
+
+
+def _scan_xy(doc: Mapping[str, Any], trees: np.ndarray) -> dict[int, np.ndarray]:
+    """Where each placed scan's file origin lands, when among the trees."""
+    out = {}
+    for k, scan in enumerate(doc["scans"]):
+        T = scan.get("T_reference_scan")
+        if T is None:
+            continue
+        p = np.asarray(T, float)[:2, 3]
+        near = not len(trees) or np.hypot(*(trees - p).T).min() <= SCAN_REACH_M
+        if near:
+            out[k] = p
+    return out
+
+
+def _origin(xy: np.ndarray) -> np.ndarray:
+    if not len(xy) or np.abs(xy).max() < 1e4:
+        return np.zeros(2)
+    return np.asarray(np.floor(xy.min(axis=0) / ORIGIN_STEP_M) * ORIGIN_STEP_M)
+
+
+def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
+    states = [s.get("state", s.get("status", "")) for s in doc["scans"]]
+    counts = ", ".join(
+        f"{states.count(s)} {s}"
+        for s in ("registered", "accepted", "needs review", "failed")
+        if states.count(s)
+    )
+    sure = all(s in ("registered", "accepted") for s in states)
+    colour = STATE_RGB["registered" if sure else "needs review"]
+    bundle = _num(doc.get("bundle_rmse_m"))
+    checked = sum(1 for r in rows if r.get("mark") == "check")
+    return (
+        f'<div class="verdict" style="border-color:{colour}">'
+        f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
+        f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
+        f"at the final poses); {checked} trees marked check by you.</p></div>"
+    )
+
+
+def _scans(doc: Mapping[str, Any]) -> str:
+    rows = []
+    for k, s in enumerate(doc["scans"]):
+        path = s.get("path")
+        rows.append(
+            [
+                f"S{k + 1}",
+                _e(s.get("label", "")),
+                _e(s.get("state", s.get("status", ""))),
+                _e(
+                    "reference"
+                    if k == 0
+                    else "–"
+                    if path is None
+                    else "–".join(f"S{p}" for p in path)
+                ),
+                _e(s.get("stems", "")),
+            ]
+        )
+    head = ["Scan", "File", "State", "Placed through", "Stems"]
+    return "<h2>Scans</h2>" + html_table(head, rows)
+
+
+def _links(doc: Mapping[str, Any]) -> str:
+    rows = []
+    for ln in doc.get("links", []):
+        m = ln.get("metrics") or {}
+        state = "accepted" if ln.get("accepted") else ln.get("status", "")
+        if ln.get("loop_confirmed") and state != "registered":
+            state = "registered (loop)"
+        rows.append(
+            [
+                f"S{ln['target'] + 1}–S{ln['source'] + 1}"
+                + (" ★" if ln.get("in_tree") else ""),
+                _e(state),
+                _e(ln.get("origin", "")),
+                _e(ln.get("stems_shared", "")),
+                _pct(m.get("overlap_fraction")),
+                _cm(_num(m.get("rmse_overlap_m"))),
+                _e(ln.get("message", "")),
+            ]
+        )
+    head = ["Link", "State", "By", "Stems", "Overlap", "RMSE", "Why"]
+    return "<h2>Links</h2><p>★: in the spanning tree that places the scans.</p>" + (
+        html_table(head, rows)
+    )
+
+
+def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
+    body = [
+        [
+            _e(r["tree_id"]),
+            f"{_num(r['x_m']):.2f}, {_num(r['y_m']):.2f}, {_num(r['z_m']):.2f}",
+            _fixed(r.get("height_m"), 1) + f" ({_e(r.get('height_flag', ''))})",
+            _fixed(_num(r.get("dbh_m")) * 100, 1)
+            + f" ({_e(r.get('dbh_quality', ''))})",
+            _fixed(r.get("crown_width_m"), 1),
+            _e(r.get("seen_from", "")),
+            _e(r.get("mark", "")),
+        ]
+        for r in rows
+    ]
+    head = ["Tree", "x, y, z (m)", "Height m", "DBH cm", "Crown m", "Seen from", "Mark"]
+    return "<h2>Trees</h2>" + html_table(head, body)
+
+
+def _num(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _fixed(value: Any, digits: int) -> str:
+    v = _num(value)
+    return "–" if not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+def _cm(value: float) -> str:
+    return "–" if not np.isfinite(value) else f"{100 * value:.1f} cm"
+
+
+def _pct(value: Any) -> str:
+    v = _num(value)
+    return "–" if not np.isfinite(v) else f"{v:.0%}"
+
+
+def _e(value: object) -> str:
+    import html
+
+    return html.escape(str(value))
