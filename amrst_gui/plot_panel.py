@@ -149,7 +149,7 @@ class PlotWindow(QMainWindow):
         split.addWidget(self.stem_map)
         split.addWidget(self.tree_panel)
         split.setStretchFactor(1, 1)
-        split.setSizes([380, 620, 330])
+        split.setSizes([410, 600, 330])
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
         self.tree_panel.mark_chosen.connect(self.set_mark)
