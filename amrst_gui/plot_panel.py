@@ -459,12 +459,12 @@ class PlotWindow(QMainWindow):
 
     def write_report(self) -> Path | None:
         """Write report.html from the results folder's files and open it."""
-        from amrst.plot.report import write_report_from_folder
+        from amrst.plot.export import write_report
 
         if self.outcome is None:
             return None
         try:
-            path = write_report_from_folder(self.outcome.out)
+            path = write_report(self.outcome.out)
         except (AmrstError, OSError) as exc:
             self._say(f"No report: {exc}", error=True)
             return None

@@ -100,6 +100,33 @@ def export_inventory(
     write_atomic(path, writers[name])
 
 
+def write_report(out: Path) -> Path:
+    """Write ``report.html`` in ``out`` from its plot.json and trees.csv; return it.
+
+    Raises
+    ------
+    InvalidInput
+        The folder holds no readable plot.json and trees.csv (run the plot first).
+    """
+    import json
+
+    from amrst.files.atomic import write_text_atomic
+    from amrst.plot.report import build_report
+
+    try:
+        doc = json.loads((out / PLOT_JSON).read_text())
+        with (out / TREES_CSV).open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        page = build_report(doc, rows)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"No report: {out} holds no readable plot ({exc}); run the plot again."
+        ) from exc
+    path = out / REPORT
+    write_text_atomic(path, page)
+    return path
+
+
 def plot_document(
     reg: PlotRegistration,
     inventory: Inventory,

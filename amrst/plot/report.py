@@ -4,23 +4,20 @@ It is built from ``plot.json`` and the inventory's rows (with the technician's
 marks): the scans and their states, the links, the stem map (matplotlib's Agg, a PNG
 embedded as base64) and the tree list. ``amrst plot --report`` writes it with the run;
 the app writes it again from the folder's files after a review
-(:func:`write_report_from_folder`), so it says what those files say. No Qt.
+(``amrst.plot.export.write_report``), so it says what those files say. No Qt.
 """
 
 from __future__ import annotations
 
 import base64
-import csv
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.errors import InvalidInput
 from amrst.results.report_html import STYLE, html_table
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
-    from pathlib import Path
 
 REPORT = "report.html"
 #: Tree fills by DBH quality and scan-link colours by state, as the app draws them.
@@ -61,33 +58,6 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         + f"<p><small>Written by AMRST {__version__}; coordinates as in trees.csv."
         "</small></p></body></html>"
     )
-
-
-def write_report_from_folder(out: Path) -> Path:
-    """Write ``report.html`` in ``out`` from its plot.json and trees.csv; return it.
-
-    Raises
-    ------
-    InvalidInput
-        The folder holds no readable plot.json and trees.csv (run the plot first).
-    """
-    import json
-
-    from amrst.files.atomic import write_text_atomic
-    from amrst.plot.export import PLOT_JSON, TREES_CSV
-
-    try:
-        doc = json.loads((out / PLOT_JSON).read_text())
-        with (out / TREES_CSV).open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        page = build_report(doc, rows)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InvalidInput(
-            f"No report: {out} holds no readable plot ({exc}); run the plot again."
-        ) from exc
-    path = out / REPORT
-    write_text_atomic(path, page)
-    return path
 
 
 def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> bytes:

@@ -137,8 +137,8 @@ def test_the_app_s_review_holds_for_the_same_files_typed_as_relative_paths(
 
 
 def test_a_report_of_a_folder_without_a_plot_is_one_line(tmp_path):
-    from amrst.plot.report import write_report_from_folder
+    from amrst.plot.export import write_report
 
     with pytest.raises(InvalidInput, match="run the plot again") as err:
-        write_report_from_folder(tmp_path)
+        write_report(tmp_path)
     assert "\n" not in str(err.value)
