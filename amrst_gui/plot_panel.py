@@ -92,11 +92,11 @@ def ask_scans(parent: QWidget, settings) -> list[str]:
     return sorted(paths)
 
 
-def ask_replace(parent: QWidget, text: str) -> bool:
-    """Ask whether to replace a plot's output (tests answer it themselves)."""
+def confirm(parent: QWidget, title: str, text: str) -> bool:
+    """Ask Yes / Cancel (Cancel the default); tests answer it themselves."""
     answer = QMessageBox.question(
         parent,
-        "Replace the plot?",
+        title,
         text,
         QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
         QMessageBox.StandardButton.Cancel,
@@ -110,18 +110,6 @@ def open_in_browser(path: Path) -> None:
     from PySide6.QtGui import QDesktopServices
 
     QDesktopServices.openUrl(QUrl.fromLocalFile(str(path)))
-
-
-def ask_accept(parent: QWidget, text: str) -> bool:
-    """Ask whether to accept a link that needs review (tests answer it themselves)."""
-    answer = QMessageBox.question(
-        parent,
-        "Accept the link?",
-        text,
-        QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
-        QMessageBox.StandardButton.Cancel,
-    )
-    return answer == QMessageBox.StandardButton.Yes
 
 
 class PlotWindow(QMainWindow):
@@ -529,7 +517,7 @@ class PlotWindow(QMainWindow):
                 "Do so only after checking it (Open pair: the overlay; each tree's "
                 "slice here). The scans it places will read accepted."
             )
-            if not ask_accept(self, text):
+            if not confirm(self, "Accept the link?", text):
                 return
             accepted[line.key] = line.T_world
             done = f"Link {name} accepted at its pose"
@@ -575,7 +563,7 @@ class PlotWindow(QMainWindow):
             text += (
                 f" Its {PLOT_CLOUD} is removed (tick {PLOT_CLOUD} to write it again)."
             )
-        return True if ask_replace(self, text) else None
+        return True if confirm(self, "Replace the plot?", text) else None
 
     def _on_progress(self, fraction: float, message: str) -> None:
         self.progress.setValue(int(1000 * max(0.0, min(1.0, fraction))))

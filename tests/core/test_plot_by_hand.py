@@ -76,12 +76,9 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     pair_and_picks, tmp_path: Path
 ) -> None:
     clouds, t_pts, s_pts, T_true = pair_and_picks
-    files = [tmp_path / "s1.ply", tmp_path / "s2.ply"]
-    for f, c in zip(files, clouds, strict=True):
-        io.write(f, c)
+    scans = _files(clouds, tmp_path)
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, t_pts, s_pts)
-    scans = [str(f) for f in files]
     out = tmp_path / "out"
     assert (
         plot_main(
@@ -113,13 +110,11 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     from amrst.plot.review import PlotReview, write_review
 
     clouds, t_pts, s_pts, _ = pair_and_picks
-    files = [tmp_path / "s1.ply", tmp_path / "s2.ply"]
-    for f, c in zip(files, clouds, strict=True):
-        io.write(f, c)
     wrong = tmp_path / "wrong.csv"
     write_pairs(wrong, t_pts, s_pts[[1, 2, 3, 0]])  # a pose that needs review
     out = tmp_path / "out"
-    args = [*map(str, files), "--out", str(out), "--quiet", "--pairs", "1", "2"]
+    scans = _files(clouds, tmp_path)
+    args = [*scans, "--out", str(out), "--quiet", "--pairs", "1", "2"]
     assert plot_main([*args, str(wrong)]) == 3
     doc = json.loads((out / "plot.json").read_text())
     labels = [s["label"] for s in doc["scans"]]
@@ -171,10 +166,7 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
         register_plot(clouds, by_hand={(0, 2): picks}, left_out=[(0, 2)])
     with pytest.raises(InvalidInput, match="scans 1 to 3"):
         register_plot(clouds, left_out=[(0, 3)])
-    files = [tmp_path / f"s{k}.ply" for k in range(3)]
-    for f, c in zip(files, clouds, strict=True):
-        io.write(f, c)
-    args = [*map(str, files), "--out", str(tmp_path / "o"), "--quiet"]
+    args = [*_files(clouds, tmp_path), "--out", str(tmp_path / "o"), "--quiet"]
     assert plot_main([*args, "--leave-out", "1", "x"]) == 2
     assert plot_main([*args, "--leave-out", "1", "3"]) == 3  # 2-3 alone: unsure
     doc = json.loads((tmp_path / "o" / "plot.json").read_text())
@@ -183,3 +175,11 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
 
 def _moved(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     return xyz @ T[:3, :3].T + T[:3, 3]
+
+
+def _files(clouds: list[Cloud], folder: Path) -> list[str]:
+    """Write the scans as s1.ply, s2.ply, ... in ``folder``; return their paths."""
+    files = [folder / f"s{k + 1}.ply" for k in range(len(clouds))]
+    for f, c in zip(files, clouds, strict=True):
+        io.write(f, c)
+    return [str(f) for f in files]

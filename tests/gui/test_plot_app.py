@@ -153,11 +153,11 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     # Another run into the same folder asks first; "keep it" runs nothing.
     asked: list[str] = []
 
-    def keep_it(_parent: object, text: str) -> bool:
-        asked.append(text)
+    def keep_it(_parent: object, title: str, text: str) -> bool:
+        asked.append(f"{title} {text}")
         return False
 
-    monkeypatch.setattr(plot_panel, "ask_replace", keep_it)
+    monkeypatch.setattr(plot_panel, "confirm", keep_it)
     plot.run()
     assert len(asked) == 1
     assert "these scans" in asked[0]
@@ -271,7 +271,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     by = plot.links.item(0, 5)
     assert by is not None
     assert by.text() == "your pairs"  # the next run places it from the file
-    monkeypatch.setattr(plot_panel, "ask_replace", lambda *_: True)  # the same plot
+    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # the same plot
     plot.cloud_check.setChecked(True)  # and the registered plot this time
     _run(qtbot, plot)
     assert (tmp_path / "out" / "plot.laz").is_file()
@@ -316,10 +316,10 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert plot.accept_button.text() == "Accept"
 
     # Asked first; "Cancel" accepts nothing.
-    monkeypatch.setattr(plot_panel, "ask_accept", lambda *_: False)
+    monkeypatch.setattr(plot_panel, "confirm", lambda *_: False)
     plot.accept_button.click()
     assert read_review(tmp_path, found.labels).accepted == {}
-    monkeypatch.setattr(plot_panel, "ask_accept", lambda *_: True)
+    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)
     plot.accept_button.click()
     o = plot.outcome
     assert o is not None
