@@ -286,7 +286,7 @@ class PlotWindow(QMainWindow):
         for k, spec in enumerate(self.specs):
             self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
         if out is not None:
-            self.out_edit.setText(str(out))
+            self._set_out(str(out))
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(f"AMRST Studio: plot of {names}")
         if len(self.specs) < 2:
@@ -306,7 +306,15 @@ class PlotWindow(QMainWindow):
             self, "Results folder of the plot", start
         )
         if folder:
-            self.out_edit.setText(folder)
+            self._set_out(folder)
+
+    def _set_out(self, folder: str) -> None:
+        """Take the results folder; tick plot.laz when it already holds one (a run
+        again then writes it anew rather than removing it)."""
+        from amrst.plot.export import PLOT_CLOUD
+
+        self.out_edit.setText(folder)
+        self.cloud_check.setChecked((Path(folder).expanduser() / PLOT_CLOUD).is_file())
 
     def run(self) -> None:
         """Register and inventory the plot in the engine process."""

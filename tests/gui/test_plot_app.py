@@ -281,6 +281,9 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     cell = plot.links.item(0, 5)
     assert cell is not None
     assert cell.text() == "your pairs"  # and again at the next run
+    plot.cloud_check.setChecked(False)
+    plot.open_scans(plot_files, tmp_path / "out")  # opened again: keep writing it
+    assert plot.cloud_check.isChecked()
 
 
 def test_a_link_that_needs_review_is_accepted_at_its_pose(
