@@ -104,7 +104,7 @@ def run_cli(args: argparse.Namespace) -> int:
             clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
         )
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
-        write_plot(
+        written = write_plot(
             out,
             reg,
             inventory,
@@ -139,6 +139,7 @@ def run_cli(args: argparse.Namespace) -> int:
         f"{100 * reg.bundle_rmse_m:.1f} cm",
         file=sys.stderr,
     )
+    print(f"  wrote {_file_list(written)}", file=sys.stderr)
     if named[NEEDS_REVIEW]:
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
@@ -157,6 +158,13 @@ def run_cli(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
+
+
+def _file_list(written: list[Path]) -> str:
+    """Name the files a run wrote; the tree clouds as one entry."""
+    top = [p.name for p in written if p.parent.name != "trees"]
+    trees = len(written) - len(top)
+    return ", ".join(top + ([f"trees/ ({trees} clouds)"] if trees else []))
 
 
 def read_hand_pairs(

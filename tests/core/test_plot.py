@@ -79,7 +79,9 @@ def test_two_stems_0_6_m_apart_are_two_trees() -> None:
     assert xs == [0.0, 0.6]
 
 
-def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
+def test_inventory_columns_and_the_command(
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from amrst import io
 
     target, source, T_true = plot_pair
@@ -145,7 +147,11 @@ def test_inventory_columns_and_the_command(plot_pair, tmp_path: Path) -> None:
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
     write_review(out, labels, PlotReview({first: "check"}))
+    capsys.readouterr()
     assert plot_main([*args, "--overwrite", "--report"]) == 0
+    assert (
+        "wrote trees.csv, trees.xlsx, plot.json, report.html" in capsys.readouterr().err
+    )
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
     page = (out / "report.html").read_text()
