@@ -453,6 +453,16 @@ def register_plot(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     n = len(clouds)
+    # The technician's links are checked before minutes of analysis.
+    pairs = link_pairs(n, reference)
+    hand = _oriented(by_hand or {}, pairs, n)
+    dropped = {_link_key(i, j, pairs, n) for i, j in left_out}
+    if dropped & set(hand):
+        i, j = min(dropped & set(hand))
+        raise InvalidInput(
+            f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
+            "out: do one or the other."
+        )
     scans = tuple(
         analyse_plot_scan(
             c,
@@ -465,15 +475,6 @@ def register_plot(
     )
     timings["analyse"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    pairs = link_pairs(n, reference)
-    hand = _oriented(by_hand or {}, pairs, n)
-    dropped = {_link_key(i, j, pairs, n) for i, j in left_out}
-    if dropped & set(hand):
-        i, j = min(dropped & set(hand))
-        raise InvalidInput(
-            f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
-            "out: do one or the other."
-        )
     links = []
     for m, (i, j) in enumerate(pairs):
         sub = SubReporter(
