@@ -109,6 +109,20 @@ def _is_ours(name: str) -> bool:
     return name.startswith(HIDDEN_PREFIX)
 
 
+def _plain(name: str) -> bool:
+    """Tell whether ``name`` may be a file of the set.
+
+    Relative and inside the folder (a subfolder allowed, e.g. ``trees/T001.ply``), and
+    not one of ours.
+    """
+    parts = str(name).split("/")
+    return (
+        not os.path.isabs(name)
+        and all(p not in ("", ".", "..") for p in parts)
+        and not _is_ours(parts[0])
+    )
+
+
 def replace_files(
     folder: str | os.PathLike[str],
     writers: Mapping[str, Callable[[Path], object]],
@@ -293,10 +307,11 @@ def _roll_forward(real: Path, record: Mapping[str, object]) -> None:
         if src.exists():
             with contextlib.suppress(OSError):  # keep the permissions it replaces
                 os.chmod(src, dst.stat().st_mode & 0o777)
+            dst.parent.mkdir(parents=True, exist_ok=True)  # a new subfolder's file
             os.replace(src, dst)
     remove = record.get("remove", [])
     for name in remove if isinstance(remove, list) else []:
-        if not _is_ours(str(name)) and "/" not in str(name):
+        if _plain(str(name)):
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(real / str(name))
     _fsync(real)

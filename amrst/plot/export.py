@@ -240,8 +240,9 @@ def write_plot(
     """Write the run's files into ``out`` as one unit; return the files written.
 
     ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
-    reference's frame, world coordinates, ``scan_id`` its number from 1); without it
-    an earlier run's ``plot.laz`` is removed, as it no longer matches the poses.
+    reference's frame, world coordinates, ``scan_id`` its number from 1). An earlier
+    run's ``plot.laz`` and tree clouds that this run does not write again are removed,
+    as they no longer match its poses and trees.
     ``report``: also ``report.html`` (``amrst.plot.report``).
     """
     from amrst.files.atomic import strict_json
@@ -265,7 +266,10 @@ def write_plot(
 
         page = build_report(doc, _rows(inventory.trees, review.marks))
         writers[REPORT] = lambda p: p.write_text(page)
-    gone = () if write_cloud else (PLOT_CLOUD,)
+    # Clouds of an earlier run that this one does not write again no longer match it.
+    old = out / TREES_DIR
+    gone = [f"{TREES_DIR}/{p.name}" for p in old.glob("*.ply")] if old.is_dir() else []
+    gone += [] if write_cloud else [PLOT_CLOUD]
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     return written
 

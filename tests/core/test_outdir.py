@@ -271,3 +271,25 @@ def test_the_lock_of_a_dead_holder_is_taken_at_once(tmp_path: Path) -> None:
 def test_a_held_lock_names_its_holder(tmp_path: Path) -> None:
     with FolderLock(tmp_path), pytest.raises(FolderBusy, match=f"pid {os.getpid()}"):
         FolderLock(tmp_path, timeout_s=0.2).acquire()
+
+
+def test_files_in_a_new_subfolder_land_and_old_ones_go_in_journal_mode(tmp_path):
+    # A file the set does not manage puts the folder in journal mode.
+    (tmp_path / "notes.txt").write_text("mine")
+    writers = {
+        "a.txt": lambda p: p.write_text("a"),
+        "sub/b.txt": lambda p: (p.parent.mkdir(exist_ok=True), p.write_text("b")),
+    }
+    outdir.replace_files(tmp_path, writers, managed={"a.txt", "sub"})
+    assert (tmp_path / "sub" / "b.txt").read_text() == "b"
+    (tmp_path / "sub" / "old.txt").write_text("old")
+    outdir.replace_files(
+        tmp_path,
+        {"a.txt": lambda p: p.write_text("a2")},
+        managed={"a.txt", "sub"},
+        remove=["sub/old.txt", "sub/b.txt", "../notes.txt"],
+    )
+    assert not (tmp_path / "sub" / "old.txt").exists()
+    assert not (tmp_path / "sub" / "b.txt").exists()
+    assert (tmp_path / "notes.txt").read_text() == "mine"  # outside names are refused
+    assert (tmp_path / "a.txt").read_text() == "a2"

@@ -374,3 +374,22 @@ def test_a_tree_stands_where_its_stem_leaves_the_ground() -> None:
     assert len(tree) == 1
     assert tree[0].dbh_m == pytest.approx(0.3, abs=0.01)
     assert np.hypot(*tree[0].base[:2]) < 0.02
+
+
+def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Path):
+    from amrst import io
+
+    target, source, _ = plot_pair
+    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
+    for f, c in zip(files, (target, source), strict=True):
+        io.write(f, c)
+    out = tmp_path / "out"
+    args = [*map(str, files), "--out", str(out), "--quiet", "--overwrite"]
+    assert plot_main([*args, "--write-trees"]) == 0
+    clouds = sorted(p.name for p in (out / "trees").glob("*.ply"))
+    assert len(clouds) == len(STEMS)
+    io.write(out / "trees" / "T099.ply", target)  # a tree only an earlier run listed
+    assert plot_main([*args, "--write-trees"]) == 0
+    assert sorted(p.name for p in (out / "trees").glob("*.ply")) == clouds
+    assert plot_main(args) == 0
+    assert not list((out / "trees").glob("*.ply"))
