@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst.progress import Reporter, SubReporter
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
@@ -34,8 +35,7 @@ if TYPE_CHECKING:
 
 #: The slices shown per tree: their middles above the local ground (breast height
 #: the DBH's, the others to see the stem below and above it), half their thickness.
-SLICE_HEIGHTS_M = (0.6, 1.3, 2.0, 3.0)
-BREAST_HEIGHT_M = 1.3
+SLICE_HEIGHTS_M = (0.6, BREAST_HEIGHT_M, 2.0, 3.0)
 SLICE_HALF_M = 0.05
 #: The slices follow the stem line: through the DBH centre, leaning as the stem map
 #: measured, towards the DBH centre from the foot; at most ``MAX_LEAN_PER_M``.

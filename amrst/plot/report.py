@@ -20,8 +20,10 @@ if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
 REPORT = "report.html"
-#: Tree fills by DBH quality and scan-link colours by state, as the app draws them.
+#: Tree fills by DBH quality, the ring of the technician's mark and link colours by
+#: state: the report's and the app's stem map.
 QUALITY_RGB = {"ok": "#4caf50", "check": "#ffb300", "none": "#9e9e9e"}
+MARK_RGB = {"ok": "#ffffff", "check": "#f44336"}
 STATE_RGB = {
     "registered": "#4caf50",
     "accepted": "#26a69a",
@@ -93,7 +95,7 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
     for r, (x, y) in zip(rows, xy - origin, strict=True):
         dbh = _num(r.get("dbh_m"))
         size = 30 + 900 * (dbh if np.isfinite(dbh) else 0.05)
-        ring = "#f44336" if r.get("mark") == "check" else "#212121"
+        ring = MARK_RGB["check"] if r.get("mark") == "check" else "#212121"
         ax.scatter(
             x,
             y,

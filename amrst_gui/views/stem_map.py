@@ -19,22 +19,16 @@ from PySide6.QtCore import QPointF, QRectF, Qt, Signal
 from PySide6.QtGui import QColor, QFont, QImage, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
+# Fill of a tree by its DBH quality, ring by the technician's mark, link by its
+# state: the plot report's colours.
+from amrst.plot.report import MARK_RGB, QUALITY_RGB
+from amrst.plot.report import STATE_RGB as LINK_RGB
+
 if TYPE_CHECKING:
     from amrst_gui.plot_jobs import PlotOutcome, TreeSlice
 
 BACKGROUND = QColor(31, 33, 38)
 TEXT = QColor(230, 230, 230)
-#: Fill of a tree by its DBH quality.
-QUALITY_RGB = {"ok": (76, 175, 80), "check": (255, 179, 0), "none": (150, 150, 150)}
-#: Ring of a tree by the technician's mark (unmarked: none).
-MARK_RGB = {"ok": (255, 255, 255), "check": (244, 67, 54)}
-#: Colour of a link by its state.
-LINK_RGB = {
-    "registered": (76, 175, 80),
-    "accepted": (38, 166, 154),
-    "needs review": (255, 179, 0),
-    "failed": (244, 67, 54),
-}
 #: One colour per scan (repeats after eight).
 SCAN_RGB = (
     (255, 183, 77),
@@ -202,7 +196,7 @@ class StemMapView(QWidget):
             a, b = scans[link.target].xy, scans[link.source].xy
             if a is None or b is None:
                 continue
-            pen = QPen(QColor(*LINK_RGB.get(link.status, (200, 200, 200))))
+            pen = QPen(QColor(LINK_RGB.get(link.status, "#c8c8c8")))
             pen.setWidthF(3.0 if link.in_tree else 1.5)
             if not link.in_tree:
                 pen.setStyle(Qt.PenStyle.DashLine)
@@ -237,10 +231,10 @@ class StemMapView(QWidget):
             r = self._radius_px(k)
             rgb = QUALITY_RGB.get(tree.stem.dbh_quality, QUALITY_RGB["none"])
             mark = self.marks.get(tree.tree_id)
-            ring = QPen(QColor(*MARK_RGB[mark]) if mark else QColor(15, 15, 15))
+            ring = QPen(QColor(MARK_RGB[mark]) if mark else QColor(15, 15, 15))
             ring.setWidthF(2.5 if mark else 1.0)
             p.setPen(ring)
-            p.setBrush(QColor(*rgb))
+            p.setBrush(QColor(rgb))
             p.drawEllipse(QPointF(x, y), r, r)
             if k == self.selected:
                 p.setBrush(Qt.BrushStyle.NoBrush)
@@ -265,7 +259,7 @@ class StemMapView(QWidget):
         cx = x + 34
         for name, rgb in QUALITY_RGB.items():
             p.setPen(QPen(QColor(15, 15, 15), 1))
-            p.setBrush(QColor(*rgb))
+            p.setBrush(QColor(rgb))
             p.drawEllipse(QPointF(cx + 5, y - 4), 5, 5)
             p.setPen(TEXT)
             p.drawText(QPointF(cx + 13, y), name)
@@ -274,7 +268,7 @@ class StemMapView(QWidget):
         p.drawText(QPointF(x, y), "Links:")
         cx = x + 40
         for name, rgb in LINK_RGB.items():
-            p.setPen(QPen(QColor(*rgb), 3))
+            p.setPen(QPen(QColor(rgb), 3))
             p.drawLine(QPointF(cx, y - 4), QPointF(cx + 16, y - 4))
             p.setPen(TEXT)
             p.drawText(QPointF(cx + 20, y), name)
