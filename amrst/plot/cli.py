@@ -84,7 +84,7 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
-    from amrst.plot.review import ACCEPTED, read_review
+    from amrst.plot.review import ACCEPTED
     from amrst.terminal import TerminalReporter
 
     out = Path(args.out)
@@ -104,7 +104,7 @@ def run_cli(args: argparse.Namespace) -> int:
             clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
         )
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
-        written = write_plot(
+        written, states = write_plot(
             out,
             reg,
             inventory,
@@ -114,7 +114,6 @@ def run_cli(args: argparse.Namespace) -> int:
             write_cloud=args.write_cloud,
             report=args.report,
         )
-        states = reg.states(read_review(out, labels).accepted)
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

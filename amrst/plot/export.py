@@ -236,8 +236,11 @@ def write_plot(
     write_trees: bool = False,
     write_cloud: bool = False,
     report: bool = False,
-) -> list[Path]:
-    """Write the run's files into ``out`` as one unit; return the files written.
+) -> tuple[list[Path], list[str]]:
+    """Write the run's files into ``out`` as one unit.
+
+    Returns the files written and each scan's state as plot.json gives it (with the
+    review the folder held when it was written).
 
     ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
     reference's frame, world coordinates, ``scan_id`` its number from 1). An earlier
@@ -271,7 +274,7 @@ def write_plot(
     gone = [f"{TREES_DIR}/{p.name}" for p in old.glob("*.ply")] if old.is_dir() else []
     gone += [] if write_cloud else [PLOT_CLOUD]
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
-    return written
+    return written, [scan["state"] for scan in doc["scans"]]
 
 
 #: Every name a plot's run writes into its folder.
