@@ -315,6 +315,14 @@ def stored_link(link: LinkLine) -> StoredLinkResult | None:
     )
 
 
+def report_job(out: Path, reporter: Reporter) -> Path:
+    """Write report.html from the results folder's files (``plot.export``)."""
+    from amrst.plot.export import write_report
+
+    reporter.progress(0.0, "Writing the report")
+    return write_report(out)
+
+
 def tree_slices(inventory: Inventory, k: int) -> tuple[TreeSlice, ...]:
     """The merged plot's points around tree k at each of ``SLICE_HEIGHTS_M`` (± 5 cm
     above the local ground), around its stem line (``MAX_LEAN_PER_M``)."""

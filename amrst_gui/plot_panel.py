@@ -130,6 +130,7 @@ class PlotWindow(QMainWindow):
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
+        self.report_job: StageJob | None = None
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
         split = QSplitter(Qt.Orientation.Horizontal)
@@ -453,20 +454,22 @@ class PlotWindow(QMainWindow):
             return
         self._say(f"{len(o.trees)} trees, with your marks, exported to {path}")
 
-    def write_report(self) -> Path | None:
-        """Write report.html from the results folder's files and open it."""
-        from amrst.plot.export import write_report
+    def write_report(self) -> None:
+        """Write report.html from the results folder's files in a worker, then open
+        it (the stem map is drawn with matplotlib: not on the GUI thread)."""
+        from amrst_gui import workers
 
-        if self.outcome is None:
-            return None
-        try:
-            path = write_report(self.outcome.out)
-        except (AmrstError, OSError) as exc:
-            self._say(f"No report: {exc}", error=True)
-            return None
-        self._say(f"Report written: {path}")
-        open_in_browser(path)
-        return path
+        if self.outcome is None or self.report_job is not None:
+            return
+        self._say("Writing the report…")
+        self.report_job = workers.run_stage(
+            plot_jobs.report_job,
+            self.outcome.out,
+            name="report",
+            on_result=self._on_report,
+            on_error=self._on_report_error,
+        )
+        self._update_link_buttons()
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere."""
@@ -548,10 +551,11 @@ class PlotWindow(QMainWindow):
         self._say(f"{done} (saved in {REVIEW_JSON} and plot.json). {self._summary()}")
 
     def shutdown(self) -> None:
-        """Drop a running plot (the main window closes)."""
-        if self.job is not None:
-            self.job.discard()
-            self.job = None
+        """Drop a running plot or report (the main window closes)."""
+        for job in (self.job, self.report_job):
+            if job is not None:
+                job.discard()
+        self.job = self.report_job = None
 
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
@@ -633,6 +637,18 @@ class PlotWindow(QMainWindow):
         if missing:
             line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
         return line
+
+    def _on_report(self, path: Path) -> None:
+        self.report_job = None
+        self._update_link_buttons()
+        self._say(f"Report written: {path}")
+        open_in_browser(path)
+
+    def _on_report_error(self, exc: BaseException) -> None:
+        self.report_job = None
+        self._update_link_buttons()
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        self._say(f"No report: {text}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
         self.job = None
@@ -730,7 +746,9 @@ class PlotWindow(QMainWindow):
         link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
         self.export_button.setEnabled(self.outcome is not None and not self.busy)
-        self.report_button.setEnabled(self.outcome is not None and not self.busy)
+        self.report_button.setEnabled(
+            self.outcome is not None and not self.busy and self.report_job is None
+        )
         accepted = line is not None and line.status == ACCEPTED
         self.accept_button.setEnabled(
             accepted

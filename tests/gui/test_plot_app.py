@@ -141,7 +141,9 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     opened: list[Path] = []
     monkeypatch.setattr(plot_panel, "open_in_browser", opened.append)
     plot.report_button.click()
+    qtbot.waitUntil(lambda: bool(opened), timeout=30_000)  # drawn off the GUI thread
     assert opened == [out / "report.html"]
+    assert plot.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
     assert "1 trees marked check by you" in opened[0].read_text()
     cell = plot.trees.item(k, 5)
