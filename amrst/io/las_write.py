@@ -49,17 +49,6 @@ def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
     return max(scored)[2]
 
 
-def _quantize(cloud: Cloud) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Scales (3,), offsets (3,) and the (N, 3) int32 coordinates for the header."""
-    if len(cloud) == 0:
-        scales, offsets = _frame(None, cloud.offset, cloud.meta)
-        return scales, offsets, np.zeros((0, 3), np.int32)
-    box = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
-    scales, offsets = _frame(box, cloud.offset, cloud.meta)
-    local = cloud.xyz + (cloud.offset - offsets)
-    return scales, offsets, np.round(local / scales).astype(np.int32)
-
-
 def _frame(
     box: tuple[np.ndarray, np.ndarray] | None,
     offset: np.ndarray,
@@ -109,53 +98,11 @@ def _fit(dim: Any, values: np.ndarray) -> tuple[np.ndarray, bool]:
     return fitted.astype(dim.dtype or np.uint8), exact
 
 
-def _split(cloud: Cloud, point_format: int) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Attributes for standard dimensions and for extra dimensions."""
-    import laspy
-
-    fmt = laspy.PointFormat(point_format)
-    standard: dict[str, np.ndarray] = {}
-    extra: dict[str, np.ndarray] = {}
-    for name, values in flat_attributes(cloud).items():
-        if name in dimension_names(point_format):
-            standard[name], exact = _fit(fmt.dimension_by_name(name), values)
-            if exact:
-                continue
-            name = PREFIX + name
-        value = storable(values, allow_int64=True, name=name)
-        if value is not None:
-            if len(name) > 32:
-                logger.warning(
-                    "LAS extra dimension name %r cut to 32 characters.", name
-                )
-            extra[name[:32]] = value
-    return standard, extra
-
-
 def write_las(
     path: Path, cloud: Cloud, *, binary: bool = True, compress: bool = False
 ) -> None:
     """Write LAS (or LAZ when ``compress``) keeping every attribute; see module docs."""
-    import laspy
-
-    point_format = _choose_format(set(flat_attributes(cloud)), cloud.meta)
-    standard, extra = _split(cloud, point_format)
-    version = "1.4" if cloud.meta.get("las_version") == "1.4" else None
-    header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales, header.offsets, ints = _quantize(cloud)
-    header.add_extra_dims(
-        [laspy.ExtraBytesParams(name, v.dtype.str[1:]) for name, v in extra.items()]
-    )
-    for user_id, record_id, description, data in cloud.meta.get("las_vlrs", ()):
-        header.vlrs.append(laspy.VLR(user_id, record_id, description, data))
-    las = laspy.LasData(
-        header, points=laspy.ScaleAwarePointRecord.zeros(len(cloud), header=header)
-    )
-    las.X, las.Y, las.Z = ints[:, 0], ints[:, 1], ints[:, 2]
-    for name, values in {**standard, **extra}.items():
-        las[name] = values
-    with open(path, "wb") as f:
-        las.write(f, do_compress=compress)
+    write_las_parts(path, [cloud], [np.eye(4)], cloud.offset, None, compress=compress)
 
 
 def write_las_parts(
@@ -163,50 +110,42 @@ def write_las_parts(
     parts: Sequence[Cloud],
     moves: Sequence[Transform],
     offset: np.ndarray,
-    ids: Sequence[int],
+    ids: Sequence[int] | None,
     *,
     compress: bool = True,
 ) -> None:
     """Write clouds moved into one frame as one LAS (LAZ when ``compress``) file.
 
     ``moves[k]`` takes ``parts[k]``'s local coordinates into the frame whose origin
-    is ``offset`` (world coordinates); every point of part k gets ``scan_id`` =
-    ``ids[k]``. The attributes every part has are kept, as :func:`write_las` keeps
-    them; no more than ``CHUNK_POINTS`` points are moved at a time.
+    is ``offset`` (world coordinates); with ``ids``, every point of part k gets
+    ``scan_id`` = ``ids[k]``. The attributes every part has are kept; the first
+    part's LAS version and VLRs (e.g. its coordinate system) are the file's. No more
+    than ``CHUNK_POINTS`` points are moved at a time.
     """
     import laspy
 
     offset = np.asarray(offset, float)
     every = [set(flat_attributes(c)) for c in parts]
-    names = (set.intersection(*every) if every else set()) - {"scan_id"}
+    names = set.intersection(*every) if every else set()
+    if ids is not None:
+        names.discard("scan_id")
     meta = parts[0].meta if parts else {}
     point_format = _choose_format(names, meta)
-    fmt = laspy.PointFormat(point_format)
-    standard: set[str] = set()
-    extra: dict[str, tuple[str, np.dtype[Any]]] = {}  # dimension: (attribute, dtype)
-    for name in sorted(names):
-        columns = [flat_attributes(c)[name] for c in parts]
-        key = name
-        if name in dimension_names(point_format):
-            # As write_las: the standard field, and the exact values beside it
-            # when the field cannot hold them.
-            standard.add(name)
-            dim = fmt.dimension_by_name(name)
-            if all(_fit(dim, v)[1] for v in columns):
-                continue
-            key = PREFIX + name
-        kept = [storable(v, allow_int64=True, name=name) for v in columns]
-        if all(v is not None for v in kept):
-            dtype = np.result_type(*(v.dtype for v in kept if v is not None))
-            extra[key[:32]] = (name, dtype)
-    header = laspy.LasHeader(point_format=point_format)
+    standard, extra = _plan(parts, names, point_format)
+    version = "1.4" if meta.get("las_version") == "1.4" else None
+    header = laspy.LasHeader(point_format=point_format, version=version)
     header.scales, header.offsets = _frame(_moved_box(parts, moves), offset, meta)
-    dims = {"scan_id": np.dtype(np.uint16)} | {k: dt for k, (_, dt) in extra.items()}
+    dims = {k: dt for k, (_, dt) in extra.items()}
+    if ids is not None:
+        dims["scan_id"] = np.dtype(np.uint16)
     header.add_extra_dims(
         [laspy.ExtraBytesParams(name, dtype.str[1:]) for name, dtype in dims.items()]
     )
+    for user_id, record_id, description, data in meta.get("las_vlrs", ()):
+        header.vlrs.append(laspy.VLR(user_id, record_id, description, data))
+    fmt = laspy.PointFormat(point_format)
     with laspy.open(path, mode="w", header=header, do_compress=compress) as writer:
-        for cloud, T, scan_id in zip(parts, moves, ids, strict=True):
+        for k, (cloud, T) in enumerate(zip(parts, moves, strict=True)):
             attrs = flat_attributes(cloud)
             R, t = np.asarray(T, float)[:3, :3], np.asarray(T, float)[:3, 3]
             shift = t + offset - header.offsets
@@ -216,13 +155,46 @@ def write_las_parts(
                 record = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
                 ints = np.round(xyz / header.scales).astype(np.int32)
                 record.X, record.Y, record.Z = ints[:, 0], ints[:, 1], ints[:, 2]
-                record["scan_id"] = np.full(len(xyz), scan_id, np.uint16)
+                if ids is not None:
+                    record["scan_id"] = np.full(len(xyz), ids[k], np.uint16)
                 for name in standard:
                     dim = fmt.dimension_by_name(name)
                     record[name] = _fit(dim, attrs[name][rows])[0]
                 for key, (name, dtype) in extra.items():
                     record[key] = np.asarray(attrs[name][rows], dtype)
                 writer.write_points(record)
+
+
+def _plan(
+    parts: Sequence[Cloud], names: set[str], point_format: int
+) -> tuple[set[str], dict[str, tuple[str, np.dtype[Any]]]]:
+    """Which attributes go into standard dimensions, and the extra ones.
+
+    A standard-named attribute fills its field; when the field cannot hold its
+    values exactly (in any part), they are also kept in ``amrst_<name>``. Returns
+    the standard names and ``{extra dimension: (attribute, dtype)}``.
+    """
+    import laspy
+
+    fmt = laspy.PointFormat(point_format)
+    standard: set[str] = set()
+    extra: dict[str, tuple[str, np.dtype[Any]]] = {}
+    for name in sorted(names):
+        columns = [flat_attributes(c)[name] for c in parts]
+        key = name
+        if name in dimension_names(point_format):
+            standard.add(name)
+            dim = fmt.dimension_by_name(name)
+            if all(_fit(dim, v)[1] for v in columns):
+                continue
+            key = PREFIX + name
+        kept = [storable(v, allow_int64=True, name=name) for v in columns]
+        if all(v is not None for v in kept):
+            if len(key) > 32:
+                logger.warning("LAS extra dimension name %r cut to 32 characters.", key)
+            dtype = np.result_type(*(v.dtype for v in kept if v is not None))
+            extra[key[:32]] = (name, dtype)
+    return standard, extra
 
 
 def _moved_box(
