@@ -5,6 +5,7 @@ With no files it opens the bundled sample pair (resources/sample), ready to run.
 one tree (default: the first listed) from its stored result.
 ``--plot SCAN SCAN [SCAN ...] [--out DIR]`` opens a forest plot's scans in the Plot
 window (the first is the reference; DIR: its results folder); ``--run all`` runs it.
+``--plot-results DIR`` shows the plot a results folder holds, without running it.
 ``--screenshot PATH`` saves the window once the scans are shown (after ``--run
 STEP`` if given) and quits: used for the README and for checking headless runs.
 """
@@ -73,6 +74,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "reference)",
     )
     parser.add_argument(
+        "--plot-results",
+        type=Path,
+        metavar="DIR",
+        help="show the plot a results folder holds (amrst plot --out DIR) in the "
+        "Plot window, without running it",
+    )
+    parser.add_argument(
         "--out",
         type=Path,
         metavar="DIR",
@@ -84,6 +92,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="window size for --screenshot, e.g. 1366x768 (default: fit the screen)",
     )
     args = parser.parse_args(argv)
+    if args.plot is not None and args.plot_results is not None:
+        parser.error("give --plot SCANS or --plot-results DIR, not both")
+    if args.plot_results is not None and args.run is not None:
+        parser.error("--plot-results shows a plot as written: give no --run")
     if args.plot is not None and len(args.plot) < 2:
         parser.error("--plot needs two or more scans (the first is the reference)")
     if args.plot is not None and args.run is not None and args.out is None:
@@ -186,11 +198,14 @@ def _open_campaign(win, folder: Path, tree: str | None) -> bool:
 
 
 def _open_plot(app, win, args: argparse.Namespace) -> None:
-    """Open the plot's scans in the Plot window; run it and save a screenshot if
-    asked (after the run, or at once without ``--run``), then quit."""
+    """Open the plot's scans (or results) in the Plot window; run it and save a
+    screenshot if asked (after the run or the opening, or at once), then quit."""
     from PySide6.QtCore import QTimer
 
-    plot = win.open_plot(list(args.plot), args.out)
+    if args.plot_results is not None:
+        plot = win.open_plot_results(args.plot_results)
+    else:
+        plot = win.open_plot(list(args.plot), args.out)
     if args.size:
         w, _x, h = args.size.partition("x")
         plot.resize(int(w), int(h))
@@ -249,10 +264,10 @@ def main(argv: list[str] | None = None) -> int:
     target, source, truth = resolve_inputs(args)
     shot = (
         _Screenshot(app, win, args.screenshot, args.run, args.tab)
-        if args.screenshot and args.plot is None
+        if args.screenshot and args.plot is None and args.plot_results is None
         else None
     )
-    if args.plot is not None:
+    if args.plot is not None or args.plot_results is not None:
         _open_plot(app, win, args)
     elif args.campaign is not None:
         if not _open_campaign(win, args.campaign, args.tree):

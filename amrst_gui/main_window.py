@@ -276,12 +276,32 @@ class MainWindow(QMainWindow):
 
     def open_plot(self, paths: list, out: Path | None = None) -> PlotWindow:
         """Show the Plot window with these scans (and results folder, if given)."""
+        plot = self._plot_window()
+        plot.open_scans(paths, out)
+        return plot
+
+    def open_plot_results_dialog(self) -> None:
+        """Ask for a plot's results folder; show the plot it holds."""
+        from PySide6.QtWidgets import QFileDialog
+
+        folder = QFileDialog.getExistingDirectory(
+            self, "A plot's results folder (it holds plot.json)", str(Path.home())
+        )
+        if folder:
+            self.open_plot_results(Path(folder))
+
+    def open_plot_results(self, out: Path) -> PlotWindow:
+        """Show the Plot window with the plot ``out`` holds (no run)."""
+        plot = self._plot_window()
+        plot.open_results(out)
+        return plot
+
+    def _plot_window(self) -> PlotWindow:
         from amrst_gui.plot_panel import PlotWindow
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
             self.plot_window.pair_chosen.connect(self.open_plot_pair)
-        self.plot_window.open_scans(paths, out)
         self.plot_window.show()
         self.plot_window.raise_()
         return self.plot_window

@@ -15,6 +15,7 @@ def build(window) -> QToolBar:
         file_menu.addAction(action)
     file_menu.addAction("Cut a &tree from a plot file…", lambda: _clip_dialog(window))
     file_menu.addAction("Open &plot…", window.open_plot_dialog)
+    file_menu.addAction("Open plot r&esults…", window.open_plot_results_dialog)
     file_menu.addSeparator()
     file_menu.addAction(a.load_params)
     file_menu.addAction(a.save_params)

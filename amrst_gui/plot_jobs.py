@@ -3,8 +3,10 @@
 :func:`run_plot` is ``amrst plot SCANS --out DIR`` for the app: it reads the scans,
 registers them (``amrst.plot.register``), takes the inventory
 (``amrst.plot.inventory``) and writes the plot into the results folder
-(``amrst.plot.export``), then hands back a :class:`PlotOutcome`: what the stem map
-and the tree view draw, a few thousand points at most, never the scans.
+(``amrst.plot.export``). :func:`open_results` reads such a folder back, whoever wrote
+it, as a :class:`PlotOutcome`: what the stem map and the tree view draw, a few
+thousand points at most, never the scans. A run hands back its folder read that way,
+so the window shows what the files say.
 
 :func:`reviewed` shows the outcome with the technician's review
 (``amrst.plot.review``): the links they accepted, and the scans those place.
@@ -20,7 +22,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst.progress import Reporter, SubReporter
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
@@ -29,23 +30,8 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.campaign.stored import StoredLinkResult
-    from amrst.plot.inventory import Inventory, Tree
-    from amrst.plot.register import PlotRegistration
-    from amrst.types import Cloud
-
-#: The slices shown per tree: their middles above the local ground (breast height
-#: the DBH's, the others to see the stem below and above it), half their thickness.
-SLICE_HEIGHTS_M = (0.6, BREAST_HEIGHT_M, 2.0, 3.0)
-SLICE_HALF_M = 0.05
-#: The slices follow the stem line: through the DBH centre, leaning as the stem map
-#: measured, towards the DBH centre from the foot; at most ``MAX_LEAN_PER_M``.
-MAX_LEAN_PER_M = 0.2
-#: Points kept around the stem in the slice (m beyond its radius).
-SLICE_MARGIN_M = 0.3
-#: Cell of the top view drawn under the stem map (m).
-TOP_CELL_M = 0.25
-#: Vegetation in the top view: points this high above the ground.
-TOP_MIN_HEIGHT_M = 0.5
+    from amrst.plot.inventory import Tree
+    from amrst.plot.view import TopView, TreeSlice
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,30 +66,12 @@ class LinkLine:
     # as plot.json and review.json give it; a point among the source's (its offset).
     T_world: np.ndarray | None = None
     at: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # Placed from point pairs: ((scan of the target points, of the source's), file).
+    pairs: tuple[tuple[int, int], str] | None = None
 
     @property
     def key(self) -> tuple[int, int]:
         return self.target, self.source
-
-
-@dataclass(frozen=True, slots=True)
-class TreeSlice:
-    """The points around one stem at one height and the scan each came from."""
-
-    xy: np.ndarray  # (N, 2) reference local frame
-    scan: np.ndarray  # (N,) 0-based scan index
-    height_m: float = BREAST_HEIGHT_M  # above the local ground
-    centre: np.ndarray | None = None  # (2,) the stem line there; None: the DBH's
-
-
-@dataclass(frozen=True, slots=True)
-class TopView:
-    """Vegetation density seen from above: ``image[row, col]``, row 0 at ``y0``."""
-
-    image: np.ndarray  # (H, W) uint8
-    x0: float
-    y0: float
-    cell_m: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,36 +153,94 @@ def run_plot(
         clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")
     )
     reporter.progress(0.95, "Writing the plot")
-    write_plot(out, reg, inventory, labels, clouds, write_cloud=write_cloud)
+    write_plot(
+        out,
+        reg,
+        inventory,
+        labels,
+        clouds,
+        write_cloud=write_cloud,
+        pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
+    )
     reporter.progress(1.0, "Plot written")
+    return open_results(out, reporter, seconds=time.perf_counter() - start)
+
+
+def open_results(
+    out: Path, reporter: Reporter, *, seconds: float = float("nan")
+) -> PlotOutcome:
+    """Read the plot ``out`` holds (``amrst plot`` or a run of the app wrote it).
+
+    Raises
+    ------
+    InvalidInput
+        No plot there, or one whose files cannot be read (run it again).
+    """
+    from amrst.plot.export import read_plot
+
+    reporter.progress(0.0, f"Reading the plot in {out}")
+    files = read_plot(out)
+    doc, view = files.doc, files.view
+    try:
+        scans = tuple(
+            ScanPlace(
+                label=scan["label"],
+                xy=None if np.isnan(xy).any() else xy,
+                stems=int(scan["stems"]),
+                status=scan["status"],
+                doubts=None
+                if scan["unsure_links"] is None
+                else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
+            )
+            for scan, xy in zip(doc["scans"], view.scan_xy, strict=True)
+        )
+        links = tuple(_link_line(entry, view.offsets) for entry in doc["links"])
+        bundle = _float(doc["bundle_rmse_m"])
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise InvalidInput(
+            f"{out} holds a plot.json this version cannot read ({exc}): run the "
+            "plot again."
+        ) from exc
     return PlotOutcome(
         out=out,
-        labels=tuple(labels),
-        trees=inventory.trees,
-        scans=_scan_places(reg, labels),
-        links=tuple(
-            _link_line(pl, reg.loop_confirms(pl.link), clouds) for pl in reg.links
-        ),
-        bundle_rmse_m=reg.bundle_rmse_m,
-        slices=tuple(tree_slices(inventory, k) for k in range(len(inventory.trees))),
-        top=top_view(inventory),
-        seconds=time.perf_counter() - start,
+        labels=tuple(s.label for s in scans),
+        trees=files.trees,
+        scans=scans,
+        links=links,
+        bundle_rmse_m=bundle,
+        slices=view.slices,
+        top=view.top,
+        seconds=seconds,
     )
 
 
-def _scan_places(reg: PlotRegistration, labels: Sequence[str]) -> tuple[ScanPlace, ...]:
-    return tuple(
-        ScanPlace(
-            label,
-            None if pose is None else np.asarray(pose[:2, 3], float),
-            len(scan.stems.stems),
-            status,
-            doubts,
-        )
-        for label, pose, scan, status, doubts in zip(
-            labels, reg.poses, reg.scans, reg.statuses, reg.doubts(), strict=True
-        )
+def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
+    """A plot.json link as drawn: registered when a loop of links confirms it."""
+    confirmed = bool(entry["loop_confirmed"])
+    m = entry["metrics"] or {}
+    T, p = entry["T_target_source"], entry["pairs"]
+    source = int(entry["source"])
+    return LinkLine(
+        target=int(entry["target"]),
+        source=source,
+        status=REGISTERED if confirmed else entry["status"],
+        confirmed=confirmed and entry["status"] != REGISTERED,
+        in_tree=bool(entry["in_tree"]),
+        origin=entry["origin"],
+        overlap=_float(m.get("overlap_fraction")),
+        rmse_m=_float(m.get("rmse_overlap_m")),
+        shared=int(entry["stems_shared"]),
+        message=entry["message"],
+        score=_float(entry["score"]),
+        T_world=None if T is None else np.array(T, float).reshape(4, 4),
+        at=np.asarray(offsets[source], float),
+        pairs=None if p is None else ((int(p["target"]), int(p["source"])), p["file"]),
     )
+
+
+def _float(value: Any) -> float:
+    """A number of plot.json (null: NaN)."""
+    return float("nan") if value is None else float(value)
 
 
 def reviewed(
@@ -251,33 +277,6 @@ def reviewed(
         replace(s, status=scan_state(s.status, s.doubts, keep)) for s in found.scans
     )
     return replace(found, links=tuple(links), scans=scans)
-
-
-def _link_line(pl: Any, confirmed: bool, clouds: Sequence[Cloud]) -> LinkLine:
-    """The link as drawn: registered when a loop of links confirms it."""
-    from amrst.types import world_transform
-
-    link, m = pl.link, pl.link.metrics
-    T_world = None
-    if link.T_local is not None:
-        T_world = world_transform(
-            link.T_local, clouds[link.target], clouds[link.source]
-        )
-    return LinkLine(
-        target=link.target,
-        source=link.source,
-        status=REGISTERED if confirmed else link.status,
-        confirmed=confirmed and link.status != REGISTERED,
-        in_tree=link.in_tree,
-        origin=link.origin,
-        overlap=float("nan") if m is None else float(m.overlap_fraction),
-        rmse_m=float("nan") if m is None else float(m.rmse_overlap_m),
-        shared=len(pl.shared),
-        message=link.message,
-        score=float(link.score),
-        T_world=T_world,
-        at=np.asarray(clouds[link.source].offset, float),
-    )
 
 
 def stored_link(link: LinkLine) -> StoredLinkResult | None:
@@ -321,58 +320,6 @@ def report_job(out: Path, reporter: Reporter) -> Path:
 
     reporter.progress(0.0, "Writing the report")
     return write_report(out)
-
-
-def tree_slices(inventory: Inventory, k: int) -> tuple[TreeSlice, ...]:
-    """The merged plot's points around tree k at each of ``SLICE_HEIGHTS_M`` (± 5 cm
-    above the local ground), around its stem line (``MAX_LEAN_PER_M``)."""
-    sm = inventory.stem_map
-    stem = inventory.trees[k].stem
-    dbh_xy = np.asarray(stem.dbh_xy, float)
-    towards = dbh_xy - np.asarray(stem.base[:2], float)
-    norm = float(np.hypot(*towards))
-    per_m = min(np.tan(np.radians(np.nan_to_num(stem.lean_deg))), MAX_LEAN_PER_M)
-    lean = towards / norm * per_m if norm > 1e-3 else np.zeros(2)
-    radius = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.2) + SLICE_MARGIN_M
-    reach = radius + MAX_LEAN_PER_M * max(
-        abs(z - BREAST_HEIGHT_M) for z in SLICE_HEIGHTS_M
-    )
-    near = np.flatnonzero(np.hypot(*(sm.xyz[:, :2] - dbh_xy).T) <= reach)
-    h = sm.ground.height(sm.xyz[near]) if len(near) else np.zeros(0)
-    out = []
-    for z in SLICE_HEIGHTS_M:
-        centre = dbh_xy + lean * (z - BREAST_HEIGHT_M)
-        keep = near[
-            (np.abs(h - z) <= SLICE_HALF_M)
-            & (np.hypot(*(sm.xyz[near, :2] - centre).T) <= radius)
-        ]
-        out.append(
-            TreeSlice(
-                np.asarray(sm.xyz[keep, :2], float),
-                np.asarray(inventory.scan_of_point[keep], np.int64),
-                z,
-                centre,
-            )
-        )
-    return tuple(out)
-
-
-def top_view(inventory: Inventory) -> TopView | None:
-    """The plot's vegetation seen from above (log density), None without ground."""
-    sm = inventory.stem_map
-    if not sm.ground.found or not len(sm.xyz):
-        return None
-    pts = sm.xyz[sm.ground.height(sm.xyz) >= TOP_MIN_HEIGHT_M]
-    if not len(pts):
-        return None
-    lo = np.floor(pts[:, :2].min(axis=0) / TOP_CELL_M) * TOP_CELL_M
-    cells = np.floor((pts[:, :2] - lo) / TOP_CELL_M).astype(np.int64)
-    shape = cells.max(axis=0) + 1
-    counts = np.zeros((shape[1], shape[0]), np.float64)
-    np.add.at(counts, (cells[:, 1], cells[:, 0]), 1.0)
-    scaled = np.log1p(counts) / max(float(np.log1p(counts.max())), 1e-9)
-    image = np.round(255 * scaled).astype(np.uint8)
-    return TopView(image, float(lo[0]), float(lo[1]), TOP_CELL_M)
 
 
 def same_plot(out: Path, labels: Sequence[str]) -> bool:

@@ -8,7 +8,8 @@ at once, a failure is one line. The result shows as the stem map (centre), the
 links and trees (left) and the selected tree (right). A mark (ok / check) and an
 accepted link are written to ``review.json`` in the results folder the moment they are
 made (``amrst.plot.review``); the window shows the run as that review leaves it
-(``plot_jobs.reviewed``).
+(``plot_jobs.reviewed``). ``open_results(folder)`` shows a plot written before (by
+the app or ``amrst plot``) the same way, without running it.
 
 A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
 j, its pose as a stored result or None)`` so the main window shows the two scans at
@@ -113,7 +114,8 @@ def open_in_browser(path: Path) -> None:
 
 
 class PlotWindow(QMainWindow):
-    """Open, run and review one plot. Emits ``plot_done(outcome)`` after a run."""
+    """Open, run and review one plot. Emits ``plot_done(outcome)`` when a run's or
+    a results folder's plot shows."""
 
     plot_done = Signal(object)
     pair_chosen = Signal(str, str, object)
@@ -175,7 +177,8 @@ class PlotWindow(QMainWindow):
         self.progress.setTextVisible(False)
         self.progress.setMaximumHeight(10)
         self.status = QLabel(
-            "Open a plot's scans: File ▸ Open plot… in the main window."
+            "Open a plot's scans (File ▸ Open plot… in the main window), or the "
+            "results of one run before (File ▸ Open plot results…)."
         )
         self.status.setObjectName("plot_status")
         self.status.setWordWrap(True)
@@ -274,7 +277,6 @@ class PlotWindow(QMainWindow):
         if self.busy:
             self._say("A plot is running: cancel it first.", error=True)
             return False
-        self.specs = [str(Path(p).resolve()) for p in paths]
         self.found = self.outcome = None
         self.marks, self.accepted, self.hand_pairs = {}, {}, {}
         self.left_out = set()
@@ -283,13 +285,11 @@ class PlotWindow(QMainWindow):
         fill(self.links, [])
         fill(self.trees, [])
         self._update_link_buttons()
-        self.scan_list.clear()
-        for k, spec in enumerate(self.specs):
-            self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
+        self._take_scans(paths)
         if out is not None:
             self._set_out(str(out))
-        names = ", ".join(Path(s).name for s in self.specs)
-        self.setWindowTitle(f"AMRST Studio: plot of {names}")
+        if not paths:
+            return True
         if len(self.specs) < 2:
             self._say("A plot needs two or more scans: open them together.", error=True)
         else:
@@ -297,6 +297,40 @@ class PlotWindow(QMainWindow):
                 f"{len(self.specs)} scans. Run plot registers and inventories them."
             )
         return True
+
+    def open_results(self, out: Path) -> bool:
+        """Show the plot a results folder holds, without running it; False while a
+        run goes on.
+
+        Its scans become the window's (Run plot runs them again into that folder), and
+        so do the links it placed from point pairs or left out.
+        """
+        from amrst_gui import workers
+
+        if self.busy:
+            self._say("A plot is running: cancel it first.", error=True)
+            return False
+        self.open_scans([], out)
+        self.setWindowTitle(f"AMRST Studio: plot in {out}")
+        self._set_running(True)
+        self._say(f"Opening the plot in {out}…")
+        self.job = workers.run_stage(
+            plot_jobs.open_results,
+            Path(out),
+            name="open plot",
+            on_result=lambda o: self._on_result(o, opened=True),
+            on_error=self._on_error,
+        )
+        return True
+
+    def _take_scans(self, paths: list) -> None:
+        """The scans the next run reads, listed (the first is the reference)."""
+        self.specs = [str(Path(p).resolve()) for p in paths]
+        self.scan_list.clear()
+        for k, spec in enumerate(self.specs):
+            self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
+        names = ", ".join(Path(s).name for s in self.specs)
+        self.setWindowTitle(f"AMRST Studio: plot of {names}")
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
@@ -582,10 +616,17 @@ class PlotWindow(QMainWindow):
         if message:
             self._say(f"Running: {message}")
 
-    def _on_result(self, outcome: PlotOutcome) -> None:
+    def _on_result(self, outcome: PlotOutcome, opened: bool = False) -> None:
+        from amrst.plot.register import LEFT_OUT_ORIGIN
+
         self.job = None
         self._set_running(False)
         self.found = outcome
+        if opened:
+            self._take_scans(list(outcome.labels))
+        # What placed each link carries on to the next run.
+        self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
+        self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
         try:
             review = read_review(outcome.out, outcome.labels)
         except AmrstError as exc:
@@ -599,9 +640,10 @@ class PlotWindow(QMainWindow):
         assert self.outcome is not None
         o = self.outcome
         unsure = bool(o.missing or o.labelled(NEEDS_REVIEW))
-        self._say(
-            f"{self._summary()} ({o.seconds:.0f} s); written to {o.out}", error=unsure
-        )
+        done = f"opened from {o.out}" if opened else f"written to {o.out}"
+        if not opened:
+            done = f"({o.seconds:.0f} s); {done}"
+        self._say(f"{self._summary()}; {done}", error=unsure)
         self.plot_done.emit(o)
 
     def _save_review(self, marks: dict, accepted: dict, what: str) -> bool:
@@ -656,6 +698,9 @@ class PlotWindow(QMainWindow):
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
             self._say("Plot cancelled; nothing was written.")
+            return
+        if not self.specs:  # opening a results folder
+            self._say(f"Not opened: {exc}", error=True)
             return
         if not isinstance(exc, AmrstError):
             log.error(

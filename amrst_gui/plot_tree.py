@@ -1,6 +1,6 @@
 """The Plot window's tree view: one tree's figures, its stem slices, its mark.
 
-The slice shown is chosen by height (``plot_jobs.SLICE_HEIGHTS_M``; breast height
+The slice shown is chosen by height (``amrst.plot.view.SLICE_HEIGHTS_M``; breast height
 first), and the choice holds from one tree to the next.
 
 Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear).
@@ -22,7 +22,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui.plot_jobs import BREAST_HEIGHT_M, SLICE_HEIGHTS_M
+from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.views.stem_map import TreeSliceView, scan_colour
 
 if TYPE_CHECKING:

@@ -94,7 +94,8 @@ def run_cli(args: argparse.Namespace) -> int:
         left_out = [
             scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
         ]
-        clouds, labels = read_specs(list(args.scans))
+        # Absolute labels: the app opens the results from anywhere, runs them again.
+        clouds, labels = read_specs([str(Path(s).resolve()) for s in args.scans])
         if len(clouds) < 2:
             raise InvalidInput(
                 f"{len(clouds)} scan given: a plot needs at least two positions."
@@ -113,6 +114,9 @@ def run_cli(args: argparse.Namespace) -> int:
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
             report=args.report,
+            pairs_files={
+                scan_numbers(i, j, ""): str(Path(f).resolve()) for i, j, f in args.pairs
+            },
         )
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)

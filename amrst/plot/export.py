@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS
 from amrst.plot.report import REPORT
 from amrst.plot.review import PlotReview, read_review
+from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Mapping, Sequence
@@ -108,15 +110,11 @@ def write_report(out: Path) -> Path:
     InvalidInput
         The folder holds no readable plot.json and trees.csv (run the plot first).
     """
-    import json
-
     from amrst.files.atomic import write_text_atomic
     from amrst.plot.report import build_report
 
     try:
-        doc = json.loads((out / PLOT_JSON).read_text())
-        with (out / TREES_CSV).open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
+        doc, rows = _read_doc_rows(out)
         page = build_report(doc, rows)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InvalidInput(
@@ -127,18 +125,79 @@ def write_report(out: Path) -> Path:
     return path
 
 
+@dataclass(frozen=True, slots=True)
+class PlotFiles:
+    """A plot's results folder read back: plot.json, the trees, the drawing."""
+
+    doc: dict[str, Any]  # plot.json
+    trees: tuple[Tree, ...]  # trees.csv's, in its order
+    view: PlotView
+
+
+def read_plot(out: Path) -> PlotFiles:
+    """Read the results ``amrst plot`` (or the app) wrote into ``out``.
+
+    Raises
+    ------
+    InvalidInput
+        A file missing, unreadable, or not of one run (run the plot again).
+    """
+    from amrst.plot.inventory import Tree
+
+    if not (out / PLOT_JSON).is_file():
+        raise InvalidInput(
+            f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "
+            "written into."
+        )
+    view = read_view(out / VIEW_NPZ)
+    try:
+        doc, rows = _read_doc_rows(out)
+        if len(doc["scans"]) != len(view.offsets):
+            raise ValueError(f"{len(doc['scans'])} scans, {VIEW_NPZ} draws another")
+        reference = [s["label"] for s in doc["scans"]].index(doc["reference"])
+        at = dict(zip(view.trees, view.dbh_xy, strict=True))
+        trees = tuple(
+            Tree.from_row(row, view.offsets[reference], at[row["tree_id"]])
+            for row in rows
+        )
+        if [t.tree_id for t in trees] != list(view.trees):
+            raise ValueError(f"{TREES_CSV} lists other trees than {VIEW_NPZ}")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInput(
+            f"{out} holds no readable plot ({exc}): run the plot again."
+        ) from exc
+    return PlotFiles(doc, trees, view)
+
+
+def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
+    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
+    import json
+
+    doc = json.loads((out / PLOT_JSON).read_text())
+    if not isinstance(doc, dict):
+        raise ValueError(f"{PLOT_JSON} holds no object")
+    with (out / TREES_CSV).open(newline="") as fh:
+        return doc, list(csv.DictReader(fh))
+
+
 def plot_document(
     reg: PlotRegistration,
     inventory: Inventory,
     labels: Sequence[str],
     review: PlotReview | None = None,
+    pairs_files: Mapping[tuple[int, int], str] | None = None,
 ) -> dict[str, Any]:
     """Return plot.json's content: scans and poses, links, bundle, tree count.
 
     A scan's ``status`` is the registration's, its ``state`` that with the links
     the technician accepted (``review``); a link says whether it is one of those.
+    ``unsure_links`` are the links, as ``[target, source]``, whose review the scan
+    waits for (None: no one link to check, ``graph.scan_doubts``).
     ``T_reference_scan`` maps the scan's file coordinates into the reference's (world
-    coordinates when the files carry an offset), as ``amrst register`` writes it.
+    coordinates when the files carry an offset), as ``amrst register`` writes it; a
+    link's ``T_target_source`` its source's into its target's. A link placed from
+    point pairs names their file (``pairs_files``, keyed by the scans as its target
+    and source points, from 0) as ``pairs``: the next run can place it again.
     """
     from amrst.types import world_transform
 
@@ -152,6 +211,21 @@ def plot_document(
         entry["stems_shared"] = len(pl.shared)
         entry["loop_confirmed"] = reg.loop_confirms(pl.link)
         entry["accepted"] = (pl.link.target, pl.link.source) in keep
+        entry["pairs"] = next(
+            (
+                {"file": str(f), "target": i, "source": j}
+                for (i, j), f in (pairs_files or {}).items()
+                if {i, j} == {pl.link.target, pl.link.source}
+            ),
+            None,
+        )
+        entry["T_target_source"] = (
+            None
+            if pl.link.T_local is None
+            else world_transform(
+                pl.link.T_local, clouds[pl.link.target], clouds[pl.link.source]
+            ).tolist()
+        )
         links.append(entry)
     return {
         "reference": labels[reg.reference],
@@ -168,14 +242,18 @@ def plot_document(
                 ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
+                "unsure_links": None
+                if doubts is None
+                else sorted([t, s] for t, s in doubts),
             }
-            for label, pose, path, scan, status, state, cloud in zip(
+            for label, pose, path, scan, status, state, doubts, cloud in zip(
                 labels,
                 reg.poses,
                 reg.paths,
                 reg.scans,
                 reg.statuses,
                 reg.states(accepted),
+                reg.doubts(),
                 clouds,
                 strict=True,
             )
@@ -236,6 +314,7 @@ def write_plot(
     write_trees: bool = False,
     write_cloud: bool = False,
     report: bool = False,
+    pairs_files: Mapping[tuple[int, int], str] | None = None,
 ) -> tuple[list[Path], list[str]]:
     """Write the run's files into ``out`` as one unit.
 
@@ -246,7 +325,8 @@ def write_plot(
     reference's frame, world coordinates, ``scan_id`` its number from 1). An earlier
     run's ``plot.laz`` and tree clouds that this run does not write again are removed,
     as they no longer match its poses and trees.
-    ``report``: also ``report.html`` (``amrst.plot.report``).
+    ``report``: also ``report.html`` (``amrst.plot.report``). ``pairs_files``: the
+    point pairs files the links placed by hand came from (:func:`plot_document`).
     """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
@@ -254,9 +334,10 @@ def write_plot(
     reference = clouds[reg.reference]
 
     review = read_review(out, labels)
-    doc, _ = strict_json(plot_document(reg, inventory, labels, review))
+    doc, _ = strict_json(plot_document(reg, inventory, labels, review, pairs_files))
     writers = _inventory_writers(inventory.trees, review.marks)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
+    writers[VIEW_NPZ] = view_writer(plot_view(clouds, reg.poses, inventory))
     if write_trees:
         for k, tree in enumerate(inventory.trees):
             writers[f"{TREES_DIR}/{tree.tree_id}.ply"] = _tree_writer(
@@ -278,7 +359,9 @@ def write_plot(
 
 
 #: Every name a plot's run writes into its folder.
-MANAGED = frozenset({PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR, PLOT_CLOUD, REPORT})
+MANAGED = frozenset(
+    {PLOT_JSON, TREES_CSV, TREES_XLSX, TREES_DIR, PLOT_CLOUD, REPORT, VIEW_NPZ}
+)
 
 
 def _plot_cloud_writer(

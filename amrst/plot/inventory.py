@@ -90,9 +90,48 @@ class Tree:
             "seen_from": ";".join(str(k) for k in self.seen_from),
         }
 
+    @classmethod
+    def from_row(
+        cls, row: dict[str, str], offset: np.ndarray, dbh_xy: np.ndarray
+    ) -> Tree:
+        """Return the tree a trees.csv row lists (figures as rounded there).
+
+        Its base goes into the local frame of ``offset``; ``dbh_xy`` is its
+        breast-height centre there (not in trees.csv).
+
+        Raises
+        ------
+        KeyError, ValueError
+            A column missing, or a figure that is no number.
+        """
+        from amrst.plot.stemmap import StemRecord
+
+        xyz = np.array([float(row[c]) for c in ("x_m", "y_m", "z_m")])
+        stem = StemRecord(
+            base=xyz - np.asarray(offset, float),
+            dbh_xy=np.asarray(dbh_xy, float),
+            dbh_m=_number(row["dbh_m"]),
+            arc_deg=_number(row["dbh_arc_deg"]),
+            rmse_m=_number(row["dbh_rmse_m"]),
+            outlier_share=_number(row["dbh_outlier_share"]),
+            dbh_quality=row["dbh_quality"],
+            height_m=_number(row["height_m"]),
+            height_flag=row["height_flag"],
+            lean_deg=_number(row["lean_deg"]),
+            crown_width_m=_number(row["crown_width_m"]),
+            n_points=int(row["n_points"]),
+        )
+        seen = tuple(int(k) for k in row["seen_from"].split(";") if k.strip())
+        return cls(row["tree_id"], stem, xyz, seen)
+
 
 def _rounded(value: float, digits: int) -> float | str:
     return "" if not np.isfinite(value) else round(float(value), digits)
+
+
+def _number(text: str) -> float:
+    """Return a trees.csv figure: an empty cell is NaN (not measured)."""
+    return float(text) if text.strip() else float("nan")
 
 
 @dataclass(frozen=True, slots=True)

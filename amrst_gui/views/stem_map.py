@@ -25,7 +25,8 @@ from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
 
 if TYPE_CHECKING:
-    from amrst_gui.plot_jobs import PlotOutcome, TreeSlice
+    from amrst.plot.view import TreeSlice
+    from amrst_gui.plot_jobs import PlotOutcome
 
 BACKGROUND = QColor(31, 33, 38)
 TEXT = QColor(230, 230, 230)

@@ -132,6 +132,7 @@ def test_inventory_columns_and_the_command(
     doc = json.loads((out / "plot.json").read_text())
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
+    _reads_back(out, T_true)
     assert plot_main(args) == 2  # another run's output is not replaced
     # The registered plot: both scans in the reference frame, by scan number.
     assert plot_main([*args, "--overwrite", "--write-cloud"]) == 0
@@ -150,7 +151,8 @@ def test_inventory_columns_and_the_command(
     capsys.readouterr()
     assert plot_main([*args, "--overwrite", "--report"]) == 0
     assert (
-        "wrote trees.csv, trees.xlsx, plot.json, report.html" in capsys.readouterr().err
+        "wrote trees.csv, trees.xlsx, plot.json, view.npz, report.html"
+        in capsys.readouterr().err
     )
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
@@ -165,6 +167,32 @@ def test_inventory_columns_and_the_command(
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
     (out / "review.json").write_text("{")
     assert plot_main([*args, "--overwrite"]) == 2  # refused before reading scans
+
+
+def _reads_back(out: Path, T_true: np.ndarray) -> None:
+    """The results folder holds what the app draws: trees, link poses, slices."""
+    from amrst.errors import InvalidInput
+    from amrst.plot.export import read_plot
+    from amrst.plot.view import SLICE_HEIGHTS_M, VIEW_NPZ
+
+    files = read_plot(out)
+    assert trees_csv(files.trees) == (out / TREES_CSV).read_text()
+    (link,) = files.doc["links"]
+    assert np.abs(np.array(link["T_target_source"]) - T_true).max() < 0.01
+    assert link["pairs"] is None
+    assert [s["unsure_links"] for s in files.doc["scans"]] == [[], []]
+    assert np.allclose(files.view.scan_xy[1], T_true[:2, 3], atol=0.01)
+    for tree, slices in zip(files.trees, files.view.slices, strict=True):
+        assert [s.height_m for s in slices] == list(SLICE_HEIGHTS_M)
+        at_dbh = slices[1]  # the bark around the DBH circle, from both scans
+        r = np.hypot(*(at_dbh.xy - tree.stem.dbh_xy).T)
+        assert np.median(np.abs(r - tree.stem.dbh_m / 2)) < 0.01
+        assert set(at_dbh.scan.tolist()) == {0, 1}
+    view = (out / VIEW_NPZ).read_bytes()
+    (out / VIEW_NPZ).write_bytes(view[:100])
+    with pytest.raises(InvalidInput, match="run the plot again"):
+        read_plot(out)
+    (out / VIEW_NPZ).write_bytes(view)
 
 
 def _marks(out: Path) -> dict[str, str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +23,6 @@ from amrst.types import Cloud, invert_transform
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-    from pathlib import Path
 
     from pytestqt.qtbot import QtBot
 
@@ -287,6 +287,16 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     plot.open_scans(plot_files, tmp_path / "out")  # opened again: keep writing it
     assert plot.cloud_check.isChecked()
 
+    # The results opened again, later: the link still comes from the pairs.
+    plot.close()
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        win.open_plot_results(tmp_path / "out")
+    assert plot.hand_pairs == {(0, 1): str(pairs.resolve())}
+    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    assert plot.outcome is not None
+    assert len(plot.outcome.trees) == len(STEMS)
+    assert "opened from" in plot.status.text()
+
 
 def test_a_link_that_needs_review_is_accepted_at_its_pose(
     qtbot: QtBot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -412,3 +422,34 @@ def test_the_plot_run_leaves_out_the_links_the_window_names(
     assert [ln.origin for ln in o.links] == [LEFT_OUT_ORIGIN]
     assert [s.status for s in o.scans] == ["registered", "failed"]
     assert o.missing == [plot_files[1]]
+
+
+def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst.plot.cli import main as plot_main
+    from amrst_gui.plot_panel import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_results(tmp_path)  # no plot there
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    assert plot.outcome is None
+    assert plot.status.text().startswith("Not opened:")
+    assert "holds no plot" in plot.status.text()
+
+    out = tmp_path / "out"
+    args = [*plot_files, "--out", str(out), "--quiet", "--leave-out", "1", "2"]
+    assert plot_main(args) == 3  # the command line's run: scan 2 not placed
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    o = plot.outcome
+    assert o is not None
+    assert plot.left_out == {(0, 1)}
+    assert plot.leave_button.text() == "Leave out"  # no link selected
+    assert [s.status for s in o.scans] == ["registered", "failed"]
+    assert len(o.trees) == len(STEMS)
+    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.out_edit.text() == str(out)
+    assert plot.scan_list.count() == 2
+    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
