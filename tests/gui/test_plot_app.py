@@ -206,6 +206,9 @@ def test_the_command_line_opens_a_plot() -> None:
     assert args.out.name == "res"
     with pytest.raises(SystemExit):
         parse_args(["--plot", "a.ply"])
+    assert parse_args(["--plot-results", "res"]).plot_results.name == "res"
+    with pytest.raises(SystemExit):
+        parse_args(["--plot-results", "res", "--run", "all"])
 
 
 def test_a_link_a_loop_confirms_reads_registered_in_the_links_table(tmp_path):
