@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from amrst.campaign.stored import StoredLinkResult
     from amrst.plot.inventory import Tree
-    from amrst.plot.view import TopView, TreeSlice
+    from amrst.plot.view import TopView, TreeProfile, TreeSlice
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +91,7 @@ class PlotOutcome:
     slices: tuple[tuple[TreeSlice, ...], ...]  # per tree, one per SLICE_HEIGHTS_M
     top: TopView | None
     seconds: float
+    profiles: tuple[TreeProfile, ...] = ()  # per tree, its side view's points
 
     @property
     def tree_xy(self) -> np.ndarray:
@@ -211,6 +212,7 @@ def open_results(
         slices=view.slices,
         top=view.top,
         seconds=seconds,
+        profiles=view.profiles,
     )
 
 

@@ -1,7 +1,9 @@
-"""The Plot window's tree view: one tree's figures, its stem slices, its mark.
+"""The Plot window's tree view: one tree's figures, its stem slices, its side view,
+its mark.
 
 The slice shown is chosen by height (``amrst.plot.view.SLICE_HEIGHTS_M``; breast height
-first), and the choice holds from one tree to the next.
+first), or the whole tree from the side (**Side**), and the choice holds from one tree
+to the next.
 
 Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear).
 """
@@ -18,6 +20,7 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QStackedWidget,
     QVBoxLayout,
     QWidget,
 )
@@ -25,11 +28,14 @@ from PySide6.QtWidgets import (
 from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.views.stem_map import TreeSliceView, scan_colour
+from amrst_gui.views.tree_side import TreeSideView
 
 if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
     from amrst_gui.plot_jobs import PlotOutcome
 
+#: The id of the Side button among the slice heights' (their indices).
+SIDE = len(SLICE_HEIGHTS_M)
 #: The rows of the tree's figures.
 FIGURES = (
     "Position",
@@ -57,6 +63,13 @@ def _value(value: object, unit: str = "", scale: float = 1.0, digits: int = 2) -
         return "–"
     number = float(value) * scale  # type: ignore[arg-type]
     return "–" if not np.isfinite(number) else f"{number:.{digits}f}{unit}"
+
+
+def _narrow(button: QPushButton) -> QPushButton:
+    """The button as wide as its text (a style's minimum width would push the stem
+    map aside at 1366 px)."""
+    button.setMaximumWidth(button.fontMetrics().horizontalAdvance(button.text()) + 24)
+    return button
 
 
 def figures(tree: Tree, mark: str | None) -> list[tuple[str, str]]:
@@ -127,8 +140,20 @@ class TreePanel(QWidget):
             button.setChecked(k == self.height_index)
             button.setToolTip(f"The stem {z:g} m above the ground")
             self.height_buttons.addButton(button, k)
-            heights.addWidget(button)
+            heights.addWidget(_narrow(button))
+        side = QPushButton("Side")
+        side.setCheckable(True)
+        side.setToolTip(
+            "The whole tree from the south: its points by scan, the height (dashed) "
+            "and the DBH at breast height. Check that the top is the tree's own."
+        )
+        self.height_buttons.addButton(side, SIDE)
+        heights.addWidget(_narrow(side))
         self.height_buttons.idClicked.connect(self.show_height)
+        self.side_view = TreeSideView(self)
+        self.views = QStackedWidget()
+        self.views.addWidget(self.slice_view)
+        self.views.addWidget(self.side_view)
         self.buttons = {}
         row = QHBoxLayout()
         for mark, text, tip in (
@@ -148,7 +173,7 @@ class TreePanel(QWidget):
         layout.addWidget(self.hint)
         layout.addLayout(form)
         layout.addLayout(heights)
-        layout.addWidget(self.slice_view, 1)
+        layout.addWidget(self.views, 1)
         layout.addLayout(row)
 
     def show_tree(
@@ -163,6 +188,7 @@ class TreePanel(QWidget):
             for value in self.values.values():
                 value.setText("–")
             self.slice_view.set_slice(None, np.zeros(2), float("nan"), "")
+            self.side_view.set_tree(None, None)
         else:
             tree = outcome.trees[k]
             self.tree_id = tree.tree_id
@@ -175,12 +201,20 @@ class TreePanel(QWidget):
             button.setEnabled(self.tree_id is not None)
 
     def show_height(self, index: int) -> None:
-        """Show the shown tree's slice at ``SLICE_HEIGHTS_M[index]``."""
+        """Show the shown tree's slice at ``SLICE_HEIGHTS_M[index]``, or its side
+        view (``SIDE``)."""
         self.height_index = index
         self.height_buttons.button(index).setChecked(True)
+        self.views.setCurrentWidget(
+            self.side_view if index == SIDE else self.slice_view
+        )
         if self._shown is None:
             return
         outcome, k = self._shown
+        if index == SIDE:
+            profile = outcome.profiles[k] if k < len(outcome.profiles) else None
+            self.side_view.set_tree(outcome.trees[k], profile)
+            return
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M
         circle = "the DBH fit" if fitted else "the DBH, for comparison"

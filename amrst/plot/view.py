@@ -1,6 +1,7 @@
 """What a plot's results keep for the app to draw (``view.npz``).
 
-Each tree's stem slices, the top view and where the scans stood.
+Each tree's stem slices and a sample of its points (its side view), the top view and
+where the scans stood.
 
 A run writes it beside plot.json and trees.csv (``plot.export.write_plot``), so a
 plot's results open in the app without running it again, whether the app or
@@ -41,6 +42,8 @@ SLICE_MARGIN_M = 0.3
 TOP_CELL_M = 0.25
 #: Vegetation in the top view: points this high above the ground.
 TOP_MIN_HEIGHT_M = 0.5
+#: A tree's side view: at most this many of its points, evenly strided.
+PROFILE_POINTS = 4000
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,6 +67,14 @@ class TopView:
 
 
 @dataclass(frozen=True, slots=True)
+class TreeProfile:
+    """Some of one tree's points (its side view) and the scan each came from."""
+
+    xyz: np.ndarray  # (N, 3) reference local frame
+    scan: np.ndarray  # (N,) 0-based scan index
+
+
+@dataclass(frozen=True, slots=True)
 class PlotView:
     """The drawing of a plot: scans, trees' breast-height centres and slices, top view.
 
@@ -76,6 +87,7 @@ class PlotView:
     trees: tuple[str, ...]
     dbh_xy: np.ndarray  # (T, 2) breast-height centre of each tree
     slices: tuple[tuple[TreeSlice, ...], ...]
+    profiles: tuple[TreeProfile, ...]
     top: TopView | None
 
 
@@ -98,6 +110,7 @@ def plot_view(
         trees=tuple(t.tree_id for t in inventory.trees),
         dbh_xy=np.array([t.stem.dbh_xy for t in inventory.trees], float).reshape(-1, 2),
         slices=tree_slices(inventory),
+        profiles=tree_profiles(inventory),
         top=top_view(inventory),
     )
 
@@ -143,6 +156,24 @@ def tree_slices(inventory: Inventory) -> tuple[tuple[TreeSlice, ...], ...]:
                 )
             )
         out.append(tuple(slices))
+    return tuple(out)
+
+
+def tree_profiles(inventory: Inventory) -> tuple[TreeProfile, ...]:
+    """Return, per tree, at most ``PROFILE_POINTS`` of its points, evenly strided."""
+    sm = inventory.stem_map
+    order = np.argsort(sm.owner, kind="stable")
+    ends = np.searchsorted(sm.owner[order], np.arange(len(inventory.trees) + 1))
+    out = []
+    for k in range(len(inventory.trees)):
+        rows = order[ends[k] : ends[k + 1]]
+        rows = rows[:: max(1, -(-len(rows) // PROFILE_POINTS))]  # stride rounded up
+        out.append(
+            TreeProfile(
+                np.asarray(sm.xyz[rows], float),
+                np.asarray(inventory.scan_of_point[rows], np.int64),
+            )
+        )
     return tuple(out)
 
 
@@ -193,6 +224,15 @@ def view_writer(view: PlotView) -> Callable[[Path], object]:
         ),
         "slice_scan": np.concatenate(
             [s.scan for s in flat] or [np.zeros(0, np.int64)]
+        ).astype(np.uint16),
+    }
+    arrays |= {
+        "profile_sizes": np.array([len(t.xyz) for t in view.profiles], np.int64),
+        "profile_xyz": np.concatenate(
+            [t.xyz for t in view.profiles] or [np.zeros((0, 3))]
+        ).astype(np.float32),
+        "profile_scan": np.concatenate(
+            [t.scan for t in view.profiles] or [np.zeros(0, np.int64)]
         ).astype(np.uint16),
     }
     if view.top is not None:
@@ -254,6 +294,18 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
         )
         for k in range(len(trees))
     )
+    sizes = data["profile_sizes"]
+    if len(sizes) != len(trees) or int(sizes.sum()) != len(data["profile_xyz"]):
+        raise ValueError("side views do not match the trees")
+    ends = np.cumsum(sizes)[:-1]
+    profiles = tuple(
+        TreeProfile(xyz, scan)
+        for xyz, scan in zip(
+            np.split(np.asarray(data["profile_xyz"], float).reshape(-1, 3), ends),
+            np.split(np.asarray(data["profile_scan"], np.int64), ends),
+            strict=True,
+        )
+    )[: len(trees)]  # no trees: one empty split
     top = None
     if "top_image" in data:
         x0, y0, cell = (float(v) for v in data["top_origin"])
@@ -264,5 +316,6 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
         trees=trees,
         dbh_xy=np.asarray(data["dbh_xy"], float).reshape(len(trees), 2),
         slices=slices,
+        profiles=profiles,
         top=top,
     )

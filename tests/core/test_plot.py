@@ -173,7 +173,7 @@ def _reads_back(out: Path, T_true: np.ndarray) -> None:
     """The results folder holds what the app draws: trees, link poses, slices."""
     from amrst.errors import InvalidInput
     from amrst.plot.export import read_plot
-    from amrst.plot.view import SLICE_HEIGHTS_M, VIEW_NPZ
+    from amrst.plot.view import PROFILE_POINTS, SLICE_HEIGHTS_M, VIEW_NPZ
 
     files = read_plot(out)
     assert trees_csv(files.trees) == (out / TREES_CSV).read_text()
@@ -188,6 +188,10 @@ def _reads_back(out: Path, T_true: np.ndarray) -> None:
         r = np.hypot(*(at_dbh.xy - tree.stem.dbh_xy).T)
         assert np.median(np.abs(r - tree.stem.dbh_m / 2)) < 0.01
         assert set(at_dbh.scan.tolist()) == {0, 1}
+    for tree, side in zip(files.trees, files.view.profiles, strict=True):
+        assert 0 < len(side.xyz) <= PROFILE_POINTS
+        assert np.median(np.hypot(*(side.xyz[:, :2] - tree.stem.dbh_xy).T)) < 0.3
+        assert np.ptp(side.xyz[:, 2]) > 0.8 * tree.stem.height_m
     view = (out / VIEW_NPZ).read_bytes()
     (out / VIEW_NPZ).write_bytes(view[:100])
     with pytest.raises(InvalidInput, match="run the plot again"):

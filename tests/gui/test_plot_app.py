@@ -456,3 +456,16 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert plot.out_edit.text() == str(out)
     assert plot.scan_list.count() == 2
     assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    # Each tree from the side: its points, its height, its DBH.
+    plot.select_tree(0)
+    panel = plot.tree_panel
+    panel.height_buttons.button(len(panel.height_buttons.buttons()) - 1).click()
+    assert panel.views.currentWidget() is panel.side_view
+    assert panel.side_view.tree is o.trees[0]
+    assert panel.side_view.profile is o.profiles[0]
+    assert len(o.profiles[0].xyz) > 100
+    assert not panel.side_view.grab().isNull()
+    plot.select_tree(1)  # the choice holds from tree to tree
+    assert panel.side_view.tree is o.trees[1]
+    panel.height_buttons.button(1).click()
+    assert panel.views.currentWidget() is panel.slice_view

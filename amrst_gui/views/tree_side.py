@@ -1,0 +1,106 @@
+"""One tree seen from the side: its points, its height and its DBH to scale.
+
+The technician checks there what the figures rest on: whether the top the height
+reaches is the tree's (or a neighbour's crown was taken in, or the top was hidden),
+and where breast height falls on the stem. Seen from the south (x east, z up), the
+stem at 0, the ground at its base at 0.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, Qt
+from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
+from PySide6.QtWidgets import QSizePolicy, QWidget
+
+from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst_gui.views.stem_map import BACKGROUND, TEXT, scan_colour
+
+if TYPE_CHECKING:
+    from amrst.plot.inventory import Tree
+    from amrst.plot.view import TreeProfile
+
+#: Room around the tree (m) and for the labels (px).
+MARGIN_M = 0.5
+LABEL_PX = 18.0
+
+
+class TreeSideView(QWidget):
+    """``set_tree(tree, profile)``: the tree's points by scan, the ground, the height
+    line and the DBH bar at breast height."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("tree_side")
+        self.setMinimumSize(160, 160)
+        policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.setSizePolicy(policy)
+        self.tree: Tree | None = None
+        self.profile: TreeProfile | None = None
+
+    def set_tree(self, tree: Tree | None, profile: TreeProfile | None) -> None:
+        """Show ``tree`` from its ``profile`` points (None: nothing)."""
+        self.tree, self.profile = tree, profile
+        self.update()
+
+    def paintEvent(self, _event) -> None:
+        p = QPainter(self)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
+        p.fillRect(self.rect(), BACKGROUND)
+        p.setFont(QFont(self.font().family(), 8))
+        if self.tree is not None and self.profile is not None:
+            self._draw(p, self.tree, self.profile)
+        else:
+            p.setPen(TEXT)
+            p.drawText(QPointF(6, self.height() - 5), "Click a tree on the stem map.")
+        p.end()
+
+    def _draw(self, p: QPainter, tree: Tree, profile: TreeProfile) -> None:
+        stem = tree.stem
+        base_x, base_z = float(stem.base[0]), float(stem.base[2])
+        dx = profile.xyz[:, 0] - base_x
+        dz = profile.xyz[:, 2] - base_z
+        top = float(np.nanmax([stem.height_m, dz.max(initial=0.0), 2.0]))
+        half = max(float(np.abs(dx).max(initial=0.0)), 1.0) + MARGIN_M
+        box = QRectF(4, 4, self.width() - 8, self.height() - 8 - LABEL_PX)
+        scale = min(box.width() / (2 * half), box.height() / (top + 2 * MARGIN_M))
+        cx = box.center().x()
+        ground = box.bottom() - MARGIN_M * scale
+
+        def at(x: float, z: float) -> QPointF:
+            return QPointF(cx + x * scale, ground - z * scale)
+
+        p.setPen(QPen(QColor(120, 120, 120), 1))
+        p.drawLine(at(-half, 0.0), at(half, 0.0))
+        for k in np.unique(profile.scan):
+            p.setPen(QPen(scan_colour(int(k)), 2))
+            mine = profile.scan == k
+            p.drawPoints(
+                QPolygonF([at(x, z) for x, z in zip(dx[mine], dz[mine], strict=True)])
+            )
+        p.setPen(TEXT)
+        if np.isfinite(stem.height_m):
+            pen = QPen(QColor(255, 255, 255), 1)
+            pen.setStyle(Qt.PenStyle.DashLine)
+            p.setPen(pen)
+            p.drawLine(at(-half, stem.height_m), at(half, stem.height_m))
+            p.setPen(TEXT)
+            p.drawText(
+                at(-half, stem.height_m) + QPointF(2, -3),
+                f"height {stem.height_m:.1f} m ({stem.height_flag})",
+            )
+        if np.isfinite(stem.dbh_m):
+            x = float(stem.dbh_xy[0]) - base_x
+            p.setPen(QPen(QColor(255, 255, 255), 3))
+            p.drawLine(
+                at(x - stem.dbh_m / 2, BREAST_HEIGHT_M),
+                at(x + stem.dbh_m / 2, BREAST_HEIGHT_M),
+            )
+        p.setPen(TEXT)
+        p.drawText(
+            QPointF(6, self.height() - 5),
+            f"{len(profile.xyz):,} of {stem.n_points:,} points, from the south; "
+            "bar: DBH",
+        )
