@@ -16,7 +16,9 @@ The inventory (``trees=True``) goes on:
 5. every point above the ground goes to the stem it reaches at the least path cost
    (``plot/crowns.py``), and the tree's highest point gives its height;
 6. the DBH is the taper line of circles in slices 1.0-1.6 m (``plot/diameter.py``),
-   and the stem line is fitted again to the circles on it.
+   and the stem line is fitted again to the circles on it;
+7. a tree whose foot shows no circle and is wrapped in its own branches (a spruce)
+   stands where its branches point (:func:`branch_axis`).
 
 The DBH quality follows 3DFin's section checks: the arc of the stem the circle's
 inliers cover, the fit residual, the share of slice points off the circle, and the
@@ -47,6 +49,22 @@ if TYPE_CHECKING:
 LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
 #: Points around a stem the slices take (m beyond the stem cluster's extent).
 STEM_MARGIN_M = 0.15
+#: Branch lines (``branch_axis``): 3 cm voxels from 2 m up to 3/4 of the tree, the
+#: line of each through its neighbours within 15 cm when they lie on one (share of
+#: variance off the main axis under ``1 - AXIS_LINEAR``) and it runs level enough.
+AXIS_VOXEL_M = 0.03
+AXIS_LOW_M = 2.0
+AXIS_HIGH_SHARE = 0.75
+AXIS_RADIUS_M = 0.15
+AXIS_LINEAR = 0.8
+AXIS_LEVEL = 0.8  # horizontal part of the line's direction
+#: Lines 0.25-2 m from the axis count; a line within ``AXIS_NEAR_M`` passes it.
+AXIS_RANGE_M = (0.25, 2.0)
+AXIS_NEAR_M = 0.1
+#: A spruce's skirt: its own points this high above the ground (m) and this far from
+#: the axis (m), counted in 12 directions around it.
+SKIRT_HEIGHT_M = (0.5, 2.5)
+SKIRT_REACH_M = (0.3, 1.5)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -100,6 +118,13 @@ class StemMapParams:
     hidden_high_m: float = 3.0
     hidden_gap_m: float = 1.0
     same_stem_m: float = 0.3
+    # A tree with no circle at its foot stands where its branches point
+    # (:func:`branch_axis`) when ``axis_support`` of them do and its own branches hang
+    # around that point in ``skirt_sectors`` of 12 directions (``SKIRT_*``). A circle at the foot wider than ``wide_foot_m`` counts as none: it may go
+    # round the branches.
+    skirt_sectors: int = 10
+    axis_support: float = 0.25
+    wide_foot_m: float = 0.8
     scene: SceneParams = field(default_factory=SceneParams)
 
 
@@ -436,6 +461,9 @@ def _as_tree(
     if len(fit.line) < params.bark_heights and not top_h >= params.hidden_tree_m:
         return None
     stem = _taper_stem(fit, pts, h, ground, params)
+    foot_r = fit.radii.get(LINE_HEIGHTS_M[0], np.inf)
+    if fit.hidden or 2 * foot_r > params.wide_foot_m:
+        stem = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
     return replace(
         stem,
         height_m=top_h,
@@ -508,6 +536,99 @@ def _taper_stem(
         outlier_share=outliers,
         dbh_quality=_dbh_quality((taper.circle, outliers), consistent, params),
     )
+
+
+def _on_branch_axis(
+    stem: StemRecord,
+    tree: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    params: StemMapParams,
+) -> StemRecord:
+    """Return the stem with its base where its branches point, if they hide its foot.
+
+    Branches down to the ground hide a spruce's stem: the circles found through them
+    lie up to a metre off, while its whorls still radiate from the stem. The stem
+    moves only when ``axis_support`` of its branch lines pass the axis found and its
+    own low branches surround that axis (``skirt_sectors``): a broadleaf's branches
+    do not meet at one point, nor hang around it near the ground. A breast-height
+    circle farther than ``same_stem_m`` from the axis measured branches: no DBH.
+    """
+    axis = branch_axis(tree, h, stem.base[:2])
+    if axis is None or axis[1] < params.axis_support:
+        return stem
+    v = tree[:, :2] - axis[0]
+    r = np.hypot(v[:, 0], v[:, 1])
+    skirt = (h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1])
+    skirt &= (r >= SKIRT_REACH_M[0]) & (r <= SKIRT_REACH_M[1])
+    angle = np.arctan2(v[skirt, 1], v[skirt, 0])
+    sectors = np.unique(np.floor((angle + np.pi) / (2 * np.pi) * 12).astype(int) % 12)
+    if len(sectors) < params.skirt_sectors:
+        return stem
+    base = np.r_[axis[0], _ground_z(ground, axis[0])]
+    if np.hypot(*(stem.dbh_xy - axis[0])) <= params.same_stem_m:
+        return replace(stem, base=base)
+    # Its breast-height circle went round branches: no DBH, and the axis is upright.
+    return replace(_without_dbh(stem), base=base, dbh_xy=axis[0], lean_deg=0.0)
+
+
+def branch_axis(
+    tree: np.ndarray, h: np.ndarray, start: np.ndarray
+) -> tuple[np.ndarray, float] | None:
+    """Return where a tree's branches point (x, y) and the share of them that do.
+
+    A conifer's whorls radiate from its stem: the horizontal lines of its branches
+    meet at the stem even where no scan saw the stem. The point nearest all lines
+    (least squares on their normals, Cauchy weights of ``AXIS_NEAR_M``, from
+    ``start``); None with fewer than 20 branch lines.
+    """
+    from scipy.spatial import cKDTree
+
+    from amrst.stages.voxels import voxel_sample
+
+    top = float(h.max()) if len(h) else 0.0
+    crown = (h >= AXIS_LOW_M) & (h <= AXIS_LOW_M + AXIS_HIGH_SHARE * (top - AXIS_LOW_M))
+    if crown.sum() < 50:
+        return None
+    pts = tree[crown]
+    pts = pts[np.asarray(voxel_sample(pts, AXIS_VOXEL_M))]
+    dist, nb = cKDTree(pts).query(pts, k=16, distance_upper_bound=AXIS_RADIUS_M)
+    ok = np.isfinite(dist)  # a missing neighbour has index len(pts)
+    count = ok.sum(axis=1)
+    keep = count >= 6
+    if keep.sum() < 20:
+        return None
+    ok, nb, count = ok[keep], nb[keep], count[keep]
+    near = pts[np.where(ok, nb, 0)] * ok[..., None]
+    mean = near.sum(axis=1) / count[:, None]
+    d = (near - mean[:, None]) * ok[..., None]
+    cov = np.einsum("nki,nkj->nij", d, d) / count[:, None, None]
+    w, vec = np.linalg.eigh(cov)  # ascending
+    main = vec[:, :, 2]
+    level = np.hypot(main[:, 0], main[:, 1])
+    line = (w[:, 2] > 0) & ((w[:, 2] - w[:, 1]) >= AXIS_LINEAR * w[:, 2])
+    line &= level >= AXIS_LEVEL
+    if line.sum() < 20:
+        return None
+    p = pts[keep][line, :2]
+    u = main[line, :2] / level[line, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    offset = np.sum(normal * p, axis=1)
+    c = np.asarray(start, dtype=float)
+    for _ in range(10):
+        r = np.hypot(*(p - c).T)
+        wt = ((r > AXIS_RANGE_M[0]) & (r < AXIS_RANGE_M[1])) / (
+            1.0 + ((normal @ c - offset) / AXIS_NEAR_M) ** 2
+        )
+        a = (normal * wt[:, None]).T @ normal
+        if np.linalg.cond(a) > 1e6:
+            return None
+        c = np.linalg.solve(a, (normal * wt[:, None]).T @ offset)
+    r = np.hypot(*(p - c).T)
+    band = (r > AXIS_RANGE_M[0]) & (r < AXIS_RANGE_M[1])
+    if not band.any():
+        return None
+    return c, float(np.mean(np.abs(normal[band] @ c - offset[band]) <= AXIS_NEAR_M))
 
 
 def _without_dbh(stem: StemRecord) -> StemRecord:

@@ -22,7 +22,7 @@ from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
 from amrst.plot.review import PlotReview, write_review
-from amrst.plot.stemmap import StemMapParams, map_stems
+from amrst.plot.stemmap import StemMapParams, branch_axis, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
 
 if TYPE_CHECKING:
@@ -425,3 +425,37 @@ def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Pa
     assert sorted(p.name for p in (out / "trees").glob("*.ply")) == clouds
     assert plot_main(args) == 0
     assert not list((out / "trees").glob("*.ply"))
+
+
+def _whorls(centre: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """A spruce without its stem: whorls of 8 level branches, 2-12 m up, 1.2 m long."""
+    parts = []
+    for z in np.arange(2.0, 12.0, 0.4):
+        for a in rng.uniform(0, 2 * np.pi) + np.arange(8) * np.pi / 4:
+            t = rng.uniform(0.1, 1.2, 60)
+            parts.append(
+                np.column_stack(
+                    [
+                        centre[0] + t * np.cos(a),
+                        centre[1] + t * np.sin(a),
+                        z - 0.1 * t + rng.normal(0, 0.005, 60),
+                    ]
+                )
+            )
+    return np.vstack(parts)
+
+
+def test_branch_axis_finds_the_stem_its_branches_radiate_from() -> None:
+    rng = np.random.default_rng(3)
+    tree = _whorls((1.0, -2.0), rng)
+    # Only one side seen, and the search starts 0.8 m off.
+    tree = tree[tree[:, 0] > 0.7]
+    axis = branch_axis(tree, tree[:, 2], np.array([1.6, -1.5]))
+    assert axis is not None
+    assert np.hypot(*(axis[0] - (1.0, -2.0))) < 0.05
+    assert axis[1] > 0.8
+    # Branches in every direction from nowhere in particular: few pass one point.
+    tree = _whorls((0.0, 0.0), rng)
+    tree[:, :2] += rng.uniform(-1.5, 1.5, (len(tree) // 60, 2)).repeat(60, axis=0)
+    axis = branch_axis(tree, tree[:, 2], np.zeros(2))
+    assert axis is None or axis[1] < 0.25
