@@ -120,11 +120,14 @@ class StemMapParams:
     same_stem_m: float = 0.3
     # A tree with no circle at its foot stands where its branches point
     # (:func:`branch_axis`) when ``axis_support`` of them do and its own branches hang
-    # around that point in ``skirt_sectors`` of 12 directions (``SKIRT_*``). A circle at the foot wider than ``wide_foot_m`` counts as none: it may go
-    # round the branches.
+    # around that point in ``skirt_sectors`` of 12 directions (``SKIRT_*``). A circle
+    # at the foot wider than ``wide_foot_m`` counts as none (it may go round the
+    # branches), and so do circles farther than ``scattered_line_m`` from their median
+    # centre (through branches: a stem's lie on a line).
     skirt_sectors: int = 10
     axis_support: float = 0.25
     wide_foot_m: float = 0.8
+    scattered_line_m: float = 0.4
     scene: SceneParams = field(default_factory=SceneParams)
 
 
@@ -462,7 +465,7 @@ def _as_tree(
         return None
     stem = _taper_stem(fit, pts, h, ground, params)
     foot_r = fit.radii.get(LINE_HEIGHTS_M[0], np.inf)
-    if fit.hidden or 2 * foot_r > params.wide_foot_m:
+    if fit.hidden or 2 * foot_r > params.wide_foot_m or _scattered(fit.line, params):
         stem = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
     return replace(
         stem,
@@ -535,6 +538,20 @@ def _taper_stem(
         rmse_m=taper.circle.rmse_m,
         outlier_share=outliers,
         dbh_quality=_dbh_quality((taper.circle, outliers), consistent, params),
+    )
+
+
+def _scattered(line: list[tuple[float, float, float]], params: StemMapParams) -> bool:
+    """Tell whether a stem's circles scatter round their median centre.
+
+    Farther than ``scattered_line_m``: circles through a spruce's branches do, a
+    stem's lie on a line.
+    """
+    xy = np.array([c[1:] for c in line], float).reshape(-1, 2)
+    if not len(xy):
+        return False
+    return (
+        float(np.hypot(*(xy - np.median(xy, axis=0)).T).max()) > params.scattered_line_m
     )
 
 

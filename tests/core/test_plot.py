@@ -459,3 +459,14 @@ def test_branch_axis_finds_the_stem_its_branches_radiate_from() -> None:
     tree[:, :2] += rng.uniform(-1.5, 1.5, (len(tree) // 60, 2)).repeat(60, axis=0)
     axis = branch_axis(tree, tree[:, 2], np.zeros(2))
     assert axis is None or axis[1] < 0.25
+
+
+def test_circles_through_branches_scatter_and_a_stem_s_do_not() -> None:
+    from amrst.plot.stemmap import _scattered
+
+    params = StemMapParams()
+    leaning = [(z, 0.15 * z, 0.0) for z in (0.6, 1.0, 1.3, 1.7, 2.2)]  # 8.5 deg
+    assert not _scattered(leaning, params)
+    branches = [(0.6, 0.0, 0.0), (1.0, -0.4, 0.5), (1.3, 0.1, 0.2), (1.7, -0.4, 0.0)]
+    assert _scattered(branches, params)
+    assert not _scattered([], params)
