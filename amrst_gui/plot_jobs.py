@@ -183,17 +183,19 @@ def open_results(
     files = read_plot(out)
     doc, view = files.doc, files.view
     try:
+        labels = [scan["label"] for scan in doc["scans"]]
+        at = view.offsets[labels.index(doc["reference"])]
         scans = tuple(
             ScanPlace(
                 label=scan["label"],
-                xy=None if np.isnan(xy).any() else xy,
+                xy=_scan_xy(scan["T_reference_scan"], offset, at),
                 stems=int(scan["stems"]),
                 status=scan["status"],
                 doubts=None
                 if scan["unsure_links"] is None
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
             )
-            for scan, xy in zip(doc["scans"], view.scan_xy, strict=True)
+            for scan, offset in zip(doc["scans"], view.offsets, strict=True)
         )
         links = tuple(_link_line(entry, view.offsets) for entry in doc["links"])
         bundle = _float(doc["bundle_rmse_m"])
@@ -238,6 +240,15 @@ def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
         at=np.asarray(offsets[source], float),
         pairs=None if p is None else ((int(p["target"]), int(p["source"])), p["file"]),
     )
+
+
+def _scan_xy(T: Any, offset: np.ndarray, reference: np.ndarray) -> np.ndarray | None:
+    """Where a scan stood (its local origin) in the reference's local frame, from its
+    pose in file coordinates (None: not placed)."""
+    if T is None:
+        return None
+    M = np.asarray(T, float).reshape(4, 4)
+    return np.asarray((M[:3, :3] @ offset + M[:3, 3] - reference)[:2], float)
 
 
 def _float(value: Any) -> float:

@@ -337,7 +337,7 @@ def write_plot(
     doc, _ = strict_json(plot_document(reg, inventory, labels, review, pairs_files))
     writers = _inventory_writers(inventory.trees, review.marks)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
-    writers[VIEW_NPZ] = view_writer(plot_view(clouds, reg.poses, inventory))
+    writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
     if write_trees:
         for k, tree in enumerate(inventory.trees):
             writers[f"{TREES_DIR}/{tree.tree_id}.ply"] = _tree_writer(

@@ -1,7 +1,7 @@
 """What a plot's results keep for the app to draw (``view.npz``).
 
 Each tree's stem slices and a sample of its points (its side view), the top view and
-where the scans stood.
+each scan's offset; where the scans stood follows from plot.json's poses.
 
 A run writes it beside plot.json and trees.csv (``plot.export.write_plot``), so a
 plot's results open in the app without running it again, whether the app or
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.plot.inventory import Inventory
-    from amrst.types import Cloud, Transform
+    from amrst.types import Cloud
 
 VIEW_NPZ = "view.npz"
 #: The layout of view.npz; a file of another is refused (run the plot again).
@@ -76,14 +76,13 @@ class TreeProfile:
 
 @dataclass(frozen=True, slots=True)
 class PlotView:
-    """The drawing of a plot: scans, trees' breast-height centres and slices, top view.
+    """The drawing of a plot: scans' offsets, trees' centres, slices and side views.
 
     ``trees`` follows trees.csv's order (tree ids); ``slices[k]`` holds one slice per
     ``SLICE_HEIGHTS_M`` for tree k.
     """
 
     offsets: np.ndarray  # (S, 3) each scan's offset (its files' coordinates - local)
-    scan_xy: np.ndarray  # (S, 2) where each scan stood; NaN: not placed
     trees: tuple[str, ...]
     dbh_xy: np.ndarray  # (T, 2) breast-height centre of each tree
     slices: tuple[tuple[TreeSlice, ...], ...]
@@ -91,22 +90,10 @@ class PlotView:
     top: TopView | None
 
 
-def plot_view(
-    clouds: Sequence[Cloud],
-    poses: Sequence[Transform | None],
-    inventory: Inventory,
-) -> PlotView:
-    """Return the drawing of a registered, inventoried plot.
-
-    ``poses`` map each scan into the reference's local frame (None: not placed).
-    """
-    scan_xy = np.array(
-        [[np.nan, np.nan] if p is None else np.asarray(p)[:2, 3] for p in poses],
-        float,
-    ).reshape(-1, 2)
+def plot_view(clouds: Sequence[Cloud], inventory: Inventory) -> PlotView:
+    """Return the drawing of a registered, inventoried plot of ``clouds``."""
     return PlotView(
         offsets=np.array([c.offset for c in clouds], float).reshape(-1, 3),
-        scan_xy=scan_xy,
         trees=tuple(t.tree_id for t in inventory.trees),
         dbh_xy=np.array([t.stem.dbh_xy for t in inventory.trees], float).reshape(-1, 2),
         slices=tree_slices(inventory),
@@ -213,7 +200,6 @@ def view_writer(view: PlotView) -> Callable[[Path], object]:
     arrays: dict[str, np.ndarray] = {
         "format": np.array(VIEW_FORMAT),
         "offsets": view.offsets,
-        "scan_xy": view.scan_xy,
         "trees": np.array(view.trees, dtype=str),
         "dbh_xy": view.dbh_xy,
         "slice_heights_m": np.array(SLICE_HEIGHTS_M, float),
@@ -312,7 +298,6 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
         top = TopView(np.asarray(data["top_image"], np.uint8), x0, y0, cell)
     return PlotView(
         offsets=np.asarray(data["offsets"], float).reshape(-1, 3),
-        scan_xy=np.asarray(data["scan_xy"], float).reshape(-1, 2),
         trees=trees,
         dbh_xy=np.asarray(data["dbh_xy"], float).reshape(len(trees), 2),
         slices=slices,

@@ -295,6 +295,9 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         win.open_plot_results(tmp_path / "out")
     assert plot.hand_pairs == {(0, 1): str(pairs.resolve())}
+    placed = [s.xy for s in plot.outcome.scans]  # where the scans stood, from poses
+    assert np.allclose(placed[0], 0.0, atol=1e-9)
+    assert np.allclose(placed[1], SOURCE_POSE[:2, 3], atol=0.01)
     assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)
@@ -451,6 +454,7 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert plot.left_out == {(0, 1)}
     assert plot.leave_button.text() == "Leave out"  # no link selected
     assert [s.status for s in o.scans] == ["registered", "failed"]
+    assert o.scans[1].xy is None  # not placed
     assert len(o.trees) == len(STEMS)
     assert plot.trees.rowCount() == len(STEMS)
     assert plot.out_edit.text() == str(out)
