@@ -23,6 +23,7 @@ then read *accepted*.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -68,6 +69,7 @@ from amrst_gui.plot_tree import TreePanel
 from amrst_gui.views.stem_map import StemMapView
 
 if TYPE_CHECKING:
+    from amrst.plot.review import HandCircle
     from amrst_gui.plot_jobs import LinkLine, PlotOutcome
     from amrst_gui.workers import StageJob
 
@@ -127,8 +129,7 @@ class PlotWindow(QMainWindow):
         self.specs: list[str] = []
         self.found: PlotOutcome | None = None  # the run's outcome
         self.outcome: PlotOutcome | None = None  # as the review leaves it
-        self.marks: dict[str, str] = {}
-        self.accepted: dict[tuple[int, int], object] = {}  # link -> pose accepted
+        self.review = PlotReview()  # marks, DBHs by hand, links accepted
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
@@ -144,6 +145,7 @@ class PlotWindow(QMainWindow):
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
         self.tree_panel.mark_chosen.connect(self.set_mark)
+        self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
         self.links.itemSelectionChanged.connect(self._update_link_buttons)
         if parent is not None:  # the main window already fits the screen
@@ -278,7 +280,7 @@ class PlotWindow(QMainWindow):
             self._say("A plot is running: cancel it first.", error=True)
             return False
         self.found = self.outcome = None
-        self.marks, self.accepted, self.hand_pairs = {}, {}, {}
+        self.review, self.hand_pairs = PlotReview(), {}
         self.left_out = set()
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
@@ -482,11 +484,11 @@ class PlotWindow(QMainWindow):
         if not path:
             return
         try:
-            export_inventory(Path(path), o.trees, self.marks)
+            export_inventory(Path(path), o.trees, self.review)
         except (AmrstError, OSError) as exc:
             self._say(f"Not exported: {exc}", error=True)
             return
-        self._say(f"{len(o.trees)} trees, with your marks, exported to {path}")
+        self._say(f"{len(o.trees)} trees, with your marks and DBHs, exported to {path}")
 
     def write_report(self) -> None:
         """Write report.html from the results folder's files in a worker, then open
@@ -511,32 +513,46 @@ class PlotWindow(QMainWindow):
         if o is None or k is None or not 0 <= k < len(o.trees):
             return
         self.stem_map.select(k)
-        self.tree_panel.show_tree(o, k, self.marks.get(o.trees[k].tree_id))
+        self.tree_panel.show_tree(o, k, self.review)
         if self.trees.currentRow() != k:
             self.trees.selectRow(k)
 
     def set_mark(self, tree_id: str, mark: str) -> None:
         """Mark a tree ``ok`` or ``check`` ("" clears); write the review and trees.csv."""
-        from amrst.plot.export import TREES_CSV, write_inventory
-
-        o = self.outcome
-        if o is None:
-            return
-        marks = dict(self.marks)
+        marks = dict(self.review.marks)
         if mark:
             marks[tree_id] = mark
         else:
             marks.pop(tree_id, None)
-        if not self._save_review(marks, self.accepted, "The mark"):
+        done = f"{tree_id}: {mark or 'mark cleared'}"
+        self._review_trees(replace(self.review, marks=marks), done, "The mark")
+
+    def set_hand_dbh(self, tree_id: str, circle: HandCircle | None) -> None:
+        """Keep the technician's DBH of a tree (None forgets it); write the review
+        and trees.csv."""
+        dbh = dict(self.review.dbh)
+        if circle is not None:
+            dbh[tree_id] = circle
+            done = f"{tree_id}: your DBH {100 * circle.dbh_m:.1f} cm"
+        else:
+            dbh.pop(tree_id, None)
+            done = f"{tree_id}: your DBH forgotten"
+        self._review_trees(replace(self.review, dbh=dbh), done, "Your DBH")
+
+    def _review_trees(self, review: PlotReview, done: str, what: str) -> None:
+        """Save a review of the trees, show it, and write the inventory with it."""
+        from amrst.plot.export import TREES_CSV, write_inventory
+
+        o = self.outcome
+        if o is None or not self._save_review(review, what):
             return
         self._show_marks()
-        done = f"{tree_id}: {mark or 'mark cleared'}"
         try:
-            write_inventory(o.out, o.trees, marks)
+            write_inventory(o.out, o.trees, review)
         except (AmrstError, OSError) as exc:
             self._say(
                 f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "
-                f"({exc}): close it where it is open, and mark again.",
+                f"({exc}): close it where it is open, and try again.",
                 error=True,
             )
             return
@@ -550,7 +566,7 @@ class PlotWindow(QMainWindow):
         if line is None or self.outcome is None:
             return
         name = f"S{line.target + 1}–S{line.source + 1}"
-        accepted = dict(self.accepted)
+        accepted = dict(self.review.accepted)
         if line.status == ACCEPTED:
             del accepted[line.key]
             done = f"Link {name} needs review again"
@@ -566,7 +582,7 @@ class PlotWindow(QMainWindow):
                 return
             accepted[line.key] = line.T_world
             done = f"Link {name} accepted at its pose"
-        if not self._save_review(self.marks, accepted, "The link"):
+        if not self._save_review(replace(self.review, accepted=accepted), "The link"):
             return
         self._show_review()
         o = self.outcome
@@ -632,7 +648,7 @@ class PlotWindow(QMainWindow):
         except AmrstError as exc:
             review = PlotReview()
             self._say(str(exc), error=True)
-        self.marks, self.accepted = review.marks, dict(review.accepted)
+        self.review = review
         self.outcome = None
         self.stem_map.select(None)  # tree k of the last run is not tree k of this one
         self._show_review()
@@ -646,16 +662,16 @@ class PlotWindow(QMainWindow):
         self._say(f"{self._summary()}; {done}", error=unsure)
         self.plot_done.emit(o)
 
-    def _save_review(self, marks: dict, accepted: dict, what: str) -> bool:
+    def _save_review(self, review: PlotReview, what: str) -> bool:
         """Write the review; keep it as the window's when written."""
         o = self.outcome
         assert o is not None
         try:
-            write_review(o.out, o.labels, PlotReview(marks, accepted))
+            write_review(o.out, o.labels, review)
         except (AmrstError, OSError) as exc:
             self._say(f"{what} was not saved: {exc}", error=True)
             return False
-        self.marks, self.accepted = marks, accepted
+        self.review = review
         return True
 
     def _summary(self) -> str:
@@ -720,7 +736,7 @@ class PlotWindow(QMainWindow):
         assert self.found is not None
         selected = self.stem_map.selected
         link_row = self.links.currentRow()
-        self.outcome = plot_jobs.reviewed(self.found, self.accepted)
+        self.outcome = plot_jobs.reviewed(self.found, self.review.accepted)
         self.stem_map.set_plot(self.outcome)
         self._show_scans(self.outcome)
         self._show_links(self.outcome)
@@ -772,14 +788,14 @@ class PlotWindow(QMainWindow):
             return
         current = self.trees.currentRow()
         self.trees.blockSignals(True)
-        fill(self.trees, tree_rows(o, self.marks))
+        fill(self.trees, tree_rows(o, self.review))
         if current >= 0:
             self.trees.selectRow(current)
         self.trees.blockSignals(False)
-        self.stem_map.set_marks(self.marks)
+        self.stem_map.set_marks(self.review.marks)
         k = self.stem_map.selected
         if k is not None:
-            self.tree_panel.show_tree(o, k, self.marks.get(o.trees[k].tree_id))
+            self.tree_panel.show_tree(o, k, self.review)
 
     def _set_running(self, running: bool) -> None:
         self.run_button.setEnabled(not running)

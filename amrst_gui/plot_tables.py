@@ -16,8 +16,9 @@ from amrst.plot.review import ACCEPTED
 from amrst.review.verdict import NEEDS_REVIEW
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Sequence
 
+    from amrst.plot.review import PlotReview
     from amrst_gui.plot_jobs import PlotOutcome
 
 TREE_COLUMNS = ("Tree", "DBH cm", "DBH", "Height m", "Height", "Mark")
@@ -93,16 +94,27 @@ def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:
     ]
 
 
-def tree_rows(o: PlotOutcome, marks: Mapping[str, str]) -> list[tuple[str, ...]]:
-    """One row per tree: id, DBH, its quality, height, its flag, the mark."""
-    return [
-        (
-            t.tree_id,
-            number(t.stem.dbh_m * 100, ".1f"),
-            t.stem.dbh_quality,
-            number(t.stem.height_m, ".1f"),
-            t.stem.height_flag,
-            marks.get(t.tree_id, ""),
+def tree_rows(o: PlotOutcome, review: PlotReview) -> list[tuple[str, ...]]:
+    """One row per tree: id, DBH, its quality, height, its flag, the mark.
+
+    A DBH the technician measured shows as theirs (quality ``yours``).
+    """
+    rows: list[tuple[str, ...]] = []
+    for t in o.trees:
+        hand = review.dbh.get(t.tree_id)
+        dbh, quality = (
+            (t.stem.dbh_m, t.stem.dbh_quality)
+            if hand is None
+            else (hand.dbh_m, "yours")
         )
-        for t in o.trees
-    ]
+        rows.append(
+            (
+                t.tree_id,
+                number(dbh * 100, ".1f"),
+                quality,
+                number(t.stem.height_m, ".1f"),
+                t.stem.height_flag,
+                review.marks.get(t.tree_id, ""),
+            )
+        )
+    return rows

@@ -1,11 +1,13 @@
 """The Plot window's tree view: one tree's figures, its stem slices, its side view,
-its mark.
+its mark, and the technician's own DBH.
 
 The slice shown is chosen by height (``amrst.plot.view.SLICE_HEIGHTS_M``; breast height
 first), or the whole tree from the side (**Side**), and the choice holds from one tree
 to the next.
 
-Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear).
+Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear), and
+``dbh_chosen(tree id, circle)`` with the technician's ``HandCircle`` at breast height
+(None: forget it).
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QButtonGroup,
     QFormLayout,
@@ -26,9 +29,11 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst.plot.review import PlotReview
 from amrst.plot.view import SLICE_HEIGHTS_M
-from amrst_gui.views.stem_map import TreeSliceView, scan_colour
+from amrst_gui.views.stem_map import scan_colour
 from amrst_gui.views.tree_side import TreeSideView
+from amrst_gui.views.tree_slice import TreeSliceView
 
 if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
@@ -55,6 +60,7 @@ FIGURE_TIPS = {
     "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
     "residual, and the share of slice points off the circle (3DFin's checks)",
     "Seen from": "The scans whose points reach the stem",
+    "DBH": "The DBH the plot measured (its quality), and yours where you measured it",
 }
 
 
@@ -72,9 +78,12 @@ def _narrow(button: QPushButton) -> QPushButton:
     return button
 
 
-def figures(tree: Tree, mark: str | None) -> list[tuple[str, str]]:
+def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
     """The tree's figures, label and text (world coordinates, as trees.csv)."""
     s = tree.stem
+    mark = review.marks.get(tree.tree_id)
+    hand = review.dbh.get(tree.tree_id)
+    yours = "" if hand is None else f"; yours {100 * hand.dbh_m:.1f} cm"
     x, y, z = tree.xyz
     seen = ", ".join(
         f'<span style="color:{scan_colour(k - 1).name()}">S{k}</span>'
@@ -83,7 +92,7 @@ def figures(tree: Tree, mark: str | None) -> list[tuple[str, str]]:
     return [
         ("Position", f"x {x:.2f}, y {y:.2f}, z {z:.2f} m"),
         ("Height", f"{_value(s.height_m, ' m')} ({s.height_flag})"),
-        ("DBH", f"{_value(s.dbh_m, ' cm', 100, 1)} ({s.dbh_quality})"),
+        ("DBH", f"{_value(s.dbh_m, ' cm', 100, 1)} ({s.dbh_quality}){yours}"),
         (
             "DBH fit",
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
@@ -99,15 +108,18 @@ def figures(tree: Tree, mark: str | None) -> list[tuple[str, str]]:
 
 
 class TreePanel(QWidget):
-    """The selected tree: title, figures, the breast-height slice, mark buttons."""
+    """The selected tree: title, figures, its slices and side view, mark buttons and
+    the DBH measured by hand."""
 
     mark_chosen = Signal(str, str)
+    dbh_chosen = Signal(str, object)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setObjectName("tree_panel")
         self.tree_id: str | None = None
         self._shown: tuple[PlotOutcome, int] | None = None
+        self.review = PlotReview()
         self.height_index = SLICE_HEIGHTS_M.index(BREAST_HEIGHT_M)
         self.title = QLabel("No tree selected")
         self.title.setStyleSheet("font-weight: bold; font-size: 11pt;")
@@ -131,6 +143,22 @@ class TreePanel(QWidget):
             "points lie on the circle all round; a short arc, a branch or points off "
             "the circle make the DBH doubtful."
         )
+        self.side_view = TreeSideView(self)
+        self.views = QStackedWidget()
+        self.views.addWidget(self.slice_view)
+        self.views.addWidget(self.side_view)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(6, 4, 6, 4)
+        layout.addWidget(self.title)
+        layout.addWidget(self.hint)
+        layout.addLayout(form)
+        layout.addLayout(self._height_row())
+        layout.addWidget(self.views, 1)
+        layout.addLayout(self._mark_row())
+        layout.addLayout(self._hand_row())
+
+    def _height_row(self) -> QHBoxLayout:
+        """The buttons that choose the slice's height, or the side view."""
         heights = QHBoxLayout()
         heights.addWidget(QLabel("Slice at"))
         self.height_buttons = QButtonGroup(self)
@@ -150,10 +178,9 @@ class TreePanel(QWidget):
         self.height_buttons.addButton(side, SIDE)
         heights.addWidget(_narrow(side))
         self.height_buttons.idClicked.connect(self.show_height)
-        self.side_view = TreeSideView(self)
-        self.views = QStackedWidget()
-        self.views.addWidget(self.slice_view)
-        self.views.addWidget(self.side_view)
+        return heights
+
+    def _mark_row(self) -> QHBoxLayout:
         self.buttons = {}
         row = QHBoxLayout()
         for mark, text, tip in (
@@ -167,20 +194,45 @@ class TreePanel(QWidget):
             button.clicked.connect(lambda _=False, m=mark: self._mark(m))
             row.addWidget(button)
             self.buttons[mark] = button
-        layout = QVBoxLayout(self)
-        layout.setContentsMargins(6, 4, 6, 4)
-        layout.addWidget(self.title)
-        layout.addWidget(self.hint)
-        layout.addLayout(form)
-        layout.addLayout(heights)
-        layout.addWidget(self.views, 1)
-        layout.addLayout(row)
+        return row
+
+    def _hand_row(self) -> QHBoxLayout:
+        """Measure a DBH by hand on the breast-height slice, keep it, forget it."""
+        self.measure_button = QPushButton("Measure DBH")
+        self.measure_button.setCheckable(True)
+        self.measure_button.setToolTip(
+            f"Measure the DBH yourself on the {BREAST_HEIGHT_M:g} m slice: click "
+            "points on the stem's outline all round (right click takes one back), "
+            "then Keep. It goes into the inventory beside the measured DBH "
+            "(dbh_hand_m). Esc cancels."
+        )
+        self.measure_button.toggled.connect(self._measure)
+        self.keep_button = QPushButton("Keep DBH")
+        self.keep_button.setToolTip("Keep the circle through your points as your DBH")
+        self.keep_button.clicked.connect(self._keep)
+        self.forget_button = QPushButton("Forget DBH")
+        self.forget_button.setToolTip("Remove your DBH of this tree")
+        self.forget_button.clicked.connect(self._forget)
+        row = QHBoxLayout()
+        for button in (self.measure_button, self.keep_button, self.forget_button):
+            button.setEnabled(False)
+            row.addWidget(button)
+        self.slice_view.clicks_changed.connect(self._update_hand_buttons)
+        cancel = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
+        cancel.activated.connect(lambda: self.measure_button.setChecked(False))
+        return row
 
     def show_tree(
-        self, outcome: PlotOutcome | None, k: int | None, mark: str | None
+        self,
+        outcome: PlotOutcome | None,
+        k: int | None,
+        review: PlotReview | None = None,
     ) -> None:
-        """Show tree ``k`` of ``outcome`` (None: no tree)."""
+        """Show tree ``k`` of ``outcome`` (None: no tree) with the ``review``'s mark
+        and DBH of it."""
         self._shown = None if outcome is None or k is None else (outcome, k)
+        self.review = review or PlotReview()
+        self.measure_button.setChecked(False)
         if outcome is None or k is None:
             self.tree_id = None
             self.title.setText("No tree selected")
@@ -194,15 +246,18 @@ class TreePanel(QWidget):
             self.tree_id = tree.tree_id
             self.title.setText(f"Tree {tree.tree_id}")
             self.hint.hide()
-            for name, text in figures(tree, mark):
+            for name, text in figures(tree, self.review):
                 self.values[name].setText(text)
             self.show_height(self.height_index)
         for button in self.buttons.values():
             button.setEnabled(self.tree_id is not None)
+        self._update_hand_buttons()
 
     def show_height(self, index: int) -> None:
         """Show the shown tree's slice at ``SLICE_HEIGHTS_M[index]``, or its side
-        view (``SIDE``)."""
+        view (``SIDE``); a measuring under way ends."""
+        if self.slice_view.measuring:
+            self.measure_button.setChecked(False)
         self.height_index = index
         self.height_buttons.button(index).setChecked(True)
         self.views.setCurrentWidget(
@@ -218,14 +273,44 @@ class TreePanel(QWidget):
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M
         circle = "the DBH fit" if fitted else "the DBH, for comparison"
+        tree = outcome.trees[k]
+        hand = self.review.dbh.get(tree.tree_id) if fitted else None
         self.slice_view.set_slice(
             sl,
-            outcome.trees[k].stem.dbh_xy if sl.centre is None else sl.centre,
-            outcome.trees[k].stem.dbh_m / 2,
-            f"{len(sl.xy)} points at {sl.height_m:g} m ± 5 cm; circle: {circle}",
+            tree.stem.dbh_xy if sl.centre is None else sl.centre,
+            tree.stem.dbh_m / 2,
+            f"{len(sl.xy)} points at {sl.height_m:g} m ± 5 cm; circle: {circle}"
+            + ("; green: yours" if hand is not None else ""),
             fitted,
+            hand,
         )
 
     def _mark(self, mark: str) -> None:
         if self.tree_id is not None:
             self.mark_chosen.emit(self.tree_id, mark)
+
+    def _measure(self, on: bool) -> None:
+        """Take clicks on the breast-height slice (the view turns to it)."""
+        if on:
+            self.show_height(SLICE_HEIGHTS_M.index(BREAST_HEIGHT_M))
+        self.slice_view.measure(on)
+
+    def _keep(self) -> None:
+        circle = self.slice_view.circle()
+        if self.tree_id is not None and circle is not None:
+            self.measure_button.setChecked(False)
+            self.dbh_chosen.emit(self.tree_id, circle)
+
+    def _forget(self) -> None:
+        if self.tree_id is not None:
+            self.measure_button.setChecked(False)
+            self.dbh_chosen.emit(self.tree_id, None)
+
+    def _update_hand_buttons(self) -> None:
+        tree = self.tree_id is not None and self._shown is not None
+        self.measure_button.setEnabled(tree)
+        measuring = self.slice_view.measuring
+        self.keep_button.setEnabled(measuring and self.slice_view.circle() is not None)
+        self.forget_button.setEnabled(
+            tree and not measuring and self.tree_id in self.review.dbh
+        )

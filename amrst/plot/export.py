@@ -2,10 +2,10 @@
 
 Every file of a run is written into the output folder as one unit
 (``files.outdir.replace_files``). A folder holding another run's ``plot.json`` is
-refused unless the caller says to overwrite it. The inventory's last column, ``mark``,
-is the technician's (``amrst.plot.review``): a run writes the marks the folder's
-review holds for the same scans, and :func:`write_inventory` writes the inventory
-again when a mark changes.
+refused unless the caller says to overwrite it. The inventory's last columns, ``mark``
+and ``dbh_hand_m``, are the technician's (``amrst.plot.review``): a run writes what
+the folder's review holds for the same scans, and :func:`write_inventory` writes the
+inventory again when the review changes.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ TREES_CSV = "trees.csv"
 TREES_XLSX = "trees.xlsx"
 TREES_DIR = "trees"
 PLOT_CLOUD = "plot.laz"
-#: trees.csv's columns: the tree's figures, then the technician's mark.
-INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark")
+#: trees.csv's columns: the tree's figures, then the technician's mark and DBH.
+INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark", "dbh_hand_m")
 
 
 def check_out(out: Path, overwrite: bool) -> None:
@@ -54,29 +54,25 @@ def check_out(out: Path, overwrite: bool) -> None:
     read_review(out, ())
 
 
-def trees_csv(trees: Sequence[Tree], marks: Mapping[str, str] | None = None) -> str:
+def trees_csv(trees: Sequence[Tree], review: PlotReview | None = None) -> str:
     """Return trees.csv: one row per tree, the columns of ``INVENTORY_COLUMNS``."""
     buf = _stdio.StringIO()
     writer = csv.DictWriter(buf, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(_rows(trees, marks or {}))
+    writer.writerows(_rows(trees, review or PlotReview()))
     return buf.getvalue()
 
 
-def write_inventory(
-    out: Path, trees: Sequence[Tree], marks: Mapping[str, str]
-) -> list[Path]:
-    """Write trees.csv (and trees.xlsx) again with these marks, as one unit."""
+def write_inventory(out: Path, trees: Sequence[Tree], review: PlotReview) -> list[Path]:
+    """Write trees.csv (and trees.xlsx) again with this review, as one unit."""
     from amrst.files.outdir import replace_files
 
-    written, _ = replace_files(out, _inventory_writers(trees, marks), managed=MANAGED)
+    written, _ = replace_files(out, _inventory_writers(trees, review), managed=MANAGED)
     return written
 
 
-def export_inventory(
-    path: Path, trees: Sequence[Tree], marks: Mapping[str, str]
-) -> None:
-    """Write the inventory with the marks to ``path`` (``.csv`` or ``.xlsx``), atomically.
+def export_inventory(path: Path, trees: Sequence[Tree], review: PlotReview) -> None:
+    """Write the inventory with the review to ``path`` (``.csv``/``.xlsx``), atomically.
 
     Raises
     ------
@@ -92,7 +88,7 @@ def export_inventory(
         )
     if not path.parent.is_dir():
         raise InvalidInput(f"Cannot write {path}: its folder does not exist.")
-    writers = _inventory_writers(trees, marks)
+    writers = _inventory_writers(trees, review)
     name = TREES_CSV if suffix == ".csv" else TREES_XLSX
     if name not in writers:
         raise InvalidInput(
@@ -335,7 +331,7 @@ def write_plot(
 
     review = read_review(out, labels)
     doc, _ = strict_json(plot_document(reg, inventory, labels, review, pairs_files))
-    writers = _inventory_writers(inventory.trees, review.marks)
+    writers = _inventory_writers(inventory.trees, review)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
     if write_trees:
@@ -348,7 +344,7 @@ def write_plot(
     if report:
         from amrst.plot.report import build_report
 
-        page = build_report(doc, _rows(inventory.trees, review.marks))
+        page = build_report(doc, _rows(inventory.trees, review))
         writers[REPORT] = lambda p: p.write_text(page)
     # Clouds of an earlier run that this one does not write again no longer match it.
     old = out / TREES_DIR
@@ -378,21 +374,30 @@ def _plot_cloud_writer(
     return lambda p: io.write_merged(p, parts, moves, offset, ids)
 
 
-def _rows(trees: Sequence[Tree], marks: Mapping[str, str]) -> list[dict[str, Any]]:
-    return [{**t.row(), "mark": marks.get(t.tree_id, "")} for t in trees]
+def _rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
+    return [
+        {
+            **t.row(),
+            "mark": review.marks.get(t.tree_id, ""),
+            "dbh_hand_m": (
+                round(review.dbh[t.tree_id].dbh_m, 3) if t.tree_id in review.dbh else ""
+            ),
+        }
+        for t in trees
+    ]
 
 
 def _inventory_writers(
-    trees: Sequence[Tree], marks: Mapping[str, str]
+    trees: Sequence[Tree], review: PlotReview
 ) -> dict[str, Callable[[Path], object]]:
     """trees.csv's writer, and trees.xlsx's when openpyxl is installed."""
     from amrst.files.atomic import xlsx_book
 
-    text = trees_csv(trees, marks)
+    text = trees_csv(trees, review)
     writers: dict[str, Callable[[Path], object]] = {
         TREES_CSV: lambda p: p.write_text(text)
     }
-    book = xlsx_book("trees", INVENTORY_COLUMNS, _rows(trees, marks))
+    book = xlsx_book("trees", INVENTORY_COLUMNS, _rows(trees, review))
     if book is not None:
         writers[TREES_XLSX] = book.save
     return writers

@@ -146,11 +146,13 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     colour = STATE_RGB["registered" if sure else "needs review"]
     bundle = _num(doc.get("bundle_rmse_m"))
     checked = sum(1 for r in rows if r.get("mark") == "check")
+    by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
         f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
-        f"at the final poses); {checked} trees marked check by you.</p></div>"
+        f"at the final poses); {checked} trees marked check and {by_hand} DBHs "
+        "measured by you.</p></div>"
     )
 
 
@@ -213,10 +215,20 @@ def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
             _fixed(r.get("crown_width_m"), 1),
             _e(r.get("seen_from", "")),
             _e(r.get("mark", "")),
+            _fixed(_num(r.get("dbh_hand_m")) * 100, 1),
         ]
         for r in rows
     ]
-    head = ["Tree", "x, y, z (m)", "Height m", "DBH cm", "Crown m", "Seen from", "Mark"]
+    head = [
+        "Tree",
+        "x, y, z (m)",
+        "Height m",
+        "DBH cm",
+        "Crown m",
+        "Seen from",
+        "Mark",
+        "Your DBH cm",
+    ]
     return "<h2>Trees</h2>" + html_table(head, body)
 
 

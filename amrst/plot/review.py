@@ -4,6 +4,9 @@ It names the scans it belongs to (a review of other scans is not applied) and ho
 
 - ``marks``: ``ok`` / ``check`` per tree id; tree ids are stable between runs on the
   same files, so marks hold across a run again;
+- ``dbh``: the technician's own DBH of a tree, a circle placed on its breast-height
+  slice (:func:`hand_circle`); it stands beside the measured one, and holds across a
+  run again as marks do;
 - ``accepted``: links the registration left unsure that the technician checked by eye
   and accepted, each with the pose accepted (the source scan's file coordinates into
   the target's, as ``plot.json`` gives poses). An acceptance holds only while the
@@ -42,15 +45,48 @@ MARKS = ("ok", "check")
 SAME_POSE_DEG = 0.05
 SAME_POSE_M = 0.01
 
+#: A DBH by hand is at most this (m): a wider circle is clicks along a line.
+MAX_HAND_DBH_M = 4.0
+
 LinkKey = tuple[int, int]  # (target scan, source scan), from 0
 
 
 @dataclass(frozen=True, slots=True)
+class HandCircle:
+    """A stem circle the technician placed at breast height: their DBH of the tree."""
+
+    centre_xy: tuple[float, float]  # the reference scan's local frame (view.npz's)
+    dbh_m: float
+
+
+@dataclass(frozen=True, slots=True)
 class PlotReview:
-    """Marks per tree id, and the accepted links with the pose each was accepted at."""
+    """The technician's marks and DBHs per tree id, and links accepted (with pose)."""
 
     marks: dict[str, str] = field(default_factory=dict)
     accepted: dict[LinkKey, np.ndarray] = field(default_factory=dict)
+    dbh: dict[str, HandCircle] = field(default_factory=dict)
+
+
+def hand_circle(xy: np.ndarray) -> HandCircle | None:
+    """Return the circle that fits points clicked on a stem's outline (least squares).
+
+    None for fewer than three points, or points too near a line to bound a stem
+    (a circle wider than ``MAX_HAND_DBH_M``).
+    """
+    pts = np.asarray(xy, float).reshape(-1, 2)
+    if len(pts) < 3 or not np.isfinite(pts).all():
+        return None
+    mid = pts.mean(axis=0)
+    x, y = (pts - mid).T
+    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
+    if np.linalg.matrix_rank(A, tol=1e-9 * max(float(np.abs(A).max()), 1e-12)) < 3:
+        return None
+    a, b, c = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
+    r2 = c + a * a + b * b
+    if not 0 < r2 < (MAX_HAND_DBH_M / 2) ** 2:
+        return None
+    return HandCircle((float(mid[0] + a), float(mid[1] + b)), float(2 * np.sqrt(r2)))
 
 
 def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
@@ -69,6 +105,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
             _key(k): np.asarray(T, float).reshape(4, 4)
             for k, T in dict(doc.get("accepted") or {}).items()
         }
+        dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InvalidInput(
             f"{path} is no review file ({exc}); move it away to review the plot again."
@@ -79,7 +116,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         )
     if not same_scans(scans, labels):
         return PlotReview()
-    return PlotReview(marks, accepted)
+    return PlotReview(marks, accepted, dbh)
 
 
 def same_scans(a: Sequence[str], b: Sequence[str]) -> bool:
@@ -110,9 +147,16 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
     bad = sorted(v for v in review.marks.values() if v not in MARKS)
     if bad:
         raise InvalidInput(f"marks are {' or '.join(MARKS)}, not {bad[0]!r}")
+    for tree_id, c in review.dbh.items():
+        if not _usable(c):
+            raise InvalidInput(f"{tree_id}: a DBH by hand of {c.dbh_m} m")
     accepted = {
         f"{i + 1}-{j + 1}": np.asarray(T, float).tolist()
         for (i, j), T in sorted(review.accepted.items())
+    }
+    dbh = {
+        tree_id: {"x_m": c.centre_xy[0], "y_m": c.centre_xy[1], "dbh_m": c.dbh_m}
+        for tree_id, c in sorted(review.dbh.items())
     }
     write_json_atomic(
         out / REVIEW_JSON,
@@ -120,6 +164,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
             "scans": list(labels),
             "marks": dict(sorted(review.marks.items())),
             "accepted": accepted,
+            "dbh": dbh,
         },
     )
 
@@ -179,6 +224,21 @@ def scan_state(
     if status == NEEDS_REVIEW and doubts and doubts <= accepted:
         return ACCEPTED
     return status
+
+
+def _circle(entry: Mapping[str, float]) -> HandCircle:
+    circle = HandCircle(
+        (float(entry["x_m"]), float(entry["y_m"])), float(entry["dbh_m"])
+    )
+    if not _usable(circle):
+        raise ValueError(f"a DBH by hand of {circle.dbh_m} m")
+    return circle
+
+
+def _usable(circle: HandCircle) -> bool:
+    return (
+        bool(np.isfinite(circle.centre_xy).all()) and 0 < circle.dbh_m < MAX_HAND_DBH_M
+    )
 
 
 def _key(text: str) -> LinkKey:

@@ -1,13 +1,10 @@
-"""The stem map of a plot seen from above, and one tree's slice at breast height.
+"""The stem map of a plot seen from above.
 
 ``StemMapView`` draws every tree as its DBH circle to scale (a few pixels at least,
 so a thin stem stays visible), filled by its DBH quality and ringed by the
 technician's mark, with its id; the scan positions as triangles; the links between
 them coloured by their state (dashed: not in the spanning tree); the vegetation's
 density from above in grey under it all. A click on a tree emits ``tree_clicked``.
-
-``TreeSliceView`` draws the points around one stem at 1.3 m, each in the colour of
-the scan it came from, and the fitted DBH circle.
 """
 
 from __future__ import annotations
@@ -25,7 +22,6 @@ from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
 
 if TYPE_CHECKING:
-    from amrst.plot.view import TreeSlice
     from amrst_gui.plot_jobs import PlotOutcome
 
 BACKGROUND = QColor(31, 33, 38)
@@ -278,78 +274,4 @@ class StemMapView(QWidget):
         p.drawText(
             QPointF(x, y),
             "Solid: the spanning tree; ring: your mark (white ok, red check)",
-        )
-
-
-class TreeSliceView(QWidget):
-    """One stem at one height: its slice points by scan and the DBH circle (solid at
-    breast height, dashed elsewhere: there it is only a yardstick)."""
-
-    def __init__(self, parent: QWidget | None = None) -> None:
-        super().__init__(parent)
-        self.setObjectName("tree_slice")
-        self.setMinimumSize(160, 160)
-        policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
-        self.setSizePolicy(policy)
-        self.slice: TreeSlice | None = None
-        self.centre = np.zeros(2)
-        self.radius_m = float("nan")
-        self.fitted = True
-        self.note = "Click a tree on the stem map."
-
-    def set_slice(
-        self,
-        sl: TreeSlice | None,
-        centre: np.ndarray,
-        radius_m: float,
-        note: str,
-        fitted: bool = True,
-    ) -> None:
-        """Show ``sl`` around ``centre`` with a circle of ``radius_m`` (dashed when
-        not ``fitted`` at this height)."""
-        self.slice, self.centre, self.radius_m = sl, np.asarray(centre, float), radius_m
-        self.note, self.fitted = note, fitted
-        self.update()
-
-    def paintEvent(self, _event) -> None:
-        p = QPainter(self)
-        p.setRenderHint(QPainter.RenderHint.Antialiasing)
-        p.fillRect(self.rect(), BACKGROUND)
-        side = max(min(self.width(), self.height() - 18) - 8, 10)
-        box = QRectF((self.width() - side) / 2, 4, side, side)
-        p.setPen(QColor(120, 120, 120))
-        p.drawRect(box)
-        p.setPen(TEXT)
-        p.setFont(QFont(self.font().family(), 8))
-        p.drawText(QPointF(6, self.height() - 5), self.note)
-        if self.slice is not None:
-            self._draw(p, box)
-        p.end()
-
-    def _draw(self, p: QPainter, box: QRectF) -> None:
-        assert self.slice is not None
-        r = self.radius_m if np.isfinite(self.radius_m) else 0.15
-        half = max(r * 1.8, 0.1)
-        scale = box.width() / (2 * half)
-        cx, cy = box.center().x(), box.center().y()
-        xy, scan = self.slice.xy, self.slice.scan
-        step = max(1, len(xy) // 4000)
-        for k in np.unique(scan):
-            p.setPen(QPen(scan_colour(int(k)), 3))
-            mine = xy[scan == k][::step]
-            for qx, qy in mine:
-                x = cx + (qx - self.centre[0]) * scale
-                y = cy - (qy - self.centre[1]) * scale
-                if box.contains(QPointF(x, y)):
-                    p.drawPoint(QPointF(x, y))
-        if np.isfinite(self.radius_m):
-            p.setBrush(Qt.BrushStyle.NoBrush)
-            pen = QPen(QColor(255, 255, 255), 1.5)
-            if not self.fitted:
-                pen.setStyle(Qt.PenStyle.DashLine)
-            p.setPen(pen)
-            p.drawEllipse(QPointF(cx, cy), r * scale, r * scale)
-        p.setPen(TEXT)
-        p.drawText(
-            QPointF(box.left() + 4, box.top() + 12), f"box {2 * half * 100:.0f} cm wide"
         )

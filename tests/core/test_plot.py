@@ -21,7 +21,7 @@ from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
-from amrst.plot.review import PlotReview, write_review
+from amrst.plot.review import HandCircle, PlotReview, write_review
 from amrst.plot.stemmap import StemMapParams, branch_axis, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
 
@@ -109,6 +109,7 @@ def test_inventory_columns_and_the_command(
         "n_points",
         "seen_from",
         "mark",
+        "dbh_hand_m",
     ]
     for row in rows:
         assert row["height_flag"] in {"ok", "lean", "top not seen"}
@@ -147,7 +148,9 @@ def test_inventory_columns_and_the_command(
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
-    write_review(out, labels, PlotReview({first: "check"}))
+    write_review(
+        out, labels, PlotReview({first: "check"}, dbh={first: HandCircle((0, 0), 0.3)})
+    )
     capsys.readouterr()
     assert plot_main([*args, "--overwrite", "--report"]) == 0
     assert (
@@ -156,13 +159,15 @@ def test_inventory_columns_and_the_command(
     )
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
+    again = _rows_of(out)
+    assert [r["dbh_hand_m"] for r in again] == ["0.3"] + [""] * (len(again) - 1)
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
-    assert "1 trees marked check by you" in page
+    assert "1 trees marked check and 1 DBHs measured by you" in page
     assert "2 registered" in page
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
-    write_inventory(out, trees, {first: "ok", rows[1]["tree_id"]: "check"})
+    write_inventory(out, trees, PlotReview({first: "ok", rows[1]["tree_id"]: "check"}))
     assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
     (out / "review.json").write_text("{")
@@ -199,8 +204,12 @@ def _reads_back(out: Path, T_true: np.ndarray) -> None:
 
 
 def _marks(out: Path) -> dict[str, str]:
+    return {r["tree_id"]: r["mark"] for r in _rows_of(out) if r["mark"]}
+
+
+def _rows_of(out: Path) -> list[dict[str, str]]:
     with (out / TREES_CSV).open() as fh:
-        return {r["tree_id"]: r["mark"] for r in csv.DictReader(fh) if r["mark"]}
+        return list(csv.DictReader(fh))
 
 
 def test_a_stem_inside_a_wide_thicket_is_found() -> None:

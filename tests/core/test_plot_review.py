@@ -13,7 +13,9 @@ from amrst.multiscan.graph import loop_closures, scan_doubts, spanning_tree
 from amrst.plot.review import (
     ACCEPTED,
     REVIEW_JSON,
+    HandCircle,
     PlotReview,
+    hand_circle,
     read_review,
     scan_state,
     still_holds,
@@ -31,10 +33,15 @@ def _turned(deg: float, shift: float = 0.0) -> np.ndarray:
 
 
 def test_the_review_is_written_and_read_back(tmp_path):
-    review = PlotReview({"T003": "check", "T001": "ok"}, {(0, 1): _turned(30.0)})
+    review = PlotReview(
+        {"T003": "check", "T001": "ok"},
+        {(0, 1): _turned(30.0)},
+        {"T002": HandCircle((4.5, -2.25), 0.315)},
+    )
     write_review(tmp_path, LABELS, review)
     back = read_review(tmp_path, LABELS)
     assert back.marks == review.marks
+    assert back.dbh == review.dbh
     assert list(back.accepted) == [(0, 1)]
     assert np.array_equal(back.accepted[0, 1], _turned(30.0))
     doc = json.loads((tmp_path / REVIEW_JSON).read_text())
@@ -54,6 +61,12 @@ def test_a_review_of_other_scans_is_not_applied(tmp_path):
         {"scans": LABELS, "marks": {"T001": "great"}},
         {"scans": LABELS, "marks": {}, "accepted": {"1-2": [[1, 0], [0, 1]]}},
         {"scans": LABELS, "marks": {}, "accepted": {"0-2": np.eye(4).tolist()}},
+        {"scans": LABELS, "marks": {}, "dbh": {"T001": {"x_m": 0, "y_m": 0}}},
+        {
+            "scans": LABELS,
+            "marks": {},
+            "dbh": {"T001": {"x_m": 0, "y_m": 0, "dbh_m": -1}},
+        },
     ],
 )
 def test_a_broken_review_is_refused_in_one_line(tmp_path, doc):
@@ -142,3 +155,22 @@ def test_a_report_of_a_folder_without_a_plot_is_one_line(tmp_path):
     with pytest.raises(InvalidInput, match="run the plot again") as err:
         write_report(tmp_path)
     assert "\n" not in str(err.value)
+
+
+def test_a_dbh_by_hand_is_the_circle_through_the_clicks():
+    a = np.radians([10.0, 80.0, 150.0, 200.0])
+    clicks = np.column_stack([3 + 0.2 * np.cos(a), -1 + 0.2 * np.sin(a)])
+    circle = hand_circle(clicks)
+    assert circle is not None
+    assert circle.centre_xy == pytest.approx((3.0, -1.0))
+    assert circle.dbh_m == pytest.approx(0.4)
+    # Too few clicks, or clicks along a line, bound no stem.
+    assert hand_circle(clicks[:2]) is None
+    assert hand_circle([[0, 0], [0.1, 0.1], [0.2, 0.2]]) is None
+    assert hand_circle([[0, 0], [0.1, 0.1], [np.nan, 0.2]]) is None
+    assert hand_circle([[0, 0], [3.0, 0.0001], [6.0, 0.0]]) is None  # 90 km wide
+
+
+def test_a_bad_dbh_by_hand_is_not_written(tmp_path):
+    with pytest.raises(InvalidInput, match="T001: a DBH by hand"):
+        write_review(tmp_path, LABELS, PlotReview(dbh={"T001": HandCircle((0, 0), 0)}))

@@ -53,6 +53,51 @@ def _run(qtbot: QtBot, plot: PlotWindow) -> None:
         plot.run()
 
 
+def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
+    """The technician's DBH: clicks on the stem's outline at 1.3 m, kept, forgotten."""
+    from amrst.plot.export import TREES_CSV
+
+    o = plot.outcome
+    assert o is not None
+    tree, panel = o.trees[k], plot.tree_panel
+    view = panel.slice_view
+    panel.height_buttons.button(3).click()  # measuring turns to breast height
+    assert not panel.keep_button.isEnabled()
+    panel.measure_button.click()
+    assert view.measuring
+    assert "at 1.3 m" in view.note
+    r = tree.stem.dbh_m / 2
+    a = np.radians([200.0, 250.0, 300.0, 330.0, 0.0])  # the side scan 1 faced
+    rim = np.asarray(tree.stem.dbh_xy) + r * np.column_stack([np.cos(a), np.sin(a)])
+    for n, (x, y) in enumerate(view.to_px(rim), 1):
+        QTest.mouseClick(
+            view, Qt.MouseButton.LeftButton, pos=QPoint(round(x), round(y))
+        )
+        assert panel.keep_button.isEnabled() == (n >= 3)
+    QTest.mouseClick(view, Qt.MouseButton.RightButton, pos=QPoint(5, 5))
+    assert len(view.clicks) == 4  # the last taken back
+    circle = view.circle()
+    assert circle is not None
+    assert abs(circle.dbh_m - 2 * r) < 0.01  # a pixel is a few mm here
+    panel.keep_button.click()
+    assert not view.measuring
+    kept = read_review(out, o.labels).dbh
+    assert list(kept) == [tree.tree_id]
+    assert kept[tree.tree_id].dbh_m == pytest.approx(circle.dbh_m)
+    with (out / TREES_CSV).open() as fh:
+        hand = {r["tree_id"]: r["dbh_hand_m"] for r in csv.DictReader(fh)}
+    assert float(hand.pop(tree.tree_id)) == pytest.approx(circle.dbh_m, abs=1e-3)
+    assert set(hand.values()) == {""}
+    assert "yours" in panel.values["DBH"].text()
+    cell = plot.trees.item(k, 2)
+    assert cell is not None
+    assert cell.text() == "yours"
+    assert panel.forget_button.isEnabled()
+    panel.forget_button.click()
+    assert read_review(out, o.labels).dbh == {}
+    assert "yours" not in panel.values["DBH"].text()
+
+
 def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     make_main_window: Callable[..., MainWindow],
     qtbot: QtBot,
@@ -145,12 +190,13 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert opened == [out / "report.html"]
     assert plot.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
-    assert "1 trees marked check by you" in opened[0].read_text()
+    assert "1 trees marked check and 0 DBHs measured by you" in opened[0].read_text()
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
     plot.tree_panel.buttons[""].click()
     assert read_review(out, o.labels).marks == {}
+    _measure_by_hand(plot, k, out)
 
     # Another run into the same folder asks first; "keep it" runs nothing.
     asked: list[str] = []
