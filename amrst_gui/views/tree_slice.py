@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
 #: The technician's circle and clicks: a colour no scan has.
 HAND_RGB = (198, 255, 0)
-#: The box's half width without a DBH: around the slice's points, within these (m).
+#: The box's half width (m) at least, and at most to take in the slice's points.
 HALF_M = (0.1, 1.5)
 
 
@@ -132,13 +132,13 @@ class TreeSliceView(QWidget):
         return box, box.width() / (2 * self._half())
 
     def _half(self) -> float:
-        """Half the box's width (m): 1.8 DBH radii, or around the points without."""
-        if np.isfinite(self.radius_m):
-            return max(self.radius_m * 1.8, 0.1)
+        """Half the box's width (m): 1.8 DBH radii, and wide enough for most of the
+        points (a DBH too small for its stem would hide the bark one measures on)."""
+        circle = 1.8 * self.radius_m if np.isfinite(self.radius_m) else HALF_M[0]
         if self.slice is None or not len(self.slice.xy):
-            return 0.27
-        reach = np.hypot(*(self.slice.xy - self.centre).T)
-        return float(np.clip(np.percentile(reach, 95) * 1.1, *HALF_M))
+            return max(circle, HALF_M[0])
+        reach = 1.1 * np.percentile(np.hypot(*(self.slice.xy - self.centre).T), 95)
+        return float(max(circle, min(reach, HALF_M[1]), HALF_M[0]))
 
     def _note(self) -> str:
         if not self.measuring:
@@ -154,6 +154,7 @@ class TreeSliceView(QWidget):
         def at(x: float, y: float) -> QPointF:
             return QPointF(*self.to_px(np.array([x, y]))[0])
 
+        p.setClipRect(box)
         xy, scan = self.slice.xy, self.slice.scan
         step = max(1, len(xy) // 4000)
         for k in np.unique(scan):
@@ -180,6 +181,7 @@ class TreeSliceView(QWidget):
             q = at(x, y)
             p.drawLine(q + QPointF(-4, -4), q + QPointF(4, 4))
             p.drawLine(q + QPointF(-4, 4), q + QPointF(4, -4))
+        p.setClipping(False)
         p.setPen(TEXT)
         p.drawText(
             QPointF(box.left() + 4, box.top() + 12),
