@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
-from amrst.plot.review import PlotReview
+from amrst.plot.review import NOT_A_TREE, PlotReview
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.views.stem_map import scan_colour
 from amrst_gui.views.tree_side import TreeSideView
@@ -186,6 +186,12 @@ class TreePanel(QWidget):
         for mark, text, tip in (
             ("ok", "Mark ok", "The tree and its figures are right"),
             ("check", "Mark check", "Something is wrong here: look again in the field"),
+            (
+                NOT_A_TREE,
+                "Not a tree",
+                "A shrub, a pole, a branch or a neighbour's part listed as a tree: it "
+                "stays in trees.csv, marked so",
+            ),
             ("", "Clear", "Remove your mark"),
         ):
             button = QPushButton(text)

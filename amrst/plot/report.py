@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.plot.review import NOT_A_TREE
 from amrst.results.report_html import STYLE, html_table
 
 if TYPE_CHECKING:
@@ -23,7 +24,7 @@ REPORT = "report.html"
 #: Tree fills by DBH quality, the ring of the technician's mark and link colours by
 #: state: the report's and the app's stem map.
 QUALITY_RGB = {"ok": "#4caf50", "check": "#ffb300", "none": "#9e9e9e"}
-MARK_RGB = {"ok": "#ffffff", "check": "#f44336"}
+MARK_RGB = {"ok": "#ffffff", "check": "#f44336", "not a tree": "#9e9e9e"}
 STATE_RGB = {
     "registered": "#4caf50",
     "accepted": "#26a69a",
@@ -52,7 +53,8 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         + '<h2>Stem map</h2><figure><img alt="stem map" '
         + f'src="data:image/png;base64,{png}"><figcaption>Every tree at its stem '
         "base, its dot sized by its DBH and filled by the DBH's quality (green ok, "
-        "amber check, grey none), ringed red where you marked it check; the scans "
+        "amber check, grey none), ringed red where you marked it check, crossed "
+        "where you marked it not a tree; the scans "
         "(triangles) and their links by state.</figcaption></figure>"
         + _scans(doc)
         + _links(doc)
@@ -95,16 +97,18 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
     for r, (x, y) in zip(rows, xy - origin, strict=True):
         dbh = _num(r.get("dbh_m"))
         size = 30 + 900 * (dbh if np.isfinite(dbh) else 0.05)
-        ring = MARK_RGB["check"] if r.get("mark") == "check" else "#212121"
+        mark = str(r.get("mark", ""))
         ax.scatter(
             x,
             y,
             s=size,
             c=QUALITY_RGB.get(str(r.get("dbh_quality")), "#9e9e9e"),
-            edgecolors=ring,
-            linewidths=2.0 if r.get("mark") == "check" else 0.6,
+            edgecolors=MARK_RGB["check"] if mark == "check" else "#212121",
+            linewidths=2.0 if mark == "check" else 0.6,
             zorder=2,
         )
+        if mark == NOT_A_TREE:
+            ax.scatter(x, y, s=size, marker="x", c="#212121", zorder=3)
         ax.annotate(
             str(r["tree_id"]), (x, y), xytext=(5, 5), textcoords="offset points"
         )
@@ -146,13 +150,14 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     colour = STATE_RGB["registered" if sure else "needs review"]
     bundle = _num(doc.get("bundle_rmse_m"))
     checked = sum(1 for r in rows if r.get("mark") == "check")
+    dropped = sum(1 for r in rows if r.get("mark") == NOT_A_TREE)
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
         f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
-        f"at the final poses); {checked} trees marked check and {by_hand} DBHs "
-        "measured by you.</p></div>"
+        f"at the final poses); {checked} trees marked check, {dropped} marked not a "
+        f"tree and {by_hand} DBHs measured by you.</p></div>"
     )
 
 

@@ -2,8 +2,8 @@
 
 It names the scans it belongs to (a review of other scans is not applied) and holds
 
-- ``marks``: ``ok`` / ``check`` per tree id; tree ids are stable between runs on the
-  same files, so marks hold across a run again;
+- ``marks``: ``ok`` / ``check`` / ``not a tree`` per tree id; tree ids are stable
+  between runs on the same files, so marks hold across a run again;
 - ``dbh``: the technician's own DBH of a tree, a circle placed on its breast-height
   slice (:func:`hand_circle`); it stands beside the measured one, and holds across a
   run again as marks do;
@@ -38,8 +38,10 @@ if TYPE_CHECKING:
     from amrst.types import Transform
 
 REVIEW_JSON = "review.json"
-#: The technician's marks of a tree; an unmarked tree has none.
-MARKS = ("ok", "check")
+#: The technician's marks of a tree; an unmarked tree has none. ``not a tree``: a
+#: shrub, a pole or a part of a neighbour listed as a tree (it stays listed, marked).
+NOT_A_TREE = "not a tree"
+MARKS = ("ok", "check", NOT_A_TREE)
 #: An accepted pose holds for a link within this turn (deg) and shift (m): under what
 #: the overlay shows, over the few-thread rounding of one run to the next.
 SAME_POSE_DEG = 0.05

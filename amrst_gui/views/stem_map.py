@@ -20,6 +20,7 @@ from PySide6.QtWidgets import QSizePolicy, QWidget
 # state: the plot report's colours.
 from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
+from amrst.plot.review import NOT_A_TREE
 
 if TYPE_CHECKING:
     from amrst_gui.plot_jobs import PlotOutcome
@@ -233,6 +234,11 @@ class StemMapView(QWidget):
             p.setPen(ring)
             p.setBrush(QColor(rgb))
             p.drawEllipse(QPointF(x, y), r, r)
+            if mark == NOT_A_TREE:
+                p.setPen(QPen(QColor(MARK_RGB[mark]), 2.0))
+                d = max(r, 5.0)
+                p.drawLine(QPointF(x - d, y - d), QPointF(x + d, y + d))
+                p.drawLine(QPointF(x - d, y + d), QPointF(x + d, y - d))
             if k == self.selected:
                 p.setBrush(Qt.BrushStyle.NoBrush)
                 p.setPen(QPen(QColor(255, 235, 59), 2.0))
@@ -273,5 +279,6 @@ class StemMapView(QWidget):
         y += step
         p.drawText(
             QPointF(x, y),
-            "Solid: the spanning tree; ring: your mark (white ok, red check)",
+            "Solid: the spanning tree; your mark: ring white ok, red check; "
+            "cross: not a tree",
         )

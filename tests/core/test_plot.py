@@ -164,7 +164,7 @@ def test_inventory_columns_and_the_command(
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
-    assert "1 trees marked check and 1 DBHs measured by you" in page
+    assert "1 trees marked check, 0 marked not a tree and 1 DBHs measured" in page
     assert "2 registered" in page
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
     write_inventory(out, trees, PlotReview({first: "ok", rows[1]["tree_id"]: "check"}))

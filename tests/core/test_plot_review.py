@@ -34,7 +34,7 @@ def _turned(deg: float, shift: float = 0.0) -> np.ndarray:
 
 def test_the_review_is_written_and_read_back(tmp_path):
     review = PlotReview(
-        {"T003": "check", "T001": "ok"},
+        {"T003": "check", "T001": "ok", "T004": "not a tree"},
         {(0, 1): _turned(30.0)},
         {"T002": HandCircle((4.5, -2.25), 0.315)},
     )

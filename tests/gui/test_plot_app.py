@@ -190,10 +190,18 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert opened == [out / "report.html"]
     assert plot.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
-    assert "1 trees marked check and 0 DBHs measured by you" in opened[0].read_text()
+    assert "1 trees marked check, 0 marked not a tree and 0 DBHs measured by you" in (
+        opened[0].read_text()
+    )
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
+    plot.tree_panel.buttons["not a tree"].click()  # a shrub listed as a tree
+    assert read_review(out, o.labels).marks == {tree.tree_id: "not a tree"}
+    assert plot.stem_map.marks == {tree.tree_id: "not a tree"}
+    cell = plot.trees.item(k, 5)
+    assert cell is not None
+    assert cell.text() == "not a tree"
     plot.tree_panel.buttons[""].click()
     assert read_review(out, o.labels).marks == {}
     _measure_by_hand(plot, k, out)
