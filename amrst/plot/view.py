@@ -283,15 +283,13 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
     sizes = data["profile_sizes"]
     if len(sizes) != len(trees) or int(sizes.sum()) != len(data["profile_xyz"]):
         raise ValueError("side views do not match the trees")
-    ends = np.cumsum(sizes)[:-1]
+    stops = np.cumsum(sizes, dtype=np.int64)
+    starts = stops - sizes
+    pxyz = np.asarray(data["profile_xyz"], float).reshape(-1, 3)
+    pscan = np.asarray(data["profile_scan"], np.int64)
     profiles = tuple(
-        TreeProfile(xyz, scan)
-        for xyz, scan in zip(
-            np.split(np.asarray(data["profile_xyz"], float).reshape(-1, 3), ends),
-            np.split(np.asarray(data["profile_scan"], np.int64), ends),
-            strict=True,
-        )
-    )[: len(trees)]  # no trees: one empty split
+        TreeProfile(pxyz[a:b], pscan[a:b]) for a, b in zip(starts, stops, strict=True)
+    )
     top = None
     if "top_image" in data:
         x0, y0, cell = (float(v) for v in data["top_origin"])

@@ -1,4 +1,5 @@
-"""A plot's review: marks and accepted links in review.json, and the states they give."""
+"""A plot's review: marks, DBHs by hand and accepted links in review.json, and the
+states they give."""
 
 from __future__ import annotations
 
