@@ -274,7 +274,8 @@ class TreePanel(QWidget):
         outcome, k = self._shown
         if index == SIDE:
             profile = outcome.profiles[k] if k < len(outcome.profiles) else None
-            self.side_view.set_tree(outcome.trees[k], profile)
+            tree = outcome.trees[k]
+            self.side_view.set_tree(tree, profile, self.review.dbh.get(tree.tree_id))
             return
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M

@@ -17,19 +17,22 @@ from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst_gui.views.stem_map import BACKGROUND, TEXT, scan_colour
+from amrst_gui.views.tree_slice import HAND_RGB
 
 if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
+    from amrst.plot.review import HandCircle
     from amrst.plot.view import TreeProfile
 
+HAND = QColor(*HAND_RGB)
 #: Room around the tree (m) and for the labels (px).
 MARGIN_M = 0.5
 LABEL_PX = 18.0
 
 
 class TreeSideView(QWidget):
-    """``set_tree(tree, profile)``: the tree's points by scan, the ground, the height
-    line and the DBH bar at breast height."""
+    """``set_tree(tree, profile, hand)``: the tree's points by scan, the ground, the
+    height line, and the DBH bars at breast height (white measured, green yours)."""
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -39,10 +42,17 @@ class TreeSideView(QWidget):
         self.setSizePolicy(policy)
         self.tree: Tree | None = None
         self.profile: TreeProfile | None = None
+        self.hand: HandCircle | None = None
 
-    def set_tree(self, tree: Tree | None, profile: TreeProfile | None) -> None:
-        """Show ``tree`` from its ``profile`` points (None: nothing)."""
-        self.tree, self.profile = tree, profile
+    def set_tree(
+        self,
+        tree: Tree | None,
+        profile: TreeProfile | None,
+        hand: HandCircle | None = None,
+    ) -> None:
+        """Show ``tree`` from its ``profile`` points (None: nothing), with the
+        technician's ``hand`` DBH."""
+        self.tree, self.profile, self.hand = tree, profile, hand
         self.update()
 
     def paintEvent(self, _event) -> None:
@@ -91,16 +101,17 @@ class TreeSideView(QWidget):
                 at(-half, stem.height_m) + QPointF(2, -3),
                 f"height {stem.height_m:.1f} m ({stem.height_flag})",
             )
-        if np.isfinite(stem.dbh_m):
-            x = float(stem.dbh_xy[0]) - base_x
-            p.setPen(QPen(QColor(255, 255, 255), 3))
-            p.drawLine(
-                at(x - stem.dbh_m / 2, BREAST_HEIGHT_M),
-                at(x + stem.dbh_m / 2, BREAST_HEIGHT_M),
-            )
+        bars = [(stem.dbh_xy[0], stem.dbh_m, QColor(255, 255, 255), 0.0)]
+        if self.hand is not None:  # just above the measured one
+            bars.append((self.hand.centre_xy[0], self.hand.dbh_m, HAND, 5.0 / scale))
+        for x_m, dbh, colour, lift in bars:
+            if np.isfinite(dbh):
+                x, z = float(x_m) - base_x, BREAST_HEIGHT_M + lift
+                p.setPen(QPen(colour, 3))
+                p.drawLine(at(x - dbh / 2, z), at(x + dbh / 2, z))
         p.setPen(TEXT)
         p.drawText(
             QPointF(6, self.height() - 5),
             f"{len(profile.xyz):,} of {stem.n_points:,} points, from the south; "
-            "bar: DBH",
+            "bar: DBH" + ("; green: yours" if self.hand is not None else ""),
         )

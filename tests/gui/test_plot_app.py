@@ -56,6 +56,7 @@ def _run(qtbot: QtBot, plot: PlotWindow) -> None:
 def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     """The technician's DBH: clicks on the stem's outline at 1.3 m, kept, forgotten."""
     from amrst.plot.export import TREES_CSV
+    from amrst_gui.plot_tree import SIDE
 
     o = plot.outcome
     assert o is not None
@@ -89,6 +90,8 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     assert float(hand.pop(tree.tree_id)) == pytest.approx(circle.dbh_m, abs=1e-3)
     assert set(hand.values()) == {""}
     assert "yours" in panel.values["DBH"].text()
+    panel.height_buttons.button(SIDE).click()
+    assert panel.side_view.hand == kept[tree.tree_id]  # a green bar by the white
     cell = plot.trees.item(k, 2)
     assert cell is not None
     assert cell.text() == "yours"
@@ -515,9 +518,11 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert plot.scan_list.count() == 2
     assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
     # Each tree from the side: its points, its height, its DBH.
+    from amrst_gui.plot_tree import SIDE
+
     plot.select_tree(0)
     panel = plot.tree_panel
-    panel.height_buttons.button(len(panel.height_buttons.buttons()) - 1).click()
+    panel.height_buttons.button(SIDE).click()
     assert panel.views.currentWidget() is panel.side_view
     assert panel.side_view.tree is o.trees[0]
     assert panel.side_view.profile is o.profiles[0]
