@@ -112,6 +112,6 @@ class TreeSideView(QWidget):
         p.setPen(TEXT)
         p.drawText(
             QPointF(6, self.height() - 5),
-            f"{len(profile.xyz):,} of {stem.n_points:,} points, from the south; "
-            "bar: DBH" + ("; green: yours" if self.hand is not None else ""),
+            f"{len(profile.xyz):,} of {stem.n_points:,} points shown; "
+            + ("bars: DBH, green yours" if self.hand is not None else "bar: DBH"),
         )
