@@ -311,7 +311,7 @@ class MainWindow(QMainWindow):
     ) -> None:
         """Open two scans of the plot at their link's pose (``stored``; None: none),
         the Manual pose dock in front."""
-        self.session.load_stored(target, source, stored)  # no registration
+        self.session.load_stored(target, source, stored, plot=True)  # no registration
         self.docks["manual"].show()
         self.docks["manual"].raise_()
         self.raise_()

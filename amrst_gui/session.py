@@ -121,6 +121,9 @@ class Session(QObject):
         self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
         self._pending_stored: StoredLinkResult | None = None
+        # The scans are two of a forest plot (many trees): one-stem views do not apply.
+        self.plot_pair = False
+        self._pending_plot = False
         self._last_report: Path | None = None
         # The folder whose other pair's export the user agreed to replace.
         self._replace_folder: Path | None = None
@@ -437,7 +440,7 @@ class Session(QObject):
         self._stop_unverified = False
         self.runner.run([*chain, "manual"])
 
-    def _start_load(self, paths: dict[str, Path]) -> None:
+    def _start_load(self, paths: dict[str, Path], plot: bool = False) -> None:
         if self._refuse_if_busy("open scans"):
             return
         for path in paths.values():
@@ -454,6 +457,7 @@ class Session(QObject):
             return
         self._truth_at_load = self._truth
         self._pending_paths = dict(paths)
+        self._pending_plot = plot
         self._launch("load", jobs.load_pair, paths, alone=True)
 
     # ----------------------------------------------------------- job running
@@ -1054,6 +1058,7 @@ class Session(QObject):
     # ------------------------------------------------------------------ load
     def _apply_load(self, result: dict[str, Cloud]) -> Callable[[], None]:
         self._set_loaded(result)
+        self.plot_pair = self._pending_plot
         roles = list(result)
         stored, self._pending_stored = self._pending_stored, None
         emit_stored = (
@@ -1286,16 +1291,22 @@ class Session(QObject):
 
     # ------------------------------------------------------------ stored results
     def load_stored(
-        self, target: str | Path, source: str | Path, stored: StoredLinkResult | None
+        self,
+        target: str | Path,
+        source: str | Path,
+        stored: StoredLinkResult | None,
+        *,
+        plot: bool = False,
     ) -> None:
         """Read both scans (a worker job), then show ``stored`` as their result.
 
-        ``stored`` None loads the scans alone (a link with no stored pose).
+        ``stored`` None loads the scans alone (a link with no stored pose); ``plot``:
+        two scans of a forest plot.
         """
         from pathlib import Path
 
         self._pending_stored = stored
-        self._start_load({"target": Path(target), "source": Path(source)})
+        self._start_load({"target": Path(target), "source": Path(source)}, plot)
         if self.runner.running_step != "load":  # refused: nothing pending
             self._pending_stored = None
 

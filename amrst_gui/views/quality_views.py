@@ -303,6 +303,13 @@ class StemSlicesPane(QWidget):
     def refresh(self) -> None:
         """Slice both scans under the pose :func:`_slice_pose` picks."""
         s = self.session
+        if s.plot_pair:
+            self.view.set_slices(
+                [],
+                "Two scans of a plot: these slices fit one stem. Each tree's slices "
+                "from every scan are in the Plot window (select a tree).",
+            )
+            return
         T, what = _slice_pose(s)
         if T is None or not s.has_scans:
             self.view.set_slices(

@@ -320,6 +320,24 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert session.fine is not None
     shown = session.world(session.fine.T_target_source)
     assert np.allclose(shown, plot.outcome.links[0].T_world, atol=1e-9)
+    # A plot is no one stem: the Stem slices tab sends the user to each tree's.
+    assert session.plot_pair
+    win.tabs.setCurrentWidget(win.slices)
+    assert "Plot window" in win.slices.view.caption
+    assert win.slices.view.slices == []
+    # The same files opened as a pair of their own are no plot link any more.
+    guard, session.discard_guard = session.discard_guard, lambda _action: True
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        win.open_pair(*plot_files)
+    qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
+    assert not session.plot_pair
+    win.tabs.setCurrentWidget(win.slices)  # loading shows the scans' tab
+    assert "Plot window" not in win.slices.view.caption
+    session.discard_guard = guard
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        plot.open_button.click()
+    qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
+    assert session.plot_pair
 
     # Four stem points picked in both scans (the source's under its true pose).
     picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])
