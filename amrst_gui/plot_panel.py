@@ -792,7 +792,7 @@ class PlotWindow(QMainWindow):
         if current >= 0:
             self.trees.selectRow(current)
         self.trees.blockSignals(False)
-        self.stem_map.set_marks(self.review.marks)
+        self.stem_map.set_review(self.review)
         k = self.stem_map.selected
         if k is not None:
             self.tree_panel.show_tree(o, k, self.review)

@@ -209,7 +209,7 @@ class TreePanel(QWidget):
         self.measure_button.setToolTip(
             f"Measure the DBH yourself on the {BREAST_HEIGHT_M:g} m slice: click "
             "points on the stem's outline all round (right click takes one back), "
-            "then Keep. It goes into the inventory beside the measured DBH "
+            "then Keep (Enter). It goes into the inventory beside the measured DBH "
             "(dbh_hand_m). Esc cancels."
         )
         self.measure_button.toggled.connect(self._measure)
@@ -224,8 +224,16 @@ class TreePanel(QWidget):
             button.setEnabled(False)
             row.addWidget(button)
         self.slice_view.clicks_changed.connect(self._update_hand_buttons)
-        cancel = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
-        cancel.activated.connect(lambda: self.measure_button.setChecked(False))
+        # Keys act while the tree panel has the focus: Enter elsewhere is not ours.
+        keys = (
+            (Qt.Key.Key_Escape, lambda: self.measure_button.setChecked(False)),
+            (Qt.Key.Key_Return, self._keep),
+            (Qt.Key.Key_Enter, self._keep),
+        )
+        for key, act in keys:
+            shortcut = QShortcut(QKeySequence(key), self)
+            shortcut.setContext(Qt.ShortcutContext.WidgetWithChildrenShortcut)
+            shortcut.activated.connect(act)
         return row
 
     def show_tree(

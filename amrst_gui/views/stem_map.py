@@ -23,6 +23,7 @@ from amrst.plot.report import STATE_RGB as LINK_RGB
 from amrst.plot.review import NOT_A_TREE
 
 if TYPE_CHECKING:
+    from amrst.plot.review import PlotReview
     from amrst_gui.plot_jobs import PlotOutcome
 
 BACKGROUND = QColor(31, 33, 38)
@@ -49,7 +50,7 @@ def scan_colour(k: int) -> QColor:
 
 
 class StemMapView(QWidget):
-    """The plot from above; ``set_plot(outcome)``, ``set_marks``, ``select``."""
+    """The plot from above; ``set_plot(outcome)``, ``set_review``, ``select``."""
 
     tree_clicked = Signal(int)
 
@@ -60,12 +61,14 @@ class StemMapView(QWidget):
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.outcome: PlotOutcome | None = None
         self.marks: dict[str, str] = {}
+        self.dbh: dict[str, float] = {}  # the technician's DBH (m) by tree id
         self.selected: int | None = None
         self._image: QImage | None = None
         self.setToolTip(
-            "The plot from above: each tree is its DBH circle to scale (green ok, "
-            "amber check, grey no DBH), ringed white when marked ok, red when marked "
-            "check. Triangles are the scan positions, lines the links. Click a tree."
+            "The plot from above: each tree is its DBH circle to scale (yours where "
+            "you measured it; green ok, amber check, grey no DBH), ringed white when "
+            "marked ok, red when marked check, crossed when not a tree. Triangles are "
+            "the scan positions, lines the links. Click a tree."
         )
 
     def set_plot(self, outcome: PlotOutcome | None) -> None:
@@ -80,8 +83,10 @@ class StemMapView(QWidget):
             self._image = self._image.copy()  # owns its pixels
         self.update()
 
-    def set_marks(self, marks: dict[str, str]) -> None:
-        self.marks = dict(marks)
+    def set_review(self, review: PlotReview) -> None:
+        """Draw the technician's marks and DBHs."""
+        self.marks = dict(review.marks)
+        self.dbh = {tree_id: c.dbh_m for tree_id, c in review.dbh.items()}
         self.update()
 
     def select(self, index: int | None) -> None:
@@ -137,7 +142,8 @@ class StemMapView(QWidget):
 
     def _radius_px(self, k: int) -> float:
         assert self.outcome is not None
-        dbh = self.outcome.trees[k].stem.dbh_m
+        tree = self.outcome.trees[k]
+        dbh = self.dbh.get(tree.tree_id, tree.stem.dbh_m)
         r = dbh / 2 * self._mapping()[0] if np.isfinite(dbh) else 0.0
         return max(float(r), MIN_TREE_PX)
 

@@ -41,6 +41,7 @@ class TreeSliceView(QWidget):
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setObjectName("tree_slice")
+        self.setFocusPolicy(Qt.FocusPolicy.ClickFocus)  # Enter and Esc reach its panel
         self.setMinimumSize(160, 160)
         policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.setSizePolicy(policy)

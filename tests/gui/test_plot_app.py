@@ -80,7 +80,7 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     circle = view.circle()
     assert circle is not None
     assert abs(circle.dbh_m - 2 * r) < 0.01  # a pixel is a few mm here
-    panel.keep_button.click()
+    QTest.keyClick(view, Qt.Key.Key_Return)  # as Keep DBH
     assert not view.measuring
     kept = read_review(out, o.labels).dbh
     assert list(kept) == [tree.tree_id]
@@ -90,6 +90,7 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     assert float(hand.pop(tree.tree_id)) == pytest.approx(circle.dbh_m, abs=1e-3)
     assert set(hand.values()) == {""}
     assert "yours" in panel.values["DBH"].text()
+    assert plot.stem_map.dbh == {tree.tree_id: kept[tree.tree_id].dbh_m}  # drawn so
     panel.height_buttons.button(SIDE).click()
     assert panel.side_view.hand == kept[tree.tree_id]  # a green bar by the white
     cell = plot.trees.item(k, 2)
@@ -99,6 +100,10 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     panel.forget_button.click()
     assert read_review(out, o.labels).dbh == {}
     assert "yours" not in panel.values["DBH"].text()
+    panel.measure_button.click()
+    QTest.keyClick(view, Qt.Key.Key_Escape)  # cancels
+    assert not view.measuring
+    assert not panel.measure_button.isChecked()
 
 
 def test_a_plot_runs_and_its_stem_map_shows_every_tree(
