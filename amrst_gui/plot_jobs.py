@@ -130,6 +130,7 @@ def run_plot(
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
+    from amrst.plot.review import read_review
     from amrst.review.pairs_file import read_pairs
 
     start = time.perf_counter()
@@ -151,7 +152,11 @@ def run_plot(
         left_out=left_out,
     )
     inventory = take_inventory(
-        clouds, reg.poses, 0, reporter=SubReporter(reporter, 0.8, 0.95, "inventory")
+        clouds,
+        reg.poses,
+        0,
+        reporter=SubReporter(reporter, 0.8, 0.95, "inventory"),
+        given_xy=read_review(out, labels).added,  # trees the technician added
     )
     reporter.progress(0.95, "Writing the plot")
     write_plot(

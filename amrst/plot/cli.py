@@ -84,7 +84,7 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import register_plot
-    from amrst.plot.review import ACCEPTED
+    from amrst.plot.review import ACCEPTED, read_review
     from amrst.terminal import TerminalReporter
 
     out = Path(args.out)
@@ -104,7 +104,10 @@ def run_cli(args: argparse.Namespace) -> int:
         reg = register_plot(
             clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
         )
-        inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter)
+        added = read_review(out, labels).added  # trees the technician added
+        inventory = take_inventory(
+            clouds, reg.poses, 0, reporter=reporter, given_xy=added
+        )
         written, states = write_plot(
             out,
             reg,

@@ -173,8 +173,13 @@ def take_inventory(
     reference: int = 0,
     params: StemMapParams | None = None,
     reporter: Reporter | None = None,
+    given_xy: Sequence[tuple[float, float]] = (),
 ) -> Inventory:
     """List every tree of the registered plot once.
+
+    Trees found are numbered ``T001``... by their position; the trees the technician
+    gave (``given_xy``, where no tree was found) ``H`` and the number of their point
+    in ``given_xy`` from 1, so that neither numbering moves the other.
 
     Parameters
     ----------
@@ -186,6 +191,8 @@ def take_inventory(
         The frame of the output; its offset makes the positions world coordinates.
     params : StemMapParams or None
     reporter : Reporter or None
+    given_xy : sequence of (x, y)
+        Where the technician says a tree stands, in the reference's local frame.
 
     Returns
     -------
@@ -197,7 +204,10 @@ def take_inventory(
     xyz, scan = merge_scans(clouds, poses, params, reporter)
     # The merged points are thinned once more: overlapping scans double the density.
     stem_map = map_stems(
-        xyz, params, None if reporter is None else SubReporter(reporter, 0.2, 0.95)
+        xyz,
+        params,
+        None if reporter is None else SubReporter(reporter, 0.2, 0.95),
+        given_xy=given_xy,
     )
     assert stem_map.index is not None  # map_stems gives the rows it kept
     scan = scan[stem_map.index]
@@ -205,16 +215,20 @@ def take_inventory(
         reporter.progress(0.95, "tops out of every scan's sight")
     stem_map = _flag_hidden_tops(stem_map, _scanner_reach(clouds, poses))
     offset = np.asarray(clouds[reference].offset, dtype=float)
-    order = sorted(
-        range(len(stem_map.stems)),
-        key=lambda k: tuple(np.round(stem_map.stems[k].base[:2], 1)),
+    stems = stem_map.stems
+    found = [k for k, s in enumerate(stems) if s.given is None]
+    given = sorted(
+        (k for k, s in enumerate(stems) if s.given is not None),
+        key=lambda k: stems[k].given or 0,
     )
-    trees = []
-    for n, k in enumerate(order, start=1):
-        stem = stem_map.stems[k]
-        trees.append(
-            Tree(f"T{n:03d}", stem, stem.base + offset, _seen_from(stem_map, scan, k))
-        )
+    order = sorted(found, key=lambda k: tuple(np.round(stems[k].base[:2], 1)))
+    ids = [f"T{n:03d}" for n in range(1, len(order) + 1)]
+    ids += [f"H{(stems[k].given or 0) + 1:03d}" for k in given]
+    order += given
+    trees = [
+        Tree(tree_id, stems[k], stems[k].base + offset, _seen_from(stem_map, scan, k))
+        for tree_id, k in zip(ids, order, strict=True)
+    ]
     renumber = np.full(len(order) + 1, -1, dtype=np.int64)
     renumber[np.array(order, dtype=np.int64)] = np.arange(len(order))
     owner = renumber[stem_map.owner]

@@ -7,6 +7,9 @@ It names the scans it belongs to (a review of other scans is not applied) and ho
 - ``dbh``: the technician's own DBH of a tree, a circle placed on its breast-height
   slice (:func:`hand_circle`); it stands beside the measured one, and holds across a
   run again as marks do;
+- ``added``: where the technician says a tree stands that the inventory did not
+  list (the reference scan's local frame); each run measures a tree there, listed
+  as ``H`` and the point's number from 1 (``amrst.plot.inventory``);
 - ``accepted``: links the registration left unsure that the technician checked by eye
   and accepted, each with the pose accepted (the source scan's file coordinates into
   the target's, as ``plot.json`` gives poses). An acceptance holds only while the
@@ -68,6 +71,7 @@ class PlotReview:
     marks: dict[str, str] = field(default_factory=dict)
     accepted: dict[LinkKey, np.ndarray] = field(default_factory=dict)
     dbh: dict[str, HandCircle] = field(default_factory=dict)
+    added: tuple[tuple[float, float], ...] = ()
 
 
 def hand_circle(xy: np.ndarray) -> HandCircle | None:
@@ -108,6 +112,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
             for k, T in dict(doc.get("accepted") or {}).items()
         }
         dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
+        added = tuple(_point(v) for v in list(doc.get("added") or []))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InvalidInput(
             f"{path} is no review file ({exc}); move it away to review the plot again."
@@ -118,7 +123,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         )
     if not same_scans(scans, labels):
         return PlotReview()
-    return PlotReview(marks, accepted, dbh)
+    return PlotReview(marks, accepted, dbh, added)
 
 
 def same_scans(a: Sequence[str], b: Sequence[str]) -> bool:
@@ -152,6 +157,8 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
     for tree_id, c in review.dbh.items():
         if not _usable(c):
             raise InvalidInput(f"{tree_id}: a DBH by hand of {c.dbh_m} m")
+    if not np.isfinite(np.asarray(review.added, float)).all():
+        raise InvalidInput("a tree added by hand has no finite position")
     accepted = {
         f"{i + 1}-{j + 1}": np.asarray(T, float).tolist()
         for (i, j), T in sorted(review.accepted.items())
@@ -167,6 +174,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
             "marks": dict(sorted(review.marks.items())),
             "accepted": accepted,
             "dbh": dbh,
+            "added": [{"x_m": x, "y_m": y} for x, y in review.added],
         },
     )
 
@@ -235,6 +243,13 @@ def _circle(entry: Mapping[str, float]) -> HandCircle:
     if not _usable(circle):
         raise ValueError(f"a DBH by hand of {circle.dbh_m} m")
     return circle
+
+
+def _point(entry: Mapping[str, float]) -> tuple[float, float]:
+    x, y = float(entry["x_m"]), float(entry["y_m"])
+    if not np.isfinite([x, y]).all():
+        raise ValueError("a tree added at no finite position")
+    return x, y
 
 
 def _usable(circle: HandCircle) -> bool:

@@ -42,6 +42,8 @@ from amrst.stages.stems import find_stems
 from amrst.stages.voxels import voxel_sample
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from amrst.measure.stem import StemCircle
     from amrst.progress import Reporter
 
@@ -49,6 +51,10 @@ if TYPE_CHECKING:
 LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
 #: Points around a stem the slices take (m beyond the stem cluster's extent).
 STEM_MARGIN_M = 0.15
+#: A tree the technician gives: its stem is the points this high above the ground
+#: (m) within this reach of their point.
+GIVEN_LOW_M, GIVEN_HIGH_M = 0.5, 2.0
+GIVEN_REACH_M = 0.5
 #: Branch lines (``branch_axis``): 3 cm voxels from 2 m up to 3/4 of the tree, the
 #: line of each through its neighbours within 15 cm when they lie on one (share of
 #: variance off the main axis under ``1 - AXIS_LINEAR``) and it runs level enough.
@@ -152,6 +158,7 @@ class StemRecord:
     lean_deg: float
     crown_width_m: float
     n_points: int
+    given: int | None = None  # the technician's point it was measured at (index)
 
     @property
     def key_xyz(self) -> np.ndarray:
@@ -204,6 +211,7 @@ def map_stems(
     reporter: Reporter | None = None,
     *,
     trees: bool = True,
+    given_xy: Sequence[tuple[float, float]] = (),
 ) -> StemMap:
     """Find and measure every stem of a plot cloud.
 
@@ -220,6 +228,10 @@ def map_stems(
         over several slices. Without it (the key points of a registration) the stems
         carry NaN heights, no point is owned, and a stem is kept on its bark circles
         alone.
+    given_xy : sequence of (x, y)
+        With ``trees``: where the technician says a tree stands. A stem found within
+        ``same_stem_m`` is that tree and is kept; elsewhere the stem is measured
+        there (:func:`_add_given_stems`) and tagged ``given``, whatever its figures.
 
     Returns
     -------
@@ -260,6 +272,9 @@ def map_stems(
         say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         _merge_same_stems(seeds, fits, params)
+        kept_given = _add_given_stems(
+            pts, h, ground, seeds, fits, given_xy, params=params
+        )
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
@@ -269,7 +284,13 @@ def map_stems(
             reporter.check_cancelled()
         if fit is None:
             continue
-        stem = _as_tree(fit, pts, h, ground, owner == k, params) if trees else fit.stem
+        stem = (
+            _as_tree_or_given(
+                fit, pts, h, ground, owner == k, params, given=k in kept_given
+            )
+            if trees
+            else fit.stem
+        )
         if stem is not None:
             kept[k] = len(stems)
             stems.append(stem)
@@ -326,6 +347,93 @@ def _add_hidden_stems(
         if fit is not None:
             seeds.append(seed)
             fits.append(replace(fit, hidden=True))
+
+
+def _add_given_stems(
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    seeds: list[np.ndarray],
+    fits: list[_StemFit | None],
+    given_xy: Sequence[tuple[float, float]],
+    *,
+    params: StemMapParams,
+) -> set[int]:
+    """Add the technician's trees to ``seeds`` and ``fits`` (in place).
+
+    Returns the fits to keep whatever :func:`_as_tree` says of them; each is tagged
+    with the number of its point (``StemRecord.given``). A stem found within
+    ``same_stem_m`` of a point is its tree; elsewhere the tree's stem is the points
+    ``GIVEN_LOW_M``-``GIVEN_HIGH_M`` above the ground within ``GIVEN_REACH_M``, its
+    figures what :func:`_measure_stem` reads there, or none.
+    """
+    keep: set[int] = set()
+    band = np.flatnonzero((h >= GIVEN_LOW_M) & (h <= GIVEN_HIGH_M))
+    for n, xy in enumerate(np.asarray(given_xy, float).reshape(-1, 2)):
+        found = [
+            k
+            for k, f in enumerate(fits)
+            if f is not None and np.hypot(*(f.stem.base[:2] - xy)) <= params.same_stem_m
+        ]
+        if found:
+            old = fits[found[0]]
+            assert old is not None  # found among the fits kept
+            fits[found[0]] = replace(old, stem=replace(old.stem, given=n))
+            keep.add(found[0])
+            continue
+        d = np.hypot(*(pts[band, :2] - xy).T)
+        seed = band[d <= GIVEN_REACH_M]
+        fit = _measure_stem(pts, h, ground, seed, params) if len(seed) else None
+        base = np.r_[xy, _ground_z(ground, xy)]
+        nan = float("nan")
+        stem = (
+            fit.stem
+            if fit is not None
+            else StemRecord(
+                base, xy, nan, 0.0, nan, nan, "none", nan, "not measured", nan, nan, 0
+            )
+        )
+        keep.add(len(fits))
+        seeds.append(seed)
+        fits.append(
+            _StemFit(replace(stem, given=n), [], {})
+            if fit is None
+            else replace(fit, stem=replace(stem, given=n))
+        )
+    return keep
+
+
+def _as_tree_or_given(
+    fit: _StemFit,
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    mine: np.ndarray,
+    params: StemMapParams,
+    *,
+    given: bool,
+) -> StemRecord | None:
+    """Return :func:`_as_tree`'s record, or a given tree as it stands.
+
+    A tree the technician gave is kept when ``_as_tree`` drops it or it has no bark
+    circles to work on; one it keeps is a tree found (its tag goes).
+    """
+    stem = _as_tree(fit, pts, h, ground, mine, params) if fit.line else None
+    if stem is not None:
+        return replace(stem, given=None)
+    return _given_tree(fit, pts, mine) if given else None
+
+
+def _given_tree(fit: _StemFit, pts: np.ndarray, mine: np.ndarray) -> StemRecord:
+    """Return the technician's tree as it stands: its height, crown and points."""
+    top_h, crown, n_top = _top_and_crown(pts[mine], fit.stem.base[2])
+    return replace(
+        fit.stem,
+        height_m=top_h,
+        height_flag="ok" if n_top else "not measured",
+        crown_width_m=crown,
+        n_points=int(mine.sum()),
+    )
 
 
 def bark_seeds(

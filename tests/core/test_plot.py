@@ -148,8 +148,13 @@ def test_inventory_columns_and_the_command(
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
+    # A tree added by hand on bare ground is listed apart, its figures none.
     write_review(
-        out, labels, PlotReview({first: "check"}, dbh={first: HandCircle((0, 0), 0.3)})
+        out,
+        labels,
+        PlotReview(
+            {first: "check"}, dbh={first: HandCircle((0, 0), 0.3)}, added=((9.0, 9.0),)
+        ),
     )
     capsys.readouterr()
     assert plot_main([*args, "--overwrite", "--report"]) == 0
@@ -161,6 +166,8 @@ def test_inventory_columns_and_the_command(
     assert _marks(out) == {first: "check"}
     again = _rows_of(out)
     assert [r["dbh_hand_m"] for r in again] == ["0.3"] + [""] * (len(again) - 1)
+    assert [r["tree_id"] for r in again] == [r["tree_id"] for r in rows] + ["H001"]
+    assert again[-1]["n_points"] == "0"
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
@@ -478,3 +485,31 @@ def test_circles_through_branches_scatter_and_a_stem_s_do_not() -> None:
     branches = [(0.6, 0.0, 0.0), (1.0, -0.4, 0.5), (1.3, 0.1, 0.2), (1.7, -0.4, 0.0)]
     assert _scattered(branches, params)
     assert not _scattered([], params)
+
+
+def test_a_tree_the_technician_gives_is_listed_apart(plot_pair) -> None:
+    target, source, T_true = plot_pair
+    clouds, poses = [target, source], [np.eye(4), T_true]
+    found = take_inventory(clouds, poses)
+    bush = (-1.0, -1.5)  # a small stem the map does not take for a tree
+    small = scan((-2.0, 0.0), ((*bush, 0.03, 1.5),), 7)
+    clouds = [Cloud(np.vstack([target.xyz, small])), source]
+    plain = take_inventory(clouds, poses)
+    assert len(plain.trees) == len(STEMS)
+    # Given where it stands, on a listed tree (kept as it is), and on bare ground.
+    on_tree = tuple(found.trees[0].stem.base[:2])
+    ground = (9.0, 9.0)
+    inv = take_inventory(clouds, poses, given_xy=[bush, on_tree, ground])
+    # The trees found keep their ids and figures; the given ones are numbered apart.
+    assert [t.tree_id for t in inv.trees] == [
+        *(t.tree_id for t in plain.trees),
+        "H001",
+        "H003",
+    ]
+    assert [t.row() for t in inv.trees[: len(STEMS)]] == [t.row() for t in plain.trees]
+    given, bare = inv.trees[len(STEMS) :]
+    assert np.hypot(*(given.xyz[:2] - bush)) < 0.1
+    assert abs(given.stem.dbh_m - 0.06) < 0.01
+    assert np.hypot(*(bare.xyz[:2] - ground)) < 1e-9
+    assert np.isnan(bare.stem.dbh_m)
+    assert bare.stem.dbh_quality == "none"

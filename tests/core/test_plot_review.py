@@ -38,11 +38,13 @@ def test_the_review_is_written_and_read_back(tmp_path):
         {"T003": "check", "T001": "ok", "T004": "not a tree"},
         {(0, 1): _turned(30.0)},
         {"T002": HandCircle((4.5, -2.25), 0.315)},
+        ((1.5, -3.25), (0.0, 7.0)),
     )
     write_review(tmp_path, LABELS, review)
     back = read_review(tmp_path, LABELS)
     assert back.marks == review.marks
     assert back.dbh == review.dbh
+    assert back.added == review.added
     assert list(back.accepted) == [(0, 1)]
     assert np.array_equal(back.accepted[0, 1], _turned(30.0))
     doc = json.loads((tmp_path / REVIEW_JSON).read_text())
@@ -63,6 +65,8 @@ def test_a_review_of_other_scans_is_not_applied(tmp_path):
         {"scans": LABELS, "marks": {}, "accepted": {"1-2": [[1, 0], [0, 1]]}},
         {"scans": LABELS, "marks": {}, "accepted": {"0-2": np.eye(4).tolist()}},
         {"scans": LABELS, "marks": {}, "dbh": {"T001": {"x_m": 0, "y_m": 0}}},
+        {"scans": LABELS, "marks": {}, "added": [{"x_m": 1.0}]},
+        {"scans": LABELS, "marks": {}, "added": [{"x_m": "nan", "y_m": 0}]},
         {
             "scans": LABELS,
             "marks": {},
