@@ -144,6 +144,7 @@ class PlotWindow(QMainWindow):
         split.setSizes([410, 600, 330])
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
+        self.stem_map.point_clicked.connect(self.add_tree)
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
@@ -192,18 +193,6 @@ class PlotWindow(QMainWindow):
             "★: in the spanning tree that places the scans."
         )
         self.trees = table(TREE_COLUMNS, "plot_trees")
-        self.export_button = QPushButton("Export inventory…")
-        self.export_button.setToolTip(
-            "Save the tree list with your marks as a CSV or Excel file elsewhere (the "
-            "results folder's trees.csv always holds it too)"
-        )
-        self.export_button.clicked.connect(lambda: self.export_inventory())
-        self.report_button = QPushButton("Report")
-        self.report_button.setToolTip(
-            "Write report.html in the results folder (scans, links, the stem map and "
-            "the trees, with your review) and open it"
-        )
-        self.report_button.clicked.connect(self.write_report)
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
         folder.addWidget(choose)
@@ -223,14 +212,39 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel("<b>Links</b>"))
         layout.addWidget(self.links)
         layout.addLayout(self._build_link_buttons())
-        trees_head = QHBoxLayout()
-        trees_head.addWidget(QLabel("<b>Trees</b>"), 1)
-        trees_head.addWidget(self.report_button)
-        trees_head.addWidget(self.export_button)
-        layout.addLayout(trees_head)
+        layout.addLayout(self._build_tree_buttons())
         layout.addWidget(self.trees, 1)
         self._update_link_buttons()
         return side
+
+    def _build_tree_buttons(self) -> QHBoxLayout:
+        """The trees' heading: Add tree, Report, Export inventory."""
+        self.export_button = QPushButton("Export inventory…")
+        self.export_button.setToolTip(
+            "Save the tree list with your marks as a CSV or Excel file elsewhere (the "
+            "results folder's trees.csv always holds it too)"
+        )
+        self.export_button.clicked.connect(lambda: self.export_inventory())
+        self.report_button = QPushButton("Report")
+        self.report_button.setToolTip(
+            "Write report.html in the results folder (scans, links, the stem map and "
+            "the trees, with your review) and open it"
+        )
+        self.report_button.clicked.connect(self.write_report)
+        self.add_button = QPushButton("Add tree")
+        self.add_button.setCheckable(True)
+        self.add_button.setToolTip(
+            "A tree the list misses: click where its stem stands on the stem map (the "
+            "grey shows the vegetation). Run plot measures a tree there and lists it "
+            "as H and a number. Click a cross again to take it back."
+        )
+        self.add_button.toggled.connect(self.stem_map.set_adding)
+        head = QHBoxLayout()
+        head.addWidget(QLabel("<b>Trees</b>"), 1)
+        head.addWidget(self.add_button)
+        head.addWidget(self.report_button)
+        head.addWidget(self.export_button)
+        return head
 
     def _build_link_buttons(self) -> QHBoxLayout:
         """The selected link's buttons: open, accept, pairs, leave out."""
@@ -539,6 +553,34 @@ class PlotWindow(QMainWindow):
             done = f"{tree_id}: your DBH forgotten"
         self._review_trees(replace(self.review, dbh=dbh), done, "Your DBH")
 
+    def add_tree(self, x: float, y: float) -> None:
+        """Add a tree the technician says stands at (x, y) m, or take back the added
+        one not yet measured drawn there; saved in the review for the next run."""
+        from amrst.plot.review import added_id, without_added
+
+        self.add_button.setChecked(False)
+        if self.outcome is None:
+            return
+        n = self.stem_map.added_near(x, y)
+        if n is not None and n not in self.stem_map.pending():
+            self._say(
+                f"{added_id(n)} is measured: mark it Not a tree to drop it.", error=True
+            )
+            return
+        if n is not None:
+            review = without_added(self.review, n)
+            done = f"{added_id(n)} taken back"
+        else:
+            review = replace(self.review, added=(*self.review.added, (x, y)))
+            n = len(review.added) - 1
+            done = (
+                f"{added_id(n)} added at {x:.1f}, {y:.1f} m: Run plot measures a tree "
+                "there"
+            )
+        if self._save_review(review, "The tree"):
+            self.stem_map.set_review(review)
+            self._say(f"{done} (saved in {REVIEW_JSON})")
+
     def _review_trees(self, review: PlotReview, done: str, what: str) -> None:
         """Save a review of the trees, show it, and write the inventory with it."""
         from amrst.plot.export import TREES_CSV, write_inventory
@@ -807,6 +849,9 @@ class PlotWindow(QMainWindow):
         link = None if line is None else (line.target, line.source)
         self.open_button.setEnabled(link is not None)
         self.export_button.setEnabled(self.outcome is not None and not self.busy)
+        self.add_button.setEnabled(self.outcome is not None and not self.busy)
+        if not self.add_button.isEnabled():
+            self.add_button.setChecked(False)
         self.report_button.setEnabled(
             self.outcome is not None and not self.busy and self.report_job is None
         )

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.plot.review import added_id
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
 from amrst.sampling import strided
 
@@ -223,7 +224,7 @@ def take_inventory(
     )
     order = sorted(found, key=lambda k: tuple(np.round(stems[k].base[:2], 1)))
     ids = [f"T{n:03d}" for n in range(1, len(order) + 1)]
-    ids += [f"H{(stems[k].given or 0) + 1:03d}" for k in given]
+    ids += [added_id(stems[k].given or 0) for k in given]
     order += given
     trees = [
         Tree(tree_id, stems[k], stems[k].base + offset, _seen_from(stem_map, scan, k))

@@ -25,7 +25,7 @@ unsure link of its path was accepted at the pose it has.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -93,6 +93,29 @@ def hand_circle(xy: np.ndarray) -> HandCircle | None:
     if not 0 < r2 < (MAX_HAND_DBH_M / 2) ** 2:
         return None
     return HandCircle((float(mid[0] + a), float(mid[1] + b)), float(2 * np.sqrt(r2)))
+
+
+def added_id(n: int) -> str:
+    """Return the tree id of the technician's added point ``n`` (from 0)."""
+    return f"H{n + 1:03d}"
+
+
+def without_added(review: PlotReview, n: int) -> PlotReview:
+    """Return the review without added point ``n``.
+
+    The marks and DBHs of the added trees after it follow them to their new ids.
+    """
+    if not 0 <= n < len(review.added):
+        return review
+    later = {added_id(k): added_id(k - 1) for k in range(n + 1, len(review.added))}
+    gone = added_id(n)
+
+    return replace(
+        review,
+        marks={later.get(k, k): v for k, v in review.marks.items() if k != gone},
+        dbh={later.get(k, k): v for k, v in review.dbh.items() if k != gone},
+        added=review.added[:n] + review.added[n + 1 :],
+    )
 
 
 def read_review(out: Path, labels: Sequence[str]) -> PlotReview:

@@ -4,7 +4,9 @@
 so a thin stem stays visible), filled by its DBH quality and ringed by the
 technician's mark, with its id; the scan positions as triangles; the links between
 them coloured by their state (dashed: not in the spanning tree); the vegetation's
-density from above in grey under it all. A click on a tree emits ``tree_clicked``.
+density from above in grey under it all; the trees the technician added that no run
+has measured yet as crosses. A click on a tree emits ``tree_clicked``; while
+``adding``, a click anywhere emits ``point_clicked(x, y)`` in metres instead.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from PySide6.QtWidgets import QSizePolicy, QWidget
 # state: the plot report's colours.
 from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
-from amrst.plot.review import NOT_A_TREE
+from amrst.plot.review import NOT_A_TREE, added_id
+from amrst.plot.stemmap import StemMapParams
 
 if TYPE_CHECKING:
     from amrst.plot.review import PlotReview
@@ -40,6 +43,10 @@ SCAN_RGB = (
     (161, 136, 127),
 )
 MIN_TREE_PX = 3.0
+#: An added point this near a tree (m) is that tree, as a run finds it.
+SAME_TREE_M = StemMapParams().same_stem_m
+#: The technician's trees and circles: a colour no scan has.
+HAND_RGB = (198, 255, 0)
 CLICK_PX = 12.0
 LEGEND_PX = 44.0  # the legend's band at the top
 
@@ -53,6 +60,7 @@ class StemMapView(QWidget):
     """The plot from above; ``set_plot(outcome)``, ``set_review``, ``select``."""
 
     tree_clicked = Signal(int)
+    point_clicked = Signal(float, float)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -62,6 +70,8 @@ class StemMapView(QWidget):
         self.outcome: PlotOutcome | None = None
         self.marks: dict[str, str] = {}
         self.dbh: dict[str, float] = {}  # the technician's DBH (m) by tree id
+        self.added: tuple[tuple[float, float], ...] = ()  # the technician's trees
+        self.adding = False
         self.selected: int | None = None
         self._image: QImage | None = None
         self.setToolTip(
@@ -87,7 +97,43 @@ class StemMapView(QWidget):
         """Draw the technician's marks and DBHs."""
         self.marks = dict(review.marks)
         self.dbh = {tree_id: c.dbh_m for tree_id, c in review.dbh.items()}
+        self.added = review.added
         self.update()
+
+    def set_adding(self, on: bool) -> None:
+        """Take the next click as where a tree stands (``point_clicked``)."""
+        self.adding = on
+        self.setCursor(Qt.CursorShape.CrossCursor if on else Qt.CursorShape.ArrowCursor)
+
+    def pending(self) -> list[int]:
+        """The added points no run has measured a tree at yet."""
+        if self.outcome is None:
+            return []
+        ids = {t.tree_id for t in self.outcome.trees}
+        xy = self.outcome.tree_xy.reshape(-1, 2)
+        return [
+            n
+            for n, p in enumerate(self.added)
+            if added_id(n) not in ids
+            and not (np.hypot(*(xy - p).T) <= SAME_TREE_M).any()
+        ]
+
+    def added_near(self, x: float, y: float) -> int | None:
+        """The added point drawn within a few pixels of (x, y) m, or None."""
+        if not self.added:
+            return None
+        px = self.to_px(np.array(self.added))
+        d = np.hypot(*(px - self.to_px(np.array([x, y]))).T)
+        n = int(np.argmin(d))
+        return n if d[n] <= CLICK_PX else None
+
+    def to_xy(self, x: float, y: float) -> tuple[float, float]:
+        """Plot position (m) of the widget pixel (x, y)."""
+        scale, lo, pad = self._mapping()
+        return (
+            float(lo[0] + (x - pad[0]) / scale),
+            float(lo[1] + (self.height() - y - pad[1]) / scale),
+        )
 
     def select(self, index: int | None) -> None:
         self.selected = index
@@ -149,7 +195,10 @@ class StemMapView(QWidget):
 
     # -------------------------------------------------------------- events
     def mousePressEvent(self, event) -> None:
-        if event.button() == Qt.MouseButton.LeftButton:
+        if event.button() == Qt.MouseButton.LeftButton and self.adding:
+            pos = event.position()
+            self.point_clicked.emit(*self.to_xy(pos.x(), pos.y()))
+        elif event.button() == Qt.MouseButton.LeftButton:
             pos = event.position()
             k = self.tree_at(pos.x(), pos.y())
             if k is not None:
@@ -174,6 +223,7 @@ class StemMapView(QWidget):
         self._draw_links(p)
         self._draw_scans(p)
         self._draw_trees(p)
+        self._draw_added(p)
         self._draw_scale(p)
         self._draw_legend(p)
         p.end()
@@ -251,6 +301,16 @@ class StemMapView(QWidget):
                 p.drawEllipse(QPointF(x, y), r + 6, r + 6)
             p.setPen(TEXT)
             p.drawText(QPointF(x + r + 3, y - 3), tree.tree_id)
+
+    def _draw_added(self, p: QPainter) -> None:
+        """The added trees no run has measured yet: crosses, named as they will be."""
+        pen = QPen(QColor(*HAND_RGB), 2.0)
+        for n in self.pending():
+            x, y = self.to_px(np.array(self.added[n]))[0]
+            p.setPen(pen)
+            p.drawLine(QPointF(x - 6, y), QPointF(x + 6, y))
+            p.drawLine(QPointF(x, y - 6), QPointF(x, y + 6))
+            p.drawText(QPointF(x + 8, y - 3), f"{added_id(n)} (next run)")
 
     def _draw_scale(self, p: QPainter) -> None:
         scale = self._mapping()[0]

@@ -19,15 +19,13 @@ from PySide6.QtGui import QColor, QFont, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst.plot.review import HandCircle, hand_circle
-from amrst_gui.views.stem_map import BACKGROUND, TEXT, scan_colour
+from amrst_gui.views.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
 
 if TYPE_CHECKING:
     from PySide6.QtGui import QMouseEvent
 
     from amrst.plot.view import TreeSlice
 
-#: The technician's circle and clicks: a colour no scan has.
-HAND_RGB = (198, 255, 0)
 #: The box's half width (m) at least, and at most to take in the slice's points.
 HALF_M = (0.1, 1.5)
 

@@ -179,3 +179,19 @@ def test_a_dbh_by_hand_is_the_circle_through_the_clicks():
 def test_a_bad_dbh_by_hand_is_not_written(tmp_path):
     with pytest.raises(InvalidInput, match="T001: a DBH by hand"):
         write_review(tmp_path, LABELS, PlotReview(dbh={"T001": HandCircle((0, 0), 0)}))
+
+
+def test_an_added_tree_taken_back_leaves_the_others_their_review():
+    from amrst.plot.review import added_id, without_added
+
+    review = PlotReview(
+        {"T001": "ok", "H001": "check", "H002": "ok", "H003": "not a tree"},
+        dbh={"H003": HandCircle((0, 0), 0.2)},
+        added=((0.0, 0.0), (1.0, 1.0), (2.0, 2.0)),
+    )
+    back = without_added(review, 1)
+    assert back.added == ((0.0, 0.0), (2.0, 2.0))
+    assert back.marks == {"T001": "ok", "H001": "check", "H002": "not a tree"}
+    assert back.dbh == {"H002": HandCircle((0, 0), 0.2)}
+    assert without_added(review, 3) is review
+    assert added_id(0) == "H001"

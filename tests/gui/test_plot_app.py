@@ -227,6 +227,46 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert "these scans" in asked[0]
     assert not plot.busy
     assert "keeps its plot" in plot.status.text()
+    _add_a_tree(qtbot, plot, out, monkeypatch)
+
+
+def _add_a_tree(
+    qtbot: QtBot, plot: PlotWindow, out: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tree the list misses: added on the map, taken back, added, then measured."""
+    from amrst_gui import plot_panel
+
+    o = plot.outcome
+    assert o is not None
+    gap = (1.0, -1.0)  # bare ground between the stems
+
+    def click_at(xy: tuple[float, float]) -> None:
+        plot.add_button.click()
+        assert plot.stem_map.adding
+        ((x, y),) = plot.stem_map.to_px(np.array(xy))
+        QTest.mouseClick(
+            plot.stem_map, Qt.MouseButton.LeftButton, pos=QPoint(round(x), round(y))
+        )
+        assert not plot.stem_map.adding  # one click, one tree
+
+    click_at(gap)
+    (added,) = read_review(out, o.labels).added
+    assert np.hypot(*np.subtract(added, gap)) < 0.1
+    assert plot.stem_map.pending() == [0]
+    assert "H001 added" in plot.status.text()
+    click_at(gap)  # the cross again: taken back
+    assert read_review(out, o.labels).added == ()
+    click_at(gap)
+    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)
+    _run(qtbot, plot)
+    o = plot.outcome
+    assert o is not None
+    assert [t.tree_id for t in o.trees][-1] == "H001"  # after the trees found
+    assert len(o.trees) == len(STEMS) + 1
+    assert plot.stem_map.pending() == []
+    click_at(gap)  # a measured one stays: Not a tree drops it
+    assert "mark it Not a tree" in plot.status.text()
+    assert len(read_review(out, o.labels).added) == 1
 
 
 def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
