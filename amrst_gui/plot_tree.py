@@ -15,8 +15,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from PySide6.QtCore import Qt, Signal
-from PySide6.QtGui import QKeySequence, QShortcut
+from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
     QButtonGroup,
     QFormLayout,
@@ -224,16 +223,9 @@ class TreePanel(QWidget):
             button.setEnabled(False)
             row.addWidget(button)
         self.slice_view.clicks_changed.connect(self._update_hand_buttons)
-        # Keys act while the tree panel has the focus: Enter elsewhere is not ours.
-        keys = (
-            (Qt.Key.Key_Escape, lambda: self.measure_button.setChecked(False)),
-            (Qt.Key.Key_Return, self._keep),
-            (Qt.Key.Key_Enter, self._keep),
+        self.slice_view.finished.connect(
+            lambda keep: self._keep() if keep else self.measure_button.setChecked(False)
         )
-        for key, act in keys:
-            shortcut = QShortcut(QKeySequence(key), self)
-            shortcut.setContext(Qt.ShortcutContext.WidgetWithChildrenShortcut)
-            shortcut.activated.connect(act)
         return row
 
     def show_tree(

@@ -6,7 +6,7 @@ from, the measured DBH circle (solid at breast height, dashed elsewhere: there i
 only a yardstick) and the technician's own circle. While ``measuring``, a left click
 adds a point of the stem's outline, a right click takes the last back, and the
 circle through the points (``amrst.plot.review.hand_circle``) shows as it grows;
-``clicks_changed`` tells each change.
+``clicks_changed`` tells each change, ``finished(keep)`` Enter (keep) or Esc.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from amrst.plot.review import HandCircle, hand_circle
 from amrst_gui.views.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
 
 if TYPE_CHECKING:
-    from PySide6.QtGui import QMouseEvent
+    from PySide6.QtGui import QKeyEvent, QMouseEvent
 
     from amrst.plot.view import TreeSlice
 
@@ -35,11 +35,12 @@ class TreeSliceView(QWidget):
     collect clicks on the outline."""
 
     clicks_changed = Signal()
+    finished = Signal(bool)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setObjectName("tree_slice")
-        self.setFocusPolicy(Qt.FocusPolicy.ClickFocus)  # Enter and Esc reach its panel
+        self.setFocusPolicy(Qt.FocusPolicy.ClickFocus)  # Enter and Esc while measuring
         self.setMinimumSize(160, 160)
         policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.setSizePolicy(policy)
@@ -72,6 +73,8 @@ class TreeSliceView(QWidget):
         """Start (or stop) taking clicks; either way the clicks so far are dropped."""
         self.measuring = on and self.slice is not None
         self.clicks = []
+        if self.measuring:
+            self.setFocus()
         self.setCursor(
             Qt.CursorShape.CrossCursor if self.measuring else Qt.CursorShape.ArrowCursor
         )
@@ -89,6 +92,17 @@ class TreeSliceView(QWidget):
         return hand_circle(np.array(self.clicks)) if self.clicks else None
 
     # ------------------------------------------------------------- events
+    def keyPressEvent(self, event: QKeyEvent) -> None:
+        keys = {
+            Qt.Key.Key_Return: True,
+            Qt.Key.Key_Enter: True,
+            Qt.Key.Key_Escape: False,
+        }
+        if self.measuring and event.key() in keys:
+            self.finished.emit(keys[Qt.Key(event.key())])
+        else:
+            super().keyPressEvent(event)
+
     def mousePressEvent(self, event: QMouseEvent) -> None:
         if not self.measuring:
             super().mousePressEvent(event)
