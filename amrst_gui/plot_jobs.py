@@ -156,7 +156,7 @@ def run_plot(
         reg.poses,
         0,
         reporter=SubReporter(reporter, 0.8, 0.95, "inventory"),
-        given_xy=read_review(out, labels).added,  # trees the technician added
+        given=read_review(out, labels).added,  # trees the technician added
     )
     reporter.progress(0.95, "Writing the plot")
     write_plot(

@@ -532,7 +532,8 @@ class PlotWindow(QMainWindow):
             self.trees.selectRow(k)
 
     def set_mark(self, tree_id: str, mark: str) -> None:
-        """Mark a tree ``ok`` or ``check`` ("" clears); write the review and trees.csv."""
+        """Mark a tree (``amrst.plot.review.MARKS``; "" clears); write the review and
+        trees.csv."""
         marks = dict(self.review.marks)
         if mark:
             marks[tree_id] = mark
@@ -555,27 +556,32 @@ class PlotWindow(QMainWindow):
 
     def add_tree(self, x: float, y: float) -> None:
         """Add a tree the technician says stands at (x, y) m, or take back the added
-        one not yet measured drawn there; saved in the review for the next run."""
-        from amrst.plot.review import added_id, without_added
+        one not yet listed drawn there; saved in the review for the next run."""
+        from amrst.plot.review import next_added_id, without_added
 
         self.add_button.setChecked(False)
-        if self.outcome is None:
+        o = self.outcome
+        if o is None:
             return
-        n = self.stem_map.added_near(x, y)
-        if n is not None and n not in self.stem_map.pending():
+        near = self.stem_map.added_near(x, y)
+        listed = self.stem_map.tree_near(x, y)
+        if near is not None and near in self.stem_map.pending():
+            review = without_added(self.review, near)
+            done = f"{near} taken back"
+        elif near is not None:
+            self._say(f"{near} is listed: mark it Not a tree to drop it.", error=True)
+            return
+        elif listed is not None:
             self._say(
-                f"{added_id(n)} is measured: mark it Not a tree to drop it.", error=True
+                f"{o.trees[listed].tree_id} stands there: a tree is listed once.",
+                error=True,
             )
             return
-        if n is not None:
-            review = without_added(self.review, n)
-            done = f"{added_id(n)} taken back"
         else:
-            review = replace(self.review, added=(*self.review.added, (x, y)))
-            n = len(review.added) - 1
+            tree_id = next_added_id(self.review)
+            review = replace(self.review, added={**self.review.added, tree_id: (x, y)})
             done = (
-                f"{added_id(n)} added at {x:.1f}, {y:.1f} m: Run plot measures a tree "
-                "there"
+                f"{tree_id} added at {x:.1f}, {y:.1f} m: Run plot measures a tree there"
             )
         if self._save_review(review, "The tree"):
             self.stem_map.set_review(review)

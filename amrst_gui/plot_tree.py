@@ -5,7 +5,8 @@ The slice shown is chosen by height (``amrst.plot.view.SLICE_HEIGHTS_M``; breast
 first), or the whole tree from the side (**Side**), and the choice holds from one tree
 to the next.
 
-Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check`` or ``""`` (clear), and
+Emits ``mark_chosen(tree id, mark)`` with mark ``ok``, ``check``, ``not a tree`` or
+``""`` (clear), and
 ``dbh_chosen(tree id, circle)`` with the technician's ``HandCircle`` at breast height
 (None: forget it).
 """
@@ -81,7 +82,7 @@ def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
     """The tree's figures, label and text (world coordinates, as trees.csv)."""
     s = tree.stem
     mark = review.marks.get(tree.tree_id)
-    hand = review.dbh.get(tree.tree_id)
+    hand = review.dbh_of(tree.tree_id, s.dbh_xy)
     yours = "" if hand is None else f"; yours {100 * hand.dbh_m:.1f} cm"
     x, y, z = tree.xyz
     seen = ", ".join(
@@ -275,13 +276,14 @@ class TreePanel(QWidget):
         if index == SIDE:
             profile = outcome.profiles[k] if k < len(outcome.profiles) else None
             tree = outcome.trees[k]
-            self.side_view.set_tree(tree, profile, self.review.dbh.get(tree.tree_id))
+            hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+            self.side_view.set_tree(tree, profile, hand)
             return
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M
         circle = "the DBH fit" if fitted else "the DBH, for comparison"
         tree = outcome.trees[k]
-        hand = self.review.dbh.get(tree.tree_id) if fitted else None
+        hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy) if fitted else None
         self.slice_view.set_slice(
             sl,
             tree.stem.dbh_xy if sl.centre is None else sl.centre,

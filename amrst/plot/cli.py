@@ -105,9 +105,7 @@ def run_cli(args: argparse.Namespace) -> int:
             clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
         )
         added = read_review(out, labels).added  # trees the technician added
-        inventory = take_inventory(
-            clouds, reg.poses, 0, reporter=reporter, given_xy=added
-        )
+        inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter, given=added)
         written, states = write_plot(
             out,
             reg,

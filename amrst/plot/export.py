@@ -379,12 +379,15 @@ def _rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
         {
             **t.row(),
             "mark": review.marks.get(t.tree_id, ""),
-            "dbh_hand_m": (
-                round(review.dbh[t.tree_id].dbh_m, 3) if t.tree_id in review.dbh else ""
-            ),
+            "dbh_hand_m": _hand(review, t),
         }
         for t in trees
     ]
+
+
+def _hand(review: PlotReview, tree: Tree) -> float | str:
+    circle = review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+    return "" if circle is None else round(circle.dbh_m, 3)
 
 
 def _inventory_writers(

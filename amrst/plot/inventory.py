@@ -14,12 +14,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.plot.review import added_id
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
 from amrst.sampling import strided
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from amrst.plot.stemmap import StemRecord
     from amrst.progress import Reporter
@@ -174,13 +173,13 @@ def take_inventory(
     reference: int = 0,
     params: StemMapParams | None = None,
     reporter: Reporter | None = None,
-    given_xy: Sequence[tuple[float, float]] = (),
+    given: Mapping[str, tuple[float, float]] | None = None,
 ) -> Inventory:
     """List every tree of the registered plot once.
 
     Trees found are numbered ``T001``... by their position; the trees the technician
-    gave (``given_xy``, where no tree was found) ``H`` and the number of their point
-    in ``given_xy`` from 1, so that neither numbering moves the other.
+    gave (``given``, where the inventory lists no tree) keep the ids given, so that
+    neither numbering moves the other.
 
     Parameters
     ----------
@@ -192,7 +191,7 @@ def take_inventory(
         The frame of the output; its offset makes the positions world coordinates.
     params : StemMapParams or None
     reporter : Reporter or None
-    given_xy : sequence of (x, y)
+    given : mapping of tree id to (x, y), or None
         Where the technician says a tree stands, in the reference's local frame.
 
     Returns
@@ -208,7 +207,7 @@ def take_inventory(
         xyz,
         params,
         None if reporter is None else SubReporter(reporter, 0.2, 0.95),
-        given_xy=given_xy,
+        given_xy=list((given or {}).values()),
     )
     assert stem_map.index is not None  # map_stems gives the rows it kept
     scan = scan[stem_map.index]
@@ -218,14 +217,15 @@ def take_inventory(
     offset = np.asarray(clouds[reference].offset, dtype=float)
     stems = stem_map.stems
     found = [k for k, s in enumerate(stems) if s.given is None]
-    given = sorted(
+    given_stems = sorted(
         (k for k, s in enumerate(stems) if s.given is not None),
         key=lambda k: stems[k].given or 0,
     )
     order = sorted(found, key=lambda k: tuple(np.round(stems[k].base[:2], 1)))
     ids = [f"T{n:03d}" for n in range(1, len(order) + 1)]
-    ids += [added_id(stems[k].given or 0) for k in given]
-    order += given
+    names = list((given or {}).keys())
+    ids += [names[stems[k].given or 0] for k in given_stems]
+    order += given_stems
     trees = [
         Tree(tree_id, stems[k], stems[k].base + offset, _seen_from(stem_map, scan, k))
         for tree_id, k in zip(ids, order, strict=True)

@@ -52,7 +52,7 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         + _summary(doc, rows)
         + '<h2>Stem map</h2><figure><img alt="stem map" '
         + f'src="data:image/png;base64,{png}"><figcaption>Every tree at its stem '
-        "base, its dot sized by its DBH and filled by the DBH's quality (green ok, "
+        "base, its dot sized by its DBH (yours where you measured it) and filled by the DBH's quality (green ok, "
         "amber check, grey none), ringed red where you marked it check, crossed "
         "where you marked it not a tree; the scans "
         "(triangles) and their links by state.</figcaption></figure>"
@@ -95,7 +95,8 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
         ax.plot(x, y, marker="^", ms=11, color="#455a64", zorder=3)
         ax.annotate(f"S{k + 1}", (x, y), xytext=(6, -12), textcoords="offset points")
     for r, (x, y) in zip(rows, xy - origin, strict=True):
-        dbh = _num(r.get("dbh_m"))
+        hand = _num(r.get("dbh_hand_m"))
+        dbh = hand if np.isfinite(hand) else _num(r.get("dbh_m"))  # yours first
         size = 30 + 900 * (dbh if np.isfinite(dbh) else 0.05)
         mark = str(r.get("mark", ""))
         ax.scatter(

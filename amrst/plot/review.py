@@ -8,8 +8,9 @@ It names the scans it belongs to (a review of other scans is not applied) and ho
   slice (:func:`hand_circle`); it stands beside the measured one, and holds across a
   run again as marks do;
 - ``added``: where the technician says a tree stands that the inventory did not
-  list (the reference scan's local frame); each run measures a tree there, listed
-  as ``H`` and the point's number from 1 (``amrst.plot.inventory``);
+  list (the reference scan's local frame), by the id it is listed under (``H001``...,
+  never reused while the point stays); each run measures a tree there
+  (``amrst.plot.inventory``);
 - ``accepted``: links the registration left unsure that the technician checked by eye
   and accepted, each with the pose accepted (the source scan's file coordinates into
   the target's, as ``plot.json`` gives poses). An acceptance holds only while the
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -50,8 +51,11 @@ MARKS = ("ok", "check", NOT_A_TREE)
 SAME_POSE_DEG = 0.05
 SAME_POSE_M = 0.01
 
-#: A DBH by hand is at most this (m): a wider circle is clicks along a line.
+#: A DBH by hand is under this (m): a wider circle is clicks along a line.
 MAX_HAND_DBH_M = 4.0
+#: A DBH by hand belongs to a stem within this (m) of its circle's centre (or within
+#: its diameter).
+HAND_OFF_M = 0.3
 
 LinkKey = tuple[int, int]  # (target scan, source scan), from 0
 
@@ -71,7 +75,20 @@ class PlotReview:
     marks: dict[str, str] = field(default_factory=dict)
     accepted: dict[LinkKey, np.ndarray] = field(default_factory=dict)
     dbh: dict[str, HandCircle] = field(default_factory=dict)
-    added: tuple[tuple[float, float], ...] = ()
+    added: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    def dbh_of(self, tree_id: str, dbh_xy: np.ndarray) -> HandCircle | None:
+        """Return the DBH by hand of the tree ``tree_id`` whose stem is at ``dbh_xy``.
+
+        None when there is none, or when its circle lies off that stem (farther than
+        ``HAND_OFF_M`` or its own diameter): the id then names another tree than the
+        one measured, after a run that listed the trees otherwise.
+        """
+        c = self.dbh.get(tree_id)
+        if c is None or not np.isfinite(dbh_xy).all():
+            return c
+        off = float(np.hypot(*(np.asarray(c.centre_xy) - np.asarray(dbh_xy)[:2])))
+        return c if off <= max(HAND_OFF_M, c.dbh_m) else None
 
 
 def hand_circle(xy: np.ndarray) -> HandCircle | None:
@@ -95,26 +112,19 @@ def hand_circle(xy: np.ndarray) -> HandCircle | None:
     return HandCircle((float(mid[0] + a), float(mid[1] + b)), float(2 * np.sqrt(r2)))
 
 
-def added_id(n: int) -> str:
-    """Return the tree id of the technician's added point ``n`` (from 0)."""
-    return f"H{n + 1:03d}"
+def next_added_id(review: PlotReview) -> str:
+    """Return the id the next tree the technician adds is listed under."""
+    numbers = [int(k[1:]) for k in review.added if k[1:].isdigit()]
+    return f"H{max(numbers, default=0) + 1:03d}"
 
 
-def without_added(review: PlotReview, n: int) -> PlotReview:
-    """Return the review without added point ``n``.
-
-    The marks and DBHs of the added trees after it follow them to their new ids.
-    """
-    if not 0 <= n < len(review.added):
-        return review
-    later = {added_id(k): added_id(k - 1) for k in range(n + 1, len(review.added))}
-    gone = added_id(n)
-
+def without_added(review: PlotReview, tree_id: str) -> PlotReview:
+    """Return the review without the added tree ``tree_id``, its mark and its DBH."""
     return replace(
         review,
-        marks={later.get(k, k): v for k, v in review.marks.items() if k != gone},
-        dbh={later.get(k, k): v for k, v in review.dbh.items() if k != gone},
-        added=review.added[:n] + review.added[n + 1 :],
+        marks={k: v for k, v in review.marks.items() if k != tree_id},
+        dbh={k: v for k, v in review.dbh.items() if k != tree_id},
+        added={k: v for k, v in review.added.items() if k != tree_id},
     )
 
 
@@ -135,8 +145,11 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
             for k, T in dict(doc.get("accepted") or {}).items()
         }
         dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
-        added = tuple(_point(v) for v in list(doc.get("added") or []))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        points = [_point(n, v) for n, v in enumerate(list(doc.get("added") or []))]
+        added = dict(points)
+        if len(added) < len(points):
+            raise ValueError("two trees added under one id")
+    except (OSError, ValueError, KeyError, TypeError, OverflowError) as exc:
         raise InvalidInput(
             f"{path} is no review file ({exc}); move it away to review the plot again."
         ) from exc
@@ -180,7 +193,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
     for tree_id, c in review.dbh.items():
         if not _usable(c):
             raise InvalidInput(f"{tree_id}: a DBH by hand of {c.dbh_m} m")
-    if not np.isfinite(np.asarray(review.added, float)).all():
+    if not np.isfinite(np.array(list(review.added.values()), float)).all():
         raise InvalidInput("a tree added by hand has no finite position")
     accepted = {
         f"{i + 1}-{j + 1}": np.asarray(T, float).tolist()
@@ -197,7 +210,9 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
             "marks": dict(sorted(review.marks.items())),
             "accepted": accepted,
             "dbh": dbh,
-            "added": [{"x_m": x, "y_m": y} for x, y in review.added],
+            "added": [
+                {"id": k, "x_m": x, "y_m": y} for k, (x, y) in review.added.items()
+            ],
         },
     )
 
@@ -268,11 +283,11 @@ def _circle(entry: Mapping[str, float]) -> HandCircle:
     return circle
 
 
-def _point(entry: Mapping[str, float]) -> tuple[float, float]:
+def _point(n: int, entry: Mapping[str, Any]) -> tuple[str, tuple[float, float]]:
     x, y = float(entry["x_m"]), float(entry["y_m"])
     if not np.isfinite([x, y]).all():
         raise ValueError("a tree added at no finite position")
-    return x, y
+    return str(entry.get("id") or f"H{n + 1:03d}"), (x, y)
 
 
 def _usable(circle: HandCircle) -> bool:

@@ -229,9 +229,10 @@ def map_stems(
         carry NaN heights, no point is owned, and a stem is kept on its bark circles
         alone.
     given_xy : sequence of (x, y)
-        With ``trees``: where the technician says a tree stands. A stem found within
-        ``same_stem_m`` is that tree and is kept; elsewhere the stem is measured
-        there (:func:`_add_given_stems`) and tagged ``given``, whatever its figures.
+        With ``trees``: where the technician says a tree stands. Each point gives a
+        stem: the one found within ``same_stem_m`` (a tree found, untagged, when the
+        inventory keeps it), or one measured there (:func:`_add_given_stems`); the
+        stem is tagged ``given`` with the point's number unless it is a tree found.
 
     Returns
     -------
@@ -260,7 +261,7 @@ def map_stems(
     found, slice_lab, slice_idx = find_stems(pts, h, above, params.scene)
     seeds = [slice_idx[slice_lab == k] for k in range(len(found))]
     seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
-    if not seeds:
+    if not seeds and not (trees and len(given_xy)):
         return StemMap((), ground, pts, owner, index)
     say(0.3, f"measuring {len(seeds)} stem candidates")
     fits: list[_StemFit | None] = []
@@ -272,9 +273,7 @@ def map_stems(
         say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         _merge_same_stems(seeds, fits, params)
-        kept_given = _add_given_stems(
-            pts, h, ground, seeds, fits, given_xy, params=params
-        )
+        roles = _add_given_stems(pts, h, ground, seeds, fits, given_xy, params=params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
@@ -286,7 +285,7 @@ def map_stems(
             continue
         stem = (
             _as_tree_or_given(
-                fit, pts, h, ground, owner == k, params, given=k in kept_given
+                fit, pts, h, ground, owner == k, params, role=roles.get(k, "")
             )
             if trees
             else fit.stem
@@ -358,49 +357,50 @@ def _add_given_stems(
     given_xy: Sequence[tuple[float, float]],
     *,
     params: StemMapParams,
-) -> set[int]:
+) -> dict[int, str]:
     """Add the technician's trees to ``seeds`` and ``fits`` (in place).
 
-    Returns the fits to keep whatever :func:`_as_tree` says of them; each is tagged
-    with the number of its point (``StemRecord.given``). A stem found within
-    ``same_stem_m`` of a point is its tree; elsewhere the tree's stem is the points
-    ``GIVEN_LOW_M``-``GIVEN_HIGH_M`` above the ground within ``GIVEN_REACH_M``, its
-    figures what :func:`_measure_stem` reads there, or none.
+    Each point is tagged on its fit (``StemRecord.given``, the point's number).
+    Returns each tagged fit's role: ``found``, a stem the map found within
+    ``same_stem_m`` of the point (the nearest untagged one), listed as found when the
+    inventory keeps it and as given when it does not; ``made``, a stem measured at the
+    point from the points ``GIVEN_LOW_M``-``GIVEN_HIGH_M`` above the ground within
+    ``GIVEN_REACH_M`` and nearer the point than any stem found (or, without such
+    points, none), always listed as given.
     """
-    keep: set[int] = set()
+    roles: dict[int, str] = {}
+    found = [k for k, f in enumerate(fits) if f is not None]
+    bases = np.array([f.stem.base[:2] for f in fits if f is not None]).reshape(-1, 2)
     band = np.flatnonzero((h >= GIVEN_LOW_M) & (h <= GIVEN_HIGH_M))
     for n, xy in enumerate(np.asarray(given_xy, float).reshape(-1, 2)):
-        found = [
-            k
-            for k, f in enumerate(fits)
-            if f is not None and np.hypot(*(f.stem.base[:2] - xy)) <= params.same_stem_m
-        ]
-        if found:
-            old = fits[found[0]]
-            assert old is not None  # found among the fits kept
-            fits[found[0]] = replace(old, stem=replace(old.stem, given=n))
-            keep.add(found[0])
+        d = np.hypot(*(bases - xy).T)
+        free = [j for j in np.argsort(d) if found[j] not in roles]
+        if free and d[free[0]] <= params.same_stem_m:
+            k = found[free[0]]
+            old = fits[k]
+            assert old is not None  # among the fits found
+            fits[k] = replace(old, stem=replace(old.stem, given=n))
+            roles[k] = "found"
             continue
-        d = np.hypot(*(pts[band, :2] - xy).T)
-        seed = band[d <= GIVEN_REACH_M]
+        near = band[np.hypot(*(pts[band, :2] - xy).T) <= GIVEN_REACH_M]
+        mine = np.hypot(*(pts[near, :2] - xy).T)
+        other = [np.hypot(*(pts[near, :2] - b).T) for b in bases]
+        seed = near[mine < np.min(other, axis=0)] if other else near
         fit = _measure_stem(pts, h, ground, seed, params) if len(seed) else None
-        base = np.r_[xy, _ground_z(ground, xy)]
         nan = float("nan")
-        stem = (
-            fit.stem
-            if fit is not None
-            else StemRecord(
-                base, xy, nan, 0.0, nan, nan, "none", nan, "not measured", nan, nan, 0
-            )
+        bare = StemRecord(
+            np.r_[xy, _ground_z(ground, xy)],
+            xy,
+            *(nan, 0.0, nan, nan, "none", nan, "not measured", nan, nan, 0),
         )
-        keep.add(len(fits))
+        roles[len(fits)] = "made"
         seeds.append(seed)
         fits.append(
-            _StemFit(replace(stem, given=n), [], {})
+            _StemFit(replace(bare, given=n), [], {})
             if fit is None
-            else replace(fit, stem=replace(stem, given=n))
+            else replace(fit, stem=replace(fit.stem, given=n))
         )
-    return keep
+    return roles
 
 
 def _as_tree_or_given(
@@ -411,17 +411,20 @@ def _as_tree_or_given(
     mine: np.ndarray,
     params: StemMapParams,
     *,
-    given: bool,
+    role: str,
 ) -> StemRecord | None:
-    """Return :func:`_as_tree`'s record, or a given tree as it stands.
+    """Return the stem as the inventory lists it (None: not at all).
 
-    A tree the technician gave is kept when ``_as_tree`` drops it or it has no bark
-    circles to work on; one it keeps is a tree found (its tag goes).
+    ``role`` as :func:`_add_given_stems` gives it ("": no point of the technician's).
+    A found stem the inventory keeps is a tree found, whatever point fell on it; a
+    given one it would drop, or one made at a point, is listed as given.
     """
     stem = _as_tree(fit, pts, h, ground, mine, params) if fit.line else None
-    if stem is not None:
+    if stem is not None and role != "made":
         return replace(stem, given=None)
-    return _given_tree(fit, pts, mine) if given else None
+    if stem is not None:
+        return stem  # the tag rides on fit.stem through _as_tree
+    return _given_tree(fit, pts, mine) if role else None
 
 
 def _given_tree(fit: _StemFit, pts: np.ndarray, mine: np.ndarray) -> StemRecord:

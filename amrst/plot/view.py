@@ -252,7 +252,14 @@ def read_view(path: Path) -> PlotView:
         raise InvalidInput(
             f"{path.parent} has no {path.name} (an older run): run the plot again."
         ) from exc
-    except (OSError, ValueError, KeyError, IndexError, zipfile.BadZipFile) as exc:
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        IndexError,
+        TypeError,
+        zipfile.BadZipFile,
+    ) as exc:
         raise InvalidInput(
             f"{path} cannot be read ({exc}): run the plot again."
         ) from exc
@@ -280,8 +287,12 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
         )
         for k in range(len(trees))
     )
-    sizes = data["profile_sizes"]
-    if len(sizes) != len(trees) or int(sizes.sum()) != len(data["profile_xyz"]):
+    sizes = np.asarray(data["profile_sizes"], np.int64)
+    if (
+        len(sizes) != len(trees)
+        or (sizes < 0).any()
+        or int(sizes.sum()) != len(data["profile_xyz"])
+    ):
         raise ValueError("side views do not match the trees")
     stops = np.cumsum(sizes, dtype=np.int64)
     starts = stops - sizes

@@ -22,11 +22,10 @@ from PySide6.QtWidgets import QSizePolicy, QWidget
 # state: the plot report's colours.
 from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
-from amrst.plot.review import NOT_A_TREE, added_id
+from amrst.plot.review import NOT_A_TREE, PlotReview
 from amrst.plot.stemmap import StemMapParams
 
 if TYPE_CHECKING:
-    from amrst.plot.review import PlotReview
     from amrst_gui.plot_jobs import PlotOutcome
 
 BACKGROUND = QColor(31, 33, 38)
@@ -68,9 +67,7 @@ class StemMapView(QWidget):
         self.setMinimumSize(320, 260)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.outcome: PlotOutcome | None = None
-        self.marks: dict[str, str] = {}
-        self.dbh: dict[str, float] = {}  # the technician's DBH (m) by tree id
-        self.added: tuple[tuple[float, float], ...] = ()  # the technician's trees
+        self.review = PlotReview()  # the technician's marks, DBHs and added trees
         self.adding = False
         self.selected: int | None = None
         self._image: QImage | None = None
@@ -95,9 +92,7 @@ class StemMapView(QWidget):
 
     def set_review(self, review: PlotReview) -> None:
         """Draw the technician's marks and DBHs."""
-        self.marks = dict(review.marks)
-        self.dbh = {tree_id: c.dbh_m for tree_id, c in review.dbh.items()}
-        self.added = review.added
+        self.review = review
         self.update()
 
     def set_adding(self, on: bool) -> None:
@@ -105,27 +100,34 @@ class StemMapView(QWidget):
         self.adding = on
         self.setCursor(Qt.CursorShape.CrossCursor if on else Qt.CursorShape.ArrowCursor)
 
-    def pending(self) -> list[int]:
-        """The added points no run has measured a tree at yet."""
+    def pending(self) -> list[str]:
+        """The ids of the added trees no run has listed yet."""
         if self.outcome is None:
             return []
         ids = {t.tree_id for t in self.outcome.trees}
-        xy = self.outcome.tree_xy.reshape(-1, 2)
         return [
-            n
-            for n, p in enumerate(self.added)
-            if added_id(n) not in ids
-            and not (np.hypot(*(xy - p).T) <= SAME_TREE_M).any()
+            k
+            for k, p in self.review.added.items()
+            if k not in ids and self.tree_near(*p) is None
         ]
 
-    def added_near(self, x: float, y: float) -> int | None:
-        """The added point drawn within a few pixels of (x, y) m, or None."""
-        if not self.added:
+    def added_near(self, x: float, y: float) -> str | None:
+        """The id of the added tree drawn within a few pixels of (x, y) m, or None."""
+        added = self.review.added
+        if not added:
             return None
-        px = self.to_px(np.array(self.added))
+        px = self.to_px(np.array(list(added.values())))
         d = np.hypot(*(px - self.to_px(np.array([x, y]))).T)
         n = int(np.argmin(d))
-        return n if d[n] <= CLICK_PX else None
+        return list(added)[n] if d[n] <= CLICK_PX else None
+
+    def tree_near(self, x: float, y: float) -> int | None:
+        """The listed tree standing within ``SAME_TREE_M`` of (x, y) m, or None."""
+        if self.outcome is None or not self.outcome.trees:
+            return None
+        d = np.hypot(*(self.outcome.tree_xy.reshape(-1, 2) - (x, y)).T)
+        k = int(np.argmin(d))
+        return k if d[k] <= SAME_TREE_M else None
 
     def to_xy(self, x: float, y: float) -> tuple[float, float]:
         """Plot position (m) of the widget pixel (x, y)."""
@@ -189,7 +191,8 @@ class StemMapView(QWidget):
     def _radius_px(self, k: int) -> float:
         assert self.outcome is not None
         tree = self.outcome.trees[k]
-        dbh = self.dbh.get(tree.tree_id, tree.stem.dbh_m)
+        hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+        dbh = tree.stem.dbh_m if hand is None else hand.dbh_m
         r = dbh / 2 * self._mapping()[0] if np.isfinite(dbh) else 0.0
         return max(float(r), MIN_TREE_PX)
 
@@ -284,7 +287,7 @@ class StemMapView(QWidget):
             x, y = px[k]
             r = self._radius_px(k)
             rgb = QUALITY_RGB.get(tree.stem.dbh_quality, QUALITY_RGB["none"])
-            mark = self.marks.get(tree.tree_id)
+            mark = self.review.marks.get(tree.tree_id)
             ring = QPen(QColor(MARK_RGB[mark]) if mark else QColor(15, 15, 15))
             ring.setWidthF(2.5 if mark else 1.0)
             p.setPen(ring)
@@ -305,12 +308,12 @@ class StemMapView(QWidget):
     def _draw_added(self, p: QPainter) -> None:
         """The added trees no run has measured yet: crosses, named as they will be."""
         pen = QPen(QColor(*HAND_RGB), 2.0)
-        for n in self.pending():
-            x, y = self.to_px(np.array(self.added[n]))[0]
+        for tree_id in self.pending():
+            x, y = self.to_px(np.array(self.review.added[tree_id]))[0]
             p.setPen(pen)
             p.drawLine(QPointF(x - 6, y), QPointF(x + 6, y))
             p.drawLine(QPointF(x, y - 6), QPointF(x, y + 6))
-            p.drawText(QPointF(x + 8, y - 3), f"{added_id(n)} (next run)")
+            p.drawText(QPointF(x + 8, y - 3), f"{tree_id} (next run)")
 
     def _draw_scale(self, p: QPainter) -> None:
         scale = self._mapping()[0]

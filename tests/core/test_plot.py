@@ -148,12 +148,15 @@ def test_inventory_columns_and_the_command(
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
+    on_first = (float(rows[0]["x_m"]), float(rows[0]["y_m"]))  # its stem, upright
     # A tree added by hand on bare ground is listed apart, its figures none.
     write_review(
         out,
         labels,
         PlotReview(
-            {first: "check"}, dbh={first: HandCircle((0, 0), 0.3)}, added=((9.0, 9.0),)
+            {first: "check"},
+            dbh={first: HandCircle(on_first, 0.3)},
+            added={"H001": (9.0, 9.0)},
         ),
     )
     capsys.readouterr()
@@ -499,7 +502,8 @@ def test_a_tree_the_technician_gives_is_listed_apart(plot_pair) -> None:
     # Given where it stands, on a listed tree (kept as it is), and on bare ground.
     on_tree = tuple(found.trees[0].stem.base[:2])
     ground = (9.0, 9.0)
-    inv = take_inventory(clouds, poses, given_xy=[bush, on_tree, ground])
+    given = {"H001": bush, "H002": on_tree, "H003": ground}
+    inv = take_inventory(clouds, poses, given=given)
     # The trees found keep their ids and figures; the given ones are numbered apart.
     assert [t.tree_id for t in inv.trees] == [
         *(t.tree_id for t in plain.trees),
@@ -513,3 +517,40 @@ def test_a_tree_the_technician_gives_is_listed_apart(plot_pair) -> None:
     assert np.hypot(*(bare.xyz[:2] - ground)) < 1e-9
     assert np.isnan(bare.stem.dbh_m)
     assert bare.stem.dbh_quality == "none"
+    # Two points on one spot: two trees given, each listed.
+    twice = take_inventory(clouds, poses, given={"H001": ground, "H002": ground})
+    assert [t.tree_id for t in twice.trees][-2:] == ["H001", "H002"]
+
+
+def test_a_stem_the_map_missed_is_listed_where_given(
+    plot_pair, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A real stem found only through the technician's point keeps its H id, and the
+    trees found keep theirs."""
+    from amrst.plot import stemmap
+
+    target, source, T_true = plot_pair
+    clouds, poses = [target, source], [np.eye(4), T_true]
+    missed = np.array(STEMS[0][:2])  # (0, 4), 30 cm
+    find = stemmap.find_stems
+
+    def blind(pts, h, above, params):  # the slice finds every stem but this one
+        found, lab, idx = find(pts, h, above, params)
+        near = [
+            k
+            for k in range(len(found))
+            if np.hypot(*(pts[idx[lab == k], :2].mean(axis=0) - missed)) < 0.5
+        ]
+        lab = np.where(np.isin(lab, near), -1, lab)
+        keep = [k for k in range(len(found)) if k not in near]
+        lab = np.where(lab >= 0, np.searchsorted(keep, lab), -1)
+        return [found[k] for k in keep], lab, idx
+
+    monkeypatch.setattr(stemmap, "find_stems", blind)
+    monkeypatch.setattr(stemmap, "bark_seeds", lambda *_a: [])
+    plain = take_inventory(clouds, poses)
+    assert len(plain.trees) == len(STEMS) - 1
+    inv = take_inventory(clouds, poses, given={"H001": tuple(missed)})
+    assert [t.tree_id for t in inv.trees] == [t.tree_id for t in plain.trees] + ["H001"]
+    assert [t.row() for t in inv.trees[:-1]] == [t.row() for t in plain.trees]
+    assert abs(inv.trees[-1].stem.dbh_m - 2 * STEMS[0][2]) < 0.02

@@ -38,7 +38,7 @@ def test_the_review_is_written_and_read_back(tmp_path):
         {"T003": "check", "T001": "ok", "T004": "not a tree"},
         {(0, 1): _turned(30.0)},
         {"T002": HandCircle((4.5, -2.25), 0.315)},
-        ((1.5, -3.25), (0.0, 7.0)),
+        added={"H001": (1.5, -3.25), "H004": (0.0, 7.0)},
     )
     write_review(tmp_path, LABELS, review)
     back = read_review(tmp_path, LABELS)
@@ -67,6 +67,16 @@ def test_a_review_of_other_scans_is_not_applied(tmp_path):
         {"scans": LABELS, "marks": {}, "dbh": {"T001": {"x_m": 0, "y_m": 0}}},
         {"scans": LABELS, "marks": {}, "added": [{"x_m": 1.0}]},
         {"scans": LABELS, "marks": {}, "added": [{"x_m": "nan", "y_m": 0}]},
+        {"scans": LABELS, "marks": {}, "added": [{"x_m": 1, "y_m": 1e400}]},
+        {"scans": LABELS, "marks": {}, "added": [{"x_m": 10**400, "y_m": 0}]},
+        {
+            "scans": LABELS,
+            "marks": {},
+            "added": [
+                {"id": "H1", "x_m": 0, "y_m": 0},
+                {"id": "H1", "x_m": 1, "y_m": 1},
+            ],
+        },
         {
             "scans": LABELS,
             "marks": {},
@@ -181,17 +191,26 @@ def test_a_bad_dbh_by_hand_is_not_written(tmp_path):
         write_review(tmp_path, LABELS, PlotReview(dbh={"T001": HandCircle((0, 0), 0)}))
 
 
-def test_an_added_tree_taken_back_leaves_the_others_their_review():
-    from amrst.plot.review import added_id, without_added
+def test_an_added_tree_taken_back_leaves_the_others_their_ids():
+    from amrst.plot.review import next_added_id, without_added
 
     review = PlotReview(
         {"T001": "ok", "H001": "check", "H002": "ok", "H003": "not a tree"},
-        dbh={"H003": HandCircle((0, 0), 0.2)},
-        added=((0.0, 0.0), (1.0, 1.0), (2.0, 2.0)),
+        dbh={"H002": HandCircle((0, 0), 0.2)},
+        added={"H001": (0.0, 0.0), "H002": (1.0, 1.0), "H003": (2.0, 2.0)},
     )
-    back = without_added(review, 1)
-    assert back.added == ((0.0, 0.0), (2.0, 2.0))
-    assert back.marks == {"T001": "ok", "H001": "check", "H002": "not a tree"}
-    assert back.dbh == {"H002": HandCircle((0, 0), 0.2)}
-    assert without_added(review, 3) is review
-    assert added_id(0) == "H001"
+    back = without_added(review, "H002")
+    assert back.added == {"H001": (0.0, 0.0), "H003": (2.0, 2.0)}
+    assert back.marks == {"T001": "ok", "H001": "check", "H003": "not a tree"}
+    assert back.dbh == {}
+    assert next_added_id(back) == "H004"  # an id is not given twice
+    assert next_added_id(PlotReview()) == "H001"
+
+
+def test_a_dbh_by_hand_belongs_to_the_stem_it_was_measured_on():
+    circle = HandCircle((4.0, 2.0), 0.3)
+    review = PlotReview(dbh={"T001": circle})
+    assert review.dbh_of("T001", np.array([4.1, 2.05])) == circle
+    # After a run that listed the trees otherwise, T001 is another tree.
+    assert review.dbh_of("T001", np.array([6.0, 2.0])) is None
+    assert review.dbh_of("T002", np.array([4.0, 2.0])) is None

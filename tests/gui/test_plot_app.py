@@ -90,7 +90,7 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     assert float(hand.pop(tree.tree_id)) == pytest.approx(circle.dbh_m, abs=1e-3)
     assert set(hand.values()) == {""}
     assert "yours" in panel.values["DBH"].text()
-    assert plot.stem_map.dbh == {tree.tree_id: kept[tree.tree_id].dbh_m}  # drawn so
+    assert plot.stem_map.review.dbh == kept  # drawn so
     panel.height_buttons.button(SIDE).click()
     assert panel.side_view.hand == kept[tree.tree_id]  # a green bar by the white
     cell = plot.trees.item(k, 2)
@@ -206,7 +206,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert cell.text() == "check"
     plot.tree_panel.buttons["not a tree"].click()  # a shrub listed as a tree
     assert read_review(out, o.labels).marks == {tree.tree_id: "not a tree"}
-    assert plot.stem_map.marks == {tree.tree_id: "not a tree"}
+    assert plot.stem_map.review.marks == {tree.tree_id: "not a tree"}
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "not a tree"
@@ -249,13 +249,16 @@ def _add_a_tree(
         )
         assert not plot.stem_map.adding  # one click, one tree
 
+    click_at(tuple(o.tree_xy[0]))  # a listed tree is listed once
+    assert "stands there" in plot.status.text()
+    assert read_review(out, o.labels).added == {}
     click_at(gap)
-    (added,) = read_review(out, o.labels).added
+    (added,) = read_review(out, o.labels).added.values()
     assert np.hypot(*np.subtract(added, gap)) < 0.1
-    assert plot.stem_map.pending() == [0]
+    assert plot.stem_map.pending() == ["H001"]
     assert "H001 added" in plot.status.text()
     click_at(gap)  # the cross again: taken back
-    assert read_review(out, o.labels).added == ()
+    assert read_review(out, o.labels).added == {}
     click_at(gap)
     monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)
     _run(qtbot, plot)
