@@ -534,13 +534,16 @@ class PlotWindow(QMainWindow):
     def set_mark(self, tree_id: str, mark: str) -> None:
         """Mark a tree (``amrst.plot.review.MARKS``; "" clears); write the review and
         trees.csv."""
-        marks = dict(self.review.marks)
-        if mark:
-            marks[tree_id] = mark
+        marks, at = dict(self.review.marks), dict(self.review.at)
+        trees = {t.tree_id: t for t in self.outcome.trees} if self.outcome else {}
+        if mark and tree_id in trees:
+            x, y = trees[tree_id].stem.dbh_xy[:2]
+            marks[tree_id], at[tree_id] = mark, (float(x), float(y))  # follows it
         else:
             marks.pop(tree_id, None)
+            at.pop(tree_id, None)
         done = f"{tree_id}: {mark or 'mark cleared'}"
-        self._review_trees(replace(self.review, marks=marks), done, "The mark")
+        self._review_trees(replace(self.review, marks=marks, at=at), done, "The mark")
 
     def set_hand_dbh(self, tree_id: str, circle: HandCircle | None) -> None:
         """Keep the technician's DBH of a tree (None forgets it); write the review

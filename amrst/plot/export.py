@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS
 from amrst.plot.report import REPORT
-from amrst.plot.review import PlotReview, read_review
+from amrst.plot.review import PlotReview, followed, read_review, write_review
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
 
 if TYPE_CHECKING:
@@ -329,7 +329,11 @@ def write_plot(
 
     reference = clouds[reg.reference]
 
-    review = read_review(out, labels)
+    # The review follows its trees: a run that lists them otherwise moves it with them.
+    review, moved = followed(
+        read_review(out, labels),
+        {t.tree_id: t.stem.dbh_xy for t in inventory.trees},
+    )
     doc, _ = strict_json(plot_document(reg, inventory, labels, review, pairs_files))
     writers = _inventory_writers(inventory.trees, review)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
@@ -351,6 +355,8 @@ def write_plot(
     gone = [f"{TREES_DIR}/{p.name}" for p in old.glob("*.ply")] if old.is_dir() else []
     gone += [] if write_cloud else [PLOT_CLOUD]
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
+    if moved:
+        write_review(out, labels, review)
     return written, [scan["state"] for scan in doc["scans"]]
 
 

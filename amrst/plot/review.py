@@ -2,8 +2,10 @@
 
 It names the scans it belongs to (a review of other scans is not applied) and holds
 
-- ``marks``: ``ok`` / ``check`` / ``not a tree`` per tree id; tree ids are stable
-  between runs on the same files, so marks hold across a run again;
+- ``marks``: ``ok`` / ``check`` / ``not a tree`` per tree id, with ``at``, where each
+  marked tree's stem stood (breast height, the reference scan's local frame). A run
+  that lists the trees otherwise moves each mark, and each DBH by hand, to the tree
+  now standing there (:func:`followed`);
 - ``dbh``: the technician's own DBH of a tree, a circle placed on its breast-height
   slice (:func:`hand_circle`); it stands beside the measured one, and holds across a
   run again as marks do;
@@ -76,6 +78,7 @@ class PlotReview:
     accepted: dict[LinkKey, np.ndarray] = field(default_factory=dict)
     dbh: dict[str, HandCircle] = field(default_factory=dict)
     added: dict[str, tuple[float, float]] = field(default_factory=dict)
+    at: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def dbh_of(self, tree_id: str, dbh_xy: np.ndarray) -> HandCircle | None:
         """Return the DBH by hand of the tree ``tree_id`` whose stem is at ``dbh_xy``.
@@ -112,6 +115,46 @@ def hand_circle(xy: np.ndarray) -> HandCircle | None:
     return HandCircle((float(mid[0] + a), float(mid[1] + b)), float(2 * np.sqrt(r2)))
 
 
+def followed(
+    review: PlotReview, trees_xy: Mapping[str, np.ndarray]
+) -> tuple[PlotReview, bool]:
+    """Return the review on the trees standing where it was given; whether it moved.
+
+    Marks and DBHs by hand go to the tree standing where they were given. ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
+    position (an older review) stays on its id; one whose tree no tree stands near
+    any more (within ``HAND_OFF_M``) is dropped, as is a DBH whose circle no stem
+    lies under.
+    """
+    ids = list(trees_xy)
+    xy = np.array([trees_xy[k][:2] for k in ids], float).reshape(-1, 2)
+
+    def nearest(p: tuple[float, float], reach: float) -> str | None:
+        if not ids:
+            return None
+        d = np.hypot(*(xy - p).T)
+        d[~np.isfinite(d)] = np.inf
+        k = int(np.argmin(d))
+        return ids[k] if d[k] <= reach else None
+
+    marks: dict[str, str] = {}
+    at: dict[str, tuple[float, float]] = {}
+    for tree_id, mark in review.marks.items():
+        if tree_id not in review.at:
+            marks.setdefault(tree_id, mark)
+            continue
+        now = nearest(review.at[tree_id], HAND_OFF_M)
+        if now is not None and now not in at:
+            x, y = xy[ids.index(now)]
+            marks[now], at[now] = mark, (float(x), float(y))
+    dbh: dict[str, HandCircle] = {}
+    for c in review.dbh.values():
+        now = nearest(c.centre_xy, max(HAND_OFF_M, c.dbh_m))
+        if now is not None:
+            dbh.setdefault(now, c)
+    moved = marks != review.marks or at != review.at or dbh != review.dbh
+    return replace(review, marks=marks, at=at, dbh=dbh), moved
+
+
 def next_added_id(review: PlotReview) -> str:
     """Return the id the next tree the technician adds is listed under."""
     numbers = [int(k[1:]) for k in review.added if k[1:].isdigit()]
@@ -125,6 +168,7 @@ def without_added(review: PlotReview, tree_id: str) -> PlotReview:
         marks={k: v for k, v in review.marks.items() if k != tree_id},
         dbh={k: v for k, v in review.dbh.items() if k != tree_id},
         added={k: v for k, v in review.added.items() if k != tree_id},
+        at={k: v for k, v in review.at.items() if k != tree_id},
     )
 
 
@@ -149,6 +193,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         added = dict(points)
         if len(added) < len(points):
             raise ValueError("two trees added under one id")
+        at = {str(k): _xy(v) for k, v in dict(doc.get("at") or {}).items()}
     except (OSError, ValueError, KeyError, TypeError, OverflowError) as exc:
         raise InvalidInput(
             f"{path} is no review file ({exc}); move it away to review the plot again."
@@ -159,7 +204,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         )
     if not same_scans(scans, labels):
         return PlotReview()
-    return PlotReview(marks, accepted, dbh, added)
+    return PlotReview(marks, accepted, dbh, added, at)
 
 
 def same_scans(a: Sequence[str], b: Sequence[str]) -> bool:
@@ -213,6 +258,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
             "added": [
                 {"id": k, "x_m": x, "y_m": y} for k, (x, y) in review.added.items()
             ],
+            "at": {k: [x, y] for k, (x, y) in sorted(review.at.items())},
         },
     )
 
@@ -281,6 +327,13 @@ def _circle(entry: Mapping[str, float]) -> HandCircle:
     if not _usable(circle):
         raise ValueError(f"a DBH by hand of {circle.dbh_m} m")
     return circle
+
+
+def _xy(value: Any) -> tuple[float, float]:
+    x, y = (float(v) for v in value)
+    if not np.isfinite([x, y]).all():
+        raise ValueError("a tree marked at no finite position")
+    return x, y
 
 
 def _point(n: int, entry: Mapping[str, Any]) -> tuple[str, tuple[float, float]]:

@@ -214,3 +214,33 @@ def test_a_dbh_by_hand_belongs_to_the_stem_it_was_measured_on():
     # After a run that listed the trees otherwise, T001 is another tree.
     assert review.dbh_of("T001", np.array([6.0, 2.0])) is None
     assert review.dbh_of("T002", np.array([4.0, 2.0])) is None
+
+
+def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
+    from amrst.plot.review import followed
+
+    review = PlotReview(
+        {"T001": "check", "T002": "ok", "T009": "ok"},
+        dbh={"T002": HandCircle((5.0, 1.0), 0.3)},
+        at={"T001": (0.0, 4.0), "T002": (5.0, 1.0)},  # T009: an older review's
+    )
+    # A new tree at (-9, 0) comes first: every id moves by one.
+    now = {
+        "T001": np.array([-9.0, 0.0]),
+        "T002": np.array([0.02, 4.01]),
+        "T003": np.array([5.0, 1.0]),
+        "T009": np.array([7.0, 7.0]),
+    }
+    moved, changed = followed(review, now)
+    assert changed
+    assert moved.marks == {"T002": "check", "T003": "ok", "T009": "ok"}
+    assert moved.dbh == {"T003": HandCircle((5.0, 1.0), 0.3)}
+    assert moved.at["T002"] == (0.02, 4.01)
+    # Read back as written; the same run again moves nothing.
+    write_review(tmp_path, LABELS, moved)
+    assert read_review(tmp_path, LABELS).at == moved.at
+    assert not followed(moved, now)[1]
+    # A marked tree no longer listed takes its mark with it.
+    gone, changed = followed(review, {"T001": np.array([0.0, 4.0])})
+    assert gone.marks == {"T001": "check", "T009": "ok"}
+    assert gone.dbh == {}

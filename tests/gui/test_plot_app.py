@@ -176,6 +176,8 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     # A mark is saved beside the inventory at once, and read back with it.
     plot.tree_panel.buttons["check"].click()
     assert read_review(out, o.labels).marks == {tree.tree_id: "check"}
+    (at,) = read_review(out, o.labels).at.values()  # where it stands: the mark follows
+    assert np.allclose(at, tree.stem.dbh_xy)
     with (out / TREES_CSV).open() as fh:  # and the inventory handed over says it
         marked = {r["tree_id"]: r["mark"] for r in csv.DictReader(fh) if r["mark"]}
     assert marked == {tree.tree_id: "check"}
