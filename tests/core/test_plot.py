@@ -21,7 +21,7 @@ from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
-from amrst.plot.review import HandCircle, PlotReview, write_review
+from amrst.plot.review import HandCircle, PlotReview, read_review, write_review
 from amrst.plot.stemmap import StemMapParams, branch_axis, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
 
@@ -149,14 +149,16 @@ def test_inventory_columns_and_the_command(
     labels = [s["label"] for s in doc["scans"]]
     first = rows[0]["tree_id"]
     on_first = (float(rows[0]["x_m"]), float(rows[0]["y_m"]))  # its stem, upright
-    # A tree added by hand on bare ground is listed apart, its figures none.
+    # A tree added by hand on bare ground is listed apart, its figures none; a mark
+    # kept under an id another run gave goes to the tree standing where it was given.
     write_review(
         out,
         labels,
         PlotReview(
-            {first: "check"},
+            {"T099": "check"},
             dbh={first: HandCircle(on_first, 0.3)},
             added={"H001": (9.0, 9.0)},
+            at={"T099": on_first},
         ),
     )
     capsys.readouterr()
@@ -167,6 +169,7 @@ def test_inventory_columns_and_the_command(
     )
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
+    assert read_review(out, labels).marks == {first: "check"}  # written so
     again = _rows_of(out)
     assert [r["dbh_hand_m"] for r in again] == ["0.3"] + [""] * (len(again) - 1)
     assert [r["tree_id"] for r in again] == [r["tree_id"] for r in rows] + ["H001"]
