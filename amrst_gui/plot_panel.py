@@ -591,9 +591,19 @@ class PlotWindow(QMainWindow):
             self._say(f"{done} (saved in {REVIEW_JSON})")
 
     def _review_trees(self, review: PlotReview, done: str, what: str) -> None:
-        """Save a review of the trees, show it, and write the inventory with it."""
+        """Save a review of the trees, show it, and write the inventory with it.
+
+        Refused while a run goes on: it writes the same files.
+        """
         from amrst.plot.export import TREES_CSV, write_inventory
 
+        if self.busy:
+            self._say(
+                f"{what} was not saved: a plot is running into this folder; give it "
+                "when the run has written its results.",
+                error=True,
+            )
+            return
         o = self.outcome
         if o is None or not self._save_review(review, what):
             return

@@ -288,6 +288,8 @@ def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
     plot.run()
     assert plot.busy
     assert plot.cancel_button.isEnabled()
+    plot.set_mark("T001", "ok")  # the run writes the same files
+    assert "a plot is running" in plot.status.text()
     qtbot.wait(300)
     plot.cancel()
     qtbot.waitUntil(lambda: not plot.busy, timeout=5_000)
