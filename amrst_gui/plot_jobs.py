@@ -92,6 +92,7 @@ class PlotOutcome:
     top: TopView | None
     seconds: float
     profiles: tuple[TreeProfile, ...] = ()  # per tree, its side view's points
+    lost: tuple[str, ...] = ()  # the review this run found no tree for (dropped)
 
     @property
     def tree_xy(self) -> np.ndarray:
@@ -204,6 +205,7 @@ def open_results(
         )
         links = tuple(_link_line(entry, view.offsets) for entry in doc["links"])
         bundle = _float(doc["bundle_rmse_m"])
+        lost = tuple(str(v) for v in doc.get("review_lost") or ())
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise InvalidInput(
             f"{out} holds a plot.json this version cannot read ({exc}): run the "
@@ -220,6 +222,7 @@ def open_results(
         top=view.top,
         seconds=seconds,
         profiles=view.profiles,
+        lost=lost,
     )
 
 

@@ -716,10 +716,15 @@ class PlotWindow(QMainWindow):
         self.tree_panel.show_tree(None, None, None)
         assert self.outcome is not None
         o = self.outcome
-        unsure = bool(o.missing or o.labelled(NEEDS_REVIEW))
+        unsure = bool(o.missing or o.labelled(NEEDS_REVIEW) or o.lost)
         done = f"opened from {o.out}" if opened else f"written to {o.out}"
         if not opened:
             done = f"({o.seconds:.0f} s); {done}"
+        if o.lost:
+            done += (
+                f". No tree stands any more where you gave {', '.join(o.lost)}: "
+                "dropped from your review"
+            )
         self._say(f"{self._summary()}; {done}", error=unsure)
         self.plot_done.emit(o)
 

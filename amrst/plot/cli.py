@@ -106,7 +106,7 @@ def run_cli(args: argparse.Namespace) -> int:
         )
         added = read_review(out, labels).added  # trees the technician added
         inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter, given=added)
-        written, states = write_plot(
+        written, states, lost = write_plot(
             out,
             reg,
             inventory,
@@ -144,6 +144,12 @@ def run_cli(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     print(f"  wrote {_file_list(written)}", file=sys.stderr)
+    if lost:
+        print(
+            f"amrst plot: no tree stands any more where you gave {', '.join(lost)}: "
+            "dropped from the review (see review_lost in plot.json).",
+            file=sys.stderr,
+        )
     if named[NEEDS_REVIEW]:
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "

@@ -311,11 +311,13 @@ def write_plot(
     write_cloud: bool = False,
     report: bool = False,
     pairs_files: Mapping[tuple[int, int], str] | None = None,
-) -> tuple[list[Path], list[str]]:
+) -> tuple[list[Path], list[str], list[str]]:
     """Write the run's files into ``out`` as one unit.
 
-    Returns the files written and each scan's state as plot.json gives it (with the
-    review the folder held when it was written).
+    Returns the files written, each scan's state as plot.json gives it (with the
+    review the folder held when it was written), and the marks and DBHs of that
+    review that found no tree at this run (dropped from it; ``review_lost`` in
+    plot.json).
 
     ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
     reference's frame, world coordinates, ``scan_id`` its number from 1). An earlier
@@ -330,11 +332,13 @@ def write_plot(
     reference = clouds[reg.reference]
 
     # The review follows its trees: a run that lists them otherwise moves it with them.
-    review, moved = followed(
+    review, moved, lost = followed(
         read_review(out, labels),
         {t.tree_id: t.stem.dbh_xy for t in inventory.trees},
     )
-    doc, _ = strict_json(plot_document(reg, inventory, labels, review, pairs_files))
+    doc = plot_document(reg, inventory, labels, review, pairs_files)
+    doc["review_lost"] = lost  # the review that found no tree at this run
+    doc, _ = strict_json(doc)
     writers = _inventory_writers(inventory.trees, review)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
@@ -357,7 +361,7 @@ def write_plot(
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     if moved:
         write_review(out, labels, review)
-    return written, [scan["state"] for scan in doc["scans"]]
+    return written, [scan["state"] for scan in doc["scans"]], lost
 
 
 #: Every name a plot's run writes into its folder.

@@ -117,13 +117,14 @@ def hand_circle(xy: np.ndarray) -> HandCircle | None:
 
 def followed(
     review: PlotReview, trees_xy: Mapping[str, np.ndarray]
-) -> tuple[PlotReview, bool]:
-    """Return the review on the trees standing where it was given; whether it moved.
+) -> tuple[PlotReview, bool, list[str]]:
+    """Return the review moved onto the trees standing where it was given.
 
-    Marks and DBHs by hand go to the tree standing where they were given. ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
-    position (an older review) stays on its id; one whose tree no tree stands near
-    any more (within ``HAND_OFF_M``) is dropped, as is a DBH whose circle no stem
-    lies under.
+    Also whether it moved, and what of it found no tree (e.g. ``T003 (check)``).
+    Marks and DBHs by hand go to the tree standing where they were given.
+    ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
+    position (an older review) stays on its id; one that no tree stands near any more
+    (within ``HAND_OFF_M``) is dropped, as is a DBH whose circle no stem lies under.
     """
     ids = list(trees_xy)
     xy = np.array([trees_xy[k][:2] for k in ids], float).reshape(-1, 2)
@@ -138,6 +139,7 @@ def followed(
 
     marks: dict[str, str] = {}
     at: dict[str, tuple[float, float]] = {}
+    lost: list[str] = []
     for tree_id, mark in review.marks.items():
         if tree_id not in review.at:
             marks.setdefault(tree_id, mark)
@@ -146,13 +148,17 @@ def followed(
         if now is not None and now not in at:
             x, y = xy[ids.index(now)]
             marks[now], at[now] = mark, (float(x), float(y))
+        else:
+            lost.append(f"{tree_id} ({mark})")
     dbh: dict[str, HandCircle] = {}
-    for c in review.dbh.values():
+    for tree_id, c in review.dbh.items():
         now = nearest(c.centre_xy, max(HAND_OFF_M, c.dbh_m))
-        if now is not None:
-            dbh.setdefault(now, c)
+        if now is not None and now not in dbh:
+            dbh[now] = c
+        else:
+            lost.append(f"{tree_id} (your DBH {100 * c.dbh_m:.1f} cm)")
     moved = marks != review.marks or at != review.at or dbh != review.dbh
-    return replace(review, marks=marks, at=at, dbh=dbh), moved
+    return replace(review, marks=marks, at=at, dbh=dbh), moved, lost
 
 
 def next_added_id(review: PlotReview) -> str:

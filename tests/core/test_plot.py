@@ -170,6 +170,7 @@ def test_inventory_columns_and_the_command(
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     assert _marks(out) == {first: "check"}
     assert read_review(out, labels).marks == {first: "check"}  # written so
+    assert json.loads((out / "plot.json").read_text())["review_lost"] == []
     again = _rows_of(out)
     assert [r["dbh_hand_m"] for r in again] == ["0.3"] + [""] * (len(again) - 1)
     assert [r["tree_id"] for r in again] == [r["tree_id"] for r in rows] + ["H001"]
@@ -179,6 +180,13 @@ def test_inventory_columns_and_the_command(
     assert f"<td>{first}</td>" in page
     assert "1 trees marked check, 0 marked not a tree and 1 DBHs measured" in page
     assert "2 registered" in page
+    # A mark no tree stands under any more is dropped, and the run says so.
+    write_review(out, labels, PlotReview({"T050": "ok"}, at={"T050": (50.0, 50.0)}))
+    capsys.readouterr()
+    assert plot_main([*args, "--overwrite"]) == 0
+    assert "where you gave T050 (ok): dropped" in capsys.readouterr().err
+    assert json.loads((out / "plot.json").read_text())["review_lost"] == ["T050 (ok)"]
+    assert read_review(out, labels).marks == {}
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
     write_inventory(out, trees, PlotReview({first: "ok", rows[1]["tree_id"]: "check"}))
     assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}

@@ -231,8 +231,9 @@ def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
         "T003": np.array([5.0, 1.0]),
         "T009": np.array([7.0, 7.0]),
     }
-    moved, changed = followed(review, now)
+    moved, changed, lost = followed(review, now)
     assert changed
+    assert lost == []
     assert moved.marks == {"T002": "check", "T003": "ok", "T009": "ok"}
     assert moved.dbh == {"T003": HandCircle((5.0, 1.0), 0.3)}
     assert moved.at["T002"] == (0.02, 4.01)
@@ -241,6 +242,7 @@ def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
     assert read_review(tmp_path, LABELS).at == moved.at
     assert not followed(moved, now)[1]
     # A marked tree no longer listed takes its mark with it.
-    gone, changed = followed(review, {"T001": np.array([0.0, 4.0])})
+    gone, changed, lost = followed(review, {"T001": np.array([0.0, 4.0])})
     assert gone.marks == {"T001": "check", "T009": "ok"}
     assert gone.dbh == {}
+    assert lost == ["T002 (ok)", "T002 (your DBH 30.0 cm)"]
