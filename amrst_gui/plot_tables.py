@@ -101,7 +101,7 @@ def tree_rows(o: PlotOutcome, review: PlotReview) -> list[tuple[str, ...]]:
     """
     rows: list[tuple[str, ...]] = []
     for t in o.trees:
-        hand = review.dbh_of(t.tree_id, t.stem.dbh_xy)
+        hand = review.dbh.get(t.tree_id)
         dbh, quality = (
             (t.stem.dbh_m, t.stem.dbh_quality)
             if hand is None

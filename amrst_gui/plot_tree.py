@@ -82,7 +82,7 @@ def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
     """The tree's figures, label and text (world coordinates, as trees.csv)."""
     s = tree.stem
     mark = review.marks.get(tree.tree_id)
-    hand = review.dbh_of(tree.tree_id, s.dbh_xy)
+    hand = review.dbh.get(tree.tree_id)
     yours = "" if hand is None else f"; yours {100 * hand.dbh_m:.1f} cm"
     x, y, z = tree.xyz
     seen = ", ".join(
@@ -276,14 +276,14 @@ class TreePanel(QWidget):
         if index == SIDE:
             profile = outcome.profiles[k] if k < len(outcome.profiles) else None
             tree = outcome.trees[k]
-            hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+            hand = self.review.dbh.get(tree.tree_id)
             self.side_view.set_tree(tree, profile, hand)
             return
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M
         circle = "the DBH fit" if fitted else "the DBH, for comparison"
         tree = outcome.trees[k]
-        hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy) if fitted else None
+        hand = self.review.dbh.get(tree.tree_id) if fitted else None
         self.slice_view.set_slice(
             sl,
             tree.stem.dbh_xy if sl.centre is None else sl.centre,

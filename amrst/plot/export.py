@@ -396,7 +396,7 @@ def _rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
 
 
 def _hand(review: PlotReview, tree: Tree) -> float | str:
-    circle = review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+    circle = review.dbh.get(tree.tree_id)
     return "" if circle is None else round(circle.dbh_m, 3)
 
 

@@ -55,9 +55,9 @@ SAME_POSE_M = 0.01
 
 #: A DBH by hand is under this (m): a wider circle is clicks along a line.
 MAX_HAND_DBH_M = 4.0
-#: A DBH by hand belongs to a stem within this (m) of its circle's centre (or within
-#: its diameter).
-HAND_OFF_M = 0.3
+#: A mark belongs to the tree standing within this (m) of where it was given; a DBH by
+#: hand, within this or its own diameter of its circle's centre.
+FOLLOW_M = 0.3
 
 LinkKey = tuple[int, int]  # (target scan, source scan), from 0
 
@@ -79,19 +79,6 @@ class PlotReview:
     dbh: dict[str, HandCircle] = field(default_factory=dict)
     added: dict[str, tuple[float, float]] = field(default_factory=dict)
     at: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    def dbh_of(self, tree_id: str, dbh_xy: np.ndarray) -> HandCircle | None:
-        """Return the DBH by hand of the tree ``tree_id`` whose stem is at ``dbh_xy``.
-
-        None when there is none, or when its circle lies off that stem (farther than
-        ``HAND_OFF_M`` or its own diameter): the id then names another tree than the
-        one measured, after a run that listed the trees otherwise.
-        """
-        c = self.dbh.get(tree_id)
-        if c is None or not np.isfinite(dbh_xy).all():
-            return c
-        off = float(np.hypot(*(np.asarray(c.centre_xy) - np.asarray(dbh_xy)[:2])))
-        return c if off <= max(HAND_OFF_M, c.dbh_m) else None
 
 
 def hand_circle(xy: np.ndarray) -> HandCircle | None:
@@ -124,7 +111,7 @@ def followed(
     Marks and DBHs by hand go to the tree standing where they were given.
     ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
     position (an older review) stays on its id; one that no tree stands near any more
-    (within ``HAND_OFF_M``) is dropped, as is a DBH whose circle no stem lies under.
+    (within ``FOLLOW_M``) is dropped, as is a DBH whose circle no stem lies under.
     """
     ids = list(trees_xy)
     xy = np.array([trees_xy[k][:2] for k in ids], float).reshape(-1, 2)
@@ -144,7 +131,7 @@ def followed(
         if tree_id not in review.at:
             marks.setdefault(tree_id, mark)
             continue
-        now = nearest(review.at[tree_id], HAND_OFF_M)
+        now = nearest(review.at[tree_id], FOLLOW_M)
         if now is not None and now not in at:
             x, y = xy[ids.index(now)]
             marks[now], at[now] = mark, (float(x), float(y))
@@ -152,7 +139,7 @@ def followed(
             lost.append(f"{tree_id} ({mark})")
     dbh: dict[str, HandCircle] = {}
     for tree_id, c in review.dbh.items():
-        now = nearest(c.centre_xy, max(HAND_OFF_M, c.dbh_m))
+        now = nearest(c.centre_xy, max(FOLLOW_M, c.dbh_m))
         if now is not None and now not in dbh:
             dbh[now] = c
         else:

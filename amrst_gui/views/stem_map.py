@@ -191,7 +191,7 @@ class StemMapView(QWidget):
     def _radius_px(self, k: int) -> float:
         assert self.outcome is not None
         tree = self.outcome.trees[k]
-        hand = self.review.dbh_of(tree.tree_id, tree.stem.dbh_xy)
+        hand = self.review.dbh.get(tree.tree_id)
         dbh = tree.stem.dbh_m if hand is None else hand.dbh_m
         r = dbh / 2 * self._mapping()[0] if np.isfinite(dbh) else 0.0
         return max(float(r), MIN_TREE_PX)
