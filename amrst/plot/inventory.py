@@ -207,7 +207,7 @@ def take_inventory(
         xyz,
         params,
         None if reporter is None else SubReporter(reporter, 0.2, 0.95),
-        given_xy=list((given or {}).values()),
+        given=given,
     )
     assert stem_map.index is not None  # map_stems gives the rows it kept
     scan = scan[stem_map.index]
@@ -219,12 +219,11 @@ def take_inventory(
     found = [k for k, s in enumerate(stems) if s.given is None]
     given_stems = sorted(
         (k for k, s in enumerate(stems) if s.given is not None),
-        key=lambda k: stems[k].given or 0,
+        key=lambda k: stems[k].given or "",
     )
     order = sorted(found, key=lambda k: tuple(np.round(stems[k].base[:2], 1)))
     ids = [f"T{n:03d}" for n in range(1, len(order) + 1)]
-    names = list((given or {}).keys())
-    ids += [names[stems[k].given or 0] for k in given_stems]
+    ids += [stems[k].given or "" for k in given_stems]
     order += given_stems
     trees = [
         Tree(tree_id, stems[k], stems[k].base + offset, _seen_from(stem_map, scan, k))

@@ -42,7 +42,7 @@ from amrst.stages.stems import find_stems
 from amrst.stages.voxels import voxel_sample
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping
 
     from amrst.measure.stem import StemCircle
     from amrst.progress import Reporter
@@ -158,7 +158,7 @@ class StemRecord:
     lean_deg: float
     crown_width_m: float
     n_points: int
-    given: int | None = None  # the technician's point it was measured at (index)
+    given: str | None = None  # the id the technician gave the tree it stands for
 
     @property
     def key_xyz(self) -> np.ndarray:
@@ -211,7 +211,7 @@ def map_stems(
     reporter: Reporter | None = None,
     *,
     trees: bool = True,
-    given_xy: Sequence[tuple[float, float]] = (),
+    given: Mapping[str, tuple[float, float]] | None = None,
 ) -> StemMap:
     """Find and measure every stem of a plot cloud.
 
@@ -228,11 +228,11 @@ def map_stems(
         over several slices. Without it (the key points of a registration) the stems
         carry NaN heights, no point is owned, and a stem is kept on its bark circles
         alone.
-    given_xy : sequence of (x, y)
+    given : mapping of tree id to (x, y), or None
         With ``trees``: where the technician says a tree stands. Each point gives a
         stem: the one found within ``same_stem_m`` (a tree found, untagged, when the
         inventory keeps it), or one measured there (:func:`_add_given_stems`); the
-        stem is tagged ``given`` with the point's number unless it is a tree found.
+        stem is tagged ``given`` with the point's id unless it is a tree found.
 
     Returns
     -------
@@ -261,7 +261,8 @@ def map_stems(
     found, slice_lab, slice_idx = find_stems(pts, h, above, params.scene)
     seeds = [slice_idx[slice_lab == k] for k in range(len(found))]
     seeds += bark_seeds(pts, h, slice_idx[slice_lab < 0], params)
-    if not seeds and not (trees and len(given_xy)):
+    given = given or {}
+    if not seeds and not (trees and given):
         return StemMap((), ground, pts, owner, index)
     say(0.3, f"measuring {len(seeds)} stem candidates")
     fits: list[_StemFit | None] = []
@@ -273,7 +274,7 @@ def map_stems(
         say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         _merge_same_stems(seeds, fits, params)
-        roles = _add_given_stems(pts, h, ground, seeds, fits, given_xy, params=params)
+        roles = _add_given_stems(pts, h, ground, seeds, fits, given, params=params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
     stems: list[StemRecord] = []
@@ -354,13 +355,13 @@ def _add_given_stems(
     ground: GroundFit,
     seeds: list[np.ndarray],
     fits: list[_StemFit | None],
-    given_xy: Sequence[tuple[float, float]],
+    given: Mapping[str, tuple[float, float]],
     *,
     params: StemMapParams,
 ) -> dict[int, str]:
     """Add the technician's trees to ``seeds`` and ``fits`` (in place).
 
-    Each point is tagged on its fit (``StemRecord.given``, the point's number).
+    Each point is tagged on its fit (``StemRecord.given``, the point's id).
     Returns each tagged fit's role: ``found``, a stem the map found within
     ``same_stem_m`` of the point (the nearest untagged one), listed as found when the
     inventory keeps it and as given when it does not; ``made``, a stem measured at the
@@ -372,14 +373,15 @@ def _add_given_stems(
     found = [k for k, f in enumerate(fits) if f is not None]
     bases = np.array([f.stem.base[:2] for f in fits if f is not None]).reshape(-1, 2)
     band = np.flatnonzero((h >= GIVEN_LOW_M) & (h <= GIVEN_HIGH_M))
-    for n, xy in enumerate(np.asarray(given_xy, float).reshape(-1, 2)):
+    for tree_id, point in given.items():
+        xy = np.asarray(point, float)
         d = np.hypot(*(bases - xy).T)
         free = [j for j in np.argsort(d) if found[j] not in roles]
         if free and d[free[0]] <= params.same_stem_m:
             k = found[free[0]]
             old = fits[k]
             assert old is not None  # among the fits found
-            fits[k] = replace(old, stem=replace(old.stem, given=n))
+            fits[k] = replace(old, stem=replace(old.stem, given=tree_id))
             roles[k] = "found"
             continue
         near = band[np.hypot(*(pts[band, :2] - xy).T) <= GIVEN_REACH_M]
@@ -396,9 +398,9 @@ def _add_given_stems(
         roles[len(fits)] = "made"
         seeds.append(seed)
         fits.append(
-            _StemFit(replace(bare, given=n), [], {})
+            _StemFit(replace(bare, given=tree_id), [], {})
             if fit is None
-            else replace(fit, stem=replace(fit.stem, given=n))
+            else replace(fit, stem=replace(fit.stem, given=tree_id))
         )
     return roles
 
