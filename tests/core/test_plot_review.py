@@ -205,3 +205,35 @@ def test_an_added_tree_taken_back_leaves_the_others_their_ids():
     assert back.dbh == {}
     assert next_added_id(back) == "H004"  # an id is not given twice
     assert next_added_id(PlotReview()) == "H001"
+
+
+def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
+    from amrst.plot.review import followed
+
+    review = PlotReview(
+        {"T001": "check", "T002": "ok", "T009": "ok"},
+        dbh={"T002": HandCircle((5.0, 1.0), 0.3)},
+        at={"T001": (0.0, 4.0), "T002": (5.0, 1.0)},  # T009: an older review's
+    )
+    # A new tree at (-9, 0) comes first: every id moves by one.
+    now = {
+        "T001": np.array([-9.0, 0.0]),
+        "T002": np.array([0.02, 4.01]),
+        "T003": np.array([5.0, 1.0]),
+        "T009": np.array([7.0, 7.0]),
+    }
+    moved, changed, lost = followed(review, now)
+    assert changed
+    assert lost == []
+    assert moved.marks == {"T002": "check", "T003": "ok", "T009": "ok"}
+    assert moved.dbh == {"T003": HandCircle((5.0, 1.0), 0.3)}
+    assert moved.at["T002"] == (0.02, 4.01)
+    # Read back as written; the same run again moves nothing.
+    write_review(tmp_path, LABELS, moved)
+    assert read_review(tmp_path, LABELS).at == moved.at
+    assert not followed(moved, now)[1]
+    # A marked tree no longer listed takes its mark with it.
+    gone, changed, lost = followed(review, {"T001": np.array([0.0, 4.0])})
+    assert gone.marks == {"T001": "check", "T009": "ok"}
+    assert gone.dbh == {}
+    assert lost == ["T002 (ok)", "T002 (your DBH 30.0 cm)"]
