@@ -88,9 +88,10 @@ class SubReporter:
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Report ``fraction`` of the sub-stage as its share of [start, stop]."""
+        # A message that already names the stage is not prefixed twice.
         text = (
             f"{self._label}: {message}"
-            if self._label and message
+            if self._label and message and not message.startswith(self._label)
             else (message or self._label)
         )
         self._parent.progress(

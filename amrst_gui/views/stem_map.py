@@ -84,9 +84,12 @@ class StemMapView(QWidget):
         self._image = None
         top = None if outcome is None else outcome.top
         if top is not None:
-            grey = np.ascontiguousarray(top.image[::-1])  # row 0 at the top
+            # White with the density as alpha: empty cells show the background, so
+            # the map has no visible edge where the scans' extent ends.
+            grey = top.image[::-1].astype(np.uint32)  # row 0 at the top
+            argb = np.ascontiguousarray((grey << 24) | 0x00FFFFFF)
             h, w = grey.shape
-            self._image = QImage(grey.data, w, h, w, QImage.Format.Format_Grayscale8)
+            self._image = QImage(argb.data, w, h, 4 * w, QImage.Format.Format_ARGB32)
             self._image = self._image.copy()  # owns its pixels
         self.update()
 

@@ -8,12 +8,25 @@ import threading
 import pytest
 
 from amrst.errors import Cancelled
-from amrst.progress import EventReporter, SharedReporter
+from amrst.progress import EventReporter, SharedReporter, SubReporter
 
 
 def _recording():
     seen: list[tuple[float, str]] = []
     return EventReporter(lambda f, m: seen.append((f, m))), seen
+
+
+def test_sub_reporter_names_its_stage_once() -> None:
+    parent, seen = _recording()
+    sub = SubReporter(parent, 0.5, 1.0, "preprocess")
+    sub.progress(0.5, "thinned")
+    sub.progress(1.0, "preprocess: done")
+    sub.progress(1.0)
+    assert seen == [
+        (0.75, "preprocess: thinned"),
+        (1.0, "preprocess: done"),
+        (1.0, "preprocess"),
+    ]
 
 
 def test_shared_reporter_sums_interleaved_tasks_monotonically() -> None:
