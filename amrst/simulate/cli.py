@@ -263,6 +263,7 @@ def _run_plot(args: argparse.Namespace) -> str:
         simulate_plot,
         write_plot_case,
     )
+    from amrst.terminal import TerminalReporter
 
     _refuse(
         args,
@@ -296,7 +297,7 @@ def _run_plot(args: argparse.Namespace) -> str:
     options = plot_options(args.kind or "normal", **changes)
     check_plot_folder(args.out)
     trees = [replace(io.read(path), name=_tree_name(path)) for path in args.tree_files]
-    plot = simulate_plot(trees, options, seed=args.seed)
+    plot = simulate_plot(trees, options, seed=args.seed, reporter=TerminalReporter())
     out = write_plot_case(plot, args.out, args.seed)
     sizes = ", ".join(str(len(s)) for s in plot.scans)
     return (

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.simulate import (
     MIN_POINTS,
     check_case_folder,
@@ -461,6 +462,8 @@ def _scan(
     res_deg: float,
     noise_m: float,
     rng: np.random.Generator,
+    *,
+    reporter: Reporter = NULL_REPORTER,
 ) -> Cloud:
     """Scan the points ``xyz`` from ``pose``, one azimuth sector at a time.
 
@@ -484,6 +487,7 @@ def _scan(
     sector = np.minimum((azimuth / width).astype(np.int64), _SECTORS - 1)
     parts = []
     for j in range(_SECTORS):
+        reporter.progress(j / _SECTORS)
         off = np.abs((azimuth - (j + 0.5) * width + np.pi) % (2 * np.pi) - np.pi)
         near = np.flatnonzero(off <= width / 2 + margin)
         scan, index = simulate_scan(
@@ -499,7 +503,11 @@ def _scan(
 
 
 def simulate_plot(
-    trees: Sequence[Cloud], options: PlotOptions, *, seed: int = 0
+    trees: Sequence[Cloud],
+    options: PlotOptions,
+    *,
+    seed: int = 0,
+    reporter: Reporter = NULL_REPORTER,
 ) -> SimulatedPlot:
     """Scan a plot of ``trees`` from ``options.positions`` tripod positions.
 
@@ -510,6 +518,8 @@ def simulate_plot(
     options : PlotOptions
     seed : int
         Seeds the plot and the scans: the same seed and trees give the same case.
+    reporter : Reporter
+        Told the progress scan by scan.
 
     Returns
     -------
@@ -526,7 +536,9 @@ def simulate_plot(
     rng = np.random.default_rng([int(seed), 1])  # the scans' own stream
     radius = footprints(scene.cloud.xyz)
     scans, poses, specs = [], [], []
+    n = len(scene.positions)
     for k, position in enumerate(scene.positions):
+        step = SubReporter(reporter, k / n, (k + 1) / n, f"scan {k + 1} of {n}")
         xyz = np.asarray(scene.cloud.xyz)
         if k and max(options.sway_m) > 0:
             xyz = _swayed(scene, rng, options.sway_m)
@@ -535,7 +547,9 @@ def simulate_plot(
         # The spec's azimuth and distance place the scanner over its own ground point.
         pose = scanner_pose(np.r_[0.0, 0.0, position[2]], spec)
         near = np.linalg.norm(xyz - pose[:3, 3], axis=1) <= options.range_m
-        scan = _scan(xyz[near], radius[near], pose, res, options.noise_m, rng)
+        scan = _scan(
+            xyz[near], radius[near], pose, res, options.noise_m, rng, reporter=step
+        )
         scan = scan.select(np.linalg.norm(scan.xyz, axis=1) <= options.range_m)
         if len(scan) < MIN_POINTS:
             raise InvalidInput(
@@ -545,6 +559,7 @@ def simulate_plot(
         scans.append(Cloud(scan.xyz, name=f"scan_{k + 1}"))
         poses.append(pose)
         specs.append(spec)
+    reporter.progress(1.0, "scans made")
     return SimulatedPlot(
         tuple(scans), tuple(poses), tuple(specs), scene.trees, options.kind
     )

@@ -170,9 +170,18 @@ def test_case_files_and_truth_read_back(plot3, trees, tmp_path: Path) -> None:
         write_plot_case(pair, out2, seed=2)
 
 
-def test_same_seed_same_plot(trees) -> None:
+def test_same_seed_same_plot_and_progress_scan_by_scan(trees) -> None:
+    from amrst.progress import EventReporter
+
+    seen: list[tuple[float, str]] = []
     options = plot_options("normal", **SMALL)
-    a = simulate_plot(trees, options, seed=5)
+    a = simulate_plot(
+        trees, options, seed=5, reporter=EventReporter(lambda f, m: seen.append((f, m)))
+    )
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions)
+    assert fractions[-1] == 1.0
+    assert {m for _, m in seen} >= {"scan 1 of 2", "scan 2 of 2"}
     b = simulate_plot(trees, options, seed=5)
     for sa, sb in zip(a.scans, b.scans, strict=True):
         np.testing.assert_array_equal(sa.xyz, sb.xyz)
