@@ -1,9 +1,7 @@
 """What the Plot window runs in the engine process, and its review file. No Qt.
 
-:func:`run_plot` is ``amrst plot SCANS --out DIR`` for the app: it reads the scans,
-registers them (``amrst.plot.register``), takes the inventory
-(``amrst.plot.inventory``) and writes the plot into the results folder
-(``amrst.plot.export``). :func:`open_results` reads such a folder back, whoever wrote
+:func:`run_plot` is ``amrst plot SCANS --out DIR`` for the app: the same run
+(``amrst.plot.run``) writes the plot into the results folder. :func:`open_results` reads such a folder back, whoever wrote
 it, as a :class:`PlotOutcome`: what the stem map and the tree view draw, a few
 thousand points at most, never the scans. A run hands back its folder read that way,
 so the window shows what the files say.
@@ -22,7 +20,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.progress import Reporter, SubReporter
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
 if TYPE_CHECKING:
@@ -32,6 +29,7 @@ if TYPE_CHECKING:
     from amrst.campaign.stored import StoredLinkResult
     from amrst.plot.inventory import Tree
     from amrst.plot.view import TopView, TreeProfile, TreeSlice
+    from amrst.progress import Reporter
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,51 +123,18 @@ def run_plot(
     plot --pairs``, scans from 0); ``left_out``: links not to register (``amrst plot
     --leave-out``); ``write_cloud``: also the registered plot (``--write-cloud``).
     """
-    from pathlib import Path
-
-    from amrst.multiscan.cli import read_specs
-    from amrst.plot.export import check_out, write_plot
-    from amrst.plot.inventory import take_inventory
-    from amrst.plot.register import register_plot
-    from amrst.plot.review import read_review
-    from amrst.review.pairs_file import read_pairs
+    from amrst.plot import run
 
     start = time.perf_counter()
-    check_out(out, overwrite)
-    by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
-    reporter.progress(0.0, "Reading the scans")
-    clouds, labels = read_specs(list(specs))
-    if len(clouds) < 2:
-        raise InvalidInput(
-            f"{len(clouds)} scan given: a plot needs at least two positions; "
-            "open two or more scans."
-        )
-    reporter.check_cancelled()
-    reg = register_plot(
-        clouds,
-        0,
-        reporter=SubReporter(reporter, 0.05, 0.8),
-        by_hand=by_hand,
-        left_out=left_out,
-    )
-    inventory = take_inventory(
-        clouds,
-        reg.poses,
-        0,
-        reporter=SubReporter(reporter, 0.8, 0.95, "inventory"),
-        given=read_review(out, labels).added,  # trees the technician added
-    )
-    reporter.progress(0.95, "Writing the plot")
-    write_plot(
+    run.run_plot(
+        specs,
         out,
-        reg,
-        inventory,
-        labels,
-        clouds,
+        overwrite=overwrite,
+        pairs=pairs,
+        left_out=left_out,
         write_cloud=write_cloud,
-        pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
+        reporter=reporter,
     )
-    reporter.progress(1.0, "Plot written")
     return open_results(out, reporter, seconds=time.perf_counter() - start)
 
 

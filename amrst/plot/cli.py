@@ -15,10 +15,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:
     import argparse
-
-    import numpy as np
 
 EXIT_BAD_INPUT = 2
 EXIT_NOT_REGISTERED = 3
@@ -80,44 +80,29 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def run_cli(args: argparse.Namespace) -> int:
     """Register and inventory the plot ``args`` names (see :func:`configure_parser`)."""
     from amrst.errors import AmrstError, InvalidInput
-    from amrst.multiscan.cli import read_specs
-    from amrst.plot.export import check_out, write_plot
-    from amrst.plot.inventory import take_inventory
-    from amrst.plot.register import register_plot
-    from amrst.plot.review import ACCEPTED, read_review
+    from amrst.plot.review import ACCEPTED
+    from amrst.plot.run import run_plot
     from amrst.terminal import TerminalReporter
 
     out = Path(args.out)
     try:
-        check_out(out, args.overwrite)
-        by_hand = read_hand_pairs(args.pairs)  # a bad file before minutes of reading
+        if not args.out.strip():
+            raise InvalidInput("--out is empty: name the results folder.")
+        pairs = hand_pairs(args.pairs)
         left_out = [
             scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
         ]
         # Absolute labels: the app opens the results from anywhere, runs them again.
-        clouds, labels = read_specs([str(Path(s).resolve()) for s in args.scans])
-        if len(clouds) < 2:
-            raise InvalidInput(
-                f"{len(clouds)} scan given: a plot needs at least two positions."
-            )
-        reporter = TerminalReporter(args.quiet)
-        reg = register_plot(
-            clouds, 0, reporter=reporter, by_hand=by_hand, left_out=left_out
-        )
-        added = read_review(out, labels).added  # trees the technician added
-        inventory = take_inventory(clouds, reg.poses, 0, reporter=reporter, given=added)
-        written, states, lost = write_plot(
+        run = run_plot(
+            [str(Path(s).resolve()) for s in args.scans],
             out,
-            reg,
-            inventory,
-            labels,
-            clouds,
+            overwrite=args.overwrite,
+            pairs=pairs,
+            left_out=left_out,
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
             report=args.report,
-            pairs_files={
-                scan_numbers(i, j, ""): str(Path(f).resolve()) for i, j, f in args.pairs
-            },
+            reporter=TerminalReporter(args.quiet),
         )
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
@@ -130,23 +115,25 @@ def run_cli(args: argparse.Namespace) -> int:
         NEEDS_REVIEW: [],
         FAILED: [],
     }
-    for label, state in zip(labels, states, strict=True):
+    for label, state in zip(run.labels, run.states, strict=True):
         named[state].append(label)
     counts = "".join(
         f", {len(named[s])} {text}"
         for s, text in ((ACCEPTED, "accepted by you"), (NEEDS_REVIEW, "need review"))
         if named[s]
     )
+    bundle = run.registration.bundle_rmse_m
     print(
-        f"{out}: {len(inventory.trees)} trees; {len(named[REGISTERED])} of "
-        f"{len(clouds)} scans registered{counts}, bundle error "
-        f"{100 * reg.bundle_rmse_m:.1f} cm",
+        f"{out}: {len(run.inventory.trees)} trees; {len(named[REGISTERED])} of "
+        f"{len(run.labels)} scans registered{counts}"
+        + (f", bundle error {100 * bundle:.1f} cm" if np.isfinite(bundle) else ""),
         file=sys.stderr,
     )
-    print(f"  wrote {_file_list(written)}", file=sys.stderr)
-    if lost:
+    print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
+    if run.lost:
         print(
-            f"amrst plot: no tree stands any more where you gave {', '.join(lost)}: "
+            f"amrst plot: no tree stands any more where you gave "
+            f"{', '.join(run.lost)}: "
             "dropped from the review (see review_lost in plot.json).",
             file=sys.stderr,
         )
@@ -177,22 +164,25 @@ def _file_list(written: list[Path]) -> str:
     return ", ".join(top + ([f"trees/ ({trees} clouds)"] if trees else []))
 
 
-def read_hand_pairs(
-    given: list[list[str]],
-) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-    """Read ``--pairs I J FILE`` arguments: {(i, j) from 0: (scan i's, scan j's)}.
+def hand_pairs(given: list[list[str]]) -> dict[tuple[int, int], str]:
+    """Return ``--pairs I J FILE`` arguments as {(i, j) from 0: FILE}.
 
     Raises
     ------
     InvalidInput
-        A scan number that is not a whole number from 1, or an unreadable file.
+        A scan number that is not a whole number from 1, or a link given twice.
     """
-    from amrst.review.pairs_file import read_pairs
+    from amrst.errors import InvalidInput
 
-    return {
-        scan_numbers(i, j, f"--pairs {i} {j} {path}"): read_pairs(Path(path))
-        for i, j, path in given
-    }
+    pairs: dict[tuple[int, int], str] = {}
+    for i, j, path in given:
+        link = scan_numbers(i, j, f"--pairs {i} {j} {path}")
+        if link in pairs or link[::-1] in pairs:
+            raise InvalidInput(
+                f"--pairs {i} {j} is given twice: give one pairs file per link."
+            )
+        pairs[link] = path
+    return pairs
 
 
 def scan_numbers(i: str, j: str, given: str) -> tuple[int, int]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -41,16 +42,24 @@ INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark", "dbh_hand_m")
 
 
 def check_out(out: Path, overwrite: bool) -> None:
-    """Refuse a folder that holds another run's output, unless ``overwrite``.
+    """Refuse an output folder a run cannot write into.
 
-    Its review must be readable (its marks go into the inventory): refused before
-    the run rather than after it.
+    That is a file, a place that cannot be written, or a folder that holds another
+    run's output (unless ``overwrite``). Its review must be readable (its marks go into the inventory). All refused
+    before the run rather than after it.
     """
+    import os
+
+    if out.exists() and not out.is_dir():
+        raise InvalidInput(f"{out} is a file, not a folder: give another --out folder.")
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} already holds a plot ({PLOT_JSON}): give another --out folder, or "
             "--overwrite to replace it."
         )
+    first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
+    if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
+        raise InvalidInput(f"Cannot write in {first}: give another --out folder.")
     read_review(out, ())
 
 
@@ -354,10 +363,17 @@ def write_plot(
 
         page = build_report(doc, _rows(inventory.trees, review))
         writers[REPORT] = lambda p: p.write_text(page)
-    # Clouds of an earlier run that this one does not write again no longer match it.
+    # Files of an earlier run that this one does not write again no longer match it;
+    # the tree clouds are the ones named by a tree id, other files there stay.
     old = out / TREES_DIR
-    gone = [f"{TREES_DIR}/{p.name}" for p in old.glob("*.ply")] if old.is_dir() else []
+    ours = re.compile(r"[TH][0-9]+\.ply")
+    gone = [
+        f"{TREES_DIR}/{p.name}"
+        for p in (old.glob("*.ply") if old.is_dir() else ())
+        if ours.fullmatch(p.name)
+    ]
     gone += [] if write_cloud else [PLOT_CLOUD]
+    gone += [] if report else [REPORT]
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     if moved:
         write_review(out, labels, review)

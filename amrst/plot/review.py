@@ -28,6 +28,7 @@ unsure link of its path was accepted at the pose it has.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -36,6 +37,7 @@ import numpy as np
 from amrst.campaign.folder import ACCEPTED as ACCEPTED  # a scan the review accepted
 from amrst.errors import InvalidInput
 from amrst.review.verdict import NEEDS_REVIEW
+from amrst.types import check_rigid
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -53,6 +55,12 @@ MARKS = ("ok", "check", NOT_A_TREE)
 SAME_POSE_DEG = 0.05
 SAME_POSE_M = 0.01
 
+#: The id of a tree the technician added: H and a number (H001), apart from the
+#: found trees' T001... and safe as a file name (trees/H001.ply).
+ADDED_ID = r"H[0-9]{1,6}"
+#: Positions in review.json are in the reference scan's frame, whose origin is among
+#: its points: a tree added farther than this (m) stands in no plot.
+MAX_LOCAL_M = 1e5
 #: A DBH by hand is under this (m): a wider circle is clicks along a line.
 MAX_HAND_DBH_M = 4.0
 #: A mark belongs to the tree standing within this (m) of where it was given; a DBH by
@@ -111,7 +119,8 @@ def followed(
     Marks and DBHs by hand go to the tree standing where they were given.
     ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
     position (an older review) stays on its id; one that no tree stands near any more
-    (within ``FOLLOW_M``) is dropped, as is a DBH whose circle no stem lies under.
+    (within ``FOLLOW_M``) is dropped, as is a DBH whose circle no stem lies under
+    and a tree added where the run lists none (out of every scan's sight).
     """
     ids = list(trees_xy)
     xy = np.array([trees_xy[k][:2] for k in ids], float).reshape(-1, 2)
@@ -144,8 +153,15 @@ def followed(
             dbh[now] = c
         else:
             lost.append(f"{tree_id} (your DBH {100 * c.dbh_m:.1f} cm)")
-    moved = marks != review.marks or at != review.at or dbh != review.dbh
-    return replace(review, marks=marks, at=at, dbh=dbh), moved, lost
+    added = {k: p for k, p in review.added.items() if k in trees_xy}
+    lost += [f"{k} (added)" for k in review.added if k not in added]
+    moved = (
+        marks != review.marks
+        or at != review.at
+        or dbh != review.dbh
+        or added != review.added
+    )
+    return replace(review, marks=marks, at=at, dbh=dbh, added=added), moved, lost
 
 
 def next_added_id(review: PlotReview) -> str:
@@ -175,10 +191,10 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         return PlotReview()
     try:
         doc = json.loads(path.read_text())
-        scans = doc["scans"]
+        scans = [str(label) for label in list(doc["scans"])]
         marks = {str(k): str(v) for k, v in dict(doc["marks"]).items()}
         accepted = {
-            _key(k): np.asarray(T, float).reshape(4, 4)
+            _key(k): check_rigid(T, f"the pose accepted for link {k} in {path}")
             for k, T in dict(doc.get("accepted") or {}).items()
         }
         dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
@@ -187,7 +203,14 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         if len(added) < len(points):
             raise ValueError("two trees added under one id")
         at = {str(k): _xy(v) for k, v in dict(doc.get("at") or {}).items()}
-    except (OSError, ValueError, KeyError, TypeError, OverflowError) as exc:
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        TypeError,
+        OverflowError,
+        RecursionError,
+    ) as exc:
         raise InvalidInput(
             f"{path} is no review file ({exc}); move it away to review the plot again."
         ) from exc
@@ -331,9 +354,12 @@ def _xy(value: Any) -> tuple[float, float]:
 
 def _point(n: int, entry: Mapping[str, Any]) -> tuple[str, tuple[float, float]]:
     x, y = float(entry["x_m"]), float(entry["y_m"])
-    if not np.isfinite([x, y]).all():
-        raise ValueError("a tree added at no finite position")
-    return str(entry.get("id") or f"H{n + 1:03d}"), (x, y)
+    if not (abs(x) <= MAX_LOCAL_M and abs(y) <= MAX_LOCAL_M):  # NaN too
+        raise ValueError(f"a tree added at ({x}, {y}), out of any plot")
+    tree_id = str(entry.get("id") or f"H{n + 1:03d}")
+    if not re.fullmatch(ADDED_ID, tree_id):
+        raise ValueError(f"an added tree's id {tree_id!r} is not H and a number")
+    return tree_id, (x, y)
 
 
 def _usable(circle: HandCircle) -> bool:

@@ -55,6 +55,9 @@ STEM_MARGIN_M = 0.15
 #: (m) within this reach of their point.
 GIVEN_LOW_M, GIVEN_HIGH_M = 0.5, 2.0
 GIVEN_REACH_M = 0.5
+#: A given point with no point of the plot this near (m, across) is out of every
+#: scan's sight: no tree is listed there (the ground would be guessed far off).
+GIVEN_SEEN_M = 5.0
 #: Branch lines (``branch_axis``): 3 cm voxels from 2 m up to 3/4 of the tree, the
 #: line of each through its neighbours within 15 cm when they lie on one (share of
 #: variance off the main axis under ``1 - AXIS_LINEAR``) and it runs level enough.
@@ -367,7 +370,8 @@ def _add_given_stems(
     inventory keeps it and as given when it does not; ``made``, a stem measured at the
     point from the points ``GIVEN_LOW_M``-``GIVEN_HIGH_M`` above the ground within
     ``GIVEN_REACH_M`` and nearer the point than any stem found (or, without such
-    points, none), always listed as given.
+    points, none), always listed as given. A point out of every scan's sight
+    (``GIVEN_SEEN_M``) is not listed.
     """
     roles: dict[int, str] = {}
     found = [k for k, f in enumerate(fits) if f is not None]
@@ -375,6 +379,8 @@ def _add_given_stems(
     band = np.flatnonzero((h >= GIVEN_LOW_M) & (h <= GIVEN_HIGH_M))
     for tree_id, point in given.items():
         xy = np.asarray(point, float)
+        if not len(pts) or np.hypot(*(pts[:, :2] - xy).T).min() > GIVEN_SEEN_M:
+            continue
         d = np.hypot(*(bases - xy).T)
         free = [j for j in np.argsort(d) if found[j] not in roles]
         if free and d[free[0]] <= params.same_stem_m:

@@ -38,8 +38,9 @@ SLICE_HALF_M = 0.05
 MAX_LEAN_PER_M = 0.2
 #: Points kept around the stem in the slice (m beyond its radius).
 SLICE_MARGIN_M = 0.3
-#: Cell of the top view (m).
+#: Cell of the top view (m), and the most cells it has across.
 TOP_CELL_M = 0.25
+TOP_MAX_CELLS = 2000
 #: Vegetation in the top view: points this high above the ground.
 TOP_MIN_HEIGHT_M = 0.5
 #: A tree's side view: at most this many of its points, evenly strided.
@@ -172,14 +173,20 @@ def top_view(inventory: Inventory) -> TopView | None:
     pts = sm.xyz[sm.ground.height(sm.xyz) >= TOP_MIN_HEIGHT_M]
     if not len(pts):
         return None
-    lo = np.floor(pts[:, :2].min(axis=0) / TOP_CELL_M) * TOP_CELL_M
-    cells = np.floor((pts[:, :2] - lo) / TOP_CELL_M).astype(np.int64)
+    # Cells grow where the plot is wider than TOP_MAX_CELLS across (a scan in
+    # millimetres, a stray point far out): the image stays a drawing's size.
+    span = float(np.ptp(pts[:, :2], axis=0).max())
+    cell = max(TOP_CELL_M, span / (TOP_MAX_CELLS - 1))
+    lo = np.floor(pts[:, :2].min(axis=0) / cell) * cell
+    cells = np.minimum(
+        np.floor((pts[:, :2] - lo) / cell).astype(np.int64), TOP_MAX_CELLS - 1
+    )
     shape = cells.max(axis=0) + 1
     counts = np.zeros((shape[1], shape[0]), np.float64)
     np.add.at(counts, (cells[:, 1], cells[:, 0]), 1.0)
     scaled = np.log1p(counts) / max(float(np.log1p(counts.max())), 1e-9)
     image = np.round(255 * scaled).astype(np.uint8)
-    return TopView(image, float(lo[0]), float(lo[1]), TOP_CELL_M)
+    return TopView(image, float(lo[0]), float(lo[1]), cell)
 
 
 def view_writer(view: PlotView) -> Callable[[Path], object]:

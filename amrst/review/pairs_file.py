@@ -17,6 +17,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.files.atomic import write_atomic
+from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -50,8 +51,9 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"Cannot read the pairs file {path}: {exc}. Give a CSV file with the "
             f"columns {','.join(COLUMNS)}."
         ) from exc
-    rows = list(csv.DictReader(io.StringIO(text)))
-    header = {h.strip() for h in (rows[0].keys() if rows else [])}
+    reader = csv.DictReader(io.StringIO(text))
+    header = {(h or "").strip() for h in (reader.fieldnames or [])}
+    rows = list(reader)
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         raise InvalidInput(
@@ -71,10 +73,10 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 values[i, j] = float(clean[col])
             except ValueError:
                 values[i, j] = math.nan
-            if not math.isfinite(values[i, j]):
+            if not abs(values[i, j]) <= MAX_COORD_M:  # NaN too
                 raise InvalidInput(
-                    f"{path.name} line {i + 2}: {col} is {clean[col]!r}, not a finite "
-                    "number. Fix or delete that row."
+                    f"{path.name} line {i + 2}: {col} is {clean[col]!r}, not a "
+                    "coordinate (a finite number within 1e9 m). Fix or delete that row."
                 )
     if len(values) < 2:
         raise InvalidInput(

@@ -42,8 +42,10 @@ def test_extra_columns_and_spaces_are_fine(tmp_path: Path) -> None:
     [
         ("x,y,z\n1,2,3\n", "no column"),
         (",".join(COLUMNS) + "\n1,2,3,4,5,nan\n1,2,3,4,5,6\n", "line 2"),
-        (",".join(COLUMNS) + "\n1,2,3,4,5,abc\n1,2,3,4,5,6\n", "not a finite"),
+        (",".join(COLUMNS) + "\n1,2,3,4,5,abc\n1,2,3,4,5,6\n", "not a coordinate"),
+        (",".join(COLUMNS) + "\n1,2,3,4,5,1e300\n1,2,3,4,5,6\n", "within 1e9 m"),
         (",".join(COLUMNS) + "\n1,2,3,4,5,6\n", "at least 2"),
+        (",".join(COLUMNS) + "\n", "holds 0 pair"),
         ("", "no column"),
     ],
 )

@@ -456,6 +456,105 @@ def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Pa
     assert not list((out / "trees").glob("*.ply"))
 
 
+def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from amrst import io
+
+    target, source, _ = plot_pair
+    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
+    for f, c in zip(files, (target, source), strict=True):
+        io.write(f, c)
+    out = tmp_path / "out"
+    (out / "trees").mkdir(parents=True)
+    io.write(out / "trees" / "my_scan.ply", target)  # not a tree cloud of a run
+    args = [*map(str, files), "--out", str(out), "--quiet"]
+    assert plot_main([*args, "--report"]) == 0
+    assert (out / "report.html").is_file()
+    assert plot_main([*args, "--overwrite"]) == 0
+    assert not (out / "report.html").exists()  # it described the earlier run
+    assert (out / "trees" / "my_scan.ply").is_file()
+    capsys.readouterr()
+    refused = {
+        "given twice": [str(files[0]), str(files[0]), "--out", str(tmp_path / "a")],
+        "same points": [str(files[0]), str(tmp_path / "copy.ply"), "--out", "b"],
+        "the run writes": [str(out / "trees" / "T001.ply"), str(files[1]), "--out"],
+        "is a file": [*map(str, files), "--out", str(files[0])],
+        "--out is empty": [*map(str, files), "--out", " "],
+        "twice: give one pairs file": [
+            *map(str, files),
+            *("--out", str(tmp_path / "c")),
+            *("--pairs", "1", "2", "p.csv", "--pairs", "2", "1", "q.csv"),
+        ],
+    }
+    io.write(tmp_path / "copy.ply", target)
+    io.write(out / "trees" / "T001.ply", target)
+    refused["the run writes"].append(str(out))
+    for words, argv in refused.items():
+        assert plot_main([*argv, "--quiet", "--overwrite"]) == 2, words
+        err = capsys.readouterr().err
+        assert words in err, err
+        assert err.count("\n") == 1, err
+
+
+def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
+    from amrst.errors import InvalidInput
+
+    bad = {
+        "no review file": {"scans": 5, "marks": {}},
+        "not a rotation": {
+            "scans": [],
+            "marks": {},
+            "accepted": {"1-2": np.diag([2.0, 2, 2, 1])},
+        },
+        "NaN/inf": {
+            "scans": [],
+            "marks": {},
+            "accepted": {"1-2": np.full((4, 4), np.nan)},
+        },
+        "out of any plot": {
+            "scans": [],
+            "marks": {},
+            "added": [{"id": "H001", "x_m": 1e300, "y_m": 0}],
+        },
+        "not H and a number": {
+            "scans": [],
+            "marks": {},
+            "added": [{"id": "../../target", "x_m": 1, "y_m": 0}],
+        },
+    }
+    for words, doc in bad.items():
+        text = json.dumps(doc, default=lambda a: a.tolist())
+        (tmp_path / "review.json").write_text(text)
+        with pytest.raises(InvalidInput, match=words):
+            read_review(tmp_path, [])
+    (tmp_path / "review.json").write_text("[" * 100_000)
+    with pytest.raises(InvalidInput, match="no review file"):
+        read_review(tmp_path, [])
+
+
+def test_a_tree_added_out_of_every_scan_s_sight_is_not_listed(
+    plot_pair, tmp_path: Path
+) -> None:
+    from amrst import io
+
+    target, source, _ = plot_pair
+    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
+    for f, c in zip(files, (target, source), strict=True):
+        io.write(f, c)
+    out = tmp_path / "out"
+    labels = [str(f.resolve()) for f in files]
+    out.mkdir()
+    write_review(out, labels, PlotReview(added={"H001": (900.0, 900.0)}))
+    assert plot_main([*labels, "--out", str(out), "--quiet"]) == 0
+    rows = _rows_of(out)
+    assert "H001" not in {r["tree_id"] for r in rows}
+    assert json.loads((out / "plot.json").read_text())["review_lost"] == [
+        "H001 (added)"
+    ]
+    assert read_review(out, labels).added == {}
+
+
 def _whorls(centre: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
     """A spruce without its stem: whorls of 8 level branches, 2-12 m up, 1.2 m long."""
     parts = []

@@ -1,0 +1,163 @@
+"""One run of a plot, as ``amrst plot`` and the app's Plot window both make it.
+
+:func:`run_plot` checks the output folder and the inputs before any scan is
+registered, reads the scans, registers them (``amrst.plot.register``), takes the
+inventory with the trees the technician added (``amrst.plot.inventory``) and writes
+the folder (``amrst.plot.export``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from amrst.errors import InvalidInput
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+
+if TYPE_CHECKING:
+    from collections.abc import Collection, Mapping, Sequence
+
+    from amrst.plot.inventory import Inventory
+    from amrst.plot.register import PlotRegistration
+    from amrst.types import Cloud
+
+
+@dataclass(frozen=True, slots=True)
+class PlotRun:
+    """What a run registered, listed and wrote."""
+
+    labels: tuple[str, ...]  # one per scan, as the files name them
+    registration: PlotRegistration
+    inventory: Inventory
+    written: tuple[Path, ...]
+    states: tuple[str, ...]  # each scan's state (registered, accepted, ...)
+    lost: tuple[str, ...]  # the review that found no tree at this run
+
+
+def run_plot(
+    specs: Sequence[str],
+    out: Path,
+    *,
+    overwrite: bool = False,
+    pairs: Mapping[tuple[int, int], str] | None = None,
+    left_out: Collection[tuple[int, int]] = (),
+    write_trees: bool = False,
+    write_cloud: bool = False,
+    report: bool = False,
+    reporter: Reporter = NULL_REPORTER,
+) -> PlotRun:
+    """Register and inventory the plot whose scans ``specs`` name; write it to ``out``.
+
+    Parameters
+    ----------
+    specs : sequence of str
+        Scan files (``FILE.e57`` gives all its scans, ``FILE.e57#k`` one); the first
+        scan is the reference.
+    out : Path
+        The results folder (:func:`amrst.plot.export.check_out`).
+    overwrite : bool
+        Replace a plot another run wrote there.
+    pairs : mapping of (int, int) to str, or None
+        Links placed from point pairs: ``{(i, j): pairs CSV}``, scans from 0.
+    left_out : collection of (int, int)
+        Links not to register (found wrong).
+    write_trees, write_cloud, report : bool
+        Also one cloud per tree, ``plot.laz``, ``report.html``.
+    reporter : Reporter
+
+    Raises
+    ------
+    InvalidInput
+        A folder or an input that cannot make a plot; raised before the scans are
+        registered.
+    """
+    from amrst.multiscan.cli import read_specs
+    from amrst.plot.export import check_out, write_plot
+    from amrst.plot.inventory import take_inventory
+    from amrst.plot.register import register_plot
+    from amrst.plot.review import read_review
+    from amrst.review.pairs_file import read_pairs
+
+    check_out(out, overwrite)
+    _check_inputs(specs, out)
+    by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
+    reporter.progress(0.0, "Reading the scans")
+    clouds, labels = read_specs(list(specs))
+    _check_scans(clouds, labels)
+    added = read_review(out, labels).added  # before minutes of work, as check_out
+    reporter.check_cancelled()
+    reg = register_plot(
+        clouds,
+        0,
+        reporter=SubReporter(reporter, 0.05, 0.8),
+        by_hand=by_hand,
+        left_out=left_out,
+    )
+    inventory = take_inventory(
+        clouds,
+        reg.poses,
+        0,
+        reporter=SubReporter(reporter, 0.8, 0.95, "inventory"),
+        given=added,
+    )
+    reporter.progress(0.95, "Writing the plot")
+    written, states, lost = write_plot(
+        out,
+        reg,
+        inventory,
+        labels,
+        clouds,
+        write_trees=write_trees,
+        write_cloud=write_cloud,
+        report=report,
+        pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
+    )
+    reporter.progress(1.0, "Plot written")
+    return PlotRun(
+        tuple(labels), reg, inventory, tuple(written), tuple(states), tuple(lost)
+    )
+
+
+def _check_inputs(specs: Sequence[str], out: Path) -> None:
+    """Refuse a scan named twice, or one the run would replace in ``out``."""
+    from amrst.plot.export import MANAGED, TREES_DIR
+
+    seen: dict[str, str] = {}
+    folder = Path(out).resolve()
+    for spec in specs:
+        key = str(Path(spec).resolve())
+        if key in seen:
+            raise InvalidInput(
+                f"{spec} is given twice: give each position's scan once."
+            )
+        seen[key] = spec
+        head, sep, tail = spec.rpartition("#")
+        path = Path(head if sep and tail.isdigit() else spec).resolve()
+        inside = path.parent == folder and path.name in MANAGED
+        if inside or path.parent == folder / TREES_DIR:
+            raise InvalidInput(
+                f"{spec} is a file the run writes in {out}: copy it elsewhere, or "
+                "give another --out folder."
+            )
+
+
+def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
+    """Refuse fewer than two scans, and two scans holding the same points."""
+    if len(clouds) < 2:
+        raise InvalidInput(
+            f"{len(clouds)} scan given: a plot needs at least two positions."
+        )
+    for j, b in enumerate(clouds):
+        for i, a in enumerate(clouds[:j]):
+            if (
+                len(a) == len(b)
+                and np.array_equal(a.offset, b.offset)
+                and np.array_equal(a.xyz, b.xyz)
+            ):
+                raise InvalidInput(
+                    f"{labels[j]} holds the same points as {labels[i]}: give each "
+                    "position's scan once."
+                )
