@@ -186,9 +186,13 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
 
     Raises InvalidInput when the file cannot be read as a review.
     """
+    import os
+
     path = out / REVIEW_JSON
-    if not path.is_file():
+    if not os.path.lexists(path):
         return PlotReview()
+    if not path.is_file():
+        raise InvalidInput(f"{path} is not a file: move it away to review the plot.")
     try:
         doc = json.loads(path.read_text())
         scans = [str(label) for label in list(doc["scans"])]

@@ -531,6 +531,10 @@ def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
     (tmp_path / "review.json").write_text("[" * 100_000)
     with pytest.raises(InvalidInput, match="no review file"):
         read_review(tmp_path, [])
+    (tmp_path / "review.json").unlink()
+    (tmp_path / "review.json").mkdir()
+    with pytest.raises(InvalidInput, match="not a file"):
+        read_review(tmp_path, [])
 
 
 def test_a_tree_added_out_of_every_scan_s_sight_is_not_listed(
