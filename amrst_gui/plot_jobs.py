@@ -169,9 +169,11 @@ def open_results(
             for scan, offset in zip(doc["scans"], view.offsets, strict=True)
         )
         links = tuple(_link_line(entry, view.offsets) for entry in doc["links"])
+        if any(not 0 <= k < len(scans) for ln in links for k in ln.key):
+            raise ValueError("a link names a scan the plot does not have")
         bundle = _float(doc["bundle_rmse_m"])
         lost = tuple(str(v) for v in doc.get("review_lost") or ())
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
         raise InvalidInput(
             f"{out} holds a plot.json this version cannot read ({exc}): run the "
             "plot again."

@@ -130,6 +130,8 @@ class PlotWindow(QMainWindow):
         self.found: PlotOutcome | None = None  # the run's outcome
         self.outcome: PlotOutcome | None = None  # as the review leaves it
         self.review = PlotReview()  # marks, DBHs by hand, links accepted
+        # Why the folder's review.json could not be read: no review is written over it.
+        self.review_error: str | None = None
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
@@ -295,6 +297,7 @@ class PlotWindow(QMainWindow):
             return False
         self.found = self.outcome = None
         self.review, self.hand_pairs = PlotReview(), {}
+        self.review_error = None
         self.left_out = set()
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
@@ -347,6 +350,7 @@ class PlotWindow(QMainWindow):
             self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(f"AMRST Studio: plot of {names}")
+        self._set_running(self.busy)
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
@@ -385,7 +389,6 @@ class PlotWindow(QMainWindow):
             self._say(f"Not run: {out} keeps its plot.", error=True)
             return
         self.progress.setValue(0)
-        self._set_running(True)
         self._say("Running the plot…")
         self.job = workers.run_stage(
             engine_process.in_engine(plot_jobs.run_plot),
@@ -400,6 +403,7 @@ class PlotWindow(QMainWindow):
             on_error=self._on_error,
             on_progress=self._on_progress,
         )
+        self._set_running(True)  # once the job is there: ``busy`` reads it
 
     def cancel(self) -> None:
         if self.job is not None:
@@ -572,7 +576,10 @@ class PlotWindow(QMainWindow):
             review = without_added(self.review, near)
             done = f"{near} taken back"
         elif near is not None:
-            self._say(f"{near} is listed: mark it Not a tree to drop it.", error=True)
+            self._say(
+                f"{near} is listed: mark it Not a tree if none stands there.",
+                error=True,
+            )
             return
         elif listed is not None:
             self._say(
@@ -591,22 +598,13 @@ class PlotWindow(QMainWindow):
             self._say(f"{done} (saved in {REVIEW_JSON})")
 
     def _review_trees(self, review: PlotReview, done: str, what: str) -> None:
-        """Save a review of the trees, show it, and write the inventory with it.
-
-        Refused while a run goes on: it writes the same files.
-        """
+        """Save a review of the trees, show it, and write the inventory with it."""
         from amrst.plot.export import TREES_CSV, write_inventory
 
-        if self.busy:
-            self._say(
-                f"{what} was not saved: a plot is running into this folder; give it "
-                "when the run has written its results.",
-                error=True,
-            )
+        if not self._save_review(review, what):
             return
         o = self.outcome
-        if o is None or not self._save_review(review, what):
-            return
+        assert o is not None  # saved into its folder
         self._show_marks()
         try:
             write_inventory(o.out, o.trees, review)
@@ -667,6 +665,7 @@ class PlotWindow(QMainWindow):
             if job is not None:
                 job.discard()
         self.job = self.report_job = None
+        self._set_running(False)
 
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
@@ -705,10 +704,9 @@ class PlotWindow(QMainWindow):
         self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
         self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
         try:
-            review = read_review(outcome.out, outcome.labels)
+            review, self.review_error = read_review(outcome.out, outcome.labels), None
         except AmrstError as exc:
-            review = PlotReview()
-            self._say(str(exc), error=True)
+            review, self.review_error = PlotReview(), str(exc)
         self.review = review
         self.outcome = None
         self.stem_map.select(None)  # tree k of the last run is not tree k of this one
@@ -725,13 +723,27 @@ class PlotWindow(QMainWindow):
                 f". No tree stands any more where you gave {', '.join(o.lost)}: "
                 "dropped from your review"
             )
-        self._say(f"{self._summary()}; {done}", error=unsure)
+        if self.review_error:
+            done += f". Your review is not shown: {self.review_error}"
+        self._say(f"{self._summary()}; {done}", error=unsure or bool(self.review_error))
         self.plot_done.emit(o)
 
     def _save_review(self, review: PlotReview, what: str) -> bool:
-        """Write the review; keep it as the window's when written."""
+        """Write the review; keep it as the window's when written.
+
+        Refused while a run goes on (it reads and writes the same file), and over a
+        review.json that could not be read (it would lose what that file holds).
+        """
+        if self.busy or self.review_error:
+            why = self.review_error or (
+                "a plot is running into this folder; give it when the run has "
+                "written its results."
+            )
+            self._say(f"{what} was not saved: {why}", error=True)
+            return False
         o = self.outcome
-        assert o is not None
+        if o is None:
+            return False
         try:
             write_review(o.out, o.labels, review)
         except (AmrstError, OSError) as exc:
@@ -852,19 +864,20 @@ class PlotWindow(QMainWindow):
         o = self.outcome
         if o is None:
             return
-        current = self.trees.currentRow()
+        k = self.stem_map.selected
         self.trees.blockSignals(True)
         fill(self.trees, tree_rows(o, self.review))
-        if current >= 0:
-            self.trees.selectRow(current)
+        if k is not None:
+            self.trees.selectRow(k)
+        else:
+            self.trees.clearSelection()
         self.trees.blockSignals(False)
         self.stem_map.set_review(self.review)
-        k = self.stem_map.selected
         if k is not None:
             self.tree_panel.show_tree(o, k, self.review)
 
     def _set_running(self, running: bool) -> None:
-        self.run_button.setEnabled(not running)
+        self.run_button.setEnabled(not running and len(self.specs) >= 2)
         self.cancel_button.setEnabled(running)
         self._update_link_buttons()
 

@@ -602,3 +602,68 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert panel.side_view.tree is o.trees[1]
     panel.height_buttons.button(1).click()
     assert panel.views.currentWidget() is panel.slice_view
+
+
+def test_a_review_file_that_cannot_be_read_is_never_written_over(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    import json
+
+    from amrst.plot.cli import main as plot_main
+    from amrst.plot.review import REVIEW_JSON
+    from amrst_gui.plot_panel import PlotWindow
+
+    out = tmp_path / "out"
+    assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
+    broken = '{"scans": [], "marks": {"T001": "OK"}}'  # typed by hand
+    (out / REVIEW_JSON).write_text(broken)
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    assert "Your review is not shown" in plot.status.text()
+    plot.select_tree(0)
+    plot.set_mark("T001", "check")
+    assert "was not saved" in plot.status.text()
+    assert (out / REVIEW_JSON).read_text() == broken
+    plot.add_tree(50.0, 50.0)
+    assert (out / REVIEW_JSON).read_text() == broken
+    # A run's buttons: nothing that writes the folder while it runs.
+    (out / REVIEW_JSON).write_text(json.dumps({"scans": [], "marks": {}}))
+    plot.open_results(out)
+    qtbot.waitUntil(lambda: not plot.busy and plot.outcome is not None, timeout=30_000)
+    plot.select_tree(1)
+    assert plot.trees.selectedItems()
+    plot.out_edit.setText(str(tmp_path / "again"))  # a new folder: nothing to ask
+    plot.run()
+    assert plot.busy
+    for button in (plot.run_button, plot.add_button, plot.export_button):
+        assert not button.isEnabled()
+    plot.shutdown()  # the window closes during the run
+    assert plot.run_button.isEnabled()
+    assert not plot.cancel_button.isEnabled()
+    plot.open_scans([])  # no scans: nothing to run
+    assert not plot.run_button.isEnabled()
+
+
+def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    import json
+
+    from amrst.plot.cli import main as plot_main
+    from amrst.plot.export import PLOT_JSON
+    from amrst_gui.plot_panel import PlotWindow
+
+    out = tmp_path / "out"
+    assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
+    doc = json.loads((out / PLOT_JSON).read_text())
+    doc["links"][0]["target"] = 7
+    (out / PLOT_JSON).write_text(json.dumps(doc))
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_results(out)
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    assert plot.outcome is None
+    assert plot.status.text().startswith("Not opened:")
+    assert "run the plot again" in plot.status.text()
