@@ -8,6 +8,7 @@ hidden behind nearer ones are dropped and density falls with range. Used by
 
 from __future__ import annotations
 
+import itertools
 from typing import cast
 
 import numpy as np
@@ -17,6 +18,8 @@ import numpy as np
 _MAX_HALF_BINS = 12
 # The grid is coarsened until a typical disc spans this many cells in radius.
 _CELLS_PER_RADIUS = 4.0
+# Candidate cells expanded at once: bounds the temporaries (about 100 bytes a cell).
+_CHUNK_CELLS = 2_000_000
 
 
 def footprints(xyz: np.ndarray, k: int = 4) -> np.ndarray:
@@ -74,25 +77,72 @@ def visible_points(
     ka = ke / np.maximum(np.cos(el), 1e-3)  # an azimuth step shrinks towards the zenith
     na = np.minimum(np.ceil(ka), _MAX_HALF_BINS).astype(np.int64)
     ne = np.minimum(np.ceil(ke), _MAX_HALF_BINS).astype(np.int64)
+    counts = (2 * na + 1) * (2 * ne + 1)
+    # Points are expanded a chunk at a time and each chunk reduced to its nearest
+    # point per cell, then the chunks' winners to the scan's: memory stays a chunk's,
+    # and ties still go to the lower point index, as in one pass over all points.
+    r_q = np.minimum(np.round(r * 1e4), 2**24 - 1).astype(np.int64)  # 0.1 mm
+    grid = (fa, fe, ka, ke, na, ne)
+    winners = [
+        _nearest_per_cell(np.arange(a, b), counts[a:b], grid, r_q, n_az)
+        for a, b in _chunks(counts)
+    ]
+    if not winners:
+        return idx[:0]
+    cell = np.concatenate([w[0] for w in winners])
+    key = np.concatenate([w[1] for w in winners])
+    pid = np.concatenate([w[2] for w in winners])
+    best = _first_per_cell(cell, key)
+    return cast("np.ndarray", idx[np.unique(pid[best])])
+
+
+def _chunks(counts: np.ndarray) -> list[tuple[int, int]]:
+    """Split the points into runs whose cells add up to about ``_CHUNK_CELLS``."""
+    ends = np.searchsorted(
+        np.cumsum(counts),
+        np.arange(_CHUNK_CELLS, int(counts.sum()) + _CHUNK_CELLS, _CHUNK_CELLS),
+        side="right",
+    )
+    bounds = np.unique(np.r_[0, np.minimum(ends, len(counts)), len(counts)])
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
+def _nearest_per_cell(
+    pid: np.ndarray,
+    counts: np.ndarray,
+    grid: tuple[np.ndarray, ...],
+    r_q: np.ndarray,
+    n_az: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Expand the points ``pid`` into their cells; return each cell's nearest point.
+
+    Returns (cell, range key, point index) of the winners, one per cell.
+    """
+    fa, fe, ka, ke, na, ne = grid
     # Expand every point into its (2na+1) x (2ne+1) block of candidate cells.
-    width = 2 * na + 1
-    counts = width * (2 * ne + 1)
-    pid = np.repeat(np.arange(len(p)), counts)
+    width = (2 * na + 1)[pid]
+    own = np.repeat(pid, counts)
     k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    da = k % width[pid] - na[pid]
-    de = k // width[pid] - ne[pid]
-    ia = np.floor(fa).astype(np.int64)[pid] + da
-    ie = np.floor(fe).astype(np.int64)[pid] + de
+    w = np.repeat(width, counts)
+    da = k % w - na[own]
+    de = k // w - ne[own]
+    ia = np.floor(fa).astype(np.int64)[own] + da
+    ie = np.floor(fe).astype(np.int64)[own] + de
     # Keep the cells whose centre lies inside the point's disc, and always its own cell.
-    u = (ia + 0.5 - fa[pid]) / ka[pid]
-    v = (ie + 0.5 - fe[pid]) / ke[pid]
+    u = (ia + 0.5 - fa[own]) / ka[own]
+    v = (ie + 0.5 - fe[own]) / ke[own]
     keep = (u * u + v * v <= 1.0) | ((da == 0) & (de == 0))
-    pid, ia, ie = pid[keep], ia[keep], ie[keep]
+    own, ia, ie = own[keep], ia[keep], ie[keep]
     cell = (ie * n_az + np.mod(ia, n_az)).astype(np.int64)
-    # One sort on (cell, range in 0.1 mm): each cell's first entry is its nearest point.
-    r_q = np.minimum(np.round(r[pid] * 1e4), 2**24 - 1).astype(np.int64)
-    order = np.argsort(cell * 2**24 + r_q, kind="stable")
-    cell_sorted = cell[order]
+    key = r_q[own]
+    best = _first_per_cell(cell, key)
+    return cell[best], key[best], own[best]
+
+
+def _first_per_cell(cell: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """Return the index of each cell's smallest key; of equal keys, the first given."""
+    order = np.argsort(cell * 2**24 + key, kind="stable")
+    sorted_cells = cell[order]
     first = np.ones(len(order), dtype=bool)
-    first[1:] = cell_sorted[1:] != cell_sorted[:-1]
-    return cast("np.ndarray", idx[np.unique(pid[order[first]])])
+    first[1:] = sorted_cells[1:] != sorted_cells[:-1]
+    return cast("np.ndarray", order[first])
