@@ -97,7 +97,9 @@ def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
             "DBH fit",
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
             f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
-            f"{_value(s.outlier_share, ' %', 100, 0)} off",
+            f"{_value(s.outlier_share, ' %', 100, 0)} off"
+            if np.isfinite(s.dbh_m)
+            else "no circle holds the stem at 1.3 m",
         ),
         ("Lean", _value(s.lean_deg, "°", digits=1)),
         ("Crown", f"{_value(s.crown_width_m, ' m')} wide"),
@@ -281,14 +283,20 @@ class TreePanel(QWidget):
             return
         sl = outcome.slices[k][index]
         fitted = sl.height_m == BREAST_HEIGHT_M
-        circle = "the DBH fit" if fitted else "the DBH, for comparison"
         tree = outcome.trees[k]
+        circle = (
+            "; no DBH fit"
+            if not np.isfinite(tree.stem.dbh_m)
+            else "; circle: the DBH fit"
+            if fitted
+            else "; circle: the DBH, for comparison"
+        )
         hand = self.review.dbh.get(tree.tree_id) if fitted else None
         self.slice_view.set_slice(
             sl,
             tree.stem.dbh_xy if sl.centre is None else sl.centre,
             tree.stem.dbh_m / 2,
-            f"{len(sl.xy)} points at {sl.height_m:g} m ± 5 cm; circle: {circle}"
+            f"{len(sl.xy)} points at {sl.height_m:g} m ± 5 cm{circle}"
             + ("; green: yours" if hand is not None else ""),
             fitted,
             hand,
