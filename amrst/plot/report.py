@@ -158,7 +158,25 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
         f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
         f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
         f"at the final poses); {checked} trees marked check, {dropped} marked not a "
-        f"tree and {by_hand} DBHs measured by you.</p></div>"
+        f"tree and {by_hand} DBHs measured by you.</p>" + _stand(rows) + "</div>"
+    )
+
+
+def _stand(rows: Sequence[Mapping[str, Any]]) -> str:
+    from amrst.plot.stand import stand
+
+    st = stand(rows)
+    height = (
+        f"Lorey's mean height {st.lorey_height_m:.1f} m over the {st.with_height} "
+        "whose top was seen"
+        if st.with_height
+        else "no mean height: no scan saw above a top"
+    )
+    return (
+        f"<p>Stand: {st.trees} trees, {st.with_dbh} with a DBH; basal area "
+        f"{st.basal_area_m2:.3f} m², quadratic mean DBH {_cm(st.qmd_m)}; {height} "
+        "(trees marked not a tree left out, your DBHs used; not per hectare: the "
+        "plot's edge is not known).</p>"
     )
 
 

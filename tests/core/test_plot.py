@@ -179,6 +179,7 @@ def test_inventory_columns_and_the_command(
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
     assert "1 trees marked check, 0 marked not a tree and 1 DBHs measured" in page
+    assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
     # A mark no tree stands under any more is dropped, and the run says so.
     write_review(out, labels, PlotReview({"T050": "ok"}, at={"T050": (50.0, 50.0)}))

@@ -1,0 +1,44 @@
+"""amrst.plot.stand: the stand figures a forester sums from the inventory."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from amrst.plot.stand import stand
+
+
+def _row(dbh: str, height: str, flag: str = "ok", mark: str = "", hand: str = ""):
+    return {
+        "dbh_m": dbh,
+        "height_m": height,
+        "height_flag": flag,
+        "mark": mark,
+        "dbh_hand_m": hand,
+    }
+
+
+def test_stand_figures_count_the_technician_s_judgement() -> None:
+    rows = [
+        _row("0.2", "20"),
+        _row("0.4", "30", hand="0.3"),  # the DBH by hand stands in
+        _row("", "5", flag="top not seen"),  # no DBH, height a lower bound
+        _row("0.5", "25", mark="not a tree"),  # left out
+        _row("nan", "12", flag="lean"),
+    ]
+    st = stand(rows)
+    assert st.trees == 4
+    assert st.with_dbh == 2
+    g = [math.pi * d * d / 4 for d in (0.2, 0.3)]
+    assert st.basal_area_m2 == pytest.approx(sum(g))
+    assert st.qmd_m == pytest.approx(math.sqrt((0.2**2 + 0.3**2) / 2))
+    assert st.lorey_height_m == pytest.approx((g[0] * 20 + g[1] * 30) / sum(g))
+    assert st.with_height == 2
+
+
+def test_a_stand_of_no_measured_tree_has_no_means() -> None:
+    st = stand([_row("", "", flag="top not seen")])
+    assert (st.trees, st.with_dbh, st.basal_area_m2) == (1, 0, 0.0)
+    assert math.isnan(st.qmd_m)
+    assert math.isnan(st.lorey_height_m)
