@@ -121,9 +121,7 @@ def test_inventory_columns_and_the_command(
         assert int(row["n_points"]) > 0
         assert row["seen_from"] == "1;2"
         assert row["mark"] == ""
-    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
-    for f, c in zip(files, (target, source), strict=True):
-        io.write(f, c)
+    files = _pair_files(plot_pair, tmp_path)
     out = tmp_path / "out"
     args = [str(f) for f in files] + ["--out", str(out), "--quiet"]
     assert plot_main(args) == 0
@@ -194,6 +192,16 @@ def test_inventory_columns_and_the_command(
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
     (out / "review.json").write_text("{")
     assert plot_main([*args, "--overwrite"]) == 2  # refused before reading scans
+
+
+def _pair_files(plot_pair, folder: Path) -> list[Path]:
+    """Write the plot pair's scans as t.ply and s.ply in ``folder``."""
+    from amrst import io
+
+    files = [folder / "t.ply", folder / "s.ply"]
+    for f, c in zip(files, plot_pair[:2], strict=True):
+        io.write(f, c)
+    return files
 
 
 def _reads_back(out: Path, T_true: np.ndarray) -> None:
@@ -441,10 +449,8 @@ def test_a_tree_stands_where_its_stem_leaves_the_ground() -> None:
 def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Path):
     from amrst import io
 
-    target, source, _ = plot_pair
-    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
-    for f, c in zip(files, (target, source), strict=True):
-        io.write(f, c)
+    target = plot_pair[0]
+    files = _pair_files(plot_pair, tmp_path)
     out = tmp_path / "out"
     args = [*map(str, files), "--out", str(out), "--quiet", "--overwrite"]
     assert plot_main([*args, "--write-trees"]) == 0
@@ -462,10 +468,8 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
 ) -> None:
     from amrst import io
 
-    target, source, _ = plot_pair
-    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
-    for f, c in zip(files, (target, source), strict=True):
-        io.write(f, c)
+    target = plot_pair[0]
+    files = _pair_files(plot_pair, tmp_path)
     out = tmp_path / "out"
     (out / "trees").mkdir(parents=True)
     io.write(out / "trees" / "my_scan.ply", target)  # not a tree cloud of a run
@@ -541,12 +545,7 @@ def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
 def test_a_tree_added_out_of_every_scan_s_sight_is_not_listed(
     plot_pair, tmp_path: Path
 ) -> None:
-    from amrst import io
-
-    target, source, _ = plot_pair
-    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
-    for f, c in zip(files, (target, source), strict=True):
-        io.write(f, c)
+    files = _pair_files(plot_pair, tmp_path)
     out = tmp_path / "out"
     labels = [str(f.resolve()) for f in files]
     out.mkdir()
