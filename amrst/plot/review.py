@@ -198,7 +198,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         scans = [str(label) for label in list(doc["scans"])]
         marks = {str(k): str(v) for k, v in dict(doc["marks"]).items()}
         accepted = {
-            _key(k): check_rigid(T, f"the pose accepted for link {k} in {path}")
+            _key(k): check_rigid(T, f"the pose accepted for link {k}")
             for k, T in dict(doc.get("accepted") or {}).items()
         }
         dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
@@ -208,6 +208,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
             raise ValueError("two trees added under one id")
         at = {str(k): _xy(v) for k, v in dict(doc.get("at") or {}).items()}
     except (
+        InvalidInput,  # an accepted pose that is no rigid transform
         OSError,
         ValueError,
         KeyError,

@@ -74,8 +74,9 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
             except ValueError:
                 values[i, j] = math.nan
             if not abs(values[i, j]) <= MAX_COORD_M:  # NaN too
+                text = clean[col] if len(clean[col]) <= 24 else clean[col][:20] + "…"
                 raise InvalidInput(
-                    f"{path.name} line {i + 2}: {col} is {clean[col]!r}, not a "
+                    f"{path.name} line {i + 2}: {col} is {text!r}, not a "
                     "coordinate (a finite number within 1e9 m). Fix or delete that row."
                 )
     if len(values) < 2:
