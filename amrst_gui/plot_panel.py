@@ -142,7 +142,11 @@ class PlotWindow(QMainWindow):
         split.addWidget(self._build_side())
         split.addWidget(self.stem_map)
         split.addWidget(self.tree_panel)
-        split.setStretchFactor(1, 1)
+        # A wider window widens the map and, by half as much, the tree's slice (where
+        # a DBH is measured by hand); the lists keep their width.
+        split.setStretchFactor(0, 0)
+        split.setStretchFactor(1, 2)
+        split.setStretchFactor(2, 1)
         split.setSizes([410, 600, 330])
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
