@@ -45,8 +45,8 @@ def check_out(out: Path, overwrite: bool) -> None:
     """Refuse an output folder a run cannot write into.
 
     That is a file, a place that cannot be written, or a folder that holds another
-    run's output (unless ``overwrite``). Its review must be readable (its marks go into the inventory). All refused
-    before the run rather than after it.
+    run's output (unless ``overwrite``). Its review must be readable (its marks go
+    into the inventory). All refused before the run rather than after it.
     """
     import os
 

@@ -120,7 +120,8 @@ def followed(
     ``trees_xy``: each listed tree's breast-height centre by id. A mark with no
     position (an older review) stays on its id; one that no tree stands near any more
     (within ``FOLLOW_M``) is dropped, as is a DBH whose circle no stem lies under
-    and a tree added where the run lists none (out of every scan's sight).
+    and a tree added where the run lists none (out of every scan's sight), under
+    its id or near it.
     """
     ids = list(trees_xy)
     xy = np.array([trees_xy[k][:2] for k in ids], float).reshape(-1, 2)
@@ -153,7 +154,12 @@ def followed(
             dbh[now] = c
         else:
             lost.append(f"{tree_id} (your DBH {100 * c.dbh_m:.1f} cm)")
-    added = {k: p for k, p in review.added.items() if k in trees_xy}
+    # An added tree the run lists as found (its stem found this time) stays given.
+    added = {
+        k: p
+        for k, p in review.added.items()
+        if k in trees_xy or nearest(p, 2 * FOLLOW_M) is not None
+    }
     lost += [f"{k} (added)" for k in review.added if k not in added]
     moved = (
         marks != review.marks

@@ -237,3 +237,9 @@ def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
     assert gone.marks == {"T001": "check", "T009": "ok"}
     assert gone.dbh == {}
     assert lost == ["T002 (ok)", "T002 (your DBH 30.0 cm)"]
+    # A tree added stays while it is listed, under its id or found near it.
+    added = PlotReview(added={"H001": (1.0, 1.0), "H002": (3.0, 3.0)})
+    listed = {"H001": np.array([1.0, 1.0]), "T001": np.array([3.1, 3.0])}
+    assert followed(added, listed) == (added, False, [])
+    kept, changed, lost = followed(added, {"T001": np.array([3.1, 3.0])})
+    assert (kept.added, changed, lost) == ({"H002": (3.0, 3.0)}, True, ["H001 (added)"])
