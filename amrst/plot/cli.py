@@ -11,11 +11,10 @@ for the scans that were placed, and the message names the others).
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-import numpy as np
 
 if TYPE_CHECKING:
     import argparse
@@ -126,7 +125,7 @@ def run_cli(args: argparse.Namespace) -> int:
     print(
         f"{out}: {len(run.inventory.trees)} trees; {len(named[REGISTERED])} of "
         f"{len(run.labels)} scans registered{counts}"
-        + (f", bundle error {100 * bundle:.1f} cm" if np.isfinite(bundle) else ""),
+        + (f", bundle error {100 * bundle:.1f} cm" if math.isfinite(bundle) else ""),
         file=sys.stderr,
     )
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
