@@ -58,7 +58,7 @@ LEFT_OUT_ORIGIN = "left out"
 #: The fine registration of a plot link: source points, first correspondence
 #: distance (m) and scales down to the usual last one.
 PLOT_FINE_POINTS = 20_000
-PLOT_FINE_REACH_M = 0.5
+PLOT_FINE_REACH_M = 0.2
 PLOT_FINE_SCALES = 4
 
 
@@ -158,9 +158,10 @@ def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
 
     Neither the scene stage nor the wood-leaf separation is needed: the stem map
     finds the ground and every stem itself. The fine registration uses all points,
-    more of them and a wider first scale than for one tree: a stem pose a degree off
-    moves a crown 20 m away by 35 cm, and a few thousand points spread over a plot
-    are mostly ground.
+    more of them than for one tree (a few thousand points spread over a plot are
+    mostly ground), from a first reach of 20 cm: stems that agree place a scan
+    within centimetres, and a wider reach lets crowns, each scan seeing other sides
+    of them, pull a right pose off by a tenth of a degree.
     """
     from amrst.params import RegistrationParams
 
