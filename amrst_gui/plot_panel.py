@@ -335,7 +335,6 @@ class PlotWindow(QMainWindow):
             return False
         self.open_scans([], out)
         self.setWindowTitle(f"AMRST Studio: plot in {out}")
-        self._set_running(True)
         self._say(f"Opening the plot in {out}…")
         self.job = workers.run_stage(
             plot_jobs.open_results,
@@ -344,6 +343,7 @@ class PlotWindow(QMainWindow):
             on_result=lambda o: self._on_result(o, opened=True),
             on_error=self._on_error,
         )
+        self._show_busy()
         return True
 
     def _take_scans(self, paths: list) -> None:
@@ -354,7 +354,7 @@ class PlotWindow(QMainWindow):
             self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(f"AMRST Studio: plot of {names}")
-        self._set_running(self.busy)
+        self._show_busy()
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
@@ -407,7 +407,7 @@ class PlotWindow(QMainWindow):
             on_error=self._on_error,
             on_progress=self._on_progress,
         )
-        self._set_running(True)  # once the job is there: ``busy`` reads it
+        self._show_busy()
 
     def cancel(self) -> None:
         if self.job is not None:
@@ -669,7 +669,7 @@ class PlotWindow(QMainWindow):
             if job is not None:
                 job.discard()
         self.job = self.report_job = None
-        self._set_running(False)
+        self._show_busy()
 
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
@@ -700,7 +700,7 @@ class PlotWindow(QMainWindow):
         from amrst.plot.register import LEFT_OUT_ORIGIN
 
         self.job = None
-        self._set_running(False)
+        self._show_busy()
         self.found = outcome
         if opened:
             self._take_scans(list(outcome.labels))
@@ -792,7 +792,7 @@ class PlotWindow(QMainWindow):
 
     def _on_error(self, exc: BaseException) -> None:
         self.job = None
-        self._set_running(False)
+        self._show_busy()
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
             self._say("Plot cancelled; nothing was written.")
@@ -880,9 +880,10 @@ class PlotWindow(QMainWindow):
         if k is not None:
             self.tree_panel.show_tree(o, k, self.review)
 
-    def _set_running(self, running: bool) -> None:
-        self.run_button.setEnabled(not running and len(self.specs) >= 2)
-        self.cancel_button.setEnabled(running)
+    def _show_busy(self) -> None:
+        """Enable what a job in progress (``busy``) allows, after it starts or ends."""
+        self.run_button.setEnabled(not self.busy and len(self.specs) >= 2)
+        self.cancel_button.setEnabled(self.busy)
         self._update_link_buttons()
 
     def _update_link_buttons(self) -> None:

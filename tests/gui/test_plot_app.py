@@ -631,6 +631,9 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     # A run's buttons: nothing that writes the folder while it runs.
     (out / REVIEW_JSON).write_text(json.dumps({"scans": [], "marks": {}}))
     plot.open_results(out)
+    assert plot.busy  # opening is a job too: nothing that writes the folder meanwhile
+    assert not plot.run_button.isEnabled()
+    assert not plot.add_button.isEnabled()
     qtbot.waitUntil(lambda: not plot.busy and plot.outcome is not None, timeout=30_000)
     plot.select_tree(1)
     assert plot.trees.selectedItems()
