@@ -66,6 +66,9 @@ MAX_HAND_DBH_M = 4.0
 #: A mark belongs to the tree standing within this (m) of where it was given; a DBH by
 #: hand, within this or its own diameter of its circle's centre.
 FOLLOW_M = 0.3
+#: An added tree is listed as a tree found when one stands this near its point (m):
+#: the found stem's foot within 0.3 m of it, its breast height leaning a little more.
+FOUND_NEAR_M = 0.6
 
 LinkKey = tuple[int, int]  # (target scan, source scan), from 0
 
@@ -154,13 +157,9 @@ def followed(
             dbh[now] = c
         else:
             lost.append(f"{tree_id} (your DBH {100 * c.dbh_m:.1f} cm)")
-    # An added tree the run lists as found (its stem found this time) stays given.
-    added = {
-        k: p
-        for k, p in review.added.items()
-        if k in trees_xy or nearest(p, 2 * FOLLOW_M) is not None
-    }
-    lost += [f"{k} (added)" for k in review.added if k not in added]
+    listed = listed_added(review, trees_xy)
+    added = {k: p for k, p in review.added.items() if k in listed}
+    lost += [f"{k} (added)" for k in review.added if k not in listed]
     moved = (
         marks != review.marks
         or at != review.at
@@ -168,6 +167,21 @@ def followed(
         or added != review.added
     )
     return replace(review, marks=marks, at=at, dbh=dbh, added=added), moved, lost
+
+
+def listed_added(review: PlotReview, trees_xy: Mapping[str, np.ndarray]) -> set[str]:
+    """Return the ids of the added trees a run lists.
+
+    Under their own id, or as a tree found at their point (within ``FOUND_NEAR_M``);
+    ``trees_xy`` as :func:`followed` takes it.
+    """
+    xy = np.array([p[:2] for p in trees_xy.values()], float).reshape(-1, 2)
+    listed = set()
+    for tree_id, p in review.added.items():
+        d = np.hypot(*(xy - p).T)
+        if tree_id in trees_xy or bool((d <= FOUND_NEAR_M).any()):
+            listed.add(tree_id)
+    return listed
 
 
 def next_added_id(review: PlotReview) -> str:

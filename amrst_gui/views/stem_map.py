@@ -22,7 +22,7 @@ from PySide6.QtWidgets import QSizePolicy, QWidget
 # state: the plot report's colours.
 from amrst.plot.report import MARK_RGB, QUALITY_RGB
 from amrst.plot.report import STATE_RGB as LINK_RGB
-from amrst.plot.review import NOT_A_TREE, PlotReview
+from amrst.plot.review import NOT_A_TREE, PlotReview, listed_added
 from amrst.plot.stemmap import StemMapParams
 
 if TYPE_CHECKING:
@@ -107,12 +107,9 @@ class StemMapView(QWidget):
         """The ids of the added trees no run has listed yet."""
         if self.outcome is None:
             return []
-        ids = {t.tree_id for t in self.outcome.trees}
-        return [
-            k
-            for k, p in self.review.added.items()
-            if k not in ids and self.tree_near(*p) is None
-        ]
+        trees = {t.tree_id: t.stem.dbh_xy for t in self.outcome.trees}
+        listed = listed_added(self.review, trees)
+        return [k for k in self.review.added if k not in listed]
 
     def added_near(self, x: float, y: float) -> str | None:
         """The id of the added tree drawn within a few pixels of (x, y) m, or None."""
