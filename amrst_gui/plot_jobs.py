@@ -1,10 +1,10 @@
 """What the Plot window runs in the engine process, and its review file. No Qt.
 
 :func:`run_plot` is ``amrst plot SCANS --out DIR`` for the app: the same run
-(``amrst.plot.run``) writes the plot into the results folder. :func:`open_results` reads such a folder back, whoever wrote
-it, as a :class:`PlotOutcome`: what the stem map and the tree view draw, a few
-thousand points at most, never the scans. A run hands back its folder read that way,
-so the window shows what the files say.
+(``amrst.plot.run``) writes the plot into the results folder. :func:`open_results`
+reads such a folder back, whoever wrote it, as a :class:`PlotOutcome`: what the stem
+map and the tree view draw, a few thousand points at most, never the scans. A run
+hands back its folder read that way, so the window shows what the files say.
 
 :func:`reviewed` shows the outcome with the technician's review
 (``amrst.plot.review``): the links they accepted, and the scans those place.

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
+import os
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -48,8 +49,6 @@ def check_out(out: Path, overwrite: bool) -> None:
     run's output (unless ``overwrite``). Its review must be readable (its marks go
     into the inventory). All refused before the run rather than after it.
     """
-    import os
-
     if out.exists() and not out.is_dir():
         raise InvalidInput(f"{out} is a file, not a folder: give another --out folder.")
     if (out / PLOT_JSON).exists() and not overwrite:
@@ -341,6 +340,7 @@ def write_plot(
     reference = clouds[reg.reference]
 
     # The review follows its trees: a run that lists them otherwise moves it with them.
+    # Read as it is now, not as the run began: the app may have changed it meanwhile.
     review, moved, lost = followed(
         read_review(out, labels),
         {t.tree_id: t.stem.dbh_xy for t in inventory.trees},

@@ -52,9 +52,9 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         + _summary(doc, rows)
         + '<h2>Stem map</h2><figure><img alt="stem map" '
         + f'src="data:image/png;base64,{png}"><figcaption>Every tree at its stem '
-        "base, its dot sized by its DBH (yours where you measured it) and filled by the DBH's quality (green ok, "
-        "amber check, grey none), ringed red where you marked it check, crossed "
-        "where you marked it not a tree; the scans "
+        "base, its dot sized by its DBH (yours where you measured it) and filled by "
+        "the DBH's quality (green ok, amber check, grey none), ringed red where you "
+        "marked it check, crossed where you marked it not a tree; the scans "
         "(triangles) and their links by state.</figcaption></figure>"
         + _scans(doc)
         + _links(doc)

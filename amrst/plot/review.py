@@ -28,6 +28,7 @@ unsure link of its path was accepted at the pose it has.
 from __future__ import annotations
 
 import json
+import os
 import re
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -206,8 +207,6 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
 
     Raises InvalidInput when the file cannot be read as a review.
     """
-    import os
-
     path = out / REVIEW_JSON
     if not os.path.lexists(path):
         return PlotReview()
@@ -279,8 +278,11 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
     for tree_id, c in review.dbh.items():
         if not _usable(c):
             raise InvalidInput(f"{tree_id}: a DBH by hand of {c.dbh_m} m")
-    if not np.isfinite(np.array(list(review.added.values()), float)).all():
-        raise InvalidInput("a tree added by hand has no finite position")
+    for n, (tree_id, (x, y)) in enumerate(review.added.items()):
+        try:  # what read_review would refuse is not written
+            _point(n, {"id": tree_id, "x_m": x, "y_m": y})
+        except ValueError as exc:
+            raise InvalidInput(f"Not saved: {exc}.") from exc
     accepted = {
         f"{i + 1}-{j + 1}": np.asarray(T, float).tolist()
         for (i, j), T in sorted(review.accepted.items())

@@ -189,6 +189,10 @@ def test_a_dbh_by_hand_is_the_circle_through_the_clicks():
 def test_a_bad_dbh_by_hand_is_not_written(tmp_path):
     with pytest.raises(InvalidInput, match="T001: a DBH by hand"):
         write_review(tmp_path, LABELS, PlotReview(dbh={"T001": HandCircle((0, 0), 0)}))
+    for added in ({"T001": (1.0, 1.0)}, {"H001": (float("nan"), 1.0)}):
+        with pytest.raises(InvalidInput, match="Not saved"):
+            write_review(tmp_path, LABELS, PlotReview(added=added))
+    assert not (tmp_path / "review.json").exists()
 
 
 def test_an_added_tree_taken_back_leaves_the_others_their_ids():
