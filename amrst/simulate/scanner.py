@@ -82,7 +82,16 @@ def visible_points(
     # point per cell, then the chunks' winners to the scan's: memory stays a chunk's,
     # and ties still go to the lower point index, as in one pass over all points.
     r_q = np.minimum(np.round(r * 1e4), 2**24 - 1).astype(np.int64)  # 0.1 mm
-    grid = (fa, fe, ka, ke, na, ne)
+    grid = (
+        fa,
+        fe,
+        ka,
+        ke,
+        na,
+        ne,
+        np.floor(fa).astype(np.int64),
+        np.floor(fe).astype(np.int64),
+    )
     winners = [
         _nearest_per_cell(np.arange(a, b), counts[a:b], grid, r_q, n_az)
         for a, b in _chunks(counts)
@@ -118,7 +127,7 @@ def _nearest_per_cell(
 
     Returns (cell, range key, point index) of the winners, one per cell.
     """
-    fa, fe, ka, ke, na, ne = grid
+    fa, fe, ka, ke, na, ne, ia0, ie0 = grid
     # Expand every point into its (2na+1) x (2ne+1) block of candidate cells.
     width = (2 * na + 1)[pid]
     own = np.repeat(pid, counts)
@@ -126,8 +135,8 @@ def _nearest_per_cell(
     w = np.repeat(width, counts)
     da = k % w - na[own]
     de = k // w - ne[own]
-    ia = np.floor(fa).astype(np.int64)[own] + da
-    ie = np.floor(fe).astype(np.int64)[own] + de
+    ia = ia0[own] + da
+    ie = ie0[own] + de
     # Keep the cells whose centre lies inside the point's disc, and always its own cell.
     u = (ia + 0.5 - fa[own]) / ka[own]
     v = (ie + 0.5 - fe[own]) / ke[own]

@@ -109,6 +109,22 @@ def test_wall_hides_what_is_behind_it() -> None:
     assert len(scan) == len(index)
 
 
+def test_visibility_does_not_depend_on_how_points_are_chunked(monkeypatch) -> None:
+    from amrst.simulate import scanner
+
+    rng = np.random.default_rng(3)
+    # Points on spheres around the scanner, some sharing a range to 0.1 mm: ties.
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    xyz = d * rng.choice([2.0, 2.0, 3.5, 7.0], size=4000)[:, None]
+    radius = rng.uniform(0.005, 0.05, 4000)
+    whole = scanner.visible_points(xyz, 0.2, radius)
+    monkeypatch.setattr(scanner, "_CHUNK_CELLS", 997)  # many chunks, odd sizes
+    chunked = scanner.visible_points(xyz, 0.2, radius)
+    np.testing.assert_array_equal(chunked, whole)
+    assert 0 < len(whole) < len(xyz)  # some points hide others
+
+
 def test_back_of_trunk_is_in_shadow(tree: Cloud) -> None:
     pair = simulate_pair(tree, seed=5, noise_m=0.0, distance_m=8.0)
     spec = pair.spec_target
