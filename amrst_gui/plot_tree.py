@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst.plot.review import NOT_A_TREE, PlotReview
+from amrst.plot.stemmap import StemMapParams
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.views.stem_map import scan_colour
 from amrst_gui.views.tree_side import TreeSideView
@@ -54,11 +55,14 @@ FIGURES = (
     "Your mark",
 )
 
+_OK = StemMapParams()
 FIGURE_TIPS = {
     "Position": "The stem base, in the reference scan's frame (world coordinates "
     "when the files carry an offset), as trees.csv lists it",
     "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
-    "residual, and the share of slice points off the circle (3DFin's checks)",
+    "residual, and the share of slice points off the circle (3DFin's checks); ok "
+    f"needs an arc of {_OK.ok_arc_deg:g}° or more, a residual of "
+    f"{_OK.ok_rmse_m * 1000:g} mm or less and {_OK.ok_outlier_share:.0%} or less off",
     "Seen from": "The scans whose points reach the stem",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",
 }

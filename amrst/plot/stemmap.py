@@ -90,11 +90,13 @@ class StemMapParams:
     dbh_low_m: float = 1.25  # the DBH slice, above the local ground
     dbh_high_m: float = 1.35
     circle_inlier_m: float = 0.01
-    # DBH quality: ok needs all three.
-    ok_arc_deg: float = 150.0
-    # A stem wider than this seen over less than ok_arc_deg gets no DBH: a wide stem's
-    # section is seldom round, and a short arc of it does not fix the circle.
+    # DBH quality: ok needs all three. The arc is 3DFin's default of 9 of 16 sectors:
+    # a circle fitted to less than half the bark is not bounded on both sides.
+    ok_arc_deg: float = 202.5
+    # A stem wider than wide_stem_m seen over less than wide_arc_deg gets no DBH: a
+    # wide stem's section is seldom round, and a short arc of it does not fix the circle.
     wide_stem_m: float = 0.5
+    wide_arc_deg: float = 150.0
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
     # Height flags: a stem leaning more than this, or fewer points than this in the
@@ -645,7 +647,7 @@ def _taper_stem(
     )
     if not bark or len(taper.circles) < params.taper_min_circles:
         return _without_dbh(stem)
-    if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.ok_arc_deg:
+    if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.wide_arc_deg:
         return _without_dbh(stem)
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)

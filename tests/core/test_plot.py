@@ -394,7 +394,7 @@ def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
     assert len(map_stems(pts, apart).stems) == 3
 
 
-def test_a_wide_stem_seen_on_a_short_arc_has_no_dbh() -> None:
+def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
     def arc(x: float, r: float, half_deg: float) -> np.ndarray:
         z0 = float(ground_z(np.array([x, 0.0])))
         cyl = _stem(x, 0.0, r, z0 - 0.05, z0 + 6.0)
@@ -403,12 +403,22 @@ def test_a_wide_stem_seen_on_a_short_arc_has_no_dbh() -> None:
         return cyl[np.abs((facing + 180.0) % 360.0 - 180.0) <= half_deg]
 
     xyz = np.vstack(
-        [_ground(), arc(-3.0, 0.4, 65.0), arc(0.0, 0.1, 65.0), arc(3.0, 0.4, 110.0)]
+        [
+            _ground(),
+            arc(-3.0, 0.4, 65.0),
+            arc(0.0, 0.1, 65.0),
+            arc(3.0, 0.4, 110.0),
+            arc(6.0, 0.1, 90.0),
+        ]
     )
     dbh = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
     assert dbh[-3].dbh_quality == "none"  # 80 cm wide, 130 deg of it
     assert dbh[0].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 130 deg: round
     assert dbh[3].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 220 deg
+    # A circle on half the bark or less is not bounded on both sides: check it.
+    assert dbh[6].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 180 deg
+    assert dbh[6].dbh_quality == "check"
+    assert dbh[3].dbh_quality == "ok"
 
 
 def test_stems_outvote_only_an_unsure_winner_they_do_not_hold() -> None:
