@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.plot.stand import PlotArea
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
 if TYPE_CHECKING:
@@ -91,6 +92,15 @@ class PlotOutcome:
     seconds: float
     profiles: tuple[TreeProfile, ...] = ()  # per tree, its side view's points
     lost: tuple[str, ...] = ()  # the review this run found no tree for (dropped)
+    area: PlotArea | None = None  # the fixed-radius plot, file coordinates
+    reference_at: tuple[float, float] = (0.0, 0.0)  # the reference's local origin
+
+    @property
+    def area_xy(self) -> np.ndarray | None:
+        """(2,) the plot centre in the reference's local frame (None: no plot area)."""
+        if self.area is None:
+            return None
+        return np.subtract(self.area.centre_xy, self.reference_at)
 
     @property
     def tree_xy(self) -> np.ndarray:
@@ -116,12 +126,15 @@ def run_plot(
     pairs: Mapping[tuple[int, int], str] | None = None,
     left_out: Collection[tuple[int, int]] = (),
     write_cloud: bool = False,
+    area: tuple[float, tuple[float, float] | None] | None = None,
 ) -> PlotOutcome:
     """Register and inventory the plot ``specs`` names; write it into ``out``.
 
     ``pairs``: links to place from point pairs, ``{(i, j): pairs CSV}`` (as ``amrst
     plot --pairs``, scans from 0); ``left_out``: links not to register (``amrst plot
-    --leave-out``); ``write_cloud``: also the registered plot (``--write-cloud``).
+    --leave-out``); ``write_cloud``: also the registered plot (``--write-cloud``);
+    ``area``: the fixed-radius plot, (radius, centre or None: the origin), as
+    ``--plot-radius`` and ``--plot-centre``.
     """
     from amrst.plot import run
 
@@ -133,6 +146,8 @@ def run_plot(
         pairs=pairs,
         left_out=left_out,
         write_cloud=write_cloud,
+        plot_radius_m=None if area is None else area[0],
+        plot_centre=None if area is None else area[1],
         reporter=reporter,
     )
     return open_results(out, reporter, seconds=time.perf_counter() - start)
@@ -173,6 +188,7 @@ def open_results(
             raise ValueError("a link names a scan the plot does not have")
         bundle = _float(doc["bundle_rmse_m"])
         lost = tuple(str(v) for v in doc.get("review_lost") or ())
+        area = PlotArea.from_dict(doc.get("plot_area"))
     except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
         raise InvalidInput(
             f"{out} holds a plot.json this version cannot read ({exc}): run the "
@@ -190,6 +206,8 @@ def open_results(
         seconds=seconds,
         profiles=view.profiles,
         lost=lost,
+        area=area,
+        reference_at=(float(at[0]), float(at[1])),
     )
 
 

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
+    QDoubleSpinBox,
     QFileDialog,
     QHBoxLayout,
     QLabel,
@@ -45,6 +46,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError, Cancelled
+from amrst.plot.export import inventory_rows
 from amrst.plot.review import (
     ACCEPTED,
     REVIEW_JSON,
@@ -52,6 +54,7 @@ from amrst.plot.review import (
     read_review,
     write_review,
 )
+from amrst.plot.stand import MAX_RADIUS_M, stand
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui import plot_jobs
 from amrst_gui.plot_tables import (
@@ -181,6 +184,16 @@ class PlotWindow(QMainWindow):
             "Also write the registered plot, plot.laz: every placed scan in the "
             "reference's frame, scan_id its number (amrst plot --write-cloud)"
         )
+        self.radius_spin = QDoubleSpinBox()
+        self.radius_spin.setRange(0.0, MAX_RADIUS_M)
+        self.radius_spin.setDecimals(1)
+        self.radius_spin.setSuffix(" m")
+        self.radius_spin.setSpecialValueText("no radius")
+        self.radius_spin.setToolTip(
+            "A fixed-radius plot: the stand figures count the trees within this "
+            "distance of the plot centre (the reference scanner, or the centre an "
+            "earlier amrst plot --plot-centre gave), per hectare. Used at the next Run."
+        )
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setTextVisible(False)
@@ -206,6 +219,8 @@ class PlotWindow(QMainWindow):
         buttons.addWidget(self.run_button)
         buttons.addWidget(self.cancel_button)
         buttons.addWidget(self.cloud_check)
+        buttons.addWidget(QLabel("Plot radius"))
+        buttons.addWidget(self.radius_spin)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
         layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
@@ -403,11 +418,20 @@ class PlotWindow(QMainWindow):
             pairs=dict(self.hand_pairs),
             left_out=set(self.left_out),
             write_cloud=self.cloud_check.isChecked(),
+            area=self._area(),
             on_result=self._on_result,
             on_error=self._on_error,
             on_progress=self._on_progress,
         )
         self._show_busy()
+
+    def _area(self) -> tuple[float, tuple[float, float] | None] | None:
+        """The plot radius to run with, and the centre the last results gave."""
+        radius = self.radius_spin.value()
+        if radius <= 0:
+            return None
+        area = None if self.found is None else self.found.area
+        return radius, None if area is None else area.centre_xy
 
     def cancel(self) -> None:
         if self.job is not None:
@@ -704,6 +728,9 @@ class PlotWindow(QMainWindow):
         self.found = outcome
         if opened:
             self._take_scans(list(outcome.labels))
+        self.radius_spin.setValue(
+            0.0 if outcome.area is None else outcome.area.radius_m
+        )
         # What placed each link carries on to the next run.
         self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
         self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
@@ -776,6 +803,12 @@ class PlotWindow(QMainWindow):
             )
         if missing:
             line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
+        if o.area is not None:
+            st = stand(inventory_rows(o.trees, self.review), o.area)
+            line += (
+                f". Within {o.area.radius_m:g} m: {st.trees_per_ha:.0f} stems/ha, "
+                f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"
+            )
         return line
 
     def _on_report(self, path: Path) -> None:

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import argparse
 
+    from amrst.plot.stand import PlotArea
+
 EXIT_BAD_INPUT = 2
 EXIT_NOT_REGISTERED = 3
 
@@ -73,6 +75,22 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="do not register the link of scans I and J (one you found wrong): the "
         "plot joins them through other scans (repeatable)",
     )
+    p.add_argument(
+        "--plot-radius",
+        type=float,
+        metavar="R",
+        help="the plot's radius (m) for a fixed-radius plot: the report's stand "
+        "figures count the trees whose base lies within R of the centre, per hectare",
+    )
+    p.add_argument(
+        "--plot-centre",
+        type=float,
+        nargs=2,
+        metavar=("X", "Y"),
+        help="the plot's centre in the reference scan's coordinates, as trees.csv "
+        "gives positions (default: their origin, the scanner of a scan in its own "
+        "frame)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -101,6 +119,8 @@ def run_cli(args: argparse.Namespace) -> int:
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
             report=args.report,
+            plot_radius_m=args.plot_radius,
+            plot_centre=None if args.plot_centre is None else tuple(args.plot_centre),
             reporter=TerminalReporter(args.quiet),
         )
     except AmrstError as exc:
@@ -129,6 +149,8 @@ def run_cli(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
+    if run.area is not None:
+        print(f"  {_stand_line(out, run.area)}", file=sys.stderr)
     if run.lost:
         print(
             f"amrst plot: no tree stands any more where you gave "
@@ -154,6 +176,22 @@ def run_cli(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
+
+
+def _stand_line(out: Path, area: PlotArea) -> str:
+    """Sum up the stand inside the plot from the trees.csv just written."""
+    import csv
+
+    from amrst.plot.export import TREES_CSV
+    from amrst.plot.stand import stand
+
+    with (out / TREES_CSV).open(newline="") as f:
+        st = stand(list(csv.DictReader(f)), area)
+    return (
+        f"stand within {area.radius_m:g} m ({area.hectares:.4f} ha): {st.trees} "
+        f"trees, {st.trees_per_ha:.0f} stems/ha, basal area "
+        f"{st.basal_area_m2_per_ha:.1f} m²/ha ({st.outside} listed trees outside)"
+    )
 
 
 def _file_list(written: list[Path]) -> str:

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
+    from amrst.plot.stand import PlotArea
     from amrst.types import Cloud
 
 PLOT_JSON = "plot.json"
@@ -67,7 +68,7 @@ def trees_csv(trees: Sequence[Tree], review: PlotReview | None = None) -> str:
     buf = _stdio.StringIO()
     writer = csv.DictWriter(buf, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(_rows(trees, review or PlotReview()))
+    writer.writerows(inventory_rows(trees, review or PlotReview()))
     return buf.getvalue()
 
 
@@ -319,6 +320,7 @@ def write_plot(
     write_cloud: bool = False,
     report: bool = False,
     pairs_files: Mapping[tuple[int, int], str] | None = None,
+    area: PlotArea | None = None,
 ) -> tuple[list[Path], list[str], list[str]]:
     """Write the run's files into ``out`` as one unit.
 
@@ -333,6 +335,8 @@ def write_plot(
     as they no longer match its poses and trees.
     ``report``: also ``report.html`` (``amrst.plot.report``). ``pairs_files``: the
     point pairs files the links placed by hand came from (:func:`plot_document`).
+    ``area``: the fixed-radius plot, ``plot_area`` in plot.json (the report's stand
+    figures count the trees inside it, per hectare).
     """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
@@ -347,6 +351,7 @@ def write_plot(
     )
     doc = plot_document(reg, inventory, labels, review, pairs_files)
     doc["review_lost"] = lost  # the review that found no tree at this run
+    doc["plot_area"] = None if area is None else area.as_dict()
     doc, _ = strict_json(doc)
     writers = _inventory_writers(inventory.trees, review)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
@@ -361,7 +366,7 @@ def write_plot(
     if report:
         from amrst.plot.report import build_report
 
-        page = build_report(doc, _rows(inventory.trees, review))
+        page = build_report(doc, inventory_rows(inventory.trees, review))
         writers[REPORT] = lambda p: p.write_text(page)
     # Files of an earlier run that this one does not write again no longer match it;
     # the tree clouds are the ones named by a tree id, other files there stay.
@@ -400,7 +405,8 @@ def _plot_cloud_writer(
     return lambda p: io.write_merged(p, parts, moves, offset, ids)
 
 
-def _rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
+def inventory_rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
+    """Return trees.csv's rows: each tree's figures, the technician's mark and DBH."""
     return [
         {
             **t.row(),
@@ -426,7 +432,7 @@ def _inventory_writers(
     writers: dict[str, Callable[[Path], object]] = {
         TREES_CSV: lambda p: p.write_text(text)
     }
-    book = xlsx_book("trees", INVENTORY_COLUMNS, _rows(trees, review))
+    book = xlsx_book("trees", INVENTORY_COLUMNS, inventory_rows(trees, review))
     if book is not None:
         writers[TREES_XLSX] = book.save
     return writers

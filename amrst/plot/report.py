@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.plot.review import NOT_A_TREE
+from amrst.plot.stand import PlotArea, stand
 from amrst.results.report_html import STYLE, html_table
 
 if TYPE_CHECKING:
@@ -158,25 +159,38 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
         f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
         f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
         f"at the final poses); {checked} trees marked check, {dropped} marked not a "
-        f"tree and {by_hand} DBHs measured by you.</p>" + _stand(rows) + "</div>"
+        f"tree and {by_hand} DBHs measured by you.</p>"
+        + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
+        + "</div>"
     )
 
 
-def _stand(rows: Sequence[Mapping[str, Any]]) -> str:
-    from amrst.plot.stand import stand
-
-    st = stand(rows)
+def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
+    st = stand(rows, area)
     height = (
         f"Lorey's mean height {st.lorey_height_m:.1f} m over the {st.with_height} "
         "whose top was seen"
         if st.with_height
         else "no mean height: no scan saw above a top"
     )
+    if area is None:
+        where, per_ha = "", ""
+        edge = "; not per hectare: give the plot's radius, amrst plot --plot-radius"
+    else:
+        cx, cy = area.centre_xy
+        where = (
+            f" within {area.radius_m:g} m of ({cx:.2f}, {cy:.2f}), "
+            f"{area.hectares:.4f} ha, {st.outside} listed trees outside left out"
+        )
+        per_ha = (
+            f" ({st.trees_per_ha:.0f} stems/ha, {st.basal_area_m2_per_ha:.1f} m²/ha)"
+        )
+        edge = ""
     return (
-        f"<p>Stand: {st.trees} trees, {st.with_dbh} with a DBH; basal area "
-        f"{st.basal_area_m2:.3f} m², quadratic mean DBH {_cm(st.qmd_m)}; {height} "
-        "(trees marked not a tree left out, your DBHs used; not per hectare: the "
-        "plot's edge is not known).</p>"
+        f"<p>Stand{_e(where)}: {st.trees} trees, {st.with_dbh} with a DBH; basal "
+        f"area {st.basal_area_m2:.3f} m²{per_ha}, quadratic mean DBH "
+        f"{_cm(st.qmd_m)}; {height} (trees marked not a tree left out, your DBHs "
+        f"used{edge}).</p>"
     )
 
 

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
 
     from amrst.plot.inventory import Inventory
     from amrst.plot.register import PlotRegistration
+    from amrst.plot.stand import PlotArea
     from amrst.types import Cloud
 
 
@@ -35,6 +36,7 @@ class PlotRun:
     written: tuple[Path, ...]
     states: tuple[str, ...]  # each scan's state (registered, accepted, ...)
     lost: tuple[str, ...]  # the review that found no tree at this run
+    area: PlotArea | None = None  # the fixed-radius plot asked for
 
 
 def run_plot(
@@ -47,6 +49,8 @@ def run_plot(
     write_trees: bool = False,
     write_cloud: bool = False,
     report: bool = False,
+    plot_radius_m: float | None = None,
+    plot_centre: tuple[float, float] | None = None,
     reporter: Reporter = NULL_REPORTER,
 ) -> PlotRun:
     """Register and inventory the plot whose scans ``specs`` name; write it to ``out``.
@@ -66,6 +70,11 @@ def run_plot(
         Links not to register (found wrong).
     write_trees, write_cloud, report : bool
         Also one cloud per tree, ``plot.laz``, ``report.html``.
+    plot_radius_m, plot_centre : float or None, (float, float) or None
+        A fixed-radius plot: the stand figures count the trees inside, per hectare.
+        The centre is in the reference scan's file coordinates, as ``trees.csv``
+        gives positions; without one, their origin (the scanner, for a scan in its
+        scanner's frame).
     reporter : Reporter
 
     Raises
@@ -87,6 +96,7 @@ def run_plot(
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
+    area = _plot_area(plot_radius_m, plot_centre, clouds[0], labels[0])
     added = read_review(out, labels).added  # before minutes of work, as check_out
     reporter.check_cancelled()
     reg = register_plot(
@@ -114,10 +124,11 @@ def run_plot(
         write_cloud=write_cloud,
         report=report,
         pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
+        area=area,
     )
     reporter.progress(1.0, "Plot written")
     return PlotRun(
-        tuple(labels), reg, inventory, tuple(written), tuple(states), tuple(lost)
+        tuple(labels), reg, inventory, tuple(written), tuple(states), tuple(lost), area
     )
 
 
@@ -142,6 +153,32 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
                 f"{spec} is a file the run writes in {out}: copy it elsewhere, or "
                 "give another --out folder."
             )
+
+
+def _plot_area(
+    radius_m: float | None,
+    centre: tuple[float, float] | None,
+    reference: Cloud,
+    label: str,
+) -> PlotArea | None:
+    """Return the fixed-radius plot asked for; its centre by default the origin."""
+    from amrst.plot.stand import MAX_RADIUS_M, PlotArea
+
+    if radius_m is None:
+        if centre is not None:
+            raise InvalidInput(
+                "A plot centre needs the plot's radius too (--plot-radius R)."
+            )
+        return None
+    if centre is None:
+        xy = np.median(reference.xyz[:, :2], axis=0) + reference.offset[:2]
+        if float(np.hypot(*xy)) > MAX_RADIUS_M:
+            raise InvalidInput(
+                f"{label} lies {float(np.hypot(*xy)):.0f} m from its coordinates' "
+                "origin (georeferenced?): give the plot centre in them (--plot-centre X Y)."
+            )
+        centre = (0.0, 0.0)
+    return PlotArea((float(centre[0]), float(centre[1])), float(radius_m))
 
 
 def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:

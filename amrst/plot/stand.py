@@ -2,7 +2,8 @@
 
 A tree marked *not a tree* does not count; a DBH measured by hand stands in for the
 measured one. Heights count only where some scan saw above the top (``height_flag``
-``ok``): the others are lower bounds.
+``ok``): the others are lower bounds. With a :class:`PlotArea` (a fixed-radius plot)
+only the trees whose base lies inside count, and the figures are also per hectare.
 """
 
 from __future__ import annotations
@@ -11,27 +12,108 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from amrst.errors import InvalidInput
 from amrst.plot.review import NOT_A_TREE
+from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
+#: Largest plot radius taken (m): a plot is scanned from tripods, not from the air.
+MAX_RADIUS_M = 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class PlotArea:
+    """A fixed-radius plot: its centre, as ``trees.csv`` gives positions, and radius.
+
+    Raises
+    ------
+    InvalidInput
+        A radius that is not a number in (0, MAX_RADIUS_M], a centre beyond
+        ``MAX_COORD_M``.
+    """
+
+    centre_xy: tuple[float, float]
+    radius_m: float
+
+    def __post_init__(self) -> None:
+        if not 0 < self.radius_m <= MAX_RADIUS_M:  # False for NaN too
+            raise InvalidInput(
+                f"The plot radius must be a distance in metres above 0 and up to "
+                f"{MAX_RADIUS_M:g}, got {self.radius_m!r}."
+            )
+        if not all(abs(v) <= MAX_COORD_M for v in self.centre_xy):
+            raise InvalidInput(
+                f"The plot centre must be two coordinates within {MAX_COORD_M:g} m, "
+                f"got {self.centre_xy!r}."
+            )
+
+    @property
+    def hectares(self) -> float:
+        """The plot's horizontal area (ha)."""
+        return math.pi * self.radius_m**2 / 1e4
+
+    def holds(self, row: Mapping[str, Any]) -> bool:
+        """Tell whether the row's stem base lies inside the plot (on its edge too)."""
+        x, y = _num(row.get("x_m"), signed=True), _num(row.get("y_m"), signed=True)
+        cx, cy = self.centre_xy
+        return math.hypot(x - cx, y - cy) <= self.radius_m  # False for NaN
+
+    def as_dict(self) -> dict[str, float]:
+        """plot.json's ``plot_area``."""
+        return {
+            "centre_x_m": self.centre_xy[0],
+            "centre_y_m": self.centre_xy[1],
+            "radius_m": self.radius_m,
+            "hectares": round(self.hectares, 6),
+        }
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> PlotArea | None:
+        """Return plot.json's ``plot_area`` (None when it has none or it is unusable)."""
+        if not isinstance(doc, dict):
+            return None
+        try:
+            return cls(
+                (float(doc["centre_x_m"]), float(doc["centre_y_m"])),
+                float(doc["radius_m"]),
+            )
+        except (KeyError, TypeError, ValueError, InvalidInput):
+            return None
+
 
 @dataclass(frozen=True, slots=True)
 class Stand:
-    """Stand figures of the trees listed (not per hectare: the plot has no edge)."""
+    """Stand figures of the trees counted; per hectare with the plot's area."""
 
-    trees: int  # listed and not marked not a tree
+    trees: int  # counted: listed, not marked not a tree, inside the plot if one
     with_dbh: int  # of them, with a DBH (measured or by hand)
     basal_area_m2: float  # the sum of pi DBH^2 / 4
     qmd_m: float  # quadratic mean DBH
     lorey_height_m: float  # basal-area-weighted mean height of the tops seen
     with_height: int  # trees in that mean
+    hectares: float = math.nan  # the plot's area; NaN: not known
+    outside: int = 0  # listed trees left out as outside the plot
+
+    @property
+    def trees_per_ha(self) -> float:
+        """Stems per hectare (NaN without the plot's area)."""
+        return self.trees / self.hectares
+
+    @property
+    def basal_area_m2_per_ha(self) -> float:
+        """Basal area per hectare (NaN without the plot's area)."""
+        return self.basal_area_m2 / self.hectares
 
 
-def stand(rows: Sequence[Mapping[str, Any]]) -> Stand:
-    """Return the stand figures of inventory rows (``trees.csv``'s columns)."""
-    kept = [r for r in rows if r.get("mark") != NOT_A_TREE]
+def stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None = None) -> Stand:
+    """Return the stand figures of inventory rows (``trees.csv``'s columns).
+
+    ``area``: the fixed-radius plot; trees whose base lies outside do not count.
+    """
+    listed = [r for r in rows if r.get("mark") != NOT_A_TREE]
+    kept = listed if area is None else [r for r in listed if area.holds(r)]
     dbh = [_dbh(r) for r in kept]
     areas = [math.pi * d * d / 4 for d in dbh if math.isfinite(d)]
     tall = [
@@ -49,6 +131,8 @@ def stand(rows: Sequence[Mapping[str, Any]]) -> Stand:
         qmd_m=math.sqrt(4 * sum(areas) / math.pi / len(areas)) if areas else math.nan,
         lorey_height_m=sum(g * h for g, h in tall) / weight if weight else math.nan,
         with_height=len(tall),
+        hectares=math.nan if area is None else area.hectares,
+        outside=len(listed) - len(kept),
     )
 
 
@@ -57,9 +141,10 @@ def _dbh(row: Mapping[str, Any]) -> float:
     return hand if math.isfinite(hand) else _num(row.get("dbh_m"))
 
 
-def _num(value: Any) -> float:
+def _num(value: Any, *, signed: bool = False) -> float:
+    """Return the value as a finite number (positive unless ``signed``), or NaN."""
     try:
         v = float(value)
     except (TypeError, ValueError):
         return math.nan
-    return v if math.isfinite(v) and v > 0 else math.nan
+    return v if math.isfinite(v) and (signed or v > 0) else math.nan

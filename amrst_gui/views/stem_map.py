@@ -151,6 +151,10 @@ class StemMapView(QWidget):
         scans = [s.xy[None] for s in o.scans if s.xy is not None]
         lows = [o.tree_xy - reach, *(xy - 2.0 for xy in scans)]
         highs = [o.tree_xy + reach, *(xy + 2.0 for xy in scans)]
+        centre = o.area_xy
+        if centre is not None and o.area is not None:  # the plot's edge in view
+            lows.append(centre[None] - o.area.radius_m)
+            highs.append(centre[None] + o.area.radius_m)
         if not any(len(p) for p in lows):
             return np.full(2, -2.0), np.full(2, 2.0)
         lo = np.vstack([p for p in lows if len(p)]).min(axis=0)
@@ -223,6 +227,7 @@ class StemMapView(QWidget):
             p.end()
             return
         self._draw_top(p)
+        self._draw_area(p)
         self._draw_links(p)
         self._draw_scans(p)
         self._draw_trees(p)
@@ -245,6 +250,21 @@ class StemMapView(QWidget):
         p.setOpacity(0.45)
         p.drawImage(QRectF(QPointF(*corners[0]), QPointF(*corners[1])), self._image)
         p.setOpacity(1.0)
+
+    def _draw_area(self, p: QPainter) -> None:
+        """The fixed-radius plot's edge, dashed, and its centre."""
+        o = self.outcome
+        centre = None if o is None else o.area_xy
+        if centre is None or o is None or o.area is None:
+            return
+        (x, y), r = self.to_px(centre)[0], o.area.radius_m * self._mapping()[0]
+        pen = QPen(TEXT, 1.5)
+        pen.setStyle(Qt.PenStyle.DashLine)
+        p.setPen(pen)
+        p.setBrush(Qt.BrushStyle.NoBrush)
+        p.drawEllipse(QPointF(x, y), r, r)
+        p.drawLine(QPointF(x - 5, y), QPointF(x + 5, y))
+        p.drawLine(QPointF(x, y - 5), QPointF(x, y + 5))
 
     def _draw_links(self, p: QPainter) -> None:
         assert self.outcome is not None
@@ -323,6 +343,9 @@ class StemMapView(QWidget):
         p.drawLine(QPointF(x0, y0), QPointF(x0 + metres * scale, y0))
         p.drawText(QPointF(x0, y0 - 5), f"{metres} m   (the reference scan's x, y)")
 
+    def _has_area(self) -> bool:
+        return self.outcome is not None and self.outcome.area is not None
+
     def _draw_legend(self, p: QPainter) -> None:
         """DBH quality fills, mark rings and link states, in the top-left corner."""
         x, y, step = 10.0, 14.0, 15.0
@@ -349,5 +372,6 @@ class StemMapView(QWidget):
         p.drawText(
             QPointF(x, y),
             "Solid: the spanning tree; your mark: ring white ok, red check; "
-            "cross: not a tree",
+            "cross: not a tree"
+            + ("; dashed circle: the plot's edge" if self._has_area() else ""),
         )

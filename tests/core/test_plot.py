@@ -484,8 +484,13 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
     (out / "trees").mkdir(parents=True)
     io.write(out / "trees" / "my_scan.ply", target)  # not a tree cloud of a run
     args = [*map(str, files), "--out", str(out), "--quiet"]
-    assert plot_main([*args, "--report"]) == 0
-    assert (out / "report.html").is_file()
+    assert plot_main([*args, "--report", "--plot-radius", "12.5"]) == 0
+    report = (out / "report.html").read_text()
+    area = json.loads((out / "plot.json").read_text())["plot_area"]
+    assert area["radius_m"] == 12.5
+    assert area["hectares"] == pytest.approx(np.pi * 12.5**2 / 1e4, rel=1e-4)
+    assert "stems/ha" in report
+    assert "stand within 12.5 m" in capsys.readouterr().err
     assert plot_main([*args, "--overwrite"]) == 0
     assert not (out / "report.html").exists()  # it described the earlier run
     assert (out / "trees" / "my_scan.ply").is_file()
@@ -501,7 +506,22 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
             *("--out", str(tmp_path / "c")),
             *("--pairs", "1", "2", "p.csv", "--pairs", "2", "1", "q.csv"),
         ],
+        "needs the plot's radius": [
+            *map(str, files),
+            *("--out", str(tmp_path / "d"), "--plot-centre", "1", "2"),
+        ],
+        "radius must be a distance": [
+            *map(str, files),
+            *("--out", str(tmp_path / "e"), "--plot-radius", "nan"),
+        ],
+        "(georeferenced?)": [
+            str(tmp_path / "far.ply"),
+            str(files[1]),
+            *("--out", str(tmp_path / "f"), "--plot-radius", "15"),
+        ],
     }
+    far = replace(target, xyz=target.xyz + np.array([5e5, 4e6, 0.0]))
+    io.write(tmp_path / "far.ply", far)
     io.write(tmp_path / "copy.ply", target)
     io.write(out / "trees" / "T001.ply", target)
     refused["the run writes"].append(str(out))

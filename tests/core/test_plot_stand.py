@@ -6,11 +6,14 @@ import math
 
 import pytest
 
-from amrst.plot.stand import stand
+from amrst.errors import InvalidInput
+from amrst.plot.stand import PlotArea, stand
 
 
 def _row(dbh: str, height: str, flag: str = "ok", mark: str = "", hand: str = ""):
     return {
+        "x_m": "0",
+        "y_m": "0",
         "dbh_m": dbh,
         "height_m": height,
         "height_flag": flag,
@@ -42,3 +45,24 @@ def test_a_stand_of_no_measured_tree_has_no_means() -> None:
     assert (st.trees, st.with_dbh, st.basal_area_m2) == (1, 0, 0.0)
     assert math.isnan(st.qmd_m)
     assert math.isnan(st.lorey_height_m)
+
+
+def test_a_fixed_radius_plot_counts_the_trees_inside_per_hectare() -> None:
+    area = PlotArea((100.0, 200.0), 10.0)
+    inside = {**_row("0.3", "20"), "x_m": "106", "y_m": "208"}  # 10 m: on the edge
+    outside = {**_row("0.5", "25"), "x_m": "100", "y_m": "210.5"}
+    nowhere = {**_row("0.4", "25"), "x_m": "", "y_m": ""}
+    st = stand([inside, outside, nowhere], area)
+    assert (st.trees, st.outside) == (1, 2)
+    assert st.hectares == pytest.approx(math.pi * 100 / 1e4)
+    assert st.trees_per_ha == pytest.approx(1 / st.hectares)
+    assert st.basal_area_m2_per_ha == pytest.approx(math.pi * 0.3**2 / 4 / st.hectares)
+    assert PlotArea.from_dict(area.as_dict()) == area
+    assert PlotArea.from_dict({"radius_m": "wide"}) is None
+    assert math.isnan(stand([inside]).trees_per_ha)  # no area, no per hectare
+
+
+@pytest.mark.parametrize("radius", [0.0, -5.0, math.nan, math.inf, 1e5])
+def test_a_plot_radius_that_is_no_distance_is_refused(radius: float) -> None:
+    with pytest.raises(InvalidInput, match="plot radius"):
+        PlotArea((0.0, 0.0), radius)

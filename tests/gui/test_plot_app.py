@@ -604,6 +604,40 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert panel.views.currentWidget() is panel.slice_view
 
 
+def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst.plot.cli import main as plot_main
+    from amrst.progress import NULL_REPORTER
+    from amrst_gui.plot_jobs import run_plot
+    from amrst_gui.plot_panel import PlotWindow
+
+    out = tmp_path / "out"
+    args = [*plot_files, "--out", str(out), "--quiet", "--plot-radius", "20"]
+    assert plot_main([*args, "--plot-centre", "1.5", "-2"]) == 0
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    o = plot.outcome
+    assert o is not None
+    assert o.area is not None
+    assert o.area.centre_xy == (1.5, -2.0)
+    assert plot.radius_spin.value() == 20.0
+    assert "stems/ha" in plot.status.text()
+    assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
+    plot.radius_spin.setValue(8.0)
+    assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
+    plot.radius_spin.setValue(0.0)
+    assert plot._area() is None
+
+    again = run_plot(
+        plot_files, tmp_path / "again", False, NULL_REPORTER, area=(8.0, None)
+    )
+    assert again.area is not None
+    assert (again.area.radius_m, again.area.centre_xy) == (8.0, (0.0, 0.0))
+
+
 def test_a_review_file_that_cannot_be_read_is_never_written_over(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
