@@ -643,7 +643,9 @@ class PlotWindow(QMainWindow):
                 error=True,
             )
             return
-        self._say(f"{done} (saved in {REVIEW_JSON} and {TREES_CSV})")
+        self._say(
+            f"{done} (saved in {REVIEW_JSON} and {TREES_CSV}){self._stand_text()}"
+        )
 
     def toggle_accept(self) -> None:
         """Accept the selected link at its pose (asked first), or undo that."""
@@ -803,13 +805,18 @@ class PlotWindow(QMainWindow):
             )
         if missing:
             line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
-        if o.area is not None:
-            st = stand(inventory_rows(o.trees, self.review), o.area)
-            line += (
-                f". Within {o.area.radius_m:g} m: {st.trees_per_ha:.0f} stems/ha, "
-                f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"
-            )
-        return line
+        return line + self._stand_text()
+
+    def _stand_text(self) -> str:
+        """The stand per hectare with the review ("" without a plot radius)."""
+        o = self.outcome
+        if o is None or o.area is None:
+            return ""
+        st = stand(inventory_rows(o.trees, self.review), o.area)
+        return (
+            f". Within {o.area.radius_m:g} m: {st.trees_per_ha:.0f} stems/ha, "
+            f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"
+        )
 
     def _on_report(self, path: Path) -> None:
         self.report_job = None

@@ -624,7 +624,11 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert o.area is not None
     assert o.area.centre_xy == (1.5, -2.0)
     assert plot.radius_spin.value() == 20.0
-    assert "stems/ha" in plot.status.text()
+    before = plot.status.text().split("Within 20 m: ")[1].split(" stems/ha")[0]
+    plot.select_tree(0)
+    plot.set_mark(o.trees[0].tree_id, "not a tree")  # one tree fewer per hectare
+    after = plot.status.text().split("Within 20 m: ")[1].split(" stems/ha")[0]
+    assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
     plot.radius_spin.setValue(8.0)
     assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
