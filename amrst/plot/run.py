@@ -93,10 +93,12 @@ def run_plot(
     check_out(out, overwrite)
     _check_inputs(specs, out)
     by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
+    area = _plot_area(plot_radius_m, plot_centre)
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
-    area = _plot_area(plot_radius_m, plot_centre, clouds[0], labels[0])
+    if area is not None and plot_centre is None:
+        _check_origin(clouds[0], labels[0])
     added = read_review(out, labels).added  # before minutes of work, as check_out
     reporter.check_cancelled()
     reg = register_plot(
@@ -156,13 +158,10 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
 
 
 def _plot_area(
-    radius_m: float | None,
-    centre: tuple[float, float] | None,
-    reference: Cloud,
-    label: str,
+    radius_m: float | None, centre: tuple[float, float] | None
 ) -> PlotArea | None:
-    """Return the fixed-radius plot asked for; its centre by default the origin."""
-    from amrst.plot.stand import MAX_RADIUS_M, PlotArea
+    """Return the fixed-radius plot asked for, its centre by default the origin."""
+    from amrst.plot.stand import PlotArea
 
     if radius_m is None:
         if centre is not None:
@@ -170,15 +169,20 @@ def _plot_area(
                 "A plot centre needs the plot's radius too (--plot-radius R)."
             )
         return None
-    if centre is None:
-        xy = np.median(reference.xyz[:, :2], axis=0) + reference.offset[:2]
-        if float(np.hypot(*xy)) > MAX_RADIUS_M:
-            raise InvalidInput(
-                f"{label} lies {float(np.hypot(*xy)):.0f} m from its coordinates' "
-                "origin (georeferenced?): give the plot centre in them (--plot-centre X Y)."
-            )
-        centre = (0.0, 0.0)
-    return PlotArea((float(centre[0]), float(centre[1])), float(radius_m))
+    x, y = (0.0, 0.0) if centre is None else centre
+    return PlotArea((float(x), float(y)), float(radius_m))
+
+
+def _check_origin(reference: Cloud, label: str) -> None:
+    """Refuse the origin as the plot centre of a georeferenced reference scan."""
+    from amrst.plot.stand import MAX_RADIUS_M
+
+    xy = np.median(reference.xyz[:, :2], axis=0) + reference.offset[:2]
+    if float(np.hypot(*xy)) > MAX_RADIUS_M:
+        raise InvalidInput(
+            f"{label} lies {float(np.hypot(*xy)):.0f} m from its coordinates' "
+            "origin (georeferenced?): give the plot centre in them (--plot-centre X Y)."
+        )
 
 
 def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:

@@ -510,8 +510,8 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
             *map(str, files),
             *("--out", str(tmp_path / "d"), "--plot-centre", "1", "2"),
         ],
-        "radius must be a distance": [
-            *map(str, files),
+        "radius must be a distance": [  # before any scan is read
+            *(str(files[0]), str(tmp_path / "not_yet_scanned.ply")),
             *("--out", str(tmp_path / "e"), "--plot-radius", "nan"),
         ],
         "(georeferenced?)": [
