@@ -1,7 +1,7 @@
 """Which tree each point above the ground belongs to, and how tall each tree is.
 
 Every point goes to the stem it reaches at the least cost through neighbouring points
-(one point per 5 cm voxel). A crown seen from two positions breaks into pieces where
+(one point per 5 cm voxel); a metre across costs more than a metre up. A crown seen from two positions breaks into pieces where
 one side is hidden and the other out of range, so a path may also jump a gap: links
 up to ``GAPS`` long join points above the crown height, and cost their length times
 a factor that grows with the gap. A chain of small gaps thus beats one long jump, and
@@ -31,6 +31,10 @@ NODE_VOXEL_M = 0.05
 #: (longest link (m), cost per metre) of each kind of link: neighbouring points, then
 #: gaps in a crown. The gap links join one node per voxel of a third of their length.
 GAPS = ((0.15, 1.0), (0.45, 3.0), (2.0, 10.0))
+#: A link's horizontal metres cost this many vertical ones: a tree grows up, so the
+#: top of a tall crown under a broad one goes with the stem it rises from, not with
+#: the broad crown that reaches across to it.
+ACROSS_COST = 2.0
 
 
 def assign_crowns(
@@ -101,7 +105,8 @@ def _links(
     """Links between nodes longer than ``shorter`` and up to ``link`` (m).
 
     The first kind joins every node; a gap link joins crown nodes only, one per voxel
-    of a third of its length (a few links per node whatever the length).
+    of a third of its length (a few links per node whatever the length). Each link's
+    length is returned with its horizontal part weighted by ``ACROSS_COST``.
     """
     from scipy.spatial import cKDTree
 
@@ -111,9 +116,10 @@ def _links(
         sub = voxel_representatives(nodes, link / 3)[0]
         sub = sub[crown[sub]]
     pairs = cKDTree(nodes[sub]).query_pairs(link, output_type="ndarray")
-    length = np.linalg.norm(nodes[sub[pairs[:, 0]]] - nodes[sub[pairs[:, 1]]], axis=1)
-    keep = length > shorter
-    return sub[pairs[keep, 0]], sub[pairs[keep, 1]], length[keep]
+    d = nodes[sub[pairs[:, 0]]] - nodes[sub[pairs[:, 1]]]
+    keep = np.linalg.norm(d, axis=1) > shorter
+    length = np.hypot(d[keep, 2], ACROSS_COST * np.hypot(d[keep, 0], d[keep, 1]))
+    return sub[pairs[keep, 0]], sub[pairs[keep, 1]], length
 
 
 def tree_top(tree: np.ndarray) -> float:

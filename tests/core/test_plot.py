@@ -293,6 +293,24 @@ def test_crown_pieces_go_with_the_crown_they_continue() -> None:
     assert heights[0] == pytest.approx(10.0, abs=0.2)
 
 
+def test_a_tall_tree_under_a_broad_crown_keeps_its_top() -> None:
+    # A pine seen only in rings 0.4 m apart from 4 to 8 m (a crown hides it) rises
+    # through the 4.5 m wide crown of a lower tree standing 4 m away.
+    pine = _stem(0.0, 0.0, 0.12, -0.05, 14.0)
+    z = pine[:, 2]
+    pine = pine[~((z > 4.0) & (z < 8.0) & ((z - 4.0) % 0.4 > 0.06))]
+    rng = np.random.default_rng(1)
+    r, a = 4.5 * np.sqrt(rng.uniform(0, 1, 40_000)), rng.uniform(0, 2 * np.pi, 40_000)
+    crown = np.column_stack(
+        [4.0 + r * np.cos(a), r * np.sin(a), rng.uniform(7.0, 9.0, 40_000)]
+    )
+    crown = crown[np.hypot(crown[:, 0], crown[:, 1]) > 0.2]  # round the pine
+    xyz = np.vstack([_ground(), pine, _stem(4.0, 0.0, 0.2, 0.0, 7.0), crown])
+    heights = {round(float(s.base[0])): s.height_m for s in map_stems(xyz).stems}
+    assert heights[0] == pytest.approx(14.0, abs=0.2)
+    assert heights[4] == pytest.approx(9.0, abs=0.2)
+
+
 def test_the_dbh_follows_the_stem_not_a_bulge_at_breast_height() -> None:
     xyz = scan((0.0, -4.0), ((0.0, 0.0, 0.12, 6.0), (3.0, 2.0, 0.1, 5.0)), 8)
     z0 = float(ground_z(np.zeros(2)))
