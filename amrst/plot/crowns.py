@@ -1,13 +1,13 @@
 """Which tree each point above the ground belongs to, and how tall each tree is.
 
 Every point goes to the stem it reaches at the least cost through neighbouring points
-(one point per 5 cm voxel); a metre across costs more than a metre up. A crown seen from two positions breaks into pieces where
-one side is hidden and the other out of range, so a path may also jump a gap: links
-up to ``GAPS`` long join points above the crown height, and cost their length times
-a factor that grows with the gap. A chain of small gaps thus beats one long jump, and
-a piece of crown goes with the crown it continues rather than with the nearest tree.
-Pieces no path reaches (a tree whose stem was not found, beyond every gap) belong to
-no tree.
+(one point per 5 cm voxel); a metre across costs more than a metre up. A crown seen
+from two positions breaks into pieces where one side is hidden and the other out of
+range, so a path may also jump a gap: links up to ``GAPS`` long join points above the
+crown height, and cost their length times a factor that grows with the gap. A chain
+of small gaps thus beats one long jump, and a piece of crown goes with the crown it
+continues rather than with the nearest tree. Pieces no path reaches (a tree whose
+stem was not found, beyond every gap) belong to no tree.
 
 This is not ``stages/stems.assign_to_stems`` (the scene stage of a registration,
 which must not change): that gives every unreached piece above the crown height to
