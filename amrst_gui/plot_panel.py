@@ -530,7 +530,7 @@ class PlotWindow(QMainWindow):
         if not path:
             return
         try:
-            export_inventory(Path(path), o.trees, self.review)
+            export_inventory(Path(path), o.trees, self.review, o.area)
         except (AmrstError, OSError) as exc:
             self._say(f"Not exported: {exc}", error=True)
             return
@@ -635,7 +635,7 @@ class PlotWindow(QMainWindow):
         assert o is not None  # saved into its folder
         self._show_marks()
         try:
-            write_inventory(o.out, o.trees, review)
+            write_inventory(o.out, o.trees, review, o.area)
         except (AmrstError, OSError) as exc:
             self._say(
                 f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "
@@ -812,7 +812,7 @@ class PlotWindow(QMainWindow):
         o = self.outcome
         if o is None or o.area is None:
             return ""
-        st = stand(inventory_rows(o.trees, self.review), o.area)
+        st = stand(inventory_rows(o.trees, self.review, o.area), o.area)
         return (
             f". Within {o.area.radius_m:g} m: {st.trees_per_ha:.0f} stems/ha, "
             f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"

@@ -39,8 +39,9 @@ TREES_CSV = "trees.csv"
 TREES_XLSX = "trees.xlsx"
 TREES_DIR = "trees"
 PLOT_CLOUD = "plot.laz"
-#: trees.csv's columns: the tree's figures, then the technician's mark and DBH.
-INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark", "dbh_hand_m")
+#: trees.csv's columns: the tree's figures, the technician's mark and DBH, and
+#: whether the tree stands inside the fixed-radius plot (empty without one).
+INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark", "dbh_hand_m", "in_plot")
 
 
 def check_out(out: Path, overwrite: bool) -> None:
@@ -63,24 +64,33 @@ def check_out(out: Path, overwrite: bool) -> None:
     read_review(out, ())
 
 
-def trees_csv(trees: Sequence[Tree], review: PlotReview | None = None) -> str:
+def trees_csv(
+    trees: Sequence[Tree],
+    review: PlotReview | None = None,
+    area: PlotArea | None = None,
+) -> str:
     """Return trees.csv: one row per tree, the columns of ``INVENTORY_COLUMNS``."""
     buf = _stdio.StringIO()
     writer = csv.DictWriter(buf, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(inventory_rows(trees, review or PlotReview()))
+    writer.writerows(inventory_rows(trees, review or PlotReview(), area))
     return buf.getvalue()
 
 
-def write_inventory(out: Path, trees: Sequence[Tree], review: PlotReview) -> list[Path]:
+def write_inventory(
+    out: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+) -> list[Path]:
     """Write trees.csv (and trees.xlsx) again with this review, as one unit."""
     from amrst.files.outdir import replace_files
 
-    written, _ = replace_files(out, _inventory_writers(trees, review), managed=MANAGED)
+    writers = _inventory_writers(trees, review, area)
+    written, _ = replace_files(out, writers, managed=MANAGED)
     return written
 
 
-def export_inventory(path: Path, trees: Sequence[Tree], review: PlotReview) -> None:
+def export_inventory(
+    path: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+) -> None:
     """Write the inventory with the review to ``path`` (``.csv``/``.xlsx``), atomically.
 
     Raises
@@ -97,7 +107,7 @@ def export_inventory(path: Path, trees: Sequence[Tree], review: PlotReview) -> N
         )
     if not path.parent.is_dir():
         raise InvalidInput(f"Cannot write {path}: its folder does not exist.")
-    writers = _inventory_writers(trees, review)
+    writers = _inventory_writers(trees, review, area)
     name = TREES_CSV if suffix == ".csv" else TREES_XLSX
     if name not in writers:
         raise InvalidInput(
@@ -353,7 +363,7 @@ def write_plot(
     doc["review_lost"] = lost  # the review that found no tree at this run
     doc["plot_area"] = None if area is None else area.as_dict()
     doc, _ = strict_json(doc)
-    writers = _inventory_writers(inventory.trees, review)
+    writers = _inventory_writers(inventory.trees, review, area)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
     if write_trees:
@@ -366,7 +376,7 @@ def write_plot(
     if report:
         from amrst.plot.report import build_report
 
-        page = build_report(doc, inventory_rows(inventory.trees, review))
+        page = build_report(doc, inventory_rows(inventory.trees, review, area))
         writers[REPORT] = lambda p: p.write_text(page)
     # Files of an earlier run that this one does not write again no longer match it;
     # the tree clouds are the ones named by a tree id, other files there stay.
@@ -405,16 +415,23 @@ def _plot_cloud_writer(
     return lambda p: io.write_merged(p, parts, moves, offset, ids)
 
 
-def inventory_rows(trees: Sequence[Tree], review: PlotReview) -> list[dict[str, Any]]:
-    """Return trees.csv's rows: each tree's figures, the technician's mark and DBH."""
-    return [
-        {
+def inventory_rows(
+    trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+) -> list[dict[str, Any]]:
+    """Return trees.csv's rows: the tree's figures, the technician's mark and DBH.
+
+    ``in_plot`` is ``yes`` or ``no`` for standing inside ``area`` (empty without one).
+    """
+    rows = []
+    for t in trees:
+        row = {
             **t.row(),
             "mark": review.marks.get(t.tree_id, ""),
             "dbh_hand_m": _hand(review, t),
         }
-        for t in trees
-    ]
+        row["in_plot"] = "" if area is None else ("yes" if area.holds(row) else "no")
+        rows.append(row)
+    return rows
 
 
 def _hand(review: PlotReview, tree: Tree) -> float | str:
@@ -423,16 +440,17 @@ def _hand(review: PlotReview, tree: Tree) -> float | str:
 
 
 def _inventory_writers(
-    trees: Sequence[Tree], review: PlotReview
+    trees: Sequence[Tree], review: PlotReview, area: PlotArea | None
 ) -> dict[str, Callable[[Path], object]]:
     """trees.csv's writer, and trees.xlsx's when openpyxl is installed."""
     from amrst.files.atomic import xlsx_book
 
-    text = trees_csv(trees, review)
+    text = trees_csv(trees, review, area)
     writers: dict[str, Callable[[Path], object]] = {
         TREES_CSV: lambda p: p.write_text(text)
     }
-    book = xlsx_book("trees", INVENTORY_COLUMNS, inventory_rows(trees, review))
+    rows = inventory_rows(trees, review, area)
+    book = xlsx_book("trees", INVENTORY_COLUMNS, rows)
     if book is not None:
         writers[TREES_XLSX] = book.save
     return writers

@@ -110,6 +110,7 @@ def test_inventory_columns_and_the_command(
         "seen_from",
         "mark",
         "dbh_hand_m",
+        "in_plot",
     ]
     for row in rows:
         assert row["height_flag"] in {"ok", "lean", "top not seen"}
@@ -121,6 +122,7 @@ def test_inventory_columns_and_the_command(
         assert int(row["n_points"]) > 0
         assert row["seen_from"] == "1;2"
         assert row["mark"] == ""
+        assert row["in_plot"] == ""  # no plot radius given
     files = _pair_files(plot_pair, tmp_path)
     out = tmp_path / "out"
     args = [str(f) for f in files] + ["--out", str(out), "--quiet"]
@@ -502,13 +504,21 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
     (out / "trees").mkdir(parents=True)
     io.write(out / "trees" / "my_scan.ply", target)  # not a tree cloud of a run
     args = [*map(str, files), "--out", str(out), "--quiet"]
-    assert plot_main([*args, "--report", "--plot-radius", "12.5"]) == 0
+    assert plot_main([*args, "--report", "--plot-radius", "6"]) == 0
     report = (out / "report.html").read_text()
     area = json.loads((out / "plot.json").read_text())["plot_area"]
-    assert area["radius_m"] == 12.5
-    assert area["hectares"] == pytest.approx(np.pi * 12.5**2 / 1e4, rel=1e-4)
+    assert area["radius_m"] == 6.0
+    assert area["hectares"] == pytest.approx(np.pi * 6.0**2 / 1e4, rel=1e-4)
     assert "stems/ha" in report
-    assert "stand within 12.5 m" in capsys.readouterr().err
+    assert "stand within 6 m (0.0113 ha): 4 trees" in capsys.readouterr().err
+    inside = {
+        r["tree_id"]: "yes"
+        if np.hypot(float(r["x_m"]), float(r["y_m"])) <= 6.0
+        else "no"
+        for r in _rows_of(out)
+    }
+    assert {r["tree_id"]: r["in_plot"] for r in _rows_of(out)} == inside
+    assert sorted(inside.values()) == ["no", "no", "yes", "yes", "yes", "yes"]
     assert plot_main([*args, "--overwrite"]) == 0
     assert not (out / "report.html").exists()  # it described the earlier run
     assert (out / "trees" / "my_scan.ply").is_file()
