@@ -62,6 +62,7 @@ from amrst_gui.plot_tables import (
     ROW_PX,
     TREE_COLUMNS,
     fill,
+    grey_outside,
     link_rows,
     number,
     scan_lines,
@@ -911,6 +912,7 @@ class PlotWindow(QMainWindow):
         k = self.stem_map.selected
         self.trees.blockSignals(True)
         fill(self.trees, tree_rows(o, self.review))
+        grey_outside(self.trees, o)
         if k is not None:
             self.trees.selectRow(k)
         else:

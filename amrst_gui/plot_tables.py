@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QBrush, QColor
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QHeaderView,
@@ -118,3 +119,22 @@ def tree_rows(o: PlotOutcome, review: PlotReview) -> list[tuple[str, ...]]:
             )
         )
     return rows
+
+
+def grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
+    """Grey the rows of the trees outside the fixed-radius plot, and say why."""
+    if o.area is None:
+        return
+    grey = QBrush(QColor(140, 140, 140))
+    tip = (
+        f"Outside the plot's {o.area.radius_m:g} m radius: listed, but not in the "
+        "stand figures (trees.csv in_plot no)"
+    )
+    for r, t in enumerate(o.trees):
+        if o.area.holds({"x_m": t.xyz[0], "y_m": t.xyz[1]}):
+            continue
+        for c in range(table.columnCount()):
+            item = table.item(r, c)
+            if item is not None:
+                item.setForeground(grey)
+                item.setToolTip(tip)

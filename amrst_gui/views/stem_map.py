@@ -359,6 +359,13 @@ class StemMapView(QWidget):
             p.setPen(TEXT)
             p.drawText(QPointF(cx + 13, y), name)
             cx += 22 + 7 * len(name)
+        if self._has_area():
+            pen = QPen(TEXT, 1.5)
+            pen.setStyle(Qt.PenStyle.DashLine)
+            p.setPen(pen)
+            p.drawLine(QPointF(cx + 10, y - 4), QPointF(cx + 34, y - 4))
+            p.setPen(TEXT)
+            p.drawText(QPointF(cx + 40, y), "the plot's edge")
         y += step
         p.drawText(QPointF(x, y), "Links:")
         cx = x + 40
@@ -372,6 +379,5 @@ class StemMapView(QWidget):
         p.drawText(
             QPointF(x, y),
             "Solid: the spanning tree; your mark: ring white ok, red check; "
-            "cross: not a tree"
-            + ("; dashed circle: the plot's edge" if self._has_area() else ""),
+            "cross: not a tree",
         )

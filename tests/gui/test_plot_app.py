@@ -613,7 +613,7 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     from amrst_gui.plot_panel import PlotWindow
 
     out = tmp_path / "out"
-    args = [*plot_files, "--out", str(out), "--quiet", "--plot-radius", "20"]
+    args = [*plot_files, "--out", str(out), "--quiet", "--plot-radius", "6"]
     assert plot_main([*args, "--plot-centre", "1.5", "-2"]) == 0
     plot = PlotWindow()
     qtbot.addWidget(plot)
@@ -623,11 +623,16 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert o is not None
     assert o.area is not None
     assert o.area.centre_xy == (1.5, -2.0)
-    assert plot.radius_spin.value() == 20.0
-    before = plot.status.text().split("Within 20 m: ")[1].split(" stems/ha")[0]
-    plot.select_tree(0)
-    plot.set_mark(o.trees[0].tree_id, "not a tree")  # one tree fewer per hectare
-    after = plot.status.text().split("Within 20 m: ")[1].split(" stems/ha")[0]
+    assert plot.radius_spin.value() == 6.0
+    far = [np.hypot(t.xyz[0] - 1.5, t.xyz[1] + 2.0) > 6.0 for t in o.trees]
+    assert sum(far) == 2  # of the six test stems
+    for r, outside in enumerate(far):  # greyed in the table, and why
+        assert ("Outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
+    before = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
+    k = far.index(False)
+    plot.select_tree(k)
+    plot.set_mark(o.trees[k].tree_id, "not a tree")  # one tree fewer per hectare
+    after = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
     assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
     plot.radius_spin.setValue(8.0)
