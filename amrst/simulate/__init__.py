@@ -87,8 +87,18 @@ def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     )
 
 
+#: The trunk's foot is the lowest point with this many points within this height
+#: above it: fewer are strays below the tree.
+_FOOT_POINTS = 20
+_FOOT_BAND_M = 0.25
+
+
 def trunk_base(xyz: np.ndarray) -> np.ndarray:
     """Where the trunk meets the ground: median xy of the lowest 0.5 m, lowest z.
+
+    The lowest z is the lowest point that is no stray (``_FOOT_POINTS`` within
+    ``_FOOT_BAND_M`` above it), not a height percentile: a sparse trunk under a dense
+    crown holds fewer points than any small share of the cloud.
 
     Parameters
     ----------
@@ -99,7 +109,9 @@ def trunk_base(xyz: np.ndarray) -> np.ndarray:
     -------
     (3,) float64
     """
-    z0 = float(np.percentile(xyz[:, 2], 0.5))
+    z = np.sort(xyz[:, 2])
+    above = np.searchsorted(z, z + _FOOT_BAND_M, side="right") - np.arange(len(z))
+    z0 = float(z[int(np.argmax(above >= min(_FOOT_POINTS, len(z))))])
     low = xyz[xyz[:, 2] < z0 + 0.5]
     return np.array([np.median(low[:, 0]), np.median(low[:, 1]), z0])
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from amrst.errors import InvalidInput
+from amrst.simulate import trunk_base
 from amrst.simulate.field import (
     GROUND,
     OTHER,
@@ -25,12 +26,9 @@ def test_scene_stands_everything_on_the_ground(tiny_tree) -> None:
     labels = scene.labels
     assert {TREE, GROUND, OTHER} <= set(np.unique(labels).tolist())
     assert np.sum(labels == TREE) == len(tiny_tree)
-    # The tree's foot (its lowest 0.5%, as trunk_base finds it) is at the origin, on
-    # the ground, sunk 5 cm into it.
+    # The tree's foot (as trunk_base finds it) is on the ground, sunk 5 cm into it.
     tree = scene.cloud.xyz[labels == TREE]
-    assert np.percentile(tree[:, 2], 0.5) == pytest.approx(
-        scene.base[2] - 0.05, abs=1e-6
-    )
+    assert trunk_base(tree)[2] == pytest.approx(scene.base[2] - 0.05, abs=1e-6)
     ground = scene.cloud.xyz[labels == GROUND]
     assert np.hypot(ground[:, 0], ground[:, 1]).max() <= 4.0 + 0.05
 
@@ -62,3 +60,17 @@ def test_bad_field_options_say_what_to_change() -> None:
         FieldOptions(clip_radius_m=-1.0)
     with pytest.raises(InvalidInput, match="neighbour distances"):
         FieldOptions(neighbour_distance_m=(5.0, 2.0))
+
+
+def test_a_sparse_trunk_under_a_dense_crown_is_the_foot() -> None:
+    rng = np.random.default_rng(0)
+    trunk = np.column_stack(
+        [rng.normal(0, 0.05, (400, 2)), rng.uniform(0.0, 1.7, 400)]
+    )  # 0.5 % of the tree
+    crown = np.column_stack(
+        [rng.normal(0, 1.5, (75_000, 2)), rng.uniform(1.7, 6.0, 75_000)]
+    )
+    strays = np.column_stack([rng.normal(0, 2, (5, 2)), rng.uniform(-1.5, -0.5, 5)])
+    base = trunk_base(np.vstack([strays, trunk, crown]))
+    assert base[2] == pytest.approx(0.0, abs=0.05)  # not the crown's base, no stray
+    assert np.hypot(*base[:2]) < 0.05
