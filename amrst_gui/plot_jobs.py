@@ -189,7 +189,14 @@ def open_results(
         bundle = _float(doc["bundle_rmse_m"])
         lost = tuple(str(v) for v in doc.get("review_lost") or ())
         area = PlotArea.from_dict(doc.get("plot_area"))
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+    except (
+        KeyError,
+        TypeError,
+        ValueError,
+        IndexError,
+        AttributeError,
+        InvalidInput,
+    ) as exc:
         raise InvalidInput(
             f"{out} holds a plot.json this version cannot read ({exc}): run the "
             "plot again."

@@ -187,7 +187,7 @@ class PlotWindow(QMainWindow):
         )
         self.radius_spin = QDoubleSpinBox()
         self.radius_spin.setRange(0.0, MAX_RADIUS_M)
-        self.radius_spin.setDecimals(1)
+        self.radius_spin.setDecimals(2)  # 5.64, 11.28, 12.62, 17.84 m plots
         self.radius_spin.setSuffix(" m")
         self.radius_spin.setSpecialValueText("no radius")
         self.radius_spin.setToolTip(

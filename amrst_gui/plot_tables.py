@@ -127,8 +127,8 @@ def grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
         return
     grey = QBrush(QColor(140, 140, 140))
     tip = (
-        f"Outside the plot's {o.area.radius_m:g} m radius: listed, but not in the "
-        "stand figures (trees.csv in_plot no)"
+        f"Its stem base lies outside the plot's {o.area.radius_m:g} m radius: "
+        "listed, but not in the stand figures (trees.csv in_plot no)"
     )
     for r, t in enumerate(o.trees):
         if o.area.holds({"x_m": t.xyz[0], "y_m": t.xyz[1]}):

@@ -131,7 +131,7 @@ def write_report(out: Path) -> Path:
     try:
         doc, rows = _read_doc_rows(out)
         page = build_report(doc, rows)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, InvalidInput) as exc:
         raise InvalidInput(
             f"No report: {out} holds no readable plot ({exc}); run the plot again."
         ) from exc

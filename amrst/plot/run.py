@@ -97,8 +97,8 @@ def run_plot(
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
-    if area is not None and plot_centre is None:
-        _check_origin(clouds[0], labels[0])
+    if area is not None:
+        _check_centre(area, clouds[0], labels[0], given=plot_centre is not None)
     added = read_review(out, labels).added  # before minutes of work, as check_out
     reporter.check_cancelled()
     reg = register_plot(
@@ -173,16 +173,23 @@ def _plot_area(
     return PlotArea((float(x), float(y)), float(radius_m))
 
 
-def _check_origin(reference: Cloud, label: str) -> None:
-    """Refuse the origin as the plot centre of a georeferenced reference scan."""
-    from amrst.plot.stand import MAX_RADIUS_M
-
-    xy = np.median(reference.xyz[:, :2], axis=0) + reference.offset[:2]
-    if float(np.hypot(*xy)) > MAX_RADIUS_M:
-        raise InvalidInput(
-            f"{label} lies {float(np.hypot(*xy)):.0f} m from its coordinates' "
-            "origin (georeferenced?): give the plot centre in them (--plot-centre X Y)."
-        )
+def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) -> None:
+    """Refuse a plot circle that holds none of the reference scan's points."""
+    step = max(1, len(reference.xyz) // 200_000)  # a coarse check needs few points
+    xy = reference.xyz[::step, :2] - (np.asarray(area.centre_xy) - reference.offset[:2])
+    if len(xy) and float(np.hypot(xy[:, 0], xy[:, 1]).min()) <= area.radius_m:
+        return
+    cx, cy = area.centre_xy
+    where = (
+        f"give the centre in {label}'s coordinates, as trees.csv gives positions"
+        if given
+        else f"{label}'s coordinates are far from their origin (georeferenced?): give "
+        "the plot centre in them (amrst plot --plot-centre X Y)"
+    )
+    raise InvalidInput(
+        f"The plot circle of {area.radius_m:g} m around ({cx:g}, {cy:g}) holds none "
+        f"of {label}'s points: {where}."
+    )
 
 
 def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:

@@ -71,16 +71,26 @@ class PlotArea:
 
     @classmethod
     def from_dict(cls, doc: Any) -> PlotArea | None:
-        """Return plot.json's ``plot_area`` (None when it has none or it is unusable)."""
-        if not isinstance(doc, dict):
+        """Return plot.json's ``plot_area`` (None for null).
+
+        Raises
+        ------
+        InvalidInput
+            It is there but not a plot area (a field missing, not a number, or out of
+            range).
+        """
+        if doc is None:
             return None
         try:
-            return cls(
-                (float(doc["centre_x_m"]), float(doc["centre_y_m"])),
-                float(doc["radius_m"]),
-            )
-        except (KeyError, TypeError, ValueError, InvalidInput):
-            return None
+            values = [doc[k] for k in ("centre_x_m", "centre_y_m", "radius_m")]
+            if any(
+                isinstance(v, bool) or not isinstance(v, (int, float)) for v in values
+            ):
+                raise TypeError("not a number")
+            x, y, r = (float(v) for v in values)
+        except (KeyError, TypeError, ValueError, ArithmeticError) as exc:
+            raise InvalidInput(f"plot_area is not a plot area ({exc!r}).") from exc
+        return cls((x, y), r)
 
 
 @dataclass(frozen=True, slots=True)

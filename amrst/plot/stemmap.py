@@ -90,8 +90,9 @@ class StemMapParams:
     dbh_low_m: float = 1.25  # the DBH slice, above the local ground
     dbh_high_m: float = 1.35
     circle_inlier_m: float = 0.01
-    # DBH quality: ok needs all three. The arc is 3DFin's default of 9 of 16 sectors:
-    # a circle fitted to less than half the bark is not bounded on both sides.
+    # DBH quality: ok needs all three. The arc (360 deg less the widest gap between
+    # the circle's points) as 3DFin's default of 9 of 16 sectors: a circle whose points
+    # leave half the stem or more unseen in one piece is not held on both sides.
     ok_arc_deg: float = 202.5
     # A stem wider than wide_stem_m seen over less than wide_arc_deg gets no DBH: a
     # wide stem's section is seldom round, and a short arc of it does not fix the circle.

@@ -112,7 +112,7 @@ def trunk_base(xyz: np.ndarray) -> np.ndarray:
     z = np.sort(xyz[:, 2])
     above = np.searchsorted(z, z + _FOOT_BAND_M, side="right") - np.arange(len(z))
     z0 = float(z[int(np.argmax(above >= min(_FOOT_POINTS, len(z))))])
-    low = xyz[xyz[:, 2] < z0 + 0.5]
+    low = xyz[(xyz[:, 2] >= z0) & (xyz[:, 2] < z0 + 0.5)]
     return np.array([np.median(low[:, 0]), np.median(low[:, 1]), z0])
 
 

@@ -547,6 +547,11 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
             str(files[1]),
             *("--out", str(tmp_path / "f"), "--plot-radius", "15"),
         ],
+        "holds none of": [  # a centre typed in other coordinates
+            *map(str, files),
+            *("--out", str(tmp_path / "g"), "--plot-radius", "15"),
+            *("--plot-centre", "500000", "4000000"),
+        ],
     }
     far = replace(target, xyz=target.xyz + np.array([5e5, 4e6, 0.0]))
     io.write(tmp_path / "far.ply", far)

@@ -58,7 +58,10 @@ def test_a_fixed_radius_plot_counts_the_trees_inside_per_hectare() -> None:
     assert st.trees_per_ha == pytest.approx(1 / st.hectares)
     assert st.basal_area_m2_per_ha == pytest.approx(math.pi * 0.3**2 / 4 / st.hectares)
     assert PlotArea.from_dict(area.as_dict()) == area
-    assert PlotArea.from_dict({"radius_m": "wide"}) is None
+    assert PlotArea.from_dict(None) is None
+    for bad in ("wide", True, 10**400, -1.0):  # a plot.json edited by hand
+        with pytest.raises(InvalidInput, match=r"plot_area|plot radius"):
+            PlotArea.from_dict({**area.as_dict(), "radius_m": bad})
     assert math.isnan(stand([inside]).trees_per_ha)  # no area, no per hectare
 
 

@@ -627,7 +627,7 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     far = [np.hypot(t.xyz[0] - 1.5, t.xyz[1] + 2.0) > 6.0 for t in o.trees]
     assert sum(far) == 2  # of the six test stems
     for r, outside in enumerate(far):  # greyed in the table, and why
-        assert ("Outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
+        assert ("outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
     before = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
     k = far.index(False)
     plot.select_tree(k)
