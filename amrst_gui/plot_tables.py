@@ -131,7 +131,7 @@ def grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
         "listed, but not in the stand figures (trees.csv in_plot no)"
     )
     for r, t in enumerate(o.trees):
-        if o.area.holds({"x_m": t.xyz[0], "y_m": t.xyz[1]}):
+        if o.area.holds(t.row()):  # as trees.csv's in_plot says
             continue
         for c in range(table.columnCount()):
             item = table.item(r, c)
