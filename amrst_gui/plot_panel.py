@@ -23,6 +23,7 @@ then read *accepted*.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,7 +46,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst.errors import AmrstError, Cancelled
+from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.plot.export import inventory_rows
 from amrst.plot.review import (
     ACCEPTED,
@@ -97,6 +98,11 @@ def ask_scans(parent: QWidget, settings) -> list[str]:
     if paths:
         settings.setValue("dirs/open", str(Path(paths[0]).parent))
     return sorted(paths)
+
+
+def _short(value: float) -> str:
+    """A coordinate to the millimetre, without trailing zeros."""
+    return f"{value:.3f}".rstrip("0").rstrip(".")
 
 
 def confirm(parent: QWidget, title: str, text: str) -> bool:
@@ -185,16 +191,6 @@ class PlotWindow(QMainWindow):
             "Also write the registered plot, plot.laz: every placed scan in the "
             "reference's frame, scan_id its number (amrst plot --write-cloud)"
         )
-        self.radius_spin = QDoubleSpinBox()
-        self.radius_spin.setRange(0.0, MAX_RADIUS_M)
-        self.radius_spin.setDecimals(2)  # 5.64, 11.28, 12.62, 17.84 m plots
-        self.radius_spin.setSuffix(" m")
-        self.radius_spin.setSpecialValueText("no radius")
-        self.radius_spin.setToolTip(
-            "A fixed-radius plot: the stand figures count the trees within this "
-            "distance of the plot centre (the reference scanner, or the centre an "
-            "earlier amrst plot --plot-centre gave), per hectare. Used at the next Run."
-        )
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setTextVisible(False)
@@ -220,8 +216,7 @@ class PlotWindow(QMainWindow):
         buttons.addWidget(self.run_button)
         buttons.addWidget(self.cancel_button)
         buttons.addWidget(self.cloud_check)
-        buttons.addWidget(QLabel("Plot radius"))
-        buttons.addWidget(self.radius_spin)
+        buttons.addStretch(1)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
         layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
@@ -229,6 +224,7 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
         layout.addLayout(buttons)
+        layout.addLayout(self._build_area_row())
         layout.addWidget(self.progress)
         layout.addWidget(self.status)
         layout.addWidget(QLabel("<b>Links</b>"))
@@ -238,6 +234,35 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.trees, 1)
         self._update_link_buttons()
         return side
+
+    def _build_area_row(self) -> QHBoxLayout:
+        """Plot radius and centre: the fixed-radius plot of the next run."""
+        self.radius_spin = QDoubleSpinBox()
+        self.radius_spin.setRange(0.0, MAX_RADIUS_M)
+        self.radius_spin.setDecimals(2)  # 5.64, 11.28, 12.62, 17.84 m plots
+        self.radius_spin.setSuffix(" m")
+        self.radius_spin.setSpecialValueText("no radius")
+        self.radius_spin.setToolTip(
+            "A fixed-radius plot: the stand figures count the trees within this "
+            "distance of the plot centre, per hectare. Used at the next Run."
+        )
+        self.centre_edit = QLineEdit()
+        self.centre_edit.setEnabled(False)
+        self.centre_edit.setPlaceholderText("x y (blank: scanner S1)")
+        self.centre_edit.setToolTip(
+            "The plot centre, x and y in the reference scan's coordinates as trees.csv "
+            "gives positions (world coordinates for a georeferenced scan); blank: "
+            "the reference scanner. Used at the next Run."
+        )
+        self.radius_spin.valueChanged.connect(
+            lambda r: self.centre_edit.setEnabled(r > 0)
+        )
+        row = QHBoxLayout()
+        row.addWidget(QLabel("Plot radius"))
+        row.addWidget(self.radius_spin)
+        row.addWidget(QLabel("centre"))
+        row.addWidget(self.centre_edit, 1)
+        return row
 
     def _build_tree_buttons(self) -> QHBoxLayout:
         """The trees' heading: Add tree, Report, Export inventory."""
@@ -397,6 +422,11 @@ class PlotWindow(QMainWindow):
 
         if self.busy or len(self.specs) < 2:
             return
+        try:
+            area = self._area()
+        except InvalidInput as exc:
+            self._say(f"Not run: {exc}", error=True)
+            return
         if not self.out_edit.text().strip():
             self.choose_out()
         text = self.out_edit.text().strip()
@@ -419,7 +449,7 @@ class PlotWindow(QMainWindow):
             pairs=dict(self.hand_pairs),
             left_out=set(self.left_out),
             write_cloud=self.cloud_check.isChecked(),
-            area=self._area(),
+            area=area,
             on_result=self._on_result,
             on_error=self._on_error,
             on_progress=self._on_progress,
@@ -427,12 +457,26 @@ class PlotWindow(QMainWindow):
         self._show_busy()
 
     def _area(self) -> tuple[float, tuple[float, float] | None] | None:
-        """The plot radius to run with, and the centre the last results gave."""
+        """The plot radius to run with, and its centre (None: the reference scanner).
+
+        Raises InvalidInput when the centre field holds anything but two numbers.
+        """
         radius = self.radius_spin.value()
         if radius <= 0:
             return None
-        area = None if self.found is None else self.found.area
-        return radius, None if area is None else area.centre_xy
+        words = self.centre_edit.text().replace(",", " ").split()
+        if not words:
+            return radius, None
+        try:
+            x, y = (float(w) for w in words)
+        except ValueError:
+            x = y = float("nan")
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise InvalidInput(
+                "the plot centre takes two numbers, x and y (as trees.csv gives "
+                "positions), or nothing for the reference scanner."
+            )
+        return radius, (x, y)
 
     def cancel(self) -> None:
         if self.job is not None:
@@ -733,6 +777,10 @@ class PlotWindow(QMainWindow):
             self._take_scans(list(outcome.labels))
         self.radius_spin.setValue(
             0.0 if outcome.area is None else outcome.area.radius_m
+        )
+        centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
+        self.centre_edit.setText(
+            "" if centre == (0.0, 0.0) else " ".join(_short(v) for v in centre)
         )
         # What placed each link carries on to the next run.
         self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}

@@ -635,9 +635,19 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     after = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
     assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
+    assert plot.centre_edit.text() == "1.5 -2"
     plot.radius_spin.setValue(8.0)
     assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
+    plot.centre_edit.setText("3, 4.25")
+    assert plot._area() == (8.0, (3.0, 4.25))
+    plot.centre_edit.setText("")
+    assert plot._area() == (8.0, None)  # the reference scanner
+    plot.centre_edit.setText("3 north")
+    plot.run()  # refused in a line, before anything is asked or run
+    assert not plot.busy
+    assert "Not run: the plot centre takes two numbers" in plot.status.text()
     plot.radius_spin.setValue(0.0)
+    assert not plot.centre_edit.isEnabled()
     assert plot._area() is None
 
     again = run_plot(
