@@ -63,6 +63,10 @@ FIGURE_TIPS = {
     "residual, and the share of slice points off the circle (3DFin's checks); ok "
     f"needs an arc of {_OK.ok_arc_deg:g}° or more, a residual of "
     f"{_OK.ok_rmse_m * 1000:g} mm or less and {_OK.ok_outlier_share:.0%} or less off",
+    "Height": "The tree's highest point above the ground at its stem; lean: the "
+    f"stem leans over {_OK.lean_flag_deg:g}° or the top stands over "
+    f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
+    "which); top not seen: no scan saw above it",
     "Seen from": "The scans whose points reach the stem",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",
 }

@@ -122,20 +122,20 @@ def _links(
     return sub[pairs[keep, 0]], sub[pairs[keep, 1]], length
 
 
-def tree_top(tree: np.ndarray) -> float:
-    """Height (z) of a tree's highest point that is no stray (has neighbours).
+def tree_top(tree: np.ndarray) -> np.ndarray:
+    """(3,) a tree's highest point that is no stray (has neighbours).
 
-    ``nan`` for no points.
+    NaN for no points.
     """
     from amrst.measure.dbh import with_company
 
     if not len(tree):
-        return float("nan")
+        return np.full(3, np.nan)
     order = np.argsort(-tree[:, 2])
     for start in range(0, len(order), 200):
         kept = with_company(
             tree, np.ones(len(tree), np.int64), order[start : start + 200]
         )
         if len(kept):
-            return float(tree[kept, 2].max())
-    return float(tree[:, 2].max())
+            return np.asarray(tree[kept[np.argmax(tree[kept, 2])]], dtype=float)
+    return np.asarray(tree[order[0]], dtype=float)

@@ -100,9 +100,12 @@ class StemMapParams:
     wide_arc_deg: float = 150.0
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
-    # Height flags: a stem leaning more than this, or fewer points than this in the
-    # top metre of the tree (its top was hidden or out of range).
+    # Height flags: a stem leaning more than lean_flag_deg, or a top farther off the
+    # vertical over the stem's foot than top_lean_flag_deg (a bent tree, or a top
+    # taken from a neighbour's crown), is flagged lean; fewer points than
+    # min_top_points in the top metre of the tree, top not seen (hidden or out of range).
     lean_flag_deg: float = 8.0
+    top_lean_flag_deg: float = 10.0
     min_top_points: int = 15
     min_circles: int = 1  # bark circles a stem shows among the slices
     min_height_m: float = 2.0  # a lower stem is a shrub
@@ -149,7 +152,8 @@ class StemRecord:
 
     ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
     breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle);
-    ``height_flag``: ``ok``, ``lean``, ``top not seen`` or ``not measured``.
+    ``height_flag``: ``ok``, ``lean`` (the stem, or the line from its foot to the
+    tree's top), ``top not seen`` or ``not measured``.
     """
 
     base: np.ndarray  # (3,)
@@ -440,10 +444,10 @@ def _as_tree_or_given(
 
 def _given_tree(fit: _StemFit, pts: np.ndarray, mine: np.ndarray) -> StemRecord:
     """Return the technician's tree as it stands: its height, crown and points."""
-    top_h, crown, n_top = _top_and_crown(pts[mine], fit.stem.base[2])
+    top, crown, n_top = _top_and_crown(pts[mine])
     return replace(
         fit.stem,
-        height_m=top_h,
+        height_m=top[2] - fit.stem.base[2],
         height_flag="ok" if n_top else "not measured",
         crown_width_m=crown,
         n_points=int(mine.sum()),
@@ -580,7 +584,8 @@ def _as_tree(
     bark circles at fewer than ``bark_heights`` heights and it is lower than
     ``hidden_tree_m`` (a branch tip or a bush, not a tree with a hidden stem).
     """
-    top_h, crown, n_top = _top_and_crown(pts[mine], fit.stem.base[2])
+    top, crown, n_top = _top_and_crown(pts[mine])
+    top_h = top[2] - fit.stem.base[2]
     if not top_h >= params.min_height_m:
         return None
     if len(fit.line) < params.bark_heights and not top_h >= params.hidden_tree_m:
@@ -595,6 +600,7 @@ def _as_tree(
         height_flag=(
             "lean"
             if stem.lean_deg > params.lean_flag_deg
+            or _top_lean_deg(top, stem.base) > params.top_lean_flag_deg
             else "top not seen"
             if n_top < params.min_top_points
             else "ok"
@@ -846,13 +852,19 @@ def _foot_xy(line: list[tuple[float, float, float]], line_xy: np.ndarray) -> np.
     return np.asarray(low[0]) if low else line_xy
 
 
-def _top_and_crown(tree: np.ndarray, base_z: float) -> tuple[float, float, int]:
-    """Height of the highest non-isolated point, crown width, points in the top metre."""
+def _top_and_crown(tree: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """Return the top (highest point with neighbours), crown width, top metre points."""
     if len(tree) < 3:
-        return float("nan"), float("nan"), 0
+        return np.full(3, np.nan), float("nan"), 0
     from amrst.measure import measure_tree
 
     m = measure_tree(tree, replace(MeasureParams(), iterations=10))
     top = tree_top(tree)
-    n_top = int(np.sum(tree[:, 2] >= top - 1.0))
-    return top - base_z, m.crown_width_m, n_top
+    n_top = int(np.sum(tree[:, 2] >= top[2] - 1.0))
+    return top, m.crown_width_m, n_top
+
+
+def _top_lean_deg(top: np.ndarray, base: np.ndarray) -> float:
+    """Degrees from the vertical of the line from the stem's foot to the tree's top."""
+    off = float(np.hypot(top[0] - base[0], top[1] - base[1]))
+    return float(np.degrees(np.arctan2(off, top[2] - base[2])))

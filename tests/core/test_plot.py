@@ -295,6 +295,20 @@ def test_crown_pieces_go_with_the_crown_they_continue() -> None:
     assert heights[0] == pytest.approx(10.0, abs=0.2)
 
 
+def test_a_top_far_off_the_stem_s_foot_flags_the_height() -> None:
+    # An upright 8 m stem whose top bends 3 m aside up to 10.4 m (a bent tree, or a
+    # neighbour's crown taken as its top): 16 deg off the vertical over its foot.
+    bent = _stem(0.0, 0.0, 0.15, -0.05, 8.0)
+    top = [blob((0.5 * k, 0.0, 8.0 + 0.4 * k), 0.2, 300, k) for k in range(1, 7)]
+    xyz = np.vstack([_ground(), bent, *top, _stem(-4.0, 0.0, 0.12, 0.0, 6.0)])
+    stems = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
+    assert stems[0].lean_deg < 2  # the stem itself stands upright
+    assert stems[0].height_m == pytest.approx(10.6, abs=0.3)
+    assert (stems[0].height_flag, stems[-4].height_flag) == ("lean", "ok")
+    upright = map_stems(xyz, StemMapParams(top_lean_flag_deg=20.0)).stems
+    assert {s.height_flag for s in upright} == {"ok"}
+
+
 def test_a_tall_tree_under_a_broad_crown_keeps_its_top() -> None:
     # A pine seen only in rings 0.4 m apart from 4 to 8 m (a crown hides it) rises
     # through the 4.5 m wide crown of a lower tree standing 4 m away.
