@@ -333,7 +333,7 @@ def test_closed_output_pipe_ends_quietly(sample_pair) -> None:
 def test_a_file_system_refusal_is_one_line_not_an_internal_error(
     capsys, tmp_path
 ) -> None:
-    """Issue 16 corpus: a 300-character name gave "Internal error: OSError"."""
+    """A file name too long for the file system is refused in a line, not an OSError."""
     too_long = tmp_path / ("a" * 300 + ".ply")
     assert main(["info", str(too_long)]) == EXIT_INPUT
     line = _one_line_error(capsys.readouterr().err)

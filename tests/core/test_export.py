@@ -339,7 +339,7 @@ def _no_constant(name: str) -> None:
 def test_output_json_is_strict_and_says_why_a_value_is_null(
     tmp_path: Path, scans
 ) -> None:
-    """Issue 16: an infinite truth error wrote ``Infinity`` (not JSON) to metrics.json."""
+    """An infinite truth error is written to metrics.json as JSON (no ``Infinity``)."""
     target, source, T = scans
     metrics = {"truth": {"fine": {"translation_error_m": float("inf")}}, "ok": 1.0}
     export_registration(

@@ -1,6 +1,6 @@
 """Header quirks that leave the points intact, undercounting headers, odd paths.
 
-Issues 16 and 17: quirks are read with one warning that says what was odd; a header
+Quirks are read with one warning that says what was odd; a header
 that undercounts its file is reported; a path that is not a regular file is refused
 before it is opened, with its own message; decoder noise never reaches the user.
 """
@@ -151,7 +151,7 @@ def test_laz_header_counting_right_is_read_silently(tmp_path, caplog, point_form
 
 
 def test_truncated_laz_gives_one_line_without_laspy_log_lines(tmp_path):
-    """Issue 16: laspy printed 'ERROR: IoError ...' twice before our message."""
+    """A truncated LAZ gives our one line, without laspy's own log lines."""
     cloud = Cloud(np.random.default_rng(7).uniform(0, 10, (5000, 3)))
     data = _written(tmp_path, cloud, ".laz")
     (tmp_path / "cut.laz").write_bytes(data[: len(data) // 2])
@@ -231,7 +231,7 @@ def test_pcd_compressed_size_beyond_what_lzf_can_expand_is_refused_at_once(tmp_p
 
 @pytest.mark.timeout(20)
 def test_pcd_compressed_data_running_short_is_refused_fast(tmp_path):
-    """Issue 16: a 9 MB binary_compressed file took 56 s in the Python decoder."""
+    """A compressed PCD whose data run short is refused before it is decoded."""
     n = 750_000  # 9 MB announced, the data are 2-byte literal runs of 1 byte
     packed = b"\x00\x07" * 1_000_000  # decompresses to 1 MB only
     (tmp_path / "s.pcd").write_bytes(_compressed_pcd(n, packed, n * 12))
@@ -342,7 +342,7 @@ _ACTIONS = ("again", "re-save", "give ", "fix", "check", "choose", "convert", "n
     ],
 )
 def test_every_refusal_says_what_to_do(tmp_path, name, content):
-    """Issue 16: refusals said what was wrong but not what to do."""
+    """Every refusal of a bad file says what to do, not only what is wrong."""
     (tmp_path / name).write_bytes(content)
     with pytest.raises(InvalidInput) as info:
         io.read(tmp_path / name)
