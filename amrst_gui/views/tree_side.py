@@ -3,7 +3,8 @@
 The technician checks there what the figures rest on: whether the top the height
 reaches is the tree's (or a neighbour's crown was taken in, or the top was hidden),
 and where breast height falls on the stem. Seen from the south (x east, z up), the
-stem at 0, the ground at its base at 0.
+stem at 0, the ground at its base at 0; a tree whose top stands ``ASIDE_M`` or more
+off its foot is seen across that line instead, so that its lean shows.
 """
 
 from __future__ import annotations
@@ -27,6 +28,21 @@ HAND = QColor(*HAND_RGB)
 #: Room around the tree (m) and for the labels (px).
 MARGIN_M = 0.5
 LABEL_PX = 18.0
+ASIDE_M = 0.5
+
+
+def across(base_xy: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, str]:
+    """The horizontal axis (2,) a side view draws, and where it is seen from.
+
+    East, seen from the south; toward the tree's highest point when that stands
+    ``ASIDE_M`` or more off the stem's foot.
+    """
+    if len(xyz):
+        off = xyz[int(np.argmax(xyz[:, 2])), :2] - base_xy
+        length = float(np.hypot(off[0], off[1]))
+        if length >= ASIDE_M:
+            return off / length, "seen across its lean"
+    return np.array([1.0, 0.0]), "seen from the south"
 
 
 class TreeSideView(QWidget):
@@ -68,8 +84,9 @@ class TreeSideView(QWidget):
 
     def _draw(self, p: QPainter, tree: Tree, profile: TreeProfile) -> None:
         stem = tree.stem
-        base_x, base_z = float(stem.base[0]), float(stem.base[2])
-        dx = profile.xyz[:, 0] - base_x
+        base_xy, base_z = np.asarray(stem.base[:2], float), float(stem.base[2])
+        axis, seen = across(base_xy, profile.xyz)
+        dx = (profile.xyz[:, :2] - base_xy) @ axis
         dz = profile.xyz[:, 2] - base_z
         top = float(np.nanmax([stem.height_m, dz.max(initial=0.0), 2.0]))
         half = max(float(np.abs(dx).max(initial=0.0)), 1.0) + MARGIN_M
@@ -100,12 +117,16 @@ class TreeSideView(QWidget):
                 at(-half, stem.height_m) + QPointF(2, -3),
                 f"height {stem.height_m:.1f} m ({stem.height_flag})",
             )
-        bars = [(stem.dbh_xy[0], stem.dbh_m, QColor(255, 255, 255), 0.0)]
+        bars = [
+            (np.asarray(stem.dbh_xy, float), stem.dbh_m, QColor(255, 255, 255), 0.0)
+        ]
         if self.hand is not None:  # just above the measured one
-            bars.append((self.hand.centre_xy[0], self.hand.dbh_m, HAND, 5.0 / scale))
-        for x_m, dbh, colour, lift in bars:
+            hand_xy = np.asarray(self.hand.centre_xy, float)
+            bars.append((hand_xy, self.hand.dbh_m, HAND, 5.0 / scale))
+        for xy, dbh, colour, lift in bars:
             if np.isfinite(dbh):
-                x, z = float(x_m) - base_x, BREAST_HEIGHT_M + lift
+                x = float((xy - base_xy) @ axis)
+                z = BREAST_HEIGHT_M + lift
                 p.setPen(QPen(colour, 3))
                 p.drawLine(at(x - dbh / 2, z), at(x + dbh / 2, z))
         p.setPen(TEXT)
@@ -113,4 +134,8 @@ class TreeSideView(QWidget):
             QPointF(6, self.height() - 5),
             f"{len(profile.xyz):,} of {stem.n_points:,} points shown; "
             + ("bars: DBH, green yours" if self.hand is not None else "bar: DBH"),
+        )
+        corner = QRectF(0, self.height() - 5 - 2 * LABEL_PX, self.width() - 6, LABEL_PX)
+        p.drawText(
+            corner, Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignBottom, seen
         )

@@ -723,3 +723,18 @@ def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
     assert plot.outcome is None
     assert plot.status.text().startswith("Not opened:")
     assert "run the plot again" in plot.status.text()
+
+
+def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
+    from amrst_gui.views.tree_side import across
+
+    rng = np.random.default_rng(0)
+    upright = np.column_stack([rng.normal(0, 0.1, (500, 2)), rng.uniform(0, 9, 500)])
+    axis, seen = across(np.zeros(2), upright)
+    assert np.allclose(axis, [1.0, 0.0])
+    assert seen == "seen from the south"
+    # Its top 3 m north of the foot: seen from the south the lean would not show.
+    bent = np.vstack([upright, [[0.0, 3.0, 10.0]]])
+    axis, seen = across(np.zeros(2), bent)
+    assert np.allclose(axis, [0.0, 1.0])
+    assert "across" in seen
