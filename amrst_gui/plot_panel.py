@@ -55,7 +55,7 @@ from amrst.plot.review import (
     read_review,
     write_review,
 )
-from amrst.plot.stand import MAX_RADIUS_M, stand
+from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui import plot_jobs
 from amrst_gui.plot_tables import (
@@ -476,6 +476,7 @@ class PlotWindow(QMainWindow):
                 "the plot centre takes two numbers, x and y (as trees.csv gives "
                 "positions), or nothing for the reference scanner."
             )
+        PlotArea((x, y), radius)  # refuses what amrst plot would
         return radius, (x, y)
 
     def cancel(self) -> None:

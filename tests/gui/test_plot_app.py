@@ -646,6 +646,9 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     plot.run()  # refused in a line, before anything is asked or run
     assert not plot.busy
     assert "Not run: the plot centre takes two numbers" in plot.status.text()
+    plot.centre_edit.setText("1e12 0")
+    plot.run()
+    assert "Not run: The plot centre must be two coordinates" in plot.status.text()
     plot.radius_spin.setValue(0.0)
     assert not plot.centre_edit.isEnabled()
     assert plot._area() is None
