@@ -267,7 +267,25 @@ def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
         "Mark",
         "Your DBH cm",
     ]
-    return "<h2>Trees</h2>" + html_table(head, body)
+    return "<h2>Trees</h2>" + _flags() + html_table(head, body)
+
+
+def _flags() -> str:
+    """Say what the DBH and height flags mean, by the defaults the inventory used."""
+    from amrst.plot.stemmap import StemMapParams
+
+    p = StemMapParams()
+    return (
+        f"<p>DBH <b>ok</b>: its circle's points leave no gap wider than "
+        f"{360 - p.ok_arc_deg:g}° round the stem, fit within "
+        f"{p.ok_rmse_m * 1000:g} mm RMS, at most {p.ok_outlier_share:.0%} of the slice's "
+        "points off it, and the slices from 1 to 1.6 m agree on it; <b>check</b>: "
+        "measure it by hand before you use it. Height <b>lean</b>: the stem leans "
+        f"over {p.lean_flag_deg:g}°, or the top stands over {p.top_lean_flag_deg:g}° "
+        "off the vertical over its foot (a bent tree, or a neighbour's crown taken as "
+        "its top); <b>top not seen</b>: no scan saw above it, the height is a lower "
+        "bound.</p>"
+    )
 
 
 def _num(value: Any) -> float:

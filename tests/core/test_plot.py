@@ -181,6 +181,7 @@ def test_inventory_columns_and_the_command(
     assert "1 trees marked check, 0 marked not a tree and 1 DBHs measured" in page
     assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
+    assert "no gap wider than 157.5° round the stem" in page  # what the flags say
     # A mark no tree stands under any more is dropped, and the run says so.
     write_review(out, labels, PlotReview({"T050": "ok"}, at={"T050": (50.0, 50.0)}))
     capsys.readouterr()
