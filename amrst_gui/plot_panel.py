@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -101,8 +102,8 @@ def ask_scans(parent: QWidget, settings) -> list[str]:
 
 
 def _short(value: float) -> str:
-    """A coordinate to the millimetre, without trailing zeros."""
-    return f"{value:.3f}".rstrip("0").rstrip(".")
+    """A coordinate to the micrometre, without trailing zeros."""
+    return f"{value:.6f}".rstrip("0").rstrip(".")
 
 
 def confirm(parent: QWidget, title: str, text: str) -> bool:
@@ -248,11 +249,12 @@ class PlotWindow(QMainWindow):
         )
         self.centre_edit = QLineEdit()
         self.centre_edit.setEnabled(False)
-        self.centre_edit.setPlaceholderText("x y (blank: scanner S1)")
+        self.centre_edit.setPlaceholderText("x y (blank: S1's origin)")
         self.centre_edit.setToolTip(
             "The plot centre, x and y in the reference scan's coordinates as trees.csv "
             "gives positions (world coordinates for a georeferenced scan); blank: "
-            "the reference scanner. Used at the next Run."
+            "their origin, the reference scanner of a scan in its own frame. Used at "
+            "the next Run."
         )
         self.radius_spin.valueChanged.connect(
             lambda r: self.centre_edit.setEnabled(r > 0)
@@ -464,17 +466,20 @@ class PlotWindow(QMainWindow):
         radius = self.radius_spin.value()
         if radius <= 0:
             return None
-        words = self.centre_edit.text().replace(",", " ").split()
-        if not words:
+        text = self.centre_edit.text().strip().removeprefix("(").removesuffix(")")
+        if not text:
             return radius, None
+        # A space between x and y, a comma only before one: "12,5" is no pair.
+        words = re.split(r"\s*,\s+|\s+", text.strip())
         try:
             x, y = (float(w) for w in words)
         except ValueError:
             x = y = float("nan")
         if not (math.isfinite(x) and math.isfinite(y)):
             raise InvalidInput(
-                "the plot centre takes two numbers, x and y (as trees.csv gives "
-                "positions), or nothing for the reference scanner."
+                "the plot centre takes x and y separated by a space, with decimal "
+                "points, as trees.csv gives positions; or nothing for the origin of "
+                "the reference scan (its scanner)."
             )
         PlotArea((x, y), radius)  # refuses what amrst plot would
         return radius, (x, y)

@@ -169,9 +169,9 @@ def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
     st = stand(rows, area)
     height = (
         f"Lorey's mean height {st.lorey_height_m:.1f} m over the {st.with_height} "
-        "whose top was seen"
+        "whose height is flagged ok"
         if st.with_height
-        else "no mean height: no scan saw above a top"
+        else "no mean height: no height is flagged ok"
     )
     if area is None:
         where, per_ha = "", ""
@@ -284,7 +284,8 @@ def _flags() -> str:
         f"over {p.lean_flag_deg:g}°, or the top stands over {p.top_lean_flag_deg:g}° "
         "off the vertical over its foot (a bent tree, or a neighbour's crown taken as "
         "its top); <b>top not seen</b>: no scan saw above it, the height is a lower "
-        "bound.</p>"
+        "bound (this flag wins when both apply); <b>none</b> / <b>not measured</b>: "
+        "no DBH / no height. Lorey's mean height counts the heights flagged ok.</p>"
     )
 
 

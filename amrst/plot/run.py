@@ -184,7 +184,8 @@ def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) 
         f"give the centre in {label}'s coordinates, as trees.csv gives positions"
         if given
         else f"{label}'s coordinates are far from their origin (georeferenced?): give "
-        "the plot centre in them (amrst plot --plot-centre X Y)"
+        "the plot centre in them (amrst plot --plot-centre X Y, or the Plot "
+        "window's centre field)"
     )
     raise InvalidInput(
         f"The plot circle of {area.radius_m:g} m around ({cx:g}, {cy:g}) holds none "

@@ -1,8 +1,8 @@
 """The plot's stand figures from its inventory rows, as a forester sums a tally sheet.
 
 A tree marked *not a tree* does not count; a DBH measured by hand stands in for the
-measured one. Heights count only where some scan saw above the top (``height_flag``
-``ok``): the others are lower bounds. With a :class:`PlotArea` (a fixed-radius plot)
+measured one. Heights count only where flagged ``ok`` (``height_flag``): the others
+are lower bounds (``top not seen``) or doubtful (``lean``). With a :class:`PlotArea` (a fixed-radius plot)
 only the trees whose base lies inside count, and the figures are also per hectare.
 """
 

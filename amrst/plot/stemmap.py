@@ -100,10 +100,11 @@ class StemMapParams:
     wide_arc_deg: float = 150.0
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
-    # Height flags: a stem leaning more than lean_flag_deg, or a top farther off the
-    # vertical over the stem's foot than top_lean_flag_deg (a bent tree, or a top
-    # taken from a neighbour's crown), is flagged lean; fewer points than
-    # min_top_points in the top metre of the tree, top not seen (hidden or out of range).
+    # Height flags: fewer points than min_top_points in the top metre of the tree is
+    # top not seen (hidden or out of range; it wins over lean, as a lower bound); a
+    # stem leaning more than lean_flag_deg, or a top farther off the vertical over
+    # the stem's foot than top_lean_flag_deg (a bent tree, or a top taken from a
+    # neighbour's crown), is lean.
     lean_flag_deg: float = 8.0
     top_lean_flag_deg: float = 10.0
     min_top_points: int = 15
@@ -439,16 +440,24 @@ def _as_tree_or_given(
         return replace(stem, given=None)
     if stem is not None:
         return stem  # the tag rides on fit.stem through _as_tree
-    return _given_tree(fit, pts, mine) if role else None
+    return _given_tree(fit, pts, mine, params) if role else None
 
 
-def _given_tree(fit: _StemFit, pts: np.ndarray, mine: np.ndarray) -> StemRecord:
+def _given_tree(
+    fit: _StemFit, pts: np.ndarray, mine: np.ndarray, params: StemMapParams
+) -> StemRecord:
     """Return the technician's tree as it stands: its height, crown and points."""
     top, crown, n_top = _top_and_crown(pts[mine])
     return replace(
         fit.stem,
         height_m=top[2] - fit.stem.base[2],
-        height_flag="ok" if n_top else "not measured",
+        height_flag=(
+            "not measured"
+            if not n_top
+            else "lean"
+            if _top_lean_deg(top, fit.stem.base) > params.top_lean_flag_deg
+            else "ok"
+        ),
         crown_width_m=crown,
         n_points=int(mine.sum()),
     )
@@ -598,11 +607,11 @@ def _as_tree(
         stem,
         height_m=top_h,
         height_flag=(
-            "lean"
+            "top not seen"
+            if n_top < params.min_top_points
+            else "lean"
             if stem.lean_deg > params.lean_flag_deg
             or _top_lean_deg(top, stem.base) > params.top_lean_flag_deg
-            else "top not seen"
-            if n_top < params.min_top_points
             else "ok"
         ),
         crown_width_m=crown,

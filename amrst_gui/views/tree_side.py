@@ -4,7 +4,7 @@ The technician checks there what the figures rest on: whether the top the height
 reaches is the tree's (or a neighbour's crown was taken in, or the top was hidden),
 and where breast height falls on the stem. Seen from the south (x east, z up), the
 stem at 0, the ground at its base at 0; a tree whose top stands ``ASIDE_M`` or more
-off its foot is seen across that line instead, so that its lean shows.
+off its foot is seen with its top to the right instead, so that a lean shows.
 """
 
 from __future__ import annotations
@@ -32,16 +32,18 @@ ASIDE_M = 0.5
 
 
 def across(base_xy: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, str]:
-    """The horizontal axis (2,) a side view draws, and where it is seen from.
+    """The horizontal axis (2,) a side view draws, and how the tree is seen.
 
-    East, seen from the south; toward the tree's highest point when that stands
+    East, seen from the south; toward the tree's top (the middle of its points in
+    its highest half metre, so a stray point does not turn it) when that stands
     ``ASIDE_M`` or more off the stem's foot.
     """
     if len(xyz):
-        off = xyz[int(np.argmax(xyz[:, 2])), :2] - base_xy
+        high = xyz[xyz[:, 2] >= xyz[:, 2].max() - 0.5, :2]
+        off = np.median(high, axis=0) - base_xy
         length = float(np.hypot(off[0], off[1]))
         if length >= ASIDE_M:
-            return off / length, "seen across its lean"
+            return off / length, "seen with its top to the right"
     return np.array([1.0, 0.0]), "seen from the south"
 
 

@@ -231,7 +231,7 @@ def test_pcd_compressed_size_beyond_what_lzf_can_expand_is_refused_at_once(tmp_p
 
 @pytest.mark.timeout(20)
 def test_pcd_compressed_data_running_short_is_refused_fast(tmp_path):
-    """A compressed PCD whose data run short is refused before it is decoded."""
+    """A compressed PCD whose data run short is refused as the decoder meets it."""
     n = 750_000  # 9 MB announced, the data are 2-byte literal runs of 1 byte
     packed = b"\x00\x07" * 1_000_000  # decompresses to 1 MB only
     (tmp_path / "s.pcd").write_bytes(_compressed_pcd(n, packed, n * 12))

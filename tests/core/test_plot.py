@@ -310,6 +310,20 @@ def test_a_top_far_off_the_stem_s_foot_flags_the_height() -> None:
     assert {s.height_flag for s in upright} == {"ok"}
 
 
+def test_a_tree_given_by_hand_whose_top_stands_aside_is_flagged_too() -> None:
+    # A stem seen to 0.8 m only (no tree of the map's own), then a limb rising 3 m
+    # aside to 4.6 m: the technician's tree there reads its height, flagged lean.
+    stub = _stem(0.0, 0.0, 0.1, -0.05, 0.8)
+    t = np.linspace(0, 1, 3000)[:, None]
+    noise = np.random.default_rng(3).normal(0, 0.04, (3000, 3))
+    limb = np.array([0.0, 0.0, 0.8]) + t * np.array([3.0, 0.0, 3.8]) + noise
+    given = map_stems(np.vstack([_ground(), stub, limb]), given={"H001": (0, 0)})
+    (tree,) = given.stems
+    assert tree.given == "H001"
+    assert tree.height_m > 4
+    assert tree.height_flag == "lean"
+
+
 def test_a_tall_tree_under_a_broad_crown_keeps_its_top() -> None:
     # A pine seen only in rings 0.4 m apart from 4 to 8 m (a crown hides it) rises
     # through the 4.5 m wide crown of a lower tree standing 4 m away.

@@ -18,6 +18,7 @@ from _plots import STEMS, pose, scan
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
+from amrst.errors import InvalidInput
 from amrst.plot.review import read_review
 from amrst.types import Cloud, invert_transform
 
@@ -640,12 +641,18 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
     plot.centre_edit.setText("3, 4.25")
     assert plot._area() == (8.0, (3.0, 4.25))
+    plot.centre_edit.setText("(512340.125, -2)")
+    assert plot._area() == (8.0, (512340.125, -2.0))
+    for text in ("12,5", "1,5 2", "3 north"):  # decimal commas are no pair
+        plot.centre_edit.setText(text)
+        with pytest.raises(InvalidInput):
+            plot._area()
     plot.centre_edit.setText("")
     assert plot._area() == (8.0, None)  # the reference scanner
     plot.centre_edit.setText("3 north")
     plot.run()  # refused in a line, before anything is asked or run
     assert not plot.busy
-    assert "Not run: the plot centre takes two numbers" in plot.status.text()
+    assert "Not run: the plot centre takes x and y" in plot.status.text()
     plot.centre_edit.setText("1e12 0")
     plot.run()
     assert "Not run: The plot centre must be two coordinates" in plot.status.text()
@@ -737,7 +744,9 @@ def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
     assert np.allclose(axis, [1.0, 0.0])
     assert seen == "seen from the south"
     # Its top 3 m north of the foot: seen from the south the lean would not show.
-    bent = np.vstack([upright, [[0.0, 3.0, 10.0]]])
-    axis, seen = across(np.zeros(2), bent)
-    assert np.allclose(axis, [0.0, 1.0])
-    assert "across" in seen
+    stray = np.vstack([upright, [[3.0, 0.0, 9.3]]])  # one point does not turn it
+    assert np.allclose(across(np.zeros(2), stray)[0], [1.0, 0.0])
+    top = np.column_stack([rng.normal(0, 0.1, 50), rng.normal(3, 0.1, 50), [9.5] * 50])
+    axis, seen = across(np.zeros(2), np.vstack([upright, top]))
+    assert np.allclose(axis, [0.0, 1.0], atol=0.1)
+    assert seen == "seen with its top to the right"
