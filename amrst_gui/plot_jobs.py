@@ -21,6 +21,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.plot.stand import PlotArea
+from amrst.plot.view import scanner_position
 from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
 if TYPE_CHECKING:
@@ -39,11 +40,12 @@ class ScanPlace:
     and its state (registered / needs review / failed)."""
 
     label: str
-    xy: np.ndarray | None  # (2,) the scanner's position; None: not placed
+    xy: np.ndarray | None  # (2,) the scanner's position; None: not placed or not known
     stems: int
     status: str
     # The unsure links its pose rests on (None: none a person can clear).
     doubts: frozenset[tuple[int, int]] | None = frozenset()
+    placed: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,14 +176,15 @@ def open_results(
         scans = tuple(
             ScanPlace(
                 label=scan["label"],
-                xy=_scan_xy(scan["T_reference_scan"], offset, at),
+                xy=_scan_xy(scan, at),
+                placed=scan["T_reference_scan"] is not None,
                 stems=int(scan["stems"]),
                 status=scan["status"],
                 doubts=None
                 if scan["unsure_links"] is None
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
             )
-            for scan, offset in zip(doc["scans"], view.offsets, strict=True)
+            for scan in doc["scans"]
         )
         links = tuple(_link_line(entry, view.offsets) for entry in doc["links"])
         if any(not 0 <= k < len(scans) for ln in links for k in ln.key):
@@ -242,13 +245,11 @@ def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
     )
 
 
-def _scan_xy(T: Any, offset: np.ndarray, reference: np.ndarray) -> np.ndarray | None:
-    """Where a scan stood (its local origin) in the reference's local frame, from its
-    pose in file coordinates (None: not placed)."""
-    if T is None:
-        return None
-    M = np.asarray(T, float).reshape(4, 4)
-    return np.asarray((M[:3, :3] @ offset + M[:3, 3] - reference)[:2], float)
+def _scan_xy(scan: Mapping[str, Any], reference: np.ndarray) -> np.ndarray | None:
+    """Where a plot.json scan's scanner stood in the reference's local frame (None:
+    not placed, or not known)."""
+    at = scanner_position(scan)
+    return None if at is None else np.asarray((at - reference)[:2], float)
 
 
 def _float(value: Any) -> float:

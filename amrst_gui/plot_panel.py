@@ -249,12 +249,12 @@ class PlotWindow(QMainWindow):
         )
         self.centre_edit = QLineEdit()
         self.centre_edit.setEnabled(False)
-        self.centre_edit.setPlaceholderText("x y (blank: S1's origin)")
+        self.centre_edit.setPlaceholderText("x y (blank: scanner S1)")
         self.centre_edit.setToolTip(
             "The plot centre, x and y in the reference scan's coordinates as trees.csv "
             "gives positions (world coordinates for a georeferenced scan); blank: "
-            "their origin, the reference scanner of a scan in its own frame. Used at "
-            "the next Run."
+            "where the reference's scanner stood (as an E57 or PTX file says, else "
+            "the file's origin). Used at the next Run."
         )
         self.radius_spin.valueChanged.connect(
             lambda r: self.centre_edit.setEnabled(r > 0)
@@ -478,8 +478,8 @@ class PlotWindow(QMainWindow):
         if not (math.isfinite(x) and math.isfinite(y)):
             raise InvalidInput(
                 "the plot centre takes x and y separated by a space, with decimal "
-                "points, as trees.csv gives positions; or nothing for the origin of "
-                "the reference scan (its scanner)."
+                "points, as trees.csv gives positions; or nothing for the reference "
+                "scanner."
             )
         PlotArea((x, y), radius)  # refuses what amrst plot would
         return radius, (x, y)

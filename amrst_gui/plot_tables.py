@@ -66,11 +66,13 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             "reference"
             if k == 0
             else "not placed"
+            if not scan.placed
+            else "placed (the file does not say where its scanner stood)"
             if scan.xy is None
             else f"at {scan.xy[0]:.1f}, {scan.xy[1]:.1f} m"
         )
         # Only a placed scan the registration was not sure of says its state.
-        unsure = scan.xy is not None and scan.status in (NEEDS_REVIEW, ACCEPTED)
+        unsure = scan.placed and scan.status in (NEEDS_REVIEW, ACCEPTED)
         state = f", {scan.status}" if unsure else ""
         lines.append(
             f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems{state}"

@@ -88,8 +88,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         nargs=2,
         metavar=("X", "Y"),
         help="the plot's centre in the reference scan's coordinates, as trees.csv "
-        "gives positions (default: their origin, the scanner of a scan in its own "
-        "frame)",
+        "gives positions (default: where the reference's scanner stood, as an E57 "
+        "or PTX file says, else the file's origin)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 

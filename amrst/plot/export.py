@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
-from amrst.plot.inventory import TREE_COLUMNS
+from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
 from amrst.plot.review import PlotReview, followed, read_review, write_review
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
     from amrst.plot.stand import PlotArea
-    from amrst.types import Cloud
+    from amrst.types import Cloud, Transform
 
 PLOT_JSON = "plot.json"
 TREES_CSV = "trees.csv"
@@ -209,7 +209,9 @@ def plot_document(
     ``unsure_links`` are the links, as ``[target, source]``, whose review the scan
     waits for (None: no one link to check, ``graph.scan_doubts``).
     ``T_reference_scan`` maps the scan's file coordinates into the reference's (world
-    coordinates when the files carry an offset), as ``amrst register`` writes it; a
+    coordinates when the files carry an offset), as ``amrst register`` writes it;
+    ``scanner_xyz`` is where the scan's scanner stood in the reference's file
+    coordinates (None: not placed, or a georeferenced file that does not say); a
     link's ``T_target_source`` its source's into its target's. A link placed from
     point pairs names their file (``pairs_files``, keyed by the scans as its target
     and source points, from 0) as ``pairs``: the next run can place it again.
@@ -255,6 +257,7 @@ def plot_document(
                     if pose is None
                     else world_transform(pose, reference, cloud).tolist()
                 ),
+                "scanner_xyz": _scanner_xyz(cloud, pose, reference),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
                 "unsure_links": None
@@ -282,6 +285,13 @@ def plot_document(
         "trees": len(inventory.trees),
         "timings_s": {k: round(v, 3) for k, v in reg.timings.items()},
     }
+
+
+def _scanner_xyz(
+    cloud: Cloud, pose: Transform | None, reference: Cloud
+) -> list[float] | None:
+    at = scanner_in_reference(cloud, pose)
+    return None if at is None else [float(v) for v in at + reference.offset]
 
 
 def write_states(

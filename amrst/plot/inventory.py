@@ -252,10 +252,36 @@ def _seen_from(stem_map: StemMap, scan: np.ndarray, k: int) -> tuple[int, ...]:
     return tuple(int(s) + 1 for s in np.flatnonzero(counts >= SEEN_POINTS))
 
 
+def scanner_at(cloud: Cloud) -> np.ndarray | None:
+    """(3,) where the scanner stood, in the cloud's local frame; None when unknown.
+
+    A multi-scan file (E57, PTX) says where (``meta["scanner_origin"]``, in the
+    file's coordinates), whether its scans were read posed or not. Any other scan is
+    taken to be in its scanner's frame when its origin lies within its points'
+    horizontal extent, as an unregistered export is; a georeferenced file that does
+    not say is unknown.
+    """
+    said = cloud.meta.get("scanner_origin")
+    if said is not None and len(said) == 3:
+        return np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
+    if cloud.offset.any() or not len(cloud.xyz):
+        return None
+    lo, hi = cloud.xyz[:, :2].min(axis=0), cloud.xyz[:, :2].max(axis=0)
+    return np.zeros(3) if bool(np.all(lo <= 0) and np.all(hi >= 0)) else None
+
+
+def scanner_in_reference(cloud: Cloud, pose: Transform | None) -> np.ndarray | None:
+    """(3,) the scanner of a scan placed by ``pose``, in the reference's local frame."""
+    at = scanner_at(cloud)
+    if pose is None or at is None:
+        return None
+    return np.asarray(pose[:3, :3] @ at + pose[:3, 3], dtype=float)
+
+
 def _scanner_reach(
     clouds: Sequence[Cloud], poses: Sequence[Transform | None]
 ) -> list[tuple[np.ndarray, float]]:
-    """Each placed scan's position (its local origin, reference frame) and range.
+    """Each placed scan's scanner (reference frame) and range, where it is known.
 
     The range is the 99.9th percentile of its points' distances from the scanner,
     over about ``REACH_POINTS`` of them (:func:`amrst.sampling.strided`): a 10M-point
@@ -263,11 +289,12 @@ def _scanner_reach(
     """
     out = []
     for cloud, pose in zip(clouds, poses, strict=True):
-        if pose is None or not len(cloud.xyz):
+        at = scanner_at(cloud)
+        if pose is None or at is None or not len(cloud.xyz):
             continue
-        every = strided(cloud.xyz, REACH_POINTS)
+        every = strided(cloud.xyz, REACH_POINTS) - at
         reach = float(np.percentile(np.linalg.norm(every, axis=1), 99.9))
-        out.append((np.asarray(pose[:3, 3], dtype=float), reach))
+        out.append((np.asarray(pose[:3, :3] @ at + pose[:3, 3], dtype=float), reach))
     return out
 
 

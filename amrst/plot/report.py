@@ -32,8 +32,8 @@ STATE_RGB = {
     "needs review": "#ffb300",
     "failed": "#f44336",
 }
-#: A scan whose file origin maps this far from every tree is not drawn (its file
-#: is georeferenced: the origin is no scanner position).
+#: A scanner this far from every tree is not drawn (an older plot.json gives the
+#: file origin, which a georeferenced file holds far away).
 SCAN_REACH_M = 60.0
 #: Large (georeferenced) coordinates are drawn from a round origin, in these steps.
 ORIGIN_STEP_M = 100.0
@@ -122,13 +122,15 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
 
 
 def _scan_xy(doc: Mapping[str, Any], trees: np.ndarray) -> dict[int, np.ndarray]:
-    """Where each placed scan's file origin lands, when among the trees."""
+    """Where each placed scan's scanner stood, when known and among the trees."""
+    from amrst.plot.view import scanner_position
+
     out = {}
     for k, scan in enumerate(doc["scans"]):
-        T = scan.get("T_reference_scan")
-        if T is None:
+        at = scanner_position(scan)
+        if at is None:
             continue
-        p = np.asarray(T, float)[:2, 3]
+        p = at[:2]
         near = not len(trees) or np.hypot(*(trees - p).T).min() <= SCAN_REACH_M
         if near:
             out[k] = p

@@ -73,7 +73,8 @@ def run_plot(
     plot_radius_m, plot_centre : float or None, (float, float) or None
         A fixed-radius plot: the stand figures count the trees inside, per hectare.
         The centre is in the reference scan's file coordinates, as ``trees.csv``
-        gives positions; without one, their origin (the scanner, for a scan in its
+        gives positions; without one, where the reference's scanner stood (an E57 or
+        PTX file says; any other file: its origin, the scanner of a scan in its
         scanner's frame).
     reporter : Reporter
 
@@ -98,6 +99,8 @@ def run_plot(
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
     if area is not None:
+        if plot_centre is None:
+            area = _at_scanner(area, clouds[0])
         _check_centre(area, clouds[0], labels[0], given=plot_centre is not None)
     added = read_review(out, labels).added  # before minutes of work, as check_out
     reporter.check_cancelled()
@@ -171,6 +174,18 @@ def _plot_area(
         return None
     x, y = (0.0, 0.0) if centre is None else centre
     return PlotArea((float(x), float(y)), float(radius_m))
+
+
+def _at_scanner(area: PlotArea, reference: Cloud) -> PlotArea:
+    """Return the plot centred where the reference's scanner stood, if its file says."""
+    from amrst.plot.inventory import scanner_at
+    from amrst.plot.stand import PlotArea
+
+    at = scanner_at(reference)
+    if at is None:
+        return area
+    x, y = (at + reference.offset)[:2]
+    return PlotArea((float(x), float(y)), area.radius_m)
 
 
 def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) -> None:

@@ -1,7 +1,7 @@
 """What a plot's results keep for the app to draw (``view.npz``).
 
 Each tree's stem slices and a sample of its points (its side view), the top view and
-each scan's offset; where the scans stood follows from plot.json's poses.
+each scan's offset; where the scanners stood is plot.json's (:func:`scanner_position`).
 
 A run writes it beside plot.json and trees.csv (``plot.export.write_plot``), so a
 plot's results open in the app without running it again, whether the app or
@@ -12,7 +12,7 @@ files' coordinates less the reference's offset (``offsets[reference]``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from amrst.errors import InvalidInput
 from amrst.plot.diameter import BREAST_HEIGHT_M
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from pathlib import Path
 
     from amrst.plot.inventory import Inventory
@@ -320,3 +320,15 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
         profiles=profiles,
         top=top,
     )
+
+
+def scanner_position(scan: Mapping[str, Any]) -> np.ndarray | None:
+    """(3,) where a plot.json scan's scanner stood, the reference's file coordinates.
+
+    A plot.json written before ``scanner_xyz`` existed gives the scan's file origin.
+    """
+    if "scanner_xyz" in scan:
+        at = scan["scanner_xyz"]
+        return None if at is None else np.asarray(at, dtype=float)
+    T = scan.get("T_reference_scan")
+    return None if T is None else np.asarray(T, dtype=float).reshape(4, 4)[:3, 3]

@@ -269,6 +269,48 @@ def test_a_top_cut_by_the_scanner_range_is_flagged() -> None:
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
 
 
+def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood() -> (
+    None
+):
+    stems = ((4.0, 0.0, 0.15, 14.0), (-3.0, 2.0, 0.12, 5.0), (0.0, -4.0, 0.1, 4.0))
+    xyz = scan((0.0, 0.0), stems, 7)
+    xyz = xyz[np.linalg.norm(xyz, axis=1) <= 10.0]  # the scanner's range
+    # The same scan posed into a project frame, as an E57 reader gives it.
+    at = np.array([40.0, -25.0, 3.0])
+    posed = Cloud(xyz + at, meta={"scanner_origin": tuple(at)})
+    inv = take_inventory([posed], [np.eye(4)])
+    flags = {round(float(t.xyz[0] - at[0])): t.stem.height_flag for t in inv.trees}
+    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+
+
+def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
+    plot_pair, tmp_path: Path
+) -> None:
+    from amrst.io.e57 import write_e57
+    from amrst.plot.view import scanner_position
+
+    target, source, T_true = plot_pair
+    # Each scan in its scanner's frame, posed into georeferenced coordinates.
+    world = np.eye(4)
+    world[:3, 3] = (512_000.0, 5_403_000.0, 310.0)
+    stood = np.eye(4)
+    stood[:3, 3] = (-2.0, 0.0, 0.0)  # the target's scanner in the plot fixture
+    scans = [Cloud(target.xyz - stood[:3, 3]), source]
+    e57 = tmp_path / "plot.e57"
+    write_e57(e57, scans, [world @ stood, world @ T_true])
+    out = tmp_path / "out"
+    assert (
+        plot_main([str(e57), "--out", str(out), "--quiet", "--plot-radius", "8"]) == 0
+    )
+    doc = json.loads((out / "plot.json").read_text())
+    at = [scanner_position(s) for s in doc["scans"]]
+    assert np.allclose(at[0], world[:3, 3] + (-2.0, 0.0, 0.0), atol=1e-6)
+    assert np.allclose(at[1], (world @ T_true)[:3, 3], atol=0.05)
+    # Without --plot-centre the plot is centred on the reference's scanner.
+    area = doc["plot_area"]
+    assert (area["centre_x_m"], area["centre_y_m"]) == pytest.approx(tuple(at[0][:2]))
+
+
 def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:
     """A whole cylinder of bark points (2 cm apart) from ``z0`` to ``z1``."""
     theta = np.linspace(0, 2 * np.pi, int(2 * np.pi * r / 0.02), endpoint=False)
