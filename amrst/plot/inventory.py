@@ -257,17 +257,14 @@ def scanner_at(cloud: Cloud) -> np.ndarray | None:
 
     A multi-scan file (E57, PTX) says where (``meta["scanner_origin"]``, in the
     file's coordinates), whether its scans were read posed or not. Any other scan is
-    taken to be in its scanner's frame when its origin lies within its points'
-    horizontal extent, as an unregistered export is; a georeferenced file that does
-    not say is unknown.
+    taken to be in its scanner's frame, as an unregistered export is (a scan cropped
+    to the plot need not surround its origin); a georeferenced one (an offset) that
+    does not say is unknown.
     """
     said = cloud.meta.get("scanner_origin")
     if said is not None and len(said) == 3:
         return np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
-    if cloud.offset.any() or not len(cloud.xyz):
-        return None
-    lo, hi = cloud.xyz[:, :2].min(axis=0), cloud.xyz[:, :2].max(axis=0)
-    return np.zeros(3) if bool(np.all(lo <= 0) and np.all(hi >= 0)) else None
+    return None if cloud.offset.any() else np.zeros(3)
 
 
 def scanner_in_reference(cloud: Cloud, pose: Transform | None) -> np.ndarray | None:
