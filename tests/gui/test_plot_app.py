@@ -750,3 +750,18 @@ def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
     axis, seen = across(np.zeros(2), np.vstack([upright, top]))
     assert np.allclose(axis, [0.0, 1.0], atol=0.1)
     assert seen == "seen with its top to the right"
+
+
+def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
+    from amrst_gui.plot_jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot_tables import scan_lines
+
+    scans = (
+        ScanPlace("a.laz", np.zeros(2), 5, "registered"),
+        ScanPlace("b.laz", None, 4, "registered"),  # georeferenced, no scanner
+        ScanPlace("c.laz", None, 3, "failed", None, placed=False),
+    )
+    o = PlotOutcome(Path("."), ("a", "b", "c"), (), scans, (), 0.01, (), None, 1.0)
+    lines = scan_lines(o)
+    assert "placed (the file does not say where its scanner stood)" in lines[1]
+    assert "not placed" in lines[2]
