@@ -17,7 +17,8 @@ Each scan is a 10-line header and then ``columns * rows`` point lines::
 Points without a return (all coordinates exactly 0) are dropped. Intensity is kept as
 written (0..1), colour as ``red``/``green``/``blue`` uint8. Poses come from the 4x4
 matrix; a file whose matrix is the identity but whose scanner position is not (some
-exporters write points already registered) keeps its points as they are.
+exporters write points already registered) keeps its points as they are, and its
+scanner where the header puts it.
 """
 
 from __future__ import annotations
@@ -44,8 +45,11 @@ _HEADER_LINES = 10
 class _Scan:
     """Where one scan's lines are, and its header values."""
 
-    def __init__(self, start: int, n: int, T: np.ndarray, width: int) -> None:
+    def __init__(
+        self, start: int, n: int, T: np.ndarray, width: int, scanner: np.ndarray
+    ) -> None:
         self.start, self.n, self.T, self.width = start, n, T, width
+        self.scanner = scanner  # (3,) the header's scanner position
 
 
 def _numbers(line: str, count: int, path: Path, line_no: int) -> list[float]:
@@ -83,7 +87,8 @@ def _index(lines: list[str], path: Path) -> list[_Scan]:
                 f"{path}, line {pos + 1}: the scan size {cols:g} x {rows:g} is not "
                 "two whole numbers. The file is corrupt or not a PTX file."
             )
-        for k in range(2, 6):
+        scanner = np.array(_numbers(lines[pos + 2], 3, path, pos + 3))
+        for k in range(3, 6):
             _numbers(lines[pos + k], 3, path, pos + k + 1)
         M = np.array(
             [_numbers(lines[pos + k], 4, path, pos + k + 1) for k in range(6, 10)]
@@ -102,7 +107,7 @@ def _index(lines: list[str], path: Path) -> list[_Scan]:
                 f"{path}, line {start + 1}: a PTX point line has 3, 4 or 7 numbers "
                 f"(x y z [intensity [r g b]]), found {width}."
             )
-        scans.append(_Scan(start, n, T, width))
+        scans.append(_Scan(start, n, T, width, scanner))
         pos = start + n
     return scans
 
@@ -173,9 +178,12 @@ def read_raw_scans(
                 for j, name in enumerate(("red", "green", "blue")):
                     attributes[name] = np.clip(pts[:, 4 + j], 0, 255).astype(np.uint8)
             meta = {"scan_index": i, "n_no_return": int((~keep).sum())}
-            out.append(
-                (i, posed_raw(pts[:, :3], scans[i].T, attributes, meta, posed=posed))
-            )
+            raw = posed_raw(pts[:, :3], scans[i].T, attributes, meta, posed=posed)
+            if np.allclose(scans[i].T, np.eye(4)) and scans[i].scanner.any():
+                # Points written already registered: the scanner is the header's.
+                where = tuple(float(v) for v in scans[i].scanner)
+                raw = raw._replace(meta={**raw.meta, "scanner_origin": where})
+            out.append((i, raw))
         return out
 
     result: list[tuple[int, RawCloud]] = guarded(path, LABEL, run)

@@ -10,7 +10,8 @@ Each scan is read *posed* (its points moved by the pose the file stores, so the 
 one file line up, in georeferenced coordinates when the poses are) or, with
 ``posed=False``, in the scanner's own frame. Either way the cloud's ``meta`` keeps
 ``pose`` (the stored 4x4 ``T_world_scanner``, row-major nested tuples),
-``scanner_origin`` (where the scanner stood in the cloud's frame) and ``scan_index``.
+``scanner_origin`` (where the scanner stood, in the file's coordinates: the cloud's
+world frame) and ``scan_index``.
 Large coordinates are split into ``offset`` + small local values, as every reader does,
 so georeferenced scans keep millimetres.
 """

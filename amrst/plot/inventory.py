@@ -257,14 +257,18 @@ def scanner_at(cloud: Cloud) -> np.ndarray | None:
 
     A multi-scan file (E57, PTX) says where (``meta["scanner_origin"]``, in the
     file's coordinates), whether its scans were read posed or not. Any other scan is
-    taken to be in its scanner's frame, as an unregistered export is (a scan cropped
-    to the plot need not surround its origin); a georeferenced one (an offset) that
-    does not say is unknown.
+    taken to be in its scanner's frame, its scanner at the file's origin, as an
+    unregistered export is (a scan cropped to the plot need not surround it); a
+    georeferenced one (an offset over ``LARGE_COORD_M``) that does not say is unknown.
     """
+    from amrst.io.common import LARGE_COORD_M
+
     said = cloud.meta.get("scanner_origin")
     if said is not None and len(said) == 3:
         return np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
-    return None if cloud.offset.any() else np.zeros(3)
+    if np.abs(cloud.offset).max() > LARGE_COORD_M:
+        return None
+    return np.asarray(-cloud.offset, dtype=float)
 
 
 def scanner_in_reference(cloud: Cloud, pose: Transform | None) -> np.ndarray | None:

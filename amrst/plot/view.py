@@ -325,10 +325,16 @@ def _view(data: dict[str, np.ndarray]) -> PlotView:
 def scanner_position(scan: Mapping[str, Any]) -> np.ndarray | None:
     """(3,) where a plot.json scan's scanner stood, the reference's file coordinates.
 
-    A plot.json written before ``scanner_xyz`` existed gives the scan's file origin.
+    A plot.json written before ``scanner_xyz`` existed gives the scan's file origin,
+    unless that lies in georeferenced coordinates (not known then).
     """
+    from amrst.io.common import LARGE_COORD_M
+
     if "scanner_xyz" in scan:
         at = scan["scanner_xyz"]
         return None if at is None else np.asarray(at, dtype=float)
     T = scan.get("T_reference_scan")
-    return None if T is None else np.asarray(T, dtype=float).reshape(4, 4)[:3, 3]
+    if T is None:
+        return None
+    origin = np.asarray(T, dtype=float).reshape(4, 4)[:3, 3]
+    return None if np.abs(origin).max() > LARGE_COORD_M else origin

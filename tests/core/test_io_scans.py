@@ -81,6 +81,18 @@ def test_ptx_drops_points_without_return(tmp_path):
     assert cloud.meta["n_no_return"] == 1
 
 
+def test_ptx_written_registered_keeps_its_scanner_where_the_header_puts_it(tmp_path):
+    # An identity matrix and a scanner position: the points are already registered.
+    head = ["3", "1", "5 6 1.5", "1 0 0", "0 1 0", "0 0 1"]
+    head += ["1 0 0 0", "0 1 0 0", "0 0 1 0", "0 0 0 1"]
+    points = ["6 6 1.5 0.5", "5 7 2 0.5", "4 6 1 0.5"]
+    (tmp_path / "r.ptx").write_text("\n".join(head + points) + "\n")
+    for posed in (True, False):
+        (cloud,) = read_scans(tmp_path / "r.ptx", posed=posed)
+        np.testing.assert_allclose(cloud.world_xyz[0], (6, 6, 1.5))
+        assert cloud.meta["scanner_origin"] == (5.0, 6.0, 1.5)
+
+
 def test_spec_syntax():
     assert split_spec("a/plot.e57#0, 2") == (split_spec("a/plot.e57")[0], (0, 2))
     assert split_spec("tree.laz")[1] is None

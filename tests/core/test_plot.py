@@ -281,6 +281,11 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
     inv = take_inventory([posed], [np.eye(4)])
     flags = {round(float(t.xyz[0] - at[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+    # A LAS file in its scanner's frame with a header offset: the file's origin.
+    shifted = Cloud(xyz + (20.0, 20.0, 0.0), offset=np.array([-20.0, -20.0, 0.0]))
+    inv = take_inventory([shifted], [np.eye(4)])
+    flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
+    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
 
 
 def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
