@@ -282,7 +282,8 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
     flags = {round(float(t.xyz[0] - at[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
     # A LAS file in its scanner's frame with a header offset: the file's origin.
-    shifted = Cloud(xyz + (20.0, 20.0, 0.0), offset=np.array([-20.0, -20.0, 0.0]))
+    shift = np.array([20.0, 20.0, 0.0])
+    shifted = Cloud(xyz + shift, offset=-shift)
     inv = take_inventory([shifted], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
