@@ -290,12 +290,12 @@ def _scanner_reach(
     """
     out = []
     for cloud, pose in zip(clouds, poses, strict=True):
-        at = scanner_at(cloud)
-        if pose is None or at is None or not len(cloud.xyz):
+        at, where = scanner_at(cloud), scanner_in_reference(cloud, pose)
+        if at is None or where is None or not len(cloud.xyz):
             continue
         every = strided(cloud.xyz, REACH_POINTS) - at
         reach = float(np.percentile(np.linalg.norm(every, axis=1), 99.9))
-        out.append((np.asarray(pose[:3, :3] @ at + pose[:3, 3], dtype=float), reach))
+        out.append((where, reach))
     return out
 
 

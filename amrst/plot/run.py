@@ -177,7 +177,7 @@ def _plot_area(
 
 
 def _at_scanner(area: PlotArea, reference: Cloud) -> PlotArea:
-    """Return the plot centred where the reference's scanner stood, if its file says."""
+    """Return the plot centred where the reference's scanner stood, when known."""
     from amrst.plot.inventory import scanner_at
     from amrst.plot.stand import PlotArea
 
