@@ -45,7 +45,11 @@ class ScanPlace:
     status: str
     # The unsure links its pose rests on (None: none a person can clear).
     doubts: frozenset[tuple[int, int]] | None = frozenset()
-    placed: bool = True
+
+    @property
+    def placed(self) -> bool:
+        """Whether the registration placed the scan (only a failed one it did not)."""
+        return self.status != FAILED
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,7 +181,6 @@ def open_results(
             ScanPlace(
                 label=scan["label"],
                 xy=_scan_xy(scan, at),
-                placed=scan["T_reference_scan"] is not None,
                 stems=int(scan["stems"]),
                 status=scan["status"],
                 doubts=None

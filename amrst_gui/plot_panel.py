@@ -467,10 +467,11 @@ class PlotWindow(QMainWindow):
         if radius <= 0:
             return None
         text = self.centre_edit.text().strip().removeprefix("(").removesuffix(")")
+        text = text.strip()  # "( 1 2 )"
         if not text:
             return radius, None
         # A space between x and y, a comma only before one: "12,5" is no pair.
-        words = re.split(r"\s*,\s+|\s+", text.strip())
+        words = re.split(r"\s*,\s+|\s+", text)
         try:
             x, y = (float(w) for w in words)
         except ValueError:

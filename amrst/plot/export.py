@@ -70,10 +70,14 @@ def trees_csv(
     area: PlotArea | None = None,
 ) -> str:
     """Return trees.csv: one row per tree, the columns of ``INVENTORY_COLUMNS``."""
+    return _csv_text(inventory_rows(trees, review or PlotReview(), area))
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
     buf = _stdio.StringIO()
     writer = csv.DictWriter(buf, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(inventory_rows(trees, review or PlotReview(), area))
+    writer.writerows(rows)
     return buf.getvalue()
 
 
@@ -83,7 +87,7 @@ def write_inventory(
     """Write trees.csv (and trees.xlsx) again with this review, as one unit."""
     from amrst.files.outdir import replace_files
 
-    writers = _inventory_writers(trees, review, area)
+    writers = _inventory_writers(inventory_rows(trees, review, area))
     written, _ = replace_files(out, writers, managed=MANAGED)
     return written
 
@@ -107,7 +111,7 @@ def export_inventory(
         )
     if not path.parent.is_dir():
         raise InvalidInput(f"Cannot write {path}: its folder does not exist.")
-    writers = _inventory_writers(trees, review, area)
+    writers = _inventory_writers(inventory_rows(trees, review, area))
     name = TREES_CSV if suffix == ".csv" else TREES_XLSX
     if name not in writers:
         raise InvalidInput(
@@ -373,7 +377,8 @@ def write_plot(
     doc["review_lost"] = lost  # the review that found no tree at this run
     doc["plot_area"] = None if area is None else area.as_dict()
     doc, _ = strict_json(doc)
-    writers = _inventory_writers(inventory.trees, review, area)
+    rows = inventory_rows(inventory.trees, review, area)
+    writers = _inventory_writers(rows)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
     if write_trees:
@@ -386,7 +391,7 @@ def write_plot(
     if report:
         from amrst.plot.report import build_report
 
-        page = build_report(doc, inventory_rows(inventory.trees, review, area))
+        page = build_report(doc, rows)
         writers[REPORT] = lambda p: p.write_text(page)
     # Files of an earlier run that this one does not write again no longer match it;
     # the tree clouds are the ones named by a tree id, other files there stay.
@@ -450,16 +455,15 @@ def _hand(review: PlotReview, tree: Tree) -> float | str:
 
 
 def _inventory_writers(
-    trees: Sequence[Tree], review: PlotReview, area: PlotArea | None
+    rows: Sequence[Mapping[str, Any]],
 ) -> dict[str, Callable[[Path], object]]:
     """trees.csv's writer, and trees.xlsx's when openpyxl is installed."""
     from amrst.files.atomic import xlsx_book
 
-    text = trees_csv(trees, review, area)
+    text = _csv_text(rows)
     writers: dict[str, Callable[[Path], object]] = {
         TREES_CSV: lambda p: p.write_text(text)
     }
-    rows = inventory_rows(trees, review, area)
     book = xlsx_book("trees", INVENTORY_COLUMNS, rows)
     if book is not None:
         writers[TREES_XLSX] = book.save

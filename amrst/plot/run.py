@@ -163,7 +163,10 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
 def _plot_area(
     radius_m: float | None, centre: tuple[float, float] | None
 ) -> PlotArea | None:
-    """Return the fixed-radius plot asked for, its centre by default the origin."""
+    """Check the fixed-radius plot asked for before any scan is read.
+
+    Without a centre it stands at the origin until :func:`_at_scanner` moves it.
+    """
     from amrst.plot.stand import PlotArea
 
     if radius_m is None:

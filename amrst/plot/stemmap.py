@@ -90,9 +90,11 @@ class StemMapParams:
     dbh_low_m: float = 1.25  # the DBH slice, above the local ground
     dbh_high_m: float = 1.35
     circle_inlier_m: float = 0.01
-    # DBH quality: ok needs all three. The arc (360 deg less the widest gap between
-    # the circle's points) as 3DFin's default of 9 of 16 sectors: a circle whose points
-    # leave half the stem or more unseen in one piece is not held on both sides.
+    # DBH quality: ok needs the arc, the residual and the outlier share below, and
+    # the slice circles on one taper line (taper_misfits). The arc (360 deg less the
+    # widest gap between the circle's points) as 3DFin's default of 9 of 16 sectors:
+    # a circle whose points leave half the stem or more unseen in one piece is not
+    # held on both sides.
     ok_arc_deg: float = 202.5
     # A stem wider than wide_stem_m seen over less than wide_arc_deg gets no DBH: a
     # wide stem's section is seldom round, and a short arc of it does not fix the circle.
@@ -451,13 +453,7 @@ def _given_tree(
     return replace(
         fit.stem,
         height_m=top[2] - fit.stem.base[2],
-        height_flag=(
-            "not measured"
-            if not n_top
-            else "lean"
-            if _top_lean_deg(top, fit.stem.base) > params.top_lean_flag_deg
-            else "ok"
-        ),
+        height_flag=_height_flag(fit.stem, top, n_top, params),
         crown_width_m=crown,
         n_points=int(mine.sum()),
     )
@@ -606,14 +602,7 @@ def _as_tree(
     return replace(
         stem,
         height_m=top_h,
-        height_flag=(
-            "top not seen"
-            if n_top < params.min_top_points
-            else "lean"
-            if stem.lean_deg > params.lean_flag_deg
-            or _top_lean_deg(top, stem.base) > params.top_lean_flag_deg
-            else "ok"
-        ),
+        height_flag=_height_flag(stem, top, n_top, params),
         crown_width_m=crown,
         n_points=int(mine.sum()),
     )
@@ -873,7 +862,16 @@ def _top_and_crown(tree: np.ndarray) -> tuple[np.ndarray, float, int]:
     return top, m.crown_width_m, n_top
 
 
-def _top_lean_deg(top: np.ndarray, base: np.ndarray) -> float:
-    """Degrees from the vertical of the line from the stem's foot to the tree's top."""
-    off = float(np.hypot(top[0] - base[0], top[1] - base[1]))
-    return float(np.degrees(np.arctan2(off, top[2] - base[2])))
+def _height_flag(
+    stem: StemRecord, top: np.ndarray, n_top: int, params: StemMapParams
+) -> str:
+    """Flag a tree's height (``StemMapParams``' height flags), found or given."""
+    if not n_top:
+        return "not measured"
+    if n_top < params.min_top_points:
+        return "top not seen"
+    off = float(np.hypot(top[0] - stem.base[0], top[1] - stem.base[1]))
+    top_lean = float(np.degrees(np.arctan2(off, top[2] - stem.base[2])))
+    if stem.lean_deg > params.lean_flag_deg or top_lean > params.top_lean_flag_deg:
+        return "lean"
+    return "ok"

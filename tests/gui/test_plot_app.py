@@ -759,7 +759,7 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
     scans = (
         ScanPlace("a.laz", np.zeros(2), 5, "registered"),
         ScanPlace("b.laz", None, 4, "registered"),  # georeferenced, no scanner
-        ScanPlace("c.laz", None, 3, "failed", None, placed=False),
+        ScanPlace("c.laz", None, 3, "failed", None),
     )
     o = PlotOutcome(Path("."), ("a", "b", "c"), (), scans, (), 0.01, (), None, 1.0)
     lines = scan_lines(o)
