@@ -17,14 +17,21 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from amrst import __version__
-from amrst.errors import AmrstError, Cancelled, InvalidInput, RegistrationFailed
+from amrst.errors import (
+    EXIT_CANCELLED,
+    EXIT_INPUT,
+    EXIT_NOT_REGISTERED,
+    AmrstError,
+    Cancelled,
+    InvalidInput,
+    RegistrationFailed,
+)
 from amrst.terminal import TerminalReporter
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.pipeline.register import RegistrationResult
 
-EXIT_INPUT, EXIT_FAILED, EXIT_CANCELLED = 2, 3, 130
 EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
 LOW_CONFIDENCE = 0.3
 
@@ -221,11 +228,11 @@ def _cmd_register(args: argparse.Namespace) -> int:
             f'"verified": false. Next: {verdict.next_step}',
             file=sys.stderr,
         )
-        return EXIT_FAILED
+        return EXIT_NOT_REGISTERED
     if verdict.status != REGISTERED:
         print(f"  WARNING: {verdict.text()}", file=sys.stderr)
-    else:
-        print(f"  verdict: {verdict.text()}")
+        return EXIT_NOT_REGISTERED
+    print(f"  verdict: {verdict.text()}")
     return 0
 
 
@@ -443,7 +450,7 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_CANCELLED
     except RegistrationFailed as exc:
         print(f"Registration failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_NOT_REGISTERED
     except Exception as exc:  # last line of defence: never a raw traceback for users
         message, code = _explain(exc, args)
         if message is None:

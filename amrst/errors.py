@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+#: Exit codes of every ``amrst`` command: bad input (one line says what to change); a
+#: result that is not *registered* (failed, or needs review: check it before use);
+#: cancelled.
+EXIT_INPUT, EXIT_NOT_REGISTERED, EXIT_CANCELLED = 2, 3, 130
+
 
 class AmrstError(Exception):
     """Base class: a message a user can act on (what is wrong, what to do)."""

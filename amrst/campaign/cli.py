@@ -10,12 +10,12 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from amrst.errors import EXIT_NOT_REGISTERED
+
 if TYPE_CHECKING:
     import argparse
 
     from amrst.campaign.manifest import Campaign
-
-EXIT_FAILED = 3
 
 
 class TerminalBar:
@@ -194,7 +194,7 @@ def _export(campaign: Campaign, cloud_format: str) -> int:
             "No tree is accepted yet: accept trees first "
             "(amrst campaign decide DIR TREE accepted)."
         )
-    return EXIT_FAILED if errors else 0
+    return EXIT_NOT_REGISTERED if errors else 0
 
 
 def configure_batch(p: argparse.ArgumentParser) -> None:
@@ -272,4 +272,4 @@ def run_batch_cli(args: argparse.Namespace) -> int:
     )
     for tree_id, error in summary.errors.items():
         print(f"  {tree_id}: {error}", file=sys.stderr)
-    return EXIT_FAILED if summary.errors else 0
+    return EXIT_NOT_REGISTERED if summary.errors else 0

@@ -13,6 +13,8 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
+from amrst.errors import EXIT_NOT_REGISTERED
+
 if TYPE_CHECKING:
     import argparse
     from pathlib import Path
@@ -21,8 +23,6 @@ if TYPE_CHECKING:
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
-
-EXIT_FAILED = 3
 
 
 def read_specs(specs: list[str]) -> tuple[list[Cloud], list[str]]:
@@ -120,13 +120,14 @@ def run_register(
             "that they show the same tree, or review the links in amrst-gui.",
             file=sys.stderr,
         )
-        return EXIT_FAILED
+        return EXIT_NOT_REGISTERED
     if result.status != REGISTERED:
         print(
             f"  WARNING: {result.status}: the weakest link has confidence "
             f"{result.confidence:.2f}; compare the links in amrst-gui.",
             file=sys.stderr,
         )
+        return EXIT_NOT_REGISTERED
     return 0
 
 

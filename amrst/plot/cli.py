@@ -16,13 +16,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from amrst.errors import EXIT_INPUT, EXIT_NOT_REGISTERED
+
 if TYPE_CHECKING:
     import argparse
 
     from amrst.plot.stand import PlotArea
-
-EXIT_BAD_INPUT = 2
-EXIT_NOT_REGISTERED = 3
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -125,7 +124,7 @@ def run_cli(args: argparse.Namespace) -> int:
         )
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return EXIT_INPUT
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
     named: dict[str, list[str]] = {

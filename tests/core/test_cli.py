@@ -154,7 +154,7 @@ def test_unregistrable_pair_exits_3_and_marks_files_unverified(
 ) -> None:
     # A box of random points is not the same tree: no transform may be reported as found.
     from amrst import io
-    from amrst.cli import EXIT_FAILED
+    from amrst.errors import EXIT_NOT_REGISTERED
     from amrst.types import Cloud
 
     rng = np.random.default_rng(5)
@@ -172,7 +172,7 @@ def test_unregistrable_pair_exits_3_and_marks_files_unverified(
         ]
     )
     err = capsys.readouterr().err
-    assert rc == EXIT_FAILED
+    assert rc == EXIT_NOT_REGISTERED
     assert "Traceback" not in err
     assert "Registration failed" in err
     if (out / "transform.json").exists():  # written for inspection, never as a success

@@ -74,3 +74,31 @@ def test_a_bad_pairs_file_is_one_line_and_exit_2(tmp_path, sample_pair, capsys):
     assert code == 2
     assert "target_x" in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_pose_that_needs_review_exits_3(tmp_path, sample_pair, capsys) -> None:
+    # Pairs picked 30 cm off and no fine stage: a pose close enough to look right but
+    # not verified; a script must not take it as registered.
+    src = sample_pair.source.xyz + sample_pair.source.offset
+    picked = src[[0, len(src) // 3, 2 * len(src) // 3, len(src) - 1]]
+    T = sample_pair.T_true
+    write_pairs(
+        tmp_path / "pairs.csv", picked @ T[:3, :3].T + T[:3, 3] + (0.3, 0, 0), picked
+    )
+    params = tmp_path / "params.json"
+    params.write_text(
+        '{"schema_version": 1, "fine": {"method": "none"}, "coarse": {"polish_top": 0}}'
+    )
+    code = _register(
+        str(sample_pair.target_path),
+        str(sample_pair.source_path),
+        "--out",
+        str(tmp_path / "out"),
+        "--pairs",
+        str(tmp_path / "pairs.csv"),
+        "--params",
+        str(params),
+    )
+    err = capsys.readouterr().err
+    assert "Needs review" in err
+    assert code == 3
