@@ -15,6 +15,7 @@ from PySide6.QtWidgets import (
     QFileDialog,
     QMainWindow,
     QMessageBox,
+    QTabBar,
     QTabWidget,
 )
 
@@ -194,6 +195,7 @@ class MainWindow(QMainWindow):
             self.restoreState(self._default_state)
         for dock in self.docks.values():
             dock.show()
+        QTimer.singleShot(0, self, self._hide_stray_tab_bars)
 
     # ------------------------------------------------------------ dialogs
     def open_scan_dialog(self, role: str) -> None:
@@ -404,6 +406,10 @@ class MainWindow(QMainWindow):
         )
         self.addDockWidget(area, dock)
         self.docks[key] = dock
+        for moved in (dock.dockLocationChanged, dock.topLevelChanged):
+            moved.connect(
+                lambda *_: QTimer.singleShot(0, self, self._hide_stray_tab_bars)
+            )
         return dock
 
     def _restore_settings(self) -> bool:
@@ -427,6 +433,23 @@ class MainWindow(QMainWindow):
                 self._default_sizes()
             self._default_state = self.saveState()
             QTimer.singleShot(0, self.tabs, self._warm_up_views)
+        QTimer.singleShot(0, self, self._hide_stray_tab_bars)
+
+    def _hide_stray_tab_bars(self) -> None:
+        """Hide the dock tab bars Qt leaves drawn over the docks after a layout change.
+
+        Qt 6 keeps the tab bar of a tab group it rebuilt visible where it was; the one
+        in use lies along the edge of its current dock, a stray one does not.
+        """
+        docks = {d.windowTitle(): d for d in self.docks.values()}
+        for bar in self.findChildren(
+            QTabBar, options=Qt.FindChildOption.FindDirectChildrenOnly
+        ):
+            if bar.isHidden():
+                continue
+            dock = docks.get(bar.tabText(bar.currentIndex()))
+            if dock is None or dock.isFloating() or not _along(bar, dock):
+                bar.hide()
 
     def _warm_up_views(self) -> None:
         """Set OpenGL up in the other tabs' views before any scan (gl_warmup)."""
@@ -490,3 +513,11 @@ class MainWindow(QMainWindow):
             for view in self.views():  # before the widgets go (pyvistaqt#846)
                 view.close_view()
         super().closeEvent(event)
+
+
+def _along(bar: QTabBar, dock: QDockWidget) -> bool:
+    """Whether ``bar`` lies along the top or bottom edge of ``dock`` (2 px slack)."""
+    b, d = bar.geometry(), dock.geometry()
+    overlaps = b.left() < d.right() and d.left() < b.right()
+    touches = abs(b.top() - d.bottom() - 1) <= 2 or abs(d.top() - b.bottom() - 1) <= 2
+    return overlaps and touches
