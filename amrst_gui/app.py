@@ -1,4 +1,5 @@
-"""Application set-up: GL format and shared contexts before QApplication, settings."""
+"""Application set-up: GL format and shared contexts before QApplication, settings,
+window sizes."""
 
 from __future__ import annotations
 
@@ -8,12 +9,13 @@ from typing import cast
 
 from PySide6.QtCore import QCoreApplication, QSettings, Qt
 from PySide6.QtGui import QSurfaceFormat
-from PySide6.QtWidgets import QApplication
+from PySide6.QtWidgets import QApplication, QWidget
 
 from amrst.resources import resource_path
 
 ORGANIZATION = "AMRST"
 APPLICATION = "AMRST Studio"
+FRAME_PX = 40  # a window manager's title bar and frame, left free by fit_screen
 
 
 def sample_dir() -> Path:
@@ -67,3 +69,18 @@ def app_settings() -> QSettings:
     return QSettings(
         QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANIZATION, APPLICATION
     )
+
+
+def fit_screen(window: QWidget, width: int, height: int) -> None:
+    """Size ``window`` to width x height, or maximise it where that does not fit.
+
+    Maximised, not resized to the screen's free area: the window manager's title
+    bar would push the bottom rows and the status bar off the screen.
+    """
+    screen = window.screen().availableGeometry() if window.screen() else None
+    if screen is None:
+        window.resize(width, height)
+        return
+    window.resize(min(width, screen.width()), min(height, screen.height()))
+    if width > screen.width() or height + FRAME_PX > screen.height():
+        window.setWindowState(window.windowState() | Qt.WindowState.WindowMaximized)

@@ -29,6 +29,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
+from amrst_gui.panels.verdict_style import ERROR_STYLE
+
 EXPORT_PARTS = (
     ("registered", "Registered source cloud", "The source moved into the target frame"),
     (
@@ -193,7 +195,7 @@ class ExportDialog(QDialog):
         form.addRow("Folder:", row)
         form.addRow("Cloud format:", self.format_combo)
         self.problem = QLabel("")
-        self.problem.setStyleSheet("color: #c00000;")
+        self.problem.setStyleSheet(ERROR_STYLE)
         self.buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
         )

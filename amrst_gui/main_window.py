@@ -22,7 +22,7 @@ from PySide6.QtWidgets import (
 from amrst.resources import resource_path
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
-from amrst_gui.app import app_settings
+from amrst_gui.app import app_settings, fit_screen
 from amrst_gui.pacing import DRAW_GAP_MS
 from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
@@ -161,12 +161,8 @@ class MainWindow(QMainWindow):
         self.scans_area.files_dropped.connect(self._on_files_dropped)
 
     def _fit_screen(self) -> None:
-        """Open at 1500x950 or the screen's free area, whichever is smaller."""
-        screen = self.screen().availableGeometry() if self.screen() else None
-        w, h = 1500, 950
-        if screen is not None:
-            w, h = min(w, screen.width()), min(h, screen.height())
-        self.resize(w, h)
+        """Open at 1500x950, or maximised on a smaller screen."""
+        fit_screen(self, 1500, 950)
 
     # ------------------------------------------------------------- public
     def views(self) -> list:

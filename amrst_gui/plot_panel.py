@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QCheckBox,
     QDoubleSpinBox,
@@ -59,6 +60,8 @@ from amrst.plot.review import (
 from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui import plot_jobs
+from amrst_gui.app import fit_screen
+from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot_tables import (
     LINK_COLUMNS,
     ROW_PX,
@@ -66,7 +69,6 @@ from amrst_gui.plot_tables import (
     fill,
     grey_outside,
     link_rows,
-    number,
     scan_lines,
     table,
     tree_rows,
@@ -166,8 +168,9 @@ class PlotWindow(QMainWindow):
         self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
         self.links.itemSelectionChanged.connect(self._update_link_buttons)
-        if parent is not None:  # the main window already fits the screen
-            self.resize(parent.size())
+        for key, step in (("N", 1), ("P", -1)):  # the next / previous tree
+            QShortcut(QKeySequence(key), self, lambda step=step: self.step_tree(step))
+        fit_screen(self, 1500, 950)
 
     def _build_side(self) -> QWidget:
         side = QWidget()
@@ -185,6 +188,7 @@ class PlotWindow(QMainWindow):
         )
         self.run_button.clicked.connect(self.run)
         self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setToolTip("Stop the running plot; nothing is written (Esc)")
         self.cancel_button.setEnabled(False)
         self.cancel_button.clicked.connect(self.cancel)
         self.cloud_check = QCheckBox("plot.laz")
@@ -210,6 +214,10 @@ class PlotWindow(QMainWindow):
             "★: in the spanning tree that places the scans."
         )
         self.trees = table(TREE_COLUMNS, "plot_trees")
+        self.trees.setToolTip(
+            "Every tree listed: click one to see it. Keys: N / P the next / previous "
+            "tree; O mark ok, C mark check, X not a tree, Del clear the mark."
+        )
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
         folder.addWidget(choose)
@@ -285,7 +293,7 @@ class PlotWindow(QMainWindow):
         self.add_button.setToolTip(
             "A tree the list misses: click where its stem stands on the stem map (the "
             "grey shows the vegetation). Run plot measures a tree there and lists it "
-            "as H and a number. Click a cross again to take it back."
+            "as H and a number. Click a cross again to take it back; Esc ends adding."
         )
         self.add_button.toggled.connect(self.stem_map.set_adding)
         head = QHBoxLayout()
@@ -615,6 +623,22 @@ class PlotWindow(QMainWindow):
         if self.trees.currentRow() != k:
             self.trees.selectRow(k)
 
+    def step_tree(self, step: int) -> None:
+        """Select the tree ``step`` rows below the selected one in the list."""
+        n = self.trees.rowCount()
+        if n:
+            row = self.trees.currentRow()
+            self.select_tree(min(max(row + step, 0), n - 1) if row >= 0 else 0)
+
+    def keyPressEvent(self, event) -> None:
+        """Esc cancels a running plot, else leaves Add tree (what no child took)."""
+        if event.key() == Qt.Key.Key_Escape and self.job is not None:
+            self.cancel()
+        elif event.key() == Qt.Key.Key_Escape and self.add_button.isChecked():
+            self.add_button.setChecked(False)
+        else:
+            super().keyPressEvent(event)
+
     def set_mark(self, tree_id: str, mark: str) -> None:
         """Mark a tree (``amrst.plot.review.MARKS``; "" clears); write the review and
         trees.csv."""
@@ -850,7 +874,11 @@ class PlotWindow(QMainWindow):
             f"{len(o.trees)} trees; {len(o.labelled(REGISTERED))} of "
             f"{len(o.scans)} scans registered"
             + (f", {len(accepted)} accepted by you" if accepted else "")
-            + f", bundle error {number(o.bundle_rmse_m * 100, '.1f')} cm"
+            + (
+                f", bundle error {o.bundle_rmse_m * 100:.1f} cm"
+                if math.isfinite(o.bundle_rmse_m)
+                else ", no bundle error (no two scans placed together)"
+            )
         )
         review, missing = o.labelled(NEEDS_REVIEW), o.missing
         if review:
@@ -860,7 +888,11 @@ class PlotWindow(QMainWindow):
                 + " (check its links)"
             )
         if missing:
-            line += ". Not placed: " + ", ".join(Path(m).name for m in missing)
+            line += (
+                ". Not placed: "
+                + ", ".join(Path(m).name for m in missing)
+                + " (select its link, Open pair, pick point pairs, then Use pairs…)"
+            )
         return line + self._stand_text()
 
     def _stand_text(self) -> str:
@@ -1013,7 +1045,7 @@ class PlotWindow(QMainWindow):
 
     def _say(self, text: str, error: bool = False) -> None:
         self.status.setText(text)
-        self.status.setStyleSheet("color: #ff8a80;" if error else "")
+        self.status.setStyleSheet(ERROR_STYLE if error else "")
         (log.warning if error else log.info)("%s", text)
 
     def closeEvent(self, event) -> None:

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from amrst.plot.review import PlotReview
     from amrst_gui.plot_jobs import PlotOutcome
 
-TREE_COLUMNS = ("Tree", "DBH cm", "DBH", "Height m", "Height", "Mark")
+TREE_COLUMNS = ("Tree", "DBH cm", "DBH quality", "Height m", "Height flag", "Mark")
 LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6.QtCore import Signal
+from PySide6.QtGui import QKeySequence
 from PySide6.QtWidgets import (
     QButtonGroup,
     QFormLayout,
@@ -193,19 +194,26 @@ class TreePanel(QWidget):
     def _mark_row(self) -> QHBoxLayout:
         self.buttons = {}
         row = QHBoxLayout()
-        for mark, text, tip in (
-            ("ok", "Mark ok", "The tree and its figures are right"),
-            ("check", "Mark check", "Something is wrong here: look again in the field"),
+        for mark, text, key, tip in (
+            ("ok", "Mark ok", "O", "The tree and its figures are right"),
+            (
+                "check",
+                "Mark check",
+                "C",
+                "Something is wrong here: look again in the field",
+            ),
             (
                 NOT_A_TREE,
                 "Not a tree",
+                "X",
                 "A shrub, a pole, a branch or a neighbour's part listed as a tree: it "
                 "stays in trees.csv, marked so",
             ),
-            ("", "Clear", "Remove your mark"),
+            ("", "Clear", "Del", "Remove your mark"),
         ):
             button = QPushButton(text)
-            button.setToolTip(tip)
+            button.setShortcut(QKeySequence(key))  # the window's, not typed text
+            button.setToolTip(f"{tip} ({key})")
             button.setEnabled(False)
             button.clicked.connect(lambda _=False, m=mark: self._mark(m))
             row.addWidget(button)

@@ -158,13 +158,18 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
-        f'<p class="headline">{len(rows)} trees; scans: {_e(counts)}</p>'
+        f'<p class="headline">{_count(len(rows), "tree")}; scans: {_e(counts)}</p>'
         f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
-        f"at the final poses); {checked} trees marked check, {dropped} marked not a "
-        f"tree and {by_hand} DBHs measured by you.</p>"
+        f"at the final poses); {_count(checked, 'tree')} marked check, {dropped} "
+        f"marked not a tree and {_count(by_hand, 'DBH')} measured by you.</p>"
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
         + "</div>"
     )
+
+
+def _count(n: int, noun: str) -> str:
+    """``n`` and the noun, plural unless one: "1 tree", "3 trees"."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
@@ -182,14 +187,16 @@ def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
         cx, cy = area.centre_xy
         where = (
             f" within {area.radius_m:g} m of ({cx:.2f}, {cy:.2f}), "
-            f"{area.hectares:.4f} ha, {st.outside} listed trees outside left out"
+            f"{area.hectares:.4f} ha, {_count(st.outside, 'listed tree')} outside "
+            "left out"
         )
         per_ha = (
             f" ({st.trees_per_ha:.0f} stems/ha, {st.basal_area_m2_per_ha:.1f} m²/ha)"
         )
         edge = ""
     return (
-        f"<p>Stand{_e(where)}: {st.trees} trees, {st.with_dbh} with a DBH; basal "
+        f"<p>Stand{_e(where)}: {_count(st.trees, 'tree')}, {st.with_dbh} with a "
+        "DBH; basal "
         f"area {st.basal_area_m2:.3f} m²{per_ha}, quadratic mean DBH "
         f"{_cm(st.qmd_m)}; {height} (trees marked not a tree left out, your DBHs "
         f"used{edge}).</p>"

@@ -28,6 +28,7 @@ from amrst_gui.panels.param_editors import (
     make_editor,
     set_editor_value,
 )
+from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.panels.wheel_guard import WheelGuard
 
 _GROUP_TITLES = {
@@ -142,7 +143,7 @@ class ParamsPanel(QWidget):
             params = self.draft()
         except (ValueError, TypeError) as exc:
             self.state.setText(f"Not applied: {exc}")
-            self.state.setStyleSheet("color: #c00000;")
+            self.state.setStyleSheet(ERROR_STYLE)
             return
         self.params_applied.emit(params)
         self._set_dirty(False)
@@ -164,7 +165,7 @@ class ParamsPanel(QWidget):
             params = params_io.load_preset(name)
         except AmrstError as exc:
             self.state.setText(f"Preset '{name}' not loaded: {exc}")
-            self.state.setStyleSheet("color: #c00000;")
+            self.state.setStyleSheet(ERROR_STYLE)
             return
         self.show_params(params)
         self._set_dirty(True, f"Preset '{name}' loaded into the form: press Apply.")

@@ -7,7 +7,7 @@ from PySide6.QtGui import QPainter
 from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar, QWidget
 
 from amrst_gui import steps
-from amrst_gui.panels.verdict_style import verdict_style
+from amrst_gui.panels.verdict_style import ERROR_STYLE, verdict_style
 
 
 class ElidedLabel(QLabel):
@@ -83,7 +83,7 @@ class WorkflowStatusBar(QStatusBar):
 
         Text too long for the bar ends in "…"; the tooltip always holds all of it.
         """
-        self.message.setStyleSheet("color: #c00000;" if error else "")
+        self.message.setStyleSheet(ERROR_STYLE if error else "")
         self.message.setText(text)
         self.message.setToolTip(f"{text}\n\n{detail}" if detail else text)
 

@@ -1,4 +1,4 @@
-"""Colours of the verdict, the same in every panel (status bar, Matches, Metrics)."""
+"""Colours of the verdict and of errors, the same in every panel and window."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ _STYLE = {
     "needs review": "color: #9a6200;",
     "failed": "color: #c00000;",
 }
+#: An error message: dark red, readable on the light panels.
+ERROR_STYLE = _STYLE["failed"]
 
 
 def verdict_style(status: str) -> str:

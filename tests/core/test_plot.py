@@ -178,7 +178,7 @@ def test_inventory_columns_and_the_command(
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
-    assert "1 trees marked check, 0 marked not a tree and 1 DBHs measured" in page
+    assert "1 tree marked check, 0 marked not a tree and 1 DBH measured" in page
     assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
     assert "no gap wider than 157.5° round the stem" in page  # what the flags say

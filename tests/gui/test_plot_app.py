@@ -201,7 +201,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert opened == [out / "report.html"]
     assert plot.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
-    assert "1 trees marked check, 0 marked not a tree and 0 DBHs measured by you" in (
+    assert "1 tree marked check, 0 marked not a tree and 0 DBHs measured by you" in (
         opened[0].read_text()
     )
     cell = plot.trees.item(k, 5)
@@ -215,6 +215,8 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert cell.text() == "not a tree"
     plot.tree_panel.buttons[""].click()
     assert read_review(out, o.labels).marks == {}
+    _review_by_keys(qtbot, plot, out)
+    plot.select_tree(k)
     _measure_by_hand(plot, k, out)
 
     # Another run into the same folder asks first; "keep it" runs nothing.
@@ -231,6 +233,40 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert not plot.busy
     assert "keeps its plot" in plot.status.text()
     _add_a_tree(qtbot, plot, out, monkeypatch)
+
+
+def _review_by_keys(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
+    """N / P walk the tree list, O / C / X mark the tree shown, Del clears."""
+    o = plot.outcome
+    assert o is not None
+
+    def marks_become(marks: dict[str, str]) -> None:  # a button's key clicks it soon
+        qtbot.waitUntil(lambda: read_review(out, o.labels).marks == marks)
+
+    plot.activateWindow()
+    qtbot.waitUntil(plot.isActiveWindow)
+    plot.select_tree(0)
+    first, second = o.trees[0].tree_id, o.trees[1].tree_id
+    QTest.keyClick(plot.trees, Qt.Key.Key_N)
+    assert plot.tree_panel.tree_id == second
+    QTest.keyClick(plot.trees, Qt.Key.Key_O)
+    marks_become({second: "ok"})
+    QTest.keyClick(plot.trees, Qt.Key.Key_P)
+    QTest.keyClick(plot.trees, Qt.Key.Key_P)  # stays at the first
+    assert plot.tree_panel.tree_id == first
+    QTest.keyClick(plot.trees, Qt.Key.Key_X)
+    marks_become({first: "not a tree", second: "ok"})
+    QTest.keyClick(plot.trees, Qt.Key.Key_Delete)
+    marks_become({second: "ok"})
+    QTest.keyClick(plot.trees, Qt.Key.Key_N)
+    QTest.keyClick(plot.trees, Qt.Key.Key_Delete)
+    marks_become({})
+    plot.centre_edit.setEnabled(True)
+    plot.centre_edit.setFocus()  # typed into a field, a letter is text
+    QTest.keyClick(plot.centre_edit, Qt.Key.Key_C)
+    qtbot.wait(300)
+    assert read_review(out, o.labels).marks == {}
+    plot.centre_edit.clear()
 
 
 def _add_a_tree(
