@@ -103,6 +103,15 @@ def ask_scans(parent: QWidget, settings) -> list[str]:
     return sorted(paths)
 
 
+def _scanner_centre(o: PlotOutcome) -> tuple[float, float]:
+    """Where the reference's scanner stood (file coordinates), else the origin: the
+    plot centre ``amrst plot`` takes without ``--plot-centre``."""
+    xy = o.scans[0].xy if o.scans else None
+    if xy is None:
+        return (0.0, 0.0)
+    return (float(xy[0] + o.reference_at[0]), float(xy[1] + o.reference_at[1]))
+
+
 def _short(value: float) -> str:
     """A coordinate to the micrometre, without trailing zeros."""
     return f"{value:.6f}".rstrip("0").rstrip(".")
@@ -163,7 +172,7 @@ class PlotWindow(QMainWindow):
         split.setSizes([410, 600, 330])
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
-        self.stem_map.point_clicked.connect(self.add_tree)
+        self.stem_map.point_clicked.connect(self._on_map_point)
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
@@ -245,34 +254,47 @@ class PlotWindow(QMainWindow):
         return side
 
     def _build_area_row(self) -> QHBoxLayout:
-        """Plot radius and centre: the fixed-radius plot of the next run."""
+        """Plot radius and centre: the fixed-radius plot, applied to the shown plot."""
         self.radius_spin = QDoubleSpinBox()
         self.radius_spin.setRange(0.0, MAX_RADIUS_M)
         self.radius_spin.setDecimals(2)  # 5.64, 11.28, 12.62, 17.84 m plots
         self.radius_spin.setSuffix(" m")
         self.radius_spin.setSpecialValueText("no radius")
+        self.radius_spin.setKeyboardTracking(False)  # applied once the value is typed
         self.radius_spin.setToolTip(
             "A fixed-radius plot: the stand figures count the trees within this "
-            "distance of the plot centre, per hectare. Used at the next Run."
+            "distance of the plot centre, per hectare. It applies to the plot shown "
+            "at once (plot.json, trees.csv) and to the next Run."
         )
         self.centre_edit = QLineEdit()
-        self.centre_edit.setEnabled(False)
         self.centre_edit.setPlaceholderText("x y (blank: scanner S1)")
         self.centre_edit.setToolTip(
             "The plot centre, x and y in the reference scan's coordinates as trees.csv "
             "gives positions (world coordinates for a georeferenced scan); blank: "
             "where the reference's scanner stood (as an E57 or PTX file says, else "
-            "the file's origin). Used at the next Run."
+            "the file's origin). Enter applies it."
         )
-        self.radius_spin.valueChanged.connect(
-            lambda r: self.centre_edit.setEnabled(r > 0)
-        )
+        self.centre_button = QPushButton("On map")
+        self.centre_button.setCheckable(True)
+        self.centre_button.setToolTip("Click the plot centre on the stem map")
+        self.centre_button.toggled.connect(self._picking_centre)
+        self.radius_spin.valueChanged.connect(self._on_radius)
+        self.radius_spin.valueChanged.connect(self.apply_area)
+        self.centre_edit.editingFinished.connect(self.apply_area)
+        self._on_radius(0.0)
         row = QHBoxLayout()
         row.addWidget(QLabel("Plot radius"))
         row.addWidget(self.radius_spin)
         row.addWidget(QLabel("centre"))
         row.addWidget(self.centre_edit, 1)
+        row.addWidget(self.centre_button)
         return row
+
+    def _on_radius(self, radius: float) -> None:
+        for widget in (self.centre_edit, self.centre_button):
+            widget.setEnabled(radius > 0)
+        if radius <= 0:
+            self.centre_button.setChecked(False)
 
     def _build_tree_buttons(self) -> QHBoxLayout:
         """The trees' heading: Add tree, Report, Export inventory."""
@@ -295,7 +317,7 @@ class PlotWindow(QMainWindow):
             "grey shows the vegetation). Run plot measures a tree there and lists it "
             "as H and a number. Click a cross again to take it back; Esc ends adding."
         )
-        self.add_button.toggled.connect(self.stem_map.set_adding)
+        self.add_button.toggled.connect(self._adding_tree)
         head = QHBoxLayout()
         head.addWidget(QLabel("<b>Trees</b>"), 1)
         head.addWidget(self.add_button)
@@ -631,11 +653,14 @@ class PlotWindow(QMainWindow):
             self.select_tree(min(max(row + step, 0), n - 1) if row >= 0 else 0)
 
     def keyPressEvent(self, event) -> None:
-        """Esc cancels a running plot, else leaves Add tree (what no child took)."""
+        """Esc cancels a running plot, else ends a click on the map awaited (what no
+        child took)."""
+        picking = self.add_button.isChecked() or self.centre_button.isChecked()
         if event.key() == Qt.Key.Key_Escape and self.job is not None:
             self.cancel()
-        elif event.key() == Qt.Key.Key_Escape and self.add_button.isChecked():
+        elif event.key() == Qt.Key.Key_Escape and picking:
             self.add_button.setChecked(False)
+            self.centre_button.setChecked(False)
         else:
             super().keyPressEvent(event)
 
@@ -664,6 +689,61 @@ class PlotWindow(QMainWindow):
             dbh.pop(tree_id, None)
             done = f"{tree_id}: your DBH forgotten"
         self._review_trees(replace(self.review, dbh=dbh), done, "Your DBH")
+
+    def _adding_tree(self, on: bool) -> None:
+        if on:
+            self.centre_button.setChecked(False)
+        self.stem_map.set_adding(on or self.centre_button.isChecked())
+
+    def _picking_centre(self, on: bool) -> None:
+        if on:
+            self.add_button.setChecked(False)
+        self.stem_map.set_adding(on or self.add_button.isChecked())
+
+    def _on_map_point(self, x: float, y: float) -> None:
+        """A click on the map: the plot centre while picking it, else a tree added."""
+        if not self.centre_button.isChecked():
+            self.add_tree(x, y)
+            return
+        self.centre_button.setChecked(False)
+        o = self.outcome
+        if o is None:
+            return
+        at = (x + o.reference_at[0], y + o.reference_at[1])  # the file's coordinates
+        self.centre_edit.setText(" ".join(f"{v:.2f}" for v in at))
+        self.apply_area()
+
+    def apply_area(self) -> None:
+        """Give the plot shown the radius and centre of the fields, saved at once.
+
+        Only the stand figures and trees.csv's ``in_plot`` change: no run is needed.
+        """
+        from amrst.plot.export import PLOT_JSON, TREES_CSV, write_area
+
+        o = self.found
+        if o is None or self.busy:
+            return  # the next run takes the fields
+        try:
+            asked = self._area()
+            area = (
+                None
+                if asked is None
+                else PlotArea(asked[1] or _scanner_centre(o), asked[0])
+            )
+        except InvalidInput as exc:
+            self._say(f"Plot area not changed: {exc}", error=True)
+            return
+        if area == o.area:
+            return
+        try:
+            write_area(o.out, o.trees, self.review, area)
+        except (AmrstError, OSError) as exc:
+            self._say(f"Plot area not changed: {exc}", error=True)
+            return
+        self.found = replace(o, area=area)
+        self._show_review()
+        what = "No plot radius" if area is None else "Plot area changed"
+        self._say(f"{what} (saved in {PLOT_JSON} and {TREES_CSV}){self._stand_text()}")
 
     def add_tree(self, x: float, y: float) -> None:
         """Add a tree the technician says stands at (x, y) m, or take back the added
@@ -806,13 +886,18 @@ class PlotWindow(QMainWindow):
         self.found = outcome
         if opened:
             self._take_scans(list(outcome.labels))
+        centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
+        for widget in (self.radius_spin, self.centre_edit):
+            widget.blockSignals(True)  # the plot's own area, nothing to apply
         self.radius_spin.setValue(
             0.0 if outcome.area is None else outcome.area.radius_m
         )
-        centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
         self.centre_edit.setText(
             "" if centre == (0.0, 0.0) else " ".join(_short(v) for v in centre)
         )
+        for widget in (self.radius_spin, self.centre_edit):
+            widget.blockSignals(False)
+        self._on_radius(self.radius_spin.value())
         # What placed each link carries on to the next run.
         self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
         self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
@@ -902,7 +987,8 @@ class PlotWindow(QMainWindow):
             return ""
         st = stand(inventory_rows(o.trees, self.review, o.area), o.area)
         return (
-            f". Within {o.area.radius_m:g} m: {st.trees_per_ha:.0f} stems/ha, "
+            f". Within {o.area.radius_m:g} m: {st.trees} of {len(o.trees)} trees, "
+            f"{st.with_dbh} with a DBH: {st.trees_per_ha:.0f} stems/ha, "
             f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"
         )
 

@@ -333,6 +333,37 @@ def write_states(
     replace_files(out, {PLOT_JSON: lambda p: p.write_text(text)}, managed=MANAGED)
 
 
+def write_area(
+    out: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None
+) -> None:
+    """Give ``out``'s plot another fixed-radius plot (None: none), as one unit.
+
+    plot.json's ``plot_area`` and trees.csv's ``in_plot`` change; the rest stays what
+    the run wrote: the area counts trees, it moves none.
+
+    Raises
+    ------
+    InvalidInput
+        No readable plot.json in ``out``.
+    """
+    import json
+
+    from amrst.files.outdir import replace_files
+
+    path = out / PLOT_JSON
+    try:
+        doc = json.loads(path.read_text())
+        doc["plot_area"] = None if area is None else area.as_dict()
+    except (OSError, ValueError, TypeError) as exc:
+        raise InvalidInput(
+            f"{path} cannot take the plot area ({exc}); run the plot again."
+        ) from exc
+    text = _json_text(doc)
+    writers = _inventory_writers(inventory_rows(trees, review, area))
+    writers[PLOT_JSON] = lambda p: p.write_text(text)
+    replace_files(out, writers, managed=MANAGED)
+
+
 def write_plot(
     out: Path,
     reg: PlotRegistration,

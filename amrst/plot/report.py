@@ -25,7 +25,7 @@ REPORT = "report.html"
 #: Tree fills by DBH quality, the ring of the technician's mark and link colours by
 #: state: the report's and the app's stem map.
 QUALITY_RGB = {"ok": "#4caf50", "check": "#ffb300", "none": "#9e9e9e"}
-MARK_RGB = {"ok": "#ffffff", "check": "#f44336", "not a tree": "#9e9e9e"}
+MARK_RGB = {"ok": "#ffffff", "check": "#f44336", "not a tree": "#e040fb"}
 STATE_RGB = {
     "registered": "#4caf50",
     "accepted": "#26a69a",

@@ -6,7 +6,8 @@ technician's mark, with its id; the scan positions as triangles; the links betwe
 them coloured by their state (dashed: not in the spanning tree); the vegetation's
 density from above in grey under it all; the trees the technician added that no run
 has measured yet as crosses. A click on a tree emits ``tree_clicked``; while
-``adding``, a click anywhere emits ``point_clicked(x, y)`` in metres instead.
+``adding``, a click anywhere emits ``point_clicked(x, y)`` in metres instead. The
+wheel zooms about the cursor, a drag moves the map, a double click shows it whole.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ SAME_TREE_M = StemMapParams().same_stem_m
 #: The technician's trees and circles: a colour no scan has.
 HAND_RGB = (198, 255, 0)
 CLICK_PX = 12.0
+DRAG_PX = 4.0  # a press that moves farther is a drag of the map, not a click
+MAX_ZOOM = 40.0  # times the whole plot's scale: a 20 cm stem some 60 px wide
 LEGEND_PX = 44.0  # the legend's band at the top
 
 
@@ -71,17 +74,22 @@ class StemMapView(QWidget):
         self.adding = False
         self.selected: int | None = None
         self._image: QImage | None = None
+        self.zoom = 1.0  # times the scale that shows the whole plot
+        self._centre: np.ndarray | None = None  # (2,) m at the map's middle; None: fit
+        self._drag: tuple[QPointF, np.ndarray] | None = None  # press, centre then
         self.setToolTip(
             "The plot from above: each tree is its DBH circle to scale (yours where "
             "you measured it; green ok, amber check, grey no DBH), ringed white when "
             "marked ok, red when marked check, crossed when not a tree. Triangles are "
-            "the scan positions, lines the links. Click a tree."
+            "the scan positions, lines the links. Click a tree; the wheel zooms, a drag "
+            "moves the map, a double click shows it whole."
         )
 
     def set_plot(self, outcome: PlotOutcome | None) -> None:
         """Show ``outcome`` (None: nothing)."""
         self.outcome, self.selected = outcome, None
         self._image = None
+        self.zoom, self._centre = 1.0, None
         top = None if outcome is None else outcome.top
         if top is not None:
             # White with the density as alpha: empty cells show the background, so
@@ -131,10 +139,10 @@ class StemMapView(QWidget):
 
     def to_xy(self, x: float, y: float) -> tuple[float, float]:
         """Plot position (m) of the widget pixel (x, y)."""
-        scale, lo, pad = self._mapping()
+        scale, centre, mid = self._mapping()
         return (
-            float(lo[0] + (x - pad[0]) / scale),
-            float(lo[1] + (self.height() - y - pad[1]) / scale),
+            float(centre[0] + (x - mid[0]) / scale),
+            float(centre[1] + (self.height() - y - mid[1]) / scale),
         )
 
     def select(self, index: int | None) -> None:
@@ -162,7 +170,8 @@ class StemMapView(QWidget):
         return lo, hi
 
     def _mapping(self) -> tuple[float, np.ndarray, np.ndarray]:
-        """(pixels per m, lower-left corner, pixel offset) fitting the plot."""
+        """(pixels per m, the plot position at the map's middle, that middle in
+        pixels from the bottom left) at the zoom asked for."""
         lo, hi = self._extent()
         margin = 30.0
         size = np.maximum(hi - lo, 1.0)
@@ -170,17 +179,38 @@ class StemMapView(QWidget):
             (self.width() - 2 * margin) / size[0],
             (self.height() - LEGEND_PX - 2 * margin) / size[1],
         )
-        scale = max(scale, 1e-3)
-        pad = (np.array([self.width(), self.height() - LEGEND_PX]) - size * scale) / 2
-        return scale, lo, pad
+        scale = max(scale, 1e-3) * self.zoom
+        centre = lo + size / 2 if self._centre is None else self._centre
+        mid = np.array([self.width(), self.height() - LEGEND_PX]) / 2
+        return scale, centre, mid
 
     def to_px(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) plot positions (m) -> widget pixels."""
-        scale, lo, pad = self._mapping()
+        scale, centre, mid = self._mapping()
         xy = np.asarray(xy, float).reshape(-1, 2)
-        px = pad[0] + (xy[:, 0] - lo[0]) * scale
-        py = self.height() - (pad[1] + (xy[:, 1] - lo[1]) * scale)
+        px = mid[0] + (xy[:, 0] - centre[0]) * scale
+        py = self.height() - (mid[1] + (xy[:, 1] - centre[1]) * scale)
         return np.column_stack([px, py])
+
+    def zoom_at(self, x: float, y: float, factor: float) -> None:
+        """Zoom by ``factor`` keeping the plot position under pixel (x, y) there."""
+        if self.outcome is None:
+            return
+        held = np.array(self.to_xy(x, y))
+        self.zoom = float(np.clip(self.zoom * factor, 1.0, MAX_ZOOM))
+        if self.zoom == 1.0:
+            self._centre = None  # the whole plot again
+        else:
+            scale, _, mid = self._mapping()
+            self._centre = (
+                held - np.array([x - mid[0], self.height() - y - mid[1]]) / scale
+            )
+        self.update()
+
+    def show_whole(self) -> None:
+        """Show the whole plot again."""
+        self.zoom, self._centre = 1.0, None
+        self.update()
 
     def tree_at(self, x: float, y: float) -> int | None:
         """The tree drawn nearest the pixel (x, y), within its circle or a few px."""
@@ -202,15 +232,49 @@ class StemMapView(QWidget):
 
     # -------------------------------------------------------------- events
     def mousePressEvent(self, event) -> None:
-        if event.button() == Qt.MouseButton.LeftButton and self.adding:
-            pos = event.position()
-            self.point_clicked.emit(*self.to_xy(pos.x(), pos.y()))
-        elif event.button() == Qt.MouseButton.LeftButton:
-            pos = event.position()
-            k = self.tree_at(pos.x(), pos.y())
-            if k is not None:
-                self.tree_clicked.emit(k)
+        if event.button() == Qt.MouseButton.LeftButton and self.outcome is not None:
+            self._drag = (event.position(), self._mapping()[1].copy())
         super().mousePressEvent(event)
+
+    def mouseMoveEvent(self, event) -> None:
+        """A drag moves the map (once it has gone farther than a click's jitter)."""
+        if self._drag is not None:
+            start, centre = self._drag
+            dx, dy = (event.position() - start).toTuple()
+            if self._centre is not None or np.hypot(dx, dy) > DRAG_PX:
+                scale = self._mapping()[0]
+                self._centre = centre - np.array([dx, -dy]) / scale
+                self.update()
+        super().mouseMoveEvent(event)
+
+    def mouseReleaseEvent(self, event) -> None:
+        """A release where the press was is a click: a tree, or a point while adding."""
+        drag, self._drag = self._drag, None
+        if event.button() == Qt.MouseButton.LeftButton and drag is not None:
+            pos = event.position()
+            if np.hypot(*(pos - drag[0]).toTuple()) <= DRAG_PX:
+                self._click(pos.x(), pos.y())
+        super().mouseReleaseEvent(event)
+
+    def _click(self, x: float, y: float) -> None:
+        if self.adding:
+            self.point_clicked.emit(*self.to_xy(x, y))
+            return
+        k = self.tree_at(x, y)
+        if k is not None:
+            self.tree_clicked.emit(k)
+
+    def mouseDoubleClickEvent(self, event) -> None:
+        if not self.adding:
+            self.show_whole()
+        super().mouseDoubleClickEvent(event)
+
+    def wheelEvent(self, event) -> None:
+        steps = event.angleDelta().y() / 120.0
+        if steps:
+            pos = event.position()
+            self.zoom_at(pos.x(), pos.y(), 1.25**steps)
+        event.accept()
 
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
@@ -337,11 +401,12 @@ class StemMapView(QWidget):
 
     def _draw_scale(self, p: QPainter) -> None:
         scale = self._mapping()[0]
-        metres = next((m for m in (1, 2, 5, 10, 20, 50) if m * scale >= 60), 100)
+        steps = (0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50)
+        metres = next((m for m in steps if m * scale >= 60), 100)
         x0, y0 = 12.0, self.height() - 12.0
         p.setPen(QPen(TEXT, 2))
         p.drawLine(QPointF(x0, y0), QPointF(x0 + metres * scale, y0))
-        p.drawText(QPointF(x0, y0 - 5), f"{metres} m   (the reference scan's x, y)")
+        p.drawText(QPointF(x0, y0 - 5), f"{metres:g} m   (the reference scan's x, y)")
 
     def _has_area(self) -> bool:
         return self.outcome is not None and self.outcome.area is not None

@@ -172,6 +172,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
         QPoint(round(px[0, 0]), round(px[0, 1])),
     )
     assert "at 3 m" in plot.tree_panel.slice_view.note  # the height holds
+    _zoom_and_drag(plot)
     plot.select_tree(k)
 
     # A mark is saved beside the inventory at once, and read back with it.
@@ -233,6 +234,44 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert not plot.busy
     assert "keeps its plot" in plot.status.text()
     _add_a_tree(qtbot, plot, out, monkeypatch)
+
+
+def _zoom_and_drag(plot: PlotWindow) -> None:
+    """The wheel zooms about the cursor, a drag moves the map and selects nothing,
+    a double click shows the whole plot."""
+    from PySide6.QtCore import QPointF
+    from PySide6.QtGui import QWheelEvent
+    from PySide6.QtWidgets import QApplication
+
+    view, o = plot.stem_map, plot.outcome
+    assert o is not None
+    x, y = view.to_px(o.tree_xy[1])[0]
+    scale = view._mapping()[0]  # pixels per metre
+    at = QPointF(x, y)
+    wheel = QWheelEvent(
+        at,
+        view.mapToGlobal(at),
+        QPoint(0, 0),
+        QPoint(0, 240),  # two notches forward
+        Qt.MouseButton.NoButton,
+        Qt.KeyboardModifier.NoModifier,
+        Qt.ScrollPhase.NoScrollPhase,
+        False,
+    )
+    QApplication.sendEvent(view, wheel)
+    assert view.zoom == pytest.approx(1.25**2)
+    assert np.allclose(view.to_px(o.tree_xy[1])[0], (x, y), atol=0.5)  # held there
+    assert view._mapping()[0] == pytest.approx(scale * 1.25**2)
+    selected = view.selected
+    start, end = QPoint(round(x), round(y)), QPoint(round(x) + 40, round(y) + 30)
+    QTest.mousePress(view, Qt.MouseButton.LeftButton, pos=start)
+    QTest.mouseMove(view, end)
+    QTest.mouseRelease(view, Qt.MouseButton.LeftButton, pos=end)
+    assert np.allclose(view.to_px(o.tree_xy[1])[0], (x + 40, y + 30), atol=1.0)
+    assert view.selected == selected  # a drag is no click
+    QTest.mouseDClick(view, Qt.MouseButton.LeftButton, pos=end)
+    assert view.zoom == 1.0
+    assert np.allclose(view.to_px(o.tree_xy[1])[0], (x, y), atol=1e-6)
 
 
 def _review_by_keys(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
@@ -665,16 +704,18 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert sum(far) == 2  # of the six test stems
     for r, outside in enumerate(far):  # greyed in the table, and why
         assert ("outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
-    before = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
+    before = plot.status.text().split(": ")[-1].split(" stems/ha")[0]
+    assert "Within 6 m: 4 of 6 trees, 4 with a DBH: " in plot.status.text()
     k = far.index(False)
     plot.select_tree(k)
     plot.set_mark(o.trees[k].tree_id, "not a tree")  # one tree fewer per hectare
-    after = plot.status.text().split("Within 6 m: ")[1].split(" stems/ha")[0]
+    after = plot.status.text().split(": ")[-1].split(" stems/ha")[0]
     assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
     assert plot.centre_edit.text() == "1.5 -2"
     plot.radius_spin.setValue(8.0)
     assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
+    _area_applies_at_once(qtbot, plot, out)
     plot.centre_edit.setText("3, 4.25")
     assert plot._area() == (8.0, (3.0, 4.25))
     plot.centre_edit.setText("(512340.125, -2)")
@@ -695,12 +736,59 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     plot.radius_spin.setValue(0.0)
     assert not plot.centre_edit.isEnabled()
     assert plot._area() is None
+    assert plot.outcome is not None
+    assert plot.outcome.area is None  # no plot radius any more
+    assert json.loads((out / "plot.json").read_text())["plot_area"] is None
+    assert set(_in_plot(out)) == {""}
 
     again = run_plot(
         plot_files, tmp_path / "again", False, NULL_REPORTER, area=(8.0, None)
     )
     assert again.area is not None
     assert (again.area.radius_m, again.area.centre_xy) == (8.0, (0.0, 0.0))
+
+
+def _in_plot(out: Path) -> list[str]:
+    from amrst.plot.export import TREES_CSV
+
+    with (out / TREES_CSV).open() as fh:
+        return [r["in_plot"] for r in csv.DictReader(fh)]
+
+
+def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
+    """A radius or centre changed applies to the plot shown, no run: its edge, the
+    stand, plot.json and trees.csv; a centre clicked on the map; bad text refused."""
+    from amrst.plot.stand import PlotArea
+
+    o = plot.outcome
+    assert o is not None
+    area = PlotArea((1.5, -2.0), 8.0)
+    assert o.area == area
+    assert json.loads((out / "plot.json").read_text())["plot_area"] == area.as_dict()
+    assert _in_plot(out) == ["yes" if area.holds(t.row()) else "no" for t in o.trees]
+    assert "Within 8 m: " in plot.status.text()
+    plot.centre_button.click()  # then a click on the map is the centre
+    assert plot.stem_map.adding
+    x, y = plot.stem_map.to_px(np.subtract((2.0, 1.0), o.reference_at))[0]
+    QTest.mouseClick(
+        plot.stem_map,
+        Qt.MouseButton.LeftButton,
+        Qt.KeyboardModifier.NoModifier,
+        QPoint(round(x), round(y)),
+    )
+    assert not plot.stem_map.adding
+    assert plot.outcome.area is not None
+    assert np.allclose(plot.outcome.area.centre_xy, (2.0, 1.0), atol=0.1)
+    cx, cy = (float(v) for v in plot.centre_edit.text().split())
+    assert (cx, cy) == plot.outcome.area.centre_xy
+    assert json.loads((out / "plot.json").read_text())["plot_area"]["centre_x_m"] == cx
+    plot.centre_edit.setText("3 north")
+    plot.centre_edit.editingFinished.emit()
+    assert plot.status.text().startswith("Plot area not changed: the plot centre")
+    assert plot.outcome.area.centre_xy == (cx, cy)
+    plot.centre_edit.setText("1.5 -2")
+    plot.centre_edit.editingFinished.emit()
+    assert plot.outcome.area == area
 
 
 def test_a_review_file_that_cannot_be_read_is_never_written_over(
