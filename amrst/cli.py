@@ -1,4 +1,4 @@
-"""The ``amrst`` command: info, register, simulate, bench.
+"""The ``amrst`` command: ``info`` and ``register`` here, the rest in their modules.
 
 Every AmrstError becomes one clear line on stderr and a non-zero exit code; a traceback
 is shown only with --debug. A closed output pipe (``amrst info big.ply | head``) ends
@@ -405,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit code: 0 done, 1 internal error or closed output pipe, 2 unusable
-        input, 3 registration failed, 130 cancelled.
+        input, 3 not registered (failed or needs review; ``batch`` and ``campaign
+        export``: a tree stopped with an error), 130 cancelled (``amrst.errors``).
     """
     try:
         code = _main(argv)

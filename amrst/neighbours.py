@@ -1,7 +1,7 @@
 """Nearest-neighbour queries on small_gicp's compiled KD-trees.
 
 small_gicp is used rather than ``scipy.spatial.cKDTree`` because it imports fast and
-answered these clouds' queries faster. :func:`knn` builds a tree and finds the k
+answers these clouds' queries faster. :func:`knn` builds a tree and finds the k
 nearest of many points (the outlier filter, the wood features, the skeleton graph);
 :class:`NearestTree` keeps one tree for repeated queries (ICP correspondences, cloud
 metrics); :class:`NeighbourTable` shares one query between the per-scan stages.

@@ -506,7 +506,9 @@ class MainWindow(QMainWindow):
                     dock.hide()
             for dialog in self.findChildren(QDialog):  # messages, export, about
                 dialog.close()
-            for view in self.views():  # before the widgets go (pyvistaqt#846)
+            for (
+                view
+            ) in self.views():  # before the widgets go: VTK must not outlive them
                 view.close_view()
         super().closeEvent(event)
 

@@ -2,14 +2,14 @@
 # Set up a fresh Debian/Ubuntu machine for AMRST Studio, then run the app or the tests.
 #   bash packaging/bootstrap.sh app  [TARGET SOURCE]   -> opens the app (bundled sample by default)
 #   bash packaging/bootstrap.sh test [PYTEST ARGS]     -> runs the whole test suite headless
-# Idempotent: the second run skips what is already installed (a few seconds).
+# Idempotent: the second run skips what is already installed.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$here"
 mode="${1:-app}"; shift || true
 
 # System libraries Qt (xcb), VTK (GL) and open3d (libusb) need; Xvfb for headless use.
-# See shared notes: without libxcb-cursor0/icccm4/keysyms1 Qt aborts, without libusb open3d fails;
+# Without libxcb-cursor0/icccm4/keysyms1 Qt aborts, without libusb open3d fails;
 # gcc and python3-dev build python-lzf (compiled LZF for PCD), which has no wheel.
 apt_pkgs="xvfb xauth libgl1 libgl1-mesa-dri libglx-mesa0 libegl1 libegl-mesa0 libglib2.0-0 \
 libdbus-1-3 libfontconfig1 fonts-dejavu-core libx11-xcb1 libxkbcommon-x11-0 libxcb-cursor0 \

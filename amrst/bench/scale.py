@@ -194,7 +194,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "case_dir",
         metavar="CASE_DIR",
-        help="the case to densify (e.g. case 08); a plot case times amrst plot",
+        help="the case folder to densify (target.*, source.*, truth.json); a plot case "
+        "times amrst plot",
     )
     p.add_argument(
         "--points",

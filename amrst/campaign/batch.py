@@ -4,8 +4,9 @@ The same code runs on a :class:`distributed.LocalCluster` of worker processes (t
 default: ``workers`` processes, one thread each) and on an existing ``dask.distributed``
 scheduler given by address (workers started with ``dask worker ADDRESS`` on machines
 that see the campaign folder at the same path). Trees whose stamp matches are skipped;
-the others are submitted, and each finished tree updates the campaign table, so a batch
-killed at any moment loses only the trees in flight.
+the others are submitted. A finished tree's results are on disk, its stamp written
+last, and the campaign table is rewritten at most once a second while trees finish and
+once at the end, so a batch killed at any moment loses only the trees in flight.
 
 Trees go longest first, each with the threads its share of the cores allows, on
 workers that imported what a tree needs before the first one (``amrst.campaign.plan``).

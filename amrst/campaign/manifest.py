@@ -147,8 +147,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return doc
     except tomllib.TOMLDecodeError as exc:
         raise InvalidInput(
-            f"{path} is not valid TOML ({exc}). Fix that line (see the README's "
-            "campaign manifest format) or run amrst campaign init again."
+            f"{path} is not valid TOML ({exc}). Fix that line (see campaign.toml in "
+            "docs/multiscan-and-campaigns.md) or run amrst campaign init again."
         ) from exc
 
 
@@ -217,7 +217,8 @@ def manifest_text(campaign: Campaign) -> str:
     lines = [
         "# AMRST campaign: one [[tree]] table per tree; paths are relative to this folder.",
         "# Edit freely: scans (FILE.e57#k picks scan k of a file), reference (a scan",
-        "# or its number), stem = [X, Y], truth = a truth.json. See the README.",
+        "# or its number), stem = [X, Y], truth = a truth.json. The format: AMRST",
+        "# Studio's docs/multiscan-and-campaigns.md.",
         "",
         "[campaign]",
         f"name = {_toml_str(campaign.name)}",

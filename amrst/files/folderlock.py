@@ -29,7 +29,7 @@ from amrst.errors import InvalidInput
 if TYPE_CHECKING:
     from types import TracebackType
 
-try:  # POSIX; elsewhere writers are not kept apart (documented in the README)
+try:  # POSIX only; elsewhere two writers are not kept apart
     import fcntl
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]

@@ -204,8 +204,8 @@ def format_rows(
 ) -> Iterator[str]:
     """Yield text blocks of ``sep``-separated rows, one %-operation per chunk.
 
-    Formatting a whole chunk with one format string is about 5x faster than
-    ``np.savetxt``, which formats row by row.
+    One format string over a whole chunk is faster than ``np.savetxt``, which
+    formats row by row.
     """
     row = sep.join(formats) + "\n"
     n = len(columns[0]) if columns else 0

@@ -135,8 +135,8 @@ def _slabs(xyz: np.ndarray) -> list[np.ndarray]:
 def _merge_sorted(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distinct rows of ``xyz``, and (N,) bool: the row has an identical copy.
 
-    One lexsort (about 0.3 s per million points; ``np.unique(axis=0)`` takes
-    ten times longer).
+    One lexsort of the three columns: ``np.unique(axis=0)`` compares whole rows,
+    which is much slower.
     """
     order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
     ranked = xyz[order]

@@ -108,8 +108,8 @@ def _make_header(keys: dict[str, list[str]], n_lines: int, path: Path) -> _Heade
 def _lzf_decompress(data: bytes, expected: int) -> bytes:
     """Decompress LZF (liblzf format, as PCL uses for binary_compressed).
 
-    The compiled decoder of ``python-lzf`` when installed (about 1000x faster),
-    else a pure-Python one; both stop at ``expected`` bytes.
+    The compiled decoder of ``python-lzf`` when installed (far faster), else a
+    pure-Python one; both stop at ``expected`` bytes.
     """
     try:
         import lzf  # type: ignore[import-not-found]

@@ -208,7 +208,7 @@ def distinct_points(
     if len(xyz) == 0:
         return xyz, np.zeros(0, np.int64)
     cells = np.floor((xyz - xyz.min(axis=0)) / cell_m).astype(np.int64)
-    if cells.max() < 1 << 21:  # one int64 key per cell: a plain sort, 3x faster
+    if cells.max() < 1 << 21:  # one int64 key per cell: a plain sort, not a row sort
         cells = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]
         _, first, inverse = np.unique(cells, return_index=True, return_inverse=True)
     else:

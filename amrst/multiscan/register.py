@@ -7,7 +7,7 @@
 4. all poses are refined together (:mod:`amrst.multiscan.joint`).
 
 Two scans are the special case: :func:`register_scans` then runs
-:func:`amrst.pipeline.register` itself, and the result is today's pair result exactly.
+:func:`amrst.pipeline.register` itself, and the result is exactly the pair's result.
 """
 
 from __future__ import annotations

@@ -7,9 +7,9 @@ hands back the full fine fits it already made, by candidate id, so they are not 
 twice.
 
 To add a source: write ``wanted(ranked, params, centre) -> bool`` and
-``add(ranked, target, source, params, reporter) -> (CandidateList, {id: FineResult})``
-in a module of this package, give its candidates a new ``Origin``, and append a
-``CandidateSource`` to ``CANDIDATE_SOURCES``.
+``add(ranked, target, source, params, reporter, threads) -> (CandidateList,
+{id: FineResult})`` in a module of this package, give its candidates a new ``Origin``,
+and append a ``CandidateSource`` to ``CANDIDATE_SOURCES``.
 """
 
 from __future__ import annotations
@@ -49,8 +49,8 @@ class CandidateSource:
     ]
 
 
-# The feature matcher first: it is several times faster than the trunk search, which
-# is not needed when the feature matcher's pose verifies.
+# The feature matcher first: it costs less than the trunk search, which is not needed
+# when the feature matcher's pose verifies.
 CANDIDATE_SOURCES: tuple[CandidateSource, ...] = (
     CandidateSource(
         Origin.FEATURES,
@@ -74,7 +74,7 @@ def merge_same_solutions(ranked: CandidateList, centre: np.ndarray) -> Candidate
     kept: list[Candidate] = []
     # Each kept candidate's origins, and per origin the kept rows that lack it: a
     # candidate is compared with those rows alone (with the tetrahedron matches
-    # alone, none: the pairwise loop over 50-100 of them cost milliseconds).
+    # alone, none), so the list is not compared pair by pair.
     lacking: dict[Origin, list[int]] = {}
     for c in ranked.candidates:
         for k in lacking.get(c.origin, ()):

@@ -2,11 +2,10 @@
 
 ``lm_icp`` is the paper's section II.E: point-to-point residuals r_i = R p_i + t - q_π(i)
 on the leaf points, Levenberg-Marquardt steps (JᵀJ + λ D) Δx = -Jᵀe with D = diag(JᵀJ),
-correspondences re-found each iteration within a maximum distance. It is the default:
-on the 20 benchmark cases it registered 15 where point-to-plane on all points registered
-13, because trunks seen from two sides pull a fit on wood (or on everything) into a
-biased pose, as the paper observes. ``robust_plane`` (point-to-plane ICP with a Tukey
-kernel, Open3D) is the alternative for scans with little foliage.
+correspondences re-found each iteration within a maximum distance. It is the default,
+on the leaf points, because trunks seen from two sides pull a fit on wood (or on
+everything) into a biased pose, as the paper observes. ``robust_plane`` (point-to-plane
+ICP with a Tukey kernel, Open3D) is the alternative for scans with little foliage.
 """
 
 from __future__ import annotations

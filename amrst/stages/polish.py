@@ -170,12 +170,12 @@ def polish(
     """Run a short point-to-point ICP from B starts at once.
 
     Each iteration takes the closed-form ``fit`` step (Kabsch by default), at max_dist
-    and then a third of it (what Open3D's point-to-point ICP does; importing Open3D
-    would cost a second per command).
+    and then a third of it (what Open3D's point-to-point ICP does, without importing
+    Open3D into every command).
 
     Every start's points keep their partners in one :class:`NearestCache`: only the
     points that may have found another nearest target point since are queried again
-    (a third of the queries on the benchmark cases, the same partners bit for bit).
+    (the same partners bit for bit, for fewer queries).
     A start stops a scale when its step is below POLISH_STOP_M / POLISH_STOP_RAD, and
     stops for good when fewer than 6 of its points find a partner. ``tree`` is a
     KD-tree on ``tgt`` (``cKDTree`` or ``NearestTree``); ``Ts`` (B, 4, 4); returns the

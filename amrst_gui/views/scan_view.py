@@ -54,7 +54,7 @@ class ScanView(QWidget):
         super().__init__(parent)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        # auto_update=False: a closed window's timer froze the others (pyvistaqt#762).
+        # auto_update=False: pyvistaqt's update timer of a closed window froze the others.
         self.plotter = Interactor(self, auto_update=False, multi_samples=0)
         self.plotter.disable_anti_aliasing()
         # QtInteractor would add a dropped file to its scene; the pane handles drops.
@@ -245,7 +245,7 @@ class ScanView(QWidget):
         self.plotter.update()
 
     def close_view(self) -> None:
-        """Close the plotter (before the widget goes; pyvistaqt#846)."""
+        """Close the plotter before the widget goes (else VTK draws into a dead window)."""
         if not self._closed:
             self._closed = True
             self.plotter.close()

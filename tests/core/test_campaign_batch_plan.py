@@ -199,8 +199,9 @@ def _worker_env() -> dict[str, object]:
 
 @pytest.mark.slow
 def test_local_workers_keep_glibc_memory_trimming_as_amrst_register() -> None:
-    """Dask's 65536-byte trim threshold cost 12-13% more CPU per tree (page faults);
-    its profiler, sampling every 10 ms, about 3%."""
+    """Dask's 65536-byte trim threshold costs CPU on every tree (freed memory is
+    handed back and faulted in again), and so does its profiler, which samples every
+    task's stack: a local cluster turns both off."""
     from amrst.campaign.batch import _client
 
     if "MALLOC_TRIM_THRESHOLD_" in os.environ:

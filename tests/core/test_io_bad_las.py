@@ -1,8 +1,8 @@
 """Bad LAS/LAZ headers: counts that cannot fit, garbage after the signature, bad
 scales, data beyond the file, records that disagree with the header's bounds.
 
-Each is refused at once with an InvalidInput (laspy used to loop for minutes on some);
-odd but valid files still read. Split from test_io_bad_input.py.
+Each is refused at once with an InvalidInput (laspy alone can loop on some); odd but
+valid files still read.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def _valid_las(tmp_path, cloud: Cloud, ext: str = ".las") -> bytearray:
     return bytearray((tmp_path / f"valid{ext}").read_bytes())
 
 
-@pytest.mark.timeout(30)  # laspy used to loop for minutes on these
+@pytest.mark.timeout(30)  # laspy alone can loop on these
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 @pytest.mark.parametrize("n_vlrs", [0xFFFFFFFF, 1000])
 def test_las_vlr_count_that_cannot_fit_is_refused_at_once(

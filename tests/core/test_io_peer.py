@@ -1,8 +1,7 @@
 """Files written by other software (laspy's and PDAL's test data, tests/data/peer).
 
 Each file has the outcome it must give (tests/data/peer/expected.json): the point
-count its writer announced, or a refusal (exit 2, one line). The whole corpora are
-surveyed by docs/peer/survey.py.
+count its writer announced, or a refusal (exit 2, one line).
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from dense_clouds import dense_cloud
 
-# A read of this file takes 1.5-2 s on this machine without a check point, over
-# the 1 s a Cancel may take.
+# Big enough that reading it without a check point would take longer than the second
+# a Cancel may take.
 BIG = 3_000_000
 
 

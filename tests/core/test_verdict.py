@@ -70,8 +70,8 @@ def test_dict_form_for_the_files():
 
 
 def test_a_feature_matcher_pose_is_named_as_such() -> None:
-    """Field case 06 read "Candidate 1 from the tetrahedron matches" for a pose the
-    feature matcher found."""
+    """The verdict names the source that found the pose: the feature matcher, not the
+    tetrahedron matches."""
     from dataclasses import replace
 
     import numpy as np

@@ -1,8 +1,8 @@
 """Fixtures for the app tests: Qt set up before QApplication, isolated settings,
 a ``make_main_window`` factory that closes every view and checks for leaks.
 
-Run headless with pytest-xvfb and ``QT_QPA_PLATFORM=xcb`` (the only platform on
-which the QtInteractors draw; see shared/notes/headless-gui-testing.md).
+Run headless with pytest-xvfb and ``QT_QPA_PLATFORM=xcb``: it is the only Qt platform
+on which the QtInteractors draw (``offscreen`` does not support their QOpenGLWidget).
 """
 
 from __future__ import annotations
@@ -136,8 +136,8 @@ def _open_interactors() -> list:
 def _top_level_widgets(qapp) -> list:
     """``qapp.topLevelWidgets()``, widgets only. PySide keeps a wrapper per C++
     address; pyvistaqt holds its context's ``surface()`` (a QSurface, which PySide
-    cannot see deleted), and a new window at the address of a deleted surface
-    came back as that stale QSurface wrapper (one teardown error in a CI run)."""
+    cannot see deleted), so a new window at the address of a deleted surface can
+    come back as that stale QSurface wrapper."""
     from PySide6.QtWidgets import QWidget
 
     return [w for w in qapp.topLevelWidgets() if isinstance(w, QWidget)]
@@ -148,7 +148,8 @@ def make_main_window(qtbot, qapp):
     """Factory: ``make_main_window()`` -> a shown MainWindow registered with qtbot.
 
     At teardown every window is closed (which cancels and waits for a running
-    step and closes the plotters first, pyvistaqt#846), then nothing may be
+    step and closes the plotters first: a QtInteractor must be closed before its
+    widget is destroyed, else VTK touches a dead window), then nothing may be
     left: no running job, no open QtInteractor, no new visible top-level widget.
     """
     from amrst_gui.main_window import MainWindow

@@ -16,7 +16,7 @@ from amrst.types import local_transform
 
 def _failing_params(params):
     # Nothing verifies at 5 mm, and the trunk search is off: no candidate verifies,
-    # as on case 20.
+    # as on scans that share little.
     return dataclasses.replace(
         params,
         coarse=dataclasses.replace(params.coarse, tight_dist_m=0.005),

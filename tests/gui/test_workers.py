@@ -46,7 +46,7 @@ def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
 
 def test_a_result_returned_after_cancel_is_dropped(qtbot):
     """The work passed its last check point before Cancel and returned anyway:
-    the step keeps nothing (this Fine result used to be kept)."""
+    the step keeps nothing, not even a finished Fine result."""
 
     def finishes(reporter):
         reporter.progress(1.0, "done")
