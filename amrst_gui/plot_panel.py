@@ -87,7 +87,8 @@ RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
-    """Ask for a plot's scans; sorted by name, so scan_1 is the reference."""
+    """Ask for a plot's scans; sorted by name, so scan_1 is the reference (the
+    window's Make reference picks another)."""
     from amrst import io
 
     patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
@@ -237,7 +238,17 @@ class PlotWindow(QMainWindow):
         buttons.addStretch(1)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
-        layout.addWidget(QLabel("<b>Scans</b> (the first is the reference)"))
+        self.reference_button = QPushButton("Make reference")
+        self.reference_button.setToolTip(
+            "Make the selected scan S1, the reference: the plot's frame and the "
+            "positions in trees.csv are its own"
+        )
+        self.reference_button.clicked.connect(self.make_reference)
+        self.scan_list.itemSelectionChanged.connect(self._show_busy)
+        scans_head = QHBoxLayout()
+        scans_head.addWidget(QLabel("<b>Scans</b> (the first is the reference)"), 1)
+        scans_head.addWidget(self.reference_button)
+        layout.addLayout(scans_head)
         layout.addWidget(self.scan_list)
         layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
@@ -428,6 +439,16 @@ class PlotWindow(QMainWindow):
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(f"AMRST Studio: plot of {names}")
         self._show_busy()
+
+    def make_reference(self) -> None:
+        """Put the selected scan first: the next run's reference (before a run)."""
+        k = self.scan_list.currentRow()
+        if self.busy or self.found is not None or not 0 < k < len(self.specs):
+            return
+        specs = [self.specs[k], *self.specs[:k], *self.specs[k + 1 :]]
+        out = self.out_edit.text().strip()
+        self.open_scans(specs, Path(out) if out else None)
+        self._say(f"{Path(specs[0]).name} is the reference now (S1).")
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
@@ -1098,6 +1119,9 @@ class PlotWindow(QMainWindow):
     def _show_busy(self) -> None:
         """Enable what a job in progress (``busy``) allows, after it starts or ends."""
         self.run_button.setEnabled(not self.busy and len(self.specs) >= 2)
+        self.reference_button.setEnabled(
+            not self.busy and self.found is None and self.scan_list.currentRow() > 0
+        )
         self.cancel_button.setEnabled(self.busy)
         self._update_link_buttons()
 

@@ -413,6 +413,9 @@ class StemMapView(QWidget):
 
     def _draw_legend(self, p: QPainter) -> None:
         """DBH quality fills, mark rings and link states, in the top-left corner."""
+        band = QColor(BACKGROUND)
+        band.setAlpha(215)  # over a zoomed map's trees, still readable
+        p.fillRect(QRectF(0, 0, self.width(), LEGEND_PX + 4), band)
         x, y, step = 10.0, 14.0, 15.0
         p.setPen(TEXT)
         p.drawText(QPointF(x, y), "DBH:")

@@ -889,3 +889,22 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
     lines = scan_lines(o)
     assert "placed (the file does not say where its scanner stood)" in lines[1]
     assert "not placed" in lines[2]
+
+
+def test_another_scan_is_made_the_reference_before_a_run(
+    qtbot: QtBot, plot_files: list[str]
+) -> None:
+    from amrst_gui.plot_panel import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files)
+    assert not plot.reference_button.isEnabled()  # S1 is the reference already
+    plot.scan_list.setCurrentRow(1)
+    assert plot.reference_button.isEnabled()
+    plot.reference_button.click()
+    assert plot.specs == [str(Path(f).resolve()) for f in reversed(plot_files)]
+    item = plot.scan_list.item(0)
+    assert item is not None
+    assert item.text() == "S1  scan_2.ply"
+    assert "scan_2.ply is the reference now" in plot.status.text()
