@@ -23,6 +23,9 @@ from PySide6.QtWidgets import (
 from amrst.review import manual
 
 log = logging.getLogger("amrst_gui.manual")
+# The score's target points, thinned evenly to at most this many: its KD-tree is built
+# on the GUI thread, in a few tenths of a second whatever the scan's size.
+SCORE_TARGET_POINTS = 250_000
 
 
 class NudgeMixin:
@@ -158,10 +161,13 @@ class NudgeMixin:
             self.score_label.setText("Score of this pose: shown with this tab.")
             return
         median_m, share = self.live_score(T)
+        target = self.session.analysis("target") or self.session.cloud("target")
         points = (
             "prepared points"
             if self.session.analysis("target") is not None
             else "all points"
+            if len(target.xyz) <= SCORE_TARGET_POINTS
+            else f"the target thinned to {SCORE_TARGET_POINTS:,} points"
         )
         self.score_label.setText(
             f"This pose ({points}): median distance of all sampled source points "
@@ -175,24 +181,28 @@ class NudgeMixin:
         verification's sample: the median changes with every turn, far from the
         right pose too, where the tight share stays near zero."""
         s = self.session
-        # The objects themselves, compared by identity: an id() of an object
-        # no longer held can come back for a new one (a stale tree).
-        key = (s.analysis("target"), s.cloud("target"), s.cloud("source"))
-        cached = self._score_cache
-        if cached is None or any(
-            a is not b for a, b in zip(cached[0], key, strict=True)
-        ):
-            from scipy.spatial import cKDTree
+        # The objects themselves, compared by identity: an id() of an object no
+        # longer held can come back for a new one (a stale tree). The target's tree
+        # and the source's sample are kept apart: a new source keeps the tree.
+        keys = [(s.analysis(r), s.cloud(r)) for r in ("target", "source")]
+        cached = list(self._score_cache or (None, None, None, None))
+        for k, (key, role) in enumerate(zip(keys, ("target", "source"), strict=True)):
+            if cached[2 * k] is not None and all(
+                a is b for a, b in zip(cached[2 * k], key, strict=True)
+            ):
+                continue
+            xyz = key[0].xyz if key[0] is not None else key[1].xyz
+            if role == "target":
+                from scipy.spatial import cKDTree
 
-            from amrst.stages.coarse import verification_sample
+                step = max(1, -(-len(xyz) // SCORE_TARGET_POINTS))  # ceil: at most that
+                cached[0:2] = key, cKDTree(xyz[::step])
+            else:
+                from amrst.stages.coarse import verification_sample
 
-            tgt, src = (
-                (s.analysis(r).xyz if s.analysis(r) is not None else s.cloud(r).xyz)
-                for r in ("target", "source")
-            )
-            sample, _ = verification_sample(src, s.params.coarse)
-            cached = self._score_cache = (key, cKDTree(tgt), sample)
-        _, tree, sample = cached
+                cached[2:4] = key, verification_sample(xyz, s.params.coarse)[0]
+        self._score_cache = tuple(cached)
+        tree, sample = cached[1], cached[3]
         if not len(sample):
             return float("nan"), 0.0
         moved = sample @ T[:3, :3].T + T[:3, 3]

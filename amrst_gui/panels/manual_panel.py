@@ -249,7 +249,6 @@ class ManualPanel(NudgeMixin, QScrollArea):
             self._undo.append(list(self.pairs))
             self.pairs.append((self._pending, np.asarray(xyz, float)))
             self._pending = None
-            self._score_cache = None
         self._show_pairs()
 
     def add_pair(self, target_xyz, source_xyz) -> None:
