@@ -36,20 +36,27 @@ def test_an_export_of_another_pair_is_kept_unless_overwrite(
     assert doc["source_file"] == str(other)
 
 
-def test_register_from_a_pairs_file(tmp_path, sample_pair, capsys) -> None:
+def _register_from_pairs(tmp_path, sample_pair, *args: str, off_m: float = 0.0) -> int:
+    """Register the sample pair from four pairs picked on the truth, ``off_m`` off."""
     src = sample_pair.source.xyz + sample_pair.source.offset
     picked = src[[0, len(src) // 3, 2 * len(src) // 3, len(src) - 1]]
     T = sample_pair.T_true
-    write_pairs(tmp_path / "pairs.csv", picked @ T[:3, :3].T + T[:3, 3], picked)
-    code = _register(
+    target = picked @ T[:3, :3].T + T[:3, 3] + (off_m, 0.0, 0.0)
+    write_pairs(tmp_path / "pairs.csv", target, picked)
+    return _register(
         str(sample_pair.target_path),
         str(sample_pair.source_path),
         "--out",
         str(tmp_path / "out"),
         "--pairs",
         str(tmp_path / "pairs.csv"),
-        "--truth",
-        str(sample_pair.truth_path),
+        *args,
+    )
+
+
+def test_register_from_a_pairs_file(tmp_path, sample_pair, capsys) -> None:
+    code = _register_from_pairs(
+        tmp_path, sample_pair, "--truth", str(sample_pair.truth_path)
     )
     out = capsys.readouterr().out
     assert code == 0
@@ -79,25 +86,12 @@ def test_a_bad_pairs_file_is_one_line_and_exit_2(tmp_path, sample_pair, capsys):
 def test_a_pose_that_needs_review_exits_3(tmp_path, sample_pair, capsys) -> None:
     # Pairs picked 30 cm off and no fine stage: a pose close enough to look right but
     # not verified; a script must not take it as registered.
-    src = sample_pair.source.xyz + sample_pair.source.offset
-    picked = src[[0, len(src) // 3, 2 * len(src) // 3, len(src) - 1]]
-    T = sample_pair.T_true
-    write_pairs(
-        tmp_path / "pairs.csv", picked @ T[:3, :3].T + T[:3, 3] + (0.3, 0, 0), picked
-    )
     params = tmp_path / "params.json"
     params.write_text(
         '{"schema_version": 1, "fine": {"method": "none"}, "coarse": {"polish_top": 0}}'
     )
-    code = _register(
-        str(sample_pair.target_path),
-        str(sample_pair.source_path),
-        "--out",
-        str(tmp_path / "out"),
-        "--pairs",
-        str(tmp_path / "pairs.csv"),
-        "--params",
-        str(params),
+    code = _register_from_pairs(
+        tmp_path, sample_pair, "--params", str(params), off_m=0.3
     )
     err = capsys.readouterr().err
     assert "Needs review" in err
