@@ -69,6 +69,7 @@ from amrst_gui.plot_tables import (
     fill,
     grey_outside,
     link_rows,
+    scan_file_exists,
     scan_lines,
     table,
     tree_rows,
@@ -941,6 +942,13 @@ class PlotWindow(QMainWindow):
             done += (
                 f". No tree stands any more where you gave {', '.join(o.lost)}: "
                 "dropped from your review"
+            )
+        gone = [Path(s).name for s in o.labels if not scan_file_exists(s)]
+        if gone:
+            unsure = True
+            done += (
+                f". Not where plot.json says: {', '.join(gone)}; the plot shows from "
+                "its results, but a new run needs the scans there"
             )
         if self.review_error:
             done += f". Your review is not shown: {self.review_error}"

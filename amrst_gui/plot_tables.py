@@ -74,10 +74,23 @@ def scan_lines(o: PlotOutcome) -> list[str]:
         # Only a placed scan the registration was not sure of says its state.
         unsure = scan.placed and scan.status in (NEEDS_REVIEW, ACCEPTED)
         state = f", {scan.status}" if unsure else ""
+        gone = "" if scan_file_exists(scan.label) else " (file missing)"
         lines.append(
-            f"S{k + 1}  {Path(scan.label).name}: {where}, {scan.stems} stems{state}"
+            f"S{k + 1}  {Path(scan.label).name}{gone}: {where}, {scan.stems} stems"
+            f"{state}"
         )
     return lines
+
+
+def scan_file_exists(label: str) -> bool:
+    """Whether the file of a scan label (``FILE`` or ``FILE#k``) is where it says."""
+    from amrst.errors import InvalidInput
+    from amrst.io.scans import split_spec
+
+    try:
+        return split_spec(label)[0].is_file()
+    except InvalidInput:
+        return False
 
 
 def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:

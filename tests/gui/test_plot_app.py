@@ -908,3 +908,29 @@ def test_another_scan_is_made_the_reference_before_a_run(
     assert item is not None
     assert item.text() == "S1  scan_2.ply"
     assert "scan_2.ply is the reference now" in plot.status.text()
+
+
+def test_results_whose_scan_was_moved_open_and_say_so(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    import shutil
+
+    from amrst.plot.cli import main as plot_main
+    from amrst_gui.plot_panel import PlotWindow
+
+    scans = [tmp_path / Path(f).name for f in plot_files]
+    for f, copy in zip(plot_files, scans, strict=True):
+        shutil.copyfile(f, copy)
+    out = tmp_path / "out"
+    assert plot_main([*map(str, scans), "--out", str(out), "--quiet"]) == 0
+    scans[1].rename(tmp_path / "elsewhere.ply")
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    item = plot.scan_list.item(1)
+    assert item is not None
+    assert "scan_2.ply (file missing)" in item.text()
+    assert "Not where plot.json says: scan_2.ply" in plot.status.text()
+    assert plot.outcome is not None
+    assert len(plot.outcome.trees) == len(STEMS)  # shown from its results
