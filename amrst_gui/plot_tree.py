@@ -94,8 +94,9 @@ def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
     hand = review.dbh.get(tree.tree_id)
     yours = "" if hand is None else f"; yours {100 * hand.dbh_m:.1f} cm"
     x, y, z = tree.xyz
+    # On the map's dark ground: the scan colours are made for it, not the panel.
     seen = ", ".join(
-        f'<span style="color:{scan_colour(k - 1).name()}">S{k}</span>'
+        f'<span style="color:{scan_colour(k - 1).name()}; background:#1f2126"> S{k} </span>'
         for k in tree.seen_from
     )
     return [
