@@ -52,15 +52,15 @@ def check_out(out: Path, overwrite: bool) -> None:
     into the inventory). All refused before the run rather than after it.
     """
     if out.exists() and not out.is_dir():
-        raise InvalidInput(f"{out} is a file, not a folder: give another --out folder.")
+        raise InvalidInput(f"{out} is a file, not a folder: give another results folder (--out).")
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
-            f"{out} already holds a plot ({PLOT_JSON}): give another --out folder, or "
+            f"{out} already holds a plot ({PLOT_JSON}): give another results folder (--out), or "
             "--overwrite to replace it."
         )
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
-        raise InvalidInput(f"Cannot write in {first}: give another --out folder.")
+        raise InvalidInput(f"Cannot write in {first}: give another results folder (--out).")
     read_review(out, ())
 
 

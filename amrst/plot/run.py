@@ -156,7 +156,7 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
         if inside or path.parent == folder / TREES_DIR:
             raise InvalidInput(
                 f"{spec} is a file the run writes in {out}: copy it elsewhere, or "
-                "give another --out folder."
+                "give another results folder (--out)."
             )
 
 

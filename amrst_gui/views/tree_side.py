@@ -102,6 +102,7 @@ class TreeSideView(QWidget):
 
         p.setPen(QPen(QColor(120, 120, 120), 1))
         p.drawLine(at(-half, 0.0), at(half, 0.0))
+        self._draw_heights(p, at(-half, 0.0), top, scale)
         for k in np.unique(profile.scan):
             p.setPen(QPen(scan_colour(int(k)), 2))
             mine = profile.scan == k
@@ -141,3 +142,15 @@ class TreeSideView(QWidget):
         p.drawText(
             corner, Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignBottom, seen
         )
+
+    def _draw_heights(
+        self, p: QPainter, ground: QPointF, top: float, scale: float
+    ) -> None:
+        """A height scale up the left edge: a tick every 2 m (5 m on a tall tree)."""
+        step = 2.0 if top < 12 else 5.0
+        p.setPen(QPen(QColor(150, 150, 150), 1))
+        p.drawLine(ground, ground - QPointF(0, top * scale))
+        for z in np.arange(step, top + 1e-9, step):
+            y = ground.y() - z * scale
+            p.drawLine(QPointF(ground.x(), y), QPointF(ground.x() + 5, y))
+            p.drawText(QPointF(ground.x() + 7, y + 4), f"{z:g} m")
