@@ -346,6 +346,8 @@ def same_plot(out: Path, labels: Sequence[str]) -> bool:
 
     try:
         doc = json.loads((out / PLOT_JSON).read_text())
-        return same_scans([s["label"] for s in doc["scans"]], labels)
+        scans = doc["scans"]
+        ids = [s.get("file_id") for s in scans]
+        return same_scans([s["label"] for s in scans], labels, ids)
     except (OSError, ValueError, KeyError, TypeError):
         return False

@@ -948,7 +948,9 @@ class PlotWindow(QMainWindow):
             unsure = True
             done += (
                 f". Not where plot.json says: {', '.join(gone)}; the plot shows from "
-                "its results, but a new run needs the scans there"
+                "its results. To run it again, open the scans where they are now "
+                "(File ▸ Open plot…) into this results folder: your review holds for "
+                "the same files"
             )
         if self.review_error:
             done += f". Your review is not shown: {self.review_error}"

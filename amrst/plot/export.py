@@ -20,7 +20,13 @@ from typing import TYPE_CHECKING, Any
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
-from amrst.plot.review import PlotReview, followed, read_review, write_review
+from amrst.plot.review import (
+    PlotReview,
+    followed,
+    read_review,
+    scan_id,
+    write_review,
+)
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
 
 if TYPE_CHECKING:
@@ -52,7 +58,9 @@ def check_out(out: Path, overwrite: bool) -> None:
     into the inventory). All refused before the run rather than after it.
     """
     if out.exists() and not out.is_dir():
-        raise InvalidInput(f"{out} is a file, not a folder: give another results folder (--out).")
+        raise InvalidInput(
+            f"{out} is a file, not a folder: give another results folder (--out)."
+        )
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} already holds a plot ({PLOT_JSON}): give another results folder (--out), or "
@@ -60,7 +68,9 @@ def check_out(out: Path, overwrite: bool) -> None:
         )
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
-        raise InvalidInput(f"Cannot write in {first}: give another results folder (--out).")
+        raise InvalidInput(
+            f"Cannot write in {first}: give another results folder (--out)."
+        )
     read_review(out, ())
 
 
@@ -253,6 +263,7 @@ def plot_document(
         "scans": [
             {
                 "label": label,
+                "file_id": scan_id(label),
                 "status": status,
                 "state": state,
                 "reached": pose is not None,

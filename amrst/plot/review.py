@@ -1,6 +1,8 @@
 """The technician's review of a plot, kept in ``review.json`` beside the inventory.
 
-It names the scans it belongs to (a review of other scans is not applied) and holds
+It names the scans it belongs to, by path and by content (``scan_ids``: a folder of
+scans moved or copied elsewhere keeps its review; a review of other scans is not
+applied), and holds
 
 - ``marks``: ``ok`` / ``check`` / ``not a tree`` per tree id, with ``at``, where each
   marked tree's stem stood (breast height, the reference scan's local frame). A run
@@ -39,6 +41,9 @@ from amrst.campaign.folder import ACCEPTED as ACCEPTED  # a scan the review acce
 from amrst.errors import InvalidInput
 from amrst.review.verdict import NEEDS_REVIEW
 from amrst.types import check_rigid
+
+#: How much of each end of a scan file its identity hashes (:func:`scan_id`).
+ID_BYTES = 1 << 16
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -242,21 +247,52 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         raise InvalidInput(
             f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
         )
-    if not same_scans(scans, labels):
+    if not same_scans(scans, labels, doc.get("scan_ids")):
         return PlotReview()
     return PlotReview(marks, accepted, dbh, added, at)
 
 
-def same_scans(a: Sequence[str], b: Sequence[str]) -> bool:
+def same_scans(a: Sequence[str], b: Sequence[str], a_ids: Any = None) -> bool:
     """Tell whether two lists of scan labels name the same scans in the same order.
 
     A label is a file (``FILE`` or ``FILE#k``, one scan of several); files are
     compared as resolved paths, so the app's absolute paths and the ones typed on
-    the command line match.
+    the command line match. Where the paths differ, ``a_ids`` (the
+    :func:`scan_id` of each of ``a``, as recorded) are compared with ``b``'s files
+    as they are now: the same scans moved or copied elsewhere.
     """
-    return len(a) == len(b) and all(
-        _scan_key(x) == _scan_key(y) for x, y in zip(a, b, strict=True)
+    if len(a) != len(b):
+        return False
+    if all(_scan_key(x) == _scan_key(y) for x, y in zip(a, b, strict=True)):
+        return True
+    if not isinstance(a_ids, list) or len(a_ids) != len(b):
+        return False
+    return all(
+        isinstance(i, str) and i and i == scan_id(y)
+        for i, y in zip(a_ids, b, strict=True)
     )
+
+
+def scan_id(label: str) -> str:
+    """Return a scan's identity by content ("" when its file cannot be read).
+
+    Its file's size and a hash of the file's first and last ``ID_BYTES``, and ``#k``
+    for one scan of several.
+    """
+    import hashlib
+    from pathlib import Path
+
+    head, sep, tail = str(label).rpartition("#")
+    path, part = (head, f"#{tail}") if sep and tail.isdigit() else (str(label), "")
+    try:
+        with Path(path).open("rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            digest = hashlib.sha1(fh.read(ID_BYTES), usedforsecurity=False)
+            fh.seek(max(0, size - ID_BYTES))
+            digest.update(fh.read(ID_BYTES))
+    except OSError:
+        return ""
+    return f"{size}:{digest.hexdigest()}{part}"
 
 
 def _scan_key(label: str) -> str:
@@ -295,6 +331,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
         out / REVIEW_JSON,
         {
             "scans": list(labels),
+            "scan_ids": [scan_id(label) for label in labels],
             "marks": dict(sorted(review.marks.items())),
             "accepted": accepted,
             "dbh": dbh,

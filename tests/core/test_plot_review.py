@@ -164,6 +164,25 @@ def test_the_app_s_review_holds_for_the_same_files_typed_as_relative_paths(
     assert read_review(tmp_path, [typed[0], typed[1][:-1] + "0"]) == PlotReview()
 
 
+def test_a_review_holds_for_its_scans_moved_but_not_for_other_scans(tmp_path):
+    # A plot's folder copied from the field laptop: the same files elsewhere.
+    field, office = tmp_path / "field", tmp_path / "office"
+    field.mkdir()
+    labels = [str(field / "a.ply"), str(field / "b.e57") + "#1"]
+    (field / "a.ply").write_bytes(b"ply\n" + bytes(range(256)) * 600)
+    (field / "b.e57").write_bytes(b"e57" * 70_000)
+    write_review(tmp_path, labels, PlotReview({"T001": "ok"}))
+    field.rename(office)
+    moved = [str(office / "a.ply"), str(office / "b.e57") + "#1"]
+    assert read_review(tmp_path, moved).marks == {"T001": "ok"}
+    assert read_review(tmp_path, [moved[0], moved[1][:-1] + "0"]) == PlotReview()
+    # The same names holding other points are other scans.
+    (office / "a.ply").write_bytes(b"ply\n" + bytes(range(256)) * 601)
+    assert read_review(tmp_path, moved) == PlotReview()
+    (office / "a.ply").unlink()  # and a file that is gone matches nothing
+    assert read_review(tmp_path, moved) == PlotReview()
+
+
 def test_a_report_of_a_folder_without_a_plot_is_one_line(tmp_path):
     from amrst.plot.export import write_report
 

@@ -934,3 +934,8 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     assert "Not where plot.json says: scan_2.ply" in plot.status.text()
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)  # shown from its results
+    # Opened again from where it is now, it is the same plot: a run keeps the marks.
+    from amrst_gui.plot_jobs import same_plot
+
+    assert same_plot(out, [str(scans[0]), str(tmp_path / "elsewhere.ply")])
+    assert not same_plot(out, [str(scans[0]), str(scans[0])])
