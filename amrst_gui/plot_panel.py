@@ -67,12 +67,13 @@ from amrst_gui.plot_tables import (
     ROW_PX,
     TREE_COLUMNS,
     fill,
-    grey_outside,
+    fill_trees,
     link_rows,
+    row_of_tree,
     scan_file_exists,
     scan_lines,
     table,
-    tree_rows,
+    tree_at_row,
 )
 from amrst_gui.plot_tree import TreePanel
 from amrst_gui.views.stem_map import StemMapView
@@ -185,9 +186,6 @@ class PlotWindow(QMainWindow):
 
     def _build_side(self) -> QWidget:
         side = QWidget()
-        self.scan_list = QListWidget()
-        self.scan_list.setObjectName("plot_scans")
-        self.scan_list.setMaximumHeight(96)
         self.out_edit = QLineEdit()
         self.out_edit.setPlaceholderText("results folder (asked at Run)")
         choose = QPushButton("Choose…")
@@ -225,9 +223,11 @@ class PlotWindow(QMainWindow):
             "★: in the spanning tree that places the scans."
         )
         self.trees = table(TREE_COLUMNS, "plot_trees")
+        self.trees.horizontalHeader().setSortIndicator(0, Qt.SortOrder.AscendingOrder)
         self.trees.setToolTip(
-            "Every tree listed: click one to see it. Keys: N / P the next / previous "
-            "tree; O mark ok, C mark check, X not a tree, Del clear the mark."
+            "Every tree listed: click one to see it, a heading to sort by it. Keys: "
+            "N / P the next / previous tree; O mark ok, C mark check, X not a tree, "
+            "Del clear the mark."
         )
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
@@ -239,17 +239,7 @@ class PlotWindow(QMainWindow):
         buttons.addStretch(1)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
-        self.reference_button = QPushButton("Make reference")
-        self.reference_button.setToolTip(
-            "Make the selected scan S1, the reference: the plot's frame and the "
-            "positions in trees.csv are its own"
-        )
-        self.reference_button.clicked.connect(self.make_reference)
-        self.scan_list.itemSelectionChanged.connect(self._show_busy)
-        scans_head = QHBoxLayout()
-        scans_head.addWidget(QLabel("<b>Scans</b> (the first is the reference)"), 1)
-        scans_head.addWidget(self.reference_button)
-        layout.addLayout(scans_head)
+        layout.addLayout(self._build_scans_head())
         layout.addWidget(self.scan_list)
         layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
@@ -264,6 +254,23 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.trees, 1)
         self._update_link_buttons()
         return side
+
+    def _build_scans_head(self) -> QHBoxLayout:
+        """The scan list and its heading, with Make reference."""
+        self.scan_list = QListWidget()
+        self.scan_list.setObjectName("plot_scans")
+        self.scan_list.setMaximumHeight(96)
+        self.reference_button = QPushButton("Make reference")
+        self.reference_button.setToolTip(
+            "Make the selected scan S1, the reference: the plot's frame and the "
+            "positions in trees.csv are its own"
+        )
+        self.reference_button.clicked.connect(self.make_reference)
+        self.scan_list.itemSelectionChanged.connect(self._show_busy)
+        head = QHBoxLayout()
+        head.addWidget(QLabel("<b>Scans</b> (the first is the reference)"), 1)
+        head.addWidget(self.reference_button)
+        return head
 
     def _build_area_row(self) -> QHBoxLayout:
         """Plot radius and centre: the fixed-radius plot, applied to the shown plot."""
@@ -664,15 +671,17 @@ class PlotWindow(QMainWindow):
             return
         self.stem_map.select(k)
         self.tree_panel.show_tree(o, k, self.review)
-        if self.trees.currentRow() != k:
-            self.trees.selectRow(k)
+        row = row_of_tree(self.trees, k)
+        if self.trees.currentRow() != row:
+            self.trees.selectRow(row)
 
     def step_tree(self, step: int) -> None:
         """Select the tree ``step`` rows below the selected one in the list."""
         n = self.trees.rowCount()
         if n:
             row = self.trees.currentRow()
-            self.select_tree(min(max(row + step, 0), n - 1) if row >= 0 else 0)
+            row = min(max(row + step, 0), n - 1) if row >= 0 else 0
+            self.select_tree(tree_at_row(self.trees, row))
 
     def keyPressEvent(self, event) -> None:
         """Esc cancels a running plot, else ends a click on the map awaited (what no
@@ -1055,7 +1064,7 @@ class PlotWindow(QMainWindow):
     def _on_row_selected(self) -> None:
         rows = self.trees.selectionModel().selectedRows()
         if rows:
-            self.select_tree(rows[0].row())
+            self.select_tree(tree_at_row(self.trees, rows[0].row()))
 
     # ---------------------------------------------------------- showing
     def _show_review(self) -> None:
@@ -1115,10 +1124,9 @@ class PlotWindow(QMainWindow):
             return
         k = self.stem_map.selected
         self.trees.blockSignals(True)
-        fill(self.trees, tree_rows(o, self.review))
-        grey_outside(self.trees, o)
+        fill_trees(self.trees, o, self.review)
         if k is not None:
-            self.trees.selectRow(k)
+            self.trees.selectRow(row_of_tree(self.trees, k))
         else:
             self.trees.clearSelection()
         self.trees.blockSignals(False)

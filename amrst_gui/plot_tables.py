@@ -25,6 +25,8 @@ if TYPE_CHECKING:
 TREE_COLUMNS = ("Tree", "DBH cm", "DBH quality", "Height m", "Height flag", "Mark")
 LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
+TREE_ROLE = Qt.ItemDataRole.UserRole  # a tree row's index into the outcome's trees
+SORT_ROLE = Qt.ItemDataRole.UserRole + 1  # what a cell sorts by
 
 
 def table(columns: tuple[str, ...], name: str) -> QTableWidget:
@@ -110,33 +112,79 @@ def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:
     ]
 
 
-def tree_rows(o: PlotOutcome, review: PlotReview) -> list[tuple[str, ...]]:
-    """One row per tree: id, DBH, its quality, height, its flag, the mark.
+def tree_rows(
+    o: PlotOutcome, review: PlotReview
+) -> list[tuple[tuple[str, object], ...]]:
+    """One row per tree: id, DBH, its quality, height, its flag, the mark; each cell
+    its text and the key it sorts by (the tree's order, numbers; none at the end).
 
     A DBH the technician measured shows as theirs (quality ``yours``).
     """
-    rows: list[tuple[str, ...]] = []
-    for t in o.trees:
+    rows: list[tuple[tuple[str, object], ...]] = []
+    for k, t in enumerate(o.trees):
         hand = review.dbh.get(t.tree_id)
         dbh, quality = (
             (t.stem.dbh_m, t.stem.dbh_quality)
             if hand is None
             else (hand.dbh_m, "yours")
         )
+        mark = review.marks.get(t.tree_id, "")
         rows.append(
             (
-                t.tree_id,
-                number(dbh * 100, ".1f"),
-                quality,
-                number(t.stem.height_m, ".1f"),
-                t.stem.height_flag,
-                review.marks.get(t.tree_id, ""),
+                (t.tree_id, k),
+                (number(dbh * 100, ".1f"), _last_if_nan(dbh)),
+                (quality, quality),
+                (number(t.stem.height_m, ".1f"), _last_if_nan(t.stem.height_m)),
+                (t.stem.height_flag, t.stem.height_flag),
+                (mark, mark or "~"),  # unmarked after the marks
             )
         )
     return rows
 
 
-def grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
+def _last_if_nan(value: float) -> float:
+    return float("inf") if value != value else float(value)
+
+
+class _SortItem(QTableWidgetItem):
+    """A cell that sorts by its key (``SORT_ROLE``), not its text."""
+
+    def __lt__(self, other: QTableWidgetItem) -> bool:
+        a, b = self.data(SORT_ROLE), other.data(SORT_ROLE)
+        if type(a) is type(b) and a is not None:
+            return bool(a < b)
+        return super().__lt__(other)
+
+
+def fill_trees(table: QTableWidget, o: PlotOutcome, review: PlotReview) -> None:
+    """Fill the tree table, in the order the technician sorted it (by clicking a
+    heading), greying the trees outside the fixed-radius plot."""
+    table.setSortingEnabled(False)  # else each cell set sorts the rows again
+    rows = tree_rows(o, review)
+    table.setRowCount(len(rows))
+    for k, row in enumerate(rows):
+        for c, (text, key) in enumerate(row):
+            item = _SortItem(text)
+            item.setData(SORT_ROLE, key)
+            item.setData(TREE_ROLE, k)
+            table.setItem(k, c, item)
+    _grey_outside(table, o)
+    table.setSortingEnabled(True)  # sorts by the heading chosen, the tree order first
+
+
+def tree_at_row(table: QTableWidget, row: int) -> int | None:
+    """The tree (index into the outcome's trees) shown in ``row``."""
+    item = table.item(row, 0)
+    k = None if item is None else item.data(TREE_ROLE)
+    return k if isinstance(k, int) else None
+
+
+def row_of_tree(table: QTableWidget, k: int) -> int:
+    """The row showing tree ``k`` (-1: none)."""
+    return next((r for r in range(table.rowCount()) if tree_at_row(table, r) == k), -1)
+
+
+def _grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
     """Grey the rows of the trees outside the fixed-radius plot, and say why."""
     if o.area is None:
         return
@@ -145,7 +193,7 @@ def grey_outside(table: QTableWidget, o: PlotOutcome) -> None:
         f"Its stem base lies outside the plot's {o.area.radius_m:g} m radius: "
         "listed, but not in the stand figures (trees.csv in_plot no)"
     )
-    for r, t in enumerate(o.trees):
+    for r, t in enumerate(o.trees):  # filled in tree order, sorted after
         if o.area.holds(t.row()):  # as trees.csv's in_plot says
             continue
         for c in range(table.columnCount()):

@@ -217,6 +217,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     plot.tree_panel.buttons[""].click()
     assert read_review(out, o.labels).marks == {}
     _review_by_keys(qtbot, plot, out)
+    _sorted_by_dbh(plot)
     plot.select_tree(k)
     _measure_by_hand(plot, k, out)
 
@@ -272,6 +273,33 @@ def _zoom_and_drag(plot: PlotWindow) -> None:
     QTest.mouseDClick(view, Qt.MouseButton.LeftButton, pos=end)
     assert view.zoom == 1.0
     assert np.allclose(view.to_px(o.tree_xy[1])[0], (x, y), atol=1e-6)
+
+
+def _sorted_by_dbh(plot: PlotWindow) -> None:
+    """A heading sorts the table by its numbers; a row still shows its own tree."""
+    o = plot.outcome
+    assert o is not None
+    plot.trees.sortByColumn(1, Qt.SortOrder.DescendingOrder)  # as a heading click
+    dbh = [o.trees[_tree_in(plot, r)].stem.dbh_m for r in range(len(o.trees))]
+    assert dbh == sorted(dbh, reverse=True)
+    plot.trees.selectRow(0)  # the widest stem
+    assert plot.tree_panel.tree_id == o.trees[_tree_in(plot, 0)].tree_id
+    assert o.trees[_tree_in(plot, 0)].stem.dbh_m == max(dbh)
+    plot.step_tree(1)  # N: the next row down, the next widest
+    assert plot.tree_panel.tree_id == o.trees[_tree_in(plot, 1)].tree_id
+    plot.set_mark(o.trees[_tree_in(plot, 1)].tree_id, "ok")  # the order holds
+    assert plot.trees.currentRow() == 1
+    plot.set_mark(o.trees[_tree_in(plot, 1)].tree_id, "")
+    plot.trees.sortByColumn(0, Qt.SortOrder.AscendingOrder)  # the trees' order
+    assert [_tree_in(plot, r) for r in range(len(o.trees))] == list(range(len(o.trees)))
+
+
+def _tree_in(plot: PlotWindow, row: int) -> int:
+    from amrst_gui.plot_tables import tree_at_row
+
+    k = tree_at_row(plot.trees, row)
+    assert k is not None
+    return k
 
 
 def _review_by_keys(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
