@@ -40,7 +40,11 @@ class PickMarks:
         """Mark ``xyz`` (K, 3) with ``labels``; ``pending`` (3,): a point waiting
         for its pair, in its own colour."""
         p = self.plotter
-        self.points = np.asarray(xyz, float).reshape(-1, 3)
+        points = np.asarray(xyz, float).reshape(-1, 3)
+        had = len(self.points) or self.pending is not None
+        if not had and not len(points) and pending is None:
+            return  # none before, none now: no render for nothing
+        self.points = points
         self.labels = list(labels)
         self.pending = None if pending is None else np.asarray(pending, float)
         for name in _NAMES[:3]:
@@ -90,6 +94,8 @@ class PickMarks:
         """Draw the other scan's points ``xyz`` (N, 3, this view's frame) faintly,
         or drop them (None)."""
         p = self.plotter
+        if not self.ghost_points and (xyz is None or not len(xyz)):
+            return  # none before, none now
         p.remove_actor("pick_ghost", render=False)
         self.ghost_points = 0 if xyz is None else len(xyz)
         if xyz is not None and len(xyz):
