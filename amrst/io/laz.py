@@ -95,6 +95,14 @@ def laz_info(path: Path, head: bytes) -> LazInfo | None:
         if compressor >= 2 and point_start < table_start <= size - 8:
             f.seek(table_start)
             version, count = struct.unpack("<II", f.read(8))
+            if version == 0 and count > table_start - point_start:
+                # Each chunk takes at least a byte: lazrs would allocate the table
+                # for this count and abort the process.
+                raise InvalidInput(
+                    f"{path}: corrupt LAZ chunk table: it lists {count:,} chunks in "
+                    f"{table_start - point_start:,} bytes of points. The file is "
+                    "corrupt or truncated; copy or export it again."
+                )
             if version == 0:
                 n_chunks = count
     version = f"{major}.{minor}r{rev}"

@@ -126,6 +126,21 @@ def test_laz_point_count_beyond_its_chunks_is_refused(
         io.read(tmp_path / "c.laz")
 
 
+@pytest.mark.timeout(30)
+def test_laz_chunk_table_counting_more_chunks_than_bytes_is_refused(
+    tmp_path, small_cloud
+):
+    # lazrs allocates the table for the count it finds and aborts the process when
+    # that fails: the count is checked against the bytes the chunks can take.
+    data = _valid_las(tmp_path, small_cloud, ".laz")
+    _, point_start, _ = struct.unpack_from("<HII", data, 94)
+    (table_start,) = struct.unpack_from("<q", data, point_start)
+    struct.pack_into("<I", data, table_start + 4, 2_373_713_921)
+    (tmp_path / "t.laz").write_bytes(data)
+    with pytest.raises(InvalidInput, match="corrupt LAZ chunk table: it lists 2,373"):
+        io.read(tmp_path / "t.laz")
+
+
 def _laz_vlr_data_at(data: bytearray) -> int:
     """Where the LASzip VLR's payload starts."""
     pos, _, n_vlrs = struct.unpack_from("<HII", data, 94)
