@@ -414,6 +414,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         _silence_stdout()
         return EXIT_PIPE
+    except KeyboardInterrupt:  # a second Ctrl+C, while the first is handled
+        print("Interrupted.", file=sys.stderr)
+        return EXIT_CANCELLED
     return code
 
 

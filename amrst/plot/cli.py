@@ -228,7 +228,8 @@ def scan_numbers(i: str, j: str, given: str) -> tuple[int, int]:
     """
     from amrst.errors import InvalidInput
 
-    if not (i.isdigit() and j.isdigit() and int(i) >= 1 and int(j) >= 1):
+    # isdecimal, not isdigit: "²" is a digit int() refuses.
+    if not (i.isdecimal() and j.isdecimal() and int(i) >= 1 and int(j) >= 1):
         raise InvalidInput(
             f"{given}: name the two scans by their numbers from 1 in the order given, "
             "e.g. 1 3."

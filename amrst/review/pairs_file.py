@@ -52,8 +52,14 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"columns {','.join(COLUMNS)}."
         ) from exc
     reader = csv.DictReader(io.StringIO(text))
-    header = {(h or "").strip() for h in (reader.fieldnames or [])}
-    rows = list(reader)
+    try:
+        header = {(h or "").strip() for h in (reader.fieldnames or [])}
+        rows = list(reader)
+    except csv.Error as exc:  # a field of over 128 KiB, a NUL byte...
+        raise InvalidInput(
+            f"{path.name} is not a pairs CSV ({exc}): give the columns "
+            f"{','.join(COLUMNS)}, one pair a line."
+        ) from exc
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         raise InvalidInput(

@@ -95,10 +95,16 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     assert (
         np.abs(at @ T_file[:3, :3].T + T_file[:3, 3] - _moved(T_world, at)).max() < 0.01
     )
+    huge = tmp_path / "huge.csv"  # one field over the csv module's limit
+    huge.write_text(
+        "target_x,target_y,target_z,source_x,source_y,source_z\n" + "1" * 200_000
+    )
     for bad in (
         ["1", "3", str(pairs)],
         ["0", "2", str(pairs)],
+        ["1", "²", str(pairs)],  # a digit, but no number
         ["1", "2", str(tmp_path / "no.csv")],
+        ["1", "2", str(huge)],
     ):
         args = [*scans, "--out", str(tmp_path / "bad"), "--quiet", "--pairs", *bad]
         assert plot_main(args) == 2
