@@ -63,8 +63,15 @@ def check_out(out: Path, overwrite: bool) -> None:
         )
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
-            f"{out} already holds a plot ({PLOT_JSON}): give another results folder (--out), or "
-            "--overwrite to replace it."
+            f"{out} already holds a plot ({PLOT_JSON}): give another results folder "
+            "(--out), or --overwrite to replace it."
+        )
+    theirs = sorted(n for n in MANAGED if os.path.lexists(out / n))
+    if theirs and not (out / PLOT_JSON).exists() and not overwrite:
+        raise InvalidInput(
+            f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "
+            "replace or remove them. Give another results folder (--out), or "
+            "--overwrite to replace them."
         )
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):

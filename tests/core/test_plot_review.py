@@ -266,3 +266,17 @@ def test_the_review_follows_its_trees_when_a_run_lists_them_otherwise(tmp_path):
     assert followed(added, listed) == (added, False, [])
     kept, changed, lost = followed(added, {"T001": np.array([3.1, 3.0])})
     assert (kept.added, changed, lost) == ({"H002": (3.0, 3.0)}, True, ["H001 (added)"])
+
+
+def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
+    from amrst.plot.export import check_out
+
+    (tmp_path / "trees.csv").write_text("the technician's own list\n")
+    (tmp_path / "report.html").write_text("<p>theirs</p>")
+    with pytest.raises(InvalidInput, match="holds report.html, trees.csv but no plot"):
+        check_out(tmp_path, overwrite=False)
+    check_out(tmp_path, overwrite=True)  # asked for
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("kept beside a plot")
+    check_out(other, overwrite=False)  # files a run does not write are no matter
