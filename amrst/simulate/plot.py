@@ -51,6 +51,10 @@ if TYPE_CHECKING:
 
 # Fewest trees on a plot: a stem map of fewer has no layout to register on.
 MIN_TREES = 3
+# Bounds of the scene a plot simulation builds in memory (the defaults make about
+# 1.3 million ground points and 15 shrubs).
+MAX_GROUND_POINTS = 8_000_000
+MAX_SHRUBS = 1000
 # A tripod stands at least this far from every stem foot (buttresses, the trunk).
 _STEM_CLEARANCE_M = 1.5
 # Tries to place one tree or one scanner position before giving up.
@@ -187,6 +191,19 @@ class PlotOptions:
             )
         if not 0 <= self.slope_deg < 45:
             raise InvalidInput(f"slope_deg must be 0-45 deg, got {self.slope_deg}.")
+        reach = self.plot_radius_m + self.range_m  # the ground disc's radius
+        ground = math.pi * reach**2 / self.ground_spacing_m**2
+        if ground > MAX_GROUND_POINTS:
+            count = f"{ground:,.0f}" if ground < 1e12 else f"{ground:.1e}"
+            raise InvalidInput(
+                f"A ground reaching {reach:g} m at {self.ground_spacing_m:g} m spacing "
+                f"holds {count} points, more than {MAX_GROUND_POINTS:,}: give a "
+                "shorter --range-m (plot scans keep 20-30 m)."
+            )
+        if self.shrubs > MAX_SHRUBS:
+            raise InvalidInput(
+                f"shrubs must be at most {MAX_SHRUBS}, got {self.shrubs}."
+            )
 
 
 def plot_options(kind: str = "normal", **changes: Any) -> PlotOptions:

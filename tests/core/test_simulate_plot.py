@@ -259,6 +259,9 @@ def _tree_files(trees: list[Cloud], folder: Path) -> list[str]:
         ([], ["--res-deg", "nan"], "--res-deg"),
         ([], ["--seed", "-1"], "--seed"),
         ([], ["--neighbours", "x.ply"], "--neighbours applies to a one-tree case"),
+        ([], ["--range-m", "100"], "give a shorter --range-m"),  # out of memory
+        ([], ["--range-m", "1e12"], "give a shorter --range-m"),
+        ([], ["--shrubs", "100000000"], "shrubs must be at most 1000"),
     ],
 )
 def test_cli_bad_plot_input_is_one_line(
