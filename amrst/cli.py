@@ -27,6 +27,7 @@ from amrst.errors import (
     RegistrationFailed,
 )
 from amrst.terminal import TerminalReporter
+from amrst.types import refuse_same_points
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
@@ -160,12 +161,12 @@ def _cmd_register(args: argparse.Namespace) -> int:
     )
     pairs = read_pairs(Path(args.pairs)) if args.pairs else None
     if _same_file(args.target, args.source):
-        logger.warning(
-            "TARGET and SOURCE are the same file (%s): the result will be the "
-            "identity transform.",
-            args.target,
+        raise InvalidInput(
+            f"TARGET and SOURCE are the same file ({args.target}): give two scans "
+            "of the tree."
         )
     target, source = io.read(args.target), io.read(args.source)
+    refuse_same_points([target, source], [str(args.target), str(args.source)])
     for cloud, path in ((target, args.target), (source, args.source)):
         # the feature matcher's voxel grid bounds the span a scan may have
         into_grid(cloud.xyz, params.global_match.voxel_size_m, Path(path).name)

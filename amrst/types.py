@@ -15,7 +15,7 @@ import numpy as np
 from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
 
 Transform = np.ndarray  # (4, 4) float64 rigid transform, e.g. T_target_source
 
@@ -240,6 +240,25 @@ def rotation_angle_deg(R: np.ndarray) -> float:
 # Largest |R^T R - I| entry a rotation block may show: 1e-4 admits matrices printed
 # with 6 decimals (error ~1e-6) and still refuses any real scale or shear.
 RIGID_TOL = 1e-4
+
+
+def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
+    """Refuse two scans holding the same points (one file given twice, a copy).
+
+    Registering a scan onto itself tells nothing and the verification of the
+    identity runs long on a big scan.
+    """
+    for j, b in enumerate(clouds):
+        for i, a in enumerate(clouds[:j]):
+            if (
+                len(a) == len(b)
+                and np.array_equal(a.offset, b.offset)
+                and np.array_equal(a.xyz, b.xyz)
+            ):
+                raise InvalidInput(
+                    f"{labels[j]} holds the same points as {labels[i]}: give each "
+                    "scan once."
+                )
 
 
 def check_rigid(T: Any, where: str) -> np.ndarray:

@@ -14,6 +14,7 @@ import time
 from typing import TYPE_CHECKING
 
 from amrst.errors import EXIT_NOT_REGISTERED
+from amrst.types import refuse_same_points
 
 if TYPE_CHECKING:
     import argparse
@@ -91,6 +92,7 @@ def run_register(
     check_output_dir(args.out, ["report.html"] if report else [])
     t0 = time.perf_counter()
     clouds, labels = read_specs([args.target, *args.source])
+    refuse_same_points(clouds, labels)
     truth = None
     if args.truth is not None:
         truth = read_scan_truth(args.truth, len(clouds), 0)

@@ -66,7 +66,9 @@ def check_out(out: Path, overwrite: bool) -> None:
             f"{out} already holds a plot ({PLOT_JSON}): give another results folder "
             "(--out), or --overwrite to replace it."
         )
-    theirs = sorted(n for n in MANAGED if os.path.lexists(out / n))
+    theirs = sorted(n for n in MANAGED - {TREES_DIR} if os.path.lexists(out / n))
+    if any((out / TREES_DIR).glob("T[0-9]*.ply")):  # a run's tree clouds' names
+        theirs.append(f"{TREES_DIR}/T….ply")
     if theirs and not (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "

@@ -16,6 +16,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.types import refuse_same_points
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Mapping, Sequence
@@ -217,14 +218,4 @@ def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
         raise InvalidInput(
             f"{len(clouds)} scan given: a plot needs at least two positions."
         )
-    for j, b in enumerate(clouds):
-        for i, a in enumerate(clouds[:j]):
-            if (
-                len(a) == len(b)
-                and np.array_equal(a.offset, b.offset)
-                and np.array_equal(a.xyz, b.xyz)
-            ):
-                raise InvalidInput(
-                    f"{labels[j]} holds the same points as {labels[i]}: give each "
-                    "position's scan once."
-                )
+    refuse_same_points(clouds, labels)

@@ -273,10 +273,18 @@ def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
 
     (tmp_path / "trees.csv").write_text("the technician's own list\n")
     (tmp_path / "report.html").write_text("<p>theirs</p>")
-    with pytest.raises(InvalidInput, match="holds report.html, trees.csv but no plot"):
+    with pytest.raises(
+        InvalidInput, match=r"holds report\.html, trees\.csv but no plot"
+    ):
         check_out(tmp_path, overwrite=False)
     check_out(tmp_path, overwrite=True)  # asked for
     other = tmp_path / "other"
     other.mkdir()
     (other / "notes.txt").write_text("kept beside a plot")
     check_out(other, overwrite=False)  # files a run does not write are no matter
+    (other / "trees").mkdir()
+    (other / "trees" / "my_scan.ply").write_text("ply")
+    check_out(other, overwrite=False)
+    (other / "trees" / "T001.ply").write_text("ply")  # a name a run writes
+    with pytest.raises(InvalidInput, match="holds trees/T"):
+        check_out(other, overwrite=False)
