@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.errors import InvalidInput
 from amrst.neighbours import THREADS
 from amrst.params import RegistrationParams
 from amrst.pipeline.analysis import ScanAnalysis, analyse_scan, both_scans
@@ -16,6 +17,9 @@ from amrst.pipeline.refine import evaluate, pose_quality, refine
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.sampling import measure_pair
 from amrst.types import world_transform
+
+#: How far beyond a scan's points a stem given by hand may stand (m).
+STEM_REACH_M = 5.0
 
 if TYPE_CHECKING:
     from amrst.measure import TreeMeasures
@@ -138,8 +142,10 @@ def register(
     t_start = time.perf_counter()
 
     local = {
-        id(cloud): None if xy is None else np.asarray(xy, float) - cloud.offset[:2]
-        for cloud, xy in zip((target, source), stems, strict=True)
+        id(cloud): None if xy is None else _stem_in(cloud, xy, role)
+        for cloud, xy, role in zip(
+            (target, source), stems, ("the target", "the source"), strict=True
+        )
     }
 
     def analyse(cloud: Cloud, rep: Reporter) -> ScanAnalysis:
@@ -244,3 +250,25 @@ def finish_registration(
         strength=quality.strength,
         slices=quality.slices,
     )
+
+
+def _stem_in(cloud: Cloud, xy: np.ndarray, role: str) -> np.ndarray:
+    """Return a stem given in world x y in ``cloud``'s local frame.
+
+    Raises InvalidInput when it is not two finite numbers within the scan's extent
+    (and ``STEM_REACH_M`` around it).
+    """
+    at = np.asarray(xy, float).reshape(-1)
+    if at.shape != (2,) or not np.isfinite(at).all():
+        raise InvalidInput(f"The stem of {role} must be two finite numbers, x y.")
+    local: np.ndarray = at - cloud.offset[:2]
+    lo = cloud.xyz[:, :2].min(axis=0) - STEM_REACH_M
+    hi = cloud.xyz[:, :2].max(axis=0) + STEM_REACH_M
+    if not ((lo <= local) & (local <= hi)).all():
+        wlo, whi = lo + cloud.offset[:2], hi + cloud.offset[:2]
+        raise InvalidInput(
+            f"The stem of {role} at ({at[0]:g}, {at[1]:g}) lies outside its points "
+            f"(x {wlo[0]:.1f} to {whi[0]:.1f}, y {wlo[1]:.1f} to {whi[1]:.1f}): give "
+            "it in the scan's own coordinates, as amrst info shows them."
+        )
+    return local

@@ -346,3 +346,15 @@ def test_a_file_system_refusal_is_one_line_not_an_internal_error(
     assert line.startswith("Error: ")
     assert "File name too long" in line
     assert "Internal error" not in line
+
+
+def test_a_stem_that_is_no_position_in_the_scan_is_refused(
+    capsys, tmp_path, sample_pair
+):
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    for stem in (["nan", "nan"], ["inf", "0"], ["500", "500"]):
+        args = ["register", t, s, "--out", str(tmp_path / "o"), "--quiet"]
+        assert main([*args, "--stem", *stem]) == 2
+        err = capsys.readouterr().err
+        assert "The stem of the target" in err
+        assert len(err.strip().splitlines()) == 1
