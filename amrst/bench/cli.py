@@ -95,11 +95,14 @@ def run_cli(args: argparse.Namespace) -> int:
         130 when interrupted.
     """
     from amrst.bench.plot import is_plot_case
-    from amrst.bench.run import run_bench
+    from amrst.bench.run import resolve_methods, run_bench
     from amrst.errors import AmrstError, InvalidInput
     from amrst.io.cases import find_cases
 
     try:
+        if args.repeat < 1:
+            raise InvalidInput("--repeat must be at least 1.")
+        resolve_methods(args.methods)  # an unknown name, on plot cases too
         folders = find_cases(args.cases_dir, args.cases)
     except AmrstError as exc:
         print(f"amrst bench: {exc}", file=sys.stderr)
@@ -143,6 +146,11 @@ def run_cli(args: argparse.Namespace) -> int:
         f"summary: {result.out_dir / 'summary.md'}",
         file=sys.stderr,
     )
+    if unreadable and len(unreadable) == len(folders):
+        print(
+            "amrst bench: no case could be read: nothing was measured.", file=sys.stderr
+        )
+        return 2
     return 0
 
 

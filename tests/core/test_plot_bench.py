@@ -94,3 +94,8 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
     assert "trees found: 6/6" in summary
     with pytest.raises(InvalidInput, match="Unknown plot method"):
         run_plot_bench(root, out, methods=("icp",))
+    from amrst.cli import main
+
+    for wrong in (["--repeat", "0"], ["--repeat", "-1"], ["--methods", "nosuch"]):
+        assert main(["bench", str(root), "--out", str(tmp_path / "o2"), *wrong]) == 2
+        assert not (tmp_path / "o2").exists()
