@@ -58,6 +58,12 @@ SIGHT_POINTS = 5
 SIGHT_RADIUS_M = 0.1
 SIGHT_STEP_M = 0.05
 SIGHT_END_M = 0.3
+#: The height flag of a tree whose top no scan could be checked against: no scan of
+#: the plot says where its scanner stood (a georeferenced LAS, say).
+NOT_CHECKED = "top not checked"
+#: A scan's file origin farther than this from its points is not where its scanner
+#: stood (m): the scan was moved into other coordinates.
+ORIGIN_GAP_M = 50.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -259,16 +265,20 @@ def scanner_at(cloud: Cloud) -> np.ndarray | None:
     file's coordinates), whether its scans were read posed or not. Any other scan is
     taken to be in its scanner's frame, its scanner at the file's origin, as an
     unregistered export is (a scan cropped to the plot need not surround it); a
-    georeferenced one (an offset over ``LARGE_COORD_M``) that does not say is unknown.
+    georeferenced one (an offset over ``LARGE_COORD_M``) that does not say is unknown,
+    and so is one whose origin lies over ``ORIGIN_GAP_M`` from its points' box.
     """
     from amrst.io.common import LARGE_COORD_M
 
     said = cloud.meta.get("scanner_origin")
     if said is not None and len(said) == 3:
         return np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
-    if np.abs(cloud.offset).max() > LARGE_COORD_M:
+    if np.abs(cloud.offset).max() > LARGE_COORD_M or not len(cloud.xyz):
         return None
-    return np.asarray(-cloud.offset, dtype=float)
+    origin = np.asarray(-cloud.offset, dtype=float)
+    lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
+    gap = float(np.linalg.norm(np.maximum(lo - origin, 0) + np.maximum(origin - hi, 0)))
+    return None if gap > ORIGIN_GAP_M else origin  # far off its points: no scanner
 
 
 def scanner_in_reference(cloud: Cloud, pose: Transform | None) -> np.ndarray | None:
@@ -309,8 +319,14 @@ def _flag_hidden_tops(
     line of sight in front of it. A crown that reaches the edge of every scan's range
     is cut there, wherever its highest point lies.
     """
-    if not reach:
-        return stem_map
+    if not reach:  # no scan says where its scanner stood: no top can be checked
+        return replace(
+            stem_map,
+            stems=tuple(
+                replace(s, height_flag=NOT_CHECKED) if s.height_flag == "ok" else s
+                for s in stem_map.stems
+            ),
+        )
     from scipy.spatial import cKDTree
 
     kd = cKDTree(stem_map.xyz)

@@ -156,7 +156,8 @@ class StemRecord:
     ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
     breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle);
     ``height_flag``: ``ok``, ``lean`` (the stem, or the line from its foot to the
-    tree's top), ``top not seen`` or ``not measured``.
+    tree's top), ``top not seen``, ``top not checked`` (no scanner position known:
+    set by the inventory) or ``not measured``.
     """
 
     base: np.ndarray  # (3,)

@@ -287,6 +287,12 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
     inv = take_inventory([shifted], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
     assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+    # Georeferenced, or moved a kilometre from its origin, a file does not say
+    # where its scanner stood: no top is checked, and no height reads ok.
+    for offset, moved in (((512_000.0, 5_400_000.0, 300.0), 0.0), (0.0, 1000.0)):
+        far = Cloud(xyz + moved, offset=np.broadcast_to(offset, 3).astype(float))
+        inv = take_inventory([far], [np.eye(4)])
+        assert {t.stem.height_flag for t in inv.trees} == {"top not checked"}
 
 
 def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
