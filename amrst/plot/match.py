@@ -64,8 +64,15 @@ def _segments(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([i[keep], j[keep]]), length[keep]
 
 
-def _tilt_fix(T: Transform, n_target: np.ndarray, n_source: np.ndarray) -> Transform:
-    """Turn the pose so the moved source's ground normal meets the target's."""
+def _tilt_fix(
+    T: Transform, n_target: np.ndarray, n_source: np.ndarray, pivot: np.ndarray
+) -> Transform:
+    """Turn the pose so the moved source's ground normal meets the target's.
+
+    The turn is about ``pivot`` (the target's stems), not the frame's origin: a scan
+    in coordinates a kilometre from their origin would be moved metres by a tenth of
+    a degree.
+    """
     moved = T[:3, :3] @ n_source
     axis = np.cross(moved, n_target)
     s = float(np.linalg.norm(axis))
@@ -77,7 +84,7 @@ def _tilt_fix(T: Transform, n_target: np.ndarray, n_source: np.ndarray) -> Trans
     R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
     out = np.eye(4)
     out[:3, :3] = R @ T[:3, :3]
-    out[:3, 3] = R @ T[:3, 3]
+    out[:3, 3] = R @ (T[:3, 3] - pivot) + pivot
     return out
 
 
@@ -135,7 +142,7 @@ def stem_poses(target: StemMap, source: StemMap, max_poses: int = 6) -> list[Ste
             s2 = sseg[b][::-1] if flip else sseg[b]
             if not dbh_alike(td[t2], sd[s2]).all():
                 continue
-            T = _tilt_fix(fit_levelled(tk[t2], sk[s2]), nt, ns)
+            T = _tilt_fix(fit_levelled(tk[t2], sk[s2]), nt, ns, tk[t2].mean(axis=0))
             pairs = _confirm(T, tk, sk, td, sd)
             key = tuple(map(tuple, pairs.tolist()))
             if len(pairs) < 2 or key in tried:
@@ -188,7 +195,7 @@ def _refit(
 ) -> StemPose:
     """Levelled fit on every confirming stem, tilt taken out, and its figures."""
     t, s = tk[pairs[:, 0]], sk[pairs[:, 1]]
-    T = _tilt_fix(fit_levelled(t, s), *normals)
+    T = _tilt_fix(fit_levelled(t, s), *normals, t.mean(axis=0))
     T[:3, 3] += np.mean(t - (s @ T[:3, :3].T + T[:3, 3]), axis=0)
     moved = s @ T[:3, :3].T + T[:3, 3]
     rms = float(np.sqrt(np.mean(np.sum((moved[:, :2] - t[:, :2]) ** 2, axis=1))))

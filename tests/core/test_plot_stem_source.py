@@ -58,3 +58,28 @@ def test_the_stem_map_registers_the_same_pair(opposite_pair) -> None:
     assert link.verdict == "verified"
     assert link.T_local is not None
     assert _within(link.T_local, T_true)
+
+
+def test_the_stem_poses_do_not_depend_on_where_the_frame_s_origin_lies(
+    opposite_pair,
+) -> None:
+    # The same pair in coordinates a kilometre off and 300 m up: the tilt is taken
+    # out about the stems, not about the origin (which moved the stems metres).
+    from amrst.plot.match import stem_poses
+
+    target, source, _ = opposite_pair
+    shift = np.array([1000.0, 1000.0, 300.0])
+    params = plot_params()
+    maps = []
+    for at in (np.zeros(3), shift):
+        scans = [
+            analyse_plot_scan(Cloud(x + at), params, StemMapParams())
+            for x in (target, source)
+        ]
+        maps.append(stem_poses(scans[0].stems, scans[1].stems))
+    near, far = maps[0][0], maps[1][0]
+    assert len(far.pairs) == len(near.pairs) >= 3
+    moved = np.eye(4)
+    moved[:3, 3] = shift
+    T_far = invert_transform(moved) @ far.T_target_source @ moved  # back home
+    assert _within(T_far, near.T_target_source)
