@@ -113,6 +113,13 @@ def _check_readable(path: Path) -> _Format:
                 f"{path} is a broken link: it points to {os.readlink(path)}, which "
                 "does not exist. Fix the link or give the real file."
             ) from None
+        head, sep, tail = str(path).rpartition("#")
+        if sep and Path(head).is_file():
+            raise InvalidInput(
+                f"{path}: '#{tail}' picks one scan of a multi-scan file for amrst "
+                f"register and plot (numbered from 0); amrst info {head} gives how "
+                "many it holds (n_scans)."
+            ) from None
         raise InvalidInput(
             f"File not found: {path}. Check the path and the file name."
         ) from None

@@ -358,3 +358,11 @@ def test_a_stem_that_is_no_position_in_the_scan_is_refused(
         err = capsys.readouterr().err
         assert "The stem of the target" in err
         assert len(err.strip().splitlines()) == 1
+
+
+def test_info_on_one_scan_of_a_file_says_how_to_see_its_scans(capsys, sample_pair):
+    t = str(sample_pair.target_path)
+    assert main(["info", f"{t}#5"]) == 2
+    err = capsys.readouterr().err
+    assert "'#5' picks one scan of a multi-scan file" in err
+    assert "File not found" not in err
