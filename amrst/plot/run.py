@@ -8,6 +8,7 @@ the folder (``amrst.plot.export``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -25,6 +26,10 @@ if TYPE_CHECKING:
     from amrst.plot.register import PlotRegistration
     from amrst.plot.stand import PlotArea
     from amrst.types import Cloud
+
+#: A plot centre this near the reference scan's points is in its coordinates: a
+#: circle holding none of them is too small, not misplaced (m).
+NEAR_CENTRE_M = 30.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -196,11 +201,14 @@ def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) 
     """Refuse a plot circle that holds none of the reference scan's points."""
     step = max(1, len(reference.xyz) // 200_000)  # a coarse check needs few points
     xy = reference.xyz[::step, :2] - (np.asarray(area.centre_xy) - reference.offset[:2])
-    if len(xy) and float(np.hypot(xy[:, 0], xy[:, 1]).min()) <= area.radius_m:
+    nearest = float(np.hypot(xy[:, 0], xy[:, 1]).min()) if len(xy) else math.inf
+    if nearest <= area.radius_m:
         return
     cx, cy = area.centre_xy
     where = (
-        f"give the centre in {label}'s coordinates, as trees.csv gives positions"
+        f"its nearest point is {nearest:.1f} m from the centre: give a larger radius"
+        if nearest <= NEAR_CENTRE_M
+        else f"give the centre in {label}'s coordinates, as trees.csv gives positions"
         if given
         else f"{label}'s coordinates are far from their origin (georeferenced?): give "
         "the plot centre in them (amrst plot --plot-centre X Y, or the Plot "

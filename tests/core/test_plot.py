@@ -630,6 +630,11 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
             str(files[1]),
             *("--out", str(tmp_path / "f"), "--plot-radius", "15"),
         ],
+        "give a larger radius": [  # a circle that holds nothing, near the points
+            *map(str, files),
+            *("--out", str(tmp_path / "h"), "--plot-radius", "0.5"),
+            *("--plot-centre", "0", "40"),  # beyond the scans' edge
+        ],
         "holds none of": [  # a centre typed in other coordinates
             *map(str, files),
             *("--out", str(tmp_path / "g"), "--plot-radius", "15"),
