@@ -311,10 +311,12 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     e57 = tmp_path / "plot.e57"
     write_e57(e57, scans, [world @ stood, world @ T_true])
     out = tmp_path / "out"
-    assert (
-        plot_main([str(e57), "--out", str(out), "--quiet", "--plot-radius", "8"]) == 0
-    )
+    # Two positions of these six stems on flat ground: a half turn held by two stems
+    # scores high, so the link may read needs review (exit 3); both scans are placed.
+    code = plot_main([str(e57), "--out", str(out), "--quiet", "--plot-radius", "8"])
+    assert code in (0, 3)
     doc = json.loads((out / "plot.json").read_text())
+    assert all(s["reached"] for s in doc["scans"])
     at = [scanner_position(s) for s in doc["scans"]]
     assert np.allclose(at[0], world[:3, 3] + (-2.0, 0.0, 0.0), atol=1e-6)
     assert np.allclose(at[1], (world @ T_true)[:3, 3], atol=0.05)
