@@ -191,7 +191,9 @@ _WRITER = textwrap.dedent(
 
 
 def _writer(tmp_path: Path, out: Path, shift: float, slow_s: float, timeout_s: float):
-    script = tmp_path / "writer.py"
+    # One script a writer: rewriting a shared one could empty it under a writer
+    # still starting (it then printed nothing and the test failed on a busy machine).
+    script = tmp_path / f"writer_{shift:g}.py"
     script.write_text(_WRITER.format(tests=str(Path(__file__).parent)))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     return subprocess.Popen(
