@@ -255,10 +255,12 @@ def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
                 and np.array_equal(a.offset, b.offset)
                 and np.array_equal(a.xyz, b.xyz)
             ):
-                raise InvalidInput(
-                    f"{labels[j]} holds the same points as {labels[i]}: give each "
-                    "scan once."
+                what = (
+                    "is given twice (a file of several scans gives them all)"
+                    if labels[j] == labels[i]
+                    else f"holds the same points as {labels[i]}"
                 )
+                raise InvalidInput(f"{labels[j]} {what}: give each scan once.")
 
 
 def check_rigid(T: Any, where: str) -> np.ndarray:

@@ -288,3 +288,15 @@ def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
     (other / "trees" / "T001.ply").write_text("ply")  # a name a run writes
     with pytest.raises(InvalidInput, match="holds trees/T"):
         check_out(other, overwrite=False)
+
+
+def test_one_scan_twice_is_named_for_what_it_is():
+    from amrst.types import Cloud, refuse_same_points
+
+    a = Cloud(np.arange(30.0).reshape(10, 3))
+    b = Cloud(a.xyz + 1.0)
+    refuse_same_points([a, b], ["p.e57#0", "p.e57#1"])  # two scans
+    with pytest.raises(InvalidInput, match=r"p\.e57#1 is given twice"):
+        refuse_same_points([a, b, b], ["p.e57#0", "p.e57#1", "p.e57#1"])
+    with pytest.raises(InvalidInput, match=r"copy\.ply holds the same points as a"):
+        refuse_same_points([a, a], ["a.ply", "copy.ply"])
