@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -53,13 +52,11 @@ def _doc(root: Path, tree: str, name: str) -> dict:
     return json.loads((root / "results" / tree / name).read_text(encoding="utf-8"))
 
 
-def _show(qtbot, panel, session, tree: str) -> float:
-    """Select a tree; return the seconds until its scans (and result) are shown."""
-    t0 = time.perf_counter()
+def _show(qtbot, panel, session, tree: str) -> None:
+    """Select a tree; wait until its scans (and result) are shown."""
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
         panel.select_tree(tree)  # the load job starts
     qtbot.waitUntil(lambda: not session.busy, timeout=20_000)
-    return time.perf_counter() - t0
 
 
 @pytest.mark.slow
@@ -75,7 +72,7 @@ def test_select_review_accept_export_a_stored_tree(
     session.step_started.connect(steps.append)
     assert panel.open_campaign(campaign)
 
-    seconds = _show(qtbot, panel, session, "T01")
+    _show(qtbot, panel, session, "T01")
     assert steps == ["load"]  # no registration step ran
     assert set(session.timings) == {"load"}
     assert all(session.is_done(s) for s in ("match", "coarse", "fine"))
@@ -97,7 +94,6 @@ def test_select_review_accept_export_a_stored_tree(
     assert quality.strength.values["rz"] == pytest.approx(metrics["strength"]["rz"])
     # The overlay shows the pose (from the next turn of the event loop).
     qtbot.waitUntil(lambda: win.tabs.currentWidget() is win.registration)
-    assert seconds < 10  # loads only, no step; with slack for a loaded machine
 
     # three scans: every scan and link listed; another link shows its two scans
     steps.clear()
