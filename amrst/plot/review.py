@@ -273,6 +273,26 @@ def same_scans(a: Sequence[str], b: Sequence[str], a_ids: Any = None) -> bool:
     )
 
 
+def _scan_ids(out: Path, labels: Sequence[str]) -> list[str]:
+    """Each scan's :func:`scan_id`, as ``out``'s review recorded it where it did.
+
+    Kept, not read again: a review saved while the scans are elsewhere (results
+    opened on another computer) must not lose the ids that find them again, and a
+    mark need not read every scan file.
+    """
+    try:
+        doc = json.loads((out / REVIEW_JSON).read_text())
+        known = dict(zip(doc["scans"], doc["scan_ids"], strict=True))
+    except (OSError, ValueError, KeyError, TypeError):
+        known = {}
+    return [
+        known[label]
+        if isinstance(known.get(label), str) and known[label]
+        else scan_id(label)
+        for label in labels
+    ]
+
+
 def scan_id(label: str) -> str:
     """Return a scan's identity by content ("" when its file cannot be read).
 
@@ -282,8 +302,7 @@ def scan_id(label: str) -> str:
     import hashlib
     from pathlib import Path
 
-    head, sep, tail = str(label).rpartition("#")
-    path, part = (head, f"#{tail}") if sep and tail.isdigit() else (str(label), "")
+    path, part = _file_and_scan(label)
     try:
         with Path(path).open("rb") as fh:
             size = os.fstat(fh.fileno()).st_size
@@ -298,10 +317,14 @@ def scan_id(label: str) -> str:
 def _scan_key(label: str) -> str:
     from pathlib import Path
 
+    path, part = _file_and_scan(label)
+    return f"{Path(path).resolve()}{part}"
+
+
+def _file_and_scan(label: str) -> tuple[str, str]:
+    """Split ``FILE#k`` into the file and ``#k`` ("" for a file of one scan)."""
     head, sep, tail = str(label).rpartition("#")
-    if sep and tail.isdigit():
-        return f"{Path(head).resolve()}#{tail}"
-    return str(Path(str(label)).resolve())
+    return (head, f"#{tail}") if sep and tail.isdigit() else (str(label), "")
 
 
 def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
@@ -331,7 +354,7 @@ def write_review(out: Path, labels: Sequence[str], review: PlotReview) -> None:
         out / REVIEW_JSON,
         {
             "scans": list(labels),
-            "scan_ids": [scan_id(label) for label in labels],
+            "scan_ids": _scan_ids(out, labels),
             "marks": dict(sorted(review.marks.items())),
             "accepted": accepted,
             "dbh": dbh,

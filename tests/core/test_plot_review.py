@@ -173,7 +173,11 @@ def test_a_review_holds_for_its_scans_moved_but_not_for_other_scans(tmp_path):
     (field / "b.e57").write_bytes(b"e57" * 70_000)
     write_review(tmp_path, labels, PlotReview({"T001": "ok"}))
     field.rename(office)
+    # A mark made in the app while the scans are away keeps what finds them again.
+    write_review(tmp_path, labels, PlotReview({"T001": "ok", "T002": "check"}))
     moved = [str(office / "a.ply"), str(office / "b.e57") + "#1"]
+    assert read_review(tmp_path, moved).marks == {"T001": "ok", "T002": "check"}
+    write_review(tmp_path, labels, PlotReview({"T001": "ok"}))
     assert read_review(tmp_path, moved).marks == {"T001": "ok"}
     assert read_review(tmp_path, [moved[0], moved[1][:-1] + "0"]) == PlotReview()
     # The same names holding other points are other scans.
