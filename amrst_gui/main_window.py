@@ -506,9 +506,8 @@ class MainWindow(QMainWindow):
                     dock.hide()
             for dialog in self.findChildren(QDialog):  # messages, export, about
                 dialog.close()
-            for (
-                view
-            ) in self.views():  # before the widgets go: VTK must not outlive them
+            # Before the widgets go: VTK must not outlive them.
+            for view in self.views():
                 view.close_view()
         super().closeEvent(event)
 

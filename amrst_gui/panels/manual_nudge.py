@@ -184,25 +184,21 @@ class NudgeMixin:
         # The objects themselves, compared by identity: an id() of an object no
         # longer held can come back for a new one (a stale tree). The target's tree
         # and the source's sample are kept apart: a new source keeps the tree.
-        keys = [(s.analysis(r), s.cloud(r)) for r in ("target", "source")]
-        cached = list(self._score_cache or (None, None, None, None))
-        for k, (key, role) in enumerate(zip(keys, ("target", "source"), strict=True)):
-            if cached[2 * k] is not None and all(
-                a is b for a, b in zip(cached[2 * k], key, strict=True)
-            ):
-                continue
-            xyz = key[0].xyz if key[0] is not None else key[1].xyz
-            if role == "target":
-                from scipy.spatial import cKDTree
+        tkey = (s.analysis("target"), s.cloud("target"))
+        skey = (s.analysis("source"), s.cloud("source"))
+        built, sampled = self._score_cache or (None, None)
+        if not _made_from(built, tkey):
+            from scipy.spatial import cKDTree
 
-                step = max(1, -(-len(xyz) // SCORE_TARGET_POINTS))  # ceil: at most that
-                cached[0:2] = key, cKDTree(xyz[::step])
-            else:
-                from amrst.stages.coarse import verification_sample
+            xyz = _points(tkey)
+            step = max(1, -(-len(xyz) // SCORE_TARGET_POINTS))  # ceil: at most that
+            built = (tkey, cKDTree(xyz[::step]))
+        if not _made_from(sampled, skey):
+            from amrst.stages.coarse import verification_sample
 
-                cached[2:4] = key, verification_sample(xyz, s.params.coarse)[0]
-        self._score_cache = tuple(cached)
-        tree, sample = cached[1], cached[3]
+            sampled = (skey, verification_sample(_points(skey), s.params.coarse)[0])
+        self._score_cache = (built, sampled)
+        tree, sample = built[1], sampled[1]
         if not len(sample):
             return float("nan"), 0.0
         moved = sample @ T[:3, :3].T + T[:3, 3]
@@ -213,3 +209,14 @@ class NudgeMixin:
         T = self.nudged_pose()
         if T is not None:
             self.session.add_manual_pose(T, f"nudged {self.yaw.value():+.1f}°")
+
+
+def _made_from(entry: tuple | None, key: tuple) -> bool:
+    """Whether a cached (key, value) was made from these very objects."""
+    return entry is not None and all(a is b for a, b in zip(entry[0], key, strict=True))
+
+
+def _points(key: tuple) -> np.ndarray:
+    """The prepared points of (analysis, cloud), else the cloud's."""
+    analysis, cloud = key
+    return analysis.xyz if analysis is not None else cloud.xyz

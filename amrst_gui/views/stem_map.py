@@ -77,6 +77,7 @@ class StemMapView(QWidget):
         self.zoom = 1.0  # times the scale that shows the whole plot
         self._centre: np.ndarray | None = None  # (2,) m at the map's middle; None: fit
         self._drag: tuple[QPointF, np.ndarray] | None = None  # press, centre then
+        self._dragging = False  # the press has moved farther than DRAG_PX
         self.setToolTip(
             "The plot from above: each tree is its DBH circle to scale (yours where "
             "you measured it; green ok, amber check, grey no DBH), ringed white when "
@@ -234,26 +235,29 @@ class StemMapView(QWidget):
     def mousePressEvent(self, event) -> None:
         if event.button() == Qt.MouseButton.LeftButton and self.outcome is not None:
             self._drag = (event.position(), self._mapping()[1].copy())
+            self._dragging = False
         super().mousePressEvent(event)
 
     def mouseMoveEvent(self, event) -> None:
-        """A drag moves the map (once it has gone farther than a click's jitter)."""
+        """A drag moves the map, once it has gone farther than a click's jitter."""
         if self._drag is not None:
             start, centre = self._drag
             dx, dy = (event.position() - start).toTuple()
-            if self._centre is not None or np.hypot(dx, dy) > DRAG_PX:
+            self._dragging = self._dragging or bool(np.hypot(dx, dy) > DRAG_PX)
+            if self._dragging:
                 scale = self._mapping()[0]
                 self._centre = centre - np.array([dx, -dy]) / scale
                 self.update()
         super().mouseMoveEvent(event)
 
     def mouseReleaseEvent(self, event) -> None:
-        """A release where the press was is a click: a tree, or a point while adding."""
-        drag, self._drag = self._drag, None
-        if event.button() == Qt.MouseButton.LeftButton and drag is not None:
+        """A press and release that did not drag is a click: a tree, or a point
+        while adding."""
+        pressed, self._drag = self._drag is not None, None
+        left = event.button() == Qt.MouseButton.LeftButton
+        if left and pressed and not self._dragging:
             pos = event.position()
-            if np.hypot(*(pos - drag[0]).toTuple()) <= DRAG_PX:
-                self._click(pos.x(), pos.y())
+            self._click(pos.x(), pos.y())
         super().mouseReleaseEvent(event)
 
     def _click(self, x: float, y: float) -> None:
