@@ -118,6 +118,13 @@ class PlotOutcome:
         """Labels of the scans no verified link placed."""
         return self.labelled(FAILED)
 
+    @property
+    def unsure(self) -> frozenset[int]:
+        """The scans, numbered from 1, that need review (trees.csv scans_to_check)."""
+        from amrst.plot.export import unsure_scans
+
+        return unsure_scans([s.status for s in self.scans])
+
     def labelled(self, status: str) -> list[str]:
         """Labels of the scans in ``status``."""
         return [s.label for s in self.scans if s.status == status]

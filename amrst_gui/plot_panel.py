@@ -641,7 +641,7 @@ class PlotWindow(QMainWindow):
         if not path:
             return
         try:
-            export_inventory(Path(path), o.trees, self.review, o.area)
+            export_inventory(Path(path), o.trees, self.review, o.area, o.unsure)
         except (AmrstError, OSError) as exc:
             self._say(f"Not exported: {exc}", error=True)
             return
@@ -767,7 +767,7 @@ class PlotWindow(QMainWindow):
         if area == o.area:
             return
         try:
-            write_area(o.out, o.trees, self.review, area)
+            write_area(o.out, o.trees, self.review, area, o.unsure)
         except (AmrstError, OSError) as exc:
             self._say(f"Plot area not changed: {exc}", error=True)
             return
@@ -822,7 +822,7 @@ class PlotWindow(QMainWindow):
         assert o is not None  # saved into its folder
         self._show_marks()
         try:
-            write_inventory(o.out, o.trees, review, o.area)
+            write_inventory(o.out, o.trees, review, o.area, o.unsure)
         except (AmrstError, OSError) as exc:
             self._say(
                 f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "
@@ -836,7 +836,7 @@ class PlotWindow(QMainWindow):
 
     def toggle_accept(self) -> None:
         """Accept the selected link at its pose (asked first), or undo that."""
-        from amrst.plot.export import write_states
+        from amrst.plot.export import TREES_CSV, write_states
 
         line = self.selected_link()
         if line is None or self.outcome is None:
@@ -868,13 +868,20 @@ class PlotWindow(QMainWindow):
                 o.out,
                 [s.status for s in o.scans],
                 {ln.key for ln in o.links if ln.status == ACCEPTED},
+                o.trees,
+                self.review,
+                o.area,
             )
         except (AmrstError, OSError) as exc:
             self._say(
-                f"{done}, saved in {REVIEW_JSON}; plot.json not: {exc}", error=True
+                f"{done}, saved in {REVIEW_JSON}; plot.json and {TREES_CSV} not: {exc}",
+                error=True,
             )
             return
-        self._say(f"{done} (saved in {REVIEW_JSON} and plot.json). {self._summary()}")
+        self._say(
+            f"{done} (saved in {REVIEW_JSON}, plot.json and {TREES_CSV}). "
+            f"{self._summary()}"
+        )
 
     def shutdown(self) -> None:
         """Drop a running plot or report (the main window closes)."""

@@ -38,6 +38,8 @@ from amrst_gui.views.tree_side import TreeSideView
 from amrst_gui.views.tree_slice import TreeSliceView
 
 if TYPE_CHECKING:
+    from collections.abc import Collection
+
     from amrst.plot.inventory import Tree
     from amrst_gui.plot_jobs import PlotOutcome
 
@@ -69,7 +71,8 @@ FIGURE_TIPS = {
     f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
     "which); top not seen: no scan saw above it (a lower bound, whatever its lean); "
     "top not checked: no scan says where its scanner stood",
-    "Seen from": "The scans whose points reach the stem",
+    "Seen from": "The scans whose points reach the stem; where one of them needs "
+    "review, the tree's figures rest on a pose nobody confirmed yet",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",
 }
 
@@ -88,8 +91,11 @@ def _narrow(button: QPushButton) -> QPushButton:
     return button
 
 
-def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
-    """The tree's figures, label and text (world coordinates, as trees.csv)."""
+def figures(
+    tree: Tree, review: PlotReview, unsure: Collection[int] = ()
+) -> list[tuple[str, str]]:
+    """The tree's figures, label and text (world coordinates, as trees.csv); the
+    scans it is seen from that need review (``unsure``, from 1) are named."""
     s = tree.stem
     mark = review.marks.get(tree.tree_id)
     hand = review.dbh.get(tree.tree_id)
@@ -100,6 +106,9 @@ def figures(tree: Tree, review: PlotReview) -> list[tuple[str, str]]:
         f'<span style="color:{scan_colour(k - 1).name()}; background:#1f2126"> S{k} </span>'
         for k in tree.seen_from
     )
+    doubt = [f"S{k}" for k in tree.seen_from if k in unsure]
+    if doubt:
+        seen += f" ({', '.join(doubt)} {'needs' if len(doubt) == 1 else 'need'} review)"
     return [
         ("Position", f"x {x:.2f}, y {y:.2f}, z {z:.2f} m"),
         ("Height", f"{_value(s.height_m, ' m')} ({s.height_flag})"),
@@ -273,7 +282,7 @@ class TreePanel(QWidget):
             self.tree_id = tree.tree_id
             self.title.setText(f"Tree {tree.tree_id}")
             self.hint.hide()
-            for name, text in figures(tree, self.review):
+            for name, text in figures(tree, self.review, outcome.unsure):
                 self.values[name].setText(text)
             self.show_height(self.height_index)
         for button in self.buttons.values():

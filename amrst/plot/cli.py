@@ -125,6 +125,7 @@ def run_cli(args: argparse.Namespace) -> int:
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_INPUT
+    from amrst.plot.export import unsure_scans
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
     named: dict[str, list[str]] = {
@@ -158,8 +159,12 @@ def run_cli(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if named[NEEDS_REVIEW]:
+        unsure = unsure_scans(run.states)
+        resting = sum(1 for t in run.inventory.trees if unsure & set(t.seen_from))
         print(
-            f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])}; a link on "
+            f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])} ({resting} "
+            f"of the trees are seen from {'it' if len(unsure) == 1 else 'them'}, "
+            "trees.csv scans_to_check); a link on "
             "the way to the reference is unsure or two links disagree: check the "
             "links in the app's Plot window (Open pair) and Accept a right one; leave "
             "a wrong one out (--leave-out I J) when other links join its scans, or "

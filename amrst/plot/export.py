@@ -45,9 +45,16 @@ TREES_CSV = "trees.csv"
 TREES_XLSX = "trees.xlsx"
 TREES_DIR = "trees"
 PLOT_CLOUD = "plot.laz"
-#: trees.csv's columns: the tree's figures, the technician's mark and DBH, and
-#: whether the tree stands inside the fixed-radius plot (empty without one).
-INVENTORY_COLUMNS = (*TREE_COLUMNS, "mark", "dbh_hand_m", "in_plot")
+#: trees.csv's columns: the tree's figures, the scans among ``seen_from`` whose pose
+#: still needs review, the technician's mark and DBH, and whether the tree stands
+#: inside the fixed-radius plot (empty without one).
+INVENTORY_COLUMNS = (
+    *TREE_COLUMNS,
+    "scans_to_check",
+    "mark",
+    "dbh_hand_m",
+    "in_plot",
+)
 
 
 def check_out(out: Path, overwrite: bool) -> None:
@@ -87,9 +94,10 @@ def trees_csv(
     trees: Sequence[Tree],
     review: PlotReview | None = None,
     area: PlotArea | None = None,
+    unsure: Collection[int] = (),
 ) -> str:
     """Return trees.csv: one row per tree, the columns of ``INVENTORY_COLUMNS``."""
-    return _csv_text(inventory_rows(trees, review or PlotReview(), area))
+    return _csv_text(inventory_rows(trees, review or PlotReview(), area, unsure))
 
 
 def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -101,18 +109,26 @@ def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
 
 
 def write_inventory(
-    out: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+    out: Path,
+    trees: Sequence[Tree],
+    review: PlotReview,
+    area: PlotArea | None = None,
+    unsure: Collection[int] = (),
 ) -> list[Path]:
     """Write trees.csv (and trees.xlsx) again with this review, as one unit."""
     from amrst.files.outdir import replace_files
 
-    writers = _inventory_writers(inventory_rows(trees, review, area))
+    writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
     written, _ = replace_files(out, writers, managed=MANAGED)
     return written
 
 
 def export_inventory(
-    path: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+    path: Path,
+    trees: Sequence[Tree],
+    review: PlotReview,
+    area: PlotArea | None = None,
+    unsure: Collection[int] = (),
 ) -> None:
     """Write the inventory with the review to ``path`` (``.csv``/``.xlsx``), atomically.
 
@@ -130,7 +146,7 @@ def export_inventory(
         )
     if not path.parent.is_dir():
         raise InvalidInput(f"Cannot write {path}: its folder does not exist.")
-    writers = _inventory_writers(inventory_rows(trees, review, area))
+    writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
     name = TREES_CSV if suffix == ".csv" else TREES_XLSX
     if name not in writers:
         raise InvalidInput(
@@ -319,11 +335,17 @@ def _scanner_xyz(
 
 
 def write_states(
-    out: Path, states: Sequence[str], accepted: Collection[tuple[int, int]]
+    out: Path,
+    states: Sequence[str],
+    accepted: Collection[tuple[int, int]],
+    trees: Sequence[Tree],
+    review: PlotReview,
+    area: PlotArea | None = None,
 ) -> None:
-    """Write the scans' states and the accepted links into ``out``'s plot.json.
+    """Write the scans' states and accepted links, and the inventory with them.
 
-    For a review made after the run (the app's Accept): the rest of the file stays
+    plot.json takes the states and links, trees.csv its ``scans_to_check``; both are
+    written as one unit. For a review made after the run (the app's Accept): the rest of the file stays
     what the run wrote.
 
     Raises
@@ -350,11 +372,25 @@ def write_states(
             f"{path} cannot take the review ({exc}); run the plot again."
         ) from exc
     text = _json_text(doc)
-    replace_files(out, {PLOT_JSON: lambda p: p.write_text(text)}, managed=MANAGED)
+    rows = inventory_rows(trees, review, area, unsure_scans(states))
+    writers = _inventory_writers(rows)
+    writers[PLOT_JSON] = lambda p: p.write_text(text)
+    replace_files(out, writers, managed=MANAGED)
+
+
+def unsure_scans(states: Sequence[str]) -> frozenset[int]:
+    """Return the scans, numbered from 1, whose state is *needs review*."""
+    from amrst.review.verdict import NEEDS_REVIEW
+
+    return frozenset(k + 1 for k, s in enumerate(states) if s == NEEDS_REVIEW)
 
 
 def write_area(
-    out: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None
+    out: Path,
+    trees: Sequence[Tree],
+    review: PlotReview,
+    area: PlotArea | None,
+    unsure: Collection[int] = (),
 ) -> None:
     """Give ``out``'s plot another fixed-radius plot (None: none), as one unit.
 
@@ -379,7 +415,7 @@ def write_area(
             f"{path} cannot take the plot area ({exc}); run the plot again."
         ) from exc
     text = _json_text(doc)
-    writers = _inventory_writers(inventory_rows(trees, review, area))
+    writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
     writers[PLOT_JSON] = lambda p: p.write_text(text)
     replace_files(out, writers, managed=MANAGED)
 
@@ -428,7 +464,8 @@ def write_plot(
     doc["review_lost"] = lost  # the review that found no tree at this run
     doc["plot_area"] = None if area is None else area.as_dict()
     doc, _ = strict_json(doc)
-    rows = inventory_rows(inventory.trees, review, area)
+    states = [scan["state"] for scan in doc["scans"]]
+    rows = inventory_rows(inventory.trees, review, area, unsure_scans(states))
     writers = _inventory_writers(rows)
     writers[PLOT_JSON] = lambda p: p.write_text(_json_text(doc))
     writers[VIEW_NPZ] = view_writer(plot_view(clouds, inventory))
@@ -458,7 +495,7 @@ def write_plot(
     written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
     if moved:
         write_review(out, labels, review)
-    return written, [scan["state"] for scan in doc["scans"]], lost
+    return written, states, lost
 
 
 #: Every name a plot's run writes into its folder.
@@ -482,16 +519,23 @@ def _plot_cloud_writer(
 
 
 def inventory_rows(
-    trees: Sequence[Tree], review: PlotReview, area: PlotArea | None = None
+    trees: Sequence[Tree],
+    review: PlotReview,
+    area: PlotArea | None = None,
+    unsure: Collection[int] = (),
 ) -> list[dict[str, Any]]:
     """Return trees.csv's rows: the tree's figures, the technician's mark and DBH.
 
-    ``in_plot`` is ``yes`` or ``no`` for standing inside ``area`` (empty without one).
+    ``scans_to_check`` lists the scans of ``seen_from`` that are ``unsure`` (numbered
+    from 1, :func:`unsure_scans`): the tree's figures, even its being a tree, rest on
+    a pose nobody confirmed yet. ``in_plot`` is ``yes`` or ``no`` for standing inside
+    ``area`` (empty without one).
     """
     rows = []
     for t in trees:
         row = {
             **t.row(),
+            "scans_to_check": ";".join(str(k) for k in t.seen_from if k in unsure),
             "mark": review.marks.get(t.tree_id, ""),
             "dbh_hand_m": _hand(review, t),
         }

@@ -156,10 +156,18 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     checked = sum(1 for r in rows if r.get("mark") == "check")
     dropped = sum(1 for r in rows if r.get("mark") == NOT_A_TREE)
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
+    unsure = sum(1 for r in rows if r.get("scans_to_check"))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{_count(len(rows), "tree")}; scans: {_e(counts)}</p>'
-        f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
+        + (
+            f"<p>{_count(unsure, 'tree')} seen from a scan that needs review: "
+            "their figures rest on its pose (Seen from says which; check the "
+            "link, then accept it or place the scan by hand).</p>"
+            if unsure
+            else ""
+        )
+        + f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
         f"at the final poses); {_count(checked, 'tree')} marked check, {dropped} "
         f"marked not a tree and {_count(by_hand, 'DBH')} measured by you.</p>"
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
@@ -260,7 +268,12 @@ def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
             _fixed(_num(r.get("dbh_m")) * 100, 1)
             + f" ({_e(r.get('dbh_quality', ''))})",
             _fixed(r.get("crown_width_m"), 1),
-            _e(r.get("seen_from", "")),
+            _e(r.get("seen_from", ""))
+            + (
+                f" <b>(check {_e(r['scans_to_check'])})</b>"
+                if r.get("scans_to_check")
+                else ""
+            ),
             _e(r.get("mark", "")),
             _fixed(_num(r.get("dbh_hand_m")) * 100, 1),
         ]

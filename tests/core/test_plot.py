@@ -108,6 +108,7 @@ def test_inventory_columns_and_the_command(
         "crown_width_m",
         "n_points",
         "seen_from",
+        "scans_to_check",
         "mark",
         "dbh_hand_m",
         "in_plot",
@@ -121,6 +122,7 @@ def test_inventory_columns_and_the_command(
         assert float(row["lean_deg"]) < 5
         assert int(row["n_points"]) > 0
         assert row["seen_from"] == "1;2"
+        assert row["scans_to_check"] == ""  # no scan needs review
         assert row["mark"] == ""
         assert row["in_plot"] == ""  # no plot radius given
     files = _pair_files(plot_pair, tmp_path)

@@ -133,6 +133,7 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
     assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
     assert doc["links"][0]["accepted"]
+    assert all(r["scans_to_check"] == "" for r in _tree_rows(out))
 
     # The right pairs move the link: the acceptance of the other pose no longer holds
     # (the link is registered on its own).
@@ -174,9 +175,18 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
         register_plot(clouds, left_out=[(0, 3)])
     args = [*_files(clouds, tmp_path), "--out", str(tmp_path / "o"), "--quiet"]
     assert plot_main([*args, "--leave-out", "1", "x"]) == 2
-    assert plot_main([*args, "--leave-out", "1", "3"]) == 3  # 2-3 alone: unsure
+    assert plot_main([*args, "--leave-out", "1", "3", "--report"]) == 3  # 2-3 alone
     doc = json.loads((tmp_path / "o" / "plot.json").read_text())
     assert [ln["origin"] for ln in doc["links"] if ln["target"] == 0][1] == "left out"
+    # Every tree scan 3 reaches rests on its unsure pose, and trees.csv says so.
+    rows = _tree_rows(tmp_path / "o")
+    assert any("3" in r["seen_from"].split(";") for r in rows)
+    for r in rows:
+        assert r["scans_to_check"] == ("3" if "3" in r["seen_from"].split(";") else "")
+    page = (tmp_path / "o" / "report.html").read_text()
+    resting = sum(1 for r in rows if r["scans_to_check"])
+    assert f"{resting} tree{'s' if resting > 1 else ''} seen from a scan that" in page
+    assert "(check 3)" in page
 
 
 def _moved(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
@@ -189,3 +199,10 @@ def _files(clouds: list[Cloud], folder: Path) -> list[str]:
     for f, c in zip(files, clouds, strict=True):
         io.write(f, c)
     return [str(f) for f in files]
+
+
+def _tree_rows(out: Path) -> list[dict[str, str]]:
+    import csv
+
+    with (out / "trees.csv").open() as fh:
+        return list(csv.DictReader(fh))

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
     from pytestqt.qtbot import QtBot
 
+    from amrst.plot.inventory import Tree
     from amrst_gui.main_window import MainWindow
     from amrst_gui.plot_panel import PlotWindow
 
@@ -542,6 +543,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
 
     from amrst_gui import plot_panel
     from amrst_gui.plot_jobs import LinkLine, PlotOutcome, ScanPlace
+    from amrst_gui.plot_tree import figures
 
     plot = plot_panel.PlotWindow()
     qtbot.addWidget(plot)
@@ -553,8 +555,9 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
         ScanPlace("a.ply", np.zeros(2), 5, "registered"),
         ScanPlace("b.ply", T[:2, 3], 5, "needs review", frozenset({(0, 1)})),
     )
+    trees = (_tree("T001", (1, 2)), _tree("T002", (1,)))
     found = PlotOutcome(
-        tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
+        tmp_path, ("a.ply", "b.ply"), trees, scans, (line,), 0.01, (), None, 1.0
     )
     doc = {
         "scans": [{"status": s.status, "state": s.status} for s in scans],
@@ -587,6 +590,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
     assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
     assert doc["links"][0]["accepted"]
+    assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
 
     # A run again that finds the same pose keeps it accepted; another pose does not.
     plot._on_result(found)
@@ -606,6 +610,30 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert read_review(tmp_path, found.labels).accepted == {}
     doc = json.loads((tmp_path / "plot.json").read_text())
     assert [s["state"] for s in doc["scans"]] == ["registered", "needs review"]
+    # The tree scan 2 reaches rests on its pose again: trees.csv and its figures say so.
+    assert _scans_to_check(tmp_path) == {"T001": "2", "T002": ""}
+    seen = [
+        dict(figures(t, plot.review, plot.outcome.unsure))["Seen from"] for t in trees
+    ]
+    assert "S2 needs review" in seen[0]
+    assert "review" not in seen[1]
+
+
+def _tree(tree_id: str, seen_from: tuple[int, ...]) -> Tree:
+    """A listed tree at a place of its own, seen from ``seen_from``."""
+    from amrst.plot.inventory import Tree
+    from amrst.plot.stemmap import StemRecord
+
+    at = np.array([float(tree_id[1:]), 0.0, 0.0])
+    stem = StemRecord(
+        at, at[:2], 0.3, 300.0, 0.002, 0.05, "ok", 20.0, "ok", 1.0, 6.0, 5000
+    )
+    return Tree(tree_id, stem, at, seen_from)
+
+
+def _scans_to_check(out: Path) -> dict[str, str]:
+    with (out / "trees.csv").open() as fh:
+        return {r["tree_id"]: r["scans_to_check"] for r in csv.DictReader(fh)}
 
 
 def test_a_link_is_left_out_of_the_next_run_until_taken_in(
