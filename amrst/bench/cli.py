@@ -5,6 +5,7 @@ from __future__ import annotations
 import shlex
 import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
@@ -76,6 +77,11 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help=f"methods to run (default: all: {' '.join(DEFAULT_METHODS)})",
     )
     p.add_argument("--out", default="bench_out", metavar="DIR", help="output folder")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results an earlier run wrote into --out",
+    )
     p.add_argument("--repeat", type=int, default=1, metavar="N", help="runs per pair")
     p.add_argument("--cases", default=None, metavar="PATTERN", help="e.g. '*normal*'")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -104,6 +110,7 @@ def run_cli(args: argparse.Namespace) -> int:
             raise InvalidInput("--repeat must be at least 1.")
         resolve_methods(args.methods)  # an unknown name, on plot cases too
         folders = find_cases(args.cases_dir, args.cases)
+        _check_out(Path(args.out), args.overwrite)
     except AmrstError as exc:
         print(f"amrst bench: {exc}", file=sys.stderr)
         return 2
@@ -152,6 +159,22 @@ def run_cli(args: argparse.Namespace) -> int:
         )
         return 2
     return 0
+
+
+#: The files a run writes into --out that an earlier run's results are read from.
+RESULT_FILES = ("summary.md", "results.json", "results.csv", "plot_results.json")
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse ``out`` when it holds an earlier run's results, unless ``overwrite``."""
+    from amrst.errors import InvalidInput
+
+    held = [name for name in RESULT_FILES if (out / name).exists()]
+    if held and not overwrite:
+        raise InvalidInput(
+            f"{out} holds the results of an earlier run ({held[0]}): give another "
+            "folder (--out DIR), or --overwrite to replace them."
+        )
 
 
 def _stopped(exc: BaseException) -> int:

@@ -186,7 +186,16 @@ def test_cli_hooks(cases_dir: Path, tmp_path: Path, capsys) -> None:
     )
     assert run_cli(args) == 0
     assert "summary" in capsys.readouterr().err
-    assert (tmp_path / "o" / "summary.md").is_file()
+    summary = tmp_path / "o" / "summary.md"
+    assert summary.is_file()
+    # A second run into the same folder does not replace the first's results unasked.
+    summary.write_text("kept")
+    assert run_cli(args) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert summary.read_text() == "kept"
+    args.overwrite = True
+    assert run_cli(args) == 0
+    assert summary.read_text() != "kept"
     bad = parser.parse_args(
         [str(cases_dir), "--methods", "nope", "--out", str(tmp_path)]
     )
