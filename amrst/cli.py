@@ -76,6 +76,11 @@ def _same_file(a: str, b: str) -> bool:
             return False
 
 
+#: A scan holding this many stems or more is likely a plot's, not one tree's: the
+#: the field scene of one tree with its neighbours holds fewer.
+PLOT_STEMS = 5
+
+
 def _print_summary(
     result: RegistrationResult,
     summary: dict[str, Any],
@@ -117,6 +122,16 @@ def _print_summary(
         check = summary["tree"]["merged"].get("dbh_check", "ok")
         if check != "ok":
             print(f"    DBH doubtful: {check}")
+    stems = [
+        0 if a.scene is None else len(a.scene.stems)
+        for a in (result.target, result.source)
+    ]
+    if max(stems) >= PLOT_STEMS:
+        print(
+            f"  note: the scans hold {stems[0]} and {stems[1]} stems; the tree measured "
+            "is the one nearest their middle. For a plot registered by its stems, "
+            "every tree listed: amrst plot TARGET SOURCE --out DIR"
+        )
     if "truth" in summary:
         tf = summary["truth"]["fine"]
         print(

@@ -120,6 +120,7 @@ def test_register_subprocess_writes_transform_and_truth_errors(
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     assert "Registered source.ply onto target.ply" in proc.stdout
+    assert "amrst plot" not in proc.stdout  # one tree: no plot to point to
     doc = json.loads((out / "transform.json").read_text(encoding="utf-8"))
     T = np.asarray(doc["T_target_source"], dtype=float)
     assert T.shape == (4, 4)

@@ -199,6 +199,16 @@ def test_inventory_columns_and_the_command(
     assert plot_main([*args, "--overwrite"]) == 2  # refused before reading scans
 
 
+def test_register_on_two_plot_scans_points_to_amrst_plot(
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from amrst.cli import main
+
+    t, s = _pair_files(plot_pair, tmp_path)
+    main(["register", str(t), str(s), "--out", str(tmp_path / "r"), "--quiet"])
+    assert "every tree listed: amrst plot TARGET SOURCE" in capsys.readouterr().out
+
+
 def _pair_files(plot_pair, folder: Path) -> list[Path]:
     """Write the plot pair's scans as t.ply and s.ply in ``folder``."""
     from amrst import io
