@@ -263,6 +263,47 @@ def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
                 raise InvalidInput(f"{labels[j]} {what}: give each scan once.")
 
 
+#: A scan in metres spans less than this from its lowest points to its highest (m);
+#: one in millimetres or centimetres spans far more.
+MAX_HEIGHT_SPAN_M = 1000.0
+#: Coordinates in steps this coarse (m) hold no stem to find or measure.
+MAX_STEP_M = 0.1
+#: Points the coordinate checks look at (every k-th of a scan's rows).
+CHECK_POINTS = 200_000
+
+
+def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
+    """Refuse a scan whose coordinates are not in metres, or come in coarse steps.
+
+    Both read without error and register to nothing: the defaults measure in metres,
+    and points snapped to a half-metre grid (float32 far from the origin) show no
+    stem: their values repeat, where those of a sparse scan do not. Scans of under a
+    thousand points are left to the checks that count points.
+    """
+    if len(cloud) < 1000:
+        return
+    xyz = cloud.xyz[:: max(1, len(cloud) // CHECK_POINTS)]  # finite: a Cloud's are
+    lo, hi = np.percentile(xyz[:, 2], [0.5, 99.5])
+    if hi - lo > MAX_HEIGHT_SPAN_M:
+        raise InvalidInput(
+            f"{label} spans {hi - lo:,.0f} m from its lowest points to its highest: "
+            "are its coordinates in millimetres or centimetres? Give the scan in "
+            "metres."
+        )
+    for axis, name in enumerate("xyz"):
+        values = np.unique(xyz[:, axis])
+        if len(values) * 10 > len(xyz):
+            continue  # a value repeats less than ten times: sparse, not snapped
+        step = float(np.percentile(np.diff(values), 10)) if len(values) > 1 else 0.0
+        if step >= MAX_STEP_M:
+            raise InvalidInput(
+                f"{label}'s {name} coordinates come in steps of {100 * step:.0f} cm: "
+                "the file kept too few digits (float32 coordinates far from the "
+                "origin?). Write it again with double-precision coordinates, or as "
+                "LAS/LAZ, whose offset keeps them."
+            )
+
+
 def check_rigid(T: Any, where: str) -> np.ndarray:
     """Check that ``T`` is a rigid 4x4 transform; return it as float64.
 

@@ -27,8 +27,10 @@ THREADS = max(1, min(2, (os.cpu_count() or 1) - 1))
 
 
 def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
-    """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``."""
+    """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``; refuse one
+    whose coordinates are not metres or come in coarse steps."""
     from amrst import io
+    from amrst.types import refuse_odd_coordinates
 
     start = time.perf_counter()
     clouds = {}
@@ -43,6 +45,7 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
         clouds[role] = (
             read_scan(path) if is_scan_spec(path) else io.read(path, reporter=sub)
         )
+        refuse_odd_coordinates(clouds[role], Path(path).name)
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
 

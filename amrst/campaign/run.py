@@ -254,6 +254,7 @@ def _register(
     from amrst.multiscan.cli import write_scan_report
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
+    from amrst.types import refuse_odd_coordinates
 
     params = params_from_dict(params_doc)
     scans = []
@@ -261,6 +262,7 @@ def _register(
         found = read_scans(base / spec)
         if len(found) != 1:
             raise_many(spec, len(found))
+        refuse_odd_coordinates(found[0], spec)
         scans.append(found[0])
     truth = None
     if entry.truth is not None:

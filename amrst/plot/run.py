@@ -17,7 +17,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.types import refuse_same_points
+from amrst.types import refuse_odd_coordinates, refuse_same_points
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Mapping, Sequence
@@ -221,9 +221,14 @@ def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) 
 
 
 def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
-    """Refuse fewer than two scans, and two scans holding the same points."""
+    """Refuse fewer than two scans, two holding the same points, and odd coordinates.
+
+    Odd: not in metres, or in coarse steps (:func:`amrst.types.refuse_odd_coordinates`).
+    """
     if len(clouds) < 2:
         raise InvalidInput(
             f"{len(clouds)} scan given: a plot needs at least two positions."
         )
     refuse_same_points(clouds, labels)
+    for cloud, label in zip(clouds, labels, strict=True):
+        refuse_odd_coordinates(cloud, label)

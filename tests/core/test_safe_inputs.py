@@ -246,3 +246,35 @@ def test_a_folder_the_user_may_not_enter(sample_pair, locked, case, words) -> No
     code, err = _as_unprivileged(args)
     assert code == 2, err
     assert words in _one_line(err)
+
+
+def test_a_scan_in_millimetres_or_snapped_coordinates_is_one_line(
+    sample_pair, tmp_path, capsys
+) -> None:
+    from amrst import io
+    from amrst.types import Cloud
+
+    target = io.read(sample_pair.target_path)
+    mm = tmp_path / "mm.ply"
+    io.write(mm, Cloud(target.xyz * 1000))
+    out = str(tmp_path / "o")
+    assert main(["register", str(sample_pair.target_path), str(mm), "--out", out]) == 2
+    assert "millimetres" in _one_line(capsys.readouterr().err)
+    # float32 coordinates 5,400 km north keep half-metre steps.
+    snapped = tmp_path / "snapped.ply"
+    north = np.add(target.xyz, [0.0, 5.4e6, 0.0])
+    io.write(snapped, Cloud(north.astype(np.float32).astype(float)))
+    code = main(["register", str(snapped), str(sample_pair.source_path), "--out", out])
+    assert code == 2
+    assert "steps of 50 cm" in _one_line(capsys.readouterr().err)
+    assert not Path(out).exists()
+
+
+def test_a_sparse_scan_over_a_wide_area_is_not_taken_for_snapped() -> None:
+    from amrst.types import Cloud, refuse_odd_coordinates
+
+    rng = np.random.default_rng(0)
+    sparse = rng.uniform([0, 0, 0], [700, 700, 40], (2000, 3))  # airborne, 2k points
+    refuse_odd_coordinates(Cloud(sparse), "als.las")
+    centimetres = np.round(rng.uniform([0, 0, 0], [40, 40, 20], (200_000, 3)), 2)
+    refuse_odd_coordinates(Cloud(centimetres), "coarse.las")  # a LAS scale of 1 cm

@@ -65,6 +65,25 @@ def test_corrupt_file_shows_an_error_and_the_app_keeps_working(
     win.error_box.close()
 
 
+def test_a_scan_in_millimetres_is_refused_with_what_to_change(
+    make_main_window, qtbot, tmp_path, sample_pair, errors
+):
+    from amrst import io
+    from amrst.types import Cloud
+
+    win = make_main_window()
+    s = win.session
+    errors.watch(s)
+    mm = tmp_path / "in_mm.ply"
+    io.write(mm, Cloud(io.read(sample_pair[0]).xyz * 1000))
+    with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:
+        s.load_scan("target", mm)
+    assert "in_mm.ply" in blocker.args[0]
+    assert "Give the scan in metres" in blocker.args[0]
+    assert s.cloud("target") is None
+    win.error_box.close()
+
+
 def test_missing_file_and_running_without_scans_fail_politely(
     make_main_window, qtbot, tmp_path, errors
 ):
