@@ -12,7 +12,10 @@ twice in memory.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
+import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -21,7 +24,7 @@ from amrst.io.common import flat_attributes, storable
 from amrst.io.las import PREFIX, all_standard_names, dimension_names
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Callable, Iterator, Mapping, Sequence
     from pathlib import Path
 
     from amrst.types import Cloud, Transform
@@ -144,7 +147,10 @@ def write_las_parts(
     for user_id, record_id, description, data in meta.get("las_vlrs", ()):
         header.vlrs.append(laspy.VLR(user_id, record_id, description, data))
     fmt = laspy.PointFormat(point_format)
-    with laspy.open(path, mode="w", header=header, do_compress=compress) as writer:
+    with (
+        _ctrl_c_between_chunks() as check,
+        laspy.open(path, mode="w", header=header, do_compress=compress) as writer,
+    ):
         for k, (cloud, T) in enumerate(zip(parts, moves, strict=True)):
             attrs = flat_attributes(cloud)
             R, t = np.asarray(T, float)[:3, :3], np.asarray(T, float)[:3, 3]
@@ -163,6 +169,33 @@ def write_las_parts(
                 for key, (name, dtype) in extra.items():
                     record[key] = np.asarray(attrs[name][rows], dtype)
                 writer.write_points(record)
+                check()
+
+
+@contextlib.contextmanager
+def _ctrl_c_between_chunks() -> Iterator[Callable[[], None]]:
+    """Hold Ctrl+C inside the block; ``check()`` and the block's end raise it.
+
+    lazrs writes through a Python callback, and a KeyboardInterrupt raised in that
+    callback comes out as a write error; held, it stops the write as Ctrl+C. Only the
+    main thread with Python's own handler holds it (no other thread gets signals).
+    """
+    pending: list[int] = []
+
+    def check() -> None:
+        if pending:
+            raise KeyboardInterrupt
+
+    own = threading.current_thread() is threading.main_thread()
+    if not own or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield lambda: None
+        return
+    signal.signal(signal.SIGINT, lambda signum, _frame: pending.append(signum))
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    check()
 
 
 def _plan(

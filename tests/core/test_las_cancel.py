@@ -74,3 +74,38 @@ def test_cancel_stops_a_laz_read_within_a_second(big_laz) -> None:
     assert "cloud" not in outcome
     latency = outcome["t"] - cancel_at
     assert latency < 1.0, f"the read went on {latency:.2f} s after Cancel"
+
+
+class _InterruptedStream:
+    """A file whose first write of points gets Ctrl+C while lazrs's callback is in
+    it (the header's writes are small and come from Python)."""
+
+    def __init__(self, raw) -> None:
+        self.raw = raw
+        self.writes = 0
+
+    def write(self, data) -> int:
+        import os
+        import signal
+
+        if len(data) > 1000 and not self.writes:
+            self.writes += 1
+            os.kill(os.getpid(), signal.SIGINT)
+        return self.raw.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.raw, name)
+
+
+def test_ctrl_c_during_a_laz_write_stops_it_as_ctrl_c(tmp_path, monkeypatch) -> None:
+    """Ctrl+C inside lazrs's write callback is Ctrl+C, not a failed write."""
+    import laspy
+
+    real_open = laspy.open
+
+    def interrupted(path, **kwargs):
+        return real_open(_InterruptedStream(Path(path).open("wb")), **kwargs)
+
+    monkeypatch.setattr(laspy, "open", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        io.write(tmp_path / "plot.laz", dense_cloud(200_000))
