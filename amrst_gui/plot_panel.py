@@ -50,6 +50,7 @@ from PySide6.QtWidgets import (
 
 from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.plot.export import inventory_rows
+from amrst.plot.report import counted
 from amrst.plot.review import (
     ACCEPTED,
     REVIEW_JSON,
@@ -86,6 +87,8 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.plot")
 
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
+#: Between a number and its unit: the status line wraps, never between them.
+NBSP = "\u00a0"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -645,7 +648,10 @@ class PlotWindow(QMainWindow):
         except (AmrstError, OSError) as exc:
             self._say(f"Not exported: {exc}", error=True)
             return
-        self._say(f"{len(o.trees)} trees, with your marks and DBHs, exported to {path}")
+        self._say(
+            f"{counted(len(o.trees), 'tree')}, with your marks and DBHs, exported to "
+            f"{path}"
+        )
 
     def write_report(self) -> None:
         """Write report.html from the results folder's files in a worker, then open
@@ -1003,21 +1009,22 @@ class PlotWindow(QMainWindow):
         assert o is not None
         accepted = o.labelled(ACCEPTED)
         line = (
-            f"{len(o.trees)} trees; {len(o.labelled(REGISTERED))} of "
+            f"{counted(len(o.trees), 'tree')}; {len(o.labelled(REGISTERED))} of "
             f"{len(o.scans)} scans registered"
             + (f", {len(accepted)} accepted by you" if accepted else "")
             + (
-                f", bundle error {o.bundle_rmse_m * 100:.1f} cm"
+                f", bundle error {o.bundle_rmse_m * 100:.1f}{NBSP}cm"
                 if math.isfinite(o.bundle_rmse_m)
                 else ", no bundle error (no two scans placed together)"
             )
         )
         review, missing = o.labelled(NEEDS_REVIEW), o.missing
         if review:
+            resting = sum(1 for t in o.trees if o.unsure & set(t.seen_from))
             line += (
                 ". Needs review: "
                 + ", ".join(Path(m).name for m in review)
-                + " (check its links)"
+                + f" (check its links; {counted(resting, 'tree')} seen from it)"
             )
         if missing:
             line += (
@@ -1034,9 +1041,10 @@ class PlotWindow(QMainWindow):
             return ""
         st = stand(inventory_rows(o.trees, self.review, o.area), o.area)
         return (
-            f". Within {o.area.radius_m:g} m: {st.trees} of {len(o.trees)} trees, "
-            f"{st.with_dbh} with a DBH: {st.trees_per_ha:.0f} stems/ha, "
-            f"basal area {st.basal_area_m2_per_ha:.1f} m²/ha"
+            f". Within {o.area.radius_m:g}{NBSP}m: {st.trees} of "
+            f"{counted(len(o.trees), 'tree')}, {st.with_dbh} with a DBH: "
+            f"{st.trees_per_ha:.0f}{NBSP}stems/ha, "
+            f"basal area {st.basal_area_m2_per_ha:.1f}{NBSP}m²/ha"
         )
 
     def _on_report(self, path: Path) -> None:

@@ -159,23 +159,23 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     unsure = sum(1 for r in rows if r.get("scans_to_check"))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
-        f'<p class="headline">{_count(len(rows), "tree")}; scans: {_e(counts)}</p>'
+        f'<p class="headline">{counted(len(rows), "tree")}; scans: {_e(counts)}</p>'
         + (
-            f"<p>{_count(unsure, 'tree')} seen from a scan that needs review: "
+            f"<p>{counted(unsure, 'tree')} seen from a scan that needs review: "
             "their figures rest on its pose (Seen from says which; check the "
             "link, then accept it or place the scan by hand).</p>"
             if unsure
             else ""
         )
         + f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
-        f"at the final poses); {_count(checked, 'tree')} marked check, {dropped} "
-        f"marked not a tree and {_count(by_hand, 'DBH')} measured by you.</p>"
+        f"at the final poses); {counted(checked, 'tree')} marked check, {dropped} "
+        f"marked not a tree and {counted(by_hand, 'DBH')} measured by you.</p>"
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
         + "</div>"
     )
 
 
-def _count(n: int, noun: str) -> str:
+def counted(n: int, noun: str) -> str:
     """``n`` and the noun, plural unless one: "1 tree", "3 trees"."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
@@ -195,7 +195,7 @@ def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
         cx, cy = area.centre_xy
         where = (
             f" within {area.radius_m:g} m of ({cx:.2f}, {cy:.2f}), "
-            f"{area.hectares:.4f} ha, {_count(st.outside, 'listed tree')} outside "
+            f"{area.hectares:.4f} ha, {counted(st.outside, 'listed tree')} outside "
             "left out"
         )
         per_ha = (
@@ -203,7 +203,7 @@ def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
         )
         edge = ""
     return (
-        f"<p>Stand{_e(where)}: {_count(st.trees, 'tree')}, {st.with_dbh} with a "
+        f"<p>Stand{_e(where)}: {counted(st.trees, 'tree')}, {st.with_dbh} with a "
         "DBH; basal "
         f"area {st.basal_area_m2:.3f} m²{per_ha}, quadratic mean DBH "
         f"{_cm(st.qmd_m)}; {height} (trees marked not a tree left out, your DBHs "

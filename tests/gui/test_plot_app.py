@@ -760,12 +760,13 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert sum(far) == 2  # of the six test stems
     for r, outside in enumerate(far):  # greyed in the table, and why
         assert ("outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
-    before = plot.status.text().split(": ")[-1].split(" stems/ha")[0]
-    assert "Within 6 m: 4 of 6 trees, 4 with a DBH: " in plot.status.text()
+    nbsp = "\u00a0"  # a unit stays on its number's line
+    before = plot.status.text().split(": ")[-1].split(f"{nbsp}stems/ha")[0]
+    assert f"Within 6{nbsp}m: 4 of 6 trees, 4 with a DBH: " in plot.status.text()
     k = far.index(False)
     plot.select_tree(k)
     plot.set_mark(o.trees[k].tree_id, "not a tree")  # one tree fewer per hectare
-    after = plot.status.text().split(": ")[-1].split(" stems/ha")[0]
+    after = plot.status.text().split(": ")[-1].split(f"{nbsp}stems/ha")[0]
     assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
     assert plot.centre_edit.text() == "1.5 -2"
@@ -822,7 +823,7 @@ def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     assert o.area == area
     assert json.loads((out / "plot.json").read_text())["plot_area"] == area.as_dict()
     assert _in_plot(out) == ["yes" if area.holds(t.row()) else "no" for t in o.trees]
-    assert "Within 8 m: " in plot.status.text()
+    assert "Within 8\u00a0m: " in plot.status.text()
     plot.centre_button.click()  # then a click on the map is the centre
     assert plot.stem_map.adding
     x, y = plot.stem_map.to_px(np.subtract((2.0, 1.0), o.reference_at))[0]
