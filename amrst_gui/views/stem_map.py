@@ -16,7 +16,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt, Signal
-from PySide6.QtGui import QColor, QFont, QImage, QPainter, QPen, QPolygonF
+from PySide6.QtGui import (
+    QColor,
+    QFont,
+    QFontMetrics,
+    QImage,
+    QPainter,
+    QPen,
+    QPolygonF,
+)
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 # Fill of a tree by its DBH quality, ring by the technician's mark, link by its
@@ -284,7 +292,7 @@ class StemMapView(QWidget):
         p = QPainter(self)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         p.fillRect(self.rect(), BACKGROUND)
-        p.setFont(QFont(self.font().family(), 8))
+        p.setFont(self._map_font())
         if self.outcome is None:
             p.setPen(TEXT)
             p.drawText(
@@ -305,6 +313,9 @@ class StemMapView(QWidget):
         p.end()
 
     # ------------------------------------------------------------- drawing
+    def _map_font(self) -> QFont:
+        return QFont(self.font().family(), 8)
+
     def _draw_top(self, p: QPainter) -> None:
         top = None if self.outcome is None else self.outcome.top
         if top is None or self._image is None:
@@ -390,8 +401,32 @@ class StemMapView(QWidget):
                 p.setBrush(Qt.BrushStyle.NoBrush)
                 p.setPen(QPen(QColor(255, 235, 59), 2.0))
                 p.drawEllipse(QPointF(x, y), r + 6, r + 6)
-            p.setPen(TEXT)
-            p.drawText(QPointF(x + r + 3, y - 3), tree.tree_id)
+        self._draw_tree_labels(p, px)
+
+    def _draw_tree_labels(self, p: QPainter, px: np.ndarray) -> None:
+        assert self.outcome is not None
+        p.setPen(TEXT)
+        for k, at in self.tree_labels(px):
+            p.drawText(at, self.outcome.trees[k].tree_id)
+
+    def tree_labels(self, px: np.ndarray) -> list[tuple[int, QPointF]]:
+        """Where each tree's label goes (``px``: the trees on screen), the selected
+        one first, then the widest; a label that would cover one already placed is
+        left out (zooming in makes room for it)."""
+        assert self.outcome is not None
+        radii = [self._radius_px(k) for k in range(len(self.outcome.trees))]
+        order = sorted(range(len(radii)), key=lambda k: (k != self.selected, -radii[k]))
+        metrics = QFontMetrics(self._map_font())
+        placed: list[tuple[int, QPointF]] = []
+        boxes: list[QRectF] = []
+        for k in order:
+            at = QPointF(px[k][0] + radii[k] + 3, px[k][1] - 3)
+            box = QRectF(metrics.boundingRect(self.outcome.trees[k].tree_id))
+            box.translate(at)
+            if not any(box.intersects(other) for other in boxes):
+                boxes.append(box)
+                placed.append((k, at))
+        return placed
 
     def _draw_added(self, p: QPainter) -> None:
         """The added trees no run has measured yet: crosses, named as they will be."""

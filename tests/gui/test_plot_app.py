@@ -619,12 +619,38 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert "review" not in seen[1]
 
 
-def _tree(tree_id: str, seen_from: tuple[int, ...]) -> Tree:
-    """A listed tree at a place of its own, seen from ``seen_from``."""
+def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.views.stem_map import StemMapView
+
+    trees = (
+        _tree("T001", (1,), 0.0),
+        _tree("T002", (1,), 0.15),
+        _tree("T003", (1,), 30),
+    )
+    view = StemMapView()
+    qtbot.addWidget(view)
+    view.resize(600, 400)
+    view.set_plot(PlotOutcome(tmp_path, ("a.ply",), trees, (), (), 0.0, (), None, 1))
+    labelled = [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+    assert sorted(labelled) in ([0, 2], [1, 2])  # 0.15 m apart: one label of the two
+    x, y = view.to_px(view.outcome.tree_xy[0])[0]
+    view.zoom_at(x, y, 40.0)
+    labelled = [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+    assert {0, 1} <= set(labelled)
+    view.select(1)  # the selected tree's label is always shown
+    view.show_whole()
+    assert 1 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+
+
+def _tree(tree_id: str, seen_from: tuple[int, ...], x: float | None = None) -> Tree:
+    """A listed tree at ``x`` (m; else a place of its own), seen from ``seen_from``."""
     from amrst.plot.inventory import Tree
     from amrst.plot.stemmap import StemRecord
 
-    at = np.array([float(tree_id[1:]), 0.0, 0.0])
+    at = np.array([float(tree_id[1:]) if x is None else x, 0.0, 0.0])
     stem = StemRecord(
         at, at[:2], 0.3, 300.0, 0.002, 0.05, "ok", 20.0, "ok", 1.0, 6.0, 5000
     )
