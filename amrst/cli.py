@@ -76,11 +76,6 @@ def _same_file(a: str, b: str) -> bool:
             return False
 
 
-#: A scan holding this many stems or more is likely a plot's, not one tree's: the
-#: the field scene of one tree with its neighbours holds fewer.
-PLOT_STEMS = 5
-
-
 def _print_summary(
     result: RegistrationResult,
     summary: dict[str, Any],
@@ -114,7 +109,19 @@ def _print_summary(
         if result.strength is not None and result.strength.weak:
             line += f"; weak axes: {', '.join(result.strength.weak)}"
         print(line)
-    if "merged" in result.tree:
+    from amrst.stages.scene import PLOT_STEMS
+
+    stems = [
+        0 if a.scene is None else len(a.scene.stems)
+        for a in (result.target, result.source)
+    ]
+    if max(stems) >= PLOT_STEMS:
+        print(
+            f"  the scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree "
+            "(metrics.json measures the stem nearest the middle). To list and measure "
+            "every tree: amrst plot TARGET SOURCE --out DIR"
+        )
+    elif "merged" in result.tree:
         merged = result.tree["merged"]
         print(f"  tree (merged): {merged.summary()}")
         if merged.note:
@@ -122,16 +129,6 @@ def _print_summary(
         check = summary["tree"]["merged"].get("dbh_check", "ok")
         if check != "ok":
             print(f"    DBH doubtful: {check}")
-    stems = [
-        0 if a.scene is None else len(a.scene.stems)
-        for a in (result.target, result.source)
-    ]
-    if max(stems) >= PLOT_STEMS:
-        print(
-            f"  note: the scans hold {stems[0]} and {stems[1]} stems; the tree measured "
-            "is the one nearest their middle. For a plot registered by its stems, "
-            "every tree listed: amrst plot TARGET SOURCE --out DIR"
-        )
     if "truth" in summary:
         tf = summary["truth"]["fine"]
         print(

@@ -36,6 +36,9 @@ LABEL_NAMES = ("tree", "ground", "other", "outside")
 SCENE_MODES = ("auto", "off")
 SCENE_POINTS = ("above_ground", "tree")
 MAX_GROUND_POINTS = 500_000
+#: A scan holding this many stems or more is a plot's, not one tree's (the field scene
+#: of one tree with its neighbours holds fewer): ``amrst plot`` lists its trees.
+PLOT_STEMS = 5
 # Two levelled scanners (residual tilt up to 2 deg each) see one ground tilted by at
 # most 4 deg apart; a little more for the fit.
 TILT_MARGIN_DEG = 5.0

@@ -332,10 +332,28 @@ class MetricsPanel(QWidget):
         else:
             stage = "fine" if self.session.fine is not None else "coarse"
             self.tree_note.setText(
-                (f"Doubtful DBH: {doubt}. " if doubt else "")
+                self._plot_note()
+                + (f"Doubtful DBH: {doubt}. " if doubt else "")
                 + f"Under the {stage} transform. "
                 + (merged.note or "")
             )
+
+    def _plot_note(self) -> str:
+        """Say so when the scans hold a plot: the figures are one stem's of many."""
+        from amrst.stages.scene import PLOT_STEMS
+
+        stems = []
+        for role in ("target", "source"):
+            analysis = self.session.analysis(role)
+            scene = None if analysis is None else analysis.scene
+            stems.append(0 if scene is None else len(scene.stems))
+        if max(stems) < PLOT_STEMS:
+            return ""
+        return (
+            f"The scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree; "
+            "these are the figures of the stem nearest the middle. File ▸ Open plot… "
+            "lists and measures every tree. "
+        )
 
     def _timings(self) -> dict[str, float]:
         s = self.session

@@ -206,7 +206,10 @@ def test_register_on_two_plot_scans_points_to_amrst_plot(
 
     t, s = _pair_files(plot_pair, tmp_path)
     main(["register", str(t), str(s), "--out", str(tmp_path / "r"), "--quiet"])
-    assert "every tree listed: amrst plot TARGET SOURCE" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "a plot, not one tree" in out
+    assert "every tree: amrst plot TARGET SOURCE" in out
+    assert "tree (merged)" not in out  # a plot is never described as one tree
 
 
 def _pair_files(plot_pair, folder: Path) -> list[Path]:

@@ -191,3 +191,19 @@ def test_apply_waits_for_the_run_and_refuses_contradictions(loaded_window, finis
     assert "Not applied" in panel.state.text()
     assert "preprocess.min_points" in panel.state.text()
     assert s.params is before
+
+
+def test_the_tree_tab_says_when_the_scans_hold_a_plot(make_main_window, monkeypatch):
+    from types import SimpleNamespace
+
+    win = make_main_window()
+    panel = win.metrics_panel
+    counts = {"target": 8, "source": 10}
+
+    def analysis(role):
+        return SimpleNamespace(scene=SimpleNamespace(stems=(None,) * counts[role]))
+
+    monkeypatch.setattr(win.session, "analysis", analysis)
+    assert "8 and 10 stems: a plot, not one tree" in panel._plot_note()
+    counts.update(target=1, source=3)  # one tree with its neighbours
+    assert panel._plot_note() == ""
