@@ -345,8 +345,8 @@ def write_states(
     """Write the scans' states and accepted links, and the inventory with them.
 
     plot.json takes the states and links, trees.csv its ``scans_to_check``; both are
-    written as one unit. For a review made after the run (the app's Accept): the rest of the file stays
-    what the run wrote.
+    written as one unit. For a review made after the run (the app's Accept): the
+    rest of plot.json stays what the run wrote.
 
     Raises
     ------
