@@ -70,7 +70,8 @@ FIGURE_TIPS = {
     f"stem leans over {_OK.lean_flag_deg:g}° or the top stands over "
     f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
     "which); top not seen: no scan saw above it (a lower bound, whatever its lean); "
-    "top not checked: no scan says where its scanner stood",
+    "top not checked: no scan says where its scanner stood (amrst plot --scanner "
+    "gives it)",
     "Seen from": "The scans whose points reach the stem; where one of them needs "
     "review, the tree's figures rest on a pose nobody confirmed yet",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",

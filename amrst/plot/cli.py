@@ -90,6 +90,16 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "gives positions (default: where the reference's scanner stood, as an E57 "
         "or PTX file says, else the file's origin)",
     )
+    p.add_argument(
+        "--scanner",
+        nargs=4,
+        action="append",
+        default=[],
+        metavar=("K", "X", "Y", "Z"),
+        help="where scan K's scanner stood (numbered from 1), in its file's "
+        "coordinates: the tops of a georeferenced scan that does not say are then "
+        "checked from there (repeatable)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -108,6 +118,7 @@ def run_cli(args: argparse.Namespace) -> int:
         left_out = [
             scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
         ]
+        scanners = given_scanners(args.scanner)
         # Absolute labels: the app opens the results from anywhere, runs them again.
         run = run_plot(
             [str(Path(s).resolve()) for s in args.scans],
@@ -115,6 +126,7 @@ def run_cli(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             pairs=pairs,
             left_out=left_out,
+            scanners=scanners,
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
             report=args.report,
@@ -224,6 +236,34 @@ def hand_pairs(given: list[list[str]]) -> dict[tuple[int, int], str]:
             )
         pairs[link] = path
     return pairs
+
+
+def given_scanners(given: list[list[str]]) -> dict[int, tuple[float, float, float]]:
+    """Return ``--scanner K X Y Z`` arguments as {scan from 0: (x, y, z)}.
+
+    Raises
+    ------
+    InvalidInput
+        A scan number that is not a whole number from 1, a coordinate that is no
+        finite number, or a scan given twice.
+    """
+    from amrst.errors import InvalidInput
+
+    scanners: dict[int, tuple[float, float, float]] = {}
+    for k, *xyz in given:
+        what = f"--scanner {k} {' '.join(xyz)}"
+        if not (k.isdecimal() and int(k) >= 1):
+            raise InvalidInput(f"{what}: name the scan by its number from 1, e.g. 2.")
+        try:
+            x, y, z = (float(v) for v in xyz)
+        except ValueError:
+            raise InvalidInput(f"{what}: give X Y Z as numbers (metres).") from None
+        if not all(math.isfinite(v) for v in (x, y, z)):
+            raise InvalidInput(f"{what}: give X Y Z as finite numbers (metres).")
+        if int(k) - 1 in scanners:
+            raise InvalidInput(f"--scanner {k} is given twice: give one per scan.")
+        scanners[int(k) - 1] = (x, y, z)
+    return scanners
 
 
 def scan_numbers(i: str, j: str, given: str) -> tuple[int, int]:

@@ -250,7 +250,9 @@ def plot_document(
     ``T_reference_scan`` maps the scan's file coordinates into the reference's (world
     coordinates when the files carry an offset), as ``amrst register`` writes it;
     ``scanner_xyz`` is where the scan's scanner stood in the reference's file
-    coordinates (None: not placed, or a georeferenced file that does not say); a
+    coordinates (None: not placed, or a georeferenced file that does not say);
+    ``scanner_given`` where the person running the plot said it stood, in the scan's
+    own file coordinates (``amrst plot --scanner``; None: not given); a
     link's ``T_target_source`` its source's into its target's. A link placed from
     point pairs names their file (``pairs_files``, keyed by the scans as its target
     and source points, from 0) as ``pairs``: the next run can place it again.
@@ -298,6 +300,11 @@ def plot_document(
                     else world_transform(pose, reference, cloud).tolist()
                 ),
                 "scanner_xyz": _scanner_xyz(cloud, pose, reference),
+                "scanner_given": (
+                    [float(v) for v in cloud.meta["scanner_origin"]]
+                    if cloud.meta.get("scanner_given")
+                    else None
+                ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
                 "unsure_links": None

@@ -52,6 +52,7 @@ def run_plot(
     overwrite: bool = False,
     pairs: Mapping[tuple[int, int], str] | None = None,
     left_out: Collection[tuple[int, int]] = (),
+    scanners: Mapping[int, tuple[float, float, float]] | None = None,
     write_trees: bool = False,
     write_cloud: bool = False,
     report: bool = False,
@@ -74,6 +75,10 @@ def run_plot(
         Links placed from point pairs: ``{(i, j): pairs CSV}``, scans from 0.
     left_out : collection of (int, int)
         Links not to register (found wrong).
+    scanners : mapping of int to (float, float, float), or None
+        Where a scan's scanner stood, ``{scan from 0: (x, y, z)}`` in its file's
+        coordinates: for a scan whose file does not say (a georeferenced LAS), so
+        that its tops are checked; it overrides what a file says.
     write_trees, write_cloud, report : bool
         Also one cloud per tree, ``plot.laz``, ``report.html``.
     plot_radius_m, plot_centre : float or None, (float, float) or None
@@ -104,6 +109,7 @@ def run_plot(
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
+    clouds = _with_scanners(clouds, scanners or {})
     if area is not None:
         if plot_centre is None:
             area = _at_scanner(area, clouds[0])
@@ -164,6 +170,43 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
                 f"{spec} is a file the run writes in {out}: copy it elsewhere, or "
                 "give another results folder (--out)."
             )
+
+
+def _with_scanners(
+    clouds: list[Cloud], scanners: Mapping[int, tuple[float, float, float]]
+) -> list[Cloud]:
+    """Return the scans with the scanner positions given (``scanner_origin``).
+
+    Raises
+    ------
+    InvalidInput
+        A scan number beyond the scans read, or a position far from its scan's
+        points (not in its file's coordinates).
+    """
+    from dataclasses import replace
+
+    from amrst.plot.inventory import ORIGIN_GAP_M
+
+    clouds = list(clouds)
+    for k, xyz in sorted(scanners.items()):
+        if not 0 <= k < len(clouds):
+            raise InvalidInput(
+                f"--scanner {k + 1}: there are {len(clouds)} scans; name one of them "
+                "by its number from 1."
+            )
+        cloud = clouds[k]
+        at = np.asarray(xyz, float) - cloud.offset
+        lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
+        gap = float(np.linalg.norm(np.maximum(lo - at, 0) + np.maximum(at - hi, 0)))
+        if gap > ORIGIN_GAP_M:
+            raise InvalidInput(
+                f"--scanner {k + 1} {' '.join(f'{v:g}' for v in xyz)} lies {gap:,.0f} m "
+                "from that scan's points: give where its scanner stood in the scan "
+                "file's coordinates."
+            )
+        meta = {**cloud.meta, "scanner_origin": tuple(xyz), "scanner_given": True}
+        clouds[k] = replace(cloud, meta=meta)
+    return clouds
 
 
 def _plot_area(

@@ -340,6 +340,43 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     assert (area["centre_x_m"], area["centre_y_m"]) == pytest.approx(tuple(at[0][:2]))
 
 
+def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
+    plot_pair, tmp_path: Path
+) -> None:
+    from amrst import io
+
+    target, source, _ = plot_pair
+    # Georeferenced LAS files that do not say where their scanners stood: the target
+    # is in the plot's frame (its scanner at -2, 0), the source in its scanner's.
+    geo = (
+        np.array([512_000.0, 5_403_000.0, 310.0]),
+        np.array([512_100.0, 5_403_050.0, 312.0]),
+    )
+    files = [tmp_path / "t.las", tmp_path / "s.las"]
+    for f, xyz, g in zip(files, (target, source), geo, strict=True):
+        io.write(f, Cloud(xyz.xyz, offset=g))
+    args = [str(f) for f in files] + ["--quiet", "--out"]
+    assert plot_main([*args, str(tmp_path / "a")]) in (0, 3)
+    assert {r["height_flag"] for r in _rows_of(tmp_path / "a")} == {"top not checked"}
+
+    stood = [geo[0] + (-2.0, 0.0, 0.0), geo[1]]
+    given = [
+        a
+        for k, xyz in enumerate(stood)
+        for a in ("--scanner", str(k + 1), *map(str, xyz))
+    ]
+    assert plot_main([*args, str(tmp_path / "b"), *given]) in (0, 3)
+    assert "top not checked" not in {r["height_flag"] for r in _rows_of(tmp_path / "b")}
+    doc = json.loads((tmp_path / "b" / "plot.json").read_text())
+    assert [s["scanner_given"] for s in doc["scans"]] == [list(v) for v in stood]
+    assert np.allclose(doc["scans"][0]["scanner_xyz"], stood[0], atol=1e-6)
+
+    for bad in (["0", "1", "2", "3"], ["3", *map(str, stood[0])], ["1", "x", "0", "0"]):
+        assert plot_main([*args, str(tmp_path / "c"), "--scanner", *bad]) == 2
+    far = ["1", "0", "0", "0"]  # not in the file's coordinates
+    assert plot_main([*args, str(tmp_path / "c"), "--scanner", *far]) == 2
+
+
 def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:
     """A whole cylinder of bark points (2 cm apart) from ``z0`` to ``z1``."""
     theta = np.linspace(0, 2 * np.pi, int(2 * np.pi * r / 0.02), endpoint=False)
