@@ -13,6 +13,7 @@ hands back its folder read that way, so the window shows what the files say.
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -45,6 +46,8 @@ class ScanPlace:
     status: str
     # The unsure links its pose rests on (None: none a person can clear).
     doubts: frozenset[tuple[int, int]] | None = frozenset()
+    # Where ``amrst plot --scanner`` said its scanner stood (its file's coordinates).
+    given: tuple[float, float, float] | None = None
 
     @property
     def placed(self) -> bool:
@@ -138,6 +141,7 @@ def run_plot(
     *,
     pairs: Mapping[tuple[int, int], str] | None = None,
     left_out: Collection[tuple[int, int]] = (),
+    scanners: Mapping[int, tuple[float, float, float]] | None = None,
     write_cloud: bool = False,
     area: tuple[float, tuple[float, float] | None] | None = None,
 ) -> PlotOutcome:
@@ -145,7 +149,9 @@ def run_plot(
 
     ``pairs``: links to place from point pairs, ``{(i, j): pairs CSV}`` (as ``amrst
     plot --pairs``, scans from 0); ``left_out``: links not to register (``amrst plot
-    --leave-out``); ``write_cloud``: also the registered plot (``--write-cloud``);
+    --leave-out``); ``scanners``: scanner positions given by hand, ``{scan from 0:
+    (x, y, z)}`` in its file's coordinates (``--scanner``); ``write_cloud``: also the
+    registered plot (``--write-cloud``);
     ``area``: the fixed-radius plot, (radius, centre or None: the origin), as
     ``--plot-radius`` and ``--plot-centre``.
     """
@@ -158,6 +164,7 @@ def run_plot(
         overwrite=overwrite,
         pairs=pairs,
         left_out=left_out,
+        scanners=scanners,
         write_cloud=write_cloud,
         plot_radius_m=None if area is None else area[0],
         plot_centre=None if area is None else area[1],
@@ -193,6 +200,7 @@ def open_results(
                 doubts=None
                 if scan["unsure_links"] is None
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
+                given=_given(scan.get("scanner_given")),
             )
             for scan in doc["scans"]
         )
@@ -253,6 +261,19 @@ def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
         at=np.asarray(offsets[source], float),
         pairs=None if p is None else ((int(p["target"]), int(p["source"])), p["file"]),
     )
+
+
+def _given(value: Any) -> tuple[float, float, float] | None:
+    """A scanner position given by hand, as plot.json records it (None: none).
+
+    Raises ValueError (an unreadable plot.json) when it is no three finite numbers.
+    """
+    if value is None:
+        return None
+    x, y, z = (float(v) for v in value)
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        raise ValueError(f"scanner_given {value} is not three finite numbers")
+    return x, y, z
 
 
 def _scan_xy(scan: Mapping[str, Any], reference: np.ndarray) -> np.ndarray | None:

@@ -161,6 +161,8 @@ class PlotWindow(QMainWindow):
         # Why the folder's review.json could not be read: no review is written over it.
         self.review_error: str | None = None
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
+        # scan -> where amrst plot --scanner said its scanner stood (file coordinates)
+        self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
         self.report_job: StageJob | None = None
@@ -398,6 +400,7 @@ class PlotWindow(QMainWindow):
         self.review, self.hand_pairs = PlotReview(), {}
         self.review_error = None
         self.left_out = set()
+        self.given_scanners = {}
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
         fill(self.links, [])
@@ -512,6 +515,7 @@ class PlotWindow(QMainWindow):
             name="plot",
             pairs=dict(self.hand_pairs),
             left_out=set(self.left_out),
+            scanners=dict(self.given_scanners),
             write_cloud=self.cloud_check.isChecked(),
             area=area,
             on_result=self._on_result,
@@ -945,6 +949,9 @@ class PlotWindow(QMainWindow):
         # What placed each link carries on to the next run.
         self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
         self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
+        self.given_scanners = {
+            k: s.given for k, s in enumerate(outcome.scans) if s.given is not None
+        }
         try:
             review, self.review_error = read_review(outcome.out, outcome.labels), None
         except AmrstError as exc:

@@ -50,6 +50,30 @@ def plot_files(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     return [str(f) for f in files]
 
 
+def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst.plot.cli import main as plot_main
+    from amrst_gui import plot_panel
+
+    out = tmp_path / "out"
+    given = ["--scanner", "1", "-2", "0", "0"]  # the reference's scanner stood there
+    assert plot_main([*plot_files, "--out", str(out), "--quiet", *given]) == 0
+    win = make_main_window()
+    plot = win.open_plot_results(out)
+    qtbot.waitUntil(lambda: plot.outcome is not None, timeout=30_000)
+    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # replace the plot
+    _run(qtbot, plot)
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], None]
+    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+
+
 def _run(qtbot: QtBot, plot: PlotWindow) -> None:
     with qtbot.waitSignal(plot.plot_done, timeout=300_000):
         plot.run()
