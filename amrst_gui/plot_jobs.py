@@ -124,7 +124,7 @@ class PlotOutcome:
     @property
     def unsure(self) -> frozenset[int]:
         """The scans, numbered from 1, that need review (trees.csv scans_to_check)."""
-        from amrst.plot.export import unsure_scans
+        from amrst.plot.review import unsure_scans
 
         return unsure_scans([s.status for s in self.scans])
 

@@ -648,7 +648,7 @@ class PlotWindow(QMainWindow):
         if not path:
             return
         try:
-            export_inventory(Path(path), o.trees, self.review, o.area, o.unsure)
+            export_inventory(Path(path), o.trees, self.review, o.area, unsure=o.unsure)
         except (AmrstError, OSError) as exc:
             self._say(f"Not exported: {exc}", error=True)
             return
@@ -777,7 +777,7 @@ class PlotWindow(QMainWindow):
         if area == o.area:
             return
         try:
-            write_area(o.out, o.trees, self.review, area, o.unsure)
+            write_area(o.out, o.trees, self.review, area)
         except (AmrstError, OSError) as exc:
             self._say(f"Plot area not changed: {exc}", error=True)
             return
@@ -832,7 +832,7 @@ class PlotWindow(QMainWindow):
         assert o is not None  # saved into its folder
         self._show_marks()
         try:
-            write_inventory(o.out, o.trees, review, o.area, o.unsure)
+            write_inventory(o.out, o.trees, review, o.area, unsure=o.unsure)
         except (AmrstError, OSError) as exc:
             self._say(
                 f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "
@@ -1031,7 +1031,8 @@ class PlotWindow(QMainWindow):
             line += (
                 ". Needs review: "
                 + ", ".join(Path(m).name for m in review)
-                + f" (check its links; {counted(resting, 'tree')} seen from it)"
+                + f" (check {'its' if len(review) == 1 else 'their'} links; "
+                f"{counted(resting, 'tree')} seen from {'it' if len(review) == 1 else 'them'})"
             )
         if missing:
             line += (
@@ -1046,7 +1047,7 @@ class PlotWindow(QMainWindow):
         o = self.outcome
         if o is None or o.area is None:
             return ""
-        st = stand(inventory_rows(o.trees, self.review, o.area), o.area)
+        st = stand(inventory_rows(o.trees, self.review, o.area, o.unsure), o.area)
         return (
             f". Within {o.area.radius_m:g}{NBSP}m: {st.trees} of "
             f"{counted(len(o.trees), 'tree')}, {st.with_dbh} with a DBH: "

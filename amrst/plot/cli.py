@@ -137,7 +137,8 @@ def run_cli(args: argparse.Namespace) -> int:
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_INPUT
-    from amrst.plot.export import unsure_scans
+    from amrst.plot.report import counted
+    from amrst.plot.review import unsure_scans
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
     named: dict[str, list[str]] = {
@@ -174,8 +175,8 @@ def run_cli(args: argparse.Namespace) -> int:
         unsure = unsure_scans(run.states)
         resting = sum(1 for t in run.inventory.trees if unsure & set(t.seen_from))
         print(
-            f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])} ({resting} "
-            f"of the trees are seen from {'it' if len(unsure) == 1 else 'them'}, "
+            f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])} "
+            f"({counted(resting, 'tree')} seen from {'it' if len(unsure) == 1 else 'them'}, "
             "trees.csv scans_to_check); a link on "
             "the way to the reference is unsure or two links disagree: check the "
             "links in the app's Plot window (Open pair) and Accept a right one; leave "

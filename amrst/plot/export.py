@@ -25,6 +25,7 @@ from amrst.plot.review import (
     followed,
     read_review,
     scan_id,
+    unsure_scans,
     write_review,
 )
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
@@ -112,10 +113,14 @@ def write_inventory(
     out: Path,
     trees: Sequence[Tree],
     review: PlotReview,
-    area: PlotArea | None = None,
-    unsure: Collection[int] = (),
+    area: PlotArea | None,
+    *,
+    unsure: Collection[int],
 ) -> list[Path]:
-    """Write trees.csv (and trees.xlsx) again with this review, as one unit."""
+    """Write trees.csv (and trees.xlsx) again with this review, as one unit.
+
+    ``unsure``: the scans, from 1, that need review as the review leaves them.
+    """
     from amrst.files.outdir import replace_files
 
     writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
@@ -127,8 +132,9 @@ def export_inventory(
     path: Path,
     trees: Sequence[Tree],
     review: PlotReview,
-    area: PlotArea | None = None,
-    unsure: Collection[int] = (),
+    area: PlotArea | None,
+    *,
+    unsure: Collection[int],
 ) -> None:
     """Write the inventory with the review to ``path`` (``.csv``/``.xlsx``), atomically.
 
@@ -385,19 +391,8 @@ def write_states(
     replace_files(out, writers, managed=MANAGED)
 
 
-def unsure_scans(states: Sequence[str]) -> frozenset[int]:
-    """Return the scans, numbered from 1, whose state is *needs review*."""
-    from amrst.review.verdict import NEEDS_REVIEW
-
-    return frozenset(k + 1 for k, s in enumerate(states) if s == NEEDS_REVIEW)
-
-
 def write_area(
-    out: Path,
-    trees: Sequence[Tree],
-    review: PlotReview,
-    area: PlotArea | None,
-    unsure: Collection[int] = (),
+    out: Path, trees: Sequence[Tree], review: PlotReview, area: PlotArea | None
 ) -> None:
     """Give ``out``'s plot another fixed-radius plot (None: none), as one unit.
 
@@ -417,7 +412,8 @@ def write_area(
     try:
         doc = json.loads(path.read_text())
         doc["plot_area"] = None if area is None else area.as_dict()
-    except (OSError, ValueError, TypeError) as exc:
+        unsure = unsure_scans([scan["state"] for scan in doc["scans"]])
+    except (OSError, ValueError, TypeError, KeyError) as exc:
         raise InvalidInput(
             f"{path} cannot take the plot area ({exc}); run the plot again."
         ) from exc
@@ -528,8 +524,8 @@ def _plot_cloud_writer(
 def inventory_rows(
     trees: Sequence[Tree],
     review: PlotReview,
-    area: PlotArea | None = None,
-    unsure: Collection[int] = (),
+    area: PlotArea | None,
+    unsure: Collection[int],
 ) -> list[dict[str, Any]]:
     """Return trees.csv's rows: the tree's figures, the technician's mark and DBH.
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.plot.review import NOT_A_TREE
+from amrst.plot.review import NOT_A_TREE, unsure_scans
 from amrst.plot.stand import PlotArea, stand
 from amrst.results.report_html import STYLE, html_table
 
@@ -59,7 +59,7 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         "(triangles) and their links by state.</figcaption></figure>"
         + _scans(doc)
         + _links(doc)
-        + _trees(rows)
+        + _trees(rows, _unsure(doc))
         + f"<p><small>Written by AMRST {__version__}; coordinates as in trees.csv."
         "</small></p></body></html>"
     )
@@ -156,7 +156,7 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     checked = sum(1 for r in rows if r.get("mark") == "check")
     dropped = sum(1 for r in rows if r.get("mark") == NOT_A_TREE)
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
-    unsure = sum(1 for r in rows if r.get("scans_to_check"))
+    unsure = sum(1 for r in rows if _to_check(r, _unsure(doc)))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{counted(len(rows), "tree")}; scans: {_e(counts)}</p>'
@@ -259,7 +259,18 @@ def _links(doc: Mapping[str, Any]) -> str:
     )
 
 
-def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
+def _unsure(doc: Mapping[str, Any]) -> frozenset[int]:
+    """Return the scans, from 1, that need review as plot.json's states say."""
+    return unsure_scans([s.get("state", s.get("status", "")) for s in doc["scans"]])
+
+
+def _to_check(row: Mapping[str, Any], unsure: frozenset[int]) -> str:
+    """Return the scans a tree is seen from that need review, as trees.csv does."""
+    seen = str(row.get("seen_from", "")).split(";")
+    return ";".join(k for k in seen if k.strip().isdecimal() and int(k) in unsure)
+
+
+def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
     body = [
         [
             _e(r["tree_id"]),
@@ -270,8 +281,8 @@ def _trees(rows: Sequence[Mapping[str, Any]]) -> str:
             _fixed(r.get("crown_width_m"), 1),
             _e(r.get("seen_from", ""))
             + (
-                f" <b>(check {_e(r['scans_to_check'])})</b>"
-                if r.get("scans_to_check")
+                f" <b>(check {_e(_to_check(r, unsure))})</b>"
+                if _to_check(r, unsure)
                 else ""
             ),
             _e(r.get("mark", "")),

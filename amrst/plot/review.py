@@ -423,6 +423,14 @@ def scan_state(
     return status
 
 
+def unsure_scans(states: Sequence[str]) -> frozenset[int]:
+    """Return the scans, numbered from 1, whose state is *needs review*.
+
+    A tree seen from one rests on a pose nobody confirmed yet (``scans_to_check``).
+    """
+    return frozenset(k + 1 for k, s in enumerate(states) if s == NEEDS_REVIEW)
+
+
 def _circle(entry: Mapping[str, float]) -> HandCircle:
     circle = HandCircle(
         (float(entry["x_m"]), float(entry["y_m"])), float(entry["dbh_m"])

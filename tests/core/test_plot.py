@@ -192,7 +192,8 @@ def test_inventory_columns_and_the_command(
     assert json.loads((out / "plot.json").read_text())["review_lost"] == ["T050 (ok)"]
     assert read_review(out, labels).marks == {}
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
-    write_inventory(out, trees, PlotReview({first: "ok", rows[1]["tree_id"]: "check"}))
+    marks = PlotReview({first: "ok", rows[1]["tree_id"]: "check"})
+    write_inventory(out, trees, marks, None, unsure=())
     assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
     (out / "review.json").write_text("{")
@@ -208,8 +209,9 @@ def test_register_on_two_plot_scans_points_to_amrst_plot(
     main(["register", str(t), str(s), "--out", str(tmp_path / "r"), "--quiet"])
     out = capsys.readouterr().out
     assert "a plot, not one tree" in out
-    assert "every tree: amrst plot TARGET SOURCE" in out
+    assert f"every tree: amrst plot {t} {s} --out DIR" in out
     assert "tree (merged)" not in out  # a plot is never described as one tree
+    assert "the stem nearest the middle (merged)" in out
 
 
 def _pair_files(plot_pair, folder: Path) -> list[Path]:

@@ -615,6 +615,11 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
     assert doc["links"][0]["accepted"]
     assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
+    # A plot area given after the acceptance writes trees.csv as the review leaves it.
+    plot.radius_spin.setValue(5.0)
+    plot.apply_area()
+    assert json.loads((tmp_path / "plot.json").read_text())["plot_area"] is not None
+    assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
 
     # A run again that finds the same pose keeps it accepted; another pose does not.
     plot._on_result(found)
