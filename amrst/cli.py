@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shlex
 import sys
 import time
 import warnings
@@ -81,8 +82,16 @@ def _print_summary(
     summary: dict[str, Any],
     names: tuple[str, str],
     t_read: float,
+    *,
+    files: tuple[str, str],
+    stem_given: bool = False,
 ) -> None:
-    """Print what a registration found: poses, quality, the tree, truth errors."""
+    """Print what a registration found: poses, quality, the tree, truth errors.
+
+    Scans that hold a plot (unless a stem was given) are said to, with the
+    ``amrst plot`` command for their ``files``; the merged figures are then the
+    stem nearest the middle's.
+    """
     fine = summary["fine"]
     cand = result.coarse.candidate
     print(
@@ -115,15 +124,16 @@ def _print_summary(
         0 if a.scene is None else len(a.scene.stems)
         for a in (result.target, result.source)
     ]
-    if max(stems) >= PLOT_STEMS:
+    plot = max(stems) >= PLOT_STEMS and not stem_given
+    if plot:
         print(
-            f"  the scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree "
-            "(metrics.json measures the stem nearest the middle). To list and measure "
-            "every tree: amrst plot TARGET SOURCE --out DIR"
+            f"  the scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree. "
+            f"To list and measure every tree: amrst plot {shlex.join(files)} --out DIR"
         )
-    elif "merged" in result.tree:
+    if "merged" in result.tree:
         merged = result.tree["merged"]
-        print(f"  tree (merged): {merged.summary()}")
+        what = "the stem nearest the middle" if plot else "tree"
+        print(f"  {what} (merged): {merged.summary()}")
         if merged.note:
             print(f"    {merged.note}")
         check = summary["tree"]["merged"].get("dbh_check", "ok")
@@ -232,7 +242,14 @@ def _cmd_register(args: argparse.Namespace) -> int:
             T_truth=T_truth,
         )
         files = [*files, write_report(Path(args.out) / "report.html", report)]
-    _print_summary(result, summary, (target.name, source.name), t_read)
+    _print_summary(
+        result,
+        summary,
+        (target.name, source.name),
+        t_read,
+        files=(str(args.target), str(args.source)),
+        stem_given=args.stem is not None or args.source_stem is not None,
+    )
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )

@@ -298,9 +298,10 @@ def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
         if step >= MAX_STEP_M:
             raise InvalidInput(
                 f"{label}'s {name} coordinates come in steps of {100 * step:.0f} cm: "
-                "the file kept too few digits (float32 coordinates far from the "
-                "origin?). Write it again with double-precision coordinates, or as "
-                "LAS/LAZ, whose offset keeps them."
+                "are they whole millimetres or centimetres, or did the file keep too "
+                "few digits (float32 far from the origin)? Give the scan in metres, "
+                "with double-precision coordinates or as LAS/LAZ, whose offset keeps "
+                "them."
             )
 
 

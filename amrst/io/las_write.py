@@ -193,6 +193,10 @@ def _ctrl_c_between_chunks() -> Iterator[Callable[[], None]]:
     signal.signal(signal.SIGINT, lambda signum, _frame: pending.append(signum))
     try:
         yield check
+    except Exception as exc:
+        if pending:  # the write failed after a Ctrl+C: the Ctrl+C is what to report
+            raise KeyboardInterrupt from exc
+        raise
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     check()

@@ -229,15 +229,22 @@ class StemMapView(QWidget):
         px = self.to_px(o.tree_xy)
         d = np.hypot(px[:, 0] - x, px[:, 1] - y)
         k = int(np.argmin(d))
-        return k if d[k] <= max(CLICK_PX, self._radius_px(k)) else None
+        return k if d[k] <= max(CLICK_PX, self._radii_px()[k]) else None
 
-    def _radius_px(self, k: int) -> float:
+    def _radii_px(self) -> np.ndarray:
+        """(S,) each tree's circle on screen: its DBH (yours where you measured it)."""
         assert self.outcome is not None
-        tree = self.outcome.trees[k]
-        hand = self.review.dbh.get(tree.tree_id)
-        dbh = tree.stem.dbh_m if hand is None else hand.dbh_m
-        r = dbh / 2 * self._mapping()[0] if np.isfinite(dbh) else 0.0
-        return max(float(r), MIN_TREE_PX)
+        dbh = np.array(
+            [
+                t.stem.dbh_m
+                if (h := self.review.dbh.get(t.tree_id)) is None
+                else h.dbh_m
+                for t in self.outcome.trees
+            ],
+            float,
+        )
+        r = np.nan_to_num(dbh / 2 * self._mapping()[0], nan=0.0)
+        return np.asarray(np.maximum(r, MIN_TREE_PX))
 
     # -------------------------------------------------------------- events
     def mousePressEvent(self, event) -> None:
@@ -382,9 +389,10 @@ class StemMapView(QWidget):
     def _draw_trees(self, p: QPainter) -> None:
         assert self.outcome is not None
         px = self.to_px(self.outcome.tree_xy)
+        radii = self._radii_px()
         for k, tree in enumerate(self.outcome.trees):
             x, y = px[k]
-            r = self._radius_px(k)
+            r = float(radii[k])
             rgb = QUALITY_RGB.get(tree.stem.dbh_quality, QUALITY_RGB["none"])
             mark = self.review.marks.get(tree.tree_id)
             ring = QPen(QColor(MARK_RGB[mark]) if mark else QColor(15, 15, 15))
@@ -401,26 +409,28 @@ class StemMapView(QWidget):
                 p.setBrush(Qt.BrushStyle.NoBrush)
                 p.setPen(QPen(QColor(255, 235, 59), 2.0))
                 p.drawEllipse(QPointF(x, y), r + 6, r + 6)
-        self._draw_tree_labels(p, px)
+        self._draw_tree_labels(p, px, radii)
 
-    def _draw_tree_labels(self, p: QPainter, px: np.ndarray) -> None:
+    def _draw_tree_labels(self, p: QPainter, px: np.ndarray, radii: np.ndarray) -> None:
         assert self.outcome is not None
         p.setPen(TEXT)
-        for k, at in self.tree_labels(px):
+        for k, at in self.tree_labels(px, radii):
             p.drawText(at, self.outcome.trees[k].tree_id)
 
-    def tree_labels(self, px: np.ndarray) -> list[tuple[int, QPointF]]:
-        """Where each tree's label goes (``px``: the trees on screen), the selected
-        one first, then the widest; a label that would cover one already placed is
-        left out (zooming in makes room for it)."""
+    def tree_labels(
+        self, px: np.ndarray, radii: np.ndarray | None = None
+    ) -> list[tuple[int, QPointF]]:
+        """Where each tree's label goes (``px``, ``radii``: the trees on screen), the
+        selected one first, then the widest; a label that would cover one already
+        placed is left out (zooming in makes room for it)."""
         assert self.outcome is not None
-        radii = [self._radius_px(k) for k in range(len(self.outcome.trees))]
+        radii = self._radii_px() if radii is None else radii
         order = sorted(range(len(radii)), key=lambda k: (k != self.selected, -radii[k]))
         metrics = QFontMetrics(self._map_font())
         placed: list[tuple[int, QPointF]] = []
         boxes: list[QRectF] = []
         for k in order:
-            at = QPointF(px[k][0] + radii[k] + 3, px[k][1] - 3)
+            at = QPointF(px[k][0] + float(radii[k]) + 3, px[k][1] - 3)
             box = QRectF(metrics.boundingRect(self.outcome.trees[k].tree_id))
             box.translate(at)
             if not any(box.intersects(other) for other in boxes):

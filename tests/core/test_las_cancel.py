@@ -109,3 +109,19 @@ def test_ctrl_c_during_a_laz_write_stops_it_as_ctrl_c(tmp_path, monkeypatch) -> 
     monkeypatch.setattr(laspy, "open", interrupted)
     with pytest.raises(KeyboardInterrupt):
         io.write(tmp_path / "plot.laz", dense_cloud(200_000))
+
+
+def test_a_write_that_fails_after_ctrl_c_reports_the_ctrl_c() -> None:
+    import os
+    import signal
+
+    from amrst.io.las_write import _ctrl_c_between_chunks
+
+    def full_disk_after_ctrl_c() -> None:
+        with _ctrl_c_between_chunks():
+            os.kill(os.getpid(), signal.SIGINT)  # held
+            raise OSError("No space left on device")
+
+    with pytest.raises(KeyboardInterrupt):
+        full_disk_after_ctrl_c()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
