@@ -177,7 +177,7 @@ class PlotWindow(QMainWindow):
         split.setStretchFactor(0, 0)
         split.setStretchFactor(1, 2)
         split.setStretchFactor(2, 1)
-        split.setSizes([410, 600, 330])
+        split.setSizes([480, 530, 330])  # the lists: every tree column at 1366 px
         self.setCentralWidget(split)
         self.stem_map.tree_clicked.connect(self.select_tree)
         self.stem_map.point_clicked.connect(self._on_map_point)

@@ -22,7 +22,9 @@ if TYPE_CHECKING:
     from amrst.plot.review import PlotReview
     from amrst_gui.plot_jobs import PlotOutcome
 
-TREE_COLUMNS = ("Tree", "DBH cm", "DBH quality", "Height m", "Height flag", "Mark")
+# Two-line headings: one line each would push the Mark column out of the side column
+# at 1366 px.
+TREE_COLUMNS = ("Tree", "DBH\ncm", "DBH\nquality", "Height\nm", "Height\nflag", "Mark")
 LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
 TREE_ROLE = Qt.ItemDataRole.UserRole  # a tree row's index into the outcome's trees
@@ -41,9 +43,12 @@ def table(columns: tuple[str, ...], name: str) -> QTableWidget:
     table.horizontalHeader().setSectionResizeMode(
         QHeaderView.ResizeMode.ResizeToContents
     )
-    table.horizontalHeader().setStretchLastSection(True)
-    # The columns fit the side column; a scroll bar would take a row's height.
-    table.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    # The last column takes the width left (its text elided if need be): the others
+    # fit the side column at 1366 px; should they not (a large font), a scroll bar
+    # reaches them.
+    table.horizontalHeader().setSectionResizeMode(
+        len(columns) - 1, QHeaderView.ResizeMode.Stretch
+    )
     return table
 
 

@@ -674,6 +674,38 @@ def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     assert 1 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
 
 
+def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    from amrst_gui import plot_panel
+    from amrst_gui.plot_jobs import PlotOutcome, ScanPlace
+
+    plot = plot_panel.PlotWindow()
+    qtbot.addWidget(plot)
+    plot.resize(1366, 768)
+    plot.show()
+    wide = _tree("T100", (1,))
+    wide = replace(
+        wide, stem=replace(wide.stem, dbh_m=1.064, height_flag="top not seen")
+    )
+    scans = (ScanPlace("a.ply", np.zeros(2), 5, "registered"),)
+    found = PlotOutcome(tmp_path, ("a.ply",), (wide,), scans, (), 0.0, (), None, 1.0)
+    plot.open_scans(["a.ply"], tmp_path)
+    plot._on_result(found)
+    plot.review = replace(plot.review, marks={"T100": "not a tree"})
+    plot._show_marks()
+    table = plot.trees
+    qtbot.waitUntil(lambda: table.viewport().width() > 0)
+    assert table.horizontalScrollBar().maximum() == 0  # nothing out of sight
+    mark = table.item(0, table.columnCount() - 1)
+    assert mark is not None
+    assert mark.text() == "not a tree"
+    width = table.fontMetrics().horizontalAdvance(mark.text())
+    assert table.columnWidth(table.columnCount() - 1) > width
+
+
 def _tree(tree_id: str, seen_from: tuple[int, ...], x: float | None = None) -> Tree:
     """A listed tree at ``x`` (m; else a place of its own), seen from ``seen_from``."""
     from amrst.plot.inventory import Tree
