@@ -3,8 +3,9 @@
     xvfb-run -a -s "-screen 0 1600x1000x24" env QT_QPA_PLATFORM=xcb \
         LIBGL_ALWAYS_SOFTWARE=1 .venv/bin/python docs/screenshots/make_screenshots.py
 
-Drives the real MainWindow on the bundled sample pair; the PNGs land next to
-this script. Settings go to a temporary folder, so the layout is the default one.
+Drives the real MainWindow on the bundled sample pair, then the Plot window on the
+README's plot made from it; the PNGs land next to this script. Settings go to a
+temporary folder, so the layout is the default one.
 """
 
 from __future__ import annotations
@@ -99,9 +100,35 @@ def main() -> int:
     box.accept()
     run(lambda: None)
     shot("10-exported", tab=1)
+    plot_shot(win, sample, Path(settings_dir), settle)
     win.close()
     app.processEvents()
     return 0
+
+
+def plot_shot(win, sample: Path, work: Path, settle) -> None:
+    """The Plot window at 1366x768 on the README's plot: simulated from the sample
+    (four trees, three positions), run with ``amrst plot``, its results opened."""
+    import subprocess
+
+    amrst = [sys.executable, "-m", "amrst.cli"]
+    scans = [str(sample / n) for n in ("target.ply", "source.ply")] * 2
+    made = work / "my_plot"
+    options = ["--trees", "4", "--positions", "3", "--seed", "1", "--out", str(made)]
+    subprocess.run([*amrst, "simulate", "--plot", *scans, *options], check=True)
+    results = work / "results"
+    files = [str(made / f"scan_{k}.ply") for k in (1, 2, 3)]
+    subprocess.run([*amrst, "plot", *files, "--out", str(results)], check=True)
+    plot = win.open_plot_results(results)
+    plot.resize(1366, 768)
+    while plot.outcome is None:
+        settle(200)
+    plot.select_tree(0)
+    settle()
+    path = HERE / "14-plot.png"
+    plot.grab().save(str(path))
+    print(f"saved {path}")
+    plot.close()
 
 
 if __name__ == "__main__":
