@@ -171,8 +171,9 @@ def run_cli(args: argparse.Namespace) -> int:
     import sys
 
     from amrst import io
+    from amrst.simulate.settings import one_tree
 
-    tree = io.read(args.tree)
+    tree = one_tree(io.read(args.tree), args.tree)
     sim = simulate_scans(
         tree,
         args.scans,

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.simulate import check_case_folder, check_settings, simulate_pair, write_case
+from amrst.simulate.settings import one_tree
 
 if TYPE_CHECKING:
     import argparse
@@ -218,7 +219,7 @@ def _run_pair(args: argparse.Namespace) -> str:
     # Settings and the output folder are checked before the (slow) simulation.
     _check_common(args, scan["tilt_deg"])
     check_case_folder(args.out)
-    tree = io.read(tree_file)
+    tree = one_tree(io.read(tree_file), tree_file)
     field = _field_options(args, io)
     if field is None:
         pair = simulate_pair(tree, seed=args.seed, **scan)
@@ -248,7 +249,7 @@ def _field_options(args: argparse.Namespace, io: Any) -> Any:
     return FieldOptions(
         ground=args.ground,
         slope_deg=args.slope_deg,
-        neighbours=tuple(io.read(path) for path in args.neighbours),
+        neighbours=tuple(one_tree(io.read(path), path) for path in args.neighbours),
         shrubs=args.shrubs or 0,
         clip_radius_m=args.clip_radius_m,
     )
@@ -296,7 +297,10 @@ def _run_plot(args: argparse.Namespace) -> str:
         changes["spacing_m"] = (args.spacing_m[0], args.spacing_m[-1])
     options = plot_options(args.kind or "normal", **changes)
     check_plot_folder(args.out)
-    trees = [replace(io.read(path), name=_tree_name(path)) for path in args.tree_files]
+    trees = [
+        replace(one_tree(io.read(path), path), name=_tree_name(path))
+        for path in args.tree_files
+    ]
     plot = simulate_plot(trees, options, seed=args.seed, reporter=TerminalReporter())
     out = write_plot_case(plot, args.out, args.seed)
     sizes = ", ".join(str(len(s)) for s in plot.scans)

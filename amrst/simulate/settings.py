@@ -1,13 +1,19 @@
-"""The settings of a simulated scan pair, checked before any work (names the setting)."""
+"""A simulation's settings and tree clouds, checked before any work.
+
+Each message names the setting or the file to change.
+"""
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amrst.errors import InvalidInput
+
+if TYPE_CHECKING:
+    from amrst.types import Cloud
 
 MAX_NOISE_M = 0.5
 MAX_TILT_DEG = 45.0
@@ -91,3 +97,26 @@ def check_settings(
             f"{label('noise_m')} must be at most {MAX_NOISE_M} m (a scanner's range "
             f"noise is millimetres), got {noise_m:g}."
         )
+
+
+#: The lowest half metre of one tree's cloud spans less than this (m), its trunk and
+#: a spruce's lowest branches; that of a plot or of a scan with its ground, more.
+ONE_TREE_FOOT_M = 4.0
+
+
+def one_tree(cloud: Cloud, path: str) -> Cloud:
+    """Return ``cloud`` when it is one tree; refuse a plot or a scan with its ground.
+
+    The truth stands each tree on its lowest points: several stems there would give
+    one wrong foot, and the trees among them would be in the scans but not the truth.
+    """
+    z = cloud.xyz[:, 2]
+    low = cloud.xyz[z < z.min() + 0.5, :2]
+    lo, hi = np.percentile(low, [5, 95], axis=0)
+    span = float(np.max(hi - lo))
+    if span > ONE_TREE_FOOT_M:
+        raise InvalidInput(
+            f"{path}: its lowest half metre spans {span:.1f} m, so it holds several "
+            "trees or the ground: give one tree a file, without its ground."
+        )
+    return cloud
