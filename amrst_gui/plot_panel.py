@@ -230,9 +230,10 @@ class PlotWindow(QMainWindow):
         self.trees = table(TREE_COLUMNS, "plot_trees")
         self.trees.horizontalHeader().setSortIndicator(0, Qt.SortOrder.AscendingOrder)
         self.trees.setToolTip(
-            "Every tree listed: click one to see it, a heading to sort by it. Keys: "
-            "N / P the next / previous tree; O mark ok, C mark check, X not a tree, "
-            "Del clear the mark."
+            "Every tree listed: click one to see it, a heading to sort by it. An amber "
+            "id: the tree is seen from a scan that needs review. Keys: N / P the "
+            "next / previous tree; O mark ok, C mark check, X not a tree, Del clear "
+            "the mark."
         )
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)

@@ -26,6 +26,9 @@ if TYPE_CHECKING:
 # at 1366 px.
 TREE_COLUMNS = ("Tree", "DBH\ncm", "DBH\nquality", "Height\nm", "Height\nflag", "Mark")
 LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
+#: The id of a tree seen from a scan that needs review: the map's needs-review amber,
+#: darker to read on the list's white.
+UNSURE_RGB = "#b26a00"
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
 TREE_ROLE = Qt.ItemDataRole.UserRole  # a tree row's index into the outcome's trees
 SORT_ROLE = Qt.ItemDataRole.UserRole + 1  # what a cell sorts by
@@ -174,6 +177,7 @@ def fill_trees(table: QTableWidget, o: PlotOutcome, review: PlotReview) -> None:
             item.setData(TREE_ROLE, k)
             table.setItem(k, c, item)
     _grey_outside(table, o)
+    _flag_unsure(table, o)
     table.setSortingEnabled(True)  # sorts by the heading chosen, the tree order first
 
 
@@ -187,6 +191,23 @@ def tree_at_row(table: QTableWidget, row: int) -> int | None:
 def row_of_tree(table: QTableWidget, k: int) -> int:
     """The row showing tree ``k`` (-1: none)."""
     return next((r for r in range(table.rowCount()) if tree_at_row(table, r) == k), -1)
+
+
+def _flag_unsure(table: QTableWidget, o: PlotOutcome) -> None:
+    """Colour the id of each tree seen from a scan that needs review, and say why."""
+    unsure = o.unsure
+    for r, t in enumerate(o.trees):  # filled in tree order, sorted after
+        doubt = [k for k in t.seen_from if k in unsure]
+        item = table.item(r, 0)
+        if not doubt or item is None:
+            continue
+        item.setForeground(QBrush(QColor(UNSURE_RGB)))
+        scans = ", ".join(f"S{k}" for k in doubt)
+        item.setToolTip(
+            f"Seen from {scans}, which {'needs' if len(doubt) == 1 else 'need'} "
+            "review: its figures rest on a pose nobody confirmed yet "
+            "(trees.csv scans_to_check)"
+        )
 
 
 def _grey_outside(table: QTableWidget, o: PlotOutcome) -> None:

@@ -593,6 +593,8 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     plot.links.selectRow(0)
     assert plot.accept_button.isEnabled()
     assert plot.accept_button.text() == "Accept"
+    assert "S2, which needs review" in plot.trees.item(0, 0).toolTip()  # T001
+    assert plot.trees.item(1, 0).toolTip() == ""  # T002, seen from S1 alone
 
     # Asked first; "Cancel" accepts nothing.
     monkeypatch.setattr(plot_panel, "confirm", lambda *_: False)
@@ -615,6 +617,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
     assert doc["links"][0]["accepted"]
     assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
+    assert plot.trees.item(0, 0).toolTip() == ""
     # A plot area given after the acceptance writes trees.csv as the review leaves it.
     plot.radius_spin.setValue(5.0)
     plot.apply_area()
