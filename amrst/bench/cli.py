@@ -110,22 +110,18 @@ def run_cli(args: argparse.Namespace) -> int:
             raise InvalidInput("--repeat must be at least 1.")
         resolve_methods(args.methods)  # an unknown name, on plot cases too
         folders = find_cases(args.cases_dir, args.cases)
+        if not args.cases and not folders:
+            raise InvalidInput(
+                f"No case folders (with truth.json) under {args.cases_dir}: give the "
+                "folder that holds them (each with target.ply, source.ply and "
+                "truth.json), or make cases with 'amrst simulate'."
+            )
         _check_out(Path(args.out), args.overwrite)
     except AmrstError as exc:
         print(f"amrst bench: {exc}", file=sys.stderr)
         return 2
     if folders and all(is_plot_case(f) for f in folders):
         return _run_plot_bench(args)
-    try:
-        if not args.cases and not find_cases(args.cases_dir):
-            raise InvalidInput(
-                f"No case folders (with truth.json) under {args.cases_dir}: give the "
-                "folder that holds them (each with target.ply, source.ply and "
-                "truth.json), or make cases with 'amrst simulate'."
-            )
-    except AmrstError as exc:
-        print(f"amrst bench: {exc}", file=sys.stderr)
-        return 2
     command = shlex.join(["amrst", "bench", *sys.argv[2:]]) if len(sys.argv) > 1 else ""
     try:
         result = run_bench(

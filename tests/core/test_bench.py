@@ -317,3 +317,15 @@ def test_a_pattern_matching_nothing_says_so(cases_dir: Path, tmp_path: Path) -> 
     assert not (tmp_path / "o").exists()
     with pytest.raises(InvalidInput, match="matched nothing"):
         run_bench(tmp_path, {"id": _identity}, tmp_path / "o", pattern="zz*")
+
+
+def test_an_empty_case_folder_is_said_before_an_old_out(tmp_path, capsys) -> None:
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "summary.md").write_text("an earlier run")
+    (tmp_path / "none").mkdir()
+    args = parser.parse_args([str(tmp_path / "none"), "--out", str(out)])
+    assert run_cli(args) == 2
+    assert "No case folders" in capsys.readouterr().err
