@@ -51,6 +51,7 @@ SCAN_RGB = (
     (161, 136, 127),
 )
 MIN_TREE_PX = 3.0
+SCAN_PX = 8.0  # half the width of a scanner's triangle
 #: An added point this near a tree (m) is that tree, as a run finds it.
 SAME_TREE_M = StemMapParams().same_stem_m
 #: The technician's trees and circles: a colour no scan has.
@@ -372,7 +373,7 @@ class StemMapView(QWidget):
         for k, scan in enumerate(self.outcome.scans):
             if scan.xy is None:
                 continue
-            (x, y), s = self.to_px(scan.xy)[0], 8.0
+            (x, y), s = self.to_px(scan.xy)[0], SCAN_PX
             tri = QPolygonF(
                 [
                     QPointF(x, y - s),
@@ -384,7 +385,11 @@ class StemMapView(QWidget):
             p.setBrush(scan_colour(k))
             p.drawPolygon(tri)
             p.setPen(TEXT)
-            p.drawText(QPointF(x + s + 2, y + 4), f"S{k + 1}")
+            p.drawText(self._scan_label_at(x, y), f"S{k + 1}")
+
+    def _scan_label_at(self, x: float, y: float) -> QPointF:
+        """Where the label of a scanner drawn at pixel (x, y) goes."""
+        return QPointF(x + SCAN_PX + 2, y + 4)
 
     def _draw_trees(self, p: QPainter) -> None:
         assert self.outcome is not None
@@ -421,14 +426,20 @@ class StemMapView(QWidget):
         self, px: np.ndarray, radii: np.ndarray | None = None
     ) -> list[tuple[int, QPointF]]:
         """Where each tree's label goes (``px``, ``radii``: the trees on screen), the
-        selected one first, then the widest; a label that would cover one already
-        placed is left out (zooming in makes room for it)."""
+        selected one first, then the widest; a label that would cover a scanner's or
+        one already placed is left out (zooming in makes room for it)."""
         assert self.outcome is not None
         radii = self._radii_px() if radii is None else radii
         order = sorted(range(len(radii)), key=lambda k: (k != self.selected, -radii[k]))
         metrics = QFontMetrics(self._map_font())
         placed: list[tuple[int, QPointF]] = []
-        boxes: list[QRectF] = []
+        boxes = [  # the scanners' labels, drawn whatever the trees'
+            QRectF(metrics.boundingRect(f"S{k + 1}")).translated(
+                self._scan_label_at(*self.to_px(s.xy)[0])
+            )
+            for k, s in enumerate(self.outcome.scans)
+            if s.xy is not None
+        ]
         for k in order:
             at = QPointF(px[k][0] + float(radii[k]) + 3, px[k][1] - 3)
             box = QRectF(metrics.boundingRect(self.outcome.trees[k].tree_id))
