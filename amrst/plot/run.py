@@ -109,7 +109,7 @@ def run_plot(
     reporter.progress(0.0, "Reading the scans")
     clouds, labels = read_specs(list(specs))
     _check_scans(clouds, labels)
-    clouds = _with_scanners(clouds, scanners or {})
+    clouds = _with_scanners(clouds, labels, scanners or {})
     if area is not None:
         if plot_centre is None:
             area = _at_scanner(area, clouds[0])
@@ -172,37 +172,53 @@ def _check_inputs(specs: Sequence[str], out: Path) -> None:
             )
 
 
+#: A scanner given by hand stands within this of its scan's points (m, horizontally) ...
+SCANNER_NEAR_M = 5.0
+#: ... and up to this above the lowest of them (m): a tripod on rough ground.
+SCANNER_UP_M = 4.0
+
+
 def _with_scanners(
-    clouds: list[Cloud], scanners: Mapping[int, tuple[float, float, float]]
+    clouds: list[Cloud],
+    labels: Sequence[str],
+    scanners: Mapping[int, tuple[float, float, float]],
 ) -> list[Cloud]:
     """Return the scans with the scanner positions given (``scanner_origin``).
 
     Raises
     ------
     InvalidInput
-        A scan number beyond the scans read, or a position far from its scan's
-        points (not in its file's coordinates).
+        A scan number beyond the scans read, a scan whose file says where its
+        scanner stood, or a position with no ground of its scan just below it (not in
+        the scan file's coordinates, or mistyped).
     """
     from dataclasses import replace
 
-    from amrst.plot.inventory import ORIGIN_GAP_M
+    from amrst.sampling import strided
 
     clouds = list(clouds)
     for k, xyz in sorted(scanners.items()):
+        what = f"--scanner {k + 1} {' '.join(f'{v:.2f}' for v in xyz)}"
         if not 0 <= k < len(clouds):
             raise InvalidInput(
-                f"--scanner {k + 1}: there are {len(clouds)} scans; name one of them "
-                "by its number from 1."
+                f"{what}: there are {len(clouds)} scans; name one of them by its "
+                "number from 1."
             )
         cloud = clouds[k]
-        at = np.asarray(xyz, float) - cloud.offset
-        lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
-        gap = float(np.linalg.norm(np.maximum(lo - at, 0) + np.maximum(at - hi, 0)))
-        if gap > ORIGIN_GAP_M:
+        if cloud.meta.get("scanner_origin") is not None:
             raise InvalidInput(
-                f"--scanner {k + 1} {' '.join(f'{v:g}' for v in xyz)} lies {gap:,.0f} m "
-                "from that scan's points: give where its scanner stood in the scan "
-                "file's coordinates."
+                f"{what}: {labels[k]} says where its scanner stood; --scanner is for a "
+                "scan whose file does not."
+            )
+        at = np.asarray(xyz, float) - cloud.offset
+        pts = strided(cloud.xyz, 200_000)
+        near = pts[np.hypot(*(pts[:, :2] - at[:2]).T) <= SCANNER_NEAR_M]
+        ground = float(np.percentile(near[:, 2], 2)) if len(near) >= 10 else np.nan
+        if not (ground - 1.0 <= at[2] <= ground + SCANNER_UP_M):
+            raise InvalidInput(
+                f"{what}: {labels[k]} has no ground just below that point (within "
+                f"{SCANNER_NEAR_M:g} m across and {SCANNER_UP_M:g} m down): give where "
+                "its scanner stood, in the scan file's coordinates."
             )
         meta = {**cloud.meta, "scanner_origin": tuple(xyz), "scanner_given": True}
         clouds[k] = replace(cloud, meta=meta)

@@ -340,6 +340,9 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     # Without --plot-centre the plot is centred on the reference's scanner.
     area = doc["plot_area"]
     assert (area["centre_x_m"], area["centre_y_m"]) == pytest.approx(tuple(at[0][:2]))
+    # The file says where its scanners stood: a --scanner is refused, not taken over it.
+    given = ["--scanner", "1", *map(str, at[0])]
+    assert plot_main([str(e57), "--out", str(tmp_path / "o2"), "--quiet", *given]) == 2
 
 
 def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
@@ -376,7 +379,13 @@ def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
     for bad in (["0", "1", "2", "3"], ["3", *map(str, stood[0])], ["1", "x", "0", "0"]):
         assert plot_main([*args, str(tmp_path / "c"), "--scanner", *bad]) == 2
     far = ["1", "0", "0", "0"]  # not in the file's coordinates
-    assert plot_main([*args, str(tmp_path / "c"), "--scanner", *far]) == 2
+    high = [
+        "1",
+        *map(str, stood[0] + (0.0, 0.0, 60.0)),
+    ]  # mistyped: far over the crowns
+    aside = ["1", *map(str, stood[0] + (40.0, 40.0, 0.0))]  # beyond its scan's points
+    for wrong in (far, high, aside):
+        assert plot_main([*args, str(tmp_path / "c"), "--scanner", *wrong]) == 2
 
 
 def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:
