@@ -203,11 +203,13 @@ def _flag_unsure(table: QTableWidget, o: PlotOutcome) -> None:
             continue
         item.setForeground(QBrush(QColor(UNSURE_RGB)))
         scans = ", ".join(f"S{k}" for k in doubt)
-        item.setToolTip(
+        tip = (
             f"Seen from {scans}, which {'needs' if len(doubt) == 1 else 'need'} "
             "review: its figures rest on a pose nobody confirmed yet "
             "(trees.csv scans_to_check)"
         )
+        outside = item.toolTip()  # set by _grey_outside
+        item.setToolTip(f"{tip}. {outside}" if outside else tip)
 
 
 def _grey_outside(table: QTableWidget, o: PlotOutcome) -> None:

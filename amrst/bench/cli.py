@@ -101,7 +101,7 @@ def run_cli(args: argparse.Namespace) -> int:
         130 when interrupted.
     """
     from amrst.bench.plot import is_plot_case
-    from amrst.bench.run import resolve_methods, run_bench
+    from amrst.bench.run import no_cases_message, resolve_methods, run_bench
     from amrst.errors import AmrstError, InvalidInput
     from amrst.io.cases import find_cases
 
@@ -110,7 +110,9 @@ def run_cli(args: argparse.Namespace) -> int:
             raise InvalidInput("--repeat must be at least 1.")
         resolve_methods(args.methods)  # an unknown name, on plot cases too
         folders = find_cases(args.cases_dir, args.cases)
-        if not args.cases and not folders:
+        if args.cases and not folders:
+            raise InvalidInput(no_cases_message(args.cases_dir, args.cases))
+        if not folders:
             raise InvalidInput(
                 f"No case folders (with truth.json) under {args.cases_dir}: give the "
                 "folder that holds them (each with target.ply, source.ply and "

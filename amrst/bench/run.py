@@ -242,7 +242,7 @@ def unreadable_case(
     ]
 
 
-def _no_cases_message(cases_dir: str | os.PathLike[str], pattern: str | None) -> str:
+def no_cases_message(cases_dir: str | os.PathLike[str], pattern: str | None) -> str:
     """Say why no case folder was found: none there, or the pattern matched none."""
     if not pattern:
         return f"No case folders (with truth.json) under {cases_dir}."
@@ -323,7 +323,7 @@ def run_bench(
     names = list(chosen)
     folders = find_cases(cases_dir, pattern)
     if not folders:
-        raise InvalidInput(_no_cases_message(cases_dir, pattern))
+        raise InvalidInput(no_cases_message(cases_dir, pattern))
     out = make_folder(out_dir, "output folder")
     meta = {
         **machine_info(),

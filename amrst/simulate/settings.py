@@ -99,24 +99,29 @@ def check_settings(
         )
 
 
-#: The lowest half metre of one tree's cloud spans less than this (m), its trunk and
-#: a spruce's lowest branches; that of a plot or of a scan with its ground, more.
-ONE_TREE_FOOT_M = 4.0
+#: The lowest half metre of one tree's cloud (its trunk, buttresses, low branches and
+#: the ground a clip kept round it) spans less than this (m); that of a plot of
+#: several trees spans more.
+ONE_TREE_FOOT_M = 6.0
 
 
 def one_tree(cloud: Cloud, path: str) -> Cloud:
-    """Return ``cloud`` when it is one tree; refuse a plot or a scan with its ground.
+    """Return ``cloud`` when it is one tree; refuse a plot of several.
 
-    The truth stands each tree on its lowest points: several stems there would give
-    one wrong foot, and the trees among them would be in the scans but not the truth.
+    The truth stands each tree on its lowest points (``trunk_base``, which skips
+    strays): several stems there would give one wrong foot, and the trees among them
+    would be in the scans but not in the truth.
     """
+    from amrst.simulate import trunk_base
+
+    z0 = trunk_base(cloud.xyz)[2]
     z = cloud.xyz[:, 2]
-    low = cloud.xyz[z < z.min() + 0.5, :2]
+    low = cloud.xyz[(z >= z0) & (z < z0 + 0.5), :2]
     lo, hi = np.percentile(low, [5, 95], axis=0)
     span = float(np.max(hi - lo))
     if span > ONE_TREE_FOOT_M:
         raise InvalidInput(
-            f"{path}: its lowest half metre spans {span:.1f} m, so it holds several "
-            "trees or the ground: give one tree a file, without its ground."
+            f"{path}: its lowest half metre spans {span:.1f} m, as a plot of several "
+            "trees does: give one tree a file."
         )
     return cloud

@@ -425,9 +425,12 @@ class StemMapView(QWidget):
     def tree_labels(
         self, px: np.ndarray, radii: np.ndarray | None = None
     ) -> list[tuple[int, QPointF]]:
-        """Where each tree's label goes (``px``, ``radii``: the trees on screen), the
-        selected one first, then the widest; a label that would cover a scanner's or
-        one already placed is left out (zooming in makes room for it)."""
+        """Where each tree's label goes (``px``, ``radii``: the trees on screen).
+
+        The selected tree's is always drawn; the others, widest first, are left out
+        where they would cover a scanner's label or one already placed (zooming in
+        makes room for them).
+        """
         assert self.outcome is not None
         radii = self._radii_px() if radii is None else radii
         order = sorted(range(len(radii)), key=lambda k: (k != self.selected, -radii[k]))
@@ -444,7 +447,7 @@ class StemMapView(QWidget):
             at = QPointF(px[k][0] + float(radii[k]) + 3, px[k][1] - 3)
             box = QRectF(metrics.boundingRect(self.outcome.trees[k].tree_id))
             box.translate(at)
-            if not any(box.intersects(other) for other in boxes):
+            if k == self.selected or not any(box.intersects(o) for o in boxes):
                 boxes.append(box)
                 placed.append((k, at))
         return placed

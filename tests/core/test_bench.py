@@ -319,7 +319,9 @@ def test_a_pattern_matching_nothing_says_so(cases_dir: Path, tmp_path: Path) -> 
         run_bench(tmp_path, {"id": _identity}, tmp_path / "o", pattern="zz*")
 
 
-def test_an_empty_case_folder_is_said_before_an_old_out(tmp_path, capsys) -> None:
+def test_an_empty_case_folder_is_said_before_an_old_out(
+    tmp_path, capsys, cases_dir
+) -> None:
     parser = argparse.ArgumentParser()
     configure_parser(parser)
     out = tmp_path / "o"
@@ -329,3 +331,6 @@ def test_an_empty_case_folder_is_said_before_an_old_out(tmp_path, capsys) -> Non
     args = parser.parse_args([str(tmp_path / "none"), "--out", str(out)])
     assert run_cli(args) == 2
     assert "No case folders" in capsys.readouterr().err
+    args = parser.parse_args([str(cases_dir), "--cases", "zz*", "--out", str(out)])
+    assert run_cli(args) == 2
+    assert "matched nothing" in capsys.readouterr().err

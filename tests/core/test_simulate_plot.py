@@ -262,7 +262,7 @@ def _tree_files(trees: list[Cloud], folder: Path) -> list[str]:
         ([], ["--range-m", "100"], "give a shorter --range-m"),  # out of memory
         ([], ["--range-m", "1e12"], "give a shorter --range-m"),
         ([], ["--shrubs", "100000000"], "shrubs must be at most 1000"),
-        (["two_trees.ply"], [], "holds several trees or the ground"),
+        (["two_trees.ply"], [], "as a plot of several trees does"),
     ],
 )
 def test_cli_bad_plot_input_is_one_line(
@@ -271,7 +271,7 @@ def test_cli_bad_plot_input_is_one_line(
     from amrst import io
 
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat nonsense\n")
-    apart = np.add(trees[0].xyz, (6.0, 0.0, 0.0))  # a plot subset given as a tree
+    apart = np.add(trees[0].xyz, (8.0, 0.0, 0.0))  # a plot subset given as a tree
     io.write(tmp_path / "two_trees.ply", Cloud(np.vstack([trees[0].xyz, apart])))
     files = _tree_files(trees[:3], tmp_path) + [str(tmp_path / f) for f in more_files]
     out = tmp_path / "case"

@@ -677,6 +677,8 @@ def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     view.select(1)  # the selected tree's label is always shown
     view.show_whole()
     assert 1 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+    view.select(2)  # even beside a scanner's
+    assert 2 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
 
 
 def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
