@@ -125,14 +125,9 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
 
         return fn
 
-    # Three threads of the pool are needed at once (one runs, two wait their turn):
-    # wait until workers that earlier tests left ending have returned them.
-    from PySide6.QtCore import QThreadPool
-
-    pool = QThreadPool.globalInstance()
-    qtbot.waitUntil(
-        lambda: pool.activeThreadCount() <= workers.MIN_THREADS - 3, timeout=30_000
-    )
+    # The work earlier tests left ending must be over first: three threads of the pool
+    # are needed at once, and a display job of theirs would take its turn among ours.
+    assert workers.wait_for_workers(60.0)
     got: list[str] = []
     first = workers.run_stage(job_fn("first"), display=True, on_result=got.append)
     qtbot.waitUntil(lambda: calls == ["first"], timeout=10_000)
