@@ -428,21 +428,15 @@ class StemMapView(QWidget):
         """Where each tree's label goes (``px``, ``radii``: the trees on screen).
 
         The selected tree's is always drawn; the others, widest first, are left out
-        where they would cover a scanner's label or one already placed (zooming in
-        makes room for them).
+        where they would cover a scanner's label, an added tree's or one already
+        placed (zooming in makes room for them).
         """
         assert self.outcome is not None
         radii = self._radii_px() if radii is None else radii
         order = sorted(range(len(radii)), key=lambda k: (k != self.selected, -radii[k]))
         metrics = QFontMetrics(self._map_font())
         placed: list[tuple[int, QPointF]] = []
-        boxes = [  # the scanners' labels, drawn whatever the trees'
-            QRectF(metrics.boundingRect(f"S{k + 1}")).translated(
-                self._scan_label_at(*self.to_px(s.xy)[0])
-            )
-            for k, s in enumerate(self.outcome.scans)
-            if s.xy is not None
-        ]
+        boxes = self._fixed_labels(metrics)
         for k in order:
             at = QPointF(px[k][0] + float(radii[k]) + 3, px[k][1] - 3)
             box = QRectF(metrics.boundingRect(self.outcome.trees[k].tree_id))
@@ -461,6 +455,23 @@ class StemMapView(QWidget):
             p.drawLine(QPointF(x - 6, y), QPointF(x + 6, y))
             p.drawLine(QPointF(x, y - 6), QPointF(x, y + 6))
             p.drawText(QPointF(x + 8, y - 3), f"{tree_id} (next run)")
+
+    def _fixed_labels(self, metrics: QFontMetrics) -> list[QRectF]:
+        """Where the labels drawn whatever the trees' go: the scanners' and those of
+        the trees added by hand that no run has measured yet."""
+        assert self.outcome is not None
+        boxes = [
+            QRectF(metrics.boundingRect(f"S{k + 1}")).translated(
+                self._scan_label_at(*self.to_px(s.xy)[0])
+            )
+            for k, s in enumerate(self.outcome.scans)
+            if s.xy is not None
+        ]
+        for tree_id in self.pending():
+            x, y = self.to_px(np.array(self.review.added[tree_id]))[0]
+            text = f"{tree_id} (next run)"
+            boxes.append(QRectF(metrics.boundingRect(text)).translated(x + 8, y - 3))
+        return boxes
 
     def _draw_scale(self, p: QPainter) -> None:
         scale = self._mapping()[0]

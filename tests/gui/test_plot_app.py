@@ -679,6 +679,13 @@ def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     assert 1 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
     view.select(2)  # even beside a scanner's
     assert 2 in [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+    # A tree added by hand beside T001 and T002: its label is drawn, theirs wait.
+    from amrst.plot.review import PlotReview
+
+    view.select(None)
+    view.set_review(PlotReview(added={"H001": (1.0, 0.0)}))
+    labelled = [k for k, _ in view.tree_labels(view.to_px(view.outcome.tree_xy))]
+    assert not {0, 1} & set(labelled)
 
 
 def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
