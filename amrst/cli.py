@@ -28,7 +28,7 @@ from amrst.errors import (
     RegistrationFailed,
 )
 from amrst.terminal import TerminalReporter
-from amrst.types import refuse_odd_coordinates, refuse_same_points
+from amrst.types import check_scans
 
 if TYPE_CHECKING:
     from amrst.params import RegistrationParams
@@ -188,9 +188,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
             "of the tree."
         )
     target, source = io.read(args.target), io.read(args.source)
-    refuse_same_points([target, source], [str(args.target), str(args.source)])
-    refuse_odd_coordinates(target, str(args.target))
-    refuse_odd_coordinates(source, str(args.source))
+    check_scans([target, source], [str(args.target), str(args.source)])
     for cloud, path in ((target, args.target), (source, args.source)):
         # the feature matcher's voxel grid bounds the span a scan may have
         into_grid(cloud.xyz, params.global_match.voxel_size_m, Path(path).name)

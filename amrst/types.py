@@ -280,9 +280,11 @@ def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
     stem: their values repeat, where those of a sparse scan do not. Scans of under a
     thousand points are left to the checks that count points.
     """
+    from amrst.sampling import strided
+
     if len(cloud) < 1000:
         return
-    xyz = cloud.xyz[:: max(1, len(cloud) // CHECK_POINTS)]  # finite: a Cloud's are
+    xyz = strided(cloud.xyz, CHECK_POINTS)  # finite: a Cloud's are
     lo, hi = np.percentile(xyz[:, 2], [0.5, 99.5])
     if hi - lo > MAX_HEIGHT_SPAN_M:
         raise InvalidInput(
@@ -303,6 +305,17 @@ def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
                 "with double-precision coordinates or as LAS/LAZ, whose offset keeps "
                 "them."
             )
+
+
+def check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
+    """Refuse scans no registration can use.
+
+    The same points given twice (:func:`refuse_same_points`), or coordinates not in
+    metres or in coarse steps (:func:`refuse_odd_coordinates`).
+    """
+    refuse_same_points(clouds, labels)
+    for cloud, label in zip(clouds, labels, strict=True):
+        refuse_odd_coordinates(cloud, label)
 
 
 def check_rigid(T: Any, where: str) -> np.ndarray:

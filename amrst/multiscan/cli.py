@@ -14,7 +14,7 @@ import time
 from typing import TYPE_CHECKING
 
 from amrst.errors import EXIT_NOT_REGISTERED
-from amrst.types import refuse_odd_coordinates, refuse_same_points
+from amrst.types import check_scans
 
 if TYPE_CHECKING:
     import argparse
@@ -92,9 +92,7 @@ def run_register(
     check_output_dir(args.out, ["report.html"] if report else [])
     t0 = time.perf_counter()
     clouds, labels = read_specs([args.target, *args.source])
-    refuse_same_points(clouds, labels)
-    for cloud, label in zip(clouds, labels, strict=True):
-        refuse_odd_coordinates(cloud, label)
+    check_scans(clouds, labels)
     truth = None
     if args.truth is not None:
         truth = read_scan_truth(args.truth, len(clouds), 0)

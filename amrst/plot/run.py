@@ -17,7 +17,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.types import refuse_odd_coordinates, refuse_same_points
+from amrst.types import check_scans
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Mapping, Sequence
@@ -78,7 +78,7 @@ def run_plot(
     scanners : mapping of int to (float, float, float), or None
         Where a scan's scanner stood, ``{scan from 0: (x, y, z)}`` in its file's
         coordinates: for a scan whose file does not say (a georeferenced LAS), so
-        that its tops are checked; it overrides what a file says.
+        that its tops are checked. A scan whose file says is refused.
     write_trees, write_cloud, report : bool
         Also one cloud per tree, ``plot.laz``, ``report.html``.
     plot_radius_m, plot_centre : float or None, (float, float) or None
@@ -280,14 +280,9 @@ def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) 
 
 
 def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
-    """Refuse fewer than two scans, two holding the same points, and odd coordinates.
-
-    Odd: not in metres, or in coarse steps (:func:`amrst.types.refuse_odd_coordinates`).
-    """
+    """Refuse fewer than two scans, and any :func:`amrst.types.check_scans` refuses."""
     if len(clouds) < 2:
         raise InvalidInput(
             f"{len(clouds)} scan given: a plot needs at least two positions."
         )
-    refuse_same_points(clouds, labels)
-    for cloud, label in zip(clouds, labels, strict=True):
-        refuse_odd_coordinates(cloud, label)
+    check_scans(clouds, labels)
