@@ -118,14 +118,11 @@ def _print_summary(
         if result.strength is not None and result.strength.weak:
             line += f"; weak axes: {', '.join(result.strength.weak)}"
         print(line)
-    from amrst.stages.scene import PLOT_STEMS
+    from amrst.stages.scene import plot_stems
 
-    stems = [
-        0 if a.scene is None else len(a.scene.stems)
-        for a in (result.target, result.source)
-    ]
-    plot = max(stems) >= PLOT_STEMS and not stem_given
-    if plot:
+    stems = None if stem_given else plot_stems(result.target.scene, result.source.scene)
+    plot = stems is not None
+    if stems is not None:
         print(
             f"  the scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree. "
             f"To list and measure every tree: amrst plot {shlex.join(files)} --out DIR"

@@ -50,6 +50,7 @@ from PySide6.QtWidgets import (
 
 from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.plot.export import inventory_rows
+from amrst.plot.inventory import seen_from_any
 from amrst.plot.report import counted
 from amrst.plot.review import (
     ACCEPTED,
@@ -1028,7 +1029,7 @@ class PlotWindow(QMainWindow):
         )
         review, missing = o.labelled(NEEDS_REVIEW), o.missing
         if review:
-            resting = sum(1 for t in o.trees if o.unsure & set(t.seen_from))
+            resting = seen_from_any(o.trees, o.unsure)
             line += (
                 ". Needs review: "
                 + ", ".join(Path(m).name for m in review)

@@ -137,6 +137,7 @@ def run_cli(args: argparse.Namespace) -> int:
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_INPUT
+    from amrst.plot.inventory import seen_from_any
     from amrst.plot.report import counted
     from amrst.plot.review import unsure_scans
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
@@ -173,7 +174,7 @@ def run_cli(args: argparse.Namespace) -> int:
         )
     if named[NEEDS_REVIEW]:
         unsure = unsure_scans(run.states)
-        resting = sum(1 for t in run.inventory.trees if unsure & set(t.seen_from))
+        resting = seen_from_any(run.inventory.trees, unsure)
         print(
             f"amrst plot: needs review: {', '.join(named[NEEDS_REVIEW])} "
             f"({counted(resting, 'tree')} seen from {'it' if len(unsure) == 1 else 'them'}, "

@@ -18,7 +18,7 @@ from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
 from amrst.sampling import strided
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Collection, Mapping, Sequence
 
     from amrst.plot.stemmap import StemRecord
     from amrst.progress import Reporter
@@ -151,6 +151,11 @@ class Inventory:
     def tree_points(self, k: int) -> np.ndarray:
         """(M, 3) the points of tree k (reference local frame)."""
         return np.asarray(self.stem_map.xyz[self.stem_map.owner == k])
+
+
+def seen_from_any(trees: Sequence[Tree], scans: Collection[int]) -> int:
+    """Return how many of ``trees`` are seen from one of ``scans`` (from 1)."""
+    return sum(1 for t in trees if not set(scans).isdisjoint(t.seen_from))
 
 
 def merge_scans(

@@ -156,7 +156,8 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     checked = sum(1 for r in rows if r.get("mark") == "check")
     dropped = sum(1 for r in rows if r.get("mark") == NOT_A_TREE)
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
-    unsure = sum(1 for r in rows if _to_check(r, _unsure(doc)))
+    waiting = _unsure(doc)
+    unsure = sum(1 for r in rows if _to_check(r, waiting))
     return (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{counted(len(rows), "tree")}; scans: {_e(counts)}</p>'
@@ -271,25 +272,23 @@ def _to_check(row: Mapping[str, Any], unsure: frozenset[int]) -> str:
 
 
 def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
-    body = [
-        [
-            _e(r["tree_id"]),
-            f"{_num(r['x_m']):.2f}, {_num(r['y_m']):.2f}, {_num(r['z_m']):.2f}",
-            _fixed(r.get("height_m"), 1) + f" ({_e(r.get('height_flag', ''))})",
-            _fixed(_num(r.get("dbh_m")) * 100, 1)
-            + f" ({_e(r.get('dbh_quality', ''))})",
-            _fixed(r.get("crown_width_m"), 1),
-            _e(r.get("seen_from", ""))
-            + (
-                f" <b>(check {_e(_to_check(r, unsure))})</b>"
-                if _to_check(r, unsure)
-                else ""
-            ),
-            _e(r.get("mark", "")),
-            _fixed(_num(r.get("dbh_hand_m")) * 100, 1),
-        ]
-        for r in rows
-    ]
+    body = []
+    for r in rows:
+        check = _to_check(r, unsure)
+        body.append(
+            [
+                _e(r["tree_id"]),
+                f"{_num(r['x_m']):.2f}, {_num(r['y_m']):.2f}, {_num(r['z_m']):.2f}",
+                _fixed(r.get("height_m"), 1) + f" ({_e(r.get('height_flag', ''))})",
+                _fixed(_num(r.get("dbh_m")) * 100, 1)
+                + f" ({_e(r.get('dbh_quality', ''))})",
+                _fixed(r.get("crown_width_m"), 1),
+                _e(r.get("seen_from", ""))
+                + (f" <b>(check {_e(check)})</b>" if check else ""),
+                _e(r.get("mark", "")),
+                _fixed(_num(r.get("dbh_hand_m")) * 100, 1),
+            ]
+        )
     head = [
         "Tree",
         "x, y, z (m)",

@@ -215,6 +215,16 @@ class SceneResult:
         return {n: int(np.sum(self.labels == k)) for k, n in enumerate(LABEL_NAMES)}
 
 
+def plot_stems(*scenes: SceneResult | None) -> tuple[int, ...] | None:
+    """Return each scene's stem count when one holds a plot's, else None.
+
+    A plot's: ``PLOT_STEMS`` or more. A registration of such scans measures one stem
+    of many.
+    """
+    stems = tuple(0 if s is None else len(s.stems) for s in scenes)
+    return stems if max(stems, default=0) >= PLOT_STEMS else None
+
+
 def understand_scene(
     xyz: np.ndarray,
     params: SceneParams,

@@ -340,14 +340,11 @@ class MetricsPanel(QWidget):
 
     def _plot_note(self) -> str:
         """Say so when the scans hold a plot: the figures are one stem's of many."""
-        from amrst.stages.scene import PLOT_STEMS
+        from amrst.stages.scene import plot_stems
 
-        stems = []
-        for role in ("target", "source"):
-            analysis = self.session.analysis(role)
-            scene = None if analysis is None else analysis.scene
-            stems.append(0 if scene is None else len(scene.stems))
-        if max(stems) < PLOT_STEMS:
+        analyses = [self.session.analysis(role) for role in ("target", "source")]
+        stems = plot_stems(*(None if a is None else a.scene for a in analyses))
+        if stems is None:
             return ""
         return (
             f"The scans hold {stems[0]} and {stems[1]} stems: a plot, not one tree; "
