@@ -5,7 +5,8 @@ and the fine registration uses; the scene stage is not needed, the stem map find
 ground and every stem itself) and its stem map made. Each pair of scans is a *link*:
 the stem poses (``match.py``) are verified as the technician's manual poses are
 (``review.manual.ManualScorer``: the same sample, polish and tight score as the
-tetrahedra's), the best verified one is fine-registered (``pipeline.refine``). Scans
+tetrahedra's) on the source's points above its ground, and the best verified one is
+fine-registered (``pipeline.refine``). Scans
 far apart share too little surface for that score to judge; a pose held by four or
 more stems with no rival as well held (``match.held_by_stems``) is taken then. When
 no stem pose holds, the two-scan engine runs as the fallback (tetrahedra, feature
@@ -37,16 +38,23 @@ from amrst.multiscan.graph import (
 )
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
-from amrst.plot.match import held_by_stems, stem_poses
+from amrst.plot.match import StemPose, held_by_stems, stem_poses
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.stages.candidates import CandidateList, CoarseResult, Origin, choose_coarse
+from amrst.stages.candidates import (
+    Candidate,
+    CandidateList,
+    CoarseResult,
+    Origin,
+    choose_coarse,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Mapping, Sequence
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import ScanAnalysis
+    from amrst.review.manual import ManualScorer
     from amrst.types import Cloud, Transform
 
 #: Origin named by the links the stem map registered.
@@ -60,6 +68,8 @@ LEFT_OUT_ORIGIN = "left out"
 PLOT_FINE_POINTS = 20_000
 PLOT_FINE_REACH_M = 0.2
 PLOT_FINE_SCALES = 4
+#: A stem pose is scored on the source points at least this high above its ground.
+SCORE_ABOVE_GROUND_M = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -214,11 +224,16 @@ def register_plot_link(
     poses = stem_poses(target.stems, source.stems)
     cands = []
     if poses:
-        scorer = ManualScorer(target.analysis.xyz, source.analysis.xyz, params.coarse)
+        scorer = ManualScorer(
+            target.analysis.xyz,
+            source.analysis.xyz,
+            params.coarse,
+            score_xyz=_above_ground(source, params),
+        )
     for k, pose in enumerate(poses):
         reporter.check_cancelled()
         label = f"{len(pose.pairs)} shared stems"
-        cands.append(scorer.score(pose.T_target_source, MANUAL_ID_BASE + k, label))
+        cands.append(_score_stem_pose(scorer, pose, MANUAL_ID_BASE + k, label))
     cands.sort(key=lambda c: -c.score)
     ranked = CandidateList(
         tuple(replace(c, rank=r) for r, c in enumerate(cands, 1)), len(poses)
@@ -344,6 +359,47 @@ def register_plot_link_by_hand(
         seconds=time.perf_counter() - t0,
     )
     return PlotLink(link, _shared(target.stems, source.stems, T))
+
+
+def _score_stem_pose(
+    scorer: ManualScorer, pose: StemPose, cand_id: int, label: str
+) -> Candidate:
+    """Score a stem pose polished or as given, whichever brings more trees together.
+
+    A stem pose is often right to a centimetre already, and the short polish, on a
+    plot's thinned points (mostly ground), can move it off.
+    """
+    from amrst.review.manual import tight_share
+
+    polished = scorer.score(pose.T_target_source, cand_id, label)
+    given = tight_share(
+        pose.T_target_source, scorer.tree, scorer.sample, scorer.params.tight_dist_m
+    )
+    if given <= polished.score:
+        return polished
+    return replace(
+        polished,
+        score=given,
+        T_target_source=pose.T_target_source,
+        explanation=f"Stem pose ({label}); {given:.0%} of the sampled source points "
+        f"above the ground lie within {scorer.params.tight_dist_m * 100:.0f} cm of "
+        "the target as given (the short ICP polish brought fewer).",
+    )
+
+
+def _above_ground(scan: PlotScan, params: RegistrationParams) -> np.ndarray:
+    """Return the points of ``scan`` that tell one stem pose from another.
+
+    Every stem pose is levelled on the ground, so the ground meets the ground at a
+    wrong pose as well as at the right one: scored on all points, a pose turned half
+    a turn can score nearly as well as the right one, and the short ICP polish,
+    pulled by the ground's thinned points, drifts by an amount that depends on the
+    file's frame. The trees above the ground meet only at the right pose. All
+    points when fewer than a verification sample stand above the ground.
+    """
+    xyz = scan.analysis.xyz
+    above = xyz[scan.stems.ground.height(xyz) > SCORE_ABOVE_GROUND_M]
+    return above if len(above) >= params.coarse.verify_points else xyz
 
 
 def _outvoted(coarse: CoarseResult, held: int | None) -> bool:

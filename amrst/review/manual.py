@@ -367,8 +367,18 @@ class ManualScorer:
     """
 
     def __init__(
-        self, target_xyz: np.ndarray, source_xyz: np.ndarray, params: CoarseParams
+        self,
+        target_xyz: np.ndarray,
+        source_xyz: np.ndarray,
+        params: CoarseParams,
+        *,
+        score_xyz: np.ndarray | None = None,
     ) -> None:
+        """Build the verification sample and the search structures.
+
+        ``score_xyz``: the source points the scores are measured on (default: all of
+        ``source_xyz``); the polish and its check use all of ``source_xyz``.
+        """
         from scipy.spatial import cKDTree
 
         from amrst.stages.coarse import POLISH_POINTS, verification_sample
@@ -377,6 +387,8 @@ class ManualScorer:
 
         self.target_xyz, self.source_xyz, self.params = target_xyz, source_xyz, params
         self.sample, rng = verification_sample(source_xyz, params)
+        if score_xyz is not None:
+            self.sample = verification_sample(score_xyz, params)[0]
         self.occupancy = Occupancy(target_xyz, params.verify_voxel_m)
         self.tree = cKDTree(target_xyz)
         if params.polish_top > 0:
