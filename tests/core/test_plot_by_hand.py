@@ -117,7 +117,7 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
 
     clouds, t_pts, s_pts, _ = pair_and_picks
     wrong = tmp_path / "wrong.csv"
-    write_pairs(wrong, t_pts, s_pts + (0.4, 0.0, 0.0))  # 40 cm off: needs review
+    write_pairs(wrong, t_pts, np.add(s_pts, (0.4, 0.0, 0.0)))  # 40 cm off: review
     out = tmp_path / "out"
     scans = _files(clouds, tmp_path)
     args = [*scans, "--out", str(out), "--quiet", "--pairs", "1", "2"]
