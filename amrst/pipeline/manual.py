@@ -22,7 +22,13 @@ from amrst.pipeline.link import MatchResult
 from amrst.pipeline.refine import refine
 from amrst.pipeline.register import finish_registration
 from amrst.progress import NULL_REPORTER, SubReporter
-from amrst.review.manual import MANUAL_ID_BASE, fit_pairs, score_manual, weak_turn
+from amrst.review.manual import (
+    MANUAL_ID_BASE,
+    fit_pairs,
+    pairs_disagree,
+    score_manual,
+    weak_turn,
+)
 from amrst.review.manual_keep import judge_refinement
 from amrst.stages.candidates import CandidateList, choose_coarse
 from amrst.stages.match import TetraMatches
@@ -77,6 +83,8 @@ def register_from_pairs(
         raise InvalidInput(
             "The point pairs do not fix a pose: pick them farther apart."
         )
+    if apart := pairs_disagree(fit):
+        raise InvalidInput(f"The point pairs {apart}.")
     if advice := weak_turn(t_pts):
         log.warning("%s", advice)
 

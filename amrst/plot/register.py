@@ -309,7 +309,13 @@ def register_plot_link_by_hand(
         Pairs that cannot fix a pose.
     """
     from amrst.pipeline import evaluate, refine
-    from amrst.review.manual import MANUAL_ID_BASE, ManualScorer, fit_pairs, weak_turn
+    from amrst.review.manual import (
+        MANUAL_ID_BASE,
+        ManualScorer,
+        fit_pairs,
+        pairs_disagree,
+        weak_turn,
+    )
     from amrst.review.manual_keep import judge_refinement
     from amrst.review.overlap import overlap_distances
     from amrst.review.strength import axis_strength
@@ -319,12 +325,13 @@ def register_plot_link_by_hand(
     tgt, src = target.analysis, source.analysis
     t_pts = np.asarray(pairs[0], float) - tgt.cloud.offset
     s_pts = np.asarray(pairs[1], float) - src.cloud.offset
-    start = fit_pairs(t_pts, s_pts).T_target_source
+    fit = fit_pairs(t_pts, s_pts)
+    start = fit.T_target_source
+    where = f"The point pairs of scans {indices[0] + 1} and {indices[1] + 1}"
     if not np.all(np.isfinite(start)):
-        raise InvalidInput(
-            f"The point pairs of scans {indices[0] + 1} and {indices[1] + 1} do not "
-            "fix a pose: pick them farther apart."
-        )
+        raise InvalidInput(f"{where} do not fix a pose: pick them farther apart.")
+    if apart := pairs_disagree(fit):
+        raise InvalidInput(f"{where} {apart}.")
     fine = refine(tgt, src, start, params, reporter, threads=threads)
     scorer = ManualScorer(tgt.xyz, src.xyz, params.coarse)
     kept = judge_refinement(

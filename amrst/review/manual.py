@@ -192,6 +192,27 @@ def weak_turn(target_pts: np.ndarray) -> str:
     )
 
 
+#: Pairs still this far apart (RMS, m) after their best fit pair different points.
+PAIRS_APART_M = 1.0
+
+
+def pairs_disagree(fit: PairFit) -> str:
+    """One sentence when the pairs cannot be the same points in both scans, else "".
+
+    Points picked by eye miss by centimetres; pairs that still lie a metre apart
+    after their best fit name different points (a row in another order, a pick on
+    the wrong stem), and no pose follows from them.
+    """
+    if not len(fit.residuals_m) or fit.rmse_m <= PAIRS_APART_M:
+        return ""
+    worst = int(np.argmax(fit.residuals_m))
+    return (
+        f"lie {fit.rmse_m:.1f} m apart (RMS) after their best fit, pair {worst + 1} "
+        f"{fit.residuals_m[worst]:.1f} m: check that each row holds the same point "
+        "in both scans"
+    )
+
+
 def fit_pairs(
     target_pts: np.ndarray, source_pts: np.ndarray, levelled: bool = False
 ) -> PairFit:

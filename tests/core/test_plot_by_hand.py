@@ -65,11 +65,16 @@ def test_point_pairs_place_the_link(pair_and_picks) -> None:
 
 
 def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -> None:
+    from amrst.errors import InvalidInput
+
     clouds, t_pts, s_pts, _ = pair_and_picks
-    wrong = s_pts[[1, 2, 3, 0]]  # every pick on another stem
-    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, wrong)})
+    off = np.add(s_pts, (0.4, 0.0, 0.0))  # every pick 40 cm beside its stem
+    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, off)})
     assert reg.links[0].link.origin == HAND_ORIGIN
     assert reg.statuses[1] == "needs review"
+    swapped = s_pts[[1, 2, 3, 0]]  # every pick on another stem: no pose follows
+    with pytest.raises(InvalidInput, match="same point in both scans"):
+        register_plot(clouds, by_hand={(0, 1): (t_pts, swapped)})
 
 
 def test_the_command_reads_pairs_and_refuses_bad_ones(
@@ -99,7 +104,10 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     huge.write_text(
         "target_x,target_y,target_z,source_x,source_y,source_z\n" + "1" * 200_000
     )
+    swapped = tmp_path / "swapped.csv"  # the rows of one scan in another order
+    write_pairs(swapped, t_pts, s_pts[[1, 2, 3, 0]])
     for bad in (
+        ["1", "2", str(swapped)],
         ["1", "3", str(pairs)],
         ["0", "2", str(pairs)],
         ["1", "²", str(pairs)],  # a digit, but no number

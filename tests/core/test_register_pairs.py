@@ -52,6 +52,17 @@ def test_pairs_on_one_line_are_refused(sample_pair) -> None:
         )
 
 
+def test_pairs_in_another_order_are_refused(sample_pair) -> None:
+    t, s = _spread_pairs(sample_pair, 4)
+    with pytest.raises(InvalidInput, match="same point in both scans"):
+        register_from_pairs(
+            sample_pair.target,
+            sample_pair.source,
+            (t, s[[1, 2, 3, 0]]),
+            RegistrationParams(),
+        )
+
+
 def test_pairs_up_one_stem_warn_of_a_weak_turn(sample_pair, caplog) -> None:
     t, s = _spread_pairs(sample_pair, 2)
     up = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 3.0]])  # 2 cm apart across the ground
