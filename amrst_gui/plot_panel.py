@@ -36,6 +36,7 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QHBoxLayout,
+    QInputDialog,
     QLabel,
     QLineEdit,
     QListWidget,
@@ -90,6 +91,8 @@ log = logging.getLogger("amrst_gui.plot")
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 #: Between a number and its unit: the status line wraps, never between them.
 NBSP = "\u00a0"
+#: Set after a scan's line in the scan list when its scanner position is given.
+GIVEN_MARK = "; scanner given at "
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -273,9 +276,17 @@ class PlotWindow(QMainWindow):
             "positions in trees.csv are its own"
         )
         self.reference_button.clicked.connect(self.make_reference)
+        self.scanner_button = QPushButton("Scanner at…")
+        self.scanner_button.setToolTip(
+            "Where the selected scan's scanner stood, X Y Z in the file's own "
+            "coordinates, for a file that does not say (a georeferenced LAS): the next "
+            "Run checks the tops of the trees it sees from there (amrst plot --scanner)"
+        )
+        self.scanner_button.clicked.connect(lambda: self.set_scanner())
         self.scan_list.itemSelectionChanged.connect(self._show_busy)
         head = QHBoxLayout()
         head.addWidget(QLabel("<b>Scans</b> (the first is the reference)"), 1)
+        head.addWidget(self.scanner_button)
         head.addWidget(self.reference_button)
         return head
 
@@ -461,10 +472,55 @@ class PlotWindow(QMainWindow):
         k = self.scan_list.currentRow()
         if self.busy or self.found is not None or not 0 < k < len(self.specs):
             return
-        specs = [self.specs[k], *self.specs[:k], *self.specs[k + 1 :]]
+        order = [k, *range(k), *range(k + 1, len(self.specs))]
+        given = self.given_scanners
         out = self.out_edit.text().strip()
-        self.open_scans(specs, Path(out) if out else None)
-        self._say(f"{Path(specs[0]).name} is the reference now (S1).")
+        self.open_scans([self.specs[j] for j in order], Path(out) if out else None)
+        self.given_scanners = {n: given[j] for n, j in enumerate(order) if j in given}
+        self._show_given()
+        self._say(f"{Path(self.specs[0]).name} is the reference now (S1).")
+
+    def set_scanner(self, text: str | None = None) -> None:
+        """Give where the selected scan's scanner stood, for the next run.
+
+        ``text``: X Y Z (asked when None); blank forgets the position given.
+        """
+        from amrst.plot.cli import given_scanners
+
+        k = self.scan_list.currentRow()
+        if self.busy or not 0 <= k < len(self.specs):
+            return
+        name = f"S{k + 1}"
+        if text is None:
+            now = self.given_scanners.get(k)
+            text, ok = QInputDialog.getText(
+                self,
+                f"Scanner of {name}",
+                f"Where the scanner of {name} stood: X Y Z in metres, in the file's "
+                "own coordinates (blank: not known).",
+                text="" if now is None else " ".join(_short(v) for v in now),
+            )
+            if not ok:
+                return
+        parts = text.replace(",", " ").split()
+        if not parts:
+            self.given_scanners.pop(k, None)
+            self._show_given()
+            self._say(f"The scanner of {name} is not given: its file decides.")
+            return
+        try:
+            if len(parts) != 3:
+                raise InvalidInput(f"give X Y Z, three numbers, not {len(parts)}.")
+            (xyz,) = given_scanners([[str(k + 1), *parts]]).values()
+        except InvalidInput as exc:
+            self._say(f"Scanner of {name}: {exc}", error=True)
+            return
+        self.given_scanners[k] = xyz
+        self._show_given()
+        self._say(
+            f"The scanner of {name} stood at {', '.join(f'{v:.2f}' for v in xyz)} m "
+            "(file coordinates): Run plot checks the tops of its trees from there."
+        )
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
@@ -1113,6 +1169,17 @@ class PlotWindow(QMainWindow):
             item = self.scan_list.item(k)
             if item is not None:
                 item.setText(text)
+        self._show_given()
+
+    def _show_given(self) -> None:
+        """Mark the scans whose scanner position the next run is given."""
+        for k in range(self.scan_list.count()):
+            item = self.scan_list.item(k)
+            text = item.text().split(GIVEN_MARK)[0]
+            if k in self.given_scanners:
+                where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
+                text += f"{GIVEN_MARK}{where}"
+            item.setText(text)
 
     def _show_links(self, o: PlotOutcome) -> None:
         fill(self.links, link_rows(o))
@@ -1164,6 +1231,9 @@ class PlotWindow(QMainWindow):
         self.run_button.setEnabled(not self.busy and len(self.specs) >= 2)
         self.reference_button.setEnabled(
             not self.busy and self.found is None and self.scan_list.currentRow() > 0
+        )
+        self.scanner_button.setEnabled(
+            not self.busy and 0 <= self.scan_list.currentRow() < len(self.specs)
         )
         self.cancel_button.setEnabled(self.busy)
         self._update_link_buttons()

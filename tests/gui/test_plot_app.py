@@ -67,11 +67,26 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     plot = win.open_plot_results(out)
     qtbot.waitUntil(lambda: plot.outcome is not None, timeout=30_000)
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    # The window gives scan 2's (its file's origin) and refuses what is no position.
+    plot.scan_list.setCurrentRow(1)
+    assert plot.scanner_button.isEnabled()
+    plot.set_scanner("0 0")
+    assert "give X Y Z, three numbers, not 2" in plot.status.text()
+    plot.set_scanner("0, 0, nan")
+    assert "finite numbers" in plot.status.text()
+    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    plot.set_scanner("0, 0, 0")
+    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
+    assert plot.scan_list.item(1).text().endswith("scanner given at 0.00, 0.00, 0.00")
     monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # replace the plot
     _run(qtbot, plot)
     doc = json.loads((out / "plot.json").read_text())
-    assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], None]
+    assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], [0.0] * 3]
+    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
+    assert plot.scan_list.item(1).text().endswith("scanner given at 0.00, 0.00, 0.00")
+    plot.set_scanner("")  # forgotten: the next run goes by the file
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    assert "given" not in plot.scan_list.item(1).text()
 
 
 def _run(qtbot: QtBot, plot: PlotWindow) -> None:
@@ -1059,13 +1074,15 @@ def test_another_scan_is_made_the_reference_before_a_run(
     plot.open_scans(plot_files)
     assert not plot.reference_button.isEnabled()  # S1 is the reference already
     plot.scan_list.setCurrentRow(1)
+    plot.set_scanner("1 2 3")  # goes with its scan
     assert plot.reference_button.isEnabled()
     plot.reference_button.click()
     assert plot.specs == [str(Path(f).resolve()) for f in reversed(plot_files)]
     item = plot.scan_list.item(0)
     assert item is not None
-    assert item.text() == "S1  scan_2.ply"
+    assert item.text() == "S1  scan_2.ply; scanner given at 1.00, 2.00, 3.00"
     assert "scan_2.ply is the reference now" in plot.status.text()
+    assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
 
 
 def test_results_whose_scan_was_moved_open_and_say_so(
