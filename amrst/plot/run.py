@@ -198,7 +198,7 @@ def _with_scanners(
 
     clouds = list(clouds)
     for k, xyz in sorted(scanners.items()):
-        what = f"--scanner {k + 1} {' '.join(f'{v:.2f}' for v in xyz)}"
+        what = f"The scanner of scan {k + 1} at {', '.join(f'{v:.2f}' for v in xyz)}"
         if not 0 <= k < len(clouds):
             raise InvalidInput(
                 f"{what}: there are {len(clouds)} scans; name one of them by its "
@@ -207,8 +207,8 @@ def _with_scanners(
         cloud = clouds[k]
         if cloud.meta.get("scanner_origin") is not None:
             raise InvalidInput(
-                f"{what}: {labels[k]} says where its scanner stood; --scanner is for a "
-                "scan whose file does not."
+                f"{what}: {labels[k]} says where its scanner stood; give a position "
+                "only for a scan whose file does not."
             )
         at = np.asarray(xyz, float) - cloud.offset
         pts = strided(cloud.xyz, 200_000)
