@@ -508,12 +508,16 @@ class PlotWindow(QMainWindow):
             self._show_given()
             self._say(f"The scanner of {name} is not given: its file decides.")
             return
+        if len(parts) != 3:
+            self._say(
+                f"The scanner of {name}: give X Y Z, three numbers, not {len(parts)}.",
+                error=True,
+            )
+            return
         try:
-            if len(parts) != 3:
-                raise InvalidInput(f"give X Y Z, three numbers, not {len(parts)}.")
             (xyz,) = given_scanners([[str(k + 1), *parts]]).values()
         except InvalidInput as exc:
-            self._say(f"Scanner of {name}: {exc}", error=True)
+            self._say(str(exc), error=True)
             return
         self.given_scanners[k] = xyz
         self._show_given()
@@ -637,6 +641,7 @@ class PlotWindow(QMainWindow):
 
     def toggle_pairs(self, path: str | None = None) -> None:
         """Take a pairs CSV for the selected link (asked when not given), or drop it."""
+        from amrst.review.manual import pairs_disagree
         from amrst.review.pairs_file import read_pairs
 
         line = self.selected_link()
@@ -657,10 +662,16 @@ class PlotWindow(QMainWindow):
         if not path:
             return
         try:
-            n = len(read_pairs(Path(path))[0])
+            t_pts, s_pts = read_pairs(Path(path))
         except AmrstError as exc:
             self._say(f"Not used: {exc}", error=True)
             return
+        if apart := pairs_disagree(t_pts, s_pts):
+            self._say(
+                f"Not used: the point pairs of {Path(path).name} {apart}.", error=True
+            )
+            return
+        n = len(t_pts)
         self.hand_pairs[link] = path
         self.left_out.discard(link)
         self._say(

@@ -83,7 +83,7 @@ def register_from_pairs(
         raise InvalidInput(
             "The point pairs do not fix a pose: pick them farther apart."
         )
-    if apart := pairs_disagree(fit):
+    if apart := pairs_disagree(t_pts, s_pts):
         raise InvalidInput(f"The point pairs {apart}.")
     if advice := weak_turn(t_pts):
         log.warning("%s", advice)

@@ -253,7 +253,7 @@ def given_scanners(given: list[list[str]]) -> dict[int, tuple[float, float, floa
 
     scanners: dict[int, tuple[float, float, float]] = {}
     for k, *xyz in given:
-        what = f"--scanner {k} {' '.join(xyz)}"
+        what = f"The scanner of scan {k} at {' '.join(xyz)}"
         if not (k.isdecimal() and int(k) >= 1):
             raise InvalidInput(f"{what}: name the scan by its number from 1, e.g. 2.")
         try:
@@ -263,7 +263,7 @@ def given_scanners(given: list[list[str]]) -> dict[int, tuple[float, float, floa
         if not all(math.isfinite(v) for v in (x, y, z)):
             raise InvalidInput(f"{what}: give X Y Z as finite numbers (metres).")
         if int(k) - 1 in scanners:
-            raise InvalidInput(f"--scanner {k} is given twice: give one per scan.")
+            raise InvalidInput(f"The scanner of scan {k} is given twice: give one.")
         scanners[int(k) - 1] = (x, y, z)
     return scanners
 

@@ -4,18 +4,17 @@ Each scan is analysed once: preprocessed (the points every candidate is verified
 and the fine registration uses; the scene stage is not needed, the stem map finds the
 ground and every stem itself) and its stem map made. Each pair of scans is a *link*:
 the stem poses (``match.py``) are verified as the technician's manual poses are
-(``review.manual.ManualScorer``: the same sample, polish and tight score as the
-tetrahedra's) on the source's points above its ground, and the best verified one is
-fine-registered (``pipeline.refine``). Scans
-far apart share too little surface for that score to judge; a pose held by four or
-more stems with no rival as well held (``match.held_by_stems``) is taken then. When
-no stem pose holds, the two-scan engine runs as the fallback (tetrahedra, feature
-matcher, trunk search). A link the technician gives as point pairs is taken from
-them instead (:func:`register_plot_link_by_hand`), and one they leave out (a link they
-found wrong, so that the scans are joined through others) is not registered. The
-links then form the multiscan
-spanning tree, and a joint refinement is kept when it lowers the error
-(``amrst.multiscan``).
+(``review.manual.ManualScorer``: the short polish and the tight score), on a sample of
+the source's points above its ground, and the best verified one is fine-registered
+(``pipeline.refine``). Scans far apart share too little surface for that score to
+judge; a pose held by four or more stems with no rival as well held
+(``match.held_by_stems``) is taken then. When no stem pose holds, the two-scan engine
+runs as the fallback (tetrahedra, feature matcher, trunk search). A link the
+technician gives as point pairs is taken from them instead
+(:func:`register_plot_link_by_hand`), and one they leave out (a link they found
+wrong, so that the scans are joined through others) is not registered. The links then
+form the multiscan spanning tree, and a joint refinement is kept when it lowers the
+error (``amrst.multiscan``).
 """
 
 from __future__ import annotations
@@ -224,16 +223,15 @@ def register_plot_link(
     poses = stem_poses(target.stems, source.stems)
     cands = []
     if poses:
+        above = _above_ground(source, params)
+        on = "above the ground " if len(above) < len(source.analysis.xyz) else ""
         scorer = ManualScorer(
-            target.analysis.xyz,
-            source.analysis.xyz,
-            params.coarse,
-            score_xyz=_above_ground(source, params),
+            target.analysis.xyz, source.analysis.xyz, params.coarse, score_xyz=above
         )
     for k, pose in enumerate(poses):
         reporter.check_cancelled()
         label = f"{len(pose.pairs)} shared stems"
-        cands.append(_score_stem_pose(scorer, pose, MANUAL_ID_BASE + k, label))
+        cands.append(_score_stem_pose(scorer, pose, MANUAL_ID_BASE + k, label, on))
     cands.sort(key=lambda c: -c.score)
     ranked = CandidateList(
         tuple(replace(c, rank=r) for r, c in enumerate(cands, 1)), len(poses)
@@ -309,13 +307,7 @@ def register_plot_link_by_hand(
         Pairs that cannot fix a pose.
     """
     from amrst.pipeline import evaluate, refine
-    from amrst.review.manual import (
-        MANUAL_ID_BASE,
-        ManualScorer,
-        fit_pairs,
-        pairs_disagree,
-        weak_turn,
-    )
+    from amrst.review.manual import MANUAL_ID_BASE, ManualScorer, fit_pairs, weak_turn
     from amrst.review.manual_keep import judge_refinement
     from amrst.review.overlap import overlap_distances
     from amrst.review.strength import axis_strength
@@ -325,13 +317,12 @@ def register_plot_link_by_hand(
     tgt, src = target.analysis, source.analysis
     t_pts = np.asarray(pairs[0], float) - tgt.cloud.offset
     s_pts = np.asarray(pairs[1], float) - src.cloud.offset
-    fit = fit_pairs(t_pts, s_pts)
-    start = fit.T_target_source
-    where = f"The point pairs of scans {indices[0] + 1} and {indices[1] + 1}"
+    start = fit_pairs(t_pts, s_pts).T_target_source
     if not np.all(np.isfinite(start)):
-        raise InvalidInput(f"{where} do not fix a pose: pick them farther apart.")
-    if apart := pairs_disagree(fit):
-        raise InvalidInput(f"{where} {apart}.")
+        raise InvalidInput(
+            f"The point pairs of scans {indices[0] + 1} and {indices[1] + 1} do not "
+            "fix a pose: pick them farther apart."
+        )
     fine = refine(tgt, src, start, params, reporter, threads=threads)
     scorer = ManualScorer(tgt.xyz, src.xyz, params.coarse)
     kept = judge_refinement(
@@ -369,12 +360,14 @@ def register_plot_link_by_hand(
 
 
 def _score_stem_pose(
-    scorer: ManualScorer, pose: StemPose, cand_id: int, label: str
+    scorer: ManualScorer, pose: StemPose, cand_id: int, label: str, on: str
 ) -> Candidate:
-    """Score a stem pose polished or as given, whichever brings more trees together.
+    """Score a stem pose polished or as given, whichever brings more points together.
 
-    A stem pose is often right to a centimetre already, and the short polish, on a
-    plot's thinned points (mostly ground), can move it off.
+    A stem pose is often right already, and the short polish, on a plot's thinned
+    points (mostly ground), can move it off. Every stem pose is scored the same way,
+    so all are marked ``polished``: each is the others' rival in the confidence.
+    ``on``: which source points the scorer's sample is drawn from, for the text.
     """
     from amrst.review.manual import tight_share
 
@@ -382,15 +375,22 @@ def _score_stem_pose(
     given = tight_share(
         pose.T_target_source, scorer.tree, scorer.sample, scorer.params.tight_dist_m
     )
-    if given <= polished.score:
-        return polished
+    T, score = polished.T_target_source, polished.score
+    if given > score:
+        T, score = pose.T_target_source, given
+    how = (
+        "as given"
+        if np.array_equal(T, pose.T_target_source)
+        else "after a short ICP polish"
+    )
     return replace(
         polished,
-        score=given,
-        T_target_source=pose.T_target_source,
-        explanation=f"Stem pose ({label}); {given:.0%} of the sampled source points "
-        f"above the ground lie within {scorer.params.tight_dist_m * 100:.0f} cm of "
-        "the target as given (the short ICP polish brought fewer).",
+        score=score,
+        T_target_source=T,
+        polished=True,
+        explanation=f"Stem pose ({label}); {score:.0%} of the sampled source points "
+        f"{on}lie within {scorer.params.tight_dist_m * 100:.0f} cm of the target "
+        f"{how}.",
     )
 
 
@@ -527,6 +527,11 @@ def register_plot(
             f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
             "out: do one or the other."
         )
+    from amrst.review.manual import pairs_disagree
+
+    for (i, j), (t_pts, s_pts) in sorted(hand.items()):
+        if apart := pairs_disagree(t_pts, s_pts):
+            raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
     scans = tuple(
         analyse_plot_scan(
             c,

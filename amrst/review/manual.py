@@ -192,24 +192,33 @@ def weak_turn(target_pts: np.ndarray) -> str:
     )
 
 
-#: Pairs still this far apart (RMS, m) after their best fit pair different points.
+#: Point pairs whose points lie this much farther apart (or nearer) in one scan than in
+#: the other (RMS over every two rows, m) name different points.
 PAIRS_APART_M = 1.0
 
 
-def pairs_disagree(fit: PairFit) -> str:
+def pairs_disagree(target_pts: np.ndarray, source_pts: np.ndarray) -> str:
     """One sentence when the pairs cannot be the same points in both scans, else "".
 
-    Points picked by eye miss by centimetres; pairs that still lie a metre apart
-    after their best fit name different points (a row in another order, a pick on
-    the wrong stem), and no pose follows from them.
+    A move of a scan keeps the distances between its points, however it turns or
+    tilts; picks by eye change them by a miss, rows in another order or a pick on
+    the wrong stem by far more.
     """
-    if not len(fit.residuals_m) or fit.rmse_m <= PAIRS_APART_M:
+    t, s = _pairs(target_pts, source_pts)
+    if len(t) < 2:
         return ""
-    worst = int(np.argmax(fit.residuals_m))
+    i, j = np.triu_indices(len(t), 1)
+    dt = np.linalg.norm(t[i] - t[j], axis=1)
+    ds = np.linalg.norm(s[i] - s[j], axis=1)
+    off = np.abs(dt - ds)
+    rms = float(np.sqrt(np.mean(off**2)))
+    if not rms > PAIRS_APART_M:
+        return ""
+    w = int(np.argmax(off))
     return (
-        f"lie {fit.rmse_m:.1f} m apart (RMS) after their best fit, pair {worst + 1} "
-        f"{fit.residuals_m[worst]:.1f} m: check that each row holds the same point "
-        "in both scans"
+        f"name different points: rows {i[w] + 1} and {j[w] + 1} lie {dt[w]:.1f} m "
+        f"apart in one scan and {ds[w]:.1f} m in the other ({rms:.1f} m RMS over "
+        "every two rows); check that each row holds the same point in both scans"
     )
 
 

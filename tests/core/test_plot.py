@@ -60,6 +60,40 @@ def test_stems_register_a_tilted_plot_pair(plot_pair) -> None:
     assert np.linalg.norm(E[:3, 3]) < 0.05
 
 
+def test_stem_poses_are_scored_on_the_trees_at_their_best_pose(plot_pair) -> None:
+    from amrst.plot.match import stem_poses
+    from amrst.plot.register import (
+        SCORE_ABOVE_GROUND_M,
+        _above_ground,
+        _score_stem_pose,
+    )
+    from amrst.review.manual import ManualScorer, tight_share
+
+    target, source, T_true = plot_pair
+    params = plot_params()
+    t, s = (analyse_plot_scan(c, params, StemMapParams()) for c in (target, source))
+    above = _above_ground(s, params)
+    assert 0 < len(above) < len(s.analysis.xyz)
+    assert (s.stems.ground.height(above) > SCORE_ABOVE_GROUND_M).all()
+    many = replace(params, coarse=replace(params.coarse, verify_points=len(above) + 1))
+    assert len(_above_ground(s, many)) == len(s.analysis.xyz)  # too few: all points
+
+    xyz = s.analysis.xyz
+    scorer = ManualScorer(t.analysis.xyz, xyz, params.coarse, score_xyz=above)
+    plain = ManualScorer(t.analysis.xyz, xyz, params.coarse)
+    assert np.isin(scorer.sample, above).all()  # scored on the trees,
+    assert np.array_equal(scorer.src_small, plain.src_small)  # polished on all
+    pose = replace(stem_poses(t.stems, s.stems)[0], T_target_source=T_true)
+    cand = _score_stem_pose(scorer, pose, 7, "a test", "above the ground ")
+    given = tight_share(T_true, scorer.tree, scorer.sample, params.coarse.tight_dist_m)
+    assert cand.polished  # every stem pose is every other's rival
+    assert cand.score >= given
+    if cand.score == given:
+        assert np.array_equal(cand.T_target_source, T_true)
+        assert cand.explanation.endswith("as given.")
+    assert "points above the ground lie within 4 cm" in cand.explanation
+
+
 def test_a_tree_seen_from_two_scans_is_listed_once(plot_pair) -> None:
     target, source, T_true = plot_pair
     inv = take_inventory([target, source], [np.eye(4), T_true])
@@ -346,7 +380,7 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
 
 
 def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
-    plot_pair, tmp_path: Path
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from amrst import io
 
@@ -376,8 +410,13 @@ def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
     assert [s["scanner_given"] for s in doc["scans"]] == [list(v) for v in stood]
     assert np.allclose(doc["scans"][0]["scanner_xyz"], stood[0], atol=1e-6)
 
-    for bad in (["0", "1", "2", "3"], ["3", *map(str, stood[0])], ["1", "x", "0", "0"]):
+    for bad, why in (
+        (["0", "1", "2", "3"], "by its number from 1"),
+        (["3", *map(str, stood[0])], "there are 2 scans"),
+        (["1", "x", "0", "0"], "give X Y Z as numbers"),
+    ):
         assert plot_main([*args, str(tmp_path / "c"), "--scanner", *bad]) == 2
+        assert why in capsys.readouterr().err
     far = ["1", "0", "0", "0"]  # not in the file's coordinates
     high = [
         "1",
@@ -386,6 +425,7 @@ def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
     aside = ["1", *map(str, stood[0] + (40.0, 40.0, 0.0))]  # beyond its scan's points
     for wrong in (far, high, aside):
         assert plot_main([*args, str(tmp_path / "c"), "--scanner", *wrong]) == 2
+        assert "has no ground just below that point" in capsys.readouterr().err
 
 
 def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:

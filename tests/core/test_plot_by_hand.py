@@ -78,7 +78,7 @@ def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -
 
 
 def test_the_command_reads_pairs_and_refuses_bad_ones(
-    pair_and_picks, tmp_path: Path
+    pair_and_picks, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     clouds, t_pts, s_pts, T_true = pair_and_picks
     scans = _files(clouds, tmp_path)
@@ -106,16 +106,20 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     )
     swapped = tmp_path / "swapped.csv"  # the rows of one scan in another order
     write_pairs(swapped, t_pts, s_pts[[1, 2, 3, 0]])
-    for bad in (
-        ["1", "2", str(swapped)],
-        ["1", "3", str(pairs)],
-        ["0", "2", str(pairs)],
-        ["1", "²", str(pairs)],  # a digit, but no number
-        ["1", "2", str(tmp_path / "no.csv")],
-        ["1", "2", str(huge)],
+    capsys.readouterr()  # what the runs before said
+    for bad, why in (
+        (["1", "2", str(swapped)], "same point in both scans"),
+        (["1", "3", str(pairs)], "the plot has scans 1 to 2"),
+        (["0", "2", str(pairs)], "numbers from 1"),
+        (["1", "²", str(pairs)], "numbers from 1"),  # a digit, but no number
+        (["1", "2", str(tmp_path / "no.csv")], "Cannot read the pairs file"),
+        (["1", "2", str(huge)], "is not a pairs CSV"),
     ):
         args = [*scans, "--out", str(tmp_path / "bad"), "--quiet", "--pairs", *bad]
         assert plot_main(args) == 2
+        err = capsys.readouterr().err
+        assert why in err
+        assert len(err.strip().splitlines()) == 1
 
 
 def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(

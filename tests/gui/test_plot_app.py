@@ -71,9 +71,11 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     plot.scan_list.setCurrentRow(1)
     assert plot.scanner_button.isEnabled()
     plot.set_scanner("0 0")
-    assert "give X Y Z, three numbers, not 2" in plot.status.text()
+    assert plot.status.text() == "The scanner of S2: give X Y Z, three numbers, not 2."
     plot.set_scanner("0, 0, nan")
-    assert "finite numbers" in plot.status.text()
+    assert plot.status.text() == (
+        "The scanner of scan 2 at 0 0 nan: give X Y Z as finite numbers (metres)."
+    )
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     plot.set_scanner("0, 0, 0")
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
@@ -539,6 +541,12 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])
     inv = invert_transform(SOURCE_POSE)
     in_source = picked @ inv[:3, :3].T + inv[:3, 3]
+    swapped = tmp_path / "swapped.csv"  # the source's rows in another order
+    write_pairs(swapped, picked, in_source[[1, 2, 3, 0]])
+    plot.toggle_pairs(str(swapped))
+    assert plot.hand_pairs == {}
+    assert plot.status.text().startswith("Not used: the point pairs of swapped.csv")
+    assert "same point in both scans" in plot.status.text()
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, picked, in_source)
     plot.toggle_pairs(str(pairs))
