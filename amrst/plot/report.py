@@ -309,7 +309,8 @@ def _flags() -> str:
     p = StemMapParams()
     return (
         f"<p>DBH <b>ok</b>: its circle's points leave no gap wider than "
-        f"{360 - p.ok_arc_deg:g}° round the stem, fit within "
+        f"{360 - p.ok_arc_deg:g}° round the stem ({360 - p.wide_ok_arc_deg:g}° round "
+        f"a stem over {p.wide_stem_m * 100:g} cm, seldom round), fit within "
         f"{p.ok_rmse_m * 1000:g} mm RMS, at most {p.ok_outlier_share:.0%} of the slice's "
         "points off it, and the slices from 1 to 1.6 m agree on it; <b>check</b>: "
         "measure it by hand before you use it. Height <b>lean</b>: the stem leans "

@@ -98,8 +98,10 @@ class StemMapParams:
     ok_arc_deg: float = 202.5
     # A stem wider than wide_stem_m seen over less than wide_arc_deg gets no DBH: a
     # wide stem's section is seldom round, and a short arc of it does not fix the circle.
+    # For the same reason its DBH is ok only from wide_ok_arc_deg, two thirds of it.
     wide_stem_m: float = 0.5
     wide_arc_deg: float = 150.0
+    wide_ok_arc_deg: float = 240.0
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
     # Height flags: fewer points than min_top_points in the top metre of the tree is
@@ -811,9 +813,10 @@ def _dbh_quality(
     if fit is None:
         return "none"
     circle, outliers = fit
+    wide = 2 * circle.radius_m > params.wide_stem_m
     good = (
         tapers
-        and circle.arc_deg >= params.ok_arc_deg
+        and circle.arc_deg >= (params.wide_ok_arc_deg if wide else params.ok_arc_deg)
         and circle.rmse_m <= params.ok_rmse_m
         and outliers <= params.ok_outlier_share
     )

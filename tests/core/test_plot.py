@@ -612,11 +612,13 @@ def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
 
     xyz = np.vstack(
         [
-            _ground(),
+            _ground(10.0),
+            arc(-6.0, 0.1, 110.0),
             arc(-3.0, 0.4, 65.0),
             arc(0.0, 0.1, 65.0),
             arc(3.0, 0.4, 110.0),
             arc(6.0, 0.1, 90.0),
+            arc(9.0, 0.4, 130.0),
         ]
     )
     dbh = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
@@ -626,7 +628,11 @@ def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
     # A circle on half the bark or less is not bounded on both sides: check it.
     assert dbh[6].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 180 deg
     assert dbh[6].dbh_quality == "check"
-    assert dbh[3].dbh_quality == "ok"
+    assert dbh[-6].dbh_quality == "ok"  # 20 cm, 220 deg
+    # A wide stem is seldom round: ok only from two thirds of its bark.
+    assert dbh[3].dbh_quality == "check"  # 80 cm, 220 deg
+    assert dbh[9].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 260 deg
+    assert dbh[9].dbh_quality == "ok"
 
 
 def test_stems_outvote_only_an_unsure_winner_they_do_not_hold() -> None:
