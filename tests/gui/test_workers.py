@@ -33,12 +33,12 @@ def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
     qtbot.wait(100)
     job.cancel()
     try:
-        qtbot.waitUntil(lambda: bool(got["error"]), timeout=10_000)
+        qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
         assert isinstance(got["error"][0], Cancelled)
         assert not job.worker_done.is_set()  # the thread is still in its call ...
     finally:
         release.set()
-    qtbot.waitUntil(job.worker_done.is_set, timeout=10_000)
+    qtbot.waitUntil(job.worker_done.is_set, timeout=60_000)
     qtbot.wait(100)  # ... and what it returned then is dropped
     assert got["result"] == []
     assert len(got["error"]) == 1
@@ -56,14 +56,14 @@ def test_a_result_returned_after_cancel_is_dropped(qtbot):
     # Wait without turning the event loop, so the result is still queued.
     assert job.worker_done.wait(5.0)
     job.cancel()  # before the queued result reached the GUI thread
-    qtbot.waitUntil(lambda: bool(got["error"]), timeout=5_000)
+    qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
     assert got["result"] == []
     assert isinstance(got["error"][0], Cancelled)
 
 
 def test_a_job_not_cancelled_delivers_its_result(qtbot):
     job, got = _run(lambda reporter: 7, qtbot)
-    qtbot.waitUntil(lambda: bool(got["result"]), timeout=5_000)
+    qtbot.waitUntil(lambda: bool(got["result"]), timeout=60_000)
     assert got == {"result": [7], "error": []}
     assert job.done
 
@@ -98,8 +98,8 @@ def test_a_finished_job_is_freed_by_reference_counting_on_the_gui_thread(
         del job
         assert ref() is not None, "the job went while its worker still ran"
         gate.set()
-        qtbot.waitUntil(lambda: ref() is None, timeout=10_000)
-        qtbot.waitUntil(lambda: bool(deleted_on), timeout=5_000)
+        qtbot.waitUntil(lambda: ref() is None, timeout=60_000)
+        qtbot.waitUntil(lambda: bool(deleted_on), timeout=60_000)
     finally:
         gc.enable()
     assert deleted_on == [threading.main_thread().ident]
@@ -130,14 +130,15 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
     assert workers.wait_for_workers(60.0)
     got: list[str] = []
     first = workers.run_stage(job_fn("first"), display=True, on_result=got.append)
-    qtbot.waitUntil(lambda: calls == ["first"], timeout=10_000)
+    # Deadlines, not timings: a loaded machine may take seconds to start a thread.
+    qtbot.waitUntil(lambda: calls == ["first"], timeout=60_000)
     dropped = workers.run_stage(job_fn("dropped"), display=True, on_result=got.append)
     last = workers.run_stage(job_fn("last"), display=True, on_result=got.append)
     qtbot.wait(200)
     assert calls == ["first"]  # the others wait for its end
     dropped.discard()
     gate.set()
-    qtbot.waitUntil(lambda: got == ["first", "last"], timeout=10_000)
+    qtbot.waitUntil(lambda: got == ["first", "last"], timeout=60_000)
     assert calls == ["first", "last"]
     assert not any(overlap)
     assert first.done
