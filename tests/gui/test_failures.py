@@ -207,3 +207,23 @@ def test_the_tree_tab_says_when_the_scans_hold_a_plot(make_main_window, monkeypa
     assert "8 and 10 stems: a plot, not one tree" in panel._plot_note()
     counts.update(target=1, source=3)  # one tree with its neighbours
     assert panel._plot_note() == ""
+
+
+def test_the_tree_tab_says_so_after_a_run_on_a_plot_s_scans(make_main_window, tmp_path):
+    from _plots import plot_pair
+    from _run import run_until_idle
+
+    from amrst import io
+    from amrst.types import Cloud
+
+    files = [tmp_path / "t.ply", tmp_path / "s.ply"]
+    for f, xyz in zip(files, plot_pair()[:2], strict=True):
+        io.write(f, Cloud(xyz))
+    win = make_main_window()
+    s = win.session
+    assert not run_until_idle(s, lambda: win.open_pair(*map(str, files)))
+    assert not run_until_idle(s, s.run_all)
+    assert s.coarse is not None  # the figures are measured
+    note = win.metrics_panel.tree_note.text()
+    assert "stems: a plot, not one tree" in note
+    assert "File ▸ Open plot…" in note
