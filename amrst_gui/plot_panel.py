@@ -92,7 +92,7 @@ RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 #: Between a number and its unit: the status line wraps, never between them.
 NBSP = "\u00a0"
 #: Set after a scan's line in the scan list when its scanner position is given.
-GIVEN_MARK = "; scanner given at "
+GIVEN_MARK = "; scanner given"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -1186,11 +1186,13 @@ class PlotWindow(QMainWindow):
         """Mark the scans whose scanner position the next run is given."""
         for k in range(self.scan_list.count()):
             item = self.scan_list.item(k)
-            text = item.text().split(GIVEN_MARK)[0]
+            text, tip = item.text().split(GIVEN_MARK)[0], ""
             if k in self.given_scanners:
                 where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
-                text += f"{GIVEN_MARK}{where}"
+                text += GIVEN_MARK
+                tip = f"Scanner given at {where} m, in the file's coordinates"
             item.setText(text)
+            item.setToolTip(tip)
 
     def _show_links(self, o: PlotOutcome) -> None:
         fill(self.links, link_rows(o))

@@ -79,16 +79,22 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     plot.set_scanner("0, 0, 0")
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
-    assert plot.scan_list.item(1).text().endswith("scanner given at 0.00, 0.00, 0.00")
+    item = plot.scan_list.item(1)
+    assert item.text().endswith("; scanner given")
+    assert (
+        item.toolTip()
+        == "Scanner given at 0.00, 0.00, 0.00 m, in the file's coordinates"
+    )
     monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # replace the plot
     _run(qtbot, plot)
     doc = json.loads((out / "plot.json").read_text())
     assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], [0.0] * 3]
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
-    assert plot.scan_list.item(1).text().endswith("scanner given at 0.00, 0.00, 0.00")
+    assert plot.scan_list.item(1).text().endswith("; scanner given")
     plot.set_scanner("")  # forgotten: the next run goes by the file
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     assert "given" not in plot.scan_list.item(1).text()
+    assert plot.scan_list.item(1).toolTip() == ""
 
 
 def _run(qtbot: QtBot, plot: PlotWindow) -> None:
@@ -1088,7 +1094,8 @@ def test_another_scan_is_made_the_reference_before_a_run(
     assert plot.specs == [str(Path(f).resolve()) for f in reversed(plot_files)]
     item = plot.scan_list.item(0)
     assert item is not None
-    assert item.text() == "S1  scan_2.ply; scanner given at 1.00, 2.00, 3.00"
+    assert item.text() == "S1  scan_2.ply; scanner given"
+    assert "1.00, 2.00, 3.00" in item.toolTip()
     assert "scan_2.ply is the reference now" in plot.status.text()
     assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
 
