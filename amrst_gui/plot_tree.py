@@ -64,14 +64,15 @@ FIGURE_TIPS = {
     "when the files carry an offset), as trees.csv lists it",
     "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
     "residual, and the share of slice points off the circle (3DFin's checks); ok "
-    f"needs an arc of {_OK.ok_arc_deg:g}° or more, a residual of "
+    f"needs an arc of {_OK.ok_arc_deg:g}° or more ({_OK.wide_ok_arc_deg:g}° for a "
+    f"stem over {_OK.wide_stem_m * 100:g} cm), a residual of "
     f"{_OK.ok_rmse_m * 1000:g} mm or less and {_OK.ok_outlier_share:.0%} or less off",
     "Height": "The tree's highest point above the ground at its stem; lean: the "
     f"stem leans over {_OK.lean_flag_deg:g}° or the top stands over "
     f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
     "which); top not seen: no scan saw above it (a lower bound, whatever its lean); "
-    "top not checked: no scan says where its scanner stood (amrst plot --scanner "
-    "gives it)",
+    "top not checked: no scan says where its scanner stood (Scanner at… above the "
+    "scan list gives it)",
     "Seen from": "The scans whose points reach the stem; where one of them needs "
     "review, the tree's figures rest on a pose nobody confirmed yet",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",

@@ -319,7 +319,8 @@ def _flags() -> str:
         "its top); <b>top not seen</b>: no scan saw above it, the height is a lower "
         "bound (this flag wins when both apply); <b>top not checked</b>: no scan "
         "says where its scanner stood (a georeferenced LAS, say; amrst plot "
-        "--scanner gives it), so no top could be checked; <b>none</b> / <b>not measured</b>: "
+        "--scanner or the Plot window's Scanner at… gives it), so no top could be "
+        "checked; <b>none</b> / <b>not measured</b>: "
         "no DBH / no height. Lorey's mean height counts the heights flagged ok.</p>"
     )
 
