@@ -46,7 +46,8 @@ class ScanPlace:
     status: str
     # The unsure links its pose rests on (None: none a person can clear).
     doubts: frozenset[tuple[int, int]] | None = frozenset()
-    # Where ``amrst plot --scanner`` said its scanner stood (its file's coordinates).
+    # Where its scanner stood as given by hand (plot.json scanner_given; its file's
+    # coordinates).
     given: tuple[float, float, float] | None = None
 
     @property

@@ -165,7 +165,8 @@ class PlotWindow(QMainWindow):
         # Why the folder's review.json could not be read: no review is written over it.
         self.review_error: str | None = None
         self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
-        # scan -> where amrst plot --scanner said its scanner stood (file coordinates)
+        # scan -> where its scanner stood, given by Scanner at… or amrst plot --scanner
+        # (the scan file's coordinates); the next run takes it
         self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None

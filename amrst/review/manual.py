@@ -416,6 +416,8 @@ class ManualScorer:
         from amrst.stages.voxels import voxel_sample
 
         self.target_xyz, self.source_xyz, self.params = target_xyz, source_xyz, params
+        # Drawn from all points whatever score_xyz is: the polish draws on from the
+        # same generator, so its points do not depend on score_xyz.
         self.sample, rng = verification_sample(source_xyz, params)
         if score_xyz is not None:
             self.sample = verification_sample(score_xyz, params)[0]
