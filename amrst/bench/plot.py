@@ -290,20 +290,20 @@ def _local(case: PlotCase) -> PlotCase:
 def run_plot(case: PlotCase) -> PlotRecord:
     """Register and inventory the plot with ``amrst plot``'s engine; score both."""
     from amrst.plot.inventory import take_inventory
-    from amrst.plot.register import register_plot
+    from amrst.plot.register import analyse_plot, register_plot
     from amrst.review.verdict import REGISTERED
 
     n = len(case.clouds)
     record = PlotRecord(case.name, PLOT, n)
     t0 = time.perf_counter()
-    reg = register_plot(case.clouds)
+    reg = register_plot(analyse_plot(case.clouds))
     record.time_s = time.perf_counter() - t0
     record.pair_s = record.time_s / (n - 1)
     record.origins = [pl.link.origin for pl in reg.links if pl.link.in_tree]
     record.flagged = [status != REGISTERED for status in reg.statuses[1:]]
     _score_poses(case, record, reg.poses)
     t0 = time.perf_counter()
-    inv = take_inventory(case.clouds, reg.poses)
+    inv = take_inventory([s.analysis.cloud for s in reg.scans], reg.poses)
     record.inventory_s = time.perf_counter() - t0
     listed = np.array(
         [[*t.stem.base, t.stem.dbh_m, t.stem.height_m] for t in inv.trees]

@@ -329,13 +329,17 @@ def write_merged(
     moves: Sequence[Transform],
     offset: np.ndarray,
     ids: Sequence[int],
+    *,
+    load: Callable[[int], Cloud] | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS or LAZ file, atomically.
 
     ``moves[k]`` takes ``parts[k]``'s local coordinates into the frame whose origin is
     ``offset`` (world coordinates); part k's points get ``scan_id`` ``ids[k]``. The
     attributes every part has are kept. Written a chunk at a time: memory holds the
-    parts and one chunk, never a merged copy.
+    parts and one chunk, never a merged copy. With ``load``, part k's points are
+    ``load(k)``, called as it is written, and ``parts`` a sample of each that plans
+    the file (its attributes and extent): memory then holds one part as loaded.
 
     Raises
     ------
@@ -354,7 +358,9 @@ def write_merged(
     compress = path.suffix.lower() == ".laz"
     write_atomic(
         path,
-        lambda tmp: write_las_parts(tmp, parts, moves, offset, ids, compress=compress),
+        lambda tmp: write_las_parts(
+            tmp, parts, moves, offset, ids, compress=compress, load=load
+        ),
     )
 
 

@@ -36,6 +36,8 @@ _DEFAULT_SCALE_M = 1e-4  # 0.1 mm: keeps millimetres after any transform
 _INT32_MAX = 2**31 - 1
 #: Points moved and written at a time by :func:`write_las_parts`.
 CHUNK_POINTS = 2_000_000
+#: How far beyond a sample's box the points it was drawn from may reach (m).
+SAMPLE_MARGIN_M = 1.0
 
 
 def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
@@ -116,6 +118,7 @@ def write_las_parts(
     ids: Sequence[int] | None,
     *,
     compress: bool = True,
+    load: Callable[[int], Cloud] | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS (LAZ when ``compress``) file.
 
@@ -123,7 +126,10 @@ def write_las_parts(
     is ``offset`` (world coordinates); with ``ids``, every point of part k gets
     ``scan_id`` = ``ids[k]``. The attributes every part has are kept; the first
     part's LAS version and VLRs (e.g. its coordinate system) are the file's. No more
-    than ``CHUNK_POINTS`` points are moved at a time.
+    than ``CHUNK_POINTS`` points are moved at a time. With ``load``, the points
+    written for part k are ``load(k)``'s and ``parts`` are samples of them, which
+    plan the attributes and the extent: a value the sample did not show that a
+    standard field cannot hold is written clipped, with a warning.
     """
     import laspy
 
@@ -137,7 +143,10 @@ def write_las_parts(
     standard, extra = _plan(parts, names, point_format)
     version = "1.4" if meta.get("las_version") == "1.4" else None
     header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales, header.offsets = _frame(_moved_box(parts, moves), offset, meta)
+    box = _moved_box(parts, moves)
+    if box is not None and load is not None:  # a sample's extent, not every point's
+        box = (box[0] - SAMPLE_MARGIN_M, box[1] + SAMPLE_MARGIN_M)
+    header.scales, header.offsets = _frame(box, offset, meta)
     dims = {k: dt for k, (_, dt) in extra.items()}
     if ids is not None:
         dims["scan_id"] = np.dtype(np.uint16)
@@ -151,7 +160,8 @@ def write_las_parts(
         _ctrl_c_between_chunks() as check,
         laspy.open(path, mode="w", header=header, do_compress=compress) as writer,
     ):
-        for k, (cloud, T) in enumerate(zip(parts, moves, strict=True)):
+        for k, (part, T) in enumerate(zip(parts, moves, strict=True)):
+            cloud = part if load is None else load(k)
             attrs = flat_attributes(cloud)
             R, t = np.asarray(T, float)[:3, :3], np.asarray(T, float)[:3, 3]
             shift = t + offset - header.offsets
@@ -165,7 +175,12 @@ def write_las_parts(
                     record["scan_id"] = np.full(len(xyz), ids[k], np.uint16)
                 for name in standard:
                     dim = fmt.dimension_by_name(name)
-                    record[name] = _fit(dim, attrs[name][rows])[0]
+                    record[name], exact = _fit(dim, attrs[name][rows])
+                    if not exact and PREFIX + name not in extra:
+                        logger.warning(
+                            "%s: values the LAS field cannot hold, written clipped.",
+                            name,
+                        )
                 for key, (name, dtype) in extra.items():
                     record[key] = np.asarray(attrs[name][rows], dtype)
                 writer.write_points(record)

@@ -29,7 +29,7 @@ import numpy as np
 from amrst.errors import InvalidInput
 from amrst.io.posed import ScanInfo
 
-__all__ = ["ScanInfo", "list_scans", "read_scans", "split_spec"]
+__all__ = ["ScanInfo", "list_scans", "one_scan_specs", "read_scans", "split_spec"]
 
 if TYPE_CHECKING:
     from amrst.io.common import RawCloud
@@ -94,6 +94,31 @@ def list_scans(path: PathLike) -> list[ScanInfo]:
     _check(path)
     infos: list[ScanInfo] = module.list_scans(path)
     return infos
+
+
+def one_scan_specs(spec: PathLike) -> list[str]:
+    """Split a spec into one spec per scan it names, reading no points.
+
+    ``plot.e57`` of three scans gives ``plot.e57#0``, ``plot.e57#1``, ``plot.e57#2``; a
+    spec of one scan is given back as it is.
+
+    Raises
+    ------
+    InvalidInput
+        As :func:`read_scans` for a bad spec or a multi-scan file it cannot list.
+    """
+    text = os.fspath(spec)
+    path, wanted = split_spec(text)
+    if _multi_module(path) is None:
+        return [text]
+    base = text
+    if wanted is None:
+        wanted = tuple(info.index for info in list_scans(path))
+    else:
+        base = text.rsplit("#", 1)[0]
+    if len(wanted) == 1:
+        return [text]
+    return [f"{base}#{k}" for k in wanted]
 
 
 def read_scans(spec: PathLike, *, posed: bool = True) -> list[Cloud]:

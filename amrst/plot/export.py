@@ -17,6 +17,8 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
@@ -33,8 +35,6 @@ from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_write
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Mapping, Sequence
     from pathlib import Path
-
-    import numpy as np
 
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
@@ -428,7 +428,6 @@ def write_plot(
     reg: PlotRegistration,
     inventory: Inventory,
     labels: Sequence[str],
-    clouds: Sequence[Cloud],
     *,
     write_trees: bool = False,
     write_cloud: bool = False,
@@ -443,8 +442,10 @@ def write_plot(
     review that found no tree at this run (dropped from it; ``review_lost`` in
     plot.json).
 
-    ``write_cloud``: also the registered plot, ``plot.laz`` (every placed scan in the
-    reference's frame, world coordinates, ``scan_id`` its number from 1). An earlier
+    ``labels`` name the scans as files and ``#k`` (:func:`amrst.io.scans.read_scans`).
+    ``write_cloud``: also the registered plot, ``plot.laz`` (every point of every
+    placed scan, read again from ``labels``, in the reference's frame, world
+    coordinates, ``scan_id`` its number from 1). An earlier
     run's ``plot.laz`` and tree clouds that this run does not write again are removed,
     as they no longer match its poses and trees.
     ``report``: also ``report.html`` (``amrst.plot.report``). ``pairs_files``: the
@@ -455,6 +456,7 @@ def write_plot(
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
 
+    clouds = [scan.analysis.cloud for scan in reg.scans]
     reference = clouds[reg.reference]
 
     # The review follows its trees: a run that lists them otherwise moves it with them.
@@ -478,7 +480,7 @@ def write_plot(
                 inventory.tree_points(k), reference
             )
     if write_cloud:
-        writers[PLOT_CLOUD] = _plot_cloud_writer(reg, clouds)
+        writers[PLOT_CLOUD] = _plot_cloud_writer(reg, labels)
     if report:
         from amrst.plot.report import build_report
 
@@ -508,17 +510,35 @@ MANAGED = frozenset(
 
 
 def _plot_cloud_writer(
-    reg: PlotRegistration, clouds: Sequence[Cloud]
+    reg: PlotRegistration, labels: Sequence[str]
 ) -> Callable[[Path], object]:
-    """plot.laz: the placed scans moved into the reference frame, streamed."""
+    """plot.laz: the placed scans read again and moved into the reference frame.
+
+    The run kept only each scan's working points; reading the files again, one at a
+    time, keeps memory at one scan as read.
+    """
     from amrst import io
+    from amrst.io.scans import read_scans
 
     placed = [(k, pose) for k, pose in enumerate(reg.poses) if pose is not None]
-    parts = [clouds[k] for k, _ in placed]
+    kept = [reg.scans[k] for k, _ in placed]
+
+    def load(m: int) -> Cloud:
+        k, scan = placed[m][0], kept[m]
+        (cloud,) = read_scans(labels[k])
+        if len(cloud) != scan.points_read or not np.array_equal(
+            cloud.offset, scan.analysis.cloud.offset
+        ):
+            raise InvalidInput(
+                f"{labels[k]} changed while the plot ran: run the plot again."
+            )
+        return cloud
+
+    parts = [scan.analysis.cloud for scan in kept]
     moves = [pose for _, pose in placed]
     ids = [k + 1 for k, _ in placed]
-    offset = clouds[reg.reference].offset
-    return lambda p: io.write_merged(p, parts, moves, offset, ids)
+    offset = reg.scans[reg.reference].analysis.cloud.offset
+    return lambda p: io.write_merged(p, parts, moves, offset, ids, load=load)
 
 
 def inventory_rows(

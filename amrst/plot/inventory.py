@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, working_points
+from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.sampling import strided
 
 if TYPE_CHECKING:
@@ -161,10 +161,9 @@ def seen_from_any(trees: Sequence[Tree], scans: Collection[int]) -> int:
 def merge_scans(
     clouds: Sequence[Cloud],
     poses: Sequence[Transform | None],
-    params: StemMapParams,
     reporter: Reporter | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Every reached scan's working points on the reference frame, and their scan."""
+    """Every reached scan's points on the reference frame, and their scan."""
     parts, owners = [], []
     for k, (cloud, pose) in enumerate(zip(clouds, poses, strict=True)):
         if pose is None:
@@ -172,9 +171,8 @@ def merge_scans(
         if reporter is not None:
             reporter.check_cancelled()
             reporter.progress(0.2 * k / len(clouds), f"merging scan {k + 1}")
-        pts = working_points(cloud.xyz, params)
-        parts.append(pts @ pose[:3, :3].T + pose[:3, 3])
-        owners.append(np.full(len(pts), k, dtype=np.int64))
+        parts.append(cloud.xyz @ pose[:3, :3].T + pose[:3, 3])
+        owners.append(np.full(len(cloud), k, dtype=np.int64))
     return np.vstack(parts), np.concatenate(owners)
 
 
@@ -195,7 +193,8 @@ def take_inventory(
     Parameters
     ----------
     clouds : sequence of Cloud
-        The plot's scans as read.
+        The plot's scans as it keeps them (``PlotScan.analysis.cloud``: the stem
+        map's working points of each).
     poses : sequence of (4, 4) float64 or None
         Scan k's local frame -> the reference's local frame (None: not placed).
     reference : int
@@ -212,7 +211,7 @@ def take_inventory(
     from amrst.progress import SubReporter
 
     params = params or StemMapParams()
-    xyz, scan = merge_scans(clouds, poses, params, reporter)
+    xyz, scan = merge_scans(clouds, poses, reporter)
     # The merged points are thinned once more: overlapping scans double the density.
     stem_map = map_stems(
         xyz,

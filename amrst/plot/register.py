@@ -73,10 +73,18 @@ SCORE_ABOVE_GROUND_M = 0.5
 
 @dataclass(frozen=True, slots=True)
 class PlotScan:
-    """One scan of the plot, analysed once: preprocessed points and stem map."""
+    """One scan of the plot, analysed once: preprocessed points and stem map.
+
+    ``analysis.cloud`` is the scan as the plot keeps it: the stem map's working points
+    (``stemmap.working_index``, with their attributes), not every point read, so
+    that a run holds one scan as read at a time. ``points_read`` counts the points the
+    scan had.
+    """
 
     analysis: ScanAnalysis
     stems: StemMap
+    points_read: int
+    seconds: float  # to analyse it
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,13 +205,42 @@ def analyse_plot_scan(
     *,
     threads: int = THREADS,
 ) -> PlotScan:
-    """Preprocess one scan and make its stem map."""
-    from amrst.pipeline import prepare_scan
+    """Preprocess one scan and make its stem map; keep its working points.
 
+    ``params`` are :func:`plot_params`'s.
+    """
+    from amrst.pipeline import prepare_scan
+    from amrst.plot.stemmap import working_index
+
+    t0 = time.perf_counter()
     an = prepare_scan(
         cloud, params, SubReporter(reporter, 0.0, 0.5, "preprocess"), threads=threads
     )
-    return PlotScan(an, map_stems(cloud.xyz, stem_params, reporter, trees=False))
+    stems = map_stems(cloud.xyz, stem_params, reporter, trees=False)
+    kept = cloud.select(working_index(cloud.xyz, stem_params))
+    seconds = time.perf_counter() - t0
+    return PlotScan(replace(an, cloud=kept), stems, len(cloud), seconds)
+
+
+def analyse_plot(
+    clouds: Sequence[Cloud],
+    reporter: Reporter = NULL_REPORTER,
+    *,
+    threads: int = THREADS,
+) -> tuple[PlotScan, ...]:
+    """Analyse every scan of a plot with the plot's default settings."""
+    params, stem_params = plot_params(), StemMapParams()
+    n = len(clouds)
+    return tuple(
+        analyse_plot_scan(
+            c,
+            params,
+            stem_params,
+            SubReporter(reporter, k / n, (k + 1) / n, f"scan {k + 1}"),
+            threads=threads,
+        )
+        for k, c in enumerate(clouds)
+    )
 
 
 def register_plot_link(
@@ -472,11 +509,43 @@ def _shared(target: StemMap, source: StemMap, T: Transform) -> np.ndarray:
     return np.column_stack([best[ok], np.flatnonzero(ok)]).astype(np.int64)
 
 
+def check_links(
+    n: int,
+    reference: int,
+    by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    left_out: Collection[tuple[int, int]],
+) -> tuple[dict[tuple[int, int], tuple[np.ndarray, np.ndarray]], set[tuple[int, int]]]:
+    """Check the technician's links of a plot of ``n`` scans; key them as the links.
+
+    Returns the hand pairs and the left-out links in their links' (target, source)
+    order.
+
+    Raises
+    ------
+    InvalidInput
+        Pairs or a left-out link that is not one of the plot's, a link both given
+        pairs and left out, or point pairs that do not keep their distances.
+    """
+    from amrst.review.manual import pairs_disagree
+
+    pairs = link_pairs(n, reference)
+    hand = _oriented(by_hand, pairs, n)
+    dropped = {_link_key(i, j, pairs, n) for i, j in left_out}
+    if dropped & set(hand):
+        i, j = min(dropped & set(hand))
+        raise InvalidInput(
+            f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
+            "out: do one or the other."
+        )
+    for (i, j), (t_pts, s_pts) in sorted(hand.items()):
+        if apart := pairs_disagree(t_pts, s_pts):
+            raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
+    return hand, dropped
+
+
 def register_plot(
-    clouds: Sequence[Cloud],
+    scans: Sequence[PlotScan],
     reference: int = 0,
-    params: RegistrationParams | None = None,
-    stem_params: StemMapParams | None = None,
     reporter: Reporter = NULL_REPORTER,
     *,
     by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
@@ -487,12 +556,9 @@ def register_plot(
 
     Parameters
     ----------
-    clouds : sequence of Cloud
-        Two or more scans of one plot.
+    scans : sequence of PlotScan
+        Two or more scans of one plot, analysed (:func:`analyse_plot`).
     reference : int
-    params : RegistrationParams or None
-        Made plot settings with :func:`plot_params`.
-    stem_params : StemMapParams or None
     reporter : Reporter
     by_hand : mapping or None
         Point pairs that place a link instead of the automatic match:
@@ -505,51 +571,24 @@ def register_plot(
     Raises
     ------
     InvalidInput
-        Pairs or a left-out link that is not one of the plot's, or a link both
-        given pairs and left out.
+        As :func:`check_links`.
 
     Returns
     -------
     PlotRegistration
     """
-    params = plot_params(params)
-    stem_params = stem_params or StemMapParams()
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    n = len(clouds)
-    # The technician's links are checked before minutes of analysis.
+    params = plot_params()
+    n = len(scans)
+    hand, dropped = check_links(n, reference, by_hand or {}, left_out)
     pairs = link_pairs(n, reference)
-    hand = _oriented(by_hand or {}, pairs, n)
-    dropped = {_link_key(i, j, pairs, n) for i, j in left_out}
-    if dropped & set(hand):
-        i, j = min(dropped & set(hand))
-        raise InvalidInput(
-            f"The link of scans {i + 1} and {j + 1} is both given point pairs and left "
-            "out: do one or the other."
-        )
-    from amrst.review.manual import pairs_disagree
-
-    for (i, j), (t_pts, s_pts) in sorted(hand.items()):
-        if apart := pairs_disagree(t_pts, s_pts):
-            raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
-    scans = tuple(
-        analyse_plot_scan(
-            c,
-            params,
-            stem_params,
-            SubReporter(reporter, 0.4 * k / n, 0.4 * (k + 1) / n, f"scan {k + 1}"),
-            threads=threads,
-        )
-        for k, c in enumerate(clouds)
-    )
-    timings["analyse"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    timings = {"analyse": sum(s.seconds for s in scans)}
+    t0 = t1 = time.perf_counter()
     links = []
     for m, (i, j) in enumerate(pairs):
         sub = SubReporter(
             reporter,
-            0.4 + 0.45 * m / len(pairs),
-            0.4 + 0.45 * (m + 1) / len(pairs),
+            0.85 * m / len(pairs),
+            0.85 * (m + 1) / len(pairs),
             f"link {i + 1}-{j + 1}",
         )
         if (i, j) in dropped:
@@ -586,10 +625,10 @@ def register_plot(
     else:  # a pair: its link's NN-RMSE in the overlap
         bundle = _pair_rmse(links)
     timings["joint"] = time.perf_counter() - t1
-    timings["total"] = time.perf_counter() - t0
+    timings["total"] = timings["analyse"] + time.perf_counter() - t0
     loops = loop_closures(graph.links, graph.poses)
     return PlotRegistration(
-        scans=scans,
+        scans=tuple(scans),
         reference=reference,
         poses=poses,
         links=tuple(links),

@@ -17,13 +17,12 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
-from amrst.types import check_scans
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Mapping, Sequence
 
     from amrst.plot.inventory import Inventory
-    from amrst.plot.register import PlotRegistration
+    from amrst.plot.register import PlotRegistration, PlotScan
     from amrst.plot.stand import PlotArea
     from amrst.types import Cloud
 
@@ -95,10 +94,10 @@ def run_plot(
         A folder or an input that cannot make a plot; raised before the scans are
         registered.
     """
-    from amrst.multiscan.cli import read_specs
+    from amrst.io.scans import one_scan_specs
     from amrst.plot.export import check_out, write_plot
     from amrst.plot.inventory import take_inventory
-    from amrst.plot.register import register_plot
+    from amrst.plot.register import check_links, register_plot
     from amrst.plot.review import read_review
     from amrst.review.pairs_file import read_pairs
 
@@ -106,25 +105,24 @@ def run_plot(
     _check_inputs(specs, out)
     by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
     area = _plot_area(plot_radius_m, plot_centre)
-    reporter.progress(0.0, "Reading the scans")
-    clouds, labels = read_specs(list(specs))
-    _check_scans(clouds, labels)
-    clouds = _with_scanners(clouds, labels, scanners or {})
-    if area is not None:
-        if plot_centre is None:
-            area = _at_scanner(area, clouds[0])
-        _check_centre(area, clouds[0], labels[0], given=plot_centre is not None)
+    labels = [one for spec in specs for one in one_scan_specs(spec)]
+    _check_count(labels, scanners or {})
+    check_links(len(labels), 0, by_hand, left_out)
     added = read_review(out, labels).added  # before minutes of work, as check_out
-    reporter.check_cancelled()
+    scans = _read_scans(
+        labels, scanners or {}, area, plot_centre, SubReporter(reporter, 0.0, 0.4)
+    )
+    if area is not None and plot_centre is None:
+        area = _at_scanner(area, scans[0].analysis.cloud)
     reg = register_plot(
-        clouds,
+        scans,
         0,
-        reporter=SubReporter(reporter, 0.05, 0.8),
+        reporter=SubReporter(reporter, 0.4, 0.8),
         by_hand=by_hand,
         left_out=left_out,
     )
     inventory = take_inventory(
-        clouds,
+        [s.analysis.cloud for s in scans],
         reg.poses,
         0,
         reporter=SubReporter(reporter, 0.8, 0.95, "inventory"),
@@ -136,7 +134,6 @@ def run_plot(
         reg,
         inventory,
         labels,
-        clouds,
         write_trees=write_trees,
         write_cloud=write_cloud,
         report=report,
@@ -178,51 +175,108 @@ SCANNER_NEAR_M = 5.0
 SCANNER_UP_M = 4.0
 
 
-def _with_scanners(
-    clouds: list[Cloud],
+def _check_count(
+    labels: Sequence[str], scanners: Mapping[int, tuple[float, float, float]]
+) -> None:
+    """Refuse fewer than two scans, and a scanner given for a scan there is not."""
+    if len(labels) < 2:
+        raise InvalidInput(
+            f"{len(labels)} scan given: a plot needs at least two positions."
+        )
+    for k, xyz in sorted(scanners.items()):
+        if not 0 <= k < len(labels):
+            raise InvalidInput(
+                f"{_scanner_text(k, xyz)}: there are {len(labels)} scans; name one of "
+                "them by its number from 1."
+            )
+
+
+def _scanner_text(k: int, xyz: tuple[float, float, float]) -> str:
+    return f"The scanner of scan {k + 1} at {', '.join(f'{v:.2f}' for v in xyz)}"
+
+
+def _read_scans(
     labels: Sequence[str],
     scanners: Mapping[int, tuple[float, float, float]],
-) -> list[Cloud]:
-    """Return the scans with the scanner positions given (``scanner_origin``).
+    area: PlotArea | None,
+    centre: tuple[float, float] | None,
+    reporter: Reporter,
+) -> list[PlotScan]:
+    """Read and analyse the scans one at a time, keeping what the plot needs of each.
+
+    Memory holds one scan as read, however many positions: each is analysed and
+    thinned to its working points (``PlotScan``) before the next is read.
 
     Raises
     ------
     InvalidInput
-        A scan number beyond the scans read, a scan whose file says where its
-        scanner stood, or a position with no ground of its scan just below it (not in
-        the scan file's coordinates, or mistyped).
+        A scan :func:`amrst.types.check_scans` refuses, a scanner given that
+        :func:`_with_scanner` refuses, or a plot circle holding none of the
+        reference's points.
+    """
+    from amrst.io.scans import read_scans
+    from amrst.plot.register import analyse_plot_scan, plot_params
+    from amrst.plot.stemmap import StemMapParams
+    from amrst.types import refuse_odd_coordinates, refuse_same_points
+
+    params, stem_params = plot_params(), StemMapParams()
+    n = len(labels)
+    scans: list[PlotScan] = []
+    for k, label in enumerate(labels):
+        reporter.progress(k / n, f"Reading scan {k + 1} of {n}")
+        (cloud,) = read_scans(label)
+        refuse_odd_coordinates(cloud, label)
+        if k in scanners:
+            cloud = _with_scanner(cloud, k, label, scanners[k])
+        if k == 0 and area is not None:
+            here = area if centre is not None else _at_scanner(area, cloud)
+            _check_centre(here, cloud, label, given=centre is not None)
+        sub = SubReporter(reporter, (k + 0.2) / n, (k + 1) / n, f"scan {k + 1}")
+        scans.append(analyse_plot_scan(cloud, params, stem_params, sub))
+        del cloud  # before the next scan is read
+        refuse_same_points([s.analysis.cloud for s in scans], labels[: k + 1])
+    return scans
+
+
+#: A scanner given by hand stands within this of its scan's points (m, horizontally) ...
+SCANNER_NEAR_M = 5.0
+#: ... and up to this above the lowest of them (m): a tripod on rough ground.
+SCANNER_UP_M = 4.0
+
+
+def _with_scanner(
+    cloud: Cloud, k: int, label: str, xyz: tuple[float, float, float]
+) -> Cloud:
+    """Return scan ``k`` with the scanner position given (``scanner_origin``).
+
+    Raises
+    ------
+    InvalidInput
+        A scan whose file says where its scanner stood, or a position with no ground
+        of its scan just below it (not in the scan file's coordinates, or mistyped).
     """
     from dataclasses import replace
 
     from amrst.sampling import strided
 
-    clouds = list(clouds)
-    for k, xyz in sorted(scanners.items()):
-        what = f"The scanner of scan {k + 1} at {', '.join(f'{v:.2f}' for v in xyz)}"
-        if not 0 <= k < len(clouds):
-            raise InvalidInput(
-                f"{what}: there are {len(clouds)} scans; name one of them by its "
-                "number from 1."
-            )
-        cloud = clouds[k]
-        if cloud.meta.get("scanner_origin") is not None:
-            raise InvalidInput(
-                f"{what}: {labels[k]} says where its scanner stood; give a position "
-                "only for a scan whose file does not."
-            )
-        at = np.asarray(xyz, float) - cloud.offset
-        pts = strided(cloud.xyz, 200_000)
-        near = pts[np.hypot(*(pts[:, :2] - at[:2]).T) <= SCANNER_NEAR_M]
-        ground = float(np.percentile(near[:, 2], 2)) if len(near) >= 10 else np.nan
-        if not (ground - 1.0 <= at[2] <= ground + SCANNER_UP_M):
-            raise InvalidInput(
-                f"{what}: {labels[k]} has no ground just below that point (within "
-                f"{SCANNER_NEAR_M:g} m across and {SCANNER_UP_M:g} m down): give where "
-                "its scanner stood, in the scan file's coordinates."
-            )
-        meta = {**cloud.meta, "scanner_origin": tuple(xyz), "scanner_given": True}
-        clouds[k] = replace(cloud, meta=meta)
-    return clouds
+    what = _scanner_text(k, xyz)
+    if cloud.meta.get("scanner_origin") is not None:
+        raise InvalidInput(
+            f"{what}: {label} says where its scanner stood; give a position only for "
+            "a scan whose file does not."
+        )
+    at = np.asarray(xyz, float) - cloud.offset
+    pts = strided(cloud.xyz, 200_000)
+    near = pts[np.hypot(*(pts[:, :2] - at[:2]).T) <= SCANNER_NEAR_M]
+    ground = float(np.percentile(near[:, 2], 2)) if len(near) >= 10 else np.nan
+    if not (ground - 1.0 <= at[2] <= ground + SCANNER_UP_M):
+        raise InvalidInput(
+            f"{what}: {label} has no ground just below that point (within "
+            f"{SCANNER_NEAR_M:g} m across and {SCANNER_UP_M:g} m down): give where "
+            "its scanner stood, in the scan file's coordinates."
+        )
+    meta = {**cloud.meta, "scanner_origin": tuple(xyz), "scanner_given": True}
+    return replace(cloud, meta=meta)
 
 
 def _plot_area(
@@ -277,12 +331,3 @@ def _check_centre(area: PlotArea, reference: Cloud, label: str, *, given: bool) 
         f"The plot circle of {area.radius_m:g} m around ({cx:g}, {cy:g}) holds none "
         f"of {label}'s points: {where}."
     )
-
-
-def _check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
-    """Refuse fewer than two scans, and any :func:`amrst.types.check_scans` refuses."""
-    if len(clouds) < 2:
-        raise InvalidInput(
-            f"{len(clouds)} scan given: a plot needs at least two positions."
-        )
-    check_scans(clouds, labels)

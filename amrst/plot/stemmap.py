@@ -216,11 +216,6 @@ def working_index(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
     return index
 
 
-def working_points(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
-    """Return the points the stem map works on: thinned, at most ``max_points``."""
-    return np.asarray(np.asarray(xyz, dtype=float)[working_index(xyz, params)])
-
-
 def map_stems(
     xyz: np.ndarray,
     params: StemMapParams | None = None,

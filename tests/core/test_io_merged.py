@@ -52,6 +52,39 @@ def test_moved_parts_are_one_file_with_their_scan_ids(
     assert "only_here" not in back.attributes  # kept only when every part has it
 
 
+def test_parts_loaded_as_written_are_planned_from_their_samples(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.setattr(las_write, "CHUNK_POINTS", 700)
+    rng = np.random.default_rng(2)
+    offset = np.array([512_000.0, 4_200_000.0, 300.0])
+    values = [rng.integers(0, 60_000, n).astype(np.int64) for n in (2_000, 1_500)]
+    values[1][7] = 70_000  # not in its sample, past uint16
+    whole = [
+        Cloud(rng.uniform(-20, 20, (len(v), 3)), offset, {"intensity": v})
+        for v in values
+    ]
+    samples = [c.select(np.arange(0, len(c), 10)) for c in whole]
+    loaded = []
+
+    def load(k: int) -> Cloud:
+        loaded.append(k)
+        return whole[k]
+
+    moves = [np.eye(4), _turn(30.0, (4.0, -2.0, 0.5))]
+    path = tmp_path / "plot.laz"
+    io.write_merged(path, samples, moves, offset, [1, 2], load=load)
+    assert loaded == [0, 1]  # each part loaded once, as it is written
+    back = io.read(path)
+    expect = np.vstack(
+        [c.xyz @ T[:3, :3].T + T[:3, 3] for c, T in zip(whole, moves, strict=True)]
+    )
+    assert np.abs(back.xyz + back.offset - (expect + offset)).max() < 1e-4
+    assert np.bincount(back.attributes["scan_id"]).tolist() == [0, 2_000, 1_500]
+    assert back.attributes["intensity"][2_007] == 65_535  # clipped, and said so
+    assert "intensity: values the LAS field cannot hold" in caplog.text
+
+
 def test_a_merged_cloud_needs_a_las_name(tmp_path) -> None:
     c = Cloud(np.zeros((3, 3)))
     with pytest.raises(InvalidInput, match=r"\.laz or \.las"):

@@ -14,7 +14,7 @@ from amrst import io
 from amrst.errors import InvalidInput
 from amrst.io.e57 import write_e57
 from amrst.io.ptx import write_ptx
-from amrst.io.scans import list_scans, read_scans, split_spec
+from amrst.io.scans import list_scans, one_scan_specs, read_scans, split_spec
 from amrst.types import Cloud, make_transform
 
 WRITERS = {".e57": write_e57, ".ptx": write_ptx}
@@ -98,6 +98,21 @@ def test_spec_syntax():
     assert split_spec("tree.laz")[1] is None
     with pytest.raises(InvalidInput, match="scan numbers"):
         split_spec("plot.e57#two")
+
+
+@pytest.mark.parametrize("ext", [".e57", ".ptx"])
+def test_a_spec_splits_into_one_spec_per_scan(tmp_path, ext):
+    scans, poses = _scans(3, 50)
+    path = tmp_path / f"p{ext}"
+    WRITERS[ext](path, scans, poses)
+    assert one_scan_specs(str(path)) == [f"{path}#{k}" for k in range(3)]
+    assert one_scan_specs(f"{path}#2,0") == [f"{path}#2", f"{path}#0"]
+    assert one_scan_specs(f"{path}#1") == [f"{path}#1"]
+    for spec in one_scan_specs(str(path)):
+        assert len(read_scans(spec)) == 1
+    WRITERS[ext](tmp_path / f"one{ext}", scans[:1], poses[:1])
+    assert one_scan_specs(str(tmp_path / f"one{ext}")) == [str(tmp_path / f"one{ext}")]
+    assert one_scan_specs("no_such_tree.laz") == ["no_such_tree.laz"]  # not read
 
 
 @pytest.mark.parametrize("ext", [".e57", ".ptx"])

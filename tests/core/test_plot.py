@@ -248,6 +248,37 @@ def test_register_on_two_plot_scans_points_to_amrst_plot(
     assert "the stem nearest the middle (merged)" in out
 
 
+def test_a_run_keeps_each_scan_thinned_and_writes_every_point(
+    plot_pair, tmp_path
+) -> None:
+    from amrst import io
+    from amrst.errors import InvalidInput
+    from amrst.plot.export import write_plot
+    from amrst.plot.run import run_plot
+
+    rng = np.random.default_rng(5)
+    dense = [  # every point twice, a millimetre apart: denser than the stem map needs
+        Cloud(np.vstack([c.xyz, c.xyz + rng.normal(0, 0.001, c.xyz.shape)]))
+        for c in plot_pair[:2]
+    ]
+    files = _pair_files((*dense, None), tmp_path)
+    run = run_plot([str(f) for f in files], tmp_path / "out", write_cloud=True)
+    for kept, cloud in zip(run.registration.scans, dense, strict=True):
+        assert kept.points_read == len(cloud)
+        assert len(kept.analysis.cloud) < 0.6 * len(cloud)  # what the run holds
+    merged = io.read(tmp_path / "out" / "plot.laz")  # read again: every point
+    assert np.bincount(merged.attributes["scan_id"]).tolist() == [0, *map(len, dense)]
+    io.write(files[1], plot_pair[1])  # the scan as it was before: fewer points
+    with pytest.raises(InvalidInput, match=r"s\.ply changed while the plot ran"):
+        write_plot(
+            tmp_path / "again",
+            run.registration,
+            run.inventory,
+            run.labels,
+            write_cloud=True,
+        )
+
+
 def _pair_files(plot_pair, folder: Path) -> list[Path]:
     """Write the plot pair's scans as t.ply and s.ply in ``folder``."""
     from amrst import io

@@ -11,7 +11,7 @@ from _plots import STEMS, ground_z, plot_pair, pose, scan
 
 from amrst import io
 from amrst.plot.cli import main as plot_main
-from amrst.plot.register import HAND_ORIGIN, register_plot
+from amrst.plot.register import HAND_ORIGIN, analyse_plot, register_plot
 from amrst.review.pairs_file import write_pairs
 from amrst.types import (
     Cloud,
@@ -50,7 +50,7 @@ def pair_and_picks() -> tuple[list[Cloud], np.ndarray, np.ndarray, np.ndarray]:
 
 def test_point_pairs_place_the_link(pair_and_picks) -> None:
     clouds, t_pts, s_pts, T_true = pair_and_picks
-    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, s_pts)})
+    reg = register_plot(analyse_plot(clouds), by_hand={(0, 1): (t_pts, s_pts)})
     link = reg.links[0].link
     assert link.origin == HAND_ORIGIN
     assert link.status == "registered", link.message
@@ -60,7 +60,7 @@ def test_point_pairs_place_the_link(pair_and_picks) -> None:
     assert np.linalg.norm(E[:3, 3]) < 0.02
     assert reg.statuses == ("registered", "registered")
     # The same pairs named the other way round (scan 2's points first) agree.
-    again = register_plot(clouds, by_hand={(1, 0): (s_pts, t_pts)})
+    again = register_plot(analyse_plot(clouds), by_hand={(1, 0): (s_pts, t_pts)})
     assert np.allclose(again.poses[1], reg.poses[1], atol=1e-6)
 
 
@@ -69,12 +69,13 @@ def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -
 
     clouds, t_pts, s_pts, _ = pair_and_picks
     off = np.add(s_pts, (0.4, 0.0, 0.0))  # every pick 40 cm beside its stem
-    reg = register_plot(clouds, by_hand={(0, 1): (t_pts, off)})
+    scans = analyse_plot(clouds)
+    reg = register_plot(scans, by_hand={(0, 1): (t_pts, off)})
     assert reg.links[0].link.origin == HAND_ORIGIN
     assert reg.statuses[1] == "needs review"
     swapped = s_pts[[1, 2, 3, 0]]  # every pick on another stem: no pose follows
     with pytest.raises(InvalidInput, match="same point in both scans"):
-        register_plot(clouds, by_hand={(0, 1): (t_pts, swapped)})
+        register_plot(scans, by_hand={(0, 1): (t_pts, swapped)})
 
 
 def test_the_command_reads_pairs_and_refuses_bad_ones(
@@ -178,7 +179,8 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
     inv = invert_transform(T_third)
     third = world @ inv[:3, :3].T + inv[:3, 3]
     clouds = [Cloud(c) for c in (target, source, third)]
-    reg = register_plot(clouds, left_out=[(2, 0)])  # either order
+    scans = analyse_plot(clouds)
+    reg = register_plot(scans, left_out=[(2, 0)])  # either order
     by_pair = {(pl.link.target, pl.link.source): pl.link for pl in reg.links}
     assert by_pair[0, 2].origin == LEFT_OUT_ORIGIN
     assert by_pair[0, 2].status == "failed"
@@ -191,9 +193,9 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
 
     picks = np.zeros((3, 3)), np.eye(3)
     with pytest.raises(InvalidInput, match="both given point pairs and left out"):
-        register_plot(clouds, by_hand={(0, 2): picks}, left_out=[(0, 2)])
+        register_plot(scans, by_hand={(0, 2): picks}, left_out=[(0, 2)])
     with pytest.raises(InvalidInput, match="scans 1 to 3"):
-        register_plot(clouds, left_out=[(0, 3)])
+        register_plot(scans, left_out=[(0, 3)])
     args = [*_files(clouds, tmp_path), "--out", str(tmp_path / "o"), "--quiet"]
     assert plot_main([*args, "--leave-out", "1", "x"]) == 2
     assert plot_main([*args, "--leave-out", "1", "3"]) == 0  # 2-3 holds alone
