@@ -210,14 +210,16 @@ def analyse_plot_scan(
     ``params`` are :func:`plot_params`'s.
     """
     from amrst.pipeline import prepare_scan
-    from amrst.plot.stemmap import working_index
 
     t0 = time.perf_counter()
     an = prepare_scan(
         cloud, params, SubReporter(reporter, 0.0, 0.5, "preprocess"), threads=threads
     )
     stems = map_stems(cloud.xyz, stem_params, reporter, trees=False)
-    kept = cloud.select(working_index(cloud.xyz, stem_params))
+    assert stems.index is not None  # map_stems gives the rows it kept
+    # The stem map's own points: one copy of them, not two.
+    attributes = {k: v[stems.index] for k, v in cloud.attributes.items()}
+    kept = replace(cloud, xyz=stems.xyz, attributes=attributes)
     seconds = time.perf_counter() - t0
     return PlotScan(replace(an, cloud=kept), stems, len(cloud), seconds)
 
