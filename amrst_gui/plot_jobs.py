@@ -49,6 +49,8 @@ class ScanPlace:
     # Where its scanner stood as given by hand (plot.json scanner_given; its file's
     # coordinates).
     given: tuple[float, float, float] | None = None
+    # Its distance to the other scans' surfaces (m; NaN: not placed or not known).
+    residual_m: float = float("nan")
 
     @property
     def placed(self) -> bool:
@@ -202,6 +204,7 @@ def open_results(
                 if scan["unsure_links"] is None
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
                 given=_given(scan.get("scanner_given")),
+                residual_m=_float(scan.get("residual_m")),
             )
             for scan in doc["scans"]
         )

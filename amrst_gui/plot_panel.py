@@ -67,6 +67,7 @@ from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot_tables import (
     LINK_COLUMNS,
+    NBSP,
     ROW_PX,
     TREE_COLUMNS,
     fill,
@@ -89,8 +90,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.plot")
 
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
-#: Between a number and its unit: the status line wraps, never between them.
-NBSP = "\u00a0"
 #: Set after a scan's line in the scan list when its scanner position is given.
 GIVEN_MARK = "; scanner given"
 

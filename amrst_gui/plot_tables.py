@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt
@@ -32,6 +33,10 @@ UNSURE_RGB = "#b26a00"
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
 TREE_ROLE = Qt.ItemDataRole.UserRole  # a tree row's index into the outcome's trees
 SORT_ROLE = Qt.ItemDataRole.UserRole + 1  # what a cell sorts by
+
+
+#: Between a number and its unit: a line wraps, never between them.
+NBSP = "\u00a0"
 
 
 def table(columns: tuple[str, ...], name: str) -> QTableWidget:
@@ -67,7 +72,7 @@ def number(value: float, fmt: str) -> str:
 
 
 def scan_lines(o: PlotOutcome) -> list[str]:
-    """One line per scan: its file, where it stood, how many stems it shows."""
+    """One line per scan: its file, where it stood, its stems and residual."""
     from pathlib import Path
 
     lines = []
@@ -85,9 +90,14 @@ def scan_lines(o: PlotOutcome) -> list[str]:
         unsure = scan.placed and scan.status in (NEEDS_REVIEW, ACCEPTED)
         state = f", {scan.status}" if unsure else ""
         gone = "" if scan_file_exists(scan.label) else " (file missing)"
+        residual = (
+            f", residual {scan.residual_m * 100:.1f}{NBSP}cm"
+            if math.isfinite(scan.residual_m)
+            else ""
+        )
         lines.append(
             f"S{k + 1}  {Path(scan.label).name}{gone}: {where}, {scan.stems} stems"
-            f"{state}"
+            f"{residual}{state}"
         )
     return lines
 

@@ -313,11 +313,12 @@ def plot_document(
                 ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
+                "residual_m": residual,
                 "unsure_links": None
                 if doubts is None
                 else sorted([t, s] for t, s in doubts),
             }
-            for label, pose, path, scan, status, state, doubts, cloud in zip(
+            for label, pose, path, scan, status, state, doubts, cloud, residual in zip(
                 labels,
                 reg.poses,
                 reg.paths,
@@ -326,6 +327,7 @@ def plot_document(
                 reg.states(accepted),
                 reg.doubts(),
                 clouds,
+                reg.residuals_m,
                 strict=True,
             )
         ],

@@ -38,6 +38,7 @@ from amrst.multiscan.graph import (
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.plot.match import StemPose, held_by_stems, stem_poses
+from amrst.plot.residual import bundle_error, scan_residuals
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import (
@@ -100,9 +101,11 @@ class PlotRegistration:
     """Every scan's pose on the reference (local frames), the links and the bundle.
 
     ``poses[k]`` maps scan k's local coordinates into the reference's (None: not
-    reached); ``bundle_rmse_m`` is the mean NN-RMSE of each scan against the others
-    in their overlap, at the final poses (after the joint refinement when it was
-    kept; ``joint`` is None for two scans, whose link is already their fine fit).
+    reached); ``residuals_m[k]`` is scan k's distance to the surfaces of the others
+    where they overlap (``residual.scan_residuals``, NaN when not placed) and
+    ``bundle_rmse_m`` their RMS, at the final poses (after the joint refinement when
+    it was kept; ``joint`` is None for two scans, whose link is already their fine
+    fit).
     ``statuses[k]`` is scan k's state: registered, needs review or failed
     (:func:`amrst.multiscan.graph.scan_statuses`).
     """
@@ -115,6 +118,7 @@ class PlotRegistration:
     joint: JointResult | None
     loops: dict[str, float]
     statuses: tuple[str, ...]
+    residuals_m: tuple[float, ...]
     bundle_rmse_m: float
     timings: dict[str, float]
 
@@ -622,10 +626,9 @@ def register_plot(
             threads=threads,
         )
         poses = joint.poses
-    if joint is not None:
-        bundle = joint.rmse_after_m if joint.kept else joint.rmse_before_m
-    else:  # a pair: its link's NN-RMSE in the overlap
-        bundle = _pair_rmse(links)
+    residuals = scan_residuals(
+        [s.analysis.cloud.xyz for s in scans], poses, threads=threads
+    )
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = timings["analyse"] + time.perf_counter() - t0
     loops = loop_closures(graph.links, graph.poses)
@@ -638,7 +641,8 @@ def register_plot(
         joint=joint,
         loops=loops,
         statuses=scan_statuses(graph.links, graph.paths, loops),
-        bundle_rmse_m=float(bundle),
+        residuals_m=residuals,
+        bundle_rmse_m=bundle_error(residuals),
         timings=timings,
     )
 
@@ -690,11 +694,3 @@ def _left_out(i: int, j: int) -> PlotLink:
         origin=LEFT_OUT_ORIGIN,
     )
     return PlotLink(link, np.zeros((0, 2), np.int64))
-
-
-def _pair_rmse(links: Sequence[PlotLink]) -> float:
-    """NN-RMSE in the overlap of the verified link of a pair (NaN when none)."""
-    for pl in links:
-        if pl.link.in_tree and pl.link.metrics is not None:
-            return float(pl.link.metrics.rmse_overlap_m)
-    return float("nan")

@@ -168,8 +168,9 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
             if unsure
             else ""
         )
-        + f"<p>Bundle error {_cm(bundle)} (the scans' NN-RMSE where they overlap, "
-        f"at the final poses); {counted(checked, 'tree')} marked check, {dropped} "
+        + f"<p>Bundle error {_cm(bundle)} (the RMS of the scans' residuals: each "
+        "scan's distance to the surfaces of the others where they overlap, at the "
+        f"final poses); {counted(checked, 'tree')} marked check, {dropped} "
         f"marked not a tree and {counted(by_hand, 'DBH')} measured by you.</p>"
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
         + "</div>"
@@ -229,9 +230,10 @@ def _scans(doc: Mapping[str, Any]) -> str:
                     else "–".join(f"S{p}" for p in path)
                 ),
                 _e(s.get("stems", "")),
+                _cm(_num(s.get("residual_m"))),
             ]
         )
-    head = ["Scan", "File", "State", "Placed through", "Stems"]
+    head = ["Scan", "File", "State", "Placed through", "Stems", "Residual"]
     return "<h2>Scans</h2>" + html_table(head, rows)
 
 

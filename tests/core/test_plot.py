@@ -215,6 +215,12 @@ def test_inventory_columns_and_the_command(
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
     assert "1 tree marked check, 0 marked not a tree and 1 DBH measured" in page
+    doc = json.loads((out / "plot.json").read_text())
+    residuals = [s["residual_m"] for s in doc["scans"]]
+    assert all(0 < r < 0.02 for r in residuals)  # each scan on the other's surfaces
+    assert doc["bundle_rmse_m"] == pytest.approx(np.sqrt(np.mean(np.square(residuals))))
+    assert "<th>Residual</th>" in page
+    assert f"<td>{100 * residuals[1]:.1f} cm</td>" in page
     assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
     assert "no gap wider than 157.5° round the stem" in page  # what the flags say

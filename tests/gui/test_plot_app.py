@@ -175,6 +175,9 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert o is not None
     assert not o.missing
     assert [ln.status for ln in o.links] == ["registered"]
+    for k, place in enumerate(o.scans):  # each scan on the other's surfaces
+        assert 0 < place.residual_m < 0.02
+        assert f"residual {place.residual_m * 100:.1f}" in plot.scan_list.item(k).text()
     # Every tree once, where it stands in the reference scan, its DBH measured.
     assert len(o.trees) == len(STEMS)
     for x, y, r, _h in STEMS:
@@ -1076,6 +1079,7 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
     lines = scan_lines(o)
     assert "placed (the file does not say where its scanner stood)" in lines[1]
     assert "not placed" in lines[2]
+    assert not any("residual" in line for line in lines)  # none known
 
 
 def test_another_scan_is_made_the_reference_before_a_run(
