@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Sequence
 
+    from amrst.plot.register import PlotRegistration
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
@@ -244,6 +245,11 @@ class PlotRecord:
     #: truth and not flagged is a silent failure. The peers flag nothing.
     flagged: list[bool] = field(default_factory=list)
     silent: int = 0
+    #: amrst plot: each scan's residual at its poses, and the last scan's at the
+    #: true poses and with that scan moved by ``OFF_DEG`` and ``OFF_M`` (m).
+    residuals_m: list[float] = field(default_factory=list)
+    residual_true_m: float = NAN
+    residual_off_m: float = NAN
     error: str = ""
 
     def as_dict(self) -> dict[str, Any]:
@@ -275,6 +281,28 @@ def _score_poses(
         record.silent += int(not e.registered() and not flagged)
 
 
+#: How far the residual check moves the last scan off its true pose: a turn about
+#: the vertical and a shift along x.
+OFF_DEG = 1.0
+OFF_M = 0.1
+
+
+def _score_residuals(case: PlotCase, record: PlotRecord, reg: PlotRegistration) -> None:
+    """Record the residuals at amrst's poses, and whether they tell a pose off."""
+    from scipy.spatial.transform import Rotation
+
+    from amrst.plot.residual import scan_residuals
+    from amrst.types import make_transform
+
+    record.residuals_m = list(reg.residuals_m)
+    points = [s.analysis.cloud.xyz for s in reg.scans]
+    truth = [np.asarray(T, dtype=float) for T in case.T_scan1_scank]
+    turn = Rotation.from_euler("z", OFF_DEG, degrees=True).as_matrix()
+    off = [*truth[:-1], make_transform(turn, np.array([OFF_M, 0, 0])) @ truth[-1]]
+    record.residual_true_m = scan_residuals(points, list(truth))[-1]
+    record.residual_off_m = scan_residuals(points, list(off))[-1]
+
+
 def _local(case: PlotCase) -> PlotCase:
     """Return the case with every scan in scan 1's local frame (as its truth)."""
     from amrst.types import Cloud
@@ -302,6 +330,7 @@ def run_plot(case: PlotCase) -> PlotRecord:
     record.origins = [pl.link.origin for pl in reg.links if pl.link.in_tree]
     record.flagged = [status != REGISTERED for status in reg.statuses[1:]]
     _score_poses(case, record, reg.poses)
+    _score_residuals(case, record, reg)
     t0 = time.perf_counter()
     inv = take_inventory([s.analysis.cloud for s in reg.scans], reg.poses)
     record.inventory_s = time.perf_counter() - t0
@@ -515,6 +544,34 @@ def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
     return lines
 
 
+def _residual_table(records: Sequence[PlotRecord]) -> list[str]:
+    rows = [r for r in records if r.method == PLOT and not r.error]
+    lines = [
+        "| case | each scan at amrst's poses, cm | last scan at the truth, cm | "
+        f"moved {OFF_DEG:g} deg / {100 * OFF_M:g} cm, cm |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        each = " ".join(_fmt(v, 100, 1) for v in r.residuals_m)
+        lines.append(
+            f"| {r.case} | {each} | {_fmt(r.residual_true_m, 100, 1)} | "
+            f"{_fmt(r.residual_off_m, 100, 1)} |"
+        )
+    ratios = [
+        r.residual_off_m / r.residual_true_m
+        for r in rows
+        if np.isfinite(r.residual_off_m) and r.residual_true_m > 0
+    ]
+    if ratios:
+        lines += [
+            "",
+            f"- moved {OFF_DEG:g} deg / {100 * OFF_M:g} cm, the last scan's residual "
+            f"is {np.median(ratios):.1f}x its residual at the truth (median over "
+            f"cases; {min(ratios):.1f}-{max(ratios):.1f}x)",
+        ]
+    return lines
+
+
 def plot_summary(records: Sequence[PlotRecord]) -> str:
     """Markdown: the per-case registration table and the inventory table."""
     return "\n".join(
@@ -529,6 +586,12 @@ def plot_summary(records: Sequence[PlotRecord]) -> str:
             "## Inventory (amrst plot)",
             "",
             *_inventory_table(records),
+            "",
+            "## Scan residuals (amrst plot)",
+            "",
+            "Each scan's RMS distance to the other scans' surfaces where they overlap.",
+            "",
+            *_residual_table(records),
             "",
         ]
     )

@@ -92,6 +92,10 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
     summary = (out / "summary.md").read_text()
     assert "| 01_plot | 2 |" in summary
     assert "trees found: 6/6" in summary
+    # The residual tells the last scan's true pose from one 1 deg and 10 cm off.
+    assert len(plot["residuals_m"]) == 2
+    assert plot["residual_off_m"] > 2 * plot["residual_true_m"] > 0
+    assert "## Scan residuals (amrst plot)" in summary
     with pytest.raises(InvalidInput, match="Unknown plot method"):
         run_plot_bench(root, out, methods=("icp",))
     from amrst.cli import main
