@@ -69,7 +69,7 @@ class LinkLine:
     in_tree: bool
     origin: str
     overlap: float
-    rmse_m: float
+    residual_m: float  # the source's distance to the target's surfaces (NaN: none)
     shared: int
     message: str
     score: float = float("nan")  # the point score of its pose
@@ -257,7 +257,7 @@ def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
         in_tree=bool(entry["in_tree"]),
         origin=entry["origin"],
         overlap=_float(m.get("overlap_fraction")),
-        rmse_m=_float(m.get("rmse_overlap_m")),
+        residual_m=_float(entry.get("residual_m")),
         shared=int(entry["stems_shared"]),
         message=entry["message"],
         score=_float(entry["score"]),

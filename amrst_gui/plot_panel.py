@@ -227,9 +227,10 @@ class PlotWindow(QMainWindow):
         self.links = table(LINK_COLUMNS, "plot_links")
         self.links.setMaximumHeight(ROW_PX * 6 + 30)
         self.links.setToolTip(
-            "Every pair of scans: its state, the stems it shares, the overlap and the "
-            "NN-RMSE in it, and what found the pose (stems, or the two-scan engine). "
-            "★: in the spanning tree that places the scans."
+            "Every pair of scans: its state, the stems it shares, the overlap, the "
+            "residual (how far the second scan lies from the first one's surfaces at "
+            "the link's pose) and what found the pose (stems, or the two-scan "
+            "engine). ★: in the spanning tree that places the scans."
         )
         self.trees = table(TREE_COLUMNS, "plot_trees")
         self.trees.horizontalHeader().setSortIndicator(0, Qt.SortOrder.AscendingOrder)

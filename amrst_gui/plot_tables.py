@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 # Two-line headings: one line each would push the Mark column out of the side column
 # at 1366 px.
 TREE_COLUMNS = ("Tree", "DBH\ncm", "DBH\nquality", "Height\nm", "Height\nflag", "Mark")
-LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "RMSE", "By")
+LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "Residual", "By")
 #: The id of a tree seen from a scan that needs review: the map's needs-review amber,
 #: darker to read on the list's white.
 UNSURE_RGB = "#b26a00"
@@ -115,15 +115,14 @@ def scan_file_exists(label: str) -> bool:
 
 def link_rows(o: PlotOutcome) -> list[tuple[str, ...]]:
     """One row per link: scans (★ in the spanning tree), state ("(loop)": a loop of
-    links confirms it), stems, overlap, NN-RMSE in the overlap, and what found the
-    pose."""
+    links confirms it), stems, overlap, the residual, and what found the pose."""
     return [
         (
             f"S{ln.target + 1}–S{ln.source + 1}" + (" ★" if ln.in_tree else ""),
             ln.status + (" (loop)" if ln.confirmed else ""),
             str(ln.shared),
             number(ln.overlap * 100, ".0f") + " %",
-            number(ln.rmse_m * 100, ".1f") + " cm",
+            number(ln.residual_m * 100, ".1f") + " cm",
             ln.origin or "–",
         )
         for ln in o.links

@@ -291,16 +291,16 @@ def _score_residuals(case: PlotCase, record: PlotRecord, reg: PlotRegistration) 
     """Record the residuals at amrst's poses, and whether they tell a pose off."""
     from scipy.spatial.transform import Rotation
 
-    from amrst.plot.residual import scan_residuals
+    from amrst.plot.residual import Surfaces, scan_residuals
     from amrst.types import make_transform
 
     record.residuals_m = list(reg.residuals_m)
-    points = [s.analysis.cloud.xyz for s in reg.scans]
+    surfaces = Surfaces([s.analysis.cloud.xyz for s in reg.scans])
     truth = [np.asarray(T, dtype=float) for T in case.T_scan1_scank]
     turn = Rotation.from_euler("z", OFF_DEG, degrees=True).as_matrix()
     off = [*truth[:-1], make_transform(turn, np.array([OFF_M, 0, 0])) @ truth[-1]]
-    record.residual_true_m = scan_residuals(points, list(truth))[-1]
-    record.residual_off_m = scan_residuals(points, list(off))[-1]
+    record.residual_true_m = scan_residuals(surfaces, truth)[-1]
+    record.residual_off_m = scan_residuals(surfaces, off)[-1]
 
 
 def _local(case: PlotCase) -> PlotCase:

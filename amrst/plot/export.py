@@ -273,6 +273,7 @@ def plot_document(
     for pl in reg.links:
         entry = pl.link.as_dict()
         entry["stems_shared"] = len(pl.shared)
+        entry["residual_m"] = pl.residual_m
         entry["loop_confirmed"] = reg.loop_confirms(pl.link)
         entry["accepted"] = (pl.link.target, pl.link.source) in keep
         entry["pairs"] = next(

@@ -38,7 +38,7 @@ from amrst.multiscan.graph import (
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.plot.match import StemPose, held_by_stems, stem_poses
-from amrst.plot.residual import bundle_error, scan_residuals
+from amrst.plot.residual import Surfaces, bundle_error, scan_residuals
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import (
@@ -90,10 +90,16 @@ class PlotScan:
 
 @dataclass(frozen=True, slots=True)
 class PlotLink:
-    """A link and the stems it shares (target stem, source stem), empty when none."""
+    """A link, the stems it shares, and its residual.
+
+    ``shared``: (target stem, source stem) pairs, empty when none; ``residual_m``: the
+    source's distance to the target's surfaces at the link's pose
+    (``residual.Surfaces``; NaN when failed).
+    """
 
     link: Link
     shared: np.ndarray
+    residual_m: float = float("nan")
 
 
 @dataclass(frozen=True, slots=True)
@@ -626,9 +632,9 @@ def register_plot(
             threads=threads,
         )
         poses = joint.poses
-    residuals = scan_residuals(
-        [s.analysis.cloud.xyz for s in scans], poses, threads=threads
-    )
+    surfaces = Surfaces([s.analysis.cloud.xyz for s in scans], threads)
+    residuals = scan_residuals(surfaces, poses)
+    links = [_with_residual(pl, surfaces) for pl in links]
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = timings["analyse"] + time.perf_counter() - t0
     loops = loop_closures(graph.links, graph.poses)
@@ -644,6 +650,15 @@ def register_plot(
         residuals_m=residuals,
         bundle_rmse_m=bundle_error(residuals),
         timings=timings,
+    )
+
+
+def _with_residual(pl: PlotLink, surfaces: Surfaces) -> PlotLink:
+    T = pl.link.T_local
+    if T is None:
+        return pl
+    return replace(
+        pl, residual_m=surfaces.residual(pl.link.source, {pl.link.target: T})
     )
 
 

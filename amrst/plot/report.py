@@ -252,14 +252,16 @@ def _links(doc: Mapping[str, Any]) -> str:
                 _e(ln.get("origin", "")),
                 _e(ln.get("stems_shared", "")),
                 _pct(m.get("overlap_fraction")),
-                _cm(_num(m.get("rmse_overlap_m"))),
+                _cm(_num(ln.get("residual_m"))),
                 _e(ln.get("message", "")),
             ]
         )
-    head = ["Link", "State", "By", "Stems", "Overlap", "RMSE", "Why"]
-    return "<h2>Links</h2><p>★: in the spanning tree that places the scans.</p>" + (
-        html_table(head, rows)
-    )
+    head = ["Link", "State", "By", "Stems", "Overlap", "Residual", "Why"]
+    return (
+        "<h2>Links</h2><p>★: in the spanning tree that places the scans. Residual: "
+        "the second scan's distance to the first one's surfaces at the link's "
+        "pose.</p>"
+    ) + (html_table(head, rows))
 
 
 def _unsure(doc: Mapping[str, Any]) -> frozenset[int]:

@@ -35,38 +35,64 @@ FLAT_SHARE = 0.02
 SEED = 0
 
 
-def scan_residuals(
-    points: Sequence[np.ndarray],
-    poses: Sequence[Transform | None],
-    *,
-    threads: int = THREADS,
-) -> tuple[float, ...]:
-    """Return each scan's residual against the other placed scans (m).
+class Surfaces:
+    """The scans of a plot as surfaces to measure distances to.
+
+    One KD-tree per scan, in the scan's own frame, built once for every residual.
 
     Parameters
     ----------
     points : sequence of (N_k, 3) float64
         Each scan's points in its local frame.
+    threads : int
+    """
+
+    def __init__(self, points: Sequence[np.ndarray], threads: int = THREADS) -> None:
+        self.points = [np.asarray(p, dtype=float) for p in points]
+        self.trees = [
+            NearestTree(p[:: max(1, -(-len(p) // SURFACE_TREE_POINTS))], threads)
+            for p in self.points
+        ]
+
+    def residual(self, k: int, onto: dict[int, Transform]) -> float:
+        """Return scan k's RMS distance to the surfaces of the scans ``onto`` names.
+
+        ``onto[j]`` maps scan k's frame into scan j's. NaN when no surface is in reach.
+        """
+        query = _sample(self.points[k])
+        if not len(query) or not onto:
+            return float("nan")
+        moved = [query @ T[:3, :3].T + T[:3, 3] for T in onto.values()]
+        return _residual(moved, [self.trees[j] for j in onto])
+
+
+def scan_residuals(
+    surfaces: Surfaces, poses: Sequence[Transform | None]
+) -> tuple[float, ...]:
+    """Return each scan's residual against the other placed scans (m).
+
+    Parameters
+    ----------
+    surfaces : Surfaces
+        The plot's scans.
     poses : sequence of (4, 4) float64 or None
         Scan k's local frame -> the reference's local frame (None: not placed).
-    threads : int
 
     Returns
     -------
     tuple of float
         NaN for a scan not placed, or with no surface of another scan in reach.
     """
-    placed = [k for k, pose in enumerate(poses) if pose is not None]
-    moved = {k: _moved(points[k], poses[k]) for k in placed}
-    stride = {k: max(1, -(-len(moved[k]) // SURFACE_TREE_POINTS)) for k in placed}
-    trees = {k: NearestTree(moved[k][:: stride[k]], threads) for k in placed}
+    from amrst.types import invert_transform
+
     out = []
     for k, pose in enumerate(poses):
-        others = [j for j in placed if j != k]
-        if pose is None or not others or not len(moved[k]):
-            out.append(float("nan"))
-            continue
-        out.append(_residual(_sample(moved[k]), [trees[j] for j in others]))
+        onto = {
+            j: invert_transform(other) @ pose
+            for j, other in enumerate(poses)
+            if j != k and other is not None and pose is not None
+        }
+        out.append(surfaces.residual(k, onto) if pose is not None else float("nan"))
     return tuple(out)
 
 
@@ -76,11 +102,6 @@ def bundle_error(residuals: Sequence[float]) -> float:
     return float(np.sqrt(np.mean(known**2))) if len(known) else float("nan")
 
 
-def _moved(xyz: np.ndarray, pose: Transform | None) -> np.ndarray:
-    assert pose is not None
-    return np.asarray(np.asarray(xyz, dtype=float) @ pose[:3, :3].T + pose[:3, 3])
-
-
 def _sample(xyz: np.ndarray) -> np.ndarray:
     if len(xyz) <= RESIDUAL_POINTS:
         return xyz
@@ -88,12 +109,18 @@ def _sample(xyz: np.ndarray) -> np.ndarray:
     return xyz[np.sort(rng.choice(len(xyz), RESIDUAL_POINTS, replace=False))]
 
 
-def _residual(query: np.ndarray, others: Sequence[NearestTree]) -> float:
-    """RMS distance of ``query`` to the surfaces of the nearest of ``others``."""
-    found = [tree.query(query, 1, RESIDUAL_REACH_M) for tree in others]
+def _residual(queries: Sequence[np.ndarray], others: Sequence[NearestTree]) -> float:
+    """RMS distance to the surfaces of the nearest of ``others``.
+
+    ``queries[m]`` are the same points in the frame of ``others[m]``.
+    """
+    found = [
+        tree.query(q, 1, RESIDUAL_REACH_M)
+        for q, tree in zip(queries, others, strict=True)
+    ]
     dist = np.column_stack([d for d, _ in found])
     nearest = np.argmin(dist, axis=1)
-    near = np.isfinite(dist[np.arange(len(query)), nearest])
+    near = np.isfinite(dist[np.arange(len(dist)), nearest])
     squares = []
     for m, tree in enumerate(others):
         rows = np.flatnonzero(near & (nearest == m))
@@ -101,7 +128,7 @@ def _residual(query: np.ndarray, others: Sequence[NearestTree]) -> float:
             continue
         anchor = tree.points[found[m][1][rows]]
         _, around = tree.query(anchor, SURFACE_POINTS)
-        squares.append(_to_surface(query[rows], tree.points[around]) ** 2)
+        squares.append(_to_surface(queries[m][rows], tree.points[around]) ** 2)
     every = np.concatenate(squares) if squares else np.zeros(0)
     return float(np.sqrt(every.mean())) if len(every) else float("nan")
 

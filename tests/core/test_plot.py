@@ -220,6 +220,7 @@ def test_inventory_columns_and_the_command(
     assert all(0 < r < 0.02 for r in residuals)  # each scan on the other's surfaces
     assert doc["bundle_rmse_m"] == pytest.approx(np.sqrt(np.mean(np.square(residuals))))
     assert "<th>Residual</th>" in page
+    assert 0 < doc["links"][0]["residual_m"] < 0.02
     assert f"<td>{100 * residuals[1]:.1f} cm</td>" in page
     assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
