@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from amrst.types import Transform
 
 #: Points of each scan whose distance is measured (a seeded sample).
-RESIDUAL_POINTS = 20_000
+RESIDUAL_POINTS = 10_000
 #: Points of each scan that make its surfaces (an even stride beyond).
 SURFACE_TREE_POINTS = 1_000_000
 #: A point counts when another scan has a point this near it (m).
