@@ -29,7 +29,14 @@ import numpy as np
 from amrst.errors import InvalidInput
 from amrst.io.posed import ScanInfo
 
-__all__ = ["ScanInfo", "list_scans", "one_scan_specs", "read_scans", "split_spec"]
+__all__ = [
+    "ScanInfo",
+    "file_stamp",
+    "list_scans",
+    "one_scan_specs",
+    "read_scans",
+    "split_spec",
+]
 
 if TYPE_CHECKING:
     from amrst.io.common import RawCloud
@@ -100,25 +107,45 @@ def one_scan_specs(spec: PathLike) -> list[str]:
     """Split a spec into one spec per scan it names, reading no points.
 
     ``plot.e57`` of three scans gives ``plot.e57#0``, ``plot.e57#1``, ``plot.e57#2``; a
-    spec of one scan is given back as it is.
+    spec of one scan is given back as it is. The file is checked as every reader
+    checks it first (there, a file, not empty, a known extension), and the scan
+    numbers against its headers.
 
     Raises
     ------
     InvalidInput
-        As :func:`read_scans` for a bad spec or a multi-scan file it cannot list.
+        As :func:`read_scans` for a bad spec, a file it cannot read, or a scan number
+        the file does not have.
     """
+    from amrst.io.posed import check_indices
+
     text = os.fspath(spec)
     path, wanted = split_spec(text)
+    _check(path)
     if _multi_module(path) is None:
+        if wanted not in (None, (0,)):
+            raise InvalidInput(
+                f"{path.name} holds one scan; '#' selects scans of E57 and PTX files "
+                "only."
+            )
         return [text]
-    base = text
-    if wanted is None:
-        wanted = tuple(info.index for info in list_scans(path))
-    else:
-        base = text.rsplit("#", 1)[0]
-    if len(wanted) == 1:
+    indices = check_indices(path, wanted, len(list_scans(path)))
+    if len(indices) == 1:
         return [text]
-    return [f"{base}#{k}" for k in wanted]
+    base = text if wanted is None else text.rsplit("#", 1)[0]
+    return [f"{base}#{k}" for k in indices]
+
+
+def file_stamp(spec: PathLike) -> tuple[int, int] | None:
+    """Return the size and modification time (ns) of the file a spec names.
+
+    None when the file cannot be looked at (gone, or the spec is not a file's).
+    """
+    try:
+        info = split_spec(spec)[0].stat()
+    except (OSError, InvalidInput):
+        return None
+    return info.st_size, info.st_mtime_ns
 
 
 def read_scans(spec: PathLike, *, posed: bool = True) -> list[Cloud]:

@@ -521,16 +521,19 @@ def _plot_cloud_writer(
     time, keeps memory at one scan as read.
     """
     from amrst import io
-    from amrst.io.scans import read_scans
+    from amrst.io.scans import file_stamp, read_scans
 
     placed = [(k, pose) for k, pose in enumerate(reg.poses) if pose is not None]
     kept = [reg.scans[k] for k, _ in placed]
 
     def load(m: int) -> Cloud:
         k, scan = placed[m][0], kept[m]
-        (cloud,) = read_scans(labels[k])
-        if len(cloud) != scan.points_read or not np.array_equal(
-            cloud.offset, scan.analysis.cloud.offset
+        stamp = scan.file_stamp
+        changed = stamp is not None and file_stamp(labels[k]) != stamp
+        cloud = None if changed else read_scans(labels[k])[0]
+        if cloud is None or (
+            len(cloud) != scan.points_read
+            or not np.array_equal(cloud.offset, scan.analysis.cloud.offset)
         ):
             raise InvalidInput(
                 f"{labels[k]} changed while the plot ran: run the plot again."

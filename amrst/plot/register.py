@@ -79,13 +79,15 @@ class PlotScan:
     ``analysis.cloud`` is the scan as the plot keeps it: the stem map's working points
     (``stemmap.working_index``, with their attributes), not every point read, so
     that a run holds one scan as read at a time. ``points_read`` counts the points the
-    scan had.
+    scan had; ``file_stamp`` is its file's size and modification time when it was read
+    (None: not read from a file), so that the file is known unchanged when read again.
     """
 
     analysis: ScanAnalysis
     stems: StemMap
     points_read: int
     seconds: float  # to analyse it
+    file_stamp: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -214,7 +214,9 @@ def _read_scans(
         :func:`_with_scanner` refuses, or a plot circle holding none of the
         reference's points.
     """
-    from amrst.io.scans import read_scans
+    from dataclasses import replace
+
+    from amrst.io.scans import file_stamp, read_scans
     from amrst.plot.register import analyse_plot_scan, plot_params
     from amrst.plot.stemmap import StemMapParams
     from amrst.types import refuse_odd_coordinates, refuse_same_points
@@ -232,7 +234,8 @@ def _read_scans(
             here = area if centre is not None else _at_scanner(area, cloud)
             _check_centre(here, cloud, label, given=centre is not None)
         sub = SubReporter(reporter, (k + 0.2) / n, (k + 1) / n, f"scan {k + 1}")
-        scans.append(analyse_plot_scan(cloud, params, stem_params, sub))
+        scan = analyse_plot_scan(cloud, params, stem_params, sub)
+        scans.append(replace(scan, file_stamp=file_stamp(label)))
         del cloud  # before the next scan is read
         refuse_same_points([s.analysis.cloud for s in scans], labels[: k + 1])
     return scans

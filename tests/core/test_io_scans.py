@@ -112,7 +112,10 @@ def test_a_spec_splits_into_one_spec_per_scan(tmp_path, ext):
         assert len(read_scans(spec)) == 1
     WRITERS[ext](tmp_path / f"one{ext}", scans[:1], poses[:1])
     assert one_scan_specs(str(tmp_path / f"one{ext}")) == [str(tmp_path / f"one{ext}")]
-    assert one_scan_specs("no_such_tree.laz") == ["no_such_tree.laz"]  # not read
+    with pytest.raises(InvalidInput, match="no scan 5"):  # before any point is read
+        one_scan_specs(f"{path}#0,5")
+    with pytest.raises(InvalidInput, match="File not found"):
+        one_scan_specs(tmp_path / "no_such_tree.laz")
 
 
 @pytest.mark.parametrize("ext", [".e57", ".ptx"])

@@ -275,15 +275,19 @@ def test_a_run_keeps_each_scan_thinned_and_writes_every_point(
         assert len(kept.analysis.cloud) < 0.6 * len(cloud)  # what the run holds
     merged = io.read(tmp_path / "out" / "plot.laz")  # read again: every point
     assert np.bincount(merged.attributes["scan_id"]).tolist() == [0, *map(len, dense)]
-    io.write(files[1], plot_pair[1])  # the scan as it was before: fewer points
-    with pytest.raises(InvalidInput, match=r"s\.ply changed while the plot ran"):
-        write_plot(
-            tmp_path / "again",
-            run.registration,
-            run.inventory,
-            run.labels,
-            write_cloud=True,
-        )
+    for changed in (  # fewer points, or the same number moved 2 m
+        plot_pair[1],
+        dense[1].with_xyz(np.add(dense[1].xyz, (2.0, 0.0, 0.0))),
+    ):
+        io.write(files[1], changed)
+        with pytest.raises(InvalidInput, match=r"s\.ply changed while the plot ran"):
+            write_plot(
+                tmp_path / "again",
+                run.registration,
+                run.inventory,
+                run.labels,
+                write_cloud=True,
+            )
 
 
 def _pair_files(plot_pair, folder: Path) -> list[Path]:
