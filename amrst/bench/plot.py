@@ -282,7 +282,7 @@ def _score_poses(
 
 
 #: How far the residual check moves the last scan off its true pose: a turn about
-#: the vertical and a shift along x.
+#: the vertical through the scan's centre, and a shift along x.
 OFF_DEG = 1.0
 OFF_M = 0.1
 
@@ -295,10 +295,13 @@ def _score_residuals(case: PlotCase, record: PlotRecord, reg: PlotRegistration) 
     from amrst.types import make_transform
 
     record.residuals_m = list(reg.residuals_m)
-    surfaces = Surfaces([s.analysis.cloud.xyz for s in reg.scans])
+    points = [s.analysis.cloud.xyz for s in reg.scans]
+    surfaces = Surfaces(points)
     truth = [np.asarray(T, dtype=float) for T in case.T_scan1_scank]
     turn = Rotation.from_euler("z", OFF_DEG, degrees=True).as_matrix()
-    off = [*truth[:-1], make_transform(turn, np.array([OFF_M, 0, 0])) @ truth[-1]]
+    centre = truth[-1][:3, :3] @ points[-1].mean(axis=0) + truth[-1][:3, 3]
+    move = make_transform(turn, centre - turn @ centre + np.array([OFF_M, 0, 0]))
+    off = [*truth[:-1], move @ truth[-1]]
     record.residual_true_m = scan_residuals(surfaces, truth)[-1]
     record.residual_off_m = scan_residuals(surfaces, off)[-1]
 
