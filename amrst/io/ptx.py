@@ -23,6 +23,7 @@ scanner where the header puts it.
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,7 +33,7 @@ from amrst.io.common import shorten
 from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
 
     from amrst.io.common import RawCloud
@@ -67,61 +68,68 @@ def _numbers(line: str, count: int, path: Path, line_no: int) -> list[float]:
     return values
 
 
-def _index(lines: list[str], path: Path) -> list[_Scan]:
-    """Walk the headers: where each scan's points start, how many, its pose."""
-    scans: list[_Scan] = []
-    pos = 0
-    while pos < len(lines):
-        if not lines[pos].strip():
+def _walk(
+    path: Path, keep: Callable[[int], bool]
+) -> Iterator[tuple[_Scan, list[str] | None]]:
+    """Walk the file's scans in order: each one's header and, when ``keep(i)``, its lines.
+
+    The file is read a line at a time: memory holds the point lines of the scans kept,
+    never the whole file.
+    """
+    with path.open(encoding="ascii", errors="strict") as fh:
+        pos, i = 0, 0  # lines read, scans walked
+        for line in fh:
             pos += 1
-            continue
-        if pos + _HEADER_LINES > len(lines):
-            raise InvalidInput(
-                f"{path} ends inside the header of scan {len(scans)} (line {pos + 1}): "
-                "the file is truncated. Export it again."
-            )
-        cols = _numbers(lines[pos], 1, path, pos + 1)[0]
-        rows = _numbers(lines[pos + 1], 1, path, pos + 2)[0]
-        if cols < 0 or rows < 0 or cols != int(cols) or rows != int(rows):
-            raise InvalidInput(
-                f"{path}, line {pos + 1}: the scan size {cols:g} x {rows:g} is not "
-                "two whole numbers. The file is corrupt or not a PTX file."
-            )
-        scanner = np.array(_numbers(lines[pos + 2], 3, path, pos + 3))
-        for k in range(3, 6):
-            _numbers(lines[pos + k], 3, path, pos + k + 1)
-        M = np.array(
-            [_numbers(lines[pos + k], 4, path, pos + k + 1) for k in range(6, 10)]
+            if not line.strip():
+                continue
+            header = [line, *itertools.islice(fh, _HEADER_LINES - 1)]
+            if len(header) < _HEADER_LINES:
+                raise InvalidInput(
+                    f"{path} ends inside the header of scan {i} (line {pos}): the file "
+                    "is truncated. Export it again."
+                )
+            scan = _header(header, pos, path)
+            block = list(itertools.islice(fh, scan.n))
+            pos += _HEADER_LINES - 1 + len(block)
+            if len(block) < scan.n:
+                raise InvalidInput(
+                    f"{path}: scan {i} declares {scan.n} points but the file ends "
+                    f"after {len(block)}: it is truncated. Export it again."
+                )
+            width = len(block[0].split()) if scan.n else 4
+            if width not in (3, 4, 7):
+                raise InvalidInput(
+                    f"{path}, line {scan.start + 1}: a PTX point line has 3, 4 or 7 "
+                    f"numbers (x y z [intensity [r g b]]), found {width}."
+                )
+            scan.width = width
+            yield scan, block if keep(i) else None
+            i += 1
+
+
+def _header(lines: list[str], first: int, path: Path) -> _Scan:
+    """Read a scan's 10 header lines, the first of them line ``first`` (from 1)."""
+    cols = _numbers(lines[0], 1, path, first)[0]
+    rows = _numbers(lines[1], 1, path, first + 1)[0]
+    if cols < 0 or rows < 0 or cols != int(cols) or rows != int(rows):
+        raise InvalidInput(
+            f"{path}, line {first}: the scan size {cols:g} x {rows:g} is not "
+            "two whole numbers. The file is corrupt or not a PTX file."
         )
-        T = M.T.copy()  # stored transposed: translation in the last row
-        n = int(cols) * int(rows)
-        start = pos + _HEADER_LINES
-        if start + n > len(lines):
-            raise InvalidInput(
-                f"{path}: scan {len(scans)} declares {n} points but the file ends "
-                f"after {len(lines) - start}: it is truncated. Export it again."
-            )
-        width = len(lines[start].split()) if n else 4
-        if width not in (3, 4, 7):
-            raise InvalidInput(
-                f"{path}, line {start + 1}: a PTX point line has 3, 4 or 7 numbers "
-                f"(x y z [intensity [r g b]]), found {width}."
-            )
-        scans.append(_Scan(start, n, T, width, scanner))
-        pos = start + n
-    return scans
-
-
-def _read_lines(path: Path) -> list[str]:
-    text = path.read_text(encoding="ascii", errors="strict")
-    return text.splitlines()
+    scanner = np.array(_numbers(lines[2], 3, path, first + 2))
+    for k in range(3, 6):
+        _numbers(lines[k], 3, path, first + k)
+    M = np.array([_numbers(lines[k], 4, path, first + k) for k in range(6, 10)])
+    T = M.T.copy()  # stored transposed: translation in the last row
+    start = first - 1 + _HEADER_LINES  # its first point line, from 0
+    return _Scan(start, int(cols) * int(rows), T, 4, scanner)
 
 
 def list_scans(path: Path) -> list[ScanInfo]:
     """Every scan of the file, from its headers."""
 
     def run() -> list[ScanInfo]:
-        scans = _index(_read_lines(path), path)
+        scans = [scan for scan, _ in _walk(path, lambda _i: False)]
         fields = {3: (), 4: ("intensity",), 7: ("intensity", "red", "green", "blue")}
         return [
             ScanInfo(
@@ -139,8 +147,7 @@ def list_scans(path: Path) -> list[ScanInfo]:
     return result
 
 
-def _points(lines: list[str], scan: _Scan, path: Path) -> np.ndarray:
-    block = lines[scan.start : scan.start + scan.n]
+def _points(block: list[str], scan: _Scan, path: Path) -> np.ndarray:
     try:
         values = np.array(" ".join(block).split(), dtype=np.float64)
     except ValueError as exc:
@@ -164,11 +171,14 @@ def read_raw_scans(
     """Read the chosen scans (all when None) as ``(index, RawCloud)``, posed or not."""
 
     def run() -> list[tuple[int, RawCloud]]:
-        lines = _read_lines(path)
-        scans = _index(lines, path)
+        chosen = None if wanted is None else set(wanted)
+        walked = list(_walk(path, lambda i: chosen is None or i in chosen))
+        scans = [scan for scan, _ in walked]
         out = []
         for i in check_indices(path, wanted, len(scans)):
-            pts = _points(lines, scans[i], path)
+            block = walked[i][1]
+            assert block is not None  # kept: a scan asked for
+            pts = _points(block, scans[i], path)
             keep = np.any(pts[:, :3] != 0.0, axis=1)  # 0 0 0: no return
             pts = pts[keep]
             attributes: dict[str, np.ndarray] = {}

@@ -146,6 +146,30 @@ def test_truncated_and_garbage_files_one_line(tmp_path, ext):
             assert "export it again" in message.lower()
 
 
+def test_one_scan_of_a_ptx_is_read_without_holding_the_others(tmp_path):
+    import tracemalloc
+
+    scans, poses = _scans(5, 20_000)
+    write_ptx(tmp_path / "five.ptx", scans, poses)
+    write_ptx(tmp_path / "one.ptx", scans[:1], poses[:1])
+
+    def peak(spec: str) -> int:
+        tracemalloc.start()
+        (cloud,) = read_scans(spec)
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        assert len(cloud) == 20_000
+        return top
+
+    # The file is text: a reader that took it whole would hold all five scans.
+    assert peak(f"{tmp_path / 'five.ptx'}#0") < 1.5 * peak(str(tmp_path / "one.ptx"))
+    lines = (tmp_path / "five.ptx").read_text().splitlines()
+    one_point = ["1", "1", *lines[2:10], "1 2", ""]  # a point of two numbers
+    (tmp_path / "bad_width.ptx").write_text("\n".join(one_point))
+    with pytest.raises(InvalidInput, match=r"line 11: a PTX point line has 3, 4 or 7"):
+        read_scans(tmp_path / "bad_width.ptx")
+
+
 def test_empty_and_missing(tmp_path):
     (tmp_path / "e.e57").write_bytes(b"")
     with pytest.raises(InvalidInput, match="is empty"):
