@@ -42,9 +42,10 @@ JOINT_POINTS = "all"
 class JointResult:
     """Poses after the joint refinement and whether it was kept.
 
-    ``rmse_before_m`` / ``rmse_after_m``: mean over scans of the NN-RMSE of each scan
-    against all the others, within the metrics' overlap distance. ``moved_m[k]``: how
-    far the refinement moved scan k (largest shift of its points).
+    ``rmse_before_m`` / ``rmse_after_m``: the error it is judged by, before and after:
+    by default the mean over scans of the NN-RMSE of each scan against all the others,
+    within the metrics' overlap distance (``refine_jointly``'s ``error``).
+    ``moved_m[k]``: how far the refinement moved scan k (largest shift of its points).
     """
 
     poses: tuple[Transform | None, ...]
@@ -115,8 +116,12 @@ def refine_jointly(
     rounds: int = ROUNDS,
     *,
     threads: int = THREADS,
+    error: Callable[[Sequence[Transform | None]], float] | None = None,
 ) -> JointResult:
     """Refine every reached non-reference pose against all the other scans.
+
+    The refinement is kept when it does not raise ``error`` (the poses' error; by
+    default :func:`mutual_rmse` of the scans' points).
 
     Parameters
     ----------
@@ -133,6 +138,8 @@ def refine_jointly(
     rounds : int
     threads : int
         Threads for the KD-tree queries.
+    error : callable or None
+        The error of a set of poses (m).
 
     Returns
     -------
@@ -153,7 +160,8 @@ def refine_jointly(
     overlap = params.metrics.overlap_dist_m
     current = list(poses)
     movable = [k for k, p in enumerate(current) if p is not None and k != reference]
-    before = mutual_rmse(points, current, overlap)
+    judge = error or (lambda poses: mutual_rmse(points, poses, overlap))
+    before = judge(current)
     # One BLAS thread: the ICP's large sums then add up in one order, so the poses are
     # the same bit for bit whatever BLAS threads the process has (the CLI's threaded
     # BLAS, a Dask worker's one thread).
@@ -168,7 +176,7 @@ def refine_jointly(
             refine_registration=refine_registration,
             threads=threads,
         )
-    after = mutual_rmse(points, current, overlap)
+    after = judge(current)
     kept = bool(np.isfinite(after) and (not np.isfinite(before) or after <= before))
     final = tuple(current) if kept else tuple(poses)
     moved = tuple(

@@ -112,8 +112,8 @@ class PlotRegistration:
     reached); ``residuals_m[k]`` is scan k's distance to the surfaces of the others
     where they overlap (``residual.scan_residuals``, NaN when not placed) and
     ``bundle_rmse_m`` their RMS, at the final poses (after the joint refinement when
-    it was kept; ``joint`` is None for two scans, whose link is already their fine
-    fit).
+    it did not raise the bundle error; ``joint`` is None for two scans, whose link is
+    already their fine fit).
     ``statuses[k]`` is scan k's state: registered, needs review or failed
     (:func:`amrst.multiscan.graph.scan_statuses`).
     """
@@ -622,9 +622,11 @@ def register_plot(
     links = [replace(pl, link=in_tree[pl.link.target, pl.link.source]) for pl in links]
     t1 = time.perf_counter()
     analyses = [s.analysis for s in scans]
+    surfaces = Surfaces([s.analysis.cloud.xyz for s in scans], threads)
     joint = None
     poses = graph.poses
     if sum(p is not None for p in poses) > 2:  # a pair's link is its fine fit
+        # Kept when it does not raise the bundle error the plot reports.
         joint = refine_jointly(
             analyses,
             graph.poses,
@@ -632,9 +634,9 @@ def register_plot(
             params,
             SubReporter(reporter, 0.85, 1.0, "joint refinement"),
             threads=threads,
+            error=lambda p: bundle_error(scan_residuals(surfaces, p)),
         )
         poses = joint.poses
-    surfaces = Surfaces([s.analysis.cloud.xyz for s in scans], threads)
     residuals = scan_residuals(surfaces, poses)
     links = [_with_residual(pl, surfaces) for pl in links]
     timings["joint"] = time.perf_counter() - t1

@@ -186,6 +186,10 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
     assert by_pair[0, 2].status == "failed"
     assert reg.paths[2] == (0, 1, 2)
     assert reg.poses[2] is not None  # placed, as sure as the 2-3 link alone
+    # Three scans: a joint refinement, judged by the bundle error the plot reports.
+    assert reg.joint is not None
+    judged = reg.joint.rmse_after_m if reg.joint.kept else reg.joint.rmse_before_m
+    assert judged == pytest.approx(reg.bundle_rmse_m)
     for T_true, T in ((T_source, reg.poses[1]), (T_third, reg.poses[2])):
         err = invert_transform(T_true) @ T
         assert rotation_angle_deg(err[:3, :3]) < 0.1
