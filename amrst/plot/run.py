@@ -109,11 +109,9 @@ def run_plot(
     _check_count(labels, scanners or {})
     check_links(len(labels), 0, by_hand, left_out)
     added = read_review(out, labels).added  # before minutes of work, as check_out
-    scans = _read_scans(
+    scans, area = _read_scans(
         labels, scanners or {}, area, plot_centre, SubReporter(reporter, 0.0, 0.4)
     )
-    if area is not None and plot_centre is None:
-        area = _at_scanner(area, scans[0].analysis.cloud)
     reg = register_plot(
         scans,
         0,
@@ -201,11 +199,13 @@ def _read_scans(
     area: PlotArea | None,
     centre: tuple[float, float] | None,
     reporter: Reporter,
-) -> list[PlotScan]:
+) -> tuple[list[PlotScan], PlotArea | None]:
     """Read and analyse the scans one at a time, keeping what the plot needs of each.
 
     Memory holds one scan as read, however many positions: each is analysed and
-    thinned to its working points (``PlotScan``) before the next is read.
+    thinned to its working points (``PlotScan``) before the next is read. Returns
+    them and the plot circle, centred where the reference's scanner stood when no
+    ``centre`` is given.
 
     Raises
     ------
@@ -231,14 +231,14 @@ def _read_scans(
         if k in scanners:
             cloud = _with_scanner(cloud, k, label, scanners[k])
         if k == 0 and area is not None:
-            here = area if centre is not None else _at_scanner(area, cloud)
-            _check_centre(here, cloud, label, given=centre is not None)
+            area = area if centre is not None else _at_scanner(area, cloud)
+            _check_centre(area, cloud, label, given=centre is not None)
         sub = SubReporter(reporter, (k + 0.2) / n, (k + 1) / n, f"scan {k + 1}")
         scan = analyse_plot_scan(cloud, params, stem_params, sub)
         scans.append(replace(scan, file_stamp=file_stamp(label)))
         del cloud  # before the next scan is read
         refuse_same_points([s.analysis.cloud for s in scans], labels[: k + 1])
-    return scans
+    return scans, area
 
 
 #: A scanner given by hand stands within this of its scan's points (m, horizontally) ...
