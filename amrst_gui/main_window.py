@@ -40,7 +40,7 @@ from amrst_gui.views.scan_pane import ScansArea
 
 if TYPE_CHECKING:
     from amrst.campaign.stored import StoredLinkResult
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
 log = logging.getLogger("amrst_gui.main_window")
 
@@ -266,7 +266,7 @@ class MainWindow(QMainWindow):
     # --------------------------------------------------------------- plot
     def open_plot_dialog(self) -> None:
         """Ask for a plot's scans (the first by name is the reference); open them."""
-        from amrst_gui.plot_panel import ask_scans
+        from amrst_gui.plot.window import ask_scans
 
         paths = ask_scans(self, self.settings)
         if paths:
@@ -295,7 +295,7 @@ class MainWindow(QMainWindow):
         return plot
 
     def _plot_window(self) -> PlotWindow:
-        from amrst_gui.plot_panel import PlotWindow
+        from amrst_gui.plot.window import PlotWindow
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
     from amrst.plot.inventory import Tree
     from amrst_gui.main_window import MainWindow
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
 
 # The second scan's pose in the first's frame: turned 70 deg and moved.
@@ -58,7 +58,7 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from amrst.plot.cli import main as plot_main
-    from amrst_gui import plot_panel
+    from amrst_gui.plot import window as plot_window
 
     out = tmp_path / "out"
     given = ["--scanner", "1", "-2", "0", "0"]  # the reference's scanner stood there
@@ -85,7 +85,7 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
         item.toolTip()
         == "Scanner given at 0.00, 0.00, 0.00 m, in the file's coordinates"
     )
-    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # replace the plot
+    monkeypatch.setattr(plot_window, "confirm", lambda *_: True)  # replace the plot
     _run(qtbot, plot)
     doc = json.loads((out / "plot.json").read_text())
     assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], [0.0] * 3]
@@ -105,7 +105,7 @@ def _run(qtbot: QtBot, plot: PlotWindow) -> None:
 def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     """The technician's DBH: clicks on the stem's outline at 1.3 m, kept, forgotten."""
     from amrst.plot.export import TREES_CSV
-    from amrst_gui.plot_tree import SIDE
+    from amrst_gui.plot.tree import SIDE
 
     o = plot.outcome
     assert o is not None
@@ -163,7 +163,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from amrst.plot.export import TREES_CSV
-    from amrst_gui import plot_panel
+    from amrst_gui.plot import window as plot_window
 
     win = make_main_window()
     out = tmp_path / "out"
@@ -247,7 +247,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert (tmp_path / "inventory.xlsx").stat().st_size > 0
     # The report says what the folder's files say, the mark included, and opens.
     opened: list[Path] = []
-    monkeypatch.setattr(plot_panel, "open_in_browser", opened.append)
+    monkeypatch.setattr(plot_window, "open_in_browser", opened.append)
     plot.report_button.click()
     qtbot.waitUntil(lambda: bool(opened), timeout=30_000)  # drawn off the GUI thread
     assert opened == [out / "report.html"]
@@ -279,7 +279,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
         asked.append(f"{title} {text}")
         return False
 
-    monkeypatch.setattr(plot_panel, "confirm", keep_it)
+    monkeypatch.setattr(plot_window, "confirm", keep_it)
     plot.run()
     assert len(asked) == 1
     assert "these scans" in asked[0]
@@ -346,7 +346,7 @@ def _sorted_by_dbh(plot: PlotWindow) -> None:
 
 
 def _tree_in(plot: PlotWindow, row: int) -> int:
-    from amrst_gui.plot_tables import tree_at_row
+    from amrst_gui.plot.tables import tree_at_row
 
     k = tree_at_row(plot.trees, row)
     assert k is not None
@@ -391,7 +391,7 @@ def _add_a_tree(
     qtbot: QtBot, plot: PlotWindow, out: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A tree the list misses: added on the map, taken back, added, then measured."""
-    from amrst_gui import plot_panel
+    from amrst_gui.plot import window as plot_window
 
     o = plot.outcome
     assert o is not None
@@ -417,7 +417,7 @@ def _add_a_tree(
     click_at(gap)  # the cross again: taken back
     assert read_review(out, o.labels).added == {}
     click_at(gap)
-    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)
+    monkeypatch.setattr(plot_window, "confirm", lambda *_: True)
     _run(qtbot, plot)
     o = plot.outcome
     assert o is not None
@@ -476,8 +476,8 @@ def test_the_command_line_opens_a_plot() -> None:
 
 
 def test_a_link_a_loop_confirms_reads_registered_in_the_links_table(tmp_path):
-    from amrst_gui.plot_jobs import LinkLine, PlotOutcome
-    from amrst_gui.plot_tables import link_rows
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome
+    from amrst_gui.plot.tables import link_rows
 
     def line(confirmed):
         status = "registered" if confirmed else "needs review"
@@ -499,7 +499,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
 ) -> None:
     from amrst.plot.register import HAND_ORIGIN
     from amrst.review.pairs_file import write_pairs
-    from amrst_gui import plot_panel
+    from amrst_gui.plot import window as plot_window
 
     win = make_main_window()
     plot = win.open_plot(plot_files, tmp_path / "out")
@@ -564,7 +564,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     by = plot.links.item(0, 5)
     assert by is not None
     assert by.text() == "your pairs"  # the next run places it from the file
-    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)  # the same plot
+    monkeypatch.setattr(plot_window, "confirm", lambda *_: True)  # the same plot
     plot.cloud_check.setChecked(True)  # and the registered plot this time
     _run(qtbot, plot)
     assert (tmp_path / "out" / "plot.laz").is_file()
@@ -597,11 +597,11 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
 ) -> None:
     from dataclasses import replace
 
-    from amrst_gui import plot_panel
-    from amrst_gui.plot_jobs import LinkLine, PlotOutcome, ScanPlace
-    from amrst_gui.plot_tree import figures
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
+    from amrst_gui.plot.tree import figures
 
-    plot = plot_panel.PlotWindow()
+    plot = plot_window.PlotWindow()
     qtbot.addWidget(plot)
     T = SOURCE_POSE
     line = LinkLine(
@@ -629,10 +629,10 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert plot.trees.item(1, 0).toolTip() == ""  # T002, seen from S1 alone
 
     # Asked first; "Cancel" accepts nothing.
-    monkeypatch.setattr(plot_panel, "confirm", lambda *_: False)
+    monkeypatch.setattr(plot_window, "confirm", lambda *_: False)
     plot.accept_button.click()
     assert read_review(tmp_path, found.labels).accepted == {}
-    monkeypatch.setattr(plot_panel, "confirm", lambda *_: True)
+    monkeypatch.setattr(plot_window, "confirm", lambda *_: True)
     plot.accept_button.click()
     o = plot.outcome
     assert o is not None
@@ -686,8 +686,8 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
 def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     qtbot: QtBot, tmp_path: Path
 ) -> None:
-    from amrst_gui.plot_jobs import PlotOutcome, ScanPlace
-    from amrst_gui.views.stem_map import StemMapView
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.stem_map import StemMapView
 
     trees = (
         _tree("T001", (1,), 0.0),
@@ -725,10 +725,10 @@ def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
 ) -> None:
     from dataclasses import replace
 
-    from amrst_gui import plot_panel
-    from amrst_gui.plot_jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
 
-    plot = plot_panel.PlotWindow()
+    plot = plot_window.PlotWindow()
     qtbot.addWidget(plot)
     plot.resize(1366, 768)
     plot.show()
@@ -773,10 +773,10 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
     qtbot: QtBot, tmp_path: Path
 ) -> None:
     from amrst.review.pairs_file import write_pairs
-    from amrst_gui import plot_panel
-    from amrst_gui.plot_jobs import LinkLine, PlotOutcome, ScanPlace
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
 
-    plot = plot_panel.PlotWindow()
+    plot = plot_window.PlotWindow()
     qtbot.addWidget(plot)
     line = LinkLine(0, 1, "registered", False, True, "stems", 0.4, 0.02, 5, "")
     scans = (
@@ -814,7 +814,7 @@ def test_the_plot_run_leaves_out_the_links_the_window_names(
 ) -> None:
     from amrst.plot.register import LEFT_OUT_ORIGIN
     from amrst.progress import NULL_REPORTER
-    from amrst_gui.plot_jobs import run_plot
+    from amrst_gui.plot.jobs import run_plot
 
     o = run_plot(plot_files, tmp_path, False, NULL_REPORTER, left_out={(1, 0)})
     assert [ln.origin for ln in o.links] == [LEFT_OUT_ORIGIN]
@@ -826,7 +826,7 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
     from amrst.plot.cli import main as plot_main
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
     plot = PlotWindow()
     qtbot.addWidget(plot)
@@ -853,7 +853,7 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert plot.scan_list.count() == 2
     assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
     # Each tree from the side: its points, its height, its DBH.
-    from amrst_gui.plot_tree import SIDE
+    from amrst_gui.plot.tree import SIDE
 
     plot.select_tree(0)
     panel = plot.tree_panel
@@ -874,8 +874,8 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
 ) -> None:
     from amrst.plot.cli import main as plot_main
     from amrst.progress import NULL_REPORTER
-    from amrst_gui.plot_jobs import run_plot
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.jobs import run_plot
+    from amrst_gui.plot.window import PlotWindow
 
     out = tmp_path / "out"
     args = [*plot_files, "--out", str(out), "--quiet", "--plot-radius", "6"]
@@ -988,7 +988,7 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
 
     from amrst.plot.cli import main as plot_main
     from amrst.plot.review import REVIEW_JSON
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
     out = tmp_path / "out"
     assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
@@ -1033,7 +1033,7 @@ def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
 
     from amrst.plot.cli import main as plot_main
     from amrst.plot.export import PLOT_JSON
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
     out = tmp_path / "out"
     assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
@@ -1050,7 +1050,7 @@ def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
 
 
 def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
-    from amrst_gui.views.tree_side import across
+    from amrst_gui.plot.tree_side import across
 
     rng = np.random.default_rng(0)
     upright = np.column_stack([rng.normal(0, 0.1, (500, 2)), rng.uniform(0, 9, 500)])
@@ -1067,8 +1067,8 @@ def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
 
 
 def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
-    from amrst_gui.plot_jobs import PlotOutcome, ScanPlace
-    from amrst_gui.plot_tables import scan_lines
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.tables import scan_lines
 
     scans = (
         ScanPlace("a.laz", np.zeros(2), 5, "registered"),
@@ -1085,7 +1085,7 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
 def test_another_scan_is_made_the_reference_before_a_run(
     qtbot: QtBot, plot_files: list[str]
 ) -> None:
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
     plot = PlotWindow()
     qtbot.addWidget(plot)
@@ -1110,7 +1110,7 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     import shutil
 
     from amrst.plot.cli import main as plot_main
-    from amrst_gui.plot_panel import PlotWindow
+    from amrst_gui.plot.window import PlotWindow
 
     scans = [tmp_path / Path(f).name for f in plot_files]
     for f, copy in zip(plot_files, scans, strict=True):
@@ -1129,7 +1129,7 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)  # shown from its results
     # Opened again from where it is now, it is the same plot: a run keeps the marks.
-    from amrst_gui.plot_jobs import same_plot
+    from amrst_gui.plot.jobs import same_plot
 
     assert same_plot(out, [str(scans[0]), str(tmp_path / "elsewhere.ply")])
     assert not same_plot(out, [str(scans[0]), str(scans[0])])

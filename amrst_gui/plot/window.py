@@ -2,13 +2,13 @@
 
 ``open_scans(paths)`` takes the plot's scans (the first is the reference); Run asks
 for the results folder if none is set, asks before replacing a plot already there,
-and runs ``plot_jobs.run_plot`` (``amrst plot SCANS --out DIR``) in the engine
+and runs ``jobs.run_plot`` (``amrst plot SCANS --out DIR``) in the engine
 process through ``workers.run_stage``: progress below the buttons, Cancel stops it
 at once, a failure is one line. The result shows as the stem map (centre), the
 links and trees (left) and the selected tree (right). A mark (ok / check) and an
 accepted link are written to ``review.json`` in the results folder the moment they are
 made (``amrst.plot.review``); the window shows the run as that review leaves it
-(``plot_jobs.reviewed``). ``open_results(folder)`` shows a plot written before (by
+(``jobs.reviewed``). ``open_results(folder)`` shows a plot written before (by
 the app or ``amrst plot``) the same way, without running it.
 
 A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
@@ -62,10 +62,11 @@ from amrst.plot.review import (
 )
 from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
-from amrst_gui import plot_jobs
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
-from amrst_gui.plot_tables import (
+from amrst_gui.plot import jobs
+from amrst_gui.plot.stem_map import StemMapView
+from amrst_gui.plot.tables import (
     LINK_COLUMNS,
     NBSP,
     ROW_PX,
@@ -79,12 +80,11 @@ from amrst_gui.plot_tables import (
     table,
     tree_at_row,
 )
-from amrst_gui.plot_tree import TreePanel
-from amrst_gui.views.stem_map import StemMapView
+from amrst_gui.plot.tree import TreePanel
 
 if TYPE_CHECKING:
     from amrst.plot.review import HandCircle
-    from amrst_gui.plot_jobs import LinkLine, PlotOutcome
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome
     from amrst_gui.workers import StageJob
 
 log = logging.getLogger("amrst_gui.plot")
@@ -449,7 +449,7 @@ class PlotWindow(QMainWindow):
         self.setWindowTitle(f"AMRST Studio: plot in {out}")
         self._say(f"Opening the plot in {out}…")
         self.job = workers.run_stage(
-            plot_jobs.open_results,
+            jobs.open_results,
             Path(out),
             name="open plot",
             on_result=lambda o: self._on_result(o, opened=True),
@@ -571,7 +571,7 @@ class PlotWindow(QMainWindow):
         self.progress.setValue(0)
         self._say("Running the plot…")
         self.job = workers.run_stage(
-            engine_process.in_engine(plot_jobs.run_plot),
+            engine_process.in_engine(jobs.run_plot),
             list(self.specs),
             out,
             overwrite,
@@ -631,7 +631,7 @@ class PlotWindow(QMainWindow):
         if line is None:
             return
         i, j = line.target, line.source
-        self.pair_chosen.emit(self.specs[i], self.specs[j], plot_jobs.stored_link(line))
+        self.pair_chosen.emit(self.specs[i], self.specs[j], jobs.stored_link(line))
         at = "at the link's pose" if line.T_world is not None else "(no pose)"
         self._say(
             f"S{i + 1} (target) and S{j + 1} (source) are open in the main window "
@@ -736,7 +736,7 @@ class PlotWindow(QMainWindow):
             return
         self._say("Writing the report…")
         self.report_job = workers.run_stage(
-            plot_jobs.report_job,
+            jobs.report_job,
             self.outcome.out,
             name="report",
             on_result=self._on_report,
@@ -978,7 +978,7 @@ class PlotWindow(QMainWindow):
 
         if not (out / PLOT_JSON).exists():
             return False
-        same = plot_jobs.same_plot(out, self.specs)
+        same = jobs.same_plot(out, self.specs)
         what = (
             "a plot of these scans (its marks are kept: tree ids stay the same)"
             if same
@@ -1165,7 +1165,7 @@ class PlotWindow(QMainWindow):
         assert self.found is not None
         selected = self.stem_map.selected
         link_row = self.links.currentRow()
-        self.outcome = plot_jobs.reviewed(self.found, self.review.accepted)
+        self.outcome = jobs.reviewed(self.found, self.review.accepted)
         self.stem_map.set_plot(self.outcome)
         self._show_scans(self.outcome)
         self._show_links(self.outcome)

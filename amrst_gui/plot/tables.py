@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from amrst.plot.review import PlotReview
-    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.plot.jobs import PlotOutcome
 
 # Two-line headings: one line each would push the Mark column out of the side column
 # at 1366 px.

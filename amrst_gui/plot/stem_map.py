@@ -35,7 +35,7 @@ from amrst.plot.review import NOT_A_TREE, PlotReview, listed_added
 from amrst.plot.stemmap import StemMapParams
 
 if TYPE_CHECKING:
-    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.plot.jobs import PlotOutcome
 
 BACKGROUND = QColor(31, 33, 38)
 TEXT = QColor(230, 230, 230)

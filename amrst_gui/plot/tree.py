@@ -33,15 +33,15 @@ from amrst.plot.diameter import BREAST_HEIGHT_M
 from amrst.plot.review import NOT_A_TREE, PlotReview
 from amrst.plot.stemmap import StemMapParams
 from amrst.plot.view import SLICE_HEIGHTS_M
-from amrst_gui.views.stem_map import scan_colour
-from amrst_gui.views.tree_side import TreeSideView
-from amrst_gui.views.tree_slice import TreeSliceView
+from amrst_gui.plot.stem_map import scan_colour
+from amrst_gui.plot.tree_side import TreeSideView
+from amrst_gui.plot.tree_slice import TreeSliceView
 
 if TYPE_CHECKING:
     from collections.abc import Collection
 
     from amrst.plot.inventory import Tree
-    from amrst_gui.plot_jobs import PlotOutcome
+    from amrst_gui.plot.jobs import PlotOutcome
 
 #: The id of the Side button among the slice heights' (their indices).
 SIDE = len(SLICE_HEIGHTS_M)

@@ -19,7 +19,7 @@ from PySide6.QtGui import QColor, QFont, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst.plot.review import HandCircle, hand_circle
-from amrst_gui.views.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
+from amrst_gui.plot.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
 
 if TYPE_CHECKING:
     from PySide6.QtGui import QKeyEvent, QMouseEvent

@@ -17,7 +17,7 @@ from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
-from amrst_gui.views.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
+from amrst_gui.plot.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
 
 if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
