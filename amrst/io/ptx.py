@@ -24,7 +24,7 @@ scanner where the header puts it.
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn, TextIO
 
 import numpy as np
 
@@ -70,11 +70,12 @@ def _numbers(line: str, count: int, path: Path, line_no: int) -> list[float]:
 
 def _walk(
     path: Path, keep: Callable[[int], bool]
-) -> Iterator[tuple[_Scan, list[str] | None]]:
-    """Walk the file's scans in order: each one's header and, when ``keep(i)``, its lines.
+) -> Iterator[tuple[_Scan, np.ndarray | None]]:
+    """Walk the file's scans in order: each one's header and, when ``keep(i)``, points.
 
-    The file is read a line at a time: memory holds the point lines of the scans kept,
-    never the whole file.
+    The points are the scan's rows, ``n x width``. The file is read a line at a time: memory holds the numbers of the scan kept,
+    parsed by numpy's C reader, never a scan's lines as strings (a Python string a
+    line costs ten times the numbers it holds).
     """
     with path.open(encoding="ascii", errors="strict") as fh:
         pos, i = 0, 0  # lines read, scans walked
@@ -89,22 +90,42 @@ def _walk(
                     "is truncated. Export it again."
                 )
             scan = _header(header, pos, path)
-            block = list(itertools.islice(fh, scan.n))
-            pos += _HEADER_LINES - 1 + len(block)
-            if len(block) < scan.n:
-                raise InvalidInput(
-                    f"{path}: scan {i} declares {scan.n} points but the file ends "
-                    f"after {len(block)}: it is truncated. Export it again."
-                )
-            width = len(block[0].split()) if scan.n else 4
-            if width not in (3, 4, 7):
-                raise InvalidInput(
-                    f"{path}, line {scan.start + 1}: a PTX point line has 3, 4 or 7 "
-                    f"numbers (x y z [intensity [r g b]]), found {width}."
-                )
-            scan.width = width
-            yield scan, block if keep(i) else None
+            pos += _HEADER_LINES - 1
+            points = _points(fh, scan, path) if keep(i) else None
+            if points is None:
+                _skip(fh, scan, path)
+            pos += scan.n
+            yield scan, points
             i += 1
+
+
+def _skip(fh: TextIO, scan: _Scan, path: Path) -> None:
+    """Read past a scan's point lines, checking their count and the first's width."""
+    if not scan.n:
+        return
+    first = next(fh, "")
+    if not first:
+        _truncated(scan, 0, path)
+    _set_width(scan, len(first.split()), path)
+    read = 1 + sum(1 for _ in itertools.islice(fh, scan.n - 1))
+    if read < scan.n:
+        _truncated(scan, read, path)
+
+
+def _set_width(scan: _Scan, width: int, path: Path) -> None:
+    if width not in (3, 4, 7):
+        raise InvalidInput(
+            f"{path}, line {scan.start + 1}: a PTX point line has 3, 4 or 7 "
+            f"numbers (x y z [intensity [r g b]]), found {width}."
+        )
+    scan.width = width
+
+
+def _truncated(scan: _Scan, read: int, path: Path) -> NoReturn:
+    raise InvalidInput(
+        f"{path}: the scan starting at line {scan.start + 1} declares {scan.n} points "
+        f"but the file ends after {read}: it is truncated. Export it again."
+    )
 
 
 def _header(lines: list[str], first: int, path: Path) -> _Scan:
@@ -147,22 +168,31 @@ def list_scans(path: Path) -> list[ScanInfo]:
     return result
 
 
-def _points(block: list[str], scan: _Scan, path: Path) -> np.ndarray:
+def _points(fh: TextIO, scan: _Scan, path: Path) -> np.ndarray:
+    """Parse a scan's point lines from ``fh``, which is left after its last one."""
+    if not scan.n:
+        return np.zeros((0, 4))
     try:
-        values = np.array(" ".join(block).split(), dtype=np.float64)
+        # A file object is read by numpy a line at a time, up to max_rows and no
+        # further, so the next scan's header is where the walk reads next.
+        values = np.loadtxt(
+            fh, dtype=np.float64, comments=None, max_rows=scan.n, ndmin=2
+        )
     except ValueError as exc:
         raise InvalidInput(
             f"{path}: a point line of the scan starting at line {scan.start + 1} is "
-            f"not numbers ({shorten(str(exc), 80)}). The file is corrupt; export it "
-            "again."
+            f"not 3, 4 or 7 numbers like the others ({_reason(exc)}). The "
+            "file is corrupt; export it again."
         ) from exc
-    if values.size != scan.n * scan.width:
-        raise InvalidInput(
-            f"{path}: the scan starting at line {scan.start + 1} should have "
-            f"{scan.width} numbers on each of its {scan.n} point lines; some lines "
-            "have more or fewer. The file is corrupt; export it again."
-        )
-    return values.reshape(scan.n, scan.width)
+    if len(values) < scan.n:
+        _truncated(scan, len(values), path)
+    _set_width(scan, values.shape[1], path)
+    return values
+
+
+def _reason(exc: ValueError) -> str:
+    """Numpy's parse error without its advice to the programmer (after a ';')."""
+    return shorten(str(exc).split(";")[0].rstrip(". "), 80)
 
 
 def read_raw_scans(
@@ -176,9 +206,8 @@ def read_raw_scans(
         scans = [scan for scan, _ in walked]
         out = []
         for i in check_indices(path, wanted, len(scans)):
-            block = walked[i][1]
-            assert block is not None  # kept: a scan asked for
-            pts = _points(block, scans[i], path)
+            pts = walked[i][1]
+            assert pts is not None  # kept: a scan asked for
             keep = np.any(pts[:, :3] != 0.0, axis=1)  # 0 0 0: no return
             pts = pts[keep]
             attributes: dict[str, np.ndarray] = {}

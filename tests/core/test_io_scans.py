@@ -170,6 +170,21 @@ def test_one_scan_of_a_ptx_is_read_without_holding_the_others(tmp_path):
         read_scans(tmp_path / "bad_width.ptx")
 
 
+def test_a_ptx_scan_is_read_holding_its_numbers_not_its_lines(tmp_path):
+    import tracemalloc
+
+    scans, poses = _scans(1, 50_000)
+    write_ptx(tmp_path / "one.ptx", scans, poses)
+    tracemalloc.start()
+    (cloud,) = read_scans(tmp_path / "one.ptx")
+    _, top = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert len(cloud) == 50_000
+    # Its points as float64 and a few copies of them; a line held as a Python string,
+    # or its numbers split into strings, costs several times more.
+    assert top < 8 * cloud.xyz.nbytes
+
+
 def test_empty_and_missing(tmp_path):
     (tmp_path / "e.e57").write_bytes(b"")
     with pytest.raises(InvalidInput, match="is empty"):
