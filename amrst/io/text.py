@@ -29,7 +29,7 @@ from amrst.io.common import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterable, Sequence
     from pathlib import Path
 
     from amrst.types import Cloud
@@ -39,6 +39,7 @@ logger = logging.getLogger(__name__)
 _ALIASES = {"r": "red", "g": "green", "b": "blue", "i": "intensity"}
 _COORD_FORMAT = "%.6f"  # micrometres; float64 world values keep them up to 1e9 m
 _SNIFF_CHARS = 4096  # the start of the file looked at to tell text from binary
+_HEAD_BYTES = 1_000_000  # the start of the file its layout is read from
 _MAX_CONTROL_SHARE = 0.05  # more control characters than this: binary
 _MAX_UNDECODABLE_SHARE = 0.3  # more bytes that are not UTF-8 than this: binary
 _TEXT_CONTROLS = frozenset("\t\n\r\f\v\x1a")  # \x1a: DOS end-of-file mark
@@ -76,13 +77,12 @@ class _Layout:
         self.first_line_no, data = lines[skip]
         self.delimiter = _delimiter(data)
         self.n_columns = len(_split(data, self.delimiter))
-        self.body_start = _line_start(text, self.first_line_no)
 
 
 def _leading_lines(text: str, n: int) -> list[tuple[int, str]]:
     """List the first ``n`` non-blank, non-comment lines with their 1-based numbers."""
     found: list[tuple[int, str]] = []
-    for no, line in enumerate(text[:1_000_000].split("\n"), start=1):
+    for no, line in enumerate(text.split("\n"), start=1):
         if line.strip() and not line.lstrip().startswith("#"):
             found.append((no, line))
             if len(found) == n:
@@ -192,7 +192,7 @@ def parse_numbers(
     if max_rows is not None:  # loadtxt allocates max_rows rows up front
         max_rows = min(max_rows, text.count("\n") + 1)
     try:
-        data = _loadtxt(text, delimiter, max_rows)
+        data = _loadtxt(io.StringIO(text, newline=None), delimiter, max_rows)
     except ValueError as exc:
         raise _locate_error(
             text, n_columns, delimiter, first_line_no, path, exc
@@ -204,12 +204,15 @@ def parse_numbers(
     return data
 
 
-def _loadtxt(text: str, delimiter: str | None, max_rows: int | None) -> np.ndarray:
+def _loadtxt(
+    source: Iterable[str], delimiter: str | None, max_rows: int | None
+) -> np.ndarray:
+    """Parse lines of numbers (a file, or any iterable of lines) with numpy's C reader."""
     with warnings.catch_warnings():
         # An empty body is reported by the caller as "no points", not a warning.
         warnings.filterwarnings("ignore", message=".*input contained no data")
         return np.loadtxt(
-            io.StringIO(text, newline=None),
+            source,
             delimiter=delimiter,
             ndmin=2,
             comments="#",
@@ -290,26 +293,16 @@ def _is_control(char: str) -> bool:
 
 def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
     """Read a delimited text point cloud; see the module docstring for the layout."""
-    raw = path.read_bytes()
-    # Windows tools often save UTF-16 (with a byte-order mark); everything else
-    # is read as UTF-8, whose first 128 characters are the ASCII of the numbers.
-    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
-    text = raw.decode(encoding, errors="replace").lstrip("\ufeff")
-    _check_is_text(text, path)
-    layout = _Layout(text, path)
+    head, encoding = _head(path)
+    _check_is_text(head, path)
+    layout = _Layout(head, path)
     if layout.n_columns < 3:
         raise InvalidInput(
             f"{path} has {layout.n_columns} value(s) per line; at least x, y, z "
             "are needed. Check the separator and the export settings."
         )
     names, warning = _column_names(layout, columns, path)
-    data = parse_numbers(
-        text[layout.body_start :],
-        layout.n_columns,
-        layout.delimiter,
-        layout.first_line_no,
-        path,
-    )
+    data = _parse_body(path, encoding, layout)
     if warning:  # after the parse: a refusal stays one line
         logger.warning("%s", warning)
     index = {name: i for i, name in enumerate(names)}
@@ -325,6 +318,52 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
         "text_columns": tuple(names),
     }
     return RawCloud(xyz, np.zeros(3), attributes, meta)
+
+
+def _head(path: Path) -> tuple[str, str]:
+    """Return the file's first lines (up to ``_HEAD_BYTES``) as text, and its encoding.
+
+    Windows tools often save UTF-16 (with a byte-order mark); everything else is read
+    as UTF-8, whose first 128 characters are the ASCII of the numbers.
+    """
+    with path.open("rb") as fh:
+        raw = fh.read(_HEAD_BYTES)
+        more = bool(fh.read(1))
+    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+    text = raw.decode(encoding, errors="replace")
+    if more:  # the last line may be cut short
+        text = text[: text.rfind("\n") + 1]
+    return text, encoding
+
+
+def _parse_body(path: Path, encoding: str, layout: _Layout) -> np.ndarray:
+    """Parse the numbers from the first data line on, reading the file a line at a time.
+
+    Memory holds the numbers, not the file's text. On a parse error the file is read
+    again whole, to name the line at fault.
+    """
+    with path.open(encoding=encoding, errors="replace") as fh:
+        for _ in range(layout.first_line_no - 1):
+            fh.readline()
+        lines: Iterable[str] = fh
+        if layout.delimiter == ";":  # decimal commas
+            lines = (line.replace(",", ".") for line in fh)
+        try:
+            data: np.ndarray | None = _loadtxt(lines, layout.delimiter, None)
+        except ValueError:
+            data = None
+    if data is not None and data.size == 0:
+        return np.empty((0, layout.n_columns))
+    if data is None or data.shape[1] != layout.n_columns:
+        text = path.read_bytes().decode(encoding, errors="replace")
+        return parse_numbers(
+            text[_line_start(text, layout.first_line_no) :],
+            layout.n_columns,
+            layout.delimiter,
+            layout.first_line_no,
+            path,
+        )
+    return data
 
 
 def write_text(

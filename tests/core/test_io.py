@@ -300,6 +300,31 @@ def test_text_utf16_with_bom(tmp_path):
     np.testing.assert_array_equal(io.read(tmp_path / "w.txt").xyz, [[1, 2, 3]])
 
 
+def test_a_large_text_file_is_read_holding_its_numbers_not_its_text(tmp_path):
+    import tracemalloc
+
+    rng = np.random.default_rng(3)
+    xyz = rng.uniform(-20, 20, size=(50_000, 3))
+    rows = [f"{x:.4f};{y:.4f};{z:.4f};{i}" for i, (x, y, z) in enumerate(xyz)]
+    body = "\n".join(row.replace(".", ",") for row in rows)  # decimal commas
+    path = tmp_path / "big.csv"
+    path.write_text(f"X;Y;Z;Intensity\n{body}\n")
+    assert path.stat().st_size > 1_000_000  # its layout is read from the start only
+    tracemalloc.start()
+    cloud = io.read(path)
+    _, top = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    np.testing.assert_allclose(cloud.xyz + cloud.offset, xyz, atol=1e-4)
+    assert cloud.attributes["intensity"][-1] == 49_999
+    # The numbers and a few copies of them; the file's text whole costs more.
+    assert top < 8 * cloud.xyz.nbytes
+    lines = path.read_text().splitlines()
+    lines[40_000] = "1,5;2,5"
+    path.write_text("\n".join(lines))
+    with pytest.raises(InvalidInput, match=r"line 40001: 2 values where 4"):
+        io.read(path)
+
+
 def test_multi_column_attributes_round_trip(tmp_path):
     normals = np.random.default_rng(1).normal(size=(6, 3))
     cloud = Cloud(np.arange(18.0).reshape(6, 3), attributes={"normal": normals})
