@@ -30,8 +30,10 @@ from amrst.errors import InvalidInput
 from amrst.io.posed import ScanInfo
 
 __all__ = [
+    "SEVERAL_SCANS",
     "ScanInfo",
     "file_stamp",
+    "holds_several",
     "list_scans",
     "one_scan_specs",
     "read_scans",
@@ -43,6 +45,8 @@ if TYPE_CHECKING:
     from amrst.types import Cloud
 
 PathLike = str | os.PathLike[str]
+#: The extensions of files that may hold several scans.
+SEVERAL_SCANS = (".e57", ".ptx")
 _SPEC = re.compile(r"^(?P<path>.+?)#(?P<scans>[0-9][0-9 ,]*)$")
 
 
@@ -67,6 +71,11 @@ def split_spec(spec: PathLike) -> tuple[Path, tuple[int, ...] | None]:
     if not parts:
         raise InvalidInput(f"{text!r}: no scan number after '#'.")
     return Path(m.group("path")), tuple(int(p) for p in parts)
+
+
+def holds_several(spec: PathLike) -> bool:
+    """Tell whether a spec names a file that may hold several scans (E57, PTX)."""
+    return Path(os.fspath(spec).split("#", 1)[0]).suffix.lower() in SEVERAL_SCANS
 
 
 def _multi_module(path: Path) -> Any:

@@ -136,6 +136,17 @@ class PlotOutcome:
         return [s.label for s in self.scans if s.status == status]
 
 
+def scan_specs(paths: Sequence[str], reporter: Reporter) -> list[str]:
+    """Return one spec per scan the paths name, as a run numbers them.
+
+    ``plot.e57`` of three scans gives ``plot.e57#0``, ``#1``, ``#2``. Reads headers
+    (all of a PTX file's lines), no points; ``reporter`` is not used.
+    """
+    from amrst.io.scans import one_scan_specs
+
+    return [one for path in paths for one in one_scan_specs(path)]
+
+
 def run_plot(
     specs: Sequence[str],
     out: Path,

@@ -406,7 +406,14 @@ class PlotWindow(QMainWindow):
         return self.job is not None
 
     def open_scans(self, paths: list, out: Path | None = None) -> bool:
-        """Take the plot's scans (and a results folder); False while a run goes on."""
+        """Take the plot's scans (and a results folder); False while a run goes on.
+
+        A file of several scans (E57, PTX) is listed as its scans, one a line, as a
+        run numbers them: the engine process reads its headers first.
+        """
+        from amrst.io.scans import holds_several
+        from amrst_gui import engine_process, workers
+
         if self.busy:
             self._say("A plot is running: cancel it first.", error=True)
             return False
@@ -420,18 +427,37 @@ class PlotWindow(QMainWindow):
         fill(self.links, [])
         fill(self.trees, [])
         self._update_link_buttons()
-        self._take_scans(paths)
         if out is not None:
             self._set_out(str(out))
-        if not paths:
+        if any(holds_several(p) for p in paths):
+            self._take_scans([])
+            self._say("Listing the scans of the files…")
+            self.job = workers.run_stage(
+                engine_process.in_engine(jobs.scan_specs),
+                [str(p) for p in paths],
+                name="list scans",
+                on_result=self._scans_listed,
+                on_error=self._on_error,
+            )
+            self._show_busy()
             return True
+        self._take_scans(paths)
+        if paths:
+            self._say_scans()
+        return True
+
+    def _scans_listed(self, specs: list[str]) -> None:
+        self.job = None
+        self._take_scans(specs)
+        self._say_scans()
+
+    def _say_scans(self) -> None:
         if len(self.specs) < 2:
             self._say("A plot needs two or more scans: open them together.", error=True)
         else:
             self._say(
                 f"{len(self.specs)} scans. Run plot registers and inventories them."
             )
-        return True
 
     def open_results(self, out: Path) -> bool:
         """Show the plot a results folder holds, without running it; False while a
@@ -465,7 +491,9 @@ class PlotWindow(QMainWindow):
         for k, spec in enumerate(self.specs):
             self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
         names = ", ".join(Path(s).name for s in self.specs)
-        self.setWindowTitle(f"AMRST Studio: plot of {names}")
+        self.setWindowTitle(
+            f"AMRST Studio: plot of {names}" if names else "AMRST Studio: plot"
+        )
         self._show_busy()
 
     def make_reference(self) -> None:

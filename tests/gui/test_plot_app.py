@@ -429,6 +429,46 @@ def _add_a_tree(
     assert len(read_review(out, o.labels).added) == 1
 
 
+def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst import io
+    from amrst.io.e57 import write_e57
+    from amrst_gui.plot import window as plot_window
+
+    pytest.importorskip("pye57")
+    e57 = tmp_path / "plot.e57"
+    write_e57(e57, [io.read(f) for f in plot_files], [np.eye(4), np.eye(4)])
+    plot = make_main_window().open_plot([str(e57)], tmp_path / "out")
+    assert plot is not None
+    qtbot.waitUntil(lambda: plot.scan_list.count() == 2, timeout=60_000)
+    assert [plot.scan_list.item(k).text() for k in range(2)] == [
+        "S1  plot.e57#0",
+        "S2  plot.e57#1",
+    ]
+    assert plot.run_button.isEnabled()
+    _run(qtbot, plot)
+    assert plot.outcome is not None
+    assert [Path(s).name for s in plot.outcome.labels] == ["plot.e57#0", "plot.e57#1"]
+    asked: list[str] = []
+    monkeypatch.setattr(plot_window, "confirm", lambda _p, _t, text: asked.append(text))
+    plot.run()  # the same scans: asked about replacing, not about another plot
+    assert "a plot of these scans" in asked[0]
+    # A file that is not an E57 is one line, and nothing is listed.
+    bad = tmp_path / "bad.e57"
+    bad.write_text("not an e57 file")
+    plot.open_scans([str(bad), plot_files[0]])
+    qtbot.waitUntil(lambda: plot.job is None, timeout=60_000)
+    assert plot.scan_list.count() == 0
+    assert plot.status.text().startswith("Not opened: ")
+    assert "bad.e57" in plot.status.text()
+    assert "\n" not in plot.status.text()
+
+
 def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
     make_main_window: Callable[..., MainWindow],
     qtbot: QtBot,
