@@ -28,6 +28,8 @@ def _steps() -> tuple[str, ...]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    from amrst.io.scans import holds_several
+
     parser = argparse.ArgumentParser(
         prog="amrst-gui", description=__doc__.split("\n")[0]
     )
@@ -96,8 +98,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error("give --plot SCANS or --plot-results DIR, not both")
     if args.plot_results is not None and args.run is not None:
         parser.error("--plot-results shows a plot as written: give no --run")
-    if args.plot is not None and len(args.plot) < 2:
-        parser.error("--plot needs two or more scans (the first is the reference)")
+    if args.plot is not None and len(args.plot) < 2 and not holds_several(args.plot[0]):
+        parser.error(
+            "--plot needs two or more scans (the first is the reference), or one "
+            "E57 or PTX file that holds them"
+        )
     if args.plot is not None and args.run is not None and args.out is None:
         parser.error("--plot with --run needs --out DIR: where the plot is written")
     if (args.target is None) != (args.source is None):

@@ -510,6 +510,9 @@ def test_the_command_line_opens_a_plot() -> None:
     assert args.out.name == "res"
     with pytest.raises(SystemExit):
         parse_args(["--plot", "a.ply"])
+    # One E57 or PTX file may hold every scan of the plot.
+    assert [p.name for p in parse_args(["--plot", "plot.e57"]).plot] == ["plot.e57"]
+    assert parse_args(["--plot", "plot.PTX"]).plot is not None
     assert parse_args(["--plot-results", "res"]).plot_results.name == "res"
     with pytest.raises(SystemExit):
         parse_args(["--plot-results", "res", "--run", "all"])
