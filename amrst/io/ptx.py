@@ -73,9 +73,9 @@ def _walk(
 ) -> Iterator[tuple[_Scan, np.ndarray | None]]:
     """Walk the file's scans in order: each one's header and, when ``keep(i)``, points.
 
-    The points are the scan's rows, ``n x width``. The file is read a line at a time: memory holds the numbers of the scan kept,
-    parsed by numpy's C reader, never a scan's lines as strings (a Python string a
-    line costs ten times the numbers it holds).
+    The points are the scan's rows, ``n x width``. The file is read a line at a time:
+    memory holds the numbers of the scan kept, parsed by numpy's C reader, never a
+    scan's lines as strings (a Python string a line costs ten times its numbers).
     """
     with path.open(encoding="ascii", errors="strict") as fh:
         pos, i = 0, 0  # lines read, scans walked
