@@ -35,6 +35,7 @@ import numpy as np
 from amrst.measure.dbh import breast_height_stem, with_company
 from amrst.measure.stem import StemCircle, fit_stem_circle
 from amrst.progress import NULL_REPORTER
+from amrst.stages.voxels import sorted_unique
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -231,7 +232,7 @@ def _crown(xy: np.ndarray) -> tuple[float, float]:
         # One int64 key per cell, in the same (x, y) order as unique(axis=0): a
         # plain sort, which releases the GIL (unique(axis=0) sorts a structured
         # view holding it, which stalls the app's window).
-        keys = np.unique((cells[:, 0] << 32) | cells[:, 1])
+        keys = sorted_unique((cells[:, 0] << 32) | cells[:, 1])
         cells = np.stack([keys >> 32, keys & 0xFFFFFFFF], axis=1)
     else:
         cells = np.unique(cells, axis=0)

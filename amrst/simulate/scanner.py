@@ -13,6 +13,8 @@ from typing import cast
 
 import numpy as np
 
+from amrst.stages.voxels import sorted_unique
+
 # A point's footprint covers at most (2 * _MAX_HALF_BINS + 1)^2 grid cells; this bounds
 # memory for points very close to the scanner or near the zenith.
 _MAX_HALF_BINS = 12
@@ -102,7 +104,7 @@ def visible_points(
     key = np.concatenate([w[1] for w in winners])
     pid = np.concatenate([w[2] for w in winners])
     best = _first_per_cell(cell, key)
-    return cast("np.ndarray", idx[np.unique(pid[best])])
+    return cast("np.ndarray", idx[sorted_unique(pid[best])])
 
 
 def _chunks(counts: np.ndarray) -> list[tuple[int, int]]:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from amrst.stages.nearest_cache import NearestCache
+from amrst.stages.voxels import sorted_unique
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -68,12 +69,12 @@ class Occupancy:
 
     @classmethod
     def _sparse(cls, keys: np.ndarray) -> np.ndarray:
-        codes = np.unique(cls._code(keys))
+        codes = sorted_unique(cls._code(keys))
         # Dilate by one voxel along z, then y, then x: the same 27-neighbourhood as
         # adding all 27 offsets at once, with three smaller sorts instead of one of
         # 27 times the occupied voxels.
         for shift in (1, 1 << 21, 1 << 42):
-            codes = np.unique(np.concatenate([codes - shift, codes, codes + shift]))
+            codes = sorted_unique(np.concatenate([codes - shift, codes, codes + shift]))
         return codes
 
     @property

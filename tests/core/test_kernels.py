@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amrst.stages.voxels import voxel_grid, voxel_representatives
+from amrst.stages.voxels import sorted_unique, voxel_grid, voxel_representatives
 
 
 def _reference_representatives(
@@ -50,6 +50,15 @@ def test_voxel_representatives_equal_the_stable_sort_version(voxel: float) -> No
     ref_reps, ref_owner = _reference_representatives(xyz, voxel)
     np.testing.assert_array_equal(reps, ref_reps)
     np.testing.assert_array_equal(owner, ref_owner)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 1000])
+def test_sorted_unique_equals_numpy_unique(n: int) -> None:
+    rng = np.random.default_rng(n)
+    codes = rng.integers(-(1 << 62), 1 << 62, size=n)
+    codes = np.concatenate([codes, codes[: n // 3], rng.integers(0, 5, size=n)])
+    np.testing.assert_array_equal(sorted_unique(codes), np.unique(codes))
+    assert sorted_unique(codes).dtype == codes.dtype
 
 
 def test_voxel_grid_codes_separate_voxels_on_a_huge_grid() -> None:
