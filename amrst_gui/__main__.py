@@ -28,7 +28,7 @@ def _steps() -> tuple[str, ...]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    from amrst.io.scans import holds_several
+    from amrst.io.scans import names_several
 
     parser = argparse.ArgumentParser(
         prog="amrst-gui", description=__doc__.split("\n")[0]
@@ -98,7 +98,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error("give --plot SCANS or --plot-results DIR, not both")
     if args.plot_results is not None and args.run is not None:
         parser.error("--plot-results shows a plot as written: give no --run")
-    if args.plot is not None and len(args.plot) < 2 and not holds_several(args.plot[0]):
+    if args.plot is not None and len(args.plot) < 2 and not names_several(args.plot[0]):
         parser.error(
             "--plot needs two or more scans (the first is the reference), or one "
             "E57 or PTX file that holds them"
@@ -225,13 +225,17 @@ def _open_plot(app, win, args: argparse.Namespace) -> None:
         app.exit(0)
 
     if args.run is not None:
-        plot.run()
-    if args.screenshot is None:
-        return
-    if plot.busy:
-        plot.job.finished.connect(lambda: QTimer.singleShot(300, save))
-    else:
-        QTimer.singleShot(500, save)
+        plot.run()  # once the scans of a file of several are listed
+
+    def settle() -> None:
+        """Save once no job runs: the listing of the scans may start the run."""
+        if plot.job is not None:
+            plot.job.finished.connect(lambda: QTimer.singleShot(300, settle))
+        else:
+            save()
+
+    if args.screenshot is not None:
+        QTimer.singleShot(500, settle)
 
 
 def _missing_extra() -> str | None:

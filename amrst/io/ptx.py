@@ -24,6 +24,7 @@ scanner where the header puts it.
 from __future__ import annotations
 
 import itertools
+import warnings
 from typing import TYPE_CHECKING, NoReturn, TextIO
 
 import numpy as np
@@ -41,6 +42,7 @@ if TYPE_CHECKING:
 
 LABEL = "ptx"
 _HEADER_LINES = 10
+_MIN_LINE_BYTES = 6  # "0 0 0\n", the shortest point line
 
 
 class _Scan:
@@ -121,10 +123,12 @@ def _set_width(scan: _Scan, width: int, path: Path) -> None:
     scan.width = width
 
 
-def _truncated(scan: _Scan, read: int, path: Path) -> NoReturn:
+def _truncated(scan: _Scan, read: int | None, path: Path) -> NoReturn:
+    """Refuse a scan the file ends inside (``read``: its lines there, None: unknown)."""
+    ends = "is too short to hold them" if read is None else f"ends after {read}"
     raise InvalidInput(
         f"{path}: the scan starting at line {scan.start + 1} declares {scan.n} points "
-        f"but the file ends after {read}: it is truncated. Export it again."
+        f"but the file {ends}: it is truncated. Export it again."
     )
 
 
@@ -172,18 +176,31 @@ def _points(fh: TextIO, scan: _Scan, path: Path) -> np.ndarray:
     """Parse a scan's point lines from ``fh``, which is left after its last one."""
     if not scan.n:
         return np.zeros((0, 4))
-    try:
-        # A file object is read by numpy a line at a time, up to max_rows and no
-        # further, so the next scan's header is where the walk reads next.
-        values = np.loadtxt(
-            fh, dtype=np.float64, comments=None, max_rows=scan.n, ndmin=2
+    if scan.n > path.stat().st_size // _MIN_LINE_BYTES:  # loadtxt sets max_rows aside
+        _truncated(scan, None, path)
+    values, error = np.zeros((0, 4)), None
+    # A file object is read by numpy a line at a time, up to max_rows and no further,
+    # so the next scan's header is where the walk reads next. It skips a blank line,
+    # warning "Input line ... contained no data": then it has read a line too far.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            values = np.loadtxt(
+                fh, dtype=np.float64, comments=None, max_rows=scan.n, ndmin=2
+            )
+        except ValueError as exc:
+            error = exc
+    if any(str(w.message).startswith("Input line") for w in caught):
+        raise InvalidInput(
+            f"{path}: a blank line among the point lines of the scan starting at line "
+            f"{scan.start + 1}. The file is corrupt; export it again."
         )
-    except ValueError as exc:
+    if error is not None:
         raise InvalidInput(
             f"{path}: a point line of the scan starting at line {scan.start + 1} is "
-            f"not 3, 4 or 7 numbers like the others ({_reason(exc)}). The "
+            f"not 3, 4 or 7 numbers like the others ({_reason(error)}). The "
             "file is corrupt; export it again."
-        ) from exc
+        ) from error
     if len(values) < scan.n:
         _truncated(scan, len(values), path)
     _set_width(scan, values.shape[1], path)

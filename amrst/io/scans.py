@@ -33,8 +33,8 @@ __all__ = [
     "SEVERAL_SCANS",
     "ScanInfo",
     "file_stamp",
-    "holds_several",
     "list_scans",
+    "names_several",
     "one_scan_specs",
     "read_scans",
     "split_spec",
@@ -73,9 +73,13 @@ def split_spec(spec: PathLike) -> tuple[Path, tuple[int, ...] | None]:
     return Path(m.group("path")), tuple(int(p) for p in parts)
 
 
-def holds_several(spec: PathLike) -> bool:
-    """Tell whether a spec names a file that may hold several scans (E57, PTX)."""
-    return Path(os.fspath(spec).split("#", 1)[0]).suffix.lower() in SEVERAL_SCANS
+def names_several(spec: PathLike) -> bool:
+    """Tell whether a spec may name several scans: a whole E57 or PTX file, or ``#i,j``."""
+    text = os.fspath(spec)
+    m = _SPEC.match(text)
+    if Path(m["path"] if m else text).suffix.lower() not in SEVERAL_SCANS:
+        return False
+    return m is None or "," in m["scans"]
 
 
 def _multi_module(path: Path) -> Any:

@@ -170,6 +170,8 @@ class PlotWindow(QMainWindow):
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self.job: StageJob | None = None
         self.report_job: StageJob | None = None
+        self.listing = False  # the job lists the scans of a file of several
+        self.run_queued = False  # Run was asked for while the scans were listed
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
         split = QSplitter(Qt.Orientation.Horizontal)
@@ -411,11 +413,11 @@ class PlotWindow(QMainWindow):
         A file of several scans (E57, PTX) is listed as its scans, one a line, as a
         run numbers them: the engine process reads its headers first.
         """
-        from amrst.io.scans import holds_several
+        from amrst.io.scans import names_several
         from amrst_gui import engine_process, workers
 
         if self.busy:
-            self._say("A plot is running: cancel it first.", error=True)
+            self._say_busy()
             return False
         self.found = self.outcome = None
         self.review, self.hand_pairs = PlotReview(), {}
@@ -429,9 +431,10 @@ class PlotWindow(QMainWindow):
         self._update_link_buttons()
         if out is not None:
             self._set_out(str(out))
-        if any(holds_several(p) for p in paths):
+        if any(names_several(p) for p in paths):
             self._take_scans([])
             self._say("Listing the scans of the files…")
+            self.listing = True
             self.job = workers.run_stage(
                 engine_process.in_engine(jobs.scan_specs),
                 [str(p) for p in paths],
@@ -447,9 +450,18 @@ class PlotWindow(QMainWindow):
         return True
 
     def _scans_listed(self, specs: list[str]) -> None:
-        self.job = None
+        self.job, self.listing = None, False
         self._take_scans(specs)
         self._say_scans()
+        if self.run_queued:
+            self.run_queued = False
+            self.run()
+
+    def _say_busy(self) -> None:
+        if self.listing:
+            self._say("The scans are being listed: wait, or cancel it.", error=True)
+        else:
+            self._say("A plot is running: cancel it first.", error=True)
 
     def _say_scans(self) -> None:
         if len(self.specs) < 2:
@@ -469,7 +481,7 @@ class PlotWindow(QMainWindow):
         from amrst_gui import workers
 
         if self.busy:
-            self._say("A plot is running: cancel it first.", error=True)
+            self._say_busy()
             return False
         self.open_scans([], out)
         self.setWindowTitle(f"AMRST Studio: plot in {out}")
@@ -575,9 +587,15 @@ class PlotWindow(QMainWindow):
         self.cloud_check.setChecked((Path(folder).expanduser() / PLOT_CLOUD).is_file())
 
     def run(self) -> None:
-        """Register and inventory the plot in the engine process."""
+        """Register and inventory the plot in the engine process.
+
+        Asked for while the scans of a file are listed, it runs once they are.
+        """
         from amrst_gui import engine_process, workers
 
+        if self.listing:
+            self.run_queued = True
+            return
         if self.busy or len(self.specs) < 2:
             return
         try:
@@ -1166,11 +1184,14 @@ class PlotWindow(QMainWindow):
         self._say(f"No report: {text}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
-        self.job = None
+        listing = self.listing
+        self.job, self.listing, self.run_queued = None, False, False
         self._show_busy()
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
-            self._say("Plot cancelled; nothing was written.")
+            self._say(
+                "Cancelled." if listing else "Plot cancelled; nothing was written."
+            )
             return
         if not self.specs:  # opening a results folder
             self._say(f"Not opened: {exc}", error=True)

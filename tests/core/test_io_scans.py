@@ -14,7 +14,13 @@ from amrst import io
 from amrst.errors import InvalidInput
 from amrst.io.e57 import write_e57
 from amrst.io.ptx import write_ptx
-from amrst.io.scans import list_scans, one_scan_specs, read_scans, split_spec
+from amrst.io.scans import (
+    list_scans,
+    names_several,
+    one_scan_specs,
+    read_scans,
+    split_spec,
+)
 from amrst.types import Cloud, make_transform
 
 WRITERS = {".e57": write_e57, ".ptx": write_ptx}
@@ -183,6 +189,36 @@ def test_a_ptx_scan_is_read_holding_its_numbers_not_its_lines(tmp_path):
     # Its points as float64 and a few copies of them; a line held as a Python string,
     # or its numbers split into strings, costs several times more.
     assert top < 8 * cloud.xyz.nbytes
+
+
+def test_a_ptx_with_a_blank_line_among_its_points_is_refused_by_every_reader(
+    tmp_path,
+):
+    scans, poses = _scans(2, 30)
+    write_ptx(tmp_path / "two.ptx", scans, poses)
+    lines = (tmp_path / "two.ptx").read_text().splitlines()
+    lines.insert(15, "")  # among the first scan's points
+    bad = tmp_path / "blank.ptx"
+    bad.write_text("\n".join(lines) + "\n")
+    for read in (read_scans, list_scans, lambda p: read_scans(f"{p}#1")):
+        with pytest.raises(InvalidInput, match="corrupt") as info:
+            read(bad)
+        assert "\n" not in str(info.value)
+    # A header that declares more points than the file could hold is truncated.
+    lines = (tmp_path / "two.ptx").read_text().splitlines()
+    lines[0] = "3000000000"
+    (tmp_path / "huge.ptx").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InvalidInput, match="truncated"):
+        read_scans(tmp_path / "huge.ptx")
+
+
+def test_names_several_tells_the_specs_that_may_hold_several_scans():
+    assert names_several("plot.e57")
+    assert names_several("plot.PTX")
+    assert names_several("plot.e57#0,2")
+    assert not names_several("plot.e57#1")
+    assert not names_several("scan.laz")
+    assert not names_several("a#b.ply")
 
 
 def test_empty_and_missing(tmp_path):

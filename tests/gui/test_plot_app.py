@@ -445,19 +445,29 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     write_e57(e57, [io.read(f) for f in plot_files], [np.eye(4), np.eye(4)])
     plot = make_main_window().open_plot([str(e57)], tmp_path / "out")
     assert plot is not None
-    qtbot.waitUntil(lambda: plot.scan_list.count() == 2, timeout=60_000)
-    assert [plot.scan_list.item(k).text() for k in range(2)] == [
+    assert plot.listing
+    _run(qtbot, plot)  # asked for while the scans are listed: it runs once they are
+    lines = [plot.scan_list.item(k).text() for k in range(plot.scan_list.count())]
+    assert [line.split(":")[0] for line in lines] == [
         "S1  plot.e57#0",
         "S2  plot.e57#1",
     ]
-    assert plot.run_button.isEnabled()
-    _run(qtbot, plot)
     assert plot.outcome is not None
     assert [Path(s).name for s in plot.outcome.labels] == ["plot.e57#0", "plot.e57#1"]
     asked: list[str] = []
     monkeypatch.setattr(plot_window, "confirm", lambda _p, _t, text: asked.append(text))
     plot.run()  # the same scans: asked about replacing, not about another plot
     assert "a plot of these scans" in asked[0]
+    # Listed once: another reference is chosen among the scans as listed.
+    plot.open_scans([str(e57)])
+    qtbot.waitUntil(lambda: plot.scan_list.count() == 2, timeout=60_000)
+    plot.scan_list.setCurrentRow(1)
+    plot.make_reference()
+    assert plot.job is None
+    assert [plot.scan_list.item(k).text() for k in range(2)] == [
+        "S1  plot.e57#1",
+        "S2  plot.e57#0",
+    ]
     # A file that is not an E57 is one line, and nothing is listed.
     bad = tmp_path / "bad.e57"
     bad.write_text("not an e57 file")
