@@ -6,6 +6,7 @@ uses numpy structured dtypes instead (private to amrst.io).
 
 from __future__ import annotations
 
+import io
 import logging
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
@@ -25,7 +26,7 @@ from amrst.io.common import (
     storable,
     warn_undercount,
 )
-from amrst.io.text import parse_numbers
+from amrst.io.text import parse_numbers, stream_numbers
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -170,6 +171,36 @@ def _read_binary(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
 
 
 def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
+    """Read the vertices of an ASCII PLY, a line at a time; the text whole on an error.
+
+    ``f`` stands just after the header.
+    """
+    vertex, before = _vertex(header, path)
+    skip = sum(element.count for element in before)
+    n_props = len(vertex.props)
+    data, extra = None, 0
+    # Each vertex line holds at least "0 " a property: a count the file cannot hold
+    # is left to the whole-text path, which says the file is truncated.
+    if vertex.count <= path.stat().st_size // (2 * n_props):
+        lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
+        for _ in range(skip):
+            lines.readline()
+        data = stream_numbers(lines, n_props, None, max_rows=vertex.count)
+        if data is not None and vertex is header.elements[-1]:
+            extra = sum(
+                1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#")
+            )
+        lines.detach()
+    if data is None or len(data) < vertex.count:
+        f.seek(header.size)
+        return _read_ascii_whole(f, header, path)
+    if extra:
+        warn_undercount(path, "PLY", vertex.count, extra)
+    return _vertices(data, vertex)
+
+
+def _read_ascii_whole(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
+    """Read the vertices from the whole text: errors name the line at fault."""
     vertex, before = _vertex(header, path)
     lines = f.read().decode("ascii", errors="replace").split("\n")
     skip = sum(element.count for element in before)
@@ -188,7 +219,11 @@ def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
         found = count_data_lines(body, vertex.count)
         if found > vertex.count:
             warn_undercount(path, "PLY", vertex.count, found - vertex.count)
-    out = np.empty(vertex.count, dtype=[(n, c) for n, c in vertex.props])
+    return _vertices(data, vertex)
+
+
+def _vertices(data: np.ndarray, vertex: _Element) -> np.ndarray:
+    out = np.empty(len(data), dtype=[(n, c) for n, c in vertex.props])
     for i, (name, _) in enumerate(vertex.props):
         out[name] = data[:, i]
     return out

@@ -204,6 +204,27 @@ def parse_numbers(
     return data
 
 
+def stream_numbers(
+    lines: Iterable[str],
+    n_columns: int,
+    delimiter: str | None,
+    max_rows: int | None = None,
+) -> np.ndarray | None:
+    """Parse numeric lines read a line at a time (an open file) with numpy's C reader.
+
+    Memory holds the numbers, not the text. None when the lines are not ``n_columns``
+    numbers each: the caller then parses the text whole with :func:`parse_numbers`,
+    which names the line at fault.
+    """
+    try:
+        data = _loadtxt(lines, delimiter, max_rows)
+    except ValueError:
+        return None
+    if data.size == 0:
+        return np.empty((0, n_columns))
+    return data if data.shape[1] == n_columns else None
+
+
 def _loadtxt(
     source: Iterable[str], delimiter: str | None, max_rows: int | None
 ) -> np.ndarray:
@@ -348,13 +369,8 @@ def _parse_body(path: Path, encoding: str, layout: _Layout) -> np.ndarray:
         lines: Iterable[str] = fh
         if layout.delimiter == ";":  # decimal commas
             lines = (line.replace(",", ".") for line in fh)
-        try:
-            data: np.ndarray | None = _loadtxt(lines, layout.delimiter, None)
-        except ValueError:
-            data = None
-    if data is not None and data.size == 0:
-        return np.empty((0, layout.n_columns))
-    if data is None or data.shape[1] != layout.n_columns:
+        data = stream_numbers(lines, layout.n_columns, layout.delimiter)
+    if data is None:
         text = path.read_bytes().decode(encoding, errors="replace")
         return parse_numbers(
             text[_line_start(text, layout.first_line_no) :],

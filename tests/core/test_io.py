@@ -325,6 +325,21 @@ def test_a_large_text_file_is_read_holding_its_numbers_not_its_text(tmp_path):
         io.read(path)
 
 
+def test_an_ascii_ply_is_read_holding_its_numbers_not_its_lines(tmp_path):
+    import tracemalloc
+
+    from amrst.io.ply import write_ply
+
+    xyz = np.random.default_rng(4).uniform(-20, 20, size=(50_000, 3))
+    write_ply(tmp_path / "a.ply", Cloud(xyz), binary=False)
+    tracemalloc.start()
+    cloud = io.read(tmp_path / "a.ply")
+    _, top = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    np.testing.assert_allclose(cloud.xyz + cloud.offset, xyz, atol=1e-4)
+    assert top < 8 * cloud.xyz.nbytes  # its lines as Python strings cost far more
+
+
 def test_multi_column_attributes_round_trip(tmp_path):
     normals = np.random.default_rng(1).normal(size=(6, 3))
     cloud = Cloud(np.arange(18.0).reshape(6, 3), attributes={"normal": normals})
