@@ -6,6 +6,7 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 
 from __future__ import annotations
 
+import io
 import os
 import struct
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
@@ -26,7 +27,7 @@ from amrst.io.common import (
     storable,
     warn_undercount,
 )
-from amrst.io.text import parse_numbers
+from amrst.io.text import parse_numbers, stream_numbers
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -151,16 +152,40 @@ def _lzf_decompress_python(data: bytes, expected: int) -> bytes:
     return bytes(out)
 
 
+def _ascii_rows(header: _Header, f: BinaryIO, path: Path) -> np.ndarray:
+    """Read the DATA ascii rows a line at a time; the text whole on an error.
+
+    ``f`` stands just after the header. Every refusal comes from the whole-text path,
+    which names the line at fault.
+    """
+    n, start = header.points, f.tell()
+    width = sum(c for _, _, c in header.fields)
+    flat, extra = None, 0
+    # Each row holds at least "0 " a value: a count the file cannot hold is left to
+    # the whole-text path, which says the file is truncated.
+    if n <= path.stat().st_size // (2 * width):
+        lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
+        flat = stream_numbers(lines, width, None, max_rows=n)
+        if flat is not None and len(flat) == n:
+            extra = sum(
+                1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#")
+            )
+        lines.detach()
+    if flat is None or len(flat) < n:
+        f.seek(start)
+        text = f.read().decode("ascii", errors="replace")
+        flat = parse_numbers(text, width, None, header.n_lines + 1, path, max_rows=n)
+        _check_count(len(flat), n, path)
+        extra = count_data_lines(text, n) - n
+    if extra > 0:
+        warn_undercount(path, "PCD", n, extra)
+    return flat
+
+
 def _columns(header: _Header, f: BinaryIO, path: Path) -> dict[str, np.ndarray]:
     n = header.points
     if header.data == "ascii":
-        text = f.read().decode("ascii", errors="replace")
-        width = sum(c for _, _, c in header.fields)
-        flat = parse_numbers(text, width, None, header.n_lines + 1, path, max_rows=n)
-        _check_count(len(flat), n, path)
-        lines = count_data_lines(text, n)
-        if lines > n:
-            warn_undercount(path, "PCD", n, lines - n)
+        flat = _ascii_rows(header, f, path)
         out, col = {}, 0
         for name, code, count in header.fields:
             out[name] = _squeeze(flat[:, col : col + count].astype(code))

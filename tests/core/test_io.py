@@ -325,19 +325,22 @@ def test_a_large_text_file_is_read_holding_its_numbers_not_its_text(tmp_path):
         io.read(path)
 
 
-def test_an_ascii_ply_is_read_holding_its_numbers_not_its_lines(tmp_path):
+@pytest.mark.parametrize("ext", ["ply", "pcd"])
+def test_an_ascii_ply_or_pcd_is_read_holding_its_numbers_not_its_text(tmp_path, ext):
     import tracemalloc
 
+    from amrst.io.pcd import write_pcd
     from amrst.io.ply import write_ply
 
     xyz = np.random.default_rng(4).uniform(-20, 20, size=(50_000, 3))
-    write_ply(tmp_path / "a.ply", Cloud(xyz), binary=False)
+    write = write_ply if ext == "ply" else write_pcd
+    write(tmp_path / f"a.{ext}", Cloud(xyz), binary=False)
     tracemalloc.start()
-    cloud = io.read(tmp_path / "a.ply")
+    cloud = io.read(tmp_path / f"a.{ext}")
     _, top = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     np.testing.assert_allclose(cloud.xyz + cloud.offset, xyz, atol=1e-4)
-    assert top < 8 * cloud.xyz.nbytes  # its lines as Python strings cost far more
+    assert top < 8 * cloud.xyz.nbytes  # its text, or its lines, cost far more
 
 
 def test_multi_column_attributes_round_trip(tmp_path):
