@@ -8,10 +8,10 @@ on its scans in a child process, as a user does, and returns the whole time, the
 child's peak resident memory, the time of each stage, and every scan's pose and the
 inventory scored against the truth (``amrst.bench.plot``).
 
-The stages are read from what the command hands over: ``plot.json`` times the
-registration (``analyse``, ``links``, ``joint``); its progress lines on stderr, each
-stamped with the seconds since the scans were read, date the start of the
-registration, and its closing line the end of the inventory and the writing.
+The stages are read from what the command hands over: ``plot.json`` times the reading
+and the registration (``read``, ``analyse``, ``links``, ``joint``); its progress lines
+on stderr, each stamped with the seconds since the run began, date the start of the
+run, and its closing line the end of the inventory and the writing.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 
 PathLike = str | os.PathLike[str]
 #: Stages of ``amrst plot`` in the order it runs them (the table's columns).
-PLOT_STAGES = ("start", "analyse", "links", "joint", "inventory")
+PLOT_STAGES = ("start", "read", "analyse", "links", "joint", "inventory")
 # A progress line of the terminal reporter: seconds since it was made, the message.
 _STAMPED = re.compile(r"^\s*(\d+(?:\.\d+)?)s ")
 # The command's closing line, written once the inventory is on disk.
@@ -98,9 +98,9 @@ def make_scale_plot(
 class PlotScaleRow:
     """One whole ``amrst plot`` command on one densified plot.
 
-    ``stages`` (s): ``start`` interpreter start, imports and reading the scans;
-    ``analyse``, ``links``, ``joint`` the registration (``plot.json``); ``inventory``
-    the inventory and writing its files. ``progress``: the command's stderr lines,
+    ``stages`` (s): ``start`` interpreter start and imports; ``read`` reading the
+    scans, ``analyse``, ``links``, ``joint`` the registration (``plot.json``);
+    ``inventory`` the inventory and writing its files. ``progress``: the command's stderr lines,
     each with the seconds since the command started.
     """
 
@@ -183,7 +183,7 @@ def plot_stages(
     ``timings``: ``plot.json``'s ``timings_s``; ``lines``: stderr lines with the
     seconds since the command started.
     """
-    stages = {k: float(timings[k]) for k in ("analyse", "links", "joint")}
+    stages = {k: float(timings[k]) for k in ("read", "analyse", "links", "joint")}
     stamped = [(t, _STAMPED.match(text)) for t, text in lines]
     first = next(((t, m) for t, m in stamped if m is not None), None)
     if first is None:  # --quiet: no progress lines

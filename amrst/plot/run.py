@@ -9,6 +9,7 @@ the folder (``amrst.plot.export``).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -226,7 +227,9 @@ def _read_scans(
     scans: list[PlotScan] = []
     for k, label in enumerate(labels):
         reporter.progress(k / n, f"Reading scan {k + 1} of {n}")
+        t0 = time.perf_counter()
         (cloud,) = read_scans(label)
+        read_s = time.perf_counter() - t0
         refuse_odd_coordinates(cloud, label)
         if k in scanners:
             cloud = _with_scanner(cloud, k, label, scanners[k])
@@ -235,7 +238,7 @@ def _read_scans(
             _check_centre(area, cloud, label, given=centre is not None)
         sub = SubReporter(reporter, (k + 0.2) / n, (k + 1) / n, f"scan {k + 1}")
         scan = analyse_plot_scan(cloud, params, stem_params, sub)
-        scans.append(replace(scan, file_stamp=file_stamp(label)))
+        scans.append(replace(scan, file_stamp=file_stamp(label), read_seconds=read_s))
         del cloud  # before the next scan is read
         refuse_same_points([s.analysis.cloud for s in scans], labels[: k + 1])
     return scans, area
