@@ -100,8 +100,8 @@ class PlotScaleRow:
 
     ``stages`` (s): ``start`` interpreter start and imports; ``read`` reading the
     scans, ``analyse``, ``links``, ``joint`` the registration (``plot.json``);
-    ``inventory`` the inventory and writing its files. ``progress``: the command's stderr lines,
-    each with the seconds since the command started.
+    ``inventory`` the inventory and writing its files. ``progress``: the command's
+    stderr lines, each with the seconds since the command started.
     """
 
     name: str
