@@ -7,6 +7,7 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import struct
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
@@ -160,17 +161,13 @@ def _ascii_rows(header: _Header, f: BinaryIO, path: Path) -> np.ndarray:
     """
     n, start = header.points, f.tell()
     width = sum(c for _, _, c in header.fields)
-    flat, extra = None, 0
-    # Each row holds at least "0 " a value: a count the file cannot hold is left to
-    # the whole-text path, which says the file is truncated.
-    if n <= path.stat().st_size // (2 * width):
-        lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
-        flat = stream_numbers(lines, width, None, max_rows=n)
-        if flat is not None and len(flat) == n:
-            extra = sum(
-                1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#")
-            )
-        lines.detach()
+    extra = 0
+    lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
+    # Its lines exactly: a blank or missing one shows as a row too few.
+    flat = stream_numbers(itertools.islice(lines, n), width, None)
+    if flat is not None and len(flat) == n:
+        extra = sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#"))
+    lines.detach()
     if flat is None or len(flat) < n:
         f.seek(start)
         text = f.read().decode("ascii", errors="replace")

@@ -7,6 +7,7 @@ uses numpy structured dtypes instead (private to amrst.io).
 from __future__ import annotations
 
 import io
+import itertools
 import logging
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
@@ -178,19 +179,15 @@ def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
     vertex, before = _vertex(header, path)
     skip = sum(element.count for element in before)
     n_props = len(vertex.props)
-    data, extra = None, 0
-    # Each vertex line holds at least "0 " a property: a count the file cannot hold
-    # is left to the whole-text path, which says the file is truncated.
-    if vertex.count <= path.stat().st_size // (2 * n_props):
-        lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
-        for _ in range(skip):
-            lines.readline()
-        data = stream_numbers(lines, n_props, None, max_rows=vertex.count)
-        if data is not None and vertex is header.elements[-1]:
-            extra = sum(
-                1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#")
-            )
-        lines.detach()
+    extra = 0
+    lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
+    for _ in range(skip):
+        lines.readline()
+    # Its lines exactly: a blank or missing one shows as a row too few.
+    data = stream_numbers(itertools.islice(lines, vertex.count), n_props, None)
+    if data is not None and vertex is header.elements[-1]:
+        extra = sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#"))
+    lines.detach()
     if data is None or len(data) < vertex.count:
         f.seek(header.size)
         return _read_ascii_whole(f, header, path)

@@ -176,33 +176,31 @@ def _points(fh: TextIO, scan: _Scan, path: Path) -> np.ndarray:
     """Parse a scan's point lines from ``fh``, which is left after its last one."""
     if not scan.n:
         return np.zeros((0, 4))
-    if scan.n > path.stat().st_size // _MIN_LINE_BYTES:  # loadtxt sets max_rows aside
+    if scan.n > path.stat().st_size // _MIN_LINE_BYTES:
+        # Told before its lines run on into the next scan's header.
         _truncated(scan, None, path)
-    values, error = np.zeros((0, 4)), None
-    # A file object is read by numpy a line at a time, up to max_rows and no further,
-    # so the next scan's header is where the walk reads next. It skips a blank line,
-    # warning "Input line ... contained no data": then it has read a line too far.
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with warnings.catch_warnings():
+        # An empty scan is told below, as a truncated file, not as numpy's warning.
+        warnings.filterwarnings("ignore", message=".*input contained no data")
         try:
+            # Its n lines exactly: numpy skips a blank one, which then shows as a row
+            # too few, and never reads into the next scan's header.
             values = np.loadtxt(
-                fh, dtype=np.float64, comments=None, max_rows=scan.n, ndmin=2
+                itertools.islice(fh, scan.n), dtype=np.float64, comments=None, ndmin=2
             )
         except ValueError as exc:
-            error = exc
-    if any(str(w.message).startswith("Input line") for w in caught):
+            raise InvalidInput(
+                f"{path}: a point line of the scan starting at line {scan.start + 1} "
+                f"is not 3, 4 or 7 numbers like the others ({_reason(exc)}). The file "
+                "is corrupt; export it again."
+            ) from exc
+    if len(values) < scan.n:
+        if next(fh, None) is None:
+            _truncated(scan, len(values), path)
         raise InvalidInput(
             f"{path}: a blank line among the point lines of the scan starting at line "
             f"{scan.start + 1}. The file is corrupt; export it again."
         )
-    if error is not None:
-        raise InvalidInput(
-            f"{path}: a point line of the scan starting at line {scan.start + 1} is "
-            f"not 3, 4 or 7 numbers like the others ({_reason(error)}). The "
-            "file is corrupt; export it again."
-        ) from error
-    if len(values) < scan.n:
-        _truncated(scan, len(values), path)
     _set_width(scan, values.shape[1], path)
     return values
 

@@ -205,10 +205,7 @@ def parse_numbers(
 
 
 def stream_numbers(
-    lines: Iterable[str],
-    n_columns: int,
-    delimiter: str | None,
-    max_rows: int | None = None,
+    lines: Iterable[str], n_columns: int, delimiter: str | None
 ) -> np.ndarray | None:
     """Parse numeric lines read a line at a time (an open file) with numpy's C reader.
 
@@ -217,7 +214,7 @@ def stream_numbers(
     which names the line at fault.
     """
     try:
-        data = _loadtxt(lines, delimiter, max_rows)
+        data = _loadtxt(lines, delimiter, None)
     except ValueError:
         return None
     if data.size == 0:
