@@ -18,6 +18,7 @@ so georeferenced scans keep millimetres.
 
 from __future__ import annotations
 
+import importlib
 import os
 import re
 from dataclasses import replace
@@ -83,16 +84,11 @@ def names_several(spec: PathLike) -> bool:
 
 
 def _multi_module(path: Path) -> Any:
+    """Return the reader module of a file of several scans (None: one scan a file)."""
     suffix = path.suffix.lower()
-    if suffix == ".e57":
-        from amrst.io import e57
-
-        return e57
-    if suffix == ".ptx":
-        from amrst.io import ptx
-
-        return ptx
-    return None
+    if suffix not in SEVERAL_SCANS:
+        return None
+    return importlib.import_module(f"amrst.io.{suffix[1:]}")
 
 
 def list_scans(path: PathLike) -> list[ScanInfo]:
