@@ -34,7 +34,7 @@ from amrst.io.common import shorten
 from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Sequence
+    from collections.abc import Callable, Generator, Sequence
     from pathlib import Path
 
     from amrst.io.common import RawCloud
@@ -72,7 +72,7 @@ def _numbers(line: str, count: int, path: Path, line_no: int) -> list[float]:
 
 def _walk(
     path: Path, keep: Callable[[int], bool]
-) -> Iterator[tuple[_Scan, np.ndarray | None]]:
+) -> Generator[tuple[_Scan, np.ndarray | None], None, None]:
     """Walk the file's scans in order: each one's header and, when ``keep(i)``, points.
 
     The points are the scan's rows, ``n x width``. The file is read a line at a time:
@@ -217,7 +217,13 @@ def read_raw_scans(
 
     def run() -> list[tuple[int, RawCloud]]:
         chosen = None if wanted is None else set(wanted)
-        walked = list(_walk(path, lambda i: chosen is None or i in chosen))
+        walker = _walk(path, lambda i: chosen is None or i in chosen)
+        # Up to the last scan asked for: the scans after it are not walked through.
+        last = None if chosen is None else max(chosen, default=-1) + 1
+        try:
+            walked = list(itertools.islice(walker, last))
+        finally:
+            walker.close()
         scans = [scan for scan, _ in walked]
         out = []
         for i in check_indices(path, wanted, len(scans)):

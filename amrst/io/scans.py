@@ -42,6 +42,8 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from amrst.io.common import RawCloud
     from amrst.types import Cloud
 
@@ -112,13 +114,14 @@ def list_scans(path: PathLike) -> list[ScanInfo]:
     return infos
 
 
-def one_scan_specs(spec: PathLike) -> list[str]:
-    """Split a spec into one spec per scan it names, reading no points.
+def one_scan_specs(specs: Sequence[PathLike]) -> list[str]:
+    """Split specs into one spec per scan they name, reading no points.
 
     ``plot.e57`` of three scans gives ``plot.e57#0``, ``plot.e57#1``, ``plot.e57#2``; a
-    spec of one scan is given back as it is. The file is checked as every reader
+    spec of one scan is given back as it is. Each file is checked as every reader
     checks it first (there, a file, not empty, a known extension), and the scan
-    numbers against its headers.
+    numbers against its headers, listed once however many specs name the file (a PTX
+    file is read through to list its scans).
 
     Raises
     ------
@@ -128,21 +131,26 @@ def one_scan_specs(spec: PathLike) -> list[str]:
     """
     from amrst.io.posed import check_indices
 
-    text = os.fspath(spec)
-    path, wanted = split_spec(text)
-    _check(path)
-    if _multi_module(path) is None:
-        if wanted not in (None, (0,)):
-            raise InvalidInput(
-                f"{path.name} holds one scan; '#' selects scans of E57 and PTX files "
-                "only."
-            )
-        return [text]
-    indices = check_indices(path, wanted, len(list_scans(path)))
-    if len(indices) == 1:
-        return [text]
-    base = text if wanted is None else text.rsplit("#", 1)[0]
-    return [f"{base}#{k}" for k in indices]
+    counts: dict[Path, int] = {}  # scans in each file of several
+    out: list[str] = []
+    for spec in specs:
+        text = os.fspath(spec)
+        path, wanted = split_spec(text)
+        _check(path)
+        if _multi_module(path) is None:
+            if wanted not in (None, (0,)):
+                raise InvalidInput(
+                    f"{path.name} holds one scan; '#' selects scans of E57 and PTX "
+                    "files only."
+                )
+            out.append(text)
+            continue
+        if path not in counts:
+            counts[path] = len(list_scans(path))
+        indices = check_indices(path, wanted, counts[path])
+        base = text if wanted is None else text.rsplit("#", 1)[0]
+        out += [text] if len(indices) == 1 else [f"{base}#{k}" for k in indices]
+    return out
 
 
 def file_stamp(spec: PathLike) -> tuple[int, int] | None:

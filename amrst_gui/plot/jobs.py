@@ -144,7 +144,7 @@ def scan_specs(paths: Sequence[str], reporter: Reporter) -> list[str]:
     """
     from amrst.io.scans import one_scan_specs
 
-    return [one for path in paths for one in one_scan_specs(path)]
+    return one_scan_specs(paths)
 
 
 def run_plot(

@@ -111,17 +111,47 @@ def test_a_spec_splits_into_one_spec_per_scan(tmp_path, ext):
     scans, poses = _scans(3, 50)
     path = tmp_path / f"p{ext}"
     WRITERS[ext](path, scans, poses)
-    assert one_scan_specs(str(path)) == [f"{path}#{k}" for k in range(3)]
-    assert one_scan_specs(f"{path}#2,0") == [f"{path}#2", f"{path}#0"]
-    assert one_scan_specs(f"{path}#1") == [f"{path}#1"]
-    for spec in one_scan_specs(str(path)):
+    assert one_scan_specs([str(path)]) == [f"{path}#{k}" for k in range(3)]
+    assert one_scan_specs([f"{path}#2,0"]) == [f"{path}#2", f"{path}#0"]
+    assert one_scan_specs([f"{path}#1"]) == [f"{path}#1"]
+    for spec in one_scan_specs([str(path)]):
         assert len(read_scans(spec)) == 1
     WRITERS[ext](tmp_path / f"one{ext}", scans[:1], poses[:1])
-    assert one_scan_specs(str(tmp_path / f"one{ext}")) == [str(tmp_path / f"one{ext}")]
+    one = str(tmp_path / f"one{ext}")
+    assert one_scan_specs([one]) == [one]
     with pytest.raises(InvalidInput, match="no scan 5"):  # before any point is read
-        one_scan_specs(f"{path}#0,5")
+        one_scan_specs([f"{path}#0,5"])
     with pytest.raises(InvalidInput, match="File not found"):
-        one_scan_specs(tmp_path / "no_such_tree.laz")
+        one_scan_specs([tmp_path / "no_such_tree.laz"])
+
+
+def test_one_scan_of_a_ptx_is_read_without_walking_the_scans_after_it(tmp_path):
+    scans, poses = _scans(3, 40)
+    path = tmp_path / "three.ptx"
+    write_ptx(path, scans, poses)
+    lines = path.read_text().splitlines()
+    lines[2 * (10 + 40)] = "not a count"  # the last scan's header, broken
+    path.write_text("\n".join(lines) + "\n")
+    (first,) = read_scans(f"{path}#0")
+    assert len(first) == 40
+    with pytest.raises(InvalidInput, match="export it again"):
+        list_scans(path)  # a run lists every scan first, and refuses the file
+
+
+def test_a_file_named_by_several_specs_is_listed_once(tmp_path, monkeypatch):
+    from amrst.io import scans as scans_module
+
+    scans, poses = _scans(3, 50)
+    path = tmp_path / "p.ptx"
+    write_ptx(path, scans, poses)
+    listed = []
+    list_file = scans_module.list_scans
+    monkeypatch.setattr(
+        scans_module, "list_scans", lambda p: listed.append(p) or list_file(p)
+    )
+    specs = [f"{path}#{k}" for k in (2, 0, 1)]
+    assert one_scan_specs(specs) == specs
+    assert listed == [path]
 
 
 @pytest.mark.parametrize("ext", [".e57", ".ptx"])
