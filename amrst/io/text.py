@@ -339,19 +339,27 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
 
 
 def _head(path: Path) -> tuple[str, str]:
-    """Return the file's first lines (up to ``_HEAD_BYTES``) as text, and its encoding.
+    """Return the file's first lines as text, and its encoding.
 
+    At least ``_HEAD_BYTES`` are read, and more (doubling) until the text holds the
+    three data lines the layout is read from, so a long comment block is no obstacle.
     Windows tools often save UTF-16 (with a byte-order mark); everything else is read
     as UTF-8, whose first 128 characters are the ASCII of the numbers.
     """
+    size = _HEAD_BYTES
     with path.open("rb") as fh:
-        raw = fh.read(_HEAD_BYTES)
-        more = bool(fh.read(1))
-    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
-    text = raw.decode(encoding, errors="replace")
-    if more:  # the last line may be cut short
-        text = text[: text.rfind("\n") + 1]
-    return text, encoding
+        raw = fh.read(size)
+        encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+        while True:
+            more = bool(fh.read(1))
+            text = raw.decode(encoding, errors="replace")
+            if more:  # the last line may be cut short
+                text = text[: text.rfind("\n") + 1]
+            if not more or len(_leading_lines(text, 3)) == 3:
+                return text, encoding
+            fh.seek(len(raw))
+            raw += fh.read(size)
+            size *= 2
 
 
 def _parse_body(path: Path, encoding: str, layout: _Layout) -> np.ndarray:

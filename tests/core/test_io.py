@@ -278,6 +278,15 @@ def test_text_layouts(tmp_path, body, expected_names):
     assert list(cloud.attributes) == expected_names
 
 
+def test_text_layout_found_after_a_long_comment_block(tmp_path):
+    # Over a megabyte of comments (a scanner's export log) before the points.
+    comments = "".join(f"# setting {i}: {'x' * 60}\n" for i in range(20_000))
+    for encoding in ("utf-8", "utf-16"):
+        path = tmp_path / f"long_{encoding}.txt"
+        path.write_bytes(("x y z\n" + comments + "1 2 3\n4 5 6\n").encode(encoding))
+        np.testing.assert_array_equal(io.read(path).xyz, [[1, 2, 3], [4, 5, 6]])
+
+
 def test_text_header_names_columns_in_any_order(tmp_path):
     (tmp_path / "o.csv").write_text("Intensity,Z,Y,X\n9,3,2,1\n8,6,5,4\n")
     cloud = io.read(tmp_path / "o.csv")
