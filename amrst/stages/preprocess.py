@@ -178,7 +178,8 @@ def preprocess_points(
         reps = voxel_sample(pts, voxel)
         index, pts = index[reps], pts[reps]
     if voxel != params.voxel_size_m:
-        log.warning(
+        # Expected on any large scan (the progress line says "thinned"): not a warning.
+        log.info(
             "Large scan: thinned to %d points with a %.1f cm voxel (max_points %d).",
             len(pts),
             voxel * 100,

@@ -213,7 +213,7 @@ def test_the_engines_log_reaches_the_apps_loggers(sample_clouds, caplog):
         engine.stop()
     thinned = [r for r in caplog.records if "Large scan: thinned" in r.getMessage()]
     assert len(thinned) == 2  # one per scan
-    assert thinned[0].levelno == logging.WARNING
+    assert thinned[0].levelno == logging.INFO
     assert thinned[0].name.startswith("amrst.")
 
 
