@@ -42,12 +42,23 @@ logger = logging.getLogger(__name__)
 
 def _cmd_info(args: argparse.Namespace) -> int:
     from amrst import io
+    from amrst.io.describe import format_scan_list
+    from amrst.io.posed import check_indices
+    from amrst.io.scans import SEVERAL_SCANS, list_scans, read_scans, split_spec
 
-    for path in args.files:
-        cloud = io.read(path)
-        print(io.format_description(io.describe(cloud)))
-        if len(args.files) > 1:
+    for k, spec in enumerate(args.files):
+        if k:
             print()
+        path, wanted = split_spec(spec)
+        if path.suffix.lower() in SEVERAL_SCANS:
+            infos = list_scans(path)
+            picked = check_indices(path, wanted, len(infos))
+            if len(picked) > 1:
+                print(format_scan_list(path.name, [infos[i] for i in picked]))
+                continue
+            spec = f"{path}#{picked[0]}"
+        (cloud,) = read_scans(spec)
+        print(io.format_description(io.describe(cloud)))
     return 0
 
 

@@ -117,8 +117,8 @@ def _check_readable(path: Path) -> _Format:
         if sep and Path(head).is_file():
             raise InvalidInput(
                 f"{path}: '#{tail}' picks one scan of a multi-scan file for amrst "
-                f"register and plot (numbered from 0); amrst info {head} gives how "
-                "many it holds (n_scans)."
+                f"register, plot and info (numbered from 0); amrst info {head} lists "
+                "the scans it holds."
             ) from None
         raise InvalidInput(
             f"File not found: {path}. Check the path and the file name."

@@ -1,7 +1,8 @@
 """What ``amrst info`` and the app's Scans dock say about a cloud.
 
 Size, world bounds, median spacing on a seeded sample, attributes and format
-metadata (:func:`describe`), and its text form (:func:`format_description`).
+metadata (:func:`describe`), and its text form (:func:`format_description`); the
+scans a file of several holds, from their headers (:func:`format_scan_list`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from amrst.io.posed import ScanInfo
     from amrst.types import Cloud
 
 _SPACING_SAMPLE = 20_000
@@ -219,6 +221,46 @@ def format_description(d: dict[str, Any]) -> str:
     lines.append(
         f"  format      {fmt.get('format', '?')}  {', '.join(details)}".rstrip()
     )
+    return "\n".join(lines)
+
+
+def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
+    """Text of the scans a file of several holds: one line a scan, from its header.
+
+    Parameters
+    ----------
+    name : str
+        The file's name.
+    infos : sequence of ScanInfo
+        Its scans (:func:`amrst.io.scans.list_scans`).
+
+    Returns
+    -------
+    str
+        A title line, then ``#k``, name, points, the scanner's position when the file
+        stores a pose, and the fields; no trailing newline.
+    """
+    total = sum(i.n_points for i in infos)
+    rows = [
+        (
+            f"#{i.index}",
+            i.name,
+            f"{i.n_points:,}",
+            "  ".join(f"{v:.3f}" for v in np.asarray(i.T_world_scanner)[:3, 3])
+            if i.has_pose
+            else "no pose stored",
+            ", ".join(i.fields) or "none",
+        )
+        for i in infos
+    ]
+    head = ("scan", "name", "points", "scanner at (x y z)", "fields")
+    widths = [max(len(r[c]) for r in [head, *rows]) for c in range(len(head))]
+    lines = [f"{name}: {len(infos)} scans, {total:,} points"]
+    for row in [head, *rows]:
+        cells = [f"{v:<{w}}" for v, w in zip(row, widths, strict=True)]
+        cells[2] = f"{row[2]:>{widths[2]}}"
+        lines.append("  " + "  ".join(cells).rstrip())
+    lines.append(f"  amrst info {name}#K describes scan K.")
     return "\n".join(lines)
 
 

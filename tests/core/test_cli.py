@@ -365,5 +365,5 @@ def test_info_on_one_scan_of_a_file_says_how_to_see_its_scans(capsys, sample_pai
     t = str(sample_pair.target_path)
     assert main(["info", f"{t}#5"]) == 2
     err = capsys.readouterr().err
-    assert "'#5' picks one scan of a multi-scan file" in err
+    assert "holds one scan; '#' selects scans of E57 and PTX files only" in err
     assert "File not found" not in err

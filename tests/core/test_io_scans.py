@@ -260,3 +260,24 @@ def test_empty_and_missing(tmp_path):
     io.write(tmp_path / "x.ply", Cloud(np.zeros((5, 3))))
     with pytest.raises(InvalidInput, match="holds one scan"):
         read_scans(f"{tmp_path / 'x.ply'}#1")
+
+
+@pytest.mark.parametrize("ext", [".e57", ".ptx"])
+def test_info_lists_the_scans_of_a_file_and_describes_one(tmp_path, capsys, ext):
+    from amrst.cli import main
+
+    scans, poses = _scans()
+    path = tmp_path / f"plot{ext}"
+    WRITERS[ext](path, scans, poses)
+    assert main(["info", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"plot{ext}: 3 scans, 1,200 points"
+    assert [ln.split()[0] for ln in lines[2:5]] == ["#0", "#1", "#2"]
+    # Where scan 2's scanner stood, in the file's (georeferenced) coordinates.
+    assert "  ".join(f"{v:.3f}" for v in poses[2][:3, 3]) in lines[4]
+    assert main(["info", f"{path}#2"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"plot{ext}#2\n")
+    assert "points      400" in out
+    assert main(["info", f"{path}#3"]) == 2
+    assert "there is no scan 3" in capsys.readouterr().err
