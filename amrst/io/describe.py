@@ -244,7 +244,7 @@ def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
     rows = [
         (
             f"#{i.index}",
-            i.name,
+            i.name or "-",
             f"{i.n_points:,}",
             "  ".join(f"{v:.3f}" for v in np.asarray(i.T_world_scanner)[:3, 3])
             if i.has_pose

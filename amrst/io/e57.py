@@ -41,7 +41,7 @@ def _pose(header: Any) -> np.ndarray:
 def _info(e57: Any, index: int) -> ScanInfo:
     header = e57.get_header(index)
     node = header.node
-    name = node["name"].value() if node.isDefined("name") else f"scan {index}"
+    name = node["name"].value() if node.isDefined("name") else ""
     fields = []
     if "intensity" in header.point_fields:
         fields.append("intensity")

@@ -29,7 +29,7 @@ class ScanInfo:
     index : int
         Position in the file, from 0 (what ``FILE#index`` selects).
     name : str
-        The scan's name in the file (E57 ``name``), or ``scan <index>``.
+        The scan's name in the file (E57 ``name``), or "" when it has none.
     n_points : int
         Points stored (before invalid ones are dropped).
     T_world_scanner : (4, 4) float64

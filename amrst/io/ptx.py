@@ -159,7 +159,7 @@ def list_scans(path: Path) -> list[ScanInfo]:
         return [
             ScanInfo(
                 i,
-                f"scan {i}",
+                "",  # PTX does not name its scans
                 s.n,
                 s.T,
                 not np.allclose(s.T, np.eye(4)),

@@ -114,11 +114,12 @@ def list_scans(path: PathLike) -> list[ScanInfo]:
     return infos
 
 
-def one_scan_specs(specs: Sequence[PathLike]) -> list[str]:
-    """Split specs into one spec per scan they name, reading no points.
+def one_scan_specs(specs: Sequence[PathLike]) -> list[tuple[str, str]]:
+    """Split specs into one spec per scan they name, with its name; no points read.
 
     ``plot.e57`` of three scans gives ``plot.e57#0``, ``plot.e57#1``, ``plot.e57#2``; a
-    spec of one scan is given back as it is. Each file is checked as every reader
+    spec of one scan is given back as it is. The name is the scan's in its file (an
+    E57 setup's), or "" (a file of one scan, a PTX scan). Each file is checked as every reader
     checks it first (there, a file, not empty, a known extension), and the scan
     numbers against its headers, listed once however many specs name the file (a PTX
     file is read through to list its scans).
@@ -131,8 +132,8 @@ def one_scan_specs(specs: Sequence[PathLike]) -> list[str]:
     """
     from amrst.io.posed import check_indices
 
-    counts: dict[Path, int] = {}  # scans in each file of several
-    out: list[str] = []
+    listed: dict[Path, list[ScanInfo]] = {}  # the scans of each file of several
+    out: list[tuple[str, str]] = []
     for spec in specs:
         text = os.fspath(spec)
         path, wanted = split_spec(text)
@@ -143,13 +144,17 @@ def one_scan_specs(specs: Sequence[PathLike]) -> list[str]:
                     f"{path.name} holds one scan; '#' selects scans of E57 and PTX "
                     "files only."
                 )
-            out.append(text)
+            out.append((text, ""))
             continue
-        if path not in counts:
-            counts[path] = len(list_scans(path))
-        indices = check_indices(path, wanted, counts[path])
+        if path not in listed:
+            listed[path] = list_scans(path)
+        infos = listed[path]
+        indices = check_indices(path, wanted, len(infos))
         base = text if wanted is None else text.rsplit("#", 1)[0]
-        out += [text] if len(indices) == 1 else [f"{base}#{k}" for k in indices]
+        if len(indices) == 1:
+            out.append((text, infos[indices[0]].name))
+        else:
+            out += [(f"{base}#{k}", infos[k].name) for k in indices]
     return out
 
 

@@ -253,6 +253,7 @@ def plot_document(
     the technician accepted (``review``); a link says whether it is one of those.
     ``unsure_links`` are the links, as ``[target, source]``, whose review the scan
     waits for (None: no one link to check, ``graph.scan_doubts``).
+    A scan's ``name`` is its name in its file (an E57 setup's; "" when none).
     ``T_reference_scan`` maps the scan's file coordinates into the reference's (world
     coordinates when the files carry an offset), as ``amrst register`` writes it;
     ``scanner_xyz`` is where the scan's scanner stood in the reference's file
@@ -297,6 +298,7 @@ def plot_document(
         "scans": [
             {
                 "label": label,
+                "name": str(cloud.meta.get("scan_name", "")),
                 "file_id": scan_id(label),
                 "status": status,
                 "state": state,

@@ -221,6 +221,7 @@ def _scans(doc: Mapping[str, Any]) -> str:
             [
                 f"S{k + 1}",
                 _e(s.get("label", "")),
+                _e(s.get("name", "")),  # dropped below when no scan has a name
                 _e(s.get("state", s.get("status", ""))),
                 _e(
                     "reference"
@@ -233,7 +234,9 @@ def _scans(doc: Mapping[str, Any]) -> str:
                 _cm(_num(s.get("residual_m"))),
             ]
         )
-    head = ["Scan", "File", "State", "Placed through", "Stems", "Residual"]
+    head = ["Scan", "File", "Name", "State", "Placed through", "Stems", "Residual"]
+    if not any(row[2] for row in rows):
+        head, rows = head[:2] + head[3:], [r[:2] + r[3:] for r in rows]
     return "<h2>Scans</h2>" + html_table(head, rows)
 
 

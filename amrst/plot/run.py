@@ -106,7 +106,7 @@ def run_plot(
     _check_inputs(specs, out)
     by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
     area = _plot_area(plot_radius_m, plot_centre)
-    labels = one_scan_specs(specs)
+    labels = [spec for spec, _name in one_scan_specs(specs)]
     _check_count(labels, scanners or {})
     check_links(len(labels), 0, by_hand, left_out)
     added = read_review(out, labels).added  # before minutes of work, as check_out

@@ -51,6 +51,8 @@ class ScanPlace:
     given: tuple[float, float, float] | None = None
     # Its distance to the other scans' surfaces (m; NaN: not placed or not known).
     residual_m: float = float("nan")
+    # Its name in its file (an E57 setup's; "" when none).
+    name: str = ""
 
     @property
     def placed(self) -> bool:
@@ -136,11 +138,12 @@ class PlotOutcome:
         return [s.label for s in self.scans if s.status == status]
 
 
-def scan_specs(paths: Sequence[str], reporter: Reporter) -> list[str]:
-    """Return one spec per scan the paths name, as a run numbers them.
+def scan_specs(paths: Sequence[str], reporter: Reporter) -> list[tuple[str, str]]:
+    """Return one spec per scan the paths name, as a run numbers them, with its name.
 
-    ``plot.e57`` of three scans gives ``plot.e57#0``, ``#1``, ``#2``. Reads headers
-    (all of a PTX file's lines), no points; ``reporter`` is not used.
+    ``plot.e57`` of three scans gives ``plot.e57#0``, ``#1``, ``#2`` and the names of
+    its setups (:func:`amrst.io.scans.one_scan_specs`). Reads headers (all of a PTX
+    file's lines), no points; ``reporter`` is not used.
     """
     from amrst.io.scans import one_scan_specs
 
@@ -216,6 +219,7 @@ def open_results(
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
                 given=_given(scan.get("scanner_given")),
                 residual_m=_float(scan.get("residual_m")),
+                name=str(scan.get("name", "")),
             )
             for scan in doc["scans"]
         )

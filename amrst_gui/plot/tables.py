@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import Qt
@@ -71,9 +72,13 @@ def number(value: float, fmt: str) -> str:
     return "–" if value != value else format(value, fmt)  # NaN
 
 
+def scan_title(spec: str, name: str) -> str:
+    """A scan as the window lists it: its file (and ``#k``), then its name if any."""
+    return f"{Path(spec).name} ({name})" if name else Path(spec).name
+
+
 def scan_lines(o: PlotOutcome) -> list[str]:
     """One line per scan: its file, where it stood, its stems and residual."""
-    from pathlib import Path
 
     lines = []
     for k, scan in enumerate(o.scans):
@@ -96,7 +101,8 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             else ""
         )
         lines.append(
-            f"S{k + 1}  {Path(scan.label).name}{gone}: {where}, {scan.stems} stems"
+            f"S{k + 1}  {scan_title(scan.label, scan.name)}{gone}: {where}, "
+            f"{scan.stems} stems"
             f"{residual}{state}"
         )
     return lines

@@ -77,6 +77,7 @@ from amrst_gui.plot.tables import (
     row_of_tree,
     scan_file_exists,
     scan_lines,
+    scan_title,
     table,
     tree_at_row,
 )
@@ -158,6 +159,8 @@ class PlotWindow(QMainWindow):
         self.setObjectName("plot_window")
         self.setWindowTitle("AMRST Studio: plot")
         self.specs: list[str] = []
+        # The names files give their scans (E57 setups), by spec, as last listed.
+        self.scan_names: dict[str, str] = {}
         self.found: PlotOutcome | None = None  # the run's outcome
         self.outcome: PlotOutcome | None = None  # as the review leaves it
         self.review = PlotReview()  # marks, DBHs by hand, links accepted
@@ -449,9 +452,12 @@ class PlotWindow(QMainWindow):
             self._say_scans()
         return True
 
-    def _scans_listed(self, specs: list[str]) -> None:
+    def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
-        self._take_scans(specs)
+        self.scan_names.update(
+            (str(Path(spec).resolve()), name) for spec, name in listed if name
+        )
+        self._take_scans([spec for spec, _name in listed])
         self._say_scans()
         if self.run_queued:
             self.run_queued = False
@@ -501,7 +507,8 @@ class PlotWindow(QMainWindow):
         self.specs = [str(Path(p).resolve()) for p in paths]
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
-            self.scan_list.addItem(f"S{k + 1}  {Path(spec).name}")
+            title = scan_title(spec, self.scan_names.get(spec, ""))
+            self.scan_list.addItem(f"S{k + 1}  {title}")
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(
             f"AMRST Studio: plot of {names}" if names else "AMRST Studio: plot"

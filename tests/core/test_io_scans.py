@@ -111,14 +111,22 @@ def test_a_spec_splits_into_one_spec_per_scan(tmp_path, ext):
     scans, poses = _scans(3, 50)
     path = tmp_path / f"p{ext}"
     WRITERS[ext](path, scans, poses)
-    assert one_scan_specs([str(path)]) == [f"{path}#{k}" for k in range(3)]
-    assert one_scan_specs([f"{path}#2,0"]) == [f"{path}#2", f"{path}#0"]
-    assert one_scan_specs([f"{path}#1"]) == [f"{path}#1"]
-    for spec in one_scan_specs([str(path)]):
+    # E57 keeps each scan's name (the writer stores the cloud's); PTX has none.
+    names = [f"s{k}" if ext == ".e57" else "" for k in range(3)]
+    assert one_scan_specs([str(path)]) == [(f"{path}#{k}", names[k]) for k in range(3)]
+    assert one_scan_specs([f"{path}#2,0"]) == [
+        (f"{path}#2", names[2]),
+        (f"{path}#0", names[0]),
+    ]
+    assert one_scan_specs([f"{path}#1"]) == [(f"{path}#1", names[1])]
+    for spec, _name in one_scan_specs([str(path)]):
         assert len(read_scans(spec)) == 1
     WRITERS[ext](tmp_path / f"one{ext}", scans[:1], poses[:1])
     one = str(tmp_path / f"one{ext}")
-    assert one_scan_specs([one]) == [one]
+    assert one_scan_specs([one]) == [(one, names[0])]
+    tree = str(tmp_path / "tree.ply")
+    io.write(tree, scans[0])
+    assert one_scan_specs([tree]) == [(tree, "")]
     with pytest.raises(InvalidInput, match="no scan 5"):  # before any point is read
         one_scan_specs([f"{path}#0,5"])
     with pytest.raises(InvalidInput, match="File not found"):
@@ -150,7 +158,7 @@ def test_a_file_named_by_several_specs_is_listed_once(tmp_path, monkeypatch):
         scans_module, "list_scans", lambda p: listed.append(p) or list_file(p)
     )
     specs = [f"{path}#{k}" for k in (2, 0, 1)]
-    assert one_scan_specs(specs) == specs
+    assert [spec for spec, _name in one_scan_specs(specs)] == specs
     assert listed == [path]
 
 

@@ -7,6 +7,7 @@ scan seeing the half of every stem that faces its position, in its own frame.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -400,16 +401,22 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     world[:3, 3] = (512_000.0, 5_403_000.0, 310.0)
     stood = np.eye(4)
     stood[:3, 3] = (-2.0, 0.0, 0.0)  # the target's scanner in the plot fixture
-    scans = [Cloud(target.xyz - stood[:3, 3]), source]
+    scans = [
+        Cloud(target.xyz - stood[:3, 3], name="Setup A"),
+        dataclasses.replace(source, name="Setup B"),
+    ]
     e57 = tmp_path / "plot.e57"
     write_e57(e57, scans, [world @ stood, world @ T_true])
     out = tmp_path / "out"
     # Two positions of these six stems on flat ground: a half turn held by two stems
     # scores high, so the link may read needs review (exit 3); both scans are placed.
-    code = plot_main([str(e57), "--out", str(out), "--quiet", "--plot-radius", "8"])
-    assert code in (0, 3)
+    args = [str(e57), "--out", str(out), "--quiet", "--plot-radius", "8", "--report"]
+    assert plot_main(args) in (0, 3)
     doc = json.loads((out / "plot.json").read_text())
     assert all(s["reached"] for s in doc["scans"])
+    # The setups' names in the file name the scans in plot.json and the report.
+    assert [s["name"] for s in doc["scans"]] == ["Setup A", "Setup B"]
+    assert "<td>Setup B</td>" in (out / "report.html").read_text()
     at = [scanner_position(s) for s in doc["scans"]]
     assert np.allclose(at[0], world[:3, 3] + (-2.0, 0.0, 0.0), atol=1e-6)
     assert np.allclose(at[1], (world @ T_true)[:3, 3], atol=0.05)

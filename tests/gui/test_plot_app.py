@@ -8,6 +8,7 @@ its own frame (the second turned and moved).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -442,15 +443,19 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
 
     pytest.importorskip("pye57")
     e57 = tmp_path / "plot.e57"
-    write_e57(e57, [io.read(f) for f in plot_files], [np.eye(4), np.eye(4)])
+    setups = [
+        dataclasses.replace(io.read(f), name=f"Setup {k + 1}")
+        for k, f in enumerate(plot_files)
+    ]
+    write_e57(e57, setups, [np.eye(4), np.eye(4)])
     plot = make_main_window().open_plot([str(e57)], tmp_path / "out")
     assert plot is not None
     assert plot.listing
     _run(qtbot, plot)  # asked for while the scans are listed: it runs once they are
     lines = [plot.scan_list.item(k).text() for k in range(plot.scan_list.count())]
     assert [line.split(":")[0] for line in lines] == [
-        "S1  plot.e57#0",
-        "S2  plot.e57#1",
+        "S1  plot.e57#0 (Setup 1)",
+        "S2  plot.e57#1 (Setup 2)",
     ]
     assert plot.outcome is not None
     assert [Path(s).name for s in plot.outcome.labels] == ["plot.e57#0", "plot.e57#1"]
@@ -465,8 +470,8 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     plot.make_reference()
     assert plot.job is None
     assert [plot.scan_list.item(k).text() for k in range(2)] == [
-        "S1  plot.e57#1",
-        "S2  plot.e57#0",
+        "S1  plot.e57#1 (Setup 2)",
+        "S2  plot.e57#0 (Setup 1)",
     ]
     # A file that is not an E57 is one line, and nothing is listed.
     bad = tmp_path / "bad.e57"
