@@ -27,6 +27,7 @@ from amrst.errors import (
     InvalidInput,
     RegistrationFailed,
 )
+from amrst.files.outcheck import same_file
 from amrst.terminal import TerminalReporter
 from amrst.types import check_scans
 
@@ -75,17 +76,6 @@ def _load_params(args: argparse.Namespace) -> RegistrationParams:
     if args.params is not None:
         return load_params(args.params)
     return preset if preset is not None else RegistrationParams()
-
-
-def _same_file(a: str, b: str) -> bool:
-    """Tell whether two paths name one file (the same path, a link, a hard link)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        try:
-            return Path(a).resolve() == Path(b).resolve()
-        except RuntimeError:  # a symbolic link loop: io.read refuses it in words
-            return False
 
 
 def _print_summary(
@@ -165,8 +155,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
         check_output_dir,
         export_registration,
         output_names,
-        refuse_other_pair,
+        refuse_inputs_in_out,
+        refuse_other_export,
     )
+    from amrst.results.report_html import REPORT_NAME
     from amrst.review.pairs_file import read_pairs
 
     t_start = time.perf_counter()
@@ -184,13 +176,14 @@ def _cmd_register(args: argparse.Namespace) -> int:
     parts = ["transform", "metrics", "params"] + (
         ["registered", "merged"] if args.write_clouds else []
     )
-    report_name = ["report.html"] if args.report else []  # amrst.results.report_html
+    report_name = [REPORT_NAME] if args.report else []
     check_output_dir(args.out, output_names(parts, args.format) + report_name)
-    refuse_other_pair(
-        args.out, str(args.target), str(args.source), overwrite=args.overwrite
+    refuse_other_export(
+        args.out, [str(args.target), str(args.source)], overwrite=args.overwrite
     )
+    refuse_inputs_in_out(args.out, [str(args.target), str(args.source)])
     pairs = read_pairs(Path(args.pairs)) if args.pairs else None
-    if _same_file(args.target, args.source):
+    if same_file(args.target, args.source):
         raise InvalidInput(
             f"TARGET and SOURCE are the same file ({args.target}): give two scans "
             "of the tree."
@@ -247,7 +240,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
             source_file=str(args.source),
             T_truth=T_truth,
         )
-        files = [*files, write_report(Path(args.out) / "report.html", report)]
+        files = [*files, write_report(Path(args.out) / REPORT_NAME, report)]
     _print_summary(
         result,
         summary,

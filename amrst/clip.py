@@ -93,6 +93,23 @@ def out_paths(out: str | Path, n_stems: int) -> list[Path]:
     return [out.with_name(f"{out.stem}_{i}{out.suffix}") for i in range(1, n_stems + 1)]
 
 
+def _check_outs(source: Path, outs: list[Path], overwrite: bool) -> None:
+    """Refuse to write over the file clipped, or over files that exist unless asked."""
+    from amrst.errors import InvalidInput
+    from amrst.files.outcheck import same_file
+
+    for out in outs:
+        if same_file(out, source):
+            raise InvalidInput(
+                f"{out} is the file being clipped: choose another --out name."
+            )
+        if (out.exists() or out.is_symlink()) and not overwrite:
+            raise InvalidInput(
+                f"{out} exists: choose another --out name, or add --overwrite to "
+                "replace it."
+            )
+
+
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Add the ``amrst clip`` arguments to ``p``.
 
@@ -118,6 +135,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         required=True,
         metavar="TREE.laz",
         help="output file; with several stems TREE_1.laz, TREE_2.laz, ...",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace output files that exist"
     )
 
 
@@ -153,11 +173,19 @@ def run_cli(args: argparse.Namespace) -> int:
                 f"Cannot write {args.out}: the folder {outs[0].parent} does not "
                 "exist. Create it or choose another folder."
             )
-        for (x, y), out in zip(args.stem, outs, strict=True):
-            params = ClipParams(
-                stem_xy=(x, y), radius_m=args.radius, zmin=args.zmin, zmax=args.zmax
+        _check_outs(Path(args.file), outs, args.overwrite)
+        # Every tree is cut before any is written: a stem with no points near it
+        # leaves no file behind.
+        results = [
+            clip_tree(
+                args.file,
+                ClipParams(
+                    stem_xy=(x, y), radius_m=args.radius, zmin=args.zmin, zmax=args.zmax
+                ),
             )
-            result = clip_tree(args.file, params)
+            for x, y in args.stem
+        ]
+        for (x, y), out, result in zip(args.stem, outs, results, strict=True):
             io.write(out, result.cloud)
             print(
                 f"{out}: {len(result.cloud):,} points within {args.radius:g} m of "

@@ -64,13 +64,13 @@ def export_folder(remembered: str, base: Path | None) -> str:
     return str(base / EXPORT_SUBFOLDER)
 
 
-def confirm_replace(parent, folder: Path, before: tuple[str, str]) -> bool:
-    """Ask whether the export of another pair of scans in ``folder`` is replaced."""
+def confirm_replace(parent, folder: Path, before: str) -> bool:
+    """Ask whether what another run wrote in ``folder`` (``before`` says what) is
+    replaced."""
     box = QMessageBox(
         QMessageBox.Icon.Warning,
-        "Replace another pair's export?",
-        f"{folder} holds the export of {Path(before[1]).name} onto "
-        f"{Path(before[0]).name}, not of the scans open now.",
+        "Replace another run's files?",
+        f"{folder} holds {before}, not the export of the scans open now.",
         QMessageBox.StandardButton.Cancel,
         parent,
     )
@@ -228,14 +228,14 @@ class ExportDialog(QDialog):
         folder = self.folder()
         if s is None:
             return True
-        before = s.other_pair_export(folder)
+        before = s.other_export(folder)
         if before is None:
             return True
         if confirm_replace(self, folder, before):
             s.allow_replacing(folder)
             return True
         self.problem.setText(
-            "That folder holds another pair's export: choose another folder."
+            "That folder holds another run's files: choose another folder."
         )
         return False
 

@@ -322,12 +322,11 @@ class Session(QObject):
                 "change), then export."
             )
             return
-        before = self.other_pair_export(Path(out_dir))
+        before = self.other_export(Path(out_dir))
         if before is not None and self._replace_folder != Path(out_dir).resolve():
             self._fail(
-                f"Not exported: {out_dir} holds the export of {Path(before[1]).name} "
-                f"onto {Path(before[0]).name}. Choose another folder, or agree to "
-                "replace it in the Export dialog."
+                f"Not exported: {out_dir} holds {before}. Choose another folder, or "
+                "agree to replace it in the Export dialog."
             )
             return
         self._replace_folder = None
@@ -343,20 +342,15 @@ class Session(QObject):
             alone=True,
         )
 
-    def other_pair_export(self, out_dir: Path) -> tuple[str, str] | None:
-        """The (target, source) files of another pair's export in ``out_dir``, or
-        None (no export there, or this pair's own)."""
-        from amrst.errors import InvalidInput
-        from amrst.results.export import previous_pair, refuse_other_pair
+    def other_export(self, out_dir: Path) -> str | None:
+        """What ``out_dir`` holds that this pair's export would replace ("the export
+        of S onto T", a plot's results...), or None (nothing, or this pair's own)."""
+        from amrst.results.export import other_export
 
         target, source = self.path("target"), self.path("source")
         if target is None or source is None:
             return None
-        try:
-            refuse_other_pair(out_dir, str(target), str(source))
-        except InvalidInput:
-            return previous_pair(out_dir)
-        return None
+        return other_export(out_dir, [str(target), str(source)])
 
     def allow_replacing(self, out_dir: Path) -> None:
         """Let the next export replace another pair's export in ``out_dir`` (the

@@ -105,8 +105,9 @@ def read_region(
     if fmt.label not in ("las", "laz"):
         cloud = io.read(path)
         inside = cylinder.contains(cloud.xyz + cloud.offset)
-        extent = _extent_text(cloud.xyz.min(axis=0) + cloud.offset,
-                              cloud.xyz.max(axis=0) + cloud.offset)  # fmt: skip
+        extent = _extent_text(
+            cloud.xyz.min(axis=0) + cloud.offset, cloud.xyz.max(axis=0) + cloud.offset
+        )
         if not inside.any():
             raise _nothing_inside(path, cylinder, extent)
         return _with_meta(
@@ -143,16 +144,26 @@ def _with_meta(cloud: Cloud, **meta: object) -> Cloud:
 def _cylinder(
     stem_xy: Sequence[float], radius_m: float, zmin: float | None, zmax: float | None
 ) -> tuple[float, float, float, float | None, float | None]:
-    values = [*stem_xy, radius_m] + [v for v in (zmin, zmax) if v is not None]
-    if len(stem_xy) != 2 or not all(np.isfinite(values)):
+    from amrst.types import MAX_COORD_M
+
+    def within(v: float) -> bool:
+        return bool(abs(v) <= MAX_COORD_M)  # False for NaN
+
+    if len(stem_xy) != 2 or not all(within(v) for v in stem_xy):
         raise InvalidInput(
-            f"The stem position must be two finite numbers X Y (got {list(stem_xy)}) "
-            "and the radius and heights finite numbers."
+            f"The stem position must be two numbers X Y within {MAX_COORD_M:g} m "
+            f"(got {', '.join(f'{v:.6g}' for v in stem_xy)})."
         )
-    if not radius_m > 0:
+    if not (radius_m > 0 and within(radius_m)):
         raise InvalidInput(
-            f"The clip radius must be positive (got {radius_m} m); a tree needs "
-            "about 2-10 m."
+            f"The clip radius must be a positive number of metres (got "
+            f"{radius_m:.6g}); a tree needs about 2-10 m."
+        )
+    if not all(within(v) for v in (zmin, zmax) if v is not None):
+        raise InvalidInput(
+            f"zmin and zmax must be heights within {MAX_COORD_M:g} m (got "
+            f"{zmin if zmin is None else f'{zmin:.6g}'}, "
+            f"{zmax if zmax is None else f'{zmax:.6g}'})."
         )
     if zmin is not None and zmax is not None and zmin >= zmax:
         raise InvalidInput(

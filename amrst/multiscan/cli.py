@@ -26,20 +26,11 @@ if TYPE_CHECKING:
     from amrst.types import Cloud, Transform
 
 
-def read_specs(specs: list[str]) -> tuple[list[Cloud], list[str]]:
-    """Read every scan a list of specs names; return the clouds and their labels."""
+def read_specs(labels: list[str]) -> list[Cloud]:
+    """Read the scans of one-scan specs (:func:`amrst.io.scans.one_scan_specs`)."""
     from amrst.io.scans import read_scans
 
-    clouds: list[Cloud] = []
-    labels: list[str] = []
-    for spec in specs:
-        found = read_scans(spec)
-        clouds += found
-        labels += [
-            spec if len(found) == 1 else f"{spec}#{c.meta.get('scan_index', i)}"
-            for i, c in enumerate(found)
-        ]
-    return clouds, labels
+    return [read_scans(label)[0] for label in labels]
 
 
 def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
@@ -83,15 +74,32 @@ def run_register(
     args: argparse.Namespace, params: RegistrationParams, reporter: Reporter
 ) -> int:
     """Register every scan of ``args.target`` + ``args.source`` and write ``args.out``."""
-    from amrst.multiscan.export import export_scans, read_scan_truth
+    from amrst.io.scans import one_scan_specs
+    from amrst.multiscan.export import SUMMARY, export_scans, read_scan_truth
     from amrst.multiscan.register import register_scans
-    from amrst.results.export import check_output_dir
+    from amrst.results.export import (
+        MANAGED_NAMES,
+        check_output_dir,
+        refuse_inputs_in_out,
+        refuse_other_export,
+    )
+    from amrst.results.report_html import REPORT_NAME
     from amrst.review.verdict import FAILED, REGISTERED
 
     report = bool(getattr(args, "report", False))
     check_output_dir(args.out, ["report.html"] if report else [])
+    labels = [spec for spec, _name in one_scan_specs([args.target, *args.source])]
+    refuse_inputs_in_out(
+        args.out,
+        labels,
+        lambda name: (
+            name in (*MANAGED_NAMES, REPORT_NAME, SUMMARY)
+            or name.startswith("transform_")
+        ),
+    )
+    refuse_other_export(args.out, labels, overwrite=bool(args.overwrite))
     t0 = time.perf_counter()
-    clouds, labels = read_specs([args.target, *args.source])
+    clouds = read_specs(labels)
     check_scans(clouds, labels)
     truth = None
     if args.truth is not None:

@@ -22,14 +22,15 @@ from amrst import io as amrst_io
 from amrst.errors import InvalidInput
 from amrst.files.atomic import write_json_atomic, write_text_atomic
 from amrst.files.folderlock import DEFAULT_TIMEOUT_S
-from amrst.files.outcheck import check_output_folder
+from amrst.files.outcheck import check_output_folder, same_file
 from amrst.files.outdir import clear_dead_run, replace_files
 from amrst.params import RegistrationParams, params_to_dict
 from amrst.results.documents import CONVENTION, metrics_csv
+from amrst.results.report_html import REPORT_NAME
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable
+    from collections.abc import Callable, Iterable, Sequence
 
     from amrst.results.documents import ResultDocuments
 
@@ -103,55 +104,97 @@ def check_output_dir(
     return check_output_folder(out_dir, "export folder", names)
 
 
-def previous_pair(out_dir: str | os.PathLike[str]) -> tuple[str, str] | None:
-    """Return the (target, source) files of the export in ``out_dir``, if any.
+def previous_files(out_dir: str | os.PathLike[str]) -> list[str] | None:
+    """Return the scan files of the export in ``out_dir`` (target first), if any.
 
-    Read from its ``transform.json``; None when the folder holds no readable one.
+    Read from its ``transform.json`` (a pair's or several scans'); None when the
+    folder holds no readable one.
     """
     path = Path(out_dir) / "transform.json"
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-        return str(doc["target_file"]), str(doc["source_file"])
+        if "scans" in doc:
+            return [str(scan["file"]) for scan in doc["scans"]]
+        return [str(doc["target_file"]), str(doc["source_file"])]
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
 
-def _same_path(a: str, b: str) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return Path(a).resolve() == Path(b).resolve()
-
-
-def refuse_other_pair(
+def refuse_inputs_in_out(
     out_dir: str | os.PathLike[str],
-    target_file: str,
-    source_file: str,
-    *,
-    overwrite: bool = False,
+    files: Sequence[str],
+    written: Callable[[str], bool] = lambda name: name in (*MANAGED_NAMES, REPORT_NAME),
 ) -> None:
-    """Refuse to replace the export of another pair of scans, unless asked to.
+    """Refuse a scan file that lies in ``out_dir`` under a name the run may write.
 
-    Running the same pair again replaces its own export; a folder that holds the
-    export of other files is kept as it is.
+    ``written`` tells those names (default: a pair's export and its report). A
+    ``#k`` after a file name is ignored.
 
     Raises
     ------
     InvalidInput
-        When ``out_dir`` holds another pair's export and ``overwrite`` is False.
+        Naming the file, whatever ``--overwrite`` says: the run would replace or
+        remove a scan it reads.
     """
-    before = previous_pair(out_dir)
-    if overwrite or before is None:
-        return
-    if all(
-        _same_path(a, b)
-        for a, b in zip(before, (target_file, source_file), strict=True)
-    ):
+    folder = Path(out_dir).resolve()
+    for spec in files:
+        head, sep, tail = spec.rpartition("#")
+        path = Path(head if sep and tail.replace(",", "").isdigit() else spec)
+        if path.resolve().parent == folder and written(path.name):
+            raise InvalidInput(
+                f"{spec} is a file the run writes in {out_dir}: copy it elsewhere, "
+                "or give another --out folder."
+            )
+
+
+def refuse_other_export(
+    out_dir: str | os.PathLike[str], files: Sequence[str], *, overwrite: bool = False
+) -> None:
+    """Refuse to replace what another run wrote in ``out_dir``, unless asked to.
+
+    Running the same scans again replaces their own export; a folder that holds the
+    export of other files, a plot's results, or files an export writes whose owner
+    is unknown is kept as it is.
+
+    Raises
+    ------
+    InvalidInput
+        When ``out_dir`` holds such files and ``overwrite`` is False.
+    """
+    what = other_export(out_dir, files)
+    if overwrite or what is None:
         return
     raise InvalidInput(
-        f"{out_dir} holds the export of {before[1]} onto {before[0]}: choose another "
-        "--out folder, or add --overwrite to replace it."
+        f"{out_dir} holds {what}: choose another --out folder, or add --overwrite to "
+        "replace it."
     )
+
+
+def other_export(out_dir: str | os.PathLike[str], files: Sequence[str]) -> str | None:
+    """Say what ``out_dir`` holds that an export of ``files`` would replace, or None.
+
+    None for a folder without such files, or with the export of the same scan files
+    (target first). Otherwise "the export of SOURCE onto TARGET" (or "of N scans
+    onto TARGET"), "a forest plot's results (plot.json)", or the export's file names
+    found without the transform.json that says whose they are.
+    """
+    folder = Path(out_dir)
+    before = previous_files(folder)
+    if before is not None:
+        if len(before) == len(files) and all(
+            same_file(a, b) for a, b in zip(before, files, strict=True)
+        ):
+            return None
+        onto = Path(before[0]).name
+        if len(before) == 2:
+            return f"the export of {Path(before[1]).name} onto {onto}"
+        return f"the export of {len(before)} scans onto {onto}"
+    if (folder / "plot.json").exists():
+        return "a forest plot's results (plot.json)"
+    found = sorted(
+        n for n in (*MANAGED_NAMES, REPORT_NAME) if os.path.lexists(folder / n)
+    )
+    return f"{', '.join(found)} of another run" if found else None
 
 
 def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:

@@ -284,12 +284,13 @@ def test_stale_clouds_of_an_earlier_run_are_removed(
     caplog, capsys, tmp_path, sample_pair
 ) -> None:
     out = tmp_path / "out"
-    out.mkdir()
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    # An earlier run of the pair wrote its clouds (and, once, LAS ones).
+    assert main(["register", t, s, "--out", str(out), "--quiet", "--write-clouds"]) == 0
     stale = ["registered_source.ply", "merged.ply", "merged.las"]
     kept = ["notes.txt", "merged_old.ply"]  # not AMRST output names: left alone
-    for name in stale + kept:
+    for name in ["merged.las", *kept]:
         (out / name).write_bytes(b"earlier run")
-    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
     with caplog.at_level("WARNING"):
         assert main(["register", t, s, "--out", str(out), "--quiet"]) == 0
     names = sorted(p.name for p in out.iterdir())

@@ -36,6 +36,61 @@ def test_an_export_of_another_pair_is_kept_unless_overwrite(
     assert doc["source_file"] == str(other)
 
 
+def test_files_of_another_kind_of_run_are_kept_unless_overwrite(
+    tmp_path, sample_pair, capsys
+) -> None:
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    for name, says in (("plot.json", "a forest plot's results"), ("report.html", "")):
+        out = tmp_path / name.replace(".", "_")
+        out.mkdir()
+        (out / name).write_text("{}")  # a plot's results, or a report of some run
+        capsys.readouterr()
+        assert _register(t, s, "--out", str(out), "--report") == 2
+        err = capsys.readouterr().err.strip()
+        assert says in err
+        assert "--overwrite" in err
+        assert (out / name).read_text() == "{}"
+        assert _register(t, s, "--out", str(out), "--report", "--overwrite") == 0
+        assert (out / "transform.json").is_file()
+
+
+def test_a_scan_in_the_folder_under_an_output_name_is_never_written_over(
+    tmp_path, sample_pair, capsys
+) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("merged.ply", "report.html", "transform_1.txt"):
+        scan = out / name
+        shutil.copyfile(sample_pair.target_path, scan)
+        before = scan.read_bytes()
+        s = str(sample_pair.source_path)
+        capsys.readouterr()
+        # transform_1.txt is written by a run of several scans only.
+        several = "transform_" in name
+        sources = [s, str(sample_pair.target_path)] if several else [s]
+        code = _register(str(scan), *sources, "--out", str(out), "--overwrite")
+        assert code == 2
+        err = capsys.readouterr().err
+        assert "is a file the run writes in" in err
+        assert scan.read_bytes() == before
+        scan.unlink()
+
+
+def test_several_scans_keep_another_pairs_export_unless_overwrite(
+    tmp_path, sample_pair, capsys
+) -> None:
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    out = tmp_path / "out"
+    assert _register(t, s, "--out", str(out)) == 0
+    first = (out / "transform.json").read_bytes()
+    third = tmp_path / "third.ply"
+    shutil.copyfile(s, third)
+    capsys.readouterr()
+    assert _register(t, s, str(third), "--out", str(out)) == 2
+    assert "the export of source.ply onto target.ply" in capsys.readouterr().err
+    assert (out / "transform.json").read_bytes() == first
+
+
 def _register_from_pairs(tmp_path, sample_pair, *args: str, off_m: float = 0.0) -> int:
     """Register the sample pair from four pairs picked on the truth, ``off_m`` off."""
     src = sample_pair.source.xyz + sample_pair.source.offset

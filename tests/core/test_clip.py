@@ -99,8 +99,12 @@ def test_no_point_near_the_stem_gives_the_file_extent(tmp_path):
 @pytest.mark.parametrize(
     ("stem", "radius", "zmin", "zmax", "match"),
     [
-        ((0.0, 0.0), 0.0, None, None, "radius must be positive"),
-        ((0.0, np.nan), 1.0, None, None, "two finite numbers"),
+        ((0.0, 0.0), 0.0, None, None, "radius must be a positive number"),
+        ((0.0, 0.0), np.nan, None, None, "radius must be a positive number"),
+        ((0.0, 0.0), 1e300, None, None, "radius must be a positive number"),
+        ((0.0, np.nan), 1.0, None, None, "two numbers X Y within"),
+        ((0.0, 1e12), 1.0, None, None, "two numbers X Y within"),
+        ((0.0, 0.0), 1.0, np.inf, None, "zmin and zmax must be heights"),
         ((0.0, 0.0), 1.0, 5.0, 2.0, "zmin .* must be below zmax"),
     ],
 )
@@ -146,3 +150,30 @@ def test_overview_is_an_even_thin_sample(tmp_path, ext, monkeypatch):
     world = view.world_xyz
     for i in range(4):  # every stem is in it
         assert (np.abs(world[:, 0] - (500000.0 + 3.0 * i)) < 0.5).sum() > 200
+
+
+def test_cli_never_writes_over_its_input_and_asks_before_replacing(tmp_path, capsys):
+    plot = tmp_path / "plot.laz"
+    io.write(plot, _plot())
+    before = plot.read_bytes()
+    stem = ["--stem", "500000", "5000000", "--radius", "1"]
+    for extra in ([], ["--overwrite"]):
+        assert cli.main(["clip", str(plot), *stem, "--out", str(plot), *extra]) == 2
+        assert "is the file being clipped" in capsys.readouterr().err
+    assert plot.read_bytes() == before
+    tree = tmp_path / "tree.laz"
+    tree.write_bytes(b"a tree clipped earlier")
+    assert cli.main(["clip", str(plot), *stem, "--out", str(tree)]) == 2
+    assert "add --overwrite" in capsys.readouterr().err
+    assert tree.read_bytes() == b"a tree clipped earlier"
+    assert cli.main(["clip", str(plot), *stem, "--out", str(tree), "--overwrite"]) == 0
+    assert len(io.read(tree)) == 2000
+
+
+def test_cli_writes_no_tree_when_one_stem_has_no_points(tmp_path, capsys):
+    io.write(tmp_path / "plot.laz", _plot())
+    stems = ["--stem", "500000", "5000000", "--stem", "0", "0", "--radius", "1"]
+    out = ["--out", str(tmp_path / "tree.laz")]
+    assert cli.main(["clip", str(tmp_path / "plot.laz"), *stems, *out]) == 2
+    assert "no point lies within" in capsys.readouterr().err
+    assert not list(tmp_path.glob("tree*"))

@@ -80,7 +80,7 @@ def test_export_into_another_pairs_folder_asks(
         box.accept()
         assert replace_answers.asked == [out]
         assert box.isVisible()
-        assert "another pair" in box.problem.text()
+        assert "another run" in box.problem.text()
         assert (out / "transform.json").read_text() == first
         # The session refuses too, whoever calls it.
         s.export(out)
