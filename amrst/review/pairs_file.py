@@ -44,12 +44,15 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
         The file is missing or unreadable, lacks a column, holds a value that is not a
         finite number, or fewer than 2 pairs.
     """
+    from amrst.files.safefile import read_small_file
+
+    hint = f"a CSV file with the columns {','.join(COLUMNS)}"
+    raw = read_small_file(path, "pairs file", hint)
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
         raise InvalidInput(
-            f"Cannot read the pairs file {path}: {exc}. Give a CSV file with the "
-            f"columns {','.join(COLUMNS)}."
+            f"Cannot read the pairs file {path}: it is not UTF-8 text. Give {hint}."
         ) from exc
     reader = csv.DictReader(io.StringIO(text))
     try:

@@ -58,5 +58,8 @@ def test_bad_pairs_files_say_what_to_fix(tmp_path: Path, text: str, words: str) 
 
 
 def test_a_missing_pairs_file_says_what_to_give(tmp_path: Path) -> None:
-    with pytest.raises(InvalidInput, match="Give a CSV file"):
+    with pytest.raises(InvalidInput, match=r"pairs file .* was not found"):
         read_pairs(tmp_path / "nope.csv")
+    (tmp_path / "latin1.csv").write_bytes("target_x\n\xe9".encode("latin-1"))
+    with pytest.raises(InvalidInput, match=r"not UTF-8 text\. Give a CSV file"):
+        read_pairs(tmp_path / "latin1.csv")

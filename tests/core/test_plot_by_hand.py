@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -107,13 +108,16 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     )
     swapped = tmp_path / "swapped.csv"  # the rows of one scan in another order
     write_pairs(swapped, t_pts, s_pts[[1, 2, 3, 0]])
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
     capsys.readouterr()  # what the runs before said
     for bad, why in (
         (["1", "2", str(swapped)], "same point in both scans"),
         (["1", "3", str(pairs)], "the plot has scans 1 to 2"),
         (["0", "2", str(pairs)], "numbers from 1"),
         (["1", "²", str(pairs)], "numbers from 1"),  # a digit, but no number
-        (["1", "2", str(tmp_path / "no.csv")], "Cannot read the pairs file"),
+        (["1", "2", str(tmp_path / "no.csv")], "The pairs file"),
+        (["1", "2", str(fifo)], "named pipe"),  # reading it would wait forever
         (["1", "2", str(huge)], "is not a pairs CSV"),
     ):
         args = [*scans, "--out", str(tmp_path / "bad"), "--quiet", "--pairs", *bad]
