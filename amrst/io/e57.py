@@ -17,7 +17,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+from amrst.io.posed import (
+    ScanInfo,
+    check_indices,
+    check_pose,
+    guarded,
+    merge_raw,
+    posed_raw,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -30,16 +37,17 @@ LABEL = "e57"
 _COLOURS = (("colorRed", "red"), ("colorGreen", "green"), ("colorBlue", "blue"))
 
 
-def _pose(header: Any) -> np.ndarray:
+def _pose(header: Any, where: str) -> np.ndarray:
     T = np.eye(4)
     if header.has_pose():
         T[:3, :3] = np.asarray(header.rotation_matrix, dtype=np.float64)
         T[:3, 3] = np.asarray(header.translation, dtype=np.float64)
-    return T
+    return check_pose(T, where)
 
 
 def _info(e57: Any, index: int) -> ScanInfo:
     header = e57.get_header(index)
+    where = f"{e57.path}#{index}"
     node = header.node
     name = node["name"].value() if node.isDefined("name") else ""
     fields = []
@@ -51,7 +59,7 @@ def _info(e57: Any, index: int) -> ScanInfo:
         index,
         str(name),
         int(header.point_count),
-        _pose(header),
+        _pose(header, where),
         bool(header.has_pose()),
         tuple(fields),
     )

@@ -65,6 +65,38 @@ def check_indices(
     return tuple(wanted)
 
 
+def check_pose(T: np.ndarray, where: str) -> np.ndarray:
+    """Return a stored 4x4 pose that is a rigid move within the coordinate limit.
+
+    Raises
+    ------
+    InvalidInput
+        Naming ``where`` (the file and scan): a value that is not finite, a rotation
+        that is not one (a zero quaternion, a scale), or a position beyond 1e9 m.
+    """
+    from amrst.types import MAX_COORD_M
+
+    T = np.asarray(T, dtype=np.float64)
+    R = T[:3, :3]
+    rigid = (
+        np.isfinite(T).all()
+        and np.allclose(R.T @ R, np.eye(3), atol=1e-3)
+        and np.linalg.det(R) > 0
+    )
+    if not rigid:
+        raise InvalidInput(
+            f"{where}: the scan's stored pose is not a rotation and a position (its "
+            "rotation is empty, scaled or mirrored, or not a number). Export the "
+            "scan again with its pose, or without one."
+        )
+    if not np.abs(T[:3, 3]).max() <= MAX_COORD_M:
+        raise InvalidInput(
+            f"{where}: the scan's stored position lies beyond {MAX_COORD_M:g} m. "
+            "Export the scan again with its pose, or without one."
+        )
+    return T
+
+
 def posed_raw(
     xyz: np.ndarray,
     T_world_scanner: Transform,

@@ -31,7 +31,15 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.common import shorten
-from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+from amrst.io.posed import (
+    ScanInfo,
+    check_indices,
+    check_pose,
+    guarded,
+    merge_raw,
+    posed_raw,
+)
+from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Generator, Sequence
@@ -43,6 +51,8 @@ if TYPE_CHECKING:
 LABEL = "ptx"
 _HEADER_LINES = 10
 _MIN_LINE_BYTES = 6  # "0 0 0\n", the shortest point line
+# A scan of more points than any scanner makes (a 0.01 deg grid is 1.3e9): corrupt.
+_MAX_SCAN_POINTS = 10**11
 
 
 class _Scan:
@@ -141,11 +151,22 @@ def _header(lines: list[str], first: int, path: Path) -> _Scan:
             f"{path}, line {first}: the scan size {cols:g} x {rows:g} is not "
             "two whole numbers. The file is corrupt or not a PTX file."
         )
+    if cols * rows > _MAX_SCAN_POINTS:
+        raise InvalidInput(
+            f"{path}, line {first}: the scan size {cols:g} x {rows:g} is more points "
+            "than a scan holds. The file is corrupt or not a PTX file."
+        )
     scanner = np.array(_numbers(lines[2], 3, path, first + 2))
+    if not np.abs(scanner).max() <= MAX_COORD_M:  # NaN too
+        raise InvalidInput(
+            f"{path}, line {first + 2}: the scanner position is not three numbers "
+            f"within {MAX_COORD_M:g} m. The file is corrupt; export it again."
+        )
     for k in range(3, 6):
         _numbers(lines[k], 3, path, first + k)
     M = np.array([_numbers(lines[k], 4, path, first + k) for k in range(6, 10)])
-    T = M.T.copy()  # stored transposed: translation in the last row
+    # Stored transposed: translation in the last row.
+    T = check_pose(M.T.copy(), f"{path}, line {first + 6}")
     start = first - 1 + _HEADER_LINES  # its first point line, from 0
     return _Scan(start, int(cols) * int(rows), T, 4, scanner)
 

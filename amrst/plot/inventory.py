@@ -270,16 +270,19 @@ def scanner_at(cloud: Cloud) -> np.ndarray | None:
     taken to be in its scanner's frame, its scanner at the file's origin, as an
     unregistered export is (a scan cropped to the plot need not surround it); a
     georeferenced one (an offset over ``LARGE_COORD_M``) that does not say is unknown,
-    and so is one whose origin lies over ``ORIGIN_GAP_M`` from its points' box.
+    and so is a position, said or taken, over ``ORIGIN_GAP_M`` from its points' box.
     """
     from amrst.io.common import LARGE_COORD_M
 
+    if not len(cloud.xyz):
+        return None
     said = cloud.meta.get("scanner_origin")
     if said is not None and len(said) == 3:
-        return np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
-    if np.abs(cloud.offset).max() > LARGE_COORD_M or not len(cloud.xyz):
+        origin = np.asarray(np.asarray(said, dtype=float) - cloud.offset, dtype=float)
+    elif np.abs(cloud.offset).max() > LARGE_COORD_M:
         return None
-    origin = np.asarray(-cloud.offset, dtype=float)
+    else:
+        origin = np.asarray(-cloud.offset, dtype=float)
     lo, hi = cloud.xyz.min(axis=0), cloud.xyz.max(axis=0)
     gap = float(np.linalg.norm(np.maximum(lo - origin, 0) + np.maximum(origin - hi, 0)))
     return None if gap > ORIGIN_GAP_M else origin  # far off its points: no scanner

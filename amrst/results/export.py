@@ -136,11 +136,11 @@ def refuse_inputs_in_out(
         Naming the file, whatever ``--overwrite`` says: the run would replace or
         remove a scan it reads.
     """
-    folder = Path(out_dir).resolve()
+    folder = os.path.realpath(out_dir)  # realpath: a link loop is no error here
     for spec in files:
         head, sep, tail = spec.rpartition("#")
         path = Path(head if sep and tail.replace(",", "").isdigit() else spec)
-        if path.resolve().parent == folder and written(path.name):
+        if os.path.dirname(os.path.realpath(path)) == folder and written(path.name):
             raise InvalidInput(
                 f"{spec} is a file the run writes in {out_dir}: copy it elsewhere, "
                 "or give another --out folder."

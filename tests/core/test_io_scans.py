@@ -99,6 +99,45 @@ def test_ptx_written_registered_keeps_its_scanner_where_the_header_puts_it(tmp_p
         assert cloud.meta["scanner_origin"] == (5.0, 6.0, 1.5)
 
 
+_IDENTITY = "1 0 0 0|0 1 0 0|0 0 1 0|0 0 0 1"
+
+
+@pytest.mark.parametrize(
+    ("size", "scanner", "matrix", "says"),
+    [
+        ("3 1", "nan 6 1.5", _IDENTITY, "scanner position"),
+        ("3 1", "1e12 0 0", _IDENTITY, "scanner position"),
+        ("3 1", "0 0 0", "2 0 0 0|0 2 0 0|0 0 2 0|0 0 0 1", "not a rotation"),
+        ("3 1", "0 0 0", "0 0 0 0|0 0 0 0|0 0 0 0|0 0 0 1", "not a rotation"),
+        ("3 1", "0 0 0", "1 0 0 0|0 1 0 0|0 0 1 0|1e12 0 0 1", r"beyond 1e\+09 m"),
+        ("99999999999 99999999999", "0 0 0", _IDENTITY, "more points than a scan"),
+    ],
+)
+def test_ptx_header_that_cannot_be_a_scanner_is_refused(
+    tmp_path, size, scanner, matrix, says
+):
+    head = [*size.split(), scanner, "1 0 0", "0 1 0", "0 0 1", *matrix.split("|")]
+    points = ["6 6 1.5 0.5", "5 7 2 0.5", "4 6 1 0.5"]
+    (tmp_path / "r.ptx").write_text("\n".join(head + points) + "\n")
+    for read in (list_scans, read_scans):
+        with pytest.raises(InvalidInput, match=says):
+            read(tmp_path / "r.ptx")
+
+
+def test_a_stored_pose_must_be_a_rotation_and_a_position():
+    from amrst.io.posed import check_pose
+
+    T = np.eye(4)
+    T[:3, 3] = (512_000.0, 5_403_000.0, 310.0)
+    np.testing.assert_array_equal(check_pose(T, "a.e57#0"), T)
+    zero = np.eye(4)
+    zero[:3, :3] = 0.0  # what a zero quaternion gives
+    mirrored = np.diag([1.0, 1.0, -1.0, 1.0])
+    for bad in (zero, mirrored, np.full((4, 4), np.nan)):
+        with pytest.raises(InvalidInput, match=r"a\.e57#1: the scan's stored pose"):
+            check_pose(bad, "a.e57#1")
+
+
 def test_spec_syntax():
     assert split_spec("a/plot.e57#0, 2") == (split_spec("a/plot.e57")[0], (0, 2))
     assert split_spec("tree.laz")[1] is None

@@ -979,3 +979,16 @@ def test_a_stem_the_map_missed_is_listed_where_given(
     assert [t.tree_id for t in inv.trees] == [t.tree_id for t in plain.trees] + ["H001"]
     assert [t.row() for t in inv.trees[:-1]] == [t.row() for t in plain.trees]
     assert abs(inv.trees[-1].stem.dbh_m - 2 * STEMS[0][2]) < 0.02
+
+
+def test_a_scanner_position_far_off_its_points_is_not_where_it_stood() -> None:
+    from amrst.plot.inventory import ORIGIN_GAP_M, scanner_at
+
+    xyz = np.random.default_rng(0).uniform(-10, 10, (500, 3))
+    near = Cloud(xyz, meta={"scanner_origin": (1.0, 2.0, 1.5)})
+    np.testing.assert_allclose(scanner_at(near), (1.0, 2.0, 1.5))
+    # A file's header (PTX) that says 1000 km: its sight lines would cross the world.
+    far = Cloud(xyz, meta={"scanner_origin": (1e6, 0.0, 0.0)})
+    assert scanner_at(far) is None
+    edge = Cloud(xyz, meta={"scanner_origin": (10.0 + ORIGIN_GAP_M / 2, 0.0, 0.0)})
+    assert scanner_at(edge) is not None
