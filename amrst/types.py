@@ -242,19 +242,49 @@ def rotation_angle_deg(R: np.ndarray) -> float:
 RIGID_TOL = 1e-4
 
 
-def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
-    """Refuse two scans holding the same points (one file given twice, a copy).
+#: Two scans whose points lie this close (m) are one scan written twice: LAS stores
+#: millimetres, text often micrometres.
+SAME_POINT_M = 0.002
+#: Points of one scan looked up in the other to tell.
+SAME_SAMPLE = 2000
 
-    Registering a scan onto itself tells nothing and the verification of the
-    identity runs long on a big scan.
+
+def _box(cloud: Cloud) -> np.ndarray:
+    """(3, 3) a cloud's world min, max and mean: what tells two scans apart at once."""
+    stats = [f(cloud.xyz, axis=0) for f in (np.min, np.max, np.mean)]
+    box: np.ndarray = np.asarray(stats, dtype=np.float64) + cloud.offset
+    return box
+
+
+def _same_points(a: Cloud, b: Cloud) -> bool:
+    """Tell whether two clouds of the same size and box hold the same points."""
+    if np.array_equal(a.offset, b.offset) and np.array_equal(a.xyz, b.xyz):
+        return True
+    from scipy.spatial import cKDTree
+
+    bxyz = b.xyz[:: max(1, len(b) // SAME_SAMPLE)] + (b.offset - a.offset)
+    dist, _ = cKDTree(a.xyz).query(bxyz, distance_upper_bound=SAME_POINT_M)
+    return bool(np.mean(np.isfinite(dist)) > 0.99)
+
+
+def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
+    """Refuse two scans holding the same points, in any order and precision.
+
+    One file given twice, a copy, the same scan exported again as text or LAS (rows
+    in another order, coordinates rounded). Registering a scan onto itself tells
+    nothing and the verification of the identity runs long on a big scan. Scans of
+    different positions differ in size or box at once; only clouds that agree in
+    both are compared point by point.
     """
+    boxes = [_box(c) if len(c) else None for c in clouds]
     for j, b in enumerate(clouds):
         for i, a in enumerate(clouds[:j]):
-            if (
-                len(a) == len(b)
-                and np.array_equal(a.offset, b.offset)
-                and np.array_equal(a.xyz, b.xyz)
-            ):
+            box_a, box_b = boxes[i], boxes[j]
+            if box_a is None or box_b is None:
+                continue
+            if abs(len(a) - len(b)) > 0.01 * max(len(a), len(b)):
+                continue
+            if np.allclose(box_a, box_b, atol=SAME_POINT_M) and _same_points(a, b):
                 what = (
                     "is given twice (a file of several scans gives them all)"
                     if labels[j] == labels[i]

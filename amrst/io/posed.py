@@ -71,24 +71,12 @@ def check_pose(T: np.ndarray, where: str) -> np.ndarray:
     Raises
     ------
     InvalidInput
-        Naming ``where`` (the file and scan): a value that is not finite, a rotation
-        that is not one (a zero quaternion, a scale), or a position beyond 1e9 m.
+        Naming ``where`` (the file and scan): not rigid (:func:`amrst.types.check_rigid`:
+        a zero quaternion, a scale, NaN) or a position beyond 1e9 m.
     """
-    from amrst.types import MAX_COORD_M
+    from amrst.types import MAX_COORD_M, check_rigid
 
-    T = np.asarray(T, dtype=np.float64)
-    R = T[:3, :3]
-    rigid = (
-        np.isfinite(T).all()
-        and np.allclose(R.T @ R, np.eye(3), atol=1e-3)
-        and np.linalg.det(R) > 0
-    )
-    if not rigid:
-        raise InvalidInput(
-            f"{where}: the scan's stored pose is not a rotation and a position (its "
-            "rotation is empty, scaled or mirrored, or not a number). Export the "
-            "scan again with its pose, or without one."
-        )
+    T = check_rigid(T, f"{where}: the scan's stored pose")
     if not np.abs(T[:3, 3]).max() <= MAX_COORD_M:
         raise InvalidInput(
             f"{where}: the scan's stored position lies beyond {MAX_COORD_M:g} m. "

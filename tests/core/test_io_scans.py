@@ -107,8 +107,8 @@ _IDENTITY = "1 0 0 0|0 1 0 0|0 0 1 0|0 0 0 1"
     [
         ("3 1", "nan 6 1.5", _IDENTITY, "scanner position"),
         ("3 1", "1e12 0 0", _IDENTITY, "scanner position"),
-        ("3 1", "0 0 0", "2 0 0 0|0 2 0 0|0 0 2 0|0 0 0 1", "not a rotation"),
-        ("3 1", "0 0 0", "0 0 0 0|0 0 0 0|0 0 0 0|0 0 0 1", "not a rotation"),
+        ("3 1", "0 0 0", "2 0 0 0|0 2 0 0|0 0 2 0|0 0 0 1", "is not a rotation"),
+        ("3 1", "0 0 0", "0 0 0 0|0 0 0 0|0 0 0 0|0 0 0 1", "is not a rotation"),
         ("3 1", "0 0 0", "1 0 0 0|0 1 0 0|0 0 1 0|1e12 0 0 1", r"beyond 1e\+09 m"),
         ("99999999999 99999999999", "0 0 0", _IDENTITY, "more points than a scan"),
     ],

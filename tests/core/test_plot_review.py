@@ -304,3 +304,23 @@ def test_one_scan_twice_is_named_for_what_it_is():
         refuse_same_points([a, b, b], ["p.e57#0", "p.e57#1", "p.e57#1"])
     with pytest.raises(InvalidInput, match=r"copy\.ply holds the same points as a"):
         refuse_same_points([a, a], ["a.ply", "copy.ply"])
+
+
+def test_one_scan_exported_again_is_the_same_scan(tmp_path):
+    from amrst import io
+    from amrst.types import Cloud, refuse_same_points
+
+    rng = np.random.default_rng(4)
+    a = Cloud(rng.uniform(-20, 20, (5000, 3)), offset=np.array([512_000.0, 0, 0]))
+    shuffled = a.select(rng.permutation(len(a)))
+    io.write(tmp_path / "a.las", a)  # millimetres
+    io.write(tmp_path / "a.xyz", shuffled)
+    for label, copy in (
+        ("a.las", io.read(tmp_path / "a.las")),
+        ("a.xyz", io.read(tmp_path / "a.xyz")),
+    ):
+        with pytest.raises(InvalidInput, match=f"{label} holds the same points as a"):
+            refuse_same_points([a, copy], ["a.ply", label])
+    # The same place scanned again (4 mm of range noise) is another scan.
+    again = Cloud(a.xyz + rng.normal(0, 0.004, a.xyz.shape), offset=a.offset)
+    refuse_same_points([a, again], ["a.ply", "again.ply"])
