@@ -65,9 +65,20 @@ def check_out(out: Path, overwrite: bool) -> None:
     run's output (unless ``overwrite``). Its review must be readable (its marks go
     into the inventory). All refused before the run rather than after it.
     """
+    if out.is_symlink() and not out.exists():
+        raise InvalidInput(
+            f"{out} is a link to {os.readlink(out)}, which does not exist: fix the "
+            "link or give another results folder (--out)."
+        )
     if out.exists() and not out.is_dir():
         raise InvalidInput(
             f"{out} is a file, not a folder: give another results folder (--out)."
+        )
+    trees = out / TREES_DIR
+    if os.path.lexists(trees) and not trees.is_dir():
+        raise InvalidInput(
+            f"{trees} is a file, where a run keeps its tree clouds: move it, or give "
+            "another results folder (--out)."
         )
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(

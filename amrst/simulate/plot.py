@@ -51,6 +51,8 @@ if TYPE_CHECKING:
 
 # Fewest trees on a plot: a stem map of fewer has no layout to register on.
 MIN_TREES = 3
+# A tree cloud shorter than this (m) is no tree to plant (one point, a shrub).
+MIN_TREE_HEIGHT_M = 1.0
 # Bounds of the scene a plot simulation builds in memory (the defaults make about
 # 1.3 million ground points and 15 shrubs).
 MAX_GROUND_POINTS = 8_000_000
@@ -545,10 +547,19 @@ def simulate_plot(
     Raises
     ------
     InvalidInput
-        As :func:`plot_scene`, a bad seed, or a scan that keeps under 100 points.
+        As :func:`plot_scene`, a bad seed, a tree of under 100 points or 1 m, or a
+        scan that keeps under 100 points.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InvalidInput(f"seed must be an integer of 0 or more, got {seed!r}.")
+    for tree in trees:
+        tall = float(np.ptp(tree.xyz[:, 2])) if len(tree) else 0.0
+        if len(tree) < MIN_POINTS or tall < MIN_TREE_HEIGHT_M:
+            raise InvalidInput(
+                f"{tree.name or 'A tree'} has {len(tree)} point(s) over {tall:.2g} m "
+                f"of height: a plot is made of complete tree clouds (at least "
+                f"{MIN_POINTS} points, {MIN_TREE_HEIGHT_M:g} m tall)."
+            )
     scene = plot_scene(trees, options, seed)
     rng = np.random.default_rng([int(seed), 1])  # the scans' own stream
     radius = footprints(scene.cloud.xyz)

@@ -294,6 +294,20 @@ def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
         check_out(other, overwrite=False)
 
 
+def test_a_results_folder_that_cannot_take_a_run_is_refused_before_it(tmp_path):
+    from amrst.plot.export import check_out
+
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "gone")
+    with pytest.raises(InvalidInput, match="which does not exist"):
+        check_out(dangling, overwrite=True)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trees").write_text("not the folder of tree clouds")
+    with pytest.raises(InvalidInput, match="is a file, where a run keeps its tree"):
+        check_out(out, overwrite=True)
+
+
 def test_one_scan_twice_is_named_for_what_it_is():
     from amrst.types import Cloud, refuse_same_points
 

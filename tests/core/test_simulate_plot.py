@@ -263,6 +263,8 @@ def _tree_files(trees: list[Cloud], folder: Path) -> list[str]:
         ([], ["--range-m", "1e12"], "give a shorter --range-m"),
         ([], ["--shrubs", "100000000"], "shrubs must be at most 1000"),
         (["two_trees.ply"], [], "as a plot of several trees does"),
+        (["one_point.ply"], [], "one_point.ply has 1 point(s) over 0 m of height"),
+        (["flat.ply"], [], "flat.ply has 500 point(s) over 0 m of height"),
     ],
 )
 def test_cli_bad_plot_input_is_one_line(
@@ -273,6 +275,8 @@ def test_cli_bad_plot_input_is_one_line(
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat nonsense\n")
     apart = np.add(trees[0].xyz, (8.0, 0.0, 0.0))  # a plot subset given as a tree
     io.write(tmp_path / "two_trees.ply", Cloud(np.vstack([trees[0].xyz, apart])))
+    io.write(tmp_path / "one_point.ply", Cloud(np.zeros((1, 3))))
+    io.write(tmp_path / "flat.ply", Cloud(np.zeros((500, 3))))  # one point, repeated
     files = _tree_files(trees[:3], tmp_path) + [str(tmp_path / f) for f in more_files]
     out = tmp_path / "case"
     code, err = _cli([*files, "--plot", "--out", str(out), *options], capsys)
