@@ -250,18 +250,21 @@ def given_scanners(given: list[list[str]]) -> dict[int, tuple[float, float, floa
         finite number, or a scan given twice.
     """
     from amrst.errors import InvalidInput
+    from amrst.types import MAX_COORD_M
 
     scanners: dict[int, tuple[float, float, float]] = {}
     for k, *xyz in given:
-        what = f"The scanner of scan {k} at {' '.join(xyz)}"
+        what = f"The scanner of scan {k} at {' '.join(v[:20] for v in xyz)}"
         if not (k.isdecimal() and int(k) >= 1):
             raise InvalidInput(f"{what}: name the scan by its number from 1, e.g. 2.")
         try:
             x, y, z = (float(v) for v in xyz)
         except ValueError:
             raise InvalidInput(f"{what}: give X Y Z as numbers (metres).") from None
-        if not all(math.isfinite(v) for v in (x, y, z)):
-            raise InvalidInput(f"{what}: give X Y Z as finite numbers (metres).")
+        if not all(abs(v) <= MAX_COORD_M for v in (x, y, z)):  # NaN too
+            raise InvalidInput(
+                f"{what}: give X Y Z as numbers within {MAX_COORD_M:g} m (metres)."
+            )
         if int(k) - 1 in scanners:
             raise InvalidInput(f"The scanner of scan {k} is given twice: give one.")
         scanners[int(k) - 1] = (x, y, z)

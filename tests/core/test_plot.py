@@ -463,6 +463,7 @@ def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
         (["0", "1", "2", "3"], "by its number from 1"),
         (["3", *map(str, stood[0])], "there are 2 scans"),
         (["1", "x", "0", "0"], "give X Y Z as numbers"),
+        (["1", "1e300", "0", "0"], "at 1e300 0 0: give X Y Z as numbers within"),
     ):
         assert plot_main([*args, str(tmp_path / "c"), "--scanner", *bad]) == 2
         assert why in capsys.readouterr().err

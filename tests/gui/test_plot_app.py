@@ -75,7 +75,8 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     assert plot.status.text() == "The scanner of S2: give X Y Z, three numbers, not 2."
     plot.set_scanner("0, 0, nan")
     assert plot.status.text() == (
-        "The scanner of scan 2 at 0 0 nan: give X Y Z as finite numbers (metres)."
+        "The scanner of scan 2 at 0 0 nan: give X Y Z as numbers within 1e+09 m "
+        "(metres)."
     )
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     plot.set_scanner("0, 0, 0")
