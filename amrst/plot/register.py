@@ -555,6 +555,12 @@ def check_links(
     for (i, j), (t_pts, s_pts) in sorted(hand.items()):
         if apart := pairs_disagree(t_pts, s_pts):
             raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
+    for k in range(n):
+        if all(link in dropped for link in pairs if k in link):
+            raise InvalidInput(
+                f"Every link of scan {k + 1} is left out, so nothing can place it: "
+                "keep one of its links, or leave the scan out of the plot."
+            )
     return hand, dropped
 
 

@@ -177,11 +177,25 @@ SCANNER_UP_M = 4.0
 def _check_count(
     labels: Sequence[str], scanners: Mapping[int, tuple[float, float, float]]
 ) -> None:
-    """Refuse fewer than two scans, and a scanner given for a scan there is not."""
+    """Refuse what no run can use: fewer than two scans, or one given twice.
+
+    ``p.e57`` and ``p.e57#3`` name scan 3 twice. A scanner given for a scan that is
+    not there is refused too.
+    """
     if len(labels) < 2:
         raise InvalidInput(
             f"{len(labels)} scan given: a plot needs at least two positions."
         )
+    seen: set[str] = set()
+    for label in labels:
+        head, sep, tail = label.rpartition("#")
+        key = f"{Path(head).resolve()}#{tail}" if sep else str(Path(label).resolve())
+        if key in seen:
+            raise InvalidInput(
+                f"{label} is given twice (a file of several scans gives them all): "
+                "give each position's scan once."
+            )
+        seen.add(key)
     for k, xyz in sorted(scanners.items()):
         if not 0 <= k < len(labels):
             raise InvalidInput(

@@ -390,7 +390,7 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
 
 
 def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
-    plot_pair, tmp_path: Path
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from amrst.io.e57 import write_e57
     from amrst.plot.view import scanner_position
@@ -426,6 +426,10 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     # The file says where its scanners stood: a --scanner is refused, not taken over it.
     given = ["--scanner", "1", *map(str, at[0])]
     assert plot_main([str(e57), "--out", str(tmp_path / "o2"), "--quiet", *given]) == 2
+    # The whole file and one of its scans name that scan twice: refused unread.
+    twice = [str(e57), f"{e57}#1", "--out", str(tmp_path / "o3"), "--quiet"]
+    assert plot_main(twice) == 2
+    assert "plot.e57#1 is given twice" in capsys.readouterr().err
 
 
 def test_scanners_given_by_hand_check_the_tops_of_georeferenced_scans(
