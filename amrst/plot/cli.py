@@ -186,11 +186,16 @@ def run_cli(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if named[FAILED]:
+        stems = [len(s.stems.stems) for s in run.registration.scans]
+        failed = [
+            f"{label} ({counted(n, 'stem')} found)"
+            for label, state, n in zip(run.labels, run.states, stems, strict=True)
+            if state == FAILED
+        ]
         print(
-            f"amrst plot: not registered (no verified link): "
-            f"{', '.join(named[FAILED])}; check those scans overlap the others, or "
-            "place each by hand: point pairs with a scan it overlaps, then --pairs I J "
-            "PAIRS.csv.",
+            f"amrst plot: not registered (no verified link): {', '.join(failed)}; "
+            "check those scans overlap the others and show their stems, or place each "
+            "by hand: point pairs with a scan it overlaps, then --pairs I J PAIRS.csv.",
             file=sys.stderr,
         )
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0

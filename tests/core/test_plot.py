@@ -997,3 +997,21 @@ def test_a_scanner_position_far_off_its_points_is_not_where_it_stood() -> None:
     assert scanner_at(far) is None
     edge = Cloud(xyz, meta={"scanner_origin": (10.0 + ORIGIN_GAP_M / 2, 0.0, 0.0)})
     assert scanner_at(edge) is not None
+
+
+def test_a_scan_of_ground_only_is_named_with_its_stems_when_it_fails(
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from amrst import io
+
+    target, source, _T = plot_pair
+    files = [tmp_path / "t.ply", tmp_path / "s.ply", tmp_path / "ground.ply"]
+    for path, cloud in zip(
+        files, (target, source, Cloud(scan((1.0, 1.0), (), 5))), strict=True
+    ):
+        io.write(path, cloud)
+    code = plot_main([*map(str, files), "--out", str(tmp_path / "o"), "--quiet"])
+    assert code == 3
+    err = capsys.readouterr().err
+    assert "not registered (no verified link): " in err
+    assert "ground.ply (0 stems found)" in err
