@@ -209,6 +209,7 @@ def _many_files(
     from amrst.files.outdir import replace_files
     from amrst.params import params_to_dict
     from amrst.results.export import CLOUD_NAMES, MANAGED_NAMES, check_output_dir
+    from amrst.results.report_html import REPORT_NAME
 
     n = len(result.scans)
     names = ["transform.json"] + [f"transform_{k}.txt" for k in range(n)]
@@ -263,12 +264,16 @@ def _many_files(
     # amrst.files.outdir: the whole set replaces the earlier one as one unit.
     managed = {*MANAGED_NAMES, *names, SUMMARY}
     # an earlier run's clouds and per-scan files this run does not write (as the pair
-    # command removes stale clouds)
-    stale = sorted(
-        name
-        for name in {*managed, *CLOUD_NAMES}
-        if name not in names and (name.startswith("transform_") or name in CLOUD_NAMES)
-    )
+    # command removes stale clouds), and its report (the caller writes this run's after)
+    stale = [
+        *sorted(
+            name
+            for name in {*managed, *CLOUD_NAMES}
+            if name not in names
+            and (name.startswith("transform_") or name in CLOUD_NAMES)
+        ),
+        REPORT_NAME,
+    ]
     written, _ = replace_files(out, dict(jobs), managed=managed, remove=stale)
     return written
 

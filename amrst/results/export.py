@@ -280,7 +280,8 @@ def export_registration(
         More fields for transform.json (confidence, timings, file names).
     remove_stale : bool
         Drop from the folder the ``CLOUD_NAMES`` files this call does not write (an
-        earlier run's clouds), in the same atomic step, logging one warning line.
+        earlier run's clouds) and an earlier ``report.html`` (the caller writes this
+        run's after, when asked), in the same atomic step, logging one warning line.
     lock_timeout_s : float
         How long to wait for another writer of ``out_dir`` (amrst.files.folderlock).
     documents : ResultDocuments or None
@@ -353,7 +354,9 @@ def export_registration(
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
-    stale = [n for n in CLOUD_NAMES if n not in names] if remove_stale else []
+    # An earlier report describes another result: the caller writes this run's after.
+    stale = [*(n for n in CLOUD_NAMES if n not in names), REPORT_NAME]
+    stale = stale if remove_stale else []
     written, removed = replace_files(
         out,
         {name: writers[name] for name in names},
@@ -363,8 +366,8 @@ def export_registration(
     )
     if removed:
         logger.warning(
-            "Removed %d cloud file(s) of an earlier run from %s that this run did "
-            "not write: %s.",
+            "Removed %d file(s) of an earlier run from %s that this run did not "
+            "write: %s.",
             len(removed),
             out,
             ", ".join(removed),

@@ -285,9 +285,10 @@ def test_stale_clouds_of_an_earlier_run_are_removed(
 ) -> None:
     out = tmp_path / "out"
     t, s = str(sample_pair.target_path), str(sample_pair.source_path)
-    # An earlier run of the pair wrote its clouds (and, once, LAS ones).
-    assert main(["register", t, s, "--out", str(out), "--quiet", "--write-clouds"]) == 0
-    stale = ["registered_source.ply", "merged.ply", "merged.las"]
+    # An earlier run of the pair wrote its clouds (and, once, LAS ones) and a report.
+    first = ["register", t, s, "--out", str(out), "--quiet", "--write-clouds"]
+    assert main([*first, "--report"]) == 0
+    stale = ["registered_source.ply", "merged.ply", "merged.las", "report.html"]
     kept = ["notes.txt", "merged_old.ply"]  # not AMRST output names: left alone
     for name in ["merged.las", *kept]:
         (out / name).write_bytes(b"earlier run")
