@@ -39,7 +39,8 @@ logger = logging.getLogger(__name__)
 _ALIASES = {"r": "red", "g": "green", "b": "blue", "i": "intensity"}
 _COORD_FORMAT = "%.6f"  # micrometres; float64 world values keep them up to 1e9 m
 _SNIFF_CHARS = 4096  # the start of the file looked at to tell text from binary
-_HEAD_BYTES = 1_000_000  # the start of the file its layout is read from
+_HEAD_BYTES = 1_000_000  # the start of the file its layout is read from ...
+_MAX_HEAD_BYTES = 64_000_000  # ... read further past comments up to this
 _MAX_CONTROL_SHARE = 0.05  # more control characters than this: binary
 _MAX_UNDECODABLE_SHARE = 0.3  # more bytes that are not UTF-8 than this: binary
 _TEXT_CONTROLS = frozenset("\t\n\r\f\v\x1a")  # \x1a: DOS end-of-file mark
@@ -339,12 +340,14 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
 
 
 def _head(path: Path) -> tuple[str, str]:
-    """Return the file's first lines as text, and its encoding.
+    r"""Return the file's first lines as text, and its encoding.
 
-    At least ``_HEAD_BYTES`` are read, and more (doubling) until the text holds the
-    three data lines the layout is read from, so a long comment block is no obstacle.
-    Windows tools often save UTF-16 (with a byte-order mark); everything else is read
-    as UTF-8, whose first 128 characters are the ASCII of the numbers.
+    At least ``_HEAD_BYTES`` are read, and more (doubling, up to ``_MAX_HEAD_BYTES``)
+    until the text holds the three data lines the layout is read from, so a long
+    comment block is no obstacle. Line ends are made ``\n`` (``\r\n`` and the old
+    ``\r`` as well), as the body is read. Windows tools often save UTF-16 (with a
+    byte-order mark); everything else is read as UTF-8, whose first 128 characters
+    are the ASCII of the numbers.
     """
     size = _HEAD_BYTES
     with path.open("rb") as fh:
@@ -352,14 +355,20 @@ def _head(path: Path) -> tuple[str, str]:
         encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
         while True:
             more = bool(fh.read(1))
-            text = raw.decode(encoding, errors="replace")
+            text = _newlines(raw.decode(encoding, errors="replace"))
             if more:  # the last line may be cut short
                 text = text[: text.rfind("\n") + 1]
-            if not more or len(_leading_lines(text, 3)) == 3:
+            enough = len(_leading_lines(text, 3)) == 3
+            if not more or enough or len(raw) >= _MAX_HEAD_BYTES:
                 return text, encoding
             fh.seek(len(raw))
             raw += fh.read(size)
             size *= 2
+
+
+def _newlines(text: str) -> str:
+    r"""Return ``text`` with ``\r\n`` and ``\r`` line ends made ``\n``."""
+    return text.replace("\r\n", "\n").replace("\r", "\n")
 
 
 def _parse_body(path: Path, encoding: str, layout: _Layout) -> np.ndarray:
@@ -376,7 +385,7 @@ def _parse_body(path: Path, encoding: str, layout: _Layout) -> np.ndarray:
             lines = (line.replace(",", ".") for line in fh)
         data = stream_numbers(lines, layout.n_columns, layout.delimiter)
     if data is None:
-        text = path.read_bytes().decode(encoding, errors="replace")
+        text = _newlines(path.read_bytes().decode(encoding, errors="replace"))
         return parse_numbers(
             text[_line_start(text, layout.first_line_no) :],
             layout.n_columns,

@@ -268,11 +268,13 @@ def test_pcd_binary_compressed_is_read(tmp_path):
         ("x;y;z\n1,0;2,0;3,0\n4,0;5,0;6,0\n", []),
         ("2\n1 2 3 9 1 1\n4 5 6 8 2 2\n", ["intensity", "col4", "col5"]),
         ("# a comment\n\n1 2 3\n\n4 5 6  # trailing\n", []),
+        ("x y z\r\n1 2 3\r\n4 5 6\r\n", []),  # Windows line ends
+        ("# old Mac line ends\r1 2 3\r4 5 6\r", []),
     ],
 )
 def test_text_layouts(tmp_path, body, expected_names):
     path = tmp_path / "t.txt"
-    path.write_text(body)
+    path.write_bytes(body.encode())
     cloud = io.read(path)
     np.testing.assert_array_equal(cloud.xyz, [[1, 2, 3], [4, 5, 6]])
     assert list(cloud.attributes) == expected_names
