@@ -178,10 +178,10 @@ def _cmd_register(args: argparse.Namespace) -> int:
     )
     report_name = [REPORT_NAME] if args.report else []
     check_output_dir(args.out, output_names(parts, args.format) + report_name)
+    refuse_inputs_in_out(args.out, [str(args.target), str(args.source)])
     refuse_other_export(
         args.out, [str(args.target), str(args.source)], overwrite=args.overwrite
     )
-    refuse_inputs_in_out(args.out, [str(args.target), str(args.source)])
     pairs = read_pairs(Path(args.pairs)) if args.pairs else None
     if same_file(args.target, args.source):
         raise InvalidInput(

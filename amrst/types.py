@@ -284,7 +284,8 @@ def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
                 continue
             if abs(len(a) - len(b)) > 0.01 * max(len(a), len(b)):
                 continue
-            if np.allclose(box_a, box_b, atol=SAME_POINT_M) and _same_points(a, b):
+            close = np.allclose(box_a, box_b, rtol=0.0, atol=SAME_POINT_M)
+            if close and _same_points(a, b):
                 what = (
                     "is given twice (a file of several scans gives them all)"
                     if labels[j] == labels[i]

@@ -240,13 +240,17 @@ def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
         A title line, then ``#k``, name, points, the scanner's position when the file
         stores a pose, and the fields; no trailing newline.
     """
+    from amrst.io.posed import pose_problem
+
     total = sum(i.n_points for i in infos)
     rows = [
         (
             f"#{i.index}",
             i.name or "-",
             f"{i.n_points:,}",
-            "  ".join(f"{v:.3f}" for v in np.asarray(i.T_world_scanner)[:3, 3])
+            "pose not usable"
+            if pose_problem(np.asarray(i.T_world_scanner)) is not None
+            else "  ".join(f"{v:.3f}" for v in np.asarray(i.T_world_scanner)[:3, 3])
             if i.has_pose
             else "no pose stored",
             ", ".join(i.fields) or "none",

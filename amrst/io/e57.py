@@ -20,7 +20,6 @@ from amrst.errors import InvalidInput
 from amrst.io.posed import (
     ScanInfo,
     check_indices,
-    check_pose,
     guarded,
     merge_raw,
     posed_raw,
@@ -37,17 +36,16 @@ LABEL = "e57"
 _COLOURS = (("colorRed", "red"), ("colorGreen", "green"), ("colorBlue", "blue"))
 
 
-def _pose(header: Any, where: str) -> np.ndarray:
+def _pose(header: Any) -> np.ndarray:
     T = np.eye(4)
     if header.has_pose():
         T[:3, :3] = np.asarray(header.rotation_matrix, dtype=np.float64)
         T[:3, 3] = np.asarray(header.translation, dtype=np.float64)
-    return check_pose(T, where)
+    return T
 
 
 def _info(e57: Any, index: int) -> ScanInfo:
     header = e57.get_header(index)
-    where = f"{e57.path}#{index}"
     node = header.node
     name = node["name"].value() if node.isDefined("name") else ""
     fields = []
@@ -59,7 +57,7 @@ def _info(e57: Any, index: int) -> ScanInfo:
         index,
         str(name),
         int(header.point_count),
-        _pose(header, where),
+        _pose(header),
         bool(header.has_pose()),
         tuple(fields),
     )
@@ -133,7 +131,10 @@ def _read_one(e57: Any, index: int, posed: bool) -> RawCloud:
         if field in data:
             attributes[name] = np.asarray(data[field], np.uint8)
     meta = {"scan_index": index, "scan_name": info.name, "e57_has_pose": info.has_pose}
-    return posed_raw(xyz, info.T_world_scanner, attributes, meta, posed=posed)
+    where = f"{e57.path}#{index}"
+    return posed_raw(
+        xyz, info.T_world_scanner, attributes, meta, posed=posed, where=where
+    )
 
 
 def read_raw_scans(

@@ -65,24 +65,34 @@ def check_indices(
     return tuple(wanted)
 
 
+def pose_problem(T: np.ndarray) -> str | None:
+    """Say what makes a stored 4x4 pose unusable, or None for a rigid move within 1e9 m."""
+    from amrst.types import MAX_COORD_M, check_rigid
+
+    try:
+        T = check_rigid(T, "the scan's stored pose")
+    except InvalidInput as exc:
+        return str(exc).split(". ")[0]
+    if not np.abs(T[:3, 3]).max() <= MAX_COORD_M:
+        return f"the scan's stored position lies beyond {MAX_COORD_M:g} m"
+    return None
+
+
 def check_pose(T: np.ndarray, where: str) -> np.ndarray:
-    """Return a stored 4x4 pose that is a rigid move within the coordinate limit.
+    """Return a stored 4x4 pose as float64 if it is usable (:func:`pose_problem`).
 
     Raises
     ------
     InvalidInput
-        Naming ``where`` (the file and scan): not rigid (:func:`amrst.types.check_rigid`:
-        a zero quaternion, a scale, NaN) or a position beyond 1e9 m.
+        Naming ``where`` (the file and scan) and what is wrong: a zero quaternion, a
+        scale, NaN, or a position beyond 1e9 m.
     """
-    from amrst.types import MAX_COORD_M, check_rigid
-
-    T = check_rigid(T, f"{where}: the scan's stored pose")
-    if not np.abs(T[:3, 3]).max() <= MAX_COORD_M:
+    problem = pose_problem(T)
+    if problem is not None:
         raise InvalidInput(
-            f"{where}: the scan's stored position lies beyond {MAX_COORD_M:g} m. "
-            "Export the scan again with its pose, or without one."
+            f"{where}: {problem}. Export the scan again with its pose, or without one."
         )
-    return T
+    return np.asarray(T, dtype=np.float64)
 
 
 def posed_raw(
@@ -92,14 +102,17 @@ def posed_raw(
     meta: dict[str, Any],
     *,
     posed: bool,
+    where: str,
 ) -> RawCloud:
     """Return a scan as a RawCloud: moved by its pose (or not), precision kept at any offset.
 
     ``xyz`` (N, 3) float64 is in the scanner frame. The pose's translation may be
     georeferenced (x = 500000): it is split into a rounded offset and a small rest
-    before the points are moved, so the local values stay small.
+    before the points are moved, so the local values stay small. A pose that is no
+    rigid move within 1e9 m is refused, naming ``where`` (:func:`check_pose`): the
+    scans read are checked, not every scan of the file.
     """
-    T = np.asarray(T_world_scanner, dtype=np.float64)
+    T = check_pose(T_world_scanner, where)
     meta = {**meta, "pose": tuple(tuple(float(v) for v in row) for row in T)}
     if not posed:
         return RawCloud(

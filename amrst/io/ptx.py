@@ -34,7 +34,6 @@ from amrst.io.common import shorten
 from amrst.io.posed import (
     ScanInfo,
     check_indices,
-    check_pose,
     guarded,
     merge_raw,
     posed_raw,
@@ -157,16 +156,10 @@ def _header(lines: list[str], first: int, path: Path) -> _Scan:
             "than a scan holds. The file is corrupt or not a PTX file."
         )
     scanner = np.array(_numbers(lines[2], 3, path, first + 2))
-    if not np.abs(scanner).max() <= MAX_COORD_M:  # NaN too
-        raise InvalidInput(
-            f"{path}, line {first + 2}: the scanner position is not three numbers "
-            f"within {MAX_COORD_M:g} m. The file is corrupt; export it again."
-        )
     for k in range(3, 6):
         _numbers(lines[k], 3, path, first + k)
     M = np.array([_numbers(lines[k], 4, path, first + k) for k in range(6, 10)])
-    # Stored transposed: translation in the last row.
-    T = check_pose(M.T.copy(), f"{path}, line {first + 6}")
+    T = M.T.copy()  # stored transposed: translation in the last row
     start = first - 1 + _HEADER_LINES  # its first point line, from 0
     return _Scan(start, int(cols) * int(rows), T, 4, scanner)
 
@@ -259,9 +252,17 @@ def read_raw_scans(
                 for j, name in enumerate(("red", "green", "blue")):
                     attributes[name] = np.clip(pts[:, 4 + j], 0, 255).astype(np.uint8)
             meta = {"scan_index": i, "n_no_return": int((~keep).sum())}
-            raw = posed_raw(pts[:, :3], scans[i].T, attributes, meta, posed=posed)
+            at = f"{path}, the scan starting at line {scans[i].start - _HEADER_LINES + 1}"
+            raw = posed_raw(
+                pts[:, :3], scans[i].T, attributes, meta, posed=posed, where=at
+            )
             if np.allclose(scans[i].T, np.eye(4)) and scans[i].scanner.any():
                 # Points written already registered: the scanner is the header's.
+                if not np.abs(scans[i].scanner).max() <= MAX_COORD_M:  # NaN too
+                    raise InvalidInput(
+                        f"{at}: its scanner position is not three numbers within "
+                        f"{MAX_COORD_M:g} m. The file is corrupt; export it again."
+                    )
                 where = tuple(float(v) for v in scans[i].scanner)
                 raw = raw._replace(meta={**raw.meta, "scanner_origin": where})
             out.append((i, raw))

@@ -186,10 +186,17 @@ def run_cli(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if named[FAILED]:
+        from amrst.plot.register import cut_off
+
         stems = [len(s.stems.stems) for s in run.registration.scans]
+        cut = cut_off(len(run.labels), 0, left_out)
         failed = [
-            f"{label} ({counted(n, 'stem')} found)"
-            for label, state, n in zip(run.labels, run.states, stems, strict=True)
+            f"{label} ({counted(n, 'stem')} found"
+            + ("; the links left out cut it off" if k in cut else "")
+            + ")"
+            for k, (label, state, n) in enumerate(
+                zip(run.labels, run.states, stems, strict=True)
+            )
             if state == FAILED
         ]
         print(

@@ -555,13 +555,24 @@ def check_links(
     for (i, j), (t_pts, s_pts) in sorted(hand.items()):
         if apart := pairs_disagree(t_pts, s_pts):
             raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
-    for k in range(n):
-        if all(link in dropped for link in pairs if k in link):
-            raise InvalidInput(
-                f"Every link of scan {k + 1} is left out, so nothing can place it: "
-                "keep one of its links, or leave the scan out of the plot."
-            )
     return hand, dropped
+
+
+def cut_off(n: int, reference: int, left_out: Collection[tuple[int, int]]) -> set[int]:
+    """Return the scans no chain of links joins to the reference without ``left_out``.
+
+    A run cannot place them; only point pairs can.
+    """
+    dropped = {frozenset(link) for link in left_out}
+    kept = [
+        set(link) for link in link_pairs(n, reference) if frozenset(link) not in dropped
+    ]
+    reached, grew = {reference}, True
+    while grew:
+        joined = {k for link in kept if reached & link for k in link}
+        grew = not joined <= reached
+        reached |= joined
+    return set(range(n)) - reached
 
 
 def register_plot(

@@ -272,15 +272,17 @@ def _with_scanner(
     Raises
     ------
     InvalidInput
-        A scan whose file says where its scanner stood, or a position with no ground
-        of its scan just below it (not in the scan file's coordinates, or mistyped).
+        A scan whose file says where its scanner stood (and near its points), or a
+        position with no ground of its scan just below it (not in the scan file's
+        coordinates, or mistyped).
     """
     from dataclasses import replace
 
+    from amrst.plot.inventory import scanner_at
     from amrst.sampling import strided
 
     what = _scanner_text(k, xyz)
-    if cloud.meta.get("scanner_origin") is not None:
+    if scanner_at(cloud) is not None and "scanner_origin" in cloud.meta:
         raise InvalidInput(
             f"{what}: {label} says where its scanner stood; give a position only for "
             "a scan whose file does not."

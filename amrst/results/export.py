@@ -128,7 +128,7 @@ def refuse_inputs_in_out(
     """Refuse a scan file that lies in ``out_dir`` under a name the run may write.
 
     ``written`` tells those names (default: a pair's export and its report). A
-    ``#k`` after a file name is ignored.
+    ``#k`` after a file name is ignored; a link is followed to the file it names.
 
     Raises
     ------
@@ -139,8 +139,11 @@ def refuse_inputs_in_out(
     folder = os.path.realpath(out_dir)  # realpath: a link loop is no error here
     for spec in files:
         head, sep, tail = spec.rpartition("#")
-        path = Path(head if sep and tail.replace(",", "").isdigit() else spec)
-        if os.path.dirname(os.path.realpath(path)) == folder and written(path.name):
+        # The file itself, wherever a link to it lies.
+        real = os.path.realpath(
+            head if sep and tail.replace(",", "").isdigit() else spec
+        )
+        if os.path.dirname(real) == folder and written(os.path.basename(real)):
             raise InvalidInput(
                 f"{spec} is a file the run writes in {out_dir}: copy it elsewhere, "
                 "or give another --out folder."

@@ -40,7 +40,10 @@ def test_files_of_another_kind_of_run_are_kept_unless_overwrite(
     tmp_path, sample_pair, capsys
 ) -> None:
     t, s = str(sample_pair.target_path), str(sample_pair.source_path)
-    for name, says in (("plot.json", "a forest plot's results"), ("report.html", "")):
+    for name, says in (
+        ("plot.json", "a forest plot's results"),
+        ("report.html", "report.html of another run"),
+    ):
         out = tmp_path / name.replace(".", "_")
         out.mkdir()
         (out / name).write_text("{}")  # a plot's results, or a report of some run
@@ -72,6 +75,13 @@ def test_a_scan_in_the_folder_under_an_output_name_is_never_written_over(
         assert code == 2
         err = capsys.readouterr().err
         assert "is a file the run writes in" in err
+        assert scan.read_bytes() == before
+        # Nor through a link to it from elsewhere.
+        link = tmp_path / f"link_{name}"
+        link.symlink_to(scan)
+        capsys.readouterr()
+        assert _register(str(link), *sources, "--out", str(out), "--overwrite") == 2
+        assert "is a file the run writes in" in capsys.readouterr().err
         assert scan.read_bytes() == before
         scan.unlink()
 

@@ -119,9 +119,29 @@ def test_ptx_header_that_cannot_be_a_scanner_is_refused(
     head = [*size.split(), scanner, "1 0 0", "0 1 0", "0 0 1", *matrix.split("|")]
     points = ["6 6 1.5 0.5", "5 7 2 0.5", "4 6 1 0.5"]
     (tmp_path / "r.ptx").write_text("\n".join(head + points) + "\n")
-    for read in (list_scans, read_scans):
+    with pytest.raises(InvalidInput, match=says):
+        read_scans(tmp_path / "r.ptx")
+    if "more points" in says:  # the file cannot even be walked
         with pytest.raises(InvalidInput, match=says):
-            read(tmp_path / "r.ptx")
+            list_scans(tmp_path / "r.ptx")
+
+
+def test_a_bad_pose_refuses_that_scan_only(tmp_path, capsys):
+    from amrst.cli import main
+
+    scans, poses = _scans(3, 50)
+    poses[1] = poses[1].copy()
+    poses[1][:3, :3] *= 2.0  # a scale, as a corrupt quaternion gives
+    path = tmp_path / "p.ptx"
+    write_ptx(path, scans, poses)
+    assert len(list_scans(path)) == 3
+    assert len(read_scans(f"{path}#2")) == 1
+    with pytest.raises(InvalidInput, match="is not a rotation"):
+        read_scans(f"{path}#1")
+    assert main(["info", str(path)]) == 0  # lists them, and says which
+    lines = capsys.readouterr().out.splitlines()
+    assert "pose not usable" in lines[3]
+    assert "pose not usable" not in lines[2] + lines[4]
 
 
 def test_a_stored_pose_must_be_a_rotation_and_a_position():

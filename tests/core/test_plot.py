@@ -427,8 +427,15 @@ def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     given = ["--scanner", "1", *map(str, at[0])]
     assert plot_main([str(e57), "--out", str(tmp_path / "o2"), "--quiet", *given]) == 2
     # The whole file and one of its scans name that scan twice: refused unread.
+    from amrst.io import scans as scans_module
+
+    def no_read(spec, **_kw):
+        raise AssertionError(f"{spec} was read")
+
     twice = [str(e57), f"{e57}#1", "--out", str(tmp_path / "o3"), "--quiet"]
-    assert plot_main(twice) == 2
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(scans_module, "read_scans", no_read)
+        assert plot_main(twice) == 2
     assert "plot.e57#1 is given twice" in capsys.readouterr().err
 
 
@@ -1015,3 +1022,18 @@ def test_a_scan_of_ground_only_is_named_with_its_stems_when_it_fails(
     err = capsys.readouterr().err
     assert "not registered (no verified link): " in err
     assert "ground.ply (0 stems found)" in err
+
+
+def test_a_scanner_may_be_given_where_the_file_says_nothing_usable() -> None:
+    from amrst.errors import InvalidInput
+    from amrst.plot.run import _with_scanner
+
+    xy = np.mgrid[-5:5:0.2, -5:5:0.2].reshape(2, -1).T
+    ground = np.column_stack([xy, np.zeros(len(xy))])
+    told = Cloud(ground, meta={"scanner_origin": (0.5, 0.5, 1.5)})
+    with pytest.raises(InvalidInput, match="says where its scanner stood"):
+        _with_scanner(told, 0, "a.ptx", (0.0, 0.0, 1.5))
+    # A header 1000 km off its points: no scanner known, so one may be given.
+    far = Cloud(ground, meta={"scanner_origin": (1e6, 0.0, 0.0)})
+    given = _with_scanner(far, 0, "a.ptx", (0.0, 0.0, 1.5))
+    assert given.meta["scanner_origin"] == (0.0, 0.0, 1.5)

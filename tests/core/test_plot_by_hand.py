@@ -204,14 +204,8 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
         register_plot(scans, by_hand={(0, 2): picks}, left_out=[(0, 2)])
     with pytest.raises(InvalidInput, match="scans 1 to 3"):
         register_plot(scans, left_out=[(0, 3)])
-    with pytest.raises(InvalidInput, match="Every link of scan 3 is left out"):
-        register_plot(scans, left_out=[(0, 2), (1, 2)])
     args = [*_files(clouds, tmp_path), "--out", str(tmp_path / "o"), "--quiet"]
     assert plot_main([*args, "--leave-out", "1", "x"]) == 2
-    # One scan named twice: refused before any scan is read.
-    files = _files(clouds, tmp_path)
-    twice = [*files, files[1], "--out", str(tmp_path / "t"), "--quiet"]
-    assert plot_main(twice) == 2
     assert plot_main([*args, "--leave-out", "1", "3"]) == 0  # 2-3 holds alone
     doc = json.loads((tmp_path / "o" / "plot.json").read_text())
     assert [ln["origin"] for ln in doc["links"] if ln["target"] == 0][1] == "left out"
@@ -235,3 +229,13 @@ def _tree_rows(out: Path) -> list[dict[str, str]]:
 
     with (out / "trees.csv").open() as fh:
         return list(csv.DictReader(fh))
+
+
+def test_the_scans_links_left_out_cut_off_are_told() -> None:
+    from amrst.plot.register import cut_off
+
+    # Every scan keeps a link, but 3 and 4 only to each other.
+    cut = [(0, 2), (0, 3), (1, 2), (1, 3)]
+    assert cut_off(4, 0, cut) == {2, 3}
+    assert cut_off(4, 0, cut[:3]) == set()  # 2-4 joins them
+    assert cut_off(2, 0, [(1, 0)]) == {1}

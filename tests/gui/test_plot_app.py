@@ -882,7 +882,10 @@ def test_the_plot_run_leaves_out_the_links_the_window_names(
 
 
 def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
-    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     from amrst.plot.cli import main as plot_main
     from amrst_gui.plot.window import PlotWindow
@@ -898,6 +901,7 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     out = tmp_path / "out"
     args = [*plot_files, "--out", str(out), "--quiet", "--leave-out", "1", "2"]
     assert plot_main(args) == 3  # the command line's run: scan 2 not placed
+    assert "the links left out cut it off" in capsys.readouterr().err
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         plot.open_results(out)
     o = plot.outcome
