@@ -174,25 +174,28 @@ def run_cli(args: argparse.Namespace) -> int:
                 "exist. Create it or choose another folder."
             )
         _check_outs(Path(args.file), outs, args.overwrite)
-        # Every tree is cut before any is written: a stem with no points near it
-        # leaves no file behind.
-        results = [
-            clip_tree(
-                args.file,
-                ClipParams(
+        # Each tree goes to a hidden file first, and they take their names only once
+        # every stem is cut: a stem with no points near it leaves no file behind,
+        # and memory holds one tree at a time.
+        parts = [out.with_name(f".{out.stem}.amrst-part{out.suffix}") for out in outs]
+        try:
+            for (x, y), out, part in zip(args.stem, outs, parts, strict=True):
+                params = ClipParams(
                     stem_xy=(x, y), radius_m=args.radius, zmin=args.zmin, zmax=args.zmax
-                ),
-            )
-            for x, y in args.stem
-        ]
-        for (x, y), out, result in zip(args.stem, outs, results, strict=True):
-            io.write(out, result.cloud)
-            print(
-                f"{out}: {len(result.cloud):,} points within {args.radius:g} m of "
-                f"({x:g}, {y:g}); {result.method}, {result.points_decoded:,} points "
-                f"decoded in {result.seconds:.2f} s",
-                file=sys.stderr,
-            )
+                )
+                result = clip_tree(args.file, params)
+                io.write(part, result.cloud)
+                print(
+                    f"{out}: {len(result.cloud):,} points within {args.radius:g} m "
+                    f"of ({x:g}, {y:g}); {result.method}, {result.points_decoded:,} "
+                    f"points decoded in {result.seconds:.2f} s",
+                    file=sys.stderr,
+                )
+            for out, part in zip(outs, parts, strict=True):
+                part.replace(out)
+        finally:
+            for part in parts:
+                part.unlink(missing_ok=True)
     except AmrstError as exc:
         print(f"amrst clip: {exc}", file=sys.stderr)
         return 2

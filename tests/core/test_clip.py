@@ -176,4 +176,4 @@ def test_cli_writes_no_tree_when_one_stem_has_no_points(tmp_path, capsys):
     out = ["--out", str(tmp_path / "tree.laz")]
     assert cli.main(["clip", str(tmp_path / "plot.laz"), *stems, *out]) == 2
     assert "no point lies within" in capsys.readouterr().err
-    assert not list(tmp_path.glob("tree*"))
+    assert not list(tmp_path.glob("*tree*"))  # no tree, and no part of one
