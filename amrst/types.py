@@ -301,6 +301,33 @@ MAX_HEIGHT_SPAN_M = 1000.0
 MAX_STEP_M = 0.1
 #: Points the coordinate checks look at (every k-th of a scan's rows).
 CHECK_POINTS = 200_000
+#: No laser scanner reaches this far (m): a point this far beyond the bulk of its scan
+#: is a stray row of a bad export.
+STRAY_M = 10_000.0
+
+
+def _refuse_strays(cloud: Cloud, sample: np.ndarray, label: str) -> None:
+    """Refuse a scan with points over ``STRAY_M`` beyond the box of its bulk.
+
+    They would stretch every output: a LAS file of the plot keeps metres, not
+    millimetres, when its points span thousands of kilometres.
+    """
+    bulk_lo, bulk_hi = np.percentile(sample, [0.1, 99.9], axis=0)
+    lo = np.array([cloud.xyz[:, k].min() for k in range(3)])
+    hi = np.array([cloud.xyz[:, k].max() for k in range(3)])
+    if (lo >= bulk_lo - STRAY_M).all() and (hi <= bulk_hi + STRAY_M).all():
+        return
+    far = np.zeros(len(cloud), dtype=bool)
+    for k in range(3):
+        far |= cloud.xyz[:, k] < bulk_lo[k] - STRAY_M
+        far |= cloud.xyz[:, k] > bulk_hi[k] + STRAY_M
+    worst = float(np.abs(cloud.xyz[far] - (bulk_lo + bulk_hi) / 2).max())
+    raise InvalidInput(
+        f"{label}: {int(far.sum()):,} point(s) lie up to {worst:.3g} m from the rest "
+        f"of the scan, over {STRAY_M / 1000:g} km, farther than a scanner sees: stray "
+        "rows of a bad export. Remove them (amrst clip keeps a cylinder) or export "
+        "the scan again."
+    )
 
 
 def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
@@ -308,7 +335,8 @@ def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
 
     Both read without error and register to nothing: the defaults measure in metres,
     and points snapped to a half-metre grid (float32 far from the origin) show no
-    stem: their values repeat, where those of a sparse scan do not. Scans of under a
+    stem: their values repeat, where those of a sparse scan do not. Stray points
+    kilometres off the rest are refused too (:func:`_refuse_strays`). Scans of under a
     thousand points are left to the checks that count points.
     """
     from amrst.sampling import strided
@@ -316,6 +344,7 @@ def refuse_odd_coordinates(cloud: Cloud, label: str) -> None:
     if len(cloud) < 1000:
         return
     xyz = strided(cloud.xyz, CHECK_POINTS)  # finite: a Cloud's are
+    _refuse_strays(cloud, xyz, label)
     lo, hi = np.percentile(xyz[:, 2], [0.5, 99.5])
     if hi - lo > MAX_HEIGHT_SPAN_M:
         raise InvalidInput(

@@ -278,3 +278,16 @@ def test_a_sparse_scan_over_a_wide_area_is_not_taken_for_snapped() -> None:
     refuse_odd_coordinates(Cloud(sparse), "als.las")
     centimetres = np.round(rng.uniform([0, 0, 0], [40, 40, 20], (200_000, 3)), 2)
     refuse_odd_coordinates(Cloud(centimetres), "coarse.las")  # a LAS scale of 1 cm
+
+
+def test_stray_points_kilometres_off_a_scan_are_refused() -> None:
+    from amrst.errors import InvalidInput
+    from amrst.types import Cloud, refuse_odd_coordinates
+
+    rng = np.random.default_rng(1)
+    scan = rng.uniform([-20, -20, 0], [20, 20, 25], (20_000, 3))
+    hillside = rng.uniform([1900, 0, 0], [2000, 100, 50], (500, 3))  # 2 km: real
+    refuse_odd_coordinates(Cloud(np.vstack([scan, hillside])), "far.ply")
+    strays = np.array([[5e8, 0, 0], [0, -3e7, 0], [0, 0, 2e6]])  # a bad export's rows
+    with pytest.raises(InvalidInput, match=r"s\.ply: 3 point\(s\) lie up to 5e\+08 m"):
+        refuse_odd_coordinates(Cloud(np.vstack([scan, strays])), "s.ply")
