@@ -250,9 +250,9 @@ def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
             f"{i.n_points:,}",
             "pose not usable"
             if pose_problem(np.asarray(i.T_world_scanner)) is not None
-            else "  ".join(f"{v:.3f}" for v in np.asarray(i.T_world_scanner)[:3, 3])
-            if i.has_pose
-            else "no pose stored",
+            else "no pose stored"
+            if i.scanner_xyz is None
+            else "  ".join(f"{v:.3f}" for v in i.scanner_xyz),
             ", ".join(i.fields) or "none",
         )
         for i in infos

@@ -53,13 +53,10 @@ def _info(e57: Any, index: int) -> ScanInfo:
         fields.append("intensity")
     if all(f in header.point_fields for f, _ in _COLOURS):
         fields += [name for _, name in _COLOURS]
+    T, posed = _pose(header), bool(header.has_pose())
+    at = (float(T[0, 3]), float(T[1, 3]), float(T[2, 3])) if posed else None
     return ScanInfo(
-        index,
-        str(name),
-        int(header.point_count),
-        _pose(header),
-        bool(header.has_pose()),
-        tuple(fields),
+        index, str(name), int(header.point_count), T, posed, tuple(fields), at
     )
 
 

@@ -37,6 +37,10 @@ class ScanInfo:
     has_pose : bool
     fields : tuple of str
         Per-point fields besides x, y, z (``intensity``, ``red``...).
+    scanner_xyz : (float, float, float) or None
+        Where the scanner stood as the file says, in its coordinates: the pose's
+        position, or a PTX header's for points written already registered; None
+        when the file does not say.
     """
 
     index: int
@@ -45,6 +49,7 @@ class ScanInfo:
     T_world_scanner: Transform
     has_pose: bool
     fields: tuple[str, ...]
+    scanner_xyz: tuple[float, float, float] | None = None
 
 
 def check_indices(

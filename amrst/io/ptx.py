@@ -164,6 +164,19 @@ def _header(lines: list[str], first: int, path: Path) -> _Scan:
     return _Scan(start, int(cols) * int(rows), T, 4, scanner)
 
 
+def _scanner_said(scan: _Scan) -> tuple[float, float, float] | None:
+    """Where the header puts the scanner, or None when it does not say.
+
+    The pose's position; for points written already registered (an identity
+    matrix), the scanner line's.
+    """
+    if not np.allclose(scan.T, np.eye(4)):
+        return (float(scan.T[0, 3]), float(scan.T[1, 3]), float(scan.T[2, 3]))
+    if scan.scanner.any():
+        return (float(scan.scanner[0]), float(scan.scanner[1]), float(scan.scanner[2]))
+    return None
+
+
 def list_scans(path: Path) -> list[ScanInfo]:
     """Every scan of the file, from its headers."""
 
@@ -178,6 +191,7 @@ def list_scans(path: Path) -> list[ScanInfo]:
                 s.T,
                 not np.allclose(s.T, np.eye(4)),
                 fields[s.width],
+                _scanner_said(s),
             )
             for i, s in enumerate(scans)
         ]

@@ -97,6 +97,8 @@ def test_ptx_written_registered_keeps_its_scanner_where_the_header_puts_it(tmp_p
         (cloud,) = read_scans(tmp_path / "r.ptx", posed=posed)
         np.testing.assert_allclose(cloud.world_xyz[0], (6, 6, 1.5))
         assert cloud.meta["scanner_origin"] == (5.0, 6.0, 1.5)
+    (info,) = list_scans(tmp_path / "r.ptx")  # amrst info says where it stood
+    assert info.scanner_xyz == (5.0, 6.0, 1.5)
 
 
 _IDENTITY = "1 0 0 0|0 1 0 0|0 0 1 0|0 0 0 1"
