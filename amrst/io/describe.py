@@ -237,8 +237,9 @@ def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
     Returns
     -------
     str
-        A title line, then ``#k``, name, points, the scanner's position when the file
-        stores a pose, and the fields; no trailing newline.
+        A title line, then ``#k``, name, points, where the scanner stood when the
+        file says (or that its pose is not usable), and the fields; no trailing
+        newline.
     """
     from amrst.io.posed import pose_problem
 

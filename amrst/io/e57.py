@@ -17,13 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.io.posed import (
-    ScanInfo,
-    check_indices,
-    guarded,
-    merge_raw,
-    posed_raw,
-)
+from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -31,13 +31,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.common import shorten
-from amrst.io.posed import (
-    ScanInfo,
-    check_indices,
-    guarded,
-    merge_raw,
-    posed_raw,
-)
+from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
 from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:

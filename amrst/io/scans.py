@@ -119,10 +119,10 @@ def one_scan_specs(specs: Sequence[PathLike]) -> list[tuple[str, str]]:
 
     ``plot.e57`` of three scans gives ``plot.e57#0``, ``plot.e57#1``, ``plot.e57#2``; a
     spec of one scan is given back as it is. The name is the scan's in its file (an
-    E57 setup's), or "" (a file of one scan, a PTX scan). Each file is checked as every reader
-    checks it first (there, a file, not empty, a known extension), and the scan
-    numbers against its headers, listed once however many specs name the file (a PTX
-    file is read through to list its scans).
+    E57 setup's), or "" (a file of one scan, a PTX scan). Each file is checked as
+    every reader checks it first (there, a file, not empty, a known extension), and
+    the scan numbers against its headers, listed once however many specs name the
+    file (a PTX file is read through to list its scans).
 
     Raises
     ------

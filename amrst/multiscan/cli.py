@@ -87,7 +87,7 @@ def run_register(
     from amrst.review.verdict import FAILED, REGISTERED
 
     report = bool(getattr(args, "report", False))
-    check_output_dir(args.out, ["report.html"] if report else [])
+    check_output_dir(args.out, [REPORT_NAME] if report else [])
     labels = [spec for spec, _name in one_scan_specs([args.target, *args.source])]
     refuse_inputs_in_out(
         args.out,
