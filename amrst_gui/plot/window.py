@@ -282,6 +282,13 @@ class PlotWindow(QMainWindow):
             "positions in trees.csv are its own"
         )
         self.reference_button.clicked.connect(self.make_reference)
+        self.remove_button = QPushButton("Remove")
+        self.remove_button.setToolTip(
+            "Leave the selected scan out of the plot (a setup of another plot, or one "
+            "that cannot be read); its file is kept. The shown plot is cleared: Run "
+            "plot makes it again of the others"
+        )
+        self.remove_button.clicked.connect(self.remove_scan)
         self.scanner_button = QPushButton("Scanner at…")
         self.scanner_button.setToolTip(
             "Where the selected scan's scanner stood, X Y Z in the file's own "
@@ -291,9 +298,10 @@ class PlotWindow(QMainWindow):
         self.scanner_button.clicked.connect(lambda: self.set_scanner())
         self.scan_list.itemSelectionChanged.connect(self._show_busy)
         head = QHBoxLayout()
-        head.addWidget(QLabel("<b>Scans</b> (the first is the reference)"), 1)
+        head.addWidget(QLabel("<b>Scans</b> (S1: the reference)"), 1)
         head.addWidget(self.scanner_button)
         head.addWidget(self.reference_button)
+        head.addWidget(self.remove_button)
         return head
 
     def _build_area_row(self) -> QHBoxLayout:
@@ -527,6 +535,29 @@ class PlotWindow(QMainWindow):
         self.given_scanners = {n: given[j] for n, j in enumerate(order) if j in given}
         self._show_given()
         self._say(f"{Path(self.specs[0]).name} is the reference now (S1).")
+
+    def remove_scan(self) -> None:
+        """Leave the selected scan out of the plot; two scans at least stay.
+
+        The scans given a scanner position keep it; links placed or left out by hand
+        go, as with another reference (they name scans by their numbers).
+        """
+        k = self.scan_list.currentRow()
+        if self.busy or not 0 <= k < len(self.specs) or len(self.specs) <= 2:
+            return
+        keep = [j for j in range(len(self.specs)) if j != k]
+        given = self.given_scanners
+        gone = scan_title(self.specs[k], self.scan_names.get(self.specs[k], ""))
+        out = self.out_edit.text().strip()
+        self.open_scans([self.specs[j] for j in keep], Path(out) if out else None)
+        self.given_scanners = {n: given[j] for n, j in enumerate(keep) if j in given}
+        self._show_given()
+        first = scan_title(self.specs[0], self.scan_names.get(self.specs[0], ""))
+        reference = f" {first} is the reference now (S1)." if k == 0 else ""
+        self._say(
+            f"{gone} is left out: {len(self.specs)} scans.{reference} Run plot "
+            "registers and inventories them."
+        )
 
     def set_scanner(self, text: str | None = None) -> None:
         """Give where the selected scan's scanner stood, for the next run.
@@ -1304,6 +1335,9 @@ class PlotWindow(QMainWindow):
         )
         self.scanner_button.setEnabled(
             not self.busy and 0 <= self.scan_list.currentRow() < len(self.specs)
+        )
+        self.remove_button.setEnabled(
+            self.scanner_button.isEnabled() and len(self.specs) > 2
         )
         self.cancel_button.setEnabled(self.busy)
         self._update_link_buttons()

@@ -1167,6 +1167,38 @@ def test_another_scan_is_made_the_reference_before_a_run(
     assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
 
 
+def test_a_scan_is_removed_from_the_plot_and_two_stay(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    import shutil
+
+    from amrst_gui.plot.window import PlotWindow
+
+    third = tmp_path / "scan_3.ply"
+    shutil.copyfile(plot_files[1], third)
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans([*plot_files, str(third)])
+    plot.scan_list.setCurrentRow(2)
+    plot.set_scanner("1 2 3")  # scan 3's position goes with it
+    plot.scan_list.setCurrentRow(1)
+    assert plot.remove_button.isEnabled()
+    plot.remove_button.click()
+    assert plot.specs == [str(Path(plot_files[0]).resolve()), str(third.resolve())]
+    assert plot.given_scanners == {1: (1.0, 2.0, 3.0)}
+    assert plot.status.text().startswith("scan_2.ply is left out: 2 scans.")
+    plot.scan_list.setCurrentRow(0)
+    assert not plot.remove_button.isEnabled()  # a plot needs two
+    plot.remove_scan()
+    assert len(plot.specs) == 2
+    # The reference may go too: the next scan becomes S1.
+    plot.open_scans([*plot_files, str(third)])
+    plot.scan_list.setCurrentRow(0)
+    plot.remove_button.click()
+    assert plot.specs[0] == str(Path(plot_files[1]).resolve())
+    assert "scan_2.ply is the reference now (S1)" in plot.status.text()
+
+
 def test_results_whose_scan_was_moved_open_and_say_so(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
