@@ -95,7 +95,8 @@ def check_pose(T: np.ndarray, where: str) -> np.ndarray:
     problem = pose_problem(T)
     if problem is not None:
         raise InvalidInput(
-            f"{where}: {problem}. Export the scan again with its pose, or without one."
+            f"{where}: {problem}. Export the scan again with its pose, or without one, "
+            "or leave it out."
         )
     return np.asarray(T, dtype=np.float64)
 
