@@ -26,6 +26,7 @@ import dataclasses
 import functools
 import itertools
 import logging
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +34,7 @@ import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from amrst.errors import AmrstError, Cancelled
+from amrst.files.outcheck import same_file
 from amrst_gui import jobs, steps
 from amrst_gui.engine_process import EngineStopped
 from amrst_gui.review import Review
@@ -444,9 +446,18 @@ class Session(QObject):
                     "scan files themselves."
                 )
                 return
-            if not path.is_file() and not jobs.is_scan_spec(path):  # plot.e57#2
+            # Anything else that is there (a FIFO, a broken link) the reader names.
+            if not os.path.lexists(path) and not jobs.is_scan_spec(path):  # p.e57#2
                 self._fail(f"The file {path} does not exist.")
                 return
+        target = paths.get("target") or self.path("target")
+        source = paths.get("source") or self.path("source")
+        if target is not None and source is not None and same_file(target, source):
+            self._fail(
+                f"The target and the source are the same file ({target}): open two "
+                "scans of the tree."
+            )
+            return
         if not self.may_discard("Opening other scans"):
             return
         self._truth_at_load = self._truth

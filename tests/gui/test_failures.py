@@ -84,6 +84,32 @@ def test_a_scan_in_millimetres_is_refused_with_what_to_change(
     win.error_box.close()
 
 
+def test_one_scan_as_target_and_source_is_refused_and_a_fifo_named(
+    make_main_window, qtbot, tmp_path, sample_pair, errors
+):
+    import os
+    import shutil
+
+    win = make_main_window()
+    s = win.session
+    errors.watch(s)
+    target = sample_pair[0]
+    s.load_scans(target, target)
+    assert "the same file" in errors[-1]
+    assert s.cloud("source") is None
+    copy = tmp_path / "copy.ply"  # another file, the same points
+    shutil.copyfile(target, copy)
+    with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:
+        s.load_scans(target, copy)
+    assert "copy.ply holds the same points as target.ply" in blocker.args[0]
+    fifo = tmp_path / "scan.ply"
+    os.mkfifo(fifo)
+    with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:
+        s.load_scan("source", fifo)
+    assert "named pipe" in blocker.args[0]
+    win.error_box.close()
+
+
 def test_missing_file_and_running_without_scans_fail_politely(
     make_main_window, qtbot, tmp_path, errors
 ):
