@@ -206,14 +206,14 @@ def open_results(
     files = read_plot(out)
     doc, view = files.doc, files.view
     try:
-        labels = [scan["label"] for scan in doc["scans"]]
+        labels = [_text(scan, "label") for scan in doc["scans"]]
         at = view.offsets[labels.index(doc["reference"])]
         scans = tuple(
             ScanPlace(
                 label=scan["label"],
                 xy=_scan_xy(scan, at),
                 stems=int(scan["stems"]),
-                status=scan["status"],
+                status=_text(scan, "status"),
                 doubts=None
                 if scan["unsure_links"] is None
                 else frozenset((int(t), int(s)) for t, s in scan["unsure_links"]),
@@ -259,27 +259,44 @@ def open_results(
 
 
 def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
-    """A plot.json link as drawn: registered when a loop of links confirms it."""
+    """A plot.json link as drawn: registered when a loop of links confirms it.
+
+    Raises ValueError or InvalidInput (an unreadable plot.json) for a text field that
+    is not text or a pose that is not a rigid transform.
+    """
+    from amrst.types import check_rigid
+
     confirmed = bool(entry["loop_confirmed"])
     m = entry["metrics"] or {}
     T, p = entry["T_target_source"], entry["pairs"]
     source = int(entry["source"])
+    status, origin, message = (
+        _text(entry, key) for key in ("status", "origin", "message")
+    )
     return LinkLine(
         target=int(entry["target"]),
         source=source,
-        status=REGISTERED if confirmed else entry["status"],
-        confirmed=confirmed and entry["status"] != REGISTERED,
+        status=REGISTERED if confirmed else status,
+        confirmed=confirmed and status != REGISTERED,
         in_tree=bool(entry["in_tree"]),
-        origin=entry["origin"],
+        origin=origin,
         overlap=_float(m.get("overlap_fraction")),
         residual_m=_float(entry.get("residual_m")),
         shared=int(entry["stems_shared"]),
-        message=entry["message"],
+        message=message,
         score=_float(entry["score"]),
-        T_world=None if T is None else np.array(T, float).reshape(4, 4),
+        T_world=None if T is None else check_rigid(T, "a link's T_target_source"),
         at=np.asarray(offsets[source], float),
         pairs=None if p is None else ((int(p["target"]), int(p["source"])), p["file"]),
     )
+
+
+def _text(entry: Mapping[str, Any], key: str) -> str:
+    """A plot.json text field; ValueError when it holds something else."""
+    value = entry[key]
+    if not isinstance(value, str):
+        raise ValueError(f"{key} {str(value)[:40]!r} is not text")
+    return value
 
 
 def _given(value: Any) -> tuple[float, float, float] | None:

@@ -1089,7 +1089,7 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     assert not plot.run_button.isEnabled()
 
 
-def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
+def test_a_plot_json_with_a_link_that_cannot_be_is_not_opened(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
     import json
@@ -1100,16 +1100,23 @@ def test_a_plot_json_whose_link_names_no_scan_is_not_opened(
 
     out = tmp_path / "out"
     assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
-    doc = json.loads((out / PLOT_JSON).read_text())
-    doc["links"][0]["target"] = 7
-    (out / PLOT_JSON).write_text(json.dumps(doc))
+    written = json.loads((out / PLOT_JSON).read_text())
     plot = PlotWindow()
     qtbot.addWidget(plot)
-    plot.open_results(out)
-    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
-    assert plot.outcome is None
-    assert plot.status.text().startswith("Not opened:")
-    assert "run the plot again" in plot.status.text()
+    # A link to no scan; a message that is no text; a pose of NaN.
+    for key, value in (
+        ("target", 7),
+        ("message", 5),
+        ("T_target_source", [[float("nan")] * 4] * 4),
+    ):
+        doc = json.loads(json.dumps(written))
+        doc["links"][0][key] = value
+        (out / PLOT_JSON).write_text(json.dumps(doc))
+        plot.open_results(out)
+        qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+        assert plot.outcome is None
+        assert plot.status.text().startswith("Not opened:")
+        assert "run the plot again" in plot.status.text()
 
 
 def test_the_side_view_looks_across_a_top_that_stands_aside() -> None:
