@@ -220,6 +220,12 @@ def read_plot(out: Path) -> PlotFiles:
             f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "
             "written into."
         )
+    for name in (VIEW_NPZ, TREES_CSV):  # opening a FIFO would wait forever
+        if os.path.lexists(out / name) and not (out / name).is_file():
+            raise InvalidInput(
+                f"{out / name} is not a file (a folder, a named pipe...): run the "
+                "plot again."
+            )
     view = read_view(out / VIEW_NPZ)
     try:
         doc, rows = _read_doc_rows(out)

@@ -261,6 +261,7 @@ def read_view(path: Path) -> PlotView:
         ) from exc
     except (
         OSError,
+        EOFError,  # an empty file
         ValueError,
         KeyError,
         IndexError,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import os
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -324,10 +325,20 @@ def _reads_back(out: Path, T_true: np.ndarray) -> None:
         assert np.median(np.hypot(*(side.xyz[:, :2] - tree.stem.dbh_xy).T)) < 0.3
         assert np.ptp(side.xyz[:, 2]) > 0.8 * tree.stem.height_m
     view = (out / VIEW_NPZ).read_bytes()
-    (out / VIEW_NPZ).write_bytes(view[:100])
-    with pytest.raises(InvalidInput, match="run the plot again"):
-        read_plot(out)
+    for cut in (view[:100], b""):
+        (out / VIEW_NPZ).write_bytes(cut)
+        with pytest.raises(InvalidInput, match=f"{VIEW_NPZ} cannot be read"):
+            read_plot(out)
     (out / VIEW_NPZ).write_bytes(view)
+    # A named pipe in place of a file would block the reading for ever.
+    for name in (VIEW_NPZ, TREES_CSV):
+        kept = (out / name).read_bytes()
+        (out / name).unlink()
+        os.mkfifo(out / name)
+        with pytest.raises(InvalidInput, match="is not a file"):
+            read_plot(out)
+        (out / name).unlink()
+        (out / name).write_bytes(kept)
 
 
 def _marks(out: Path) -> dict[str, str]:
