@@ -122,6 +122,14 @@ def _scanner_centre(o: PlotOutcome) -> tuple[float, float]:
     return (float(xy[0] + o.reference_at[0]), float(xy[1] + o.reference_at[1]))
 
 
+def _typed_numbers(text: str) -> list[str]:
+    """Split typed numbers: spaces between them, a comma only before a space.
+
+    "12,5 3" is two words, "12,5" and "3": a decimal comma is not read as two numbers.
+    """
+    return [w for w in re.split(r"\s*,\s+|\s+", text.strip()) if w]
+
+
 def _short(value: float) -> str:
     """A coordinate to the micrometre, without trailing zeros."""
     return f"{value:.6f}".rstrip("0").rstrip(".")
@@ -581,15 +589,16 @@ class PlotWindow(QMainWindow):
             )
             if not ok:
                 return
-        parts = text.replace(",", " ").split()
+        parts = _typed_numbers(text)
         if not parts:
             self.given_scanners.pop(k, None)
             self._show_given()
             self._say(f"The scanner of {name} is not given: its file decides.")
             return
-        if len(parts) != 3:
+        if len(parts) != 3 or any("," in p for p in parts):
             self._say(
-                f"The scanner of {name}: give X Y Z, three numbers, not {len(parts)}.",
+                f"The scanner of {name}: give X Y Z, three numbers with decimal "
+                f"points, separated by spaces (got {text.strip()[:40]!r}).",
                 error=True,
             )
             return
@@ -683,8 +692,7 @@ class PlotWindow(QMainWindow):
         text = text.strip()  # "( 1 2 )"
         if not text:
             return radius, None
-        # A space between x and y, a comma only before one: "12,5" is no pair.
-        words = re.split(r"\s*,\s+|\s+", text)
+        words = _typed_numbers(text)
         try:
             x, y = (float(w) for w in words)
         except ValueError:

@@ -71,8 +71,11 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     # The window gives scan 2's (its file's origin) and refuses what is no position.
     plot.scan_list.setCurrentRow(1)
     assert plot.scanner_button.isEnabled()
-    plot.set_scanner("0 0")
-    assert plot.status.text() == "The scanner of S2: give X Y Z, three numbers, not 2."
+    for typed in ("0 0", "12,5 3 1"):  # too few; a decimal comma
+        plot.set_scanner(typed)
+        assert plot.status.text().startswith(
+            "The scanner of S2: give X Y Z, three numbers with decimal points"
+        )
     plot.set_scanner("0, 0, nan")
     assert plot.status.text() == (
         "The scanner of scan 2 at 0 0 nan: give X Y Z as numbers within 1e+09 m "
