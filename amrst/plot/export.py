@@ -220,12 +220,11 @@ def read_plot(out: Path) -> PlotFiles:
             f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "
             "written into."
         )
-    for name in (VIEW_NPZ, TREES_CSV):  # opening a FIFO would wait forever
-        if os.path.lexists(out / name) and not (out / name).is_file():
-            raise InvalidInput(
-                f"{out / name} is not a file (a folder, a named pipe...): run the "
-                "plot again."
-            )
+    if os.path.lexists(out / VIEW_NPZ) and not (out / VIEW_NPZ).is_file():
+        raise InvalidInput(  # opening a FIFO would wait forever
+            f"{out / VIEW_NPZ} is not a file (a folder, a named pipe...): run the "
+            "plot again."
+        )
     view = read_view(out / VIEW_NPZ)
     try:
         doc, rows = _read_doc_rows(out)
@@ -250,6 +249,9 @@ def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
     """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
     import json
 
+    for name in (PLOT_JSON, TREES_CSV):  # opening a FIFO would wait forever
+        if os.path.lexists(out / name) and not (out / name).is_file():
+            raise ValueError(f"{name} is not a file (a folder, a named pipe...)")
     doc = json.loads((out / PLOT_JSON).read_text())
     if not isinstance(doc, dict):
         raise ValueError(f"{PLOT_JSON} holds no object")

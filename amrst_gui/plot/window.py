@@ -1227,7 +1227,7 @@ class PlotWindow(QMainWindow):
         self.report_job = None
         self._update_link_buttons()
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        self._say(f"No report: {text}", error=True)
+        self._say(f"No report: {text.removeprefix('No report: ')}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
         listing = self.listing

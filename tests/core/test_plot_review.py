@@ -4,6 +4,7 @@ states they give."""
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -193,6 +194,10 @@ def test_a_report_of_a_folder_without_a_plot_is_one_line(tmp_path):
     with pytest.raises(InvalidInput, match="run the plot again") as err:
         write_report(tmp_path)
     assert "\n" not in str(err.value)
+    (tmp_path / "plot.json").write_text("{}")
+    os.mkfifo(tmp_path / "trees.csv")  # reading it would wait for ever
+    with pytest.raises(InvalidInput, match=r"trees\.csv is not a file"):
+        write_report(tmp_path)
 
 
 def test_a_dbh_by_hand_is_the_circle_through_the_clicks():
