@@ -58,6 +58,14 @@ INVENTORY_COLUMNS = (
 )
 
 
+def run_files(out: Path) -> list[str]:
+    """List the names in ``out`` a run writes (``trees/T….ply``: its tree clouds)."""
+    theirs = sorted(n for n in MANAGED - {TREES_DIR} if os.path.lexists(out / n))
+    if any((out / TREES_DIR).glob("T[0-9]*.ply")):  # a run's tree clouds' names
+        theirs.append(f"{TREES_DIR}/T….ply")
+    return theirs
+
+
 def check_out(out: Path, overwrite: bool) -> None:
     """Refuse an output folder a run cannot write into.
 
@@ -85,9 +93,7 @@ def check_out(out: Path, overwrite: bool) -> None:
             f"{out} already holds a plot ({PLOT_JSON}): give another results folder "
             "(--out), or --overwrite to replace it."
         )
-    theirs = sorted(n for n in MANAGED - {TREES_DIR} if os.path.lexists(out / n))
-    if any((out / TREES_DIR).glob("T[0-9]*.ply")):  # a run's tree clouds' names
-        theirs.append(f"{TREES_DIR}/T….ply")
+    theirs = run_files(out)
     if theirs and not (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "

@@ -659,7 +659,7 @@ class PlotWindow(QMainWindow):
         out = Path(text).expanduser()
         overwrite = self._may_replace(out)
         if overwrite is None:
-            self._say(f"Not run: {out} keeps its plot.", error=True)
+            self._say(f"Not run: {out} is kept as it is.", error=True)
             return
         self.progress.setValue(0)
         self._say("Running the plot…")
@@ -1066,10 +1066,17 @@ class PlotWindow(QMainWindow):
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
         """False: nothing to replace; True: replace (asked); None: keep it."""
-        from amrst.plot.export import PLOT_CLOUD, PLOT_JSON
+        from amrst.plot.export import PLOT_CLOUD, PLOT_JSON, run_files
 
         if not (out / PLOT_JSON).exists():
-            return False
+            theirs = run_files(out) if out.is_dir() else []
+            if not theirs:
+                return False
+            text = (
+                f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): this run "
+                "replaces or removes them. Go on?"
+            )
+            return True if confirm(self, "Replace those files?", text) else None
         same = jobs.same_plot(out, self.specs)
         what = (
             "a plot of these scans (its marks are kept: tree ids stay the same)"

@@ -289,7 +289,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert len(asked) == 1
     assert "these scans" in asked[0]
     assert not plot.busy
-    assert "keeps its plot" in plot.status.text()
+    assert "is kept as it is" in plot.status.text()
     _add_a_tree(qtbot, plot, out, monkeypatch)
 
 
@@ -1175,6 +1175,39 @@ def test_another_scan_is_made_the_reference_before_a_run(
     assert "1.00, 2.00, 3.00" in item.toolTip()
     assert "scan_2.ply is the reference now" in plot.status.text()
     assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
+
+
+def test_a_folder_of_run_files_without_a_plot_is_replaced_when_asked(
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst_gui.plot import window as plot_window
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trees.csv").write_text("an earlier run's list, its plot.json lost\n")
+    answers = [False, True]
+    asked: list[str] = []
+
+    def answer(_parent: object, title: str, text: str) -> bool:
+        asked.append(f"{title} {text}")
+        return answers.pop(0)
+
+    monkeypatch.setattr(plot_window, "confirm", answer)
+    plot = plot_window.PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, out)
+    plot.run()  # asked, and kept
+    assert "holds trees.csv but no plot" in asked[0]
+    assert not plot.busy
+    assert "is kept as it is" in plot.status.text()
+    assert (out / "trees.csv").read_text().startswith("an earlier run's list")
+    _run(qtbot, plot)  # asked again, and replaced: no dead end
+    assert len(asked) == 2
+    assert plot.outcome is not None
+    assert (out / "plot.json").is_file()
 
 
 def test_a_scan_is_removed_from_the_plot_and_two_stay(
