@@ -51,6 +51,7 @@ SCAN_RGB = (
     (161, 136, 127),
 )
 MIN_TREE_PX = 3.0
+MAX_DBH_M = 20.0  # wider than any tree: a circle drawn no wider
 SCAN_PX = 8.0  # half the width of a scanner's triangle
 #: An added point this near a tree (m) is that tree, as a run finds it.
 SAME_TREE_M = StemMapParams().same_stem_m
@@ -244,8 +245,9 @@ class StemMapView(QWidget):
             ],
             float,
         )
-        r = np.nan_to_num(dbh / 2 * self._mapping()[0], nan=0.0)
-        return np.asarray(np.maximum(r, MIN_TREE_PX))
+        # A DBH no tree has (a trees.csv edited by hand) draws no endless circle.
+        dbh = np.clip(np.nan_to_num(dbh, nan=0.0), 0.0, MAX_DBH_M)
+        return np.asarray(np.maximum(dbh / 2 * self._mapping()[0], MIN_TREE_PX))
 
     # -------------------------------------------------------------- events
     def mousePressEvent(self, event) -> None:

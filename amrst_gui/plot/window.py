@@ -1386,6 +1386,7 @@ class PlotWindow(QMainWindow):
         self.leave_button.setText("Take in" if link in self.left_out else "Leave out")
 
     def _say(self, text: str, error: bool = False) -> None:
+        text = " ".join(text.splitlines())  # one line, whatever a path holds
         self.status.setText(text)
         self.status.setStyleSheet(ERROR_STYLE if error else "")
         (log.warning if error else log.info)("%s", text)

@@ -782,6 +782,26 @@ def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     assert not {0, 1} & set(labelled)
 
 
+def test_a_dbh_no_tree_has_draws_a_bounded_circle(qtbot: QtBot, tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.stem_map import StemMapView
+
+    tree = _tree("T001", (1,))
+    edited = replace(tree, stem=replace(tree.stem, dbh_m=1e308))  # trees.csv by hand
+    scans = (ScanPlace("a.ply", np.array([5.0, 0.0]), 1, "registered"),)
+    view = StemMapView()
+    qtbot.addWidget(view)
+    view.resize(600, 400)
+    view.set_plot(
+        PlotOutcome(tmp_path, ("a.ply",), (edited,), scans, (), 0.0, (), None, 1)
+    )
+    radius = view._radii_px()
+    assert np.isfinite(radius).all()
+    view.grab()  # paints without an overflow
+
+
 def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
     qtbot: QtBot, tmp_path: Path
 ) -> None:
