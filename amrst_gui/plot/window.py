@@ -937,6 +937,8 @@ class PlotWindow(QMainWindow):
             self._say(f"Plot area not changed: {exc}", error=True)
             return
         if area == o.area:
+            if self.status.text().startswith("Plot area not changed"):
+                self._say(f"The plot area is as shown{self._stand_text()}")
             return
         try:
             write_area(o.out, o.trees, self.review, area)

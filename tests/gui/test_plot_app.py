@@ -1062,6 +1062,9 @@ def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     plot.centre_edit.editingFinished.emit()
     assert plot.status.text().startswith("Plot area not changed: the plot centre")
     assert plot.outcome.area.centre_xy == (cx, cy)
+    plot.centre_edit.setText(f"{cx} {cy}")  # as it is: the stale refusal goes
+    plot.centre_edit.editingFinished.emit()
+    assert plot.status.text().startswith("The plot area is as shown")
     plot.centre_edit.setText("1.5 -2")
     plot.centre_edit.editingFinished.emit()
     assert plot.outcome.area == area
