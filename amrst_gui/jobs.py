@@ -28,10 +28,9 @@ THREADS = max(1, min(2, (os.cpu_count() or 1) - 1))
 
 def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
     """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``; refuse one
-    whose coordinates are not metres or come in coarse steps, and two that hold the
-    same points (a copy of one file)."""
+    whose coordinates are not metres or come in coarse steps."""
     from amrst import io
-    from amrst.types import refuse_odd_coordinates, refuse_same_points
+    from amrst.types import refuse_odd_coordinates
 
     start = time.perf_counter()
     clouds = {}
@@ -47,10 +46,6 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
             read_scan(path) if is_scan_spec(path) else io.read(path, reporter=sub)
         )
         refuse_odd_coordinates(clouds[role], Path(path).name)
-    if len(clouds) == len(ROLES):
-        refuse_same_points(
-            [clouds[r] for r in ROLES], [Path(paths[r]).name for r in ROLES]
-        )
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
 

@@ -388,6 +388,9 @@ class Session(QObject):
         if not self.has_scans:
             self._fail("Open a target and a source scan first (File > Open).")
             return
+        if twice := self._one_scan_twice():
+            self._fail(twice)
+            return
         chain = self.plan(step)
         # Run all stops before it accepts an unverified candidate; an
         # explicit Accept coarse or Fine is the technician's own decision.
@@ -397,6 +400,27 @@ class Session(QObject):
         ):
             return
         self.runner.run(chain)
+
+    def _one_scan_twice(self) -> str:
+        """Why the target and the source are one scan (a file opened twice, a copy of
+        it), or "". Checked when a step runs: scans are opened one at a time, and a
+        new target may be the old source for a moment."""
+        from amrst.types import refuse_same_points
+
+        target, source = self.path("target"), self.path("source")
+        if target is not None and source is not None and same_file(target, source):
+            return (
+                f"The target and the source are the same file ({target}): open two "
+                "scans of the tree."
+            )
+        clouds = [c for r in jobs.ROLES if (c := self.cloud(r)) is not None]
+        try:
+            refuse_same_points(
+                clouds, [Path(self.path(r) or r).name for r in jobs.ROLES]
+            )
+        except AmrstError as exc:
+            return str(exc)
+        return ""
 
     def run_all(self) -> None:
         """The automatic path: everything up to fine registration."""
@@ -450,14 +474,6 @@ class Session(QObject):
             if not os.path.lexists(path) and not jobs.is_scan_spec(path):  # p.e57#2
                 self._fail(f"The file {path} does not exist.")
                 return
-        target = paths.get("target") or self.path("target")
-        source = paths.get("source") or self.path("source")
-        if target is not None and source is not None and same_file(target, source):
-            self._fail(
-                f"The target and the source are the same file ({target}): open two "
-                "scans of the tree."
-            )
-            return
         if not self.may_discard("Opening other scans"):
             return
         self._truth_at_load = self._truth
