@@ -404,14 +404,33 @@ def report_job(out: Path, reporter: Reporter) -> Path:
 
 
 def same_plot(out: Path, labels: Sequence[str]) -> bool:
-    """Tell whether ``out`` holds a plot of exactly these scans (a run again)."""
+    """Tell whether ``out`` holds a plot of exactly these scans (a run again).
+
+    Its plot.json tells; when that cannot be read, its review.json (the scans the
+    technician's marks belong to, which a run keeps).
+    """
     from amrst.plot.export import PLOT_JSON
-    from amrst.plot.review import same_scans
+    from amrst.plot.review import REVIEW_JSON, same_scans
 
     try:
-        doc = json.loads((out / PLOT_JSON).read_text())
+        doc = _json_file(out / PLOT_JSON)
         scans = doc["scans"]
         ids = [s.get("file_id") for s in scans]
         return same_scans([s["label"] for s in scans], labels, ids)
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass
+    try:
+        review = _json_file(out / REVIEW_JSON)
+        return same_scans(review["scans"], labels, review.get("scan_ids"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return False
+
+
+def _json_file(path: Path) -> Any:
+    """Return a JSON file's content; ValueError for anything but a regular file.
+
+    This runs on the GUI thread, which reading a named pipe would block.
+    """
+    if not path.is_file():
+        raise ValueError(f"{path.name} is not a file")
+    return json.loads(path.read_text())

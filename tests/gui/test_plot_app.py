@@ -1294,3 +1294,23 @@ def test_results_whose_scan_was_moved_open_and_say_so(
 
     assert same_plot(out, [str(scans[0]), str(tmp_path / "elsewhere.ply")])
     assert not same_plot(out, [str(scans[0]), str(scans[0])])
+
+
+def test_a_plot_whose_plot_json_is_lost_is_known_by_its_review(
+    plot_files: list[str], tmp_path: Path
+) -> None:
+    import os
+
+    from amrst.plot.review import PlotReview, write_review
+    from amrst_gui.plot.jobs import same_plot
+
+    out = tmp_path / "out"
+    out.mkdir()
+    labels = [str(Path(f).resolve()) for f in plot_files]
+    write_review(out, labels, PlotReview(marks={"T001": "ok"}))
+    (out / "plot.json").write_text('{"scans": [')  # cut short
+    assert same_plot(out, labels)  # the marks' scans: a run of these keeps them
+    assert not same_plot(out, labels[::-1])
+    (out / "plot.json").unlink()
+    os.mkfifo(out / "plot.json")  # read on the GUI thread: never blocks it
+    assert same_plot(out, labels)
