@@ -12,7 +12,6 @@ hands back its folder read that way, so the window shows what the files say.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -409,28 +408,21 @@ def same_plot(out: Path, labels: Sequence[str]) -> bool:
     Its plot.json tells; when that cannot be read, its review.json (the scans the
     technician's marks belong to, which a run keeps).
     """
+    from amrst.files.safefile import load_json_file
     from amrst.plot.export import PLOT_JSON
     from amrst.plot.review import REVIEW_JSON, same_scans
 
+    # load_json_file opens regular files only: this runs on the GUI thread, which a
+    # named pipe would block.
     try:
-        doc = _json_file(out / PLOT_JSON)
+        doc = load_json_file(out / PLOT_JSON, "plot file", "plot.json")
         scans = doc["scans"]
         ids = [s.get("file_id") for s in scans]
         return same_scans([s["label"] for s in scans], labels, ids)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (InvalidInput, KeyError, TypeError, AttributeError):
         pass
     try:
-        review = _json_file(out / REVIEW_JSON)
+        review = load_json_file(out / REVIEW_JSON, "review file", "review.json")
         return same_scans(review["scans"], labels, review.get("scan_ids"))
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (InvalidInput, KeyError, TypeError, AttributeError):
         return False
-
-
-def _json_file(path: Path) -> Any:
-    """Return a JSON file's content; ValueError for anything but a regular file.
-
-    This runs on the GUI thread, which reading a named pipe would block.
-    """
-    if not path.is_file():
-        raise ValueError(f"{path.name} is not a file")
-    return json.loads(path.read_text())
