@@ -409,26 +409,36 @@ def check_rigid(T: Any, where: str) -> np.ndarray:
         raise InvalidInput(
             f"{where} is not a matrix of numbers ({exc}). {need}"
         ) from exc
+    problem = rigid_problem(M)
+    if problem is not None:
+        raise InvalidInput(f"{where} {problem}. {need}")
+    return M
+
+
+def rigid_problem(M: np.ndarray) -> str | None:
+    """Say what keeps a float matrix from being a rigid 4x4 transform, or None.
+
+    The text follows the matrix's name: "contains NaN/inf", "has last row ...".
+    """
     if M.shape != (4, 4):
-        raise InvalidInput(f"{where} must be a 4x4 matrix, got shape {M.shape}. {need}")
+        return f"must be a 4x4 matrix, got shape {M.shape}"
     if not np.all(np.isfinite(M)):
-        raise InvalidInput(f"{where} contains NaN/inf. {need}")
+        return "contains NaN/inf"
     if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=RIGID_TOL):
-        raise InvalidInput(f"{where} has last row {M[3].tolist()}. {need}")
+        return f"has last row {M[3].tolist()}"
     R = M[:3, :3]
     deviation = float(np.abs(R.T @ R - np.eye(3)).max())
     if deviation > RIGID_TOL:
-        raise InvalidInput(
-            f"{where} has a 3x3 block that is not a rotation (R^T R differs from the "
-            f"identity by up to {deviation:.3g}: a scale or a shear). {need}"
+        return (
+            "has a 3x3 block that is not a rotation (R^T R differs from the identity "
+            f"by up to {deviation:.3g}: a scale or a shear)"
         )
     det = float(np.linalg.det(R))
     if det <= 0:
-        raise InvalidInput(
-            f"{where} has a 3x3 block with determinant {det:.3g}: a reflection, "
-            f"not a rotation. {need}"
+        return (
+            f"has a 3x3 block with determinant {det:.3g}: a reflection, not a rotation"
         )
-    return M
+    return None
 
 
 def world_transform(T_local: Transform, target: Cloud, source: Cloud) -> Transform:

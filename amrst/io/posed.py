@@ -72,12 +72,12 @@ def check_indices(
 
 def pose_problem(T: np.ndarray) -> str | None:
     """Say what makes a stored 4x4 pose unusable, or None for a rigid move within 1e9 m."""
-    from amrst.types import MAX_COORD_M, check_rigid
+    from amrst.types import MAX_COORD_M, rigid_problem
 
-    try:
-        T = check_rigid(T, "the scan's stored pose")
-    except InvalidInput as exc:
-        return str(exc).split(". ")[0]
+    T = np.asarray(T, dtype=np.float64)
+    problem = rigid_problem(T)
+    if problem is not None:
+        return f"the scan's stored pose {problem}"
     if not np.abs(T[:3, 3]).max() <= MAX_COORD_M:
         return f"the scan's stored position lies beyond {MAX_COORD_M:g} m"
     return None
