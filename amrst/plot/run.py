@@ -146,26 +146,12 @@ def run_plot(
 
 
 def _check_inputs(specs: Sequence[str], out: Path) -> None:
-    """Refuse a scan named twice, or one the run would replace in ``out``."""
+    """Refuse a scan the run would replace in ``out`` (or in its tree clouds)."""
     from amrst.plot.export import MANAGED, TREES_DIR
+    from amrst.results.export import refuse_inputs_in_out
 
-    seen: dict[str, str] = {}
-    folder = Path(out).resolve()
-    for spec in specs:
-        key = str(Path(spec).resolve())
-        if key in seen:
-            raise InvalidInput(
-                f"{spec} is given twice: give each position's scan once."
-            )
-        seen[key] = spec
-        head, sep, tail = spec.rpartition("#")
-        path = Path(head if sep and tail.isdigit() else spec).resolve()
-        inside = path.parent == folder and path.name in MANAGED
-        if inside or path.parent == folder / TREES_DIR:
-            raise InvalidInput(
-                f"{spec} is a file the run writes in {out}: copy it elsewhere, or "
-                "give another results folder (--out)."
-            )
+    refuse_inputs_in_out(out, specs, lambda name: name in MANAGED)
+    refuse_inputs_in_out(out / TREES_DIR, specs, lambda _name: True)
 
 
 #: A scanner given by hand stands within this of its scan's points (m, horizontally) ...
@@ -191,9 +177,9 @@ def _check_count(
         head, sep, tail = label.rpartition("#")
         key = f"{Path(head).resolve()}#{tail}" if sep else str(Path(label).resolve())
         if key in seen:
+            whole = " (a file of several scans gives them all)" if sep else ""
             raise InvalidInput(
-                f"{label} is given twice (a file of several scans gives them all): "
-                "give each position's scan once."
+                f"{label} is given twice{whole}: give each position's scan once."
             )
         seen.add(key)
     for k, xyz in sorted(scanners.items()):
