@@ -1048,3 +1048,28 @@ def test_a_scanner_may_be_given_where_the_file_says_nothing_usable() -> None:
     far = Cloud(ground, meta={"scanner_origin": (1e6, 0.0, 0.0)})
     given = _with_scanner(far, 0, "a.ptx", (0.0, 0.0, 1.5))
     assert given.meta["scanner_origin"] == (0.0, 0.0, 1.5)
+
+
+def test_a_scan_a_plot_run_would_write_over_is_refused_unread(
+    plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from amrst import io
+
+    out = tmp_path / "out"
+    (out / "trees").mkdir(parents=True)
+    other = tmp_path / "s.ply"
+    io.write(other, plot_pair[1])
+    for inside in (
+        out / "trees.csv",
+        out / "trees" / "T001.ply",
+        out / "trees" / "x.ply",
+    ):
+        io.write(inside.with_suffix(".ply"), plot_pair[0])
+        scan = inside.with_suffix(".ply")
+        if inside.suffix == ".csv":  # named as the run's trees.csv
+            scan = scan.rename(inside)
+        before = scan.read_bytes()
+        args = [str(scan), str(other), "--out", str(out), "--quiet", "--overwrite"]
+        assert plot_main(args) == 2
+        assert "is a file the run writes in" in capsys.readouterr().err
+        assert scan.read_bytes() == before
