@@ -276,15 +276,15 @@ def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
     different positions differ in size or box at once; only clouds that agree in
     both are compared point by point.
     """
-    boxes = [_box(c) if len(c) else None for c in clouds]
+    boxes: dict[int, np.ndarray] = {}  # each cloud's, once, when a size matches
     for j, b in enumerate(clouds):
         for i, a in enumerate(clouds[:j]):
-            box_a, box_b = boxes[i], boxes[j]
-            if box_a is None or box_b is None:
+            if not len(a) or abs(len(a) - len(b)) > 0.01 * max(len(a), len(b)):
                 continue
-            if abs(len(a) - len(b)) > 0.01 * max(len(a), len(b)):
-                continue
-            close = np.allclose(box_a, box_b, rtol=0.0, atol=SAME_POINT_M)
+            for k in (i, j):
+                if k not in boxes:
+                    boxes[k] = _box(clouds[k])
+            close = np.allclose(boxes[i], boxes[j], rtol=0.0, atol=SAME_POINT_M)
             if close and _same_points(a, b):
                 what = (
                     "is given twice (a file of several scans gives them all)"
