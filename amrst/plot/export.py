@@ -226,11 +226,6 @@ def read_plot(out: Path) -> PlotFiles:
             f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "
             "written into."
         )
-    if os.path.lexists(out / VIEW_NPZ) and not (out / VIEW_NPZ).is_file():
-        raise InvalidInput(  # opening a FIFO would wait forever
-            f"{out / VIEW_NPZ} is not a file (a folder, a named pipe...): run the "
-            "plot again."
-        )
     view = read_view(out / VIEW_NPZ)
     try:
         doc, rows = _read_doc_rows(out)

@@ -247,8 +247,13 @@ def read_view(path: Path) -> PlotView:
     InvalidInput
         Missing, unreadable, or of another layout (run the plot again).
     """
+    import os
     import zipfile
 
+    if os.path.lexists(path) and not path.is_file():  # a FIFO would block open()
+        raise InvalidInput(
+            f"{path} is not a file (a folder, a named pipe...): run the plot again."
+        )
     try:
         with path.open("rb") as fh, np.load(fh, allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
