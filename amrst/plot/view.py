@@ -11,6 +11,7 @@ files' coordinates less the reference's offset (``offsets[reference]``).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -247,7 +248,6 @@ def read_view(path: Path) -> PlotView:
     InvalidInput
         Missing, unreadable, or of another layout (run the plot again).
     """
-    import os
     import zipfile
 
     if os.path.lexists(path) and not path.is_file():  # a FIFO would block open()
