@@ -6,8 +6,6 @@ Every field is kept; a packed ``rgb``/``rgba`` field is unpacked into
 
 from __future__ import annotations
 
-import io
-import itertools
 import os
 import struct
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
@@ -28,7 +26,7 @@ from amrst.io.common import (
     storable,
     warn_undercount,
 )
-from amrst.io.text import parse_numbers, stream_numbers
+from amrst.io.text import parse_numbers, stream_rows
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -161,13 +159,7 @@ def _ascii_rows(header: _Header, f: BinaryIO, path: Path) -> np.ndarray:
     """
     n, start = header.points, f.tell()
     width = sum(c for _, _, c in header.fields)
-    extra = 0
-    lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
-    # Its lines exactly: a blank or missing one shows as a row too few.
-    flat = stream_numbers(itertools.islice(lines, n), width, None)
-    if flat is not None and len(flat) == n:
-        extra = sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#"))
-    lines.detach()
+    flat, extra = stream_rows(f, n, width)
     if flat is None or len(flat) < n:
         f.seek(start)
         text = f.read().decode("ascii", errors="replace")

@@ -6,8 +6,6 @@ uses numpy structured dtypes instead (private to amrst.io).
 
 from __future__ import annotations
 
-import io
-import itertools
 import logging
 from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
@@ -27,7 +25,7 @@ from amrst.io.common import (
     storable,
     warn_undercount,
 )
-from amrst.io.text import parse_numbers, stream_numbers
+from amrst.io.text import parse_numbers, stream_rows
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -178,16 +176,8 @@ def _read_ascii(f: BinaryIO, header: _Header, path: Path) -> np.ndarray:
     """
     vertex, before = _vertex(header, path)
     skip = sum(element.count for element in before)
-    n_props = len(vertex.props)
-    extra = 0
-    lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
-    for _ in range(skip):
-        lines.readline()
-    # Its lines exactly: a blank or missing one shows as a row too few.
-    data = stream_numbers(itertools.islice(lines, vertex.count), n_props, None)
-    if data is not None and vertex is header.elements[-1]:
-        extra = sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#"))
-    lines.detach()
+    last = vertex is header.elements[-1]  # else the lines after it are other elements
+    data, extra = stream_rows(f, vertex.count, len(vertex.props), skip=skip, after=last)
     if data is None or len(data) < vertex.count:
         f.seek(header.size)
         return _read_ascii_whole(f, header, path)

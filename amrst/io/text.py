@@ -9,9 +9,10 @@ use decimal commas). An optional header line names the columns (``x y z``,
 from __future__ import annotations
 
 import io
+import itertools
 import logging
 import warnings
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -221,6 +222,29 @@ def stream_numbers(
     if data.size == 0:
         return np.empty((0, n_columns))
     return data if data.shape[1] == n_columns else None
+
+
+def stream_rows(
+    f: BinaryIO, n: int, n_columns: int, *, skip: int = 0, after: bool = True
+) -> tuple[np.ndarray | None, int]:
+    """Parse ``n`` rows of numbers from the ASCII lines of a binary file, one at a time.
+
+    The body of an ASCII PLY or PCD: ``skip`` lines first (another element's), then
+    exactly ``n`` lines, so a blank or missing one shows as a row too few. Returns
+    the rows (None, or fewer than ``n``, when the lines are not that: the caller then
+    parses the text whole, which names the line at fault) and, with ``after``, how
+    many data lines follow them (a header that undercounts its points). ``f`` is
+    left where the lines read end.
+    """
+    lines = io.TextIOWrapper(f, encoding="ascii", errors="replace")
+    for _ in range(skip):
+        lines.readline()
+    rows = stream_numbers(itertools.islice(lines, n), n_columns, None)
+    extra = 0
+    if after and rows is not None and len(rows) == n:
+        extra = sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#"))
+    lines.detach()
+    return rows, extra
 
 
 def _loadtxt(
