@@ -563,15 +563,15 @@ def cut_off(n: int, reference: int, left_out: Collection[tuple[int, int]]) -> se
 
     A run cannot place them; only point pairs can.
     """
+    import networkx as nx
+
     dropped = {frozenset(link) for link in left_out}
-    kept = [
-        set(link) for link in link_pairs(n, reference) if frozenset(link) not in dropped
-    ]
-    reached, grew = {reference}, True
-    while grew:
-        joined = {k for link in kept if reached & link for k in link}
-        grew = not joined <= reached
-        reached |= joined
+    graph = nx.Graph()
+    graph.add_nodes_from(range(n))
+    graph.add_edges_from(
+        link for link in link_pairs(n, reference) if frozenset(link) not in dropped
+    )
+    reached: set[int] = nx.node_connected_component(graph, reference)
     return set(range(n)) - reached
 
 
