@@ -647,7 +647,14 @@ def register_plot(
     joint = None
     poses = graph.poses
     if sum(p is not None for p in poses) > 2:  # a pair's link is its fine fit
-        # Kept when it does not raise the bundle error the plot reports.
+        # Kept when it does not raise the bundle error the plot reports; the judge's
+        # residuals of the poses kept are the plot's (first: before, last: after).
+        judged: list[tuple[float, ...]] = []
+
+        def judge(p: Sequence[Transform | None]) -> float:
+            judged.append(scan_residuals(surfaces, p))
+            return bundle_error(judged[-1])
+
         joint = refine_jointly(
             analyses,
             graph.poses,
@@ -655,10 +662,12 @@ def register_plot(
             params,
             SubReporter(reporter, 0.85, 1.0, "joint refinement"),
             threads=threads,
-            error=lambda p: bundle_error(scan_residuals(surfaces, p)),
+            error=judge,
         )
         poses = joint.poses
-    residuals = scan_residuals(surfaces, poses)
+        residuals = judged[-1] if joint.kept else judged[0]
+    else:
+        residuals = scan_residuals(surfaces, poses)
     links = [_with_residual(pl, surfaces) for pl in links]
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = timings["read"] + timings["analyse"] + time.perf_counter() - t0
