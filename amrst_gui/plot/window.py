@@ -135,6 +135,17 @@ def _short(value: float) -> str:
     return f"{value:.6f}".rstrip("0").rstrip(".")
 
 
+def _stamp(out: Path) -> tuple[int, int] | None:
+    """When plot.json in ``out`` was written, and its size (None: there is none)."""
+    from amrst.plot.export import PLOT_JSON
+
+    try:
+        st = (out / PLOT_JSON).stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size
+
+
 def confirm(parent: QWidget, title: str, text: str) -> bool:
     """Ask Yes / Cancel (Cancel the default); tests answer it themselves."""
     answer = QMessageBox.question(
@@ -179,6 +190,9 @@ class PlotWindow(QMainWindow):
         # (the scan file's coordinates); the next run takes it
         self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
+        # plot.json as the plot shown was read: a run from elsewhere into the same
+        # folder changes it, and the window then writes nothing over that run.
+        self.shown_stamp: tuple[int, int] | None = None
         self.job: StageJob | None = None
         self.report_job: StageJob | None = None
         self.listing = False  # the job lists the scans of a file of several
@@ -940,11 +954,14 @@ class PlotWindow(QMainWindow):
             if self.status.text().startswith("Plot area not changed"):
                 self._say(f"The plot area is as shown{self._stand_text()}")
             return
+        if not self._still_shown(o.out, "The plot area"):
+            return
         try:
             write_area(o.out, o.trees, self.review, area)
         except (AmrstError, OSError) as exc:
             self._say(f"Plot area not changed: {exc}", error=True)
             return
+        self.shown_stamp = _stamp(o.out)
         self.found = replace(o, area=area)
         self._show_review()
         what = "No plot radius" if area is None else "Plot area changed"
@@ -1052,6 +1069,7 @@ class PlotWindow(QMainWindow):
                 error=True,
             )
             return
+        self.shown_stamp = _stamp(o.out)
         self._say(
             f"{done} (saved in {REVIEW_JSON}, plot.json and {TREES_CSV}). "
             f"{self._summary()}"
@@ -1103,6 +1121,7 @@ class PlotWindow(QMainWindow):
         self.job = None
         self._show_busy()
         self.found = outcome
+        self.shown_stamp = _stamp(outcome.out)
         if opened:
             self._take_scans(list(outcome.labels))
         centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
@@ -1171,7 +1190,7 @@ class PlotWindow(QMainWindow):
             self._say(f"{what} was not saved: {why}", error=True)
             return False
         o = self.outcome
-        if o is None:
+        if o is None or not self._still_shown(o.out, what):
             return False
         try:
             write_review(o.out, o.labels, review)
@@ -1180,6 +1199,18 @@ class PlotWindow(QMainWindow):
             return False
         self.review = review
         return True
+
+    def _still_shown(self, out: Path, what: str) -> bool:
+        """Tell whether ``out`` still holds the plot shown; say so when it does not."""
+        if _stamp(out) == self.shown_stamp:
+            return True
+        self._say(
+            f"{what} was not saved: the results in {out} changed since they were "
+            "shown (another run wrote or removed them); open them again (File ▸ "
+            "Open plot results…).",
+            error=True,
+        )
+        return False
 
     def _summary(self) -> str:
         """The plot in a line: trees, scans by state, the bundle error."""

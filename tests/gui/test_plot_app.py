@@ -1115,6 +1115,36 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     assert not plot.run_button.isEnabled()
 
 
+def test_results_another_run_rewrote_are_not_written_over(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst.plot.cli import main as plot_main
+    from amrst.plot.review import REVIEW_JSON
+    from amrst_gui.plot.window import PlotWindow
+
+    out = tmp_path / "out"
+    assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    plot.set_mark("T001", "ok")  # the window's own writes keep it the plot shown
+    plot.radius_spin.setValue(40.0)
+    plot.apply_area()
+    plot.set_mark("T002", "check")
+    assert read_review(out, plot_files).marks == {"T001": "ok", "T002": "check"}
+    # Another run (the command line) writes its plot into the folder.
+    assert plot_main([*plot_files, "--out", str(out), "--quiet", "--overwrite"]) == 0
+    written = {f.name: f.read_bytes() for f in out.iterdir() if f.is_file()}
+    plot.set_mark("T003", "ok")
+    assert "changed since they were shown" in plot.status.text()
+    plot.radius_spin.setValue(10.0)
+    plot.apply_area()
+    assert "changed since they were shown" in plot.status.text()
+    assert {f.name: f.read_bytes() for f in out.iterdir() if f.is_file()} == written
+    assert json.loads(written[REVIEW_JSON])["marks"] == {"T001": "ok", "T002": "check"}
+
+
 def test_a_plot_json_with_a_link_that_cannot_be_is_not_opened(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
