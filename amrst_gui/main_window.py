@@ -493,10 +493,12 @@ class MainWindow(QMainWindow):
             if self.session.busy:
                 self.status.show_message("Cancelling the running step…")
             self.scans_panel.close_jobs()  # a description would hold the close
-            self.session.shutdown()
+            # Every job is cancelled before the wait for the worker threads: a plot
+            # or a batch still running would hold the close until it ended.
             self.campaign_panel.shutdown()
             if self.plot_window is not None:
                 self.plot_window.close()
+            self.session.shutdown()
             self.settings.setValue("window/geometry", self.saveGeometry())
             self.settings.setValue("window/state", self.saveState(LAYOUT_VERSION))
             self.settings.sync()

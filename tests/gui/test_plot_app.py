@@ -521,6 +521,26 @@ def test_a_plot_run_cancels_and_a_bad_scan_is_one_line(
     assert plot.outcome is None
 
 
+def test_closing_the_app_cancels_a_plot_run_rather_than_waiting_for_it(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+) -> None:
+    from amrst.plot.export import PLOT_JSON
+
+    win = make_main_window()
+    out = tmp_path / "out"
+    plot = win.open_plot(plot_files, out)
+    plot.run()
+    qtbot.wait(300)
+    assert plot.busy
+    win.close()  # waits for the worker threads: the plot's must be cancelled first
+    assert not plot.busy
+    qtbot.wait(500)
+    assert not (out / PLOT_JSON).exists()
+
+
 def test_the_command_line_opens_a_plot() -> None:
     from amrst_gui.__main__ import parse_args
 
