@@ -85,17 +85,20 @@ def confirm_replace(parent, folder: Path, before: str) -> bool:
     return box.clickedButton() is replace
 
 
-def confirm_discard(parent, action: str) -> bool:
-    """Ask whether ``action`` may throw away the unexported registration result."""
+def confirm_discard(parent, action: str, lost: str) -> bool:
+    """Ask whether ``action`` may throw away ``lost`` (an unexported result, pairs)."""
     box = QMessageBox(
         QMessageBox.Icon.Warning,
-        "Discard the registration?",
-        f"{action} discards the registration result, which has not been exported.",
+        "Discard unsaved work?",
+        f"{action} discards {lost}.",
         QMessageBox.StandardButton.Discard | QMessageBox.StandardButton.Cancel,
         parent,
     )
     box.setObjectName("discard_box")
-    box.setInformativeText("Choose Cancel, then Export (Ctrl+E), to keep it.")
+    box.setInformativeText(
+        "Choose Cancel to keep it: Export (Ctrl+E) keeps a result, Save pairs… in "
+        "the Manual pose dock keeps point pairs."
+    )
     box.setDefaultButton(QMessageBox.StandardButton.Cancel)
     return box.exec() == QMessageBox.StandardButton.Discard
 

@@ -144,7 +144,9 @@ class MainWindow(QMainWindow):
 
     def _connect(self, s: Session) -> None:
         """The session's signals to the window, the panels' requests to the session."""
-        s.discard_guard = lambda action: dialogs.confirm_discard(self, action)
+        s.discard_guard = lambda action, lost: dialogs.confirm_discard(
+            self, action, lost
+        )
         s.failed.connect(self._on_failed)
         # After Accept coarse, Fine or Run all the result is what to look at.
         s.coarse_accepted.connect(self._show_overlay)

@@ -129,9 +129,13 @@ class Session(QObject):
         self._last_report: Path | None = None
         # The folder whose other pair's export the user agreed to replace.
         self._replace_folder: Path | None = None
-        # Asked before an unexported registration result is thrown away (closing,
-        # new scans, swap, a re-run); the window sets it. Returns True to go on.
-        self.discard_guard: Callable[[str], bool] | None = None
+        # Asked before unsaved work is thrown away (closing, new scans, swap, a
+        # re-run): (the action, what it throws away); the window sets it. Returns
+        # True to go on.
+        self.discard_guard: Callable[[str, str], bool] | None = None
+        # Work of the panels that new scans throw away (the Manual pose dock's point
+        # pairs): each says what is unsaved, or "" for nothing.
+        self.unsaved_work: list[Callable[[], str]] = []
 
     # ------------------------------------------------------------ properties
     @property
@@ -396,7 +400,7 @@ class Session(QObject):
         # explicit Accept coarse or Fine is the technician's own decision.
         self._stop_unverified = auto
         if self._replaces_result(chain[0]) and not self.may_discard(
-            f"{steps.plain_label(chain[0])} again"
+            f"{steps.plain_label(chain[0])} again", result_only=True
         ):
             return
         self.runner.run(chain)
@@ -556,11 +560,22 @@ class Session(QObject):
             self._step_params[step] = self._job_params
         return getattr(self, f"_apply_{step}")(result)
 
-    def may_discard(self, action: str) -> bool:
-        """Ask ``discard_guard`` before ``action`` throws an unexported result away."""
-        if not self.has_unexported_result or self.discard_guard is None:
+    def may_discard(self, action: str, *, result_only: bool = False) -> bool:
+        """Ask ``discard_guard`` before ``action`` throws unsaved work away.
+
+        That is an unexported result and, unless ``result_only`` (the scans stay),
+        what ``unsaved_work`` names.
+        """
+        lost = (
+            ["the registration result, which has not been exported"]
+            if self.has_unexported_result
+            else []
+        )
+        if not result_only:
+            lost += [text for text in (say() for say in self.unsaved_work) if text]
+        if not lost or self.discard_guard is None:
             return True
-        return self.discard_guard(action)
+        return self.discard_guard(action, " and ".join(lost))
 
     def _replaces_result(self, first_step: str) -> bool:
         """Would a chain starting at ``first_step`` replace an unexported fine result?

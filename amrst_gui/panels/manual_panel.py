@@ -63,6 +63,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.session = session
         self.views = {"target": target_view, "source": source_view}
         self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
+        self._saved: list[tuple[np.ndarray, np.ndarray]] = []  # as last saved or read
         self._undo: list[list] = []
         self._pending: np.ndarray | None = None  # a target point waiting for its pair
         self.fit: manual.PairFit | None = None
@@ -85,7 +86,17 @@ class ManualPanel(NudgeMixin, QScrollArea):
             getattr(session, name).connect(self._on_scans_changed)
         for name in ("matches_changed", "selection_changed", "coarse_accepted"):
             getattr(session, name).connect(self._on_base_changed)
+        session.unsaved_work.append(self.unsaved_pairs)
         self._show_pairs()
+
+    def unsaved_pairs(self) -> str:
+        """Say how many point pairs were picked and not saved ("" for none)."""
+        same = len(self.pairs) == len(self._saved) and all(
+            a is b for a, b in zip(self.pairs, self._saved, strict=True)
+        )
+        return (
+            "" if not self.pairs or same else f"{len(self.pairs)} point pairs not saved"
+        )
 
     # ------------------------------------------------------------- building
 
@@ -415,6 +426,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
             return
         self._undo.append(list(self.pairs))
         self.pairs = pair_fit.local_pairs(s.cloud("target"), s.cloud("source"), t, src)
+        self._saved = list(self.pairs)
         self._pending = None
         self._show_pairs()
 
@@ -430,6 +442,8 @@ class ManualPanel(NudgeMixin, QScrollArea):
             write_pairs(path, t, src)
         except (InvalidInput, OSError) as exc:
             s.report_error(f"Could not write {path}: {exc}")
+            return
+        self._saved = list(self.pairs)
 
     # ----------------------------------------------------------- transform
     def _load_dialog(self) -> None:
@@ -460,7 +474,7 @@ class ManualPanel(NudgeMixin, QScrollArea):
 
     # --------------------------------------------------------------- slots
     def _on_scans_changed(self, *_args) -> None:
-        self.pairs, self._undo, self._pending = [], [], None
+        self.pairs, self._saved, self._undo, self._pending = [], [], [], None
         self._score_cache = self._stem_cache = None
         self.set_picking(False)
         self._show_pairs()

@@ -55,7 +55,7 @@ def discard_answers(monkeypatch):
     answers = Answers()
     answers.asked = []
 
-    def answer(_parent, action: str) -> bool:
+    def answer(_parent, action: str, _lost: str) -> bool:
         answers.asked.append(action)
         return answers.pop(0) if answers else True
 

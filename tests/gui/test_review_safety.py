@@ -88,7 +88,7 @@ def test_unexported_results_are_only_dropped_when_the_user_agrees(fresh, tmp_pat
     s = fresh
     asked: list[str] = []
     answers = [False, False, False]
-    s.discard_guard = lambda action: asked.append(action) or answers.pop(0)
+    s.discard_guard = lambda action, _lost: asked.append(action) or answers.pop(0)
     assert not _run(s, s.run_all)
     fine = s.fine
     s.run_step("separate")  # refused: the result stays
@@ -153,9 +153,31 @@ def test_metrics_mark_a_stale_result(loaded_window, finish):
 def test_accepting_coarse_again_during_review_does_not_ask(fresh):
     s = fresh
     asked: list[str] = []
-    s.discard_guard = lambda action: asked.append(action) or False
+    s.discard_guard = lambda action, _lost: asked.append(action) or False
     assert not _run(s, s.accept_coarse)
     s.reject_match(s.accepted_coarse.candidate.id)
     assert not _run(s, s.accept_coarse)
     assert asked == []
     assert s.accepted_coarse.candidate.id not in s.rejected
+
+
+def test_point_pairs_not_saved_are_only_dropped_when_the_user_agrees(
+    make_main_window, sample_pair, discard_answers, tmp_path
+):
+    win = make_main_window()
+    s, panel = win.session, win.manual_panel
+    target, source, _truth = sample_pair
+    assert not _run(s, lambda: win.open_pair(target, source))
+    for k in range(3):
+        panel.add_pair(s.cloud("target").xyz[k], s.cloud("source").xyz[k])
+    discard_answers.append(False)
+    win.open_pair(target, source)  # refused: the pairs stay
+    assert discard_answers.asked == ["Opening other scans"]
+    assert len(panel.pairs) == 3
+    discard_answers.append(False)
+    assert not win.close()
+    assert len(discard_answers.asked) == 2
+    panel.save_pairs(tmp_path / "pairs.csv")
+    assert not _run(s, lambda: win.open_pair(target, source))  # saved: nothing asked
+    assert len(discard_answers.asked) == 2
+    assert panel.pairs == []
