@@ -4,8 +4,8 @@ Every file of a run is written into the output folder as one unit
 (``files.outdir.replace_files``). A folder holding another run's ``plot.json`` is
 refused unless the caller says to overwrite it. The inventory's last columns, ``mark``
 and ``dbh_hand_m``, are the technician's (``amrst.plot.review``): a run writes what
-the folder's review holds for the same scans, and :func:`write_inventory` writes the
-inventory again when the review changes.
+the folder's review holds for these scans (``review.read_review``), and
+:func:`write_inventory` writes the inventory again when the review changes.
 """
 
 from __future__ import annotations

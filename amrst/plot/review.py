@@ -1,8 +1,9 @@
 """The technician's review of a plot, kept in ``review.json`` beside the inventory.
 
 It names the scans it belongs to, by path and by content (``scan_ids``: a folder of
-scans moved or copied elsewhere keeps its review; a review of other scans is not
-applied), and holds
+scans moved or copied elsewhere keeps its review; with scans added or removed around
+the same reference it holds for the trees, whose positions are in that scan's frame;
+a review of another reference is not applied), and holds
 
 - ``marks``: ``ok`` / ``check`` / ``not a tree`` per tree id, with ``at``, where each
   marked tree's stem stood (breast height, the reference scan's local frame). A run
@@ -210,6 +211,9 @@ def without_added(review: PlotReview, tree_id: str) -> PlotReview:
 def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
     """Return the review ``out`` holds for this plot (empty: none, or other scans').
 
+    A review of scans added or removed around the same reference holds for its trees
+    and for the accepted links whose two scans are still there.
+
     Raises InvalidInput when the file cannot be read as a review.
     """
     path = out / REVIEW_JSON
@@ -247,9 +251,43 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         raise InvalidInput(
             f"{path}: a mark is not one of {', '.join(MARKS)}; fix or move the file."
         )
-    if not same_scans(scans, labels, doc.get("scan_ids")):
+    ids = doc.get("scan_ids")
+    if same_scans(scans, labels, ids):
+        return PlotReview(marks, accepted, dbh, added, at)
+    if not same_reference(scans, labels, ids):
         return PlotReview()
-    return PlotReview(marks, accepted, dbh, added, at)
+    # Scans added or removed around the same reference: positions are in its frame,
+    # so the trees' review holds; an accepted link, where both its scans still are.
+    where = [_index_in(label, _id_of(ids, k), labels) for k, label in enumerate(scans)]
+    moved: dict[LinkKey, np.ndarray] = {}
+    for (i, j), T in accepted.items():
+        a, b = (where[k] if k < len(where) else None for k in (i, j))
+        if a is not None and b is not None:
+            moved[a, b] = T
+    return PlotReview(marks, moved, dbh, added, at)
+
+
+def same_reference(a: Sequence[str], b: Sequence[str], a_ids: Any = None) -> bool:
+    """Tell whether two lists of scan labels start with the same scan (the reference).
+
+    ``a_ids`` as for :func:`same_scans`.
+    """
+    return bool(a) and bool(b) and same_scans(a[:1], b[:1], _id_of(a_ids, 0))
+
+
+def _id_of(ids: Any, k: int) -> list[Any] | None:
+    """Return the recorded id of scan ``k`` as a list of one (None: not recorded)."""
+    return [ids[k]] if isinstance(ids, list) and k < len(ids) else None
+
+
+def _index_in(
+    label: str, label_id: list[Any] | None, labels: Sequence[str]
+) -> int | None:
+    """Return where the scan ``label`` (recorded id as :func:`_id_of`) is in ``labels``."""
+    return next(
+        (k for k, other in enumerate(labels) if same_scans([label], [other], label_id)),
+        None,
+    )
 
 
 def same_scans(a: Sequence[str], b: Sequence[str], a_ids: Any = None) -> bool:

@@ -402,27 +402,34 @@ def report_job(out: Path, reporter: Reporter) -> Path:
     return write_report(out)
 
 
-def same_plot(out: Path, labels: Sequence[str]) -> bool:
-    """Tell whether ``out`` holds a plot of exactly these scans (a run again).
+#: What ``out`` holds against the scans of a run (:func:`same_plot`).
+SAME_SCANS = "same scans"
+SAME_REFERENCE = "same reference"
+
+
+def same_plot(out: Path, labels: Sequence[str]) -> str:
+    """Tell whether ``out`` holds a plot of these scans: SAME_SCANS (a run again),
+    SAME_REFERENCE (scans added or removed: the review of the trees holds), or "".
 
     Its plot.json tells; when that cannot be read, its review.json (the scans the
     technician's marks belong to, which a run keeps).
     """
     from amrst.files.safefile import load_json_file
     from amrst.plot.export import PLOT_JSON
-    from amrst.plot.review import REVIEW_JSON, same_scans
+    from amrst.plot.review import REVIEW_JSON, same_reference, same_scans
 
     # load_json_file opens regular files only: this runs on the GUI thread, which a
     # named pipe would block.
     try:
         doc = load_json_file(out / PLOT_JSON, "plot file", "plot.json")
-        scans = doc["scans"]
-        ids = [s.get("file_id") for s in scans]
-        return same_scans([s["label"] for s in scans], labels, ids)
+        theirs = [s["label"] for s in doc["scans"]]
+        ids = [s.get("file_id") for s in doc["scans"]]
     except (InvalidInput, KeyError, TypeError, AttributeError):
-        pass
-    try:
-        review = load_json_file(out / REVIEW_JSON, "review file", "review.json")
-        return same_scans(review["scans"], labels, review.get("scan_ids"))
-    except (InvalidInput, KeyError, TypeError, AttributeError):
-        return False
+        try:
+            review = load_json_file(out / REVIEW_JSON, "review file", "review.json")
+            theirs, ids = list(review["scans"]), review.get("scan_ids")
+        except (InvalidInput, KeyError, TypeError, AttributeError):
+            return ""
+    if same_scans(theirs, labels, ids):
+        return SAME_SCANS
+    return SAME_REFERENCE if same_reference(theirs, labels, ids) else ""

@@ -1097,11 +1097,15 @@ class PlotWindow(QMainWindow):
                 "replaces or removes them. Go on?"
             )
             return True if confirm(self, "Replace those files?", text) else None
-        same = jobs.same_plot(out, self.specs)
-        what = (
-            "a plot of these scans (its marks are kept: tree ids stay the same)"
-            if same
-            else "ANOTHER plot (other scans; its marks no longer apply)"
+        what = {
+            jobs.SAME_SCANS: "a plot of these scans (your review of it is kept)",
+            jobs.SAME_REFERENCE: (
+                "a plot of the same reference with other scans (your review of its "
+                "trees is kept)"
+            ),
+        }.get(
+            jobs.same_plot(out, self.specs),
+            "ANOTHER plot (another reference scan; its review no longer applies)",
         )
         text = f"{out} holds {what}. Replace its files with this run's?"
         if (out / PLOT_CLOUD).exists() and not self.cloud_check.isChecked():

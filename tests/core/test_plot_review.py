@@ -55,7 +55,34 @@ def test_the_review_is_written_and_read_back(tmp_path):
 def test_a_review_of_other_scans_is_not_applied(tmp_path):
     write_review(tmp_path, LABELS, PlotReview({"T001": "ok"}, {(0, 1): np.eye(4)}))
     assert read_review(tmp_path, ["/plots/c.ply", "/plots/b.ply"]) == PlotReview()
+    assert read_review(tmp_path, LABELS[::-1]) == PlotReview()  # another reference
     assert read_review(tmp_path / "none", LABELS) == PlotReview()
+
+
+def test_a_review_holds_with_scans_removed_or_added_around_its_reference(tmp_path):
+    a, b, c, d = (f"/plots/{n}.ply" for n in "abcd")
+    review = PlotReview(
+        {"T001": "ok", "T002": "check"},
+        {(0, 1): _turned(10.0), (1, 2): _turned(20.0), (0, 2): _turned(30.0)},
+        {"T002": HandCircle((4.5, -2.25), 0.315)},
+        added={"H001": (1.5, -3.25)},
+        at={"T001": (1.0, 2.0), "T002": (4.5, -2.25)},
+    )
+    write_review(tmp_path, [a, b, c], review)
+    # b removed: the trees' review holds; a-c is now link (0, 1); links of b go.
+    held = read_review(tmp_path, [a, c])
+    assert (held.marks, held.dbh, held.added, held.at) == (
+        review.marks,
+        review.dbh,
+        review.added,
+        review.at,
+    )
+    assert list(held.accepted) == [(0, 1)]
+    assert np.array_equal(held.accepted[0, 1], _turned(30.0))
+    # d added between: every link keeps its two scans.
+    held = read_review(tmp_path, [a, d, b, c])
+    assert sorted(held.accepted) == [(0, 2), (0, 3), (2, 3)]
+    assert np.array_equal(held.accepted[2, 3], _turned(20.0))
 
 
 @pytest.mark.parametrize(
@@ -162,7 +189,7 @@ def test_the_app_s_review_holds_for_the_same_files_typed_as_relative_paths(
     monkeypatch.chdir(tmp_path / "..")
     typed = [f"{tmp_path.name}/s/a.ply", f"./{tmp_path.name}/s/../s/b.e57#1"]
     assert read_review(tmp_path, typed).marks == {"T001": "ok"}
-    assert read_review(tmp_path, [typed[0], typed[1][:-1] + "0"]) == PlotReview()
+    assert read_review(tmp_path, [typed[1], typed[0]]) == PlotReview()
 
 
 def test_a_review_holds_for_its_scans_moved_but_not_for_other_scans(tmp_path):
@@ -180,7 +207,10 @@ def test_a_review_holds_for_its_scans_moved_but_not_for_other_scans(tmp_path):
     assert read_review(tmp_path, moved).marks == {"T001": "ok", "T002": "check"}
     write_review(tmp_path, labels, PlotReview({"T001": "ok"}))
     assert read_review(tmp_path, moved).marks == {"T001": "ok"}
-    assert read_review(tmp_path, [moved[0], moved[1][:-1] + "0"]) == PlotReview()
+    # Another second scan around the same reference: the trees' review holds.
+    assert read_review(tmp_path, [moved[0], moved[1][:-1] + "0"]).marks == {
+        "T001": "ok"
+    }
     # The same names holding other points are other scans.
     (office / "a.ply").write_bytes(b"ply\n" + bytes(range(256)) * 601)
     assert read_review(tmp_path, moved) == PlotReview()

@@ -1315,6 +1315,42 @@ def test_a_scan_is_removed_from_the_plot_and_two_stay(
     assert "scan_2.ply is the reference now (S1)" in plot.status.text()
 
 
+def test_marks_hold_when_a_scan_is_removed_and_the_plot_run_again(
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst import io
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.window import PlotWindow
+
+    third = tmp_path / "scan_3.ply"  # a third position, in the reference's frame
+    io.write(third, Cloud(scan((1.0, -6.0), STEMS, 3)))
+    out = tmp_path / "out"
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans([*plot_files, str(third)], out)
+    _run(qtbot, plot)
+    marks = {
+        plot.outcome.trees[0].tree_id: "ok",
+        plot.outcome.trees[1].tree_id: "check",
+    }
+    for tree_id, mark in marks.items():
+        plot.set_mark(tree_id, mark)
+    asked: list[str] = []
+    monkeypatch.setattr(
+        plot_window, "confirm", lambda _p, _t, text: asked.append(text) or True
+    )
+    plot.scan_list.setCurrentRow(2)
+    plot.remove_button.click()
+    _run(qtbot, plot)
+    assert "same reference with other scans" in asked[0]
+    assert plot.review.marks == marks  # shown, and kept by the next mark
+    plot.set_mark(plot.outcome.trees[2].tree_id, "ok")
+    assert len(read_review(out, plot.outcome.labels).marks) == 3
+
+
 def test_results_whose_scan_was_moved_open_and_say_so(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
@@ -1340,10 +1376,13 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)  # shown from its results
     # Opened again from where it is now, it is the same plot: a run keeps the marks.
-    from amrst_gui.plot.jobs import same_plot
+    from amrst_gui.plot.jobs import SAME_REFERENCE, SAME_SCANS, same_plot
 
-    assert same_plot(out, [str(scans[0]), str(tmp_path / "elsewhere.ply")])
-    assert not same_plot(out, [str(scans[0]), str(scans[0])])
+    assert (
+        same_plot(out, [str(scans[0]), str(tmp_path / "elsewhere.ply")]) == SAME_SCANS
+    )
+    assert same_plot(out, [str(scans[0]), str(scans[0])]) == SAME_REFERENCE
+    assert same_plot(out, [str(tmp_path / "elsewhere.ply"), str(scans[0])]) == ""
 
 
 def test_a_plot_whose_plot_json_is_lost_is_known_by_its_review(
@@ -1352,15 +1391,15 @@ def test_a_plot_whose_plot_json_is_lost_is_known_by_its_review(
     import os
 
     from amrst.plot.review import PlotReview, write_review
-    from amrst_gui.plot.jobs import same_plot
+    from amrst_gui.plot.jobs import SAME_SCANS, same_plot
 
     out = tmp_path / "out"
     out.mkdir()
     labels = [str(Path(f).resolve()) for f in plot_files]
     write_review(out, labels, PlotReview(marks={"T001": "ok"}))
     (out / "plot.json").write_text('{"scans": [')  # cut short
-    assert same_plot(out, labels)  # the marks' scans: a run of these keeps them
+    assert same_plot(out, labels) == SAME_SCANS  # a run of these keeps the marks
     assert not same_plot(out, labels[::-1])
     (out / "plot.json").unlink()
     os.mkfifo(out / "plot.json")  # read on the GUI thread: never blocks it
-    assert same_plot(out, labels)
+    assert same_plot(out, labels) == SAME_SCANS
