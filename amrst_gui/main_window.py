@@ -301,21 +301,24 @@ class MainWindow(QMainWindow):
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
-            self.plot_window.pair_chosen.connect(self.open_plot_pair)
+            self.plot_window.open_pair_in = self.open_plot_pair
         self.plot_window.show()
         self.plot_window.raise_()
         return self.plot_window
 
     def open_plot_pair(
         self, target: str, source: str, stored: StoredLinkResult | None
-    ) -> None:
+    ) -> str:
         """Open two scans of the plot at their link's pose (``stored``; None: none),
-        the Manual pose dock in front."""
-        self.session.load_stored(target, source, stored, plot=True)  # no registration
+        the Manual pose dock in front; return "" or why they are not opened."""
+        why = self.session.load_stored(target, source, stored, plot=True)
+        if why:
+            return why
         self.docks["manual"].show()
         self.docks["manual"].raise_()
         self.raise_()
         self.activateWindow()
+        return ""
 
     def about_dialog(self) -> None:
         dialogs.AboutDialog(self).open()

@@ -387,7 +387,7 @@ class Session(QObject):
     # ------------------------------------------------------------------ steps
     def run_step(self, step: str, auto: bool = False) -> None:
         """Run ``step`` and whatever earlier step is missing or stale, in order."""
-        if self._refuse_if_busy(steps.plain_label(step)):
+        if self._refuse_if_busy(f"run {steps.plain_label(step)}"):
             return
         if not self.has_scans:
             self._fail("Open a target and a source scan first (File > Open).")
@@ -464,26 +464,30 @@ class Session(QObject):
         self._stop_unverified = False
         self.runner.run([*chain, "manual"])
 
-    def _start_load(self, paths: dict[str, Path], plot: bool = False) -> None:
-        if self._refuse_if_busy("open scans"):
-            return
+    def _start_load(self, paths: dict[str, Path], plot: bool = False) -> str:
+        """Start reading the scans of ``paths``; return "" or why not."""
+        why = self._busy_text("open scans")
         for path in paths.values():
+            if why:
+                break
             if path.is_dir():
-                self._fail(
+                why = (
                     f"{path} is a folder, not a point-cloud file: open or drop the "
                     "scan files themselves."
                 )
-                return
             # Anything else that is there (a FIFO, a broken link) the reader names.
-            if not os.path.lexists(path) and not jobs.is_scan_spec(path):  # p.e57#2
-                self._fail(f"The file {path} does not exist.")
-                return
+            elif not os.path.lexists(path) and not jobs.is_scan_spec(path):  # p.e57#2
+                why = f"The file {path} does not exist."
+        if why:
+            self._fail(why)
+            return why
         if not self.may_discard("Opening other scans"):
-            return
+            return "you kept what was open"
         self._truth_at_load = self._truth
         self._pending_paths = dict(paths)
         self._pending_plot = plot
         self._launch("load", jobs.load_pair, paths, alone=True)
+        return ""
 
     # ----------------------------------------------------------- job running
     def _launch(self, step: str, fn, *args, alone: bool = False) -> None:
@@ -594,11 +598,20 @@ class Session(QObject):
         return steps.plain_label(step) if step in steps.LABELS else step
 
     def _refuse_if_busy(self, what: str) -> bool:
+        """Say why ``what`` cannot start while a step runs; False when none runs."""
+        why = self._busy_text(what)
+        if why:
+            self._fail(why)
+        return bool(why)
+
+    def _busy_text(self, what: str) -> str:
+        """Why ``what`` (a verb phrase) cannot start now, or "" when it can."""
         if not self.runner.busy:
-            return False
+            return ""
         running = self._label(self.running_step or "a step")
-        self._fail(f"Cannot {what} while {running} runs; wait or cancel it first.")
-        return True
+        if what == f"run {running}":
+            return f"{running} is running already; wait for it or cancel it (Esc)."
+        return f"Cannot {what} while {running} runs; wait or cancel it first."
 
     def _fail(self, message: str) -> None:
         log.error(message)
@@ -1333,18 +1346,19 @@ class Session(QObject):
         stored: StoredLinkResult | None,
         *,
         plot: bool = False,
-    ) -> None:
+    ) -> str:
         """Read both scans (a worker job), then show ``stored`` as their result.
 
         ``stored`` None loads the scans alone (a link with no stored pose); ``plot``:
-        two scans of a forest plot.
+        two scans of a forest plot. Returns "" or why they are not read.
         """
         from pathlib import Path
 
         self._pending_stored = stored
-        self._start_load({"target": Path(target), "source": Path(source)}, plot)
-        if self.runner.running_step != "load":  # refused: nothing pending
+        why = self._start_load({"target": Path(target), "source": Path(source)}, plot)
+        if why:  # nothing pending
             self._pending_stored = None
+        return why
 
     @property
     def stored(self) -> StoredLinkResult | None:

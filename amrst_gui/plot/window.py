@@ -11,9 +11,10 @@ made (``amrst.plot.review``); the window shows the run as that review leaves it
 (``jobs.reviewed``). ``open_results(folder)`` shows a plot written before (by
 the app or ``amrst plot``) the same way, without running it.
 
-A link is checked and placed by hand: **Open pair** emits ``pair_chosen(scan i, scan
-j, its pose as a stored result or None)`` so the main window shows the two scans at
-the link's pose (overlay, verdict), where the Manual pose dock picks point pairs and
+A link is checked and placed by hand: **Open pair** calls ``open_pair_in(scan i, scan
+j, its pose as a stored result or None)`` (the main window sets it; it returns "" or
+why the scans were not opened), so the main window shows the two scans at the link's
+pose (overlay, verdict), where the Manual pose dock picks point pairs and
 saves them as a CSV; **Use pairs…** takes that file for the selected link, and the
 next run places the link from it (``amrst plot --pairs``). A link that needs review
 and looks right is accepted at its pose (**Accept**, asked first); the scans it places
@@ -84,6 +85,9 @@ from amrst_gui.plot.tables import (
 from amrst_gui.plot.tree import TreePanel
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from amrst.campaign.stored import StoredLinkResult
     from amrst.plot.review import HandCircle
     from amrst_gui.plot.jobs import LinkLine, PlotOutcome
     from amrst_gui.workers import StageJob
@@ -171,7 +175,6 @@ class PlotWindow(QMainWindow):
     a results folder's plot shows."""
 
     plot_done = Signal(object)
-    pair_chosen = Signal(str, str, object)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -193,6 +196,10 @@ class PlotWindow(QMainWindow):
         # plot.json as the plot shown was read: a run from elsewhere into the same
         # folder changes it, and the window then writes nothing over that run.
         self.shown_stamp: tuple[int, int] | None = None
+        # Opens a link's two scans in the main window; returns "" or why not.
+        self.open_pair_in: Callable[[str, str, StoredLinkResult | None], str] | None = (
+            None
+        )
         self.job: StageJob | None = None
         self.report_job: StageJob | None = None
         self.listing = False  # the job lists the scans of a file of several
@@ -737,7 +744,12 @@ class PlotWindow(QMainWindow):
         if line is None:
             return
         i, j = line.target, line.source
-        self.pair_chosen.emit(self.specs[i], self.specs[j], jobs.stored_link(line))
+        if self.open_pair_in is None:
+            return
+        why = self.open_pair_in(self.specs[i], self.specs[j], jobs.stored_link(line))
+        if why:
+            self._say(f"S{i + 1} and S{j + 1} are not open: {why}", error=True)
+            return
         at = "at the link's pose" if line.T_world is not None else "(no pose)"
         self._say(
             f"S{i + 1} (target) and S{j + 1} (source) are open in the main window "

@@ -627,6 +627,13 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
         plot.open_button.click()
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
     assert session.plot_pair
+    # The main window refuses while it runs a step: the plot window says so.
+    session.run_step("separate")
+    assert session.busy
+    plot.open_button.click()
+    assert plot.status.text().startswith("S1 and S2 are not open: Cannot open scans")
+    session.cancel()
+    qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
 
     # Four stem points picked in both scans (the source's under its true pose).
     picked = np.array([(x, y, 1.0) for x, y, *_ in STEMS[:4]])

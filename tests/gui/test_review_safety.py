@@ -181,3 +181,13 @@ def test_point_pairs_not_saved_are_only_dropped_when_the_user_agrees(
     assert not _run(s, lambda: win.open_pair(target, source))  # saved: nothing asked
     assert len(discard_answers.asked) == 2
     assert panel.pairs == []
+
+
+def test_a_step_asked_for_twice_runs_once_and_says_so(fresh):
+    from amrst_gui.steps import plain_label
+
+    s = fresh
+    errors = _run(s, lambda: (s.run_step("separate"), s.run_step("separate")))
+    assert errors == [
+        f"{plain_label('separate')} is running already; wait for it or cancel it (Esc)."
+    ]
