@@ -490,7 +490,14 @@ class MainWindow(QMainWindow):
 
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views."""
-        if not self._closed and not self.session.may_discard("Closing AMRST Studio"):
+        if not self._closed and not (
+            self.session.may_discard("Closing AMRST Studio")
+            and (
+                self.plot_window is None
+                or not self.plot_window.isVisible()
+                or self.plot_window.may_close()
+            )
+        ):
             event.ignore()
             return
         if not self._closed:

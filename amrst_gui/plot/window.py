@@ -150,6 +150,28 @@ def _stamp(out: Path) -> tuple[int, int] | None:
     return st.st_mtime_ns, st.st_size
 
 
+def _run_choices(
+    o: PlotOutcome,
+) -> tuple[
+    set[tuple[int, int]],
+    dict[tuple[int, int], str],
+    dict[int, tuple[float, float, float]],
+]:
+    """The links a run left out, placed from point pairs, and the scanners given."""
+    from amrst.plot.register import LEFT_OUT_ORIGIN
+
+    return (
+        {ln.key for ln in o.links if ln.origin == LEFT_OUT_ORIGIN},
+        {ln.pairs[0]: ln.pairs[1] for ln in o.links if ln.pairs},
+        {k: s.given for k, s in enumerate(o.scans) if s.given is not None},
+    )
+
+
+def ask_close(parent: QWidget, text: str) -> bool:
+    """Ask whether the Plot window may close although ``text`` says what it drops."""
+    return confirm(parent, "Close the plot window?", text)
+
+
 def confirm(parent: QWidget, title: str, text: str) -> bool:
     """Ask Yes / Cancel (Cancel the default); tests answer it themselves."""
     answer = QMessageBox.question(
@@ -193,6 +215,7 @@ class PlotWindow(QMainWindow):
         # (the scan file's coordinates); the next run takes it
         self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
+        self._close_agreed = False  # the user let the window close with choices unrun
         # plot.json as the plot shown was read: a run from elsewhere into the same
         # folder changes it, and the window then writes nothing over that run.
         self.shown_stamp: tuple[int, int] | None = None
@@ -1132,8 +1155,6 @@ class PlotWindow(QMainWindow):
             self._say(f"Running: {message}")
 
     def _on_result(self, outcome: PlotOutcome, opened: bool = False) -> None:
-        from amrst.plot.register import LEFT_OUT_ORIGIN
-
         self.job = None
         self._show_busy()
         self.found = outcome
@@ -1153,11 +1174,7 @@ class PlotWindow(QMainWindow):
             widget.blockSignals(False)
         self._on_radius(self.radius_spin.value())
         # What placed each link carries on to the next run.
-        self.left_out = {ln.key for ln in outcome.links if ln.origin == LEFT_OUT_ORIGIN}
-        self.hand_pairs = {ln.pairs[0]: ln.pairs[1] for ln in outcome.links if ln.pairs}
-        self.given_scanners = {
-            k: s.given for k, s in enumerate(outcome.scans) if s.given is not None
-        }
+        self.left_out, self.hand_pairs, self.given_scanners = _run_choices(outcome)
         try:
             review, self.review_error = read_review(outcome.out, outcome.labels), None
         except AmrstError as exc:
@@ -1440,7 +1457,32 @@ class PlotWindow(QMainWindow):
         self.status.setStyleSheet(ERROR_STYLE if error else "")
         (log.warning if error else log.info)("%s", text)
 
+    def pending_choices(self) -> str:
+        """Say what was chosen for the next run and not run yet ("" for nothing)."""
+        o = self.found
+        ran = o is not None and list(o.labels) == self.specs
+        then = _run_choices(o) if ran and o is not None else (set(), {}, {})
+        now = (self.left_out, self.hand_pairs, self.given_scanners)
+        names = ("links left out", "links placed from point pairs", "scanner positions")
+        return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
+
+    def may_close(self) -> bool:
+        """Ask before closing drops what was chosen for the next run; True: close."""
+        pending = self.pending_choices()
+        if pending and not self._close_agreed:
+            self._close_agreed = ask_close(
+                self,
+                f"The {pending} you chose are not run yet: Run plot takes them; "
+                "closing the window drops them. Close it anyway?",
+            )
+            return self._close_agreed
+        return True
+
     def closeEvent(self, event) -> None:
-        """Closing the window drops a running plot."""
+        """Closing the window (asked first, :meth:`may_close`) drops a running plot."""
+        if not self.may_close():
+            event.ignore()
+            return
+        self._close_agreed = False
         self.shutdown()
         super().closeEvent(event)

@@ -87,6 +87,26 @@ def override_answers(monkeypatch):
 
 
 @pytest.fixture(autouse=True)
+def close_answers(monkeypatch):
+    """The Plot window's question before it closes with choices not run answers Close
+    (True) unless False is appended; each question is in ``close_answers.asked``."""
+    from amrst_gui.plot import window
+
+    class Answers(list):
+        asked: list[str]
+
+    answers = Answers()
+    answers.asked = []
+
+    def answer(_parent, text: str) -> bool:
+        answers.asked.append(text)
+        return answers.pop(0) if answers else True
+
+    monkeypatch.setattr(window, "ask_close", answer)
+    return answers
+
+
+@pytest.fixture(autouse=True)
 def replace_answers(monkeypatch):
     """The question before replacing another pair's export never blocks: it
     answers from this list (True: Replace); each folder asked about is recorded in

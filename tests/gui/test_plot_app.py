@@ -918,6 +918,62 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
     assert by.text() == "stems"
 
 
+def test_closing_the_plot_window_asks_when_choices_were_not_run(
+    qtbot: QtBot, tmp_path: Path, close_answers: list
+) -> None:
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
+
+    plot = plot_window.PlotWindow()
+    qtbot.addWidget(plot)
+    line = LinkLine(0, 1, "registered", False, True, "stems", 0.4, 0.02, 5, "")
+    scans = (
+        ScanPlace("a.ply", np.zeros(2), 5, "registered"),
+        ScanPlace("b.ply", np.ones(2), 5, "registered"),
+    )
+    found = PlotOutcome(
+        tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
+    )
+    plot.open_scans(["a.ply", "b.ply"], tmp_path)
+    plot._on_result(found)
+    plot.show()
+    assert plot.pending_choices() == ""
+    plot.links.selectRow(0)
+    plot.leave_button.click()
+    plot.scan_list.setCurrentRow(1)
+    plot.set_scanner("1 2 0")
+    assert plot.pending_choices() == "links left out, scanner positions"
+    close_answers.append(False)
+    assert not plot.close()
+    assert plot.isVisible()
+    assert plot.left_out == {(0, 1)}
+    assert "links left out, scanner positions you chose" in close_answers.asked[0]
+    assert plot.close()  # answered Close
+    assert len(close_answers.asked) == 2
+    plot.show()
+    plot.leave_button.click()  # taken in again: only the scanner is not run
+    assert plot.pending_choices() == "scanner positions"
+
+
+def test_closing_the_app_asks_the_plot_window_first(
+    make_main_window: Callable[..., MainWindow],
+    plot_files: list[str],
+    tmp_path: Path,
+    close_answers: list,
+) -> None:
+    win = make_main_window()
+    plot = win.open_plot(plot_files, tmp_path / "out")
+    plot.scan_list.setCurrentRow(1)
+    plot.set_scanner("1 2 0")
+    close_answers.append(False)
+    assert not win.close()
+    assert win.isVisible()
+    assert plot.isVisible()
+    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert win.close()
+    assert len(close_answers.asked) == 2  # asked once more, not again by the window
+
+
 def test_the_plot_run_leaves_out_the_links_the_window_names(
     plot_files: list[str], tmp_path: Path
 ) -> None:
