@@ -36,7 +36,7 @@ from amrst.progress import NULL_REPORTER
 from amrst_gui import wire
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterator
 
     from amrst.progress import Reporter
 
@@ -80,6 +80,7 @@ class EngineProcess:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
+        self._holder = "another job"  # what the last call was, as a waiting one says
         self._proc: subprocess.Popen[bytes] | None = None
         self._writer: _Writer | None = None
         self._cache = wire.ArrayCache(weak=True, first_token=0)
@@ -128,14 +129,16 @@ class EngineProcess:
         *args: Any,
         reporter: Reporter,
         stoppable: bool = True,
+        what: str = "another job",
         **kwargs: Any,
     ) -> Any:
         """``fn(*args, reporter, **kwargs)`` in the engine process; raises what it
         raised, and ``Cancelled`` within ``POLL_S`` of a Cancel. A call that is
         not ``stoppable`` (Export: it writes files) runs to its end whatever
-        Cancel says, as it did in the app's thread."""
+        Cancel says, as it did in the app's thread. ``what`` names the call to one
+        that waits for it (the other window's)."""
         watch = reporter if stoppable else NULL_REPORTER
-        with self._lock:
+        with self._turn(reporter, watch, what):
             watch.check_cancelled()
             try:
                 proc = self._ensure()
@@ -180,6 +183,20 @@ class EngineProcess:
             with contextlib.suppress(AttributeError, TypeError):
                 error.__traceback_text__ = text
             raise error
+
+    @contextlib.contextmanager
+    def _turn(self, reporter: Reporter, watch: Reporter, what: str) -> Iterator[None]:
+        """Hold the process for one call; while another holds it, say whose turn it
+        is on ``reporter`` and heed ``watch``'s Cancel."""
+        if not self._lock.acquire(blocking=False):
+            reporter.progress(0.0, f"Waiting for {self._holder} to end…")
+            while not self._lock.acquire(timeout=POLL_S):
+                watch.check_cancelled()
+        self._holder = what
+        try:
+            yield
+        finally:
+            self._lock.release()
 
     def trim(self) -> None:
         """Tell an idle engine process which arrays the app still holds, so it
@@ -265,14 +282,19 @@ ENGINE = EngineProcess()
 atexit.register(ENGINE.stop)
 
 
-def in_engine(fn: Callable[..., Any], stoppable: bool = True) -> Callable[..., Any]:
+def in_engine(
+    fn: Callable[..., Any], stoppable: bool = True, what: str = "another job"
+) -> Callable[..., Any]:
     """``fn`` (called as ``fn(*args, reporter, **kwargs)``) run in the engine
-    process: the form ``workers.run_stage`` calls."""
+    process: the form ``workers.run_stage`` calls. ``what`` names it to a job that
+    waits for it."""
 
     def run(*args: Any, **kwargs: Any) -> Any:
         *inputs, reporter = args
         start = time.perf_counter()
-        out = ENGINE.call(fn, *inputs, reporter=reporter, stoppable=stoppable, **kwargs)
+        out = ENGINE.call(
+            fn, *inputs, reporter=reporter, stoppable=stoppable, what=what, **kwargs
+        )
         log.debug("%s in the engine process: %.2f s", fn, time.perf_counter() - start)
         return out
 

@@ -95,7 +95,11 @@ class StepRunner:
         """Run ``fn(*args, reporter)`` as ``step``'s job (in the engine process
         for the engine's steps); its result goes to the host."""
         if step in ENGINE_STEPS:  # their GIL would stall the window
-            fn = engine_process.in_engine(fn, step not in steps.UNSTOPPABLE)
+            fn = engine_process.in_engine(
+                fn,
+                step not in steps.UNSTOPPABLE,
+                f"{steps.plain_label(step)} in the main window",
+            )
         self.job = workers.run_stage(
             fn,
             *args,

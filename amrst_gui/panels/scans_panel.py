@@ -110,7 +110,7 @@ class _RoleBox(FileDropMixin, QGroupBox):
                 self.setToolTip(text or "Drop a scan file here to replace it")
 
         self._describing = workers.run_stage(
-            engine_process.in_engine(jobs.describe_scan),
+            engine_process.in_engine(jobs.describe_scan, what="a scan's description"),
             cloud,
             name=f"describe {self.role}",
             on_result=done,

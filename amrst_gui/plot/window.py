@@ -499,7 +499,9 @@ class PlotWindow(QMainWindow):
             self._say("Listing the scans of the files…")
             self.listing = True
             self.job = workers.run_stage(
-                engine_process.in_engine(jobs.scan_specs),
+                engine_process.in_engine(
+                    jobs.scan_specs, what="the Plot window's listing of scans"
+                ),
                 [str(p) for p in paths],
                 name="list scans",
                 on_result=self._scans_listed,
@@ -708,7 +710,9 @@ class PlotWindow(QMainWindow):
         self.progress.setValue(0)
         self._say("Running the plot…")
         self.job = workers.run_stage(
-            engine_process.in_engine(jobs.run_plot),
+            engine_process.in_engine(
+                jobs.run_plot, what="the plot run in the Plot window"
+            ),
             list(self.specs),
             out,
             overwrite,

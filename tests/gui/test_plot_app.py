@@ -541,6 +541,39 @@ def test_closing_the_app_cancels_a_plot_run_rather_than_waiting_for_it(
     assert not (out / PLOT_JSON).exists()
 
 
+def test_a_step_waiting_for_the_plot_run_says_so_and_cancels(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+) -> None:
+    win = make_main_window()
+    session = win.session
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        win.open_pair(*plot_files)
+    qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
+    said: list[str] = []
+    session.progressed.connect(lambda _f, text: said.append(text))
+    plot = win.open_plot(plot_files, tmp_path / "out")
+    plot.run()
+    qtbot.waitUntil(  # its turn in the engine process (the scans' descriptions end)
+        lambda: (
+            plot.status.text().startswith("Running: ")
+            and "Waiting" not in plot.status.text()
+        ),
+        timeout=30_000,
+    )
+    assert plot.busy
+    session.run_step("separate")  # one engine process: it waits its turn
+    qtbot.waitUntil(lambda: bool(said), timeout=10_000)
+    assert said[0] == "Waiting for the plot run in the Plot window to end…"
+    session.cancel()
+    qtbot.waitUntil(lambda: not session.busy, timeout=10_000)
+    assert plot.busy or plot.outcome is not None  # the plot went on
+    qtbot.waitUntil(lambda: not plot.busy, timeout=120_000)
+    assert plot.outcome is not None
+
+
 def test_the_command_line_opens_a_plot() -> None:
     from amrst_gui.__main__ import parse_args
 
