@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -52,9 +51,10 @@ def test_a_chunked_read_is_the_whole_file(tmp_path) -> None:
 
 
 @pytest.mark.slow
-def test_cancel_stops_a_laz_read_within_a_second(big_laz) -> None:
+def test_cancel_stops_a_laz_read_at_its_next_chunk(big_laz) -> None:
     started = threading.Event()
-    reporter = EventReporter(lambda _f, _m: started.set())
+    read_so_far: list[float] = []
+    reporter = EventReporter(lambda f, _m: (read_so_far.append(f), started.set()))
     outcome: dict = {}
 
     def read() -> None:
@@ -62,18 +62,17 @@ def test_cancel_stops_a_laz_read_within_a_second(big_laz) -> None:
             outcome["cloud"] = io.read(big_laz, reporter=reporter)
         except Cancelled as exc:
             outcome["cancelled"] = exc
-        outcome["t"] = time.perf_counter()
 
     worker = threading.Thread(target=read)
     worker.start()
     assert started.wait(60), "no chunk was ever read"
-    cancel_at = time.perf_counter()
     reporter.cancel()
+    at_cancel = len(read_so_far)
     worker.join(30)
     assert "cancelled" in outcome
     assert "cloud" not in outcome
-    latency = outcome["t"] - cancel_at
-    assert latency < 1.0, f"the read went on {latency:.2f} s after Cancel"
+    assert len(read_so_far) - at_cancel <= 1  # the chunk being read, no more
+    assert max(read_so_far) < 1.0
 
 
 class _InterruptedStream:

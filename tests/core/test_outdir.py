@@ -15,7 +15,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -263,10 +262,8 @@ def test_the_lock_of_a_dead_holder_is_taken_at_once(tmp_path: Path) -> None:
     )
     assert proc.returncode == -signal.SIGKILL
     assert (tmp_path / ".amrst-lock").is_file()  # left behind, naming a dead pid
-    start = time.monotonic()
-    with FolderLock(tmp_path, timeout_s=0):
+    with FolderLock(tmp_path, timeout_s=0):  # no wait: a held lock would raise
         pass
-    assert time.monotonic() - start < 1.0
     assert not (tmp_path / ".amrst-lock").exists()
 
 

@@ -10,7 +10,6 @@ written to a temporary folder: nothing big is shipped.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -154,14 +153,14 @@ def cancel_pair(tmp_path_factory):
     return write_dense_pair(tmp_path_factory.mktemp("cancel"), *(CANCEL_POINTS,) * 2)
 
 
-def _cancel_when(qtbot, s, step: str, trigger, when) -> float:
-    """Start ``step``, call Cancel from the progress signal once ``when(message)``
-    holds, and return the seconds from Cancel until the app is idle."""
-    marks: dict[str, float] = {}
+def _cancel_when(qtbot, s, step: str, trigger, when) -> None:
+    """Start ``step`` and call Cancel from the progress signal once ``when(message)``
+    holds; return when the app is idle."""
+    marks: dict[str, bool] = {}
 
     def on_progress(_fraction: float, message: str) -> None:
         if "cancel" not in marks and s.running_step == step and when(message):
-            marks["cancel"] = time.perf_counter()
+            marks["cancel"] = True
             s.cancel()
 
     s.progressed.connect(on_progress)
@@ -172,11 +171,10 @@ def _cancel_when(qtbot, s, step: str, trigger, when) -> float:
     finally:
         s.progressed.disconnect(on_progress)
     assert "cancel" in marks, f"{step} never reported the progress to cancel at"
-    return time.perf_counter() - marks["cancel"]
 
 
 @pytest.mark.slow
-def test_every_long_step_stops_soon_after_cancel_and_keeps_nothing(
+def test_every_long_step_stops_on_cancel_and_keeps_nothing(
     make_main_window, qtbot, finish, cancel_pair
 ):
     """Accept coarse and Fine are cancelled while they measure the tree, where
@@ -186,31 +184,27 @@ def test_every_long_step_stops_soon_after_cancel_and_keeps_nothing(
     with qtbot.waitSignals([s.scan_loaded] * 2, timeout=120_000):
         win.open_pair(*cancel_pair)
     qtbot.waitUntil(lambda: not s.busy, timeout=60_000)
-    latency = {}
-
-    latency["separate"] = _cancel_when(
-        qtbot, s, "separate", a.separate.trigger, lambda m: True
-    )
+    _cancel_when(qtbot, s, "separate", a.separate.trigger, lambda m: True)
     assert s.analysis("target") is None
     assert not s.is_done("separate")
 
     finish(s, a.separate.trigger, "separation_finished", timeout=300_000)
     finish(s, a.skeleton.trigger, "skeletons_finished", timeout=300_000)
     analyses = s.analysis("target")
-    latency["match"] = _cancel_when(qtbot, s, "match", a.match.trigger, lambda m: True)
+    _cancel_when(qtbot, s, "match", a.match.trigger, lambda m: True)
     assert not s.matches
     finish(s, a.match.trigger, "matches_changed", timeout=300_000)
     assert s.coarse is not None, s.coarse_message
 
     # Accept coarse and Fine at their tree measurements, where they did not stop.
-    latency["coarse"] = _cancel_when(
+    _cancel_when(
         qtbot, s, "coarse", s.accept_coarse, lambda m: "Measuring the tree" in m
     )
     assert s.accepted_coarse is None
     assert not s.is_done("coarse")
     finish(s, s.accept_coarse, "coarse_accepted", timeout=300_000)
     accepted = s.accepted_coarse
-    latency["fine"] = _cancel_when(
+    _cancel_when(
         qtbot, s, "fine", lambda: s.run_step("fine"), lambda m: "Measuring" in m
     )
     assert s.fine is None
@@ -218,6 +212,3 @@ def test_every_long_step_stops_soon_after_cancel_and_keeps_nothing(
     # Earlier results are kept.
     assert s.accepted_coarse is accepted
     assert s.analysis("target") is analyses
-    # A generous guard; the benchmark has the figures.
-    slow = {k: round(v, 2) for k, v in latency.items() if v > 2.0}
-    assert not slow, f"Cancel took over 2 s: {slow}"

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -42,9 +41,8 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     _campaign(tmp_path)
     panel = CampaignPanel(workers=1)
     qtbot.addWidget(panel)
-    t0 = time.perf_counter()
     assert panel.open_campaign(tmp_path)
-    assert time.perf_counter() - t0 < 2.0  # reads files, never registers
+    assert panel.job is None  # reads files, never registers
     assert [(r["tree_id"], r["state"]) for r in panel.rows] == [
         ("T03", "registered"),
         ("T01", "not run"),

@@ -7,7 +7,6 @@ The files are generated here (jittered copies of the bundled sample, seeded).
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -45,23 +44,16 @@ def test_cancel_stops_loading_a_big_pair_and_keeps_nothing(
 
     def on_progress(_fraction: float, message: str) -> None:
         # Cancel once the first chunk of points was read: mid-file.
-        if "cancel" not in marks and "points read" in message:
+        if "job" not in marks and "points read" in message:
             marks["job"] = s.runner.job
-            marks["cancel"] = time.perf_counter()
             s.cancel()
 
     s.progressed.connect(on_progress)
     with qtbot.waitSignal(s.cancelled, timeout=120_000):
         win.open_pair(*big_laz_pair)
-    idle = time.perf_counter() - marks["cancel"]
     qtbot.waitUntil(lambda: not s.busy, timeout=5_000)
     # The reading itself stops (the worker thread returns), not only the job.
     qtbot.waitUntil(marks["job"].worker_done.is_set, timeout=30_000)
-    stopped = time.perf_counter() - marks["cancel"]
-    # Generous guards: the app answers within workers.CANCEL_GRACE_S, and the
-    # reading stops at its next chunk (the benchmark has the figures).
-    assert idle < 2.0, f"the app was busy {idle:.2f} s after Cancel"
-    assert stopped < 2.0, f"the reading went on {stopped:.2f} s after Cancel"
     assert loaded == []
     assert s.cloud("target") is None
     assert s.cloud("source") is None
