@@ -127,7 +127,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         metavar=("X", "Y"),
         help="stem position in the file's coordinates; repeat for several trees",
     )
-    p.add_argument("--radius", type=float, default=5.0, metavar="R", help="m")
+    p.add_argument(
+        "--radius",
+        type=float,
+        default=5.0,
+        metavar="R",
+        help="m around each stem (default 5)",
+    )
     p.add_argument("--zmin", type=float, default=None, help="lowest height kept (m)")
     p.add_argument("--zmax", type=float, default=None, help="highest height kept (m)")
     p.add_argument(

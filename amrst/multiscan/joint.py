@@ -6,8 +6,9 @@ non-reference scan is refined in turn against *all* the other reached scans toge
 Pulli's "Multiview registration for large data sets"): a scan that overlaps little
 with the reference is held by every scan around it, and loops close.
 
-The refinement is kept only when it lowers the mean NN-RMSE between each scan and the
-others in their overlap; otherwise the tree's poses stay (reported in the result).
+The refinement is kept when it does not raise the error of the poses (by default the
+mean NN-RMSE between each scan and the others in their overlap); otherwise the tree's
+poses stay (reported in the result).
 """
 
 from __future__ import annotations
