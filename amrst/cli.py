@@ -36,7 +36,6 @@ if TYPE_CHECKING:
     from amrst.pipeline.register import RegistrationResult
 
 EXIT_PIPE = 1  # stdout closed by the reader (Python's own code for EPIPE)
-LOW_CONFIDENCE = 0.3
 
 logger = logging.getLogger(__name__)
 

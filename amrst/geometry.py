@@ -7,6 +7,12 @@ import functools
 import numpy as np
 
 
+def yaw_rotation(yaw: float) -> np.ndarray:
+    """(3, 3) the rotation by ``yaw`` radians about the vertical (z) axis."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched least-squares rigid fit dst ≈ R src + t.
 

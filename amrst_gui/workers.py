@@ -88,11 +88,6 @@ class StageJob(QObject):
         """True once the work returned or raised."""
         return self._done
 
-    @property
-    def cancel_requested(self) -> bool:
-        """True once :meth:`cancel` was called."""
-        return self.reporter.cancelled
-
     def cancel(self) -> None:
         """Ask the stage to stop at its next check point (does not wait); it is
         reported cancelled then, or after ``CANCEL_GRACE_S`` at the latest."""

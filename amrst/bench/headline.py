@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.bench.markdown import markdown_table
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -153,7 +155,7 @@ def truth_check_markdown(
         "out the truth at that tolerance: no method that scores how well the clouds "
         "agree can be expected to find it there, whether the estimate lies near it "
         "or far from it.\n\n"
-        + _table(
+        + markdown_table(
             [
                 "case",
                 "truth <2 cm",
@@ -165,9 +167,3 @@ def truth_check_markdown(
             rows,
         )
     )
-
-
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"

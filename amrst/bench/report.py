@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.bench.headline import headline_markdown, truth_check_markdown
+from amrst.bench.markdown import markdown_table
 from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
@@ -140,12 +141,6 @@ def aggregate(runs: Sequence[RunRecord]) -> dict[tuple[str, str], dict[str, Any]
     return out
 
 
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
-
-
 def _median(values: list[float]) -> float:
     finite = [v for v in values if math.isfinite(v)]
     return float(np.median(finite)) if finite else math.nan
@@ -211,7 +206,7 @@ def summary_markdown(
     out.append(headline_markdown(agg, runs, cases, methods))
     out.append("\n## Per method\n\n")
     out.append(
-        _table(
+        markdown_table(
             [
                 "method",
                 "registered",
@@ -235,7 +230,7 @@ def summary_markdown(
             [m, f"{fmt(r)}x", str(k)]
             for m, (r, k) in speed_ratios(agg, cases, methods).items()
         ]
-        out.append(_table(["method", "time ratio", "cases"], ratio_rows))
+        out.append(markdown_table(["method", "time ratio", "cases"], ratio_rows))
     header = ["case"] + [f"{m} {q}" for m in methods for q in ("RMSE", "HD")]
     rows = [
         [c]
@@ -251,7 +246,7 @@ def summary_markdown(
         "Nearest-neighbour RMSE of the moved source to the target, and the "
         "symmetric Hausdorff distance.\n\n"
     )
-    out.append(_table(header, rows))
+    out.append(markdown_table(header, rows))
 
     def cell(c: str, m: str, key: str) -> str:
         r = agg.get((c, m))
@@ -263,7 +258,7 @@ def summary_markdown(
 
     out.append("\n## gt_rmse (m) per case (ok = registered)\n\n")
     out.append(
-        _table(
+        markdown_table(
             ["case", *methods],
             [[c] + [cell(c, m, "gt_rmse_m") for m in methods] for c in cases],
         )
@@ -272,7 +267,7 @@ def summary_markdown(
         out.append(truth_check_markdown(agg, cases))
     out.append("\n## Time (s) per case (paper Table III)\n\n")
     out.append(
-        _table(
+        markdown_table(
             ["case", *methods],
             [[c] + [cell(c, m, "time_s") for m in methods] for c in cases],
         )

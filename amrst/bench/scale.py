@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from amrst.bench.densify import densify
+from amrst.bench.markdown import markdown_table
 from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
@@ -174,7 +175,7 @@ def time_register(
 def format_scale_table(rows: Sequence[ScaleRow]) -> str:
     """Format rows as a Markdown table: points, seconds per stage, command, peak memory."""
     head = ["pair", "points/scan", *STAGES, "total", "command", "peak MB", "exit"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    table = []
     for r in rows:
         cells = [r.name, f"{r.n_target:,}"]
         cells += [f"{r.timings[s]:.2f}" if s in r.timings else "-" for s in STAGES]
@@ -185,8 +186,8 @@ def format_scale_table(rows: Sequence[ScaleRow]) -> str:
             f"{r.peak_mb:.0f}",
             str(r.exit_code),
         ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        table.append(cells)
+    return markdown_table(head, table).rstrip("\n")
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.bench.densify import densify
+from amrst.bench.markdown import markdown_table
 from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
 
 if TYPE_CHECKING:
@@ -259,7 +260,7 @@ def format_plot_scale_table(rows: Sequence[PlotScaleRow]) -> str:
         "trees found",
         "exit",
     ]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    table = []
     for r in rows:
         rec = r.record
         worst_deg = max(rec.rotation_error_deg, default=float("nan"))
@@ -276,8 +277,8 @@ def format_plot_scale_table(rows: Sequence[PlotScaleRow]) -> str:
             "-" if inv is None else f"{inv.found}/{inv.n_true}",
             str(r.exit_code),
         ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        table.append(cells)
+    return markdown_table(head, table).rstrip("\n")
 
 
 def plot_scale_report(

@@ -116,12 +116,6 @@ class BatchSummary:
     workers: int = 0
     results: list[dict[str, Any]] = field(default_factory=list)
 
-    @property
-    def trees_per_hour(self) -> float:
-        """Trees this run ran (with a result or an error) per hour of wall time."""
-        n = len(self.finished) + len(self.errors)
-        return 3600.0 * n / self.run_seconds if self.run_seconds > 0 else 0.0
-
     def counts(self) -> str:
         """Say what the trees of this run came to, in the states' words.
 
@@ -441,11 +435,6 @@ def _collect(
                 row,
             )
     summary.run_seconds = time.perf_counter() - started
-
-
-def table_rows(campaign: Campaign) -> list[dict[str, Any]]:
-    """Return the campaign table's rows as they stand on disk."""
-    return campaign_rows(campaign)
 
 
 def run_remaining(

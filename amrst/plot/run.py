@@ -244,12 +244,6 @@ def _read_scans(
     return scans, area
 
 
-#: A scanner given by hand stands within this of its scan's points (m, horizontally) ...
-SCANNER_NEAR_M = 5.0
-#: ... and up to this above the lowest of them (m): a tripod on rough ground.
-SCANNER_UP_M = 4.0
-
-
 def _with_scanner(
     cloud: Cloud, k: int, label: str, xyz: tuple[float, float, float]
 ) -> Cloud:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst.plot.diameter import BREAST_HEIGHT_M, SLICE_HALF_M
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -31,9 +31,8 @@ VIEW_NPZ = "view.npz"
 #: The layout of view.npz; a file of another is refused (run the plot again).
 VIEW_FORMAT = 1
 #: The slices shown per tree: their middles above the local ground (breast height
-#: the DBH's, the others to see the stem below and above it), half their thickness.
+#: the DBH's, the others to see the stem below and above it), as thick as the DBH's.
 SLICE_HEIGHTS_M = (0.6, BREAST_HEIGHT_M, 2.0, 3.0)
-SLICE_HALF_M = 0.05
 #: The slices follow the stem line: through the DBH centre, leaning as the stem map
 #: measured, towards the DBH centre from the foot; at most ``MAX_LEAN_PER_M``.
 MAX_LEAN_PER_M = 0.2

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.results.metric_doc import METRIC_ROWS
+from amrst.stages.metrics import REGISTERED_DEG, REGISTERED_RMSE_M
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -342,7 +343,10 @@ def quality_html(r: ReportInputs) -> str:
 def _with_registered(truth: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(truth)
     if "registered" not in out and "rotation_error_deg" in out:
-        out["registered"] = out["rotation_error_deg"] < 1.0 and out["gt_rmse_m"] < 0.05
+        out["registered"] = (
+            out["rotation_error_deg"] < REGISTERED_DEG
+            and out["gt_rmse_m"] < REGISTERED_RMSE_M
+        )
     return out
 
 

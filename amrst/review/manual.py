@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.geometry import kabsch
 from amrst.types import Transform, check_rigid
 
 if TYPE_CHECKING:
@@ -84,21 +85,14 @@ def fit_rigid(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
             f"{len(t)} point pair(s): a full rotation needs 3 (or 2 with the levelled "
             "constraint)."
         )
-    tc, sc = t.mean(axis=0), s.mean(axis=0)
-    a, b = s - sc, t - tc
-    sv = np.linalg.svd(a, compute_uv=False)
+    sv = np.linalg.svd(s - s.mean(axis=0), compute_uv=False)
     if sv[1] < 1e-3 * max(sv[0], 1e-12):
         raise InvalidInput(
             "The source points lie on a line, so the rotation about it is unknown: "
             "pick a pair off that line."
         )
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = tc - R @ sc
-    return out
+    transforms, _ = kabsch(s[None], t[None])
+    return np.asarray(transforms[0])
 
 
 def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:

@@ -120,11 +120,6 @@ class GroundFit:
         """Angle between the plane's normal and the scan's z axis (deg)."""
         return float(np.degrees(np.arccos(np.clip(self.normal[2], -1, 1))))
 
-    def z_at(self, xy: np.ndarray) -> float:
-        """Plane height at one (2,) position."""
-        a, b, c = self.plane
-        return float(a * xy[0] + b * xy[1] + c)
-
 
 def fit_ground(
     xyz: np.ndarray,

@@ -73,6 +73,11 @@ class CloudMetrics:
         return asdict(self)
 
 
+#: The benchmark's rule: a pose is registered within this turn and RMS error.
+REGISTERED_DEG = 1.0
+REGISTERED_RMSE_M = 0.05
+
+
 @dataclass(frozen=True, slots=True)
 class TruthErrors:
     """Errors of an estimated transform against a known one."""
@@ -81,7 +86,11 @@ class TruthErrors:
     translation_error_m: float
     gt_rmse_m: float  # RMS distance of source points mapped by estimate vs truth
 
-    def registered(self, max_rot_deg: float = 1.0, max_gt_rmse_m: float = 0.05) -> bool:
+    def registered(
+        self,
+        max_rot_deg: float = REGISTERED_DEG,
+        max_gt_rmse_m: float = REGISTERED_RMSE_M,
+    ) -> bool:
         """Apply the benchmark's success rule: rotation < 1 deg and gt_rmse < 5 cm."""
         return self.rotation_error_deg < max_rot_deg and self.gt_rmse_m < max_gt_rmse_m
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.geometry import yaw_rotation
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.coarse import (
@@ -228,11 +229,6 @@ def find_trunk_base(xyz: np.ndarray, params: TrunkParams) -> TrunkBase:
     return TrunkBase(np.r_[centre, z0], radius, len(sl))
 
 
-def _rot_z(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _levelled_steps(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Fit q ≈ Rz p + t, a turn about the vertical only, for B point sets at once.
 
@@ -309,7 +305,7 @@ def search_yaw(
     starts = np.stack(
         [
             make_transform(R, tb.centre - R @ sb.centre)
-            for R in (_rot_z(np.radians(y)) for y in yaws)
+            for R in (yaw_rotation(np.radians(y)) for y in yaws)
         ]
     )
     # Headings in batches of at most _BATCH_POINTS polished points: one KD-tree query

@@ -182,10 +182,6 @@ class TreeScansPanel(QWidget):
             self.scans.selectRow(other)
         self._unblock()
 
-    def select_link(self, target: int, source: int) -> None:
-        """Select a link as a click does (emits ``link_selected``)."""
-        self.link_selected.emit(target, source)
-
     # ----------------------------------------------------------- plumbing
     def _unblock(self) -> None:
         for table in (self.scans, self.links):

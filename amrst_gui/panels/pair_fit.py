@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.geometry import yaw_rotation
 from amrst.review import manual
 from amrst.types import local_transform
 
@@ -20,11 +21,6 @@ if TYPE_CHECKING:
 
 # Turns tried by the locked fit before it refines the best one (degrees apart).
 _YAW_STEP_DEG = 0.25
-
-
-def _yaw_matrix(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def fit_locked(
@@ -50,11 +46,11 @@ def fit_locked(
     free = ~np.asarray(locks, bool)
 
     def shift(yaw: float) -> np.ndarray:
-        r = t - s @ _yaw_matrix(yaw).T
+        r = t - s @ yaw_rotation(yaw).T
         return np.where(free, r.mean(axis=0), 0.0)
 
     def cost(yaw: float) -> float:
-        r = t - s @ _yaw_matrix(yaw).T - shift(yaw)
+        r = t - s @ yaw_rotation(yaw).T - shift(yaw)
         return float(np.sum(r**2))
 
     yaws = np.deg2rad(np.arange(-180.0, 180.0, _YAW_STEP_DEG))
@@ -64,7 +60,7 @@ def fit_locked(
         minimize_scalar(cost, bounds=(best - step, best + step), method="bounded").x
     )
     out = np.eye(4)
-    out[:3, :3] = _yaw_matrix(yaw)
+    out[:3, :3] = yaw_rotation(yaw)
     out[:3, 3] = shift(yaw)
     return out
 
