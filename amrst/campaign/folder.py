@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
-from amrst.campaign.run import ERROR
+from amrst.campaign.run import ERROR, STAMP
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -34,10 +34,21 @@ def read_doc(path: Path) -> dict[str, Any] | None:
 def decision_of(campaign: Campaign, tree_id: str) -> str:
     """Return the decision on a tree's result: accepted, rejected, or "" (none).
 
-    A tree whose last run ended in an error has no result, so no decision either.
+    A decision holds for the result it was made on (``result_run``, the run that
+    made it): a tree run again, or whose last run ended in an error, has none.
     """
     out = campaign.results_dir(tree_id)
     if (out / ERROR).is_file():
         return ""
-    decision = str((read_doc(out / REVIEW) or {}).get("decision", ""))
+    review = read_doc(out / REVIEW) or {}
+    made_on = review.get("result_run")
+    if made_on is not None and made_on != result_run(out):
+        return ""
+    decision = str(review.get("decision", ""))
     return decision if decision in DECISIONS else ""
+
+
+def result_run(out: Path) -> str | None:
+    """Return the id of the run whose result ``out`` holds (None: none recorded)."""
+    run = (read_doc(out / STAMP) or {}).get("run")
+    return run if isinstance(run, str) else None

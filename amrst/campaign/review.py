@@ -16,23 +16,24 @@ from __future__ import annotations
 import datetime as _dt
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 # The decisions and their file are part of this module's interface (the app's).
 from amrst.campaign.folder import ACCEPTED as ACCEPTED
 from amrst.campaign.folder import DECISIONS as DECISIONS
 from amrst.campaign.folder import REJECTED as REJECTED
 from amrst.campaign.folder import REVIEW as REVIEW
 from amrst.campaign.folder import decision_of as decision_of
-from amrst.campaign.folder import read_doc
+from amrst.campaign.folder import read_doc, result_run
+from amrst.campaign.run import ERROR
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
     from pathlib import Path
+    from typing import Any
 
-    from amrst.campaign.manifest import Campaign
+    from amrst.campaign.manifest import Campaign, TreeEntry
+    from amrst.types import Transform
 
 #: Given to :func:`decide` instead of a decision: remove the tree's decision.
 CLEAR = "clear"
@@ -157,11 +158,16 @@ def decide(
     for tree_id in tree_ids:
         path = campaign.results_dir(tree_id) / REVIEW
         doc = read_doc(path) or {}
-        for key in ("decision", "decided_utc", "registration_status"):
+        for key in ("decision", "decided_utc", "registration_status", "result_run"):
             doc.pop(key, None)
         if decision != CLEAR:
             status = tree_row(campaign, campaign.tree(tree_id))["status"]
-            doc.update(decision=decision, decided_utc=now, registration_status=status)
+            doc.update(
+                decision=decision,
+                decided_utc=now,
+                registration_status=status,
+                result_run=result_run(campaign.results_dir(tree_id)),
+            )
         if doc:
             write_json_atomic(path, doc)
         else:
@@ -177,20 +183,22 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     from amrst.files.atomic import write_json_atomic
     from amrst.io.scans import read_scans
     from amrst.multiscan.export import merge_moved
-    from amrst.types import Cloud, transform_cloud
+    from amrst.types import transform_cloud
 
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
     summary = read_doc(out / "scans.json")
-    if summary is None:
+    if summary is None or (out / ERROR).is_file():
         raise InvalidInput(f"Tree {tree_id} has no result to export; run it first.")
+    _refuse_stale(campaign, entry)
+    poses = _stored_poses(summary, len(entry.scans), tree_id)
     clouds = [read_scans(campaign.root / spec)[0] for spec in entry.scans]
     ref = clouds[entry.reference]
-    moved: list[tuple[int, Cloud]] = []
-    for k, scan in enumerate(summary["scans"]):
-        if scan["T_reference_scan"] is not None:
-            T = np.asarray(scan["T_reference_scan"], float)
-            moved.append((k, transform_cloud(T, clouds[k], ref.offset)))
+    moved = [
+        (k, transform_cloud(T, clouds[k], ref.offset))
+        for k, T in enumerate(poses)
+        if T is not None
+    ]
     merged = merge_moved(ref, moved)
     path = out / f"merged.{cloud_format}"
     io.write(path, merged)
@@ -201,6 +209,53 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     doc["exported"] = path.name
     write_json_atomic(out / REVIEW, doc)
     return path
+
+
+def _refuse_stale(campaign: Campaign, entry: TreeEntry) -> None:
+    """Refuse a tree whose stored poses are of other scans than it lists now.
+
+    Other scans, in another order, another reference, or files with other contents.
+    """
+    from amrst.campaign.run import STAMP, tree_inputs
+
+    ran = (read_doc(campaign.results_dir(entry.id) / STAMP) or {}).get("inputs")
+    if ran is None:  # results of a version that did not record them
+        return
+    now = tree_inputs(campaign.root.resolve(), entry)
+    if ran != now:
+        what = (
+            "its scans' contents"
+            if ran.get("scans") == now["scans"]
+            and ran.get("reference") == now["reference"]
+            else "its list of scans or its reference"
+        )
+        raise InvalidInput(
+            f"Tree {entry.id}'s result is out of date: {what} changed since it ran. "
+            f"Run it again (amrst batch DIR --tree {entry.id}), then decide again."
+        )
+
+
+def _stored_poses(
+    summary: dict[str, Any], count: int, tree_id: str
+) -> list[Transform | None]:
+    """Each scan's stored ``T_reference_scan`` (None: not placed), checked."""
+    from amrst.types import check_rigid
+
+    try:
+        scans = list(summary["scans"])
+        if len(scans) != count:
+            raise ValueError(f"{len(scans)} scans where the manifest lists {count}")
+        return [
+            None
+            if scan["T_reference_scan"] is None
+            else check_rigid(scan["T_reference_scan"], f"scan {k + 1}'s pose")
+            for k, scan in enumerate(scans)
+        ]
+    except (KeyError, TypeError, ValueError, InvalidInput) as exc:
+        raise InvalidInput(
+            f"Tree {tree_id}'s scans.json cannot be read ({exc}); run it again "
+            f"(amrst batch DIR --tree {tree_id} --force)."
+        ) from exc
 
 
 def export_accepted(

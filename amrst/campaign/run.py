@@ -21,6 +21,7 @@ import json
 import os
 import time
 import traceback
+import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -48,6 +49,22 @@ def _file_hash(path: Path) -> str:
     return h.hexdigest()
 
 
+def tree_inputs(root: Path, entry: TreeEntry) -> dict[str, Any]:
+    """Return the scans a tree's poses are of.
+
+    Their specs, the reference, and a hash of each file's content by its path from
+    ``root`` (absolute when outside it).
+    """
+    from amrst.io.scans import split_spec
+
+    files: dict[str, str] = {}
+    for spec in entry.scans:
+        path, _ = split_spec(root / spec)
+        name = path.relative_to(root) if path.is_relative_to(root) else path
+        files.setdefault(str(name), _file_hash(path))
+    return {"scans": list(entry.scans), "reference": entry.reference, "files": files}
+
+
 def tree_stamp(
     root: Path, entry: TreeEntry, params: dict[str, Any], clouds: str = ""
 ) -> str:
@@ -55,17 +72,9 @@ def tree_stamp(
 
     ``clouds``: the cloud format written with the results ("" = none).
     """
-    from amrst.io.scans import split_spec
-
-    files: dict[str, str] = {}
-    for spec in entry.scans:
-        path, _ = split_spec(root / spec)
-        files.setdefault(str(path.relative_to(root)), _file_hash(path))
     doc = {
         "amrst": __version__,
-        "scans": list(entry.scans),
-        "reference": entry.reference,
-        "files": files,
+        **tree_inputs(root, entry),
         "truth": None if entry.truth is None else _file_hash(root / entry.truth),
         "params": params,
         "clouds": clouds,
@@ -210,6 +219,8 @@ def run_tree(
         out / STAMP,
         {
             "stamp": stamp,
+            "run": uuid.uuid4().hex,  # this run's result, which a decision names
+            "inputs": tree_inputs(base, entry),  # what the export checks it still has
             "files": files,
             "status": status,
             "seconds": seconds,

@@ -185,3 +185,85 @@ def test_files_of_older_versions_read_in_the_new_words(campaign_dir, tmp_path):
     doc.update(verdict="partial", n_scans=3)
     path.write_text(json.dumps(doc))
     assert tree_row(campaign, campaign.tree("T01"))["status"] == "needs review"
+
+
+def _manifest_scans(root, tree: str, scans: list[str]) -> None:
+    """Give ``tree`` these scans in campaign.toml, as a technician edits it."""
+    text = (root / "campaign.toml").read_text()
+    start = text.index(f'id = "{tree}"')
+    head, rest = text[:start], text[start:]
+    line = next(x for x in rest.splitlines() if x.startswith("scans ="))
+    (root / "campaign.toml").write_text(
+        head + rest.replace(line, f"scans = {json.dumps(scans)}", 1)
+    )
+
+
+def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tmp_path):
+    shutil.copytree(campaign_dir, tmp_path / "c")
+    root = tmp_path / "c"
+    campaign = load_campaign(root)
+    decide(campaign, ["T01"], ACCEPTED)
+    (root / "results" / "T01" / "merged.ply").unlink(missing_ok=True)
+    # The scans swapped in the manifest: the stored poses are of the other order.
+    listed = list(campaign.tree("T01").scans)
+    _manifest_scans(root, "T01", listed[::-1])
+    written, errors = export_accepted(load_campaign(root))
+    assert written == []
+    assert "out of date: its list of scans or its reference changed" in errors["T01"]
+    assert not (root / "results" / "T01" / "merged.ply").exists()
+    # The same scans, one file's content changed.
+    _manifest_scans(root, "T01", listed)
+    assert export_accepted(load_campaign(root))[1] == {}
+    cloud = io.read(root / "T01" / "source.ply")
+    io.write(root / "T01" / "source.ply", cloud.select(np.arange(0, len(cloud), 2)))
+    errors = export_accepted(load_campaign(root))[1]
+    assert "its scans' contents changed" in errors["T01"]
+
+
+def test_a_decision_holds_for_the_result_it_was_made_on(campaign_dir, tmp_path):
+    shutil.copytree(campaign_dir, tmp_path / "c")
+    root = tmp_path / "c"
+    campaign = load_campaign(root)
+    decide(campaign, ["T02"], ACCEPTED, confirm_unregistered=True)
+    assert decision_of(campaign, "T02") == ACCEPTED
+    # Run again (forced): a new result, which nobody has looked at yet.
+    todo, _, params = pending_trees(campaign, force=True)
+    entry, stamp = next((e, s) for e, s in todo if e.id == "T02")
+    assert run_tree(str(root), entry, params, stamp, threads=1)["ok"]
+    assert decision_of(campaign, "T02") == ""
+    assert export_accepted(campaign) == ([], {})
+
+
+def test_a_broken_scans_json_is_one_line_at_export(campaign_dir, tmp_path):
+    shutil.copytree(campaign_dir, tmp_path / "c")
+    root = tmp_path / "c"
+    campaign = load_campaign(root)
+    decide(campaign, ["T01"], ACCEPTED)
+    path = root / "results" / "T01" / "scans.json"
+    doc = json.loads(path.read_text())
+    doc["scans"][1]["T_reference_scan"] = np.eye(3).tolist()
+    path.write_text(json.dumps(doc))
+    errors = export_accepted(campaign)[1]
+    assert "scans.json cannot be read" in errors["T01"]
+    assert "\n" not in errors["T01"]
+
+
+def test_scans_outside_the_campaign_folder_are_stamped_by_their_path(
+    campaign_dir, tmp_path
+):
+    from amrst.campaign.run import tree_inputs
+
+    shutil.copytree(campaign_dir, tmp_path / "c")
+    root = tmp_path / "c"
+    shutil.copytree(root / "T01", tmp_path / "elsewhere")
+    outside = [str(tmp_path / "elsewhere" / n) for n in ("target.ply", "source.ply")]
+    _manifest_scans(root, "T01", outside)
+    text = (root / "campaign.toml").read_text()
+    text = text.replace('reference = "T01/target.ply"', "reference = 0", 1)
+    (root / "campaign.toml").write_text(text)
+    campaign = load_campaign(root)
+    files = tree_inputs(root.resolve(), campaign.tree("T01"))["files"]
+    assert sorted(files) == sorted(outside)
+    todo, done, _ = pending_trees(campaign)
+    assert [e.id for e, _ in todo] == ["T01"]  # other files: run again
+    assert done == ["T02"]
