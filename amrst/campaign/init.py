@@ -8,8 +8,9 @@ E57 or PTX file holding several scans becomes one tree of those scans (``FILE#k`
 ``truth.json`` in the subfolder becomes the tree's truth.
 
 Trees already in the manifest keep their entry as edited by hand (scans, reference,
-stem, truth); new subfolders are added; what could not be paired is reported and left
-out (a folder with one scan, no scan, or files amrst cannot read).
+stem, truth; a tree is known by its id or by its scans), and the file keeps its text:
+the tables of new subfolders are added at its end. What could not be paired is
+reported and left out (a folder with one scan, no scan, or files amrst cannot read).
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ from amrst.campaign.manifest import (
     TreeEntry,
     load_campaign,
     save_campaign,
+    tree_tables,
 )
 from amrst.errors import InvalidInput
+from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     import os
@@ -100,12 +103,42 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
             f"{root} is not a folder. Make a folder with one subfolder per tree holding "
             "its scan files, then run amrst campaign init on it."
         )
-    old: dict[str, TreeEntry] = {}
-    name, preset, params = root.resolve().name, "", ""
-    if (root / MANIFEST).is_file():
-        existing = load_campaign(root)
-        old = {t.id: t for t in existing.trees}
-        name, preset, params = existing.name, existing.preset, existing.params
+    manifest = root / MANIFEST
+    existing = load_campaign(root) if manifest.is_file() else None
+    old = {} if existing is None else {t.id: t for t in existing.trees}
+    trees, skipped = _folder_trees(root, dict(old))
+    loose = [p.name for p in _scan_files(root)]
+    if loose:
+        skipped.append(
+            f"{len(loose)} scan file(s) directly in {root.name} ({', '.join(loose[:3])}"
+            f"{'...' if len(loose) > 3 else ''}): put each tree's scans in a subfolder, "
+            "or list them in campaign.toml by hand (FILE.e57#k for scans of one file)."
+        )
+    if not trees:
+        why = f" ({skipped[0]})" if skipped else ""
+        raise InvalidInput(
+            f"No tree found in {root}{why}: make one subfolder per tree holding its "
+            "scan files (two or more), then run amrst campaign init again."
+        )
+    added = [t for t in trees if t.id not in old]
+    if existing is None:
+        save_campaign(Campaign(root, tuple(trees), root.resolve().name))
+    elif added:
+        write_text_atomic(
+            manifest, manifest.read_text(encoding="utf-8") + tree_tables(added)
+        )
+    return load_campaign(root), skipped
+
+
+def _folder_trees(
+    root: Path, old: dict[str, TreeEntry]
+) -> tuple[list[TreeEntry], list[str]]:
+    """Return each subfolder's tree, and why the others make none.
+
+    A tree the manifest has (``old``, by id or by its scans: an id changed by hand)
+    keeps its entry; the manifest's entries with no subfolder come last.
+    """
+    by_scans = {frozenset(t.scans): t.id for t in old.values()}
     trees: list[TreeEntry] = []
     skipped: list[str] = []
     for sub in sorted(p for p in root.iterdir() if p.is_dir()):
@@ -118,19 +151,12 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
             else:
                 skipped.append(why)
             continue
+        renamed = by_scans.get(frozenset(entry.scans), "")
         if entry.id in old:
             entry = old.pop(entry.id)
+        elif renamed in old:
+            entry = old.pop(renamed)
         elif any(t.id == entry.id for t in trees):
             entry = replace(entry, id=f"{entry.id}_{len(trees)}")
         trees.append(entry)
-    trees += list(old.values())  # hand-made entries with no folder of their own
-    loose = [p.name for p in _scan_files(root)]
-    if loose:
-        skipped.append(
-            f"{len(loose)} scan file(s) directly in {root.name} ({', '.join(loose[:3])}"
-            f"{'...' if len(loose) > 3 else ''}): put each tree's scans in a subfolder, "
-            "or list them in campaign.toml by hand (FILE.e57#k for scans of one file)."
-        )
-    campaign = Campaign(root, tuple(trees), name, preset, params)
-    save_campaign(campaign)
-    return load_campaign(root), skipped
+    return trees + list(old.values()), skipped  # hand-made entries last

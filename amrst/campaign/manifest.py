@@ -11,7 +11,7 @@
     id = "T001"                                   # names the results folder
     scans = ["T001/a.laz", "T001/b.laz", "T001/c.laz"]
     reference = "T001/a.laz"                      # optional: a scan above, or its number
-    stem = [512345.2, 5456789.1]                  # optional: stem X, Y (world)
+    stem = [512345.2, 5456789.1]                  # optional: where it stands (world)
     truth = "T001/truth.json"                     # optional: known transforms
 
     [[tree]]
@@ -25,6 +25,8 @@ stem_y,truth``, the scans separated by ``;``. When both exist, campaign.toml is 
 from __future__ import annotations
 
 import csv
+import math
+import os
 import re
 import sys
 from dataclasses import dataclass, field
@@ -34,12 +36,16 @@ from typing import TYPE_CHECKING, Any
 from amrst.errors import InvalidInput
 
 if TYPE_CHECKING:
-    import os
+    from collections.abc import Sequence
 
 MANIFEST = "campaign.toml"
 MANIFEST_CSV = "manifest.csv"  # campaign.csv is the results table
 RESULTS = "results"
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+#: The keys a tree's table and the [campaign] table take; another is a typo.
+TREE_KEYS = ("id", "scans", "reference", "stem", "truth")
+CAMPAIGN_KEYS = ("name", "preset", "params")
+CSV_COLUMNS = ("id", "scans", "reference", "stem_x", "stem_y", "truth")
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,7 +103,10 @@ def _reference(value: Any, scans: tuple[str, ...], where: str) -> int:
     )
 
 
-def _entry(raw: dict[str, Any], where: str) -> TreeEntry:
+def _entry(raw: Any, where: str) -> TreeEntry:
+    if not isinstance(raw, dict):
+        raise InvalidInput(f"{where}: a tree must be a [[tree]] table, got {raw!r}.")
+    _known_keys(raw, TREE_KEYS, where)
     tree_id = str(raw.get("id", "")).strip()
     if not _ID.match(tree_id):
         raise InvalidInput(
@@ -115,14 +124,27 @@ def _entry(raw: dict[str, Any], where: str) -> TreeEntry:
             "(the reference and a scan to move onto it)."
         )
     scans_t = tuple(scans)
+    listed = [os.path.normpath(s) for s in scans_t]
+    twice = next(
+        (s for s, n in zip(scans_t, listed, strict=True) if listed.count(n) > 1), None
+    )
+    if twice is not None:
+        raise InvalidInput(
+            f"{where} (tree {tree_id}): {twice} is listed twice; a scan is registered "
+            "onto another scan, not onto itself."
+        )
     stem = raw.get("stem")
     stem_xy = None
     if stem not in (None, "", []):
         try:
+            if isinstance(stem, str) or any(isinstance(v, bool) for v in stem):
+                raise TypeError("not numbers")
             x, y = (float(v) for v in stem)
+            if not (math.isfinite(x) and math.isfinite(y)):
+                raise ValueError("not finite")
         except (TypeError, ValueError) as exc:
             raise InvalidInput(
-                f"{where}: 'stem' must be [X, Y], got {stem!r}."
+                f"{where}: 'stem' must be [X, Y] in metres, got {stem!r}."
             ) from exc
         stem_xy = (x, y)
     truth = raw.get("truth") or None
@@ -152,14 +174,39 @@ def _read_toml(path: Path) -> dict[str, Any]:
         ) from exc
 
 
+def _known_keys(raw: dict[str, Any], known: tuple[str, ...], where: str) -> None:
+    """Refuse a key the table does not take (a typo would silently do nothing)."""
+    unknown = [str(k) for k in raw if k not in known]
+    if unknown:
+        raise InvalidInput(
+            f"{where}: unknown key {unknown[0]!r}; the keys are {', '.join(known)}."
+        )
+
+
 def _read_csv(path: Path) -> dict[str, Any]:
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.DictReader(f))
+    # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark.
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            columns = list(reader.fieldnames or [])
+    except UnicodeDecodeError as exc:
+        raise InvalidInput(
+            f"{path} is not UTF-8 text; save it as CSV UTF-8 (comma-separated)."
+        ) from exc
+    if "id" not in columns or "scans" not in columns:
+        raise InvalidInput(
+            f"{path} must be comma-separated with the columns {','.join(CSV_COLUMNS)} "
+            f"(found {','.join(columns) or 'none'}); the scans of a tree are separated "
+            "by ';'."
+        )
+    _known_keys(dict.fromkeys(columns), CSV_COLUMNS, str(path))
     trees = []
     for row in rows:
         entry: dict[str, Any] = {k: (v or "").strip() for k, v in row.items() if k}
-        if entry.get("stem_x") and entry.get("stem_y"):
-            entry["stem"] = [entry["stem_x"], entry["stem_y"]]
+        x, y = entry.pop("stem_x", ""), entry.pop("stem_y", "")
+        if x or y:
+            entry["stem"] = [x, y]
         trees.append(entry)
     return {"tree": trees}
 
@@ -186,9 +233,21 @@ def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
         raise InvalidInput(f"{root} has no {MANIFEST}. Run: amrst campaign init {root}")
     head = doc.get("campaign", {})
     raw_trees = doc.get("tree", [])
+    if not isinstance(head, dict):
+        raise InvalidInput(
+            f"{root / source}: [campaign] must be a table, got {head!r}."
+        )
+    _known_keys(head, CAMPAIGN_KEYS, f"{root / source}, [campaign]")
+    _known_keys(doc, ("campaign", "tree"), str(root / source))
     if not isinstance(raw_trees, list):
         raise InvalidInput(
             f"{root / source}: 'tree' must be a list of [[tree]] tables."
+        )
+    if not raw_trees:
+        raise InvalidInput(
+            f"{root / source} lists no trees: add a [[tree]] table for each, or run "
+            f"amrst campaign init {root} on a folder with one subfolder of scans per "
+            "tree."
         )
     trees = [_entry(t, f"{source}, tree {i + 1}") for i, t in enumerate(raw_trees)]
     seen: set[str] = set()
@@ -225,7 +284,13 @@ def manifest_text(campaign: Campaign) -> str:
         f"preset = {_toml_str(campaign.preset)}",
         f"params = {_toml_str(campaign.params)}",
     ]
-    for t in campaign.trees:
+    return "\n".join(lines) + "\n" + tree_tables(campaign.trees)
+
+
+def tree_tables(trees: Sequence[TreeEntry]) -> str:
+    """Return the ``[[tree]]`` tables of ``trees`` (campaign.toml text)."""
+    lines = []
+    for t in trees:
         lines += ["", "[[tree]]", f"id = {_toml_str(t.id)}"]
         lines.append("scans = [" + ", ".join(_toml_str(s) for s in t.scans) + "]")
         lines.append(f"reference = {_toml_str(t.scans[t.reference])}")
@@ -233,7 +298,7 @@ def manifest_text(campaign: Campaign) -> str:
             lines.append(f"stem = [{t.stem[0]!r}, {t.stem[1]!r}]")
         if t.truth:
             lines.append(f"truth = {_toml_str(t.truth)}")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" if lines else ""
 
 
 def save_campaign(campaign: Campaign) -> Path:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from amrst.campaign import init_campaign, load_campaign
-from amrst.campaign.manifest import MANIFEST, manifest_text
+from amrst.campaign.manifest import MANIFEST, tree_tables
 from amrst.campaign.table import COLUMNS
 from amrst.cli import main
 from amrst.errors import InvalidInput
@@ -50,7 +50,8 @@ def test_hand_edits_survive_a_second_init(tmp_path, sample_pair):
     init_campaign(tmp_path)
     text = (tmp_path / MANIFEST).read_text()
     text = text.replace(
-        'reference = "T02/plot.e57#0"', "reference = 2\nstem = [1.5, -2.0]"
+        'reference = "T02/plot.e57#0"',
+        "reference = 2  # the setup on the ridge\nstem = [1.5, -2.0]",
     )
     (tmp_path / MANIFEST).write_text(text)
     (tmp_path / "T03").mkdir()
@@ -64,7 +65,15 @@ def test_hand_edits_survive_a_second_init(tmp_path, sample_pair):
     assert (
         load_campaign(tmp_path).trees == campaign.trees
     )  # what was written reads back
-    assert manifest_text(campaign) == (tmp_path / MANIFEST).read_text()
+    # The file keeps its text, comments too; the new tree's table is added at its end.
+    after = (tmp_path / MANIFEST).read_text()
+    assert after.startswith(text)
+    assert after[len(text) :] == tree_tables([campaign.tree("T03")])
+    # An id changed by hand is the same tree (its scans): not added again.
+    (tmp_path / MANIFEST).write_text(after.replace('id = "T03"', 'id = "ridge"'))
+    again, _ = init_campaign(tmp_path)
+    assert [t.id for t in again.trees].count("ridge") == 1
+    assert "T03" not in [t.id for t in again.trees]
 
 
 def test_csv_manifest(tmp_path):
@@ -92,6 +101,15 @@ def test_csv_manifest(tmp_path):
             "unique",
         ),
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [1]', "stem"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [nan, 2]', "stem"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [true, 2]', "stem"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "./x.ply"]', "listed twice"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nreferense = 1', "referense"),
+        ('campaign = 5\n[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]', "table"),
+        ('[campaign]\nnmae = "x"\n[[tree]]\nid = "A"\nscans = ["x", "y"]', "nmae"),
+        ("tree = [5]", "must be a \\[\\[tree\\]\\] table"),
+        ('[campaign]\nname = "x"', "lists no trees"),
+        ("", "lists no trees"),
     ],
 )
 def test_bad_manifest_one_line(tmp_path, text, message):
@@ -99,6 +117,35 @@ def test_bad_manifest_one_line(tmp_path, text, message):
     with pytest.raises(InvalidInput, match=message) as info:
         load_campaign(tmp_path)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (b"\x00\x01\xff\xfe", "not UTF-8"),
+        (b"id;scans\nA;x.ply y.ply\n", "comma-separated"),
+        (b"id,scans,notes\nA,x.ply;y.ply,z\n", "notes"),
+        (b"id,scans,stem_x\nA,x.ply;y.ply,1\n", "stem"),
+    ],
+)
+def test_bad_csv_manifest_one_line(tmp_path, data, message):
+    (tmp_path / "manifest.csv").write_bytes(data)
+    with pytest.raises(InvalidInput, match=message) as info:
+        load_campaign(tmp_path)
+    assert "\n" not in str(info.value)
+
+
+def test_a_csv_manifest_saved_by_a_spreadsheet_reads(tmp_path):
+    (tmp_path / "manifest.csv").write_bytes(b"\xef\xbb\xbfid,scans\nA,x.ply;y.ply\n")
+    assert load_campaign(tmp_path).tree("A").scans == ("x.ply", "y.ply")
+
+
+def test_init_on_a_folder_without_trees_writes_nothing(tmp_path):
+    (tmp_path / "lonely").mkdir()
+    with pytest.raises(InvalidInput, match="No tree found") as info:
+        init_campaign(tmp_path)
+    assert "no scan file" in str(info.value)
+    assert not (tmp_path / MANIFEST).exists()
 
 
 def test_cli_init_and_status(tmp_path, sample_pair, capsys):
