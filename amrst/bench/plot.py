@@ -85,21 +85,99 @@ def _scan_files(folder: Path) -> list[Path]:
     return sorted(found, key=lambda p: int(p.stem.split("_")[1]))
 
 
+#: What each true stem in ``stems_target_frame`` gives: ``PlotCase.stems``' columns.
+STEM_KEYS = ("x", "y", "z_base", "dbh_m", "height_m")
+_STEMS_HINT = (
+    "each stem must be an object with numbers x, y, z_base, height_m and dbh_m "
+    "(null where unknown)"
+)
+
+
+def read_plot_truth(folder: str | os.PathLike[str]) -> tuple[list[Any], np.ndarray]:
+    """Read a plot case's truth: the listed poses, and the true stems checked.
+
+    Parameters
+    ----------
+    folder : path
+        A plot case folder (its ``truth.json`` has ``T_scan1_scank`` and
+        ``stems_target_frame``).
+
+    Returns
+    -------
+    poses : list
+        ``T_scan1_scank`` as read (:func:`read_plot_case` checks each is rigid).
+    stems : (T, 5) float64
+        Rows of ``STEM_KEYS``; DBH NaN where the truth has none.
+
+    Raises
+    ------
+    InvalidInput
+        If ``truth.json`` is unreadable, or its poses are not a list, or a stem is
+        not an object of finite numbers (DBH: a number or null).
+    """
+    from amrst.files.safefile import load_json_file
+
+    path = Path(folder) / "truth.json"
+    doc = load_json_file(
+        path, "truth file", "a JSON object with T_scan1_scank and stems_target_frame"
+    )
+    poses = doc.get("T_scan1_scank") if isinstance(doc, dict) else None
+    if not isinstance(poses, list):
+        raise InvalidInput(
+            f"{path}: T_scan1_scank must be a list of 4x4 poses, one per scan "
+            "(scan k into scan 1, row-major)."
+        )
+    entries = doc.get("stems_target_frame")
+    if not isinstance(entries, list):
+        raise InvalidInput(
+            f"{path}: stems_target_frame must be a list of stems; {_STEMS_HINT}."
+        )
+    rows = [_stem_row(s, i, path) for i, s in enumerate(entries, start=1)]
+    return poses, np.array(rows, dtype=float).reshape(-1, len(STEM_KEYS))
+
+
+def _stem_row(stem: object, index: int, path: Path) -> list[float]:
+    """One stem of the truth as numbers in ``STEM_KEYS`` order; refuse a bad one."""
+    where = f"{path}: stem {index} of stems_target_frame"
+    if not isinstance(stem, dict):
+        raise InvalidInput(f"{where} is {json.dumps(stem)[:40]}; {_STEMS_HINT}.")
+    row = []
+    for key in STEM_KEYS:
+        if key not in stem:
+            raise InvalidInput(f"{where} has no {key}; {_STEMS_HINT}.")
+        value = stem[key]
+        if key == "dbh_m" and value is None:
+            row.append(NAN)
+            continue
+        numeric = isinstance(value, int | float) and not isinstance(value, bool)
+        # Integers too large for a float count as not finite.
+        number = float(value) if numeric and abs(value) < 1e300 else NAN
+        # A DBH may be NaN, as the simulator writes an unknown one; no other value.
+        unknown_dbh = key == "dbh_m" and numeric and value != value
+        if not (np.isfinite(number) or unknown_dbh):
+            raise InvalidInput(
+                f"{where} has {key} {json.dumps(value)[:40]}, not a finite number; "
+                f"{_STEMS_HINT}."
+            )
+        row.append(number)
+    return row
+
+
 def read_plot_case(folder: str | os.PathLike[str]) -> PlotCase:
     """Read one plot case folder.
 
     Raises
     ------
     InvalidInput
-        A missing scan, fewer than two scans, or a truth that does not match them.
+        A missing scan, fewer than two scans, a truth that does not match them, or
+        a truth :func:`read_plot_truth` refuses.
     """
     from amrst import io
     from amrst.types import check_rigid
 
     root = Path(folder)
-    doc = json.loads((root / "truth.json").read_text())
+    poses, stems = read_plot_truth(root)
     files = _scan_files(root)
-    poses = doc["T_scan1_scank"]
     if len(files) < 2 or len(files) != len(poses):
         raise InvalidInput(
             f"{root}: {len(files)} scan files for {len(poses)} poses in truth.json; "
@@ -109,13 +187,6 @@ def read_plot_case(folder: str | os.PathLike[str]) -> PlotCase:
     for p in files:
         if not p.is_file():
             raise InvalidInput(f"{root}: {p.name} is missing.")
-    stems = np.array(
-        [
-            [s["x"], s["y"], s["z_base"], s["dbh_m"], s["height_m"]]
-            for s in doc["stems_target_frame"]
-        ],
-        dtype=float,
-    ).reshape(-1, 5)
     return PlotCase(
         root.name,
         tuple(io.read(p) for p in files),
@@ -406,7 +477,8 @@ def run_plot_bench(
     Raises
     ------
     InvalidInput
-        No plot case under ``cases_dir``.
+        No plot case under ``cases_dir``, or one whose truth
+        :func:`read_plot_truth` refuses (before anything runs).
     """
     from amrst.bench.run import warm_up
     from amrst.files.atomic import make_folder, write_json_atomic, write_text_atomic
@@ -423,6 +495,8 @@ def run_plot_bench(
             f"No plot case folders under {cases_dir}: each needs its scans and a "
             "truth.json with T_scan1_scank and stems_target_frame."
         )
+    for folder in folders:  # a bad truth is told before any case runs
+        read_plot_truth(folder)
     out = make_folder(out_dir, "output folder")
     warm_up(["amrst", "fpfh_ransac"])
     records: list[PlotRecord] = []

@@ -14,6 +14,7 @@ from amrst.bench.plot import (
     PLOT,
     is_plot_case,
     match_trees,
+    read_plot_case,
     run_plot_bench,
     score_inventory,
 )
@@ -103,3 +104,54 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
     for wrong in (["--repeat", "0"], ["--repeat", "-1"], ["--methods", "nosuch"]):
         assert main(["bench", str(root), "--out", str(tmp_path / "o2"), *wrong]) == 2
         assert not (tmp_path / "o2").exists()
+
+
+def _small_plot_case(folder: Path, stems: object) -> None:
+    """Two small scans and a truth whose stem list is ``stems`` (as JSON)."""
+    from amrst import io
+
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for name in ("target", "source"):
+        io.write(folder / f"{name}.ply", Cloud(rng.uniform(-5, 5, (500, 3))))
+    doc = {"T_scan1_scank": [np.eye(4).tolist()] * 2, "stems_target_frame": stems}
+    (folder / "truth.json").write_text(json.dumps(doc))
+
+
+GOOD_STEM = {"x": 1.0, "y": 2.0, "z_base": 0.0, "dbh_m": None, "height_m": 9.0}
+
+
+@pytest.mark.parametrize(
+    ("stems", "told"),
+    [
+        ([{**GOOD_STEM, "x": "x"}], 'stem 1 of stems_target_frame has x "x"'),
+        ([GOOD_STEM, {"y": 2.0}], "stem 2 of stems_target_frame has no x"),
+        ([{**GOOD_STEM, "height_m": "tall"}], 'has height_m "tall"'),
+        ([{**GOOD_STEM, "z_base": None}], "has z_base null"),
+        ([{**GOOD_STEM, "dbh_m": True}], "has dbh_m true"),
+        ([1, 2, 3], "stem 1 of stems_target_frame is 1;"),
+        ({"x": 1.0}, "stems_target_frame must be a list"),
+    ],
+)
+@pytest.mark.parametrize("command", ["bench", "bench-scale"])
+def test_a_bad_stem_list_is_told_in_one_line(
+    tmp_path: Path, capsys, stems: object, told: str, command: str
+) -> None:
+    """Both commands read the truth in one place: the case and what is wrong."""
+    from amrst.cli import main
+
+    _small_plot_case(tmp_path / "cases" / "01_plot", stems)
+    given = tmp_path / "cases" if command == "bench" else tmp_path / "cases/01_plot"
+    argv = [command, str(given), "--out", str(tmp_path / "out")]
+    assert main([*argv, "--points", "1000"] if command != "bench" else argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{tmp_path / 'cases' / '01_plot' / 'truth.json'}: " in err
+    assert told in err
+
+
+def test_a_stem_without_a_dbh_is_read_as_nan(tmp_path: Path) -> None:
+    stems = [GOOD_STEM, {**GOOD_STEM, "dbh_m": 0.3}, {**GOOD_STEM, "dbh_m": NAN}]
+    _small_plot_case(tmp_path / "p", stems)
+    case = read_plot_case(tmp_path / "p")
+    np.testing.assert_array_equal(case.stems[:, 3], [NAN, 0.3, NAN])
+    np.testing.assert_array_equal(case.stems[0], [1.0, 2.0, 0.0, NAN, 9.0])
