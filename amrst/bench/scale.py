@@ -15,6 +15,7 @@ both as tables; on a plot case it times ``amrst plot`` instead
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -236,6 +237,26 @@ def _pair_rows(args: argparse.Namespace, out: Path) -> list[ScaleRow]:
     return rows
 
 
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse options no dense scan can be made with, before anything is written.
+
+    Raises
+    ------
+    InvalidInput
+        A ``--points`` below 1, a ``--noise-m`` negative or not finite, or a
+        ``--seed`` below 0.
+    """
+    low = [n for n in args.points if n < 1]
+    if low:
+        raise InvalidInput(f"--points must be at least 1 per scan, not {low[0]}.")
+    if not math.isfinite(args.noise_m) or args.noise_m < 0:
+        raise InvalidInput(
+            f"--noise-m must be 0 or more metres of jitter, not {args.noise_m:g}."
+        )
+    if args.seed < 0:
+        raise InvalidInput(f"--seed must be 0 or more, not {args.seed}.")
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """Make the dense pairs or plots (kept for the next run), time them, print tables.
 
@@ -244,6 +265,7 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.bench.plot import is_plot_case
     from amrst.files.atomic import make_folder, write_text_atomic
 
+    check_options(args)
     out = make_folder(args.out, "output folder")
     parts = [f"Command: `amrst bench-scale {' '.join(sys.argv[2:])}`", ""]
     if is_plot_case(args.case_dir):

@@ -123,3 +123,33 @@ def test_strided_keeps_small_clouds_whole_and_spreads_over_big_ones() -> None:
     assert len(rows) == 200_000
     np.testing.assert_array_equal(rows[:2], big[[0, 5]])
     assert rows[-1, 0] >= big[-6, 0]  # reaches the end of the sweep
+
+
+def _case(tmp_path, sample_pair):
+    """A copy of the bundled sample as a case folder."""
+    case = tmp_path / "case"
+    case.mkdir()
+    for p in (sample_pair.target_path, sample_pair.source_path, sample_pair.truth_path):
+        shutil.copy(p, case / p.name)
+    return case
+
+
+@pytest.mark.parametrize(
+    ("option", "told"),
+    [
+        (["--noise-m", "-1"], "--noise-m must be 0 or more"),
+        (["--noise-m", "nan"], "--noise-m must be 0 or more"),
+        (["--seed", "-1"], "--seed must be 0 or more, not -1"),
+        (["--points", "2000", "0"], "--points must be at least 1 per scan, not 0"),
+    ],
+)
+def test_bench_scale_refuses_bad_options_first(
+    tmp_path, sample_pair, capsys, option, told
+) -> None:
+    from amrst.cli import main
+
+    case = _case(tmp_path, sample_pair)
+    out = tmp_path / "out"
+    assert main(["bench-scale", str(case), "--out", str(out), *option]) == 2
+    assert told in capsys.readouterr().err
+    assert not out.exists()  # refused before anything is made
