@@ -115,8 +115,8 @@ def run_cli(args: argparse.Namespace) -> int:
         if not folders:
             raise InvalidInput(
                 f"No case folders (with truth.json) under {args.cases_dir}: give the "
-                "folder that holds them (each with target.ply, source.ply and "
-                "truth.json), or make cases with 'amrst simulate'."
+                "folder that holds them (each with a target.* and a source.* scan "
+                "and truth.json), or make cases with 'amrst simulate'."
             )
         _check_out(Path(args.out), args.overwrite)
     except AmrstError as exc:

@@ -286,7 +286,7 @@ def run_bench(
     Parameters
     ----------
     cases_dir : path
-        Folder of case folders (each with target.ply, source.ply, truth.json), or one
+        Folder of case folders (each with target.*, source.*, truth.json), or one
         case folder.
     methods : sequence of str, mapping of str to Method, or None
         Names from ``amrst.baselines.METHODS`` or callables by name; None runs all six.

@@ -129,10 +129,10 @@ def time_register(
     ScaleRow
         Peak memory is the child's maximum resident set size (``wait4``).
     """
+    from amrst.io.cases import case_scan
+
     pair = Path(pair_dir)
-    files = {p.stem: p for p in pair.iterdir() if p.stem in ("target", "source")}
-    if set(files) != {"target", "source"}:
-        raise InvalidInput(f"{pair} needs a target.* and a source.* scan.")
+    files = {role: case_scan(pair, role) for role in ("target", "source")}
     truth = json.loads((pair / "truth.json").read_text())
     n = n_points or int(truth.get("densify_points", 0))
     with tempfile.TemporaryDirectory(prefix="amrst-scale-") as tmp:

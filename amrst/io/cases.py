@@ -1,8 +1,10 @@
-"""The registration case format: a folder with target.ply, source.ply and truth.json.
+"""The registration case format: a folder with a target scan, a source scan and truth.
 
-``truth.json`` holds ``T_target_source`` (4x4, row-major nested lists) mapping source
-coordinates into the target frame; simulated cases add ``spec_target``,
-``spec_source``, ``tree``, ``seed``, ``n_target``, ``n_source`` and ``shared_fraction``.
+The scans are ``target.*`` and ``source.*`` in any format :func:`amrst.io.read` reads
+(``amrst simulate`` writes PLY). ``truth.json`` holds ``T_target_source`` (4x4,
+row-major nested lists) mapping source coordinates into the target frame; simulated
+cases add ``spec_target``, ``spec_source``, ``tree``, ``seed``, ``n_target``,
+``n_source`` and ``shared_fraction``.
 """
 
 from __future__ import annotations
@@ -73,8 +75,8 @@ def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
         what = "is not a folder" if root.exists() else "does not exist"
         raise InvalidInput(
             f"{root} {what}: give the folder that holds the case folders (each "
-            "with target.ply, source.ply and truth.json), or make cases with "
-            "'amrst simulate'."
+            "with a target.* and a source.* scan and truth.json), or make cases "
+            "with 'amrst simulate'."
         )
     found = sorted(p.parent for p in root.glob("*/truth.json"))
     if (root / "truth.json").is_file():
@@ -84,13 +86,58 @@ def find_cases(cases_dir: PathLike, pattern: str | None = None) -> list[Path]:
     return found
 
 
+def case_scan(folder: PathLike, role: str) -> Path:
+    """Find the case's scan ``role.*`` (target or source) in a format amrst reads.
+
+    Parameters
+    ----------
+    folder : path
+        A case folder.
+    role : str
+        ``"target"`` or ``"source"``.
+
+    Returns
+    -------
+    Path
+        The one file named ``role`` with an extension :func:`amrst.io.read` knows.
+
+    Raises
+    ------
+    InvalidInput
+        If the folder holds no such file, or more than one.
+    """
+    from amrst import io
+
+    root = Path(folder)
+    exts = io.supported_extensions()
+    try:
+        found = sorted(
+            p for p in root.iterdir() if p.stem == role and p.suffix.lower() in exts
+        )
+    except OSError as exc:
+        raise InvalidInput(f"{root} cannot be listed ({exc.strerror}).") from None
+    if not found:
+        raise InvalidInput(
+            f"{root} has no {role} scan: add {role}.ply (or {role} with another "
+            f"extension amrst reads: {' '.join(exts)})."
+        )
+    if len(found) > 1:
+        names = " and ".join(p.name for p in found)
+        raise InvalidInput(
+            f"{root} holds {names}: keep one {role} scan, so it is clear which one "
+            "the truth is for."
+        )
+    return found[0]
+
+
 def read_case(path: PathLike) -> Case:
     """Read one case folder.
 
     Parameters
     ----------
     path : path
-        Folder with ``target.ply``, ``source.ply`` and ``truth.json``.
+        Folder with ``truth.json`` and one ``target.*`` and one ``source.*`` scan
+        (see :func:`case_scan`).
 
     Returns
     -------
@@ -99,8 +146,8 @@ def read_case(path: PathLike) -> Case:
     Raises
     ------
     InvalidInput
-        If a file is missing or unreadable, ``truth.json`` is not a JSON object, or
-        its ``T_target_source`` is not a rigid 4x4 transform.
+        If a file is missing, doubled or unreadable, ``truth.json`` is not a JSON
+        object, or its ``T_target_source`` is not a rigid 4x4 transform.
     """
     from amrst import io
 
@@ -112,8 +159,8 @@ def read_case(path: PathLike) -> Case:
     T = check_rigid(truth["T_target_source"], f"T_target_source in {truth_path}")
     return Case(
         folder.name,
-        io.read(folder / "target.ply"),
-        io.read(folder / "source.ply"),
+        io.read(case_scan(folder, "target")),
+        io.read(case_scan(folder, "source")),
         T,
         truth,
     )

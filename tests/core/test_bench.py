@@ -334,3 +334,33 @@ def test_an_empty_case_folder_is_said_before_an_old_out(
     args = parser.parse_args([str(cases_dir), "--cases", "zz*", "--out", str(out)])
     assert run_cli(args) == 2
     assert "matched nothing" in capsys.readouterr().err
+
+
+def test_a_case_reads_its_scans_in_any_format(cases_dir: Path, tmp_path: Path) -> None:
+    """target.* and source.*: any format amrst.io reads, one file a role."""
+    import shutil
+
+    from amrst import io
+
+    case = tmp_path / "c"
+    shutil.copytree(cases_dir / "01_small", case)
+    source = io.read(case / "source.ply")
+    io.write(case / "source.xyz", source)
+    (case / "source.ply").unlink()
+    (case / "notes.txt").write_text("a file of another name is not a scan")
+    read = read_case(case)
+    assert read.source.meta["format"] == "text"
+    np.testing.assert_allclose(
+        read.source.xyz + read.source.offset,
+        source.xyz + source.offset,
+        atol=1e-4,  # text keeps the digits it writes
+    )
+    result = run_bench(tmp_path, {"id": _identity}, tmp_path / "out", plots=False)
+    assert [(r.case, r.error) for r in result.runs] == [("c", "")]
+    io.write(case / "source.laz", source)
+    with pytest.raises(InvalidInput, match=r"holds source\.laz and source\.xyz"):
+        read_case(case)
+    (case / "source.laz").unlink()
+    (case / "source.xyz").unlink()
+    with pytest.raises(InvalidInput, match=r"has no source scan: add source\.ply"):
+        read_case(case)
