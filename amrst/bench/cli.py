@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
     import argparse
+    from collections.abc import Sequence
 
 
 class TerminalProgress:
@@ -103,6 +104,7 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.bench.plot import is_plot_case
     from amrst.bench.run import no_cases_message, resolve_methods, run_bench
     from amrst.errors import AmrstError, InvalidInput
+    from amrst.files.outcheck import check_outside
     from amrst.io.cases import find_cases
 
     try:
@@ -118,7 +120,8 @@ def run_cli(args: argparse.Namespace) -> int:
                 "folder that holds them (each with a target.* and a source.* scan "
                 "and truth.json), or make cases with 'amrst simulate'."
             )
-        _check_out(Path(args.out), args.overwrite)
+        check_outside(args.out, args.cases_dir, "cases folder")
+        check_out(Path(args.out), args.overwrite)
     except AmrstError as exc:
         print(f"amrst bench: {exc}", file=sys.stderr)
         return 2
@@ -163,11 +166,28 @@ def run_cli(args: argparse.Namespace) -> int:
 RESULT_FILES = ("summary.md", "results.json", "results.csv", "plot_results.json")
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
-    """Refuse ``out`` when it holds an earlier run's results, unless ``overwrite``."""
+def check_out(
+    out: Path, overwrite: bool, result_files: Sequence[str] = RESULT_FILES
+) -> None:
+    """Refuse ``out`` when it holds an earlier run's results, unless ``overwrite``.
+
+    Parameters
+    ----------
+    out : Path
+        The ``--out`` folder.
+    overwrite : bool
+        ``--overwrite`` was given.
+    result_files : sequence of str
+        The files of a run that mark an earlier one.
+
+    Raises
+    ------
+    InvalidInput
+        With what to change.
+    """
     from amrst.errors import InvalidInput
 
-    held = [name for name in RESULT_FILES if (out / name).exists()]
+    held = [name for name in result_files if (out / name).exists()]
     if held and not overwrite:
         raise InvalidInput(
             f"{out} holds the results of an earlier run ({held[0]}): give another "

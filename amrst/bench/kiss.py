@@ -24,6 +24,7 @@ from amrst.guards import ShiftedPair, grid_pair, kiss_pair
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+    from pathlib import Path
 
     from amrst.progress import Reporter
     from amrst.types import Transform
@@ -106,6 +107,37 @@ def kiss_gicp(peer: PeerInput) -> Transform:
     return pair.unshift(out.T_target_source)
 
 
+def kiss_case_paths(
+    cases_dirs: Sequence[str], pattern: str | None = None
+) -> list[Path]:
+    """Return the case folders :func:`kiss_ratio` times, checked before any work.
+
+    Raises
+    ------
+    InvalidInput
+        If kiss-matcher is not installed, or a folder is missing or holds no case.
+    """
+    try:
+        import kiss_matcher  # noqa: F401
+    except ImportError:
+        raise InvalidInput(
+            "The KISS-Matcher comparison needs the kiss-matcher package: "
+            "pip install kiss-matcher (wheels for Linux x86_64 and macOS arm64)."
+        ) from None
+    from amrst.io.cases import find_cases
+
+    paths = []
+    for d in cases_dirs:
+        found = find_cases(d, pattern)
+        if not found:
+            raise InvalidInput(
+                f"No case folders (with truth.json) under {d}: give --kiss the "
+                "folders that hold them."
+            )
+        paths += found
+    return paths
+
+
 def kiss_ratio(
     cases_dirs: Sequence[str],
     pattern: str | None = None,
@@ -118,20 +150,13 @@ def kiss_ratio(
     list of KissRow
         A case our pipeline refuses (no verified candidate) is timed all the same.
     """
-    try:
-        import kiss_matcher  # noqa: F401
-    except ImportError:
-        raise InvalidInput(
-            "The KISS-Matcher comparison needs the kiss-matcher package: "
-            "pip install kiss-matcher (wheels for Linux x86_64 and macOS arm64)."
-        ) from None
     from amrst.baselines._common import local_pair, to_local
     from amrst.errors import RegistrationFailed
-    from amrst.io.cases import find_cases, read_case
+    from amrst.io.cases import read_case
     from amrst.pipeline import register
     from amrst.stages.metrics import truth_errors
 
-    paths = [p for d in cases_dirs for p in find_cases(d, pattern)]
+    paths = kiss_case_paths(cases_dirs, pattern)
     rows = []
     for n, path in enumerate(paths):
         if reporter is not None:

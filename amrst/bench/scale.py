@@ -33,6 +33,8 @@ if TYPE_CHECKING:
     import argparse
     from collections.abc import Sequence
 
+    from amrst.bench.scale_plot import PlotScaleRow
+
 PathLike = str | os.PathLike[str]
 # Stages in the order the pipeline runs them (the table's columns).
 STAGES = (
@@ -108,6 +110,11 @@ class ScaleRow:
     peak_mb: float  # peak resident memory of the command
     exit_code: int
     timings: dict[str, float] = field(default_factory=dict)  # stage -> s
+
+    @property
+    def measured(self) -> bool:
+        """Whether the command ran to the end and wrote its timings."""
+        return bool(self.timings)
 
 
 def time_register(
@@ -213,7 +220,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "--out",
         default="bench_scale",
         metavar="DIR",
-        help="dense scans and tables go here",
+        help="dense scans and tables go here (dense scans made before are reused)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the scale.md an earlier run wrote into --out",
     )
     p.add_argument(
         "--kiss",
@@ -257,25 +269,83 @@ def check_options(args: argparse.Namespace) -> None:
         raise InvalidInput(f"--seed must be 0 or more, not {args.seed}.")
 
 
+def check_case(case_dir: PathLike) -> bool:
+    """Check the case folder to densify before any work; tell whether it is a plot.
+
+    Reads its truth, and for a pair finds its two scans (the scans are read later).
+
+    Raises
+    ------
+    InvalidInput
+        A folder that is missing, holds no truth.json, or whose truth or scans a
+        run would refuse.
+    """
+    from amrst.bench.plot import is_plot_case, read_plot_truth
+    from amrst.io.cases import case_scan
+    from amrst.io.truth import read_truth_document
+
+    root = Path(case_dir)
+    if not root.is_dir():
+        what = "is not a folder" if root.exists() else "does not exist"
+        raise InvalidInput(
+            f"{root} {what}: give a case folder (target.*, source.*, truth.json) or "
+            "a plot case folder."
+        )
+    if not (root / "truth.json").is_file():
+        raise InvalidInput(
+            f"{root} has no truth.json; it is not a case folder: give one that holds "
+            "target.*, source.* and truth.json, or make one with 'amrst simulate'."
+        )
+    if is_plot_case(root):
+        read_plot_truth(root)
+        return True
+    read_truth_document(root / "truth.json")
+    for role in ("target", "source"):
+        case_scan(root, role)
+    return False
+
+
+#: The file a run writes into --out that marks an earlier run.
+SCALE_FILES = ("scale.md",)
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """Make the dense pairs or plots (kept for the next run), time them, print tables.
 
     A case whose truth lists the stems is a plot: ``amrst plot`` is timed on it.
+    Everything the run needs is checked before any work.
+
+    Returns
+    -------
+    int
+        0 when every timed command measured, 1 when one stopped without timings
+        (the tables are written all the same).
     """
-    from amrst.bench.plot import is_plot_case
+    from amrst.bench.cli import check_out
     from amrst.files.atomic import make_folder, write_text_atomic
+    from amrst.files.outcheck import check_outside
 
     check_options(args)
+    plot = check_case(args.case_dir)
+    check_outside(args.out, args.case_dir, "case folder")
+    check_out(Path(args.out), args.overwrite, SCALE_FILES)
+    if args.kiss is not None:
+        from amrst.bench.kiss import kiss_case_paths
+
+        kiss_case_paths(args.kiss or ["cases"])
     out = make_folder(args.out, "output folder")
     parts = [f"Command: `amrst bench-scale {' '.join(sys.argv[2:])}`", ""]
-    if is_plot_case(args.case_dir):
+    rows: Sequence[ScaleRow] | Sequence[PlotScaleRow]
+    if plot:
         from amrst.bench.scale_plot import plot_scale_report
 
-        parts.append(
-            plot_scale_report(args.case_dir, out, args.points, args.noise_m, args.seed)
+        text, rows = plot_scale_report(
+            args.case_dir, out, args.points, args.noise_m, args.seed
         )
+        parts.append(text)
     else:
-        parts += [format_scale_table(_pair_rows(args, out)), ""]
+        rows = _pair_rows(args, out)
+        parts += [format_scale_table(rows), ""]
     if args.kiss is not None:
         from amrst.bench.cli import TerminalProgress
         from amrst.bench.kiss import format_kiss_table, kiss_ratio
@@ -285,4 +355,13 @@ def run_cli(args: argparse.Namespace) -> int:
     text = "\n".join(parts)
     write_text_atomic(out / "scale.md", text)
     print(text)
+    failed = [f"{out / r.name} (exit {r.exit_code})" for r in rows if not r.measured]
+    if failed:
+        command = "amrst plot" if plot else "amrst register"
+        print(
+            f"amrst bench-scale: {command} stopped without timings on "
+            f"{', '.join(failed)}; run it on those scans to see why.",
+            file=sys.stderr,
+        )
+        return 1
     return 0

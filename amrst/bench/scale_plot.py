@@ -115,6 +115,11 @@ class PlotScaleRow:
     record: PlotRecord
     progress: tuple[tuple[float, str], ...]
 
+    @property
+    def measured(self) -> bool:
+        """Whether the command ran to the end and wrote its timings."""
+        return bool(self.stages)
+
 
 def time_plot(plot_dir: PathLike, extra: Sequence[str] = ()) -> PlotScaleRow:
     """Run ``amrst plot`` on a plot case folder in a child process; score it.
@@ -287,8 +292,15 @@ def plot_scale_report(
     points: Sequence[int],
     noise_m: float = 0.003,
     seed: int = 0,
-) -> str:
-    """Make the dense plots (kept for the next run), time them; return the Markdown."""
+) -> tuple[str, list[PlotScaleRow]]:
+    """Make the dense plots (kept for the next run), time them.
+
+    Returns
+    -------
+    text : str
+        The Markdown: the table and each run's progress lines.
+    rows : list of PlotScaleRow
+    """
     rows = []
     for n in points:
         plot = out / f"{Path(case_dir).name}-{n // 1000}k-seed{seed}"
@@ -302,4 +314,4 @@ def plot_scale_report(
         parts += [f"Progress of `amrst plot` on {r.name} (s since start):", "", "```"]
         parts += [f"{t:7.1f}  {text}" for t, text in r.progress]
         parts += ["```", ""]
-    return "\n".join(parts)
+    return "\n".join(parts), rows

@@ -143,3 +143,33 @@ def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
             return Path(a).resolve() == Path(b).resolve()
         except RuntimeError:  # a symbolic link loop: the readers refuse it in words
             return False
+
+
+def check_outside(
+    out_dir: str | os.PathLike[str], input_dir: str | os.PathLike[str], what: str
+) -> None:
+    """Refuse an output folder that is ``input_dir`` or lies inside it.
+
+    Parameters
+    ----------
+    out_dir : path
+    input_dir : path
+        The folder a command reads.
+    what : str
+        How the message names ``input_dir`` ("case folder").
+
+    Raises
+    ------
+    InvalidInput
+        If ``out_dir`` is ``input_dir`` or inside it (links followed).
+    """
+    try:
+        out, source = Path(out_dir).resolve(), Path(input_dir).resolve()
+    except (OSError, RuntimeError):  # a link loop: the checks of each path say so
+        return
+    if out == source or source in out.parents:
+        where = "is" if out == source else "lies inside"
+        raise InvalidInput(
+            f"The output folder {out_dir} {where} the {what} {input_dir}: the "
+            "results would mix with what is read; choose a folder outside it."
+        )

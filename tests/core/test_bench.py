@@ -364,3 +364,23 @@ def test_a_case_reads_its_scans_in_any_format(cases_dir: Path, tmp_path: Path) -
     (case / "source.xyz").unlink()
     with pytest.raises(InvalidInput, match=r"has no source scan: add source\.ply"):
         read_case(case)
+
+
+def test_bench_refuses_an_out_inside_what_it_reads(
+    cases_dir: Path, tmp_path: Path, capsys
+) -> None:
+    import shutil
+
+    from amrst.cli import main
+
+    root = tmp_path / "cases"
+    shutil.copytree(cases_dir / "01_small", root / "01_small")
+    for out in (root / "01_small" / "out", root / "out", root):
+        assert main(["bench", str(root), "--methods", "amrst", "--out", str(out)]) == 2
+        assert "choose a folder outside it" in capsys.readouterr().err
+    assert sorted(p.name for p in root.iterdir()) == ["01_small"]
+    assert sorted(p.name for p in (root / "01_small").iterdir()) == [
+        "source.ply",
+        "target.ply",
+        "truth.json",
+    ]

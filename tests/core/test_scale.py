@@ -153,3 +153,55 @@ def test_bench_scale_refuses_bad_options_first(
     assert main(["bench-scale", str(case), "--out", str(out), *option]) == 2
     assert told in capsys.readouterr().err
     assert not out.exists()  # refused before anything is made
+
+
+def test_bench_scale_keeps_an_earlier_run_and_says_a_failed_one(
+    tmp_path, sample_pair, capsys
+) -> None:
+    """Ten points a scan are too few to register: the run says so and exits 1;
+    its scale.md is then replaced only with --overwrite."""
+    from amrst.cli import main
+
+    case = _case(tmp_path, sample_pair)
+    out = tmp_path / "out"
+    argv = ["bench-scale", str(case), "--points", "10", "--out", str(out)]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "amrst register stopped without timings" in err
+    assert f"{out / 'case-0k-seed0'} (exit 2)" in err
+    (out / "scale.md").write_text("an earlier run")
+    assert main(argv) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "scale.md").read_text() == "an earlier run"
+    assert main([*argv, "--overwrite"]) == 1
+    assert "| case-0k-seed0 | 10 |" in (out / "scale.md").read_text()
+
+
+def test_bench_scale_checks_its_folders_before_any_work(
+    tmp_path, sample_pair, capsys
+) -> None:
+    from amrst.cli import main
+
+    case = _case(tmp_path, sample_pair)
+    out = tmp_path / "out"
+    wrong = {
+        "inside the case": (
+            [str(case), "--out", str(case / "dense")],
+            "lies inside the case folder",
+        ),
+        "the case itself": ([str(case), "--out", str(case)], "is the case folder"),
+        "no case": ([str(tmp_path / "nope"), "--out", str(out)], "does not exist"),
+        "no truth": ([str(out.parent / "empty"), "--out", str(out)], "no truth.json"),
+        "kiss": (
+            [str(case), "--out", str(out), "--kiss", str(tmp_path / "nope")],
+            "does not exist",
+        ),
+    }
+    (tmp_path / "empty").mkdir()
+    for name, (argv, told) in wrong.items():
+        assert main(["bench-scale", *argv, "--points", "2000"]) == 2, name
+        err = capsys.readouterr().err
+        assert told in err, name
+        assert "making" not in err, name
+        assert not out.exists(), name
+        assert not (case / "dense").exists(), name
