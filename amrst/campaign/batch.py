@@ -23,9 +23,11 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
+from amrst.campaign.manifest import RESULTS
 from amrst.campaign.plan import cluster_scan_threads, longest_first, time_left
 from amrst.campaign.run import TREE_TOPIC, is_done, run_tree, tree_stamp, warm_worker
 from amrst.campaign.table import campaign_rows, tree_row, write_table
+from amrst.files.atomic import make_folder
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -185,7 +187,16 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     cluster_cls: Any = LocalCluster
 
     if scheduler:
-        return client_cls(scheduler, timeout="20s"), None
+        try:
+            return client_cls(scheduler, timeout="20s"), None
+        except (OSError, ValueError, TimeoutError) as exc:
+            from amrst.errors import InvalidInput
+
+            raise InvalidInput(
+                f"No Dask scheduler answers at {scheduler!r} ({exc}): give its "
+                "address as tcp://HOST:PORT, and check that it runs and this machine "
+                "reaches it."
+            ) from exc
     config = {
         # One task per worker thread, the rest queued on the scheduler (Dask's default,
         # 1.1, gives a 1-thread worker a second task to hold): the longest-first order
@@ -264,6 +275,7 @@ def run_batch(
             progress.update(len(done), 0, 0, total, 0.0, None)
         return summary
     _check_options(workers, scheduler, threads_per_tree)
+    make_folder(campaign.root / RESULTS, "results folder")  # each tree's goes in it
     todo, costs = longest_first(campaign, todo)
     rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends
     client, cluster = _client(workers, scheduler)

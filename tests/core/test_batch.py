@@ -228,3 +228,22 @@ def test_sigkill_then_resume_loses_only_trees_in_flight(
             _transform(tmp_path, f"T{k}"), sample_run.result.T_target_source
         )
     assert {r["status"] for r in _rows(tmp_path).values()} == {"registered"}
+
+
+def test_a_scheduler_that_cannot_be_reached_is_one_line():
+    from amrst.campaign.batch import _client
+    from amrst.errors import InvalidInput
+
+    with pytest.raises(InvalidInput, match="tcp://HOST:PORT") as info:
+        _client(1, "garbage")
+    assert "\n" not in str(info.value)
+
+
+def test_a_results_file_in_the_way_is_refused_before_any_tree(tmp_path, sample_pair):
+    from amrst.errors import InvalidInput
+
+    _pair_tree(tmp_path, "T01", sample_pair)
+    init_campaign(tmp_path)
+    (tmp_path / "results").write_text("not a folder")
+    with pytest.raises(InvalidInput, match="results folder"):
+        run_batch(load_campaign(tmp_path), workers=1)
