@@ -196,11 +196,15 @@ def truth_dict(
 
 
 def check_case_folder(out_dir: PathLike) -> Path:
-    """Refuse a case folder path that is empty or an existing file (nothing created).
+    """Refuse a case folder path that cannot be written or already holds files.
+
+    A simulated case is never written over: a folder that holds files (an earlier
+    case, the tree cloud being read) is refused. Nothing is created.
 
     Parameters
     ----------
     out_dir : path
+        A missing or empty folder.
 
     Returns
     -------
@@ -213,7 +217,13 @@ def check_case_folder(out_dir: PathLike) -> Path:
     """
     from amrst.files.outcheck import check_output_folder  # permissions, loops
 
-    return check_output_folder(out_dir, "case folder")
+    out = check_output_folder(out_dir, "case folder")
+    if out.is_dir() and any(out.iterdir()):
+        raise InvalidInput(
+            f"The case folder {out} already holds files; a simulated case is never "
+            "written over: remove it or choose a new folder."
+        )
+    return out
 
 
 def write_case(
@@ -229,7 +239,7 @@ def write_case(
     ----------
     pair : SimulatedPair
     out_dir : path
-        Created if missing.
+        A new or empty folder (created if missing).
     tree_name : str
         Recorded as ``tree`` in ``truth.json``.
     seed : int or None
@@ -245,7 +255,7 @@ def write_case(
     Raises
     ------
     InvalidInput
-        If ``out_dir`` is a file or cannot be created.
+        As :func:`check_case_folder`.
     """
     from amrst import io
     from amrst.files.outdir import replace_files

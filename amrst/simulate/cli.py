@@ -35,7 +35,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="complete tree cloud (any readable format); with --plot, the trees to "
         "stand on the plot",
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="case folder to write")
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="new or empty case folder to write"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--separation-deg", type=float, default=None, help="one tree: default 90"
@@ -259,7 +261,6 @@ def _run_plot(args: argparse.Namespace) -> str:
     """Simulate a forest plot scanned from several positions; return the summary."""
     from amrst import io
     from amrst.simulate.plot import (
-        check_plot_folder,
         plot_options,
         simulate_plot,
         write_plot_case,
@@ -296,7 +297,7 @@ def _run_plot(args: argparse.Namespace) -> str:
             )
         changes["spacing_m"] = (args.spacing_m[0], args.spacing_m[-1])
     options = plot_options(args.kind or "normal", **changes)
-    check_plot_folder(args.out)
+    check_case_folder(args.out)
     trees = [
         replace(one_tree(io.read(path), path), name=_tree_name(path))
         for path in args.tree_files

@@ -638,23 +638,6 @@ def plot_truth(plot: SimulatedPlot, seed: int | None = None) -> dict[str, Any]:
     return doc
 
 
-def check_plot_folder(out_dir: str | os.PathLike[str]) -> Path:
-    """Refuse a plot case folder that cannot be written or already holds files.
-
-    Raises
-    ------
-    InvalidInput
-        With what to change (nothing is created).
-    """
-    out = check_case_folder(out_dir)
-    if out.is_dir() and any(out.iterdir()):
-        raise InvalidInput(
-            f"The case folder {out} already holds files; a plot case is never "
-            "written over: remove it or choose a new folder."
-        )
-    return out
-
-
 def write_plot_case(
     plot: SimulatedPlot, out_dir: str | os.PathLike[str], seed: int | None = None
 ) -> Path:
@@ -668,12 +651,12 @@ def write_plot_case(
     Raises
     ------
     InvalidInput
-        As :func:`check_plot_folder`.
+        As :func:`amrst.io.cases.check_case_folder`.
     """
     from amrst.files.atomic import make_folder, write_json_atomic
     from amrst.files.outdir import replace_files
 
-    out = make_folder(check_plot_folder(out_dir), "case folder")
+    out = make_folder(check_case_folder(out_dir), "case folder")
     truth = plot_truth(plot, seed)
     writers: dict[str, Callable[[Path], object]] = {
         name: _cloud_writer(cloud)

@@ -236,6 +236,37 @@ def test_existing_file_as_out_is_refused(tree: Cloud, tmp_path, capsys) -> None:
     assert "Traceback" not in err
 
 
+def test_a_case_is_never_written_over(tree: Cloud, tmp_path, capsys) -> None:
+    from amrst import io
+    from amrst.errors import InvalidInput
+
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    tree_path = tmp_path / "tree.ply"
+    io.write(tree_path, tree)
+    out = tmp_path / "case"
+    argv = [str(tree_path), "--out", str(out), "--res-deg", "0.2"]
+    assert run_cli(parser.parse_args(argv)) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # Another seed into the same case, then the case's own scan as the tree.
+    for again in (
+        [*argv, "--seed", "5"],
+        [str(out / "target.ply"), "--out", str(out), "--res-deg", "0.2"],
+    ):
+        capsys.readouterr()
+        assert run_cli(parser.parse_args(again)) == 2
+        err = capsys.readouterr().err
+        assert "already holds files" in err
+        assert err.count("\n") == 1
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    with pytest.raises(InvalidInput, match="already holds files"):
+        write_case(simulate_pair(tree, seed=5), out, "synthetic.ply")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # A new or empty folder is written.
+    (tmp_path / "empty").mkdir()
+    assert write_case(simulate_pair(tree, seed=5), tmp_path / "empty", "t.ply")
+
+
 @pytest.mark.parametrize(
     ("option", "value"),
     [
