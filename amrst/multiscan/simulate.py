@@ -21,6 +21,7 @@ from amrst.types import Cloud, Transform, invert_transform
 if TYPE_CHECKING:
     import argparse
     import os
+    from collections.abc import Callable
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,13 +124,25 @@ def write_scans(
     tree_name: str = "",
     seed: int | None = None,
 ) -> Path:
-    """Write ``scan_<k>.ply`` and ``truth.json`` into ``out_dir`` (created)."""
-    from amrst import io
-    from amrst.files.atomic import make_folder, write_json_atomic
+    """Write ``scan_<k>.ply`` and ``truth.json`` into a new or empty folder, as one unit.
 
-    out = make_folder(out_dir, "scan folder")
-    for k, scan in enumerate(sim.scans):
-        io.write(out / f"scan_{k}.ply", scan)
+    Returns
+    -------
+    Path
+        The folder.
+
+    Raises
+    ------
+    InvalidInput
+        As :func:`amrst.io.cases.check_case_folder` (a folder that holds files is
+        never written over).
+    """
+    from amrst.files.atomic import make_folder, write_json_atomic
+    from amrst.files.outdir import replace_files
+    from amrst.io.cases import check_case_folder
+
+    out = make_folder(check_case_folder(out_dir), "case folder")
+    names = [f"scan_{k}.ply" for k in range(len(sim.scans))]
     onto_first = sim.T_reference_scan(0)
     doc: dict[str, Any] = {
         # scan_1 onto scan_0, so the folder is also a pair case for amrst register
@@ -137,20 +150,33 @@ def write_scans(
         "T_reference_scan": [T.tolist() for T in onto_first],
         "T_tree_scanner": [T.tolist() for T in sim.poses],
         "specs": list(sim.specs),
-        "scans": [f"scan_{k}.ply" for k in range(len(sim.scans))],
+        "scans": names,
         "reference": 0,
         "tree": tree_name,
         "seed": seed,
         "convention": "x_reference = T_reference_scan[k] @ [x_scan_k, 1]; row-major, metres",
     }
-    write_json_atomic(out / "truth.json", doc)
+    # The scans and the truth as one unit: a kill never pairs them with older ones.
+    writers: dict[str, Callable[[Path], object]] = {
+        name: _cloud_writer(scan) for name, scan in zip(names, sim.scans, strict=True)
+    }
+    writers["truth.json"] = lambda p: write_json_atomic(p, doc)
+    replace_files(out, writers, managed=set(writers))
     return out
+
+
+def _cloud_writer(cloud: Cloud) -> Callable[[Path], object]:
+    from amrst import io
+
+    return lambda path: io.write(path, cloud)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Add the ``amrst campaign simulate`` arguments to ``p``."""
     p.add_argument("tree", metavar="TREE", help="complete tree cloud")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder to write")
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="new or empty folder to write"
+    )
     p.add_argument("--scans", type=int, default=4, help="scanner positions (default 4)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -171,8 +197,11 @@ def run_cli(args: argparse.Namespace) -> int:
     import sys
 
     from amrst import io
+    from amrst.io.cases import check_case_folder
     from amrst.simulate.settings import one_tree
 
+    # The output folder is checked before the (slow) simulation.
+    check_case_folder(args.out)
     tree = one_tree(io.read(args.tree), args.tree)
     sim = simulate_scans(
         tree,

@@ -174,6 +174,37 @@ def test_cli_three_scans_and_truth(tmp_path, three_scans, capsys):
     assert doc["scans"][1]["file"] == scans[1]
 
 
+def test_campaign_simulate_never_writes_over_a_folder(
+    tmp_path, tiny_tree_path, three_scans, capsys
+):
+    from amrst.errors import InvalidInput
+
+    out = tmp_path / "tree"
+    argv = ["campaign", "simulate", str(tiny_tree_path), "--out", str(out)]
+    assert main([*argv, "--scans", "3", "--res-deg", "0.2"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "scan_0.ply",
+        "scan_1.ply",
+        "scan_2.ply",
+        "truth.json",
+    ]
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # Fewer scans into the same folder: refused, no stale scan_2 beside a new truth.
+    capsys.readouterr()
+    assert main([*argv, "--scans", "2", "--res-deg", "0.3"]) == 2
+    err = capsys.readouterr().err
+    assert "already holds files" in err
+    assert err.count("\n") == 1
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # A folder holding other files is refused too, and by the library.
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("x")
+    with pytest.raises(InvalidInput, match="already holds files"):
+        write_scans(three_scans, other)
+    assert [p.name for p in other.iterdir()] == ["notes.txt"]
+
+
 def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
     from amrst.io.e57 import write_e57
 
