@@ -16,12 +16,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.simulate.settings import Bounds, check_number, check_range
 from amrst.types import Cloud, Transform, invert_transform
 
 if TYPE_CHECKING:
     import argparse
     import os
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,6 +37,51 @@ class SimulatedScans:
         """Return the true transforms scan k -> the reference scan, for every k."""
         inv = invert_transform(self.poses[reference])
         return [inv @ pose for pose in self.poses]
+
+
+#: The azimuth step between consecutive positions (deg).
+STEP_DEG = Bounds(0.0, 360.0, above_low=True, unit="degrees")
+
+
+def check_scan_settings(
+    *,
+    n_scans: Any,
+    seed: Any,
+    separation_deg: Sequence[float],
+    distance_m: float,
+    res_deg: float,
+    noise_m: float,
+    tilt_deg: float = 0.5,
+    height_m: float = 1.5,
+    cli: bool = False,
+) -> None:
+    """Refuse settings :func:`simulate_scans` cannot use, naming the setting.
+
+    Parameters
+    ----------
+    n_scans, seed, separation_deg, distance_m, res_deg, noise_m, tilt_deg, height_m
+        As :func:`simulate_scans`; the ranges are those of
+        :data:`amrst.simulate.settings.SETTINGS` and :data:`STEP_DEG`.
+    cli : bool
+        Name the settings as ``amrst campaign simulate`` options (``--scans``).
+
+    Raises
+    ------
+    InvalidInput
+        The first setting that is wrong, and what it must be.
+    """
+    numbers = {
+        "scans" if cli else "n_scans": n_scans,
+        "seed": seed,
+        "distance_m": distance_m,
+        "res_deg": res_deg,
+        "noise_m": noise_m,
+        "tilt_deg": tilt_deg,
+        "height_m": height_m,
+    }
+    for name, value in numbers.items():
+        check_number(name, value, cli=cli)
+    check_range("separation_deg", separation_deg, cli=cli, bounds=STEP_DEG)
 
 
 def simulate_scans(
@@ -57,17 +103,24 @@ def simulate_scans(
     tree : Cloud
         A complete tree cloud (z up).
     n_scans : int
-        At least 2.
+        2 to 50.
     seed : int
         Seeds the positions, headings, tilts and noise.
     separation_deg : (float, float)
-        Range of the azimuth step between consecutive positions (deg).
+        Range of the azimuth step between consecutive positions (deg; 0 < low <=
+        high <= 360).
     distance_m, res_deg, noise_m, tilt_deg, height_m : float
         As :func:`amrst.simulate.simulate_pair`.
 
     Returns
     -------
     SimulatedScans
+
+    Raises
+    ------
+    InvalidInput
+        A setting out of range (see :func:`check_scan_settings`), or a scan that
+        keeps under 100 points.
     """
     from amrst.simulate import (
         MIN_POINTS,
@@ -77,14 +130,17 @@ def simulate_scans(
         trunk_base,
     )
 
-    if n_scans < 2:
-        raise InvalidInput(f"n_scans must be at least 2, got {n_scans}.")
+    check_scan_settings(
+        n_scans=n_scans,
+        seed=seed,
+        separation_deg=separation_deg,
+        distance_m=distance_m,
+        res_deg=res_deg,
+        noise_m=noise_m,
+        tilt_deg=tilt_deg,
+        height_m=height_m,
+    )
     lo, hi = separation_deg
-    if not 0 < lo <= hi:
-        raise InvalidInput(
-            f"separation_deg must be a range (low, high) with 0 < low <= high, got "
-            f"{separation_deg}."
-        )
     rng = np.random.default_rng(seed)
     base = trunk_base(tree.xyz)
     radius = footprints(tree.xyz)
@@ -200,7 +256,16 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.io.cases import check_case_folder
     from amrst.simulate.settings import one_tree
 
-    # The output folder is checked before the (slow) simulation.
+    # The settings and the output folder are checked before the (slow) simulation.
+    check_scan_settings(
+        n_scans=args.scans,
+        seed=args.seed,
+        separation_deg=args.separation_deg,
+        distance_m=args.distance_m,
+        res_deg=args.res_deg,
+        noise_m=args.noise_m,
+        cli=True,
+    )
     check_case_folder(args.out)
     tree = one_tree(io.read(args.tree), args.tree)
     sim = simulate_scans(

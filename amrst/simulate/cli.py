@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.simulate import check_case_folder, check_settings, simulate_pair, write_case
-from amrst.simulate.settings import one_tree
+from amrst.simulate.settings import check_numbers, check_range, one_tree
 
 if TYPE_CHECKING:
     import argparse
@@ -170,7 +170,7 @@ def run_cli(args: argparse.Namespace) -> int:
 
 
 def _check_common(args: argparse.Namespace, tilt_deg: float) -> None:
-    """Refuse bad numbers and output folders before the (slow) simulation."""
+    """Refuse bad numbers before the (slow) simulation, naming the option."""
     check_settings(
         seed=args.seed,
         separation_deg=90.0 if args.separation_deg is None else args.separation_deg,
@@ -180,6 +180,19 @@ def _check_common(args: argparse.Namespace, tilt_deg: float) -> None:
         tilt_deg=tilt_deg,
         cli=True,
     )
+    check_numbers(
+        {
+            "slope_deg": args.slope_deg,
+            "shrubs": args.shrubs,
+            "clip_radius_m": args.clip_radius_m,
+            "positions": args.positions,
+            "range_m": args.range_m,
+            "trees": args.n_trees,
+        },
+        cli=True,
+    )
+    if args.spacing_m is not None:
+        check_range("spacing_m", args.spacing_m, cli=True)
 
 
 def _refuse(args: argparse.Namespace, names: dict[str, str], what: str) -> None:
@@ -290,11 +303,6 @@ def _run_plot(args: argparse.Namespace) -> str:
     if args.n_trees is not None:
         changes["trees"] = args.n_trees
     if args.spacing_m is not None:
-        if len(args.spacing_m) > 2:
-            raise InvalidInput(
-                f"--spacing-m takes one distance or a range LOW HIGH, got "
-                f"{len(args.spacing_m)} values."
-            )
         changes["spacing_m"] = (args.spacing_m[0], args.spacing_m[-1])
     options = plot_options(args.kind or "normal", **changes)
     check_case_folder(args.out)

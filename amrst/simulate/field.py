@@ -24,6 +24,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.simulate import SimulatedPair, simulate_pair, trunk_base
+from amrst.simulate.settings import check_numbers
 from amrst.types import Cloud, apply_transform
 
 if TYPE_CHECKING:
@@ -65,12 +66,17 @@ class FieldOptions:
             raise InvalidInput(
                 f"neighbour distances must be 0 < min <= max, got {lo} and {hi}."
             )
-        if self.ground_spacing_m <= 0 or self.shrubs < 0:
-            raise InvalidInput("ground spacing must be > 0 and shrubs >= 0.")
-        if self.clip_radius_m is not None and self.clip_radius_m <= 0:
-            raise InvalidInput(f"clip radius must be > 0, got {self.clip_radius_m}.")
-        if not 0 <= self.slope_deg < 45:
-            raise InvalidInput(f"slope must be 0-45 deg, got {self.slope_deg}.")
+        if not self.ground_spacing_m > 0:
+            raise InvalidInput(
+                f"ground spacing must be > 0, got {self.ground_spacing_m}."
+            )
+        check_numbers(
+            {
+                "slope_deg": self.slope_deg,
+                "shrubs": self.shrubs,
+                "clip_radius_m": self.clip_radius_m,
+            }
+        )
 
 
 @dataclass(frozen=True, slots=True)

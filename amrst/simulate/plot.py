@@ -41,7 +41,7 @@ from amrst.simulate import (
     simulate_scan,
 )
 from amrst.simulate.field import ground_disc, ground_height, shrub, standing
-from amrst.simulate.settings import MAX_NOISE_M, MAX_TILT_DEG
+from amrst.simulate.settings import MIN_TREES, check_numbers, check_range
 from amrst.types import Cloud, Transform, apply_transform, invert_transform
 
 if TYPE_CHECKING:
@@ -49,14 +49,11 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
     from pathlib import Path
 
-# Fewest trees on a plot: a stem map of fewer has no layout to register on.
-MIN_TREES = 3
 # A tree cloud shorter than this (m) is no tree to plant (one point, a shrub).
 MIN_TREE_HEIGHT_M = 1.0
-# Bounds of the scene a plot simulation builds in memory (the defaults make about
-# 1.3 million ground points and 15 shrubs).
+# Most ground points a plot simulation builds in memory (the defaults make about
+# 1.3 million).
 MAX_GROUND_POINTS = 8_000_000
-MAX_SHRUBS = 1000
 # A tripod stands at least this far from every stem foot (buttresses, the trunk).
 _STEM_CLEARANCE_M = 1.5
 # Tries to place one tree or one scanner position before giving up.
@@ -85,6 +82,9 @@ KINDS: dict[str, dict[str, Any]] = {
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PlotOptions:
     """How the plot is laid out and scanned (the defaults are the ``normal`` kind).
+
+    The settings a command option sets are checked by
+    :func:`amrst.simulate.settings.check_numbers`, with the ranges it names.
 
     kind : str
         Recorded in the truth; :func:`plot_options` sets the fields of a kind.
@@ -134,77 +134,56 @@ class PlotOptions:
     shrubs: int = 15
 
     def __post_init__(self) -> None:
+        check_numbers(
+            {
+                name: getattr(self, name)
+                for name in (
+                    "positions",
+                    "tilt_deg",
+                    "res_deg",
+                    "noise_m",
+                    "height_m",
+                    "range_m",
+                    "slope_deg",
+                    "shrubs",
+                    "trees",
+                )
+            }
+        )
+        check_range("spacing_m", self.spacing_m)
+        # The layout's own numbers (no command option sets them).
         numbers = {
-            "spacing_m": self.spacing_m,
-            "tilt_deg": (self.tilt_deg,),
-            "res_deg": (self.res_deg,),
-            "noise_m": (self.noise_m,),
-            "height_m": (self.height_m,),
             "sway_m": self.sway_m,
             "plot_radius_m": (self.plot_radius_m,),
             "min_gap_m": (self.min_gap_m,),
             "scale": self.scale,
-            "range_m": (self.range_m,),
             "ground_spacing_m": (self.ground_spacing_m,),
-            "slope_deg": (self.slope_deg,),
             "roughness_m": (self.roughness_m,),
         }
         for name, values in numbers.items():
             if not all(math.isfinite(v) for v in values):
                 raise InvalidInput(f"{name} must be finite, got {values}.")
-        if self.positions < 2:
-            raise InvalidInput(f"positions must be 2 or more, got {self.positions}.")
-        if self.trees is not None and self.trees < MIN_TREES:
+        lo, hi = self.scale
+        if not 0 < lo <= hi:
             raise InvalidInput(
-                f"A plot needs at least {MIN_TREES} trees, got trees={self.trees}."
+                f"scale must be a range with 0 < low <= high, got {lo} and {hi}."
             )
-        for name in ("spacing_m", "scale"):
-            lo, hi = getattr(self, name)
-            if not 0 < lo <= hi:
-                raise InvalidInput(
-                    f"{name} must be a range with 0 < low <= high, got {lo} and {hi}."
-                )
-        self._check_scanner()
         self._check_scene()
 
-    def _check_scanner(self) -> None:
-        if self.res_deg <= 0 or self.height_m <= 0:
-            raise InvalidInput(
-                f"res_deg and height_m must be > 0, got {self.res_deg} and "
-                f"{self.height_m}."
-            )
-        if not 0 <= self.tilt_deg <= MAX_TILT_DEG:
-            raise InvalidInput(
-                f"tilt_deg must be 0-{MAX_TILT_DEG} degrees, got {self.tilt_deg}."
-            )
-        if not 0 <= self.noise_m <= MAX_NOISE_M:
-            raise InvalidInput(
-                f"noise_m must be 0-{MAX_NOISE_M} m, got {self.noise_m}."
-            )
-
     def _check_scene(self) -> None:
-        if min(self.plot_radius_m, self.range_m, self.ground_spacing_m) <= 0:
-            raise InvalidInput(
-                "plot_radius_m, range_m and ground_spacing_m must be > 0."
-            )
-        if min(self.min_gap_m, self.roughness_m, self.shrubs, *self.sway_m) < 0:
-            raise InvalidInput(
-                "min_gap_m, roughness_m, shrubs and sway_m must be >= 0."
-            )
-        if not 0 <= self.slope_deg < 45:
-            raise InvalidInput(f"slope_deg must be 0-45 deg, got {self.slope_deg}.")
+        if min(self.plot_radius_m, self.ground_spacing_m) <= 0:
+            raise InvalidInput("plot_radius_m and ground_spacing_m must be > 0.")
+        if min(self.min_gap_m, self.roughness_m, *self.sway_m) < 0:
+            raise InvalidInput("min_gap_m, roughness_m and sway_m must be >= 0.")
         reach = self.plot_radius_m + self.range_m  # the ground disc's radius
-        ground = math.pi * reach**2 / self.ground_spacing_m**2
+        across = reach / self.ground_spacing_m
+        ground = math.pi * across * across  # inf, not an overflow, when huge
         if ground > MAX_GROUND_POINTS:
             count = f"{ground:,.0f}" if ground < 1e12 else f"{ground:.1e}"
             raise InvalidInput(
                 f"A ground reaching {reach:g} m at {self.ground_spacing_m:g} m spacing "
                 f"holds {count} points, more than {MAX_GROUND_POINTS:,}: give a "
                 "shorter --range-m (plot scans keep 20-30 m)."
-            )
-        if self.shrubs > MAX_SHRUBS:
-            raise InvalidInput(
-                f"shrubs must be at most {MAX_SHRUBS}, got {self.shrubs}."
             )
 
 

@@ -161,7 +161,9 @@ def test_simulate_refuses_absurd_noise(capsys, tmp_path, noise) -> None:
     tree = Path(__file__).parents[1] / "data" / "tiny_tree" / "tree.ply"
     args = ["simulate", str(tree), "--out", str(tmp_path / "case"), "--noise-m", noise]
     assert main(args) == 2
-    assert "--noise-m must be at most" in _one_line(capsys.readouterr().err)
+    assert "--noise-m must be a number from 0 to 0.5 m" in _one_line(
+        capsys.readouterr().err
+    )
     assert not (tmp_path / "case").exists()
 
 

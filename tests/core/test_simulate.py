@@ -308,3 +308,68 @@ def test_tree_giving_too_few_scan_points_is_refused() -> None:
     # 5000 copies of one point: each scan would keep a single point.
     with pytest.raises(InvalidInput, match=r"keeps only 1 point\(s\).*1 distinct"):
         simulate_pair(Cloud(np.tile([[1.0, 2.0, 3.0]], (5000, 1)), name="same.xyz"))
+
+
+LENGTH = "must be a number more than 0 and at most 1000 m"
+
+
+@pytest.mark.parametrize(
+    ("command", "options", "expected"),
+    [
+        ("campaign", ["--res-deg", "nan"], "--res-deg must be a number more than 0"),
+        ("plot", ["--range-m", "1e308", "--res-deg", "0.15"], f"--range-m {LENGTH}"),
+        ("campaign", ["--noise-m", "-1"], "--noise-m must be a number from 0 to 0.5"),
+        ("pair", ["--noise-m", "-1"], "--noise-m must be a number from 0 to 0.5"),
+        ("campaign", ["--distance-m", "nan"], f"--distance-m {LENGTH}, got nan."),
+        ("pair", ["--distance-m", "1e308"], f"--distance-m {LENGTH}, got 1e+308."),
+        ("pair", ["--clip-radius-m", "nan"], f"--clip-radius-m {LENGTH}, got nan."),
+        ("pair", ["--separation-deg", "1e308"], "from -360 to 360 degrees"),
+        ("pair", ["--res-deg", "1e308"], "--res-deg must be a number more than 0"),
+        ("pair", ["--slope-deg", "inf"], "--slope-deg must be a number at least 0"),
+        ("pair", ["--shrubs", "-1"], "--shrubs must be an integer from 0 to 1000"),
+        ("plot", ["--positions", "1000"], "--positions must be an integer from 2"),
+        ("plot", ["--spacing-m", "5", "nan"], f"--spacing-m {LENGTH}, got nan."),
+        ("plot", ["--spacing-m", "8", "5"], "--spacing-m must be a range LOW HIGH"),
+        ("plot", ["--trees", "2"], "--trees must be an integer of 3 or more"),
+        ("campaign", ["--scans", "1"], "--scans must be an integer from 2 to 50"),
+        ("campaign", ["--seed", "-1"], "--seed must be an integer of 0 or more"),
+        ("campaign", ["--separation-deg", "0", "90"], "more than 0 and at most 360"),
+        ("campaign", ["--separation-deg", "90", "60"], "with LOW <= HIGH"),
+    ],
+)
+def test_both_simulate_commands_check_every_number_first(
+    tmp_path, capsys, command, options, expected
+) -> None:
+    from amrst.cli import main
+
+    missing = str(tmp_path / "missing.ply")
+    argv = {
+        "pair": ["simulate", missing],
+        "plot": ["simulate", "--plot", missing, missing, missing],
+        "campaign": ["campaign", "simulate", missing],
+    }[command]
+    out = tmp_path / "case"
+    assert main([*argv, "--out", str(out), *options]) == 2
+    err = capsys.readouterr().err
+    assert expected in err
+    assert err.count("\n") == 1
+    assert "missing.ply" not in err  # refused before the tree is read
+    assert not out.exists()
+
+
+def test_the_library_checks_the_same_ranges(tree: Cloud) -> None:
+    from amrst.errors import InvalidInput
+    from amrst.multiscan.simulate import simulate_scans
+    from amrst.simulate.field import FieldOptions
+    from amrst.simulate.plot import plot_options
+
+    with pytest.raises(InvalidInput, match="noise_m must be a number from 0"):
+        simulate_scans(tree, 3, noise_m=-1.0)
+    with pytest.raises(InvalidInput, match=r"res_deg must be .*, got nan"):
+        simulate_scans(tree, 3, res_deg=float("nan"))
+    with pytest.raises(InvalidInput, match=f"distance_m {LENGTH}"):
+        simulate_pair(tree, distance_m=1e308)
+    with pytest.raises(InvalidInput, match=f"range_m {LENGTH}"):
+        plot_options(range_m=1e308)
+    with pytest.raises(InvalidInput, match=f"clip_radius_m {LENGTH}"):
+        FieldOptions(clip_radius_m=float("nan"))

@@ -56,7 +56,9 @@ def test_pair_is_clipped_and_its_truth_exact(tiny_tree) -> None:
 
 
 def test_bad_field_options_say_what_to_change() -> None:
-    with pytest.raises(InvalidInput, match="clip radius"):
+    with pytest.raises(
+        InvalidInput, match="clip_radius_m must be a number more than 0"
+    ):
         FieldOptions(clip_radius_m=-1.0)
     with pytest.raises(InvalidInput, match="neighbour distances"):
         FieldOptions(neighbour_distance_m=(5.0, 2.0))
