@@ -246,6 +246,18 @@ def read_plot(out: Path) -> PlotFiles:
     return PlotFiles(doc, trees, view)
 
 
+def _listed_ids(out: Path) -> list[str]:
+    """Return the tree ids an earlier run's trees.csv in ``out`` lists (or none)."""
+    ours = re.compile(r"[TH][0-9]+")  # what names a tree cloud, never a path
+    try:
+        _, rows = _read_doc_rows(out)
+    except (OSError, ValueError, csv.Error):
+        return []
+    return [
+        r.get("tree_id") or "" for r in rows if ours.fullmatch(r.get("tree_id") or "")
+    ]
+
+
 def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
     """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
     import json
@@ -512,13 +524,11 @@ def write_plot(
         page = build_report(doc, rows)
         writers[REPORT] = lambda p: p.write_text(page)
     # Files of an earlier run that this one does not write again no longer match it;
-    # the tree clouds are the ones named by a tree id, other files there stay.
-    old = out / TREES_DIR
-    ours = re.compile(r"[TH][0-9]+\.ply")
+    # its tree clouds are those of the trees its trees.csv lists, other files stay.
     gone = [
-        f"{TREES_DIR}/{p.name}"
-        for p in (old.glob("*.ply") if old.is_dir() else ())
-        if ours.fullmatch(p.name)
+        f"{TREES_DIR}/{tree_id}.ply"
+        for tree_id in _listed_ids(out)
+        if (out / TREES_DIR / f"{tree_id}.ply").is_file()
     ]
     gone += [] if write_cloud else [PLOT_CLOUD]
     gone += [] if report else [REPORT]

@@ -752,11 +752,16 @@ def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Pa
     assert plot_main([*args, "--write-trees"]) == 0
     clouds = sorted(p.name for p in (out / "trees").glob("*.ply"))
     assert len(clouds) == len(STEMS)
-    io.write(out / "trees" / "T099.ply", target)  # a tree only an earlier run listed
+    # A tree only an earlier run listed, and a file of the user's named like one.
+    io.write(out / "trees" / "T099.ply", target)
+    with (out / "trees.csv").open("a") as fh:
+        fh.write("T099\n")
+    io.write(out / "trees" / "T098.ply", target)
     assert plot_main([*args, "--write-trees"]) == 0
-    assert sorted(p.name for p in (out / "trees").glob("*.ply")) == clouds
+    kept = sorted(p.name for p in (out / "trees").glob("*.ply"))
+    assert kept == sorted([*clouds, "T098.ply"])
     assert plot_main(args) == 0
-    assert not list((out / "trees").glob("*.ply"))
+    assert [p.name for p in (out / "trees").glob("*.ply")] == ["T098.ply"]
 
 
 def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
