@@ -220,7 +220,8 @@ def _stand_line(out: Path, area: PlotArea) -> str:
     return (
         f"stand within {area.radius_m:g} m ({area.hectares:.4f} ha): {st.trees} "
         f"trees, {st.trees_per_ha:.0f} stems/ha, basal area "
-        f"{st.basal_area_m2_per_ha:.1f} m²/ha ({st.outside} listed trees outside)"
+        f"{st.basal_area_m2_per_ha:.1f} m²/ha of the {st.with_dbh} with a DBH "
+        f"({st.outside} listed trees outside)"
     )
 
 
