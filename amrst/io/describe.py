@@ -251,7 +251,7 @@ def format_scan_list(name: str, infos: Sequence[ScanInfo]) -> str:
             f"{i.n_points:,}",
             "pose not usable"
             if pose_problem(np.asarray(i.T_world_scanner)) is not None
-            else "no pose stored"
+            else "0.000  0.000  0.000 (no pose: its own frame)"
             if i.scanner_xyz is None
             else "  ".join(f"{v:.3f}" for v in i.scanner_xyz),
             ", ".join(i.fields) or "none",
