@@ -2,8 +2,8 @@
 
 A *scan* is one loaded file and what was computed on it alone (the per-scan steps of
 the step table). A *link* is a target/source pair of scans and the review of its
-candidates. Today the app holds two scans and one link, the roles "target" and
-"source" naming the scan ids; more scans add entries, not fields. No Qt.
+candidates. The app holds two scans and one link, the roles "target" and "source"
+naming the scan ids; more scans would add entries, not fields. No Qt.
 """
 
 from __future__ import annotations

@@ -68,12 +68,11 @@ def median_spacing(xyz: np.ndarray) -> float | None:
 
     Identical points are merged before the k-d trees are built: a tree holding
     many copies of one point answers each query in time proportional to the
-    copies (1M points at the origin made ``amrst info`` take minutes). A sample
-    point with a copy has distance 0, as before.
+    copies. A sample point with a copy has distance 0.
 
     The work goes slab by slab along x (:func:`_slabs`), one small tree each: numpy's
-    sorts and scipy's tree set-up hold the GIL, and on a 10M scan one sort or one
-    tree of every point stalled the window 0.2-0.4 s while this ran in a worker.
+    sorts and scipy's tree set-up hold the GIL, so one sort or one tree of every
+    point of a big scan would stall the window while this runs in a worker.
     A sample point asks its own slab's tree, then any other slab nearer than the
     neighbour found so far, so the distances are those of one tree of all points.
     """

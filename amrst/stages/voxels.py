@@ -35,8 +35,8 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
     """Return the distinct integers of a 1-D array, sorted: ``np.unique(values)``.
 
     By a sort: numpy 2.3 and later answer a plain ``np.unique`` of integers from a hash
-    table, some 40 times slower than a sort on a million voxel codes. (Unlike
-    ``np.unique`` it keeps every NaN of a float array.)
+    table, much slower than a sort on voxel codes. (Unlike ``np.unique`` it keeps
+    every NaN of a float array.)
     """
     ordered = np.sort(np.asarray(values).ravel())
     if len(ordered) < 2:

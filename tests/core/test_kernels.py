@@ -1,4 +1,4 @@
-"""Fast kernels against the slow answers they replaced (reference code or brute force)."""
+"""Fast kernels against slow reference answers (reference code kept here, or brute force)."""
 
 from __future__ import annotations
 

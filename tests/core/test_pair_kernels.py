@@ -1,4 +1,4 @@
-"""The pair stages' fast kernels against the code they replaced (kept here verbatim).
+"""The pair stages' fast kernels against reference implementations kept here.
 
 The polish ICP keeps its partners in a NearestCache, the occupancy grid is dilated
 axis by axis, and the verification asks the KD-tree only about points the occupancy

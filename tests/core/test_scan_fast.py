@@ -1,5 +1,5 @@
-"""Per-scan kernels against the code they replaced, kept here
-verbatim: the neighbourhood covariances and the neighbour table's subset reads."""
+"""Per-scan kernels against reference implementations kept here: the neighbourhood
+covariances and the neighbour table's subset reads."""
 
 from __future__ import annotations
 

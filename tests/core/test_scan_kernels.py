@@ -1,6 +1,6 @@
-"""Per-scan speed-ups against the answers they replaced: the shared neighbour table
-against fresh queries (and brute force), and each stage with the table against the
-same stage without it."""
+"""Per-scan kernels against reference answers: the shared neighbour table against
+fresh queries (and brute force), and each stage with the table against the same stage
+without it."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Per-scan row reductions against the code they replaced:
+"""Per-scan row reductions against reference implementations kept here:
 the outlier filter's mean neighbour distance, the wood vote's neighbourhood mean,
 the finite-point mask and the neighbour table's subset reads."""
 

@@ -1,5 +1,5 @@
-"""Scene and skeleton speed-ups against the code they replaced (kept verbatim here)
-or a brute-force answer: every one must give the same bits."""
+"""Scene and skeleton kernels against reference implementations kept here or a
+brute-force answer: every one must give the same bits."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Fast kernels against a brute-force answer or the code they replaced: the neighbour table's index-only read (rows with missing neighbours found
-without a sort)."""
+"""The neighbour table's index-only read (rows with missing neighbours found without a
+sort) against a brute-force answer and a reference implementation kept here."""
 
 from __future__ import annotations
 
