@@ -8,6 +8,15 @@ from amrst.errors import InvalidInput
 from amrst.types import Cloud
 
 
+def dense_name(case: str, points: int, noise_m: float, seed: int) -> str:
+    """Return the folder name of a case densified to ``points`` a scan.
+
+    Every setting the scans are made with is in it, so a folder made before is reused
+    only for the same scans.
+    """
+    return f"{case}-{points}pts-noise{noise_m * 1000:g}mm-seed{seed}"
+
+
 def densify(
     cloud: Cloud, n_points: int, noise_m: float = 0.003, seed: int = 0
 ) -> Cloud:

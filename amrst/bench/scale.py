@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from amrst.bench.densify import densify
+from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
 from amrst.errors import InvalidInput
 
@@ -240,7 +240,7 @@ def _pair_rows(args: argparse.Namespace, out: Path) -> list[ScaleRow]:
     """Make the dense pairs ``args`` asks for (kept for the next run); time them."""
     rows = []
     for n in args.points:
-        pair = out / f"{Path(args.case_dir).name}-{n // 1000}k-seed{args.seed}"
+        pair = out / dense_name(Path(args.case_dir).name, n, args.noise_m, args.seed)
         if not (pair / "truth.json").exists():
             print(f"making {pair.name} ...", file=sys.stderr)
             make_scale_pair(args.case_dir, pair, n, args.noise_m, args.seed)

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.bench.densify import densify
+from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
 from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
 
@@ -303,7 +303,7 @@ def plot_scale_report(
     """
     rows = []
     for n in points:
-        plot = out / f"{Path(case_dir).name}-{n // 1000}k-seed{seed}"
+        plot = out / dense_name(Path(case_dir).name, n, noise_m, seed)
         if not (plot / "truth.json").exists():
             print(f"making {plot.name} ...", file=sys.stderr)
             make_scale_plot(case_dir, plot, n, noise_m, seed)

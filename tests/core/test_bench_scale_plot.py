@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from _plots import STEMS, ground_z, pose, scan
 
+from amrst.bench.densify import dense_name
 from amrst.bench.plot import is_plot_case, read_plot_case
 from amrst.bench.scale_plot import PLOT_STAGES, make_scale_plot, plot_stages
 from amrst.cli import main
@@ -119,7 +120,7 @@ def test_bench_scale_times_amrst_plot_on_a_dense_plot(tmp_path: Path) -> None:
         str(out),
     ]
     assert main(args) == 0
-    dense = out / f"plot-{n // 1000}k-seed0"
+    dense = out / dense_name("plot", n, 0.003, 0)
     assert [len(c) for c in read_plot_case(dense).clouds] == [n, n]
     text = (out / "scale.md").read_text()
     row = next(ln for ln in text.splitlines() if ln.startswith(f"| {dense.name} |"))

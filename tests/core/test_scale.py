@@ -168,13 +168,13 @@ def test_bench_scale_keeps_an_earlier_run_and_says_a_failed_one(
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "amrst register stopped without timings" in err
-    assert f"{out / 'case-0k-seed0'} (exit 2)" in err
+    assert f"{out / 'case-10pts-noise3mm-seed0'} (exit 2)" in err
     (out / "scale.md").write_text("an earlier run")
     assert main(argv) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (out / "scale.md").read_text() == "an earlier run"
     assert main([*argv, "--overwrite"]) == 1
-    assert "| case-0k-seed0 | 10 |" in (out / "scale.md").read_text()
+    assert "| case-10pts-noise3mm-seed0 | 10 |" in (out / "scale.md").read_text()
 
 
 def test_bench_scale_checks_its_folders_before_any_work(
