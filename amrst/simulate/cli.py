@@ -289,7 +289,8 @@ def _run_plot(args: argparse.Namespace) -> str:
             "neighbours": "--neighbours",
             "clip_radius_m": "--clip-radius-m",
         },
-        "applies to a one-tree case, not to --plot (a plot always has its ground)",
+        "applies to a one-tree case, not to --plot (a plot has its ground and its trees; "
+        "--spacing-m sets how far apart its positions stand)",
     )
     _check_common(args, 0.0 if args.tilt_deg is None else args.tilt_deg)
     changes: dict[str, Any] = {
