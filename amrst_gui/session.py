@@ -571,7 +571,7 @@ class Session(QObject):
         what ``unsaved_work`` names.
         """
         lost = (
-            ["the registration result, which has not been exported"]
+            ["the registration result (not exported)"]
             if self.has_unexported_result
             else []
         )

@@ -41,8 +41,7 @@ def decision_of(campaign: Campaign, tree_id: str) -> str:
     if (out / ERROR).is_file():
         return ""
     review = read_doc(out / REVIEW) or {}
-    made_on = review.get("result_run")
-    if made_on is not None and made_on != result_run(out):
+    if review.get("result_run") != result_run(out):  # None == None: older files
         return ""
     decision = str(review.get("decision", ""))
     return decision if decision in DECISIONS else ""

@@ -189,7 +189,8 @@ def _read_csv(path: Path) -> dict[str, Any]:
         with open(path, newline="", encoding="utf-8-sig") as f:
             reader = csv.DictReader(f)
             rows = list(reader)
-            columns = list(reader.fieldnames or [])
+            # A spreadsheet may end the header with an empty column.
+            columns = [c for c in reader.fieldnames or [] if c]
     except UnicodeDecodeError as exc:
         raise InvalidInput(
             f"{path} is not UTF-8 text; save it as CSV UTF-8 (comma-separated)."

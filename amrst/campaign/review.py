@@ -222,6 +222,16 @@ def _refuse_stale(campaign: Campaign, entry: TreeEntry) -> None:
     if ran is None:  # results of a version that did not record them
         return
     now = tree_inputs(campaign.root.resolve(), entry)
+    gone = [
+        name
+        for name, digest in now["files"].items()
+        if digest.startswith("unreadable:")
+    ]
+    if gone:
+        raise InvalidInput(
+            f"Tree {entry.id}: its scan {gone[0]} cannot be read (missing, or no "
+            "permission): put it back where the manifest says."
+        )
     if ran != now:
         what = (
             "its scans' contents"

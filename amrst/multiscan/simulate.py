@@ -140,7 +140,7 @@ def simulate_scans(
         tilt_deg=tilt_deg,
         height_m=height_m,
     )
-    lo, hi = separation_deg
+    lo, hi = separation_deg[0], separation_deg[-1]  # one value: a fixed step
     rng = np.random.default_rng(seed)
     base = trunk_base(tree.xyz)
     radius = footprints(tree.xyz)

@@ -247,15 +247,20 @@ def read_plot(out: Path) -> PlotFiles:
 
 
 def _listed_ids(out: Path) -> list[str]:
-    """Return the tree ids an earlier run's trees.csv in ``out`` lists (or none)."""
+    """Return the tree ids an earlier run's trees.csv in ``out`` lists.
+
+    When it cannot be read, every tree cloud's id: the run was let replace the
+    earlier one's files without knowing which they were.
+    """
     ours = re.compile(r"[TH][0-9]+")  # what names a tree cloud, never a path
     try:
-        _, rows = _read_doc_rows(out)
+        if not (out / TREES_CSV).is_file():  # a named pipe would block
+            raise OSError("no trees.csv")
+        with (out / TREES_CSV).open(newline="") as fh:
+            ids = [r.get("tree_id") or "" for r in csv.DictReader(fh)]
     except (OSError, ValueError, csv.Error):
-        return []
-    return [
-        r.get("tree_id") or "" for r in rows if ours.fullmatch(r.get("tree_id") or "")
-    ]
+        ids = [p.stem for p in (out / TREES_DIR).glob("*.ply")]
+    return [i for i in ids if ours.fullmatch(i)]
 
 
 def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:

@@ -41,7 +41,7 @@ import numpy as np
 from amrst.campaign.folder import ACCEPTED as ACCEPTED  # a scan the review accepted
 from amrst.errors import InvalidInput
 from amrst.review.verdict import NEEDS_REVIEW
-from amrst.types import check_rigid
+from amrst.types import check_rigid, invert_transform
 
 #: How much of each end of a scan file its identity hashes (:func:`scan_id`).
 ID_BYTES = 1 << 16
@@ -258,12 +258,15 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         return PlotReview()
     # Scans added or removed around the same reference: positions are in its frame,
     # so the trees' review holds; an accepted link, where both its scans still are.
-    where = [_index_in(label, _id_of(ids, k), labels) for k, label in enumerate(scans)]
+    now = [scan_id(label) for label in labels]
+    where = [
+        _index_in(label, _id_of(ids, k), labels, now) for k, label in enumerate(scans)
+    ]
     moved: dict[LinkKey, np.ndarray] = {}
     for (i, j), T in accepted.items():
         a, b = (where[k] if k < len(where) else None for k in (i, j))
-        if a is not None and b is not None:
-            moved[a, b] = T
+        if a is not None and b is not None:  # a link is (lower, higher) scan
+            moved[min(a, b), max(a, b)] = T if a < b else invert_transform(T)
     return PlotReview(marks, moved, dbh, added, at)
 
 
@@ -281,13 +284,19 @@ def _id_of(ids: Any, k: int) -> list[Any] | None:
 
 
 def _index_in(
-    label: str, label_id: list[Any] | None, labels: Sequence[str]
+    label: str, label_id: list[Any] | None, labels: Sequence[str], ids: Sequence[str]
 ) -> int | None:
-    """Return where the scan ``label`` (recorded id as :func:`_id_of`) is in ``labels``."""
-    return next(
-        (k for k, other in enumerate(labels) if same_scans([label], [other], label_id)),
-        None,
-    )
+    """Return where the scan ``label`` (recorded id as :func:`_id_of`) is in ``labels``.
+
+    ``ids`` are the :func:`scan_id` of ``labels``, read once for all.
+    """
+    key, recorded = _scan_key(label), (label_id or [None])[0]
+    for k, other in enumerate(labels):
+        if _scan_key(other) == key or (
+            isinstance(recorded, str) and recorded and recorded == ids[k]
+        ):
+            return k
+    return None
 
 
 def same_scans(a: Sequence[str], b: Sequence[str], a_ids: Any = None) -> bool:

@@ -95,7 +95,9 @@ class ManualPanel(NudgeMixin, QScrollArea):
             a is b for a, b in zip(self.pairs, self._saved, strict=True)
         )
         return (
-            "" if not self.pairs or same else f"{len(self.pairs)} point pairs not saved"
+            ""
+            if not self.pairs or same
+            else f"{len(self.pairs)} point pairs (not saved)"
         )
 
     # ------------------------------------------------------------- building

@@ -216,6 +216,7 @@ class PlotWindow(QMainWindow):
         self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self._close_agreed = False  # the user let the window close with choices unrun
+        self._shown_specs: list[str] = []  # the scans of the plot shown, as listed
         # plot.json as the plot shown was read: a run from elsewhere into the same
         # folder changes it, and the window then writes nothing over that run.
         self.shown_stamp: tuple[int, int] | None = None
@@ -1165,6 +1166,7 @@ class PlotWindow(QMainWindow):
         self.shown_stamp = _stamp(outcome.out)
         if opened:
             self._take_scans(list(outcome.labels))
+        self._shown_specs = list(self.specs)
         centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
         for widget in (self.radius_spin, self.centre_edit):
             widget.blockSignals(True)  # the plot's own area, nothing to apply
@@ -1464,7 +1466,7 @@ class PlotWindow(QMainWindow):
     def pending_choices(self) -> str:
         """Say what was chosen for the next run and not run yet ("" for nothing)."""
         o = self.found
-        ran = o is not None and list(o.labels) == self.specs
+        ran = o is not None and self._shown_specs == self.specs
         then = _run_choices(o) if ran and o is not None else (set(), {}, {})
         now = (self.left_out, self.hand_pairs, self.given_scanners)
         names = ("links left out", "links placed from point pairs", "scanner positions")

@@ -762,6 +762,11 @@ def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Pa
     assert kept == sorted([*clouds, "T098.ply"])
     assert plot_main(args) == 0
     assert [p.name for p in (out / "trees").glob("*.ply")] == ["T098.ply"]
+    # Tree clouds beside no readable trees.csv: --overwrite replaces them all.
+    for name in ("plot.json", "trees.csv"):
+        (out / name).unlink()
+    assert plot_main(args) == 0
+    assert not list((out / "trees").glob("*.ply"))
 
 
 def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(

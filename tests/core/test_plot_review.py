@@ -23,7 +23,7 @@ from amrst.plot.review import (
     still_holds,
     write_review,
 )
-from amrst.types import make_transform
+from amrst.types import invert_transform, make_transform
 
 LABELS = ["/plots/a.ply", "/plots/b.ply"]
 
@@ -83,6 +83,10 @@ def test_a_review_holds_with_scans_removed_or_added_around_its_reference(tmp_pat
     held = read_review(tmp_path, [a, d, b, c])
     assert sorted(held.accepted) == [(0, 2), (0, 3), (2, 3)]
     assert np.array_equal(held.accepted[2, 3], _turned(20.0))
+    # b and c swapped: their link is (1, 2) again, its pose the other way round.
+    held = read_review(tmp_path, [a, c, b])
+    assert sorted(held.accepted) == [(0, 1), (0, 2), (1, 2)]
+    assert np.allclose(held.accepted[1, 2], invert_transform(_turned(20.0)))
 
 
 @pytest.mark.parametrize(

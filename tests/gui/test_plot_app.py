@@ -986,6 +986,11 @@ def test_closing_the_plot_window_asks_when_choices_were_not_run(
     plot.show()
     plot.leave_button.click()  # taken in again: only the scanner is not run
     assert plot.pending_choices() == "scanner positions"
+    # Results opened whose run had a scanner given: that choice was run.
+    given = (scans[0], dataclasses.replace(scans[1], given=(1.0, 2.0, 0.0)))
+    plot._on_result(dataclasses.replace(found, scans=given), opened=True)
+    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert plot.pending_choices() == ""
 
 
 def test_closing_the_app_asks_the_plot_window_first(
