@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from typing import Any
 
     from amrst.campaign.manifest import Campaign, TreeEntry
+    from amrst.progress import Reporter
     from amrst.types import Transform
 
 #: Given to :func:`decide` instead of a decision: remove the tree's decision.
@@ -269,9 +270,12 @@ def _stored_poses(
 
 
 def export_accepted(
-    campaign: Campaign, cloud_format: str = "ply"
+    campaign: Campaign, cloud_format: str = "ply", reporter: Reporter | None = None
 ) -> tuple[list[Path], dict[str, str]]:
-    """Export every accepted tree (:func:`export_tree`).
+    """Export every accepted tree (:func:`export_tree`), with progress a tree.
+
+    ``reporter`` is asked for cancel between trees (each tree's file is written
+    whole or not at all).
 
     Returns
     -------
@@ -282,9 +286,11 @@ def export_accepted(
     """
     written: list[Path] = []
     errors: dict[str, str] = {}
-    for entry in campaign.trees:
-        if decision_of(campaign, entry.id) != ACCEPTED:
-            continue
+    accepted = [e for e in campaign.trees if decision_of(campaign, e.id) == ACCEPTED]
+    for k, entry in enumerate(accepted):
+        if reporter is not None:
+            reporter.check_cancelled()
+            reporter.progress(k / len(accepted), f"exporting {entry.id}")
         try:
             written.append(export_tree(campaign, entry.id, cloud_format))
         except AmrstError as exc:

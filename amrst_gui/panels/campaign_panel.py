@@ -237,13 +237,28 @@ class CampaignPanel(QWidget):
         return answer == QMessageBox.StandardButton.Yes
 
     def export_accepted(self) -> None:
-        """Write the merged cloud of every accepted tree and say where it went."""
+        """Write the merged cloud of every accepted tree, in the engine process (the
+        scans are read again), and say where it went."""
         from amrst.campaign.review import export_accepted
+        from amrst_gui import engine_process
 
-        if self.campaign is None:
+        if self.campaign is None or self.job is not None:
             return
-        written, errors = export_accepted(self.campaign)
+        self._say("Exporting the accepted trees…")
+        self.job = run_stage(
+            engine_process.in_engine(export_accepted, what="the campaign export"),
+            self.campaign,
+            "ply",
+            name="campaign export",
+            on_progress=lambda f, m: self._say(f"{f:.0%}: {m}"),
+            on_result=self._on_exported,
+            on_error=lambda exc: self._say(f"Export stopped: {exc}"),
+            on_finished=self._on_finished,
+        )
         self.refresh()
+
+    def _on_exported(self, result: tuple[list[Path], dict[str, str]]) -> None:
+        written, errors = result
         where = sorted({str(p.parent.parent) for p in written})
         text = f"Exported {len(written)} accepted tree(s)" + (
             f" to {', '.join(where)} (merged.ply in each tree's folder)."
@@ -399,7 +414,9 @@ class CampaignPanel(QWidget):
         self.reject_button.setEnabled(has and picked)
         self.clear_button.setEnabled(has and picked)
         self.export_button.setEnabled(
-            has and any(r["state"] == "accepted" for r in self.rows)
+            has
+            and self.job is None
+            and any(r["state"] == "accepted" for r in self.rows)
         )
 
     def _say(self, text: str) -> None:

@@ -94,7 +94,11 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     assert review["decision"] == "accepted"  # on disk before anything else happens
     assert panel.state_of("T01") == "accepted"
     assert panel.export_button.isEnabled()
-    panel.export_accepted()
+    panel.export_accepted()  # in the background: the window stays free
+    assert panel.job is not None
+    assert not panel.export_button.isEnabled()
+    qtbot.waitUntil(lambda: panel.job is None, timeout=60_000)
+    assert "Exported 1 accepted tree(s)" in panel.status.text()
     merged = io.read(tmp_path / "results" / "T01" / "merged.ply")
     assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
     # the export is on record; the tree stays accepted

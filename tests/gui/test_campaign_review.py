@@ -157,6 +157,7 @@ def test_select_review_accept_export_a_stored_tree(
     exported = json.loads((out / "transform.json").read_text(encoding="utf-8"))
     np.testing.assert_allclose(exported["T_target_source"], stored_T)
     panel.export_accepted()
+    qtbot.waitUntil(lambda: panel.job is None, timeout=60_000)
     assert str(campaign / "results") in panel.status.text()  # says where it wrote
     merged = io.read(campaign / "results" / "T01" / "merged.ply")
     assert set(np.unique(merged.attributes["scan_id"])) == {0, 1}
