@@ -100,9 +100,16 @@ def _both(
 
 
 def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, float]:
-    """Preprocess and separate wood from leaves in both scans."""
-    from amrst import pipeline
+    """Preprocess and separate wood from leaves in both scans.
 
+    Refuses the same scan twice (a copy, the scan exported again) first: compared
+    point by point, here in the engine process, as it takes seconds on big scans.
+    """
+    from amrst import pipeline
+    from amrst.types import refuse_same_points
+
+    pair = [clouds[role] for role in ROLES if role in clouds]
+    refuse_same_points(pair, [c.name or "scan" for c in pair])
     return _both(pipeline.prepare_scan, clouds, params, reporter)
 
 

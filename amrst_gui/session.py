@@ -406,24 +406,16 @@ class Session(QObject):
         self.runner.run(chain)
 
     def _one_scan_twice(self) -> str:
-        """Why the target and the source are one scan (a file opened twice, a copy of
-        it), or "". Checked when a step runs: scans are opened one at a time, and a
-        new target may be the old source for a moment."""
-        from amrst.types import refuse_same_points
-
+        """Why the target and the source are one file, or "". Checked when a step
+        runs: scans are opened one at a time, and a new target may be the old source
+        for a moment. Two files of the same points the separation step refuses
+        (``jobs.separate_pair``): comparing them takes seconds on big scans."""
         target, source = self.path("target"), self.path("source")
         if target is not None and source is not None and same_file(target, source):
             return (
                 f"The target and the source are the same file ({target}): open two "
                 "scans of the tree."
             )
-        clouds = [c for r in jobs.ROLES if (c := self.cloud(r)) is not None]
-        try:
-            refuse_same_points(
-                clouds, [Path(self.path(r) or r).name for r in jobs.ROLES]
-            )
-        except AmrstError as exc:
-            return str(exc)
         return ""
 
     def run_all(self) -> None:
@@ -921,7 +913,8 @@ class Session(QObject):
             return {}
         from amrst.stages.metrics import truth_errors
 
-        xyz = source.world_xyz[:: max(1, len(source) // _TRUTH_SAMPLE)]
+        # The sample first, then to world coordinates: world_xyz copies every point.
+        xyz = source.xyz[:: max(1, len(source) // _TRUTH_SAMPLE)] + source.offset
         out = {}
         coarse = self._accepted or self.coarse
         if coarse is not None:

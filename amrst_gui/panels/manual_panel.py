@@ -453,10 +453,24 @@ class ManualPanel(NudgeMixin, QScrollArea):
             self, "Load a transform", "", "Transform (*.json *.txt);;All files (*)"
         )
         if path:
-            try:
-                self.text.setPlainText(Path(path).read_text())
-            except OSError as exc:
-                self.session.report_error(f"Could not read {path}: {exc}")
+            self.load_transform(Path(path))
+
+    def load_transform(self, path: Path) -> None:
+        """Put a transform file's text in the box (a small file only: a scan picked by
+        mistake, or a named pipe, is refused rather than read on the GUI thread)."""
+        from amrst.files.safefile import read_small_file
+
+        try:
+            data = read_small_file(
+                path,
+                "transform file",
+                "a 4x4 matrix as text, or a transform.json",
+                max_bytes=1 << 20,
+            )
+        except InvalidInput as exc:
+            self.session.report_error(str(exc))
+            return
+        self.text.setPlainText(data.decode("utf-8", errors="replace"))
 
     def use_typed_transform(self) -> None:
         """Parse the text as a world T_target_source and add it as a candidate."""

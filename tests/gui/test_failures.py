@@ -99,9 +99,10 @@ def test_one_scan_as_target_and_source_is_refused_and_a_fifo_named(
     for source, says in ((target, "the same file"), (copy, "holds the same points")):
         with qtbot.waitSignals([s.scan_loaded] * 2, timeout=20_000):
             s.load_scans(target, source)  # opened: one may be changed next
-        s.run_all()
+        s.run_all()  # a copy: the separation step finds it, off the GUI thread
+        qtbot.waitUntil(lambda: not s.busy, timeout=20_000)
         assert says in errors[-1]
-        assert not s.busy
+        assert s.analysis("target") is None
     fifo = tmp_path / "scan.ply"
     os.mkfifo(fifo)
     with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:

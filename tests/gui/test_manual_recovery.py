@@ -266,3 +266,19 @@ def test_the_wheel_over_the_turn_scrolls_the_dock_until_it_is_clicked(
     qtbot.waitUntil(panel.yaw.hasFocus)
     wheel(panel.yaw, 1)
     assert panel.yaw.value() != turn
+
+
+def test_a_transform_file_is_read_only_when_it_is_small(
+    loaded_window, tmp_path, errors
+):
+    panel = loaded_window.manual_panel
+    errors.watch(loaded_window.session)
+    small = tmp_path / "t.txt"
+    small.write_text("1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n")
+    panel.load_transform(small)
+    assert panel.text.toPlainText().startswith("1 0 0 1")
+    big = tmp_path / "scan.txt"  # a text scan picked by mistake
+    big.write_text("1.0 2.0 3.0\n" * 200_000)
+    panel.load_transform(big)
+    assert panel.text.toPlainText().startswith("1 0 0 1")  # kept
+    assert "transform file" in errors[-1]
