@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.simulate.settings import Bounds, check_number, check_range
+from amrst.simulate.settings import Bounds, check_numbers, check_range
 from amrst.types import Cloud, Transform, invert_transform
 
 if TYPE_CHECKING:
@@ -79,8 +79,7 @@ def check_scan_settings(
         "tilt_deg": tilt_deg,
         "height_m": height_m,
     }
-    for name, value in numbers.items():
-        check_number(name, value, cli=cli)
+    check_numbers(numbers, cli=cli)
     check_range("separation_deg", separation_deg, cli=cli, bounds=STEP_DEG)
 
 

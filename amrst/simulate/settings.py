@@ -248,15 +248,13 @@ def check_settings(
     numbers = {
         "seed": seed,
         "separation_deg": separation_deg,
+        "distance_m": distance_m,
         "res_deg": res_deg,
         "noise_m": noise_m,
         "tilt_deg": tilt_deg,
         "height_m": height_m,
     }
-    for name, value in numbers.items():
-        check_number(name, value, cli=cli)
-    for value in distance_m:
-        check_number("distance_m", value, cli=cli)
+    check_numbers(numbers, cli=cli)
 
 
 #: The lowest half metre of one tree's cloud (its trunk, buttresses, low branches and

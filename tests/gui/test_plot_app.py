@@ -11,7 +11,7 @@ import csv
 import dataclasses
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -911,14 +911,12 @@ def _scans_to_check(out: Path) -> dict[str, str]:
         return {r["tree_id"]: r["scans_to_check"] for r in csv.DictReader(fh)}
 
 
-def test_a_link_is_left_out_of_the_next_run_until_taken_in(
-    qtbot: QtBot, tmp_path: Path
-) -> None:
-    from amrst.review.pairs_file import write_pairs
-    from amrst_gui.plot import window as plot_window
+def _one_link_shown(qtbot: QtBot, tmp_path: Path) -> tuple[PlotWindow, Any]:
+    """A Plot window showing a run of two scans and their one registered link."""
     from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
+    from amrst_gui.plot.window import PlotWindow
 
-    plot = plot_window.PlotWindow()
+    plot = PlotWindow()
     qtbot.addWidget(plot)
     line = LinkLine(0, 1, "registered", False, True, "stems", 0.4, 0.02, 5, "")
     scans = (
@@ -930,6 +928,15 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
     )
     plot.open_scans(["a.ply", "b.ply"], tmp_path)
     plot._on_result(found)
+    return plot, found
+
+
+def test_a_link_is_left_out_of_the_next_run_until_taken_in(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from amrst.review.pairs_file import write_pairs
+
+    plot, _found = _one_link_shown(qtbot, tmp_path)
     plot.links.selectRow(0)
     by = plot.links.item(0, 5)
     assert by is not None
@@ -954,21 +961,8 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
 def test_closing_the_plot_window_asks_when_choices_were_not_run(
     qtbot: QtBot, tmp_path: Path, close_answers: list
 ) -> None:
-    from amrst_gui.plot import window as plot_window
-    from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
-
-    plot = plot_window.PlotWindow()
-    qtbot.addWidget(plot)
-    line = LinkLine(0, 1, "registered", False, True, "stems", 0.4, 0.02, 5, "")
-    scans = (
-        ScanPlace("a.ply", np.zeros(2), 5, "registered"),
-        ScanPlace("b.ply", np.ones(2), 5, "registered"),
-    )
-    found = PlotOutcome(
-        tmp_path, ("a.ply", "b.ply"), (), scans, (line,), 0.01, (), None, 1.0
-    )
-    plot.open_scans(["a.ply", "b.ply"], tmp_path)
-    plot._on_result(found)
+    plot, found = _one_link_shown(qtbot, tmp_path)
+    scans = found.scans
     plot.show()
     assert plot.pending_choices() == ""
     plot.links.selectRow(0)
