@@ -166,17 +166,26 @@ class CampaignPanel(QWidget):
 
     def refresh(self) -> None:
         """Re-read every tree's state from the campaign folder and redraw the table."""
-        from amrst.campaign.review import STATE_ORDER, review_state
+        from amrst.campaign.review import review_state
         from amrst.campaign.table import campaign_rows
 
         if self.campaign is None:
             return
-        rows = campaign_rows(self.campaign)
-        for row in rows:
-            state = review_state(self.campaign, row["tree_id"], row["status"])
-            row["state"] = self.batch.state(state, row["tree_id"])
-        rows.sort(key=lambda r: (STATE_ORDER.index(r["state"]), r["tree_id"]))
-        self.rows = rows
+        self.rows = campaign_rows(self.campaign)
+        for row in self.rows:
+            row["read_state"] = review_state(
+                self.campaign, row["tree_id"], row["status"]
+            )
+        self._restate()
+
+    def _restate(self) -> None:
+        """Redraw the table with the batch's queued and running trees over the states
+        the folder gave last (no file is read: a tree that starts changes no file)."""
+        from amrst.campaign.review import STATE_ORDER
+
+        for row in self.rows:
+            row["state"] = self.batch.state(row["read_state"], row["tree_id"])
+        self.rows.sort(key=lambda r: (STATE_ORDER.index(r["state"]), r["tree_id"]))
         self._fill()
         self.rows_changed.emit()
 
@@ -379,14 +388,18 @@ class CampaignPanel(QWidget):
     def _on_progress(self, fraction: float, message: str) -> None:
         from amrst.campaign.batch import ReporterProgress
 
-        for tree_id in self.batch.on_message(message):
-            if self.selected_ids() == [tree_id]:  # its links are new: list them
-                self._list_tree(tree_id)
-                self.tree_scans.mark_shown(self._shown)  # the views keep theirs
+        finished = self.batch.on_message(message)
         events = (ReporterProgress.STARTED, ReporterProgress.FINISHED)
         if message and not message.startswith(events):  # a tree's result
             self._say(f"{fraction:.0%} of the trees done; last: {message}")
-        self.refresh()
+        if not finished:  # a tree started: its files are as they were
+            self._restate()
+            return
+        self.refresh()  # a tree's new result: read again
+        for tree_id in finished:
+            if self.selected_ids() == [tree_id]:  # its links are new: list them
+                self._list_tree(tree_id)
+                self.tree_scans.mark_shown(self._shown)  # the views keep theirs
 
     def _on_done(self, summary) -> None:
         self._say(f"Batch done: {summary.counts()}.")
