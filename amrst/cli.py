@@ -494,12 +494,17 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _explain(exc: Exception, args: argparse.Namespace) -> tuple[str | None, int]:
-    """Give the one line and exit code for an error; no line: re-raise (--debug)."""
+    """Give the one line and exit code for an error; no line: re-raise (--debug).
+
+    The line starts with the command, as the commands that report their own errors
+    (``amrst plot: ...``) do.
+    """
+    head = f"amrst {args.command}:"
     if isinstance(exc, AmrstError):
-        return f"Error: {exc}", EXIT_INPUT
+        return f"{head} {exc}", EXIT_INPUT
     if isinstance(exc, MemoryError):
         return (
-            "Error: out of memory. Thin the clouds first (e.g. a larger preprocess "
+            f"{head} out of memory. Thin the clouds first (e.g. a larger preprocess "
             "voxel size).",
             EXIT_INPUT,
         )
@@ -510,11 +515,11 @@ def _explain(exc: Exception, args: argparse.Namespace) -> tuple[str | None, int]
 
         found = missing_extra(exc, f"amrst {args.command}")
         if found is not None:
-            return f"Error: {found}", EXIT_INPUT
+            return f"{head} {found}", EXIT_INPUT
     if isinstance(exc, OSError):  # a file-system refusal no check put in words
         where = f" ({exc.filename})" if exc.filename else ""
         return (
-            f"Error: {exc.strerror or exc}{where}. Check the path, its length and "
+            f"{head} {exc.strerror or exc}{where}. Check the path, its length and "
             "its permissions, or choose another file or folder.",
             EXIT_INPUT,
         )

@@ -59,7 +59,7 @@ def test_missing_file_exits_2_with_one_line(capsys, tmp_path) -> None:
     missing = tmp_path / "nope.ply"
     assert main(["info", str(missing)]) == EXIT_INPUT == 2
     line = _one_line_error(capsys.readouterr().err)
-    assert line.startswith("Error:")
+    assert line.startswith("amrst info: ")
     assert "nope.ply" in line
 
 
@@ -346,7 +346,7 @@ def test_a_file_system_refusal_is_one_line_not_an_internal_error(
     line = _one_line_error(capsys.readouterr().err)
     # The reader names the file and what to do; the CLI's own net says the same
     # without a path when a check point is missed.
-    assert line.startswith("Error: ")
+    assert line.startswith("amrst info: ")
     assert "File name too long" in line
     assert "Internal error" not in line
 

@@ -216,7 +216,9 @@ def test_register_cli_on_a_source_spread_over_1e6_m(tmp_path, spread):
         check=False,
     )
     assert_exit(proc, (2, 3))
-    error = [line for line in proc.stderr.splitlines() if line.startswith("Error")]
+    error = [
+        line for line in proc.stderr.splitlines() if line.startswith("amrst register:")
+    ]
     assert len(error) == 1, proc.stderr
 
 
