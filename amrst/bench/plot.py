@@ -19,6 +19,7 @@ number of scans placed on scan 1.
 from __future__ import annotations
 
 import json
+import logging
 import re
 import time
 from dataclasses import asdict, dataclass, field
@@ -29,9 +30,11 @@ import numpy as np
 
 from amrst.errors import AmrstError, Cancelled, InvalidInput
 
+logger = logging.getLogger(__name__)
+
 if TYPE_CHECKING:
     import os
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from amrst.plot.register import PlotRegistration
     from amrst.progress import Reporter
@@ -500,8 +503,15 @@ def run_plot_bench(
     out = make_folder(out_dir, "output folder")
     warm_up(["amrst", "fpfh_ransac"])
     records: list[PlotRecord] = []
+    skipped: dict[str, str] = {}
     for i, folder in enumerate(folders):
-        case = _local(read_plot_case(folder))
+        try:
+            case = _local(read_plot_case(folder))
+        except AmrstError as exc:  # one unreadable case must not stop the benchmark
+            logger.warning("Plot case %s skipped: %s", folder.name, exc)
+            skipped[folder.name] = str(exc)
+            write_text_atomic(out / "summary.md", plot_summary(records, skipped))
+            continue
         for name in methods:
             if reporter is not None:
                 reporter.check_cancelled()
@@ -511,7 +521,7 @@ def run_plot_bench(
                 )
             records.append(_run_guarded(case, name))
         write_json_atomic(out / "plot_results.json", [r.as_dict() for r in records])
-        write_text_atomic(out / "summary.md", plot_summary(records))
+        write_text_atomic(out / "summary.md", plot_summary(records, skipped))
     if reporter is not None:
         reporter.progress(1.0, "done")
     return records
@@ -649,8 +659,14 @@ def _residual_table(records: Sequence[PlotRecord]) -> list[str]:
     return lines
 
 
-def plot_summary(records: Sequence[PlotRecord]) -> str:
-    """Markdown: the per-case registration table and the inventory table."""
+def plot_summary(
+    records: Sequence[PlotRecord], skipped: Mapping[str, str] | None = None
+) -> str:
+    """Markdown: the per-case registration table and the inventory table.
+
+    ``skipped``: the cases that could not be read, and why.
+    """
+    unread = [f"- {name} skipped: {why}" for name, why in (skipped or {}).items()]
     return "\n".join(
         [
             "# Plot benchmark",
@@ -673,5 +689,6 @@ def plot_summary(records: Sequence[PlotRecord]) -> str:
             "",
             *_residual_table(records),
             "",
+            *([*unread, ""] if unread else []),
         ]
     )

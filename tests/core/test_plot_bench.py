@@ -81,10 +81,14 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
     (root / "02_empty").mkdir()
     assert is_plot_case(root / "01_plot")
     assert not is_plot_case(root / "02_empty")
+    _plot_case(root / "00_cut")  # a scan cut short: skipped, the others run
+    data = (root / "00_cut" / "source.ply").read_bytes()
+    (root / "00_cut" / "source.ply").write_bytes(data[: len(data) // 2])
     out = tmp_path / "out"
     # FPFH + RANSAC runs in the command's default set; its time on this plot is long.
     records = run_plot_bench(root, out, methods=(PLOT, KISS))
     assert [r.method for r in records] == [PLOT, KISS]
+    assert "- 00_cut skipped: " in (out / "summary.md").read_text()
     plot = json.loads((out / "plot_results.json").read_text())[0]
     assert plot["registered"] == 1
     assert plot["inventory"]["found"] == len(STEMS)
