@@ -133,7 +133,10 @@ class MainWindow(QMainWindow):
         self._add_dock("log", "Log", self.log_panel, bottom)
         self.campaign_panel = CampaignPanel(self)  # a tree's scans open as the pair
         self._add_dock("campaign", "Campaign", self.campaign_panel, left)
-        self.campaign_panel.link_chosen.connect(s.load_stored)  # no registration
+        self.campaign_panel.link_chosen.connect(self._show_campaign_link)
+        # A campaign link chosen while scans are read is shown when they are.
+        self._pending_link: tuple[str, str, StoredLinkResult | None] | None = None
+        s.busy_changed.connect(self._show_pending_link)
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         # The side docks run the full height: the log sits under the views only, so
@@ -319,6 +322,24 @@ class MainWindow(QMainWindow):
         self.raise_()
         self.activateWindow()
         return ""
+
+    def _show_campaign_link(
+        self, target: str, source: str, stored: StoredLinkResult | None
+    ) -> None:
+        """Show a campaign tree's link at its stored pose (no registration).
+
+        Chosen while other scans are being read (a tree clicked, then the next), it
+        waits for them: the views always end on the tree last chosen.
+        """
+        self._pending_link = None
+        if self.session.running_step == "load":
+            self._pending_link = (target, source, stored)
+            return
+        self.session.load_stored(target, source, stored)
+
+    def _show_pending_link(self, busy: bool) -> None:
+        if not busy and self._pending_link is not None:
+            self._show_campaign_link(*self._pending_link)
 
     def about_dialog(self) -> None:
         dialogs.AboutDialog(self).open()

@@ -172,7 +172,13 @@ def decide(
         if doc:
             write_json_atomic(path, doc)
         else:
-            path.unlink(missing_ok=True)
+            try:
+                path.unlink(missing_ok=True)
+            except OSError as exc:
+                raise InvalidInput(
+                    f"Cannot clear the decision on {tree_id}: {path} cannot be "
+                    f"removed ({exc.strerror or exc}); check the folder's permissions."
+                ) from exc
         written.append(path)
     write_table(campaign)
     return written

@@ -24,7 +24,7 @@ import logging
 from functools import partial
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtCore import QItemSelection, QItemSelectionModel, Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -35,6 +35,7 @@ from PySide6.QtWidgets import (
     QLineEdit,
     QMessageBox,
     QPushButton,
+    QSizePolicy,
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
@@ -99,6 +100,12 @@ class CampaignPanel(QWidget):
         self.open_button = QPushButton("Open campaign…")
         buttons = self._decision_buttons()
         self.status = QLabel("")
+        # A long message (a path, several trees' errors) wraps; it never widens the
+        # dock, and so the window, past the screen.
+        self.status.setWordWrap(True)
+        self.status.setSizePolicy(
+            QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred
+        )
         filters = QHBoxLayout()
         filters.addWidget(self.filter_edit)
         filters.addWidget(self.needs_person)
@@ -155,6 +162,12 @@ class CampaignPanel(QWidget):
         """Read a campaign folder (manifest and results); False with a message if not."""
         from amrst.campaign.manifest import load_campaign
 
+        if self.job is not None:
+            self._say(
+                f"{self.campaign.name if self.campaign else 'A campaign'} is running a "
+                "batch or an export: open another when it ends."
+            )
+            return False
         try:
             self.campaign = load_campaign(folder)
         except AmrstError as exc:
@@ -310,6 +323,8 @@ class CampaignPanel(QWidget):
         self.table.blockSignals(True)
         selected = set(self.selected_ids())
         self.table.setRowCount(len(self.rows))
+        keep = QItemSelection()  # the same trees, wherever their rows moved
+        last = len(COLUMNS) - 1
         for i, row in enumerate(self.rows):
             for j, text in enumerate(row_cells(row)):
                 item = QTableWidgetItem(text)
@@ -317,7 +332,13 @@ class CampaignPanel(QWidget):
                     item.setToolTip(row["error"])
                 self.table.setItem(i, j, item)
             if row["tree_id"] in selected:
-                self.table.selectRow(i)
+                model = self.table.model()
+                keep.select(model.index(i, 0), model.index(i, last))
+        # Not selectRow: it reads the keyboard's modifiers and may add to, or replace,
+        # the selection.
+        self.table.selectionModel().select(
+            keep, QItemSelectionModel.SelectionFlag.ClearAndSelect
+        )
         self.table.blockSignals(False)
         self._fit_columns()
         self._apply_filter()
@@ -434,6 +455,7 @@ class CampaignPanel(QWidget):
 
     def _say(self, text: str) -> None:
         self.status.setText(text)
+        self.status.setToolTip(text)
         log.info("%s", text)
 
     def shutdown(self) -> None:

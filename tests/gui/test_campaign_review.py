@@ -314,3 +314,38 @@ def test_stored_quality_reads_nulls_and_old_names_without_failing():
     assert q.overlap.n_points_measured == 120
     assert q.strength.values["tx"] == 0.6
     assert math.isnan(q.strength.values["rz"])
+
+
+def test_the_views_end_on_the_tree_chosen_last_and_the_selection_holds(
+    make_main_window, qtbot, campaign
+):
+    win = make_main_window()
+    session, panel = win.session, win.campaign_panel
+    assert panel.open_campaign(campaign)
+    # Two trees chosen in a row: the second waits for the first one's scans.
+    with qtbot.waitSignal(session.busy_changed, timeout=20_000):
+        panel.select_tree("T01")
+    panel.select_tree("T02")
+    qtbot.waitUntil(
+        lambda: (
+            not session.busy
+            and session.path("target") is not None
+            and session.path("target").parent.name == "T02"
+        ),
+        timeout=40_000,
+    )
+    # A redraw of the table keeps exactly the trees selected, wherever they move.
+    qtbot.waitUntil(lambda: not session.busy, timeout=20_000)
+    panel.table.selectAll()
+    chosen = set(panel.selected_ids())
+    assert len(chosen) == 4
+    panel.refresh()
+    assert set(panel.selected_ids()) == chosen
+    # A long message wraps: the dock never widens past a laptop screen.
+    panel._say("Exported to " + "/very/long/path" * 60)
+    assert panel.minimumSizeHint().width() < 700
+    # Another campaign is not opened while this one's batch or export runs.
+    panel.job = object()  # as run_stage leaves it while a job runs
+    assert not panel.open_campaign(campaign)
+    assert "open another when it ends" in panel.status.text()
+    panel.job = None
