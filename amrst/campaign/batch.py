@@ -30,13 +30,14 @@ from amrst.campaign.table import campaign_rows, tree_row, write_table
 from amrst.files.atomic import make_folder
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterator
 
     from amrst.campaign.manifest import Campaign, TreeEntry
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
 
 TABLE_EVERY_S = 1.0  # campaign.csv/.xlsx rewritten at most this often while trees end
+WAIT_S = 0.2  # how often a batch waiting for its trees looks at Cancel
 
 
 class BatchProgress(Protocol):
@@ -56,6 +57,9 @@ class BatchProgress(Protocol):
         ``done``: trees with a result (whatever its state), skipped ones included;
         ``errors``: trees that ended without one.
         """
+
+    def check_cancelled(self) -> None:
+        """Raise ``Cancelled`` when the batch is to stop (asked while trees run)."""
 
 
 class ReporterProgress:
@@ -97,6 +101,10 @@ class ReporterProgress:
             else f"{row['id']}: {row.get('status') or row.get('error', '')}"
         )
         self.reporter.progress(share, text)
+        self.reporter.check_cancelled()
+
+    def check_cancelled(self) -> None:
+        """Raise ``Cancelled`` once the app's Cancel was pressed."""
         self.reporter.check_cancelled()
 
 
@@ -385,6 +393,26 @@ def _row_of(future: Any, todo: list[tuple[TreeEntry, str]]) -> dict[str, Any]:
     return row
 
 
+def _as_they_end(futures: list[Any], progress: BatchProgress | None) -> Iterator[Any]:
+    """Yield each tree's future as it ends.
+
+    While none has, ``progress`` is asked for a cancel every ``WAIT_S``: a tree can
+    take minutes, and Cancel (or closing the app) must not wait for it. The caller
+    then closes the cluster, which stops the trees in flight.
+    """
+    from distributed import as_completed as _as_completed
+
+    as_completed: Any = _as_completed  # untyped
+    ended = as_completed(futures)
+    while not ended.is_empty():
+        if ended.has_ready():
+            yield from ended.next_batch(block=False)
+            continue
+        if progress is not None:
+            progress.check_cancelled()
+        time.sleep(WAIT_S)
+
+
 def _collect(
     futures: list[Any],
     *,
@@ -396,10 +424,6 @@ def _collect(
     progress: BatchProgress | None,
 ) -> None:
     """Record each tree as it ends: in ``summary``, the table and the progress."""
-    from distributed import as_completed as _as_completed
-
-    as_completed: Any = _as_completed
-
     done = len(summary.skipped)
     total = len(todo) + done
     total_cost, done_cost = sum(costs.values()), 0.0
@@ -408,7 +432,7 @@ def _collect(
     if progress is not None:
         progress.update(done, 0, min(len(todo), summary.workers), total, None, None)
     written = time.perf_counter()
-    for finished, future in enumerate(as_completed(futures), start=1):
+    for finished, future in enumerate(_as_they_end(futures, progress), start=1):
         row = _row_of(future, todo)
         summary.results.append(row)
         if row.get("ok"):

@@ -26,6 +26,9 @@ class TerminalBar:
         self._quiet = quiet
         self._t0 = time.perf_counter()
 
+    def check_cancelled(self) -> None:
+        """Never cancels: Ctrl+C interrupts the command itself."""
+
     def update(
         self,
         done: int,

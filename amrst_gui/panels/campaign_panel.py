@@ -150,7 +150,7 @@ class CampaignPanel(QWidget):
             grid.addWidget(b, 0, 2 * col, 1, 2)
         grid.addWidget(self.run_button, 1, 0, 1, 3)
         grid.addWidget(self.export_button, 1, 3, 1, 3)
-        self.run_button.clicked.connect(self.run_remaining)
+        self.run_button.clicked.connect(self._run_or_cancel)
         self.accept_button.clicked.connect(lambda: self.decide("accepted"))
         self.reject_button.clicked.connect(lambda: self.decide("rejected"))
         self.clear_button.clicked.connect(lambda: self.decide(CLEAR))
@@ -314,9 +314,17 @@ class CampaignPanel(QWidget):
         self._update_buttons()
 
     def cancel(self) -> None:
-        """Stop the batch after the trees in flight (they are lost, as with a kill)."""
+        """Stop the batch or the export; the trees in flight are lost, as with a
+        kill (the batch closes its cluster)."""
         if self.job is not None:
             self.job.cancel()
+
+    def _run_or_cancel(self) -> None:
+        """The Run button is Cancel while the dock's batch or export runs."""
+        if self.job is not None:
+            self.cancel()
+        else:
+            self.run_remaining()
 
     # ----------------------------------------------------------- plumbing
     def _fill(self) -> None:
@@ -442,7 +450,8 @@ class CampaignPanel(QWidget):
 
     def _update_buttons(self) -> None:
         has = self.campaign is not None
-        self.run_button.setEnabled(has and self.job is None)
+        self.run_button.setEnabled(has)
+        self.run_button.setText("Cancel" if self.job is not None else "Run remaining")
         picked = bool(self.selected_ids())
         self.accept_button.setEnabled(has and picked)
         self.reject_button.setEnabled(has and picked)

@@ -58,3 +58,34 @@ def test_a_tree_run_outside_dask_still_runs(tmp_path, sample_pair):
     entry, stamp = todo[0]
     row = run_tree(str(tmp_path), entry, doc, stamp)
     assert row["ok"], row
+
+
+def _sleep(seconds: float) -> float:
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+@pytest.mark.slow
+def test_a_cancel_does_not_wait_for_the_trees_in_flight():
+    """The batch looks at Cancel while its trees run, not only when one ends."""
+    from distributed import Client
+
+    from amrst.campaign.batch import _as_they_end
+    from amrst.errors import Cancelled
+
+    class CancelSoon:
+        calls = 0
+
+        def check_cancelled(self) -> None:
+            self.calls += 1
+            if self.calls > 2:
+                raise Cancelled()
+
+    with Client(processes=False, n_workers=1, threads_per_worker=1) as client:
+        future = client.submit(_sleep, 5.0)  # a tree that takes long
+        with pytest.raises(Cancelled):
+            next(_as_they_end([future], CancelSoon()))
+        assert not future.done()  # Cancel came while the tree still ran
+        future.cancel()
