@@ -24,6 +24,7 @@ from amrst.campaign.folder import REVIEW as REVIEW
 from amrst.campaign.folder import decision_of as decision_of
 from amrst.campaign.folder import read_doc, result_run
 from amrst.campaign.run import ERROR
+from amrst.campaign.table import OUT_OF_DATE
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
 
@@ -42,6 +43,7 @@ CLEAR = "clear"
 STATE_ORDER = (
     "needs review",
     "failed",
+    OUT_OF_DATE,
     "registered",
     "running",
     "queued",
@@ -52,8 +54,12 @@ STATE_ORDER = (
 
 
 def review_state(campaign: Campaign, tree_id: str, batch_status: str) -> str:
-    """Return the tree's state for the app: the decision when one was made, else the batch's."""
-    if batch_status == "not run":
+    """Return the tree's state for the app: the decision when one was made, else the batch's.
+
+    A tree not run, or whose result is of other scans than it lists, has no decision
+    to show.
+    """
+    if batch_status in ("not run", OUT_OF_DATE):
         return batch_status
     return decision_of(campaign, tree_id) or batch_status
 

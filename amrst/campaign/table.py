@@ -23,6 +23,9 @@ if TYPE_CHECKING:
 
     from amrst.campaign.manifest import Campaign, TreeEntry
 
+#: The state of a tree whose manifest lists other scans (or another reference)
+#: than its result was found for: run it again.
+OUT_OF_DATE = "out of date"
 COLUMNS = (
     "tree_id",
     "status",
@@ -83,6 +86,12 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
         return row
     if stamp is None or summary is None:
         row["status"] = "not run"
+        return row
+    ran = stamp.get("inputs")
+    if isinstance(ran, dict) and (
+        ran.get("scans") != list(entry.scans) or ran.get("reference") != entry.reference
+    ):  # the manifest lists other scans now: the result is of those it had
+        row["status"] = OUT_OF_DATE
         return row
     from amrst.campaign.stored import summary_status
 

@@ -44,6 +44,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.campaign.review import CLEAR
+from amrst.campaign.table import OUT_OF_DATE
 from amrst.errors import AmrstError
 from amrst_gui.panels.campaign_rows import (
     COLUMNS,
@@ -178,12 +179,20 @@ class CampaignPanel(QWidget):
         return True
 
     def refresh(self) -> None:
-        """Re-read every tree's state from the campaign folder and redraw the table."""
+        """Re-read the manifest and every tree's state from the campaign folder, and
+        redraw the table (a manifest edited by hand shows; a broken one is said, and
+        the list stays as read last)."""
+        from amrst.campaign.manifest import load_campaign
         from amrst.campaign.review import review_state
         from amrst.campaign.table import campaign_rows
 
         if self.campaign is None:
             return
+        try:
+            self.campaign = load_campaign(self.campaign.root)
+        except AmrstError as exc:
+            self._say(f"{exc} The list shows the manifest as read before.")
+        self.title.setText(f"{self.campaign.name}: {len(self.campaign.trees)} trees")
         self.rows = campaign_rows(self.campaign)
         for row in self.rows:
             row["read_state"] = review_state(
@@ -298,7 +307,11 @@ class CampaignPanel(QWidget):
             return
         # Queued until a worker starts them (its event marks them running).
         self.batch.submit(
-            {r["tree_id"] for r in self.rows if r["state"] in ("not run", "failed")}
+            {
+                r["tree_id"]
+                for r in self.rows
+                if r["state"] in ("not run", "failed", OUT_OF_DATE)
+            }
         )
         self.refresh()
         self.job = run_stage(

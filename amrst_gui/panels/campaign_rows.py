@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 COLUMNS = ("Tree", "State", "Conf.", "Links", "NN-RMSE cm", "TH m", "DBH cm")
-NEEDS_PERSON = ("needs review", "failed")
+NEEDS_PERSON = ("needs review", "failed", "out of date")
 
 
 def fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:

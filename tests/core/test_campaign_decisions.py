@@ -210,6 +210,11 @@ def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tm
     written, errors = export_accepted(load_campaign(root))
     assert written == []
     assert "out of date: its list of scans or its reference changed" in errors["T01"]
+    # The table says so too, and shows no decision for a result of other scans.
+    swapped = load_campaign(root)
+    row = tree_row(swapped, swapped.tree("T01"))
+    assert row["status"] == "out of date"
+    assert review_state(swapped, "T01", row["status"]) == "out of date"
     assert not (root / "results" / "T01" / "merged.ply").exists()
     # The same scans, one file's content changed.
     _manifest_scans(root, "T01", listed)

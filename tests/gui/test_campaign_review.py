@@ -344,6 +344,19 @@ def test_the_views_end_on_the_tree_chosen_last_and_the_selection_holds(
     # A long message wraps: the dock never widens past a laptop screen.
     panel._say("Exported to " + "/very/long/path" * 60)
     assert panel.minimumSizeHint().width() < 700
+    # The manifest edited by hand shows at the next refresh; a broken one is said.
+    toml = campaign / "campaign.toml"
+    text = toml.read_text()
+    try:
+        toml.write_text(text.replace('id = "T03"', 'id = "T03b"'))
+        panel.refresh()
+        assert "T03b" in {r["tree_id"] for r in panel.rows}
+        toml.write_text("[[tree]\n")
+        panel.refresh()
+        assert "not valid TOML" in panel.status.text()
+        assert "T03b" in {r["tree_id"] for r in panel.rows}  # as read before
+    finally:
+        toml.write_text(text)
     # Another campaign is not opened while this one's batch or export runs.
     panel.job = object()  # as run_stage leaves it while a job runs
     assert not panel.open_campaign(campaign)
