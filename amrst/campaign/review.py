@@ -89,9 +89,14 @@ def acceptance_warning(campaign: Campaign, tree_id: str) -> str:
     """Say why accepting a tree needs a confirmation; "" when the batch registered it.
 
     The app asks with these words before it accepts with ``confirm_unregistered``.
+    A tree with no result to accept has nothing to ask about (:func:`decide` refuses
+    it in its own words).
     """
     from amrst.campaign.table import tree_row
 
+    out = campaign.results_dir(tree_id)
+    if (out / ERROR).is_file() or not (out / "scans.json").is_file():
+        return ""
     status = tree_row(campaign, campaign.tree(tree_id))["status"]
     if status == REGISTERED:
         return ""
@@ -110,6 +115,13 @@ def _check_decision(
     if not (campaign.results_dir(tree_id) / "scans.json").is_file():
         raise InvalidInput(
             f"Tree {tree_id} has no result to {decision[:-2]} yet; run it first."
+        )
+    from amrst.campaign.table import tree_row
+
+    if tree_row(campaign, campaign.tree(tree_id))["status"] == OUT_OF_DATE:
+        raise InvalidInput(
+            f"Tree {tree_id}'s result is of other scans than campaign.toml lists now; "
+            "run it again first."
         )
     if decision == ACCEPTED and not confirm_unregistered:
         warning = acceptance_warning(campaign, tree_id)

@@ -215,6 +215,8 @@ def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tm
     row = tree_row(swapped, swapped.tree("T01"))
     assert row["status"] == "out of date"
     assert review_state(swapped, "T01", row["status"]) == "out of date"
+    with pytest.raises(InvalidInput, match="run it again first"):
+        decide(swapped, ["T01"], "rejected")
     assert not (root / "results" / "T01" / "merged.ply").exists()
     # The same scans, one file's content changed.
     _manifest_scans(root, "T01", listed)
