@@ -14,7 +14,7 @@ from amrst.campaign.run import ERROR, STAMP
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from amrst.campaign.manifest import Campaign
+    from amrst.campaign.manifest import Campaign, TreeEntry
 
 REVIEW = "review.json"
 ACCEPTED = "accepted"
@@ -31,6 +31,31 @@ def read_doc(path: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
+def has_result(out: Path) -> bool:
+    """Tell whether a tree's results folder holds a finished run's result.
+
+    Its stamp is written last, and removed when a run starts, so a run cancelled or
+    killed leaves none; a run that ended in an error leaves ``error.json``.
+    """
+    return (
+        (out / STAMP).is_file()
+        and (out / "scans.json").is_file()
+        and not (out / ERROR).is_file()
+    )
+
+
+def of_other_scans(out: Path, entry: TreeEntry) -> bool:
+    """Tell whether the result in ``out`` is of other scans than ``entry`` lists now.
+
+    Other scans, another order or another reference; older stamps, which do not
+    record them, are taken as of these.
+    """
+    ran = (read_doc(out / STAMP) or {}).get("inputs")
+    return isinstance(ran, dict) and (
+        ran.get("scans") != list(entry.scans) or ran.get("reference") != entry.reference
+    )
+
+
 def decision_of(campaign: Campaign, tree_id: str) -> str:
     """Return the decision on a tree's result: accepted, rejected, or "" (none).
 
@@ -38,7 +63,7 @@ def decision_of(campaign: Campaign, tree_id: str) -> str:
     made it): a tree run again, or whose last run ended in an error, has none.
     """
     out = campaign.results_dir(tree_id)
-    if (out / ERROR).is_file():
+    if not has_result(out):
         return ""
     review = read_doc(out / REVIEW) or {}
     if review.get("result_run") != result_run(out):  # None == None: older files

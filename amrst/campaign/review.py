@@ -22,8 +22,7 @@ from amrst.campaign.folder import DECISIONS as DECISIONS
 from amrst.campaign.folder import REJECTED as REJECTED
 from amrst.campaign.folder import REVIEW as REVIEW
 from amrst.campaign.folder import decision_of as decision_of
-from amrst.campaign.folder import read_doc, result_run
-from amrst.campaign.run import ERROR
+from amrst.campaign.folder import has_result, read_doc, result_run
 from amrst.campaign.table import OUT_OF_DATE
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
@@ -94,11 +93,10 @@ def acceptance_warning(campaign: Campaign, tree_id: str) -> str:
     """
     from amrst.campaign.table import tree_row
 
-    out = campaign.results_dir(tree_id)
-    if (out / ERROR).is_file() or not (out / "scans.json").is_file():
+    if not has_result(campaign.results_dir(tree_id)):
         return ""
     status = tree_row(campaign, campaign.tree(tree_id))["status"]
-    if status == REGISTERED:
+    if status in (REGISTERED, OUT_OF_DATE):
         return ""
     if status == FAILED:
         return f"Tree {tree_id} failed: no candidate verified, so its pose is a guess."
@@ -112,7 +110,7 @@ def _check_decision(
     campaign.tree(tree_id)  # refuses an unknown id
     if decision == CLEAR:
         return
-    if not (campaign.results_dir(tree_id) / "scans.json").is_file():
+    if not has_result(campaign.results_dir(tree_id)):
         raise InvalidInput(
             f"Tree {tree_id} has no result to {decision[:-2]} yet; run it first."
         )
@@ -213,7 +211,7 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
     summary = read_doc(out / "scans.json")
-    if summary is None or (out / ERROR).is_file():
+    if summary is None or not has_result(out):
         raise InvalidInput(f"Tree {tree_id} has no result to export; run it first.")
     _refuse_stale(campaign, entry)
     poses = _stored_poses(summary, len(entry.scans), tree_id)

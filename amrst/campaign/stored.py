@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amrst.campaign.folder import read_doc
+from amrst.campaign.folder import has_result, of_other_scans, read_doc
 from amrst.review.verdict import (
     FAILED,
     NEEDS_REVIEW,
@@ -246,11 +246,11 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
 
     The scans are the manifest's (the same order as the result's ``scans``).
     """
-    from amrst.campaign.run import STAMP
-
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
-    doc = read_doc(out / "scans.json") if (out / STAMP).is_file() else None
+    if not has_result(out) or of_other_scans(out, entry):  # no poses of these scans
+        return None
+    doc = read_doc(out / "scans.json")
     if doc is None or len(doc.get("scans", [])) != len(entry.scans):
         return None
     scans = tuple(

@@ -15,7 +15,7 @@ import io as _stdio
 import math
 from typing import TYPE_CHECKING, Any
 
-from amrst.campaign.folder import decision_of, read_doc
+from amrst.campaign.folder import decision_of, of_other_scans, read_doc
 from amrst.campaign.run import ERROR, STAMP
 
 if TYPE_CHECKING:
@@ -87,10 +87,7 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
     if stamp is None or summary is None:
         row["status"] = "not run"
         return row
-    ran = stamp.get("inputs")
-    if isinstance(ran, dict) and (
-        ran.get("scans") != list(entry.scans) or ran.get("reference") != entry.reference
-    ):  # the manifest lists other scans now: the result is of those it had
+    if of_other_scans(out, entry):  # the result is of the scans it had
         row["status"] = OUT_OF_DATE
         return row
     from amrst.campaign.stored import summary_status

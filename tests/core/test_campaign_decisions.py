@@ -217,6 +217,7 @@ def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tm
     assert review_state(swapped, "T01", row["status"]) == "out of date"
     with pytest.raises(InvalidInput, match="run it again first"):
         decide(swapped, ["T01"], "rejected")
+    assert read_stored_tree(swapped, "T01") is None  # its poses are of other scans
     assert not (root / "results" / "T01" / "merged.ply").exists()
     # The same scans, one file's content changed.
     _manifest_scans(root, "T01", listed)
@@ -225,6 +226,17 @@ def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tm
     io.write(root / "T01" / "source.ply", cloud.select(np.arange(0, len(cloud), 2)))
     errors = export_accepted(load_campaign(root))[1]
     assert "its scans' contents changed" in errors["T01"]
+
+
+def test_a_run_cancelled_midway_leaves_no_result_to_decide_on(campaign_dir, tmp_path):
+    shutil.copytree(campaign_dir, tmp_path / "c")
+    root = tmp_path / "c"
+    campaign = load_campaign(root)
+    (root / "results" / "T01" / "stamp.json").unlink()  # as run_tree starts
+    assert acceptance_warning(campaign, "T01") == ""
+    with pytest.raises(InvalidInput, match="no result to accept"):
+        decide(campaign, ["T01"], ACCEPTED)
+    assert decision_of(campaign, "T01") == ""
 
 
 def test_a_decision_holds_for_the_result_it_was_made_on(campaign_dir, tmp_path):
