@@ -190,6 +190,7 @@ def _check_common(args: argparse.Namespace, tilt_deg: float) -> None:
             "trees": args.n_trees,
         },
         cli=True,
+        optional=True,  # options not given
     )
     if args.spacing_m is not None:
         check_range("spacing_m", args.spacing_m, cli=True)

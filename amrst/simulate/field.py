@@ -75,7 +75,8 @@ class FieldOptions:
                 "slope_deg": self.slope_deg,
                 "shrubs": self.shrubs,
                 "clip_radius_m": self.clip_radius_m,
-            }
+            },
+            optional=True,  # no clip radius: the whole scene
         )
 
 

@@ -148,7 +148,8 @@ class PlotOptions:
                     "shrubs",
                     "trees",
                 )
-            }
+            },
+            optional=True,  # trees None: as many as the tree files
         )
         check_range("spacing_m", self.spacing_m)
         # The layout's own numbers (no command option sets them).

@@ -172,15 +172,18 @@ def check_number(
         )
 
 
-def check_numbers(values: Mapping[str, Any], *, cli: bool = False) -> None:
+def check_numbers(
+    values: Mapping[str, Any], *, cli: bool = False, optional: bool = False
+) -> None:
     """Check each setting of ``values`` (name -> value) with :func:`check_number`.
 
-    A value of None (not given) is skipped; each item of a tuple or list is checked.
+    Each item of a tuple or list is checked; ``optional``: a value of None (an option
+    not given) is skipped, else it is refused as any other non-number.
     """
     for name, value in values.items():
         items = value if isinstance(value, (tuple, list)) else [value]
         for item in items:
-            if item is not None:
+            if not (optional and item is None):
                 check_number(name, item, cli=cli)
 
 

@@ -373,3 +373,12 @@ def test_the_library_checks_the_same_ranges(tree: Cloud) -> None:
         plot_options(range_m=1e308)
     with pytest.raises(InvalidInput, match=f"clip_radius_m {LENGTH}"):
         FieldOptions(clip_radius_m=float("nan"))
+
+
+@pytest.mark.parametrize("name", ["noise_m", "tilt_deg", "seed", "res_deg"])
+def test_a_setting_given_as_none_is_refused_in_one_line(tree, name):
+    from amrst.errors import InvalidInput
+
+    with pytest.raises(InvalidInput, match=f"{name} must be") as info:
+        simulate_pair(tree, **{name: None})
+    assert "\n" not in str(info.value)
