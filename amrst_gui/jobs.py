@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from amrst.errors import InvalidInput
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 
 if TYPE_CHECKING:
@@ -99,6 +100,10 @@ def _both(
     return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
 
 
+class SameScans(InvalidInput):
+    """The target and the source hold the same points: no parameter would help."""
+
+
 def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, float]:
     """Preprocess and separate wood from leaves in both scans.
 
@@ -109,7 +114,10 @@ def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, 
     from amrst.types import refuse_same_points
 
     pair = [clouds[role] for role in ROLES if role in clouds]
-    refuse_same_points(pair, [c.name or "scan" for c in pair])
+    try:
+        refuse_same_points(pair, [c.name or "scan" for c in pair])
+    except InvalidInput as exc:
+        raise SameScans(str(exc)) from None
     return _both(pipeline.prepare_scan, clouds, params, reporter)
 
 

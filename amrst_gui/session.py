@@ -515,8 +515,9 @@ class Session(QObject):
             self.cancelled.emit(f"{label} cancelled; earlier results are kept.")
             return
         if isinstance(exc, AmrstError):
-            # No parameter hint when the process itself ended.
-            hint = "" if isinstance(exc, EngineStopped) else self._hint(step)
+            # No parameter hint when the process itself ended, or for one scan twice.
+            plain = isinstance(exc, (EngineStopped, jobs.SameScans))
+            hint = "" if plain else self._hint(step)
             self._fail(f"{label} failed: {exc}{hint}")
         else:
             log.error(

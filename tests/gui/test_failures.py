@@ -102,6 +102,7 @@ def test_one_scan_as_target_and_source_is_refused_and_a_fifo_named(
         s.run_all()  # a copy: the separation step finds it, off the GUI thread
         qtbot.waitUntil(lambda: not s.busy, timeout=20_000)
         assert says in errors[-1]
+        assert "Parameters dock" not in errors[-1]  # no setting would help
         assert s.analysis("target") is None
     fifo = tmp_path / "scan.ply"
     os.mkfifo(fifo)
