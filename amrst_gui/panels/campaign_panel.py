@@ -450,6 +450,13 @@ class CampaignPanel(QWidget):
         self._say(f"Batch stopped: {exc}")
 
     def _on_finished(self) -> None:
+        # A cancelled batch is reported at once while its worker thread still closes
+        # the cluster (seconds): the dock waits for it before another run can start.
+        job = self.job
+        if job is not None and not job.worker_done.is_set():
+            self._update_buttons()
+            QTimer.singleShot(200, self, self._on_finished)
+            return
         self.job = None
         self.batch.clear()
         self.refresh()
@@ -463,8 +470,15 @@ class CampaignPanel(QWidget):
 
     def _update_buttons(self) -> None:
         has = self.campaign is not None
-        self.run_button.setEnabled(has)
-        self.run_button.setText("Cancel" if self.job is not None else "Run remaining")
+        stopping = self.job is not None and self.job.reporter.cancelled
+        self.run_button.setEnabled(has and not stopping)
+        self.run_button.setText(
+            "Stopping…"
+            if stopping
+            else "Cancel"
+            if self.job is not None
+            else "Run remaining"
+        )
         picked = bool(self.selected_ids())
         self.accept_button.setEnabled(has and picked)
         self.reject_button.setEnabled(has and picked)

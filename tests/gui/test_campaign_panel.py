@@ -125,3 +125,22 @@ def test_open_run_filter_select_accept_export(qtbot, tmp_path):
     assert again.state_of("T02") == "failed"
     assert questions == []  # nothing to ask about: the engine refuses it at once
     assert "has no result" in again.status.text()
+
+
+@pytest.mark.slow
+def test_a_cancelled_batch_frees_the_dock_only_once_its_cluster_is_gone(
+    qtbot, tmp_path
+):
+    _campaign(tmp_path)
+    panel = CampaignPanel(workers=1)
+    qtbot.addWidget(panel)
+    assert panel.open_campaign(tmp_path)
+    panel.run_button.click()  # Run remaining
+    job = panel.job
+    assert job is not None
+    assert panel.run_button.text() == "Cancel"
+    panel.run_button.click()  # Cancel
+    qtbot.waitUntil(lambda: panel.job is None, timeout=60_000)
+    assert job.worker_done.is_set()  # the batch thread ended: no cluster left
+    assert panel.run_button.text() == "Run remaining"
+    assert panel.run_button.isEnabled()
