@@ -188,10 +188,19 @@ class CampaignPanel(QWidget):
 
         if self.campaign is None:
             return
+        ids = self.selected_ids()
+        shown = self.campaign.tree(ids[0]) if len(ids) == 1 else None
         try:
             self.campaign = load_campaign(self.campaign.root)
         except AmrstError as exc:
             self._say(f"{exc} The list shows the manifest as read before.")
+        now = {t.id: t for t in self.campaign.trees}
+        if shown is not None and now.get(shown.id) != shown:  # edited by hand
+            if shown.id in now:  # listed and shown again from its new entry
+                QTimer.singleShot(0, self, self._on_selection)
+            else:
+                self.stored = None
+                self.tree_scans.show_tree(None, None, (0, 1))
         self.title.setText(f"{self.campaign.name}: {len(self.campaign.trees)} trees")
         self.rows = campaign_rows(self.campaign)
         for row in self.rows:
@@ -387,6 +396,8 @@ class CampaignPanel(QWidget):
         if len(ids) != 1 or self.campaign is None:
             return
         entry = self.campaign.tree(ids[0])
+        if max(target, source) >= len(entry.scans):  # a listing of an older manifest
+            return
         stored = self.stored
         result = None if stored is None else stored.link_result(target, source)
         self._shown = (target, source)

@@ -348,9 +348,13 @@ def test_the_views_end_on_the_tree_chosen_last_and_the_selection_holds(
     toml = campaign / "campaign.toml"
     text = toml.read_text()
     try:
+        panel.select_tree("T03")
+        qtbot.waitUntil(lambda: not session.busy, timeout=20_000)
         toml.write_text(text.replace('id = "T03"', 'id = "T03b"'))
         panel.refresh()
         assert "T03b" in {r["tree_id"] for r in panel.rows}
+        assert panel.selected_ids() == []  # the tree shown is gone: its listing too
+        assert panel.tree_scans.title.text().startswith("Select a tree")
         toml.write_text("[[tree]\n")
         panel.refresh()
         assert "not valid TOML" in panel.status.text()
