@@ -137,6 +137,7 @@ class MainWindow(QMainWindow):
         # A campaign link chosen while scans are read is shown when they are.
         self._pending_link: tuple[str, str, StoredLinkResult | None] | None = None
         s.busy_changed.connect(self._show_pending_link)
+        s.cancelled.connect(self._drop_pending_link)  # Esc drops what waited too
         self.tabifyDockWidget(self.docks["scans"], self.docks["parameters"])
         self.tabifyDockWidget(self.docks["scans"], self.docks["campaign"])
         # The side docks run the full height: the log sits under the views only, so
@@ -336,6 +337,9 @@ class MainWindow(QMainWindow):
             self._pending_link = (target, source, stored)
             return
         self.session.load_stored(target, source, stored)
+
+    def _drop_pending_link(self, *_args) -> None:
+        self._pending_link = None
 
     def _show_pending_link(self, busy: bool) -> None:
         if not busy and self._pending_link is not None:

@@ -510,6 +510,8 @@ class Session(QObject):
     def step_failed(self, step: str, exc: BaseException) -> None:
         """Report a job that raised: cancelled, an engine error, or a bug."""
         label = self._label(step)
+        if step == "load":  # the stored result waited for these scans only
+            self._pending_stored = None
         if isinstance(exc, Cancelled):
             log.warning("%s cancelled; earlier results are kept.", label)
             self.cancelled.emit(f"{label} cancelled; earlier results are kept.")
