@@ -522,6 +522,9 @@ def run_plot_bench(
             records.append(_run_guarded(case, name))
         write_json_atomic(out / "plot_results.json", [r.as_dict() for r in records])
         write_text_atomic(out / "summary.md", plot_summary(records, skipped))
+    if not records:
+        name, why = next(iter(skipped.items()))
+        raise InvalidInput(f"No plot case could be read ({name}: {why})")
     if reporter is not None:
         reporter.progress(1.0, "done")
     return records

@@ -68,8 +68,8 @@ class ReporterProgress:
     Each finished tree calls ``progress(done share, "<id>: <status or error>")``; a
     tree starting or ending on a worker ``progress(done share, STARTED + "<id>")`` or
     ``FINISHED + "<id>"`` (worker events: "running" means running, not submitted);
-    ``check_cancelled`` is asked between trees, so a cancel stops the batch there (the
-    trees in flight are lost, as with any kill).
+    ``check_cancelled`` is asked while the trees run (every ``WAIT_S``), so a cancel
+    stops the batch then (the trees in flight are lost, as with any kill).
     """
 
     STARTED = "started on a worker: "
@@ -398,7 +398,8 @@ def _as_they_end(futures: list[Any], progress: BatchProgress | None) -> Iterator
 
     While none has, ``progress`` is asked for a cancel every ``WAIT_S``: a tree can
     take minutes, and Cancel (or closing the app) must not wait for it. The caller
-    then closes the cluster, which stops the trees in flight.
+    then closes the client (and a local cluster, which stops the trees in flight; on
+    a remote scheduler those run to their end).
     """
     from distributed import as_completed as _as_completed
 
@@ -408,8 +409,9 @@ def _as_they_end(futures: list[Any], progress: BatchProgress | None) -> Iterator
         if ended.has_ready():
             yield from ended.next_batch(block=False)
             continue
-        if progress is not None:
-            progress.check_cancelled()
+        check = getattr(progress, "check_cancelled", None)  # a caller's may lack it
+        if check is not None:
+            check()
         time.sleep(WAIT_S)
 
 

@@ -314,6 +314,7 @@ class CampaignPanel(QWidget):
 
         if self.campaign is None or self.job is not None:
             return
+        self.refresh()  # the trees as campaign.toml lists them now, as the batch will
         # Queued until a worker starts them (its event marks them running).
         self.batch.submit(
             {

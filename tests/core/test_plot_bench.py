@@ -89,6 +89,8 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
     records = run_plot_bench(root, out, methods=(PLOT, KISS))
     assert [r.method for r in records] == [PLOT, KISS]
     assert "- 00_cut skipped: " in (out / "summary.md").read_text()
+    with pytest.raises(InvalidInput, match="No plot case could be read"):
+        run_plot_bench(root / "00_cut", tmp_path / "none", methods=(PLOT,))
     plot = json.loads((out / "plot_results.json").read_text())[0]
     assert plot["registered"] == 1
     assert plot["inventory"]["found"] == len(STEMS)
