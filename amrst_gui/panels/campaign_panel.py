@@ -209,6 +209,21 @@ class CampaignPanel(QWidget):
             )
         self._restate()
 
+    def _reread(self, tree_ids: list[str]) -> None:
+        """Read the rows of ``tree_ids`` again (their new results), and redraw; the
+        other trees' files have not changed."""
+        from amrst.campaign.review import review_state
+        from amrst.campaign.table import tree_row
+
+        assert self.campaign is not None  # a batch runs on the campaign shown
+        entries = {t.id: t for t in self.campaign.trees}
+        for row in self.rows:
+            entry = entries.get(row["tree_id"])
+            if row["tree_id"] in tree_ids and entry is not None:
+                row.update(tree_row(self.campaign, entry))
+                row["read_state"] = review_state(self.campaign, entry.id, row["status"])
+        self._restate()
+
     def _restate(self) -> None:
         """Redraw the table with the batch's queued and running trees over the states
         the folder gave last (no file is read: a tree that starts changes no file)."""
@@ -449,7 +464,7 @@ class CampaignPanel(QWidget):
         if not finished:  # a tree started: its files are as they were
             self._restate()
             return
-        self.refresh()  # a tree's new result: read again
+        self._reread(finished)  # a tree's new result: its row read again
         for tree_id in finished:
             if self.selected_ids() == [tree_id]:  # its links are new: list them
                 self._list_tree(tree_id)
