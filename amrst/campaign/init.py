@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from amrst.campaign.manifest import (
     MANIFEST,
+    MANIFEST_CSV,
     RESULTS,
     Campaign,
     TreeEntry,
@@ -107,7 +108,10 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
     existing = load_campaign(root) if manifest.is_file() else None
     old = {} if existing is None else {t.id: t for t in existing.trees}
     trees, skipped = _folder_trees(root, dict(old))
-    loose = [p.name for p in _scan_files(root)]
+    from amrst.campaign.table import TABLE
+
+    ours = {TABLE, MANIFEST_CSV}  # the campaign's own tables are no scans
+    loose = [p.name for p in _scan_files(root) if p.name not in ours]
     if loose:
         skipped.append(
             f"{len(loose)} scan file(s) directly in {root.name} ({', '.join(loose[:3])}"

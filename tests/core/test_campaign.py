@@ -172,3 +172,17 @@ def test_table_columns_3dfin_names():
         "overlap",
     ):
         assert name in COLUMNS
+
+
+def test_the_campaign_s_own_tables_are_not_taken_for_loose_scans(tmp_path, sample_pair):
+    from amrst.campaign.table import write_table
+
+    _layout(tmp_path, sample_pair)
+    campaign, _ = init_campaign(tmp_path)
+    write_table(campaign)  # campaign.csv, as a batch leaves it
+    (tmp_path / "manifest.csv").write_text("id,scans\n")
+    _, skipped = init_campaign(tmp_path)
+    (loose,) = [why for why in skipped if "directly in" in why]
+    assert loose.startswith("1 scan file(s)")  # loose.ply only
+    assert "campaign.csv" not in loose
+    assert "manifest.csv" not in loose
