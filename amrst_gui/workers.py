@@ -59,13 +59,16 @@ class StageJob(QObject):
 
     Emits ``progressed(float, str)``, ``returned(object)``, ``errored(object)``
     (the exception; its ``__traceback_text__`` attribute holds the worker
-    traceback) and ``finished()`` once, after either of the two.
+    traceback) and ``finished()`` once, after either of the two; then ``ended()``
+    once the worker thread itself is over (for a job cancelled before its next check
+    point, later than ``finished``).
     """
 
     progressed = Signal(float, str)
     returned = Signal(object)
     errored = Signal(object)
     finished = Signal()
+    ended = Signal()
     _progress_from_worker = Signal(float, str)
 
     def __init__(self, name: str, parent: QObject | None = None) -> None:
@@ -177,9 +180,11 @@ class StageJob(QObject):
         on the GUI thread.
         """
         self._stop_abandon_timer()
+        self.ended.emit()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for signal in (self.progressed, self.returned, self.errored, self.finished):
+            signals = (self.progressed, self.returned, self.errored, self.finished)
+            for signal in (*signals, self.ended):
                 with contextlib.suppress(RuntimeError, TypeError):
                     signal.disconnect()
         _LIVE.discard(self)

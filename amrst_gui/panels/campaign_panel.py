@@ -308,8 +308,8 @@ class CampaignPanel(QWidget):
             on_progress=lambda f, m: self._say(f"{f:.0%}: {m}"),
             on_result=self._on_exported,
             on_error=lambda exc: self._say(f"Export stopped: {exc}"),
-            on_finished=self._on_finished,
         )
+        self.job.ended.connect(self._on_finished)
         self.refresh()
 
     def _on_exported(self, result: tuple[list[Path], dict[str, str]]) -> None:
@@ -347,8 +347,8 @@ class CampaignPanel(QWidget):
             on_progress=self._on_progress,
             on_result=self._on_done,
             on_error=self._on_error,
-            on_finished=self._on_finished,
         )
+        self.job.ended.connect(self._on_finished)
         self._update_buttons()
 
     def cancel(self) -> None:
@@ -477,13 +477,9 @@ class CampaignPanel(QWidget):
         self._say(f"Batch stopped: {exc}")
 
     def _on_finished(self) -> None:
-        # A cancelled batch is reported at once while its worker thread still closes
-        # the cluster (seconds): the dock waits for it before another run can start.
-        job = self.job
-        if job is not None and not job.worker_done.is_set():
-            self._update_buttons()
-            QTimer.singleShot(200, self, self._on_finished)
-            return
+        # On the worker thread's end, not the job's: a cancelled batch is reported at
+        # once while its thread still closes the cluster (seconds), and another run
+        # must not start before.
         self.job = None
         self.batch.clear()
         self.refresh()

@@ -30,14 +30,19 @@ def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
         return "late"
 
     job, got = _run(long_call, qtbot)
+    ended: list[bool] = []
+    job.ended.connect(lambda: ended.append(job.worker_done.is_set()))
     qtbot.wait(100)
     job.cancel()
     try:
         qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
         assert isinstance(got["error"][0], Cancelled)
         assert not job.worker_done.is_set()  # the thread is still in its call ...
+        assert ended == []  # ... so it has not ended
     finally:
         release.set()
+    qtbot.waitUntil(lambda: bool(ended), timeout=60_000)
+    assert ended == [True]  # ended once, when the thread was over
     qtbot.waitUntil(job.worker_done.is_set, timeout=60_000)
     qtbot.wait(100)  # ... and what it returned then is dropped
     assert got["result"] == []
