@@ -22,7 +22,7 @@ from amrst.campaign.folder import DECISIONS as DECISIONS
 from amrst.campaign.folder import REJECTED as REJECTED
 from amrst.campaign.folder import REVIEW as REVIEW
 from amrst.campaign.folder import decision_of as decision_of
-from amrst.campaign.folder import has_result, read_doc, result_run
+from amrst.campaign.folder import has_result, of_other_scans, read_doc, result_run
 from amrst.campaign.table import OUT_OF_DATE
 from amrst.errors import AmrstError, InvalidInput
 from amrst.review.verdict import FAILED, REGISTERED
@@ -237,31 +237,28 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
 def _refuse_stale(campaign: Campaign, entry: TreeEntry) -> None:
     """Refuse a tree whose stored poses are of other scans than it lists now.
 
-    Other scans, in another order, another reference, or files with other contents.
+    Other scans, in another order, another reference (told from the stamp alone), or
+    files with other contents (their hashes compared).
     """
     from amrst.campaign.run import STAMP, tree_inputs
 
-    ran = (read_doc(campaign.results_dir(entry.id) / STAMP) or {}).get("inputs")
+    out = campaign.results_dir(entry.id)
+    ran = (read_doc(out / STAMP) or {}).get("inputs")
     if ran is None:  # results of a version that did not record them
         return
-    now = tree_inputs(campaign.root.resolve(), entry)
-    gone = [
-        name
-        for name, digest in now["files"].items()
-        if digest.startswith("unreadable:")
-    ]
-    if gone:
-        raise InvalidInput(
-            f"Tree {entry.id}: its scan {gone[0]} cannot be read (missing, or no "
-            "permission): put it back where the manifest says."
-        )
-    if ran != now:
-        what = (
-            "its scans' contents"
-            if ran.get("scans") == now["scans"]
-            and ran.get("reference") == now["reference"]
-            else "its list of scans or its reference"
-        )
+    what = "its list of scans or its reference" if of_other_scans(out, entry) else ""
+    if not what:
+        files = tree_inputs(campaign.root.resolve(), entry)["files"]
+        gone = [
+            name for name, digest in files.items() if digest.startswith("unreadable:")
+        ]
+        if gone:
+            raise InvalidInput(
+                f"Tree {entry.id}: its scan {gone[0]} cannot be read (missing, or no "
+                "permission): put it back where the manifest says."
+            )
+        what = "its scans' contents" if files != ran.get("files") else ""
+    if what:
         raise InvalidInput(
             f"Tree {entry.id}'s result is out of date: {what} changed since it ran. "
             f"Run it again (amrst batch DIR --tree {entry.id}), then decide again."
