@@ -157,10 +157,11 @@ class FolderLock:
                 raw = _read_all(fd)
                 os.close(fd)
                 if time.monotonic() >= deadline:
+                    waited = f"; waited {self.timeout_s:g} s" if self.timeout_s else ""
                     raise FolderBusy(
                         f"The folder {self.folder} is being written by another AMRST "
-                        f"run ({holder_text(raw)}); waited {self.timeout_s:g} s. Let "
-                        "it finish (or stop it), or choose another output folder."
+                        f"run ({holder_text(raw)}){waited}. Let it finish (or stop "
+                        "it), or choose another output folder."
                     ) from None
                 if not warned:
                     logger.warning(

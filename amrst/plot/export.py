@@ -5,7 +5,10 @@ Every file of a run is written into the output folder as one unit
 refused unless the caller says to overwrite it. The inventory's last columns, ``mark``
 and ``dbh_hand_m``, are the technician's (``amrst.plot.review``): a run writes what
 the folder's review holds for these scans (``review.read_review``), and
-:func:`write_inventory` writes the inventory again when the review changes.
+:func:`write_inventory` writes the inventory again when the review changes. These
+writes after the run (``write_inventory``, ``write_states``, ``write_area``) do not
+wait for another writer of the folder: the app calls them on a click, and a folder
+busy with another run is said at once (``FolderBusy``) rather than freezing it.
 """
 
 from __future__ import annotations
@@ -141,7 +144,7 @@ def write_inventory(
     from amrst.files.outdir import replace_files
 
     writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
-    written, _ = replace_files(out, writers, managed=MANAGED)
+    written, _ = replace_files(out, writers, managed=MANAGED, lock_timeout_s=0)
     return written
 
 
@@ -430,7 +433,7 @@ def write_states(
     rows = inventory_rows(trees, review, area, unsure_scans(states))
     writers = _inventory_writers(rows)
     writers[PLOT_JSON] = lambda p: p.write_text(text)
-    replace_files(out, writers, managed=MANAGED)
+    replace_files(out, writers, managed=MANAGED, lock_timeout_s=0)
 
 
 def write_area(
@@ -462,7 +465,7 @@ def write_area(
     text = _json_text(doc)
     writers = _inventory_writers(inventory_rows(trees, review, area, unsure))
     writers[PLOT_JSON] = lambda p: p.write_text(text)
-    replace_files(out, writers, managed=MANAGED)
+    replace_files(out, writers, managed=MANAGED, lock_timeout_s=0)
 
 
 def write_plot(

@@ -51,6 +51,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.errors import AmrstError, Cancelled, InvalidInput
+from amrst.files.folderlock import FolderBusy
 from amrst.plot.export import inventory_rows
 from amrst.plot.inventory import seen_from_any
 from amrst.plot.report import counted
@@ -1054,6 +1055,11 @@ class PlotWindow(QMainWindow):
         self._show_marks()
         try:
             write_inventory(o.out, o.trees, review, o.area, unsure=o.unsure)
+        except FolderBusy as exc:
+            self._say(
+                f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} not: {exc}", error=True
+            )
+            return
         except (AmrstError, OSError) as exc:
             self._say(
                 f"{done}, saved in {REVIEW_JSON}; {TREES_CSV} was not written again "

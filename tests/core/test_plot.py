@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from _plots import STEMS, blob, ground_z, scan
 
+from amrst.files.folderlock import FolderBusy, FolderLock
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.inventory import take_inventory
@@ -237,6 +238,10 @@ def test_inventory_columns_and_the_command(
     trees = take_inventory([target, source], [np.eye(4), T_true]).trees
     marks = PlotReview({first: "ok", rows[1]["tree_id"]: "check"})
     write_inventory(out, trees, marks, None, unsure=())
+    assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}
+    # A review after the run does not wait for another writer of the folder.
+    with FolderLock(out), pytest.raises(FolderBusy, match="another AMRST run"):
+        write_inventory(out, trees, PlotReview({first: "check"}), None, unsure=())
     assert _marks(out) == {first: "ok", rows[1]["tree_id"]: "check"}
     assert plot_main([str(tmp_path / "missing.ply"), *args[1:]]) == 2
     (out / "review.json").write_text("{")

@@ -1233,6 +1233,7 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
 def test_results_another_run_rewrote_are_not_written_over(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
+    from amrst.files.folderlock import FolderLock
     from amrst.plot.cli import main as plot_main
     from amrst.plot.review import REVIEW_JSON
     from amrst_gui.plot.window import PlotWindow
@@ -1246,7 +1247,10 @@ def test_results_another_run_rewrote_are_not_written_over(
     plot.set_mark("T001", "ok")  # the window's own writes keep it the plot shown
     plot.radius_spin.setValue(40.0)
     plot.apply_area()
-    plot.set_mark("T002", "check")
+    with FolderLock(out):  # another writer holds the folder: said at once
+        plot.set_mark("T002", "check")
+    assert "trees.csv not: The folder" in plot.status.text()
+    assert "being written by another AMRST run" in plot.status.text()
     assert read_review(out, plot_files).marks == {"T001": "ok", "T002": "check"}
     # Another run (the command line) writes its plot into the folder.
     assert plot_main([*plot_files, "--out", str(out), "--quiet", "--overwrite"]) == 0
