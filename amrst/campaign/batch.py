@@ -25,7 +25,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from amrst.campaign.manifest import RESULTS
 from amrst.campaign.plan import cluster_scan_threads, longest_first, time_left
-from amrst.campaign.run import TREE_TOPIC, is_done, run_tree, tree_stamp, warm_worker
+from amrst.campaign.run import (
+    TREE_TOPIC,
+    TreeStamp,
+    is_done,
+    run_tree,
+    tree_stamp,
+    warm_worker,
+)
 from amrst.campaign.table import campaign_rows, tree_row, write_table
 from amrst.files.atomic import make_folder
 
@@ -163,7 +170,7 @@ def pending_trees(
     params: RegistrationParams | None = None,
     force: bool = False,
     clouds: str = "",
-) -> tuple[list[tuple[Any, str]], list[str], dict[str, Any]]:
+) -> tuple[list[tuple[Any, TreeStamp]], list[str], dict[str, Any]]:
     """Return ``([(entry, stamp)] to run, [ids already done], params dict)``."""
     from amrst.params import params_to_dict
 
@@ -172,7 +179,7 @@ def pending_trees(
     root = campaign.root.resolve()
     for entry in campaign.trees:
         stamp = tree_stamp(root, entry, doc, clouds)
-        if not force and is_done(campaign.results_dir(entry.id), stamp):
+        if not force and is_done(campaign.results_dir(entry.id), stamp.digest):
             done.append(entry.id)
         else:
             todo.append((entry, stamp))
@@ -320,7 +327,7 @@ def _select(
     force: bool,
     clouds: str,
     only: list[str] | None,
-) -> tuple[list[tuple[TreeEntry, str]], list[str], dict[str, Any]]:
+) -> tuple[list[tuple[TreeEntry, TreeStamp]], list[str], dict[str, Any]]:
     """Return the trees to run (with stamps), the ids done, and the parameters' doc.
 
     ``only`` keeps those tree ids; an id the campaign does not have is refused.
@@ -351,14 +358,14 @@ def _check_options(
         )
 
 
-def _task_key(entry: TreeEntry, stamp: str) -> str:
-    return f"amrst-tree-{entry.id}-{stamp[:12]}"
+def _task_key(entry: TreeEntry, stamp: TreeStamp) -> str:
+    return f"amrst-tree-{entry.id}-{stamp.digest[:12]}"
 
 
 def _submit(
     client: Any,
     campaign: Campaign,
-    todo: list[tuple[TreeEntry, str]],
+    todo: list[tuple[TreeEntry, TreeStamp]],
     doc: dict[str, Any],
     clouds: str,
     threads: int,
@@ -382,7 +389,7 @@ def _submit(
     ]
 
 
-def _row_of(future: Any, todo: list[tuple[TreeEntry, str]]) -> dict[str, Any]:
+def _row_of(future: Any, todo: list[tuple[TreeEntry, TreeStamp]]) -> dict[str, Any]:
     """Return a finished task's row, or a failed row when its worker died."""
     try:
         row: dict[str, Any] = future.result()
@@ -419,7 +426,7 @@ def _collect(
     futures: list[Any],
     *,
     campaign: Campaign,
-    todo: list[tuple[TreeEntry, str]],
+    todo: list[tuple[TreeEntry, TreeStamp]],
     costs: dict[str, float],
     rows: list[dict[str, Any]],
     summary: BatchSummary,

@@ -15,7 +15,7 @@ Two rules keep every worker busy until the batch ends:
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -77,9 +77,12 @@ def tree_costs(campaign: Campaign, entries: list[TreeEntry]) -> dict[str, float]
     return {i: t if t is not None else size[i] * per_byte for i, t in before.items()}
 
 
+_Stamp = TypeVar("_Stamp")
+
+
 def longest_first(
-    campaign: Campaign, todo: list[tuple[Any, str]]
-) -> tuple[list[tuple[Any, str]], dict[str, float]]:
+    campaign: Campaign, todo: list[tuple[TreeEntry, _Stamp]]
+) -> tuple[list[tuple[TreeEntry, _Stamp]], dict[str, float]]:
     """Return ``todo`` (``[(entry, stamp)]``) costliest first, and each tree's cost.
 
     Ties keep the manifest order (the sort is stable). See :func:`tree_costs`.

@@ -22,6 +22,7 @@ import os
 import time
 import traceback
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -65,22 +66,35 @@ def tree_inputs(root: Path, entry: TreeEntry) -> dict[str, Any]:
     return {"scans": list(entry.scans), "reference": entry.reference, "files": files}
 
 
+@dataclass(frozen=True, slots=True)
+class TreeStamp:
+    """What a tree's result depends on: ``digest`` (hex sha256) and its ``inputs``.
+
+    ``inputs`` is :func:`tree_inputs`, hashed once when the batch plans the tree and
+    written as is into ``stamp.json`` (the export checks it against the files).
+    """
+
+    digest: str
+    inputs: dict[str, Any]
+
+
 def tree_stamp(
     root: Path, entry: TreeEntry, params: dict[str, Any], clouds: str = ""
-) -> str:
-    """Return the hash of everything a tree's result depends on (hex sha256).
+) -> TreeStamp:
+    """Return the stamp of everything a tree's result depends on.
 
     ``clouds``: the cloud format written with the results ("" = none).
     """
+    inputs = tree_inputs(root, entry)
     doc = {
         "amrst": __version__,
-        **tree_inputs(root, entry),
+        **inputs,
         "truth": None if entry.truth is None else _file_hash(root / entry.truth),
         "params": params,
         "clouds": clouds,
     }
     text = json.dumps(doc, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return TreeStamp(hashlib.sha256(text.encode("utf-8")).hexdigest(), inputs)
 
 
 def is_done(out: Path, stamp: str) -> bool:
@@ -148,7 +162,7 @@ def run_tree(
     root: str,
     entry: TreeEntry,
     params: dict[str, Any],
-    stamp: str,
+    stamp: TreeStamp,
     clouds: str = "",
     threads: int = 2,
 ) -> dict[str, Any]:
@@ -161,7 +175,7 @@ def run_tree(
     entry : TreeEntry
     params : dict
         ``params_to_dict`` of the registration parameters.
-    stamp : str
+    stamp : TreeStamp
         :func:`tree_stamp` of this tree, written into ``stamp.json`` when done.
     clouds : str
         Also write the merged cloud (and the moved source of a pair) in this format
@@ -218,9 +232,9 @@ def run_tree(
     write_json_atomic(
         out / STAMP,
         {
-            "stamp": stamp,
+            "stamp": stamp.digest,
             "run": uuid.uuid4().hex,  # this run's result, which a decision names
-            "inputs": tree_inputs(base, entry),  # what the export checks it still has
+            "inputs": stamp.inputs,  # what the export checks it still has
             "files": files,
             "status": status,
             "seconds": seconds,
