@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -64,8 +64,12 @@ class Review:
         # row), taken before a better-ranked one until rejected or a new list.
         self.preferred: int | None = None
         self._reviews: dict[LinkId, LinkReview] = {}
-        self._combined: tuple[tuple, MatchResult | None] | None = None
-        self._coarse_cache: tuple | None = None
+        # Caches keyed on the objects they were made from, compared by identity:
+        # the id() of an object no longer held can come back for a new one.
+        self._combined: tuple[Any, Any, MatchResult | None] | None = None
+        self._coarse_cache: (
+            tuple[MatchResult, tuple[Any, Any], tuple[CoarseResult | None, str]] | None
+        ) = None
 
     def clear_matches(self) -> None:
         """Forget the candidates (the match step's result is out of date)."""
@@ -87,11 +91,13 @@ class Review:
     @property
     def match_result(self) -> MatchResult | None:
         """The MatchResult with the manual candidates in front, or None."""
-        key = (id(self.automatic), self.link_review.manual)
-        if self._combined is not None and self._combined[0] == key:
-            return self._combined[1]
+        auto, manual = self.automatic, self.link_review.manual
+        if self._combined is not None:
+            was_auto, was_manual, value = self._combined
+            if was_auto is auto and was_manual is manual:
+                return value
         value = self._combine()
-        self._combined = (key, value)
+        self._combined = (auto, manual, value)
         return value
 
     @property
@@ -142,8 +148,9 @@ class Review:
         combined = self.match_result
         if combined is None:
             return None, "No matches yet: run Match."
-        key = (id(combined), self.rejected, self.preferred)
-        if self._coarse_cache is None or self._coarse_cache[0] != key:
+        key = (self.rejected, self.preferred)
+        cached = self._coarse_cache
+        if cached is None or cached[0] is not combined or cached[1] != key:
             from amrst import pipeline
             from amrst.errors import RegistrationFailed
 
@@ -156,8 +163,8 @@ class Review:
                 value = (coarse, str(coarse.message))
             except RegistrationFailed as exc:
                 value = (None, str(exc))
-            self._coarse_cache = (key, value)
-        return self._coarse_cache[1]
+            self._coarse_cache = cached = (combined, key, value)
+        return cached[2]
 
     def candidate_ids(self) -> set[int]:
         """The ids of every candidate in the list."""
