@@ -39,6 +39,23 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out, res
 
 
+def kasa_circle(xy: np.ndarray, about: np.ndarray) -> tuple[np.ndarray, float]:
+    """Fit a circle to (N, 2) points by Kasa's algebraic least squares.
+
+    x² + y² = 2ax + 2by + c is linear in (a, b, c); the points are taken relative to
+    ``about`` (their median or mean), which keeps the system well conditioned.
+    Returns the centre and the squared radius; that is NaN for points on a line or
+    fewer than three, and may be ≤ 0 for points no circle fits.
+    """
+    x, y = xy[:, 0] - about[0], xy[:, 1] - about[1]
+    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
+    scale = max(float(np.abs(A).max(initial=0.0)), 1e-12)
+    if len(x) < 3 or np.linalg.matrix_rank(A, tol=1e-9 * scale) < 3:
+        return np.asarray(about, float)[:2].copy(), float("nan")
+    a, b, c = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
+    return np.array([about[0] + a, about[1] + b]), float(c + a * a + b * b)
+
+
 @functools.lru_cache(maxsize=4)
 def combinations4(n: int) -> np.ndarray:
     """(C(n,4), 4) int64 all index quadruples i<j<k<l, in lexicographic order.

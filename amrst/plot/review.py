@@ -40,6 +40,7 @@ import numpy as np
 
 from amrst.campaign.folder import ACCEPTED as ACCEPTED  # a scan the review accepted
 from amrst.errors import InvalidInput
+from amrst.geometry import kasa_circle
 from amrst.review.verdict import NEEDS_REVIEW
 from amrst.types import check_rigid, invert_transform
 
@@ -108,16 +109,10 @@ def hand_circle(xy: np.ndarray) -> HandCircle | None:
     pts = np.asarray(xy, float).reshape(-1, 2)
     if len(pts) < 3 or not np.isfinite(pts).all():
         return None
-    mid = pts.mean(axis=0)
-    x, y = (pts - mid).T
-    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-    if np.linalg.matrix_rank(A, tol=1e-9 * max(float(np.abs(A).max()), 1e-12)) < 3:
-        return None
-    a, b, c = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
-    r2 = c + a * a + b * b
+    centre, r2 = kasa_circle(pts, pts.mean(axis=0))
     if not 0 < r2 < (MAX_HAND_DBH_M / 2) ** 2:
         return None
-    return HandCircle((float(mid[0] + a), float(mid[1] + b)), float(2 * np.sqrt(r2)))
+    return HandCircle((float(centre[0]), float(centre[1])), float(2 * np.sqrt(r2)))
 
 
 def followed(

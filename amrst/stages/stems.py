@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.geometry import kasa_circle
+
 if TYPE_CHECKING:
     from amrst.stages.scene import SceneParams
 
@@ -72,14 +74,11 @@ def find_stems(
 def _circle(pts: np.ndarray) -> Stem:
     """Kasa circle fit of a stem slice; the median when the fit is unusable."""
     med = np.median(pts, axis=0)
-    x, y = pts[:, 0] - med[0], pts[:, 1] - med[1]
-    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-    sol = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
-    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
-    spread = float(np.max(np.hypot(x, y)))
-    if r2 <= 0 or np.sqrt(r2) > max(1.5 * spread, 0.05):
+    centre, r2 = kasa_circle(pts, med)
+    spread = float(np.max(np.hypot(*(pts - med).T)))
+    if not r2 > 0 or np.sqrt(r2) > max(1.5 * spread, 0.05):
         return Stem(med, float("nan"), len(pts))
-    return Stem(med + sol[:2], float(np.sqrt(r2)), len(pts))
+    return Stem(centre, float(np.sqrt(r2)), len(pts))
 
 
 def assign_to_stems(

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from amrst.geometry import yaw_rotation
+from amrst.geometry import kasa_circle, yaw_rotation
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.coarse import (
@@ -215,14 +215,9 @@ def find_trunk_base(xyz: np.ndarray, params: TrunkParams) -> TrunkBase:
     if len(sl) < _MIN_SLICE_POINTS:
         sl = xyz[z < z0 + params.slice_high_m]
     med = np.median(sl[:, :2], axis=0)
-    # Kasa fit: x² + y² = 2ax + 2by + c, linear in (a, b, c).
-    x, y = sl[:, 0] - med[0], sl[:, 1] - med[1]
-    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-    sol = np.linalg.lstsq(A, x * x + y * y, rcond=None)[0]
-    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
+    centre, r2 = kasa_circle(sl[:, :2], med)
     radius = float(np.sqrt(r2)) if r2 > 0 else float("nan")
     spread = float(np.max(np.linalg.norm(sl[:, :2] - med, axis=1)))
-    centre = med + sol[:2]
     # A slice of branches or leaves fits a meaningless circle: keep the median then.
     if not np.isfinite(radius) or radius > max(1.5 * spread, 0.05) or radius > 2.0:
         return TrunkBase(np.r_[med, z0], float("nan"), len(sl))

@@ -130,3 +130,16 @@ def test_the_merged_registration_sees_the_stem_all_round():
     assert merged.stem.arc_deg > 330
     assert merged.dbh_m == pytest.approx(2 * RADIUS, abs=0.004)
     assert merged.as_dict()["stem_arc_deg"] == merged.stem.arc_deg
+
+
+def test_kasa_circle_fits_an_arc_and_refuses_a_line():
+    from amrst.geometry import kasa_circle
+
+    a = np.linspace(0.0, 2.0, 40)  # a third of the way round, far from the origin
+    xy = np.column_stack([500.0 + 0.3 * np.cos(a), -20.0 + 0.3 * np.sin(a)])
+    centre, r2 = kasa_circle(xy, np.median(xy, axis=0))
+    assert centre == pytest.approx((500.0, -20.0), abs=1e-9)
+    assert np.sqrt(r2) == pytest.approx(0.3, abs=1e-9)
+    line = np.column_stack([np.arange(10.0), 2 * np.arange(10.0)])
+    assert np.isnan(kasa_circle(line, line.mean(axis=0))[1])
+    assert np.isnan(kasa_circle(xy[:2], xy[0])[1])
