@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.results.metric_doc import METRIC_ROWS
+from amrst.review.verdict import TEXT_RGB
 from amrst.stages.metrics import REGISTERED_DEG, REGISTERED_RMSE_M
 
 if TYPE_CHECKING:
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
     from amrst.types import Cloud
 
 REPORT_NAME = "report.html"
-_COLOURS = {"registered": "#1b7f2a", "needs review": "#b26a00", "failed": "#b00020"}
 _ALTERNATIVES = 10  # candidates listed besides the chosen one
 _IMAGES = (
     ("overlay", "Overlay: target amber, moved source blue"),
@@ -211,7 +211,7 @@ def _inputs(r: ReportInputs) -> str:
 
 def _verdict(r: ReportInputs) -> str:
     v = r.verdict
-    colour = _COLOURS.get(v.status, "#333")
+    colour = TEXT_RGB.get(v.status, "#333")
     out = (
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline" style="color:{colour}">{_e(v.headline)}</p>'

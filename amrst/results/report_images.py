@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.review.quality import nn_distances
+from amrst.review.verdict import FAILED, TEXT_RGB
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -163,7 +164,7 @@ def slices_png(slices: Sequence[StemSlice]) -> bytes:
         ax.tick_params(labelsize=7)
         first, second = sl.caption()
         ax.set_title(first, fontsize=10)
-        note_colour = "#b00020" if sl.problem() else "black"
+        note_colour = TEXT_RGB[FAILED] if sl.problem() else "black"
         ax.set_xlabel(_wrap(second, 40), fontsize=8, color=note_colour)
     return png_bytes(fig)
 

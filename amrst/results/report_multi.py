@@ -24,13 +24,12 @@ from amrst.results.report_html import (
     params_section,
     tree_section,
 )
+from amrst.review.verdict import TEXT_RGB
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
     from amrst.multiscan.register import MultiScanResult
-
-_COLOURS = {"registered": "#1b7f2a", "needs review": "#b26a00", "failed": "#b00020"}
 
 
 def _e(value: object) -> str:
@@ -55,7 +54,7 @@ def how_reached(result: MultiScanResult, k: int) -> str:
 
 def _verdict(result: MultiScanResult) -> str:
     status = result.status
-    colour = _COLOURS[status]
+    colour = TEXT_RGB[status]
     n, reached = len(result.scans), sum(result.reached)
     why = (
         f"{reached} of {n} scans reach the reference through verified links; the "

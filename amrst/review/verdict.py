@@ -21,6 +21,8 @@ REGISTERED = "registered"
 NEEDS_REVIEW = "needs review"
 FAILED = "failed"
 STATUSES = (REGISTERED, NEEDS_REVIEW, FAILED)
+#: A verdict's text colour, in the reports and the app: dark enough to read on white.
+TEXT_RGB = {REGISTERED: "#1b6e20", NEEDS_REVIEW: "#9a6200", FAILED: "#c00000"}
 
 # Below this confidence a verified winner still needs a look (the runner-up is close).
 LOW_CONFIDENCE = 0.3

@@ -26,17 +26,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst.review.verdict import TEXT_RGB
+
 if TYPE_CHECKING:
     from amrst.campaign.manifest import TreeEntry
     from amrst.campaign.stored import StoredTree
 
 SCAN_COLUMNS = ("Scan", "File", "Reaches the reference")
 LINK_COLUMNS = ("Link", "Verdict", "Score", "Conf.", "NN-RMSE cm", "In tree")
-_STATUS_COLOURS = {
-    "registered": "#1b7f2a",
-    "needs review": "#b26a00",
-    "failed": "#b00020",
-}
 
 
 def scan_how(stored: StoredTree | None, k: int, reference: int) -> str:
@@ -162,7 +159,7 @@ class TreeScansPanel(QWidget):
                     item = QTableWidgetItem(text)
                     item.setToolTip(link.message)
                     if j == 1:
-                        colour = _STATUS_COLOURS.get(link.status, "#333333")
+                        colour = TEXT_RGB.get(link.status, "#333333")
                         item.setForeground(QBrush(QColor(colour)))
                     self.links.setItem(i, j, item)
         self.mark_shown(shown)

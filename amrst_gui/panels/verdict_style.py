@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-_STYLE = {
-    "registered": "color: #1b6e20;",
-    "accepted": "color: #1b6e20;",
-    "needs review": "color: #9a6200;",
-    "failed": "color: #c00000;",
-}
+from amrst.review.verdict import REGISTERED, TEXT_RGB
+
+_STYLE = {status: f"color: {rgb};" for status, rgb in TEXT_RGB.items()}
+_STYLE["accepted"] = _STYLE[REGISTERED]
 #: An error message: dark red, readable on the light panels.
 ERROR_STYLE = _STYLE["failed"]
 

@@ -16,7 +16,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.review import ACCEPTED
-from amrst.review.verdict import NEEDS_REVIEW
+from amrst.review.verdict import NEEDS_REVIEW, TEXT_RGB
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -28,9 +28,6 @@ if TYPE_CHECKING:
 # at 1366 px.
 TREE_COLUMNS = ("Tree", "DBH\ncm", "DBH\nquality", "Height\nm", "Height\nflag", "Mark")
 LINK_COLUMNS = ("Link", "State", "Stems", "Overlap", "Residual", "By")
-#: The id of a tree seen from a scan that needs review: the map's needs-review amber,
-#: darker to read on the list's white.
-UNSURE_RGB = "#b26a00"
 ROW_PX = 20  # table rows: six links and a dozen trees show on a laptop screen
 TREE_ROLE = Qt.ItemDataRole.UserRole  # a tree row's index into the outcome's trees
 SORT_ROLE = Qt.ItemDataRole.UserRole + 1  # what a cell sorts by
@@ -216,7 +213,7 @@ def _flag_unsure(table: QTableWidget, o: PlotOutcome) -> None:
         item = table.item(r, 0)
         if not doubt or item is None:
             continue
-        item.setForeground(QBrush(QColor(UNSURE_RGB)))
+        item.setForeground(QBrush(QColor(TEXT_RGB[NEEDS_REVIEW])))
         scans = ", ".join(f"S{k}" for k in doubt)
         tip = (
             f"Seen from {scans}, which {'needs' if len(doubt) == 1 else 'need'} "
