@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import threading
+import functools
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -39,10 +39,6 @@ class _GlobalControl(ctypes.Structure):
     )
 
 
-_lock = threading.Lock()
-_state: dict[str, Any] = {}  # "tbb": the CDLL (None: not found)
-
-
 def _kiss_tbb() -> Path | None:
     """Return the TBB library the kiss_matcher wheel ships (None: not found)."""
     import kiss_matcher
@@ -59,20 +55,18 @@ def _kiss_tbb() -> Path | None:
     return None
 
 
+@functools.cache
 def _tbb() -> Any:
     """Return kiss_matcher's TBB library (None: not found or an unknown interface)."""
-    with _lock:
-        if "tbb" not in _state:
-            _state["tbb"] = None
-            path = _kiss_tbb()
-            try:
-                lib = ctypes.CDLL(str(path)) if path is not None else None
-                if lib is not None:
-                    getattr(lib, _CREATE), getattr(lib, _DESTROY), getattr(lib, _ACTIVE)
-                    _state["tbb"] = lib
-            except (OSError, AttributeError):
-                _state["tbb"] = None
-        return _state["tbb"]
+    path = _kiss_tbb()
+    if path is None:
+        return None
+    try:
+        lib = ctypes.CDLL(str(path))
+        getattr(lib, _CREATE), getattr(lib, _DESTROY), getattr(lib, _ACTIVE)
+    except (OSError, AttributeError):
+        return None
+    return lib
 
 
 def kiss_tbb_threads() -> int | None:
