@@ -21,10 +21,9 @@ import numpy as np
 
 from amrst.guards import require_points
 
-# The default threads of every KD-tree build and query, and of the two scans of a pair
-# (``amrst.pipeline.both_scans``): two where there are two cores, because small_gicp
-# holds the GIL while it queries, so threads inside a query are what runs it in
-# parallel. Callers that share the cores (a campaign worker, the app's engine) pass
+# The default threads of every KD-tree build and query: two where there are two
+# cores, because small_gicp holds the GIL while it queries, so threads inside a query
+# are what runs it in parallel. Callers that share the cores (a campaign worker, the app's engine) pass
 # fewer; the answers never depend on the threads.
 THREADS = min(2, os.cpu_count() or 1)
 

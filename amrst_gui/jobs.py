@@ -86,7 +86,7 @@ def read_scan(spec: Path) -> Any:
 def _both(
     step: Any, items: dict, params: Any, reporter: Reporter
 ) -> tuple[dict, float]:
-    """Run ``step(item, params, reporter)`` on both scans at once; results by role."""
+    """Run ``step(item, params, reporter)`` on both scans; results by role."""
     from amrst import pipeline
 
     start = time.perf_counter()
@@ -95,7 +95,6 @@ def _both(
         items["target"],
         items["source"],
         reporter,
-        threads=THREADS,
     )
     return dict(zip(ROLES, out, strict=True)), time.perf_counter() - start
 

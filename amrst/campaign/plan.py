@@ -125,7 +125,7 @@ def scan_threads(cores: int, tasks: int) -> int:
     Returns
     -------
     int
-        2 when every task has two cores to itself (its two scans at once), else 1.
+        2 when every task has two cores to itself, else 1.
     """
     return 2 if cores >= 2 * max(tasks, 1) else 1
 

@@ -1,7 +1,7 @@
 """Per-scan analysis: preprocess, wood/leaf separation, skeleton and key points.
 
 Each scan is analysed once, whatever number of links (scan pairs) it takes part in;
-:func:`both_scans` runs the two scans of a pair at once. Everything here works in the
+:func:`both_scans` runs the two scans of a pair, one after the other. Everything here works in the
 scan's own local coordinates (``Cloud.xyz``).
 """
 
@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from amrst.errors import Cancelled, InvalidInput
+from amrst.errors import InvalidInput
 from amrst.neighbours import THREADS
-from amrst.progress import NULL_REPORTER, Reporter, SharedReporter, SubReporter
+from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
 from amrst.stages.scene import TREE, SceneResult, understand_scene
@@ -223,52 +223,12 @@ def both_scans(
     target_item: _Item,
     source_item: _Item,
     reporter: Reporter = NULL_REPORTER,
-    threads: int = THREADS,
 ) -> tuple[_Out, _Out]:
-    """Run ``fn(item, reporter)`` for the target's and the source's item at once.
+    """Run ``fn(item, reporter)`` for the target's item, then for the source's.
 
-    One thread each, or one after the other when ``threads`` is 1; the results are
-    the same either way. Returns ``(target result, source result)``.
-
-    Progress is the mean of the two (monotonic). When one task fails (or the caller
-    is interrupted) the other stops at its next cancel check instead of running to
-    the end; the error is raised as the serial order would have raised it (the
-    target's first).
+    Returns ``(target result, source result)``; each reports on its half of
+    ``reporter``'s range, named. One after the other, not at once: every step already
+    runs its KD-tree queries on all the threads it is given.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
-    shared = SharedReporter(reporter, 2)
-    if threads < 2:
-        first = fn(target_item, shared.task(0, "target"))
-        return first, fn(source_item, shared.task(1, "source"))
-    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="amrst-scan") as pool:
-        jobs = [
-            pool.submit(_stop_sibling_on_error, fn, item, shared.task(i, role), shared)
-            for i, (item, role) in enumerate(
-                ((target_item, "target"), (source_item, "source"))
-            )
-        ]
-        try:
-            results = [job.result() for job in jobs]
-        except BaseException:
-            shared.stop()
-            for job in jobs:  # the real error over the Cancelled it caused
-                if job.done() and not job.cancelled():
-                    exc = job.exception()
-                    if exc is not None and not isinstance(exc, Cancelled):
-                        raise exc from None
-            raise
-    return results[0], results[1]
-
-
-def _stop_sibling_on_error(
-    fn: Callable[[_Item, Reporter], _Out],
-    item: _Item,
-    rep: Reporter,
-    shared: SharedReporter,
-) -> _Out:
-    try:
-        return fn(item, rep)
-    except BaseException:
-        shared.stop()
-        raise
+    target = fn(target_item, SubReporter(reporter, 0.0, 0.5, "target"))
+    return target, fn(source_item, SubReporter(reporter, 0.5, 1.0, "source"))

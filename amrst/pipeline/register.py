@@ -152,7 +152,7 @@ def register(
         return analyse_scan(cloud, params, rep, local[id(cloud)], threads=threads)
 
     scans = SubReporter(reporter, 0.0, 0.6)
-    tgt, src = both_scans(analyse, target, source, scans, threads)
+    tgt, src = both_scans(analyse, target, source, scans)
     tgt, src = _expect_ground(
         tgt,
         src,
