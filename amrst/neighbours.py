@@ -208,10 +208,10 @@ class NeighbourTable:
     cloud's neighbours that belong to the subset, whenever the K listed hold k of
     them: :meth:`knn` reads them off the table, asks the cloud's tree for 2K (then
     8K, 32K, ...) neighbours of the rows where too few remain, and queries the subset
-    afresh only when that would cost more than a tree on the subset. The answer equals :func:`knn` on the subset, but for the
-    order of neighbours at exactly equal distances. Per-scan stages: one KD-tree
-    build and one query per scan instead of three of each (small_gicp holds the GIL
-    while it queries, so the two scans' queries did not overlap anyway).
+    afresh only when that would cost more than a tree on the subset. The answer
+    equals :func:`knn` on the subset, but for the order of neighbours at exactly
+    equal distances. Per-scan stages: one KD-tree build and one query per scan
+    instead of three of each.
 
     Parameters
     ----------

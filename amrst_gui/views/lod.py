@@ -44,10 +44,10 @@ class FrameCost:
 
     A frame is a fixed part (clearing and showing the window, the other actors)
     plus a part per point; the fixed part is assumed to be ``FIXED_SHARE`` of a
-    measured frame, so doubling the points of a 20 ms frame predicts 35 ms, not
-    40 (a pure per-point model made a busy moment ratchet the level down for
-    good). The prediction is the most pessimistic of the recent frames': a slow
-    frame counts at once, and is forgotten only after ``window`` newer ones.
+    measured frame: a model of points alone would read one busy frame as a slow
+    machine and keep the level down for good. The prediction is the most
+    pessimistic of the recent frames': a slow frame counts at once, and is
+    forgotten only after ``window`` newer ones.
     """
 
     FIXED_SHARE = 0.25
