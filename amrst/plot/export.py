@@ -266,16 +266,31 @@ def _listed_ids(out: Path) -> list[str]:
     return [i for i in ids if ours.fullmatch(i)]
 
 
-def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
-    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
+def read_plot_json(out: Path) -> dict[str, Any]:
+    """Return ``out``'s plot.json.
+
+    Raises OSError or ValueError, with the reason, when it cannot be read: missing,
+    not a regular file, not JSON, or not an object.
+    """
     import json
 
-    for name in (PLOT_JSON, TREES_CSV):  # opening a FIFO would wait forever
-        if os.path.lexists(out / name) and not (out / name).is_file():
-            raise ValueError(f"{name} is not a file (a folder, a named pipe...)")
-    doc = json.loads((out / PLOT_JSON).read_text())
+    _regular_file(out / PLOT_JSON)
+    doc = json.loads((out / PLOT_JSON).read_text(encoding="utf-8"))
     if not isinstance(doc, dict):
         raise ValueError(f"{PLOT_JSON} holds no object")
+    return doc
+
+
+def _regular_file(path: Path) -> None:
+    """Refuse anything but a regular file: opening a named pipe would wait forever."""
+    if os.path.lexists(path) and not path.is_file():
+        raise ValueError(f"{path.name} is not a file (a folder, a named pipe...)")
+
+
+def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
+    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
+    doc = read_plot_json(out)
+    _regular_file(out / TREES_CSV)
     with (out / TREES_CSV).open(newline="") as fh:
         return doc, list(csv.DictReader(fh))
 
@@ -411,13 +426,11 @@ def write_states(
     InvalidInput
         No readable plot.json of that many scans in ``out``.
     """
-    import json
-
     from amrst.files.outdir import replace_files
 
     path = out / PLOT_JSON
     try:
-        doc = json.loads(path.read_text())
+        doc = read_plot_json(out)
         scans, links = doc["scans"], doc["links"]
         if len(scans) != len(states):
             raise ValueError(f"{len(scans)} scans, not {len(states)}")
@@ -449,13 +462,11 @@ def write_area(
     InvalidInput
         No readable plot.json in ``out``.
     """
-    import json
-
     from amrst.files.outdir import replace_files
 
     path = out / PLOT_JSON
     try:
-        doc = json.loads(path.read_text())
+        doc = read_plot_json(out)
         doc["plot_area"] = None if area is None else area.as_dict()
         unsure = unsure_scans([scan["state"] for scan in doc["scans"]])
     except (OSError, ValueError, TypeError, KeyError) as exc:

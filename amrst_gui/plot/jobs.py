@@ -415,16 +415,16 @@ def same_plot(out: Path, labels: Sequence[str]) -> str:
     technician's marks belong to, which a run keeps).
     """
     from amrst.files.safefile import load_json_file
-    from amrst.plot.export import PLOT_JSON
+    from amrst.plot.export import read_plot_json
     from amrst.plot.review import REVIEW_JSON, same_reference, same_scans
 
-    # load_json_file opens regular files only: this runs on the GUI thread, which a
-    # named pipe would block.
+    # Both open regular files only: this runs on the GUI thread, which a named pipe
+    # would block.
     try:
-        doc = load_json_file(out / PLOT_JSON, "plot file", "plot.json")
+        doc = read_plot_json(out)
         theirs = [s["label"] for s in doc["scans"]]
         ids = [s.get("file_id") for s in doc["scans"]]
-    except (InvalidInput, KeyError, TypeError, AttributeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         try:
             review = load_json_file(out / REVIEW_JSON, "review file", "review.json")
             theirs, ids = list(review["scans"]), review.get("scan_ids")
