@@ -156,7 +156,9 @@ class StemRecord:
     """One stem of a stem map (local frame of the cloud it was found in).
 
     ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
-    breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle);
+    breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle:
+    ``arc_deg``, ``rmse_m`` and ``outlier_share`` NaN, but the arc of a wide stem seen
+    over too little); ``lean_deg`` is NaN where no stem line was measured;
     ``height_flag``: ``ok``, ``lean`` (the stem, or the line from its foot to the
     tree's top), ``top not seen``, ``top not checked`` (no scanner position known:
     set by the inventory) or ``not measured``.
@@ -407,7 +409,7 @@ def _add_given_stems(
         bare = StemRecord(
             np.r_[xy, _ground_z(ground, xy)],
             xy,
-            *(nan, 0.0, nan, nan, "none", nan, "not measured", nan, nan, 0),
+            *(nan, nan, nan, nan, "none", nan, "not measured", nan, nan, 0),
         )
         roles[len(fits)] = "made"
         seeds.append(seed)
@@ -560,7 +562,7 @@ def _measure_stem(
         base=base,
         dbh_xy=np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy,
         dbh_m=2 * dbh_fit[0].radius_m if dbh_fit else nan,
-        arc_deg=dbh_fit[0].arc_deg if dbh_fit else 0.0,
+        arc_deg=dbh_fit[0].arc_deg if dbh_fit else nan,
         rmse_m=dbh_fit[0].rmse_m if dbh_fit else nan,
         outlier_share=dbh_fit[1] if dbh_fit else nan,
         dbh_quality=_dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params),
@@ -651,7 +653,7 @@ def _taper_stem(
     if not bark or len(taper.circles) < params.taper_min_circles:
         return _without_dbh(stem)
     if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.wide_arc_deg:
-        return _without_dbh(stem)
+        return replace(_without_dbh(stem), arc_deg=taper.circle.arc_deg)  # too little
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
     return replace(
@@ -709,8 +711,9 @@ def _on_branch_axis(
     base = np.r_[axis[0], _ground_z(ground, axis[0])]
     if np.hypot(*(stem.dbh_xy - axis[0])) <= params.same_stem_m:
         return replace(stem, base=base)
-    # Its breast-height circle went round branches: no DBH, and the axis is upright.
-    return replace(_without_dbh(stem), base=base, dbh_xy=axis[0], lean_deg=0.0)
+    # Its breast-height circle went round branches: no DBH, and no lean measured.
+    nan = float("nan")
+    return replace(_without_dbh(stem), base=base, dbh_xy=axis[0], lean_deg=nan)
 
 
 def branch_axis(
@@ -773,10 +776,10 @@ def branch_axis(
 
 
 def _without_dbh(stem: StemRecord) -> StemRecord:
-    """Return the stem with no DBH (``none``)."""
+    """Return the stem with no DBH (``none``), nor the arc and fit of one."""
     nan = float("nan")
     return replace(
-        stem, dbh_m=nan, arc_deg=0.0, rmse_m=nan, outlier_share=nan, dbh_quality="none"
+        stem, dbh_m=nan, arc_deg=nan, rmse_m=nan, outlier_share=nan, dbh_quality="none"
     )
 
 

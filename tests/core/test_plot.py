@@ -1088,3 +1088,13 @@ def test_a_scan_a_plot_run_would_write_over_is_refused_unread(
         assert plot_main(args) == 2
         assert "is a file the run writes in" in capsys.readouterr().err
         assert scan.read_bytes() == before
+
+
+def test_a_tree_without_a_stem_fit_has_no_arc_nor_lean() -> None:
+    # A tree given where nothing stands: no circle, so no arc seen and no lean (an
+    # upright 0.0 would read as measured).
+    (tree,) = map_stems(_ground(), given={"H001": (3.0, 3.0)}).stems
+    assert tree.dbh_quality == "none"
+    assert np.isnan(tree.arc_deg)
+    assert np.isnan(tree.lean_deg)
+    assert tree.height_flag == "not measured"
