@@ -12,6 +12,7 @@ for the scans that were placed, and the message names the others).
 from __future__ import annotations
 
 import math
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -119,9 +120,10 @@ def run_cli(args: argparse.Namespace) -> int:
             scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
         ]
         scanners = given_scanners(args.scanner)
-        # Absolute labels: the app opens the results from anywhere, runs them again.
+        # Absolute labels (a symlink keeps its own name): the app opens the results
+        # from anywhere and runs them again.
         run = run_plot(
-            [str(Path(s).resolve()) for s in args.scans],
+            [os.path.abspath(s) for s in args.scans],
             out,
             overwrite=args.overwrite,
             pairs=pairs,

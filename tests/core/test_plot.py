@@ -163,6 +163,8 @@ def test_inventory_columns_and_the_command(
         assert row["mark"] == ""
         assert row["in_plot"] == ""  # no plot radius given
     files = _pair_files(plot_pair, tmp_path)
+    (tmp_path / "stand7_pos2.ply").symlink_to(files[1])  # a scan under another name
+    files[1] = tmp_path / "stand7_pos2.ply"
     out = tmp_path / "out"
     args = [str(f) for f in files] + ["--out", str(out), "--quiet"]
     assert plot_main(args) == 0
@@ -170,6 +172,7 @@ def test_inventory_columns_and_the_command(
         rows = list(csv.DictReader(fh))
     assert len(rows) == len(STEMS)
     doc = json.loads((out / "plot.json").read_text())
+    assert doc["scans"][1]["label"] == str(files[1])  # the name given, not the target
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
     _reads_back(out, T_true)
