@@ -473,7 +473,8 @@ class PlotWindow(QMainWindow):
         return self.job is not None
 
     def open_scans(self, paths: list, out: Path | None = None) -> bool:
-        """Take the plot's scans (and a results folder); False while a run goes on.
+        """Take the plot's scans and results folder (None: Run asks for one); False
+        while a run goes on.
 
         A file of several scans (E57, PTX) is listed as its scans, one a line, as a
         run numbers them: the engine process reads its headers first.
@@ -494,8 +495,9 @@ class PlotWindow(QMainWindow):
         fill(self.links, [])
         fill(self.trees, [])
         self._update_link_buttons()
-        if out is not None:
-            self._set_out(str(out))
+        # Another plot's folder would take this one's results over its own: without
+        # a folder given, Run asks for one.
+        self._set_out("" if out is None else str(out))
         if any(names_several(p) for p in paths):
             self._take_scans([])
             self._say("Listing the scans of the files…")
@@ -674,12 +676,14 @@ class PlotWindow(QMainWindow):
             self._set_out(folder)
 
     def _set_out(self, folder: str) -> None:
-        """Take the results folder; tick plot.laz when it already holds one (a run
-        again then writes it anew rather than removing it)."""
+        """Take the results folder ("": none); tick plot.laz when it already holds one
+        (a run again then writes it anew rather than removing it)."""
         from amrst.plot.export import PLOT_CLOUD
 
         self.out_edit.setText(folder)
-        self.cloud_check.setChecked((Path(folder).expanduser() / PLOT_CLOUD).is_file())
+        self.cloud_check.setChecked(
+            bool(folder) and (Path(folder).expanduser() / PLOT_CLOUD).is_file()
+        )
 
     def run(self) -> None:
         """Register and inventory the plot in the engine process.

@@ -1502,3 +1502,17 @@ def test_a_plot_whose_plot_json_is_lost_is_known_by_its_review(
     (out / "plot.json").unlink()
     os.mkfifo(out / "plot.json")  # read on the GUI thread: never blocks it
     assert same_plot(out, labels) == SAME_SCANS
+
+
+def test_other_scans_opened_leave_the_last_plot_s_results_folder(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from amrst.plot.export import PLOT_CLOUD
+
+    (tmp_path / PLOT_CLOUD).write_bytes(b"")
+    plot, _found = _one_link_shown(qtbot, tmp_path)
+    assert plot.out_edit.text() == str(tmp_path)
+    assert plot.cloud_check.isChecked()
+    plot.open_scans(["c.ply", "d.ply"])  # File ▸ Open plot… gives no folder
+    assert plot.out_edit.text() == ""  # Run asks for one
+    assert not plot.cloud_check.isChecked()
