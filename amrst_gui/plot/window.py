@@ -228,6 +228,7 @@ class PlotWindow(QMainWindow):
         self.job: StageJob | None = None
         self.report_job: StageJob | None = None
         self.listing = False  # the job lists the scans of a file of several
+        self.opening = False  # the job reads a results folder
         self.run_queued = False  # Run was asked for while the scans were listed
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
@@ -472,6 +473,11 @@ class PlotWindow(QMainWindow):
     def busy(self) -> bool:
         return self.job is not None
 
+    @property
+    def running(self) -> bool:
+        """Whether the job is a plot run (not a listing of scans, nor an opening)."""
+        return self.busy and not (self.listing or self.opening)
+
     def open_scans(self, paths: list, out: Path | None = None) -> bool:
         """Take the plot's scans and results folder (None: Run asks for one); False
         while a run goes on.
@@ -558,6 +564,7 @@ class PlotWindow(QMainWindow):
         self.open_scans([], out)
         self.setWindowTitle(f"AMRST Studio: plot in {out}")
         self._say(f"Opening the plot in {out}…")
+        self.opening = True
         self.job = workers.run_stage(
             jobs.open_results,
             Path(out),
@@ -1131,6 +1138,7 @@ class PlotWindow(QMainWindow):
             if job is not None:
                 job.discard()
         self.job = self.report_job = None
+        self.listing = self.opening = self.run_queued = False
         self._show_busy()
 
     # -------------------------------------------------------------- slots
@@ -1170,7 +1178,7 @@ class PlotWindow(QMainWindow):
             self._say(f"Running: {message}")
 
     def _on_result(self, outcome: PlotOutcome, opened: bool = False) -> None:
-        self.job = None
+        self.job, self.opening = None, False
         self._show_busy()
         self.found = outcome
         self.shown_stamp = _stamp(outcome.out)
@@ -1320,7 +1328,12 @@ class PlotWindow(QMainWindow):
 
     def _on_error(self, exc: BaseException) -> None:
         listing = self.listing
-        self.job, self.listing, self.run_queued = None, False, False
+        self.job, self.listing, self.opening, self.run_queued = (
+            None,
+            False,
+            False,
+            False,
+        )
         self._show_busy()
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
@@ -1483,19 +1496,27 @@ class PlotWindow(QMainWindow):
         return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
 
     def may_close(self) -> bool:
-        """Ask before closing drops what was chosen for the next run; True: close."""
+        """Ask before closing cancels a plot run or drops what was chosen for the
+        next one; True: close."""
+        if self._close_agreed:
+            return True
+        text = (
+            "A plot is running: closing the window cancels it. " if self.running else ""
+        )
         pending = self.pending_choices()
-        if pending and not self._close_agreed:
-            self._close_agreed = ask_close(
-                self,
+        if pending:
+            text += (
                 f"The {pending} you chose are not run yet: Run plot takes them; "
-                "closing the window drops them. Close it anyway?",
+                "closing the window drops them. "
             )
+        if text:
+            self._close_agreed = ask_close(self, f"{text}Close it anyway?")
             return self._close_agreed
         return True
 
     def closeEvent(self, event) -> None:
-        """Closing the window (asked first, :meth:`may_close`) drops a running plot."""
+        """Closing the window (asked first, :meth:`may_close`) cancels a running
+        job."""
         if not self.may_close():
             event.ignore()
             return

@@ -1516,3 +1516,29 @@ def test_other_scans_opened_leave_the_last_plot_s_results_folder(
     plot.open_scans(["c.ply", "d.ply"])  # File ▸ Open plot… gives no folder
     assert plot.out_edit.text() == ""  # Run asks for one
     assert not plot.cloud_check.isChecked()
+
+
+def test_closing_the_plot_window_during_a_run_asks_first(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path, close_answers: list
+) -> None:
+    from amrst.plot.export import PLOT_JSON
+    from amrst_gui.plot.window import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.show()
+    out = tmp_path / "out"
+    plot.open_scans(plot_files, out)
+    plot.run()
+    assert plot.busy
+    close_answers.append(False)  # Cancel: the run goes on
+    assert not plot.close()
+    assert plot.isVisible()
+    assert plot.busy
+    assert close_answers.asked == [
+        "A plot is running: closing the window cancels it. Close it anyway?"
+    ]
+    assert plot.close()  # Close: the run is cancelled
+    assert not plot.busy
+    qtbot.wait(500)
+    assert not (out / PLOT_JSON).exists()
