@@ -352,6 +352,16 @@ class TreePanel(QWidget):
             self.measure_button.setChecked(False)
             self.dbh_chosen.emit(self.tree_id, None)
 
+    def unkept(self) -> str:
+        """The DBH being measured and not kept, as a question names it ("": none)."""
+        n = len(self.slice_view.clicks) if self.slice_view.measuring else 0
+        if not n:
+            return ""
+        return (
+            f"your DBH of {self.tree_id} measured and not kept ({n} "
+            f"point{'s' if n > 1 else ''}; Keep DBH keeps it)"
+        )
+
     def _update_hand_buttons(self) -> None:
         tree = self.tree_id is not None and self._shown is not None
         self.measure_button.setEnabled(tree)

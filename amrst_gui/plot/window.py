@@ -903,9 +903,23 @@ class PlotWindow(QMainWindow):
         self._update_link_buttons()
 
     def select_tree(self, k: int | None) -> None:
-        """Show tree ``k`` (index into the outcome's trees) everywhere."""
+        """Show tree ``k`` (index into the outcome's trees) everywhere; a DBH being
+        measured on another is asked about first."""
+        from amrst_gui import dialogs
+
         o = self.outcome
         if o is None or k is None or not 0 <= k < len(o.trees):
+            return
+        shown, lost = self.stem_map.selected, self.tree_panel.unkept()
+        if (
+            lost
+            and shown is not None
+            and k != shown
+            and not dialogs.confirm_discard(self, "Choosing another tree", lost)
+        ):
+            self.trees.blockSignals(True)  # its row again, and nothing else
+            self.trees.selectRow(row_of_tree(self.trees, shown))
+            self.trees.blockSignals(False)
             return
         self.stem_map.select(k)
         self.tree_panel.show_tree(o, k, self.review)
@@ -1496,13 +1510,15 @@ class PlotWindow(QMainWindow):
         return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
 
     def may_close(self) -> bool:
-        """Ask before closing cancels a plot run or drops what was chosen for the
-        next one; True: close."""
+        """Ask before closing cancels a plot run, or drops a DBH being measured or
+        what was chosen for the next run; True: close."""
         if self._close_agreed:
             return True
         text = (
             "A plot is running: closing the window cancels it. " if self.running else ""
         )
+        if unkept := self.tree_panel.unkept():
+            text += f"Closing the window drops {unkept}. "
         pending = self.pending_choices()
         if pending:
             text += (

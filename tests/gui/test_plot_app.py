@@ -102,6 +102,32 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     assert plot.scan_list.item(1).toolTip() == ""
 
 
+@pytest.fixture(scope="module")
+def plot_run(plot_files: list[str], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The two scans' plot as ``amrst plot`` writes it, once; tests open a copy."""
+    from amrst.plot.cli import main as plot_main
+
+    out = tmp_path_factory.mktemp("plot_run") / "out"
+    assert plot_main([*plot_files, "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def _shown(qtbot: QtBot, plot_run: Path, tmp_path: Path) -> tuple[PlotWindow, Path]:
+    """A shown Plot window with a copy of ``plot_run`` opened, and the copy."""
+    import shutil
+
+    from amrst_gui.plot.window import PlotWindow
+
+    out = tmp_path / "out"
+    shutil.copytree(plot_run, out)
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.show()
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    return plot, out
+
+
 def _run(qtbot: QtBot, plot: PlotWindow) -> None:
     with qtbot.waitSignal(plot.plot_done, timeout=300_000):
         plot.run()
@@ -1542,3 +1568,53 @@ def test_closing_the_plot_window_during_a_run_asks_first(
     assert not plot.busy
     qtbot.wait(500)
     assert not (out / PLOT_JSON).exists()
+
+
+def test_a_dbh_measured_and_not_kept_is_asked_about_before_it_goes(
+    qtbot: QtBot,
+    plot_run: Path,
+    tmp_path: Path,
+    discard_answers: list,
+    close_answers: list,
+) -> None:
+    from amrst_gui.plot.tables import row_of_tree
+
+    plot, _out = _shown(qtbot, plot_run, tmp_path)
+    o = plot.outcome
+    assert o is not None
+    plot.select_tree(0)
+    panel, tree = plot.tree_panel, o.trees[0]
+    view = panel.slice_view
+    panel.measure_button.click()
+    a = np.radians([200.0, 250.0, 300.0, 330.0])
+    r = tree.stem.dbh_m / 2
+    rim = np.asarray(tree.stem.dbh_xy) + r * np.column_stack([np.cos(a), np.sin(a)])
+    for x, y in view.to_px(rim):
+        QTest.mouseClick(
+            view, Qt.MouseButton.LeftButton, pos=QPoint(round(x), round(y))
+        )
+    assert panel.keep_button.isEnabled()
+    # N, a click on another tree on the map, another row: each asked, each refused.
+    for choose in (
+        lambda: plot.step_tree(1),
+        lambda: plot.stem_map.tree_clicked.emit(1),
+        lambda: plot.trees.selectRow(row_of_tree(plot.trees, 1)),
+    ):
+        discard_answers.append(False)
+        choose()
+        assert panel.tree_id == tree.tree_id
+        assert len(view.clicks) == 4
+        assert plot.trees.currentRow() == row_of_tree(plot.trees, 0)
+    assert discard_answers.asked == ["Choosing another tree"] * 3
+    close_answers.append(False)
+    assert not plot.close()
+    assert (
+        f"Closing the window drops your DBH of {tree.tree_id} measured and not kept "
+        "(4 points; Keep DBH keeps it)." in close_answers.asked[0]
+    )
+    assert len(view.clicks) == 4
+    plot.step_tree(1)  # Discard: the next tree
+    assert panel.tree_id != tree.tree_id
+    assert not view.measuring
+    assert plot.close()  # nothing left to ask about
+    assert len(close_answers.asked) == 1
