@@ -279,9 +279,13 @@ class MainWindow(QMainWindow):
             self.open_plot(paths)
 
     def open_plot(self, paths: list, out: Path | None = None) -> PlotWindow:
-        """Show the Plot window with these scans (and results folder, if given)."""
+        """Show the Plot window with these scans (and results folder, if given),
+        asked first when that drops work on the plot it shows."""
         plot = self._plot_window()
-        plot.open_scans(paths, out)
+        if plot.may_open_another():
+            plot.open_scans(paths, out)
+        plot.show()
+        plot.raise_()
         return plot
 
     def open_plot_results_dialog(self) -> None:
@@ -295,19 +299,22 @@ class MainWindow(QMainWindow):
             self.open_plot_results(Path(folder))
 
     def open_plot_results(self, out: Path) -> PlotWindow:
-        """Show the Plot window with the plot ``out`` holds (no run)."""
+        """Show the Plot window with the plot ``out`` holds (no run), asked first
+        when that drops work on the plot it shows."""
         plot = self._plot_window()
-        plot.open_results(out)
+        if plot.may_open_another():
+            plot.open_results(out)
+        plot.show()
+        plot.raise_()
         return plot
 
     def _plot_window(self) -> PlotWindow:
+        """The Plot window, made the first time."""
         from amrst_gui.plot.window import PlotWindow
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
             self.plot_window.open_pair_in = self.open_plot_pair
-        self.plot_window.show()
-        self.plot_window.raise_()
         return self.plot_window
 
     def open_plot_pair(

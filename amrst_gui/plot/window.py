@@ -1509,6 +1509,26 @@ class PlotWindow(QMainWindow):
         names = ("links left out", "links placed from point pairs", "scanner positions")
         return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
 
+    def may_open_another(self) -> bool:
+        """Ask before opening another plot drops a DBH being measured or what was
+        chosen for the next run; True: open it.
+
+        A hidden window asks nothing: closing it asked. Nor does a busy one: it
+        refuses to open another, saying why.
+        """
+        from amrst_gui import dialogs
+
+        if not self.isVisible() or self.busy:
+            return True
+        pending = self.pending_choices()
+        lost = [self.tree_panel.unkept()]
+        if pending:
+            lost.append(
+                f"the {pending} you chose for the next run (Run plot takes them)"
+            )
+        text = " and ".join(t for t in lost if t)
+        return not text or dialogs.confirm_discard(self, "Opening another plot", text)
+
     def may_close(self) -> bool:
         """Ask before closing cancels a plot run, or drops a DBH being measured or
         what was chosen for the next run; True: close."""

@@ -1618,3 +1618,41 @@ def test_a_dbh_measured_and_not_kept_is_asked_about_before_it_goes(
     assert not view.measuring
     assert plot.close()  # nothing left to ask about
     assert len(close_answers.asked) == 1
+
+
+def test_opening_another_plot_asks_before_it_drops_choices_not_run(
+    make_main_window: Callable[..., MainWindow],
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    discard_answers: list,
+    close_answers: list,
+) -> None:
+    win = make_main_window()
+    plot = win.open_plot(plot_files, tmp_path / "out")
+    plot.scan_list.setCurrentRow(1)
+    plot.set_scanner("1 2 0")
+    specs = list(plot.specs)
+    discard_answers.append(False)  # Cancel: the plot shown stays
+    assert win.open_plot(plot_files[::-1]) is plot
+    discard_answers.append(False)
+    win.open_plot_results(tmp_path / "elsewhere")
+    assert not plot.busy
+    assert plot.specs == specs
+    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert discard_answers.asked == ["Opening another plot"] * 2
+    win.open_plot_results(tmp_path / "elsewhere")  # Discard
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    assert plot.given_scanners == {}
+    assert plot.status.text().startswith("Not opened:")
+    assert len(discard_answers.asked) == 3
+    # Closed with a choice not run (asked then), the window opens another at once.
+    plot.open_scans(plot_files)
+    plot.scan_list.setCurrentRow(1)
+    plot.set_scanner("1 2 0")
+    assert plot.close()
+    assert close_answers.asked
+    win.open_plot(plot_files)
+    assert plot.isVisible()
+    assert plot.given_scanners == {}
+    assert len(discard_answers.asked) == 3
