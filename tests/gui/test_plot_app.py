@@ -1656,3 +1656,30 @@ def test_opening_another_plot_asks_before_it_drops_choices_not_run(
     assert plot.isVisible()
     assert plot.given_scanners == {}
     assert len(discard_answers.asked) == 3
+
+
+def test_tab_reaches_the_buttons_past_the_links_and_trees_tables(
+    qtbot: QtBot, plot_run: Path, tmp_path: Path
+) -> None:
+    plot, _out = _shown(qtbot, plot_run, tmp_path)
+    plot.links.selectRow(0)  # Open pair and Leave out take it
+    plot.links.setFocus()
+    visited = []
+    for _ in range(40):
+        widget = plot.focusWidget()
+        visited.append(widget)
+        QTest.keyClick(widget, Qt.Key.Key_Tab)
+    for button in (
+        plot.open_button,
+        plot.leave_button,
+        plot.add_button,
+        plot.report_button,
+        plot.export_button,
+    ):
+        assert button in visited, button.text()
+    assert plot.trees in visited
+    # The arrows still move from row to row.
+    plot.trees.setFocus()
+    plot.trees.setCurrentCell(0, 0)
+    QTest.keyClick(plot.trees, Qt.Key.Key_Down)
+    assert plot.trees.currentRow() == 1
