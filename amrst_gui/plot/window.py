@@ -396,6 +396,20 @@ class PlotWindow(QMainWindow):
         row.addWidget(self.centre_button)
         return row
 
+    def _show_area(self, area: PlotArea | None) -> None:
+        """Show ``area`` (None: no radius) in the radius and centre fields, without
+        applying it: it is the plot's own, or none for another plot."""
+        centre = (0.0, 0.0) if area is None else area.centre_xy
+        for widget in (self.radius_spin, self.centre_edit):
+            widget.blockSignals(True)
+        self.radius_spin.setValue(0.0 if area is None else area.radius_m)
+        self.centre_edit.setText(
+            "" if centre == (0.0, 0.0) else " ".join(_short(v) for v in centre)
+        )
+        for widget in (self.radius_spin, self.centre_edit):
+            widget.blockSignals(False)
+        self._on_radius(self.radius_spin.value())
+
     def _on_radius(self, radius: float) -> None:
         for widget in (self.centre_edit, self.centre_button):
             widget.setEnabled(radius > 0)
@@ -491,19 +505,13 @@ class PlotWindow(QMainWindow):
         if self.busy:
             self._say_busy()
             return False
-        self.found = self.outcome = None
-        self.review, self.hand_pairs = PlotReview(), {}
-        self.review_error = None
-        self.left_out = set()
+        self._clear_plot()
         self.given_scanners = {}
-        self.stem_map.set_plot(None)
-        self.tree_panel.show_tree(None, None, None)
-        fill(self.links, [])
-        fill(self.trees, [])
-        self._update_link_buttons()
-        # Another plot's folder would take this one's results over its own: without
-        # a folder given, Run asks for one.
+        # Another plot's folder would take this one's results over its own, and
+        # its area would be written into this one's: without a folder given, Run
+        # asks for one.
         self._set_out("" if out is None else str(out))
+        self._show_area(None)
         if any(names_several(p) for p in paths):
             self._take_scans([])
             self._say("Listing the scans of the files…")
@@ -523,6 +531,20 @@ class PlotWindow(QMainWindow):
         if paths:
             self._say_scans()
         return True
+
+    def _clear_plot(self) -> None:
+        """Show no plot, and drop what the next run took from the one shown: its
+        review, and the links placed from point pairs or left out (they name scans
+        by their numbers)."""
+        self.found = self.outcome = None
+        self.review, self.hand_pairs = PlotReview(), {}
+        self.review_error = None
+        self.left_out = set()
+        self.stem_map.set_plot(None)
+        self.tree_panel.show_tree(None, None, None)
+        fill(self.links, [])
+        fill(self.trees, [])
+        self._update_link_buttons()
 
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
@@ -593,36 +615,35 @@ class PlotWindow(QMainWindow):
         k = self.scan_list.currentRow()
         if self.busy or self.found is not None or not 0 < k < len(self.specs):
             return
-        order = [k, *range(k), *range(k + 1, len(self.specs))]
-        given = self.given_scanners
-        out = self.out_edit.text().strip()
-        self.open_scans([self.specs[j] for j in order], Path(out) if out else None)
-        self.given_scanners = {n: given[j] for n, j in enumerate(order) if j in given}
-        self._show_given()
+        self._reorder([k, *range(k), *range(k + 1, len(self.specs))])
         self._say(f"{Path(self.specs[0]).name} is the reference now (S1).")
 
     def remove_scan(self) -> None:
         """Leave the selected scan out of the plot; two scans at least stay.
 
-        The scans given a scanner position keep it; links placed or left out by hand
-        go, as with another reference (they name scans by their numbers).
+        The shown plot is cleared (:meth:`_reorder`).
         """
         k = self.scan_list.currentRow()
         if self.busy or not 0 <= k < len(self.specs) or len(self.specs) <= 2:
             return
-        keep = [j for j in range(len(self.specs)) if j != k]
-        given = self.given_scanners
         gone = scan_title(self.specs[k], self.scan_names.get(self.specs[k], ""))
-        out = self.out_edit.text().strip()
-        self.open_scans([self.specs[j] for j in keep], Path(out) if out else None)
-        self.given_scanners = {n: given[j] for n, j in enumerate(keep) if j in given}
-        self._show_given()
+        self._reorder([j for j in range(len(self.specs)) if j != k])
         first = scan_title(self.specs[0], self.scan_names.get(self.specs[0], ""))
         reference = f" {first} is the reference now (S1)." if k == 0 else ""
         self._say(
             f"{gone} is left out: {len(self.specs)} scans.{reference} Run plot "
             "registers and inventories them."
         )
+
+    def _reorder(self, order: list[int]) -> None:
+        """Take the listed scans ``order`` names (their indices) for the next run,
+        the shown plot cleared (:meth:`_clear_plot`). The scans given a scanner
+        position keep it; the results folder and the plot area stay."""
+        given = self.given_scanners
+        self._clear_plot()
+        self._take_scans([self.specs[j] for j in order])
+        self.given_scanners = {n: given[j] for n, j in enumerate(order) if j in given}
+        self._show_given()
 
     def set_scanner(self, text: str | None = None) -> None:
         """Give where the selected scan's scanner stood, for the next run.
@@ -1199,18 +1220,7 @@ class PlotWindow(QMainWindow):
         if opened:
             self._take_scans(list(outcome.labels))
         self._shown_specs = list(self.specs)
-        centre = (0.0, 0.0) if outcome.area is None else outcome.area.centre_xy
-        for widget in (self.radius_spin, self.centre_edit):
-            widget.blockSignals(True)  # the plot's own area, nothing to apply
-        self.radius_spin.setValue(
-            0.0 if outcome.area is None else outcome.area.radius_m
-        )
-        self.centre_edit.setText(
-            "" if centre == (0.0, 0.0) else " ".join(_short(v) for v in centre)
-        )
-        for widget in (self.radius_spin, self.centre_edit):
-            widget.blockSignals(False)
-        self._on_radius(self.radius_spin.value())
+        self._show_area(outcome.area)
         # What placed each link carries on to the next run.
         self.left_out, self.hand_pairs, self.given_scanners = _run_choices(outcome)
         try:

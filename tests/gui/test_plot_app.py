@@ -1683,3 +1683,30 @@ def test_tab_reaches_the_buttons_past_the_links_and_trees_tables(
     plot.trees.setCurrentCell(0, 0)
     QTest.keyClick(plot.trees, Qt.Key.Key_Down)
     assert plot.trees.currentRow() == 1
+
+
+def test_other_scans_opened_take_no_plot_area_of_the_last_plot(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst_gui.plot.window import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(["a.ply", "b.ply"])
+    plot.radius_spin.setValue(12.0)
+    plot.centre_edit.setText("5 5")
+    plot.open_scans(plot_files, tmp_path)  # another plot: no radius of the last
+    assert plot.radius_spin.value() == 0.0
+    assert plot.centre_edit.text() == ""
+    assert plot._area() is None
+    # Another reference, or a scan left out, is the same plot: its area holds.
+    plot.open_scans(["a.ply", "b.ply", "c.ply"], tmp_path)
+    plot.radius_spin.setValue(12.0)
+    plot.centre_edit.setText("5 5")
+    plot.scan_list.setCurrentRow(1)
+    plot.make_reference()
+    plot.scan_list.setCurrentRow(2)
+    plot.remove_scan()
+    assert [Path(s).name for s in plot.specs] == ["b.ply", "a.ply"]
+    assert plot._area() == (12.0, (5.0, 5.0))
+    assert plot.out_edit.text() == str(tmp_path)
