@@ -411,9 +411,12 @@ class PlotWindow(QMainWindow):
         self._on_radius(self.radius_spin.value())
 
     def _on_radius(self, radius: float) -> None:
+        """Let the centre be given with a radius, and no job running (the area
+        fields are the job's to set when it ends)."""
+        on = radius > 0 and not self.busy
         for widget in (self.centre_edit, self.centre_button):
-            widget.setEnabled(radius > 0)
-        if radius <= 0:
+            widget.setEnabled(on)
+        if not on:
             self.centre_button.setChecked(False)
 
     def _build_tree_buttons(self) -> QHBoxLayout:
@@ -1474,6 +1477,9 @@ class PlotWindow(QMainWindow):
             self.scanner_button.isEnabled() and len(self.specs) > 2
         )
         self.cancel_button.setEnabled(self.busy)
+        # A run or an opening ends by showing its plot's area in these fields.
+        self.radius_spin.setEnabled(not self.busy)
+        self._on_radius(self.radius_spin.value())
         self._update_link_buttons()
 
     def _update_link_buttons(self) -> None:

@@ -1710,3 +1710,25 @@ def test_other_scans_opened_take_no_plot_area_of_the_last_plot(
     assert [Path(s).name for s in plot.specs] == ["b.ply", "a.ply"]
     assert plot._area() == (12.0, (5.0, 5.0))
     assert plot.out_edit.text() == str(tmp_path)
+
+
+def test_the_plot_area_is_not_typed_while_a_run_would_drop_it(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst_gui.plot.window import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, tmp_path / "out")
+    plot.radius_spin.setValue(12.0)
+    plot.centre_button.setChecked(True)
+    plot.run()
+    assert plot.busy
+    for widget in (plot.radius_spin, plot.centre_edit, plot.centre_button):
+        assert not widget.isEnabled()
+    assert not plot.centre_button.isChecked()  # no click on the map awaited
+    plot.cancel()
+    qtbot.waitUntil(lambda: not plot.busy, timeout=10_000)
+    for widget in (plot.radius_spin, plot.centre_edit, plot.centre_button):
+        assert widget.isEnabled()
+    assert plot.radius_spin.value() == 12.0  # the next run's
