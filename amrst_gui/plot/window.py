@@ -1044,11 +1044,14 @@ class PlotWindow(QMainWindow):
             if self.status.text().startswith("Plot area not changed"):
                 self._say(f"The plot area is as shown{self._stand_text()}")
             return
+        # Not saved, the fields go back to the area the map and figures show.
         if not self._still_shown(o.out, "The plot area"):
+            self._show_area(o.area)
             return
         try:
             write_area(o.out, o.trees, self.review, area)
         except (AmrstError, OSError) as exc:
+            self._show_area(o.area)
             self._say(f"Plot area not changed: {exc}", error=True)
             return
         self.shown_stamp = _stamp(o.out)

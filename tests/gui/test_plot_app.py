@@ -1732,3 +1732,20 @@ def test_the_plot_area_is_not_typed_while_a_run_would_drop_it(
     for widget in (plot.radius_spin, plot.centre_edit, plot.centre_button):
         assert widget.isEnabled()
     assert plot.radius_spin.value() == 12.0  # the next run's
+
+
+def test_a_plot_area_not_saved_goes_back_to_the_one_in_force(
+    qtbot: QtBot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from amrst.plot import export
+
+    def refused(out: Path, *_args: Any) -> None:
+        raise PermissionError(f"[Errno 13] Permission denied: '{out}'")
+
+    plot, _found = _one_link_shown(qtbot, tmp_path)
+    monkeypatch.setattr(export, "write_area", refused)
+    plot.radius_spin.setValue(12.0)
+    assert plot.status.text().startswith("Plot area not changed: [Errno 13]")
+    assert plot.radius_spin.value() == 0.0  # no radius, as the map shows
+    assert plot.found is not None
+    assert plot.found.area is None
