@@ -402,6 +402,20 @@ def report_job(out: Path, reporter: Reporter) -> Path:
     return write_report(out)
 
 
+def run_of(out: Path, labels: Sequence[str]) -> bool:
+    """Tell whether ``out``'s plot.json is a run of these very scan files (not of
+    the same scans where they were before they moved: its labels name them).
+    Reads a regular file only, as :func:`same_plot`."""
+    from amrst.plot.export import read_plot_json
+    from amrst.plot.review import same_scans
+
+    try:
+        theirs = [s["label"] for s in read_plot_json(out)["scans"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return same_scans(theirs, labels)
+
+
 #: What ``out`` holds against the scans of a run (:func:`same_plot`).
 SAME_SCANS = "same scans"
 SAME_REFERENCE = "same reference"

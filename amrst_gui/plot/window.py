@@ -229,7 +229,7 @@ class PlotWindow(QMainWindow):
         self.report_job: StageJob | None = None
         self.listing = False  # the job lists the scans of a file of several
         self.opening = False  # the job reads a results folder
-        self.run_queued = False  # Run was asked for while the scans were listed
+        self.run_queued = False  # Run was asked for while listing or opening
         self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
         split = QSplitter(Qt.Orientation.Horizontal)
@@ -500,7 +500,8 @@ class PlotWindow(QMainWindow):
         while a run goes on.
 
         A file of several scans (E57, PTX) is listed as its scans, one a line, as a
-        run numbers them: the engine process reads its headers first.
+        run numbers them: the engine process reads its headers first. A folder that
+        holds a run of these scans shows it (:meth:`_scans_taken`).
         """
         from amrst.io.scans import names_several
         from amrst_gui import engine_process, workers
@@ -532,7 +533,7 @@ class PlotWindow(QMainWindow):
             return True
         self._take_scans(paths)
         if paths:
-            self._say_scans()
+            self._scans_taken()
         return True
 
     def _clear_plot(self) -> None:
@@ -555,6 +556,16 @@ class PlotWindow(QMainWindow):
             (str(Path(spec).resolve()), name) for spec, name in listed if name
         )
         self._take_scans([spec for spec, _name in listed])
+        self._scans_taken()
+
+    def _scans_taken(self) -> None:
+        """Show the plot of these scans the results folder holds, if it does (as
+        Open plot results… would); else say what Run does, and run if asked to
+        meanwhile."""
+        text = self.out_edit.text().strip()
+        if text and jobs.run_of(Path(text).expanduser(), self.specs):
+            self._open(Path(text).expanduser())
+            return
         self._say_scans()
         if self.run_queued:
             self.run_queued = False
@@ -581,12 +592,17 @@ class PlotWindow(QMainWindow):
         Its scans become the window's (Run plot runs them again into that folder), and
         so do the links it placed from point pairs or left out.
         """
-        from amrst_gui import workers
-
         if self.busy:
             self._say_busy()
             return False
         self.open_scans([], out)
+        self._open(out)
+        return True
+
+    def _open(self, out: Path) -> None:
+        """Read the plot ``out`` holds in a worker, then show it (``_on_result``)."""
+        from amrst_gui import workers
+
         self.setWindowTitle(f"AMRST Studio: plot in {out}")
         self._say(f"Opening the plot in {out}…")
         self.opening = True
@@ -598,7 +614,6 @@ class PlotWindow(QMainWindow):
             on_error=self._on_error,
         )
         self._show_busy()
-        return True
 
     def _take_scans(self, paths: list) -> None:
         """The scans the next run reads, listed (the first is the reference)."""
@@ -719,11 +734,12 @@ class PlotWindow(QMainWindow):
     def run(self) -> None:
         """Register and inventory the plot in the engine process.
 
-        Asked for while the scans of a file are listed, it runs once they are.
+        Asked for while the scans of a file are listed, or the results folder's plot
+        of them opened, it runs once that is done.
         """
         from amrst_gui import engine_process, workers
 
-        if self.listing:
+        if self.listing or self.opening:
             self.run_queued = True
             return
         if self.busy or len(self.specs) < 2:
@@ -1262,6 +1278,9 @@ class PlotWindow(QMainWindow):
             done += f". Your review is not shown: {self.review_error}"
         self._say(f"{self._summary()}; {done}", error=unsure or bool(self.review_error))
         self.plot_done.emit(o)
+        if self.run_queued:
+            self.run_queued = False
+            self.run()
 
     def _save_review(self, review: PlotReview, what: str) -> bool:
         """Write the review; keep it as the window's when written.

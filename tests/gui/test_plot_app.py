@@ -1749,3 +1749,30 @@ def test_a_plot_area_not_saved_goes_back_to_the_one_in_force(
     assert plot.radius_spin.value() == 0.0  # no radius, as the map shows
     assert plot.found is not None
     assert plot.found.area is None
+
+
+def test_scans_opened_into_a_folder_of_their_results_show_them(
+    qtbot: QtBot, plot_files: list[str], plot_run: Path, tmp_path: Path
+) -> None:
+    import shutil
+
+    from amrst_gui.plot.window import PlotWindow
+
+    out = tmp_path / "out"
+    shutil.copytree(plot_run, out)
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_scans(plot_files, out)  # File ▸ Open plot… with a folder
+    assert plot.outcome is not None
+    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    assert f"opened from {out}" in plot.status.text()
+    assert plot.run_button.isEnabled()
+    # Another folder, or other scans, show nothing until they are run.
+    plot.open_scans(plot_files, tmp_path / "new")
+    assert plot.outcome is None
+    assert not plot.busy
+    plot.open_scans(plot_files[::-1], out)
+    assert plot.outcome is None
+    assert not plot.busy
