@@ -574,6 +574,8 @@ class PlotWindow(QMainWindow):
     def _say_busy(self) -> None:
         if self.listing:
             self._say("The scans are being listed: wait, or cancel it.", error=True)
+        elif self.opening:
+            self._say("A plot is being opened: wait, or cancel it.", error=True)
         else:
             self._say("A plot is running: cancel it first.", error=True)
 
@@ -1376,21 +1378,21 @@ class PlotWindow(QMainWindow):
         self._say(f"No report: {text.removeprefix('No report: ')}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
-        listing = self.listing
-        self.job, self.listing, self.opening, self.run_queued = (
-            None,
-            False,
-            False,
-            False,
-        )
+        listing, opening = self.listing, self.opening
+        self.job = None
+        self.listing = self.opening = self.run_queued = False
         self._show_busy()
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
             self._say(
-                "Cancelled." if listing else "Plot cancelled; nothing was written."
+                "Cancelled."
+                if listing
+                else "Opening cancelled."
+                if opening
+                else "Plot cancelled; nothing was written."
             )
             return
-        if not self.specs:  # opening a results folder
+        if listing or opening:
             self._say(f"Not opened: {exc}", error=True)
             return
         if not isinstance(exc, AmrstError):

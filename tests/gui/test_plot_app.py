@@ -1776,3 +1776,19 @@ def test_scans_opened_into_a_folder_of_their_results_show_them(
     plot.open_scans(plot_files[::-1], out)
     assert plot.outcome is None
     assert not plot.busy
+
+
+def test_an_opening_of_results_is_not_called_a_run(
+    qtbot: QtBot, plot_run: Path, tmp_path: Path
+) -> None:
+    from amrst_gui.plot.window import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    assert plot.open_results(plot_run)
+    assert not plot.open_results(plot_run)
+    assert plot.status.text() == "A plot is being opened: wait, or cancel it."
+    plot.cancel()
+    qtbot.waitUntil(lambda: not plot.busy, timeout=10_000)
+    assert plot.status.text() == "Opening cancelled."
+    assert plot.outcome is None
