@@ -168,6 +168,11 @@ def _run_choices(
     )
 
 
+def _numbered(o: PlotOutcome, labels: list[str]) -> str:
+    """Scans by number and file, "S3 (source.ply)": two scans may share a name."""
+    return ", ".join(f"S{o.labels.index(s) + 1} ({Path(s).name})" for s in labels)
+
+
 def ask_close(parent: QWidget, text: str) -> bool:
     """Ask whether the Plot window may close although ``text`` says what it drops."""
     return confirm(parent, "Close the plot window?", text)
@@ -1267,11 +1272,11 @@ class PlotWindow(QMainWindow):
                 f". No tree stands any more where you gave {', '.join(o.lost)}: "
                 "dropped from your review"
             )
-        gone = [Path(s).name for s in o.labels if not scan_file_exists(s)]
+        gone = [s for s in o.labels if not scan_file_exists(s)]
         if gone:
             unsure = True
             done += (
-                f". Not where plot.json says: {', '.join(gone)}; the plot shows from "
+                f". Not where plot.json says: {_numbered(o, gone)}; the plot shows from "
                 "its results. To run it again, open the scans where they are now "
                 "(File ▸ Open plot…) into this results folder: your review holds for "
                 "the same files"
@@ -1339,16 +1344,14 @@ class PlotWindow(QMainWindow):
         if review:
             resting = seen_from_any(o.trees, o.unsure)
             line += (
-                ". Needs review: "
-                + ", ".join(Path(m).name for m in review)
+                f". Needs review: {_numbered(o, review)}"
                 + f" (check {'its' if len(review) == 1 else 'their'} links; "
                 f"{counted(resting, 'tree')} seen from {'it' if len(review) == 1 else 'them'})"
             )
         if missing:
             line += (
-                ". Not placed: "
-                + ", ".join(Path(m).name for m in missing)
-                + " (select its link, Open pair, pick point pairs, then Use pairs…)"
+                f". Not placed: {_numbered(o, missing)}"
+                " (select its link, Open pair, pick point pairs, then Use pairs…)"
             )
         return line + self._stand_text()
 

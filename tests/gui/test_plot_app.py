@@ -1497,7 +1497,7 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     item = plot.scan_list.item(1)
     assert item is not None
     assert "scan_2.ply (file missing)" in item.text()
-    assert "Not where plot.json says: scan_2.ply" in plot.status.text()
+    assert "Not where plot.json says: S2 (scan_2.ply)" in plot.status.text()
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)  # shown from its results
     # Opened again from where it is now, it is the same plot: a run keeps the marks.
@@ -1792,3 +1792,26 @@ def test_an_opening_of_results_is_not_called_a_run(
     qtbot.waitUntil(lambda: not plot.busy, timeout=10_000)
     assert plot.status.text() == "Opening cancelled."
     assert plot.outcome is None
+
+
+def test_scans_of_one_name_are_told_apart_by_their_number(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.window import PlotWindow
+
+    labels = [str(tmp_path / d / "source.ply") for d in ("a", "b", "c")]
+    scans = (
+        ScanPlace(labels[0], np.zeros(2), 5, "registered"),
+        ScanPlace(labels[1], None, 5, "needs review"),
+        ScanPlace(labels[2], None, 0, "failed"),
+    )
+    found = PlotOutcome(tmp_path, tuple(labels), (), scans, (), 0.01, (), None, 1.0)
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(labels, tmp_path)
+    plot._on_result(found)
+    text = plot.status.text()
+    assert "Needs review: S2 (source.ply) (check its links" in text
+    assert "Not placed: S3 (source.ply) (select its link" in text
+    assert "Not where plot.json says: S1 (source.ply), S2 (source.ply), S3" in text
