@@ -229,6 +229,11 @@ def read_plot(out: Path) -> PlotFiles:
             f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "
             "written into."
         )
+    if not os.path.lexists(out / VIEW_NPZ):
+        raise InvalidInput(
+            f"{out} holds a plot, but its {VIEW_NPZ} (the drawing of its trees) is "
+            "missing: run the plot again from its scans."
+        )
     view = read_view(out / VIEW_NPZ)
     try:
         doc, rows = _read_doc_rows(out)
@@ -244,7 +249,7 @@ def read_plot(out: Path) -> PlotFiles:
             raise ValueError(f"{TREES_CSV} lists other trees than {VIEW_NPZ}")
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InvalidInput(
-            f"{out} holds no readable plot ({exc}): run the plot again."
+            f"{out} holds no readable plot ({exc}): run the plot again from its scans."
         ) from exc
     return PlotFiles(doc, trees, view)
 
@@ -259,7 +264,7 @@ def _listed_ids(out: Path) -> list[str]:
     try:
         if not (out / TREES_CSV).is_file():  # a named pipe would block
             raise OSError("no trees.csv")
-        with (out / TREES_CSV).open(newline="") as fh:
+        with (out / TREES_CSV).open(newline="", encoding="utf-8-sig") as fh:
             ids = [r.get("tree_id") or "" for r in csv.DictReader(fh)]
     except (OSError, ValueError, csv.Error):
         ids = [p.stem for p in (out / TREES_DIR).glob("*.ply")]
@@ -288,11 +293,25 @@ def _regular_file(path: Path) -> None:
 
 
 def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
-    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
+    """plot.json and trees.csv's rows (OSError, ValueError when unreadable).
+
+    A trees.csv a spreadsheet saved again is read when only its byte-order mark or
+    line ends changed; other changes (';' between the columns, another encoding)
+    are named.
+    """
     doc = read_plot_json(out)
     _regular_file(out / TREES_CSV)
-    with (out / TREES_CSV).open(newline="") as fh:
-        return doc, list(csv.DictReader(fh))
+    other = "another program saved it over"
+    try:
+        with (out / TREES_CSV).open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            columns = reader.fieldnames or ()
+            missing = [c for c in TREE_COLUMNS if c not in columns]
+            if missing:
+                raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
+            return doc, list(reader)
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{TREES_CSV} is not UTF-8 text: {other}") from exc
 
 
 def plot_document(

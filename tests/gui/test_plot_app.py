@@ -1815,3 +1815,39 @@ def test_scans_of_one_name_are_told_apart_by_their_number(
     assert "Needs review: S2 (source.ply) (check its links" in text
     assert "Not placed: S3 (source.ply) (select its link" in text
     assert "Not where plot.json says: S1 (source.ply), S2 (source.ply), S3" in text
+
+
+def test_a_trees_csv_a_spreadsheet_saved_again_opens_or_says_why_not(
+    qtbot: QtBot, plot_run: Path, tmp_path: Path
+) -> None:
+    from amrst.plot.export import TREES_CSV
+    from amrst.plot.view import VIEW_NPZ
+
+    plot, out = _shown(qtbot, plot_run, tmp_path)
+    csv_path = out / TREES_CSV
+    text = csv_path.read_text(encoding="utf-8")
+    # Excel's UTF-8 CSV: a byte-order mark and CRLF line ends.
+    csv_path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    with qtbot.waitSignal(plot.plot_done, timeout=30_000):
+        plot.open_results(out)
+    assert plot.trees.rowCount() == len(STEMS)
+    # Saved with ';' between the columns, or in another encoding: said so.
+    for damaged, why in (
+        (text.replace(",", ";").encode(), "has no tree_id column"),
+        (text.replace("T001", "T\u00e9").encode("latin-1"), "is not UTF-8 text"),
+    ):
+        csv_path.write_bytes(damaged)
+        plot.open_results(out)
+        qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+        assert plot.outcome is None
+        assert plot.status.text() == (
+            f"Not opened: {out} holds no readable plot (trees.csv {why}: another "
+            "program saved it over): run the plot again from its scans."
+        )
+    (out / VIEW_NPZ).unlink()
+    plot.open_results(out)
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    assert plot.status.text() == (
+        f"Not opened: {out} holds a plot, but its view.npz (the drawing of its "
+        "trees) is missing: run the plot again from its scans."
+    )
