@@ -74,40 +74,40 @@ def check_out(out: Path, overwrite: bool) -> None:
 
     That is a file, a place that cannot be written, or a folder that holds another
     run's output (unless ``overwrite``). Its review must be readable (its marks go
-    into the inventory). All refused before the run rather than after it.
+    into the inventory). All refused before the run rather than after it, in words
+    for the command line and the app alike (the folder is --out to one, a field to
+    the other).
     """
     if out.is_symlink() and not out.exists():
         raise InvalidInput(
             f"{out} is a link to {os.readlink(out)}, which does not exist: fix the "
-            "link or give another results folder (--out)."
+            "link or choose another results folder."
         )
     if out.exists() and not out.is_dir():
         raise InvalidInput(
-            f"{out} is a file, not a folder: give another results folder (--out)."
+            f"{out} is a file, not a folder: choose another results folder."
         )
     trees = out / TREES_DIR
     if os.path.lexists(trees) and not trees.is_dir():
         raise InvalidInput(
-            f"{trees} is a file, where a run keeps its tree clouds: move it, or give "
-            "another results folder (--out)."
+            f"{trees} is a file, where a run keeps its tree clouds: move it, or "
+            "choose another results folder."
         )
     if (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
-            f"{out} already holds a plot ({PLOT_JSON}): give another results folder "
-            "(--out), or --overwrite to replace it."
+            f"{out} already holds a plot ({PLOT_JSON}): choose another results "
+            "folder, or --overwrite to replace it."
         )
     theirs = run_files(out)
     if theirs and not (out / PLOT_JSON).exists() and not overwrite:
         raise InvalidInput(
             f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "
-            "replace or remove them. Give another results folder (--out), or "
+            "replace or remove them. Choose another results folder, or "
             "--overwrite to replace them."
         )
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
-        raise InvalidInput(
-            f"Cannot write in {first}: give another results folder (--out)."
-        )
+        raise InvalidInput(f"Cannot write in {first}: choose another results folder.")
     read_review(out, ())
 
 

@@ -1851,3 +1851,21 @@ def test_a_trees_csv_a_spreadsheet_saved_again_opens_or_says_why_not(
         f"Not opened: {out} holds a plot, but its view.npz (the drawing of its "
         "trees) is missing: run the plot again from its scans."
     )
+
+
+def test_a_results_folder_that_is_a_file_is_refused_in_the_app_s_words(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst_gui.plot.window import PlotWindow
+
+    out = tmp_path / "results"
+    out.write_text("")
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, out)
+    plot.run()
+    qtbot.waitUntil(lambda: not plot.busy, timeout=60_000)
+    assert plot.status.text() == (
+        f"The plot failed: {out} is a file, not a folder: choose another results "
+        "folder."
+    )
