@@ -1381,6 +1381,8 @@ class PlotWindow(QMainWindow):
         self._say(f"No report: {text.removeprefix('No report: ')}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
+        from amrst_gui.engine_process import EngineStopped
+
         listing, opening = self.listing, self.opening
         self.job = None
         self.listing = self.opening = self.run_queued = False
@@ -1395,14 +1397,21 @@ class PlotWindow(QMainWindow):
                 else "Plot cancelled; nothing was written."
             )
             return
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if isinstance(exc, EngineStopped):
+            # Its advice is a two-scan step's (cut the tree out); here, try again.
+            again = "Open the scans again" if listing else "Run plot again"
+            text = (
+                f"{text.split(';')[0]}. {again}; if it stops again, close other "
+                "programs to free memory."
+            )
         if listing or opening:
-            self._say(f"Not opened: {exc}", error=True)
+            self._say(f"Not opened: {text}", error=True)
             return
         if not isinstance(exc, AmrstError):
             log.error(
                 "The plot failed:\n%s", getattr(exc, "__traceback_text__", repr(exc))
             )
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self._say(f"The plot failed: {text}", error=True)
 
     def _on_row_selected(self) -> None:

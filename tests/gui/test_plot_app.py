@@ -1869,3 +1869,32 @@ def test_a_results_folder_that_is_a_file_is_refused_in_the_app_s_words(
         f"The plot failed: {out} is a file, not a folder: choose another results "
         "folder."
     )
+
+
+def test_a_plot_whose_engine_process_stops_says_to_run_it_again(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    import os
+    import signal
+
+    from amrst_gui.engine_process import ENGINE
+    from amrst_gui.plot.window import PlotWindow
+
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, tmp_path / "out")
+    plot.run()
+    qtbot.waitUntil(
+        lambda: plot.status.text().startswith("Running: ") and ENGINE.pid is not None,
+        timeout=30_000,
+    )
+    pid = ENGINE.pid
+    assert pid is not None
+    os.kill(pid, signal.SIGKILL)  # as the system does when memory runs out
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    text = plot.status.text()
+    assert text.startswith("The plot failed: The engine process stopped (exit code")
+    assert text.endswith(
+        ". Run plot again; if it stops again, close other programs to free memory."
+    )
+    assert plot.run_button.isEnabled()
