@@ -501,7 +501,8 @@ class PlotWindow(QMainWindow):
         return self.busy and not (self.listing or self.opening)
 
     def open_scans(self, paths: list, out: Path | None = None) -> bool:
-        """Take the plot's scans and results folder (None: Run asks for one); False
+        """Take the plot's scans and results folder (None: Run asks for one; a
+        relative one is the working directory's, as on the command line); False
         while a run goes on.
 
         A file of several scans (E57, PTX) is listed as its scans, one a line, as a
@@ -519,7 +520,7 @@ class PlotWindow(QMainWindow):
         # Another plot's folder would take this one's results over its own, and
         # its area would be written into this one's: without a folder given, Run
         # asks for one.
-        self._set_out("" if out is None else str(out))
+        self._set_out("" if out is None else str(Path(out).expanduser().absolute()))
         self._show_area(None)
         if any(names_several(p) for p in paths):
             self._take_scans([])
@@ -602,6 +603,7 @@ class PlotWindow(QMainWindow):
         if self.busy:
             self._say_busy()
             return False
+        out = Path(out).expanduser().absolute()  # said as it is, wherever the app runs
         self.open_scans([], out)
         self._open(out)
         return True
@@ -763,6 +765,9 @@ class PlotWindow(QMainWindow):
             self._say("Choose a results folder to run the plot.", error=True)
             return
         out = Path(text).expanduser()
+        if not out.is_absolute():  # a name typed: beside the scans, as Choose… starts
+            out = Path(self.specs[0]).parent / out
+            self.out_edit.setText(str(out))
         overwrite = self._may_replace(out)
         if overwrite is None:
             self._say(f"Not run: {out} is kept as it is.", error=True)

@@ -1898,3 +1898,33 @@ def test_a_plot_whose_engine_process_stops_says_to_run_it_again(
         ". Run plot again; if it stops again, close other programs to free memory."
     )
     assert plot.run_button.isEnabled()
+
+
+def test_a_results_folder_typed_as_a_name_is_made_beside_the_scans(
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import shutil
+
+    from amrst_gui.plot.window import PlotWindow
+
+    monkeypatch.chdir(tmp_path)  # where the app was started: not the place
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files)
+    plot.out_edit.setText("results_typed")
+    out = Path(plot_files[0]).resolve().parent / "results_typed"
+    try:
+        _run(qtbot, plot)
+        assert (out / "plot.json").is_file()
+        assert not (tmp_path / "results_typed").exists()
+        assert plot.out_edit.text() == str(out)
+        assert f"written to {out}" in plot.status.text()
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    # Given as a name to open, it is the working directory's, said in full.
+    plot.open_results(Path("elsewhere"))
+    qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
+    assert plot.status.text().startswith(f"Not opened: {tmp_path / 'elsewhere'} ")
