@@ -124,7 +124,12 @@ def figures(
             else "no circle holds the stem at 1.3 m",
         ),
         ("Lean", _value(s.lean_deg, "°", digits=1)),
-        ("Crown", f"{_value(s.crown_width_m, ' m')} wide"),
+        (
+            "Crown",
+            f"{_value(s.crown_width_m, ' m')} wide"
+            if np.isfinite(s.crown_width_m)
+            else "–",
+        ),
         ("Points", f"{s.n_points:,}"),
         ("Seen from", seen or "–"),
         ("Your mark", mark or "not marked"),

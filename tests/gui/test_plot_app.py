@@ -1928,3 +1928,14 @@ def test_a_results_folder_typed_as_a_name_is_made_beside_the_scans(
     plot.open_results(Path("elsewhere"))
     qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
     assert plot.status.text().startswith(f"Not opened: {tmp_path / 'elsewhere'} ")
+
+
+def test_a_tree_without_a_crown_width_shows_a_dash() -> None:
+    from amrst.plot.review import PlotReview
+    from amrst_gui.plot.tree import figures
+
+    tree = _tree("H001", (1,))
+    assert dict(figures(tree, PlotReview()))["Crown"] == "6.00 m wide"
+    stem = dataclasses.replace(tree.stem, crown_width_m=float("nan"))
+    bare = dataclasses.replace(tree, stem=stem)  # added by hand, no points found
+    assert dict(figures(bare, PlotReview()))["Crown"] == "–"
