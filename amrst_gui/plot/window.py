@@ -631,11 +631,15 @@ class PlotWindow(QMainWindow):
         for k, spec in enumerate(self.specs):
             title = scan_title(spec, self.scan_names.get(spec, ""))
             self.scan_list.addItem(f"S{k + 1}  {title}")
+        self._show_title()
+        self._show_busy()
+
+    def _show_title(self) -> None:
+        """Name the scans in the window's title (none: the plain title)."""
         names = ", ".join(Path(s).name for s in self.specs)
         self.setWindowTitle(
             f"AMRST Studio: plot of {names}" if names else "AMRST Studio: plot"
         )
-        self._show_busy()
 
     def make_reference(self) -> None:
         """Put the selected scan first: the next run's reference (before a run)."""
@@ -1392,6 +1396,7 @@ class PlotWindow(QMainWindow):
         self.job = None
         self.listing = self.opening = self.run_queued = False
         self._show_busy()
+        self._show_title()  # not "plot in" a folder that was not opened
         self.progress.setValue(0)
         if isinstance(exc, Cancelled):
             self._say(

@@ -1792,6 +1792,7 @@ def test_an_opening_of_results_is_not_called_a_run(
     qtbot.waitUntil(lambda: not plot.busy, timeout=10_000)
     assert plot.status.text() == "Opening cancelled."
     assert plot.outcome is None
+    assert plot.windowTitle() == "AMRST Studio: plot"  # not "plot in" the folder
 
 
 def test_scans_of_one_name_are_told_apart_by_their_number(
@@ -1928,6 +1929,7 @@ def test_a_results_folder_typed_as_a_name_is_made_beside_the_scans(
     plot.open_results(Path("elsewhere"))
     qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
     assert plot.status.text().startswith(f"Not opened: {tmp_path / 'elsewhere'} ")
+    assert plot.windowTitle() == "AMRST Studio: plot"  # not "plot in elsewhere"
 
 
 def test_a_tree_without_a_crown_width_shows_a_dash() -> None:
