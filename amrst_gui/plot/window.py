@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -559,7 +560,7 @@ class PlotWindow(QMainWindow):
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
         self.scan_names.update(
-            (str(Path(spec).resolve()), name) for spec, name in listed if name
+            (os.path.abspath(spec), name) for spec, name in listed if name
         )
         self._take_scans([spec for spec, _name in listed])
         self._scans_taken()
@@ -626,7 +627,7 @@ class PlotWindow(QMainWindow):
 
     def _take_scans(self, paths: list) -> None:
         """The scans the next run reads, listed (the first is the reference)."""
-        self.specs = [str(Path(p).resolve()) for p in paths]
+        self.specs = [os.path.abspath(p) for p in paths]  # a link keeps its name
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
             title = scan_title(spec, self.scan_names.get(spec, ""))

@@ -1941,3 +1941,17 @@ def test_a_tree_without_a_crown_width_shows_a_dash() -> None:
     stem = dataclasses.replace(tree.stem, crown_width_m=float("nan"))
     bare = dataclasses.replace(tree, stem=stem)  # added by hand, no points found
     assert dict(figures(bare, PlotReview()))["Crown"] == "–"
+
+
+def test_a_scan_opened_through_a_link_keeps_the_name_given(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst_gui.plot.window import PlotWindow
+
+    link = tmp_path / "stand7_pos1.ply"
+    link.symlink_to(plot_files[0])
+    plot = PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans([str(link), plot_files[1]])
+    assert plot.specs[0] == str(link)
+    assert "stand7_pos1.ply" in plot.scan_list.item(0).text()
