@@ -164,14 +164,15 @@ class EngineProcess:
                     self._ensure()
                 raise
             except (OSError, EOFError) as exc:  # the process is gone
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(timeout=1.0)  # its pipe closed as it ended: reap it
                 code = proc.poll()
                 self.stop()
                 watch.check_cancelled()
                 raise EngineStopped(
-                    f"The engine process stopped (exit code {code}: {exc}); the "
-                    "step was not finished. Run it again; if it stops again, "
-                    "free memory, or cut the tree out of the scans first "
-                    "(amrst clip)."
+                    f"The engine process stopped ({_ended(code, exc)}) "
+                    "before the work was done. Run it again; if it stops again, "
+                    "close other programs to free memory."
                 ) from exc
             finally:
                 del held
@@ -244,6 +245,13 @@ class EngineProcess:
 
 class EngineStopped(AmrstError):
     """The engine process ended during a call (killed, out of memory)."""
+
+
+def _ended(code: int | None, exc: BaseException) -> str:
+    """How the engine process ended, for a message."""
+    if code is None:
+        return str(exc) or type(exc).__name__
+    return f"killed by signal {-code}" if code < 0 else f"exit code {code}"
 
 
 class _Writer:

@@ -1391,8 +1391,6 @@ class PlotWindow(QMainWindow):
         self._say(f"No report: {text.removeprefix('No report: ')}", error=True)
 
     def _on_error(self, exc: BaseException) -> None:
-        from amrst_gui.engine_process import EngineStopped
-
         listing, opening = self.listing, self.opening
         self.job = None
         self.listing = self.opening = self.run_queued = False
@@ -1409,13 +1407,6 @@ class PlotWindow(QMainWindow):
             )
             return
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if isinstance(exc, EngineStopped):
-            # Its advice is a two-scan step's (cut the tree out); here, try again.
-            again = "Open the scans again" if listing else "Run plot again"
-            text = (
-                f"{text.split(';')[0]}. {again}; if it stops again, close other "
-                "programs to free memory."
-            )
         if listing or opening:
             self._say(f"Not opened: {text}", error=True)
             return

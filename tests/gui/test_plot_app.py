@@ -1894,9 +1894,10 @@ def test_a_plot_whose_engine_process_stops_says_to_run_it_again(
     os.kill(pid, signal.SIGKILL)  # as the system does when memory runs out
     qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
     text = plot.status.text()
-    assert text.startswith("The plot failed: The engine process stopped (exit code")
-    assert text.endswith(
-        ". Run plot again; if it stops again, close other programs to free memory."
+    assert text == (
+        "The plot failed: The engine process stopped (killed by signal 9) before the "
+        "work was done. Run it again; if it stops again, close other programs to "
+        "free memory."
     )
     assert plot.run_button.isEnabled()
 
