@@ -272,9 +272,25 @@ class TreePanel(QWidget):
         review: PlotReview | None = None,
     ) -> None:
         """Show tree ``k`` of ``outcome`` (None: no tree) with the ``review``'s mark
-        and DBH of it."""
+        and DBH of it. The tree shown again (a mark given) keeps a DBH being measured.
+        """
+        again = (
+            self._shown is not None
+            and self._shown[0] is outcome
+            and self._shown[1] == k
+        )
         self._shown = None if outcome is None or k is None else (outcome, k)
         self.review = review or PlotReview()
+        if (
+            again
+            and self.slice_view.measuring
+            and outcome is not None
+            and k is not None
+        ):
+            for name, text in figures(outcome.trees[k], self.review, outcome.unsure):
+                self.values[name].setText(text)
+            self._update_hand_buttons()
+            return
         self.measure_button.setChecked(False)
         if outcome is None or k is None:
             self.tree_id = None

@@ -1606,6 +1606,9 @@ def test_a_dbh_measured_and_not_kept_is_asked_about_before_it_goes(
         assert len(view.clicks) == 4
         assert plot.trees.currentRow() == row_of_tree(plot.trees, 0)
     assert discard_answers.asked == ["Choosing another tree"] * 3
+    plot.set_mark(tree.tree_id, "check")  # a mark given meanwhile keeps the points
+    assert len(view.clicks) == 4
+    assert view.measuring
     close_answers.append(False)
     assert not plot.close()
     assert (
