@@ -41,7 +41,6 @@ if TYPE_CHECKING:
 
     from amrst.campaign.manifest import Campaign, TreeEntry
     from amrst.params import RegistrationParams
-    from amrst.progress import Reporter
 
 TABLE_EVERY_S = 1.0  # campaign.csv/.xlsx rewritten at most this often while trees end
 WAIT_S = 0.2  # how often a batch waiting for its trees looks at Cancel
@@ -67,52 +66,6 @@ class BatchProgress(Protocol):
 
     def check_cancelled(self) -> None:
         """Raise ``Cancelled`` when the batch is to stop (asked while trees run)."""
-
-
-class ReporterProgress:
-    """A BatchProgress that tells an amrst Reporter (the app's worker) and can cancel.
-
-    Each finished tree calls ``progress(done share, "<id>: <status or error>")``; a
-    tree starting or ending on a worker ``progress(done share, STARTED + "<id>")`` or
-    ``FINISHED + "<id>"`` (worker events: "running" means running, not submitted);
-    ``check_cancelled`` is asked while the trees run (every ``WAIT_S``), so a cancel
-    stops the batch then (the trees in flight are lost, as with any kill).
-    """
-
-    STARTED = "started on a worker: "
-    FINISHED = "finished on a worker: "
-
-    def __init__(self, reporter: Reporter) -> None:
-        self.reporter = reporter
-        self.share = 0.0
-
-    def worker_event(self, tree_id: str, event: str) -> None:
-        """Tell that a tree started or finished on a worker (from the Dask client)."""
-        what = self.STARTED if event == "started" else self.FINISHED
-        self.reporter.progress(self.share, f"{what}{tree_id}")
-
-    def update(
-        self,
-        done: int,
-        errors: int,
-        running: int,
-        total: int,
-        left_s: float | None,
-        row: dict[str, Any] | None,
-    ) -> None:
-        """Forward the share of trees finished and the tree just finished."""
-        share = self.share = (done + errors) / total if total else 1.0
-        text = (
-            ""
-            if row is None
-            else f"{row['id']}: {row.get('status') or row.get('error', '')}"
-        )
-        self.reporter.progress(share, text)
-        self.reporter.check_cancelled()
-
-    def check_cancelled(self) -> None:
-        """Raise ``Cancelled`` once the app's Cancel was pressed."""
-        self.reporter.check_cancelled()
 
 
 @dataclass
@@ -480,23 +433,3 @@ def _collect(
                 row,
             )
     summary.run_seconds = time.perf_counter() - started
-
-
-def run_remaining(
-    root: str, workers: int, reporter: Reporter, scheduler: str | None = None
-) -> BatchSummary:
-    """Run the pending trees of the campaign at ``root``, reporting to ``reporter``.
-
-    The app's "Run remaining" calls this in a worker thread (the same Dask code as
-    ``amrst batch``).
-    """
-    from amrst.campaign.manifest import load_campaign
-
-    progress = ReporterProgress(reporter)
-    return run_batch(
-        load_campaign(root),
-        workers=workers,
-        scheduler=scheduler,
-        progress=progress,
-        on_worker_event=progress.worker_event,
-    )

@@ -5,10 +5,10 @@ needs review, failed, rejected, accepted), those needing a person first, and
 can be filtered by text and by "needs a person". The state comes from the campaign
 folder (amrst.campaign.table and amrst.campaign.review), so opening a campaign reads
 files, never registers. Decisions are written to the folder the moment they are made.
-"Run remaining" runs ``amrst.campaign.batch.run_remaining`` (the same Dask code as
-``amrst batch``) through ``workers.run_stage``: a tree reads "running" from the moment
-a Dask worker starts it (a worker event), "queued" while it waits, and its row updates
-when it finishes.
+"Run remaining" runs ``amrst.campaign.batch.run_batch`` (the same Dask code as
+``amrst batch``) through ``workers.run_stage``; each tree's start and end come back as
+signals (:class:`BatchEvents`): a tree reads "running" from the moment a Dask worker
+starts it, "queued" while it waits, and its row updates when it finishes.
 
 Below the table, :class:`TreeScansPanel` lists the selected tree's scans and links
 (amrst.campaign.stored, read from its result folder).
@@ -24,7 +24,14 @@ import logging
 from functools import partial
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QItemSelection, QItemSelectionModel, Qt, QTimer, Signal
+from PySide6.QtCore import (
+    QItemSelection,
+    QItemSelectionModel,
+    QObject,
+    Qt,
+    QTimer,
+    Signal,
+)
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -58,10 +65,67 @@ from amrst_gui.workers import StageJob, run_stage
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from amrst.campaign.batch import BatchSummary
     from amrst.campaign.manifest import Campaign
     from amrst.campaign.stored import StoredTree
+    from amrst.progress import Reporter
 
 log = logging.getLogger("amrst_gui.campaign")
+
+
+class BatchEvents(QObject):
+    """A batch's trees starting and ending, sent from the threads that learn of them
+    (the job's, Dask's) to the dock on the GUI thread."""
+
+    started = Signal(str)  # a Dask worker started the tree
+    ended = Signal(str, str)  # tree id, its state or error ("": its worker ended)
+
+
+class _BatchProgress:
+    """The batch's ``BatchProgress`` for the dock: the share done to the job's
+    reporter, each tree's result as :attr:`BatchEvents.ended`, Cancel heeded."""
+
+    def __init__(self, reporter: Reporter, events: BatchEvents) -> None:
+        self.reporter, self.events = reporter, events
+
+    def update(
+        self,
+        done: int,
+        errors: int,
+        running: int,
+        total: int,
+        left_s: float | None,
+        row: dict | None,
+    ) -> None:
+        self.reporter.progress((done + errors) / total if total else 1.0)
+        if row is not None:
+            what = row.get("status") or row.get("error", "")
+            self.events.ended.emit(row["id"], str(what))
+        self.reporter.check_cancelled()
+
+    def check_cancelled(self) -> None:
+        self.reporter.check_cancelled()
+
+
+def run_batch_job(
+    root: str, workers: int, events: BatchEvents, reporter: Reporter
+) -> BatchSummary:
+    """Run remaining (in a worker thread): the campaign's pending trees on Dask."""
+    from amrst.campaign.batch import run_batch
+    from amrst.campaign.manifest import load_campaign
+
+    def on_worker_event(tree_id: str, event: str) -> None:
+        if event == "started":
+            events.started.emit(tree_id)
+        else:
+            events.ended.emit(tree_id, "")
+
+    return run_batch(
+        load_campaign(root),
+        workers=workers,
+        progress=_BatchProgress(reporter, events),
+        on_worker_event=on_worker_event,
+    )
 
 
 class CampaignPanel(QWidget):
@@ -79,6 +143,10 @@ class CampaignPanel(QWidget):
         self.rows: list[dict] = []
         self.job: StageJob | None = None
         self.batch = BatchTracker()  # queued and running trees of the batch
+        self.events = BatchEvents(self)
+        self.events.started.connect(self._tree_started)
+        self.events.ended.connect(self._tree_ended)
+        self._share = 0.0  # of the batch's trees done
         self.stored: StoredTree | None = None  # of the selected tree
         self._shown = (0, 1)  # the link of the selected tree the views show
         self.tree_scans = TreeScansPanel()
@@ -325,8 +393,6 @@ class CampaignPanel(QWidget):
 
     def run_remaining(self) -> None:
         """Register every tree not done yet, in the background (Dask)."""
-        from amrst.campaign.batch import run_remaining
-
         if self.campaign is None or self.job is not None:
             return
         self.refresh()  # the trees as campaign.toml lists them now, as the batch will
@@ -339,10 +405,12 @@ class CampaignPanel(QWidget):
             }
         )
         self.refresh()
+        self._share = 0.0
         self.job = run_stage(
-            run_remaining,
+            run_batch_job,
             str(self.campaign.root),
             self.workers,
+            self.events,
             name="campaign batch",
             on_progress=self._on_progress,
             on_result=self._on_done,
@@ -455,20 +523,21 @@ class CampaignPanel(QWidget):
         return shown
 
     def _on_progress(self, fraction: float, message: str) -> None:
-        from amrst.campaign.batch import ReporterProgress
+        self._share = fraction
 
-        finished = self.batch.on_message(message)
-        events = (ReporterProgress.STARTED, ReporterProgress.FINISHED)
-        if message and not message.startswith(events):  # a tree's result
-            self._say(f"{fraction:.0%} of the trees done; last: {message}")
-        if not finished:  # a tree started: its files are as they were
-            self._restate()
+    def _tree_started(self, tree_id: str) -> None:
+        self.batch.start(tree_id)
+        self._restate()  # its files are as they were
+
+    def _tree_ended(self, tree_id: str, what: str) -> None:
+        if what:  # the batch has its result
+            self._say(f"{self._share:.0%} of the trees done; last: {tree_id}: {what}")
+        if not self.batch.end(tree_id):
             return
-        self._reread(finished)  # a tree's new result: its row read again
-        for tree_id in finished:
-            if self.selected_ids() == [tree_id]:  # its links are new: list them
-                self._list_tree(tree_id)
-                self.tree_scans.mark_shown(self._shown)  # the views keep theirs
+        self._reread([tree_id])  # a tree's new result: its row read again
+        if self.selected_ids() == [tree_id]:  # its links are new: list them
+            self._list_tree(tree_id)
+            self.tree_scans.mark_shown(self._shown)  # the views keep theirs
 
     def _on_done(self, summary) -> None:
         self._say(f"Batch done: {summary.counts()}.")

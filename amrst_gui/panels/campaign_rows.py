@@ -51,12 +51,11 @@ def row_hidden(row: dict[str, Any], text: str, needs_person: bool) -> bool:
 
 
 class BatchTracker:
-    """Which trees of a running batch wait and which run, from its progress messages.
+    """Which trees of a running batch wait and which run.
 
-    ``amrst.campaign.batch.ReporterProgress`` tells ``STARTED + id`` and
-    ``FINISHED + id`` when a Dask worker starts and ends a tree (worker events), and
-    ``"<id>: <state or error>"`` when the batch has its result. A tree is *queued*
-    from submission until a worker starts it, then *running* until it ends.
+    A tree is *queued* from submission until a Dask worker starts it, then
+    *running* until it ends: its worker says so, or the batch has its result,
+    whichever comes first.
     """
 
     def __init__(self) -> None:
@@ -77,24 +76,15 @@ class BatchTracker:
 
         return batch_state(state, tree_id, self.queued, self.running)
 
-    def on_message(self, message: str) -> list[str]:
-        """Take one progress message; return the trees it says finished."""
-        from amrst.campaign.batch import ReporterProgress
-
-        started, ended = ReporterProgress.STARTED, ReporterProgress.FINISHED
-        if message.startswith(started):
-            tree_id = message[len(started) :]
-            if tree_id in self.queued:  # not when its result came first
-                self.queued.discard(tree_id)
-                self.running.add(tree_id)
-            return []
-        if message.startswith(ended):
-            finished = [message[len(ended) :]]
-        else:
-            finished = [
-                t for t in self.queued | self.running if message.startswith(f"{t}: ")
-            ]
-        for tree_id in finished:
+    def start(self, tree_id: str) -> None:
+        """A worker started the tree (not when its result came first)."""
+        if tree_id in self.queued:
             self.queued.discard(tree_id)
-            self.running.discard(tree_id)
-        return finished
+            self.running.add(tree_id)
+
+    def end(self, tree_id: str) -> bool:
+        """The tree ended; True the first time it is said (its row is read again)."""
+        pending = tree_id in self.queued or tree_id in self.running
+        self.queued.discard(tree_id)
+        self.running.discard(tree_id)
+        return pending

@@ -268,21 +268,21 @@ def test_manual_recovery_from_a_stored_result(make_main_window, qtbot, campaign)
 
 
 def test_batch_tracker_running_only_between_worker_events():
-    from amrst.campaign.batch import ReporterProgress as P
     from amrst_gui.panels.campaign_rows import BatchTracker
 
     batch = BatchTracker()
     batch.submit({"A", "B"})
     assert [batch.state("not run", t) for t in "AB"] == ["queued", "queued"]
-    assert batch.on_message(P.STARTED + "A") == []
+    batch.start("A")
     assert [batch.state("not run", t) for t in "AB"] == ["running", "queued"]
-    assert batch.on_message(P.FINISHED + "A") == ["A"]  # its files are written
+    assert batch.end("A")  # its files are written: its row is read again
+    assert not batch.end("A")  # its result after its worker's event: once only
     assert batch.state("registered", "A") == "registered"
-    assert batch.on_message(P.STARTED + "A") == []  # a late event changes nothing
+    batch.start("A")  # a late event changes nothing
     assert batch.state("registered", "A") == "registered"
     # a result before its worker's event (a fast failure): finished, never running
-    assert batch.on_message("B: b.ply is not a point cloud: ...") == ["B"]
-    assert batch.on_message(P.STARTED + "B") == []
+    assert batch.end("B")
+    batch.start("B")
     assert batch.state("failed", "B") == "failed"
     batch.clear()
     assert batch.state("not run", "A") == "not run"
