@@ -83,7 +83,9 @@ def test_a_cancel_does_not_wait_for_the_trees_in_flight():
             if self.calls > 2:
                 raise Cancelled()
 
-    with Client(processes=False, n_workers=1, threads_per_worker=1) as client:
+    with Client(
+        processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0"
+    ) as client:  # any free port: another Dask on this machine may hold 8787
         future = client.submit(_sleep, 5.0)  # a tree that takes long
         with pytest.raises(Cancelled):
             next(_as_they_end([future], CancelSoon()))
