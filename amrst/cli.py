@@ -146,6 +146,12 @@ def _print_summary(
         )
 
 
+def _other_inputs(args: argparse.Namespace) -> list[str]:
+    """Return the files ``amrst register`` reads besides the scans."""
+    given = (getattr(args, name, None) for name in ("truth", "pairs", "params"))
+    return [str(f) for f in given if f]
+
+
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.pipeline import register
@@ -177,7 +183,9 @@ def _cmd_register(args: argparse.Namespace) -> int:
     )
     report_name = [REPORT_NAME] if args.report else []
     check_output_dir(args.out, output_names(parts, args.format) + report_name)
-    refuse_inputs_in_out(args.out, [str(args.target), str(args.source)])
+    refuse_inputs_in_out(
+        args.out, [str(args.target), str(args.source), *_other_inputs(args)]
+    )
     refuse_other_export(
         args.out, [str(args.target), str(args.source)], overwrite=args.overwrite
     )

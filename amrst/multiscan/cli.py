@@ -91,7 +91,7 @@ def run_register(
     labels = [spec for spec, _name in one_scan_specs([args.target, *args.source])]
     refuse_inputs_in_out(
         args.out,
-        labels,
+        [*labels, *(str(f) for f in (args.truth, args.params) if f)],
         lambda name: (
             name in (*MANAGED_NAMES, REPORT_NAME, SUMMARY)
             or name.startswith("transform_")

@@ -103,7 +103,7 @@ def run_plot(
     from amrst.review.pairs_file import read_pairs
 
     check_out(out, overwrite)
-    _check_inputs(specs, out)
+    _check_inputs([*specs, *(pairs or {}).values()], out)
     by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
     area = _plot_area(plot_radius_m, plot_centre)
     labels = [spec for spec, _name in one_scan_specs(specs)]
@@ -146,7 +146,7 @@ def run_plot(
 
 
 def _check_inputs(specs: Sequence[str], out: Path) -> None:
-    """Refuse a scan the run would replace in ``out`` (or in its tree clouds)."""
+    """Refuse an input (scan, pairs file) the run would replace in ``out`` or below."""
     from amrst.plot.export import MANAGED, TREES_DIR
     from amrst.results.export import refuse_inputs_in_out
 

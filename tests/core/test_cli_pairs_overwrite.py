@@ -150,3 +150,25 @@ def test_a_pose_that_needs_review_exits_3(tmp_path, sample_pair, capsys) -> None
     err = capsys.readouterr().err
     assert "Needs review" in err
     assert code == 3
+
+
+def test_a_truth_or_params_file_under_an_output_name_is_never_written_over(
+    tmp_path, sample_pair, capsys
+) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    truth = out / "transform.json"  # the truth where the run writes its transform
+    shutil.copyfile(sample_pair.target_path.parent / "truth.json", truth)
+    before = truth.read_bytes()
+    assert _register(t, s, "--out", str(out), "--truth", str(truth), "--overwrite") == 2
+    assert f"{truth} is a file the run writes in" in capsys.readouterr().err
+    assert truth.read_bytes() == before
+    truth.unlink()
+    params = out / "params.json"
+    params.write_text("{}")
+    assert (
+        _register(t, s, "--out", str(out), "--params", str(params), "--overwrite") == 2
+    )
+    assert f"{params} is a file the run writes in" in capsys.readouterr().err
+    assert params.read_text() == "{}"
