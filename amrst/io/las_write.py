@@ -40,6 +40,10 @@ CHUNK_POINTS = 2_000_000
 SAMPLE_MARGIN_M = 1.0
 
 
+#: The extra-bytes record (192 bytes per attribute) must fit one VLR of 65,535 bytes.
+MAX_EXTRA_DIMS = 65535 // 192
+
+
 def _choose_format(names: set[str], meta: Mapping[str, Any]) -> int:
     """Pick the point format holding most standard-named attributes (file's first)."""
     wanted = names & all_standard_names()
@@ -246,6 +250,16 @@ def _plan(
                 logger.warning("LAS extra dimension name %r cut to 32 characters.", key)
             dtype = np.result_type(*(v.dtype for v in kept if v is not None))
             extra[key[:32]] = (name, dtype)
+    if len(extra) > MAX_EXTRA_DIMS:
+        dropped = sorted(extra)[MAX_EXTRA_DIMS:]
+        logger.warning(
+            "LAS holds %d extra attributes at most: %d not written (%s, ...); write "
+            "PLY or PCD to keep them all.",
+            MAX_EXTRA_DIMS,
+            len(dropped),
+            dropped[0],
+        )
+        extra = {k: extra[k] for k in sorted(extra)[:MAX_EXTRA_DIMS]}
     return standard, extra
 
 

@@ -139,6 +139,17 @@ def test_las_unknown_attributes_become_extra_dims(tmp_path, geo_cloud):
     assert np.asarray(las["wood"]).dtype == np.uint8
 
 
+def test_las_writes_as_many_extra_attributes_as_it_holds_and_says_so(tmp_path, caplog):
+    from amrst.io.las_write import MAX_EXTRA_DIMS
+
+    many = {f"a{k:03d}": np.full(3, float(k), np.float32) for k in range(400)}
+    io.write(tmp_path / "f.las", Cloud(np.eye(3), attributes=many))
+    assert f"{400 - MAX_EXTRA_DIMS} not written" in caplog.text
+    again = io.read(tmp_path / "f.las").attributes
+    assert len(again) == MAX_EXTRA_DIMS
+    np.testing.assert_array_equal(again["a007"], many["a007"])
+
+
 def test_las_keeps_values_a_standard_field_cannot_hold(tmp_path):
     intensity = np.array([0.25, 0.5, 70000.0], dtype=np.float32)
     cloud = Cloud(np.eye(3), attributes={"intensity": intensity})
