@@ -104,7 +104,19 @@ def get_reader(path: PathLike) -> Reader | None:
 
 
 def _check_readable(path: Path) -> _Format:
-    """Check what ``path`` is before opening it: never block on a FIFO or a device."""
+    """Check what ``path`` is before opening it: never block on a FIFO or a device.
+
+    A file name that is not UTF-8 is refused too: the results, reports and tables
+    that name the scan could not write it.
+    """
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise InvalidInput(
+            f"{shown}: its name is not UTF-8 text (an old or foreign encoding); "
+            "rename the file or its folder."
+        ) from None
     try:
         info = path.stat()
     except FileNotFoundError:

@@ -32,6 +32,23 @@ def test_missing_file(tmp_path):
         io.read(tmp_path / "nope.las")
 
 
+def test_a_file_name_that_is_not_utf8_is_refused_in_words(
+    tmp_path, small_cloud, capsys
+):
+    from amrst.cli import main
+
+    io.write(tmp_path / "ok.ply", small_cloud)
+    latin = os.fsdecode(bytes(tmp_path) + b"/\xe9t\xe9.ply")  # Latin-1 "été"
+    io.write(latin, dataclasses.replace(small_cloud, xyz=small_cloud.xyz + 1.0))
+    with pytest.raises(InvalidInput, match=r"\\xe9t\\xe9.ply: its name is not UTF-8"):
+        io.read(latin)
+    args = ["register", str(tmp_path / "ok.ply"), latin, "--out", str(tmp_path / "o")]
+    assert main([*args, "--report", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "rename the file or its folder" in err
+    assert "\n" not in err
+
+
 def test_directory(tmp_path):
     (tmp_path / "d.las").mkdir()
     with pytest.raises(InvalidInput, match="is a folder"):
