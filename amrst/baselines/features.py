@@ -18,6 +18,7 @@ from amrst.baselines._common import (
     local_pair,
     to_o3d,
 )
+from amrst.errors import InvalidInput
 from amrst.guards import SOURCE, TARGET
 
 if TYPE_CHECKING:
@@ -54,6 +55,10 @@ class FeatureParams:
             raise ValueError("voxel sizes must be > 0")
 
 
+#: Fewest occupied voxels a cloud needs for FPFH and the global registration.
+MIN_VOXELS = 4
+
+
 def _with_normals(
     xyz: np.ndarray, voxel_m: float, radius_m: float, what: str
 ) -> o3d.geometry.PointCloud:
@@ -73,6 +78,12 @@ def _features(
 
     v = params.voxel_size_m
     pcd = _with_normals(xyz, v, params.normal_radius_factor * v, what)
+    # Open3D's global steps need a few distinct points: FGR divides by the spread.
+    if len(pcd.points) < MIN_VOXELS:
+        raise InvalidInput(
+            f"{what.capitalize()} fills {len(pcd.points)} voxel(s) of {v:g} m, too "
+            "few for FPFH features: a cloud of one spot, or coordinates not in metres."
+        )
     # open3d's stub marks ``indices`` required; it defaults to all points.
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
         pcd,

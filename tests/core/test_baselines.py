@@ -79,6 +79,16 @@ def test_open3d_methods_recover_a_small_offset(name: str) -> None:
     assert result.fitness > 0.9
 
 
+@pytest.mark.parametrize("name", ["fpfh_ransac", "fgr"])
+def test_feature_methods_refuse_a_cloud_of_one_spot(name: str) -> None:
+    from amrst.errors import InvalidInput
+
+    target, _source, _T = _pair(3.0, 0.2)
+    spot = Cloud(np.full((5000, 3), 1.5))  # 5,000 copies of one point
+    with pytest.raises(InvalidInput, match=r"^The source scan fills 1 voxel\(s\)"):
+        METHODS[name](target, spot)
+
+
 def test_icp_keeps_georeferenced_precision() -> None:
     target, source, T_true = _pair(3.0, 0.2, offset=(500_000.0, 5_000_000.0, 300.0))
     _check(METHODS["icp"](target, source), source, T_true)
