@@ -723,9 +723,14 @@ def _link_key(
         return i, j
     if (j, i) in pairs:
         return j, i
+    if i == j:
+        raise InvalidInput(
+            f"Scan {i + 1} named twice for a link: name two different scans."
+        )
+    missing = i if not 0 <= i < n else j
     raise InvalidInput(
-        f"Scans {i + 1} and {j + 1} named for a link: the plot has scans 1 to {n}; "
-        "name two different ones."
+        f"Scan {missing + 1} named for a link does not exist: the plot has scans 1 "
+        f"to {n}."
     )
 
 

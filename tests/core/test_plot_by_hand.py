@@ -202,8 +202,10 @@ def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
     picks = np.zeros((3, 3)), np.eye(3)
     with pytest.raises(InvalidInput, match="both given point pairs and left out"):
         register_plot(scans, by_hand={(0, 2): picks}, left_out=[(0, 2)])
-    with pytest.raises(InvalidInput, match="scans 1 to 3"):
+    with pytest.raises(InvalidInput, match="Scan 4 named for a link does not exist"):
         register_plot(scans, left_out=[(0, 3)])
+    with pytest.raises(InvalidInput, match="Scan 2 named twice for a link"):
+        register_plot(scans, left_out=[(1, 1)])
     args = [*_files(clouds, tmp_path), "--out", str(tmp_path / "o"), "--quiet"]
     assert plot_main([*args, "--leave-out", "1", "x"]) == 2
     assert plot_main([*args, "--leave-out", "1", "3"]) == 0  # 2-3 holds alone
