@@ -163,6 +163,7 @@ def run_cli(args: argparse.Namespace) -> int:
 
     from amrst import io
     from amrst.errors import AmrstError, InvalidInput
+    from amrst.io.region import check_cylinder
 
     outs = out_paths(args.out, len(args.stem))
     try:
@@ -180,10 +181,13 @@ def run_cli(args: argparse.Namespace) -> int:
                 "exist. Create it or choose another folder."
             )
         _check_outs(Path(args.file), outs, args.overwrite)
+        for xy in args.stem:  # every stem before the first cut
+            check_cylinder(xy, args.radius, args.zmin, args.zmax)
         # Each tree goes to a hidden file first, and they take their names only once
         # every stem is cut: a stem with no points near it leaves no file behind,
         # and memory holds one tree at a time.
         parts = [out.with_name(f".{out.stem}.amrst-part{out.suffix}") for out in outs]
+        said = []
         try:
             for (x, y), out, part in zip(args.stem, outs, parts, strict=True):
                 params = ClipParams(
@@ -191,14 +195,14 @@ def run_cli(args: argparse.Namespace) -> int:
                 )
                 result = clip_tree(args.file, params)
                 io.write(part, result.cloud)
-                print(
+                said.append(
                     f"{out}: {len(result.cloud):,} points within {args.radius:g} m "
                     f"of ({x:g}, {y:g}); {result.method}, {result.points_decoded:,} "
-                    f"points decoded in {result.seconds:.2f} s",
-                    file=sys.stderr,
+                    f"points decoded in {result.seconds:.2f} s"
                 )
             for out, part in zip(outs, parts, strict=True):
                 part.replace(out)
+            print("\n".join(said), file=sys.stderr)  # once every file is there
         finally:
             for part in parts:
                 part.unlink(missing_ok=True)

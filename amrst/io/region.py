@@ -97,7 +97,7 @@ def read_region(
     from amrst import io
 
     path = Path(path)
-    cylinder = Cylinder(*_cylinder(stem_xy, radius_m, zmin, zmax))
+    cylinder = Cylinder(*check_cylinder(stem_xy, radius_m, zmin, zmax))
     try:
         fmt = io._check_readable(path)
     except PermissionError as exc:
@@ -141,9 +141,10 @@ def _with_meta(cloud: Cloud, **meta: object) -> Cloud:
     return dataclasses.replace(cloud, meta={**cloud.meta, **meta})
 
 
-def _cylinder(
+def check_cylinder(
     stem_xy: Sequence[float], radius_m: float, zmin: float | None, zmax: float | None
 ) -> tuple[float, float, float, float | None, float | None]:
+    """Return the clip's stem, radius and heights as numbers, or refuse them."""
     from amrst.types import MAX_COORD_M
 
     def within(v: float) -> bool:

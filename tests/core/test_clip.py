@@ -128,6 +128,19 @@ def test_cli_clips_one_tree_per_stem(tmp_path, capsys):
     assert len(io.read(tmp_path / "tree_1.laz")) == 2000
     assert len(io.read(tmp_path / "tree_2.laz")) == 2000
     assert "streamed chunks" in capsys.readouterr().err
+    # A bad stem among them is refused before any tree is cut or said to be.
+    code = cli.main(
+        [
+            "clip", str(tmp_path / "plot.laz"),
+            "--stem", "500000", "5000000", "--stem", "nan", "0",
+            "--radius", "1", "--out", str(tmp_path / "q.laz"),
+        ]
+    )  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("amrst clip: The stem position must be two numbers")
+    assert "q_1.laz" not in err
+    assert not (tmp_path / "q_1.laz").exists()
 
 
 def test_cli_refuses_an_unwritable_output_before_reading(tmp_path, capsys):
