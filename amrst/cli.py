@@ -152,6 +152,31 @@ def _other_inputs(args: argparse.Namespace) -> list[str]:
     return [str(f) for f in given if f]
 
 
+def _several_scans(args: argparse.Namespace) -> bool:
+    """Tell whether TARGET and SOURCE name more than a pair of plain scan files.
+
+    A file of several scans (E57, PTX) counts as its scans, so that it is never
+    read as one cloud of scans unposed; only its headers are read here.
+
+    Raises
+    ------
+    InvalidInput
+        Fewer than two scans in all.
+    """
+    from amrst.io.scans import names_several, one_scan_specs
+
+    given = [args.target, *args.source]
+    count = len(given)
+    if any(names_several(s) for s in given):
+        count = len(one_scan_specs(given))
+    if count < 2:
+        raise InvalidInput(
+            "Two scans or more are needed: TARGET and SOURCE, or one file of "
+            "several scans (E57, PTX)."
+        )
+    return count > 2 or len(args.source) != 1 or "#" in "".join(given)
+
+
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
     from amrst.pipeline import register
@@ -169,7 +194,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
-    if len(args.source) > 1 or "#" in args.target + "".join(args.source):
+    if _several_scans(args):
         from amrst.multiscan.cli import run_register  # several scans: amrst.multiscan
 
         return run_register(args, params, TerminalReporter(args.quiet))
@@ -308,8 +333,9 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument(
         "source",
         metavar="SOURCE",
-        nargs="+",
-        help="scan(s) to move into the target frame; FILE.e57#k picks scan k of a file",
+        nargs="*",
+        help="scan(s) to move into the target frame; FILE.e57#k picks scan k of a "
+        "file, and a file of several scans alone gives them all",
     )
     reg.add_argument(
         "--out",

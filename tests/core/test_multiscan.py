@@ -226,6 +226,19 @@ def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
     err = capsys.readouterr().err
     assert code == 2
     assert "no scan 7" in err
+    # The file alone gives its three scans; with another scan, its two and that one
+    # (never its scans as one cloud, unposed).
+    assert main(["register", str(plot), "--out", str(tmp_path / "o3"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "o3" / "scans.json").read_text())["n_scans"] == 3
+    write_e57(tmp_path / "two.e57", three_scans.scans[:2])
+    io.write(tmp_path / "c.ply", three_scans.scans[2])
+    args = [str(tmp_path / "two.e57"), str(tmp_path / "c.ply")]
+    assert main(["register", *args, "--out", str(tmp_path / "o4"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "o4" / "scans.json").read_text())["n_scans"] == 3
+    assert (
+        main(["register", str(tmp_path / "c.ply"), "--out", str(tmp_path / "o5")]) == 2
+    )
+    assert "Two scans or more are needed" in capsys.readouterr().err
 
 
 def test_unsure_direct_link_gives_way_to_registered_detour():
