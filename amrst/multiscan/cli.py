@@ -125,9 +125,12 @@ def run_register(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
     if not all(result.reached) or result.status == FAILED:
+        alone = [labels[k] for k, ok in enumerate(result.reached) if not ok]
+        which = f": {', '.join(alone)}" if alone else ""
         print(
-            f"{result.status.capitalize()}: no verified link reaches some scans. Check "
-            "that they show the same tree, or review the links in amrst-gui.",
+            f"{result.status.capitalize()}: no verified link reaches some scans"
+            f"{which}. Check that they show the same tree, or review the links in "
+            "amrst-gui.",
             file=sys.stderr,
         )
         return EXIT_NOT_REGISTERED

@@ -314,3 +314,16 @@ def test_a_loop_that_closes_confirms_its_unsure_links():
         "needs review",
         "needs review",
     )
+
+
+def test_cli_names_the_scans_no_verified_link_reaches(tmp_path, sample_pair, capsys):
+    from amrst.types import Cloud
+
+    rng = np.random.default_rng(0)
+    box = tmp_path / "box.ply"
+    io.write(box, Cloud(rng.uniform(-3, 3, (3000, 3))))
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    code = main(["register", t, s, str(box), "--out", str(tmp_path / "o"), "--quiet"])
+    assert code == 3
+    err = capsys.readouterr().err
+    assert f"no verified link reaches some scans: {box}." in err
