@@ -64,6 +64,11 @@ def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"{','.join(COLUMNS)}, one pair a line."
         ) from exc
     missing = [c for c in COLUMNS if c not in header]
+    if missing and ";" in text.partition("\n")[0]:
+        raise InvalidInput(
+            f"{path.name} separates its columns with ';' (a spreadsheet's regional "
+            "setting): save it as CSV with commas, and '.' as the decimal point."
+        )
     if missing:
         raise InvalidInput(
             f"{path.name} has no column {', '.join(missing)}: its first line must name "

@@ -47,6 +47,7 @@ def test_extra_columns_and_spaces_are_fine(tmp_path: Path) -> None:
         (",".join(COLUMNS) + "\n1,2,3,4,5,6\n", "at least 2"),
         (",".join(COLUMNS) + "\n", "holds 0 pair"),
         ("", "no column"),
+        (";".join(COLUMNS) + "\n1;2;3;4;5;6\n", "save it as CSV with commas"),
     ],
 )
 def test_bad_pairs_files_say_what_to_fix(tmp_path: Path, text: str, words: str) -> None:
