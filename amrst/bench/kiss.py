@@ -13,6 +13,7 @@ where it has wheels (Linux x86_64, macOS arm64).
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -21,6 +22,8 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.guards import ShiftedPair, grid_pair, kiss_pair
+
+logger = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -148,7 +151,8 @@ def kiss_ratio(
     Returns
     -------
     list of KissRow
-        A case our pipeline refuses (no verified candidate) is timed all the same.
+        A case our pipeline refuses (no verified candidate) is timed all the same; a
+        case that cannot be read is skipped with a warning, as ``amrst bench`` does.
     """
     from amrst.baselines._common import local_pair, to_local
     from amrst.errors import RegistrationFailed
@@ -157,14 +161,18 @@ def kiss_ratio(
     from amrst.stages.metrics import truth_errors
 
     paths = kiss_case_paths(cases_dirs, pattern)
-    rows = []
+    rows: list[KissRow] = []
     for n, path in enumerate(paths):
         if reporter is not None:
             reporter.progress(n / len(paths), path.name)
-        case = read_case(path)
+        try:
+            case = read_case(path)
+        except InvalidInput as exc:
+            logger.warning("%s skipped: %s", path.name, exc)
+            continue
         tgt, src, origin = local_pair(case.target, case.source)
         peer = peer_input(tgt, src)
-        if n == 0:  # load both libraries and warm their code paths first
+        if not rows:  # load both libraries and warm their code paths first
             kiss_gicp(peer)
             register(case.target, case.source)
         kiss_times = []

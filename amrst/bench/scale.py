@@ -15,7 +15,6 @@ both as tables; on a plot case it times ``amrst plot`` instead
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -28,6 +27,7 @@ from typing import TYPE_CHECKING
 from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
 from amrst.errors import InvalidInput
+from amrst.simulate.settings import Bounds
 
 if TYPE_CHECKING:
     import argparse
@@ -249,24 +249,25 @@ def _pair_rows(args: argparse.Namespace, out: Path) -> list[ScaleRow]:
     return rows
 
 
+#: Points per dense scan: fewer leave too little to register; more than a real scan
+#: (50M a position) would only test the memory of the machine.
+POINTS = Bounds(1_000, 100_000_000, integer=True, unit="points")
+
+
 def check_options(args: argparse.Namespace) -> None:
     """Refuse options no dense scan can be made with, before anything is written.
 
     Raises
     ------
     InvalidInput
-        A ``--points`` below 1, a ``--noise-m`` negative or not finite, or a
-        ``--seed`` below 0.
+        A ``--points`` out of ``POINTS``, or a ``--noise-m`` or ``--seed`` out of
+        the range ``amrst simulate`` takes.
     """
-    low = [n for n in args.points if n < 1]
-    if low:
-        raise InvalidInput(f"--points must be at least 1 per scan, not {low[0]}.")
-    if not math.isfinite(args.noise_m) or args.noise_m < 0:
-        raise InvalidInput(
-            f"--noise-m must be 0 or more metres of jitter, not {args.noise_m:g}."
-        )
-    if args.seed < 0:
-        raise InvalidInput(f"--seed must be 0 or more, not {args.seed}.")
+    from amrst.simulate.settings import check_number, check_numbers
+
+    for n in args.points:
+        check_number("points", n, cli=True, bounds=POINTS)
+    check_numbers({"noise_m": args.noise_m, "seed": args.seed}, cli=True)
 
 
 def check_case(case_dir: PathLike) -> bool:

@@ -137,10 +137,12 @@ def _case(tmp_path, sample_pair):
 @pytest.mark.parametrize(
     ("option", "told"),
     [
-        (["--noise-m", "-1"], "--noise-m must be 0 or more"),
-        (["--noise-m", "nan"], "--noise-m must be 0 or more"),
-        (["--seed", "-1"], "--seed must be 0 or more, not -1"),
-        (["--points", "2000", "0"], "--points must be at least 1 per scan, not 0"),
+        (["--noise-m", "-1"], "--noise-m must be a number from 0 to 0.5 m"),
+        (["--noise-m", "nan"], "--noise-m must be a number from 0 to 0.5 m"),
+        (["--noise-m", "1e30"], "--noise-m must be a number from 0 to 0.5 m"),
+        (["--seed", "-1"], "--seed must be an integer of 0 or more, got -1"),
+        (["--points", "2000", "10"], "--points must be an integer from 1000 to"),
+        (["--points", "100000000000000"], "--points must be an integer from 1000"),
     ],
 )
 def test_bench_scale_refuses_bad_options_first(
@@ -158,23 +160,29 @@ def test_bench_scale_refuses_bad_options_first(
 def test_bench_scale_keeps_an_earlier_run_and_says_a_failed_one(
     tmp_path, sample_pair, capsys
 ) -> None:
-    """Ten points a scan are too few to register: the run says so and exits 1;
-    its scale.md is then replaced only with --overwrite."""
+    """A dense pair amrst register refuses (its two scans the same, made before and
+    reused): the run says so and exits 1; its scale.md is then replaced only with
+    --overwrite."""
     from amrst.cli import main
 
     case = _case(tmp_path, sample_pair)
     out = tmp_path / "out"
-    argv = ["bench-scale", str(case), "--points", "10", "--out", str(out)]
+    dense = out / "case-1000pts-noise3mm-seed0"
+    dense.mkdir(parents=True)
+    shutil.copy(sample_pair.source_path, dense / "target.ply")
+    shutil.copy(sample_pair.source_path, dense / "source.ply")
+    shutil.copy(sample_pair.truth_path, dense / "truth.json")
+    argv = ["bench-scale", str(case), "--points", "1000", "--out", str(out)]
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "amrst register stopped without timings" in err
-    assert f"{out / 'case-10pts-noise3mm-seed0'} (exit 2)" in err
+    assert f"{dense} (exit 2)" in err
     (out / "scale.md").write_text("an earlier run")
     assert main(argv) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (out / "scale.md").read_text() == "an earlier run"
     assert main([*argv, "--overwrite"]) == 1
-    assert "| case-10pts-noise3mm-seed0 | 10 |" in (out / "scale.md").read_text()
+    assert "| case-1000pts-noise3mm-seed0 | 1,000 |" in (out / "scale.md").read_text()
 
 
 def test_bench_scale_checks_its_folders_before_any_work(
@@ -205,3 +213,18 @@ def test_bench_scale_checks_its_folders_before_any_work(
         assert "making" not in err, name
         assert not out.exists(), name
         assert not (case / "dense").exists(), name
+
+
+def test_kiss_ratio_skips_a_case_it_cannot_read(tmp_path, sample_pair, caplog) -> None:
+    pytest.importorskip("kiss_matcher")
+    from amrst.bench.kiss import kiss_ratio
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    good = _case(cases, sample_pair)
+    broken = cases / "broken"
+    shutil.copytree(good, broken)
+    (broken / "target.ply").write_text("not a point cloud")
+    rows = kiss_ratio([str(cases)])
+    assert [r.case for r in rows] == ["case"]
+    assert "broken skipped:" in caplog.text
