@@ -25,6 +25,7 @@ stem_y,truth``, the scans separated by ``;``. When both exist, campaign.toml is 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import re
@@ -157,16 +158,29 @@ def _entry(raw: Any, where: str) -> TreeEntry:
     )
 
 
+def _read_text(path: Path, save_as: str) -> str:
+    """Return a manifest's text, refusing one that is not UTF-8 in one line.
+
+    A byte-order mark is dropped: a spreadsheet's "CSV UTF-8" and some editors start
+    the file with one. Line ends are kept as they are, as the CSV reader needs.
+    """
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            return f.read()
+    except UnicodeDecodeError as exc:
+        raise InvalidInput(f"{path} is not UTF-8 text; save it as {save_as}.") from exc
+
+
 def _read_toml(path: Path) -> dict[str, Any]:
     if sys.version_info >= (3, 11):
         import tomllib
     else:  # pragma: no cover - Python 3.10
         import tomli as tomllib
 
+    text = _read_text(path, "UTF-8")
     try:
-        with open(path, "rb") as f:
-            doc: dict[str, Any] = tomllib.load(f)
-            return doc
+        doc: dict[str, Any] = tomllib.loads(text)
+        return doc
     except tomllib.TOMLDecodeError as exc:
         raise InvalidInput(
             f"{path} is not valid TOML ({exc}). Fix that line (see campaign.toml in "
@@ -184,17 +198,11 @@ def _known_keys(raw: dict[str, Any], known: tuple[str, ...], where: str) -> None
 
 
 def _read_csv(path: Path) -> dict[str, Any]:
-    # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark.
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            # A spreadsheet may end the header with an empty column.
-            columns = [c for c in reader.fieldnames or [] if c]
-    except UnicodeDecodeError as exc:
-        raise InvalidInput(
-            f"{path} is not UTF-8 text; save it as CSV UTF-8 (comma-separated)."
-        ) from exc
+    text = _read_text(path, "CSV UTF-8 (comma-separated)")
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    rows = list(reader)
+    # A spreadsheet may end the header with an empty column.
+    columns = [c for c in reader.fieldnames or [] if c]
     if "id" not in columns or "scans" not in columns:
         raise InvalidInput(
             f"{path} must be comma-separated with the columns {','.join(CSV_COLUMNS)} "

@@ -140,6 +140,24 @@ def test_a_csv_manifest_saved_by_a_spreadsheet_reads(tmp_path):
     assert load_campaign(tmp_path).tree("A").scans == ("x.ply", "y.ply")
 
 
+def test_a_campaign_toml_not_in_utf8_is_one_line(tmp_path):
+    # An editor saving in Latin-1 writes "café" as caf\xe9.
+    (tmp_path / MANIFEST).write_bytes(
+        b'[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\n# caf\xe9\n'
+    )
+    with pytest.raises(InvalidInput, match="not UTF-8 text; save it as UTF-8") as info:
+        load_campaign(tmp_path)
+    assert MANIFEST in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_a_campaign_toml_with_a_byte_order_mark_reads(tmp_path):
+    (tmp_path / MANIFEST).write_bytes(
+        b'\xef\xbb\xbf[[tree]]\r\nid = "A"\r\nscans = ["x.ply", "y.ply"]\r\n'
+    )
+    assert load_campaign(tmp_path).tree("A").scans == ("x.ply", "y.ply")
+
+
 def test_init_on_a_folder_without_trees_writes_nothing(tmp_path):
     (tmp_path / "lonely").mkdir()
     with pytest.raises(InvalidInput, match="No tree found") as info:
