@@ -104,6 +104,17 @@ def _reference(value: Any, scans: tuple[str, ...], where: str) -> int:
     )
 
 
+def _refuse_nul(raw: dict[str, Any], where: str) -> None:
+    """Refuse a NUL character in a value: no file name holds one, and opening it fails."""
+    for key, value in raw.items():
+        values = value if isinstance(value, list) else [value]
+        if any(isinstance(v, str) and "\0" in v for v in values):
+            raise InvalidInput(
+                f"{where}: {key!r} holds a NUL character (an invisible zero byte); "
+                "delete it."
+            )
+
+
 def _entry(raw: Any, where: str) -> TreeEntry:
     if not isinstance(raw, dict):
         raise InvalidInput(f"{where}: a tree must be a [[tree]] table, got {raw!r}.")
@@ -114,6 +125,7 @@ def _entry(raw: Any, where: str) -> TreeEntry:
             f"{where}: tree id {tree_id!r} must start with a letter or digit and use only "
             "letters, digits, '.', '_' and '-' (it names the results folder)."
         )
+    _refuse_nul(raw, f"{where} (tree {tree_id})")
     scans = raw.get("scans")
     if isinstance(scans, str):
         scans = [s.strip() for s in scans.split(";") if s.strip()]
@@ -247,6 +259,7 @@ def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
             f"{root / source}: [campaign] must be a table, got {head!r}."
         )
     _known_keys(head, CAMPAIGN_KEYS, f"{root / source}, [campaign]")
+    _refuse_nul(head, f"{root / source}, [campaign]")
     _known_keys(doc, ("campaign", "tree"), str(root / source))
     if not isinstance(raw_trees, list):
         raise InvalidInput(

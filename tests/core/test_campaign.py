@@ -110,6 +110,18 @@ def test_csv_manifest(tmp_path):
         ("tree = [5]", "must be a \\[\\[tree\\]\\] table"),
         ('[campaign]\nname = "x"', "lists no trees"),
         ("", "lists no trees"),
+        (
+            '[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply\\u0000"]',
+            "tree A\\): 'scans' holds a NUL",
+        ),
+        (
+            '[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\ntruth = "t\\u0000.json"',
+            "tree A\\): 'truth' holds a NUL",
+        ),
+        (
+            '[campaign]\nparams = "p\\u0000.json"\n[[tree]]\nid = "A"\nscans = ["x", "y"]',
+            "\\[campaign\\]: 'params' holds a NUL",
+        ),
     ],
 )
 def test_bad_manifest_one_line(tmp_path, text, message):
@@ -126,6 +138,7 @@ def test_bad_manifest_one_line(tmp_path, text, message):
         (b"id;scans\nA;x.ply y.ply\n", "comma-separated"),
         (b"id,scans,notes\nA,x.ply;y.ply,z\n", "notes"),
         (b"id,scans,stem_x\nA,x.ply;y.ply,1\n", "stem"),
+        (b"id,scans\nA,x.ply;y.ply\x00\n", "tree A\\): 'scans' holds a NUL"),
     ],
 )
 def test_bad_csv_manifest_one_line(tmp_path, data, message):
