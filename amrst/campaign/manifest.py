@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import os
 import re
 import sys
@@ -35,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
+from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -153,11 +153,12 @@ def _entry(raw: Any, where: str) -> TreeEntry:
             if isinstance(stem, str) or any(isinstance(v, bool) for v in stem):
                 raise TypeError("not numbers")
             x, y = (float(v) for v in stem)
-            if not (math.isfinite(x) and math.isfinite(y)):
-                raise ValueError("not finite")
+            if not (abs(x) <= MAX_COORD_M and abs(y) <= MAX_COORD_M):  # NaN too
+                raise ValueError("not a coordinate")
         except (TypeError, ValueError) as exc:
             raise InvalidInput(
-                f"{where}: 'stem' must be [X, Y] in metres, got {stem!r}."
+                f"{where}: 'stem' must be [X, Y] in metres, each within "
+                f"{MAX_COORD_M:g} m, got {stem!r}."
             ) from exc
         stem_xy = (x, y)
     truth = raw.get("truth") or None

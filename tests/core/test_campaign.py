@@ -103,6 +103,11 @@ def test_csv_manifest(tmp_path):
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [1]', "stem"),
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [nan, 2]', "stem"),
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [true, 2]', "stem"),
+        ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [1e30, 1e30]', "stem"),
+        (
+            '[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nstem = [9223372036854775807, 0]',
+            "stem",
+        ),
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "./x.ply"]', "listed twice"),
         ('[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]\nreferense = 1', "referense"),
         ('campaign = 5\n[[tree]]\nid = "A"\nscans = ["x.ply", "y.ply"]', "table"),
@@ -138,6 +143,7 @@ def test_bad_manifest_one_line(tmp_path, text, message):
         (b"id;scans\nA;x.ply y.ply\n", "comma-separated"),
         (b"id,scans,notes\nA,x.ply;y.ply,z\n", "notes"),
         (b"id,scans,stem_x\nA,x.ply;y.ply,1\n", "stem"),
+        (b"id,scans,stem_x,stem_y\nA,x.ply;y.ply,1e30,0\n", "within 1e\\+09 m"),
         (b"id,scans\nA,x.ply;y.ply\x00\n", "tree A\\): 'scans' holds a NUL"),
     ],
 )
