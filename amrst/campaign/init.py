@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from amrst.campaign.manifest import (
@@ -26,6 +25,7 @@ from amrst.campaign.manifest import (
     RESULTS,
     Campaign,
     TreeEntry,
+    campaign_root,
     load_campaign,
     save_campaign,
     tree_tables,
@@ -35,6 +35,7 @@ from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     import os
+    from pathlib import Path
 
 _REFERENCE_STEMS = ("target", "reference")
 
@@ -98,7 +99,7 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
     skipped : list of str
         One line per subfolder that could not be made a tree, saying why.
     """
-    root = Path(folder)
+    root = campaign_root(folder)
     if not root.is_dir():
         raise InvalidInput(
             f"{root} is not a folder. Make a folder with one subfolder per tree holding "

@@ -233,15 +233,24 @@ def _read_csv(path: Path) -> dict[str, Any]:
     return {"tree": trees}
 
 
+def campaign_root(folder: str | os.PathLike[str]) -> Path:
+    """Return the campaign folder given; an empty name would be the current folder."""
+    if not os.fspath(folder):
+        raise InvalidInput(
+            "The campaign folder's name is empty: give the campaign folder."
+        )
+    return Path(folder)
+
+
 def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
     """Read a campaign folder's manifest (campaign.toml, else the CSV manifest).
 
     Raises
     ------
     InvalidInput
-        No manifest, bad TOML/CSV, a bad entry, or two trees with one id.
+        No folder, no manifest, bad TOML/CSV, a bad entry, or two trees with one id.
     """
-    root = Path(folder)
+    root = campaign_root(folder)
     if not root.is_dir():
         raise InvalidInput(
             f"{root} is not a campaign folder. Create it with amrst campaign init."

@@ -223,3 +223,26 @@ def test_the_campaign_s_own_tables_are_not_taken_for_loose_scans(tmp_path, sampl
     assert loose.startswith("1 scan file(s)")  # loose.ply only
     assert "campaign.csv" not in loose
     assert "manifest.csv" not in loose
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["campaign", "init"], ["campaign", "status"], ["batch", "--workers", "1"]],
+)
+def test_an_empty_campaign_folder_name_is_refused(
+    tmp_path, monkeypatch, capsys, command
+):
+    # An empty name must not stand for the folder the command is run in.
+    (tmp_path / "T01").mkdir()
+    for name in ("a.ply", "b.ply"):
+        (tmp_path / "T01" / name).write_text("ply\n")
+    (tmp_path / MANIFEST).write_text(
+        '[[tree]]\nid = "T01"\nscans = ["T01/a.ply", "T01/b.ply"]\n'
+    )
+    before = sorted(tmp_path.rglob("*"))
+    monkeypatch.chdir(tmp_path)
+    assert main([*command, ""]) == 2
+    err = capsys.readouterr().err
+    assert "give the campaign folder" in err
+    assert err.count("\n") == 1
+    assert sorted(tmp_path.rglob("*")) == before
