@@ -15,6 +15,7 @@ reported and left out (a folder with one scan, no scan, or files amrst cannot re
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -34,21 +35,36 @@ from amrst.errors import InvalidInput
 from amrst.files.atomic import write_text_atomic
 
 if TYPE_CHECKING:
-    import os
     from pathlib import Path
 
 _REFERENCE_STEMS = ("target", "reference")
 
 
-def _scan_files(folder: Path) -> list[Path]:
+def _scan_files(folder: Path, root: Path) -> list[Path]:
+    """Return the scan files in ``folder``, refusing one campaign.toml cannot name."""
     from amrst import io
 
     exts = set(io.supported_extensions())
-    return sorted(
+    files = sorted(
         p
         for p in folder.iterdir()
         if p.is_file() and p.suffix.lower() in exts and not p.name.startswith(".")
     )
+    for p in files:
+        _refuse_non_utf8(p, p.relative_to(root).as_posix())
+    return files
+
+
+def _refuse_non_utf8(path: Path, name: str) -> None:
+    """Refuse ``name`` (of ``path``) when it is not UTF-8 text, as campaign.toml is."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise InvalidInput(
+            f"{shown}: this name is not UTF-8 text (its bad bytes are shown as \\xNN); "
+            "rename it, then run amrst campaign init again."
+        ) from None
 
 
 def _tree_id(name: str) -> str:
@@ -60,7 +76,7 @@ def _entry_for(folder: Path, root: Path) -> tuple[TreeEntry | None, str]:
     """Return the entry for one subfolder, or None and why it could not be paired."""
     from amrst.io.scans import list_scans
 
-    files = _scan_files(folder)
+    files = _scan_files(folder, root)
     rel = [p.relative_to(root).as_posix() for p in files]
     if len(files) == 1 and files[0].suffix.lower() in (".e57", ".ptx"):
         try:
@@ -112,7 +128,7 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
     from amrst.campaign.table import TABLE
 
     ours = {TABLE, MANIFEST_CSV}  # the campaign's own tables are no scans
-    loose = [p.name for p in _scan_files(root) if p.name not in ours]
+    loose = [p.name for p in _scan_files(root, root) if p.name not in ours]
     if loose:
         skipped.append(
             f"{len(loose)} scan file(s) directly in {root.name} ({', '.join(loose[:3])}"
@@ -127,6 +143,7 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
         )
     added = [t for t in trees if t.id not in old]
     if existing is None:
+        _refuse_non_utf8(root, root.resolve().name)  # the campaign's name
         save_campaign(Campaign(root, tuple(trees), root.resolve().name))
     elif added:
         write_text_atomic(

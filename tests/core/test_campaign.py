@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 
 import numpy as np
@@ -175,6 +176,41 @@ def test_a_campaign_toml_with_a_byte_order_mark_reads(tmp_path):
         b'\xef\xbb\xbf[[tree]]\r\nid = "A"\r\nscans = ["x.ply", "y.ply"]\r\n'
     )
     assert load_campaign(tmp_path).tree("A").scans == ("x.ply", "y.ply")
+
+
+@pytest.mark.parametrize("bad", ["T01/\udcffa.ply", "T\udce901/a.ply"])
+def test_init_refuses_a_scan_name_that_is_not_utf8(tmp_path, bad):
+    # A name in bytes that are not UTF-8, as a Latin-1 "café" is: Python holds each
+    # such byte as a surrogate, which campaign.toml (UTF-8) cannot hold.
+    for rel in ("T01/b.ply", bad):
+        try:
+            (tmp_path / rel).parent.mkdir(exist_ok=True)
+            (tmp_path / rel).write_text("ply\n")
+        except (OSError, UnicodeEncodeError):
+            pytest.skip("this file system takes UTF-8 names only")
+    (tmp_path / "T02").mkdir()
+    for name in ("a.ply", "b.ply"):
+        (tmp_path / "T02" / name).write_text("ply\n")
+    with pytest.raises(InvalidInput, match="not UTF-8 text") as info:
+        init_campaign(tmp_path)
+    shown = os.fsencode(bad).decode("utf-8", "backslashreplace")
+    assert shown in str(info.value)  # e.g. T01/\xffa.ply
+    assert "rename it" in str(info.value)
+    assert "\n" not in str(info.value)
+    assert not (tmp_path / MANIFEST).exists()
+
+
+def test_init_refuses_a_campaign_folder_name_that_is_not_utf8(tmp_path):
+    root = tmp_path / "plot\udce9"  # its name would be the campaign's name
+    try:
+        (root / "T01").mkdir(parents=True)
+    except (OSError, UnicodeEncodeError):
+        pytest.skip("this file system takes UTF-8 names only")
+    for name in ("a.ply", "b.ply"):
+        (root / "T01" / name).write_text("ply\n")
+    with pytest.raises(InvalidInput, match=r"plot\\xe9: this name is not UTF-8"):
+        init_campaign(root)
+    assert not (root / MANIFEST).exists()
 
 
 def test_init_on_a_folder_without_trees_writes_nothing(tmp_path):
