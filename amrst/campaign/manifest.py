@@ -43,6 +43,8 @@ MANIFEST = "campaign.toml"
 MANIFEST_CSV = "manifest.csv"  # campaign.csv is the results table
 RESULTS = "results"
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+#: The characters a TOML basic string cannot hold as they are (tab it can).
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
 #: The keys a tree's table and the [campaign] table take; another is a typo.
 TREE_KEYS = ("id", "scans", "reference", "stem", "truth")
 CAMPAIGN_KEYS = ("name", "preset", "params")
@@ -300,7 +302,9 @@ def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
 
 
 def _toml_str(value: str) -> str:
-    return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    """Return ``value`` as a TOML basic string; a control character needs an escape."""
+    text = value.replace("\\", "\\\\").replace('"', '\\"')
+    return '"' + _CONTROL.sub(lambda m: f"\\u{ord(m[0]):04x}", text) + '"'
 
 
 def manifest_text(campaign: Campaign) -> str:

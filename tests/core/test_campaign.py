@@ -282,3 +282,14 @@ def test_an_empty_campaign_folder_name_is_refused(
     assert "give the campaign folder" in err
     assert err.count("\n") == 1
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_init_writes_a_scan_name_with_a_line_break_as_valid_toml(tmp_path):
+    (tmp_path / "T01").mkdir()
+    for name in ("a.ply", "b\nc\t\x7f.ply"):
+        try:
+            (tmp_path / "T01" / name).write_text("ply\n")
+        except OSError:
+            pytest.skip("this file system refuses control characters in names")
+    campaign, _ = init_campaign(tmp_path)
+    assert campaign.tree("T01").scans == ("T01/a.ply", "T01/b\nc\t\x7f.ply")
