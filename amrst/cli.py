@@ -15,7 +15,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from amrst import __version__
 from amrst.errors import (
@@ -299,13 +299,24 @@ def _cmd_register(args: argparse.Namespace) -> int:
     return 0
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line, as every other error of amrst.
+
+    Its subcommands' parsers are of this class too (argparse makes them so).
+    """
+
+    def error(self, message: str) -> NoReturn:
+        """Say what is wrong with the arguments in one line, and exit with 2."""
+        self.exit(2, f"{self.prog}: {message} ({self.prog} --help lists them).\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with all sub-commands."""
     from amrst import bench, clip
     from amrst.bench import scale  # dense pairs, per-stage time, memory
     from amrst.simulate import cli as simulate_cli
 
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="amrst",
         description="Marker-free registration of two TLS scans of one tree (AMRST).",
     )

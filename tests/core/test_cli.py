@@ -369,3 +369,14 @@ def test_info_on_one_scan_of_a_file_says_how_to_see_its_scans(capsys, sample_pai
     err = capsys.readouterr().err
     assert "holds one scan; '#' selects scans of E57 and PTX files only" in err
     assert "File not found" not in err
+
+
+def test_a_wrong_argument_is_one_line(capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["register", "a.ply", "b.ply"])
+    assert exc.value.code == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert line == (
+        "amrst register: the following arguments are required: --out "
+        "(amrst register --help lists them)."
+    )
