@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import math
 import struct
 import tempfile
 from pathlib import Path
@@ -39,6 +38,7 @@ from amrst.io.laz import (
     quiet_decoders,
 )
 from amrst.progress import NULL_REPORTER, Reporter
+from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -55,6 +55,8 @@ _EVLR_HEADER = 60  # bytes of an extended VLR's header (LAS 1.4, after the point
 _BOUNDS_SLACK = 0.1  # header bounds may be this share of their size too tight
 _BOUNDS_STEPS = 3  # ... plus this many scale steps of rounding
 _COMPACT_SPAN = 2.0**32 / 64  # raw integer span of intact points (garbage: ~2**32)
+_MIN_SCALE = 1e-9  # m per stored unit: finer than any scanner resolves
+_MAX_SCALE = 1.0  # m per stored unit: coarser than any scan of a tree
 
 
 class FixedHeader(NamedTuple):
@@ -286,22 +288,28 @@ def _check_layout(path: Path, head: bytes, size: int) -> None:
 
 
 def _check_scales(path: Path, scales: np.ndarray, offsets: np.ndarray) -> None:
-    """Refuse scale factors that are not positive and offsets that are not finite."""
+    """Refuse scale factors and offsets that no scan's header holds.
+
+    A scale factor is the size of one stored unit: between a nanometre and a
+    metre for any laser scan (scanners store millimetres or finer). An offset is
+    a coordinate, so it lies within ``MAX_COORD_M`` like every coordinate read.
+    """
     corrupt = f"{path}: corrupt LAS header:"
     for axis, scale, offset in zip("xyz", scales, offsets, strict=True):
-        if not (math.isfinite(scale) and scale > 0):
+        if not _MIN_SCALE <= scale <= _MAX_SCALE:  # False for NaN too
             consequence = (
                 f", so every {axis} coordinate would be 0" if scale == 0 else ""
             )
             raise InvalidInput(
                 f"{corrupt} the header scale factor is {scale:g} for {axis}"
-                f"{consequence}; it must be a positive number such as 0.001. "
+                f"{consequence}; it must lie between {_MIN_SCALE:g} and "
+                f"{_MAX_SCALE:g} (metres per stored unit), such as 0.001. "
                 "Export the file again."
             )
-        if not math.isfinite(offset):
+        if not abs(offset) <= MAX_COORD_M:  # False for NaN too
             raise InvalidInput(
                 f"{corrupt} the header offset is {offset:g} for {axis}; it must be "
-                "a finite number. Export the file again."
+                f"a coordinate within {MAX_COORD_M:g} m. Export the file again."
             )
 
 

@@ -84,6 +84,45 @@ def test_las_bad_scale_or_offset_is_refused(
         io.read(tmp_path / f"s{ext}")
 
 
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize(
+    ("pos", "byte", "message"),
+    [
+        (138, 0x7F, r"scale factor is 1\.79769e\+304 for x"),
+        (137, 0xFF, r"scale factor is 1\.9509 for x"),  # points kilometres apart
+        (138, 0x00, r"scale factor is 3\.64556e-308 for x"),
+        (162, 0x7F, r"offset is 5\.48612e\+303 for x"),
+        (170, 0xFF, r"offset is -5\.48612e\+303 for y"),
+        (178, 0x7F, r"offset is 5\.48612e\+303 for z"),
+    ],
+)
+def test_las_scale_or_offset_no_scanner_writes_is_refused(
+    tmp_path, small_cloud, ext, pos, byte, message
+):
+    data = _valid_las(tmp_path, small_cloud, ext)
+    data[pos] = byte
+    (tmp_path / f"s{ext}").write_bytes(data)
+    with pytest.raises(InvalidInput, match=message) as caught:
+        io.read(tmp_path / f"s{ext}")
+    assert "\n" not in str(caught.value)
+
+
+def test_las_scales_and_offsets_real_files_use_still_read(tmp_path):
+    import laspy
+
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = [1e-7, 0.001, 1.0], [0.0, 5_000_000.0, -100.0]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.array([[0.5, 1.5], [5e6 + 1, 5e6 + 2], [3.0, 4.0]])
+    las.write(tmp_path / "r.las")
+    cloud = io.read(tmp_path / "r.las")
+    world = [[0.5, 5e6 + 1, 3.0], [1.5, 5e6 + 2, 4.0]]
+    np.testing.assert_allclose(cloud.xyz + cloud.offset, world)
+    far = Cloud(cloud.xyz, np.array([9e8, 0.0, 0.0]))  # coordinates go to 1e9 m
+    io.write(tmp_path / "far.las", far)
+    assert io.read(tmp_path / "far.las").offset[0] == 9e8
+
+
 def test_las_header_or_point_data_beyond_the_file(tmp_path, small_cloud):
     data = _valid_las(tmp_path, small_cloud)
     bad = bytearray(data)
