@@ -51,6 +51,7 @@ PREFIX = "amrst_"
 _SKIP_VLRS = {("LASF_Spec", 4), ("laszip encoded", 22204)}  # laspy writes these
 _HEADER_MIN = 227  # bytes of the LAS 1.0-1.2 public header; 1.3 and 1.4 add more
 _VLR_HEADER = 54  # bytes of a variable-length record's header
+_LAST_POINT_FORMAT = 10  # LAS 1.4 defines point formats 0 to 10
 _EVLR_HEADER = 60  # bytes of an extended VLR's header (LAS 1.4, after the points)
 _BOUNDS_SLACK = 0.1  # header bounds may be this share of their size too tight
 _BOUNDS_STEPS = 3  # ... plus this many scale steps of rounding
@@ -80,7 +81,9 @@ def dimension_names(point_format: int) -> frozenset[str]:
 
 def all_standard_names() -> frozenset[str]:
     """Return the standard dimension names of every LAS point format (0-10)."""
-    return frozenset().union(*(dimension_names(i) for i in range(11)))
+    return frozenset().union(
+        *(dimension_names(i) for i in range(_LAST_POINT_FORMAT + 1))
+    )
 
 
 # Points decoded per step of a read, so a Cancel (the reporter's check point between
@@ -238,11 +241,17 @@ def check_header(path: Path) -> FixedHeader:
             "Export it again as LAS/LAZ, or give it its real extension."
         )
     _check_layout(path, head, size)
+    point_format = head[104] & 0x7F  # bit 7 marks compressed points (LAZ)
+    if point_format > _LAST_POINT_FORMAT:
+        raise InvalidInput(
+            f"{path}: corrupt LAS header: point format {point_format} is not a LAS "
+            f"point format (0 to {_LAST_POINT_FORMAT}). Export the file again."
+        )
     values = np.array(struct.unpack_from("<12d", head, 131))
     scales, offsets = values[0:3], values[3:6]
     _check_scales(path, scales, offsets)
     laz = None
-    if head[104] & 0xC0 == 0x80:  # LAZ: bit 7 of the point format id
+    if head[104] & 0x80:  # LAZ
         laz = laz_info(path, head)
         legacy = head[25] < 4 or len(head) < 255  # LAS 1.4 counts points in 64 bits
         (n_points,) = struct.unpack_from(

@@ -123,6 +123,20 @@ def test_las_scales_and_offsets_real_files_use_still_read(tmp_path):
     assert io.read(tmp_path / "far.las").offset[0] == 9e8
 
 
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize(("byte", "shown"), [(0x7F, 127), (0xFF, 127), (0x8B, 11)])
+def test_las_point_format_beyond_the_standard_is_refused(
+    tmp_path, small_cloud, ext, byte, shown
+):
+    data = _valid_las(tmp_path, small_cloud, ext)
+    data[104] = byte  # bit 7 only marks the points as compressed (LAZ)
+    (tmp_path / f"f{ext}").write_bytes(data)
+    with pytest.raises(
+        InvalidInput, match=f"point format {shown} is not a LAS point format"
+    ):
+        io.read(tmp_path / f"f{ext}")
+
+
 def test_las_header_or_point_data_beyond_the_file(tmp_path, small_cloud):
     data = _valid_las(tmp_path, small_cloud)
     bad = bytearray(data)
