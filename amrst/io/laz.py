@@ -217,7 +217,8 @@ def check_laz_count(
             f"file's {info.n_chunks:,} compressed chunks hold at most {capacity:,}. "
             "The file is corrupt or truncated; copy or export it again."
         )
-    at_least = (info.n_chunks - 1) * info.chunk_size + 1
+    # The last chunk may hold no point (lazrs writes one empty chunk for 0 points).
+    at_least = (info.n_chunks - 1) * info.chunk_size
     if n_points >= at_least:
         _check_last_chunk(path, n_points, info, record_length)
         return

@@ -146,6 +146,20 @@ def test_an_empty_cloud_can_be_written(tmp_path, ext):
         io.read(tmp_path / f"e{ext}")
 
 
+@pytest.mark.parametrize("backend", ["Lazrs", "LazrsParallel"])
+def test_an_empty_laz_is_refused_without_a_warning(tmp_path, backend, caplog):
+    import laspy
+
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    las.write(tmp_path / "e.laz", laz_backend=getattr(laspy.LazBackend, backend))
+    with (
+        caplog.at_level(logging.WARNING, logger="amrst"),
+        pytest.raises(InvalidInput, match="contains no points"),
+    ):
+        io.read(tmp_path / "e.laz")
+    assert not caplog.records  # the refusal is the only message
+
+
 # --- lying counts, permissions, misnamed files (LAS/LAZ headers: test_io_bad_las.py)
 
 
