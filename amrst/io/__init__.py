@@ -255,22 +255,24 @@ def _permission_denied(path: Path) -> InvalidInput:
     )
 
 
-def _finish(raw: RawCloud, path: Path, label: str) -> Cloud:
+def _finish(raw: RawCloud, path: Path, label: str, source: str | None = None) -> Cloud:
     """Drop invalid rows, choose the offset and build the Cloud.
 
     Invalid rows have a NaN, inf or absurd (beyond ``MAX_COORD_M``) world
-    coordinate.
+    coordinate. ``source`` names what was read in messages (one scan of a
+    multi-scan file); the file by default.
     """
+    source = source or str(path)
     valid = _valid_rows(raw.xyz, raw.offset)
     n_valid = int(valid.sum())
     if len(valid) == 0:
         raise InvalidInput(
-            f"{path} contains no points. Check that the export finished and "
+            f"{source} contains no points. Check that the export finished and "
             "wrote the points."
         )
     if n_valid == 0:
         raise InvalidInput(
-            f"{path} contains no valid points ({len(valid)} rows, none with finite "
+            f"{source} contains no valid points ({len(valid)} rows, none with finite "
             "x, y, z within 1e9 m). Check the export, the units or the column "
             "order (columns=)."
         )

@@ -206,7 +206,10 @@ def read_scans(spec: PathLike, *, posed: bool = True) -> list[Cloud]:
     _check(path)
     raws: list[tuple[int, RawCloud]] = module.read_raw_scans(path, wanted, posed)
     return [
-        replace(finish(raw, path, module.LABEL), name=f"{path.name}#{i}")
+        replace(
+            finish(raw, path, module.LABEL, f"scan #{i} of {path}"),
+            name=f"{path.name}#{i}",
+        )
         for i, raw in raws
     ]
 

@@ -6,6 +6,8 @@ through the same entry points the CLI and the campaign use.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -229,6 +231,15 @@ def test_scan_number_out_of_range(tmp_path, ext):
     WRITERS[ext](tmp_path / f"p{ext}", scans, poses)
     with pytest.raises(InvalidInput, match=r"holds 2 scan.*no scan 5"):
         read_scans(f"{tmp_path / f'p{ext}'}#5")
+
+
+def test_an_empty_scan_is_named_in_the_refusal(tmp_path):
+    scans, poses = _scans(1, 50)
+    path = tmp_path / "p.ptx"
+    write_ptx(path, [scans[0], Cloud(np.zeros((0, 3)))], poses * 2)
+    expected = f"^scan #1 of {re.escape(str(path))} contains no points"
+    with pytest.raises(InvalidInput, match=expected):
+        read_scans(f"{path}#1")
 
 
 @pytest.mark.parametrize("ext", [".e57", ".ptx"])
