@@ -32,6 +32,8 @@ from amrst.terminal import TerminalReporter
 from amrst.types import check_scans
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from amrst.params import RegistrationParams
     from amrst.pipeline.register import RegistrationResult
 
@@ -308,6 +310,18 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         """Say what is wrong with the arguments in one line, and exit with 2."""
         self.exit(2, f"{self.prog}: {message} ({self.prog} --help lists them).\n")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """Parse as argparse does, but refuse an empty argument.
+
+        As a path, "" would name the current folder.
+        """
+        given = sys.argv[1:] if args is None else list(args)
+        if "" in given:
+            self.error("an empty argument was given; give the path or value")
+        return super().parse_known_args(given, namespace)
 
 
 def build_parser() -> argparse.ArgumentParser:

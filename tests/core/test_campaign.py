@@ -277,10 +277,15 @@ def test_an_empty_campaign_folder_name_is_refused(
     )
     before = sorted(tmp_path.rglob("*"))
     monkeypatch.chdir(tmp_path)
-    assert main([*command, ""]) == 2
+    with pytest.raises(SystemExit) as exc:  # the command line refuses it first
+        main([*command, ""])
+    assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "give the campaign folder" in err
+    assert "an empty argument was given" in err
     assert err.count("\n") == 1
+    for api in (load_campaign, init_campaign):  # and so does the library
+        with pytest.raises(InvalidInput, match="give the campaign folder"):
+            api("")
     assert sorted(tmp_path.rglob("*")) == before
 
 

@@ -247,7 +247,7 @@ def test_bad_output_folder_is_refused_before_registering(
     t, s = str(sample_pair.target_path), str(sample_pair.source_path)
     a_file = tmp_path / "a_file"
     a_file.write_text("x")
-    cases = {"": "empty", str(a_file): "existing file", str(a_file / "sub"): "a file"}
+    cases = {str(a_file): "existing file", str(a_file / "sub"): "a file"}
     if Path("/proc/self").is_dir():  # Linux: no folder can be made in /proc
         cases["/proc/amrst-test"] = "Cannot create the export folder"
     for out, says in cases.items():
@@ -380,3 +380,13 @@ def test_a_wrong_argument_is_one_line(capsys) -> None:
         "amrst register: the following arguments are required: --out "
         "(amrst register --help lists them)."
     )
+
+
+def test_an_empty_argument_is_refused_before_it_names_the_current_folder(
+    capsys,
+) -> None:
+    for argv in (["info", ""], ["plot", "", "b.ply", "--out", "o"], ["bench", ""]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        assert "an empty argument was given" in _one_line_error(capsys.readouterr().err)
