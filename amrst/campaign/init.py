@@ -15,7 +15,6 @@ reported and left out (a folder with one scan, no scan, or files amrst cannot re
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -33,11 +32,14 @@ from amrst.campaign.manifest import (
 )
 from amrst.errors import InvalidInput
 from amrst.files.atomic import write_text_atomic
+from amrst.files.safefile import refuse_undecodable
 
 if TYPE_CHECKING:
+    import os
     from pathlib import Path
 
 _REFERENCE_STEMS = ("target", "reference")
+AGAIN = ", then run amrst campaign init again"
 
 
 def _scan_files(folder: Path, root: Path) -> list[Path]:
@@ -51,20 +53,8 @@ def _scan_files(folder: Path, root: Path) -> list[Path]:
         if p.is_file() and p.suffix.lower() in exts and not p.name.startswith(".")
     )
     for p in files:
-        _refuse_non_utf8(p, p.relative_to(root).as_posix())
+        refuse_undecodable(p.relative_to(root), AGAIN)  # campaign.toml names it
     return files
-
-
-def _refuse_non_utf8(path: Path, name: str) -> None:
-    """Refuse ``name`` (of ``path``) when it is not UTF-8 text, as campaign.toml is."""
-    try:
-        name.encode("utf-8")
-    except UnicodeEncodeError:
-        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
-        raise InvalidInput(
-            f"{shown}: this name is not UTF-8 text (its bad bytes are shown as \\xNN); "
-            "rename it, then run amrst campaign init again."
-        ) from None
 
 
 def _tree_id(name: str) -> str:
@@ -143,7 +133,7 @@ def init_campaign(folder: str | os.PathLike[str]) -> tuple[Campaign, list[str]]:
         )
     added = [t for t in trees if t.id not in old]
     if existing is None:
-        _refuse_non_utf8(root, root.resolve().name)  # the campaign's name
+        refuse_undecodable(root.resolve(), AGAIN)  # the campaign's name
         save_campaign(Campaign(root, tuple(trees), root.resolve().name))
     elif added:
         write_text_atomic(

@@ -31,6 +31,22 @@ _KINDS = (
 )
 
 
+def refuse_undecodable(path: str | os.PathLike[str], then: str = "") -> None:
+    r"""Refuse a path that is not UTF-8 text (bytes of an old or foreign encoding).
+
+    The results, reports, tables and manifests that name a file could not write it.
+    The message shows its bad bytes as ``\xNN``; ``then`` is said after "rename it".
+    """
+    try:
+        os.fspath(path).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise InvalidInput(
+            f"{shown}: this name is not UTF-8 text (an old or foreign encoding); "
+            f"rename it{then}."
+        ) from None
+
+
 def _refuse_kind(mode: int, what: str, path: Path, hint: str) -> None:
     if stat.S_ISDIR(mode):
         raise InvalidInput(f"The {what} {path} is a folder; give {hint}.")

@@ -23,6 +23,7 @@ import numpy as np
 
 from amrst.errors import AmrstError, InvalidInput
 from amrst.files.atomic import write_atomic
+from amrst.files.safefile import refuse_undecodable
 from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
 from amrst.io.e57 import read_e57
@@ -109,14 +110,7 @@ def _check_readable(path: Path) -> _Format:
     A file name that is not UTF-8 is refused too: the results, reports and tables
     that name the scan could not write it.
     """
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
-        raise InvalidInput(
-            f"{shown}: its name is not UTF-8 text (an old or foreign encoding); "
-            "rename the file or its folder."
-        ) from None
+    refuse_undecodable(path, " (the file or its folder)")
     try:
         info = path.stat()
     except FileNotFoundError:

@@ -40,12 +40,12 @@ def test_a_file_name_that_is_not_utf8_is_refused_in_words(
     io.write(tmp_path / "ok.ply", small_cloud)
     latin = os.fsdecode(bytes(tmp_path) + b"/\xe9t\xe9.ply")  # Latin-1 "été"
     io.write(latin, dataclasses.replace(small_cloud, xyz=small_cloud.xyz + 1.0))
-    with pytest.raises(InvalidInput, match=r"\\xe9t\\xe9.ply: its name is not UTF-8"):
+    with pytest.raises(InvalidInput, match=r"\\xe9t\\xe9.ply: this name is not UTF-8"):
         io.read(latin)
     args = ["register", str(tmp_path / "ok.ply"), latin, "--out", str(tmp_path / "o")]
     assert main([*args, "--report", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "rename the file or its folder" in err
+    assert "rename it (the file or its folder)" in err
     assert "\n" not in err
 
 
