@@ -265,10 +265,13 @@ def _finish(raw: RawCloud, path: Path, label: str, source: str | None = None) ->
             "wrote the points."
         )
     if n_valid == 0:
+        text = any(f.text for f in _FORMATS.values() if f.label == label)
+        columns = (
+            ", the units or the column order (columns=)" if text else " or the units"
+        )
         raise InvalidInput(
             f"{source} contains no valid points ({len(valid)} rows, none with finite "
-            "x, y, z within 1e9 m). Check the export, the units or the column "
-            "order (columns=)."
+            f"x, y, z within 1e9 m). Check the export{columns}."
         )
     n_dropped = len(valid) - n_valid
     xyz, attributes = raw.xyz, raw.attributes

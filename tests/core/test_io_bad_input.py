@@ -120,8 +120,15 @@ def test_one_point_is_enough(tmp_path):
 
 def test_zero_valid_points(tmp_path):
     (tmp_path / "z.txt").write_text("nan nan nan\nnan 1 2\n")
-    with pytest.raises(InvalidInput, match="no valid points"):
+    with pytest.raises(InvalidInput, match=r"no valid points.*column order"):
         io.read(tmp_path / "z.txt")
+    nan = Cloud(np.array([[0.0, 0.0, 0.0]]), attributes={})
+    io.write(tmp_path / "z.ply", nan)
+    raw = (tmp_path / "z.ply").read_bytes()  # the one point's x made NaN
+    (tmp_path / "z.ply").write_bytes(raw[:-12] + struct.pack("<f", np.nan) + raw[-8:])
+    with pytest.raises(InvalidInput, match="no valid points") as info:
+        io.read(tmp_path / "z.ply")
+    assert "columns=" not in str(info.value)  # a PLY has no columns to give
     (tmp_path / "h.txt").write_text("x y z\n")
     with pytest.raises(InvalidInput, match="no points"):
         io.read(tmp_path / "h.txt")
