@@ -43,9 +43,11 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
             reporter, i / len(paths), (i + 1) / len(paths), f"Reading {role}"
         )
         # FILE#k: one scan of an E57/PTX file (a campaign tree of one file)
-        clouds[role] = (
-            read_scan(path) if is_scan_spec(path) else io.read(path, reporter=sub)
-        )
+        if is_scan_spec(path):
+            clouds[role] = read_scan(path)
+        else:
+            refuse_several(path)
+            clouds[role] = io.read(path, reporter=sub)
         refuse_odd_coordinates(clouds[role], Path(path).name)
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
@@ -74,6 +76,24 @@ def is_scan_spec(path: Path) -> bool:
     except AmrstError:
         return False
     return scans is not None and len(scans) == 1 and file.is_file()
+
+
+def refuse_several(path: Path) -> None:
+    """Refuse a file of several scans as one scan of a pair: read as one cloud, its
+    scans would be registered as one. Only its headers are read."""
+    from amrst.errors import InvalidInput
+    from amrst.io.scans import list_scans, names_several
+
+    if not names_several(path):
+        return
+    n = len(list_scans(path))
+    if n > 1:
+        name = Path(path).name
+        raise InvalidInput(
+            f"{name} holds {n} scans, one position each: open it in the Plot window "
+            f"(File ▸ Open plot…), which lists them, or register them all with "
+            f"'amrst register {name} --out DIR'."
+        )
 
 
 def read_scan(spec: Path) -> Any:

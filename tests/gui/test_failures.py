@@ -84,6 +84,30 @@ def test_a_scan_in_millimetres_is_refused_with_what_to_change(
     win.error_box.close()
 
 
+def test_a_file_of_several_scans_is_not_opened_as_one_scan(
+    make_main_window, qtbot, tmp_path, sample_pair, errors
+):
+    from amrst import io
+    from amrst.io.e57 import write_e57
+
+    pytest.importorskip("pye57")
+    scans = [io.read(sample_pair[0]), io.read(sample_pair[1])]
+    write_e57(tmp_path / "plot.e57", scans)
+    win = make_main_window()
+    s = win.session
+    errors.watch(s)
+    with qtbot.waitSignal(s.failed, timeout=20_000) as blocker:
+        s.load_scan("target", tmp_path / "plot.e57")
+    assert "failed: plot.e57 holds 2 scans, one position each" in blocker.args[0]
+    assert "Plot window (File ▸ Open plot…)" in blocker.args[0]
+    assert s.cloud("target") is None
+    win.error_box.close()
+    write_e57(tmp_path / "one.e57", scans[:1])  # a file of one scan opens
+    with qtbot.waitSignal(s.scan_loaded, timeout=20_000):
+        s.load_scan("target", tmp_path / "one.e57")
+    assert len(s.cloud("target")) == len(scans[0])
+
+
 def test_one_scan_as_target_and_source_is_refused_and_a_fifo_named(
     make_main_window, qtbot, tmp_path, sample_pair, errors
 ):
