@@ -154,29 +154,11 @@ def _other_inputs(args: argparse.Namespace) -> list[str]:
     return [str(f) for f in given if f]
 
 
-def _several_scans(args: argparse.Namespace) -> bool:
-    """Tell whether TARGET and SOURCE name more than a pair of plain scan files.
+def _register_scans(args: argparse.Namespace, params: RegistrationParams) -> int:
+    """Hand ``amrst register`` with more than a pair of scans to amrst.multiscan."""
+    from amrst.multiscan.cli import run_register
 
-    A file of several scans (E57, PTX) counts as its scans, so that it is never
-    read as one cloud of scans unposed; only its headers are read here.
-
-    Raises
-    ------
-    InvalidInput
-        Fewer than two scans in all.
-    """
-    from amrst.io.scans import names_several, one_scan_specs
-
-    given = [args.target, *args.source]
-    count = len(given)
-    if any(names_several(s) for s in given):
-        count = len(one_scan_specs(given))
-    if count < 2:
-        raise InvalidInput(
-            "Two scans or more are needed: TARGET and SOURCE, or one file of "
-            "several scans (E57, PTX)."
-        )
-    return count > 2 or len(args.source) != 1 or "#" in "".join(given)
+    return run_register(args, params, TerminalReporter(args.quiet))
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
@@ -196,10 +178,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
-    if _several_scans(args):
-        from amrst.multiscan.cli import run_register  # several scans: amrst.multiscan
-
-        return run_register(args, params, TerminalReporter(args.quiet))
+    if len(args.source) != 1 or "#" in args.target + "".join(args.source):
+        return _register_scans(args, params)
     args.source = args.source[0]
     from amrst.guards import into_grid
     from amrst.io.truth import read_truth
@@ -223,6 +203,11 @@ def _cmd_register(args: argparse.Namespace) -> int:
             "of the tree."
         )
     target, source = io.read(args.target), io.read(args.source)
+    if any(c.meta.get("n_scans", 1) > 1 for c in (target, source)):
+        # A file of several scans (E57, PTX) counts as its scans, never as one cloud.
+        del target, source
+        args.source = [args.source]
+        return _register_scans(args, params)
     check_scans([target, source], [str(args.target), str(args.source)])
     for cloud, path in ((target, args.target), (source, args.source)):
         # the feature matcher's voxel grid bounds the span a scan may have

@@ -46,8 +46,8 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
         if is_scan_spec(path):
             clouds[role] = read_scan(path)
         else:
-            refuse_several(path)
             clouds[role] = io.read(path, reporter=sub)
+            refuse_several(clouds[role], Path(path).name)
         refuse_odd_coordinates(clouds[role], Path(path).name)
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
@@ -78,17 +78,13 @@ def is_scan_spec(path: Path) -> bool:
     return scans is not None and len(scans) == 1 and file.is_file()
 
 
-def refuse_several(path: Path) -> None:
-    """Refuse a file of several scans as one scan of a pair: read as one cloud, its
-    scans would be registered as one. Only its headers are read."""
+def refuse_several(cloud: Any, name: str) -> None:
+    """Refuse a cloud read from a file of several scans as one scan of a pair: its
+    scans would be registered as one."""
     from amrst.errors import InvalidInput
-    from amrst.io.scans import list_scans, names_several
 
-    if not names_several(path):
-        return
-    n = len(list_scans(path))
+    n = cloud.meta.get("n_scans", 1)
     if n > 1:
-        name = Path(path).name
         raise InvalidInput(
             f"{name} holds {n} scans, one position each: open it in the Plot window "
             f"(File ▸ Open plot…), which lists them, or register them all with "

@@ -74,6 +74,7 @@ def run_register(
     args: argparse.Namespace, params: RegistrationParams, reporter: Reporter
 ) -> int:
     """Register every scan of ``args.target`` + ``args.source`` and write ``args.out``."""
+    from amrst.errors import InvalidInput
     from amrst.io.scans import one_scan_specs
     from amrst.multiscan.export import SUMMARY, export_scans, read_scan_truth
     from amrst.multiscan.register import register_scans
@@ -89,6 +90,11 @@ def run_register(
     report = bool(getattr(args, "report", False))
     check_output_dir(args.out, [REPORT_NAME] if report else [])
     labels = [spec for spec, _name in one_scan_specs([args.target, *args.source])]
+    if len(labels) < 2:
+        raise InvalidInput(
+            "Two scans or more are needed: TARGET and SOURCE, or one file of "
+            "several scans (E57, PTX)."
+        )
     refuse_inputs_in_out(
         args.out,
         [*labels, *(str(f) for f in (args.truth, args.params) if f)],
