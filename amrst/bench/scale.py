@@ -14,6 +14,7 @@ both as tables; on a plot case it times ``amrst plot`` instead
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
@@ -117,6 +118,38 @@ class ScaleRow:
         return bool(self.timings)
 
 
+@dataclass(frozen=True, slots=True)
+class ChildRun:
+    """One ``amrst`` command run in a child process, as a user runs it."""
+
+    wall_s: float  # interpreter start included
+    peak_mb: float  # the child's maximum resident set size (wait4)
+    exit_code: int
+    stderr: tuple[tuple[float, str], ...]  # lines, each with seconds since the start
+
+
+def run_amrst(*args: str) -> ChildRun:
+    """Run ``python -m amrst.cli ARGS`` and wait for it; stdout is dropped.
+
+    Its stderr lines are kept, each stamped with the seconds since the start, and
+    echoed when the command fails, so a failed row says why.
+    """
+    cmd = [sys.executable, "-m", "amrst.cli", *args]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    with proc.stderr or io.StringIO() as err:
+        lines = tuple((time.perf_counter() - t0, ln.rstrip()) for ln in err)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    code = proc.returncode = os.waitstatus_to_exitcode(status)
+    if code:
+        for _, line in lines[-5:]:
+            print(line, file=sys.stderr)
+    return ChildRun(wall, usage.ru_maxrss / 1024.0, code, lines)
+
+
 def time_register(
     pair_dir: PathLike, n_points: int | None = None, extra: Sequence[str] = ()
 ) -> ScaleRow:
@@ -143,10 +176,7 @@ def time_register(
     truth = json.loads((pair / "truth.json").read_text())
     n = n_points or int(truth.get("densify_points", 0))
     with tempfile.TemporaryDirectory(prefix="amrst-scale-") as tmp:
-        cmd = [
-            sys.executable,
-            "-m",
-            "amrst.cli",
+        child = run_amrst(
             "register",
             str(files["target"]),
             str(files["source"]),
@@ -156,12 +186,7 @@ def time_register(
             "--truth",
             str(pair / "truth.json"),
             *extra,
-        ]
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
-        _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
-        proc.returncode = os.waitstatus_to_exitcode(status)
+        )
         timings: dict[str, float] = {}
         doc = Path(tmp) / "transform.json"
         if doc.exists():
@@ -173,9 +198,9 @@ def time_register(
         pair.name,
         n or int(truth.get("n_target", 0)),
         n or int(truth.get("n_source", 0)),
-        wall,
-        usage.ru_maxrss / 1024.0,
-        proc.returncode,
+        child.wall_s,
+        child.peak_mb,
+        child.exit_code,
         timings,
     )
 

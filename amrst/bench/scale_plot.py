@@ -20,10 +20,8 @@ import csv
 import json
 import os
 import re
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,6 +31,7 @@ import numpy as np
 from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
 from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
+from amrst.bench.scale import run_amrst
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -144,40 +143,23 @@ def time_plot(plot_dir: PathLike, extra: Sequence[str] = ()) -> PlotScaleRow:
     truth = json.loads((folder / "truth.json").read_text())
     files = _scan_files(folder)
     with tempfile.TemporaryDirectory(prefix="amrst-scale-plot-") as tmp:
-        cmd = [
-            sys.executable,
-            "-m",
-            "amrst.cli",
-            "plot",
-            *map(str, files),
-            "--out",
-            tmp,
-            *extra,
-        ]
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
-        lines = tuple(
-            (time.perf_counter() - t0, ln.rstrip()) for ln in proc.stderr or ()
-        )
-        _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
-        proc.returncode = os.waitstatus_to_exitcode(status)
+        child = run_amrst("plot", *map(str, files), "--out", tmp, *extra)
         doc_path, csv_path = Path(tmp) / "plot.json", Path(tmp) / "trees.csv"
         doc = json.loads(doc_path.read_text()) if doc_path.exists() else None
         trees = _listed_trees(csv_path) if csv_path.exists() else None
     case = read_plot_case(folder)
-    record = _score(case, doc, trees, lines)
+    record = _score(case, doc, trees, child.stderr)
     n = int(truth.get("densify_points", 0)) or max(len(c) for c in case.clouds)
     return PlotScaleRow(
         folder.name,
         len(files),
         n,
-        wall,
-        usage.ru_maxrss / 1024.0,
-        proc.returncode,
-        {} if doc is None else plot_stages(doc["timings_s"], lines),
+        child.wall_s,
+        child.peak_mb,
+        child.exit_code,
+        {} if doc is None else plot_stages(doc["timings_s"], child.stderr),
         record,
-        lines,
+        child.stderr,
     )
 
 
