@@ -72,9 +72,21 @@ def number(value: float, fmt: str) -> str:
     return "–" if value != value else format(value, fmt)  # NaN
 
 
-def scan_title(spec: str, name: str) -> str:
-    """A scan as the window lists it: its file (and ``#k``), then its name if any."""
-    return f"{Path(spec).name} ({name})" if name else Path(spec).name
+#: A file name longer than this loses its middle in the scan list.
+LIST_NAME_CHARS = 36
+
+
+def scan_title(spec: str, name: str, *, short: bool = False) -> str:
+    """A scan as the window lists it: its file (and ``#k``), then its name if any.
+
+    ``short`` cuts a long file name in the middle: scans of one plot often share a
+    long prefix and differ at the end.
+    """
+    file = Path(spec).name
+    if short and len(file) > LIST_NAME_CHARS:
+        keep = LIST_NAME_CHARS - 1
+        file = f"{file[: keep // 2]}\u2026{file[-(keep - keep // 2) :]}"
+    return f"{file} ({name})" if name else file
 
 
 def scan_lines(o: PlotOutcome) -> list[str]:
@@ -101,7 +113,7 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             else ""
         )
         lines.append(
-            f"S{k + 1}  {scan_title(scan.label, scan.name)}{gone}: {where}, "
+            f"S{k + 1}  {scan_title(scan.label, scan.name, short=True)}{gone}: {where}, "
             f"{scan.stems} stems"
             f"{residual}{state}"
         )

@@ -337,6 +337,10 @@ class PlotWindow(QMainWindow):
         self.scan_list = QListWidget()
         self.scan_list.setObjectName("plot_scans")
         self.scan_list.setMaximumHeight(96)
+        # Names are cut in the middle (scan_title); the whole path is the tooltip.
+        self.scan_list.setHorizontalScrollBarPolicy(
+            Qt.ScrollBarPolicy.ScrollBarAlwaysOff
+        )
         self.reference_button = QPushButton("Make reference")
         self.reference_button.setToolTip(
             "Make the selected scan S1, the reference: the plot's frame and the "
@@ -630,8 +634,9 @@ class PlotWindow(QMainWindow):
         self.specs = [os.path.abspath(p) for p in paths]  # a link keeps its name
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
-            title = scan_title(spec, self.scan_names.get(spec, ""))
+            title = scan_title(spec, self.scan_names.get(spec, ""), short=True)
             self.scan_list.addItem(f"S{k + 1}  {title}")
+        self._show_given()
         self._show_title()
         self._show_busy()
 
@@ -1449,11 +1454,12 @@ class PlotWindow(QMainWindow):
         """Mark the scans whose scanner position the next run is given."""
         for k in range(self.scan_list.count()):
             item = self.scan_list.item(k)
-            text, tip = item.text().split(GIVEN_MARK)[0], ""
+            text = item.text().split(GIVEN_MARK)[0]
+            tip = self.specs[k] if k < len(self.specs) else ""
             if k in self.given_scanners:
                 where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
                 text += GIVEN_MARK
-                tip = f"Scanner given at {where} m, in the file's coordinates"
+                tip += f"\nScanner given at {where} m, in the file's coordinates"
             item.setText(text)
             item.setToolTip(tip)
 

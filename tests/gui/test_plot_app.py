@@ -86,9 +86,8 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
     item = plot.scan_list.item(1)
     assert item.text().endswith("; scanner given")
-    assert (
-        item.toolTip()
-        == "Scanner given at 0.00, 0.00, 0.00 m, in the file's coordinates"
+    assert item.toolTip().endswith(
+        "\nScanner given at 0.00, 0.00, 0.00 m, in the file's coordinates"
     )
     monkeypatch.setattr(plot_window, "confirm", lambda *_: True)  # replace the plot
     _run(qtbot, plot)
@@ -99,7 +98,8 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     plot.set_scanner("")  # forgotten: the next run goes by the file
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     assert "given" not in plot.scan_list.item(1).text()
-    assert plot.scan_list.item(1).toolTip() == ""
+    assert "given" not in plot.scan_list.item(1).toolTip()
+    assert plot.scan_list.item(1).toolTip() == plot.specs[1]  # the whole path
 
 
 @pytest.fixture(scope="module")
@@ -1351,6 +1351,18 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
     assert "placed (the file does not say where its scanner stood)" in lines[1]
     assert "not placed" in lines[2]
     assert not any("residual" in line for line in lines)  # none known
+
+
+def test_a_long_scan_name_is_cut_in_the_middle_in_the_list() -> None:
+    from amrst_gui.plot.tables import LIST_NAME_CHARS, scan_title
+
+    long = "/d/Forest_Reserve_plot_0412_2026-11-30_FARO_Focus_S350_position_12.ply"
+    short = scan_title(long, "", short=True)
+    assert len(short) == LIST_NAME_CHARS
+    assert short.startswith("Forest_Reserve")
+    assert short.endswith("position_12.ply")  # the end that tells scans apart
+    assert scan_title(long, "") == Path(long).name  # messages keep it whole
+    assert scan_title("/d/scan_1.ply", "S1", short=True) == "scan_1.ply (S1)"
 
 
 def test_another_scan_is_made_the_reference_before_a_run(
