@@ -92,13 +92,19 @@ class EngineProcess:
         return proc.pid if proc is not None and proc.poll() is None else None
 
     def start(self) -> None:
-        """Start the process now (its imports take a second, in the process);
-        never raises: without it, steps run in the caller's thread."""
+        """Start the process now (its imports take a second, in the process).
+
+        Never waits (the GUI thread calls it; while a call runs, the process runs
+        too) and never raises: without it, steps run in the caller's thread.
+        """
+        if not self._lock.acquire(blocking=False):
+            return
         try:
-            with self._lock:
-                self._ensure()
+            self._ensure()
         except Exception as exc:
             log.info("No engine process (%s); steps run in the app", exc)
+        finally:
+            self._lock.release()
 
     def _ensure(self) -> subprocess.Popen[bytes]:
         if self._proc is None or self._proc.poll() is not None:

@@ -182,6 +182,34 @@ def test_the_app_still_runs_steps_where_no_process_can_start(
     assert analyses["target"].is_wood.any()
 
 
+def test_starting_the_engine_never_waits_for_a_running_call():
+    """The GUI thread starts the engine when a pair loads; while another window's
+    call holds the process, it returns at once instead of freezing the window."""
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    entered, leave = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with engine._lock:  # what a running call holds
+            entered.set()
+            leave.wait(30)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        assert entered.wait(10)
+        starter = threading.Thread(target=engine.start)
+        starter.start()
+        starter.join(10)
+        assert not starter.is_alive()  # returned while the lock was held
+        assert engine.pid is None  # and left the process to the running call
+    finally:
+        leave.set()
+        holder.join()
+        engine.stop()
+
+
 def test_the_engines_log_reaches_the_apps_loggers(sample_clouds, caplog):
     """The Log panel listens to the ``amrst`` loggers of the app's process: the
     engine's records are sent back and logged there."""
