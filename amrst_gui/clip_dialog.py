@@ -2,8 +2,9 @@
 
 The dialog reads a thinned overview of the plot in a worker (``io.read_overview``),
 draws it as a density image seen from above, and takes the stem where the user
-clicks. "Clip" cuts the cylinder (``amrst.clip.clip_tree``, in a worker), writes the
-tree atomically into ``out_dir`` and loads it into the session as the chosen scan.
+clicks. "Clip" cuts the cylinder and writes the tree atomically into ``out_dir``
+(``jobs.clip_tree_to``, in the engine process: Cancel or closing the dialog stops it
+and leaves no file), then loads it into the session as the chosen scan.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui import workers
+from amrst_gui import jobs, workers
+from amrst_gui.engine_process import in_engine
 
 if TYPE_CHECKING:
     from PySide6.QtGui import QMouseEvent, QPaintEvent
@@ -201,7 +203,7 @@ class ClipDialog(QDialog):
 
     # ------------------------------------------------------------ clip
     def clip(self) -> None:
-        """Cut the cylinder in a worker; write it; load it as the chosen scan."""
+        """Cut the cylinder and write it in the engine; load it as the chosen scan."""
         from amrst.clip import ClipParams
 
         if self.plot is None or self.view.stem is None:
@@ -212,7 +214,7 @@ class ClipDialog(QDialog):
         self.status.setText("Clipping…")
         self.clip_button.setEnabled(False)
         self._job = workers.run_stage(
-            _clip_and_write,
+            in_engine(jobs.clip_tree_to, what="the clip"),
             self.plot,
             params,
             out,
@@ -237,16 +239,3 @@ class ClipDialog(QDialog):
         if self._job is not None and not self._job.done:
             self._job.cancel()
         super().done(result)
-
-
-def _clip_and_write(
-    plot: Path, params: Any, out: Path, reporter: Any
-) -> tuple[Path, int]:
-    """Clip, then write the tree atomically (runs in a worker)."""
-    from amrst import io
-    from amrst.clip import clip_tree
-
-    result = clip_tree(plot, params, reporter)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    io.write(out, result.cloud)
-    return out, len(result.cloud)

@@ -288,6 +288,27 @@ def export_pair(out_dir: Path, kwargs: dict, reporter: Reporter) -> tuple[list, 
     return list(paths), time.perf_counter() - start
 
 
+def clip_tree_to(
+    plot: Path, params: Any, out: Path, reporter: Reporter
+) -> tuple[Path, int]:
+    """Clip a tree from a plot file and write it to ``out``, or beside it as
+    ``NAME_2.laz``... when ``out`` exists (an earlier clip is never replaced).
+
+    Returns the file written and its number of points.
+    """
+    from amrst import io
+    from amrst.clip import clip_tree
+
+    result = clip_tree(plot, params, reporter)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    free, k = out, 1
+    while free.exists():
+        k += 1
+        free = out.with_name(f"{out.stem}_{k}{out.suffix}")
+    io.write(free, result.cloud)
+    return free, len(result.cloud)
+
+
 def read_truth(path: Path) -> np.ndarray:
     """The (4, 4) ``T_target_source`` of a truth JSON; ValueError says what is wrong.
 

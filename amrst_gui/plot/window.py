@@ -948,15 +948,15 @@ class PlotWindow(QMainWindow):
         )
 
     def write_report(self) -> None:
-        """Write report.html from the results folder's files in a worker, then open
-        it (the stem map is drawn with matplotlib: not on the GUI thread)."""
-        from amrst_gui import workers
+        """Write report.html from the results folder's files in the engine process,
+        then open it (matplotlib draws the stem map: not in the app)."""
+        from amrst_gui import engine_process, workers
 
         if self.outcome is None or self.report_job is not None:
             return
         self._say("Writing the report…")
         self.report_job = workers.run_stage(
-            jobs.report_job,
+            engine_process.in_engine(jobs.report_job, what="the plot report"),
             self.outcome.out,
             name="report",
             on_result=self._on_report,

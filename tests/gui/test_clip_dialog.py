@@ -49,6 +49,12 @@ def test_clip_two_plots_then_register(
         assert loaded.args == [role]
         clipped = s.cloud(role)
         assert 0.95 * len(tree) <= len(clipped) <= len(tree)  # not the copy
+        if role == "source":  # the same stem again: a new file beside the first
+            first = sorted((tmp_path / "clips").glob("source_plot_tree_*"))
+            with qtbot.waitSignal(dialog.clipped, timeout=30_000) as again:
+                dialog.clip_button.click()
+            assert again.args[1] == str(first[0].with_name(f"{first[0].stem}_2.laz"))
+            assert len(io.read(first[0])) == len(clipped)  # kept as it was
         dialog.close()
 
     qtbot.waitUntil(lambda: not s.busy, timeout=10_000)
