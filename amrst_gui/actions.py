@@ -113,10 +113,16 @@ class WorkflowActions(QObject):
             attr, icon, tip = _STEP_EXTRAS.get(
                 step, (step, None, steps.plain_label(step))
             )
+            # Accept coarse takes the selected row: the session method, not the step.
+            run = (
+                session.accept_coarse
+                if step == "coarse"
+                else lambda _=False, s=step: session.run_step(s)
+            )
             action = self._make(
                 steps.LABELS[step],
                 f"Ctrl+{number}",
-                lambda _=False, s=step: session.run_step(s),
+                run,
                 tip,
                 style.standardIcon(icon) if icon else None,
             )

@@ -66,7 +66,9 @@ def test_full_workflow_review_accept_refine_export(
     assert s.coarse.candidate.id == ranked[1].id
     assert win.matches_panel.model.status(ranked[0]) == "rejected"
     assert win.matches_panel.model.status(ranked[1]).endswith("coarse")
-    # Selecting another row shows it in the views.
+    s.restore_match(ranked[0].id)  # the best is the coarse solution again...
+    assert s.coarse.candidate.id == ranked[0].id
+    # ... and selecting another row shows it in the views; Accept coarse takes it.
     win.matches_panel.table.selectRow(1)
     assert s.selected_match.id == ranked[1].id
     t_verts = next(lay for lay in tv.layers if lay.name == "match_vertices")
