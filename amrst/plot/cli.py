@@ -212,19 +212,10 @@ def run_cli(args: argparse.Namespace) -> int:
 
 def _stand_line(out: Path, area: PlotArea) -> str:
     """Sum up the stand inside the plot from the trees.csv just written."""
-    import csv
+    from amrst.plot.export import read_tree_rows
+    from amrst.plot.stand import stand, stand_line
 
-    from amrst.plot.export import TREES_CSV
-    from amrst.plot.stand import stand
-
-    with (out / TREES_CSV).open(newline="") as f:
-        st = stand(list(csv.DictReader(f)), area)
-    return (
-        f"stand within {area.radius_m:g} m ({area.hectares:.4f} ha): {st.trees} "
-        f"trees, {st.trees_per_ha:.0f} stems/ha, basal area "
-        f"{st.basal_area_m2_per_ha:.1f} m²/ha of the {st.with_dbh} with a DBH "
-        f"({st.outside} listed trees outside)"
-    )
+    return stand_line(stand(read_tree_rows(out), area), area)
 
 
 def _file_list(written: list[Path]) -> str:

@@ -262,11 +262,8 @@ def _listed_ids(out: Path) -> list[str]:
     """
     ours = re.compile(r"[TH][0-9]+")  # what names a tree cloud, never a path
     try:
-        if not (out / TREES_CSV).is_file():  # a named pipe would block
-            raise OSError("no trees.csv")
-        with (out / TREES_CSV).open(newline="", encoding="utf-8-sig") as fh:
-            ids = [r.get("tree_id") or "" for r in csv.DictReader(fh)]
-    except (OSError, ValueError, csv.Error):
+        ids = [r.get("tree_id") or "" for r in read_tree_rows(out)]
+    except (OSError, ValueError):
         ids = [p.stem for p in (out / TREES_DIR).glob("*.ply")]
     return [i for i in ids if ours.fullmatch(i)]
 
@@ -293,13 +290,17 @@ def _regular_file(path: Path) -> None:
 
 
 def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
-    """plot.json and trees.csv's rows (OSError, ValueError when unreadable).
+    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
+    return read_plot_json(out), read_tree_rows(out)
 
-    A trees.csv a spreadsheet saved again is read when only its byte-order mark or
-    line ends changed; other changes (';' between the columns, another encoding)
-    are named.
+
+def read_tree_rows(out: Path) -> list[dict[str, str]]:
+    """Return the rows of ``out``'s trees.csv.
+
+    Raises OSError or ValueError when it cannot be read. A trees.csv a spreadsheet
+    saved again is read when only its byte-order mark or line ends changed; other
+    changes (';' between the columns, another encoding) are named.
     """
-    doc = read_plot_json(out)
     _regular_file(out / TREES_CSV)
     other = "another program saved it over"
     try:
@@ -309,9 +310,11 @@ def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
             missing = [c for c in TREE_COLUMNS if c not in columns]
             if missing:
                 raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
-            return doc, list(reader)
+            return list(reader)
     except UnicodeDecodeError as exc:
         raise ValueError(f"{TREES_CSV} is not UTF-8 text: {other}") from exc
+    except csv.Error as exc:
+        raise ValueError(f"{TREES_CSV} is not a table ({exc}): {other}") from exc
 
 
 def plot_document(

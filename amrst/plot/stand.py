@@ -158,3 +158,22 @@ def _num(value: Any, *, signed: bool = False) -> float:
     except (TypeError, ValueError):
         return math.nan
     return v if math.isfinite(v) and (signed or v > 0) else math.nan
+
+
+def stand_line(st: Stand, area: PlotArea) -> str:
+    """Say the stand inside the plot in one line, as the command and the app do.
+
+    No-break spaces keep each unit on its number's line.
+    """
+    sp = "\u00a0"
+    trees = f"{st.trees} tree{'' if st.trees == 1 else 's'}"
+    outside = (
+        f"; {st.outside} listed tree{'' if st.outside == 1 else 's'} outside"
+        if st.outside
+        else ""
+    )
+    return (
+        f"within {area.radius_m:g}{sp}m ({area.hectares:.4f}{sp}ha): {trees}, "
+        f"{st.with_dbh} with a DBH: {st.trees_per_ha:.0f}{sp}stems/ha, "
+        f"basal area {st.basal_area_m2_per_ha:.1f}{sp}m²/ha{outside}"
+    )

@@ -63,7 +63,7 @@ from amrst.plot.review import (
     read_review,
     write_review,
 )
-from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand
+from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand, stand_line
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
@@ -1376,12 +1376,7 @@ class PlotWindow(QMainWindow):
         if o is None or o.area is None:
             return ""
         st = stand(inventory_rows(o.trees, self.review, o.area, o.unsure), o.area)
-        return (
-            f". Within {o.area.radius_m:g}{NBSP}m: {st.trees} of "
-            f"{counted(len(o.trees), 'tree')}, {st.with_dbh} with a DBH: "
-            f"{st.trees_per_ha:.0f}{NBSP}stems/ha, "
-            f"basal area {st.basal_area_m2_per_ha:.1f}{NBSP}m²/ha"
-        )
+        return ". W" + stand_line(st, o.area)[1:]
 
     def _on_report(self, path: Path) -> None:
         self.report_job = None

@@ -1122,7 +1122,10 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
         assert ("outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
     nbsp = "\u00a0"  # a unit stays on its number's line
     before = plot.status.text().split(": ")[-1].split(f"{nbsp}stems/ha")[0]
-    assert f"Within 6{nbsp}m: 4 of 6 trees, 4 with a DBH: " in plot.status.text()
+    assert f"Within 6{nbsp}m (0.0113{nbsp}ha): 4 trees, 4 with a DBH: " in (
+        plot.status.text()
+    )
+    assert "m²/ha; 2 listed trees outside" in plot.status.text()
     k = far.index(False)
     plot.select_tree(k)
     plot.set_mark(o.trees[k].tree_id, "not a tree")  # one tree fewer per hectare
@@ -1183,7 +1186,7 @@ def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     assert o.area == area
     assert json.loads((out / "plot.json").read_text())["plot_area"] == area.as_dict()
     assert _in_plot(out) == ["yes" if area.holds(t.row()) else "no" for t in o.trees]
-    assert "Within 8\u00a0m: " in plot.status.text()
+    assert "Within 8\u00a0m (0.0201\u00a0ha): " in plot.status.text()
     plot.centre_button.click()  # then a click on the map is the centre
     assert plot.stem_map.adding
     x, y = plot.stem_map.to_px(np.subtract((2.0, 1.0), o.reference_at))[0]
