@@ -51,13 +51,24 @@ def summary_status(doc: dict[str, Any], folder: Path) -> str:
     if status in STATUSES:
         return str(status)
     if doc.get("n_scans") == 2:
-        pair = (read_doc(folder / "metrics.json") or {}).get("verdict") or {}
+        pair = (_pair_metrics(folder) or {}).get("verdict") or {}
         if pair.get("status") in STATUSES:
             return str(pair["status"])
     old = str(doc.get("verdict", ""))
     if old == "verified":
         return scans_status((True, True), float(doc.get("confidence", 0.0)))
     return OLD_STATUS.get(old, NEEDS_REVIEW)
+
+
+def _pair_metrics(folder: Path) -> dict[str, Any] | None:
+    """Return a pair tree's metrics.json in the current layout (None: none)."""
+    from amrst.results.documents import upgrade_result
+
+    doc = read_doc(folder / "metrics.json")
+    try:
+        return None if doc is None else upgrade_result(doc, "metrics")
+    except (TypeError, ValueError):  # a schema_version that is not a number
+        return doc
 
 
 def _link_status(d: dict[str, Any]) -> tuple[str, bool]:
@@ -278,7 +289,7 @@ def read_stored_tree(campaign: Campaign, tree_id: str) -> StoredTree | None:
         )
         for d in doc.get("links", [])
     )
-    pair = read_doc(out / "metrics.json") if len(scans) == 2 else None
+    pair = _pair_metrics(out) if len(scans) == 2 else None
     truth = None
     if entry.truth is not None:
         from amrst.errors import AmrstError

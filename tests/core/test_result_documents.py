@@ -83,6 +83,24 @@ def test_files_of_the_app_before_schema_2_are_read_in_the_new_layout() -> None:
     assert new_m["fine"]["iterations"] == 12
 
 
+def test_a_campaign_reads_a_pair_trees_old_metrics_in_the_new_layout(
+    tmp_path: Path,
+) -> None:
+    from amrst.campaign.stored import _pair_metrics
+
+    old = (DATA / "metrics_v1_app.json").read_text()
+    (tmp_path / "metrics.json").write_text(old)
+    pair = _pair_metrics(tmp_path)
+    assert pair is not None
+    assert pair["schema_version"] == RESULT_SCHEMA_VERSION
+    assert pair["truth"]["fine"]["gt_rmse_m"] == 0.003
+    assert "truth_gt_rmse_m" not in pair["fine"]
+    (tmp_path / "metrics.json").write_text('{"schema_version": "two"}')
+    assert _pair_metrics(tmp_path) == {"schema_version": "two"}  # shown as it is
+    (tmp_path / "metrics.json").unlink()
+    assert _pair_metrics(tmp_path) is None
+
+
 def test_files_of_the_cli_before_schema_2_keep_their_keys(sample_run) -> None:
     doc = result_documents(record_from_registration(sample_run.result)).transform
     old = {k: v for k, v in doc.items() if k not in ("schema_version", "stage")}
