@@ -20,7 +20,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.resources import resource_path
-from amrst_gui import dialogs, menus
+from amrst_gui import dialogs, menus, steps
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings, fit_screen
 from amrst_gui.pacing import DRAW_GAP_MS
@@ -95,6 +95,7 @@ class MainWindow(QMainWindow):
         self.export_box: dialogs.ExportDialog | None = None
         self.plot_window: PlotWindow | None = None  # made when a plot is opened
         self._closed = False
+        self._close_when_idle = False  # a close waits for a job that writes files
         self._connect(s)
         self._fit_screen()
         self._default_state: QByteArray | None = None
@@ -521,7 +522,21 @@ class MainWindow(QMainWindow):
         self.resizeDocks([d["log"]], [120], Qt.Orientation.Vertical)
 
     def closeEvent(self, event) -> None:
-        """Cancel a running step and wait for it, save the layout, close the views."""
+        """Cancel a running step and wait for it, save the layout, close the views.
+
+        A job that runs to its end (Export writes files) is not waited for here,
+        with the window frozen: the close comes again once it has ended.
+        """
+        running = self.session.runner.running_step
+        if not self._closed and running in steps.UNSTOPPABLE:
+            if not self._close_when_idle:
+                self._close_when_idle = True
+                self.session.busy_changed.connect(self._close_once_idle)
+            self.status.show_message(
+                f"Closing once {steps.plain_label(running)} has ended…"
+            )
+            event.ignore()
+            return
         if not self._closed and not (
             self.session.may_discard("Closing AMRST Studio")
             and (
@@ -556,6 +571,13 @@ class MainWindow(QMainWindow):
             for view in self.views():
                 view.close_view()
         super().closeEvent(event)
+
+    def _close_once_idle(self, busy: bool) -> None:
+        if busy:
+            return
+        self.session.busy_changed.disconnect(self._close_once_idle)
+        self._close_when_idle = False
+        QTimer.singleShot(0, self.close)  # after the job's result was applied
 
 
 def _along(bar: QTabBar, dock: QDockWidget) -> bool:

@@ -164,6 +164,35 @@ def test_close_the_window_mid_step(make_main_window, qtbot, sample_pair):
     qtbot.wait(0)  # let any late queued signal arrive: nothing may touch the views
 
 
+def test_closing_during_an_export_closes_once_it_is_written(
+    make_main_window, qtbot, monkeypatch
+):
+    """Export runs to its end: the close waits for it with the window alive."""
+    import threading
+
+    from amrst_gui import runner
+
+    win = make_main_window()
+    s = win.session
+    release = threading.Event()
+
+    def export(reporter):  # stands for the export's writing, here in a thread
+        release.wait(30)
+        return [], 0.0
+
+    monkeypatch.setattr(runner, "ENGINE_STEPS", frozenset())
+    win.show()
+    s.runner.run_alone("export", export)
+    assert s.busy
+    win.close()
+    assert win.isVisible()  # not frozen in a wait: the event loop runs
+    assert "Closing once Export has ended" in win.status.message.text()
+    win.close()  # asked again: still one close pending
+    release.set()
+    qtbot.waitUntil(lambda: not win.isVisible(), timeout=10_000)
+    assert not s.busy
+
+
 @pytest.mark.parametrize("group", ["separate", "fine"])
 def test_parameter_change_marks_steps_stale_in_the_actions(
     loaded_window, qtbot, finish, group
