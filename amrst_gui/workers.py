@@ -33,6 +33,7 @@ import logging
 import threading
 import traceback
 import warnings
+from collections import deque
 from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, Qt, QThreadPool, QTimer, Signal, Slot
@@ -49,9 +50,6 @@ log = logging.getLogger("amrst_gui.workers")
 # After Cancel, the longest wait for the work's next check point before the job is
 # reported cancelled anyway.
 CANCEL_GRACE_S = 0.5
-
-# Held by the running display job: display jobs take turns.
-_DISPLAY = threading.Lock()
 
 
 class StageJob(QObject):
@@ -117,9 +115,7 @@ class StageJob(QObject):
         self._discarded = True
         self.cancel()
 
-    def _start(
-        self, fn: Callable[..., Any], args: tuple, kwargs: dict, display: bool
-    ) -> None:
+    def _start(self, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
         # deleted in the worker thread and its timer would fire on freed memory.
@@ -127,11 +123,7 @@ class StageJob(QObject):
 
         def work() -> Any:
             try:
-                if not display:
-                    return fn(*args, reporter, **kwargs)
-                with _DISPLAY:
-                    reporter.check_cancelled()  # dropped while it waited its turn
-                    return fn(*args, reporter, **kwargs)
+                return fn(*args, reporter, **kwargs)
             except BaseException as exc:
                 # Keep the worker traceback for the log; the exception crosses
                 # threads (one from the engine process brings its own).
@@ -180,6 +172,7 @@ class StageJob(QObject):
         on the GUI thread.
         """
         self._stop_abandon_timer()
+        _DISPLAY_TURNS.ended(self)
         self.ended.emit()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -188,6 +181,12 @@ class StageJob(QObject):
                 with contextlib.suppress(RuntimeError, TypeError):
                     signal.disconnect()
         _LIVE.discard(self)
+
+    def _end_unstarted(self) -> None:
+        """End a job dropped before its worker started: cancelled, nothing run."""
+        self.worker_done.set()
+        self._finish(self.errored, Cancelled())
+        self._release()
 
     def _stop_abandon_timer(self) -> None:
         if self._abandon_timer is not None:
@@ -235,7 +234,7 @@ def run_stage(
         the exception, and nothing, respectively.
     display : bool
         A view's job: it runs after the display jobs started before it, one at a
-        time (a job dropped meanwhile ends as soon as its turn comes).
+        time (a job dropped meanwhile ends at its turn, without running).
 
     Returns
     -------
@@ -255,11 +254,50 @@ def run_stage(
     # Held here until the work is over, released on the GUI thread: the caller may
     # drop its reference (a newer scene replaces an older one) while it runs.
     _LIVE.add(job)
-    job._start(fn, args, kwargs, display)
+    if display:
+        _DISPLAY_TURNS.add(job, lambda: job._start(fn, args, kwargs))
+    else:
+        job._start(fn, args, kwargs)
     return job
 
 
 _LIVE: set[StageJob] = set()
+
+
+class _Turns:
+    """Display jobs run one at a time, in the order they were started (napari's
+    slicer does the same): they never compete with each other for the GIL.
+
+    Kept on the GUI thread: a job waiting for its turn holds no worker thread, and
+    one dropped while it waits ends without running.
+    """
+
+    def __init__(self) -> None:
+        self._running: StageJob | None = None
+        self._waiting: deque[tuple[StageJob, Callable[[], None]]] = deque()
+
+    def add(self, job: StageJob, start: Callable[[], None]) -> None:
+        self._waiting.append((job, start))
+        if self._running is None:
+            self._next()
+
+    def ended(self, job: StageJob) -> None:
+        if job is self._running:
+            self._running = None
+            self._next()
+
+    def _next(self) -> None:
+        while self._waiting:
+            job, start = self._waiting.popleft()
+            if job.reporter.cancelled:
+                job._end_unstarted()
+                continue
+            self._running = job
+            start()
+            return
+
+
+_DISPLAY_TURNS = _Turns()
 
 
 # Jobs that may wait at once: a step, the descriptions and the views' scenes. Qt's

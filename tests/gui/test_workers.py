@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import threading
 
+from PySide6.QtCore import QThreadPool
+
 from amrst.errors import Cancelled
 from amrst_gui import workers
 
@@ -140,7 +142,9 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
     dropped = workers.run_stage(job_fn("dropped"), display=True, on_result=got.append)
     last = workers.run_stage(job_fn("last"), display=True, on_result=got.append)
     qtbot.wait(200)
-    assert calls == ["first"]  # the others wait for its end
+    assert calls == ["first"]  # the others wait for its end...
+    # ... on the GUI thread: a job waiting for its turn holds no worker thread.
+    assert QThreadPool.globalInstance().activeThreadCount() == 1
     dropped.discard()
     gate.set()
     # They ran in turn (calls); their results may cross on the way to the GUI thread
@@ -151,3 +155,4 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
     assert not any(overlap)
     assert first.done
     assert last.done
+    assert dropped.worker_done.is_set()  # ended at its turn, without running
