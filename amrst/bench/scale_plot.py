@@ -28,10 +28,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.bench.child import run_amrst
 from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
 from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
-from amrst.bench.scale import run_amrst
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
