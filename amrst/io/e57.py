@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+from amrst.io.posed import ScanInfo, check_indices, guarded, posed_raw, read_all_posed
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -144,8 +144,7 @@ def read_raw_scans(
 
 def read_e57(path: Path) -> RawCloud:
     """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
-    raws = read_raw_scans(path, None, True)
-    return merge_raw([r for _, r in raws], [i for i, _ in raws])
+    return read_all_posed(read_raw_scans, path)
 
 
 def write_e57(

@@ -161,6 +161,20 @@ def merge_raw(raws: Sequence[RawCloud], indices: Sequence[int]) -> RawCloud:
     return RawCloud(xyz, offset, attrs, meta)
 
 
+def read_all_posed(
+    read_raw_scans: Callable[
+        [Path, Sequence[int] | None, bool], list[tuple[int, RawCloud]]
+    ],
+    path: Path,
+) -> RawCloud:
+    """Every scan of the file, posed, in one cloud (``scan_id`` when more than one).
+
+    ``read_raw_scans`` is the format's reader of chosen scans (E57, PTX).
+    """
+    raws = read_raw_scans(path, None, True)
+    return merge_raw([r for _, r in raws], [i for i, _ in raws])
+
+
 def guarded(path: Path, label: str, fn: Callable[[], Any]) -> Any:
     """Run a library call on ``path``; any library error becomes one InvalidInput line."""
     from amrst.errors import AmrstError

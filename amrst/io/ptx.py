@@ -31,7 +31,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.io.common import shorten
-from amrst.io.posed import ScanInfo, check_indices, guarded, merge_raw, posed_raw
+from amrst.io.posed import ScanInfo, check_indices, guarded, posed_raw, read_all_posed
 from amrst.types import MAX_COORD_M
 
 if TYPE_CHECKING:
@@ -282,8 +282,7 @@ def read_raw_scans(
 
 def read_ptx(path: Path) -> RawCloud:
     """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
-    raws = read_raw_scans(path, None, True)
-    return merge_raw([r for _, r in raws], [i for i, _ in raws])
+    return read_all_posed(read_raw_scans, path)
 
 
 def write_ptx(
