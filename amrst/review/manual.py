@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.errors import InvalidInput
-from amrst.geometry import kabsch
+from amrst.geometry import kabsch, yaw_rotation
 from amrst.types import Transform, check_rigid
 
 if TYPE_CHECKING:
@@ -128,9 +128,7 @@ def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
     # Best yaw in closed form (2-D Procrustes): atan2(sum a x b, sum a . b).
     cross = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
     dot = np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
-    yaw = np.arctan2(cross, dot)
-    c, sn = np.cos(yaw), np.sin(yaw)
-    R = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    R = yaw_rotation(np.arctan2(cross, dot))
     out = np.eye(4)
     out[:3, :3] = R
     out[:3, 3] = tc - R @ sc
@@ -267,10 +265,8 @@ def nudge(
     (4, 4) float64
     """
     p = np.zeros(3) if pivot is None else np.asarray(pivot, float)
-    a = np.radians(yaw_deg)
-    c, s = np.cos(a), np.sin(a)
     turn = np.eye(4)
-    turn[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    turn[:3, :3] = yaw_rotation(np.radians(yaw_deg))
     turn[:3, 3] = p - turn[:3, :3] @ p + np.asarray(shift_m, float)
     out: np.ndarray = turn @ np.asarray(T_target_source, float)
     return out

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.geometry import yaw_rotation
 from amrst.simulate import SimulatedPair, simulate_pair, trunk_base
 from amrst.simulate.settings import check_numbers
 from amrst.types import Cloud, apply_transform
@@ -142,9 +143,7 @@ def standing(
     """
     xyz = np.asarray(tree.xyz, dtype=float)
     foot = trunk_base(xyz)
-    c, s = np.cos(heading), np.sin(heading)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    local = (xyz - foot) @ R.T * scale
+    local = (xyz - foot) @ yaw_rotation(heading).T * scale
     z0 = float(height(at_xy[None])[0])
     # Sink the foot 5 cm: the stem enters the ground instead of floating over bumps.
     return np.asarray(local + np.r_[at_xy, z0 - 0.05])
