@@ -257,16 +257,22 @@ def write_case(
     InvalidInput
         As :func:`check_case_folder`.
     """
-    from amrst import io
     from amrst.files.outdir import replace_files
 
     out = make_folder(check_case_folder(out_dir), "case folder")
     truth = {**truth_dict(pair, tree_name, seed), **(extra or {})}
     # The three files as one unit: a kill never pairs new scans with an old truth.
     writers: dict[str, Callable[[Path], object]] = {
-        "target.ply": lambda p: io.write(p, pair.target),
-        "source.ply": lambda p: io.write(p, pair.source),
+        "target.ply": cloud_writer(pair.target),
+        "source.ply": cloud_writer(pair.source),
         "truth.json": lambda p: write_json_atomic(p, truth, indent=1),
     }
     replace_files(out, writers, managed=set(writers))
     return out
+
+
+def cloud_writer(cloud: Cloud) -> Callable[[Path], object]:
+    """Return a writer of ``cloud`` to the path it is given, for ``replace_files``."""
+    from amrst import io
+
+    return lambda path: io.write(path, cloud)

@@ -194,7 +194,7 @@ def write_scans(
     """
     from amrst.files.atomic import make_folder, write_json_atomic
     from amrst.files.outdir import replace_files
-    from amrst.io.cases import check_case_folder
+    from amrst.io.cases import check_case_folder, cloud_writer
 
     out = make_folder(check_case_folder(out_dir), "case folder")
     names = [f"scan_{k}.ply" for k in range(len(sim.scans))]
@@ -213,17 +213,11 @@ def write_scans(
     }
     # The scans and the truth as one unit: a kill never pairs them with older ones.
     writers: dict[str, Callable[[Path], object]] = {
-        name: _cloud_writer(scan) for name, scan in zip(names, sim.scans, strict=True)
+        name: cloud_writer(scan) for name, scan in zip(names, sim.scans, strict=True)
     }
     writers["truth.json"] = lambda p: write_json_atomic(p, doc)
     replace_files(out, writers, managed=set(writers))
     return out
-
-
-def _cloud_writer(cloud: Cloud) -> Callable[[Path], object]:
-    from amrst import io
-
-    return lambda path: io.write(path, cloud)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:

@@ -635,11 +635,12 @@ def write_plot_case(
     """
     from amrst.files.atomic import make_folder, write_json_atomic
     from amrst.files.outdir import replace_files
+    from amrst.io.cases import cloud_writer
 
     out = make_folder(check_case_folder(out_dir), "case folder")
     truth = plot_truth(plot, seed)
     writers: dict[str, Callable[[Path], object]] = {
-        name: _cloud_writer(cloud)
+        name: cloud_writer(cloud)
         for name, cloud in zip(
             scan_file_names(len(plot.scans)), plot.scans, strict=True
         )
@@ -647,9 +648,3 @@ def write_plot_case(
     writers["truth.json"] = lambda p: write_json_atomic(p, truth, indent=1)
     replace_files(out, writers, managed=set(writers))
     return out
-
-
-def _cloud_writer(cloud: Cloud) -> Callable[[Path], object]:
-    from amrst import io
-
-    return lambda path: io.write(path, cloud)
