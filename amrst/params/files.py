@@ -97,7 +97,7 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}
         for key, value in list(values.items()):
             default = getattr(stage, key)
-            if _is_automatic(default) and (value is None or _is_nan(value)):
+            if _is_automatic(default) and (value is None or is_nan(value)):
                 values[key] = default  # null or NaN: "automatic", the default itself
                 continue
             _check_value(f.name, names[key], default, value)
@@ -117,13 +117,14 @@ def params_from_dict(data: dict[str, Any]) -> RegistrationParams:
     return RegistrationParams(**stages)
 
 
-def _is_nan(value: Any) -> bool:
+def is_nan(value: Any) -> bool:
+    """Tell a float NaN (a parameter's "automatic") from any other value."""
     return isinstance(value, float) and math.isnan(value)
 
 
 def _is_automatic(default: Any) -> bool:
     """Tell a NaN default: for such a field NaN (null in a file) means "automatic"."""
-    return _is_nan(default)
+    return is_nan(default)
 
 
 def _finite(value: Any, as_float: bool) -> bool:

@@ -6,7 +6,6 @@ Floats whose default is NaN mean "automatic" and get a text field that accepts
 
 from __future__ import annotations
 
-import math
 import re
 from typing import TYPE_CHECKING, Any, cast
 
@@ -19,14 +18,12 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from amrst.params.files import is_nan
+
 if TYPE_CHECKING:
     import dataclasses
 
 AUTO = "auto"
-
-
-def _is_nan(value: Any) -> bool:
-    return isinstance(value, float) and math.isnan(value)
 
 
 def field_label(name: str) -> str:
@@ -44,7 +41,7 @@ def tooltip_for(field: dataclasses.Field) -> str:
         lines.append(f"Range: {meta.get('min', '-∞')} to {meta.get('max', '∞')}")
     if "choices" in meta:
         lines.append("Choices: " + ", ".join(map(str, meta["choices"])))
-    if _is_nan(field.default):
+    if is_nan(field.default):
         lines.append(f"Type '{AUTO}' for the automatic choice.")
     if isinstance(field.default, tuple):
         lines.append("Several values, separated by commas.")
@@ -77,7 +74,7 @@ def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
         span = spin.maximum() - spin.minimum()
         spin.setSingleStep(max(1, span // 200) if "max" in meta else 1)
         w = spin
-    elif isinstance(value, float) and not _is_nan(field.default) and not _is_nan(value):
+    elif isinstance(value, float) and not is_nan(field.default) and not is_nan(value):
         dspin = QDoubleSpinBox()
         lo, hi = float(meta.get("min", -1e9)), float(meta.get("max", 1e9))
         dspin.setDecimals(_decimals(value, lo))
@@ -113,7 +110,7 @@ def set_editor_value(w: QWidget, value: Any) -> None:
         if isinstance(value, tuple):
             line.setText(", ".join(str(v) for v in value))
         else:
-            line.setText(AUTO if _is_nan(value) else str(value))
+            line.setText(AUTO if is_nan(value) else str(value))
 
 
 def editor_value(w: QWidget, like: Any) -> Any:
@@ -146,7 +143,7 @@ def editor_value(w: QWidget, like: Any) -> Any:
             ) from exc
     if isinstance(like, float):
         if text.lower() in (AUTO, "nan", ""):
-            return like if _is_nan(like) else float("nan")
+            return like if is_nan(like) else float("nan")
         try:
             return float(text)
         except ValueError as exc:
