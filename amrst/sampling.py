@@ -34,6 +34,39 @@ def strided(xyz: np.ndarray, max_points: int) -> np.ndarray:
     return xyz[:: max(1, len(xyz) // max(1, max_points))]
 
 
+def random_rows(
+    rows: np.ndarray,
+    n: int,
+    rng: np.random.Generator | int = 0,
+    *,
+    in_order: bool = False,
+) -> np.ndarray:
+    """Return ``rows`` itself when it has at most ``n`` rows, else ``n`` of them at random.
+
+    Parameters
+    ----------
+    rows : array
+        Picked along its first axis.
+    n : int
+        The most rows returned.
+    rng : Generator or int
+        A seed (the same rows and seed give the same sample), or a generator to draw
+        from (so successive calls pick differently).
+    in_order : bool
+        Keep the picked rows in their order in ``rows``; else they come in the
+        random order drawn.
+
+    Returns
+    -------
+    array
+        A uniform random sample without replacement.
+    """
+    if len(rows) <= n:
+        return rows
+    pick = np.random.default_rng(rng).choice(len(rows), n, replace=False)
+    return rows[np.sort(pick) if in_order else pick]
+
+
 def bounded_sample(cloud: Cloud, max_points: int, seed: int = 0) -> Cloud:
     """Return ``cloud`` itself when it has at most ``max_points`` points, else a sample.
 

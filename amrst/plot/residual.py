@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from amrst.neighbours import THREADS, NearestTree
+from amrst.sampling import random_rows
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -59,7 +60,7 @@ class Surfaces:
 
         ``onto[j]`` maps scan k's frame into scan j's. NaN when no surface is in reach.
         """
-        query = _sample(self.points[k])
+        query = random_rows(self.points[k], RESIDUAL_POINTS, SEED, in_order=True)
         if not len(query) or not onto:
             return float("nan")
         moved = [query @ T[:3, :3].T + T[:3, 3] for T in onto.values()]
@@ -100,13 +101,6 @@ def bundle_error(residuals: Sequence[float]) -> float:
     """Return the RMS of the scans' residuals (NaN when none is known)."""
     known = np.asarray([r for r in residuals if np.isfinite(r)], dtype=float)
     return float(np.sqrt(np.mean(known**2))) if len(known) else float("nan")
-
-
-def _sample(xyz: np.ndarray) -> np.ndarray:
-    if len(xyz) <= RESIDUAL_POINTS:
-        return xyz
-    rng = np.random.default_rng(SEED)
-    return xyz[np.sort(rng.choice(len(xyz), RESIDUAL_POINTS, replace=False))]
 
 
 def _residual(queries: Sequence[np.ndarray], others: Sequence[NearestTree]) -> float:

@@ -15,6 +15,7 @@ import numpy as np
 
 from amrst.review.quality import nn_distances
 from amrst.review.verdict import FAILED, TEXT_RGB
+from amrst.sampling import random_rows
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -27,13 +28,6 @@ TARGET_RGB = (240 / 255, 170 / 255, 40 / 255)  # the app's colours (views.scene)
 SOURCE_RGB = (60 / 255, 150 / 255, 255 / 255)
 DISTANCE_CLIP_M = 0.10  # the colour scale ends here, as in the app
 MAX_POINTS = 30_000  # per cloud and picture: enough to see, quick to draw
-
-
-def sample(xyz: np.ndarray, n: int = MAX_POINTS, seed: int = 0) -> np.ndarray:
-    """At most ``n`` points of ``xyz``, picked at random but reproducibly."""
-    if len(xyz) <= n:
-        return xyz
-    return xyz[np.random.default_rng(seed).choice(len(xyz), n, replace=False)]
 
 
 def png_bytes(fig: Figure) -> bytes:
@@ -60,7 +54,8 @@ def overlay_png(target_xyz: np.ndarray, moved_source_xyz: np.ndarray) -> bytes:
     """Top (x-y) and side (x-z, y-z) views of both scans in their colours."""
     fig = new_figure(11, 4.6)
     axes = fig.subplots(1, 3)
-    t, s = sample(target_xyz), sample(moved_source_xyz, seed=1)
+    t = random_rows(target_xyz, MAX_POINTS)
+    s = random_rows(moved_source_xyz, MAX_POINTS, 1)
     for ax, (i, j, name) in zip(
         axes,
         ((0, 1, "Top (x-y)"), (0, 2, "Front (x-z)"), (1, 2, "Side (y-z)")),
@@ -83,7 +78,7 @@ def distance_png(moved_source_xyz: np.ndarray, distances_m: np.ndarray) -> bytes
     keep = np.isfinite(distances_m)
     xyz, d = moved_source_xyz[keep], distances_m[keep]
     idx = np.argsort(d)  # the far points are drawn last, on top
-    idx = sample(idx[:, None], seed=2)[:, 0]
+    idx = random_rows(idx, MAX_POINTS, 2)
     idx = idx[np.argsort(d[idx])]
     art = None
     for ax, (i, j, name) in zip(
@@ -181,7 +176,8 @@ def render_all(
     slices: Sequence[StemSlice],
 ) -> dict[str, bytes]:
     """Every picture of the report, by name (overlay, distance, histogram, slices)."""
-    t, s = sample(target_xyz), sample(moved_source_xyz, seed=1)
+    t = random_rows(target_xyz, MAX_POINTS)
+    s = random_rows(moved_source_xyz, MAX_POINTS, 1)
     to_target = nn_distances(s, target_xyz)
     to_source = nn_distances(t, moved_source_xyz)
     return {

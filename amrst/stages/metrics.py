@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from amrst.neighbours import THREADS
+from amrst.sampling import random_rows
 from amrst.types import Transform, rotation_angle_deg
 
 
@@ -99,12 +100,6 @@ class TruthErrors:
         return asdict(self)
 
 
-def _sample(xyz: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    if len(xyz) <= n:
-        return xyz
-    return xyz[rng.choice(len(xyz), n, replace=False)]
-
-
 def measure_clouds(
     target_xyz: np.ndarray,
     moved_source_xyz: np.ndarray,
@@ -130,8 +125,8 @@ def measure_clouds(
     from amrst.neighbours import NearestTree
 
     rng = np.random.default_rng(params.seed)
-    tgt = _sample(np.asarray(target_xyz, float), params.max_points, rng)
-    src = _sample(np.asarray(moved_source_xyz, float), params.max_points, rng)
+    tgt = random_rows(np.asarray(target_xyz, float), params.max_points, rng)
+    src = random_rows(np.asarray(moved_source_xyz, float), params.max_points, rng)
     if len(tgt) == 0 or len(src) == 0:
         nan = float("nan")
         return CloudMetrics(nan, nan, nan, nan, 0.0, len(tgt), len(src))
