@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.files.atomic import write_text_atomic
+from amrst.results.report_images import new_figure, png_bytes
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -16,19 +17,12 @@ _MARKERS = "osD^vP*X<>"
 
 
 def _figure(n_cases: int) -> tuple[Any, Any]:
-    # A bare Figure renders with Agg and leaves pyplot's global backend alone.
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(max(8.0, 0.55 * n_cases + 3.0), 5.5), layout="constrained")
+    fig = new_figure(max(8.0, 0.55 * n_cases + 3.0), 5.5)
     return fig, fig.add_subplot()
 
 
 def _save(fig: Any, path: Path) -> Path:
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    write_text_atomic(path, buf.getvalue())
+    write_text_atomic(path, png_bytes(fig, dpi=110))
     return path
 
 

@@ -30,13 +30,13 @@ DISTANCE_CLIP_M = 0.10  # the colour scale ends here, as in the app
 MAX_POINTS = 30_000  # per cloud and picture: enough to see, quick to draw
 
 
-def png_bytes(fig: Figure) -> bytes:
-    """Render ``fig`` with Agg at 100 dpi; return the PNG."""
+def png_bytes(fig: Figure, dpi: int = 100) -> bytes:
+    """Render ``fig`` with Agg at ``dpi``; return the PNG."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
+    fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
 
 
