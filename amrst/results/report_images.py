@@ -24,10 +24,20 @@ if TYPE_CHECKING:
 
     from amrst.review.quality import StemSlice
 
-TARGET_RGB = (240 / 255, 170 / 255, 40 / 255)  # the app's colours (views.scene)
-SOURCE_RGB = (60 / 255, 150 / 255, 255 / 255)
+# Target amber, source blue, 0-255: the app draws the scans in these colours too.
+TARGET_RGB = (240, 170, 40)
+SOURCE_RGB = (60, 150, 255)
 DISTANCE_CLIP_M = 0.10  # the colour scale ends here, as in the app
 MAX_POINTS = 30_000  # per cloud and picture: enough to see, quick to draw
+
+
+def _unit(rgb: tuple[int, int, int]) -> tuple[float, float, float]:
+    """Return a 0-255 colour on matplotlib's 0-1 scale."""
+    r, g, b = rgb
+    return r / 255, g / 255, b / 255
+
+
+_TARGET, _SOURCE = _unit(TARGET_RGB), _unit(SOURCE_RGB)
 
 
 def png_bytes(fig: Figure, dpi: int = 100) -> bytes:
@@ -61,8 +71,8 @@ def overlay_png(target_xyz: np.ndarray, moved_source_xyz: np.ndarray) -> bytes:
         ((0, 1, "Top (x-y)"), (0, 2, "Front (x-z)"), (1, 2, "Side (y-z)")),
         strict=True,
     ):
-        ax.scatter(t[:, i], t[:, j], s=0.3, color=TARGET_RGB, label="target", lw=0)
-        ax.scatter(s[:, i], s[:, j], s=0.3, color=SOURCE_RGB, label="source", lw=0)
+        ax.scatter(t[:, i], t[:, j], s=0.3, color=_TARGET, label="target", lw=0)
+        ax.scatter(s[:, i], s[:, j], s=0.3, color=_SOURCE, label="source", lw=0)
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(name)
         ax.set_xlabel("xyz"[i] + " (m)")
@@ -110,8 +120,8 @@ def histogram_png(to_target_m: np.ndarray, to_source_m: np.ndarray) -> bytes:
     ax = fig.subplots()
     bins = [float(b) for b in np.linspace(0, DISTANCE_CLIP_M * 100, 26)]
     for d, colour, name in (
-        (to_target_m, SOURCE_RGB, "source to target"),
-        (to_source_m, TARGET_RGB, "target to source"),
+        (to_target_m, _SOURCE, "source to target"),
+        (to_source_m, _TARGET, "target to source"),
     ):
         d = d[np.isfinite(d)]
         ax.hist(
@@ -139,12 +149,12 @@ def slices_png(slices: Sequence[StemSlice]) -> bytes:
     axes = np.atleast_1d(fig.subplots(1, n))
     for ax, sl in zip(axes, slices, strict=False):
         circles = [c for c in (sl.target_circle, sl.source_circle) if c is not None]
-        for xy, colour in ((sl.target_xy, TARGET_RGB), (sl.source_xy, SOURCE_RGB)):
+        for xy, colour in ((sl.target_xy, _TARGET), (sl.source_xy, _SOURCE)):
             if len(xy):
                 ax.scatter(xy[:, 0], xy[:, 1], s=2, color=colour, lw=0)
         for c, colour in (
-            (sl.target_circle, TARGET_RGB),
-            (sl.source_circle, SOURCE_RGB),
+            (sl.target_circle, _TARGET),
+            (sl.source_circle, _SOURCE),
         ):
             if c is not None:
                 ax.add_patch(

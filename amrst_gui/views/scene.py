@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from amrst.results.report_images import SOURCE_RGB, TARGET_RGB
 from amrst_gui.views.layers import (
     Layer,
     LinesLayer,
@@ -35,8 +36,6 @@ MATCH_RGB = np.array(
     [(230, 25, 75), (255, 225, 25), (240, 50, 230), (70, 240, 240)], np.uint8
 )
 TETRA_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-TARGET_RGB = (240, 170, 40)  # registration view: target amber, source blue
-SOURCE_RGB = (60, 150, 255)
 COLOUR_MODES = ("height", "intensity", "wood", "scene")
 REGISTRATION_STAGES = ("before", "coarse", "fine", "manual")
 # Distance colouring: 0 cm dark blue ... DISTANCE_CLIP_M and beyond yellow/red.
