@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -79,13 +78,6 @@ def is_plot_case(folder: str | os.PathLike[str]) -> bool:
     return (
         isinstance(doc, dict) and "T_scan1_scank" in doc and "stems_target_frame" in doc
     )
-
-
-def _scan_files(folder: Path) -> list[Path]:
-    if (folder / "target.ply").is_file():
-        return [folder / "target.ply", folder / "source.ply"]
-    found = [p for p in folder.glob("scan_*.ply") if re.fullmatch(r"scan_\d+", p.stem)]
-    return sorted(found, key=lambda p: int(p.stem.split("_")[1]))
 
 
 #: What each true stem in ``stems_target_frame`` gives: ``PlotCase.stems``' columns.
@@ -176,11 +168,12 @@ def read_plot_case(folder: str | os.PathLike[str]) -> PlotCase:
         a truth :func:`read_plot_truth` refuses.
     """
     from amrst import io
+    from amrst.io.cases import plot_scan_files
     from amrst.types import check_rigid
 
     root = Path(folder)
     poses, stems = read_plot_truth(root)
-    files = _scan_files(root)
+    files = plot_scan_files(root)
     if len(files) < 2 or len(files) != len(poses):
         raise InvalidInput(
             f"{root}: {len(files)} scan files for {len(poses)} poses in truth.json; "

@@ -31,7 +31,8 @@ import numpy as np
 from amrst.bench.child import run_amrst
 from amrst.bench.densify import dense_name, densify
 from amrst.bench.markdown import markdown_table
-from amrst.bench.plot import PLOT, PlotRecord, _scan_files, _score_poses
+from amrst.bench.plot import PLOT, PlotRecord, _score_poses
+from amrst.io.cases import plot_scan_files
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -141,7 +142,7 @@ def time_plot(plot_dir: PathLike, extra: Sequence[str] = ()) -> PlotScaleRow:
 
     folder = Path(plot_dir)
     truth = json.loads((folder / "truth.json").read_text())
-    files = _scan_files(folder)
+    files = plot_scan_files(folder)
     with tempfile.TemporaryDirectory(prefix="amrst-scale-plot-") as tmp:
         child = run_amrst("plot", *map(str, files), "--out", tmp, *extra)
         doc_path, csv_path = Path(tmp) / "plot.json", Path(tmp) / "trees.csv"

@@ -5,12 +5,16 @@ The scans are ``target.*`` and ``source.*`` in any format :func:`amrst.io.read` 
 row-major nested lists) mapping source coordinates into the target frame; simulated
 cases add ``spec_target``, ``spec_source``, ``tree``, ``seed``, ``n_target``,
 ``n_source`` and ``shared_fraction``.
+
+A plot case holds ``target.ply`` + ``source.ply`` (two scans) or ``scan_1.ply`` ...
+``scan_N.ply``: :func:`plot_scan_names` names them, :func:`plot_scan_files` finds them.
 """
 
 from __future__ import annotations
 
 import fnmatch
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -269,6 +273,28 @@ def write_case(
     }
     replace_files(out, writers, managed=set(writers))
     return out
+
+
+_PLOT_PAIR = ("target.ply", "source.ply")  # the scans of a plot case of two
+
+
+def plot_scan_names(n_scans: int) -> list[str]:
+    """Return the scan files of a plot case: target + source for two, else scan_k."""
+    if n_scans == 2:
+        return list(_PLOT_PAIR)
+    return [f"scan_{k + 1}.ply" for k in range(n_scans)]
+
+
+def plot_scan_files(folder: Path) -> list[Path]:
+    """Return the scan files of a plot case folder, scan 1 first.
+
+    ``target.ply`` and ``source.ply`` when the folder holds a ``target.ply`` (the
+    caller checks that both exist), else every ``scan_<k>.ply`` there, by ``k``.
+    """
+    if (folder / _PLOT_PAIR[0]).is_file():
+        return [folder / name for name in _PLOT_PAIR]
+    found = [p for p in folder.glob("scan_*.ply") if re.fullmatch(r"scan_\d+", p.stem)]
+    return sorted(found, key=lambda p: int(p.stem.split("_")[1]))
 
 
 def cloud_writer(cloud: Cloud) -> Callable[[Path], object]:

@@ -573,13 +573,6 @@ def simulate_plot(
     )
 
 
-def scan_file_names(n_scans: int) -> list[str]:
-    """Return the scan files of a plot case: target + source for two, else scan_k."""
-    if n_scans == 2:
-        return ["target.ply", "source.ply"]
-    return [f"scan_{k + 1}.ply" for k in range(n_scans)]
-
-
 def plot_truth(plot: SimulatedPlot, seed: int | None = None) -> dict[str, Any]:
     """Return the ``truth.json`` document of a simulated plot (the plot cases' keys).
 
@@ -635,14 +628,14 @@ def write_plot_case(
     """
     from amrst.files.atomic import make_folder, write_json_atomic
     from amrst.files.outdir import replace_files
-    from amrst.io.cases import cloud_writer
+    from amrst.io.cases import cloud_writer, plot_scan_names
 
     out = make_folder(check_case_folder(out_dir), "case folder")
     truth = plot_truth(plot, seed)
     writers: dict[str, Callable[[Path], object]] = {
         name: cloud_writer(cloud)
         for name, cloud in zip(
-            scan_file_names(len(plot.scans)), plot.scans, strict=True
+            plot_scan_names(len(plot.scans)), plot.scans, strict=True
         )
     }
     writers["truth.json"] = lambda p: write_json_atomic(p, truth, indent=1)
