@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -53,8 +52,6 @@ class ManualPanel(NudgeMixin, QScrollArea):
     ``scans_swapped``, ``matches_changed`` and ``selection_changed``; calls
     ``session.add_manual_pose`` and ``session.set_manual_preview``.
     """
-
-    pairs_changed = Signal()
 
     def __init__(self, session, target_view, source_view, parent=None) -> None:
         super().__init__(parent)
@@ -390,7 +387,6 @@ class ManualPanel(NudgeMixin, QScrollArea):
         self.delete_button.setEnabled(bool(self.pairs))
         self.undo_button.setEnabled(bool(self._undo))
         self._reset_nudge()
-        self.pairs_changed.emit()
 
     def use_pair_fit(self) -> None:
         if self.fit is not None:
