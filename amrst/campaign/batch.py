@@ -82,7 +82,6 @@ class BatchSummary:
     errors: dict[str, str] = field(default_factory=dict)
     statuses: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0  # wall time of the whole call, cluster start included
-    run_seconds: float = 0.0  # first submission to last result
     workers: int = 0
     results: list[dict[str, Any]] = field(default_factory=list)
 
@@ -432,4 +431,3 @@ def _collect(
                 left,
                 row,
             )
-    summary.run_seconds = time.perf_counter() - started

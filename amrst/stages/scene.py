@@ -195,13 +195,10 @@ class SceneResult:
         np.ndarray
     )  # (N,) height above the ground surface (above the lowest point without ground)
     has_ground: bool
-    ground_plane: np.ndarray  # (3,) z = a x + b y + c
-    ground_area_m2: float
     ground_tilt_deg: float  # plane normal against the scan's z axis
-    stems: tuple[Stem, ...]  # nearest the axis (or the given stem) first
+    stems: tuple[Stem, ...]  # nearest the clip axis (or the given stem) first
     tree_stem: int  # index of the tree of interest in stems; -1 when none
     base: np.ndarray | None  # (3,) where the tree's stem meets the ground
-    axis_xy: np.ndarray  # (2,) clip axis (footprint centre) or the given stem
     message: str
 
     def keep(self, use_points: str = "above_ground") -> np.ndarray:
@@ -267,7 +264,7 @@ def understand_scene(
     )
     labels = np.full(n, TREE, dtype=np.int8)
     if params.mode == "off" or n < 10:
-        return _no_ground(labels, xyz, axis, "scene analysis off")
+        return _no_ground(labels, xyz, "scene analysis off")
     if stem_xy is not None and params.crop_radius_m > 0:
         # A whole plot scan with the stem given: cut it as a technician would.
         outside = np.hypot(*(xyz[:, :2] - axis).T) > params.crop_radius_m
@@ -318,7 +315,6 @@ def understand_scene(
         return _no_ground(
             labels,
             xyz,
-            axis,
             f"no ground ({ground.area_m2:.1f} m² on a plane under the lowest points): "
             "treated as a segmented tree",
         )
@@ -352,13 +348,10 @@ def understand_scene(
         labels,
         h,
         True,
-        ground.plane,
-        ground.area_m2,
         ground.tilt_deg,
         tuple(stems),
         tree_stem,
         base,
-        axis,
         msg,
     )
 
@@ -383,20 +376,15 @@ def _near(xyz: np.ndarray, xy: np.ndarray, radius: float) -> np.ndarray:
     return np.asarray(xyz[np.hypot(xyz[:, 0] - xy[0], xyz[:, 1] - xy[1]) <= radius])
 
 
-def _no_ground(
-    labels: np.ndarray, xyz: np.ndarray, axis: np.ndarray, msg: str
-) -> SceneResult:
+def _no_ground(labels: np.ndarray, xyz: np.ndarray, msg: str) -> SceneResult:
     z0 = float(xyz[:, 2].min()) if len(xyz) else 0.0
     return SceneResult(
         labels,
         xyz[:, 2] - z0,
         False,
-        np.array([0.0, 0.0, z0]),
-        0.0,
         0.0,
         (),
         -1,
         None,
-        axis,
         msg,
     )

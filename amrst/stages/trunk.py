@@ -193,7 +193,6 @@ class TrunkSearchResult:
     target_base: TrunkBase
     source_base: TrunkBase
     solutions: tuple[YawSolution, ...]  # best first, distinct
-    n_starts: int
 
 
 def find_trunk_base(xyz: np.ndarray, params: TrunkParams) -> TrunkBase:
@@ -333,4 +332,4 @@ def search_yaw(
             kept.append(s)
             if len(kept) == params.keep:
                 break
-    return TrunkSearchResult(tb, sb, tuple(kept), len(yaws))
+    return TrunkSearchResult(tb, sb, tuple(kept))
