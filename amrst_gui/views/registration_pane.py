@@ -73,7 +73,7 @@ class RegistrationPane(QWidget):
         )
         self.colour.currentIndexChanged.connect(lambda _i: self.refresh())
         bar.addWidget(self.colour)
-        self.view_buttons = add_look_buttons(
+        add_look_buttons(
             bar,
             {
                 "Top": "Look down the stem",
