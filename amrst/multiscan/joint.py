@@ -114,7 +114,6 @@ def refine_jointly(
     reference: int,
     params: RegistrationParams,
     reporter: Reporter = NULL_REPORTER,
-    rounds: int = ROUNDS,
     *,
     threads: int = THREADS,
     error: Callable[[Sequence[Transform | None]], float] | None = None,
@@ -136,7 +135,6 @@ def refine_jointly(
         ``fine`` settings (voxel size, method, iterations) and the overlap distance;
         the point set is ``JOINT_POINTS``.
     reporter : Reporter
-    rounds : int
     threads : int
         Threads for the KD-tree queries.
     error : callable or None
@@ -172,7 +170,7 @@ def refine_jointly(
             current,
             movable,
             fine,
-            rounds=rounds,
+            rounds=ROUNDS,
             reporter=reporter,
             refine_registration=refine_registration,
             threads=threads,
@@ -184,7 +182,7 @@ def refine_jointly(
         0.0 if p is None or q is None else _moved(p, q, points[k])
         for k, (p, q) in enumerate(zip(poses, final, strict=True))
     )
-    return JointResult(final, kept, rounds, before, after, moved)
+    return JointResult(final, kept, ROUNDS, before, after, moved)
 
 
 def _rounds(

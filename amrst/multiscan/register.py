@@ -175,7 +175,6 @@ def register_scans(
     params: RegistrationParams | None = None,
     reporter: Reporter | None = None,
     *,
-    joint: bool = True,
     threads: int = THREADS,
 ) -> MultiScanResult:
     """Register several scans of one tree onto the reference scan.
@@ -189,8 +188,6 @@ def register_scans(
     params : RegistrationParams or None
         The two-scan engine's settings, used for every link.
     reporter : Reporter or None
-    joint : bool
-        Refine all poses together after the spanning tree (more than two scans).
     threads : int
         Threads for a pair's two analyses and for each KD-tree query; the result is
         the same for any number.
@@ -244,7 +241,7 @@ def register_scans(
     t0 = time.perf_counter()
     joint_result = None
     poses = graph.poses
-    if joint and sum(p is not None for p in poses) > 2:
+    if sum(p is not None for p in poses) > 2:
         joint_result = refine_jointly(
             analyses,
             poses,

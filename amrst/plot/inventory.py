@@ -180,7 +180,6 @@ def take_inventory(
     clouds: Sequence[Cloud],
     poses: Sequence[Transform | None],
     reference: int = 0,
-    params: StemMapParams | None = None,
     reporter: Reporter | None = None,
     given: Mapping[str, tuple[float, float]] | None = None,
 ) -> Inventory:
@@ -199,7 +198,6 @@ def take_inventory(
         Scan k's local frame -> the reference's local frame (None: not placed).
     reference : int
         The frame of the output; its offset makes the positions world coordinates.
-    params : StemMapParams or None
     reporter : Reporter or None
     given : mapping of tree id to (x, y), or None
         Where the technician says a tree stands, in the reference's local frame.
@@ -210,12 +208,11 @@ def take_inventory(
     """
     from amrst.progress import SubReporter
 
-    params = params or StemMapParams()
     xyz, scan = merge_scans(clouds, poses, reporter)
     # The merged points are thinned once more: overlapping scans double the density.
     stem_map = map_stems(
         xyz,
-        params,
+        StemMapParams(),
         None if reporter is None else SubReporter(reporter, 0.2, 0.95),
         given=given,
     )

@@ -183,7 +183,7 @@ class PlotRegistration:
         return [pl.link for pl in self.links]
 
 
-def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
+def plot_params() -> RegistrationParams:
     """Return the registration settings of a plot: no scene stage, fine on all points.
 
     Neither the scene stage nor the wood-leaf separation is needed: the stem map
@@ -195,7 +195,7 @@ def plot_params(params: RegistrationParams | None = None) -> RegistrationParams:
     """
     from amrst.params import RegistrationParams
 
-    params = params or RegistrationParams()
+    params = RegistrationParams()
     return replace(
         params,
         scene=replace(params.scene, mode="off"),
