@@ -2,79 +2,15 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from scipy.spatial import cKDTree
-
-
-def eigen_features(
-    xyz: np.ndarray,
-    k: int,
-    tree: cKDTree | None = None,
-    neighbours: np.ndarray | None = None,
-) -> dict[str, np.ndarray]:
-    """Local covariance features on k nearest neighbours.
-
-    Parameters
-    ----------
-    xyz : (N, 3) float64
-    k : int
-        Neighbourhood size (including the point itself).
-    tree : scipy.spatial.cKDTree or None
-        A tree built on ``xyz`` (reused when given).
-    neighbours : (M, K) int or None
-        Neighbour indices into ``xyz`` sorted by distance with K >= k (one query serves
-        all scales); row i describes the neighbourhood of the i-th point of interest
-        (M = N for every point).
-
-    Returns
-    -------
-    dict
-        ``linearity``, ``planarity``, ``scattering`` ((λ1-λ2)/λ1, (λ2-λ3)/λ1, λ3/λ1),
-        ``curvature`` (λ3/Σλ), ``verticality`` (|z| of the principal direction), all
-        (M,).
-    """
-    from scipy.spatial import cKDTree
-
-    k = int(min(k, len(xyz)))
-    if neighbours is not None and neighbours.shape[1] >= k:
-        idx = neighbours[:, :k]
-    else:
-        if tree is None:
-            tree = cKDTree(xyz)
-        _, idx = tree.query(xyz, k=k, workers=-1)
-    cov = _covariances(xyz, idx.reshape(len(idx), -1), (k,))[0]
-    feats = _shape(*cov)
-    a, b, c, d, e, f = cov
-    l1 = feats.pop("_l1")
-    # Principal direction: a column of adj(C - l1 I) (the largest one for stability).
-    m = np.stack(
-        [
-            np.stack([a - l1, d, e], -1),
-            np.stack([d, b - l1, f], -1),
-            np.stack([e, f, c - l1], -1),
-        ],
-        1,
-    )
-    cols = (
-        np.cross(m[:, 0], m[:, 1]),
-        np.cross(m[:, 0], m[:, 2]),
-        np.cross(m[:, 1], m[:, 2]),
-    )
-    best = np.argmax(np.stack([np.einsum("ni,ni->n", v, v) for v in cols]), axis=0)
-    v1 = np.choose(best[:, None], cols)
-    v1 = v1 / np.maximum(np.linalg.norm(v1, axis=1, keepdims=True), 1e-300)
-    feats["verticality"] = np.abs(v1[:, 2])
-    return feats
 
 
 def shape_features(
     xyz: np.ndarray, neighbours: np.ndarray, ks: tuple[int, ...]
 ) -> list[dict[str, np.ndarray]]:
-    """``eigen_features`` without the verticality, for several k from one neighbour list.
+    """Local covariance features for several k from one neighbour list.
 
     Parameters
     ----------
@@ -82,19 +18,16 @@ def shape_features(
     neighbours : (M, K) int
         Neighbour indices into ``xyz`` sorted by distance, K >= max(ks).
     ks : tuple of int
-        Neighbourhood sizes; the products are formed once for the largest.
+        Neighbourhood sizes (including the point itself); the products are formed
+        once for the largest.
 
     Returns
     -------
     list of dict
-        Per k: ``linearity``, ``planarity``, ``scattering``, ``curvature``, all (M,).
+        Per k: ``linearity``, ``planarity``, ``scattering`` ((λ1-λ2)/λ1, (λ2-λ3)/λ1,
+        λ3/λ1) and ``curvature`` (λ3/Σλ), all (M,).
     """
-    out = []
-    for cov in _covariances(xyz, neighbours, ks):
-        feats = _shape(*cov)
-        del feats["_l1"]
-        out.append(feats)
-    return out
+    return [_shape(*cov) for cov in _covariances(xyz, neighbours, ks)]
 
 
 # Neighbourhoods per pass of _covariances (4096 x 30 neighbours: about 8 MB of work).
@@ -210,7 +143,6 @@ def _shape(
         "planarity": (l2 - l3) / l1,
         "scattering": l3 / l1,
         "curvature": l3 / (l1 + l2 + l3),
-        "_l1": l1,
     }
 
 

@@ -24,7 +24,6 @@ if TYPE_CHECKING:
     from collections.abc import Iterator
 
 _CREATE = "_ZN3tbb6detail2r16createERNS0_2d114global_controlE"
-_ACTIVE = "_ZN3tbb6detail2r127global_control_active_valueEi"
 _DESTROY = "_ZN3tbb6detail2r17destroyERNS0_2d114global_controlE"
 _MAX_ALLOWED_PARALLELISM = 0  # tbb::global_control::max_allowed_parallelism
 
@@ -63,20 +62,10 @@ def _tbb() -> Any:
         return None
     try:
         lib = ctypes.CDLL(str(path))
-        getattr(lib, _CREATE), getattr(lib, _DESTROY), getattr(lib, _ACTIVE)
+        getattr(lib, _CREATE), getattr(lib, _DESTROY)
     except (OSError, AttributeError):
         return None
     return lib
-
-
-def kiss_tbb_threads() -> int | None:
-    """Return the TBB thread limit in force for kiss_matcher (None: not known)."""
-    lib = _tbb()
-    if lib is None:
-        return None
-    active = getattr(lib, _ACTIVE)
-    active.restype = ctypes.c_size_t
-    return int(active(_MAX_ALLOWED_PARALLELISM))
 
 
 @contextlib.contextmanager

@@ -13,12 +13,25 @@ from pathlib import Path
 import pytest
 
 SCRIPT = r"""
-import json, os, sys
+import ctypes, json, os, sys
 import numpy as np
 from amrst import io
 from amrst.types import apply_transform, make_transform
+from amrst.stages import kiss_threads
 from amrst.stages.global_match import kiss_global
-from amrst.stages.kiss_threads import kiss_one_thread, kiss_tbb_threads
+from amrst.stages.kiss_threads import kiss_one_thread
+
+# tbb::detail::r1::global_control_active_value
+ACTIVE = "_ZN3tbb6detail2r127global_control_active_valueEi"
+
+def kiss_tbb_threads():
+    # The TBB thread limit in force for kiss_matcher (None: not known).
+    lib = kiss_threads._tbb()
+    active = None if lib is None else getattr(lib, ACTIVE, None)
+    if active is None:
+        return None
+    active.restype = ctypes.c_size_t
+    return int(active(kiss_threads._MAX_ALLOWED_PARALLELISM))
 
 xyz = io.read(sys.argv[1]).xyz
 c, s = np.cos(np.radians(120)), np.sin(np.radians(120))
