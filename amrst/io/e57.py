@@ -24,7 +24,6 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.io.common import RawCloud
-    from amrst.types import Cloud, Transform
 
 LABEL = "e57"
 _COLOURS = (("colorRed", "red"), ("colorGreen", "green"), ("colorBlue", "blue"))
@@ -145,57 +144,3 @@ def read_raw_scans(
 def read_e57(path: Path) -> RawCloud:
     """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
     return read_all_posed(read_raw_scans, path)
-
-
-def write_e57(
-    path: str | Path,
-    scans: Sequence[Cloud],
-    poses: Sequence[Transform] | None = None,
-) -> None:
-    """Write scans and their poses to one E57 file, atomically.
-
-    Parameters
-    ----------
-    path : path
-        The ``.e57`` file to write.
-    scans : sequence of Cloud
-        Each scan in its scanner's frame. A scan's ``offset`` is folded into its pose,
-        so the points are stored small (pye57 stores them as float32) and
-        georeferenced coordinates keep millimetres.
-    poses : sequence of (4, 4) float64, optional
-        ``T_world_scanner`` of each scan; identity when None.
-    """
-    from scipy.spatial.transform import Rotation
-
-    from amrst.extras import require
-
-    pye57 = require("pye57", "writing E57 files")
-
-    from amrst.files.atomic import write_atomic
-
-    poses = [np.eye(4)] * len(scans) if poses is None else list(poses)
-
-    def write_to(tmp: Path) -> None:
-        tmp.unlink(missing_ok=True)
-        with pye57.E57(str(tmp), mode="w") as e57:
-            for k, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
-                T = np.asarray(pose, np.float64).copy()
-                T[:3, 3] += T[:3, :3] @ scan.offset  # offset into the pose
-                data: dict[str, np.ndarray] = {
-                    f"cartesian{a}": np.ascontiguousarray(scan.xyz[:, i])
-                    for i, a in enumerate("XYZ")
-                }
-                if scan.intensity is not None:
-                    data["intensity"] = scan.intensity.astype(np.float32)
-                if all(c in scan.attributes for _, c in _COLOURS):
-                    for field, name in _COLOURS:
-                        data[field] = np.asarray(scan.attributes[name]).astype(np.uint8)
-                x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-                e57.write_scan_raw(
-                    data,
-                    name=scan.name or f"scan {k}",
-                    rotation=np.array([w, x, y, z]),
-                    translation=T[:3, 3],
-                )
-
-    write_atomic(path, write_to)

@@ -39,7 +39,6 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from amrst.io.common import RawCloud
-    from amrst.types import Cloud, Transform
 
 LABEL = "ptx"
 _HEADER_LINES = 10
@@ -283,34 +282,3 @@ def read_raw_scans(
 def read_ptx(path: Path) -> RawCloud:
     """Every scan of the file, posed, in one cloud (``scan_id`` when more than one)."""
     return read_all_posed(read_raw_scans, path)
-
-
-def write_ptx(
-    path: str | Path,
-    scans: Sequence[Cloud],
-    poses: Sequence[Transform] | None = None,
-) -> None:
-    """Write scans with their poses to one PTX file (one row per scan), atomically.
-
-    Each scan's ``offset`` is folded into its pose, so the point lines stay small.
-    """
-    from amrst.files.atomic import write_text_atomic
-
-    poses = [np.eye(4)] * len(scans) if poses is None else list(poses)
-    parts = []
-    for scan, pose in zip(scans, poses, strict=True):
-        T = np.asarray(pose, np.float64).copy()
-        T[:3, 3] += T[:3, :3] @ scan.offset
-        head = [f"{len(scan)}", "1", " ".join(f"{v:.17g}" for v in T[:3, 3])]
-        head += [" ".join(f"{v:.17g}" for v in T[:3, k]) for k in range(3)]
-        head += [" ".join(f"{v:.17g}" for v in row) for row in T.T]
-        cols = [scan.xyz[:, 0], scan.xyz[:, 1], scan.xyz[:, 2]]
-        inten = scan.intensity
-        cols.append(np.full(len(scan), 0.5) if inten is None else inten)
-        fmt = "%.17g %.17g %.17g %.9g"
-        if all(c in scan.attributes for c in ("red", "green", "blue")):
-            cols += [np.asarray(scan.attributes[c]) for c in ("red", "green", "blue")]
-            fmt += " %d %d %d"
-        body = "\n".join(fmt % row for row in zip(*cols, strict=True))
-        parts.append("\n".join(head) + "\n" + body + "\n")
-    write_text_atomic(path, "".join(parts))

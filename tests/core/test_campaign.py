@@ -7,13 +7,13 @@ import shutil
 
 import numpy as np
 import pytest
+from _writers import write_e57
 
 from amrst.campaign import init_campaign, load_campaign
 from amrst.campaign.manifest import MANIFEST, tree_tables
 from amrst.campaign.table import COLUMNS
 from amrst.cli import main
 from amrst.errors import InvalidInput
-from amrst.io.e57 import write_e57
 from amrst.types import Cloud
 
 

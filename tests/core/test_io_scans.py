@@ -10,12 +10,11 @@ import re
 
 import numpy as np
 import pytest
+from _writers import write_e57, write_ptx
 from scipy.spatial.transform import Rotation
 
 from amrst import io
 from amrst.errors import InvalidInput
-from amrst.io.e57 import write_e57
-from amrst.io.ptx import write_ptx
 from amrst.io.scans import (
     list_scans,
     names_several,

@@ -206,7 +206,7 @@ def test_campaign_simulate_never_writes_over_a_folder(
 
 
 def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
-    from amrst.io.e57 import write_e57
+    from _writers import write_e57
 
     write_e57(tmp_path / "plot.e57", three_scans.scans)
     plot = tmp_path / "plot.e57"

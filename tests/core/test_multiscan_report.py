@@ -66,7 +66,7 @@ def test_a_scan_not_reached_reads_so(three_scans):
 
 
 def test_two_scans_by_spec_write_the_pair_report(tmp_path, three_scans, capsys):
-    from amrst.io.e57 import write_e57
+    from _writers import write_e57
 
     plot = tmp_path / "plot.e57"
     write_e57(plot, three_scans.scans[:2])

@@ -411,7 +411,8 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
 def test_a_plot_of_posed_e57_scans_knows_where_each_scanner_stood(
     plot_pair, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from amrst.io.e57 import write_e57
+    from _writers import write_e57
+
     from amrst.plot.view import scanner_position
 
     target, source, T_true = plot_pair

@@ -24,11 +24,12 @@ TINY_TREE = Path(__file__).resolve().parents[1] / "data" / "tiny_tree" / "tree.p
 def campaign(tmp_path_factory) -> Path:
     """T01: the sample pair, T02: three simulated scans, T04: two scans of one E57
     file (these three run), T03: not run."""
+    from _writers import write_e57
+
     from amrst import io
     from amrst.campaign import init_campaign, load_campaign
     from amrst.campaign.batch import pending_trees
     from amrst.campaign.run import run_tree
-    from amrst.io.e57 import write_e57
     from amrst.multiscan.simulate import simulate_scans, write_scans
 
     root = tmp_path_factory.mktemp("campaign")

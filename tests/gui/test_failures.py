@@ -87,8 +87,9 @@ def test_a_scan_in_millimetres_is_refused_with_what_to_change(
 def test_a_file_of_several_scans_is_not_opened_as_one_scan(
     make_main_window, qtbot, tmp_path, sample_pair, errors
 ):
+    from _writers import write_e57
+
     from amrst import io
-    from amrst.io.e57 import write_e57
 
     pytest.importorskip("pye57")
     scans = [io.read(sample_pair[0]), io.read(sample_pair[1])]

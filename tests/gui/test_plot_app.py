@@ -467,8 +467,9 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    from _writers import write_e57
+
     from amrst import io
-    from amrst.io.e57 import write_e57
     from amrst_gui.plot import window as plot_window
 
     pytest.importorskip("pye57")
