@@ -308,13 +308,6 @@ def record_from_registration(
     )
 
 
-def registration_summary(
-    result: RegistrationResult, T_truth: Transform | None = None
-) -> dict[str, Any]:
-    """Return the metrics.json content of a registration (see :func:`result_documents`)."""
-    return result_documents(record_from_registration(result, T_truth)).metrics
-
-
 # Keys of the files written before schema_version 2, and where they went.
 _OLD_TRANSFORM_KEYS = {
     "coarse_match_rank": ("coarse_candidate", "rank"),  # the app

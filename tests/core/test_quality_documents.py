@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 
-from amrst.results.documents import registration_summary
+from amrst.results.documents import record_from_registration, result_documents
 from amrst.review.strength import AXES
 
 
 def test_metrics_hold_quality_and_strength(sample_run) -> None:
-    metrics = registration_summary(sample_run.result)
+    metrics = result_documents(record_from_registration(sample_run.result)).metrics
     distance = metrics["quality"]["distance"]
     assert distance["median_m"] < 0.015
     assert distance["within_2cm_fraction"] > 0.5

@@ -1,7 +1,7 @@
 """Hostile path arguments and values: one line, exit 2, never a hang.
 
-Each case once gave a hang, "Internal error", a traceback, raw numpy warnings, or exit 0
-on bad input. FIFOs and devices run in a subprocess with a timeout, so a regression
+None may hang, say "Internal error", print a traceback or raw numpy warnings, or exit
+0 on bad input. FIFOs and devices run in a subprocess with a timeout, so a regression
 fails instead of hanging the suite. Permission cases run in a forked child that drops
 to the "nobody" user when the suite runs as root (root may enter any folder).
 """

@@ -9,8 +9,8 @@ from amrst.types import local_transform
 
 
 def _unverifiable(params):
-    # Nothing verifies at 5 mm, nor a trunk heading at 1 mm: the trunk heading
-    # search's best solution fails, as in the technician's trial.
+    # Nothing verifies at 5 mm, nor a trunk heading at 1 mm: the best solution is
+    # the trunk heading search's, and it fails.
     return dataclasses.replace(
         params,
         coarse=dataclasses.replace(params.coarse, tight_dist_m=0.005),
