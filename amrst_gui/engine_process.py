@@ -144,7 +144,7 @@ class EngineProcess:
         Cancel says, as it did in the app's thread. ``what`` names the call to one
         that waits for it (the other window's)."""
         watch = reporter if stoppable else NULL_REPORTER
-        with self._turn(reporter, watch, what):
+        with self._turn(reporter, what):
             watch.check_cancelled()
             try:
                 proc = self._ensure()
@@ -192,18 +192,23 @@ class EngineProcess:
             raise error
 
     @contextlib.contextmanager
-    def _turn(self, reporter: Reporter, watch: Reporter, what: str) -> Iterator[None]:
+    def _turn(self, reporter: Reporter, what: str) -> Iterator[None]:
         """Hold the process for one call; while another holds it, say whose turn it
-        is on ``reporter`` and heed ``watch``'s Cancel."""
+        is on ``reporter`` and heed its Cancel (a call not stoppable once it runs
+        has not started yet)."""
         if not self._lock.acquire(blocking=False):
             reporter.progress(0.0, f"Waiting for {self._holder} to end…")
             while not self._lock.acquire(timeout=POLL_S):
-                watch.check_cancelled()
+                reporter.check_cancelled()
         self._holder = what
         try:
             yield
         finally:
             self._lock.release()
+
+    def serving(self, what: str) -> bool:
+        """Tell whether the call named ``what`` holds the process now."""
+        return self._lock.locked() and self._holder == what
 
     def trim(self) -> None:
         """Tell an idle engine process which arrays the app still holds, so it

@@ -20,7 +20,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.resources import resource_path
-from amrst_gui import dialogs, menus, steps
+from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings, fit_screen
 from amrst_gui.pacing import DRAW_GAP_MS
@@ -524,17 +524,16 @@ class MainWindow(QMainWindow):
     def closeEvent(self, event) -> None:
         """Cancel a running step and wait for it, save the layout, close the views.
 
-        A job that runs to its end (Export writes files) is not waited for here,
-        with the window frozen: the close comes again once it has ended.
+        An Export writing its files runs to its end: it is not waited for here,
+        with the window frozen; the close comes again once it has ended (and asks
+        then what the window asks). An Export still waiting for the engine is
+        cancelled as any job.
         """
-        running = self.session.runner.running_step
-        if not self._closed and running in steps.UNSTOPPABLE:
+        if not self._closed and self.session.runner.writing:
             if not self._close_when_idle:
                 self._close_when_idle = True
                 self.session.busy_changed.connect(self._close_once_idle)
-            self.status.show_message(
-                f"Closing once {steps.plain_label(running)} has ended…"
-            )
+            self.status.show_message("Closing once Export has written its files…")
             event.ignore()
             return
         if not self._closed and not (

@@ -63,6 +63,7 @@ class StepRunner:
         self._chain_dropped = False
         self._busy = False
         self._closing = False
+        self._what = ""  # the running job, as a call waiting for the engine names it
 
     @property
     def busy(self) -> bool:
@@ -73,6 +74,13 @@ class StepRunner:
     def running_step(self) -> str | None:
         """The step the running job computes, or None."""
         return self.job.name if self.job is not None else None
+
+    @property
+    def writing(self) -> bool:
+        """True while Export writes its files (it runs to its end once it does)."""
+        return self.running_step == "export" and engine_process.ENGINE.serving(
+            self._what
+        )
 
     @property
     def chained(self) -> bool:
@@ -94,12 +102,9 @@ class StepRunner:
     def launch(self, step: str, fn: Callable[..., Any], *args: Any) -> None:
         """Run ``fn(*args, reporter)`` as ``step``'s job (in the engine process
         for the engine's steps); its result goes to the host."""
+        self._what = f"{steps.plain_label(step)} in the main window"
         if step in ENGINE_STEPS:  # their GIL would stall the window
-            fn = engine_process.in_engine(
-                fn,
-                step not in steps.UNSTOPPABLE,
-                f"{steps.plain_label(step)} in the main window",
-            )
+            fn = engine_process.in_engine(fn, step not in steps.UNSTOPPABLE, self._what)
         self.job = workers.run_stage(
             fn,
             *args,

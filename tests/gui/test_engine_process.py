@@ -210,6 +210,21 @@ def test_starting_the_engine_never_waits_for_a_running_call():
         engine.stop()
 
 
+def test_a_call_not_stoppable_may_be_cancelled_while_it_waits_its_turn():
+    """Export runs to its end once it runs; while it waits for another window's
+    call, nothing was written yet and Cancel drops it."""
+    from amrst_gui.engine_process import EngineProcess
+
+    engine = EngineProcess()
+    reporter = EventReporter()
+    with engine._lock:  # another window's call
+        threading.Timer(0.2, reporter.cancel).start()
+        with pytest.raises(Cancelled):
+            engine.call(np.array_equal, 1, reporter=reporter, stoppable=False)
+    assert engine.pid is None  # it never reached the process
+    assert not engine.serving("another job")
+
+
 def test_the_engines_log_reaches_the_apps_loggers(sample_clouds, caplog):
     """The Log panel listens to the ``amrst`` loggers of the app's process: the
     engine's records are sent back and logged there."""
