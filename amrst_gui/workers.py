@@ -286,15 +286,27 @@ class _Turns:
             self._running = None
             self._next()
 
-    def _next(self) -> None:
+    def drop_waiting(self) -> None:
+        """End every job still waiting for its turn, unstarted (the app closes)."""
         while self._waiting:
+            job, _ = self._waiting.popleft()
+            job.reporter.cancel()
+            job._end_unstarted()
+
+    def _next(self) -> None:
+        while self._waiting and self._running is None:
             job, start = self._waiting.popleft()
             if job.reporter.cancelled:
-                job._end_unstarted()
+                job._end_unstarted()  # its handlers may start the next one
                 continue
             self._running = job
-            start()
-            return
+            try:
+                start()
+            except Exception as exc:  # no worker thread: the turn passes on
+                self._running = None
+                job.worker_done.set()
+                job._finish(job.errored, exc)
+                job._release()
 
 
 _DISPLAY_TURNS = _Turns()
@@ -315,6 +327,8 @@ def wait_for_workers(timeout_s: float = 60.0) -> bool:
     """Block until every worker thread has returned; True if they all did in time.
 
     Used when the window closes: cancel first, then wait (napari's pattern), so
-    no worker outlives the widgets its results were meant for.
+    no worker outlives the widgets its results were meant for. Display jobs still
+    waiting for their turn end unstarted.
     """
+    _DISPLAY_TURNS.drop_waiting()
     return QThreadPool.globalInstance().waitForDone(int(timeout_s * 1000))

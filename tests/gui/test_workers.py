@@ -147,12 +147,35 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
     assert QThreadPool.globalInstance().activeThreadCount() == 1
     dropped.discard()
     gate.set()
-    # They ran in turn (calls); their results may cross on the way to the GUI thread
-    # (first's is sent after it let go of the turn), and callers keep only the job
-    # they wait for, so the order of arrival is not promised.
-    qtbot.waitUntil(lambda: sorted(got) == ["first", "last"], timeout=60_000)
+    # They ran in turn, and the next starts once the one before it delivered.
+    qtbot.waitUntil(lambda: got == ["first", "last"], timeout=60_000)
     assert calls == ["first", "last"]
     assert not any(overlap)
     assert first.done
     assert last.done
     assert dropped.worker_done.is_set()  # ended at its turn, without running
+
+
+def test_closing_ends_the_display_jobs_still_waiting_for_their_turn(qtbot):
+    """wait_for_workers (the window closing) starts no waiting view job later."""
+    gate = threading.Event()
+    calls: list[str] = []
+
+    def fn(name):
+        def run(reporter):
+            calls.append(name)
+            gate.wait(30)
+
+        return run
+
+    assert workers.wait_for_workers(60.0)
+    running = workers.run_stage(fn("running"), display=True)
+    waiting = workers.run_stage(fn("waiting"), display=True)
+    qtbot.waitUntil(lambda: calls == ["running"], timeout=60_000)
+    running.discard()
+    assert not workers.wait_for_workers(0.2)  # the running one is still at work
+    assert waiting.worker_done.is_set()  # ended, never to start
+    gate.set()
+    assert workers.wait_for_workers(60.0)
+    qtbot.wait(100)  # the running job's end reaches the GUI thread: nothing starts
+    assert calls == ["running"]
