@@ -426,6 +426,7 @@ class Session(QObject):
         """Accept the candidate shown (the selected row), else the best one not
         rejected, and measure it."""
         chosen, coarse = self.review.selected, self.coarse
+        before = self.review.preferred
         if (
             chosen is not None
             and chosen not in self.rejected
@@ -436,6 +437,10 @@ class Session(QObject):
             log.info("Accepting the selected match %s", self.review.describe(chosen))
             self.review_changed.emit(self.rejected)
         self.run_step("coarse")
+        if not self.runner.busy and self.review.preferred != before:
+            # Not run (a question declined, the scans refused): nothing changes.
+            self.review.preferred = before
+            self.review_changed.emit(self.rejected)
 
     def add_manual_pose(self, T_local: np.ndarray, how: str) -> None:
         """Score a hand-made ``T_target_source`` (local frames) as a candidate.

@@ -102,6 +102,20 @@ def test_accept_coarse_takes_the_selected_row(session):
     assert session.is_stale("coarse")
 
 
+def test_accept_coarse_declined_leaves_the_coarse_solution_as_it_was(
+    session, monkeypatch
+):
+    ranked = session.matches
+    before = session.coarse.candidate.id
+    session.select_match(ranked[2].id)
+    monkeypatch.setattr(session, "may_discard", lambda *_a, **_k: False)
+    monkeypatch.setattr(session, "_replaces_result", lambda *_a: True)
+    session.accept_coarse()  # "discard the result?" - No
+    assert not session.busy
+    assert session.coarse.candidate.id == before
+    assert session.review.preferred is None or session.review.preferred != ranked[2].id
+
+
 def test_the_coarse_overlay_previews_the_selected_row(session):
     from amrst_gui.views.scene import registration_transform
 
