@@ -3,8 +3,8 @@
 The dialog reads a thinned overview of the plot in a worker (``io.read_overview``),
 draws it as a density image seen from above, and takes the stem where the user
 clicks. "Clip" cuts the cylinder and writes the tree atomically into ``out_dir``
-(``jobs.clip_tree_to``, in the engine process: Cancel or closing the dialog stops it
-and leaves no file), then loads it into the session as the chosen scan.
+(``jobs.clip_tree_to``, in the engine process: closing the dialog stops it), then
+loads it into the session as the chosen scan.
 """
 
 from __future__ import annotations
@@ -219,6 +219,7 @@ class ClipDialog(QDialog):
             params,
             out,
             name="clip",
+            on_progress=lambda _f, message: self.status.setText(message),
             on_result=self._clipped,
             on_error=self._failed,
         )

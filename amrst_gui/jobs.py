@@ -300,12 +300,21 @@ def clip_tree_to(
     from amrst.clip import clip_tree
 
     result = clip_tree(plot, params, reporter)
+    reporter.check_cancelled()
     out.parent.mkdir(parents=True, exist_ok=True)
-    free, k = out, 1
-    while free.exists():
-        k += 1
-        free = out.with_name(f"{out.stem}_{k}{out.suffix}")
-    io.write(free, result.cloud)
+    k, free = 1, out
+    while True:  # the name is taken at once (O_EXCL): no other writer gets it too
+        try:
+            os.close(os.open(free, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            break
+        except FileExistsError:
+            k += 1
+            free = out.with_name(f"{out.stem}_{k}{out.suffix}")
+    try:
+        io.write(free, result.cloud)  # atomic: replaces the empty file taken
+    except BaseException:
+        free.unlink(missing_ok=True)
+        raise
     return free, len(result.cloud)
 
 
