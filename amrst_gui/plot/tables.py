@@ -89,8 +89,11 @@ def scan_title(spec: str, name: str, *, short: bool = False) -> str:
     return f"{file} ({name})" if name else file
 
 
-def scan_lines(o: PlotOutcome) -> list[str]:
-    """One line per scan: its file, where it stood, its stems and residual."""
+def scan_lines(o: PlotOutcome, *, short: bool = False) -> list[str]:
+    """One line per scan: its file, where it stood, its stems and residual.
+
+    ``short`` cuts long file names in the middle (:func:`scan_title`).
+    """
 
     lines = []
     for k, scan in enumerate(o.scans):
@@ -113,7 +116,7 @@ def scan_lines(o: PlotOutcome) -> list[str]:
             else ""
         )
         lines.append(
-            f"S{k + 1}  {scan_title(scan.label, scan.name, short=True)}{gone}: {where}, "
+            f"S{k + 1}  {scan_title(scan.label, scan.name, short=short)}{gone}: {where}, "
             f"{scan.stems} stems"
             f"{residual}{state}"
         )

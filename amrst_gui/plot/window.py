@@ -210,6 +210,7 @@ class PlotWindow(QMainWindow):
         self.setObjectName("plot_window")
         self.setWindowTitle("AMRST Studio: plot")
         self.specs: list[str] = []
+        self._scan_tips: list[str] = []  # each scan's whole line, once a run shows it
         # The names files give their scans (E57 setups), by spec, as last listed.
         self.scan_names: dict[str, str] = {}
         self.found: PlotOutcome | None = None  # the run's outcome
@@ -632,6 +633,7 @@ class PlotWindow(QMainWindow):
     def _take_scans(self, paths: list) -> None:
         """The scans the next run reads, listed (the first is the reference)."""
         self.specs = [os.path.abspath(p) for p in paths]  # a link keeps its name
+        self._scan_tips = []
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
             title = scan_title(spec, self.scan_names.get(spec, ""), short=True)
@@ -959,6 +961,7 @@ class PlotWindow(QMainWindow):
             engine_process.in_engine(jobs.report_job, what="the plot report"),
             self.outcome.out,
             name="report",
+            on_progress=lambda _f, message: self._say(message),
             on_result=self._on_report,
             on_error=self._on_report_error,
         )
@@ -1439,7 +1442,8 @@ class PlotWindow(QMainWindow):
         self._update_link_buttons()
 
     def _show_scans(self, o: PlotOutcome) -> None:
-        for k, text in enumerate(scan_lines(o)):
+        self._scan_tips = scan_lines(o)  # whole: the list cuts names and lines
+        for k, text in enumerate(scan_lines(o, short=True)):
             item = self.scan_list.item(k)
             if item is not None:
                 item.setText(text)
@@ -1450,7 +1454,14 @@ class PlotWindow(QMainWindow):
         for k in range(self.scan_list.count()):
             item = self.scan_list.item(k)
             text = item.text().split(GIVEN_MARK)[0]
-            tip = self.specs[k] if k < len(self.specs) else ""
+            tip = "\n".join(
+                t
+                for t in (
+                    self._scan_tips[k] if k < len(self._scan_tips) else "",
+                    self.specs[k] if k < len(self.specs) else "",
+                )
+                if t
+            )
             if k in self.given_scanners:
                 where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
                 text += GIVEN_MARK

@@ -99,7 +99,7 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
     assert "given" not in plot.scan_list.item(1).text()
     assert "given" not in plot.scan_list.item(1).toolTip()
-    assert plot.scan_list.item(1).toolTip() == plot.specs[1]  # the whole path
+    assert plot.scan_list.item(1).toolTip().endswith(plot.specs[1])  # whole path
 
 
 @pytest.fixture(scope="module")
