@@ -67,7 +67,7 @@ def _pair_metrics(folder: Path) -> dict[str, Any] | None:
     doc = read_doc(folder / "metrics.json")
     try:
         return None if doc is None else upgrade_result(doc, "metrics")
-    except (TypeError, ValueError):  # a schema_version that is not a number
+    except (TypeError, ValueError, OverflowError):  # a version that is no number
         return doc
 
 

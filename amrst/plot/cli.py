@@ -215,7 +215,7 @@ def _stand_line(out: Path, area: PlotArea) -> str:
     from amrst.plot.export import read_tree_rows
     from amrst.plot.stand import stand, stand_line
 
-    return stand_line(stand(read_tree_rows(out), area), area)
+    return "stand " + stand_line(stand(read_tree_rows(out), area), area)
 
 
 def _file_list(written: list[Path]) -> str:
