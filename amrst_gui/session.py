@@ -399,7 +399,7 @@ class Session(QObject):
         # Run all stops before it accepts an unverified candidate; an
         # explicit Accept coarse or Fine is the technician's own decision.
         self._stop_unverified = auto
-        if self._replaces_result(chain[0]) and not self.may_discard(
+        if self._replaces_result() and not self.may_discard(
             f"{steps.plain_label(chain[0])} again", result_only=True
         ):
             return
@@ -581,8 +581,8 @@ class Session(QObject):
             return True
         return self.discard_guard(action, " and ".join(lost))
 
-    def _replaces_result(self, first_step: str) -> bool:
-        """Would a chain starting at ``first_step`` replace an unexported fine result?
+    def _replaces_result(self) -> bool:
+        """Would running steps now replace an unexported fine result worth keeping?
 
         Only the fine result: accepting coarse again after a change of mind is part of
         the review and must not ask each time.
