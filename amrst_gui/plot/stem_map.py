@@ -60,6 +60,7 @@ HAND_RGB = (198, 255, 0)
 CLICK_PX = 12.0
 DRAG_PX = 4.0  # a press that moves farther is a drag of the map, not a click
 MAX_ZOOM = 40.0  # times the whole plot's scale: a 20 cm stem some 60 px wide
+KEY_PAN_SHARE = 0.1  # an arrow key moves the map by this share of its size
 LEGEND_PX = 44.0  # the legend's band at the top
 
 
@@ -79,6 +80,7 @@ class StemMapView(QWidget):
         self.setObjectName("stem_map")
         self.setMinimumSize(320, 260)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)  # Tab reaches it: keys zoom
         self.outcome: PlotOutcome | None = None
         self.review = PlotReview()  # the technician's marks, DBHs and added trees
         self.adding = False
@@ -93,7 +95,8 @@ class StemMapView(QWidget):
             "you measured it; green ok, amber check, grey no DBH), ringed white when "
             "marked ok, red when marked check, crossed when not a tree. Triangles are "
             "the scan positions, lines the links. Click a tree; the wheel zooms, a drag "
-            "moves the map, a double click shows it whole."
+            "moves the map, a double click shows it whole. Keys: + and - zoom, the "
+            "arrows move the map, 0 shows it whole, N and P the next and previous tree."
         )
 
     def set_plot(self, outcome: PlotOutcome | None) -> None:
@@ -291,6 +294,32 @@ class StemMapView(QWidget):
             self.show_whole()
         super().mouseDoubleClickEvent(event)
 
+    def keyPressEvent(self, event) -> None:
+        """+ and - zoom at the middle, the arrows move the map, 0 shows it whole."""
+        key = event.key()
+        moves = {
+            Qt.Key.Key_Left: (-1, 0),
+            Qt.Key.Key_Right: (1, 0),
+            Qt.Key.Key_Up: (0, 1),
+            Qt.Key.Key_Down: (0, -1),
+        }
+        mid = self._mapping()[2] if self.outcome is not None else None
+        if self.outcome is None:
+            super().keyPressEvent(event)
+        elif key in (Qt.Key.Key_Plus, Qt.Key.Key_Equal, Qt.Key.Key_Minus):
+            assert mid is not None
+            factor = 1.25 if key != Qt.Key.Key_Minus else 1 / 1.25
+            self.zoom_at(mid[0], self.height() - mid[1], factor)
+        elif key == Qt.Key.Key_0:
+            self.show_whole()
+        elif key in moves:
+            scale, centre, _ = self._mapping()
+            step = KEY_PAN_SHARE * min(self.width(), self.height()) / scale
+            self._centre = centre + step * np.array(moves[key], float)
+            self.update()
+        else:
+            super().keyPressEvent(event)
+
     def wheelEvent(self, event) -> None:
         steps = event.angleDelta().y() / 120.0
         if steps:
@@ -302,6 +331,9 @@ class StemMapView(QWidget):
         p = QPainter(self)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         p.fillRect(self.rect(), BACKGROUND)
+        if self.hasFocus():  # the keys act on the map
+            p.setPen(QPen(self.palette().highlight().color(), 2))
+            p.drawRect(self.rect().adjusted(1, 1, -1, -1))
         p.setFont(self._map_font())
         if self.outcome is None:
             p.setPen(TEXT)

@@ -869,6 +869,33 @@ def test_labels_of_trees_side_by_side_do_not_overlap_until_zoomed(
     assert not {0, 1} & set(labelled)
 
 
+def test_the_stem_map_zooms_and_moves_by_keys(qtbot: QtBot, tmp_path: Path) -> None:
+    from PySide6.QtCore import Qt
+
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.stem_map import StemMapView
+
+    trees = (_tree("T001", (1,), 0.0), _tree("T002", (1,), 10.0))
+    scans = (ScanPlace("a.ply", np.array([5.0, 3.0]), 2, "registered"),)
+    view = StemMapView()
+    qtbot.addWidget(view)
+    view.resize(600, 400)
+    view.set_plot(PlotOutcome(tmp_path, ("a.ply",), trees, scans, (), 0.0, (), None, 1))
+    assert view.focusPolicy() == Qt.FocusPolicy.StrongFocus  # Tab reaches it
+    apart = np.ptp(view.to_px(view.outcome.tree_xy)[:, 0])
+    qtbot.keyClick(view, Qt.Key.Key_Plus)
+    assert view.zoom == 1.25
+    assert np.ptp(view.to_px(view.outcome.tree_xy)[:, 0]) > apart
+    x0 = view.to_px(view.outcome.tree_xy)[0, 0]
+    qtbot.keyClick(view, Qt.Key.Key_Right)  # the view moves right: trees go left
+    assert view.to_px(view.outcome.tree_xy)[0, 0] < x0
+    qtbot.keyClick(view, Qt.Key.Key_Minus)
+    qtbot.keyClick(view, Qt.Key.Key_Plus)
+    qtbot.keyClick(view, Qt.Key.Key_0)  # whole again
+    assert view.zoom == 1.0
+    assert np.isclose(np.ptp(view.to_px(view.outcome.tree_xy)[:, 0]), apart)
+
+
 def test_a_dbh_no_tree_has_draws_a_bounded_circle(qtbot: QtBot, tmp_path: Path) -> None:
     from dataclasses import replace
 
