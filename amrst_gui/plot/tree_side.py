@@ -28,6 +28,8 @@ HAND = QColor(*HAND_RGB)
 #: Room around the tree (m) and for the labels (px).
 MARGIN_M = 0.5
 LABEL_PX = 18.0
+# Behind the height labels: the background, a little see-through.
+LABEL_SHADE = QColor(BACKGROUND.red(), BACKGROUND.green(), BACKGROUND.blue(), 200)
 ASIDE_M = 0.5
 
 
@@ -102,7 +104,7 @@ class TreeSideView(QWidget):
 
         p.setPen(QPen(QColor(120, 120, 120), 1))
         p.drawLine(at(-half, 0.0), at(half, 0.0))
-        self._draw_heights(p, at(-half, 0.0), top, scale)
+        labels = self._draw_heights(p, at(-half, 0.0), top, scale)
         for k in np.unique(profile.scan):
             p.setPen(QPen(scan_colour(int(k)), 2))
             mine = profile.scan == k
@@ -110,6 +112,10 @@ class TreeSideView(QWidget):
                 QPolygonF([at(x, z) for x, z in zip(dx[mine], dz[mine], strict=True)])
             )
         p.setPen(TEXT)
+        for where, text in labels:  # over the points, on a shade: always legible
+            rect = p.fontMetrics().boundingRect(text).translated(where.toPoint())
+            p.fillRect(rect.adjusted(-1, 0, 1, 0), LABEL_SHADE)
+            p.drawText(where, text)
         if np.isfinite(stem.height_m):
             pen = QPen(QColor(255, 255, 255), 1)
             pen.setStyle(Qt.PenStyle.DashLine)
@@ -145,12 +151,17 @@ class TreeSideView(QWidget):
 
     def _draw_heights(
         self, p: QPainter, ground: QPointF, top: float, scale: float
-    ) -> None:
-        """A height scale up the left edge: a tick every 2 m (5 m on a tall tree)."""
+    ) -> list[tuple[QPointF, str]]:
+        """A height scale up the left edge: a tick every 2 m (5 m on a tall tree).
+
+        Returns its labels, drawn after the points.
+        """
         step = 2.0 if top < 12 else 5.0
         p.setPen(QPen(QColor(150, 150, 150), 1))
         p.drawLine(ground, ground - QPointF(0, top * scale))
+        labels = []
         for z in np.arange(step, top + 1e-9, step):
             y = ground.y() - z * scale
             p.drawLine(QPointF(ground.x(), y), QPointF(ground.x() + 5, y))
-            p.drawText(QPointF(ground.x() + 7, y + 4), f"{z:g} m")
+            labels.append((QPointF(ground.x() + 7, y + 4), f"{z:g} m"))
+        return labels
