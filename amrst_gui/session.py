@@ -454,10 +454,19 @@ class Session(QObject):
         if not self.has_scans:
             self._fail("Open a target and a source scan first (File > Open).")
             return
-        self._pending_manual = (np.asarray(T_local, float), how)
         chain = [s for s in self.plan("separate") if s == "separate"]
         if self.is_done("separate") and not self.is_stale("separate"):
             chain = []
+        # Separating again drops the fine result, as the step's own button would.
+        if (
+            chain
+            and self._replaces_result()
+            and not self.may_discard(
+                f"{steps.plain_label('separate')} again", result_only=True
+            )
+        ):
+            return
+        self._pending_manual = (np.asarray(T_local, float), how)
         self._stop_unverified = False
         self.runner.run([*chain, "manual"])
 

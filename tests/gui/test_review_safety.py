@@ -191,3 +191,26 @@ def test_a_step_asked_for_twice_runs_once_and_says_so(fresh):
     assert errors == [
         f"{plain_label('separate')} is running already; wait for it or cancel it (Esc)."
     ]
+
+
+def test_a_manual_pose_that_separates_again_asks_before_dropping_fine(
+    loaded_window, finish, discard_answers
+):
+    win = loaded_window
+    s = win.session
+    finish(s, s.run_all, "fine_finished")
+    p = s.params
+    voxel = p.preprocess.voxel_size_m * 1.5
+    s.set_params(
+        dataclasses.replace(
+            p, preprocess=dataclasses.replace(p.preprocess, voxel_size_m=voxel)
+        )
+    )
+    assert s.is_stale("separate")
+    discard_answers.append(False)  # keep the result
+    s.add_manual_pose(s.final_transform, "typed")
+    assert discard_answers.asked == ["Separate again"] or discard_answers.asked[
+        0
+    ].endswith("again")
+    assert not s.busy
+    assert s.fine is not None  # kept
