@@ -335,8 +335,19 @@ class Session(QObject):
                 "agree to replace it in the Export dialog."
             )
             return
+        from amrst.errors import InvalidInput
+        from amrst.results.export import refuse_inputs_in_out
+
+        try:  # the export would write over a scan open here
+            refuse_inputs_in_out(
+                out_dir, [str(self.path(r)) for r in ("target", "source")]
+            )
+        except InvalidInput as exc:
+            self._fail(f"Not exported: {exc}")
+            return
         self._replace_folder = None
         kwargs = self.export_arguments(cloud_format, parts)
+        kwargs["remove_stale"] = True  # one folder, one result: as the command does
         from amrst_gui.report import export_with_report, report_inputs
 
         self._launch(

@@ -38,8 +38,8 @@ logger = logging.getLogger(__name__)
 
 PARTS = ("registered", "merged", "transform", "metrics", "params")
 CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
-# The cloud files an export may write; a run that writes none of one name removes an
-# earlier run's copy with ``remove_stale`` (so no cloud of another result is left).
+# The cloud files an export may write; with ``remove_stale`` a run removes the earlier
+# run's files it does not write (so no file of another result is left).
 CLOUD_NAMES = tuple(
     f"{stem}.{fmt}" for stem in ("registered_source", "merged") for fmt in CLOUD_FORMATS
 )
@@ -282,9 +282,10 @@ def export_registration(
     transform_extra : dict or None
         More fields for transform.json (confidence, timings, file names).
     remove_stale : bool
-        Drop from the folder the ``CLOUD_NAMES`` files this call does not write (an
-        earlier run's clouds) and an earlier ``report.html`` (the caller writes this
-        run's after, when asked), in the same atomic step, logging one warning line.
+        Drop from the folder the ``MANAGED_NAMES`` files this call does not write (an
+        earlier run's clouds, transform, metrics, parameters) and an earlier
+        ``report.html`` (the caller writes this run's after, when asked), in the same
+        atomic step, logging one warning line.
     lock_timeout_s : float
         How long to wait for another writer of ``out_dir`` (amrst.files.folderlock).
     documents : ResultDocuments or None
@@ -357,8 +358,9 @@ def export_registration(
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
-    # An earlier report describes another result: the caller writes this run's after.
-    stale = [*(n for n in CLOUD_NAMES if n not in names), REPORT_NAME]
+    # What this call does not write, and an earlier report, describe another result
+    # (the caller writes this run's report after).
+    stale = [*sorted(MANAGED_NAMES.difference(names)), REPORT_NAME]
     stale = stale if remove_stale else []
     written, removed = replace_files(
         out,

@@ -298,7 +298,20 @@ def test_stale_clouds_are_removed_only_when_asked(
     assert not names & {"merged.pcd", "registered_source.pcd"}
     assert "merged_keep.ply" in names
     assert len(caplog.records) == 1
-    assert "registered_source.pcd, merged.pcd" in caplog.records[0].getMessage()
+    assert {"registered_source.pcd", "merged.pcd"} <= set(
+        caplog.records[0].getMessage().rsplit(": ", 1)[1].rstrip(".").split(", ")
+    )
+    # Only the clouds again: the transform and the rest of the earlier result go.
+    export_registration(
+        tmp_path,
+        target=target,
+        source=source,
+        T_target_source=T,
+        parts=("registered",),
+        remove_stale=True,
+    )
+    names = {p.name for p in tmp_path.iterdir()}
+    assert names == {"registered_source.ply", "merged_keep.ply"}
 
 
 def test_output_folder_checks(tmp_path: Path) -> None:

@@ -100,3 +100,28 @@ def test_export_into_another_pairs_folder_asks(
         report = (out / "report.html").read_text()
         assert "Where both scans saw the scene" in report
         assert "turn about the stem" in report
+
+
+def test_export_never_writes_over_a_scan_open_in_the_app(
+    make_main_window, qtbot, sample_pair, tmp_path
+):
+    """A scan opened from an earlier export folder, under a name the export writes."""
+    win = make_main_window()
+    s = win.session
+    target, source, _truth = _case(tmp_path, sample_pair, "case")
+    out = tmp_path / "out"
+    out.mkdir()
+    shutil.copy(target, out / "merged.ply")
+    with qtbot.waitSignal(s.scan_loaded, timeout=30_000):
+        s.load_scans(out / "merged.ply", source)
+    qtbot.waitUntil(lambda: not s.busy)
+    _run(qtbot, s, win.actions.run_all.trigger, timeout=120_000)
+    before = (out / "merged.ply").read_bytes()
+    failed: list[str] = []
+    s.failed.connect(failed.append)
+    s.allow_replacing(out)  # even when told it may replace what the folder holds
+    s.export(out)
+    assert not s.busy
+    assert failed
+    assert "is a file the run writes" in failed[-1]
+    assert (out / "merged.ply").read_bytes() == before
