@@ -185,10 +185,11 @@ def _check_value(
             f"Parameter {name} = {_short(value)} is not a finite number (NaN and infinity "
             f"are not allowed here); give a number{span}."
         )
-    if f.name == "seed" and isinstance(value, int) and not 0 <= value < 2**63:
+    # 2**31 - 1: the largest the app's parameter form can show and edit.
+    if f.name == "seed" and isinstance(value, int) and not 0 <= value < 2**31:
         raise InvalidInput(
             f"Parameter {name} = {_short(value)} is {'negative' if value < 0 else 'too large'}; a "
-            "seed must be an integer from 0 to 2**63 - 1."
+            "seed must be an integer from 0 to 2147483647."
         )
     if isinstance(value, tuple) and not 1 <= len(value) <= MAX_LIST_ITEMS:
         raise InvalidInput(

@@ -231,6 +231,10 @@ def test_negative_seeds_are_refused_at_load_time() -> None:
         with pytest.raises(InvalidInput, match=rf"{stage}\.seed = -1 is negative"):
             params_from_dict({stage: {"seed": -1}})
         assert getattr(params_from_dict({stage: {"seed": 7}}), stage).seed == 7
+        # The app's form shows seeds up to 2**31 - 1: a larger one is refused.
+        with pytest.raises(InvalidInput, match=r"too large.*2147483647"):
+            params_from_dict({stage: {"seed": 2**31}})
+        assert getattr(params_from_dict({stage: {"seed": 2**31 - 1}}), stage).seed
 
 
 @pytest.mark.parametrize(
