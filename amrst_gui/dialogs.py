@@ -227,8 +227,16 @@ class ExportDialog(QDialog):
             super().accept()
 
     def _may_write(self) -> bool:
+        from amrst.errors import InvalidInput
+        from amrst.results.export import check_output_dir, output_names
+
         s = self.session
         folder = self.folder()
+        try:  # a name too long, a file in the way...: said here, the dialog open
+            check_output_dir(folder, output_names(self.parts(), self.cloud_format()))
+        except InvalidInput as exc:
+            self.problem.setText(str(exc))
+            return False
         if s is None:
             return True
         before = s.other_export(folder)

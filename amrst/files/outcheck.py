@@ -81,6 +81,11 @@ def check_output_folder(
             f"The {what} path is empty; give a folder name (it is created when "
             "missing)."
         )
+    if "\x00" in os.fspath(out_dir):
+        raise InvalidInput(
+            f"The {what} path holds a NUL character, which no file name may hold; "
+            "type the folder's name again."
+        )
     out = Path(out_dir)
     mode = _lstat_kind(out, what)
     if mode is not None and not stat.S_ISDIR(mode):

@@ -100,8 +100,9 @@ def check_output_dir(
     InvalidInput
         With what to change.
     """
-    clear_dead_run(out_dir)
-    return check_output_folder(out_dir, "export folder", names)
+    out = check_output_folder(out_dir, "export folder", names)
+    clear_dead_run(out)
+    return out
 
 
 def previous_files(out_dir: str | os.PathLike[str]) -> list[str] | None:

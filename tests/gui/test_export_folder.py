@@ -125,3 +125,19 @@ def test_export_never_writes_over_a_scan_open_in_the_app(
     assert failed
     assert "is a file the run writes" in failed[-1]
     assert (out / "merged.ply").read_bytes() == before
+
+
+def test_a_folder_no_file_system_takes_is_named_in_the_dialog(
+    loaded_window, qtbot, tmp_path
+):
+    win = loaded_window
+    s = win.session
+    _run(qtbot, s, win.actions.run_all.trigger, timeout=120_000)
+    box = win.export_dialog()
+    for folder in (str(tmp_path / ("x" * 300)), str(tmp_path) + "/a\x00b"):
+        box.folder_edit.setText(folder)
+        box.accept()  # no traceback: the reason, and the dialog stays open
+        assert box.isVisible()
+        assert "export folder" in box.problem.text()
+    assert not s.busy
+    box.close()
