@@ -344,10 +344,18 @@ class MainWindow(QMainWindow):
         if self.session.running_step == "load":
             self._pending_link = (target, source, stored)
             return
-        self.session.load_stored(target, source, stored)
+        if self.session.load_stored(target, source, stored):  # declined, or busy
+            self._keep_campaign_shown()
 
     def _drop_pending_link(self, *_args) -> None:
-        self._pending_link = None
+        if self._pending_link is not None:
+            self._pending_link = None
+            self._keep_campaign_shown()
+
+    def _keep_campaign_shown(self) -> None:
+        """The Campaign dock selects again the tree the views show."""
+        s = self.session
+        self.campaign_panel.keep_shown(s.path("target"), s.path("source"))
 
     def _show_pending_link(self, busy: bool) -> None:
         if not busy and self._pending_link is not None:

@@ -492,6 +492,46 @@ class CampaignPanel(QWidget):
             result,
         )
 
+    def keep_shown(self, target: Path | None, source: Path | None) -> None:
+        """A chosen link was not opened (the switch declined, or a step runs): select
+        and list again the tree whose scans the views show (``target``, ``source``),
+        or none, so that the selection, which Accept and Reject act on, is never a
+        tree the views do not show."""
+        found = self._tree_of(target, source)
+        tree_id, link = found if found is not None else ("", (0, 1))
+        model, last = self.table.model(), len(COLUMNS) - 1
+        keep = QItemSelection()
+        for i in range(self.table.rowCount()):
+            if tree_id and self._id_at(i) == tree_id:
+                keep.select(model.index(i, 0), model.index(i, last))
+        self.table.blockSignals(True)
+        self.table.selectionModel().select(
+            keep, QItemSelectionModel.SelectionFlag.ClearAndSelect
+        )
+        self.table.blockSignals(False)
+        if found is None:
+            self.stored = None
+            self.tree_scans.show_tree(None, None, (0, 1))
+        else:
+            self._list_tree(tree_id)
+            self._shown = link
+            self.tree_scans.mark_shown(link)
+        self._update_buttons()
+
+    def _tree_of(
+        self, target: Path | None, source: Path | None
+    ) -> tuple[str, tuple[int, int]] | None:
+        """The tree and link whose scans are ``target`` and ``source``, or None."""
+        from pathlib import Path
+
+        if self.campaign is None or target is None or source is None:
+            return None
+        for entry in self.campaign.trees:
+            scans = [Path(self.campaign.root / scan) for scan in entry.scans]
+            if Path(target) in scans and Path(source) in scans:
+                return entry.id, (scans.index(Path(target)), scans.index(Path(source)))
+        return None
+
     def _on_selection(self) -> None:
         self._update_buttons()
         ids = self.selected_ids()

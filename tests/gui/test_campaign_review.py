@@ -367,3 +367,50 @@ def test_the_views_end_on_the_tree_chosen_last_and_the_selection_holds(
     assert not panel.open_campaign(campaign)
     assert "open another when it ends" in panel.status.text()
     panel.job = None
+
+
+@pytest.mark.slow
+def test_a_declined_or_refused_switch_keeps_the_shown_tree_selected(
+    make_main_window, qtbot, campaign, discard_answers, monkeypatch
+):
+    """Another tree clicked but not opened (the technician keeps the unexported
+    result, or a step runs): the selection, the listing and Accept stay on the tree
+    the views show, never on the row merely clicked."""
+    win = make_main_window()
+    session, panel = win.session, win.campaign_panel
+    monkeypatch.setattr(panel, "confirm", lambda _question: True)
+    assert panel.open_campaign(campaign)
+    _show(qtbot, panel, session, "T01")
+    session.run_step("fine")
+    qtbot.waitUntil(lambda: not session.busy, timeout=60_000)
+    assert session.has_unexported_result
+
+    def on_t01() -> None:
+        assert session.path("target").parent.name == "T01"
+        assert panel.selected_ids() == ["T01"]
+        assert "<b>T01</b>" in panel.tree_scans.title.text()
+
+    try:
+        discard_answers.append(False)  # keep the T01 result
+        panel.select_tree("T04")
+        assert discard_answers.asked == ["Opening other scans"]
+        on_t01()
+        panel.accept_button.click()
+        assert panel.state_of("T01") == "accepted"
+        assert panel.state_of("T04") != "accepted"
+        panel.decide("clear")
+
+        # Clicked while a step runs: refused, the same.
+        failed: list[str] = []
+        session.failed.connect(failed.append)
+        session.run_step("fine")
+        panel.select_tree("T04")
+        assert failed
+        assert "runs" in failed[-1]
+        on_t01()
+        qtbot.waitUntil(lambda: not session.busy, timeout=60_000)
+        on_t01()
+    finally:
+        if win.error_box:
+            win.error_box.close()
+        panel.decide("clear")
