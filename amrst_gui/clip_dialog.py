@@ -176,6 +176,8 @@ class ClipDialog(QDialog):
         self.status.setText("Reading an overview…")
         self.view.stem = None
         self.clip_button.setEnabled(False)
+        if self._job is not None and not self._job.done:
+            self._job.discard()  # the file opened before: its picture never shows
         self._job = workers.run_stage(
             io.read_overview,
             self.plot,

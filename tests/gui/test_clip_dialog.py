@@ -62,3 +62,36 @@ def test_clip_two_plots_then_register(
     qtbot.waitUntil(lambda: s.truth is not None, timeout=10_000)
     finish(s, win.actions.run_all.trigger, "fine_finished")
     assert s.truth_errors()["fine"].gt_rmse_m < 0.05
+
+
+def test_a_plot_opened_while_another_is_read_shows_its_own_picture(
+    make_main_window, qtbot, tmp_path, monkeypatch
+):
+    import threading
+
+    import amrst.io as aio
+
+    real, gate = aio.read_overview, threading.Event()
+
+    def slow_first(path, *args, **kwargs):
+        if "first" in str(path):
+            gate.wait(30)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(aio, "read_overview", slow_first)
+    win = make_main_window()
+    xyz = np.random.default_rng(0).random((2000, 3)) * [1.0, 1.0, 10.0]
+    for name, x in (("first", 0.0), ("second", 500.0)):
+        io.write(tmp_path / f"{name}.ply", Cloud(xyz + np.array([x, 0.0, 0.0])))
+    dialog = ClipDialog(win.session, win, out_dir=tmp_path / "clips")
+    qtbot.addWidget(dialog)
+    shown: list[float] = []
+    dialog.view.show_points = lambda xy: shown.append(float(xy[:, 0].mean()))
+    dialog.open_plot(tmp_path / "first.ply")
+    with qtbot.waitSignal(dialog.overview_ready, timeout=30_000):
+        dialog.open_plot(tmp_path / "second.ply")
+    gate.set()  # the first file's overview arrives last...
+    qtbot.wait(500)
+    assert shown
+    assert all(x > 400 for x in shown)  # ... and is never drawn
+    assert dialog.file_label.text() == "second.ply"
