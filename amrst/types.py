@@ -378,6 +378,28 @@ def check_scans(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
         refuse_odd_coordinates(cloud, label)
 
 
+# Georeferenced scans can lie in frames kilometres apart, never farther than the Earth
+# is wide; a larger translation is a typo or other units, and its squares overflow.
+MAX_TRANSLATION_M = 1e8
+
+
+def check_translation(T: np.ndarray, where: str) -> np.ndarray:
+    """Return ``T``, checked to move no farther than two scans may lie apart.
+
+    Raises InvalidInput beyond ``MAX_TRANSLATION_M``.
+    """
+    from amrst.errors import InvalidInput
+
+    shift = float(np.abs(T[:3, 3]).max())
+    if shift > MAX_TRANSLATION_M:
+        raise InvalidInput(
+            f"{where} moves the source by {shift:.3g} m, farther than any two scans "
+            f"lie apart (limit {MAX_TRANSLATION_M:.0e} m). Check its units (metres) "
+            "and layout (4x4 row-major, translation in the last column)."
+        )
+    return T
+
+
 def check_rigid(T: Any, where: str) -> np.ndarray:
     """Check that ``T`` is a rigid 4x4 transform; return it as float64.
 

@@ -8,18 +8,16 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from amrst.errors import InvalidInput
 from amrst.files.safefile import load_json_file
-from amrst.types import check_rigid
+from amrst.types import check_rigid, check_translation
+
+if TYPE_CHECKING:
+    import numpy as np
 
 PathLike = str | os.PathLike[str]
-# Georeferenced scans can lie in frames kilometres apart, never farther than the Earth
-# is wide; a larger translation is a typo or other units, and its squares overflow.
-MAX_TRANSLATION_M = 1e8
 _HINT = "a JSON file with a 4x4 'T_target_source' (row-major, source to target)"
 
 
@@ -51,14 +49,8 @@ def read_truth_document(path: PathLike) -> dict[str, Any]:
             "a 4x4 'T_target_source' (row-major, source to target), e.g. the "
             "truth.json that amrst simulate writes."
         )
-    T = check_rigid(doc["T_target_source"], f"T_target_source in {p}")
-    shift = float(np.abs(T[:3, 3]).max())
-    if shift > MAX_TRANSLATION_M:
-        raise InvalidInput(
-            f"T_target_source in {p} moves the source by {shift:.3g} m, farther than "
-            f"any two scans lie apart (limit {MAX_TRANSLATION_M:.0e} m). Check its "
-            "units (metres) and layout (4x4 row-major, translation in the last column)."
-        )
+    where = f"T_target_source in {p}"
+    check_translation(check_rigid(doc["T_target_source"], where), where)
     return doc
 
 

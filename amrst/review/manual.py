@@ -16,7 +16,7 @@ import numpy as np
 
 from amrst.errors import InvalidInput
 from amrst.geometry import kabsch, yaw_rotation
-from amrst.types import Transform, check_rigid
+from amrst.types import Transform, check_rigid, check_translation
 
 if TYPE_CHECKING:
     from amrst.stages.coarse import Candidate, CoarseParams
@@ -329,7 +329,7 @@ def parse_transform(text: str, where: str = "the transform") -> Transform:
         raise InvalidInput(
             f"{where} must hold 4 rows of 4 numbers, not shape {arr.shape}."
         )
-    return check_rigid(arr, where)
+    return check_translation(check_rigid(arr, where), where)
 
 
 def tight_share(

@@ -116,6 +116,8 @@ def test_parse_transform_reads_what_the_export_writes():
         ("{bad", "not valid JSON"),
         ("1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1", "not a rotation"),
         ("a b c d", "not a row of numbers"),
+        ("1 0 0 1e300\n0 1 0 0\n0 0 1 0\n0 0 0 1", "farther than any two scans"),
+        ("1 0 0 1e12\n0 1 0 0\n0 0 1 0\n0 0 0 1", "limit 1e\\+08 m"),
     ],
 )
 def test_parse_transform_refuses_bad_input_with_one_line(text, words):
