@@ -122,6 +122,8 @@ class Session(QObject):
         self._manual_preview: np.ndarray | None = None
         self._pending_manual: tuple[np.ndarray, str] | None = None
         self._truth_at_load: np.ndarray | None = None
+        # The truth file the last scans loaded cleared (it was the old pair's), or "".
+        self.dropped_truth = ""
         self._pending_stored: StoredLinkResult | None = None
         # The scans are two of a forest plot (many trees): one-stem views do not apply.
         self.plot_pair = False
@@ -661,11 +663,13 @@ class Session(QObject):
             self._roles[role] = sid
             self._scans[sid] = ScanState(sid, self._pending_paths[role], cloud)
         self._reset_results()
+        self.dropped_truth = ""
         if self._truth is not None and self._truth is self._truth_at_load:
+            self.dropped_truth = self._truth_path.name if self._truth_path else "truth"
             log.info(
                 "Cleared the truth (%s): it belonged to the scans before; load "
                 "the new pair's truth with File > Load truth.",
-                self._truth_path.name if self._truth_path else "truth",
+                self.dropped_truth,
             )
             self._truth, self._truth_path = None, None
 

@@ -124,8 +124,15 @@ class WorkflowStatusBar(QStatusBar):
 
     def _on_scan_loaded(self, _role: str) -> None:
         if self.session.has_scans and not self.session.busy:
+            dropped = self.session.dropped_truth
             self.show_message(
                 "Scans loaded. Next: Separate (Ctrl+1) or Run all (Ctrl+R)."
+                + (
+                    f" The truth {dropped} was dropped (it belonged to the scans "
+                    "open before): load this pair's with File ▸ Load truth."
+                    if dropped
+                    else ""
+                )
             )
 
     def _on_separation_finished(self) -> None:

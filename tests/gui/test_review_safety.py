@@ -214,3 +214,21 @@ def test_a_manual_pose_that_separates_again_asks_before_dropping_fine(
     ].endswith("again")
     assert not s.busy
     assert s.fine is not None  # kept
+
+
+def test_a_truth_dropped_with_the_scans_before_is_said_in_the_status_bar(
+    make_main_window, qtbot, sample_pair
+):
+    win = make_main_window()
+    s = win.session
+    target, source, truth = sample_pair
+    with qtbot.waitSignal(s.scan_loaded, timeout=20_000):
+        s.load_scan("target", target)
+    qtbot.waitUntil(lambda: not s.busy)
+    s.load_truth(truth)
+    assert s.truth is not None
+    with qtbot.waitSignal(s.scan_loaded, timeout=20_000):
+        s.load_scan("source", source)
+    qtbot.waitUntil(lambda: not s.busy)
+    assert s.truth is None
+    assert f"The truth {truth.name} was dropped" in win.status.message.text()
