@@ -216,13 +216,35 @@ class Review:
 
     def set_matches(self, automatic: MatchResult, manual: tuple) -> None:
         """A new Match result and the manual poses scored again: the rejected
-        poses carry over to the new ids, and the best candidate left is shown."""
+        poses carry over to the new ids, and so does the candidate chosen, by its
+        pose (else the best candidate left is shown)."""
+        from amrst.stages.coarse import same_solution
+
+        chosen = self.candidate(self.preferred)
         self.automatic = automatic
         self.link_review.manual = manual
         self.rejected = self._carry()
         self.preferred = None
         left = [c for c in self.matches if c.id not in self.rejected]
-        self.selected = left[0].id if left else None
+        if chosen is not None:
+            centre = self.centre()
+            same = [
+                c
+                for c in left
+                if same_solution(c.T_target_source, chosen.T_target_source, centre)
+            ]
+            if same:
+                self.preferred = int(same[0].id)
+            else:
+                log.info(
+                    "The candidate you chose is not among the new matches; the best "
+                    "one left is taken."
+                )
+        self.selected = (
+            self.preferred
+            if self.preferred is not None
+            else (left[0].id if left else None)
+        )
 
     def add_manual(self, candidate: Candidate) -> None:
         """A scored manual pose goes first in the list, shown and not rejected."""

@@ -222,3 +222,30 @@ def test_the_tree_is_measured_and_exported(loaded_window, finish, tmp_path):
     finish(s, lambda: s.export(tmp_path / "out"), "exported")
     tree = json.loads((tmp_path / "out" / "metrics.json").read_text())["tree"]
     assert math.isclose(tree["merged"]["dbh_m"] * 100, merged["dbh_m"])
+
+
+def test_accept_coarse_keeps_the_chosen_pose_across_a_match_run_again(
+    loaded_window, finish
+):
+    """The matches are stale (a parameter changed): Accept coarse runs Match again
+    and takes the candidate of the pose the technician chose, not the new best."""
+    import dataclasses
+
+    from amrst.stages.coarse import same_solution
+
+    win = loaded_window
+    s = win.session
+    finish(s, win.actions.match.trigger, "matches_changed")
+    centre = s.review.centre()
+    best = s.matches[0].T_target_source
+    pick = next(
+        c for c in s.matches if not same_solution(c.T_target_source, best, centre)
+    )
+    s.select_match(pick.id)
+    p = s.params
+    s.set_params(
+        dataclasses.replace(p, match=dataclasses.replace(p.match, edge_tolerance=0.09))
+    )
+    assert s.is_stale("match")
+    (coarse,) = finish(s, win.actions.accept_coarse.trigger, "coarse_accepted")
+    assert same_solution(coarse.T_target_source, pick.T_target_source, centre)
