@@ -6,6 +6,7 @@ Floats whose default is NaN mean "automatic" and get a text field that accepts
 
 from __future__ import annotations
 
+import math
 import re
 from typing import TYPE_CHECKING, Any, cast
 
@@ -145,9 +146,12 @@ def editor_value(w: QWidget, like: Any) -> Any:
         if text.lower() in (AUTO, "nan", ""):
             return like if is_nan(like) else float("nan")
         try:
-            return float(text)
+            value = float(text)
         except ValueError as exc:
             raise ValueError(
                 f"{w.objectName()}: '{text}' is not a number or 'auto'"
             ) from exc
+        if not math.isfinite(value):  # a parameter file refuses it too
+            raise ValueError(f"{w.objectName()}: give a finite number or 'auto'")
+        return value
     return type(like)(text)

@@ -314,3 +314,24 @@ def test_the_tree_tab_says_so_after_a_run_on_a_plot_s_scans(make_main_window, tm
     note = win.metrics_panel.tree_note.text()
     assert "stems: a plot, not one tree" in note
     assert "File ▸ Open plot…" in note
+
+
+def test_an_automatic_number_takes_no_infinity(qtbot):
+    """A float field whose default is automatic takes 'auto' or a finite number."""
+    import dataclasses
+
+    from amrst.params import RegistrationParams
+    from amrst_gui.panels.param_editors import editor_value, make_editor
+
+    params = RegistrationParams().separate
+    field = next(
+        f for f in dataclasses.fields(params) if f.name == "intensity_threshold"
+    )
+    editor = make_editor(field, params.intensity_threshold)
+    qtbot.addWidget(editor)
+    for text in ("inf", "1e999", "-inf"):
+        editor.setText(text)
+        with pytest.raises(ValueError, match="finite number or 'auto'"):
+            editor_value(editor, params.intensity_threshold)
+    editor.setText("0.4")
+    assert editor_value(editor, params.intensity_threshold) == 0.4
