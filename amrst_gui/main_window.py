@@ -424,6 +424,19 @@ class MainWindow(QMainWindow):
         self.setWindowTitle(f"AMRST Studio: {label}")
 
     def _on_files_dropped(self, role: str, paths: list) -> None:
+        """Scans open in their roles; a dropped ``.json`` is the pair's truth."""
+        truths = [p for p in paths if Path(p).suffix.lower() == ".json"]
+        paths = [p for p in paths if p not in truths]
+        if len(truths) > 1:
+            log.warning(
+                "%d JSON files dropped: only one can be the truth; none is loaded.",
+                len(truths),
+            )
+        truth = truths[0] if len(truths) == 1 else None
+        if not paths:
+            if truth is not None:
+                self.session.load_truth(truth)
+            return
         if len(paths) > 2:
             log.warning(
                 "%d files dropped: the first two are opened as target and source; "
@@ -432,9 +445,11 @@ class MainWindow(QMainWindow):
                 ", ".join(Path(p).name for p in paths[2:]),
             )
         if len(paths) >= 2:
-            self.session.load_scans(paths[0], paths[1])
+            self.open_pair(paths[0], paths[1], truth)
         else:
             self.session.load_scan(role, paths[0])
+            if truth is not None:  # after the scan: it belongs to the new pair
+                self.session.load_truth(truth)
 
     # ----------------------------------------------------------- plumbing
     def _add_dock(self, key: str, title: str, widget, area) -> QDockWidget:

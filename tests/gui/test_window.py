@@ -244,3 +244,21 @@ def test_each_tab_group_draws_one_tab_bar(make_main_window, qtbot):
     assert ("Scans", "Parameters") in _drawn_tab_bars(win)
     win.reset_layout()
     qtbot.waitUntil(lambda: _drawn_tab_bars(win) == groups)
+
+
+def test_a_dropped_truth_json_is_loaded_as_the_truth(
+    make_main_window, qtbot, sample_pair
+):
+    win = make_main_window()
+    s = win.session
+    target, source, truth = sample_pair
+    with qtbot.waitSignals([s.scan_loaded] * 2, timeout=20_000):
+        win._on_files_dropped("target", [target, truth, source])
+    qtbot.waitUntil(lambda: not s.busy, timeout=20_000)
+    assert s.path("target") == target
+    assert s.path("source") == source
+    assert s.truth is not None
+    win._on_files_dropped("source", [truth])  # alone: the truth again, no scan
+    qtbot.waitUntil(lambda: not s.busy, timeout=20_000)
+    assert s.truth is not None
+    assert s.path("source") == source
