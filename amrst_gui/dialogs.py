@@ -374,15 +374,22 @@ def load_params(window) -> None:
 
     from amrst import params as params_io
     from amrst.errors import AmrstError
+    from amrst_gui import steps
 
     path, _ = QFileDialog.getOpenFileName(
         window, "Load parameters", "", "JSON (*.json)"
     )
     if path:
         try:
-            window.session.set_params(params_io.load_params(path))
+            loaded = params_io.load_params(path)
         except AmrstError as exc:
             window.session.report_error(f"Could not load parameters: {exc}")
+            return
+        window.session.set_params(loaded)
+        if steps.values_equal(window.session.params, loaded):  # not refused (busy)
+            window.status.show_message(
+                f"Parameters loaded from {path}; steps they change read (stale)."
+            )
 
 
 def save_params(window) -> None:

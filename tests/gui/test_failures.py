@@ -335,3 +335,24 @@ def test_an_automatic_number_takes_no_infinity(qtbot):
             editor_value(editor, params.intensity_threshold)
     editor.setText("0.4")
     assert editor_value(editor, params.intensity_threshold) == 0.4
+
+
+def test_loading_parameters_says_so(make_main_window, monkeypatch, tmp_path):
+    import dataclasses
+
+    from PySide6.QtWidgets import QFileDialog
+
+    from amrst import params as params_io
+
+    win = make_main_window()
+    p = win.session.params
+    path = tmp_path / "p.json"
+    params_io.save_params(
+        path, dataclasses.replace(p, fine=dataclasses.replace(p.fine, max_iterations=7))
+    )
+    monkeypatch.setattr(
+        QFileDialog, "getOpenFileName", staticmethod(lambda *_a, **_k: (str(path), ""))
+    )
+    win.load_params_dialog()
+    assert win.session.params.fine.max_iterations == 7
+    assert win.status.message.text().startswith(f"Parameters loaded from {path}")
