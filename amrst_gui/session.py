@@ -449,6 +449,12 @@ class Session(QObject):
             self.review.preferred = chosen
             log.info("Accepting the selected match %s", self.review.describe(chosen))
             self.review_changed.emit(self.rejected)
+        elif chosen is not None and chosen in self.rejected:
+            log.info(
+                "The selected match %s is rejected: the best one not rejected is "
+                "accepted (restore it to accept it).",
+                self.review.describe(chosen),
+            )
         self.run_step("coarse")
         if not self.runner.busy and self.review.preferred != before:
             # Not run (a question declined, the scans refused): nothing changes.
