@@ -140,8 +140,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_INPUT
     from amrst.plot.inventory import seen_from_any
-    from amrst.plot.report import counted
     from amrst.plot.review import unsure_scans
+    from amrst.plot.stand import counted
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
     named: dict[str, list[str]] = {

@@ -194,7 +194,7 @@ def write_report(out: Path) -> Path:
     from amrst.plot.report import build_report
 
     try:
-        doc, rows = _read_doc_rows(out)
+        doc, rows = read_plot_json(out), read_tree_rows(out)
         page = build_report(doc, rows)
     except (OSError, ValueError, KeyError, TypeError, InvalidInput) as exc:
         raise InvalidInput(
@@ -236,7 +236,7 @@ def read_plot(out: Path) -> PlotFiles:
         )
     view = read_view(out / VIEW_NPZ)
     try:
-        doc, rows = _read_doc_rows(out)
+        doc, rows = read_plot_json(out), read_tree_rows(out)
         if len(doc["scans"]) != len(view.offsets):
             raise ValueError(f"{len(doc['scans'])} scans, {VIEW_NPZ} draws another")
         reference = [s["label"] for s in doc["scans"]].index(doc["reference"])
@@ -287,11 +287,6 @@ def _regular_file(path: Path) -> None:
     """Refuse anything but a regular file: opening a named pipe would wait forever."""
     if os.path.lexists(path) and not path.is_file():
         raise ValueError(f"{path.name} is not a file (a folder, a named pipe...)")
-
-
-def _read_doc_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, str]]]:
-    """plot.json and trees.csv's rows (OSError, ValueError when unreadable)."""
-    return read_plot_json(out), read_tree_rows(out)
 
 
 def read_tree_rows(out: Path) -> list[dict[str, str]]:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst.plot.review import NOT_A_TREE, unsure_scans
-from amrst.plot.stand import PlotArea, stand
+from amrst.plot.stand import PlotArea, counted, stand
 from amrst.results.report_html import STYLE, html_table
 
 if TYPE_CHECKING:
@@ -175,11 +175,6 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
         + "</div>"
     )
-
-
-def counted(n: int, noun: str) -> str:
-    """``n`` and the noun, plural unless one: "1 tree", "3 trees"."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:

@@ -160,20 +160,21 @@ def _num(value: Any, *, signed: bool = False) -> float:
     return v if math.isfinite(v) and (signed or v > 0) else math.nan
 
 
+def counted(n: int, noun: str) -> str:
+    """``n`` and the noun, plural unless one: "1 tree", "3 trees"."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def stand_line(st: Stand, area: PlotArea) -> str:
     """Say the stand inside the plot in one line, as the command and the app do.
 
     No-break spaces keep each unit on its number's line.
     """
     sp = "\u00a0"
-    trees = f"{st.trees} tree{'' if st.trees == 1 else 's'}"
-    outside = (
-        f"; {st.outside} listed tree{'' if st.outside == 1 else 's'} outside"
-        if st.outside
-        else ""
-    )
+    outside = f"; {counted(st.outside, 'listed tree')} outside" if st.outside else ""
     return (
-        f"within {area.radius_m:g}{sp}m ({area.hectares:.4f}{sp}ha): {trees}, "
+        f"within {area.radius_m:g}{sp}m ({area.hectares:.4f}{sp}ha): "
+        f"{counted(st.trees, 'tree')}, "
         f"{st.with_dbh} with a DBH: {st.trees_per_ha:.0f}{sp}stems/ha, "
         f"basal area {st.basal_area_m2_per_ha:.1f}{sp}m²/ha{outside}"
     )

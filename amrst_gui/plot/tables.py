@@ -89,10 +89,11 @@ def scan_title(spec: str, name: str, *, short: bool = False) -> str:
     return f"{file} ({name})" if name else file
 
 
-def scan_lines(o: PlotOutcome, *, short: bool = False) -> list[str]:
+def scan_lines(o: PlotOutcome) -> list[tuple[str, str]]:
     """One line per scan: its file, where it stood, its stems and residual.
 
-    ``short`` cuts long file names in the middle (:func:`scan_title`).
+    Each as the list shows it (a long file name cut in the middle,
+    :func:`scan_title`) and whole.
     """
 
     lines = []
@@ -115,11 +116,12 @@ def scan_lines(o: PlotOutcome, *, short: bool = False) -> list[str]:
             if math.isfinite(scan.residual_m)
             else ""
         )
-        lines.append(
-            f"S{k + 1}  {scan_title(scan.label, scan.name, short=short)}{gone}: {where}, "
-            f"{scan.stems} stems"
-            f"{residual}{state}"
+        rest = f"{gone}: {where}, {scan.stems} stems{residual}{state}"
+        listed, whole = (
+            f"S{k + 1}  {scan_title(scan.label, scan.name, short=cut)}{rest}"
+            for cut in (True, False)
         )
+        lines.append((listed, whole))
     return lines
 
 

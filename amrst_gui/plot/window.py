@@ -55,7 +55,6 @@ from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.files.folderlock import FolderBusy
 from amrst.plot.export import inventory_rows
 from amrst.plot.inventory import seen_from_any
-from amrst.plot.report import counted
 from amrst.plot.review import (
     ACCEPTED,
     REVIEW_JSON,
@@ -63,7 +62,7 @@ from amrst.plot.review import (
     read_review,
     write_review,
 )
-from amrst.plot.stand import MAX_RADIUS_M, PlotArea, stand, stand_line
+from amrst.plot.stand import MAX_RADIUS_M, PlotArea, counted, stand, stand_line
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
@@ -1442,8 +1441,9 @@ class PlotWindow(QMainWindow):
         self._update_link_buttons()
 
     def _show_scans(self, o: PlotOutcome) -> None:
-        self._scan_tips = scan_lines(o)  # whole: the list cuts names and lines
-        for k, text in enumerate(scan_lines(o, short=True)):
+        lines = scan_lines(o)
+        self._scan_tips = [whole for _listed, whole in lines]  # the list cuts them
+        for k, (text, _whole) in enumerate(lines):
             item = self.scan_list.item(k)
             if item is not None:
                 item.setText(text)

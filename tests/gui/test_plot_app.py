@@ -1378,7 +1378,7 @@ def test_a_placed_scan_whose_scanner_is_not_known_says_so() -> None:
         ScanPlace("c.laz", None, 3, "failed", None),
     )
     o = PlotOutcome(Path("."), ("a", "b", "c"), (), scans, (), 0.01, (), None, 1.0)
-    lines = scan_lines(o)
+    lines = [whole for _listed, whole in scan_lines(o)]
     assert "placed (the file does not say where its scanner stood)" in lines[1]
     assert "not placed" in lines[2]
     assert not any("residual" in line for line in lines)  # none known
