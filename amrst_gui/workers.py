@@ -182,10 +182,11 @@ class StageJob(QObject):
                     signal.disconnect()
         _LIVE.discard(self)
 
-    def _end_unstarted(self) -> None:
-        """End a job dropped before its worker started: cancelled, nothing run."""
+    def _end_unstarted(self, exc: BaseException | None = None) -> None:
+        """End a job whose worker never started: cancelled (or ``exc``), nothing
+        run."""
         self.worker_done.set()
-        self._finish(self.errored, Cancelled())
+        self._finish(self.errored, Cancelled() if exc is None else exc)
         self._release()
 
     def _stop_abandon_timer(self) -> None:
@@ -289,9 +290,7 @@ class _Turns:
     def drop_waiting(self) -> None:
         """End every job still waiting for its turn, unstarted (the app closes)."""
         while self._waiting:
-            job, _ = self._waiting.popleft()
-            job.reporter.cancel()
-            job._end_unstarted()
+            self._waiting.popleft()[0]._end_unstarted()
 
     def _next(self) -> None:
         while self._waiting and self._running is None:
@@ -304,16 +303,15 @@ class _Turns:
                 start()
             except Exception as exc:  # no worker thread: the turn passes on
                 self._running = None
-                job.worker_done.set()
-                job._finish(job.errored, exc)
-                job._release()
+                job._end_unstarted(exc)
 
 
 _DISPLAY_TURNS = _Turns()
 
 
-# Jobs that may wait at once: a step, the descriptions and the views' scenes. Qt's
-# default (one thread per core) would queue a view's scene behind a step.
+# Jobs that may run at once: a step, a description, a view's job, the Plot window's
+# and the Campaign dock's. Qt's default (one thread per core) would queue a view's
+# job behind a step.
 MIN_THREADS = 8
 
 

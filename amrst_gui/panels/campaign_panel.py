@@ -522,14 +522,12 @@ class CampaignPanel(QWidget):
         self, target: Path | None, source: Path | None
     ) -> tuple[str, tuple[int, int]] | None:
         """The tree and link whose scans are ``target`` and ``source``, or None."""
-        from pathlib import Path
-
         if self.campaign is None or target is None or source is None:
             return None
         for entry in self.campaign.trees:
-            scans = [Path(self.campaign.root / scan) for scan in entry.scans]
-            if Path(target) in scans and Path(source) in scans:
-                return entry.id, (scans.index(Path(target)), scans.index(Path(source)))
+            scans = [self.campaign.root / scan for scan in entry.scans]
+            if target in scans and source in scans:
+                return entry.id, (scans.index(target), scans.index(source))
         return None
 
     def _on_selection(self) -> None:
