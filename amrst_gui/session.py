@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
-from amrst.errors import AmrstError, Cancelled
+from amrst.errors import AmrstError, Cancelled, InvalidInput
 from amrst.files.outcheck import same_file
 from amrst_gui import jobs, steps
 from amrst_gui.engine_process import EngineStopped
@@ -337,7 +337,6 @@ class Session(QObject):
                 "agree to replace it in the Export dialog."
             )
             return
-        from amrst.errors import InvalidInput
         from amrst.results.export import refuse_inputs_in_out
 
         try:  # the export would write over a scan open here
