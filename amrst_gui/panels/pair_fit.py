@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.errors import InvalidInput
 from amrst.geometry import yaw_rotation
 from amrst.review import manual
 from amrst.types import local_transform
@@ -38,12 +39,26 @@ def fit_locked(
     -------
     (4, 4) float64
         World ``T_target_source``.
+
+    Raises
+    ------
+    InvalidInput
+        The points leave the turn unknown: with a free horizontal shift, source
+        points with no horizontal spread; with none, points on the vertical through
+        the world origin.
     """
     from scipy.optimize import minimize_scalar
 
     t = np.asarray(target_world, float).reshape(-1, 3)
     s = np.asarray(source_world, float).reshape(-1, 3)
     free = ~np.asarray(locks, bool)
+    # The turn is fixed by the points' spread about what the shift leaves free.
+    about = s[:, :2].mean(axis=0) if free[:2].any() else np.zeros(2)
+    if not len(s) or np.linalg.norm(s[:, :2] - about, axis=1).max() < 1e-3:
+        raise InvalidInput(
+            "The source points are on one vertical line, so the heading is unknown: "
+            "pick points that are apart horizontally."
+        )
 
     def shift(yaw: float) -> np.ndarray:
         r = t - s @ yaw_rotation(yaw).T

@@ -167,6 +167,17 @@ def test_a_shift_lock_holds_that_world_shift_at_zero(loaded_window):
     assert locked is not panel.fit.T_target_source
 
 
+def test_a_locked_fit_refuses_pairs_that_leave_the_turn_unknown(loaded_window):
+    panel = loaded_window.manual_panel
+    panel.levelled.setChecked(True)
+    panel.locks[2].setChecked(True)
+    p = loaded_window.session.cloud("source").xyz[0]
+    panel.add_pair(p, p)
+    panel.add_pair(p, p)  # the same point twice: any turn fits it
+    assert panel.fit is None
+    assert "heading is unknown" in panel.fit_label.text()
+
+
 def test_the_wheel_zooms_toward_the_cursor(loaded_window, qtbot):
     from PySide6.QtCore import QPoint, QPointF, Qt
     from PySide6.QtGui import QWheelEvent
