@@ -156,11 +156,11 @@ class _Screenshot:
     def _after_results(self) -> None:
         from PySide6.QtCore import QTimer
 
-        from amrst_gui.pacing import DRAW_GAP_MS
+        from amrst_gui.pacing import TURNS
 
-        # The step's results are emitted after busy_changed(False); the window then
-        # switches to the overlay DRAW_GAP_MS later, and the requested tab comes after.
-        QTimer.singleShot(2 * DRAW_GAP_MS, self._show_tab)
+        # The window switches to the overlay in the draws' queue: the requested tab
+        # takes the turn after.
+        TURNS.later(self.win, "requested tab", self._show_tab)
         QTimer.singleShot(500, self._save)
 
     def _show_tab(self) -> None:

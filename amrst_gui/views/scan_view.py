@@ -16,10 +16,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from PySide6.QtCore import QTimer, Signal
+from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
-from amrst_gui.pacing import DRAW_GAP_MS, PACE
+from amrst_gui.pacing import TURNS
 from amrst_gui.views import framing, lod
 from amrst_gui.views.detail import PointLevels, with_shown
 from amrst_gui.views.interactor import Interactor
@@ -72,7 +72,6 @@ class ScanView(QWidget):
         self._moving = False
         self._frame_start = 0.0
         self._frames = 0
-        self._adapt_queued = False
         self._caption: str | None = None  # the title as drawn
         self._shown_once = False  # OpenGL set up (shown at least once)
         self._prerendered: Scene | None = None
@@ -178,7 +177,7 @@ class ScanView(QWidget):
         self._prerendered = self._scene
         self._choose_level(True)
         self.plotter.render_offscreen()
-        PACE.mark()
+        TURNS.mark()
 
     def reset_camera(
         self,
@@ -337,27 +336,20 @@ class ScanView(QWidget):
         self._frame_start = time.perf_counter()
 
     def _on_frame_end(self, *_args) -> None:
-        PACE.mark()
+        TURNS.mark()
         seconds = time.perf_counter() - self._frame_start
         drawn = self._points.drawn()
         if drawn:
             self._frames += 1
             if self._frames > 1:  # the first frame of points also sets OpenGL up
                 lod.COST.record(drawn, seconds)
-        if not (self._moving or self._adapt_queued or self._closed):
-            self._adapt_queued = True
-            QTimer.singleShot(DRAW_GAP_MS, self, self._adapt)
+        if not (self._moving or self._closed):
+            TURNS.later(self, "adapt", self._adapt)
 
     def _adapt(self) -> None:
         """After a frame at rest: go up a level while it fits the budget, down
         when it did not fit; then draw again."""
-        self._adapt_queued = False
         if self._closed or self._moving or self._rest_level is None:
-            return
-        wait = PACE.wait_ms()  # another view just drew: let the event loop turn
-        if wait:
-            self._adapt_queued = True
-            QTimer.singleShot(wait, self, self._adapt)
             return
         before = self._rest_level
         self._choose_level(False)

@@ -6,7 +6,8 @@ A pane asks ``SceneLoader.request(build, snapshot, n_points)``: ``build(snapshot
 then every 2nd, 4th, ... point: see ``lod``) into contiguous arrays and computes
 the framing bounds. For a big scan this runs in a display job of
 ``workers.run_stage``: plain numpy, no VTK. The view makes its VTK objects from
-those arrays on the GUI thread. A newer request drops an older one still running.
+those arrays on the GUI thread, in its turn among the app's draws (``pacing``). A
+newer request drops an older one still running or waiting.
 Small scans (under ``SYNC_POINTS``) are built at once on the GUI thread: a few
 milliseconds, and the views show their result before the signal that caused it
 returns.
@@ -17,14 +18,15 @@ the builders need on the GUI thread (every result is a frozen engine object).
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtCore import QObject, Signal
 
-from amrst_gui.pacing import DRAW_GAP_MS, PACE
+from amrst_gui.pacing import TURNS
 from amrst_gui.views.layers import PointsLayer, Scene
 
 if TYPE_CHECKING:
@@ -157,49 +159,6 @@ def build_and_prepare(
     return scene, prepare(scene)
 
 
-class _DrawQueue:
-    """Hands finished scenes to their views, one per turn of the event loop.
-
-    Drawing a 200,000-point view is one render (a fraction of a second with
-    software OpenGL); three views finishing together would draw back to back and
-    the window would stall for their sum. Draws are ``DRAW_GAP_MS`` apart.
-    """
-
-    def __init__(self) -> None:
-        self._items: list[tuple[SceneLoader, Any]] = []
-        self._timer: QTimer | None = None
-
-    def put(self, loader: SceneLoader, out: Any) -> None:
-        self.drop(loader)
-        self._items.append((loader, out))
-        if self._timer is None:
-            self._timer = QTimer()
-            self._timer.setSingleShot(True)
-            self._timer.timeout.connect(self._next)
-        if not self._timer.isActive():
-            self._timer.start(DRAW_GAP_MS)
-
-    def drop(self, loader: SceneLoader) -> None:
-        self._items = [it for it in self._items if it[0] is not loader]
-
-    def has(self, loader: SceneLoader) -> bool:
-        return any(it[0] is loader for it in self._items)
-
-    def _next(self) -> None:
-        wait = PACE.wait_ms()
-        if wait and self._timer is not None:
-            self._timer.start(wait)
-            return
-        if self._items:
-            loader, out = self._items.pop(0)
-            loader._draw(out)
-        if self._items and self._timer is not None:
-            self._timer.start(DRAW_GAP_MS)
-
-
-_DRAWS = _DrawQueue()
-
-
 class SceneLoader(QObject):
     """Builds a view's scenes, the newest request only; ``view.update_scene`` draws.
 
@@ -218,7 +177,7 @@ class SceneLoader(QObject):
     @property
     def pending(self) -> bool:
         """True while a scene is being built in a worker or waits to be drawn."""
-        return self._job is not None or _DRAWS.has(self)
+        return self._job is not None or TURNS.waits(self, "scene")
 
     def request(
         self,
@@ -248,7 +207,7 @@ class SceneLoader(QObject):
 
     def drop(self) -> None:
         """Forget the scene being built (a newer one replaces it, or the view goes)."""
-        _DRAWS.drop(self)
+        TURNS.drop(self, "scene")
         if self._job is not None:
             self._job.discard()
             self._job = None
@@ -257,7 +216,7 @@ class SceneLoader(QObject):
         if job is not self._job:
             return
         self._job = None
-        _DRAWS.put(self, out)
+        TURNS.later(self, "scene", functools.partial(self._draw, out))
 
     def _draw(self, out: tuple[Scene, Prepared]) -> None:
         if getattr(self.view, "_closed", False):
