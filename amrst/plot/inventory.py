@@ -42,10 +42,9 @@ TREE_COLUMNS = (
     "n_points",
     "seen_from",
 )
-#: A scan sees a stem when this many of its points lie on it (1 cm thinned).
+#: A scan sees a tree when this many of its points (1 cm thinned) lie on the tree
+#: 0.3-2.5 m above its foot.
 SEEN_POINTS = 30
-#: Around the stem: its radius plus this (m), 0.3-2.5 m above the ground.
-SEEN_MARGIN_M = 0.05
 #: A crown this close to the farthest range of every scan may be cut off (m).
 RANGE_MARGIN_M = 0.5
 #: A scan's range is read from about this many of its points.
@@ -245,16 +244,13 @@ def take_inventory(
 
 
 def _seen_from(stem_map: StemMap, scan: np.ndarray, k: int) -> tuple[int, ...]:
-    """1-based scans with at least ``SEEN_POINTS`` points on stem k's lower part."""
-    stem = stem_map.stems[k]
-    xyz = stem_map.xyz
-    r = (stem.dbh_m / 2 if np.isfinite(stem.dbh_m) else 0.15) + SEEN_MARGIN_M
-    h = xyz[:, 2] - stem.base[2]
-    on = (
-        (np.hypot(xyz[:, 0] - stem.dbh_xy[0], xyz[:, 1] - stem.dbh_xy[1]) <= r)
-        & (h >= 0.3)
-        & (h <= 2.5)
-    )
+    """1-based scans with at least ``SEEN_POINTS`` points on stem k's lower part.
+
+    The points are the tree's own (``owner``), so a leaning stem, or one whose
+    breast-height centre is off its foot, counts the points its scans put on it.
+    """
+    h = stem_map.xyz[:, 2] - stem_map.stems[k].base[2]
+    on = (stem_map.owner == k) & (h >= 0.3) & (h <= 2.5)
     counts = np.bincount(scan[on], minlength=int(scan.max()) + 1 if len(scan) else 0)
     return tuple(int(s) + 1 for s in np.flatnonzero(counts >= SEEN_POINTS))
 

@@ -105,7 +105,7 @@ class StemMapParams:
     ok_rmse_m: float = 0.006
     ok_outlier_share: float = 0.4
     # Height flags: fewer points than min_top_points in the top metre of the tree is
-    # top not seen (hidden or out of range; it wins over lean, as a lower bound); a
+    # top not seen (hidden or out of range; it wins over lean, as the worse); a
     # stem leaning more than lean_flag_deg, or a top farther off the vertical over
     # the stem's foot than top_lean_flag_deg (a bent tree, or a top taken from a
     # neighbour's crown), is lean.
@@ -828,13 +828,13 @@ def _stem_line(
 
     ``line`` holds (height above the ground, x, y) of each slice's circle; fewer than
     ``min_circles`` circles, or spread over less than 0.5 m of height, make an
-    upright stem through their mean centre.
+    upright stem through their mean centre, its lean NaN (not measured).
     """
     if not line:
-        return centre, np.zeros(2), 0.0
+        return centre, np.zeros(2), float("nan")
     a = np.asarray(line)
     if len(a) < min_circles or np.ptp(a[:, 0]) < 0.5:
-        return np.asarray(a[:, 1:].mean(axis=0)), np.zeros(2), 0.0
+        return np.asarray(a[:, 1:].mean(axis=0)), np.zeros(2), float("nan")
     A = np.column_stack([a[:, 0], np.ones(len(a))])
     coef = np.linalg.lstsq(A, a[:, 1:], rcond=None)[0]  # rows: slope, intercept
     lean = float(np.degrees(np.arctan(np.linalg.norm(coef[0]))))

@@ -536,6 +536,16 @@ def test_crown_pieces_go_with_the_crown_they_continue() -> None:
     assert heights[0] == pytest.approx(10.0, abs=0.2)
 
 
+def test_a_stem_line_of_too_few_circles_has_no_lean_measured() -> None:
+    from amrst.plot.stemmap import _stem_line
+
+    base, _, lean = _stem_line([(0.6, 1.0, 2.0), (1.3, 1.2, 2.0)], np.zeros(2))
+    np.testing.assert_allclose(base, [1.1, 2.0])
+    assert np.isnan(lean)  # an upright stem assumed, not measured: trees.csv empty
+    _, _, lean = _stem_line([(0.6, 1.0, 2.0), (1.3, 1.1, 2.0), (2.0, 1.2, 2.0)], base)
+    assert lean == pytest.approx(np.degrees(np.arctan(0.1 / 0.7)))
+
+
 def test_a_top_far_off_the_stem_s_foot_flags_the_height() -> None:
     # An upright 8 m stem whose top bends 3 m aside up to 10.4 m (a bent tree, or a
     # neighbour's crown taken as its top): 16 deg off the vertical over its foot.
@@ -804,6 +814,14 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
     }
     assert {r["tree_id"]: r["in_plot"] for r in _rows_of(out)} == inside
     assert sorted(inside.values()) == ["no", "no", "yes", "yes", "yes", "yes"]
+    # A plot that leaves out every listed tree is said, with what to check.
+    from amrst.plot.cli import _say_stand
+    from amrst.plot.stand import PlotArea
+
+    _say_stand(out, PlotArea((30.0, 30.0), 2.0))
+    assert "no listed tree stands within 2 m of (30.00, 30.00)" in (
+        capsys.readouterr().err
+    )
     assert plot_main([*args, "--overwrite"]) == 0
     assert not (out / "report.html").exists()  # it described the earlier run
     assert (out / "trees" / "my_scan.ply").is_file()
