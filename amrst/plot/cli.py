@@ -166,7 +166,7 @@ def run_cli(args: argparse.Namespace) -> int:
     )
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
     if run.area is not None:
-        print(f"  {_stand_line(out, run.area)}", file=sys.stderr)
+        _say_stand(out, run.area)
     if run.lost:
         print(
             f"amrst plot: no tree stands any more where you gave "
@@ -210,12 +210,24 @@ def run_cli(args: argparse.Namespace) -> int:
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
 
 
-def _stand_line(out: Path, area: PlotArea) -> str:
-    """Sum up the stand inside the plot from the trees.csv just written."""
+def _say_stand(out: Path, area: PlotArea) -> None:
+    """Sum up the stand inside the plot from the trees.csv just written.
+
+    Says so when the plot leaves out every tree listed (a centre or radius mistaken).
+    """
     from amrst.plot.export import read_tree_rows
     from amrst.plot.stand import stand, stand_line
 
-    return "stand " + stand_line(stand(read_tree_rows(out), area), area)
+    st = stand(read_tree_rows(out), area)
+    print(f"  stand {stand_line(st, area)}", file=sys.stderr)
+    if st.outside and not st.trees:
+        cx, cy = area.centre_xy
+        print(
+            f"amrst plot: no listed tree stands within {area.radius_m:g} m of "
+            f"({cx:.2f}, {cy:.2f}): check --plot-centre and --plot-radius against "
+            "trees.csv's x_m, y_m.",
+            file=sys.stderr,
+        )
 
 
 def _file_list(written: list[Path]) -> str:

@@ -180,10 +180,10 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
 def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
     st = stand(rows, area)
     height = (
-        f"Lorey's mean height {st.lorey_height_m:.1f} m over the {st.with_height} "
-        "whose height is flagged ok"
+        f"Lorey's mean height {st.lorey_height_m:.1f} m over {st.with_height} of "
+        f"the {counted(st.trees, 'tree')} (those with a DBH and a height flagged ok)"
         if st.with_height
-        else "no mean height: no height is flagged ok"
+        else "no mean height: no tree with a DBH has a height flagged ok"
     )
     if area is None:
         where, per_ha = "", ""
@@ -192,8 +192,8 @@ def _stand(rows: Sequence[Mapping[str, Any]], area: PlotArea | None) -> str:
         cx, cy = area.centre_xy
         where = (
             f" within {area.radius_m:g} m of ({cx:.2f}, {cy:.2f}), "
-            f"{area.hectares:.4f} ha, {counted(st.outside, 'listed tree')} outside "
-            "left out"
+            f"{area.hectares:.4f} ha ({counted(st.outside, 'listed tree')} "
+            "outside it left out)"
         )
         per_ha = (
             f" ({st.trees_per_ha:.0f} stems/ha, {st.basal_area_m2_per_ha:.1f} m²/ha)"
@@ -318,8 +318,10 @@ def _flags() -> str:
         "measure it by hand before you use it. Height <b>lean</b>: the stem leans "
         f"over {p.lean_flag_deg:g}°, or the top stands over {p.top_lean_flag_deg:g}° "
         "off the vertical over its foot (a bent tree, or a neighbour's crown taken as "
-        "its top); <b>top not seen</b>: no scan saw above it, the height is a lower "
-        "bound (this flag wins when both apply); <b>top not checked</b>: no scan "
+        "its top); <b>top not seen</b>: few points in the tree's top metre, so its "
+        "top may be hidden (the height too low) or a neighbour's (too high); this "
+        "flag wins when both apply, lean_deg still gives the stem's lean; "
+        "<b>top not checked</b>: no scan "
         "says where its scanner stood (a georeferenced LAS, say; amrst plot "
         "--scanner or the Plot window's Scanner at… gives it), so no top could be "
         "checked; <b>none</b> / <b>not measured</b>: "

@@ -2,8 +2,9 @@
 
 A tree marked *not a tree* does not count; a DBH measured by hand stands in for the
 measured one. Heights count only where flagged ``ok`` (``height_flag``): the others
-are lower bounds (``top not seen``) or doubtful (``lean``). With a :class:`PlotArea` (a fixed-radius plot)
-only the trees whose base lies inside count, and the figures are also per hectare.
+are doubtful (``top not seen``: the top may be hidden or a neighbour's; ``lean``).
+With a :class:`PlotArea` (a fixed-radius plot) only the trees whose base lies inside
+count, and the figures are also per hectare.
 """
 
 from __future__ import annotations
