@@ -302,7 +302,8 @@ def read_tree_rows(out: Path) -> list[dict[str, str]]:
         with (out / TREES_CSV).open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             columns = reader.fieldnames or ()
-            missing = [c for c in TREE_COLUMNS if c not in columns]
+            # dbh_why came later: a results folder of an earlier run lacks it.
+            missing = [c for c in TREE_COLUMNS if c not in {*columns, "dbh_why"}]
             if missing:
                 raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
             return list(reader)

@@ -283,7 +283,10 @@ def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
                 f"{_num(r['x_m']):.2f}, {_num(r['y_m']):.2f}, {_num(r['z_m']):.2f}",
                 _fixed(r.get("height_m"), 1) + f" ({_e(r.get('height_flag', ''))})",
                 _fixed(_num(r.get("dbh_m")) * 100, 1)
-                + f" ({_e(r.get('dbh_quality', ''))})",
+                + f" ({_e(r.get('dbh_quality', ''))})"
+                + (
+                    f"<br><small>{_e(r['dbh_why'])}</small>" if r.get("dbh_why") else ""
+                ),
                 _fixed(r.get("crown_width_m"), 1),
                 _e(r.get("seen_from", ""))
                 + (f" <b>(check {_e(check)})</b>" if check else ""),

@@ -158,7 +158,8 @@ class StemRecord:
     ``base`` is where the stem line meets the ground; ``dbh_xy`` the centre of the
     breast-height circle. ``dbh_quality``: ``ok``, ``check`` or ``none`` (no circle:
     ``arc_deg``, ``rmse_m`` and ``outlier_share`` NaN, but the arc of a wide stem seen
-    over too little); ``lean_deg`` is NaN where no stem line was measured;
+    over too little), ``dbh_why`` says why it is not ok where known; ``lean_deg`` is
+    NaN where no stem line was measured;
     ``height_flag``: ``ok``, ``lean`` (the stem, or the line from its foot to the
     tree's top), ``top not seen``, ``top not checked`` (no scanner position known:
     set by the inventory) or ``not measured``.
@@ -177,6 +178,7 @@ class StemRecord:
     crown_width_m: float
     n_points: int
     given: str | None = None  # the id the technician gave the tree it stands for
+    dbh_why: str = ""  # why the DBH is check or none, "; "-separated
 
     @property
     def key_xyz(self) -> np.ndarray:
@@ -558,6 +560,7 @@ def _measure_stem(
     base_xy = _foot_xy(line, base_xy)
     base = np.r_[base_xy, _ground_z(ground, base_xy)]
     nan = float("nan")
+    quality, why = _dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params)
     stem = StemRecord(
         base=base,
         dbh_xy=np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy,
@@ -565,7 +568,8 @@ def _measure_stem(
         arc_deg=dbh_fit[0].arc_deg if dbh_fit else nan,
         rmse_m=dbh_fit[0].rmse_m if dbh_fit else nan,
         outlier_share=dbh_fit[1] if dbh_fit else nan,
-        dbh_quality=_dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params),
+        dbh_quality=quality,
+        dbh_why=why,
         height_m=nan,
         height_flag="not measured",
         lean_deg=lean,
@@ -643,7 +647,9 @@ def _taper_stem(
         ]
     )
     if taper is None:
-        return _without_dbh(fit.stem) if fit.hidden else fit.stem
+        if fit.hidden:
+            return replace(_without_dbh(fit.stem), dbh_why="no circle at 1.0-1.6 m")
+        return fit.stem
     on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
     base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
     base_xy = _foot_xy(fit.line, base_xy)
@@ -651,11 +657,19 @@ def _taper_stem(
         fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
     )
     if not bark or len(taper.circles) < params.taper_min_circles:
-        return _without_dbh(stem)
+        return replace(
+            _without_dbh(stem), dbh_why="too few slice circles agree (twigs?)"
+        )
     if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.wide_arc_deg:
-        return replace(_without_dbh(stem), arc_deg=taper.circle.arc_deg)  # too little
+        return replace(
+            _without_dbh(stem),
+            arc_deg=taper.circle.arc_deg,
+            dbh_why=f"a wide stem seen on {taper.circle.arc_deg:.0f}° < "
+            f"{params.wide_arc_deg:g}°",
+        )
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
+    quality, why = _dbh_quality((taper.circle, outliers), consistent, params)
     return replace(
         stem,
         dbh_xy=np.asarray(taper.circle.centre_xy),
@@ -663,7 +677,8 @@ def _taper_stem(
         arc_deg=taper.circle.arc_deg,
         rmse_m=taper.circle.rmse_m,
         outlier_share=outliers,
-        dbh_quality=_dbh_quality((taper.circle, outliers), consistent, params),
+        dbh_quality=quality,
+        dbh_why=why,
     )
 
 
@@ -713,7 +728,13 @@ def _on_branch_axis(
         return replace(stem, base=base)
     # Its breast-height circle went round branches: no DBH, and no lean measured.
     nan = float("nan")
-    return replace(_without_dbh(stem), base=base, dbh_xy=axis[0], lean_deg=nan)
+    return replace(
+        _without_dbh(stem),
+        base=base,
+        dbh_xy=axis[0],
+        lean_deg=nan,
+        dbh_why="the circle went round branches",
+    )
 
 
 def branch_axis(
@@ -779,7 +800,13 @@ def _without_dbh(stem: StemRecord) -> StemRecord:
     """Return the stem with no DBH (``none``), nor the arc and fit of one."""
     nan = float("nan")
     return replace(
-        stem, dbh_m=nan, arc_deg=nan, rmse_m=nan, outlier_share=nan, dbh_quality="none"
+        stem,
+        dbh_m=nan,
+        arc_deg=nan,
+        rmse_m=nan,
+        outlier_share=nan,
+        dbh_quality="none",
+        dbh_why="",
     )
 
 
@@ -807,18 +834,24 @@ def _tapers(radii: dict[float, float], dbh_h: float, params: StemMapParams) -> b
 
 def _dbh_quality(
     fit: tuple[StemCircle, float] | None, tapers: bool, params: StemMapParams
-) -> str:
+) -> tuple[str, str]:
+    """Return the DBH's quality and, for ``check``, what failed (``dbh_why``)."""
     if fit is None:
-        return "none"
+        return "none", "no circle at breast height"
     circle, outliers = fit
     wide = 2 * circle.radius_m > params.wide_stem_m
-    good = (
-        tapers
-        and circle.arc_deg >= (params.wide_ok_arc_deg if wide else params.ok_arc_deg)
-        and circle.rmse_m <= params.ok_rmse_m
-        and outliers <= params.ok_outlier_share
-    )
-    return "ok" if good else "check"
+    arc = params.wide_ok_arc_deg if wide else params.ok_arc_deg
+    why = []
+    # Written as "not good" so that a NaN figure fails too.
+    if not circle.arc_deg >= arc:
+        why.append(f"arc {circle.arc_deg:.0f}° < {arc:g}°")
+    if not circle.rmse_m <= params.ok_rmse_m:
+        why.append(f"fit {circle.rmse_m * 1000:.1f} > {params.ok_rmse_m * 1000:g} mm")
+    if not outliers <= params.ok_outlier_share:
+        why.append(f"{outliers:.0%} off > {params.ok_outlier_share:.0%}")
+    if not tapers:
+        why.append("slices 1.0-1.6 m disagree")
+    return ("check" if why else "ok"), "; ".join(why)
 
 
 def _stem_line(

@@ -121,8 +121,9 @@ def figures(
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
             f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
             f"{_value(s.outlier_share, ' %', 100, 0)} off"
+            + (f"; {s.dbh_why}" if s.dbh_why else "")
             if np.isfinite(s.dbh_m)
-            else "no circle holds the stem at 1.3 m",
+            else s.dbh_why or "no circle holds the stem at 1.3 m",
         ),
         ("Lean", _value(s.lean_deg, "°", digits=1)),
         (

@@ -141,6 +141,7 @@ def test_inventory_columns_and_the_command(
         "dbh_arc_deg",
         "dbh_rmse_m",
         "dbh_outlier_share",
+        "dbh_why",
         "lean_deg",
         "crown_width_m",
         "n_points",
@@ -153,6 +154,7 @@ def test_inventory_columns_and_the_command(
     for row in rows:
         assert row["height_flag"] in {"ok", "lean", "top not seen"}
         assert row["dbh_quality"] in {"ok", "check", "none"}
+        assert bool(row["dbh_why"]) == (row["dbh_quality"] != "ok")
         assert 0 < float(row["dbh_m"]) < 0.6
         assert 0 <= float(row["dbh_outlier_share"]) <= 1
         assert 60 <= float(row["dbh_arc_deg"]) <= 360
@@ -714,14 +716,18 @@ def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
     )
     dbh = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
     assert dbh[-3].dbh_quality == "none"  # 80 cm wide, 130 deg of it
+    assert dbh[-3].dbh_why.startswith("a wide stem seen on 1")
     assert dbh[0].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 130 deg: round
     assert dbh[3].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 220 deg
     # A circle on half the bark or less is not bounded on both sides: check it.
     assert dbh[6].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 180 deg
     assert dbh[6].dbh_quality == "check"
-    assert dbh[-6].dbh_quality == "ok"  # 20 cm, 220 deg
+    assert dbh[6].dbh_why.startswith("arc 1")
+    assert dbh[6].dbh_why.endswith("< 202.5°")
+    assert (dbh[-6].dbh_quality, dbh[-6].dbh_why) == ("ok", "")  # 20 cm, 220 deg
     # A wide stem is seldom round: ok only from two thirds of its bark.
     assert dbh[3].dbh_quality == "check"  # 80 cm, 220 deg
+    assert dbh[3].dbh_why.endswith("< 240°")
     assert dbh[9].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 260 deg
     assert dbh[9].dbh_quality == "ok"
 
