@@ -128,7 +128,8 @@ def write_las_parts(
 
     ``moves[k]`` takes ``parts[k]``'s local coordinates into the frame whose origin
     is ``offset`` (world coordinates); with ``ids``, every point of part k gets
-    ``scan_id`` = ``ids[k]``. The attributes every part has are kept; the first
+    ``scan_id`` = ``ids[k]``, and ``point_source_id`` too where the parts carry none
+    (the field LAS tools sort merged scans by). The attributes every part has are kept; the first
     part's LAS version and VLRs (e.g. its coordinate system) are the file's. No more
     than ``CHUNK_POINTS`` points are moved at a time. With ``load``, the points
     written for part k are ``load(k)``'s and ``parts`` are samples of them, which
@@ -145,6 +146,7 @@ def write_las_parts(
     meta = parts[0].meta if parts else {}
     point_format = _choose_format(names, meta)
     standard, extra = _plan(parts, names, point_format)
+    source_ids = ids is not None and "point_source_id" not in standard
     version = "1.4" if meta.get("las_version") == "1.4" else None
     header = laspy.LasHeader(point_format=point_format, version=version)
     box = _moved_box(parts, moves)
@@ -177,6 +179,8 @@ def write_las_parts(
                 record.X, record.Y, record.Z = ints[:, 0], ints[:, 1], ints[:, 2]
                 if ids is not None:
                     record["scan_id"] = np.full(len(xyz), ids[k], np.uint16)
+                if source_ids:
+                    record["point_source_id"] = record["scan_id"]
                 for name in standard:
                     dim = fmt.dimension_by_name(name)
                     record[name], exact = _fit(dim, attrs[name][rows])

@@ -47,6 +47,11 @@ def test_moved_parts_are_one_file_with_their_scan_ids(
     )
     assert np.abs(world - expect).max() < 1e-4  # 0.1 mm
     assert np.array_equal(back.attributes["scan_id"], np.r_[[1] * 2_000, [2] * 1_500])
+    # LAS tools (CloudCompare, LAStools, lidR) tell merged scans by point_source_id.
+    import laspy
+
+    ids = np.asarray(laspy.read(path).point_source_id)
+    assert np.array_equal(ids, back.attributes["scan_id"])
     expect_i = np.r_[a.attributes["intensity"], b.attributes["intensity"]]
     assert np.array_equal(back.attributes["intensity"], expect_i)
     assert "only_here" not in back.attributes  # kept only when every part has it
