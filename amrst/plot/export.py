@@ -14,6 +14,7 @@ busy with another run is said at once (``FolderBusy``) rather than freezing it.
 from __future__ import annotations
 
 import csv
+import datetime as _dt
 import io as _stdio
 import os
 import re
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst import __version__
 from amrst.errors import InvalidInput
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
@@ -367,6 +369,8 @@ def plot_document(
         )
         links.append(entry)
     return {
+        "amrst_version": __version__,
+        "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "reference": labels[reg.reference],
         "scans": [
             {
@@ -412,7 +416,7 @@ def plot_document(
         "links": links,
         "bundle_rmse_m": reg.bundle_rmse_m,
         "joint": None if reg.joint is None else reg.joint.as_dict(),
-        "loops": reg.loops,
+        "loops": _numbered_from_1(reg.loops),
         "trees": len(inventory.trees),
         "timings_s": {k: round(v, 3) for k, v in reg.timings.items()},
     }
@@ -614,6 +618,12 @@ def _plot_cloud_writer(
     ids = [k + 1 for k, _ in placed]
     offset = reg.scans[reg.reference].analysis.cloud.offset
     return lambda p: io.write_merged(p, parts, moves, offset, ids, load=load)
+
+
+def _numbered_from_1(loops: dict[str, float]) -> dict[str, float]:
+    """Return the loop closures keyed "I-J" by scan numbers from 1, as review.json."""
+    pairs = ((key.split("-"), value) for key, value in loops.items())
+    return {f"{int(i) + 1}-{int(j) + 1}": value for (i, j), value in pairs}
 
 
 def inventory_rows(
