@@ -156,7 +156,10 @@ def xlsx_book(
         import openpyxl
     except ImportError:
         return None
+    from amrst import __version__
+
     book = openpyxl.Workbook()
+    book.properties.creator = f"AMRST {__version__}"
     sheet = book.active
     sheet.title = title
     sheet.append(list(columns))

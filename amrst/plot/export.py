@@ -35,6 +35,7 @@ from amrst.plot.review import (
     unsure_scans,
     write_review,
 )
+from amrst.plot.stemmap import StemMapParams
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
 
 if TYPE_CHECKING:
@@ -61,6 +62,38 @@ INVENTORY_COLUMNS = (
     "dbh_hand_m",
     "in_plot",
 )
+_FLAGS = StemMapParams()
+#: What each column holds, for the reader of trees.xlsx (its "columns" sheet).
+COLUMN_NOTES = {
+    "tree_id": "T001... trees found, by position; H001... trees you added; stable "
+    "between runs on the same files",
+    "x_m": "stem base, m: the first (reference) scan's file coordinates, world "
+    "coordinates when that file is georeferenced (its coordinate system)",
+    "y_m": "stem base, m, as x_m",
+    "z_m": "ground height at the stem base, m, as x_m",
+    "height_m": "highest point of the tree above its base, m",
+    "height_flag": f"ok; lean (stem over {_FLAGS.lean_flag_deg:g}° or top over "
+    f"{_FLAGS.top_lean_flag_deg:g}° off its foot); top not seen (fewer than "
+    f"{_FLAGS.min_top_points} points in the top metre: hidden, or a neighbour's "
+    "top); top not checked (no scanner position known); not measured",
+    "dbh_m": "diameter at 1.3 m, m: the taper line through circles fitted from 1.0 "
+    "to 1.6 m",
+    "dbh_quality": "ok; check (measure it by hand: dbh_why says why); none (no DBH)",
+    "dbh_arc_deg": "arc of the stem its breast-height points cover, degrees",
+    "dbh_rmse_m": "RMS distance of those points from the circle, m",
+    "dbh_outlier_share": "share (0-1) of the slice's points near the stem but off "
+    "the circle",
+    "dbh_why": "why the DBH is check or none",
+    "lean_deg": "lean of the stem line from the vertical, degrees; empty: not measured",
+    "crown_width_m": "mean width of the crown across its two main axes, m",
+    "n_points": "points of the tree in the merged plot, thinned to about 1 cm",
+    "seen_from": "scans (numbered from 1) with points on the tree 0.3-2.5 m up",
+    "scans_to_check": "of them, the scans whose pose needs review",
+    "mark": "your mark: ok, check or not a tree",
+    "dbh_hand_m": "your DBH, measured by hand in the app, m",
+    "in_plot": "yes / no: the stem base within amrst plot --plot-radius; empty "
+    "without one",
+}
 
 
 def run_files(out: Path) -> list[str]:
@@ -669,6 +702,10 @@ def _inventory_writers(
     }
     book = xlsx_book("trees", INVENTORY_COLUMNS, rows)
     if book is not None:
+        notes = book.create_sheet("columns")
+        notes.append(["column", "meaning"])
+        for column in INVENTORY_COLUMNS:
+            notes.append([column, COLUMN_NOTES[column]])
         writers[TREES_XLSX] = book.save
     return writers
 

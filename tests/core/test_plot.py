@@ -215,6 +215,16 @@ def test_inventory_columns_and_the_command(
         in capsys.readouterr().err
     )
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
+    # The workbook says what each column holds, for a reader without the docs.
+    import openpyxl
+
+    from amrst.plot.export import INVENTORY_COLUMNS
+
+    book = openpyxl.load_workbook(out / "trees.xlsx")
+    notes = list(book["columns"].iter_rows(min_row=2, values_only=True))
+    assert [c for c, _ in notes] == list(INVENTORY_COLUMNS)
+    assert all(meaning for _, meaning in notes)
+    assert book.properties.creator.startswith("AMRST ")
     assert _marks(out) == {first: "check"}
     assert read_review(out, labels).marks == {first: "check"}  # written so
     assert json.loads((out / "plot.json").read_text())["review_lost"] == []
