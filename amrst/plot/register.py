@@ -501,7 +501,7 @@ def _fallback(
     link = register_link(ans[0], ans[1], indices, full, reporter, threads=threads)
     link = replace(
         link,
-        message=f"no stem pose verified; {link.message}",
+        message=f"by the two-scan engine, as no stem pose verified: {link.message}",
         seconds=time.perf_counter() - t0,
     )
     shared = (
