@@ -56,17 +56,23 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         "base, its dot sized by its DBH (yours where you measured it) and filled by "
         "the DBH's quality (green ok, amber check, grey none), ringed red where you "
         "marked it check, crossed where you marked it not a tree; the scans "
-        "(triangles) and their links by state.</figcaption></figure>"
+        "(triangles) and their links by state; the plot's edge dotted when it has "
+        "a radius.</figcaption></figure>"
         + _scans(doc)
         + _links(doc)
         + _trees(rows, _unsure(doc))
-        + f"<p><small>Written by AMRST {__version__}; coordinates as in trees.csv."
-        "</small></p></body></html>"
+        + f"<p><small>Written by AMRST {__version__}"
+        + (f" on {_e(doc['written_utc'][:10])}" if doc.get("written_utc") else "")
+        + "; coordinates in metres, the first scan's file coordinates (world "
+        "coordinates when it is georeferenced), as in trees.csv.</small></p>"
+        "</body></html>"
     )
 
 
 def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> bytes:
     """Draw the plot from above: trees, scans and links; return the PNG."""
+    from matplotlib.patches import Circle
+
     from amrst.results.report_images import new_figure, png_bytes
 
     xy = np.array([[_num(r["x_m"]), _num(r["y_m"])] for r in rows], float)
@@ -113,6 +119,18 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
             ax.scatter(x, y, s=size, marker="x", c="#212121", zorder=3)
         ax.annotate(
             str(r["tree_id"]), (x, y), xytext=(5, 5), textcoords="offset points"
+        )
+    area = PlotArea.from_dict(doc.get("plot_area"))
+    if area is not None:
+        ax.add_patch(
+            Circle(
+                np.asarray(area.centre_xy) - origin,
+                area.radius_m,
+                fill=False,
+                ls=":",
+                color="#455a64",
+                zorder=0,
+            )
         )
     unit = "m" if not origin.any() else f"m (from {origin[0]:.0f}, {origin[1]:.0f})"
     ax.set_xlabel(f"x, {unit}")
@@ -274,6 +292,7 @@ def _to_check(row: Mapping[str, Any], unsure: frozenset[int]) -> str:
 
 
 def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
+    in_plot = any(r.get("in_plot") for r in rows)  # a plot radius was given
     body = []
     for r in rows:
         check = _to_check(r, unsure)
@@ -292,6 +311,7 @@ def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
                 + (f" <b>(check {_e(check)})</b>" if check else ""),
                 _e(r.get("mark", "")),
                 _fixed(_num(r.get("dbh_hand_m")) * 100, 1),
+                *([_e(r.get("in_plot", ""))] if in_plot else []),
             ]
         )
     head = [
@@ -303,6 +323,7 @@ def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
         "Seen from",
         "Mark",
         "Your DBH cm",
+        *(["In the plot"] if in_plot else []),
     ]
     return "<h2>Trees</h2>" + _flags() + html_table(head, body)
 
@@ -313,9 +334,9 @@ def _flags() -> str:
 
     p = StemMapParams()
     return (
-        f"<p>DBH <b>ok</b>: its circle's points leave no gap wider than "
-        f"{360 - p.ok_arc_deg:g}° round the stem ({360 - p.wide_ok_arc_deg:g}° round "
-        f"a stem over {p.wide_stem_m * 100:g} cm, seldom round), fit within "
+        f"<p>DBH <b>ok</b>: its circle's points cover an arc of {p.ok_arc_deg:g}° "
+        f"or more of the stem ({p.wide_ok_arc_deg:g}° of a stem over "
+        f"{p.wide_stem_m * 100:g} cm, seldom round), fit within "
         f"{p.ok_rmse_m * 1000:g} mm RMS, at most {p.ok_outlier_share:.0%} of the slice's "
         "points off it, and the slices from 1 to 1.6 m agree on it; <b>check</b>: "
         "measure it by hand before you use it. Height <b>lean</b>: the stem leans "
@@ -328,7 +349,7 @@ def _flags() -> str:
         "says where its scanner stood (a georeferenced LAS, say; amrst plot "
         "--scanner or the Plot window's Scanner at… gives it), so no top could be "
         "checked; <b>none</b> / <b>not measured</b>: "
-        "no DBH / no height. Lorey's mean height counts the heights flagged ok.</p>"
+        "no DBH / no height. Lorey's mean height counts the trees with a DBH and a height flagged ok.</p>"
     )
 
 

@@ -824,6 +824,7 @@ def test_a_run_keeps_what_is_not_its_own_and_refuses_inputs_it_would_replace(
     assert area["radius_m"] == 6.0
     assert area["hectares"] == pytest.approx(np.pi * 6.0**2 / 1e4, rel=1e-4)
     assert "stems/ha" in report
+    assert "<th>In the plot</th>" in report  # and its edge on the stem map
     assert "stand within 6\u00a0m (0.0113\u00a0ha): 4 trees" in capsys.readouterr().err
     inside = {
         r["tree_id"]: "yes"
