@@ -121,7 +121,7 @@ def figures(
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
             f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
             f"{_value(s.outlier_share, ' %', 100, 0)} off"
-            + (f"; {s.dbh_why}" if s.dbh_why else "")
+            + (f"\nnot ok: {s.dbh_why}" if s.dbh_why else "")
             if np.isfinite(s.dbh_m)
             else s.dbh_why or "no circle holds the stem at 1.3 m",
         ),
@@ -162,6 +162,7 @@ class TreePanel(QWidget):
         self.values: dict[str, QLabel] = {}
         for name in FIGURES:
             value = QLabel("–")
+            value.setWordWrap(True)  # a DBH that failed every check says so at length
             value.setToolTip(FIGURE_TIPS.get(name, ""))
             value.setObjectName(f"tree_{name.lower().replace(' ', '_')}")
             form.addRow(f"<b>{name}</b>", value)
