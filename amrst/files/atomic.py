@@ -156,10 +156,8 @@ def xlsx_book(
         import openpyxl
     except ImportError:
         return None
-    from amrst import __version__
-
     book = openpyxl.Workbook()
-    book.properties.creator = f"AMRST {__version__}"
+    book.properties.creator = "AMRST " + _version()
     sheet = book.active
     sheet.title = title
     sheet.append(list(columns))
@@ -167,3 +165,13 @@ def xlsx_book(
         sheet.append([row[c] for c in columns])
     sheet.freeze_panes = "B2"
     return book
+
+
+def _version() -> str:
+    """Return the version the installed package's metadata gives."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("amrst-studio")
+    except PackageNotFoundError:  # run from a source tree never installed
+        return "(not installed)"

@@ -245,7 +245,7 @@ def test_inventory_columns_and_the_command(
     assert f"<td>{100 * residuals[1]:.1f} cm</td>" in page
     assert f"Stand: {len(again)} trees" in page
     assert "2 registered" in page
-    assert "no gap wider than 157.5° round the stem" in page  # what the flags say
+    assert "cover an arc of 202.5° or more of the stem" in page  # what flags say
     # A mark no tree stands under any more is dropped, and the run says so.
     write_review(out, labels, PlotReview({"T050": "ok"}, at={"T050": (50.0, 50.0)}))
     capsys.readouterr()
