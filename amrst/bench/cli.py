@@ -12,6 +12,9 @@ if TYPE_CHECKING:
     import argparse
     from collections.abc import Sequence
 
+#: Most runs per pair (--repeat): enough for a median, not a run of days.
+MAX_REPEAT = 100
+
 
 class TerminalProgress:
     """A one-line progress bar on a terminal stream: bar, message, elapsed time.
@@ -108,8 +111,10 @@ def run_cli(args: argparse.Namespace) -> int:
     from amrst.io.cases import find_cases
 
     try:
-        if args.repeat < 1:
-            raise InvalidInput("--repeat must be at least 1.")
+        if not 1 <= args.repeat <= MAX_REPEAT:
+            raise InvalidInput(
+                f"--repeat must be 1 to {MAX_REPEAT}, got {args.repeat}."
+            )
         resolve_methods(args.methods)  # an unknown name, on plot cases too
         folders = find_cases(args.cases_dir, args.cases)
         if args.cases and not folders:

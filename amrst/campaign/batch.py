@@ -19,6 +19,7 @@ with ``DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION=1.0`` and the workers with
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -188,10 +189,14 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     return client_cls(cluster), cluster
 
 
+#: Local workers by default: two, or one on a one-core machine.
+DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
+
+
 def run_batch(
     campaign: Campaign,
     *,
-    workers: int = 2,
+    workers: int = DEFAULT_WORKERS,
     scheduler: str | None = None,
     params: RegistrationParams | None = None,
     force: bool = False,
@@ -302,8 +307,13 @@ def _check_options(
     """Refuse a worker count or a thread count out of range, in one line."""
     from amrst.errors import InvalidInput
 
-    if workers < 1 and not scheduler:
-        raise InvalidInput(f"--workers must be at least 1, got {workers}.")
+    cores = os.cpu_count() or 1
+    if not scheduler and not 1 <= workers <= cores:
+        # Each worker registers trees with 1-2 threads: more than the cores only
+        # share them, each with a tree's scans in memory.
+        raise InvalidInput(
+            f"--workers must be 1 to {cores} (this machine's cores), got {workers}."
+        )
     if threads_per_tree is not None and not 1 <= threads_per_tree <= 2:
         raise InvalidInput(
             f"--threads-per-tree must be 1 or 2, got {threads_per_tree}."

@@ -205,8 +205,14 @@ def configure_batch(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "campaign", metavar="CAMPAIGN", help="campaign folder (with campaign.toml)"
     )
+    from amrst.campaign.batch import DEFAULT_WORKERS
+
     p.add_argument(
-        "--workers", type=int, default=2, help="local worker processes (default 2)"
+        "--workers",
+        type=int,
+        default=DEFAULT_WORKERS,
+        help="local worker processes, up to the machine's cores (default "
+        f"{DEFAULT_WORKERS})",
     )
     p.add_argument(
         "--scheduler",

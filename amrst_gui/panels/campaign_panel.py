@@ -135,10 +135,12 @@ class CampaignPanel(QWidget):
     link_chosen = Signal(str, str, object)
     rows_changed = Signal()
 
-    def __init__(self, parent: QWidget | None = None, workers: int = 2) -> None:
+    def __init__(self, parent: QWidget | None = None, workers: int = 0) -> None:
+        from amrst.campaign.batch import DEFAULT_WORKERS
+
         super().__init__(parent)
         self.setObjectName("campaign_panel")
-        self.workers = workers
+        self.workers = workers or DEFAULT_WORKERS
         self.campaign: Campaign | None = None
         self.rows: list[dict] = []
         self.job: StageJob | None = None

@@ -176,6 +176,9 @@ def test_threads_per_tree_reaches_every_tree(tmp_path, tiny_tree) -> None:
     campaign, _ = init_campaign(tmp_path)
     with pytest.raises(InvalidInput, match="--threads-per-tree must be 1 or 2"):
         run_batch(campaign, workers=1, threads_per_tree=3)
+    # More local workers than cores would only share them: refused before any starts.
+    with pytest.raises(InvalidInput, match=r"--workers must be 1 to \d+ \(this"):
+        run_batch(campaign, workers=1000)
     summary = run_batch(campaign, workers=1, threads_per_tree=1)
     assert sorted(summary.finished) == ["T0", "T1"]
     for tree in ("T0", "T1"):

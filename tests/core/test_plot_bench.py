@@ -107,7 +107,12 @@ def test_bench_recognises_plot_cases_and_scores_the_methods(tmp_path: Path) -> N
         run_plot_bench(root, out, methods=("icp",))
     from amrst.cli import main
 
-    for wrong in (["--repeat", "0"], ["--repeat", "-1"], ["--methods", "nosuch"]):
+    for wrong in (
+        ["--repeat", "0"],
+        ["--repeat", "-1"],
+        ["--repeat", "1000000000"],  # days of runs: refused, not started
+        ["--methods", "nosuch"],
+    ):
         assert main(["bench", str(root), "--out", str(tmp_path / "o2"), *wrong]) == 2
         assert not (tmp_path / "o2").exists()
 
