@@ -156,7 +156,25 @@ def _other_inputs(args: argparse.Namespace) -> list[str]:
 
 def _register_scans(args: argparse.Namespace, params: RegistrationParams) -> int:
     """Hand ``amrst register`` with more than a pair of scans to amrst.multiscan."""
+    from amrst.errors import InvalidInput
     from amrst.multiscan.cli import run_register
+
+    pair_only = [
+        flag
+        for flag, name in (
+            ("--pairs", "pairs"),
+            ("--stem", "stem"),
+            ("--source-stem", "source_stem"),
+        )
+        if getattr(args, name) is not None
+    ]
+    if pair_only:
+        raise InvalidInput(
+            f"{' and '.join(pair_only)} {'works' if len(pair_only) == 1 else 'work'} "
+            "on two scan files (TARGET SOURCE), not on "
+            "several scans or scans inside one file: give the two scans as two "
+            "files, or for a plot use amrst plot ... --pairs I J PAIRS.csv."
+        )
 
     return run_register(args, params, TerminalReporter(args.quiet))
 
@@ -389,7 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PAIRS.csv",
         help="register from point pairs picked in both scans instead of the "
         "automatic match: columns target_x,target_y,target_z,source_x,source_y,"
-        "source_z in the files' coordinates, at least 3 pairs spread over the tree",
+        "source_z in the files' coordinates, at least 3 pairs spread over the tree "
+        "(2 fix a levelled pair: a turn about the vertical and a shift)",
     )
     reg.add_argument(
         "--overwrite",

@@ -226,6 +226,12 @@ def test_cli_e57_scan_specs(tmp_path, three_scans, capsys):
     err = capsys.readouterr().err
     assert code == 2
     assert "no scan 7" in err
+    # Options of a pair of files are refused, not silently left unused.
+    pair_only = ["--pairs", "p.csv", "--stem", "1", "2"]
+    code = main(["register", str(plot), "--out", str(tmp_path / "o6"), *pair_only])
+    assert code == 2
+    assert "--pairs and --stem work on two scan files" in capsys.readouterr().err
+    assert not (tmp_path / "o6").exists()
     # The file alone gives its three scans; with another scan, its two and that one
     # (never its scans as one cloud, unposed).
     assert main(["register", str(plot), "--out", str(tmp_path / "o3"), "--quiet"]) == 0
