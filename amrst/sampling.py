@@ -17,12 +17,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from amrst.measure import MeasureParams, TreeMeasures
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
 
 #: Points per scan the tree measurements use at most (a seeded random sample above).
 MEASURE_MAX_POINTS = 200_000
+
+if TYPE_CHECKING:
+    #: Which of a scan's points (local, (M, 3)) are its tree's: (M,) bool, None: all.
+    OnTree = Callable[[np.ndarray], np.ndarray | None]
 
 
 def strided(xyz: np.ndarray, max_points: int) -> np.ndarray:
@@ -99,6 +105,8 @@ def measure_pair(
     params: MeasureParams | None = None,
     max_points: int = MEASURE_MAX_POINTS,
     reporter: Reporter | None = None,
+    *,
+    on_tree: tuple[OnTree | None, OnTree | None] = (None, None),
 ) -> dict[str, TreeMeasures]:
     """Measure target, moved source and merged tree on bounded samples of the scans.
 
@@ -113,21 +121,33 @@ def measure_pair(
         Points per scan at most (see :data:`MEASURE_MAX_POINTS`).
     reporter : Reporter, optional
         Checked for Cancel between the measurements (the app's steps).
+    on_tree : (callable or None, callable or None)
+        For a scan with ground, neighbours or shrubs, which of its points are the
+        tree of interest's (``ScanAnalysis.on_tree``); only those are measured.
 
     Returns
     -------
     dict
         What :func:`amrst.measure.measure_registration` returns: ``n_points`` is
-        each cloud's size, ``n_points_measured`` the sample measured.
+        each cloud's size (its tree's share of it), ``n_points_measured`` the sample
+        measured.
     """
     from amrst.measure import measure_registration
     from amrst.progress import NULL_REPORTER
 
+    samples, sizes = [], []
+    for seed, (cloud, pick) in enumerate(zip((target, source), on_tree, strict=True)):
+        sample = bounded_sample(cloud, max_points, seed=seed)
+        keep = None if pick is None or not len(sample) else pick(sample.xyz)
+        if keep is not None:
+            sample = sample.select(np.flatnonzero(keep))
+        samples.append(sample)
+        sizes.append(len(cloud) if keep is None else round(len(cloud) * keep.mean()))
     return measure_registration(
-        bounded_sample(target, max_points, seed=0),
-        bounded_sample(source, max_points, seed=1),
+        samples[0],
+        samples[1],
         T_target_source,
         params,
         reporter=reporter or NULL_REPORTER,
-        sizes=(len(target), len(source)),
+        sizes=(sizes[0], sizes[1]),
     )

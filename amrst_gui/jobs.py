@@ -199,9 +199,16 @@ def measure_tree_pair(
     from amrst.sampling import measure_pair
     from amrst.types import world_transform
 
-    target, source = analyses["target"].cloud, analyses["source"].cloud
-    T_world = world_transform(T_local, target, source)
-    return measure_pair(target, source, T_world, params.measure, reporter=reporter)
+    tgt, src = analyses["target"], analyses["source"]
+    T_world = world_transform(T_local, tgt.cloud, src.cloud)
+    return measure_pair(
+        tgt.cloud,
+        src.cloud,
+        T_world,
+        params.measure,
+        reporter=reporter,
+        on_tree=(tgt.on_tree, src.on_tree),
+    )
 
 
 def evaluate_coarse(

@@ -69,6 +69,21 @@ class ScanAnalysis:
             return self.xyz
         return np.asarray(pre.xyz[scene.labels == TREE])
 
+    def on_tree(self, xyz: np.ndarray) -> np.ndarray | None:
+        """Tell which points (local, as this scan's) are the tree of interest's.
+
+        Returns (M,) bool: those whose nearest working point the scene stage gave to
+        the tree; None when the scan is that tree alone (no ground found), as a
+        clean, segmented tree is.
+        """
+        from amrst.neighbours import knn
+
+        scene, pre = self.scene, self.scene_pre
+        if scene is None or pre is None or not scene.has_ground or not len(pre.xyz):
+            return None
+        _, nearest = knn(pre.xyz, 1, np.asarray(xyz, float))
+        return np.asarray(scene.labels[nearest[:, 0]] == TREE)
+
     def points(self, which: str) -> np.ndarray:
         """Preprocessed points: 'all', 'wood' or 'leaf' (falls back to all when too few)."""
         if which == "all":

@@ -220,7 +220,9 @@ def finish_registration(
         else evaluate(tgt, src, fine.T_target_source, params, threads=threads)
     )
     T_world = world_transform(fine.T_target_source, target, source)
-    tree = measure_pair(target, source, T_world, params.measure)
+    tree = measure_pair(
+        target, source, T_world, params.measure, on_tree=(tgt.on_tree, src.on_tree)
+    )
     quality = pose_quality(tgt, src, fine.T_target_source, params)
     all_timings: dict[str, float] = {}
     for an in (tgt, src):

@@ -50,6 +50,12 @@ def test_field_pair_registers_with_the_scene_stage(field_case) -> None:
         )
         # The tree stages got the points above the ground only.
         assert len(an.xyz) < len(an.scene.labels)
+    # Its height, DBH and crown are the tree's alone: no ground, neighbour or shrub.
+    labels = [field_case.truth[f"labels_{role}"] for role in ("target", "source")]
+    assert r.tree["target"].n_points == pytest.approx(labels[0]["tree"], rel=0.1)
+    merged = r.tree["merged"].n_points
+    assert 0.9 * sum(n["tree"] for n in labels) < merged
+    assert merged < sum(n["tree"] + n["other"] for n in labels)
 
 
 def test_only_the_feature_matcher_can_register(sample_pair) -> None:
