@@ -272,6 +272,11 @@ def load_campaign(folder: str | os.PathLike[str]) -> Campaign:
         )
     _known_keys(head, CAMPAIGN_KEYS, f"{root / source}, [campaign]")
     _refuse_nul(head, f"{root / source}, [campaign]")
+    if head.get("preset") and head.get("params"):
+        raise InvalidInput(
+            f"{root / source}, [campaign]: give a preset or a params file, not both "
+            "(as amrst register --preset or --params); remove one of them."
+        )
     _known_keys(doc, ("campaign", "tree"), str(root / source))
     if not isinstance(raw_trees, list):
         raise InvalidInput(

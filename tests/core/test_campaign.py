@@ -128,6 +128,11 @@ def test_csv_manifest(tmp_path):
             '[campaign]\nparams = "p\\u0000.json"\n[[tree]]\nid = "A"\nscans = ["x", "y"]',
             "\\[campaign\\]: 'params' holds a NUL",
         ),
+        (
+            '[campaign]\npreset = "Conifer"\nparams = "p.json"\n'
+            '[[tree]]\nid = "A"\nscans = ["x", "y"]',
+            "a preset or a params file, not both",
+        ),
     ],
 )
 def test_bad_manifest_one_line(tmp_path, text, message):
