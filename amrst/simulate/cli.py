@@ -14,6 +14,8 @@ if TYPE_CHECKING:
     import argparse
 
 _KINDS = ("normal", "hard", "sparse", "wind")  # amrst.simulate.plot.KINDS
+#: The ground's largest slope when --slope-deg is not given (as FieldOptions').
+SLOPE_DEG = 8.0
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -69,7 +71,11 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     field.add_argument(
         "--ground", action="store_true", help="add a rough, sloped ground disc"
     )
-    field.add_argument("--slope-deg", type=float, default=8.0, help="largest slope")
+    field.add_argument(
+        "--slope-deg",
+        type=float,
+        help=f"largest slope of the ground (default {SLOPE_DEG:g}); adds the ground",
+    )
     field.add_argument(
         "--neighbours",
         nargs="+",
@@ -253,8 +259,9 @@ def _run_pair(args: argparse.Namespace) -> str:
 
 def _field_options(args: argparse.Namespace, io: Any) -> Any:
     """Return the FieldOptions the arguments ask for, or None for a plain case."""
+    ground = args.ground or args.slope_deg is not None
     if not (
-        args.ground
+        ground
         or args.neighbours
         or args.shrubs is not None
         or args.clip_radius_m is not None
@@ -263,8 +270,8 @@ def _field_options(args: argparse.Namespace, io: Any) -> Any:
     from amrst.simulate.field import FieldOptions
 
     return FieldOptions(
-        ground=args.ground,
-        slope_deg=args.slope_deg,
+        ground=ground,
+        slope_deg=SLOPE_DEG if args.slope_deg is None else args.slope_deg,
         neighbours=tuple(one_tree(io.read(path), path) for path in args.neighbours),
         shrubs=args.shrubs or 0,
         clip_radius_m=args.clip_radius_m,
@@ -297,7 +304,7 @@ def _run_plot(args: argparse.Namespace) -> str:
     changes: dict[str, Any] = {
         "res_deg": args.res_deg,
         "noise_m": args.noise_m,
-        "slope_deg": args.slope_deg,
+        "slope_deg": SLOPE_DEG if args.slope_deg is None else args.slope_deg,
     }
     for dest in ("positions", "tilt_deg", "shrubs", "range_m"):
         if getattr(args, dest) is not None:

@@ -76,3 +76,17 @@ def test_a_sparse_trunk_under_a_dense_crown_is_the_foot() -> None:
     base = trunk_base(np.vstack([strays, trunk, crown]))
     assert base[2] == pytest.approx(0.0, abs=0.05)  # not the crown's base, no stray
     assert np.hypot(*base[:2]) < 0.05
+
+
+def test_a_slope_alone_asks_for_the_field_scene_with_its_ground() -> None:
+    import argparse
+
+    from amrst.simulate.cli import _field_options
+
+    def given(**kw: object) -> argparse.Namespace:
+        none = {"ground": False, "neighbours": [], "shrubs": None}
+        return argparse.Namespace(**{**none, "clip_radius_m": None, **kw})
+
+    assert _field_options(given(slope_deg=None), None) is None  # a plain case
+    options = _field_options(given(slope_deg=5.0), None)
+    assert (options.ground, options.slope_deg) == (True, 5.0)
