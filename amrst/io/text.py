@@ -52,6 +52,7 @@ class _Layout:
 
     def __init__(self, text: str, path: Path) -> None:
         self.header: list[str] | None = None
+        self.count: int | None = None  # the .pts point-count line's
         lines = _leading_lines(text, 3)
         if not lines:
             raise InvalidInput(
@@ -69,6 +70,7 @@ class _Layout:
             )
         if len(tokens) == 1 and _is_int(tokens[0]):
             skip = 1  # .pts: the first line is the point count
+            self.count = int(tokens[0])
         elif not all(_is_number(t) for t in tokens):
             self.header, skip = [_clean(t) for t in tokens], 1
         if skip >= len(lines):
@@ -346,6 +348,13 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
         )
     names, warning = _column_names(layout, columns, path)
     data = _parse_body(path, encoding, layout)
+    if layout.count is not None and len(data) < layout.count:
+        # More points than the count is a file of several scans or a miscount; fewer
+        # is an export or a copy that stopped.
+        raise InvalidInput(
+            f"{path} holds {len(data):,} points but its first line says "
+            f"{layout.count:,}: the file is cut short. Export or copy it again."
+        )
     if warning:  # after the parse: a refusal stays one line
         logger.warning("%s", warning)
     index = {name: i for i, name in enumerate(names)}

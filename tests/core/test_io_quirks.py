@@ -283,6 +283,15 @@ def test_pts_holding_only_its_count_has_no_points(tmp_path):
         io.read(tmp_path / "z.pts")
 
 
+def test_pts_cut_short_of_its_count_is_refused(tmp_path):
+    rows = "".join(f"{k} 0 1 50\n" for k in range(3))
+    (tmp_path / "cut.pts").write_text("1000\n" + rows)
+    with pytest.raises(InvalidInput, match="holds 3 points but its first line says"):
+        io.read(tmp_path / "cut.pts")
+    (tmp_path / "more.pts").write_text("2\n" + rows)  # a miscount: every point read
+    assert len(io.read(tmp_path / "more.pts")) == 3
+
+
 # --- duplicate points ----------------------------------------------------------------
 
 
