@@ -379,7 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument(
         "--preset",
         metavar="NAME",
-        help="a named preset from resources/presets; not with --params",
+        help="a preset of resources/presets, by its file name (conifer, leafless...) "
+        "or its name; not with --params",
     )
     reg.add_argument(
         "--truth", metavar="TRUTH.json", help="known T_target_source: adds truth errors"

@@ -228,7 +228,11 @@ def configure_batch(p: argparse.ArgumentParser) -> None:
         "cores to itself, else 1)",
     )
     p.add_argument("--params", metavar="FILE", help="parameter JSON for every tree")
-    p.add_argument("--preset", metavar="NAME", help="a named preset for every tree")
+    p.add_argument(
+        "--preset",
+        metavar="NAME",
+        help="a preset for every tree, as amrst register --preset takes it",
+    )
     p.add_argument(
         "--force", action="store_true", help="re-register trees already done"
     )

@@ -251,8 +251,13 @@ def list_presets() -> dict[str, Path]:
 
 
 def load_preset(name: str) -> RegistrationParams:
-    """Parameters of a named preset."""
+    """Parameters of a preset given by its name ("Conifer") or its file's (conifer)."""
     presets = list_presets()
-    if name not in presets:
-        raise InvalidInput(f"No preset named {name!r}; available: {sorted(presets)}.")
-    return load_params(presets[name])
+    path = presets.get(name) or {p.stem: p for p in presets.values()}.get(name)
+    if path is None:
+        files = ", ".join(sorted(p.stem for p in presets.values()))
+        raise InvalidInput(
+            f"No preset named {name!r}; available: {files} (or their names: "
+            f"{', '.join(repr(n) for n in sorted(presets))})."
+        )
+    return load_params(path)

@@ -180,7 +180,8 @@ def test_every_preset_loads() -> None:
                     )
     assert load_preset("Paper (Ren et al.)").fine.method == "lm_icp"
     assert load_preset("Leafless (winter)").separate.mode == "all_wood"
-    with pytest.raises(InvalidInput, match="No preset named"):
+    assert load_preset("leafless") == load_preset("Leafless (winter)")  # its file
+    with pytest.raises(InvalidInput, match="No preset named 'nope'; available: co"):
         load_preset("nope")
 
 
