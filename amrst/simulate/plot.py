@@ -399,7 +399,12 @@ def plot_scene(
     if len(trees) < max(n, MIN_TREES):
         raise InvalidInput(
             f"A plot of {max(n, MIN_TREES)} trees needs as many tree clouds, got "
-            f"{len(trees)}; give more (a file may be given twice) or place fewer."
+            f"{len(trees)}; give more (a file may be given twice)"
+            + (
+                " or place fewer."
+                if n > MIN_TREES
+                else f": a plot has {MIN_TREES} at least."
+            )
         )
     rng = np.random.default_rng(seed)
     chosen = [trees[int(i)] for i in rng.permutation(len(trees))[:n]]

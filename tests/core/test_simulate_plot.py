@@ -300,4 +300,5 @@ def test_cli_plot_options_need_plot_and_plots_need_three_trees(
     assert "Give one TREE" in err
     code, err = _cli([path, path, "--plot", "--out", out], capsys)
     assert code == 2
-    assert "needs as many tree clouds, got 2" in err
+    assert "needs as many tree clouds, got 2; give more" in err
+    assert err.rstrip().endswith("a plot has 3 at least.")
