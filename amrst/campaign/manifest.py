@@ -199,7 +199,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise InvalidInput(
             f"{path} is not valid TOML ({exc}). Fix that line (see campaign.toml in "
-            "docs/multiscan-and-campaigns.md) or run amrst campaign init again."
+            "docs/multiscan-and-campaigns.md), or move it away and run amrst campaign "
+            "init again for a new one."
         ) from exc
 
 
