@@ -372,8 +372,8 @@ def export_registration(
     )
     if removed:
         logger.warning(
-            "Removed %d file(s) of an earlier run from %s that this run did not "
-            "write: %s.",
+            "Removed %d file(s) an earlier run wrote in %s (this run leaves them out "
+            "or writes them anew): %s.",
             len(removed),
             out,
             ", ".join(removed),
