@@ -103,6 +103,8 @@ def _check_outs(source: Path, outs: list[Path], overwrite: bool) -> None:
             raise InvalidInput(
                 f"{out} is the file being clipped: choose another --out name."
             )
+        if out.is_dir():
+            raise InvalidInput(f"{out} is a folder: give --out a file name.")
         if (out.exists() or out.is_symlink()) and not overwrite:
             raise InvalidInput(
                 f"{out} exists: choose another --out name, or add --overwrite to "
@@ -176,9 +178,10 @@ def run_cli(args: argparse.Namespace) -> int:
                 f"{', '.join(io.writable_extensions())}."
             )
         if not outs[0].parent.is_dir():
+            what = "is a file" if outs[0].parent.exists() else "does not exist"
             raise InvalidInput(
-                f"Cannot write {args.out}: the folder {outs[0].parent} does not "
-                "exist. Create it or choose another folder."
+                f"Cannot write {args.out}: the folder {outs[0].parent} {what}. "
+                "Create the folder or choose another one."
             )
         _check_outs(Path(args.file), outs, args.overwrite)
         for xy in args.stem:  # every stem before the first cut

@@ -150,6 +150,12 @@ def test_cli_refuses_an_unwritable_output_before_reading(tmp_path, capsys):
     )  # fmt: skip
     assert code == 2
     assert "does not exist" in capsys.readouterr().err
+    (tmp_path / "a.txt").write_text("a file, not a folder")
+    (tmp_path / "dir.laz").mkdir()
+    for out, says in (("a.txt/tree.laz", "a.txt is a file"), ("dir.laz", "a folder")):
+        argv = ["clip", str(tmp_path / "nope.laz"), "--stem", "0", "0", "--out"]
+        assert cli.main([*argv, str(tmp_path / out), "--overwrite"]) == 2
+        assert says in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("ext", [".laz", ".pcd"])
