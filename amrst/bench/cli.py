@@ -174,7 +174,9 @@ RESULT_FILES = ("summary.md", "results.json", "results.csv", "plot_results.json"
 def check_out(
     out: Path, overwrite: bool, result_files: Sequence[str] = RESULT_FILES
 ) -> None:
-    """Refuse ``out`` when it holds an earlier run's results, unless ``overwrite``.
+    """Refuse an ``out`` this process cannot write in, or of an earlier run.
+
+    An earlier run's results are replaced only with ``overwrite``.
 
     Parameters
     ----------
@@ -191,6 +193,7 @@ def check_out(
         With what to change.
     """
     from amrst.errors import InvalidInput
+    from amrst.files.outcheck import check_output_folder
 
     held = [name for name in result_files if (out / name).exists()]
     if held and not overwrite:
@@ -198,6 +201,7 @@ def check_out(
             f"{out} holds the results of an earlier run ({held[0]}): give another "
             "folder (--out DIR), or --overwrite to replace them."
         )
+    check_output_folder(out, "output folder")  # before the cases run, not after
 
 
 def _stopped(exc: BaseException) -> int:
