@@ -92,7 +92,10 @@ def configure_campaign(p: argparse.ArgumentParser) -> None:
     decide.add_argument("folder", metavar="DIR")
     decide.add_argument("trees", nargs="+", metavar="TREE", help="tree ids")
     decide.add_argument(
-        "decision", choices=("accepted", "rejected", "clear"), metavar="DECISION"
+        "decision",
+        choices=("accepted", "rejected", "clear"),
+        metavar="DECISION",
+        help="accepted, rejected or clear",
     )
     decide.add_argument(
         "--confirm-unregistered",
