@@ -21,7 +21,9 @@ from amrst.errors import EXIT_INPUT, EXIT_NOT_REGISTERED
 
 if TYPE_CHECKING:
     import argparse
+    from collections.abc import Sequence
 
+    from amrst.plot.inventory import Tree
     from amrst.plot.stand import PlotArea
 
 
@@ -164,6 +166,7 @@ def run_cli(args: argparse.Namespace) -> int:
         + (f", bundle error {100 * bundle:.1f} cm" if math.isfinite(bundle) else ""),
         file=sys.stderr,
     )
+    print(f"  {_flags_line(run.inventory.trees)}", file=sys.stderr)
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
     if run.area is not None:
         _say_stand(out, run.area)
@@ -228,6 +231,19 @@ def _say_stand(out: Path, area: PlotArea) -> None:
             "trees.csv's x_m, y_m.",
             file=sys.stderr,
         )
+
+
+def _flags_line(trees: Sequence[Tree]) -> str:
+    """Count the trees by DBH quality and by height flag, for a first look."""
+    from collections import Counter
+
+    def tally(values: Counter[str], first: str) -> str:
+        order = [first, *sorted(k for k in values if k != first)]
+        return ", ".join(f"{values[k]} {k}" for k in order if values[k])
+
+    dbh = Counter(t.stem.dbh_quality for t in trees)
+    height = Counter(t.stem.height_flag for t in trees)
+    return f"DBH: {tally(dbh, 'ok')}; height: {tally(height, 'ok')}"
 
 
 def _file_list(written: list[Path]) -> str:

@@ -10,6 +10,7 @@ import csv
 import dataclasses
 import json
 import os
+import re
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -210,10 +211,9 @@ def test_inventory_columns_and_the_command(
     )
     capsys.readouterr()
     assert plot_main([*args, "--overwrite", "--report"]) == 0
-    assert (
-        "wrote trees.csv, trees.xlsx, plot.json, view.npz, report.html"
-        in capsys.readouterr().err
-    )
+    err = capsys.readouterr().err
+    assert "wrote trees.csv, trees.xlsx, plot.json, view.npz, report.html" in err
+    assert re.search(r"\n  DBH: \d+ ok.*; height: ", err)  # a first look
     assert not (out / "plot.laz").exists()  # it would not match this run's poses
     # The workbook says what each column holds, for a reader without the docs.
     import openpyxl
