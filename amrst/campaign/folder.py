@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
-from amrst.campaign.run import ERROR, STAMP
+from amrst.campaign.run import ERROR, STAMP, file_hash
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -54,6 +54,30 @@ def of_other_scans(out: Path, entry: TreeEntry) -> bool:
     return isinstance(ran, dict) and (
         ran.get("scans") != list(entry.scans) or ran.get("reference") != entry.reference
     )
+
+
+def scans_changed(root: Path, out: Path) -> bool:
+    """Tell whether a scan file's content changed since the result in ``out`` ran.
+
+    Each file's size and time are compared with the stamp's; only a file whose differ
+    is hashed again (a copy keeps its content under a new time). A result of a version
+    that did not record them is taken as of these files (the export checks them).
+    """
+    from pathlib import Path
+
+    doc = read_doc(out / STAMP) or {}
+    stats, files = doc.get("scan_stats"), (doc.get("inputs") or {}).get("files")
+    if not isinstance(stats, dict) or not isinstance(files, dict):
+        return False
+    for name, seen in stats.items():
+        path = Path(name) if Path(name).is_absolute() else root / name
+        try:
+            st = path.stat()
+        except OSError:
+            return True
+        if [st.st_size, st.st_mtime_ns] != seen and file_hash(path) != files.get(name):
+            return True
+    return False
 
 
 def decision_of(campaign: Campaign, tree_id: str) -> str:

@@ -22,7 +22,7 @@ import os
 import time
 import traceback
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -39,7 +39,8 @@ TREE_TOPIC = "amrst-tree"
 _CHUNK = 1 << 20
 
 
-def _file_hash(path: Path) -> str:
+def file_hash(path: Path) -> str:
+    """Return the sha256 of a file's content ("unreadable:..." when it cannot be read)."""
     h = hashlib.sha256()
     try:
         with open(path, "rb") as f:
@@ -56,14 +57,37 @@ def tree_inputs(root: Path, entry: TreeEntry) -> dict[str, Any]:
     Their specs, the reference, and a hash of each file's content by its path from
     ``root`` (absolute when outside it).
     """
+    files = {name: file_hash(path) for name, path in _scan_files(root, entry).items()}
+    return {"scans": list(entry.scans), "reference": entry.reference, "files": files}
+
+
+def _scan_files(root: Path, entry: TreeEntry) -> dict[str, Path]:
+    """Each scan file of a tree by its path from ``root`` (absolute when outside)."""
     from amrst.io.scans import split_spec
 
-    files: dict[str, str] = {}
+    files: dict[str, Path] = {}
     for spec in entry.scans:
         path, _ = split_spec(root / spec)
         name = path.relative_to(root) if path.is_relative_to(root) else path
-        files.setdefault(str(name), _file_hash(path))
-    return {"scans": list(entry.scans), "reference": entry.reference, "files": files}
+        files.setdefault(str(name), path)
+    return files
+
+
+def scan_stats(root: Path, entry: TreeEntry) -> dict[str, list[int]]:
+    """Return the size and modification time (ns) of each scan file.
+
+    Keyed as ``tree_inputs``' files, empty for a file that cannot be read: a cheap
+    test of whether a file changed since.
+    """
+    out: dict[str, list[int]] = {}
+    for name, path in _scan_files(root, entry).items():
+        try:
+            st = path.stat()
+        except OSError:
+            out[name] = []
+        else:
+            out[name] = [st.st_size, st.st_mtime_ns]
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +100,7 @@ class TreeStamp:
 
     digest: str
     inputs: dict[str, Any]
+    stats: dict[str, list[int]] = field(default_factory=dict)  # scan_stats, not hashed
 
 
 def tree_stamp(
@@ -85,16 +110,17 @@ def tree_stamp(
 
     ``clouds``: the cloud format written with the results ("" = none).
     """
+    stats = scan_stats(root, entry)  # before the hashes: a change while they run shows
     inputs = tree_inputs(root, entry)
     doc = {
         "amrst": __version__,
         **inputs,
-        "truth": None if entry.truth is None else _file_hash(root / entry.truth),
+        "truth": None if entry.truth is None else file_hash(root / entry.truth),
         "params": params,
         "clouds": clouds,
     }
     text = json.dumps(doc, sort_keys=True, default=str)
-    return TreeStamp(hashlib.sha256(text.encode("utf-8")).hexdigest(), inputs)
+    return TreeStamp(hashlib.sha256(text.encode("utf-8")).hexdigest(), inputs, stats)
 
 
 def is_done(out: Path, stamp: str) -> bool:
@@ -235,6 +261,7 @@ def run_tree(
             "stamp": stamp.digest,
             "run": uuid.uuid4().hex,  # this run's result, which a decision names
             "inputs": stamp.inputs,  # what the export checks it still has
+            "scan_stats": stamp.stats,  # what the status checks first
             "files": files,
             "status": status,
             "seconds": seconds,

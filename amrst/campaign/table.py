@@ -15,7 +15,12 @@ import io as _stdio
 import math
 from typing import TYPE_CHECKING, Any
 
-from amrst.campaign.folder import decision_of, of_other_scans, read_doc
+from amrst.campaign.folder import (
+    decision_of,
+    of_other_scans,
+    read_doc,
+    scans_changed,
+)
 from amrst.campaign.run import ERROR, STAMP
 
 if TYPE_CHECKING:
@@ -87,8 +92,8 @@ def tree_row(campaign: Campaign, entry: TreeEntry) -> dict[str, Any]:
     if stamp is None or summary is None:
         row["status"] = "not run"
         return row
-    if of_other_scans(out, entry):  # the result is of the scans it had
-        row["status"] = OUT_OF_DATE
+    if of_other_scans(out, entry) or scans_changed(campaign.root.resolve(), out):
+        row["status"] = OUT_OF_DATE  # the result is of the scans it had
         return row
     from amrst.campaign.stored import summary_status
 

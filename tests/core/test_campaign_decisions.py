@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 
 import numpy as np
@@ -222,10 +223,15 @@ def test_a_result_no_longer_of_the_listed_scans_is_not_exported(campaign_dir, tm
     # The same scans, one file's content changed.
     _manifest_scans(root, "T01", listed)
     assert export_accepted(load_campaign(root))[1] == {}
-    cloud = io.read(root / "T01" / "source.ply")
-    io.write(root / "T01" / "source.ply", cloud.select(np.arange(0, len(cloud), 2)))
+    source = root / "T01" / "source.ply"
+    os.utime(source)  # a new time, the same content: still its result
+    assert tree_row(campaign, campaign.tree("T01"))["status"] != "out of date"
+    cloud = io.read(source)
+    io.write(source, cloud.select(np.arange(0, len(cloud), 2)))
     errors = export_accepted(load_campaign(root))[1]
     assert "its scans' contents changed" in errors["T01"]
+    # The table (amrst campaign status, the Campaign dock) says so before the export.
+    assert tree_row(campaign, campaign.tree("T01"))["status"] == "out of date"
 
 
 def test_a_run_cancelled_midway_leaves_no_result_to_decide_on(campaign_dir, tmp_path):
