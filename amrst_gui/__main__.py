@@ -154,20 +154,20 @@ class _Screenshot:
         QTimer.singleShot(0, self._after_results)
 
     def _after_results(self) -> None:
-        from PySide6.QtCore import QTimer
-
         from amrst_gui.pacing import TURNS
 
         # The window switches to the overlay in the draws' queue: the requested tab
         # takes the turn after.
         TURNS.later(self.win, "requested tab", self._show_tab)
-        QTimer.singleShot(500, self._save)
 
     def _show_tab(self) -> None:
         tab = {"registration": 1, "distance": 1, "slices": 2}.get(self.tab, 0)
         self.win.tabs.setCurrentIndex(tab)
         if self.tab == "distance":
             self.win.registration.colour.setCurrentIndex(1)
+        from PySide6.QtCore import QTimer
+
+        QTimer.singleShot(500, self._save)  # the tab's views drawn
 
     def _save(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)

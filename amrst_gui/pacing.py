@@ -71,13 +71,15 @@ class DrawTurns:
         if wait:
             self._timer.start(wait)
             return
-        if self._queue:
-            key = next(iter(self._queue))
-            owner, draw = self._queue.pop(key)
-            if shiboken6.isValid(owner):
-                draw()
-        if self._queue:
-            self._timer.start(DRAW_GAP_MS)
+        try:
+            if self._queue:
+                key = next(iter(self._queue))
+                owner, draw = self._queue.pop(key)
+                if shiboken6.isValid(owner):
+                    draw()
+        finally:  # a draw that raised does not hold up the ones after it
+            if self._queue:
+                self._timer.start(DRAW_GAP_MS)
 
 
 TURNS = DrawTurns()
