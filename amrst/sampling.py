@@ -12,13 +12,11 @@ whole cloud's by no more than the stem fit's own scatter.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from amrst.measure import MeasureParams, TreeMeasures
     from amrst.progress import Reporter
     from amrst.types import Cloud, Transform
@@ -26,9 +24,16 @@ if TYPE_CHECKING:
 #: Points per scan the tree measurements use at most (a seeded random sample above).
 MEASURE_MAX_POINTS = 200_000
 
-if TYPE_CHECKING:
-    #: Which of a scan's points (local, (M, 3)) are its tree's: (M,) bool, None: all.
-    OnTree = Callable[[np.ndarray], np.ndarray | None]
+
+class TreeOf(Protocol):
+    """A scan's tree of interest among its ground, neighbours and shrubs."""
+
+    @property
+    def tree_share(self) -> float | None:
+        """The tree's share of the scan's points; None when the scan is the tree."""
+
+    def on_tree(self, xyz: np.ndarray) -> np.ndarray:
+        """(M,) bool: which of these points (local, as the scan's) are the tree's."""
 
 
 def strided(xyz: np.ndarray, max_points: int) -> np.ndarray:
@@ -106,7 +111,7 @@ def measure_pair(
     max_points: int = MEASURE_MAX_POINTS,
     reporter: Reporter | None = None,
     *,
-    on_tree: tuple[OnTree | None, OnTree | None] = (None, None),
+    trees: tuple[TreeOf | None, TreeOf | None] = (None, None),
 ) -> dict[str, TreeMeasures]:
     """Measure target, moved source and merged tree on bounded samples of the scans.
 
@@ -121,9 +126,9 @@ def measure_pair(
         Points per scan at most (see :data:`MEASURE_MAX_POINTS`).
     reporter : Reporter, optional
         Checked for Cancel between the measurements (the app's steps).
-    on_tree : (callable or None, callable or None)
-        For a scan with ground, neighbours or shrubs, which of its points are the
-        tree of interest's (``ScanAnalysis.on_tree``); only those are measured.
+    trees : (TreeOf or None, TreeOf or None)
+        For a scan with ground, neighbours or shrubs, its tree of interest
+        (``ScanAnalysis``): only its points are measured (:func:`tree_sample`).
 
     Returns
     -------
@@ -135,19 +140,39 @@ def measure_pair(
     from amrst.measure import measure_registration
     from amrst.progress import NULL_REPORTER
 
-    samples, sizes = [], []
-    for seed, (cloud, pick) in enumerate(zip((target, source), on_tree, strict=True)):
-        sample = bounded_sample(cloud, max_points, seed=seed)
-        keep = None if pick is None or not len(sample) else pick(sample.xyz)
-        if keep is not None:
-            sample = sample.select(np.flatnonzero(keep))
-        samples.append(sample)
-        sizes.append(len(cloud) if keep is None else round(len(cloud) * keep.mean()))
+    target_part, n_target = tree_sample(target, trees[0], max_points, seed=0)
+    source_part, n_source = tree_sample(source, trees[1], max_points, seed=1)
     return measure_registration(
-        samples[0],
-        samples[1],
+        target_part,
+        source_part,
         T_target_source,
         params,
         reporter=reporter or NULL_REPORTER,
-        sizes=(sizes[0], sizes[1]),
+        sizes=(n_target, n_source),
     )
+
+
+#: A tree under this share of its scan is sampled as if it held this share: the
+#: sample grows to max_points / share at most, and the tree's points in it with it.
+MIN_TREE_SHARE = 0.05
+
+
+def tree_sample(
+    cloud: Cloud, tree: TreeOf | None, max_points: int, seed: int = 0
+) -> tuple[Cloud, int]:
+    """Return up to about ``max_points`` of the tree's points, and its size in ``cloud``.
+
+    Without ``tree``, a bounded sample of the whole cloud. With one, a sample of the
+    cloud large enough to hold about ``max_points`` of the tree's points (the tree's
+    share of the scan's working points says how large, down to
+    :data:`MIN_TREE_SHARE`), kept to those; the size is the cloud's times the share
+    of the sample kept.
+    """
+    share = None if tree is None else tree.tree_share
+    if tree is None or share is None:
+        return bounded_sample(cloud, max_points, seed), len(cloud)
+    drawn = bounded_sample(cloud, int(max_points / max(share, MIN_TREE_SHARE)), seed)
+    keep = tree.on_tree(drawn.xyz)
+    part = drawn.select(np.flatnonzero(keep))
+    size = round(len(cloud) * float(keep.mean())) if len(keep) else 0
+    return bounded_sample(part, max_points, seed), size

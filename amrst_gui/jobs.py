@@ -207,7 +207,7 @@ def measure_tree_pair(
         T_world,
         params.measure,
         reporter=reporter,
-        on_tree=(tgt.on_tree, src.on_tree),
+        trees=(tgt, src),
     )
 
 

@@ -18,7 +18,7 @@ from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
-from amrst.stages.scene import TREE, SceneResult, understand_scene
+from amrst.stages.scene import GROUND, TREE, SceneResult, understand_scene
 from amrst.stages.separate import SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonResult, build_skeleton
 
@@ -27,6 +27,13 @@ if TYPE_CHECKING:
 
     from amrst.params import RegistrationParams
     from amrst.types import Cloud
+
+#: The ground this near the tree's stem base (m) is measured with the tree: the
+#: base is found on it, as on a scan of the tree alone.
+BASE_GROUND_M = 1.0
+#: Points farther than this outside the box of the tree's working points (m) are not
+#: the tree's (a thinned point stands for raw points a voxel around it).
+BOX_MARGIN_M = 0.5
 
 _Item = TypeVar("_Item")
 _Out = TypeVar("_Out")
@@ -69,20 +76,53 @@ class ScanAnalysis:
             return self.xyz
         return np.asarray(pre.xyz[scene.labels == TREE])
 
-    def on_tree(self, xyz: np.ndarray) -> np.ndarray | None:
-        """Tell which points (local, as this scan's) are the tree of interest's.
+    def _tree_labels(self) -> np.ndarray | None:
+        """Mark the tree of interest's working points (``scene_pre``).
 
-        Returns (M,) bool: those whose nearest working point the scene stage gave to
-        the tree; None when the scan is that tree alone (no ground found), as a
-        clean, segmented tree is.
+        With the ground under its stem, on which its base is measured; None when the
+        scan is that tree alone.
         """
-        from amrst.neighbours import knn
-
         scene, pre = self.scene, self.scene_pre
         if scene is None or pre is None or not scene.has_ground or not len(pre.xyz):
             return None
-        _, nearest = knn(pre.xyz, 1, np.asarray(xyz, float))
-        return np.asarray(scene.labels[nearest[:, 0]] == TREE)
+        keep = scene.labels == TREE
+        if scene.base is not None:
+            foot = np.hypot(*(pre.xyz[:, :2] - scene.base[:2]).T) <= BASE_GROUND_M
+            keep |= (scene.labels == GROUND) & foot
+        return np.asarray(keep)
+
+    @property
+    def tree_share(self) -> float | None:
+        """The tree of interest's share of the working points (``on_tree``'s).
+
+        None when the scan is that tree alone (no ground found), as a clean tree is.
+        """
+        keep = self._tree_labels()
+        return None if keep is None else float(keep.mean())
+
+    def on_tree(self, xyz: np.ndarray) -> np.ndarray:
+        """Tell which points (local, as this scan's) are the tree of interest's.
+
+        Returns (M,) bool: those whose nearest working point is the tree's, or the
+        ground under its stem; every point when the scan is that tree alone.
+        """
+        from amrst.neighbours import knn
+
+        keep, pre = self._tree_labels(), self.scene_pre
+        xyz = np.asarray(xyz, float).reshape(-1, 3)
+        if keep is None or pre is None:
+            return np.ones(len(xyz), dtype=bool)
+        out = np.zeros(len(xyz), dtype=bool)
+        if not keep.any():
+            return out
+        # Only points near the tree's box can be nearest one of its points.
+        mine = pre.xyz[keep]
+        lo, hi = mine.min(axis=0) - BOX_MARGIN_M, mine.max(axis=0) + BOX_MARGIN_M
+        near = np.flatnonzero(np.all((xyz >= lo) & (xyz <= hi), axis=1))
+        if len(near):
+            _, nearest = knn(pre.xyz, 1, xyz[near])
+            out[near] = keep[nearest[:, 0]]
+        return out
 
     def points(self, which: str) -> np.ndarray:
         """Preprocessed points: 'all', 'wood' or 'leaf' (falls back to all when too few)."""

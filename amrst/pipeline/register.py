@@ -220,9 +220,7 @@ def finish_registration(
         else evaluate(tgt, src, fine.T_target_source, params, threads=threads)
     )
     T_world = world_transform(fine.T_target_source, target, source)
-    tree = measure_pair(
-        target, source, T_world, params.measure, on_tree=(tgt.on_tree, src.on_tree)
-    )
+    tree = measure_pair(target, source, T_world, params.measure, trees=(tgt, src))
     quality = pose_quality(tgt, src, fine.T_target_source, params)
     all_timings: dict[str, float] = {}
     for an in (tgt, src):
