@@ -73,9 +73,11 @@ COLUMN_NOTES = {
     "z_m": "ground height at the stem base, m, as x_m",
     "height_m": "highest point of the tree above its base, m",
     "height_flag": f"ok; lean (stem over {_FLAGS.lean_flag_deg:g}° or top over "
-    f"{_FLAGS.top_lean_flag_deg:g}° off its foot); top not seen (fewer than "
-    f"{_FLAGS.min_top_points} points in the top metre: hidden, or a neighbour's "
-    "top); top not checked (no scanner position known); not measured",
+    f"{_FLAGS.top_lean_flag_deg:g}° off its foot); top not seen (no scan saw the "
+    "space above its top, or the crown reaches the edge of every scan's range, or "
+    f"fewer than {_FLAGS.min_top_points} points in its top metre: the top may be "
+    "hidden or a neighbour's); top not checked (no scanner position known); not "
+    "measured",
     "dbh_m": "diameter at 1.3 m, m: the taper line through circles fitted from 1.0 "
     "to 1.6 m",
     "dbh_quality": "ok; check (measure it by hand: dbh_why says why); none (no DBH)",

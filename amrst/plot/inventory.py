@@ -2,8 +2,8 @@
 
 The scans are merged on the reference's frame and the stem map is made once on the
 merged plot, so a tree seen from several positions is one stem there (with more of
-its circumference, hence a better DBH). Each tree records the scans whose points
-reach its stem (``seen_from``). Trees are numbered by position (west to east, then
+its circumference, hence a better DBH). Each tree records the scans with points on
+it 0.3-2.5 m above its foot (``seen_from``). Trees are numbered by position (west to east, then
 south to north, on a 10 cm grid), so the same files give the same ids.
 """
 

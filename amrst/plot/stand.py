@@ -2,7 +2,7 @@
 
 A tree marked *not a tree* does not count; a DBH measured by hand stands in for the
 measured one. Heights count only where flagged ``ok`` (``height_flag``): the others
-are doubtful (``top not seen``: the top may be hidden or a neighbour's; ``lean``).
+are doubtful (``top not seen``: no scan saw above the top; ``lean``).
 With a :class:`PlotArea` (a fixed-radius plot) only the trees whose base lies inside
 count, and the figures are also per hectare.
 """

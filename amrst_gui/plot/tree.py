@@ -70,11 +70,14 @@ FIGURE_TIPS = {
     "Height": "The tree's highest point above the ground at its stem; lean: the "
     f"stem leans over {_OK.lean_flag_deg:g}° or the top stands over "
     f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
-    "which); top not seen: few points in its top metre, so the top may be hidden "
-    "(the height too low) or a neighbour's (too high), whatever its lean; "
+    "which); top not seen: no scan saw the space above its top (or its crown "
+    "reaches the edge of every scan's range, or few points lie in its top metre), so "
+    "the top may be hidden (the height too low) or a neighbour's (too high), "
+    "whatever its lean; "
     "top not checked: no scan says where its scanner stood (Scanner at… above the "
     "scan list gives it)",
-    "Seen from": "The scans whose points reach the stem; where one of them needs "
+    "Seen from": "The scans with points on the tree 0.3-2.5 m above its foot; where "
+    "one of them needs "
     "review, the tree's figures rest on a pose nobody confirmed yet",
     "DBH": "The DBH the plot measured (its quality), and yours where you measured it",
 }
