@@ -451,7 +451,7 @@ def plot_document(
         "links": links,
         "bundle_rmse_m": reg.bundle_rmse_m,
         "joint": None if reg.joint is None else reg.joint.as_dict(),
-        "loops": _numbered_from_1(reg.loops),
+        "loops": _loops(reg.loops),
         "trees": len(inventory.trees),
         "timings_s": {k: round(v, 3) for k, v in reg.timings.items()},
     }
@@ -655,10 +655,10 @@ def _plot_cloud_writer(
     return lambda p: io.write_merged(p, parts, moves, offset, ids, load=load)
 
 
-def _numbered_from_1(loops: dict[str, float]) -> dict[str, float]:
-    """Return the loop closures keyed "I-J" by scan numbers from 1, as review.json."""
+def _loops(loops: dict[str, float]) -> list[dict[str, Any]]:
+    """Return the loop closures as plot.json's links name scans (from 0)."""
     pairs = ((key.split("-"), value) for key, value in loops.items())
-    return {f"{int(i) + 1}-{int(j) + 1}": value for (i, j), value in pairs}
+    return [{"target": int(i), "source": int(j), "m": v} for (i, j), v in pairs]
 
 
 def inventory_rows(

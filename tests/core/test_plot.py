@@ -178,7 +178,7 @@ def test_inventory_columns_and_the_command(
     assert doc["scans"][1]["label"] == str(files[1])  # the name given, not the target
     assert [s["status"] for s in doc["scans"]] == ["registered", "registered"]
     assert [d["loop_confirmed"] for d in doc["links"]] == [False]  # a pair: no loop
-    assert doc["loops"] == {}
+    assert doc["loops"] == []
     assert doc["amrst_version"]
     assert doc["written_utc"].endswith("+00:00")
     _reads_back(out, T_true)
@@ -1142,8 +1142,10 @@ def test_a_tree_without_a_stem_fit_has_no_arc_nor_lean() -> None:
     assert tree.height_flag == "not measured"
 
 
-def test_plot_json_keys_loops_by_scan_numbers_from_1() -> None:
-    from amrst.plot.export import _numbered_from_1
+def test_plot_json_names_a_loop_s_scans_as_its_links_do() -> None:
+    from amrst.plot.export import _loops
 
-    # As review.json's "I-J" and the report's S1-S3: the engine keys them by index.
-    assert _numbered_from_1({"0-2": 0.5, "1-2": 0.1}) == {"1-3": 0.5, "2-3": 0.1}
+    assert _loops({"0-2": 0.5, "1-2": 0.1}) == [
+        {"target": 0, "source": 2, "m": 0.5},
+        {"target": 1, "source": 2, "m": 0.1},
+    ]
