@@ -120,11 +120,12 @@ def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
         )
     tc, sc = t.mean(axis=0), s.mean(axis=0)
     a, b = (s - sc)[:, :2], (t - tc)[:, :2]
-    if np.linalg.norm(a, axis=1).max() < 1e-3:
-        raise InvalidInput(
-            "The source points are on one vertical line, so the heading is unknown: "
-            "pick points that are apart horizontally."
-        )
+    for points, scan in ((a, "source"), (b, "target")):
+        if np.linalg.norm(points, axis=1).max() < 1e-3:
+            raise InvalidInput(
+                f"The {scan} points are on one vertical line, so the heading is "
+                "unknown: pick points that are apart horizontally."
+            )
     # Best yaw in closed form (2-D Procrustes): atan2(sum a x b, sum a . b).
     cross = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
     dot = np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])

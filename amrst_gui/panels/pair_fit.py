@@ -43,9 +43,9 @@ def fit_locked(
     Raises
     ------
     InvalidInput
-        The points leave the turn unknown: with a free horizontal shift, source
-        points with no horizontal spread; with none, points on the vertical through
-        the world origin.
+        The points leave the turn unknown: with a free horizontal shift, the points
+        of a scan with no horizontal spread; with none, points on the vertical
+        through the world origin.
     """
     from scipy.optimize import minimize_scalar
 
@@ -53,12 +53,16 @@ def fit_locked(
     s = np.asarray(source_world, float).reshape(-1, 3)
     free = ~np.asarray(locks, bool)
     # The turn is fixed by the points' spread about what the shift leaves free.
-    about = s[:, :2].mean(axis=0) if free[:2].any() else np.zeros(2)
-    if not len(s) or np.linalg.norm(s[:, :2] - about, axis=1).max() < 1e-3:
-        raise InvalidInput(
-            "The source points are on one vertical line, so the heading is unknown: "
-            "pick points that are apart horizontally."
-        )
+    for points, scan in ((s, "source"), (t, "target")):
+        about = points[:, :2].mean(axis=0) if free[:2].any() else np.zeros(2)
+        if (
+            not len(points)
+            or np.linalg.norm(points[:, :2] - about, axis=1).max() < 1e-3
+        ):
+            raise InvalidInput(
+                f"The {scan} points are on one vertical line, so the heading is "
+                "unknown: pick points that are apart horizontally."
+            )
 
     def shift(yaw: float) -> np.ndarray:
         r = t - s @ yaw_rotation(yaw).T

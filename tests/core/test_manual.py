@@ -70,7 +70,8 @@ def test_levelled_fit_ignores_tilt_noise_in_height():
     [
         (SRC[:1], SRC[:1], "needs 3"),
         (SRC[:2], SRC[:3], "counterpart"),
-        (np.zeros((2, 3)), np.array([[0, 0, 0], [0, 0, 1.0]]), "vertical line"),
+        (np.zeros((2, 3)), np.array([[0, 0, 0], [0, 0, 1.0]]), "source points are"),
+        (np.array([[0, 0, 0], [0, 0, 1.0]]), SRC[:2], "target points are on one"),
     ],
 )
 def test_too_few_or_degenerate_pairs_say_what_to_pick(tgt, src, words):

@@ -176,6 +176,11 @@ def test_a_locked_fit_refuses_pairs_that_leave_the_turn_unknown(loaded_window):
     panel.add_pair(p, p)  # the same point twice: any turn fits it
     assert panel.fit is None
     assert "heading is unknown" in panel.fit_label.text()
+    panel.delete_selected()  # the last pair
+    q = loaded_window.session.cloud("source").xyz[-1]
+    panel.add_pair(p, q)  # two targets on one spot, two sources apart
+    assert panel.fit is None
+    assert "The target points are on one vertical line" in panel.fit_label.text()
 
 
 def test_the_wheel_zooms_toward_the_cursor(loaded_window, qtbot):
