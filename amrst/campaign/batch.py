@@ -19,13 +19,17 @@ with ``DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION=1.0`` and the workers with
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 from amrst.campaign.manifest import RESULTS
-from amrst.campaign.plan import cluster_scan_threads, longest_first, time_left
+from amrst.campaign.plan import (
+    cluster_scan_threads,
+    host_cores,
+    longest_first,
+    time_left,
+)
 from amrst.campaign.run import (
     TREE_TOPIC,
     TreeStamp,
@@ -190,7 +194,7 @@ def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
 
 
 #: Local workers by default: two, or one on a one-core machine.
-DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
+DEFAULT_WORKERS = min(2, host_cores())
 
 
 def run_batch(
@@ -307,7 +311,7 @@ def _check_options(
     """Refuse a worker count or a thread count out of range, in one line."""
     from amrst.errors import InvalidInput
 
-    cores = os.cpu_count() or 1
+    cores = host_cores()
     if not scheduler and not 1 <= workers <= cores:
         # Each worker registers trees with 1-2 threads: more than the cores only
         # share them, each with a tree's scans in memory.

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from amrst.campaign import init_campaign, load_campaign, run_batch
+from amrst.campaign.batch import DEFAULT_WORKERS
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
@@ -61,7 +62,7 @@ def test_local_cluster_corrupt_scan_and_resume(
     write_scans(simulate_scans(tiny_tree, 3, seed=0, res_deg=0.2), tmp_path / "T02")
     _corrupt_tree(tmp_path, "T03", sample_pair)
     campaign, _ = init_campaign(tmp_path)
-    summary = run_batch(campaign, workers=2, clouds="ply")
+    summary = run_batch(campaign, workers=DEFAULT_WORKERS, clouds="ply")
     assert sorted(summary.finished) == ["T01", "T02"]
     assert list(summary.errors) == ["T03"]
     assert "b.ply" in summary.errors["T03"]
