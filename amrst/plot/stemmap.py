@@ -416,7 +416,9 @@ def _add_given_stems(
         roles[len(fits)] = "made"
         seeds.append(seed)
         fits.append(
-            _StemFit(replace(bare, given=tree_id), [], {})
+            _StemFit(
+                replace(bare, given=tree_id, dbh_why="no stem found there"), [], {}
+            )
             if fit is None
             else replace(fit, stem=replace(fit.stem, given=tree_id))
         )
@@ -653,6 +655,8 @@ def _taper_stem(
     on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
     base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
     base_xy = _foot_xy(fit.line, base_xy)
+    # Too few circles on the taper line leave the lean unmeasured (NaN): the first
+    # fit's line went through circles the taper line rejects.
     stem = replace(
         fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
     )
