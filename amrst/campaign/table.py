@@ -138,7 +138,9 @@ def write_table(
     writer.writerows(rows)
     written = [campaign.root / TABLE]
     write_text_atomic(written[0], buf.getvalue())
-    book = xlsx_book("trees", COLUMNS, rows)
+    from amrst import __version__
+
+    book = xlsx_book("trees", COLUMNS, rows, f"AMRST {__version__}")
     if book is None:
         return written
     write_atomic(campaign.root / TABLE_XLSX, lambda tmp: book.save(tmp))

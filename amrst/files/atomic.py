@@ -145,11 +145,15 @@ def make_folder(path: str | os.PathLike[str], what: str) -> Path:
 
 
 def xlsx_book(
-    title: str, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]
+    title: str,
+    columns: Sequence[str],
+    rows: Iterable[Mapping[str, Any]],
+    creator: str,
 ) -> Any | None:
     """Return an openpyxl workbook of ``rows`` under ``columns``; None without openpyxl.
 
-    One sheet named ``title``, a header row, the first column and the header frozen.
+    One sheet named ``title``, a header row, the first column and the header frozen;
+    ``creator`` names the program in the file's properties.
     Save it with :func:`write_atomic` (``lambda tmp: book.save(tmp)``).
     """
     try:
@@ -157,7 +161,7 @@ def xlsx_book(
     except ImportError:
         return None
     book = openpyxl.Workbook()
-    book.properties.creator = "AMRST " + _version()
+    book.properties.creator = creator
     sheet = book.active
     sheet.title = title
     sheet.append(list(columns))
@@ -165,13 +169,3 @@ def xlsx_book(
         sheet.append([row[c] for c in columns])
     sheet.freeze_panes = "B2"
     return book
-
-
-def _version() -> str:
-    """Return the version the installed package's metadata gives."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("amrst-studio")
-    except PackageNotFoundError:  # run from a source tree never installed
-        return "(not installed)"

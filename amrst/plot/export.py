@@ -702,7 +702,7 @@ def _inventory_writers(
     writers: dict[str, Callable[[Path], object]] = {
         TREES_CSV: lambda p: p.write_text(text)
     }
-    book = xlsx_book("trees", INVENTORY_COLUMNS, rows)
+    book = xlsx_book("trees", INVENTORY_COLUMNS, rows, f"AMRST {__version__}")
     if book is not None:
         notes = book.create_sheet("columns")
         notes.append(["column", "meaning"])
