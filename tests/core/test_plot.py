@@ -110,6 +110,21 @@ def test_a_tree_seen_from_two_scans_is_listed_once(plot_pair) -> None:
     assert [t.row() for t in again.trees] == [t.row() for t in inv.trees]
 
 
+def test_a_tree_only_one_scan_has_points_on_is_seen_from_that_scan(plot_pair) -> None:
+    target, source, T_true = plot_pair
+    stem = STEMS[0]
+    # The source's points on the first stem are gone, as if a neighbour hid it.
+    moved = source.xyz @ T_true[:3, :3].T + T_true[:3, 3]
+    off = np.hypot(moved[:, 0] - stem[0], moved[:, 1] - stem[1]) > 1.5
+    hidden = Cloud(source.xyz[off], name="s")
+    inv = take_inventory([target, hidden], [np.eye(4), T_true])
+    seen = {
+        (round(float(t.xyz[0])), round(float(t.xyz[1]))): t.seen_from for t in inv.trees
+    }
+    assert seen.pop((round(stem[0]), round(stem[1]))) == (1,)
+    assert set(seen.values()) == {(1, 2)}
+
+
 def test_two_stems_0_6_m_apart_are_two_trees() -> None:
     stems = ((0.0, 0.0, 0.12, 6.0), (0.6, 0.0, 0.12, 6.0), (3.0, 3.0, 0.15, 6.0))
     inv = take_inventory([Cloud(scan((0.3, -4.0), stems, 4))], [np.eye(4)])
