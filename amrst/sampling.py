@@ -169,7 +169,7 @@ def tree_sample(
     of the sample kept.
     """
     share = None if tree is None else tree.tree_share
-    if tree is None or share is None:
+    if tree is None or not share:  # no tree set apart: the scan is measured whole
         return bounded_sample(cloud, max_points, seed), len(cloud)
     drawn = bounded_sample(cloud, int(max_points / max(share, MIN_TREE_SHARE)), seed)
     keep = tree.on_tree(drawn.xyz)
