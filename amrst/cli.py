@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import shlex
 import sys
@@ -146,6 +147,37 @@ def _print_summary(
             f"{tf['gt_rmse_m'] * 100:.2f} cm -> "
             f"{'registered' if summary['truth']['registered'] else 'NOT registered'}"
         )
+
+
+#: A stem found farther than this from the --stem given (m) is not the one meant.
+STEM_MISS_M = 1.0
+
+
+def _stems_missed(result: RegistrationResult, given: tuple[Any, Any]) -> list[str]:
+    """Say where the tree measured stands far from the ``--stem`` given for a scan."""
+    lines = []
+    for flag, an, xy in zip(
+        ("--stem", "--source-stem"), (result.target, result.source), given, strict=True
+    ):
+        scene = an.scene
+        if xy is None or scene is None or not scene.has_ground:
+            continue
+        at = f"{flag} {xy[0]:g} {xy[1]:g}"
+        if scene.base is None:
+            lines.append(
+                f"no stem found near {at}: the tree figures describe no one tree; "
+                "check the position (the file's coordinates)."
+            )
+            continue
+        found = [float(v) for v in scene.base[:2] + an.cloud.offset[:2]]
+        miss = math.hypot(found[0] - xy[0], found[1] - xy[1])
+        if miss > STEM_MISS_M:
+            lines.append(
+                f"no stem within {STEM_MISS_M:g} m of {at}: the tree measured "
+                f"stands at {found[0]:.2f} {found[1]:.2f}, {miss:.1f} m away; check "
+                "the position (the file's coordinates)."
+            )
+    return lines
 
 
 def _other_inputs(args: argparse.Namespace) -> list[str]:
@@ -289,6 +321,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     print(
         f"  wrote {len(files)} files to {args.out}: " + ", ".join(f.name for f in files)
     )
+    for line in _stems_missed(result, (args.stem, args.source_stem)):
+        print(f"amrst register: {line}", file=sys.stderr)
     # One verdict, the same words as the app (amrst.review.verdict).
     if verdict.status == FAILED:
         print(
@@ -424,7 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
             type=float,
             metavar=("X", "Y"),
             help=f"stem of "
-            f"the tree in {role} (world x y): picks it and cuts a plot scan around it",
+            f"the tree in {role} (world x y): picks it and cuts a plot scan around it "
+            "(said when the stem found is over 1 m away)",
         )
     reg.set_defaults(func=_cmd_register)
 

@@ -124,7 +124,7 @@ def test_global_matchers_find_a_large_turn(tiny_tree, matcher: str) -> None:
     assert err.gt_rmse_m < 0.15, err
 
 
-def test_register_command_on_the_field_pair(tmp_path) -> None:
+def test_register_command_on_the_field_pair(tmp_path, capsys) -> None:
     """Exit 0 and the sources named in transform.json; with the scene stage off the
     same pair exits 3 ("verified": false), never a silent wrong answer."""
     import json
@@ -133,6 +133,15 @@ def test_register_command_on_the_field_pair(tmp_path) -> None:
 
     args = [str(FIELD / "target.ply"), str(FIELD / "source.ply"), "--quiet"]
     assert main(["register", *args, "--out", str(tmp_path / "on")]) == 0
+    # A --stem where no stem stands is said, with where the tree measured stands.
+    capsys.readouterr()
+    off_stem = ["--stem", "5.85", "-1.6", "--out", str(tmp_path / "stem")]
+    assert main(["register", *args, *off_stem]) == 0
+    err = capsys.readouterr().err
+    assert "no stem within 1 m of --stem 5.85 -1.6: the tree measured stands at" in err
+    on_stem = ["--stem", "5.85", "-0.18", "--out", str(tmp_path / "stem2")]
+    assert main(["register", *args, *on_stem]) == 0
+    assert "no stem" not in capsys.readouterr().err
     record = json.loads((tmp_path / "on" / "transform.json").read_text())
     assert record["verified"] is True
     assert record["coarse_candidate"]["found_by"][0] == "tetrahedra"
