@@ -161,12 +161,12 @@ class _Screenshot:
         TURNS.later(self.win, "requested tab", self._show_tab)
 
     def _show_tab(self) -> None:
+        from PySide6.QtCore import QTimer
+
         tab = {"registration": 1, "distance": 1, "slices": 2}.get(self.tab, 0)
         self.win.tabs.setCurrentIndex(tab)
         if self.tab == "distance":
             self.win.registration.colour.setCurrentIndex(1)
-        from PySide6.QtCore import QTimer
-
         QTimer.singleShot(500, self._save)  # the tab's views drawn
 
     def _save(self) -> None:
