@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
-from amrst.campaign.run import ERROR, STAMP, file_hash
+from amrst.campaign.run import ERROR, STAMP
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -57,25 +57,25 @@ def of_other_scans(out: Path, entry: TreeEntry) -> bool:
 
 
 def scans_changed(root: Path, out: Path) -> bool:
-    """Tell whether a scan file's content changed since the result in ``out`` ran.
+    """Tell whether a scan file was replaced since the result in ``out`` ran.
 
-    Each file's size and time are compared with the stamp's; only a file whose differ
-    is hashed again (a copy keeps its content under a new time). A result of a version
-    that did not record them is taken as of these files (the export checks them).
+    Its size is compared with the stamp's: no file is read, so every status shown
+    can ask. A scan rewritten at the same size is found by the export, which hashes
+    the files. A result of a version that did not record sizes is taken as of these
+    files.
     """
     from pathlib import Path
 
-    doc = read_doc(out / STAMP) or {}
-    stats, files = doc.get("scan_stats"), (doc.get("inputs") or {}).get("files")
-    if not isinstance(stats, dict) or not isinstance(files, dict):
+    sizes = (read_doc(out / STAMP) or {}).get("scan_sizes")
+    if not isinstance(sizes, dict):
         return False
-    for name, seen in stats.items():
+    for name, size in sizes.items():
         path = Path(name) if Path(name).is_absolute() else root / name
         try:
-            st = path.stat()
+            now = path.stat().st_size
         except OSError:
-            return True
-        if [st.st_size, st.st_mtime_ns] != seen and file_hash(path) != files.get(name):
+            now = -1
+        if now != size:
             return True
     return False
 

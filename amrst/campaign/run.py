@@ -39,8 +39,7 @@ TREE_TOPIC = "amrst-tree"
 _CHUNK = 1 << 20
 
 
-def file_hash(path: Path) -> str:
-    """Return the sha256 of a file's content ("unreadable:..." when it cannot be read)."""
+def _file_hash(path: Path) -> str:
     h = hashlib.sha256()
     try:
         with open(path, "rb") as f:
@@ -57,7 +56,7 @@ def tree_inputs(root: Path, entry: TreeEntry) -> dict[str, Any]:
     Their specs, the reference, and a hash of each file's content by its path from
     ``root`` (absolute when outside it).
     """
-    files = {name: file_hash(path) for name, path in _scan_files(root, entry).items()}
+    files = {name: _file_hash(path) for name, path in _scan_files(root, entry).items()}
     return {"scans": list(entry.scans), "reference": entry.reference, "files": files}
 
 
@@ -73,20 +72,18 @@ def _scan_files(root: Path, entry: TreeEntry) -> dict[str, Path]:
     return files
 
 
-def scan_stats(root: Path, entry: TreeEntry) -> dict[str, list[int]]:
-    """Return the size and modification time (ns) of each scan file.
+def scan_sizes(root: Path, entry: TreeEntry) -> dict[str, int]:
+    """Return the size of each scan file (-1: unreadable).
 
-    Keyed as ``tree_inputs``' files, empty for a file that cannot be read: a cheap
-    test of whether a file changed since.
+    Keyed as ``tree_inputs``' files: a test of a replaced scan cheap enough for
+    every status shown.
     """
-    out: dict[str, list[int]] = {}
+    out: dict[str, int] = {}
     for name, path in _scan_files(root, entry).items():
         try:
-            st = path.stat()
+            out[name] = path.stat().st_size
         except OSError:
-            out[name] = []
-        else:
-            out[name] = [st.st_size, st.st_mtime_ns]
+            out[name] = -1
     return out
 
 
@@ -100,7 +97,7 @@ class TreeStamp:
 
     digest: str
     inputs: dict[str, Any]
-    stats: dict[str, list[int]] = field(default_factory=dict)  # scan_stats, not hashed
+    sizes: dict[str, int] = field(default_factory=dict)  # scan_sizes, not hashed
 
 
 def tree_stamp(
@@ -110,17 +107,17 @@ def tree_stamp(
 
     ``clouds``: the cloud format written with the results ("" = none).
     """
-    stats = scan_stats(root, entry)  # before the hashes: a change while they run shows
+    sizes = scan_sizes(root, entry)  # before the hashes: a change while they run shows
     inputs = tree_inputs(root, entry)
     doc = {
         "amrst": __version__,
         **inputs,
-        "truth": None if entry.truth is None else file_hash(root / entry.truth),
+        "truth": None if entry.truth is None else _file_hash(root / entry.truth),
         "params": params,
         "clouds": clouds,
     }
     text = json.dumps(doc, sort_keys=True, default=str)
-    return TreeStamp(hashlib.sha256(text.encode("utf-8")).hexdigest(), inputs, stats)
+    return TreeStamp(hashlib.sha256(text.encode("utf-8")).hexdigest(), inputs, sizes)
 
 
 def is_done(out: Path, stamp: str) -> bool:
@@ -261,7 +258,7 @@ def run_tree(
             "stamp": stamp.digest,
             "run": uuid.uuid4().hex,  # this run's result, which a decision names
             "inputs": stamp.inputs,  # what the export checks it still has
-            "scan_stats": stamp.stats,  # what the status checks first
+            "scan_sizes": stamp.sizes,  # what the status checks
             "files": files,
             "status": status,
             "seconds": seconds,
