@@ -154,11 +154,11 @@ class _Screenshot:
         QTimer.singleShot(0, self._after_results)
 
     def _after_results(self) -> None:
-        from amrst_gui.pacing import TURNS
+        from amrst_gui.pacing import DRAWS
 
         # The window switches to the overlay in the draws' queue: the requested tab
         # takes the turn after.
-        TURNS.later(self.win, "requested tab", self._show_tab)
+        DRAWS.later(self.win, "requested tab", self._show_tab)
 
     def _show_tab(self) -> None:
         from PySide6.QtCore import QTimer

@@ -23,7 +23,7 @@ from amrst.resources import resource_path
 from amrst_gui import dialogs, menus
 from amrst_gui.actions import WorkflowActions
 from amrst_gui.app import app_settings, fit_screen
-from amrst_gui.pacing import TURNS
+from amrst_gui.pacing import DRAWS
 from amrst_gui.panels.campaign_panel import CampaignPanel
 from amrst_gui.panels.log_panel import LogPanel
 from amrst_gui.panels.manual_panel import ManualPanel
@@ -386,7 +386,7 @@ class MainWindow(QMainWindow):
     def _show_overlay(self, *_args) -> None:
         # In its own turn: the overlay's first frame is a stall of its own, not
         # added to the panels' work on the same result.
-        TURNS.later(self, "overlay", self._show_overlay_now)
+        DRAWS.later(self, "overlay", self._show_overlay_now)
 
     def _show_overlay_now(self) -> None:
         # Not once the views are closing: showing a closed view would paint it.

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 DRAW_GAP_MS = 15
 
 
-class DrawTurns:
+class DrawQueue:
     """The queue of the app's own draws; views ``mark`` the end of each frame."""
 
     def __init__(self) -> None:
@@ -82,4 +82,4 @@ class DrawTurns:
                 self._timer.start(DRAW_GAP_MS)
 
 
-TURNS = DrawTurns()
+DRAWS = DrawQueue()

@@ -14,7 +14,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst_gui.pacing import TURNS
+from amrst_gui.pacing import DRAWS
 from amrst_gui.views.bar_row import FlowLayout, add_look_buttons, wrapping_row
 from amrst_gui.views.framing import LOOKS
 from amrst_gui.views.quality_views import DistanceHistogram
@@ -113,7 +113,7 @@ class RegistrationPane(QWidget):
     def _prerender_when_calm(self) -> None:
         if self.session.busy or self.view.isVisible():
             return
-        if not TURNS.idle or self.loader.pending:
+        if not DRAWS.idle or self.loader.pending:
             self._calm_tries += 1
             if self._calm_tries < 50:  # five seconds at most
                 self._calm.start(100)

@@ -19,7 +19,7 @@ import numpy as np
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
-from amrst_gui.pacing import TURNS
+from amrst_gui.pacing import DRAWS
 from amrst_gui.views import framing, lod
 from amrst_gui.views.detail import PointLevels, with_shown
 from amrst_gui.views.interactor import Interactor
@@ -177,7 +177,7 @@ class ScanView(QWidget):
         self._prerendered = self._scene
         self._choose_level(True)
         self.plotter.render_offscreen()
-        TURNS.mark()
+        DRAWS.mark()
 
     def reset_camera(
         self,
@@ -336,7 +336,7 @@ class ScanView(QWidget):
         self._frame_start = time.perf_counter()
 
     def _on_frame_end(self, *_args) -> None:
-        TURNS.mark()
+        DRAWS.mark()
         seconds = time.perf_counter() - self._frame_start
         drawn = self._points.drawn()
         if drawn:
@@ -344,7 +344,7 @@ class ScanView(QWidget):
             if self._frames > 1:  # the first frame of points also sets OpenGL up
                 lod.COST.record(drawn, seconds)
         if not (self._moving or self._closed):
-            TURNS.later(self, "adapt", self._adapt)
+            DRAWS.later(self, "adapt", self._adapt)
 
     def _adapt(self) -> None:
         """After a frame at rest: go up a level while it fits the budget, down

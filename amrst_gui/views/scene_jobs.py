@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
-from amrst_gui.pacing import TURNS
+from amrst_gui.pacing import DRAWS
 from amrst_gui.views.layers import PointsLayer, Scene
 
 if TYPE_CHECKING:
@@ -177,7 +177,7 @@ class SceneLoader(QObject):
     @property
     def pending(self) -> bool:
         """True while a scene is being built in a worker or waits to be drawn."""
-        return self._job is not None or TURNS.waits(self, "scene")
+        return self._job is not None or DRAWS.waits(self, "scene")
 
     def request(
         self,
@@ -207,7 +207,7 @@ class SceneLoader(QObject):
 
     def drop(self) -> None:
         """Forget the scene being built (a newer one replaces it, or the view goes)."""
-        TURNS.drop(self, "scene")
+        DRAWS.drop(self, "scene")
         if self._job is not None:
             self._job.discard()
             self._job = None
@@ -216,7 +216,7 @@ class SceneLoader(QObject):
         if job is not self._job:
             return
         self._job = None
-        TURNS.later(self, "scene", functools.partial(self._draw, out))
+        DRAWS.later(self, "scene", functools.partial(self._draw, out))
 
     def _draw(self, out: tuple[Scene, Prepared]) -> None:
         if getattr(self.view, "_closed", False):

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from PySide6.QtCore import QObject
 
-from amrst_gui.pacing import DrawTurns
+from amrst_gui.pacing import DrawQueue
 
 
 def test_draws_run_in_turn_and_a_newer_one_takes_the_older_ones_place(qtbot) -> None:
-    turns, ran = DrawTurns(), []
+    turns, ran = DrawQueue(), []
     a, b = QObject(), QObject()
     turns.later(a, "scene", lambda: ran.append("a old"))
     turns.later(b, "scene", lambda: ran.append("b"))
@@ -22,7 +22,7 @@ def test_draws_run_in_turn_and_a_newer_one_takes_the_older_ones_place(qtbot) -> 
 
 
 def test_a_deleted_owner_s_draw_is_skipped_and_a_dropped_one_never_runs(qtbot) -> None:
-    turns, ran = DrawTurns(), []
+    turns, ran = DrawQueue(), []
     gone, kept, dropped = QObject(), QObject(), QObject()
     turns.later(gone, "scene", lambda: ran.append("gone"))
     turns.later(dropped, "scene", lambda: ran.append("dropped"))
@@ -36,7 +36,7 @@ def test_a_deleted_owner_s_draw_is_skipped_and_a_dropped_one_never_runs(qtbot) -
 
 
 def test_a_draw_that_raises_does_not_hold_up_the_next(qtbot) -> None:
-    turns, ran = DrawTurns(), []
+    turns, ran = DrawQueue(), []
     a, b = QObject(), QObject()
 
     def fails() -> None:
