@@ -25,6 +25,7 @@ import numpy as np
 
 from amrst import __version__
 from amrst.errors import InvalidInput
+from amrst.plot.flags import DBH_CHECK, DBH_OK, HEIGHT_FLAGS
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
 from amrst.plot.review import (
@@ -35,7 +36,6 @@ from amrst.plot.review import (
     unsure_scans,
     write_review,
 )
-from amrst.plot.stemmap import StemMapParams
 from amrst.plot.view import VIEW_NPZ, PlotView, plot_view, read_view, view_writer
 
 if TYPE_CHECKING:
@@ -62,7 +62,6 @@ INVENTORY_COLUMNS = (
     "dbh_hand_m",
     "in_plot",
 )
-_FLAGS = StemMapParams()
 #: What each column holds, for the reader of trees.xlsx (its "columns" sheet).
 COLUMN_NOTES = {
     "tree_id": "T001... trees found, by position; H001... trees you added; stable "
@@ -72,15 +71,11 @@ COLUMN_NOTES = {
     "y_m": "stem base, m, as x_m",
     "z_m": "ground height at the stem base, m, as x_m",
     "height_m": "highest point of the tree above its base, m",
-    "height_flag": f"ok; lean (stem over {_FLAGS.lean_flag_deg:g}° or top over "
-    f"{_FLAGS.top_lean_flag_deg:g}° off its foot); top not seen (no scan saw the "
-    "space above its top, or the crown reaches the edge of every scan's range, or "
-    f"fewer than {_FLAGS.min_top_points} points in its top metre: the top may be "
-    "hidden or a neighbour's); top not checked (no scanner position known); not "
-    "measured",
+    "height_flag": "ok: nothing doubts it. "
+    + " ".join(f"{flag}: {text}." for flag, text in HEIGHT_FLAGS.items()),
     "dbh_m": "diameter at 1.3 m, m: the taper line through circles fitted from 1.0 "
     "to 1.6 m",
-    "dbh_quality": "ok; check (measure it by hand: dbh_why says why); none (no DBH)",
+    "dbh_quality": f"ok: {DBH_OK}. check: {DBH_CHECK}. none: no DBH.",
     "dbh_arc_deg": "arc of the stem its breast-height points cover, degrees",
     "dbh_rmse_m": "RMS distance of those points from the circle, m",
     "dbh_outlier_share": "share (0-1) of the slice's points near the stem but off "

@@ -330,28 +330,15 @@ def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
 
 def _flags() -> str:
     """Say what the DBH and height flags mean, by the defaults the inventory used."""
-    from amrst.plot.stemmap import StemMapParams
+    from amrst.plot.flags import DBH_CHECK, DBH_OK, HEIGHT_FLAGS
 
-    p = StemMapParams()
+    heights = "; ".join(
+        f"<b>{flag}</b>: {_e(text)}" for flag, text in HEIGHT_FLAGS.items()
+    )
     return (
-        f"<p>DBH <b>ok</b>: its circle's points cover an arc of {p.ok_arc_deg:g}° "
-        f"or more of the stem ({p.wide_ok_arc_deg:g}° of a stem over "
-        f"{p.wide_stem_m * 100:g} cm, seldom round), fit within "
-        f"{p.ok_rmse_m * 1000:g} mm RMS, at most {p.ok_outlier_share:.0%} of the slice's "
-        "points off it, and the slices from 1 to 1.6 m agree on it; <b>check</b>: "
-        "measure it by hand before you use it. Height <b>lean</b>: the stem leans "
-        f"over {p.lean_flag_deg:g}°, or the top stands over {p.top_lean_flag_deg:g}° "
-        "off the vertical over its foot (a bent tree, or a neighbour's crown taken as "
-        "its top); <b>top not seen</b>: no scan saw the space above its top, its "
-        "crown reaches the edge of every scan's range, or few points lie in its top "
-        "metre, so the top may be hidden (the height too low) or a neighbour's (too "
-        "high); this "
-        "flag wins when both apply, lean_deg still gives the stem's lean; "
-        "<b>top not checked</b>: no scan "
-        "says where its scanner stood (a georeferenced LAS, say; amrst plot "
-        "--scanner or the Plot window's Scanner at… gives it), so no top could be "
-        "checked; <b>none</b> / <b>not measured</b>: "
-        "no DBH / no height. Lorey's mean height counts the trees with a DBH and a height flagged ok.</p>"
+        f"<p>DBH <b>ok</b>: {_e(DBH_OK)}; <b>check</b>: {_e(DBH_CHECK)}; <b>none</b>: "
+        f"no DBH. Height {heights}. Lorey's mean height counts the trees with a DBH "
+        "and a height flagged ok.</p>"
     )
 
 

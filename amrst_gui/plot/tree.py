@@ -30,8 +30,8 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst.plot.flags import DBH_OK, HEIGHT_FLAGS
 from amrst.plot.review import NOT_A_TREE, PlotReview
-from amrst.plot.stemmap import StemMapParams
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.plot.stem_map import scan_colour
 from amrst_gui.plot.tree_side import TreeSideView
@@ -58,24 +58,14 @@ FIGURES = (
     "Your mark",
 )
 
-_OK = StemMapParams()
 FIGURE_TIPS = {
     "Position": "The stem base, in the reference scan's frame (world coordinates "
     "when the files carry an offset), as trees.csv lists it",
     "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
-    "residual, and the share of slice points off the circle (3DFin's checks); ok "
-    f"needs an arc of {_OK.ok_arc_deg:g}° or more ({_OK.wide_ok_arc_deg:g}° for a "
-    f"stem over {_OK.wide_stem_m * 100:g} cm), a residual of "
-    f"{_OK.ok_rmse_m * 1000:g} mm or less and {_OK.ok_outlier_share:.0%} or less off",
-    "Height": "The tree's highest point above the ground at its stem; lean: the "
-    f"stem leans over {_OK.lean_flag_deg:g}° or the top stands over "
-    f"{_OK.top_lean_flag_deg:g}° off the vertical over its foot (the Side view shows "
-    "which); top not seen: no scan saw the space above its top (or its crown "
-    "reaches the edge of every scan's range, or few points lie in its top metre), so "
-    "the top may be hidden (the height too low) or a neighbour's (too high), "
-    "whatever its lean; "
-    "top not checked: no scan says where its scanner stood (Scanner at… above the "
-    "scan list gives it)",
+    f"residual, and the share of slice points off the circle (3DFin's checks); ok: "
+    f"{DBH_OK}",
+    "Height": "The tree's highest point above the ground at its stem (the Side view "
+    "shows it); " + "; ".join(f"{flag}: {text}" for flag, text in HEIGHT_FLAGS.items()),
     "Seen from": "The scans with points on the tree 0.3-2.5 m above its foot; where "
     "one of them needs "
     "review, the tree's figures rest on a pose nobody confirmed yet",
