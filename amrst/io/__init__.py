@@ -342,6 +342,7 @@ def write_merged(
     ids: Sequence[int],
     *,
     load: Callable[[int], Cloud] | None = None,
+    tree_of: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS or LAZ file, atomically.
 
@@ -351,6 +352,8 @@ def write_merged(
     parts and one chunk, never a merged copy. With ``load``, part k's points are
     ``load(k)``, called as it is written, and ``parts`` a sample of each that plans
     the file (its attributes and extent): memory then holds one part as loaded.
+    With ``tree_of``, each point's ``tree`` is ``tree_of`` of its coordinates in the
+    frame, (M, 3) local to ``offset`` (a tree's number from 1, 0 for none).
 
     Raises
     ------
@@ -370,7 +373,14 @@ def write_merged(
     write_atomic(
         path,
         lambda tmp: write_las_parts(
-            tmp, parts, moves, offset, ids, compress=compress, load=load
+            tmp,
+            parts,
+            moves,
+            offset,
+            ids,
+            compress=compress,
+            load=load,
+            tree_of=tree_of,
         ),
     )
 

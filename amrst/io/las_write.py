@@ -36,6 +36,8 @@ _DEFAULT_SCALE_M = 1e-4  # 0.1 mm: keeps millimetres after any transform
 _INT32_MAX = 2**31 - 1
 #: Points moved and written at a time by :func:`write_las_parts`.
 CHUNK_POINTS = 2_000_000
+#: The extra dimension holding each point's tree (``write_las_parts``'s ``tree_of``).
+TREE = "tree"
 #: How far beyond a sample's box the points it was drawn from may reach (m).
 SAMPLE_MARGIN_M = 1.0
 
@@ -123,6 +125,7 @@ def write_las_parts(
     *,
     compress: bool = True,
     load: Callable[[int], Cloud] | None = None,
+    tree_of: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS (LAZ when ``compress``) file.
 
@@ -134,7 +137,9 @@ def write_las_parts(
     than ``CHUNK_POINTS`` points are moved at a time. With ``load``, the points
     written for part k are ``load(k)``'s and ``parts`` are samples of them, which
     plan the attributes and the extent: a value the sample did not show that a
-    standard field cannot hold is written clipped, with a warning.
+    standard field cannot hold is written clipped, with a warning. With ``tree_of``,
+    every point gets ``tree`` = ``tree_of`` of its coordinates in the frame (local to
+    ``offset``, (M, 3)): a tree's number from 1, 0 for none.
     """
     import laspy
 
@@ -143,6 +148,8 @@ def write_las_parts(
     names = set.intersection(*every) if every else set()
     if ids is not None:
         names.discard("scan_id")
+    if tree_of is not None:
+        names.discard(TREE)
     meta = parts[0].meta if parts else {}
     point_format = _choose_format(names, meta)
     standard, extra = _plan(parts, names, point_format)
@@ -156,6 +163,8 @@ def write_las_parts(
     dims = {k: dt for k, (_, dt) in extra.items()}
     if ids is not None:
         dims["scan_id"] = np.dtype(np.uint16)
+    if tree_of is not None:
+        dims[TREE] = np.dtype(np.uint32)
     header.add_extra_dims(
         [laspy.ExtraBytesParams(name, dtype.str[1:]) for name, dtype in dims.items()]
     )
@@ -170,10 +179,10 @@ def write_las_parts(
             cloud = part if load is None else load(k)
             attrs = flat_attributes(cloud)
             R, t = np.asarray(T, float)[:3, :3], np.asarray(T, float)[:3, 3]
-            shift = t + offset - header.offsets
             for lo in range(0, len(cloud), CHUNK_POINTS):
                 rows = slice(lo, lo + CHUNK_POINTS)
-                xyz = cloud.xyz[rows] @ R.T + shift
+                moved = cloud.xyz[rows] @ R.T + t
+                xyz = moved + (offset - header.offsets)
                 record = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
                 ints = np.round(xyz / header.scales).astype(np.int32)
                 record.X, record.Y, record.Z = ints[:, 0], ints[:, 1], ints[:, 2]
@@ -181,18 +190,31 @@ def write_las_parts(
                     record["scan_id"] = np.full(len(xyz), ids[k], np.uint16)
                 if source_ids:
                     record["point_source_id"] = record["scan_id"]
-                for name in standard:
-                    dim = fmt.dimension_by_name(name)
-                    record[name], exact = _fit(dim, attrs[name][rows])
-                    if not exact and PREFIX + name not in extra:
-                        logger.warning(
-                            "%s: values the LAS field cannot hold, written clipped.",
-                            name,
-                        )
-                for key, (name, dtype) in extra.items():
-                    record[key] = np.asarray(attrs[name][rows], dtype)
+                if tree_of is not None:
+                    record[TREE] = np.asarray(tree_of(moved), np.uint32)
+                _put_attributes(record, fmt, standard, extra, attrs, rows)
                 writer.write_points(record)
                 check()
+
+
+def _put_attributes(
+    record: Any,
+    fmt: Any,
+    standard: set[str],
+    extra: Mapping[str, tuple[str, np.dtype[Any]]],
+    attrs: Mapping[str, np.ndarray],
+    rows: slice,
+) -> None:
+    """Fill ``record`` with the attributes' ``rows``: standard fields, then extra ones."""
+    for name in standard:
+        dim = fmt.dimension_by_name(name)
+        record[name], exact = _fit(dim, attrs[name][rows])
+        if not exact and PREFIX + name not in extra:
+            logger.warning(
+                "%s: values the LAS field cannot hold, written clipped.", name
+            )
+    for key, (name, dtype) in extra.items():
+        record[key] = np.asarray(attrs[name][rows], dtype)
 
 
 @contextlib.contextmanager

@@ -46,7 +46,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "--write-cloud",
         action="store_true",
         help="also write the registered plot, plot.laz: every placed scan in the "
-        "reference's frame, scan_id its number from 1",
+        "reference's frame, scan_id its number from 1, tree its row in trees.csv "
+        "(0: no tree)",
     )
     p.add_argument(
         "--report",

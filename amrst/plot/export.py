@@ -588,7 +588,7 @@ def write_plot(
                 inventory.tree_points(k), reference
             )
     if write_cloud:
-        writers[PLOT_CLOUD] = _plot_cloud_writer(reg, labels)
+        writers[PLOT_CLOUD] = _plot_cloud_writer(reg, labels, inventory)
     if report:
         from amrst.plot.report import build_report
 
@@ -616,12 +616,14 @@ MANAGED = frozenset(
 
 
 def _plot_cloud_writer(
-    reg: PlotRegistration, labels: Sequence[str]
+    reg: PlotRegistration, labels: Sequence[str], inventory: Inventory
 ) -> Callable[[Path], object]:
     """plot.laz: the placed scans read again and moved into the reference frame.
 
     The run kept only each scan's working points; reading the files again, one at a
-    time, keeps memory at one scan as read.
+    time, keeps memory at one scan as read. Each point's ``tree`` is the trees.csv
+    row (from 1) of the tree owning the nearest working point within
+    ``TREE_REACH_M``, 0 for none (ground, shrubs, what no tree owns).
     """
     from amrst import io
     from amrst.io.scans import file_stamp, read_scans
@@ -647,7 +649,31 @@ def _plot_cloud_writer(
     moves = [pose for _, pose in placed]
     ids = [k + 1 for k, _ in placed]
     offset = reg.scans[reg.reference].analysis.cloud.offset
-    return lambda p: io.write_merged(p, parts, moves, offset, ids, load=load)
+
+    def write(path: Path) -> None:
+        tree_of = _tree_labeller(inventory)
+        io.write_merged(path, parts, moves, offset, ids, load=load, tree_of=tree_of)
+
+    return write
+
+
+#: How far a point of plot.laz may lie from the working point that gives its tree (m).
+TREE_REACH_M = 0.1
+
+
+def _tree_labeller(inventory: Inventory) -> Callable[[np.ndarray], np.ndarray]:
+    """Each point's tree as plot.laz numbers it, from the inventory's working points."""
+    from amrst.neighbours import NearestTree
+
+    stem_map = inventory.stem_map
+    number = np.r_[stem_map.owner + 1, 0]  # owner -1 (no tree) and no neighbour: 0
+    tree = NearestTree(stem_map.xyz)
+
+    def tree_of(xyz: np.ndarray) -> np.ndarray:
+        _, nearest = tree.query(xyz, distance_upper_bound=TREE_REACH_M)
+        return np.asarray(number[nearest])
+
+    return tree_of
 
 
 def _loops(loops: dict[str, float]) -> list[dict[str, Any]]:

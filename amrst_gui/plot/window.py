@@ -278,7 +278,8 @@ class PlotWindow(QMainWindow):
         self.cloud_check = QCheckBox("plot.laz")
         self.cloud_check.setToolTip(
             "Also write the registered plot, plot.laz: every placed scan in the "
-            "reference's frame, scan_id its number (amrst plot --write-cloud)"
+            "reference's frame, scan_id its number, tree its row in trees.csv "
+            "(amrst plot --write-cloud)"
         )
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)

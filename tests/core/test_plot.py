@@ -207,6 +207,14 @@ def test_inventory_columns_and_the_command(
     moved = source.xyz @ T_true[:3, :3].T + T_true[:3, 3]
     assert np.abs(world[ids == 2] - moved).max() < 0.01
     assert np.abs(world[ids == 1] - target.xyz).max() < 1e-4
+    # Each point names its tree by trees.csv's row, from 1; the ground is no tree's.
+    tree = merged.attributes["tree"]
+    for n, row in enumerate(rows, start=1):
+        foot = np.array([float(row[k]) for k in ("x_m", "y_m", "z_m")])
+        up = world[:, 2] - foot[2]
+        bark = (np.hypot(*(world[:, :2] - foot[:2]).T) < 0.4) & (up > 1.0) & (up < 1.6)
+        assert np.mean(tree[bark] == n) > 0.9, row["tree_id"]
+    assert np.mean(tree == 0) > 0.1  # the ground
     # The technician's marks (the app's review) go into the inventory of a run
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
