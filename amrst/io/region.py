@@ -194,7 +194,9 @@ def read_las_region(
 
     fixed = check_header(path)
     copc = _copc_query(path, cylinder)
-    if copc is not None:
+    # A COPC index that gives no point where the header says points lie may be
+    # corrupt: the file is then read as any LAZ, which finds the points or the fault.
+    if copc is not None and (len(copc[0]) or not _meets(fixed, cylinder)):
         las, n_decoded = copc
         how = {"clip_method": "copc spatial query", "clip_points_decoded": n_decoded}
     else:
@@ -207,6 +209,19 @@ def read_las_region(
     if len(las) == 0:
         return None, how
     return las_to_raw(las, fixed, path), how
+
+
+def _meets(fixed: FixedHeader, cylinder: Cylinder) -> bool:
+    """Tell whether the cylinder's box meets the file's bounds (its header's)."""
+    r = cylinder.radius
+    return bool(
+        cylinder.x + r >= fixed.mins[0]
+        and cylinder.x - r <= fixed.maxs[0]
+        and cylinder.y + r >= fixed.mins[1]
+        and cylinder.y - r <= fixed.maxs[1]
+        and (cylinder.zmin is None or cylinder.zmin <= fixed.maxs[2])
+        and (cylinder.zmax is None or cylinder.zmax >= fixed.mins[2])
+    )
 
 
 def _copc_query(path: Path, cylinder: Cylinder) -> tuple[Any, int] | None:

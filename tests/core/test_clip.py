@@ -83,6 +83,17 @@ def test_copc_is_queried_not_read_whole():
     assert len(got) == int(_inside(full, *stem, 300.0).sum()) > 0
 
 
+def test_a_copc_index_that_finds_nothing_is_checked_against_the_points(tmp_path):
+    path = PEER / "pdal-autzen_clip_native.copc.laz"
+    stem = (193919.0, 260584.0)
+    assert len(io.read_region(path, stem, 5.0)) == 1
+    broken = bytearray(path.read_bytes())
+    broken[-200:] = bytes(b ^ 0x5A for b in broken[-200:])  # its hierarchy
+    (tmp_path / "broken.copc.laz").write_bytes(bytes(broken))
+    with pytest.raises(InvalidInput, match="corrupt"):  # not "no point lies"
+        io.read_region(tmp_path / "broken.copc.laz", stem, 5.0)
+
+
 def test_legacy_laz_is_clipped_too():
     got = io.read_region(
         PEER / "pdal-simple-laszip-compressor-version-1.2r0.laz", (637500, 851500), 300
