@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 
-from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import (
     QButtonGroup,
     QComboBox,
@@ -98,25 +97,25 @@ class RegistrationPane(QWidget):
             getattr(session, name).connect(slot)
         session.manual_preview_changed.connect(self._on_manual_preview_changed)
         session.busy_changed.connect(self._on_busy_changed)
-        self._calm_tries = 0
-        self._calm = QTimer(self)  # one wait at a time, restarted
-        self._calm.setSingleShot(True)
-        self._calm.timeout.connect(self._prerender_when_calm)
 
     def _on_busy_changed(self, busy: bool) -> None:
         # Idle (a pair loaded, a step done) with the overlay in a hidden tab: its
         # points are drawn once off screen while nothing runs.
-        if not busy:
-            self._calm_tries = 0
-            self._calm.start(300)
+        if busy:
+            DRAWS.drop(self, "prerender")
+        else:
+            self._prerender_later()
 
-    def _prerender_when_calm(self) -> None:
-        if self.session.busy or self.view.isVisible():
+    def _prerender_later(self) -> None:
+        if not self.session.busy and not self.view.isVisible():
+            DRAWS.later(self, "prerender", self._prerender)
+
+    def _prerender(self) -> None:
+        # The loader's next scene queues this again (``_on_drawn``).
+        if self.session.busy or self.view.isVisible() or self.loader.pending:
             return
-        if not DRAWS.idle or self.loader.pending:
-            self._calm_tries += 1
-            if self._calm_tries < 50:  # five seconds at most
-                self._calm.start(100)
+        if not DRAWS.idle:  # the least urgent draw: every other one goes first
+            self._prerender_later()
             return
         self.view.prerender()
 
@@ -135,6 +134,7 @@ class RegistrationPane(QWidget):
         self.loader.request(build, snap, snap.n_points("target", "source"))
 
     def _on_drawn(self) -> None:
+        self._prerender_later()
         scene = self.view.scene
         mode = self.colour.currentData()
         self.histogram.setVisible(mode == "distance")
