@@ -126,7 +126,6 @@ class SeparationResult:
     """Per-point wood labels of the preprocessed points."""
 
     is_wood: np.ndarray  # (N,) bool
-    wood_score: np.ndarray  # (N,) float in [0, 1] before the connectivity step
     method: str  # what was used: "geometry", "geometry+intensity", ...
     curvature_threshold: float
     intensity_threshold: float  # NaN when intensity was not used
@@ -193,9 +192,7 @@ def separate_wood(
     n = len(xyz)
     if params.mode == "all_wood":
         ones = np.ones(n, dtype=bool)
-        return SeparationResult(
-            ones, ones.astype(float), "all_wood", float("nan"), float("nan")
-        )
+        return SeparationResult(ones, "all_wood", float("nan"), float("nan"))
     # Features at one representative point per feature voxel (its neighbours are taken
     # from all points, so the scales keep their size); the voxel's points share them.
     if params.feature_voxel_m > 0:
@@ -249,4 +246,4 @@ def separate_wood(
         )
         is_wood[wood_idx[keep]] = True
     reporter.progress(1.0, f"{is_wood.mean():.0%} wood")
-    return SeparationResult(is_wood, score, "+".join(methods), curv_thr, int_thr)
+    return SeparationResult(is_wood, "+".join(methods), curv_thr, int_thr)
