@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from amrst.pipeline.refine import PoseQuality
+    from amrst.review.manual_keep import KeepDecision
 
 ROLES = ("target", "source")
 
@@ -240,22 +241,32 @@ def evaluate_coarse(
 
 def refine_pair(
     analyses: dict, coarse: Any, params: Any, reporter: Reporter, matches: Any = None
-) -> tuple[tuple[Any, Any, dict, PoseQuality], float]:
-    """Fine registration from the accepted ``coarse`` result (a CoarseResult or a
-    transform), reusing a fit the match step already made for it (``matches``);
-    returns ``(FineResult, CloudMetrics, tree measures, PoseQuality)``."""
+) -> tuple[tuple[Any, Any, dict, PoseQuality, KeepDecision | None], float]:
+    """Fine registration from the accepted ``coarse`` result, reusing a fit the
+    match step already made for it (``matches``), then measured. From a manual
+    candidate, Fine's result replaces the technician's pose only as
+    :func:`amrst.review.manual_keep.keep_manual` decides. Returns ``(FineResult,
+    CloudMetrics, tree measures, PoseQuality, the decision or None)``."""
     from amrst import pipeline
+    from amrst.review.manual_keep import keep_manual
+    from amrst.stages.candidates import Origin
 
     start = time.perf_counter()
+    target, source = analyses["target"], analyses["source"]
     fine = pipeline.refine(
-        analyses["target"],
-        analyses["source"],
+        target,
+        source,
         coarse,
         params,
         SubReporter(reporter, 0, 0.9),
         matches,
         threads=THREADS,
     )
+    decision = None
+    if coarse.candidate is not None and coarse.candidate.origin == Origin.MANUAL:
+        fine, decision = keep_manual(
+            fine, coarse.T_target_source, target.xyz, source.xyz, params.coarse
+        )
     reporter.check_cancelled()
     reporter.progress(0.9, "Measuring the fine alignment")
     metrics = pipeline.evaluate(
@@ -272,7 +283,7 @@ def refine_pair(
     reporter.progress(0.97, "Measuring where both scans saw the scene")
     quality = pose_quality(analyses, fine.T_target_source, params)
     reporter.progress(1.0, "Fine registration done")
-    return (fine, metrics, tree, quality), time.perf_counter() - start
+    return (fine, metrics, tree, quality, decision), time.perf_counter() - start
 
 
 def pose_quality(analyses: dict, T_local: Any, params: Any) -> PoseQuality:

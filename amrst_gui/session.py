@@ -1296,8 +1296,6 @@ class Session(QObject):
 
     # ------------------------------------------------------------------ fine
     def _start_fine(self) -> None:
-        from amrst_gui.fine_job import refine_keeping_manual
-
         accepted = self._accepted
         assert accepted is not None  # plan() puts Accept coarse first
         if accepted.candidate.fine_points:
@@ -1308,7 +1306,7 @@ class Session(QObject):
             )
         # A trunk solution's full fit was made while matching: reuse it. From a
         # manual pose, Fine never silently replaces a better one.
-        refine = functools.partial(refine_keeping_manual, matches=self.review.automatic)
+        refine = functools.partial(jobs.refine_pair, matches=self.review.automatic)
         self._launch("fine", refine, self._by_role("analysis"), accepted, self._params)
 
     def _apply_fine(self, result: tuple) -> Callable[[], None]:

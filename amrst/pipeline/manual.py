@@ -29,7 +29,7 @@ from amrst.review.manual import (
     score_manual,
     weak_turn,
 )
-from amrst.review.manual_keep import judge_refinement
+from amrst.review.manual_keep import keep_manual
 from amrst.stages.candidates import CandidateList, choose_coarse
 from amrst.stages.match import TetraMatches
 
@@ -107,15 +107,7 @@ def register_from_pairs(
     )
     t0 = time.perf_counter()
     fine = refine(tgt, src, coarse, params, SubReporter(reporter, 0.7, 0.9, "fine"))
-    kept = judge_refinement(
-        coarse.T_target_source, fine.T_target_source, tgt.xyz, src.xyz, params.coarse
-    )
-    if kept.keep_manual:
-        fine = dataclasses.replace(
-            fine,
-            T_target_source=coarse.T_target_source,
-            method=f"{fine.method} (result dropped: the pairs' pose kept)",
-        )
+    fine, _ = keep_manual(fine, coarse.T_target_source, tgt.xyz, src.xyz, params.coarse)
     return finish_registration(
         (target, source),
         (tgt, src),

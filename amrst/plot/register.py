@@ -360,7 +360,7 @@ def register_plot_link_by_hand(
     """
     from amrst.pipeline import evaluate, refine
     from amrst.review.manual import MANUAL_ID_BASE, ManualScorer, fit_pairs, weak_turn
-    from amrst.review.manual_keep import judge_refinement
+    from amrst.review.manual_keep import keep_manual
     from amrst.review.overlap import overlap_distances
     from amrst.review.strength import axis_strength
     from amrst.review.verdict import REGISTERED, manual_verdict
@@ -377,15 +377,10 @@ def register_plot_link_by_hand(
         )
     fine = refine(tgt, src, start, params, reporter, threads=threads)
     scorer = ManualScorer(tgt.xyz, src.xyz, params.coarse)
-    kept = judge_refinement(
-        start,
-        fine.T_target_source,
-        tgt.xyz,
-        src.xyz,
-        params.coarse,
-        tree=scorer.tree,
+    fine, _ = keep_manual(
+        fine, start, tgt.xyz, src.xyz, params.coarse, tree=scorer.tree
     )
-    T = start if kept.keep_manual else fine.T_target_source
+    T = fine.T_target_source
     # Against the stem map's points (1 cm voxel): the preprocessed points of a big
     # scan are thinned to a 10 cm voxel, too coarse to show a right pose's distances.
     verdict = manual_verdict(

@@ -10,7 +10,7 @@ otherwise the manual pose stays, and the reason says so. No Qt.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
     from amrst.stages.coarse import CoarseParams
+    from amrst.stages.fine import FineResult
     from amrst.types import Transform
 
 
@@ -129,3 +130,29 @@ def judge_refinement(
             f"{shift * 100:.1f} cm ({scores})."
         )
     return KeepDecision(moved_away or worse, turn, shift, before, after, why)
+
+
+def keep_manual(
+    fine: FineResult,
+    T_manual: Transform,
+    target_xyz: np.ndarray,
+    source_xyz: np.ndarray,
+    params: CoarseParams,
+    *,
+    tree: cKDTree | None = None,
+) -> tuple[FineResult, KeepDecision]:
+    """Return Fine's result from the manual pose ``T_manual``, or that pose kept.
+
+    :func:`judge_refinement` decides; a dropped result keeps Fine's method and says
+    so in it, with the manual pose as ``T_target_source``.
+    """
+    kept = judge_refinement(
+        T_manual, fine.T_target_source, target_xyz, source_xyz, params, tree=tree
+    )
+    if kept.keep_manual:
+        fine = replace(
+            fine,
+            T_target_source=np.asarray(T_manual, float),
+            method=f"{fine.method} (result dropped: manual pose kept)",
+        )
+    return fine, kept
