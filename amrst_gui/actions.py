@@ -225,7 +225,11 @@ class WorkflowActions(QObject):
             ready = _READY.get(step, lambda s: s.has_scans)
             action.setEnabled(idle and bool(ready(s)))
         self.run_all.setEnabled(idle and s.has_scans)
-        self.export.setEnabled(idle and s.final_transform is not None)
+        # A result the review or the parameters left behind is not offered for export;
+        # the tooltip says what to run first.
+        stale = s.out_of_date if s.final_transform is not None else ""
+        self.export.setEnabled(idle and s.final_transform is not None and not stale)
+        self.export.setToolTip(stale or self.export.statusTip())
         self.view_report.setEnabled(s.last_report is not None)
         self.cancel.setEnabled(s.busy)
         selected = s.selected_match

@@ -29,6 +29,14 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("amrst_gui.session")
 
+#: What each candidate source is called in a sentence.
+SOURCE_TEXT = {
+    "tetrahedra": "tetrahedron matches",
+    "trunk": "trunk heading search",
+    "manual": "your manual pose",
+    "stems": "stem map",
+}
+
 
 class Review:
     """The candidates of the current link and the technician's decisions on them.
@@ -313,12 +321,22 @@ class Review:
         solution of the list, then ``fine``), or None before matching.
         ``params``: those the match step ran with; ``overlap`` and ``strength``: the
         final pose's (a manual pose, or an unverified candidate the technician
-        accepted, is judged by them; weak axes are named)."""
+        accepted, is judged by them; weak axes are named).
+
+        Once the accepted candidate is rejected or another one ranks above it, the
+        result no longer stands: the verdict says what Accept coarse would take
+        instead (*needs review*), or the list's own when every candidate is rejected.
+        """
         from amrst.review.verdict import judge
 
         if self.match_result is None:
             return None
-        coarse = accepted if accepted is not None else self.coarse
+        now = self.coarse
+        if accepted is not None and (
+            now is None or now.candidate.id != accepted.candidate.id
+        ):
+            return self._superseded(accepted, now, params)
+        coarse = accepted if accepted is not None else now
         return judge(
             coarse,
             candidates=self.matches,
@@ -331,6 +349,34 @@ class Review:
             overlap=overlap,
             strength=strength,
             accepted_by_hand=accepted is not None and not accepted.verified,
+        )
+
+    def _superseded(
+        self,
+        accepted: CoarseResult,
+        now: CoarseResult | None,
+        params: RegistrationParams,
+    ) -> Verdict | None:
+        """The verdict of a result whose candidate is no longer the coarse solution."""
+        from amrst.review.verdict import NEEDS_REVIEW, Verdict
+
+        if now is None:  # every candidate rejected: the list's own verdict
+            return self.verdict(None, None, params)
+        old = accepted.candidate.id
+        was = next((c for c in self.matches if c.id == old), None)
+        why = (
+            "which you rejected"
+            if old in self.rejected
+            else "which is no longer the best candidate"
+        )
+        best = now.candidate
+        source = SOURCE_TEXT.get(str(best.origin), "matching")
+        return Verdict(
+            NEEDS_REVIEW,
+            f"The result shown comes from candidate "
+            f"{'#' + str(was.rank) if was is not None else old}, {why}. Accept coarse "
+            f"now takes candidate #{best.rank} ({source}, score {best.score:.0%}).",
+            "Look at it in the views, then Accept coarse (Ctrl+4).",
         )
 
     def next_manual_id(self) -> int:

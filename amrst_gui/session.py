@@ -309,6 +309,9 @@ class Session(QObject):
         if self.final_transform is None:
             self._fail("Nothing to export yet: accept a coarse solution first.")
             return
+        if self.out_of_date:
+            self._fail(self.out_of_date)
+            return
         verdict = self.verdict
         if verdict is not None and not verdict.ok and not override:
             self._fail(
@@ -321,15 +324,6 @@ class Session(QObject):
             if verdict is None or verdict.ok
             else {"verdict_status": verdict.status, "by": "user, in amrst-gui"}
         )
-        stale = [st for st in ("coarse", "fine") if self.is_stale(st)]
-        if stale:
-            self._fail(
-                f"{steps.plain_label(stale[-1])} is out of date: parameters or the "
-                "review changed after it ran, so the files would not describe the "
-                f"result. Run {steps.plain_label(stale[0])} again (or undo the "
-                "change), then export."
-            )
-            return
         before = self.other_export(Path(out_dir))
         if before is not None and self._replace_folder != Path(out_dir).resolve():
             self._fail(
@@ -885,6 +879,19 @@ class Session(QObject):
         """True when the step's result exists (stale or not)."""
         done = getattr(self, f"_done_{step}", None)  # per step, below
         return bool(done()) if done is not None else False
+
+    @property
+    def out_of_date(self) -> str:
+        """Why the result cannot be exported as it stands, or "" when it can."""
+        stale = [st for st in ("coarse", "fine") if self.is_stale(st)]
+        if not stale:
+            return ""
+        return (
+            f"{steps.plain_label(stale[-1])} is out of date: parameters or the "
+            "review changed after it ran, so the files would not describe the "
+            f"result. Run {steps.plain_label(stale[0])} again (or undo the "
+            "change), then export."
+        )
 
     def is_stale(self, step: str) -> bool:
         """True when a result exists but was computed with other parameters."""

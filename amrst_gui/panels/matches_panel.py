@@ -18,7 +18,6 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from amrst.review.verdict import NEEDS_REVIEW, Verdict
 from amrst_gui.panels.verdict_style import verdict_style
 
 COLUMNS = (
@@ -54,12 +53,6 @@ _TIPS = (
 
 _ROOT = QModelIndex()
 _ORIGIN = {"tetrahedra": "tetra", "trunk": "trunk", "manual": "manual"}
-_SOURCE = {
-    "tetrahedra": "tetrahedron matches",
-    "trunk": "trunk heading search",
-    "manual": "your manual pose",
-    "stems": "stem map",
-}
 
 
 # Rows the table always shows, whatever the header above it says.
@@ -108,39 +101,6 @@ def rank_reason(cand) -> str:
 def _num(value: float, fmt: str, missing: str = "—") -> str:
     """A number for the table, or ``missing`` for a trunk-search solution (NaN)."""
     return missing if value != value else fmt.format(value)
-
-
-def header_verdict(session) -> Verdict | None:
-    """The verdict the Matches header shows: the session's while its result (if
-    any) comes from the coarse solution the list offers now, else that solution's.
-
-    ``session.verdict`` judges the accepted result until Accept coarse runs again; once
-    that candidate is rejected or another one is ranked above it, the header says what
-    Accept coarse would take instead of repeating the old result's verdict.
-    """
-    accepted, coarse = session.accepted_coarse, session.coarse
-    if accepted is None or (
-        coarse is not None and coarse.candidate.id == accepted.candidate.id
-    ):
-        return session.verdict
-    if coarse is None:  # every candidate rejected: the list's own verdict
-        return session.review.verdict(None, None, session.params)
-    old = accepted.candidate.id
-    was = next((c for c in session.matches if c.id == old), None)
-    why = (
-        "which you rejected"
-        if old in session.rejected
-        else "which is no longer the best candidate"
-    )
-    best = coarse.candidate
-    return Verdict(
-        NEEDS_REVIEW,
-        f"The result shown comes from candidate "
-        f"{'#' + str(was.rank) if was is not None else old}, {why}. Accept coarse now "
-        f"takes candidate #{best.rank} ({_SOURCE.get(str(best.origin), 'matching')}, "
-        f"score {best.score:.0%}).",
-        "Look at it in the views, then Accept coarse (Ctrl+4).",
-    )
 
 
 class CandidateModel(QAbstractTableModel):
@@ -389,7 +349,7 @@ class MatchesPanel(QWidget):
             self.coarse_label.setText("No matches yet: run Match (Ctrl+3).")
             self.coarse_label.setStyleSheet("")
             return
-        verdict = header_verdict(s)
+        verdict = s.verdict
         coarse = s.coarse
         lines = []
         if verdict is not None:

@@ -74,6 +74,7 @@ class WorkflowStatusBar(QStatusBar):
         session.separation_finished.connect(self._on_separation_finished)
         session.skeletons_finished.connect(self._on_skeletons_finished)
         session.matches_changed.connect(self._on_matches_changed)
+        session.review_changed.connect(self._on_review_changed)
         session.coarse_accepted.connect(self._on_coarse_accepted)
         session.fine_finished.connect(self._on_fine_finished)
         session.exported.connect(self._on_exported)
@@ -147,9 +148,14 @@ class WorkflowStatusBar(QStatusBar):
     def _on_matches_changed(self) -> None:
         n = len(self.session.matches)
         self._show_verdict(
-            f"{n} candidates. Review them in the Matches dock, then Accept coarse "
-            "(Ctrl+4)."
+            f"{n} candidate{'s' if n != 1 else ''}. Review them in the Matches dock, "
+            "then Accept coarse (Ctrl+4)."
         )
+
+    def _on_review_changed(self, rejected) -> None:
+        # A rejection can take the result's candidate away: the verdict changes.
+        n = len(self.session.matches)
+        self._show_verdict(f"{len(rejected)} of {n} candidates rejected.")
 
     def _on_coarse_accepted(self, _coarse) -> None:
         self._show_verdict("Coarse solution accepted.")

@@ -54,9 +54,16 @@ def test_header_follows_new_manual_poses_and_rejections(loaded_window, finish):
     assert "Your manual pose" not in line
     assert "which you rejected" in line
     assert f"Accept coarse now takes candidate #{s.coarse.candidate.rank}" in line
+    # One verdict: the Metrics dock and the status bar read the same, and Export
+    # is not offered for a result the review left behind.
+    assert "which you rejected" in s.verdict.reason
+    assert win.status.message.text().endswith("candidates rejected. Needs review.")
+    assert not win.actions.export.isEnabled()
+    assert "out of date" in win.actions.export.toolTip()
     # Restored, the accepted result is the coarse solution again.
     s.restore_match(manual.id)
     assert _verdict_line(win).startswith("<b>Needs review</b>: Your manual pose")
+    assert win.actions.export.isEnabled()
 
     # Every candidate rejected: the list's own verdict.
     for c in s.matches:
