@@ -6,6 +6,7 @@ because the action it guards goes on or not on that answer.
 
 from __future__ import annotations
 
+import os
 import platform
 from importlib import metadata
 from pathlib import Path
@@ -53,15 +54,28 @@ EXPORT_SUBFOLDER = "registration"
 
 def export_folder(remembered: str, base: Path | None) -> str:
     """The folder the export dialog starts from: the one used last when it lies in
-    the current case's folder ``base`` (the target scan's), else one inside ``base``
-    (the previous case's folder is never proposed for another case)."""
+    the current case's folder (:func:`case_folder` of ``base``, the target scan's),
+    else one inside it (the previous case's folder is never proposed for another
+    case)."""
     if base is None:
         return remembered
+    case = case_folder(base)
     if remembered:
         path = Path(remembered).expanduser()
-        if path.is_absolute() and path.resolve().is_relative_to(base.resolve()):
+        if path.is_absolute() and path.resolve().is_relative_to(case.resolve()):
             return remembered
-    return str(base / EXPORT_SUBFOLDER)
+    return str(case / EXPORT_SUBFOLDER)
+
+
+def case_folder(base: Path) -> Path:
+    """Where a case's exports go: ``base``, or ``~/AMRST/<its name>`` where ``base``
+    holds the app's own files (the bundled sample) or cannot be written."""
+    from amrst.resources import resources_root
+
+    ours = base.resolve().is_relative_to(resources_root().resolve())
+    if ours or not os.access(base, os.W_OK):
+        return Path.home() / "AMRST" / base.name
+    return base
 
 
 def confirm_replace(parent, folder: Path, before: str) -> bool:
@@ -159,6 +173,8 @@ class ExportDialog(QDialog):
         self.setObjectName("export_dialog")
         self.setWindowTitle("Export registration")
         self.folder_edit = QLineEdit(folder)
+        # Wide enough to read a folder's path, not only its last part.
+        self.folder_edit.setMinimumWidth(self.fontMetrics().averageCharWidth() * 60)
         self.folder_edit.setPlaceholderText("Output folder")
         self.folder_edit.setToolTip(
             "Files are written here; the same pair's earlier export is replaced, "

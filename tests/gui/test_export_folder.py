@@ -141,3 +141,20 @@ def test_a_folder_no_file_system_takes_is_named_in_the_dialog(
         assert "export folder" in box.problem.text()
     assert not s.busy
     box.close()
+
+
+def test_the_bundled_sample_is_exported_under_home(monkeypatch, tmp_path):
+    from amrst.resources import resource_path
+
+    monkeypatch.setenv("HOME", str(tmp_path))  # never into the app's own files
+    sample = resource_path("sample")
+    assert dialogs.export_folder("", sample) == str(
+        tmp_path / "AMRST" / "sample" / dialogs.EXPORT_SUBFOLDER
+    )
+    locked = tmp_path / "read_only_case"
+    locked.mkdir(mode=0o555)
+    expect = tmp_path / "AMRST" / "read_only_case" / dialogs.EXPORT_SUBFOLDER
+    import os
+
+    if os.geteuid() != 0:  # root writes anywhere
+        assert dialogs.export_folder("", locked) == str(expect)
