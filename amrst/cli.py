@@ -105,7 +105,7 @@ def _print_summary(
         f"  coarse: candidate {cand.rank} of {len(result.matches.candidates)}"
         f"{' (trunk heading search)' if cand.origin == 'trunk' else ''}"
         f"{' (point pairs)' if cand.origin == 'manual' else ''}, "
-        f"verification score {cand.score:.0%}, confidence {result.confidence:.2f}"
+        f"verification score {cand.score:.0%}, confidence {result.confidence:.0%}"
     )
     print(
         f"  fine ({fine['method']}): NN-RMSE {fine['rmse_overlap_m'] * 100:.1f} cm in "

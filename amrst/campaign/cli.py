@@ -155,7 +155,7 @@ def _status(campaign: Campaign) -> int:
     width = max((len(row["tree_id"]) for row in rows), default=0)
     for row in rows:
         extra = row["error"] or (
-            f"confidence {row['confidence']:.2f}" if row["confidence"] != "" else ""
+            f"confidence {row['confidence']:.0%}" if row["confidence"] != "" else ""
         )
         print(
             f"{row['tree_id']:<{width}}  {row['status']:<13} {row['decision']:<9} "

@@ -237,7 +237,7 @@ def _verdict_of(link: StoredLink | None, label: str) -> dict[str, str]:
     return {
         "status": status,
         "reason": f"Link {link.target}-{link.source}: {status} by the batch "
-        f"(score {link.score:.0%}, confidence {link.confidence:.2f}, {how}); the pose "
+        f"(score {link.score:.0%}, confidence {link.confidence:.0%}, {how}); the pose "
         f"shown comes from both scans' final poses. {link.message}".strip(),
         "next_step": "Accept the tree in the Campaign dock."
         if status == REGISTERED

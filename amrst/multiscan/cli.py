@@ -45,7 +45,7 @@ def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
         used = " [tree]" if link.in_tree else ""
         lines.append(
             f"  link {link.target}-{link.source}: {link.status}, score {link.score:.0%}, "
-            f"confidence {link.confidence:.2f}{rmse}{used}"
+            f"confidence {link.confidence:.0%}{rmse}{used}"
         )
     for k, label in enumerate(labels):
         path = result.paths[k]
@@ -143,7 +143,7 @@ def run_register(
     if result.status != REGISTERED:
         print(
             f"  WARNING: {result.status}: the weakest link has confidence "
-            f"{result.confidence:.2f}; compare the links in amrst-gui.",
+            f"{result.confidence:.0%}; compare the links in amrst-gui.",
             file=sys.stderr,
         )
         return EXIT_NOT_REGISTERED

@@ -58,7 +58,7 @@ def _verdict(result: MultiScanResult) -> str:
     n, reached = len(result.scans), sum(result.reached)
     why = (
         f"{reached} of {n} scans reach the reference through verified links; the "
-        f"weakest link of the spanning tree has confidence {result.confidence:.2f}."
+        f"weakest link of the spanning tree has confidence {result.confidence:.0%}."
     )
     nxt = (
         "Nothing more is needed; check the links below at a glance."
@@ -110,7 +110,7 @@ def _links(result: MultiScanResult) -> str:
                 f"{link.target} ← {link.source}",
                 _e(link.status),
                 f"{link.score:.0%}",
-                f"{link.confidence:.2f}",
+                f"{link.confidence:.0%}",
                 "–" if m is None else _cm(m.rmse_overlap_m),
                 "–" if m is None else f"{m.overlap_fraction:.0%}",
                 "yes" if link.in_tree else "",

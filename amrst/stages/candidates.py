@@ -225,7 +225,7 @@ def choose_coarse(
             "Review the top matches."
         )
     else:
-        msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.2f}."
+        msg = f"Candidate {best.rank}: score {best.score:.0%}, confidence {conf:.0%}."
     return CoarseResult(best, best.T_target_source, conf, runner, msg, verified)
 
 

@@ -58,7 +58,7 @@ def link_cells(stored: StoredTree) -> list[tuple[str, ...]]:
                 f"{link.target} ← {link.source}",
                 link.status,
                 "" if math.isnan(link.score) else f"{link.score:.0%}",
-                "" if math.isnan(link.confidence) else f"{link.confidence:.2f}",
+                "" if math.isnan(link.confidence) else f"{link.confidence:.0%}",
                 "" if rmse is None else f"{float(rmse) * 100:.1f}",
                 "yes" if link.in_tree else "",
             )

@@ -359,6 +359,11 @@ class MatchesPanel(QWidget):
             lines.append(f"<b>{verdict.headline}</b>: {verdict.reason}{nxt}")
         counts = f"{len(s.matches)} candidates, {len(s.rejected)} rejected."
         if coarse is not None:
+            # The accepted solution's own confidence (a stored one's as stored), as
+            # the verdict above judges it; the list's while another is the solution.
+            accepted = s.accepted_coarse
+            if accepted is not None and accepted.candidate.id == coarse.candidate.id:
+                coarse = accepted
             lines.append(
                 f"Coarse solution: candidate #{coarse.candidate.rank}, confidence "
                 f"{coarse.confidence:.0%}; {counts}"
