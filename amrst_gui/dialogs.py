@@ -109,9 +109,16 @@ def confirm_discard(parent, action: str, lost: str) -> bool:
         parent,
     )
     box.setObjectName("discard_box")
+    keep = [
+        how
+        for what, how in (
+            ("result", "Export (Ctrl+E) keeps the result"),
+            ("pair", "Save pairs… in the Manual pose dock keeps the point pairs"),
+        )
+        if what in lost
+    ]
     box.setInformativeText(
-        "Choose Cancel to keep it: Export (Ctrl+E) keeps a result, Save pairs… in "
-        "the Manual pose dock keeps point pairs."
+        f"Choose Cancel to keep it: {'; '.join(keep)}." if keep else ""
     )
     box.setDefaultButton(QMessageBox.StandardButton.Cancel)
     return box.exec() == QMessageBox.StandardButton.Discard

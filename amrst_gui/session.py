@@ -405,9 +405,8 @@ class Session(QObject):
         # Run all stops before it accepts an unverified candidate; an
         # explicit Accept coarse or Fine is the technician's own decision.
         self._stop_unverified = auto
-        if self._replaces_result() and not self.may_discard(
-            f"{steps.plain_label(chain[0])} again", result_only=True
-        ):
+        action = "Run all" if auto else f"{steps.plain_label(chain[0])} again"
+        if self._replaces_result() and not self.may_discard(action, result_only=True):
             return
         self.runner.run(chain)
 

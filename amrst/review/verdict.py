@@ -105,11 +105,13 @@ def _why_unverified(
             "symmetric stem, or scans that share little, fit several headings "
             "equally well)."
         )
-    what = "The best solution"
+    from amrst.stages.candidates import MIN_VERIFIED_SCORE
+
     return (
-        f"{what} puts only {best.score:.0%} of the sampled source points within "
-        f"{tight_dist_m * 100:.0f} cm of the target (a right one puts 45% or more on "
-        "the benchmark)"
+        f"The best solution puts only {best.score:.0%} of the sampled source points "
+        f"within {tight_dist_m * 100:.0f} cm of the target (a solution verifies from "
+        f"{MIN_VERIFIED_SCORE:.0%}, and a right one on scans that share most of the "
+        "tree puts 45% or more there)"
         + (
             ", and the trunk heading search found no heading that clearly beats the "
             "others."

@@ -94,7 +94,8 @@ class ManualPanel(NudgeMixin, QScrollArea):
         return (
             ""
             if not self.pairs or same
-            else f"{len(self.pairs)} point pairs (not saved)"
+            else f"{len(self.pairs)} point pair{'s' if len(self.pairs) != 1 else ''} "
+            "(not saved)"
         )
 
     # ------------------------------------------------------------- building
