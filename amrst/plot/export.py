@@ -256,6 +256,11 @@ def read_plot(out: Path) -> PlotFiles:
     """
     from amrst.plot.inventory import Tree
 
+    if not out.is_dir():
+        raise InvalidInput(
+            f"{out} {'is not a folder' if out.exists() else 'does not exist'}: "
+            "choose the folder a plot was written into."
+        )
     if not (out / PLOT_JSON).is_file():
         raise InvalidInput(
             f"{out} holds no plot ({PLOT_JSON}): choose the folder a plot was "

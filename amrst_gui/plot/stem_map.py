@@ -69,6 +69,10 @@ def scan_colour(k: int) -> QColor:
     return QColor(*SCAN_RGB[k % len(SCAN_RGB)])
 
 
+#: What the map says before any scan is open.
+NO_PLOT = "No plot yet: open its scans (File ▸ Open plot…) and run it."
+
+
 class StemMapView(QWidget):
     """The plot from above; ``set_plot(outcome)``, ``set_review``, ``select``."""
 
@@ -85,6 +89,7 @@ class StemMapView(QWidget):
         self.review = PlotReview()  # the technician's marks, DBHs and added trees
         self.adding = False
         self.selected: int | None = None
+        self.empty_text = NO_PLOT  # what the map says while it has no plot
         self._image: QImage | None = None
         self.zoom = 1.0  # times the scale that shows the whole plot
         self._centre: np.ndarray | None = None  # (2,) m at the map's middle; None: fit
@@ -340,7 +345,7 @@ class StemMapView(QWidget):
             p.drawText(
                 self.rect(),
                 Qt.AlignmentFlag.AlignCenter,
-                "No plot yet: open its scans (File ▸ Open plot…) and run it.",
+                self.empty_text,
             )
             p.end()
             return

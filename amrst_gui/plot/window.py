@@ -67,7 +67,7 @@ from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot import jobs
-from amrst_gui.plot.stem_map import StemMapView
+from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
     LINK_COLUMNS,
     NBSP,
@@ -592,8 +592,15 @@ class PlotWindow(QMainWindow):
             self._say("A plot is running: cancel it first.", error=True)
 
     def _say_scans(self) -> None:
+        gone = [k + 1 for k, s in enumerate(self.specs) if not scan_file_exists(s)]
         if len(self.specs) < 2:
             self._say("A plot needs two or more scans: open them together.", error=True)
+        elif gone:
+            self._say(
+                f"Not found: {', '.join(f'S{k}' for k in gone)}. Open the plot's "
+                "scans where they are now (File ▸ Open plot…).",
+                error=True,
+            )
         else:
             self._say(
                 f"{len(self.specs)} scans. Run plot registers and inventories them."
@@ -637,7 +644,14 @@ class PlotWindow(QMainWindow):
         self.scan_list.clear()
         for k, spec in enumerate(self.specs):
             title = scan_title(spec, self.scan_names.get(spec, ""), short=True)
-            self.scan_list.addItem(f"S{k + 1}  {title}")
+            gone = "" if scan_file_exists(spec) else "  (not found)"
+            self.scan_list.addItem(f"S{k + 1}  {title}{gone}")
+        self.stem_map.empty_text = (
+            "Run plot registers the scans listed and draws the plot here."
+            if self.specs
+            else NO_PLOT
+        )
+        self.stem_map.update()
         self._show_given()
         self._show_title()
         self._show_busy()
@@ -1282,9 +1296,11 @@ class PlotWindow(QMainWindow):
         assert self.outcome is not None
         o = self.outcome
         unsure = bool(o.missing or o.labelled(NEEDS_REVIEW) or o.lost)
-        done = f"opened from {o.out}" if opened else f"written to {o.out}"
-        if not opened:
-            done = f"({o.seconds:.0f} s); {done}"
+        done = (
+            f"opened from {o.out}"
+            if opened
+            else f"written to {o.out} in {o.seconds:.0f} s"
+        )
         if o.lost:
             done += (
                 f". No tree stands any more where you gave {', '.join(o.lost)}: "
