@@ -668,8 +668,8 @@ def _taper_stem(
         return replace(
             _without_dbh(stem),
             arc_deg=taper.circle.arc_deg,
-            dbh_why=f"a wide stem seen on {taper.circle.arc_deg:.0f}° < "
-            f"{params.wide_arc_deg:g}°",
+            dbh_why=f"a wide stem seen on {taper.circle.arc_deg:.0f}°, "
+            f"{params.wide_arc_deg:g}° needed",
         )
     outliers = _outlier_share(taper.slice_xy, taper.circle)
     consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
@@ -848,11 +848,17 @@ def _dbh_quality(
     why = []
     # Written as "not good" so that a NaN figure fails too.
     if not circle.arc_deg >= arc:
-        why.append(f"arc {circle.arc_deg:.0f}° < {arc:g}°")
+        why.append(f"bark seen on {circle.arc_deg:.0f}° of the stem, {arc:g}° needed")
     if not circle.rmse_m <= params.ok_rmse_m:
-        why.append(f"fit {circle.rmse_m * 1000:.1f} > {params.ok_rmse_m * 1000:g} mm")
+        why.append(
+            f"points {circle.rmse_m * 1000:.1f} mm off the circle, "
+            f"{params.ok_rmse_m * 1000:g} mm allowed"
+        )
     if not outliers <= params.ok_outlier_share:
-        why.append(f"{outliers:.0%} off > {params.ok_outlier_share:.0%}")
+        why.append(
+            f"{outliers:.0%} of the slice off the circle, "
+            f"{params.ok_outlier_share:.0%} allowed"
+        )
     if not tapers:
         why.append("slices 1.0-1.6 m disagree")
     return ("check" if why else "ok"), "; ".join(why)

@@ -758,12 +758,12 @@ def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
     # A circle on half the bark or less is not bounded on both sides: check it.
     assert dbh[6].dbh_m == pytest.approx(0.2, abs=0.01)  # 20 cm, 180 deg
     assert dbh[6].dbh_quality == "check"
-    assert dbh[6].dbh_why.startswith("arc 1")
-    assert dbh[6].dbh_why.endswith("< 202.5°")
+    assert dbh[6].dbh_why.startswith("bark seen on 1")
+    assert dbh[6].dbh_why.endswith(", 202.5° needed")
     assert (dbh[-6].dbh_quality, dbh[-6].dbh_why) == ("ok", "")  # 20 cm, 220 deg
     # A wide stem is seldom round: ok only from two thirds of its bark.
     assert dbh[3].dbh_quality == "check"  # 80 cm, 220 deg
-    assert dbh[3].dbh_why.endswith("< 240°")
+    assert dbh[3].dbh_why.endswith(", 240° needed")
     assert dbh[9].dbh_m == pytest.approx(0.8, abs=0.02)  # 80 cm, 260 deg
     assert dbh[9].dbh_quality == "ok"
 

@@ -1989,10 +1989,10 @@ def test_a_tree_without_a_crown_width_shows_a_dash() -> None:
     bare = dataclasses.replace(tree, stem=stem)  # added by hand, no points found
     assert dict(figures(bare, PlotReview()))["Crown"] == "–"
     # A DBH to check says which of its checks failed.
-    assert "not ok" not in dict(figures(tree, PlotReview()))["DBH fit"]
-    doubt = dataclasses.replace(tree.stem, dbh_quality="check", dbh_why="58% off > 40%")
+    assert "why" not in dict(figures(tree, PlotReview()))["DBH fit"]
+    doubt = dataclasses.replace(tree.stem, dbh_quality="check", dbh_why="a reason")
     fit = dict(figures(dataclasses.replace(tree, stem=doubt), PlotReview()))["DBH fit"]
-    assert fit.endswith("\nnot ok: 58% off > 40%")
+    assert fit.endswith("\nwhy check: a reason")
 
 
 def test_a_scan_opened_through_a_link_keeps_the_name_given(
