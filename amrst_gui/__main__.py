@@ -216,8 +216,14 @@ def _open_plot(app, win, args: argparse.Namespace) -> None:
         plot.resize(int(w), int(h))
 
     def save() -> None:
+        from amrst_gui.pacing import DRAWS
+
         if plot.outcome is not None and plot.outcome.trees:
             plot.select_tree(0)  # a tree's figures and slice in the picture
+        # Grabbed in a later turn, once the tree panel's rows are laid out again.
+        DRAWS.later(plot, "screenshot", grab)
+
+    def grab() -> None:
         args.screenshot.parent.mkdir(parents=True, exist_ok=True)
         plot.grab().save(str(args.screenshot))
         print(f"Saved {args.screenshot}")
