@@ -28,9 +28,12 @@ ROLES = ("target", "source")
 THREADS = max(1, min(2, (os.cpu_count() or 1) - 1))
 
 
-def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
+def load_pair(
+    paths: dict[str, Path], reporter: Reporter, min_points: int = 0
+) -> tuple[dict, float]:
     """Read the scans in ``paths`` (role -> path) with ``amrst.io.read``; refuse one
-    whose coordinates are not metres or come in coarse steps."""
+    whose coordinates are not metres or come in coarse steps, or that holds fewer
+    than ``min_points`` points (what Separate needs at the least)."""
     from amrst import io
     from amrst.types import refuse_odd_coordinates
 
@@ -50,6 +53,11 @@ def load_pair(paths: dict[str, Path], reporter: Reporter) -> tuple[dict, float]:
             clouds[role] = io.read(path, reporter=sub)
             refuse_several(clouds[role], Path(path).name)
         refuse_odd_coordinates(clouds[role], Path(path).name)
+        if len(clouds[role]) < min_points:
+            raise InvalidInput(
+                f"{Path(path).name} holds {len(clouds[role])} point(s); a scan needs "
+                f"at least {min_points} (preprocess min points): open a whole scan."
+            )
     reporter.progress(1.0, "Scans read")
     return clouds, time.perf_counter() - start
 

@@ -503,7 +503,14 @@ class Session(QObject):
         self._truth_at_load = self._truth
         self._pending_paths = dict(paths)
         self._pending_plot = plot
-        self._launch("load", jobs.load_pair, paths, alone=True)
+        self._launch(
+            "load",
+            functools.partial(
+                jobs.load_pair, min_points=self._params.preprocess.min_points
+            ),
+            paths,
+            alone=True,
+        )
         return ""
 
     # ----------------------------------------------------------- job running

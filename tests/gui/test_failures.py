@@ -147,6 +147,13 @@ def test_missing_file_and_running_without_scans_fail_politely(
     assert len(errors) == 2
     assert "does not exist" in errors[0]
     assert "Open a target and a source" in errors[1]
+    # A file of one point is refused when it is opened, not at Separate.
+    one = tmp_path / "one.xyz"
+    one.write_text("1.0 2.0 3.0\n")
+    with qtbot.waitSignal(win.session.failed, timeout=20_000) as blocker:
+        win.session.load_scan("source", one)
+    assert "one.xyz holds 1 point(s); a scan needs at least 200" in blocker.args[0]
+    assert win.session.cloud("source") is None
     win.error_box.close()
 
 
