@@ -30,7 +30,6 @@ unsure link of its path was accepted at the pose it has.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from dataclasses import dataclass, field, replace
@@ -203,6 +202,20 @@ def without_added(review: PlotReview, tree_id: str) -> PlotReview:
     )
 
 
+def review_document(out: Path) -> Any:
+    """Read the JSON ``out``'s review.json holds, safely (a named pipe is refused).
+
+    Raises InvalidInput when it cannot be read as JSON.
+    """
+    from amrst.files.safefile import load_json_file
+
+    return load_json_file(
+        out / REVIEW_JSON,
+        "review file",
+        "the review.json the app wrote, or move it away",
+    )
+
+
 def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
     """Return the review ``out`` holds for this plot (empty: none, or other scans').
 
@@ -216,8 +229,8 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         return PlotReview()
     if not path.is_file():
         raise InvalidInput(f"{path} is not a file: move it away to review the plot.")
+    doc = review_document(out)
     try:
-        doc = json.loads(path.read_text())
         scans = [str(label) for label in list(doc["scans"])]
         marks = {str(k): str(v) for k, v in dict(doc["marks"]).items()}
         accepted = {
@@ -323,9 +336,9 @@ def _scan_ids(out: Path, labels: Sequence[str]) -> list[str]:
     mark need not read every scan file.
     """
     try:
-        doc = json.loads((out / REVIEW_JSON).read_text())
+        doc = review_document(out)
         known = dict(zip(doc["scans"], doc["scan_ids"], strict=True))
-    except (OSError, ValueError, KeyError, TypeError):
+    except (InvalidInput, ValueError, KeyError, TypeError):
         known = {}
     return [
         known[label]

@@ -428,9 +428,8 @@ def same_plot(out: Path, labels: Sequence[str]) -> str:
     Its plot.json tells; when that cannot be read, its review.json (the scans the
     technician's marks belong to, which a run keeps).
     """
-    from amrst.files.safefile import load_json_file
     from amrst.plot.export import read_plot_json
-    from amrst.plot.review import REVIEW_JSON, same_reference, same_scans
+    from amrst.plot.review import review_document, same_reference, same_scans
 
     # Both open regular files only: this runs on the GUI thread, which a named pipe
     # would block.
@@ -440,7 +439,7 @@ def same_plot(out: Path, labels: Sequence[str]) -> str:
         ids = [s.get("file_id") for s in doc["scans"]]
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         try:
-            review = load_json_file(out / REVIEW_JSON, "review file", "review.json")
+            review = review_document(out)
             theirs, ids = list(review["scans"]), review.get("scan_ids")
         except (InvalidInput, KeyError, TypeError, AttributeError):
             return ""
