@@ -20,7 +20,7 @@ means "drop this step". And Cancel answers within ``CANCEL_GRACE_S`` at any size
 if the work has not reached a check point by then (one numpy call on millions of
 points can take seconds), the job ends as cancelled at once and the worker thread,
 already told to stop, ends at its next check point with nothing delivered
-(``worker_done`` is set then).
+(``ended`` is emitted then).
 
 Every callback runs on the GUI thread: the worker's signals are relayed through a
 ``StageJob`` (a QObject created on the GUI thread) with queued connections.
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import threading
 import traceback
 import warnings
 from collections import deque
@@ -77,8 +76,6 @@ class StageJob(QObject):
         self._done = False
         self._discarded = False
         self._abandon_timer: QTimer | None = None
-        # Set when the worker thread itself has returned or raised.
-        self.worker_done = threading.Event()
         # Emitted from the worker thread, delivered on this object's (GUI) thread.
         self._progress_from_worker.connect(
             self._relay_progress, Qt.ConnectionType.QueuedConnection
@@ -119,7 +116,7 @@ class StageJob(QObject):
         # The work must not hold the job: if the worker thread dropped the last
         # reference, the job (a QObject with a live QTimer after Cancel) would be
         # deleted in the worker thread and its timer would fire on freed memory.
-        reporter, worker_done = self.reporter, self.worker_done
+        reporter = self.reporter
 
         def work() -> Any:
             try:
@@ -130,8 +127,6 @@ class StageJob(QObject):
                 if not hasattr(exc, "__traceback_text__"):
                     exc.__traceback_text__ = traceback.format_exc()  # type: ignore[attr-defined]
                 raise
-            finally:
-                worker_done.set()
 
         worker = create_worker(work, _start_thread=False, _ignore_errors=True)
         worker.returned.connect(
@@ -185,7 +180,6 @@ class StageJob(QObject):
     def _end_unstarted(self, exc: BaseException | None = None) -> None:
         """End a job whose worker never started: cancelled (or ``exc``), nothing
         run."""
-        self.worker_done.set()
         self._finish(self.errored, Cancelled() if exc is None else exc)
         self._release()
 

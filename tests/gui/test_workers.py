@@ -33,19 +33,17 @@ def test_cancel_without_a_check_point_answers_within_the_grace_time(qtbot):
 
     job, got = _run(long_call, qtbot)
     ended: list[bool] = []
-    job.ended.connect(lambda: ended.append(job.worker_done.is_set()))
+    job.ended.connect(lambda: ended.append(True))  # once the worker thread is over
     qtbot.wait(100)
     job.cancel()
     try:
         qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
         assert isinstance(got["error"][0], Cancelled)
-        assert not job.worker_done.is_set()  # the thread is still in its call ...
-        assert ended == []  # ... so it has not ended
+        assert ended == []  # the thread is still in its call: not ended
     finally:
         release.set()
     qtbot.waitUntil(lambda: bool(ended), timeout=60_000)
     assert ended == [True]  # ended once, when the thread was over
-    qtbot.waitUntil(job.worker_done.is_set, timeout=60_000)
     qtbot.wait(100)  # ... and what it returned then is dropped
     assert got["result"] == []
     assert len(got["error"]) == 1
@@ -55,13 +53,16 @@ def test_a_result_returned_after_cancel_is_dropped(qtbot):
     """The work passed its last check point before Cancel and returned anyway:
     the step keeps nothing, not even a finished Fine result."""
 
+    returning = threading.Event()
+
     def finishes(reporter):
         reporter.progress(1.0, "done")
+        returning.set()
         return "result"
 
     job, got = _run(finishes, qtbot)
     # Wait without turning the event loop, so the result is still queued.
-    assert job.worker_done.wait(5.0)
+    assert returning.wait(5.0)
     job.cancel()  # before the queued result reached the GUI thread
     qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
     assert got["result"] == []
@@ -153,7 +154,7 @@ def test_display_jobs_take_turns_and_a_dropped_one_never_runs(qtbot):
     assert not any(overlap)
     assert first.done
     assert last.done
-    assert dropped.worker_done.is_set()  # ended at its turn, without running
+    assert dropped.done  # ended at its turn, without running
 
 
 def test_closing_ends_the_display_jobs_still_waiting_for_their_turn(qtbot):
@@ -174,7 +175,7 @@ def test_closing_ends_the_display_jobs_still_waiting_for_their_turn(qtbot):
     qtbot.waitUntil(lambda: calls == ["running"], timeout=60_000)
     running.discard()
     assert not workers.wait_for_workers(0.2)  # the running one is still at work
-    assert waiting.worker_done.is_set()  # ended, never to start
+    assert waiting.done  # ended, never to start
     gate.set()
     assert workers.wait_for_workers(60.0)
     qtbot.wait(100)  # the running job's end reaches the GUI thread: nothing starts
