@@ -267,8 +267,8 @@ def _ended(code: int | None, exc: BaseException) -> str:
 
 class _Writer:
     """Writes to the engine's stdin that look at Cancel while the pipe is full
-    (the process reads only once its imports are done, a second or two, and a
-    10M-point scan is 240 MB)."""
+    (the process reads only once its imports are done, and a big scan's arrays
+    take long to pass through the pipe)."""
 
     def __init__(self, fd: int) -> None:
         self._fd = fd

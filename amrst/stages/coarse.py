@@ -244,7 +244,7 @@ def rank_candidates(
     is_polished = np.zeros(len(rep), dtype=bool)
     tgt_tree = cKDTree(target_xyz)
     if params.polish_top > 0:
-        # Open3D would do this too, but importing it costs a second per command.
+        # Open3D would do this too, but importing it slows every command down.
         tgt_small = target_xyz[voxel_sample(target_xyz, params.verify_voxel_m)]
         src_small = source_xyz[voxel_sample(source_xyz, params.verify_voxel_m)]
         if len(src_small) > POLISH_POINTS:
