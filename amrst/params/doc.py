@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 from amrst.params.model import RegistrationParams
@@ -66,17 +64,6 @@ def parameters_page() -> str:
     return f"{_INTRO}\n{parameter_table()}\n"
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def main(argv: list[str] | None = None) -> int:
     """Rewrite docs/parameters.md, or with ``--check`` say whether it is current."""
     args = sys.argv[1:] if argv is None else argv
@@ -91,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PAGE} is stale: run python -m amrst.params.doc", file=sys.stderr)
         return 1
     if current != text:
-        _write_atomic(PAGE, text)
+        from amrst.files.atomic import write_text_atomic
+
+        write_text_atomic(PAGE, text)
         print(f"wrote {PAGE}")
     return 0
 
