@@ -99,8 +99,9 @@ def confirm_replace(parent, folder: Path, before: str) -> bool:
     return box.clickedButton() is replace
 
 
-def confirm_discard(parent, action: str, lost: str) -> bool:
-    """Ask whether ``action`` may throw away ``lost`` (an unexported result, pairs)."""
+def confirm_discard(parent, action: str, lost: str, keep: str = "") -> bool:
+    """Ask whether ``action`` may throw away ``lost`` (an unexported result, pairs);
+    ``keep`` says how to keep it."""
     box = QMessageBox(
         QMessageBox.Icon.Warning,
         "Discard unsaved work?",
@@ -109,17 +110,7 @@ def confirm_discard(parent, action: str, lost: str) -> bool:
         parent,
     )
     box.setObjectName("discard_box")
-    keep = [
-        how
-        for what, how in (
-            ("result", "Export (Ctrl+E) keeps the result"),
-            ("pair", "Save pairs… in the Manual pose dock keeps the point pairs"),
-        )
-        if what in lost
-    ]
-    box.setInformativeText(
-        f"Choose Cancel to keep it: {'; '.join(keep)}." if keep else ""
-    )
+    box.setInformativeText(f"Choose Cancel to keep it: {keep}." if keep else "")
     box.setDefaultButton(QMessageBox.StandardButton.Cancel)
     return box.exec() == QMessageBox.StandardButton.Discard
 

@@ -316,6 +316,8 @@ class Review:
         params: RegistrationParams,
         overlap: OverlapDistances | None = None,
         strength: Strength | None = None,
+        *,
+        as_shown: bool = True,
     ) -> Verdict | None:
         """The verdict of the registration (``accepted`` coarse, else the coarse
         solution of the list, then ``fine``), or None before matching.
@@ -324,16 +326,20 @@ class Review:
         accepted, is judged by them; weak axes are named).
 
         Once the accepted candidate is rejected or another one ranks above it, the
-        result no longer stands: the verdict says what Accept coarse would take
-        instead (*needs review*), or the list's own when every candidate is rejected.
+        result no longer stands: the verdict shown (``as_shown``) says what Accept
+        coarse would take instead (*needs review*), or the list's own when every
+        candidate is rejected. ``as_shown=False`` judges the result itself (is it
+        worth keeping?).
         """
         from amrst.review.verdict import judge
 
         if self.match_result is None:
             return None
         now = self.coarse
-        if accepted is not None and (
-            now is None or now.candidate.id != accepted.candidate.id
+        if (
+            as_shown
+            and accepted is not None
+            and (now is None or now.candidate.id != accepted.candidate.id)
         ):
             return self._superseded(accepted, now, params)
         coarse = accepted if accepted is not None else now

@@ -62,6 +62,10 @@ log = logging.getLogger("amrst_gui.session")
 _TRUTH_SAMPLE = 20_000
 
 
+#: How a discard question names an unexported result.
+RESULT_LOST = "the registration result (not exported)"
+
+
 class Session(QObject):
     """One target/source pair, its parameters, results and review decisions.
 
@@ -591,17 +595,27 @@ class Session(QObject):
             self._step_params[step] = self._job_params
         return getattr(self, f"_apply_{step}")(result)
 
+    def how_to_keep(self, lost: str) -> str:
+        """How to keep what ``lost`` (as :meth:`may_discard` words it) names."""
+        ways = []
+        if RESULT_LOST in lost:
+            ways.append(
+                "undo the change (or restore the candidate), then Export (Ctrl+E) "
+                "keeps the result"
+                if self.out_of_date
+                else "Export (Ctrl+E) keeps the result"
+            )
+        if "point pair" in lost:
+            ways.append("Save pairs… in the Manual pose dock keeps the point pairs")
+        return "; ".join(ways)
+
     def may_discard(self, action: str, *, result_only: bool = False) -> bool:
         """Ask ``discard_guard`` before ``action`` throws unsaved work away.
 
         That is an unexported result and, unless ``result_only`` (the scans stay),
         what ``unsaved_work`` names.
         """
-        lost = (
-            ["the registration result (not exported)"]
-            if self.has_unexported_result
-            else []
-        )
+        lost = [RESULT_LOST] if self.has_unexported_result else []
         if not result_only:
             lost += [text for text in (say() for say in self.unsaved_work) if text]
         if not lost or self.discard_guard is None:
@@ -616,8 +630,9 @@ class Session(QObject):
         """
         if self._fine is None or not self.has_unexported_result:
             return False
-        # A result nobody wants (not "registered") is replaced without asking.
-        verdict = self.verdict
+        # A result nobody wants (not "registered") is replaced without asking; one
+        # whose candidate the review moved past is still worth asking about.
+        verdict = self._verdict(as_shown=False)
         return verdict is not None and verdict.ok
 
     @staticmethod
@@ -758,6 +773,11 @@ class Session(QObject):
     def verdict(self) -> Verdict | None:
         """The verdict of the current registration, or None before matching; the
         stored verdict while a stored result stands."""
+        return self._verdict(as_shown=True)
+
+    def _verdict(self, *, as_shown: bool) -> Verdict | None:
+        """``verdict``; with ``as_shown=False``, of the result itself even when the
+        review moved past its candidate (:meth:`Review.verdict`)."""
         stored = self.stored
         if stored is not None and self._stored_fine is not None:
             from amrst.review.verdict import Verdict
@@ -776,6 +796,7 @@ class Session(QObject):
             params,
             overlap=None if quality is None else quality.overlap,
             strength=None if quality is None else quality.strength,
+            as_shown=as_shown,
         )
 
     @property

@@ -51,12 +51,15 @@ def discard_answers(monkeypatch):
 
     class Answers(list):
         asked: list[str]
+        keep: list[str]
 
     answers = Answers()
     answers.asked = []
+    answers.keep = []
 
-    def answer(_parent, action: str, _lost: str) -> bool:
+    def answer(_parent, action: str, _lost: str, keep: str = "") -> bool:
         answers.asked.append(action)
+        answers.keep.append(keep)
         return answers.pop(0) if answers else True
 
     monkeypatch.setattr(dialogs, "confirm_discard", answer)

@@ -103,6 +103,27 @@ def test_unexported_results_are_only_dropped_when_the_user_agrees(fresh, tmp_pat
     assert s.fine is None
 
 
+def test_a_rejected_result_is_still_asked_about_before_it_is_replaced(
+    make_main_window, sample_pair, discard_answers
+):
+    """Rejecting the accepted candidate makes the result out of date (the verdict
+    shown is *needs review*), yet it is registered and not exported: replacing it
+    asks first, and says how to keep it."""
+    win = make_main_window()
+    s = win.session
+    target, source, _ = sample_pair
+    assert not _run(s, lambda: s.load_scans(target, source))
+    assert not _run(s, s.run_all)
+    fine = s.fine
+    s.reject_match(s.accepted_coarse.candidate.id)
+    assert not s.verdict.ok
+    discard_answers.append(False)
+    s.run_all()
+    assert discard_answers.asked == ["Run all"]
+    assert "undo the change (or restore the candidate)" in discard_answers.keep[0]
+    assert s.fine is fine
+
+
 def test_parameters_wait_for_the_running_chain(fresh):
     s = fresh
     before = s.params
