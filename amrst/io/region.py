@@ -194,10 +194,11 @@ def read_las_region(
 
     fixed = check_header(path)
     copc = _copc_query(path, cylinder)
-    # A COPC index that gives no point where the header says points lie may be
+    # A COPC index lists points in every region of the file (its root node holds a
+    # sample of them all); one that lists none where the header says points lie is
     # corrupt: the file is then read as any LAZ, which finds the points or the fault.
-    if copc is not None and (len(copc[0]) or not _meets(fixed, cylinder)):
-        las, n_decoded = copc
+    if copc is not None and (copc[2] or not _meets(fixed, cylinder)):
+        las, n_decoded, _ = copc
         how = {"clip_method": "copc spatial query", "clip_points_decoded": n_decoded}
     else:
         las, n_decoded = _stream(path, fixed, cylinder, reporter)
@@ -224,9 +225,14 @@ def _meets(fixed: FixedHeader, cylinder: Cylinder) -> bool:
     )
 
 
-def _copc_query(path: Path, cylinder: Cylinder) -> tuple[Any, int] | None:
-    """Query a COPC file's octree for the cylinder's box (None: not COPC)."""
+def _copc_query(path: Path, cylinder: Cylinder) -> tuple[Any, int, int] | None:
+    """Query a COPC file's octree for the cylinder's box (None: not COPC).
+
+    Returns the points in the cylinder, how many were decoded in its box, and how
+    many the index lists in the nodes that meet the box.
+    """
     import laspy
+    from laspy.copc import load_octree_for_query
 
     with open(path, "rb") as f:
         head = f.read(375 + 54)
@@ -241,13 +247,20 @@ def _copc_query(path: Path, cylinder: Cylinder) -> tuple[Any, int] | None:
             mins=np.array([cylinder.x - r, cylinder.y - r, max(lo_z, header.mins[2])]),
             maxs=np.array([cylinder.x + r, cylinder.y + r, min(hi_z, header.maxs[2])]),
         )
+        nodes = load_octree_for_query(
+            reader.source,
+            reader.copc_info,
+            reader.root_page,
+            query_bounds=bounds.ensure_3d(header.mins, header.maxs),
+        )
+        listed = sum(max(0, node.point_count) for node in nodes)
         points = reader.query(bounds)
         n_decoded = len(points)
         keep = cylinder.contains(np.column_stack([points.x, points.y, points.z]))
         record = laspy.ScaleAwarePointRecord(
             points.array[keep], header.point_format, header.scales, header.offsets
         )
-        return laspy.LasData(header=header, points=record), n_decoded
+        return laspy.LasData(header=header, points=record), n_decoded, listed
 
 
 def _stream(

@@ -83,10 +83,19 @@ def test_copc_is_queried_not_read_whole():
     assert len(got) == int(_inside(full, *stem, 300.0).sum()) > 0
 
 
-def test_a_copc_index_that_finds_nothing_is_checked_against_the_points(tmp_path):
+def test_a_copc_index_that_finds_nothing_is_checked_against_the_points(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+):
+    from amrst.io import region
+
     path = PEER / "pdal-autzen_clip_native.copc.laz"
     stem = (193919.0, 260584.0)
     assert len(io.read_region(path, stem, 5.0)) == 1
+    # A sound index over a gap between points: said at once, the file not read whole.
+    monkeypatch.setattr(region, "_stream", lambda *_: pytest.fail("read whole"))
+    with pytest.raises(InvalidInput, match=r"no point lies within 0\.3 m"):
+        io.read_region(path, stem, 0.3)
+    monkeypatch.undo()
     broken = bytearray(path.read_bytes())
     broken[-200:] = bytes(b ^ 0x5A for b in broken[-200:])  # its hierarchy
     (tmp_path / "broken.copc.laz").write_bytes(bytes(broken))
