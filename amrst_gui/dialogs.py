@@ -48,7 +48,7 @@ EXPORT_PARTS = (
     ("params", "Parameters (params.json)", "Everything needed to run it again"),
 )
 CLOUD_FORMATS = ("ply", "las", "laz", "pcd")
-# The folder proposed for a case's first export, inside the target scan's folder.
+# The folder proposed for a case's first export, inside the case's folder.
 EXPORT_SUBFOLDER = "registration"
 
 
@@ -68,13 +68,17 @@ def export_folder(remembered: str, base: Path | None) -> str:
 
 
 def case_folder(base: Path) -> Path:
-    """Where a case's exports go: ``base``, or ``~/AMRST/<its name>`` where ``base``
-    holds the app's own files (the bundled sample) or cannot be written."""
+    """Where a case's exports go: ``base``, or ``~/AMRST/<its name>-<tag>`` where
+    ``base`` holds the app's own files (the bundled sample) or cannot be written;
+    the tag, from ``base``'s full path, keeps two such folders of one name apart."""
+    import hashlib
+
     from amrst.resources import resources_root
 
-    ours = base.resolve().is_relative_to(resources_root().resolve())
-    if ours or not os.access(base, os.W_OK):
-        return Path.home() / "AMRST" / base.name
+    where = base.resolve()
+    if where.is_relative_to(resources_root().resolve()) or not os.access(base, os.W_OK):
+        tag = hashlib.sha1(str(where).encode()).hexdigest()[:6]
+        return Path.home() / "AMRST" / f"{base.name}-{tag}"
     return base
 
 
@@ -147,9 +151,9 @@ class ExportDialog(QDialog):
     """Where to write, what, and in which point-cloud format.
 
     Emits QDialog's ``accepted``; read ``folder()``, ``cloud_format()`` and ``parts()``.
-    A relative folder is taken relative to ``base`` (the target scan's folder), not to
-    wherever the app was started from; the folder proposed lies in ``base``
-    (:func:`export_folder`). A folder holding another pair's export is accepted
+    A relative folder is taken relative to the case's folder (:func:`case_folder` of
+    ``base``, the target scan's folder), not to wherever the app was started from;
+    the folder proposed lies in it (:func:`export_folder`). A folder holding another pair's export is accepted
     only once the user agrees to replace it (``session.allow_replacing``);
     ``session`` defaults to the parent window's.
     """
@@ -231,7 +235,7 @@ class ExportDialog(QDialog):
         """The chosen output folder (absolute)."""
         path = Path(self.folder_edit.text().strip()).expanduser()
         if not path.is_absolute():
-            path = (self.base or Path.cwd()) / path
+            path = (Path.cwd() if self.base is None else case_folder(self.base)) / path
         return path
 
     def accept(self) -> None:

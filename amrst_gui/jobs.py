@@ -271,7 +271,8 @@ def refine_pair(
         threads=THREADS,
     )
     decision = None
-    if coarse.candidate is not None and coarse.candidate.origin == Origin.MANUAL:
+    candidate = getattr(coarse, "candidate", None)  # a plain transform has none
+    if candidate is not None and candidate.origin == Origin.MANUAL:
         fine, decision = keep_manual(
             fine, coarse.T_target_source, target.xyz, source.xyz, params.coarse
         )

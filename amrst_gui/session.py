@@ -507,11 +507,12 @@ class Session(QObject):
         self._truth_at_load = self._truth
         self._pending_paths = dict(paths)
         self._pending_plot = plot
+        # The parameters the scans will be shown with: a stored result's own.
+        stored = self._pending_stored
+        params = self._params if stored is None else stored_params(stored, self._params)
         self._launch(
             "load",
-            functools.partial(
-                jobs.load_pair, min_points=self._params.preprocess.min_points
-            ),
+            functools.partial(jobs.load_pair, min_points=params.preprocess.min_points),
             paths,
             alone=True,
         )

@@ -32,7 +32,8 @@ def row_cells(row: dict[str, Any]) -> tuple[str, ...]:
     return (
         row["tree_id"],
         row["state"],
-        fmt(row["confidence"]),
+        fmt(row["confidence"], 100, 0)
+        + ("%" if row["confidence"] not in ("", None) else ""),
         links,
         fmt(row["NN_RMSE_m"], 100, 1),
         fmt(row["TH"], 1, 1),

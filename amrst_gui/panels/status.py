@@ -50,6 +50,7 @@ class WorkflowStatusBar(QStatusBar):
         super().__init__(parent)
         self.setObjectName("status_bar")
         self.session = session
+        self._rejected: set[int] = set()  # the rejections the bar last spoke of
         self.message = ElidedLabel("Ready.")
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
@@ -146,6 +147,7 @@ class WorkflowStatusBar(QStatusBar):
         self.show_message("Skeletons and key points ready. Next: Match (Ctrl+3).")
 
     def _on_matches_changed(self) -> None:
+        self._rejected = set(self.session.rejected)
         n = len(self.session.matches)
         self._show_verdict(
             f"{n} candidate{'s' if n != 1 else ''}. Review them in the Matches dock, "
@@ -154,8 +156,14 @@ class WorkflowStatusBar(QStatusBar):
 
     def _on_review_changed(self, rejected) -> None:
         # A rejection can take the result's candidate away: the verdict changes.
+        # Accept coarse says the review changed too; the bar speaks for rejections.
+        if set(rejected) == self._rejected:
+            return
+        self._rejected = set(rejected)
         n = len(self.session.matches)
-        self._show_verdict(f"{len(rejected)} of {n} candidates rejected.")
+        self._show_verdict(
+            f"{len(rejected)} of {n} candidate{'s' if n != 1 else ''} rejected."
+        )
 
     def _on_coarse_accepted(self, _coarse) -> None:
         self._show_verdict("Coarse solution accepted.")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 from amrst_gui import dialogs
 
@@ -148,13 +149,17 @@ def test_the_bundled_sample_is_exported_under_home(monkeypatch, tmp_path):
 
     monkeypatch.setenv("HOME", str(tmp_path))  # never into the app's own files
     sample = resource_path("sample")
-    assert dialogs.export_folder("", sample) == str(
-        tmp_path / "AMRST" / "sample" / dialogs.EXPORT_SUBFOLDER
-    )
-    locked = tmp_path / "read_only_case"
-    locked.mkdir(mode=0o555)
-    expect = tmp_path / "AMRST" / "read_only_case" / dialogs.EXPORT_SUBFOLDER
-    import os
+    proposed = Path(dialogs.export_folder("", sample))
+    assert proposed.parent.parent == tmp_path / "AMRST"
+    assert proposed.parent.name.startswith("sample-")
+    assert proposed.name == dialogs.EXPORT_SUBFOLDER
+    # Two such folders of one name are kept apart (here: both among the app's files).
+    import amrst.resources
 
-    if os.geteuid() != 0:  # root writes anywhere
-        assert dialogs.export_folder("", locked) == str(expect)
+    monkeypatch.setattr(amrst.resources, "resources_root", lambda: tmp_path / "app")
+    folders = [tmp_path / "app" / site / "scans" for site in ("a", "b")]
+    for folder in folders:
+        folder.mkdir(parents=True)
+    moved = {dialogs.case_folder(folder) for folder in folders}
+    assert len(moved) == 2
+    assert all(m.parent == tmp_path / "AMRST" for m in moved)

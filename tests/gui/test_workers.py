@@ -53,16 +53,14 @@ def test_a_result_returned_after_cancel_is_dropped(qtbot):
     """The work passed its last check point before Cancel and returned anyway:
     the step keeps nothing, not even a finished Fine result."""
 
-    returning = threading.Event()
-
     def finishes(reporter):
         reporter.progress(1.0, "done")
-        returning.set()
         return "result"
 
     job, got = _run(finishes, qtbot)
-    # Wait without turning the event loop, so the result is still queued.
-    assert returning.wait(5.0)
+    # Wait for the thread to return without turning the event loop, so the result
+    # is still queued.
+    assert QThreadPool.globalInstance().waitForDone(5000)
     job.cancel()  # before the queued result reached the GUI thread
     qtbot.waitUntil(lambda: bool(got["error"]), timeout=60_000)
     assert got["result"] == []

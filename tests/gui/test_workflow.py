@@ -95,9 +95,12 @@ def test_full_workflow_review_accept_refine_export(
     a.export.trigger()
     box = win.export_box
     assert box.isVisible()
-    # A relative folder lands beside the target scan, not in the working directory.
+    # A relative folder lands in the case's folder, not in the working directory
+    # (the bundled sample's case folder is under ~/AMRST, not among the app's files).
+    from amrst_gui.dialogs import case_folder
+
     box.folder_edit.setText("out")
-    assert box.folder() == s.path("target").parent / "out"
+    assert box.folder() == case_folder(s.path("target").parent) / "out"
     box.folder_edit.setText(str(tmp_path / "out"))
     (paths,) = finish(s, box.accept, "exported")
     _check_export(tmp_path / "out", paths, s)
