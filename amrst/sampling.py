@@ -141,7 +141,9 @@ def measure_pair(
     from amrst.progress import NULL_REPORTER
 
     target_part, n_target = tree_sample(target, trees[0], max_points, seed=0)
-    source_part, n_source = tree_sample(source, trees[1], max_points, seed=1)
+    source_part, n_source = reference_tree_sample(
+        source, trees[1], (target, trees[0]), T_target_source, max_points, seed=1
+    )
     return measure_registration(
         target_part,
         source_part,
@@ -150,6 +152,58 @@ def measure_pair(
         reporter=reporter or NULL_REPORTER,
         sizes=(n_target, n_source),
     )
+
+
+#: A scan's tree of interest is the reference's when at least this share of its
+#: points lies on the reference's tree once registered.
+SAME_TREE_SHARE = 0.5
+
+
+def reference_tree_sample(
+    cloud: Cloud,
+    tree: TreeOf | None,
+    reference: tuple[Cloud, TreeOf | None],
+    T_world: Transform,
+    max_points: int,
+    seed: int = 0,
+) -> tuple[Cloud, int]:
+    """:func:`tree_sample` of the reference scan's tree of interest in ``cloud``.
+
+    ``reference`` is the reference scan and its tree of interest; ``T_world`` takes
+    ``cloud``'s world coordinates into the reference's. The scan's own tree of
+    interest is taken when it is the reference's (most of its points lie on the
+    reference's tree once registered); otherwise, as in a plot, where the stem
+    nearest each scan's middle is another tree, the scan's points that the
+    reference's segmentation gives its tree are.
+    """
+    from amrst.types import local_transform
+
+    part, size = tree_sample(cloud, tree, max_points, seed)
+    ref_cloud, ref_tree = reference
+    if not (tree and tree.tree_share and ref_tree and ref_tree.tree_share):
+        return part, size  # a clean tree on either side: nothing to tell apart
+    seen = _ReferenceTree(ref_tree, local_transform(T_world, ref_cloud, cloud))
+    if not len(part) or seen.on_tree(part.xyz).mean() >= SAME_TREE_SHARE:
+        return part, size
+    seen.share = float(seen.on_tree(bounded_sample(cloud, max_points, seed).xyz).mean())
+    if not seen.share:  # none of its points on the reference's tree: keep its own
+        return part, size
+    return tree_sample(cloud, seen, max_points, seed)
+
+
+class _ReferenceTree:
+    """The reference scan's tree of interest, asked of another scan's points."""
+
+    def __init__(self, tree: TreeOf, to_reference: Transform) -> None:
+        self.tree, self.share = tree, 0.0
+        self.R, self.t = to_reference[:3, :3], to_reference[:3, 3]
+
+    @property
+    def tree_share(self) -> float | None:
+        return self.share
+
+    def on_tree(self, xyz: np.ndarray) -> np.ndarray:
+        return self.tree.on_tree(np.asarray(xyz, float) @ self.R.T + self.t)
 
 
 #: A tree under this share of its scan is sampled as if it held this share: the

@@ -206,7 +206,7 @@ def register_scans(
     from amrst.measure import measure_tree
     from amrst.params import RegistrationParams
     from amrst.pipeline import prepare_scan, register, skeletonise_scan
-    from amrst.sampling import MEASURE_MAX_POINTS, tree_sample
+    from amrst.sampling import MEASURE_MAX_POINTS, reference_tree_sample
 
     scans = tuple(scans)
     _check_inputs(scans, reference)
@@ -261,11 +261,14 @@ def register_scans(
 
     t0 = time.perf_counter()
     T_world = tuple(world(p, k) for k, p in enumerate(poses))
-    # Each scan's tree of interest, as a pair measures it (amrst.sampling).
+    # The reference's tree of interest in each scan, as a pair measures it.
     merged, size = [], 0
+    ref = (scans[reference], analyses[reference])
     for k, T in enumerate(T_world):
         if T is not None:
-            part, n = tree_sample(scans[k], analyses[k], MEASURE_MAX_POINTS, seed=k)
+            part, n = reference_tree_sample(
+                scans[k], analyses[k], ref, T, MEASURE_MAX_POINTS, seed=k
+            )
             merged.append(part.world_xyz @ T[:3, :3].T + T[:3, 3])
             size += n
     tree = {"merged": measure_tree(np.vstack(merged), params.measure, reporter, size)}

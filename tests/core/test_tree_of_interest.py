@@ -1,0 +1,51 @@
+"""The tree a registration measures is the reference scan's tree of interest in
+every scan, even when another scan's own pick is another tree (a plot)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from amrst.sampling import reference_tree_sample
+from amrst.types import Cloud, make_transform
+
+
+class _Near:
+    """A tree of interest: the points within 1 m (horizontally) of ``xy``."""
+
+    def __init__(self, xy: tuple[float, float], share: float = 0.5) -> None:
+        self.xy, self.tree_share = np.asarray(xy, float), share
+
+    def on_tree(self, xyz: np.ndarray) -> np.ndarray:
+        return np.hypot(*(np.asarray(xyz)[:, :2] - self.xy).T) < 1.0
+
+
+def _two_trees(rng: np.random.Generator, shift: np.ndarray) -> Cloud:
+    """Two stems, at (0, 0) and (5, 0) in the reference's frame, seen from a scan
+    whose frame is the reference's moved by ``shift``."""
+    stems = [rng.normal([x, 0.0, 2.0], [0.2, 0.2, 1.0], (2000, 3)) for x in (0, 5)]
+    return Cloud(np.vstack(stems) - shift)
+
+
+def test_a_scan_whose_pick_is_another_tree_gives_its_points_of_the_reference_s():
+    rng = np.random.default_rng(0)
+    shift = np.array([1.0, 2.0, 0.0])  # the scan's frame: the reference's, moved
+    reference = _two_trees(rng, np.zeros(3))
+    scan = _two_trees(rng, shift)
+    T = make_transform(np.eye(3), shift)  # scan -> reference
+    ref_tree = _Near((0.0, 0.0))
+    # The scan picked the other stem: the reference's is measured in it instead.
+    other = _Near((5.0, 0.0) - shift[:2])
+    part, _ = reference_tree_sample(scan, other, (reference, ref_tree), T, 10_000)
+    moved = part.xyz + shift
+    assert len(part) > 1000
+    assert np.all(np.hypot(*moved[:, :2].T) < 1.0)
+    # The scan picked the same stem: its own pick stands.
+    same = _Near((0.0, 0.0) - shift[:2])
+    part, _ = reference_tree_sample(scan, same, (reference, ref_tree), T, 10_000)
+    np.testing.assert_array_equal(
+        np.sort(part.xyz, axis=0), np.sort(scan.xyz[same.on_tree(scan.xyz)], axis=0)
+    )
+    # A clean tree (no tree set apart) is measured whole, as before.
+    whole = _Near((0.0, 0.0), share=None)  # type: ignore[arg-type]
+    part, size = reference_tree_sample(scan, whole, (reference, ref_tree), T, 10_000)
+    assert size == len(scan)
