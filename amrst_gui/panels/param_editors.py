@@ -64,6 +64,8 @@ def make_editor(field: dataclasses.Field, value: Any) -> QWidget:
     w: QWidget
     if "choices" in meta:
         combo = QComboBox()
+        # As wide as its longest choice: a cut name ("above_groun") misleads.
+        combo.setSizeAdjustPolicy(QComboBox.SizeAdjustPolicy.AdjustToContents)
         for choice in meta["choices"]:
             combo.addItem(str(choice), choice)
         w = combo

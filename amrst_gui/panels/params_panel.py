@@ -93,6 +93,7 @@ class ParamsPanel(QWidget):
                 editor = make_editor(f, getattr(values, f.name))
                 self._connect_dirty(editor)
                 label = QLabel(field_label(f.name))
+                label.setWordWrap(True)  # a long name wraps; the value keeps its room
                 label.setToolTip(editor.toolTip())
                 form.addRow(label, editor)
                 self.editors[(group.name, f.name)] = editor
