@@ -176,13 +176,11 @@ def reference_tree_sample(
     nearest each scan's middle is another tree, the scan's points that the
     reference's segmentation gives its tree are.
     """
-    from amrst.types import local_transform
-
     part, size = tree_sample(cloud, tree, max_points, seed)
     ref_cloud, ref_tree = reference
     if not (tree and tree.tree_share and ref_tree and ref_tree.tree_share):
         return part, size  # a clean tree on either side: nothing to tell apart
-    seen = _ReferenceTree(ref_tree, local_transform(T_world, ref_cloud, cloud))
+    seen = _ReferenceTree(ref_tree, T_world, cloud.offset, ref_cloud.offset)
     if not len(part) or seen.on_tree(part.xyz).mean() >= SAME_TREE_SHARE:
         return part, size
     seen.share = float(seen.on_tree(bounded_sample(cloud, max_points, seed).xyz).mean())
@@ -192,11 +190,23 @@ def reference_tree_sample(
 
 
 class _ReferenceTree:
-    """The reference scan's tree of interest, asked of another scan's points."""
+    """The reference scan's tree of interest, asked of another scan's points.
 
-    def __init__(self, tree: TreeOf, to_reference: Transform) -> None:
+    ``T_world`` takes the scan's world coordinates into the reference's; the points
+    asked about are local to ``offset``, the reference's to ``ref_offset``.
+    """
+
+    def __init__(
+        self,
+        tree: TreeOf,
+        T_world: Transform,
+        offset: np.ndarray,
+        ref_offset: np.ndarray,
+    ) -> None:
         self.tree, self.share = tree, 0.0
-        self.R, self.t = to_reference[:3, :3], to_reference[:3, 3]
+        T = np.asarray(T_world, float)
+        self.R = T[:3, :3]
+        self.t = T[:3, 3] + self.R @ np.asarray(offset, float) - ref_offset
 
     @property
     def tree_share(self) -> float | None:

@@ -19,28 +19,31 @@ class _Near:
         return np.hypot(*(np.asarray(xyz)[:, :2] - self.xy).T) < 1.0
 
 
-def _two_trees(rng: np.random.Generator, shift: np.ndarray) -> Cloud:
-    """Two stems, at (0, 0) and (5, 0) in the reference's frame, seen from a scan
-    whose frame is the reference's moved by ``shift``."""
+def _two_trees(rng: np.random.Generator, shift: np.ndarray, offset) -> Cloud:
+    """Two stems, at (0, 0) and (5, 0) in the reference's world frame, seen from a
+    scan whose world frame is the reference's moved by ``shift``, its points local
+    to ``offset`` (a georeferenced file's)."""
     stems = [rng.normal([x, 0.0, 2.0], [0.2, 0.2, 1.0], (2000, 3)) for x in (0, 5)]
-    return Cloud(np.vstack(stems) - shift)
+    offset = np.asarray(offset, float)
+    return Cloud(np.vstack(stems) - shift - offset, offset=offset)
 
 
 def test_a_scan_whose_pick_is_another_tree_gives_its_points_of_the_reference_s():
     rng = np.random.default_rng(0)
     shift = np.array([1.0, 2.0, 0.0])  # the scan's frame: the reference's, moved
-    reference = _two_trees(rng, np.zeros(3))
-    scan = _two_trees(rng, shift)
-    T = make_transform(np.eye(3), shift)  # scan -> reference
-    ref_tree = _Near((0.0, 0.0))
+    ref_at, scan_at = np.array([500.0, 300.0, 0.0]), np.array([-20.0, 40.0, 0.0])
+    reference = _two_trees(rng, np.zeros(3), ref_at)
+    scan = _two_trees(rng, shift, scan_at)
+    T = make_transform(np.eye(3), shift)  # scan -> reference, world coordinates
+    ref_tree = _Near((0.0, 0.0) - ref_at[:2])  # trees answer in local coordinates
     # The scan picked the other stem: the reference's is measured in it instead.
-    other = _Near((5.0, 0.0) - shift[:2])
+    other = _Near((5.0, 0.0) - shift[:2] - scan_at[:2])
     part, _ = reference_tree_sample(scan, other, (reference, ref_tree), T, 10_000)
-    moved = part.xyz + shift
+    moved = part.xyz + scan_at + shift
     assert len(part) > 1000
     assert np.all(np.hypot(*moved[:, :2].T) < 1.0)
     # The scan picked the same stem: its own pick stands.
-    same = _Near((0.0, 0.0) - shift[:2])
+    same = _Near((0.0, 0.0) - shift[:2] - scan_at[:2])
     part, _ = reference_tree_sample(scan, same, (reference, ref_tree), T, 10_000)
     np.testing.assert_array_equal(
         np.sort(part.xyz, axis=0), np.sort(scan.xyz[same.on_tree(scan.xyz)], axis=0)
