@@ -9,6 +9,7 @@ state and score, every scan with its path).
 
 from __future__ import annotations
 
+import shlex
 import sys
 import time
 from typing import TYPE_CHECKING
@@ -65,9 +66,24 @@ def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
             f"  joint refinement: mean NN-RMSE {j.rmse_before_m * 100:.2f} -> "
             f"{j.rmse_after_m * 100:.2f} cm ({'kept' if j.kept else 'not kept: worse'})"
         )
+    stems = _plot(result.stems)
+    if stems is not None:
+        lines.append(
+            f"  the scans hold {', '.join(map(str, stems))} stems: a plot, not one "
+            f"tree. To list and measure every tree: amrst plot {shlex.join(labels)} "
+            "--out DIR"
+        )
     if "merged" in result.tree:
-        lines.append(f"  tree (merged): {result.tree['merged'].summary()}")
+        what = "the reference's stem nearest its middle" if stems else "tree"
+        lines.append(f"  {what} (merged): {result.tree['merged'].summary()}")
     return lines
+
+
+def _plot(stems: tuple[int, ...]) -> tuple[int, ...] | None:
+    """Return the scans' stem counts when one holds a plot's (as a pair says), else None."""
+    from amrst.stages.scene import PLOT_STEMS
+
+    return stems if max(stems, default=0) >= PLOT_STEMS else None
 
 
 def run_register(

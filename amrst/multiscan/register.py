@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
-    from amrst.pipeline import RegistrationResult
+    from amrst.pipeline import RegistrationResult, ScanAnalysis
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,7 +59,10 @@ class MultiScanResult:
     loops : dict
         ``"i-j"`` -> disagreement (m) of verified links left out of the tree.
     tree : dict
-        ``{"merged": TreeMeasures}`` of all reached scans together.
+        ``{"merged": TreeMeasures}`` of all reached scans together: the reference's
+        tree of interest.
+    stems : tuple of int
+        The stems the scene stage found in each scan (many: a plot, not one tree).
     """
 
     scans: tuple[Cloud, ...]
@@ -75,6 +78,7 @@ class MultiScanResult:
     timings: dict[str, float]
     params: RegistrationParams
     origins: tuple[tuple[float, float, float] | None, ...] = field(default=())
+    stems: tuple[int, ...] = field(default=())
 
     @property
     def reached(self) -> tuple[bool, ...]:
@@ -166,7 +170,15 @@ def _from_pair(
         timings=dict(result.timings),
         params=result.params,
         origins=tuple(_origin(c) for c in scans),
+        stems=_stem_counts(
+            [result.target, result.source][:: 1 if reference == 0 else -1]
+        ),
     )
+
+
+def _stem_counts(analyses: Sequence[ScanAnalysis]) -> tuple[int, ...]:
+    """Count the stems the scene stage found in each scan (0 where it did not run)."""
+    return tuple(0 if a.scene is None else len(a.scene.stems) for a in analyses)
 
 
 def register_scans(
@@ -289,4 +301,5 @@ def register_scans(
         timings=timings,
         params=params,
         origins=tuple(_origin(c) for c in scans),
+        stems=_stem_counts(analyses),
     )

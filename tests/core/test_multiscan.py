@@ -333,3 +333,22 @@ def test_cli_names_the_scans_no_verified_link_reaches(tmp_path, sample_pair, cap
     assert code == 3
     err = capsys.readouterr().err
     assert f"no verified link reaches some scans: {box}." in err
+
+
+def test_scans_of_a_plot_are_said_to_be_one_and_point_to_amrst_plot(three_result):
+    import dataclasses
+
+    from amrst.multiscan.cli import describe
+
+    labels = ["a.ply", "b.ply", "c.ply"]
+    assert three_result.stems  # the scene stage's stems, counted per scan
+    lines = describe(dataclasses.replace(three_result, stems=(9, 11, 10)), labels)
+    text = "\n".join(lines)
+    assert "the scans hold 9, 11, 10 stems: a plot, not one tree" in text
+    assert "amrst plot a.ply b.ply c.ply --out DIR" in text
+    assert "tree (merged)" not in text  # a plot is never described as one tree
+    one = "\n".join(
+        describe(dataclasses.replace(three_result, stems=(1, 1, 1)), labels)
+    )
+    assert "a plot" not in one
+    assert "tree (merged)" in one
