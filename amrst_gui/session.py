@@ -26,7 +26,6 @@ import dataclasses
 import functools
 import itertools
 import logging
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -487,18 +486,21 @@ class Session(QObject):
 
     def _start_load(self, paths: dict[str, Path], plot: bool = False) -> str:
         """Start reading the scans of ``paths``; return "" or why not."""
+        from amrst import io
+
         why = self._busy_text("open scans")
         for path in paths.values():
             if why:
                 break
-            if path.is_dir():
-                why = (
-                    f"{path} is a folder, not a point-cloud file: open or drop the "
-                    "scan files themselves."
-                )
-            # Anything else that is there (a FIFO, a broken link) the reader names.
-            elif not os.path.lexists(path) and not jobs.is_scan_spec(path):  # p.e57#2
-                why = f"The file {path} does not exist."
+            # What the path alone says (missing, empty, a folder or a pipe, an
+            # extension no reader takes) is said before anything open is discarded.
+            if not jobs.is_scan_spec(path):  # p.e57#2: its reader checks it
+                try:
+                    io.check_readable(path)
+                except InvalidInput as exc:
+                    why = str(exc)
+                except PermissionError:
+                    pass  # the reader says it, in its own words
         if why:
             self._fail(why)
             return why

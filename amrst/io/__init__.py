@@ -104,11 +104,18 @@ def get_reader(path: PathLike) -> Reader | None:
     return read if Path(path).suffix.lower() in _FORMATS else None
 
 
-def _check_readable(path: Path) -> _Format:
+def check_readable(path: Path) -> _Format:
     """Check what ``path`` is before opening it: never block on a FIFO or a device.
 
+    Only looks at the path and its ``stat`` (so it may run on a GUI thread): a
+    missing or empty file, a folder, a pipe or device, an extension no reader takes.
     A file name that is not UTF-8 is refused too: the results, reports and tables
     that name the scan could not write it.
+
+    Raises
+    ------
+    InvalidInput
+        Any of those, in one line that says what to give instead.
     """
     refuse_undecodable(path, " (the file or its folder)")
     try:
@@ -211,7 +218,7 @@ def read(
     """
     path = Path(path)
     try:
-        fmt = _check_readable(path)
+        fmt = check_readable(path)
     except PermissionError as exc:  # a folder on the way cannot be searched
         raise _permission_denied(path) from exc
     if columns is not None and not fmt.text:
@@ -389,6 +396,7 @@ __all__ = [
     "MAX_COORD_M",
     "PathLike",
     "Reader",
+    "check_readable",
     "describe",
     "format_description",
     "get_reader",

@@ -99,7 +99,7 @@ def read_region(
     path = Path(path)
     cylinder = Cylinder(*check_cylinder(stem_xy, radius_m, zmin, zmax))
     try:
-        fmt = io._check_readable(path)
+        fmt = io.check_readable(path)
     except PermissionError as exc:
         raise io._permission_denied(path) from exc
     if fmt.label not in ("las", "laz"):
@@ -328,7 +328,7 @@ def read_overview(
     from amrst.types import Cloud
 
     path = Path(path)
-    fmt = io._check_readable(path)
+    fmt = io.check_readable(path)
     if fmt.label not in ("las", "laz"):
         cloud = io.read(path)
         step = max(1, -(-len(cloud) // max_points))

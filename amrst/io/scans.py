@@ -216,10 +216,10 @@ def read_scans(spec: PathLike, *, posed: bool = True) -> list[Cloud]:
 
 def _check(path: Path) -> None:
     """Make the checks every reader makes first: exists, a file, not empty, readable."""
-    from amrst.io import _check_readable
+    from amrst.io import check_readable
 
     try:
-        _check_readable(path)
+        check_readable(path)
     except PermissionError as exc:
         raise InvalidInput(
             f"Cannot read {path}: permission denied: fix the file's permissions or "

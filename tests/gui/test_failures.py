@@ -145,7 +145,7 @@ def test_missing_file_and_running_without_scans_fail_politely(
     win.session.load_scan("source", tmp_path / "nowhere.las")
     win.session.run_step("match")
     assert len(errors) == 2
-    assert "does not exist" in errors[0]
+    assert errors[0].startswith("File not found:")  # the engine's own words
     assert "Open a target and a source" in errors[1]
     # A file of one point is refused when it is opened, not at Separate.
     one = tmp_path / "one.xyz"

@@ -124,6 +124,25 @@ def test_a_rejected_result_is_still_asked_about_before_it_is_replaced(
     assert s.fine is fine
 
 
+def test_an_empty_file_is_refused_before_the_result_is_put_at_stake(
+    make_main_window, sample_pair, discard_answers, tmp_path
+):
+    """What the path alone says (here: empty) is said before the question whether
+    to discard an unexported result: nothing is asked for a file that cannot open."""
+    win = make_main_window()
+    s = win.session
+    target, source, _ = sample_pair
+    assert not _run(s, lambda: s.load_scans(target, source))
+    assert not _run(s, s.run_all)
+    empty = tmp_path / "empty.ply"
+    empty.write_bytes(b"")
+    errors = _run(s, lambda: s.load_scan("source", empty))
+    assert errors
+    assert "is empty (0 bytes)" in errors[0]
+    assert discard_answers.asked == []
+    assert s.fine is not None
+
+
 def test_parameters_wait_for_the_running_chain(fresh):
     s = fresh
     before = s.params
