@@ -149,8 +149,8 @@ class MainWindow(QMainWindow):
 
     def _connect(self, s: Session) -> None:
         """The session's signals to the window, the panels' requests to the session."""
-        s.discard_guard = lambda action, lost: dialogs.confirm_discard(
-            self, action, lost, s.how_to_keep(lost)
+        s.discard_guard = lambda action, lost, keep: dialogs.confirm_discard(
+            self, action, lost, keep
         )
         s.failed.connect(self._on_failed)
         # After Accept coarse, Fine or Run all the result is what to look at.

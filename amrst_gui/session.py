@@ -61,10 +61,6 @@ log = logging.getLogger("amrst_gui.session")
 _TRUTH_SAMPLE = 20_000
 
 
-#: How a discard question names an unexported result.
-RESULT_LOST = "the registration result (not exported)"
-
-
 class Session(QObject):
     """One target/source pair, its parameters, results and review decisions.
 
@@ -135,12 +131,12 @@ class Session(QObject):
         # The folder whose other pair's export the user agreed to replace.
         self._replace_folder: Path | None = None
         # Asked before unsaved work is thrown away (closing, new scans, swap, a
-        # re-run): (the action, what it throws away); the window sets it. Returns
-        # True to go on.
-        self.discard_guard: Callable[[str, str], bool] | None = None
+        # re-run): (the action, what it throws away, how to keep it); the window sets
+        # it. Returns True to go on.
+        self.discard_guard: Callable[[str, str, str], bool] | None = None
         # Work of the panels that new scans throw away (the Manual pose dock's point
-        # pairs): each says what is unsaved, or "" for nothing.
-        self.unsaved_work: list[Callable[[], str]] = []
+        # pairs): each says what is unsaved ("" for nothing), and how to keep it.
+        self.unsaved_work: list[tuple[Callable[[], str], str]] = []
 
     # ------------------------------------------------------------ properties
     @property
@@ -598,32 +594,29 @@ class Session(QObject):
             self._step_params[step] = self._job_params
         return getattr(self, f"_apply_{step}")(result)
 
-    def how_to_keep(self, lost: str) -> str:
-        """How to keep what ``lost`` (as :meth:`may_discard` words it) names."""
-        ways = []
-        if RESULT_LOST in lost:
-            ways.append(
-                "undo the change (or restore the candidate), then Export (Ctrl+E) "
-                "keeps the result"
-                if self.out_of_date
-                else "Export (Ctrl+E) keeps the result"
-            )
-        if "point pair" in lost:
-            ways.append("Save pairs… in the Manual pose dock keeps the point pairs")
-        return "; ".join(ways)
-
     def may_discard(self, action: str, *, result_only: bool = False) -> bool:
         """Ask ``discard_guard`` before ``action`` throws unsaved work away.
 
         That is an unexported result and, unless ``result_only`` (the scans stay),
         what ``unsaved_work`` names.
         """
-        lost = [RESULT_LOST] if self.has_unexported_result else []
+        lost, keep = [], []
+        if self.has_unexported_result:
+            lost.append("the registration result (not exported)")
+            keep.append(
+                "undo the change (or restore the candidate), then Export (Ctrl+E) "
+                "keeps the result"
+                if self.out_of_date
+                else "Export (Ctrl+E) keeps the result"
+            )
         if not result_only:
-            lost += [text for text in (say() for say in self.unsaved_work) if text]
+            for say, how in self.unsaved_work:
+                if text := say():
+                    lost.append(text)
+                    keep.append(how)
         if not lost or self.discard_guard is None:
             return True
-        return self.discard_guard(action, " and ".join(lost))
+        return self.discard_guard(action, " and ".join(lost), "; ".join(keep))
 
     def _replaces_result(self) -> bool:
         """Would running steps now replace an unexported fine result worth keeping?

@@ -83,7 +83,9 @@ class ManualPanel(NudgeMixin, QScrollArea):
             getattr(session, name).connect(self._on_scans_changed)
         for name in ("matches_changed", "selection_changed", "coarse_accepted"):
             getattr(session, name).connect(self._on_base_changed)
-        session.unsaved_work.append(self.unsaved_pairs)
+        session.unsaved_work.append(
+            (self.unsaved_pairs, "Save pairs… in the Manual pose dock keeps them")
+        )
         self._show_pairs()
 
     def unsaved_pairs(self) -> str:

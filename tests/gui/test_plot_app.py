@@ -675,7 +675,10 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert "Plot window" in win.slices.view.caption
     assert win.slices.view.slices == []
     # The same files opened as a pair of their own are no plot link any more.
-    guard, session.discard_guard = session.discard_guard, lambda _action, _lost: True
+    guard, session.discard_guard = (
+        session.discard_guard,
+        lambda _action, _lost, _keep: True,
+    )
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
         win.open_pair(*plot_files)
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)

@@ -88,7 +88,9 @@ def test_unexported_results_are_only_dropped_when_the_user_agrees(fresh, tmp_pat
     s = fresh
     asked: list[str] = []
     answers = [False, False, False]
-    s.discard_guard = lambda action, _lost: asked.append(action) or answers.pop(0)
+    s.discard_guard = lambda action, _lost, _keep: (
+        asked.append(action) or answers.pop(0)
+    )
     assert not _run(s, s.run_all)
     fine = s.fine
     s.run_step("separate")  # refused: the result stays
@@ -193,7 +195,7 @@ def test_metrics_mark_a_stale_result(loaded_window, finish):
 def test_accepting_coarse_again_during_review_does_not_ask(fresh):
     s = fresh
     asked: list[str] = []
-    s.discard_guard = lambda action, _lost: asked.append(action) or False
+    s.discard_guard = lambda action, _lost, _keep: asked.append(action) or False
     assert not _run(s, s.accept_coarse)
     s.reject_match(s.accepted_coarse.candidate.id)
     assert not _run(s, s.accept_coarse)
