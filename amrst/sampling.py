@@ -193,7 +193,9 @@ class _ReferenceTree:
     """The reference scan's tree of interest, asked of another scan's points.
 
     ``T_world`` takes the scan's world coordinates into the reference's; the points
-    asked about are local to ``offset``, the reference's to ``ref_offset``.
+    asked about are local to ``offset``, the reference's to ``ref_offset`` (the
+    arithmetic of :func:`amrst.types.local_transform`, which this module cannot
+    import: ``amrst.types`` imports it).
     """
 
     def __init__(
