@@ -153,9 +153,9 @@ class ExportDialog(QDialog):
     Emits QDialog's ``accepted``; read ``folder()``, ``cloud_format()`` and ``parts()``.
     A relative folder is taken relative to the case's folder (:func:`case_folder` of
     ``base``, the target scan's folder), not to wherever the app was started from;
-    the folder proposed lies in it (:func:`export_folder`). A folder holding another pair's export is accepted
-    only once the user agrees to replace it (``session.allow_replacing``);
-    ``session`` defaults to the parent window's.
+    the folder proposed lies in it (:func:`export_folder`). A folder holding another
+    pair's export is accepted only once the user agrees to replace it
+    (``session.allow_replacing``); ``session`` defaults to the parent window's.
     """
 
     def __init__(
@@ -167,7 +167,8 @@ class ExportDialog(QDialog):
         session=None,
     ) -> None:
         super().__init__(parent)
-        self.base = base
+        # Found once: folder() runs at every keystroke, and this looks at the disk.
+        self.case = Path.cwd() if base is None else case_folder(base)
         self.session = (
             session if session is not None else getattr(parent, "session", None)
         )
@@ -235,7 +236,7 @@ class ExportDialog(QDialog):
         """The chosen output folder (absolute)."""
         path = Path(self.folder_edit.text().strip()).expanduser()
         if not path.is_absolute():
-            path = (Path.cwd() if self.base is None else case_folder(self.base)) / path
+            path = self.case / path
         return path
 
     def accept(self) -> None:
