@@ -29,8 +29,8 @@ from amrst.errors import (
     RegistrationFailed,
 )
 from amrst.files.outcheck import same_file
+from amrst.io.checks import check_scans
 from amrst.terminal import TerminalReporter
-from amrst.types import check_scans
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from amrst.types import local_transform
+
 if TYPE_CHECKING:
     from amrst.measure import MeasureParams, TreeMeasures
     from amrst.progress import Reporter
@@ -180,7 +182,7 @@ def reference_tree_sample(
     ref_cloud, ref_tree = reference
     if not (tree and tree.tree_share and ref_tree and ref_tree.tree_share):
         return part, size  # a clean tree on either side: nothing to tell apart
-    seen = _ReferenceTree(ref_tree, T_world, cloud.offset, ref_cloud.offset)
+    seen = _ReferenceTree(ref_tree, local_transform(T_world, ref_cloud, cloud))
     if not len(part) or seen.on_tree(part.xyz).mean() >= SAME_TREE_SHARE:
         return part, size
     seen.share = float(seen.on_tree(bounded_sample(cloud, max_points, seed).xyz).mean())
@@ -192,23 +194,12 @@ def reference_tree_sample(
 class _ReferenceTree:
     """The reference scan's tree of interest, asked of another scan's points.
 
-    ``T_world`` takes the scan's world coordinates into the reference's; the points
-    asked about are local to ``offset``, the reference's to ``ref_offset`` (the
-    arithmetic of :func:`amrst.types.local_transform`, which this module cannot
-    import: ``amrst.types`` imports it).
+    ``T_local`` takes the scan's local coordinates into the reference's.
     """
 
-    def __init__(
-        self,
-        tree: TreeOf,
-        T_world: Transform,
-        offset: np.ndarray,
-        ref_offset: np.ndarray,
-    ) -> None:
+    def __init__(self, tree: TreeOf, T_local: Transform) -> None:
         self.tree, self.share = tree, 0.0
-        T = np.asarray(T_world, float)
-        self.R = T[:3, :3]
-        self.t = T[:3, 3] + self.R @ np.asarray(offset, float) - ref_offset
+        self.R, self.t = T_local[:3, :3], T_local[:3, 3]
 
     @property
     def tree_share(self) -> float | None:

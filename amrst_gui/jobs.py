@@ -35,7 +35,7 @@ def load_pair(
     whose coordinates are not metres or come in coarse steps, or that holds fewer
     than ``min_points`` points (what Separate needs at the least)."""
     from amrst import io
-    from amrst.types import refuse_odd_coordinates
+    from amrst.io.checks import refuse_odd_coordinates
 
     start = time.perf_counter()
     clouds = {}
@@ -135,7 +135,7 @@ def separate_pair(clouds: dict, params: Any, reporter: Reporter) -> tuple[dict, 
     point by point, here in the engine process, as it takes seconds on big scans.
     """
     from amrst import pipeline
-    from amrst.types import refuse_same_points
+    from amrst.io.checks import refuse_same_points
 
     pair = [clouds[role] for role in ROLES if role in clouds]
     try:

@@ -298,12 +298,12 @@ def _register(
     clouds: str,
     threads: int = 2,
 ) -> tuple[str, list[str]]:
+    from amrst.io.checks import refuse_odd_coordinates
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
     from amrst.multiscan.cli import write_scan_report
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
-    from amrst.types import refuse_odd_coordinates
 
     params = params_from_dict(params_doc)
     scans = []

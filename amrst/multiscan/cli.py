@@ -15,7 +15,7 @@ import time
 from typing import TYPE_CHECKING
 
 from amrst.errors import EXIT_NOT_REGISTERED
-from amrst.types import check_scans
+from amrst.io.checks import check_scans
 
 if TYPE_CHECKING:
     import argparse

@@ -211,16 +211,16 @@ def _read_scans(
     Raises
     ------
     InvalidInput
-        A scan :func:`amrst.types.check_scans` refuses, a scanner given that
+        A scan :func:`amrst.io.checks.check_scans` refuses, a scanner given that
         :func:`_with_scanner` refuses, or a plot circle holding none of the
         reference's points.
     """
     from dataclasses import replace
 
+    from amrst.io.checks import refuse_odd_coordinates, refuse_same_points
     from amrst.io.scans import file_stamp, read_scans
     from amrst.plot.register import analyse_plot_scan, plot_params
     from amrst.plot.stemmap import StemMapParams
-    from amrst.types import refuse_odd_coordinates, refuse_same_points
 
     params, stem_params = plot_params(), StemMapParams()
     n = len(labels)

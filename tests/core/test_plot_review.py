@@ -348,7 +348,8 @@ def test_a_results_folder_that_cannot_take_a_run_is_refused_before_it(tmp_path):
 
 
 def test_one_scan_twice_is_named_for_what_it_is():
-    from amrst.types import Cloud, refuse_same_points
+    from amrst.io.checks import refuse_same_points
+    from amrst.types import Cloud
 
     a = Cloud(np.arange(30.0).reshape(10, 3))
     b = Cloud(a.xyz + 1.0)
@@ -361,7 +362,8 @@ def test_one_scan_twice_is_named_for_what_it_is():
 
 def test_one_scan_exported_again_is_the_same_scan(tmp_path):
     from amrst import io
-    from amrst.types import Cloud, refuse_same_points
+    from amrst.io.checks import refuse_same_points
+    from amrst.types import Cloud
 
     rng = np.random.default_rng(4)
     a = Cloud(rng.uniform(-20, 20, (5000, 3)), offset=np.array([512_000.0, 0, 0]))

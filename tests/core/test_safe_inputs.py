@@ -273,7 +273,8 @@ def test_a_scan_in_millimetres_or_snapped_coordinates_is_one_line(
 
 
 def test_a_sparse_scan_over_a_wide_area_is_not_taken_for_snapped() -> None:
-    from amrst.types import Cloud, refuse_odd_coordinates
+    from amrst.io.checks import refuse_odd_coordinates
+    from amrst.types import Cloud
 
     rng = np.random.default_rng(0)
     sparse = rng.uniform([0, 0, 0], [700, 700, 40], (2000, 3))  # airborne, 2k points
@@ -284,7 +285,8 @@ def test_a_sparse_scan_over_a_wide_area_is_not_taken_for_snapped() -> None:
 
 def test_stray_points_kilometres_off_a_scan_are_refused() -> None:
     from amrst.errors import InvalidInput
-    from amrst.types import Cloud, refuse_odd_coordinates
+    from amrst.io.checks import refuse_odd_coordinates
+    from amrst.types import Cloud
 
     rng = np.random.default_rng(1)
     scan = rng.uniform([-20, -20, 0], [20, 20, 25], (20_000, 3))
