@@ -28,7 +28,7 @@ from amrst.io.common import RawCloud, rebase, shorten
 from amrst.io.describe import describe, format_description
 from amrst.io.e57 import read_e57
 from amrst.io.las import read_las
-from amrst.io.las_write import write_las, write_las_parts
+from amrst.io.las_write import PointLabels, write_las, write_las_parts
 from amrst.io.pcd import read_pcd, write_pcd
 from amrst.io.ply import read_ply, write_ply
 from amrst.io.ptx import read_ptx
@@ -349,7 +349,7 @@ def write_merged(
     ids: Sequence[int],
     *,
     load: Callable[[int], Cloud] | None = None,
-    tree_of: Callable[[np.ndarray], np.ndarray] | None = None,
+    labels: PointLabels | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS or LAZ file, atomically.
 
@@ -359,8 +359,8 @@ def write_merged(
     parts and one chunk, never a merged copy. With ``load``, part k's points are
     ``load(k)``, called as it is written, and ``parts`` a sample of each that plans
     the file (its attributes and extent): memory then holds one part as loaded.
-    With ``tree_of``, each point's ``tree`` is ``tree_of`` of its coordinates in the
-    frame, (M, 3) local to ``offset`` (a tree's number from 1, 0 for none).
+    With ``labels``, each point's ``tree`` and ground class are ``labels`` of its
+    coordinates in the frame, (M, 3) local to ``offset`` (:func:`write_las_parts`).
 
     Raises
     ------
@@ -387,7 +387,7 @@ def write_merged(
             ids,
             compress=compress,
             load=load,
-            tree_of=tree_of,
+            labels=labels,
         ),
     )
 

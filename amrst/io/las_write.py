@@ -16,6 +16,7 @@ import contextlib
 import logging
 import signal
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,7 +25,7 @@ from amrst.io.common import flat_attributes, storable
 from amrst.io.las import PREFIX, all_standard_names, dimension_names
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Mapping, Sequence
+    from collections.abc import Iterator, Mapping, Sequence
     from pathlib import Path
 
     from amrst.types import Cloud, Transform
@@ -36,8 +37,14 @@ _DEFAULT_SCALE_M = 1e-4  # 0.1 mm: keeps millimetres after any transform
 _INT32_MAX = 2**31 - 1
 #: Points moved and written at a time by :func:`write_las_parts`.
 CHUNK_POINTS = 2_000_000
-#: The extra dimension holding each point's tree (``write_las_parts``'s ``tree_of``).
+#: The extra dimension holding each point's tree (``write_las_parts``'s ``labels``).
 TREE = "tree"
+#: ASPRS classes: processed but not assigned, and ground.
+UNASSIGNED, GROUND = 1, 2
+
+#: Each point's tree (its number from 1, 0 for none) and whether it is ground, from
+#: an (M, 3) chunk of points in the frame of the file being written.
+PointLabels = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 #: How far beyond a sample's box the points it was drawn from may reach (m).
 SAMPLE_MARGIN_M = 1.0
 
@@ -125,7 +132,7 @@ def write_las_parts(
     *,
     compress: bool = True,
     load: Callable[[int], Cloud] | None = None,
-    tree_of: Callable[[np.ndarray], np.ndarray] | None = None,
+    labels: PointLabels | None = None,
 ) -> None:
     """Write clouds moved into one frame as one LAS (LAZ when ``compress``) file.
 
@@ -137,9 +144,10 @@ def write_las_parts(
     than ``CHUNK_POINTS`` points are moved at a time. With ``load``, the points
     written for part k are ``load(k)``'s and ``parts`` are samples of them, which
     plan the attributes and the extent: a value the sample did not show that a
-    standard field cannot hold is written clipped, with a warning. With ``tree_of``,
-    every point gets ``tree`` = ``tree_of`` of its coordinates in the frame (local to
-    ``offset``, (M, 3)): a tree's number from 1, 0 for none.
+    standard field cannot hold is written clipped, with a warning. With ``labels``
+    of its coordinates in the frame (local to ``offset``), every point gets ``tree``,
+    and a point the scan left unclassified (class 0 or 1) class 2 where it is ground,
+    1 elsewhere; the classes a scan set are kept.
     """
     import laspy
 
@@ -148,7 +156,7 @@ def write_las_parts(
     names = set.intersection(*every) if every else set()
     if ids is not None:
         names.discard("scan_id")
-    if tree_of is not None:
+    if labels is not None:
         names.discard(TREE)
     meta = parts[0].meta if parts else {}
     point_format = _choose_format(names, meta)
@@ -163,7 +171,7 @@ def write_las_parts(
     dims = {k: dt for k, (_, dt) in extra.items()}
     if ids is not None:
         dims["scan_id"] = np.dtype(np.uint16)
-    if tree_of is not None:
+    if labels is not None:
         dims[TREE] = np.dtype(np.uint32)
     header.add_extra_dims(
         [laspy.ExtraBytesParams(name, dtype.str[1:]) for name, dtype in dims.items()]
@@ -190,11 +198,21 @@ def write_las_parts(
                     record["scan_id"] = np.full(len(xyz), ids[k], np.uint16)
                 if source_ids:
                     record["point_source_id"] = record["scan_id"]
-                if tree_of is not None:
-                    record[TREE] = np.asarray(tree_of(moved), np.uint32)
                 _put_attributes(record, fmt, standard, extra, attrs, rows)
+                if labels is not None:
+                    _put_labels(record, *labels(moved))
                 writer.write_points(record)
                 check()
+
+
+def _put_labels(record: Any, tree: np.ndarray, ground: np.ndarray) -> None:
+    """Set each point's tree, and class 2 or 1 where the scan left it unclassified."""
+    record[TREE] = np.asarray(tree, np.uint32)
+    given = np.asarray(record.classification)
+    unset = given <= UNASSIGNED
+    record.classification = np.where(
+        unset, np.where(ground, GROUND, UNASSIGNED), given
+    ).astype(given.dtype)
 
 
 def _put_attributes(

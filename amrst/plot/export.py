@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Mapping, Sequence
     from pathlib import Path
 
+    from amrst.io.las_write import PointLabels
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
     from amrst.plot.stand import PlotArea
@@ -628,7 +629,8 @@ def _plot_cloud_writer(
     The run kept only each scan's working points; reading the files again, one at a
     time, keeps memory at one scan as read. Each point's ``tree`` is the trees.csv
     row (from 1) of the tree owning the nearest working point within
-    ``TREE_REACH_M``, 0 for none (ground, shrubs, what no tree owns).
+    ``TREE_REACH_M``, 0 for none (ground, shrubs, what no tree owns); a point of no
+    tree within the stem map's ``ground_dist_m`` of its ground is ground (class 2).
     """
     from amrst import io
     from amrst.io.scans import file_stamp, read_scans
@@ -656,8 +658,8 @@ def _plot_cloud_writer(
     offset = reg.scans[reg.reference].analysis.cloud.offset
 
     def write(path: Path) -> None:
-        tree_of = _tree_labeller(inventory)
-        io.write_merged(path, parts, moves, offset, ids, load=load, tree_of=tree_of)
+        labels = _point_labeller(inventory)
+        io.write_merged(path, parts, moves, offset, ids, load=load, labels=labels)
 
     return write
 
@@ -666,19 +668,23 @@ def _plot_cloud_writer(
 TREE_REACH_M = 0.1
 
 
-def _tree_labeller(inventory: Inventory) -> Callable[[np.ndarray], np.ndarray]:
-    """Each point's tree as plot.laz numbers it, from the inventory's working points."""
+def _point_labeller(inventory: Inventory) -> PointLabels:
+    """Each point's tree as plot.laz numbers it, and whether it is ground."""
     from amrst.neighbours import NearestTree
+    from amrst.plot.stemmap import StemMapParams
 
-    stem_map = inventory.stem_map
+    stem_map, ground_m = inventory.stem_map, StemMapParams().ground_dist_m
     number = np.r_[stem_map.owner + 1, 0]  # owner -1 (no tree) and no neighbour: 0
     tree = NearestTree(stem_map.xyz)
 
-    def tree_of(xyz: np.ndarray) -> np.ndarray:
+    def labels(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, nearest = tree.query(xyz, distance_upper_bound=TREE_REACH_M)
-        return np.asarray(number[nearest])
+        trees = np.asarray(number[nearest])
+        if not stem_map.ground.found:
+            return trees, np.zeros(len(xyz), dtype=bool)
+        return trees, (trees == 0) & (stem_map.ground.height(xyz) < ground_m)
 
-    return tree_of
+    return labels
 
 
 def _loops(loops: dict[str, float]) -> list[dict[str, Any]]:

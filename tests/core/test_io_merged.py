@@ -134,3 +134,21 @@ def test_values_a_standard_field_cannot_hold_are_kept_exactly(tmp_path) -> None:
     exact = np.r_[parts[0].attributes["intensity"], parts[1].attributes["intensity"]]
     assert np.allclose(back.attributes["intensity"], exact)
     assert set(np.unique(back.attributes["scan_id"])) == {1, 7}
+
+
+def test_labels_set_tree_and_ground_and_keep_the_classes_a_scan_set(tmp_path) -> None:
+    # A scan's own classes (5 high vegetation, 7 noise) stay; what it left unset (0
+    # never classified, 1 unassigned) becomes ground (2) where the labels say so.
+    xyz = np.c_[np.arange(8.0), np.zeros(8), np.zeros(8)]
+    given = np.array([0, 1, 5, 7, 0, 1, 5, 7], dtype=np.uint8)
+    part = Cloud(xyz, attributes={"classification": given})
+
+    def labels(moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (moved[:, 0] >= 4).astype(np.uint32) * 3, moved[:, 0] < 4
+
+    path = tmp_path / "plot.laz"
+    io.write_merged(path, [part], [np.eye(4)], np.zeros(3), [1], labels=labels)
+    back = io.read(path)
+    order = np.argsort(back.xyz[:, 0])
+    assert back.attributes["classification"][order].tolist() == [2, 2, 5, 7, 1, 1, 5, 7]
+    assert back.attributes["tree"][order].tolist() == [0, 0, 0, 0, 3, 3, 3, 3]

@@ -215,6 +215,12 @@ def test_inventory_columns_and_the_command(
         bark = (np.hypot(*(world[:, :2] - foot[:2]).T) < 0.4) & (up > 1.0) & (up < 1.6)
         assert np.mean(tree[bark] == n) > 0.9, row["tree_id"]
     assert np.mean(tree == 0) > 0.1  # the ground
+    # What no tree owns on the ground is ground (ASPRS class 2), the rest class 1.
+    ground = merged.attributes["classification"] == 2
+    assert set(np.unique(merged.attributes["classification"])) == {1, 2}
+    assert not ground[tree > 0].any()
+    assert np.mean(ground[tree == 0]) > 0.5
+    assert np.percentile(world[ground, 2], 99) < np.percentile(world[:, 2], 10) + 1.0
     # The technician's marks (the app's review) go into the inventory of a run
     # again, and so does a mark made after it.
     labels = [s["label"] for s in doc["scans"]]
