@@ -278,6 +278,12 @@ class MetricsPanel(QWidget):
         return out
 
     def _show_strength(self) -> None:
+        """Fill the Strength tab; its title counts the weak axes, the first in view.
+
+        The tab shows fewer rows than axes on a small screen, and the verdict names a
+        weak axis: the tab and the row it names must be found without scrolling.
+        """
+        weak_items = []
         for col, (stage, values) in enumerate(self.strength_values().items()):
             for row, axis in enumerate(AXES):
                 v = values.get(axis)
@@ -290,7 +296,13 @@ class MetricsPanel(QWidget):
                         f"{_AXIS_NAMES[axis]} is poorly held by the {stage} pose: "
                         "check the stem slices before accepting."
                     )
+                    weak_items.append(item)
                 self.strength_table.setItem(row, col, item)
+        rows = {self.strength_table.row(item) for item in weak_items}
+        title = f"Strength ({len(rows)} weak)" if rows else "Strength"
+        self.tabs.setTabText(self.tabs.indexOf(self.strength_table), title)
+        if weak_items:
+            self.strength_table.scrollToItem(weak_items[-1])
 
     def tree_values(self) -> dict[str, dict[str, float]]:
         """What the Tree tab shows: scan -> row key -> value in the row's unit."""

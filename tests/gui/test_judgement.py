@@ -62,6 +62,12 @@ def test_failed_verdict_everywhere_run_all_stops_and_export_asks_after_accept(
     assert v.status == "needs review"
     assert "which you accepted though it does not verify" in v.reason
     assert "rotation about the stem" in v.reason
+    # The Strength tab counts its weak axes and shows the one the verdict names.
+    metrics = win.metrics_panel
+    strength = metrics.strength_table
+    assert "weak)" in metrics.tabs.tabText(metrics.tabs.indexOf(strength))
+    rz = strength.item(strength.rowCount() - 1, 1)
+    assert rz.text().endswith("weak")
     # Export asks; Cancel writes nothing.
     box = win.export_dialog()
     box.folder_edit.setText(str(tmp_path / "out"))
