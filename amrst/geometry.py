@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
@@ -11,6 +12,33 @@ def yaw_rotation(yaw: float) -> np.ndarray:
     """(3, 3) the rotation by ``yaw`` radians about the vertical (z) axis."""
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation by the vector ``w`` (axis times angle in radians).
+
+    The arithmetic of scipy's ``Rotation.from_rotvec(w).as_matrix()`` (quaternion
+    with its small-angle series, then its quaternion-to-matrix formula), bit for bit
+    (tested), on Python floats: six times faster than building a ``Rotation``, which
+    counts in LM-ICP's steps.
+    """
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 0.5 - a2 / 48 + a2 * a2 / 3840
+    else:
+        scale = math.sin(angle / 2) / angle
+    qx, qy, qz, qw = x * scale, y * scale, z * scale, math.cos(angle / 2)
+    x2, y2, z2, w2 = qx * qx, qy * qy, qz * qz, qw * qw
+    xy, zw, xz, yw, yz, xw = qx * qy, qz * qw, qx * qz, qy * qw, qy * qz, qx * qw
+    return np.array(
+        [
+            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        ]
+    )
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

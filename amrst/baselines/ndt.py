@@ -26,6 +26,7 @@ from amrst.baselines._common import (
     to_local,
     voxel_down,
 )
+from amrst.geometry import rotvec_matrix
 from amrst.types import Cloud, Transform, make_transform
 
 if TYPE_CHECKING:
@@ -124,17 +125,6 @@ def build_grid(
     d1 = -np.log(c1 + c2) - d3
     d2 = -2.0 * np.log((-np.log(c1 * np.exp(-0.5) + c2) - d3) / d1)
     return NdtGrid(cell_m, means, inv_covs, float(d1), float(d2))
-
-
-def _expmap(omega: np.ndarray) -> np.ndarray:
-    angle = float(np.linalg.norm(omega))
-    if angle < 1e-12:
-        return np.eye(3)
-    x, y, z = omega / angle
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return cast(
-        "np.ndarray", np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
-    )
 
 
 class _Scorer:
@@ -258,7 +248,7 @@ def ndt_align(
                 step *= scale
                 accepted = False
                 for _ in range(8):
-                    dR = _expmap(step[:3])
+                    dR = rotvec_matrix(step[:3])
                     y_new = (y - c) @ dR.T + c + step[3:]
                     if scorer.score(y_new) < f0:
                         accepted = True

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.geometry import rotvec_matrix
 from amrst.review.manual import fit_levelled
 from amrst.stages.candidates import distinct_solutions
 
@@ -79,9 +80,7 @@ def _tilt_fix(
     if s < 1e-9:
         return T
     angle = np.arcsin(min(s, 1.0))
-    k = axis / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    R = rotvec_matrix(axis / s * angle)
     out = np.eye(4)
     out[:3, :3] = R @ T[:3, :3]
     out[:3, 3] = R @ (T[:3, 3] - pivot) + pivot

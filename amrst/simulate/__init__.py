@@ -20,11 +20,12 @@ The truth ``T_target_source`` is the composition of the two exact scanner poses.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from amrst.errors import InvalidInput
+from amrst.geometry import rotvec_matrix
 from amrst.io.cases import check_case_folder, write_case
 from amrst.simulate.scanner import footprints, visible_points
 from amrst.simulate.settings import MAX_NOISE_M, MAX_TILT_DEG, check_settings
@@ -75,16 +76,6 @@ class SimulatedPair:
         both = np.intersect1d(self.index_target, self.index_source).size
         smaller = min(self.index_target.size, self.index_source.size)
         return float(both / smaller) if smaller else 0.0
-
-
-def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    """(3, 3) rotation about a unit axis (Rodrigues)."""
-    x, y, z = axis / np.linalg.norm(axis)
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return cast(
-        "np.ndarray",
-        np.eye(3) + np.sin(angle_rad) * K + (1.0 - np.cos(angle_rad)) * (K @ K),
-    )
 
 
 #: The trunk's foot is the lowest point with this many points within this height
@@ -145,10 +136,9 @@ def scanner_pose(base: np.ndarray, spec: dict[str, float]) -> Transform:
         ]
     )
     d = np.radians(spec["tilt_dir_deg"])
-    R_tilt = _rotation(
-        np.array([-np.sin(d), np.cos(d), 0.0]), np.radians(spec["tilt_deg"])
-    )
-    R_head = _rotation(np.array([0.0, 0.0, 1.0]), np.radians(spec["heading_deg"]))
+    tilt_axis = np.array([-np.sin(d), np.cos(d), 0.0])  # horizontal, unit
+    R_tilt = rotvec_matrix(tilt_axis * np.radians(spec["tilt_deg"]))
+    R_head = rotvec_matrix(np.array([0.0, 0.0, np.radians(spec["heading_deg"])]))
     return make_transform(R_tilt @ R_head, centre)
 
 

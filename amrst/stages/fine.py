@@ -10,12 +10,12 @@ ICP with a Tukey kernel, Open3D) is the alternative for scans with little foliag
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from amrst.geometry import rotvec_matrix
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter
 from amrst.stages.nearest_cache import NearestCache
@@ -152,32 +152,6 @@ def _ladder(params: FineParams) -> np.ndarray:
     return np.geomspace(params.max_corr_dist_m, lo, params.scales)
 
 
-def _rotvec(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector, as scipy's ``Rotation.from_rotvec``.
-
-    The same arithmetic as scipy's (quaternion with its small-angle series, then
-    its quaternion-to-matrix formula), bit for bit (tested), on Python floats: much
-    faster than building a ``Rotation`` for one 6-vector step of LM-ICP.
-    """
-    x, y, z = float(w[0]), float(w[1]), float(w[2])
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle <= 1e-3:
-        a2 = angle * angle
-        scale = 0.5 - a2 / 48 + a2 * a2 / 3840
-    else:
-        scale = math.sin(angle / 2) / angle
-    qx, qy, qz, qw = x * scale, y * scale, z * scale, math.cos(angle / 2)
-    x2, y2, z2, w2 = qx * qx, qy * qy, qz * qz, qw * qw
-    xy, zw, xz, yw, yz, xw = qx * qy, qz * qw, qx * qz, qy * qw, qy * qz, qx * qw
-    return np.array(
-        [
-            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
-            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
-            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
-        ]
-    )
-
-
 def lm_icp(
     src: np.ndarray,
     tgt: np.ndarray,
@@ -240,7 +214,7 @@ def lm_icp(
         cost = float(np.einsum("ij,ij->", e, e)) / len(p)
         for _ in range(10):  # LM: raise damping until the step lowers the cost
             dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
-            dT = make_transform(_rotvec(dx[:3]), dx[3:])
+            dT = make_transform(rotvec_matrix(dx[:3]), dx[3:])
             off = p @ dT[:3, :3].T + dT[:3, 3] - q
             if np.mean(np.einsum("ij,ij->i", off, off)) < cost:
                 lam = max(lam / 10, 1e-9)

@@ -156,7 +156,7 @@ def test_points_within_the_tight_distance_are_all_on_occupied_voxels() -> None:
 
 def _reference_lm_icp(src, tgt, T_init, max_dist, iters, tol):
     """LM-ICP before the fused sums: fresh queries, np.cross, a BLAS dot product."""
-    from amrst.stages.fine import _rotvec
+    from amrst.geometry import rotvec_matrix
     from amrst.types import make_transform
 
     tree = cKDTree(tgt)
@@ -181,7 +181,7 @@ def _reference_lm_icp(src, tgt, T_init, max_dist, iters, tol):
         cost = float(e @ e) / len(p)
         for _ in range(10):
             dx = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
-            dT = make_transform(_rotvec(dx[:3]), dx[3:])
+            dT = make_transform(rotvec_matrix(dx[:3]), dx[3:])
             p2 = p @ dT[:3, :3].T + dT[:3, 3]
             if np.mean(np.sum((p2 - q) ** 2, axis=1)) < cost:
                 lam = max(lam / 10, 1e-9)
@@ -291,18 +291,24 @@ def test_occupancy_dense_grid_and_sorted_codes_agree(
 
 
 def test_rotvec_equals_scipy_bit_for_bit() -> None:
-    """LM-ICP's rotation of a step: scipy's arithmetic on Python floats, same bits."""
+    """The one rotation-vector formula: scipy's arithmetic on Python floats, same bits."""
     from scipy.spatial.transform import Rotation
 
-    from amrst.stages.fine import _rotvec
+    from amrst.geometry import rotvec_matrix
 
     rng = np.random.default_rng(2)
-    for mag in (0.0, 1e-7, 1e-4, 9e-4, 1e-3, 2e-3, 0.05, 1.0, 3.0):
+    for mag in (0.0, 1e-12, 1e-7, 1e-4, 9e-4, 1e-3, 2e-3, 0.05, 1.0, 3.0, 6.0):
         for _ in range(300):
             w = rng.normal(0, mag, 3)
             np.testing.assert_array_equal(
-                _rotvec(w), Rotation.from_rotvec(w).as_matrix()
+                rotvec_matrix(w), Rotation.from_rotvec(w).as_matrix()
             )
+    near_half_turn = rng.normal(0, 1, (300, 3))
+    near_half_turn *= (np.pi - 1e-9) / np.linalg.norm(near_half_turn, axis=1)[:, None]
+    for w in near_half_turn:
+        np.testing.assert_array_equal(
+            rotvec_matrix(w), Rotation.from_rotvec(w).as_matrix()
+        )
 
 
 def test_proper_screen_equals_masking_all_24_orders() -> None:
