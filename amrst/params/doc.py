@@ -49,7 +49,7 @@ def parameter_table() -> str:
         stage = getattr(params, stage_field.name)
         for f in dataclasses.fields(stage):
             meta = f.metadata
-            help_text = str(meta.get("help", "")).replace("|", "/")
+            help_text = str(meta.get("help", "")).replace("|", r"\|")
             if "choices" in meta:
                 help_text += f" Choices: {', '.join(meta['choices'])}."
             rows.append(
