@@ -18,7 +18,7 @@ from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.keypoints import KeypointResult, extract_keypoints
 from amrst.stages.preprocess import PreprocessResult, preprocess_points
-from amrst.stages.scene import GROUND, TREE, SceneResult, understand_scene
+from amrst.stages.scene import GROUND, OUTSIDE, TREE, SceneResult, understand_scene
 from amrst.stages.separate import SeparationResult, separate_wood
 from amrst.stages.skeleton import SkeletonResult, build_skeleton
 
@@ -80,10 +80,13 @@ class ScanAnalysis:
         """Mark the tree of interest's working points (``scene_pre``).
 
         With the ground under its stem, on which its base is measured; None when the
-        scan is that tree alone.
+        scan is that tree alone. A scan cut around a given stem is never that: what
+        lies inside the cut is the tree when no ground was found there.
         """
         scene, pre = self.scene, self.scene_pre
-        if scene is None or pre is None or not scene.has_ground or not len(pre.xyz):
+        if scene is None or pre is None or not len(pre.xyz):
+            return None
+        if not scene.has_ground and not (scene.labels == OUTSIDE).any():
             return None
         keep = scene.labels == TREE
         if scene.base is not None:

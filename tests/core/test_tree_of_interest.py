@@ -52,3 +52,26 @@ def test_a_scan_whose_pick_is_another_tree_gives_its_points_of_the_reference_s()
     whole = _Near((0.0, 0.0), share=None)  # type: ignore[arg-type]
     part, size = reference_tree_sample(scan, whole, (reference, ref_tree), T, 10_000)
     assert size == len(scan)
+
+
+def test_a_scan_cut_around_a_given_stem_is_measured_inside_the_cut():
+    # Two stems 12 m apart and no ground: with the first one given, the scan is cut
+    # 6 m around it, and what is measured is the cut, not the whole scan.
+    from amrst.params import RegistrationParams
+    from amrst.pipeline.analysis import prepare_scan
+
+    rng = np.random.default_rng(1)
+    stems = [rng.normal([x, 0.0, 4.0], [0.15, 0.15, 2.0], (3000, 3)) for x in (0, 12)]
+    scan = Cloud(np.vstack(stems))
+    analysis = prepare_scan(scan, RegistrationParams(), stem_xy=np.zeros(2))
+    assert analysis.scene is not None
+    assert not analysis.scene.has_ground
+    on = analysis.on_tree(scan.xyz)
+    assert np.mean(on[:3000]) > 0.98  # the given stem (stray points aside)
+    assert not on[3000:].any()  # the other stem, outside the cut
+    assert analysis.tree_share is not None
+    assert 0.4 < analysis.tree_share < 0.6
+    # Without a stem given, a scan without ground is one tree: all of it.
+    whole = prepare_scan(scan, RegistrationParams())
+    assert whole.tree_share is None
+    assert whole.on_tree(scan.xyz).all()
