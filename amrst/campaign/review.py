@@ -205,8 +205,7 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     from amrst import io
     from amrst.files.atomic import write_json_atomic
     from amrst.io.scans import read_scans
-    from amrst.multiscan.export import merge_moved
-    from amrst.types import transform_cloud
+    from amrst.results.export import merge_posed
 
     entry = campaign.tree(tree_id)
     out = campaign.results_dir(tree_id)
@@ -216,13 +215,7 @@ def export_tree(campaign: Campaign, tree_id: str, cloud_format: str = "ply") -> 
     _refuse_stale(campaign, entry)
     poses = _stored_poses(summary, len(entry.scans), tree_id)
     clouds = [read_scans(campaign.root / spec)[0] for spec in entry.scans]
-    ref = clouds[entry.reference]
-    moved = [
-        (k, transform_cloud(T, clouds[k], ref.offset))
-        for k, T in enumerate(poses)
-        if T is not None
-    ]
-    merged = merge_moved(ref, moved)
+    merged = merge_posed(clouds, poses, entry.reference)
     path = out / f"merged.{cloud_format}"
     io.write(path, merged)
     doc = read_doc(out / REVIEW) or {}

@@ -25,7 +25,7 @@ import numpy as np
 
 from amrst import __version__
 from amrst.files.atomic import write_json_atomic, write_text_atomic
-from amrst.types import Cloud, invert_transform, transform_cloud
+from amrst.types import Cloud, invert_transform
 
 if TYPE_CHECKING:
     import os
@@ -125,34 +125,9 @@ def summary(
 
 def merge_scans(result: MultiScanResult) -> Cloud:
     """All reached scans in the reference frame, one cloud with ``scan_id`` (scan number)."""
-    ref = result.scans[result.reference]
-    moved = [
-        (k, transform_cloud(T, result.scans[k], ref.offset))
-        for k, T in enumerate(result.T_reference_scan)
-        if T is not None
-    ]
-    return merge_moved(ref, moved)
+    from amrst.results.export import merge_posed
 
-
-def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
-    """Return scans already moved into ``ref``'s frame as one cloud; ``scan_id`` = k.
-
-    Attributes missing from some scans are zeros for their points.
-    """
-    names = list(dict.fromkeys(a for _, c in moved for a in c.attributes))
-    attrs: dict[str, np.ndarray] = {}
-    for name in names:
-        cols = [c.attributes.get(name) for _, c in moved]
-        dtype = np.result_type(*(a.dtype for a in cols if a is not None))
-        attrs[name] = np.concatenate(
-            [
-                np.asarray(a, dtype) if a is not None else np.zeros(len(c), dtype)
-                for a, (_, c) in zip(cols, moved, strict=True)
-            ]
-        )
-    attrs["scan_id"] = np.concatenate([np.full(len(c), k, np.uint8) for k, c in moved])
-    xyz = np.vstack([c.xyz for _, c in moved])
-    return Cloud(xyz, ref.offset, attrs, "merged", ref.meta)
+    return merge_posed(result.scans, result.T_reference_scan, result.reference)
 
 
 def _pair_files(

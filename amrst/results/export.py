@@ -14,7 +14,7 @@ import json
 import logging
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -201,35 +201,45 @@ def other_export(out_dir: str | os.PathLike[str], files: Sequence[str]) -> str |
     return f"{', '.join(found)} of another run" if found else None
 
 
-def merge_clouds(target: Cloud, moved_source: Cloud) -> Cloud:
-    """Both scans in one cloud with a ``scan_id`` field (0 = target, 1 = source).
+def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
+    """Return scans already moved into ``ref``'s frame as one cloud, ``scan_id`` = k.
 
-    Attributes present in only one scan are kept, with zeros for the other scan's points.
-    Both clouds must share an offset (``transform_cloud`` with the target offset does that).
+    Attributes present in some scans only are kept, with zeros for the others' points.
     """
-    names = list(dict.fromkeys([*target.attributes, *moved_source.attributes]))
+    names = list(dict.fromkeys(a for _, c in moved for a in c.attributes))
     attrs: dict[str, np.ndarray] = {}
     for name in names:
-        a, b = target.attributes.get(name), moved_source.attributes.get(name)
-        ref = cast("np.ndarray", a if a is not None else b)  # one of them is set
-        dtype = np.result_type(*(x.dtype for x in (a, b) if x is not None))
-        parts = [
-            np.asarray(x, dtype)
-            if x is not None
-            else np.zeros((len(c), *ref.shape[1:]), dtype)
-            for x, c in ((a, target), (b, moved_source))
-        ]
-        attrs[name] = np.concatenate(parts)
-    attrs["scan_id"] = np.r_[
-        np.zeros(len(target), np.uint8), np.ones(len(moved_source), np.uint8)
+        cols = [c.attributes.get(name) for _, c in moved]
+        given = [a for a in cols if a is not None]
+        dtype = np.result_type(*(a.dtype for a in given))
+        attrs[name] = np.concatenate(
+            [
+                np.asarray(a, dtype)
+                if a is not None
+                else np.zeros((len(c), *given[0].shape[1:]), dtype)
+                for a, (_, c) in zip(cols, moved, strict=True)
+            ]
+        )
+    attrs["scan_id"] = np.concatenate([np.full(len(c), k, np.uint8) for k, c in moved])
+    xyz = np.vstack([c.xyz for _, c in moved]) if moved else np.zeros((0, 3))
+    return Cloud(xyz, ref.offset, attrs, "merged", ref.meta)
+
+
+def merge_posed(
+    clouds: Sequence[Cloud], poses: Sequence[Transform | None], reference: int
+) -> Cloud:
+    """Every posed scan moved into the reference's frame, as one cloud (``merge_moved``).
+
+    ``poses[k]`` takes scan k's world coordinates into the reference's; None: not
+    placed, left out.
+    """
+    ref = clouds[reference]
+    moved = [
+        (k, transform_cloud(T, clouds[k], ref.offset))
+        for k, T in enumerate(poses)
+        if T is not None
     ]
-    return Cloud(
-        np.vstack([target.xyz, moved_source.xyz]),
-        target.offset,
-        attrs,
-        "merged",
-        target.meta,
-    )
+    return merge_moved(ref, moved)
 
 
 def transform_document(
@@ -333,7 +343,7 @@ def export_registration(
             )
         if "merged" in parts:
             writers[f"merged.{cloud_format}"] = lambda p: amrst_io.write(
-                p, merge_clouds(target, moved)
+                p, merge_moved(target, [(0, target), (1, moved)])
             )
     if documents is not None:  # the one result layout (amrst.results.documents)
         doc, mdoc = documents.transform, documents.metrics

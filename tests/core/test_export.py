@@ -12,7 +12,7 @@ import pytest
 from amrst import io
 from amrst.errors import AmrstError, InvalidInput
 from amrst.params import RegistrationParams, load_params
-from amrst.results.export import PARTS, export_registration, merge_clouds
+from amrst.results.export import PARTS, export_registration, merge_moved
 from amrst.types import Cloud, make_transform
 
 OFFSET = np.array([500000.0, 5000000.0, 100.0])
@@ -135,10 +135,10 @@ def test_all_parts_are_written_and_read_back(tmp_path: Path, scans) -> None:
     assert loaded.fine == params.fine
 
 
-def test_merge_clouds_directly(scans) -> None:
+def test_merge_moved_directly(scans) -> None:
     target, source, _ = scans
     moved = Cloud(source.xyz, target.offset, source.attributes)
-    merged = merge_clouds(target, moved)
+    merged = merge_moved(target, [(0, target), (1, moved)])
     assert len(merged) == 500
     assert merged.attributes["scan_id"].dtype == np.uint8
     assert merged.attributes["intensity"].dtype == np.uint16
