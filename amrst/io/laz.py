@@ -135,7 +135,7 @@ _ITEMS = {
     6: (20, (1, 2)),  # point 1.0
     7: (8, (1, 2)),  # GPS time
     8: (6, (1, 2)),  # RGB
-    9: (29, (1,)),  # wave packet
+    9: (29, (1, 2)),  # wave packet (lazrs writes version 2)
     10: (30, (3, 4)),  # point 1.4
     11: (6, (3, 4)),  # RGB 1.4
     12: (8, (3, 4)),  # RGB + NIR 1.4

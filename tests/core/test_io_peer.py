@@ -64,3 +64,18 @@ def test_legacy_laz_reads_without_decoder_noise():
     assert proc.returncode == 0
     assert "points      1,065" in proc.stdout
     assert proc.stderr == ""
+
+
+def test_a_waveform_las_written_as_laz_reads_back_the_same(tmp_path):
+    # Point format 4 carries wave packets: lazrs writes their LASzip item as version 2.
+    import numpy as np
+
+    cloud = io.read(PEER / "laspy-simple1_3.las")
+    io.write(tmp_path / "again.laz", cloud)
+    back = io.read(tmp_path / "again.laz")
+    np.testing.assert_allclose(
+        back.xyz + back.offset, cloud.xyz + cloud.offset, atol=1e-6
+    )
+    assert set(back.attributes) == set(cloud.attributes)
+    for key, values in cloud.attributes.items():
+        np.testing.assert_array_equal(back.attributes[key], values)
