@@ -409,7 +409,7 @@ def _add_given_stems(
         fit = _measure_stem(pts, h, ground, seed, params) if len(seed) else None
         nan = float("nan")
         bare = StemRecord(
-            np.r_[xy, _ground_z(ground, xy)],
+            np.r_[xy, float(ground.surface_z(xy)[0])],
             xy,
             *(nan, nan, nan, nan, "none", nan, "not measured", nan, nan, 0),
         )
@@ -499,12 +499,6 @@ def bark_seeds(
     return seeds
 
 
-def _ground_z(ground: GroundFit, xy: np.ndarray) -> float:
-    """Height of the ground surface at one (2,) position."""
-    p = np.r_[xy, 0.0][None]
-    return float(-ground.height(p)[0])
-
-
 @dataclass(frozen=True, slots=True)
 class _StemFit:
     """A stem measured on its bark circles, and the circles: (height, x, y), radii."""
@@ -536,7 +530,7 @@ def _measure_stem(
     )
     near, hn = pts[box], h[box]
     centre = pts[seed, :2].mean(axis=0)
-    z0 = _ground_z(ground, centre)
+    z0 = float(ground.surface_z(centre)[0])
     mp = MeasureParams(inlier_m=params.circle_inlier_m, max_radius_m=1.0)
     half = (params.dbh_high_m - params.dbh_low_m) / 2
     dbh_h = (params.dbh_low_m + params.dbh_high_m) / 2
@@ -560,7 +554,7 @@ def _measure_stem(
         return None
     base_xy, _, lean = _stem_line(line, centre)
     base_xy = _foot_xy(line, base_xy)
-    base = np.r_[base_xy, _ground_z(ground, base_xy)]
+    base = np.r_[base_xy, float(ground.surface_z(base_xy)[0])]
     nan = float("nan")
     quality, why = _dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params)
     stem = StemRecord(
@@ -658,7 +652,9 @@ def _taper_stem(
     # Too few circles on the taper line leave the lean unmeasured (NaN): the first
     # fit's line went through circles the taper line rejects.
     stem = replace(
-        fit.stem, base=np.r_[base_xy, _ground_z(ground, base_xy)], lean_deg=lean
+        fit.stem,
+        base=np.r_[base_xy, float(ground.surface_z(base_xy)[0])],
+        lean_deg=lean,
     )
     if not bark or len(taper.circles) < params.taper_min_circles:
         return replace(
@@ -727,7 +723,7 @@ def _on_branch_axis(
     sectors = np.unique(np.floor((angle + np.pi) / (2 * np.pi) * 12).astype(int) % 12)
     if len(sectors) < params.skirt_sectors:
         return stem
-    base = np.r_[axis[0], _ground_z(ground, axis[0])]
+    base = np.r_[axis[0], float(ground.surface_z(axis[0])[0])]
     if np.hypot(*(stem.dbh_xy - axis[0])) <= params.same_stem_m:
         return replace(stem, base=base)
     # Its breast-height circle went round branches: no DBH, and no lean measured.

@@ -68,6 +68,18 @@ class GroundFit:
         plane = a * xyz[:, 0] + b * xyz[:, 1] + c
         return np.asarray(xyz[:, 2] - plane - self.relief[self.nearest_cell(xyz)])
 
+    def surface_z(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) height of the ground surface at (N, 2) positions (``height``'s zero).
+
+        Without a ground, the plane through the lowest point.
+        """
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        a, b, c = self.plane
+        plane = a * xy[:, 0] + b * xy[:, 1] + c
+        if not self.found or len(self.centres) == 0:
+            return np.asarray(plane)
+        return np.asarray(plane + self.relief[self.nearest_cell(xy)])
+
     def nearest_cell(self, xyz: np.ndarray) -> np.ndarray:
         """(N,) index of the cell centre nearest each point's x y.
 

@@ -332,10 +332,7 @@ def understand_scene(
         owner = assign_to_stems(xyz, h, above, seeds, params)
         labels[above[owner != 0]] = OTHER
         base_xy = stems[0].xy
-        # Where the stem meets the ground: the surface height of the nearest points.
-        near = np.linalg.norm(xyz[:, :2] - base_xy, axis=1)
-        close = _nearest(near, 20)
-        base = np.r_[base_xy, float(np.median(xyz[close, 2] - h[close]))]
+        base = np.r_[base_xy, ground.surface_z(base_xy)]  # where it meets the ground
     else:
         base = None
     counts = {nm: int(np.sum(labels == k)) for k, nm in enumerate(LABEL_NAMES)}
@@ -354,21 +351,6 @@ def understand_scene(
         base,
         msg,
     )
-
-
-def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
-    """``np.argsort(dist)[:k]`` as a set: a partition when no tie straddles the k-th.
-
-    A full sort of every point's distance cost more than the rest of the base; the
-    partition names the same k points unless the k-th distance is shared, and then
-    the sort decides as before.
-    """
-    if len(dist) <= k:
-        return np.argsort(dist)
-    part = np.argpartition(dist, k - 1)[:k]
-    if np.count_nonzero(dist <= dist[part].max()) == k:
-        return part
-    return np.argsort(dist)[:k]
 
 
 def _near(xyz: np.ndarray, xy: np.ndarray, radius: float) -> np.ndarray:

@@ -57,17 +57,6 @@ def test_finite_rows_equals_numpys_all_over_rows() -> None:
         np.testing.assert_array_equal(finite_rows(a), np.isfinite(a).all(axis=1))
 
 
-def test_nearest_set_equals_the_full_sort() -> None:
-    """The k nearest by a partition are the sort's k, ties at the k-th included."""
-    from amrst.stages.scene import _nearest
-
-    rng = np.random.default_rng(5)
-    for n in (5, 20, 21, 500):
-        for d in (rng.random(n), np.round(rng.random(n), 1)):  # the second has ties
-            want = np.sort(np.argsort(d)[:20])
-            np.testing.assert_array_equal(np.sort(_nearest(d, 20)), want)
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_pairs_within_equal_the_default_tree_and_brute_force(seed: int) -> None:
     """The faster-built tree finds the same pairs as scipy's default tree and as
