@@ -2,9 +2,11 @@
 
 The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
 from point pairs picked by hand (the app's Manual pose dock saves them), ``--leave-out
-I J`` leaves a link found wrong out, so the scans are joined through others. Exit 0 when
-every scan is registered, or accepted by the technician (a link they accepted in the
-app at the pose it has, kept in the folder's review.json), 2 on unusable input, 3
+I J`` leaves a link found wrong out, so the scans are joined through others, and
+``--accept I J`` accepts a link that needs review at the pose the run gives it. Exit 0
+when every scan is registered, or accepted by the technician (a link they accepted, in
+the app or with ``--accept``, at the pose it has, kept in the folder's review.json), 2
+on unusable input, 3
 when a scan could not be registered or needs review (the inventory is still written
 for the scans that were placed, and the message names the others).
 """
@@ -79,6 +81,17 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "plot joins them through other scans (repeatable)",
     )
     p.add_argument(
+        "--accept",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("I", "J"),
+        help="accept the link of scans I and J at the pose this run gives it, after "
+        "checking it (report.html, the app's overlay): as the app's Accept, kept in "
+        "the folder's review.json, and the scans it places read accepted "
+        "(repeatable)",
+    )
+    p.add_argument(
         "--plot-radius",
         type=float,
         metavar="R",
@@ -122,6 +135,7 @@ def run_cli(args: argparse.Namespace) -> int:
         left_out = [
             scan_numbers(i, j, f"--leave-out {i} {j}") for i, j in args.leave_out
         ]
+        accept = [scan_numbers(i, j, f"--accept {i} {j}") for i, j in args.accept]
         scanners = given_scanners(args.scanner)
         # Absolute labels (a symlink keeps its own name): the app opens the results
         # from anywhere and runs them again.
@@ -131,6 +145,7 @@ def run_cli(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             pairs=pairs,
             left_out=left_out,
+            accept=accept,
             scanners=scanners,
             write_trees=args.write_trees,
             write_cloud=args.write_cloud,
@@ -171,6 +186,8 @@ def run_cli(args: argparse.Namespace) -> int:
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
     if run.area is not None:
         _say_stand(out, run.area)
+    for note in run.notes:
+        print(f"amrst plot: {note}.", file=sys.stderr)
     if run.lost:
         print(
             f"amrst plot: no tree stands any more where you gave "
@@ -186,7 +203,8 @@ def run_cli(args: argparse.Namespace) -> int:
             f"({counted(resting, 'tree')} seen from {'it' if len(unsure) == 1 else 'them'}, "
             "trees.csv scans_to_check); a link on "
             "the way to the reference is unsure or two links disagree: check the "
-            "links in the app's Plot window (Open pair) and Accept a right one; leave "
+            "links in the app's Plot window (Open pair) and Accept a right one (or "
+            "--accept I J after checking it in report.html); leave "
             "a wrong one out (--leave-out I J) when other links join its scans, or "
             "place it by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,

@@ -18,7 +18,7 @@ import datetime as _dt
 import io as _stdio
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -548,6 +548,7 @@ def write_plot(
     report: bool = False,
     pairs_files: Mapping[tuple[int, int], str] | None = None,
     area: PlotArea | None = None,
+    accepted: Mapping[tuple[int, int], Transform] | None = None,
 ) -> tuple[list[Path], list[str], list[str]]:
     """Write the run's files into ``out`` as one unit.
 
@@ -565,7 +566,8 @@ def write_plot(
     ``report``: also ``report.html`` (``amrst.plot.report``). ``pairs_files``: the
     point pairs files the links placed by hand came from (:func:`plot_document`).
     ``area``: the fixed-radius plot, ``plot_area`` in plot.json (the report's stand
-    figures count the trees inside it, per hectare).
+    figures count the trees inside it, per hectare). ``accepted``: links the
+    technician accepts at these (world) poses, added to the folder's review.
     """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
@@ -579,6 +581,9 @@ def write_plot(
         read_review(out, labels),
         {t.tree_id: t.stem.dbh_xy for t in inventory.trees},
     )
+    if accepted:
+        review = replace(review, accepted={**review.accepted, **accepted})
+        moved = True
     doc = plot_document(reg, inventory, labels, review, pairs_files)
     doc["review_lost"] = lost  # the review that found no tree at this run
     doc["plot_area"] = None if area is None else area.as_dict()

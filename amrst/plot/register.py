@@ -148,26 +148,55 @@ class PlotRegistration:
     ) -> set[tuple[int, int]]:
         """Return the links the technician accepted, at the pose they have."""
         from amrst.plot.review import holding
-        from amrst.review.verdict import REGISTERED
-        from amrst.types import world_transform
 
         clouds = [scan.analysis.cloud for scan in self.scans]
         return holding(
             review,
             (
-                (
-                    (ln.target, ln.source),
-                    REGISTERED if self.loop_confirms(ln) else ln.status,
-                    None
-                    if ln.T_local is None
-                    else world_transform(
-                        ln.T_local, clouds[ln.target], clouds[ln.source]
-                    ),
-                    clouds[ln.source].offset,
-                )
-                for ln in self._links()
+                (key, status, T, clouds[key[1]].offset)
+                for key, (status, T) in self.link_states().items()
             ),
         )
+
+    def link_states(self) -> dict[tuple[int, int], tuple[str, Transform | None]]:
+        """Each link's status (registered when a loop confirms it) and world pose."""
+        from amrst.review.verdict import REGISTERED
+        from amrst.types import world_transform
+
+        clouds = [scan.analysis.cloud for scan in self.scans]
+        return {
+            (ln.target, ln.source): (
+                REGISTERED if self.loop_confirms(ln) else ln.status,
+                None
+                if ln.T_local is None
+                else world_transform(ln.T_local, clouds[ln.target], clouds[ln.source]),
+            )
+            for ln in self._links()
+        }
+
+    def to_accept(
+        self, wanted: Collection[tuple[int, int]]
+    ) -> tuple[dict[tuple[int, int], Transform], list[str]]:
+        """Return the ``wanted`` links that need review at their poses, and notes.
+
+        A note says of each other wanted link that it needs no acceptance
+        (registered, failed or left out). ``wanted`` are links in their own (target,
+        source) order (``check_links``).
+        """
+        from amrst.review.verdict import NEEDS_REVIEW
+
+        states = self.link_states()
+        poses, notes = {}, []
+        for i, j in sorted(wanted):
+            status, T = states.get((i, j), ("left out", None))
+            if status == NEEDS_REVIEW and T is not None:
+                poses[i, j] = T
+            else:
+                notes.append(
+                    f"the link of scans {i + 1} and {j + 1} is {status}: nothing to "
+                    "accept"
+                )
+        return poses, notes
 
     def states(self, review: Mapping[tuple[int, int], Transform]) -> tuple[str, ...]:
         """Each scan's state with the accepted links ``review`` holds (its status else)."""
@@ -524,11 +553,16 @@ def check_links(
     reference: int,
     by_hand: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
     left_out: Collection[tuple[int, int]],
-) -> tuple[dict[tuple[int, int], tuple[np.ndarray, np.ndarray]], set[tuple[int, int]]]:
+    accept: Collection[tuple[int, int]] = (),
+) -> tuple[
+    dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    set[tuple[int, int]],
+    set[tuple[int, int]],
+]:
     """Check the technician's links of a plot of ``n`` scans; key them as the links.
 
-    Returns the hand pairs and the left-out links in their links' (target, source)
-    order.
+    Returns the hand pairs, the left-out links and the links to accept in their
+    links' (target, source) order.
 
     Raises
     ------
@@ -550,7 +584,14 @@ def check_links(
     for (i, j), (t_pts, s_pts) in sorted(hand.items()):
         if apart := pairs_disagree(t_pts, s_pts):
             raise InvalidInput(f"The point pairs of scans {i + 1} and {j + 1} {apart}.")
-    return hand, dropped
+    taken = {_link_key(i, j, pairs, n) for i, j in accept}
+    if dropped & taken:
+        i, j = min(dropped & taken)
+        raise InvalidInput(
+            f"The link of scans {i + 1} and {j + 1} is both accepted and left out: do "
+            "one or the other."
+        )
+    return hand, dropped, taken
 
 
 def cut_off(n: int, reference: int, left_out: Collection[tuple[int, int]]) -> set[int]:
@@ -606,7 +647,7 @@ def register_plot(
     """
     params = plot_params()
     n = len(scans)
-    hand, dropped = check_links(n, reference, by_hand or {}, left_out)
+    hand, dropped, _ = check_links(n, reference, by_hand or {}, left_out)
     pairs = link_pairs(n, reference)
     timings = {
         "read": sum(s.read_seconds for s in scans),

@@ -43,6 +43,7 @@ class PlotRun:
     states: tuple[str, ...]  # each scan's state (registered, accepted, ...)
     lost: tuple[str, ...]  # the review that found no tree at this run
     area: PlotArea | None = None  # the fixed-radius plot asked for
+    notes: tuple[str, ...] = ()  # links asked to be accepted that needed no review
 
 
 def run_plot(
@@ -52,6 +53,7 @@ def run_plot(
     overwrite: bool = False,
     pairs: Mapping[tuple[int, int], str] | None = None,
     left_out: Collection[tuple[int, int]] = (),
+    accept: Collection[tuple[int, int]] = (),
     scanners: Mapping[int, tuple[float, float, float]] | None = None,
     write_trees: bool = False,
     write_cloud: bool = False,
@@ -75,6 +77,10 @@ def run_plot(
         Links placed from point pairs: ``{(i, j): pairs CSV}``, scans from 0.
     left_out : collection of (int, int)
         Links not to register (found wrong).
+    accept : collection of (int, int)
+        Links the technician checked and accepts at the pose this run gives them,
+        as the app's Accept: kept in ``review.json``. A link that needs no review
+        gets a note in ``PlotRun.notes`` instead.
     scanners : mapping of int to (float, float, float), or None
         Where a scan's scanner stood, ``{scan from 0: (x, y, z)}`` in its file's
         coordinates: for a scan whose file does not say (a georeferenced LAS), so
@@ -108,7 +114,7 @@ def run_plot(
     area = _plot_area(plot_radius_m, plot_centre)
     labels = [spec for spec, _name in one_scan_specs(specs)]
     _check_count(labels, scanners or {})
-    check_links(len(labels), 0, by_hand, left_out)
+    _, _, accepting = check_links(len(labels), 0, by_hand, left_out, accept)
     added = read_review(out, labels).added  # before minutes of work, as check_out
     scans, area = _read_scans(
         labels, scanners or {}, area, plot_centre, SubReporter(reporter, 0.0, 0.4)
@@ -120,6 +126,7 @@ def run_plot(
         by_hand=by_hand,
         left_out=left_out,
     )
+    accepted, notes = reg.to_accept(accepting)
     inventory = take_inventory(
         [s.analysis.cloud for s in scans],
         reg.poses,
@@ -138,10 +145,18 @@ def run_plot(
         report=report,
         pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
         area=area,
+        accepted=accepted,
     )
     reporter.progress(1.0, "Plot written")
     return PlotRun(
-        tuple(labels), reg, inventory, tuple(written), tuple(states), tuple(lost), area
+        tuple(labels),
+        reg,
+        inventory,
+        tuple(written),
+        tuple(states),
+        tuple(lost),
+        area,
+        tuple(notes),
     )
 
 

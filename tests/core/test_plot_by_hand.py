@@ -128,7 +128,7 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
 
 
 def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
-    pair_and_picks, tmp_path: Path
+    pair_and_picks, tmp_path: Path, capsys
 ) -> None:
     from amrst.plot.review import PlotReview, write_review
 
@@ -161,6 +161,14 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     assert doc["links"][0]["accepted"]
     assert all(r["scans_to_check"] == "" for r in _tree_rows(out))
 
+    # The same from the command line: --accept keeps the pose this run gives.
+    (out / "review.json").unlink()
+    assert plot_main([*args, str(wrong), "--overwrite", "--accept", "2", "1"]) == 0
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
+    review = json.loads((out / "review.json").read_text())
+    np.testing.assert_allclose(review["accepted"]["1-2"], T, atol=1e-9)
+
     # The right pairs move the link: the acceptance of the other pose no longer holds
     # (the link is registered on its own).
     right = tmp_path / "right.csv"
@@ -169,6 +177,13 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     doc = json.loads((out / "plot.json").read_text())
     assert [s["state"] for s in doc["scans"]] == ["registered", "registered"]
     assert not doc["links"][0]["accepted"]
+    # A link that needs no review has nothing to accept, and the run says so.
+    capsys.readouterr()
+    assert plot_main([*args, str(right), "--overwrite", "--accept", "1", "2"]) == 0
+    assert "scans 1 and 2 is registered: nothing to accept" in capsys.readouterr().err
+    for bad, why in ((["1", "1"], "named twice"), (["1", "3"], "scans 1 to 2")):
+        assert plot_main([*args, str(right), "--overwrite", "--accept", *bad]) == 2
+        assert why in capsys.readouterr().err
 
 
 def test_a_link_left_out_is_not_registered_and_the_scan_joins_through_another(
