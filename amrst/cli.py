@@ -29,7 +29,6 @@ from amrst.errors import (
     RegistrationFailed,
 )
 from amrst.files.outcheck import same_file
-from amrst.io.checks import check_scans
 from amrst.terminal import TerminalReporter
 
 if TYPE_CHECKING:
@@ -232,6 +231,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         return _register_scans(args, params)
     args.source = args.source[0]
     from amrst.guards import into_grid
+    from amrst.io.checks import check_scans
     from amrst.io.truth import read_truth
 
     T_truth = read_truth(args.truth) if args.truth is not None else None

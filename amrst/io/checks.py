@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from amrst.errors import InvalidInput
 from amrst.sampling import strided
@@ -39,6 +38,8 @@ def _same_points(a: Cloud, b: Cloud) -> bool:
     """Tell whether two clouds of the same size and box hold the same points."""
     if np.array_equal(a.offset, b.offset) and np.array_equal(a.xyz, b.xyz):
         return True
+    from scipy.spatial import cKDTree  # imported when needed: every command checks
+
     bxyz = strided(b.xyz, SAME_SAMPLE) + (b.offset - a.offset)
     dist, _ = cKDTree(a.xyz).query(bxyz, distance_upper_bound=SAME_POINT_M)
     return bool(np.mean(np.isfinite(dist)) > 0.99)
