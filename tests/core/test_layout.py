@@ -58,6 +58,13 @@ def test_simulate_loads_no_benchmark_or_baseline() -> None:
     assert loaded == [], loaded
 
 
+def test_the_command_line_starts_without_readers_or_kd_trees() -> None:
+    # Every command starts by importing amrst.cli: each reader and scipy.spatial are
+    # loaded by the commands that use them.
+    loaded = _loaded_after("amrst.cli", ("amrst.io", "scipy.spatial", "amrst.pipeline"))
+    assert loaded == [], loaded
+
+
 def test_one_stage_loads_only_what_it_needs() -> None:
     prefixes = (
         "amrst.pipeline",
