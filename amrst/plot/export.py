@@ -685,9 +685,11 @@ def _point_labeller(inventory: Inventory) -> PointLabels:
     def labels(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, nearest = tree.query(xyz, distance_upper_bound=TREE_REACH_M)
         trees = np.asarray(number[nearest])
-        if not stem_map.ground.found:
-            return trees, np.zeros(len(xyz), dtype=bool)
-        return trees, (trees == 0) & (stem_map.ground.height(xyz) < ground_m)
+        ground = np.zeros(len(xyz), dtype=bool)
+        free = np.flatnonzero(trees == 0)  # a point a tree owns is never ground
+        if stem_map.ground.found and len(free):
+            ground[free] = stem_map.ground.height(xyz[free]) < ground_m
+        return trees, ground
 
     return labels
 
