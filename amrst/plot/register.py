@@ -183,7 +183,7 @@ class PlotRegistration:
         (registered, failed or left out). ``wanted`` are links in their own (target,
         source) order (``check_links``).
         """
-        from amrst.review.verdict import NEEDS_REVIEW
+        from amrst.review.verdict import FAILED, NEEDS_REVIEW
 
         states = self.link_states()
         poses, notes = {}, []
@@ -192,9 +192,9 @@ class PlotRegistration:
             if status == NEEDS_REVIEW and T is not None:
                 poses[i, j] = T
             else:
+                why = "failed: it has no pose" if status == FAILED else f"is {status}"
                 notes.append(
-                    f"the link of scans {i + 1} and {j + 1} is {status}: nothing to "
-                    "accept"
+                    f"the link of scans {i + 1} and {j + 1} {why}: nothing to accept"
                 )
         return poses, notes
 
