@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Distances to a voxel's centroid this close (relative) are a tie, which the lowest
-#: index wins: a rounding apart, they are the same distance.
-TIE_REL = 1e-9
-
 
 def voxel_grid(xyz: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Integer voxel of each point, and one int64 code per voxel (for a fast 1-D unique).
@@ -115,8 +111,7 @@ def voxel_representatives(
     Returns
     -------
     reps : (V,) int64, sorted
-        Index of each voxel's representative (ties, within ``TIE_REL``, go to the
-        lowest index).
+        Index of each voxel's representative (ties go to the lowest index).
     owner : (N,) int64
         Position in ``reps`` of the representative of each point's voxel.
     """
@@ -159,12 +154,9 @@ def _representatives(
         dist += off
     nearest = np.full(n, np.inf)
     np.minimum.at(nearest, group, dist)
-    # Ties go to the lowest index, and so do distances a rounding apart: the two
-    # points of a two-point voxel lie exactly as far from their midpoint, and which
-    # one the last bit favours would change with the summation order of the centroid.
-    hit = np.flatnonzero(dist <= nearest[group] * (1.0 + TIE_REL))
+    hit = np.flatnonzero(dist == nearest[group])
     rep_of_group = np.full(n, len(xyz), dtype=np.int64)
-    np.minimum.at(rep_of_group, group[hit], hit)
+    np.minimum.at(rep_of_group, group[hit], hit)  # ties: the lowest index
     if not with_owner:
         return np.sort(rep_of_group), np.zeros(0, dtype=np.int64)
     by_index = np.argsort(rep_of_group)
