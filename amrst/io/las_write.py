@@ -206,13 +206,20 @@ def write_las_parts(
 
 
 def _put_labels(record: Any, tree: np.ndarray, ground: np.ndarray) -> None:
-    """Set each point's tree, and class 2 or 1 where the scan left it unclassified."""
+    """Set each point's tree, and class 2 or 1 where the scan left it unclassified.
+
+    A scan's classes a 5-bit field cannot hold went to an exact extra field as well,
+    which readers prefer (``_plan``): it gets the same classes.
+    """
     record[TREE] = np.asarray(tree, np.uint32)
-    given = np.asarray(record.classification)
-    unset = given <= UNASSIGNED
-    record.classification = np.where(
-        unset, np.where(ground, GROUND, UNASSIGNED), given
-    ).astype(given.dtype)
+    exact = PREFIX + "classification"
+    names = set(record.point_format.dimension_names)
+    for field in ("classification", *([exact] if exact in names else [])):
+        given = np.asarray(record[field])
+        unset = given <= UNASSIGNED
+        record[field] = np.where(
+            unset, np.where(ground, GROUND, UNASSIGNED), given
+        ).astype(given.dtype)
 
 
 def _put_attributes(

@@ -663,8 +663,8 @@ def _plot_cloud_writer(
     offset = reg.scans[reg.reference].analysis.cloud.offset
 
     def write(path: Path) -> None:
-        labels = _point_labeller(inventory)
-        io.write_merged(path, parts, moves, offset, ids, load=load, labels=labels)
+        point_labels = _point_labeller(inventory)
+        io.write_merged(path, parts, moves, offset, ids, load=load, labels=point_labels)
 
     return write
 
@@ -688,7 +688,7 @@ def _point_labeller(inventory: Inventory) -> PointLabels:
         ground = np.zeros(len(xyz), dtype=bool)
         free = np.flatnonzero(trees == 0)  # a point a tree owns is never ground
         if stem_map.ground.found and len(free):
-            ground[free] = stem_map.ground.height(xyz[free]) < ground_m
+            ground[free] = np.abs(stem_map.ground.height(xyz[free])) < ground_m
         return trees, ground
 
     return labels

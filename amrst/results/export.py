@@ -205,7 +205,11 @@ def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
     """Return scans already moved into ``ref``'s frame as one cloud, ``scan_id`` = k.
 
     Attributes present in some scans only are kept, with zeros for the others' points.
+
+    Raises InvalidInput when no scan is given (none placed).
     """
+    if not moved:
+        raise InvalidInput("No scan is placed: there is nothing to merge.")
     names = list(dict.fromkeys(a for _, c in moved for a in c.attributes))
     attrs: dict[str, np.ndarray] = {}
     for name in names:
@@ -220,8 +224,8 @@ def merge_moved(ref: Cloud, moved: Sequence[tuple[int, Cloud]]) -> Cloud:
                 for a, (_, c) in zip(cols, moved, strict=True)
             ]
         )
-    attrs["scan_id"] = np.concatenate([np.full(len(c), k, np.uint8) for k, c in moved])
-    xyz = np.vstack([c.xyz for _, c in moved]) if moved else np.zeros((0, 3))
+    attrs["scan_id"] = np.concatenate([np.full(len(c), k, np.uint16) for k, c in moved])
+    xyz = np.vstack([c.xyz for _, c in moved])
     return Cloud(xyz, ref.offset, attrs, "merged", ref.meta)
 
 

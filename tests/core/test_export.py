@@ -140,7 +140,7 @@ def test_merge_moved_directly(scans) -> None:
     moved = Cloud(source.xyz, target.offset, source.attributes)
     merged = merge_moved(target, [(0, target), (1, moved)])
     assert len(merged) == 500
-    assert merged.attributes["scan_id"].dtype == np.uint8
+    assert merged.attributes["scan_id"].dtype == np.uint16
     assert merged.attributes["intensity"].dtype == np.uint16
     np.testing.assert_array_equal(merged.xyz[:300], target.xyz)
     np.testing.assert_array_equal(merged.xyz[300:], source.xyz)

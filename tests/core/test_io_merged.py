@@ -137,10 +137,11 @@ def test_values_a_standard_field_cannot_hold_are_kept_exactly(tmp_path) -> None:
 
 
 def test_labels_set_tree_and_ground_and_keep_the_classes_a_scan_set(tmp_path) -> None:
-    # A scan's own classes (5 high vegetation, 7 noise) stay; what it left unset (0
-    # never classified, 1 unassigned) becomes ground (2) where the labels say so.
+    # A scan's own classes (5 high vegetation, 40 beyond a 5-bit field) stay; what it
+    # left unset (0 never classified, 1 unassigned) becomes ground (2) where the labels
+    # say so, in the exact extra field amrst reads back too.
     xyz = np.c_[np.arange(8.0), np.zeros(8), np.zeros(8)]
-    given = np.array([0, 1, 5, 7, 0, 1, 5, 7], dtype=np.uint8)
+    given = np.array([0, 1, 5, 40, 0, 1, 5, 40], dtype=np.uint8)
     part = Cloud(xyz, attributes={"classification": given})
 
     def labels(moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,5 +151,14 @@ def test_labels_set_tree_and_ground_and_keep_the_classes_a_scan_set(tmp_path) ->
     io.write_merged(path, [part], [np.eye(4)], np.zeros(3), [1], labels=labels)
     back = io.read(path)
     order = np.argsort(back.xyz[:, 0])
-    assert back.attributes["classification"][order].tolist() == [2, 2, 5, 7, 1, 1, 5, 7]
+    assert back.attributes["classification"][order].tolist() == [
+        2,
+        2,
+        5,
+        40,
+        1,
+        1,
+        5,
+        40,
+    ]
     assert back.attributes["tree"][order].tolist() == [0, 0, 0, 0, 3, 3, 3, 3]
