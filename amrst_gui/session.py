@@ -395,7 +395,9 @@ class Session(QObject):
         if self._refuse_if_busy(f"run {steps.plain_label(step)}"):
             return
         if not self.has_scans:
-            self._fail("Open a target and a source scan first (File > Open).")
+            self._fail(
+                "Open a target and a source scan first (File > Open target…, Open source…)."
+            )
             return
         if twice := self._one_scan_twice():
             self._fail(twice)
@@ -462,7 +464,9 @@ class Session(QObject):
         if self._refuse_if_busy("add a manual pose"):
             return
         if not self.has_scans:
-            self._fail("Open a target and a source scan first (File > Open).")
+            self._fail(
+                "Open a target and a source scan first (File > Open target…, Open source…)."
+            )
             return
         chain = [s for s in self.plan("separate") if s == "separate"]
         if self.is_done("separate") and not self.is_stale("separate"):

@@ -3,12 +3,12 @@
 The first scan is the reference; ``--pairs I J FILE`` places the link of scans I and J
 from point pairs picked by hand (the app's Manual pose dock saves them), ``--leave-out
 I J`` leaves a link found wrong out, so the scans are joined through others, and
-``--accept I J`` accepts a link that needs review at the pose the run gives it. Exit 0
-when every scan is registered, or accepted by the technician (a link they accepted, in
-the app or with ``--accept``, at the pose it has, kept in the folder's review.json), 2
-on unusable input, 3
-when a scan could not be registered or needs review (the inventory is still written
-for the scans that were placed, and the message names the others).
+``--accept I J`` accepts a link that needed review at the folder's last run, at the pose
+checked there. Exit 0 when every scan is registered, or accepted by the technician (a
+link they accepted, in the app or with ``--accept``, at the pose it has, kept in the
+folder's review.json), 2 on unusable input, 3 when a scan could not be registered or
+needs review (the inventory is still written for the scans that were placed, and the
+message names the others).
 """
 
 from __future__ import annotations
@@ -86,10 +86,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar=("I", "J"),
-        help="accept the link of scans I and J at the pose this run gives it, after "
-        "checking it (report.html, the app's overlay): as the app's Accept, kept in "
-        "the folder's review.json, and the scans it places read accepted "
-        "(repeatable)",
+        help="accept the link of scans I and J that needed review at the last run into "
+        "--out, at the pose you checked there (report.html, the app's overlay): as "
+        "the app's Accept, kept in the folder's review.json, and the scans it places "
+        "read accepted (repeatable; with --overwrite)",
     )
     p.add_argument(
         "--plot-radius",
@@ -204,7 +204,8 @@ def run_cli(args: argparse.Namespace) -> int:
             "trees.csv scans_to_check); a link on "
             "the way to the reference is unsure or two links disagree: check the "
             "links in the app's Plot window (Open pair) and Accept a right one (or "
-            "--accept I J after checking it in report.html); leave "
+            "check it in --report's report.html and run again with --overwrite "
+            "--accept I J); leave "
             "a wrong one out (--leave-out I J) when other links join its scans, or "
             "place it by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,

@@ -581,8 +581,13 @@ def write_plot(
         read_review(out, labels),
         {t.tree_id: t.stem.dbh_xy for t in inventory.trees},
     )
-    if accepted:
-        review = replace(review, accepted={**review.accepted, **accepted})
+    new = {
+        key: T
+        for key, T in (accepted or {}).items()
+        if key not in review.accepted or not np.allclose(review.accepted[key], T)
+    }
+    if new:
+        review = replace(review, accepted={**review.accepted, **new})
         moved = True
     doc = plot_document(reg, inventory, labels, review, pairs_files)
     doc["review_lost"] = lost  # the review that found no tree at this run

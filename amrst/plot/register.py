@@ -175,27 +175,33 @@ class PlotRegistration:
         }
 
     def to_accept(
-        self, wanted: Collection[tuple[int, int]]
+        self, checked: Mapping[tuple[int, int], Transform]
     ) -> tuple[dict[tuple[int, int], Transform], list[str]]:
-        """Return the ``wanted`` links that need review at their poses, and notes.
+        """Return the checked links to accept, at the poses checked, and notes.
 
-        A note says of each other wanted link that it needs no acceptance
-        (registered, failed or left out). ``wanted`` are links in their own (target,
-        source) order (``check_links``).
+        ``checked``: links (in their own order) and the world poses the technician
+        checked. A link is accepted when it needs review and its pose now is the one
+        checked (``review.still_holds``); a note says why of each other one.
         """
         from amrst.review.verdict import FAILED, NEEDS_REVIEW
 
         states = self.link_states()
+        holds = self.accepted(checked)
         poses, notes = {}, []
-        for i, j in sorted(wanted):
-            status, T = states.get((i, j), ("left out", None))
-            if status == NEEDS_REVIEW and T is not None:
+        for (i, j), T in sorted(checked.items()):
+            status = states[i, j][0]
+            name = f"the link of scans {i + 1} and {j + 1}"
+            if (i, j) in holds:
                 poses[i, j] = T
-            else:
-                why = "failed: it has no pose" if status == FAILED else f"is {status}"
+            elif status == NEEDS_REVIEW:
                 notes.append(
-                    f"the link of scans {i + 1} and {j + 1} {why}: nothing to accept"
+                    f"{name} moved since the run you checked: check it again, then "
+                    "--accept it"
                 )
+            elif status == FAILED:
+                notes.append(f"{name} failed at this run: nothing to accept")
+            else:
+                notes.append(f"{name} is {status}: nothing to accept")
         return poses, notes
 
     def states(self, review: Mapping[tuple[int, int], Transform]) -> tuple[str, ...]:
@@ -567,8 +573,9 @@ def check_links(
     Raises
     ------
     InvalidInput
-        Pairs or a left-out link that is not one of the plot's, a link both given
-        pairs and left out, or point pairs that do not keep their distances.
+        Pairs, a left-out or an accepted link that is not one of the plot's, a link
+        both given pairs and left out, or both accepted and left out, or point pairs
+        that do not keep their distances.
     """
     from amrst.review.manual import pairs_disagree
 

@@ -78,9 +78,10 @@ def run_plot(
     left_out : collection of (int, int)
         Links not to register (found wrong).
     accept : collection of (int, int)
-        Links the technician checked and accepts at the pose this run gives them,
-        as the app's Accept: kept in ``review.json``. A link that needs no review
-        gets a note in ``PlotRun.notes`` instead.
+        Links that needed review at the folder's last run, which the technician
+        checked and accepts at the pose that run gave them, as the app's Accept: kept
+        in ``review.json`` (:func:`checked_poses`). A link that needs no review now, or
+        whose pose moved since, gets a note in ``PlotRun.notes``.
     scanners : mapping of int to (float, float, float), or None
         Where a scan's scanner stood, ``{scan from 0: (x, y, z)}`` in its file's
         coordinates: for a scan whose file does not say (a georeferenced LAS), so
@@ -115,6 +116,7 @@ def run_plot(
     labels = [spec for spec, _name in one_scan_specs(specs)]
     _check_count(labels, scanners or {})
     _, _, accepting = check_links(len(labels), 0, by_hand, left_out, accept)
+    checked = checked_poses(out, labels, accepting)
     added = read_review(out, labels).added  # before minutes of work, as check_out
     scans, area = _read_scans(
         labels, scanners or {}, area, plot_centre, SubReporter(reporter, 0.0, 0.4)
@@ -126,7 +128,7 @@ def run_plot(
         by_hand=by_hand,
         left_out=left_out,
     )
-    accepted, notes = reg.to_accept(accepting)
+    accepted, notes = reg.to_accept(checked)
     inventory = take_inventory(
         [s.analysis.cloud for s in scans],
         reg.poses,
@@ -158,6 +160,56 @@ def run_plot(
         area,
         tuple(notes),
     )
+
+
+def checked_poses(
+    out: Path, labels: Sequence[str], links: Collection[tuple[int, int]]
+) -> dict[tuple[int, int], np.ndarray]:
+    """Return the poses ``out``'s last run gave ``links`` (in their own order).
+
+    What the technician checked is that run's pose (its report, the app's overlay),
+    not the one the next run will compute.
+
+    Raises
+    ------
+    InvalidInput
+        No earlier run of these scans in ``out``, or a link it did not place.
+    """
+    from amrst.plot.export import read_plot_json
+    from amrst.types import check_rigid
+
+    if not links:
+        return {}
+    try:
+        doc = read_plot_json(out)
+    except (OSError, ValueError):
+        doc = {}
+    given = [s.get("label") for s in doc.get("scans", []) if isinstance(s, dict)]
+    if given != list(labels):
+        raise InvalidInput(
+            f"--accept takes the pose of a link you checked in {out}'s last run of "
+            "these scans, and there is none: run the plot first, check the link "
+            "(--report, the app's Plot window), then run it again with --accept."
+        )
+    poses = {}
+    for i, j in sorted(links):
+        entry = next(
+            (
+                ln
+                for ln in doc.get("links", [])
+                if isinstance(ln, dict)
+                and (ln.get("target"), ln.get("source")) == (i, j)
+            ),
+            {},
+        )
+        T = entry.get("T_target_source")
+        if T is None:
+            raise InvalidInput(
+                f"The link of scans {i + 1} and {j + 1} has no pose in {out}'s last "
+                "run: there is nothing to accept."
+            )
+        poses[i, j] = check_rigid(T, f"the link {i + 1}-{j + 1} in plot.json")
+    return poses
 
 
 def _check_inputs(specs: Sequence[str], out: Path) -> None:

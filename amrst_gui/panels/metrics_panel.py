@@ -278,7 +278,7 @@ class MetricsPanel(QWidget):
         return out
 
     def _show_strength(self) -> None:
-        """Fill the Strength tab; its title counts the weak axes, the first in view.
+        """Fill the Strength tab; its title counts the weak axes, the topmost in view.
 
         The tab shows fewer rows than axes on a small screen, and the verdict names a
         weak axis: the tab and the row it names must be found without scrolling.
@@ -302,7 +302,8 @@ class MetricsPanel(QWidget):
         title = f"Strength ({len(rows)} weak)" if rows else "Strength"
         self.tabs.setTabText(self.tabs.indexOf(self.strength_table), title)
         if weak_items:
-            self.strength_table.scrollToItem(weak_items[-1])
+            top = min(weak_items, key=self.strength_table.row)
+            self.strength_table.scrollToItem(top)
 
     def tree_values(self) -> dict[str, dict[str, float]]:
         """What the Tree tab shows: scan -> row key -> value in the row's unit."""

@@ -161,13 +161,31 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     assert doc["links"][0]["accepted"]
     assert all(r["scans_to_check"] == "" for r in _tree_rows(out))
 
-    # The same from the command line: --accept keeps the pose this run gives.
+    # The same from the command line: --accept takes the pose the last run gave,
+    # the one checked, and a later run without it keeps the acceptance.
     (out / "review.json").unlink()
     assert plot_main([*args, str(wrong), "--overwrite", "--accept", "2", "1"]) == 0
     doc = json.loads((out / "plot.json").read_text())
     assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
     review = json.loads((out / "review.json").read_text())
     np.testing.assert_allclose(review["accepted"]["1-2"], T, atol=1e-9)
+    stamp = (out / "review.json").stat().st_mtime_ns
+    assert plot_main([*args, str(wrong), "--overwrite", "--accept", "1", "2"]) == 0
+    assert (out / "review.json").stat().st_mtime_ns == stamp  # nothing new to keep
+    assert plot_main([*args, str(wrong), "--overwrite"]) == 0
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
+    capsys.readouterr()
+    accept = ["--accept", "1", "2", "--quiet"]
+    for bad, why in (
+        (
+            [*scans, "--out", str(out), "--overwrite", "--leave-out", "1", "2"],
+            "left out",
+        ),
+        ([*scans, "--out", str(tmp_path / "new")], "run the plot first"),
+    ):
+        assert plot_main([*bad, *accept]) == 2
+        assert why in capsys.readouterr().err
 
     # The right pairs move the link: the acceptance of the other pose no longer holds
     # (the link is registered on its own).
