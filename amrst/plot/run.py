@@ -43,7 +43,7 @@ class PlotRun:
     states: tuple[str, ...]  # each scan's state (registered, accepted, ...)
     lost: tuple[str, ...]  # the review that found no tree at this run
     area: PlotArea | None = None  # the fixed-radius plot asked for
-    notes: tuple[str, ...] = ()  # links asked to be accepted that needed no review
+    notes: tuple[str, ...] = ()  # --accept: links it left alone, and why
 
 
 def run_plot(
