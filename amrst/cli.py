@@ -120,9 +120,13 @@ def _print_summary(
         if result.strength is not None and result.strength.weak:
             line += f"; weak axes: {', '.join(result.strength.weak)}"
         print(line)
-    from amrst.stages.scene import plot_stems
+    from amrst.stages.scene import plot_stems, stem_counts
 
-    stems = None if stem_given else plot_stems(result.target.scene, result.source.scene)
+    stems = (
+        None
+        if stem_given
+        else plot_stems(stem_counts([result.target.scene, result.source.scene]))
+    )
     plot = stems is not None
     if stems is not None:
         print(

@@ -66,7 +66,9 @@ def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
             f"  joint refinement: mean NN-RMSE {j.rmse_before_m * 100:.2f} -> "
             f"{j.rmse_after_m * 100:.2f} cm ({'kept' if j.kept else 'not kept: worse'})"
         )
-    stems = _plot(result.stems)
+    from amrst.stages.scene import plot_stems
+
+    stems = plot_stems(result.stems)
     if stems is not None:
         lines.append(
             f"  the scans hold {', '.join(map(str, stems))} stems: a plot, not one "
@@ -77,13 +79,6 @@ def describe(result: MultiScanResult, labels: list[str]) -> list[str]:
         what = "the reference's stem nearest its middle" if stems else "tree"
         lines.append(f"  {what} (merged): {result.tree['merged'].summary()}")
     return lines
-
-
-def _plot(stems: tuple[int, ...]) -> tuple[int, ...] | None:
-    """Return the scans' stem counts when one holds a plot's (as a pair says), else None."""
-    from amrst.stages.scene import PLOT_STEMS
-
-    return stems if max(stems, default=0) >= PLOT_STEMS else None
 
 
 def run_register(

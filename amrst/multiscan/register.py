@@ -24,6 +24,7 @@ from amrst.multiscan.graph import Link, loop_closures, register_links, spanning_
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
+from amrst.stages.scene import stem_counts
 from amrst.types import Cloud, Transform, world_transform
 
 if TYPE_CHECKING:
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 
     from amrst.measure import TreeMeasures
     from amrst.params import RegistrationParams
-    from amrst.pipeline import RegistrationResult, ScanAnalysis
+    from amrst.pipeline import RegistrationResult
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,15 +171,11 @@ def _from_pair(
         timings=dict(result.timings),
         params=result.params,
         origins=tuple(_origin(c) for c in scans),
-        stems=_stem_counts(
-            [result.target, result.source][:: 1 if reference == 0 else -1]
+        stems=stem_counts(
+            a.scene
+            for a in [result.target, result.source][:: 1 if reference == 0 else -1]
         ),
     )
-
-
-def _stem_counts(analyses: Sequence[ScanAnalysis]) -> tuple[int, ...]:
-    """Count the stems the scene stage found in each scan (0 where it did not run)."""
-    return tuple(0 if a.scene is None else len(a.scene.stems) for a in analyses)
 
 
 def register_scans(
@@ -301,5 +298,5 @@ def register_scans(
         timings=timings,
         params=params,
         origins=tuple(_origin(c) for c in scans),
-        stems=_stem_counts(analyses),
+        stems=stem_counts(a.scene for a in analyses),
     )

@@ -24,12 +24,16 @@ of the file.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from amrst.stages.ground import fit_ground
 from amrst.stages.stems import Stem, assign_to_stems, find_stems
 from amrst.stages.voxels import finite_rows
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Sequence
 
 TREE, GROUND, OTHER, OUTSIDE = 0, 1, 2, 3
 LABEL_NAMES = ("tree", "ground", "other", "outside")
@@ -212,14 +216,18 @@ class SceneResult:
         return {n: int(np.sum(self.labels == k)) for k, n in enumerate(LABEL_NAMES)}
 
 
-def plot_stems(*scenes: SceneResult | None) -> tuple[int, ...] | None:
-    """Return each scene's stem count when one holds a plot's, else None.
+def stem_counts(scenes: Iterable[SceneResult | None]) -> tuple[int, ...]:
+    """Count the stems each scene holds (0 where the scene stage did not run)."""
+    return tuple(0 if s is None else len(s.stems) for s in scenes)
+
+
+def plot_stems(counts: Sequence[int]) -> tuple[int, ...] | None:
+    """Return the scans' stem counts when one holds a plot's, else None.
 
     A plot's: ``PLOT_STEMS`` or more. A registration of such scans measures one stem
     of many.
     """
-    stems = tuple(0 if s is None else len(s.stems) for s in scenes)
-    return stems if max(stems, default=0) >= PLOT_STEMS else None
+    return tuple(counts) if max(counts, default=0) >= PLOT_STEMS else None
 
 
 def understand_scene(

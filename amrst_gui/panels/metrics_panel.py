@@ -353,10 +353,12 @@ class MetricsPanel(QWidget):
 
     def _plot_note(self) -> str:
         """Say so when the scans hold a plot: the figures are one stem's of many."""
-        from amrst.stages.scene import plot_stems
+        from amrst.stages.scene import plot_stems, stem_counts
 
         analyses = [self.session.analysis(role) for role in ("target", "source")]
-        stems = plot_stems(*(None if a is None else a.scene for a in analyses))
+        stems = plot_stems(
+            stem_counts(None if a is None else a.scene for a in analyses)
+        )
         if stems is None:
             return ""
         return (
