@@ -171,6 +171,7 @@ class MetricsPanel(QWidget):
         self.tabs.addTab(self.strength_table, "Strength")
         self.tabs.addTab(tree_page, "Tree")
         self.tabs.addTab(self.timings, "Time per stage")
+        self.tabs.currentChanged.connect(self._show_weak)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         self.verdict_label = QLabel("")
@@ -278,10 +279,11 @@ class MetricsPanel(QWidget):
         return out
 
     def _show_strength(self) -> None:
-        """Fill the Strength tab; its title counts the weak axes, the topmost in view.
+        """Fill the Strength tab; its title counts the weak axes.
 
         The tab shows fewer rows than axes on a small screen, and the verdict names a
-        weak axis: the tab and the row it names must be found without scrolling.
+        weak axis: the tab and the row it names must be found without scrolling
+        (:meth:`_show_weak`).
         """
         weak_items = []
         for col, (stage, values) in enumerate(self.strength_values().items()):
@@ -301,9 +303,25 @@ class MetricsPanel(QWidget):
         rows = {self.strength_table.row(item) for item in weak_items}
         title = f"Strength ({len(rows)} weak)" if rows else "Strength"
         self.tabs.setTabText(self.tabs.indexOf(self.strength_table), title)
-        if weak_items:
-            top = min(weak_items, key=self.strength_table.row)
-            self.strength_table.scrollToItem(top)
+        self._show_weak()
+
+    def _show_weak(self) -> None:
+        """Scroll the Strength tab, when shown, to its topmost weak row.
+
+        A hidden table has no height to scroll in: it scrolls when its tab is opened.
+        """
+        table = self.strength_table
+        if self.tabs.currentWidget() is not table:
+            return
+        weak = [
+            item
+            for row in range(table.rowCount())
+            for col in range(table.columnCount())
+            if (item := table.item(row, col)) is not None
+            and item.text().endswith("weak")
+        ]
+        if weak:
+            table.scrollToItem(weak[0])
 
     def tree_values(self) -> dict[str, dict[str, float]]:
         """What the Tree tab shows: scan -> row key -> value in the row's unit."""

@@ -68,6 +68,10 @@ def test_failed_verdict_everywhere_run_all_stops_and_export_asks_after_accept(
     assert "weak)" in metrics.tabs.tabText(metrics.tabs.indexOf(strength))
     rz = strength.item(strength.rowCount() - 1, 1)
     assert rz.text().endswith("weak")
+    metrics.tabs.setCurrentWidget(strength)  # opened: the weak row is in view
+    qtbot.waitUntil(lambda: strength.isVisible())
+    shown = strength.viewport().rect()
+    assert shown.contains(strength.visualItemRect(rz).center())
     # Export asks; Cancel writes nothing.
     box = win.export_dialog()
     box.folder_edit.setText(str(tmp_path / "out"))
