@@ -143,6 +143,8 @@ class TreePanel(QWidget):
         self.setObjectName("tree_panel")
         self.tree_id: str | None = None
         self._shown: tuple[PlotOutcome, int] | None = None
+        # A run writes the review file the marks go into: nothing is given meanwhile.
+        self.locked = False
         self.review = PlotReview()
         self.height_index = SLICE_HEIGHTS_M.index(BREAST_HEIGHT_M)
         self.title = QLabel("No tree selected")
@@ -304,8 +306,18 @@ class TreePanel(QWidget):
             for name, text in figures(tree, self.review, outcome.unsure):
                 self.values[name].setText(text)
             self.show_height(self.height_index)
+        self._update_buttons()
+
+    def set_locked(self, locked: bool) -> None:
+        """Refuse marks and DBHs (``locked``: a run goes on), or take them again."""
+        if locked and self.slice_view.measuring:
+            self.measure_button.setChecked(False)
+        self.locked = locked
+        self._update_buttons()
+
+    def _update_buttons(self) -> None:
         for button in self.buttons.values():
-            button.setEnabled(self.tree_id is not None)
+            button.setEnabled(self.tree_id is not None and not self.locked)
         self._update_hand_buttons()
 
     def show_height(self, index: int) -> None:
@@ -380,7 +392,7 @@ class TreePanel(QWidget):
         )
 
     def _update_hand_buttons(self) -> None:
-        tree = self.tree_id is not None and self._shown is not None
+        tree = self.tree_id is not None and self._shown is not None and not self.locked
         self.measure_button.setEnabled(tree)
         measuring = self.slice_view.measuring
         self.keep_button.setEnabled(measuring and self.slice_view.circle() is not None)

@@ -772,7 +772,7 @@ class PlotWindow(QMainWindow):
         Asked for while the scans of a file are listed, or the results folder's plot
         of them opened, it runs once that is done.
         """
-        from amrst_gui import engine_process, workers
+        from amrst_gui import dialogs, engine_process, workers
 
         if self.listing or self.opening:
             self.run_queued = True
@@ -797,6 +797,11 @@ class PlotWindow(QMainWindow):
         overwrite = self._may_replace(out)
         if overwrite is None:
             self._say(f"Not run: {out} is kept as it is.", error=True)
+            return
+        if (lost := self.tree_panel.unkept()) and not dialogs.confirm_discard(
+            self, "Running the plot", lost
+        ):
+            self._say("Not run: your DBH being measured is kept.", error=True)
             return
         self.progress.setValue(0)
         self._say("Running the plot…")
@@ -1544,6 +1549,7 @@ class PlotWindow(QMainWindow):
             self.scanner_button.isEnabled() and len(self.specs) > 2
         )
         self.cancel_button.setEnabled(self.busy)
+        self.tree_panel.set_locked(self.busy)
         # A run or an opening ends by showing its plot's area in these fields.
         self.radius_spin.setEnabled(not self.busy)
         self._on_radius(self.radius_spin.value())

@@ -1281,7 +1281,16 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     plot.out_edit.setText(str(tmp_path / "again"))  # a new folder: nothing to ask
     plot.run()
     assert plot.busy
-    for button in (plot.run_button, plot.add_button, plot.export_button):
+    # The run writes the review: no mark nor DBH is taken meanwhile (none lost).
+    panel = plot.tree_panel
+    assert panel.tree_id is not None
+    for button in (
+        plot.run_button,
+        plot.add_button,
+        plot.export_button,
+        *panel.buttons.values(),
+        panel.measure_button,
+    ):
         assert not button.isEnabled()
     plot.shutdown()  # the window closes during the run
     assert plot.run_button.isEnabled()
@@ -1655,6 +1664,12 @@ def test_a_dbh_measured_and_not_kept_is_asked_about_before_it_goes(
     plot.set_mark(tree.tree_id, "check")  # a mark given meanwhile keeps the points
     assert len(view.clicks) == 4
     assert view.measuring
+    plot.out_edit.setText(str(tmp_path / "again"))  # a new folder: nothing else asked
+    discard_answers.append(False)
+    plot.run()  # refused: not run, the points stay
+    assert not plot.busy
+    assert discard_answers.asked[-1] == "Running the plot"
+    assert len(view.clicks) == 4
     close_answers.append(False)
     assert not plot.close()
     assert (
