@@ -317,7 +317,7 @@ def register_plot_link(
         )
     for k, pose in enumerate(poses):
         reporter.check_cancelled()
-        label = f"{len(pose.pairs)} shared stems"
+        label = f"pose of {len(pose.pairs)} stem pairs"
         cands.append(_score_stem_pose(scorer, pose, MANUAL_ID_BASE + k, label, on))
     cands.sort(key=lambda c: -c.score)
     ranked = CandidateList(
@@ -330,13 +330,16 @@ def register_plot_link(
         won = poses[coarse.candidate.id - MANUAL_ID_BASE]
         start, confidence = coarse.T_target_source, coarse.confidence
         score = coarse.candidate.score
-        message = f"{len(won.pairs)} shared stems; {coarse.message}"
+        # The pairs that made the pose; more stems may meet under the refined pose
+        # (the link's shared stems).
+        message = f"pose of {len(won.pairs)} stem pairs; {coarse.message}"
     elif held is not None:
         won = poses[held]
         start, confidence = won.T_target_source, 1.0
         score = next(c.score for c in cands if c.id == MANUAL_ID_BASE + held)
         message = (
-            f"{len(won.pairs)} shared stems meet within {100 * won.rms_m:.0f} cm and "
+            f"the {len(won.pairs)} stem pairs of the pose meet within "
+            f"{100 * won.rms_m:.0f} cm and "
             f"no other pose is held by as many; the scans share too little surface "
             f"for the point score to judge ({score:.0%})"
         )

@@ -357,7 +357,9 @@ class MatchesPanel(QWidget):
             # needed" stays in the tooltip (the Matches table keeps its rows).
             nxt = "" if verdict.ok else f" <i>Next: {verdict.next_step}</i>"
             lines.append(f"<b>{verdict.headline}</b>: {verdict.reason}{nxt}")
-        counts = f"{len(s.matches)} candidates, {len(s.rejected)} rejected."
+        from amrst.plot.stand import counted
+
+        counts = f"{counted(len(s.matches), 'candidate')}, {len(s.rejected)} rejected."
         if coarse is not None:
             # The accepted solution's own confidence (a stored one's as stored), as
             # the verdict above judges it; the list's while another is the solution.

@@ -74,6 +74,7 @@ class LinkLine:
     shared: int
     message: str
     score: float = float("nan")  # the point score of its pose
+    confidence: float = float("nan")  # the confidence its status was judged by
     # Its pose: the source scan's file coordinates into the target's (None: failed),
     # as plot.json and review.json give it; a point among the source's (its offset).
     T_world: np.ndarray | None = None
@@ -284,6 +285,7 @@ def _link_line(entry: Mapping[str, Any], offsets: np.ndarray) -> LinkLine:
         shared=int(entry["stems_shared"]),
         message=message,
         score=_float(entry["score"]),
+        confidence=_float(entry.get("confidence")),
         T_world=None if T is None else check_rigid(T, "a link's T_target_source"),
         at=np.asarray(offsets[source], float),
         pairs=None if p is None else ((int(p["target"]), int(p["source"])), p["file"]),
@@ -383,7 +385,7 @@ def stored_link(link: LinkLine) -> StoredLinkResult | None:
             "save them, and use them for this link in the plot window.",
         },
         score=link.score,
-        confidence=float("nan"),
+        confidence=link.confidence,
         verified=link.status != FAILED,
         origin=link.origin,
         metrics_fine=None,

@@ -294,7 +294,8 @@ class PlotWindow(QMainWindow):
         self.links = table(LINK_COLUMNS, "plot_links")
         self.links.setMaximumHeight(ROW_PX * 6 + 30)
         self.links.setToolTip(
-            "Every pair of scans: its state, the stems it shares, the overlap, the "
+            "Every pair of scans: its state, the stems it shares (within 30 cm at the "
+            "link's pose; its pose may have come from fewer), the overlap, the "
             "residual (how far the second scan lies from the first one's surfaces at "
             "the link's pose) and what found the pose (stems, or the two-scan "
             "engine). ★: in the spanning tree that places the scans."

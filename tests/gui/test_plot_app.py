@@ -666,6 +666,11 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert stored is not None
     assert stored.label == "plot link S1–S2"
     assert stored.verdict["status"] == "registered"
+    # The confidence shown is the one the link's status was judged by.
+    assert stored.confidence == plot.outcome.links[0].confidence > 0.5
+    assert (
+        f"confidence {stored.confidence:.0%}" in win.matches_panel.coarse_label.text()
+    )
     assert session.fine is not None
     shown = session.world(session.fine.T_target_source)
     assert np.allclose(shown, plot.outcome.links[0].T_world, atol=1e-9)
