@@ -74,13 +74,13 @@ class LinkLine:
     shared: int
     message: str
     score: float = float("nan")  # the point score of its pose
-    confidence: float = float("nan")  # the confidence its status was judged by
     # Its pose: the source scan's file coordinates into the target's (None: failed),
     # as plot.json and review.json give it; a point among the source's (its offset).
     T_world: np.ndarray | None = None
     at: np.ndarray = field(default_factory=lambda: np.zeros(3))
     # Placed from point pairs: ((scan of the target points, of the source's), file).
     pairs: tuple[tuple[int, int], str] | None = None
+    confidence: float = float("nan")  # the confidence its status was judged by
 
     @property
     def key(self) -> tuple[int, int]:

@@ -98,6 +98,8 @@ log = logging.getLogger("amrst_gui.plot")
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 #: Set after a scan's line in the scan list when its scanner position is given.
 GIVEN_MARK = "; scanner given"
+#: A tree selected stays selected after a run when one stands this close (m) to it.
+SAME_TREE_M = 0.3
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -166,6 +168,16 @@ def _run_choices(
         {ln.pairs[0]: ln.pairs[1] for ln in o.links if ln.pairs},
         {k: s.given for k, s in enumerate(o.scans) if s.given is not None},
     )
+
+
+def _same_tree(before: PlotOutcome, k: int, now: PlotOutcome) -> int | None:
+    """The tree of ``now`` that stands where tree ``k`` of ``before`` stood (None:
+    none within ``SAME_TREE_M``, or the plot has another reference)."""
+    if now.labels[:1] != before.labels[:1] or not now.trees:
+        return None
+    d = [math.dist(t.xyz[:2], before.trees[k].xyz[:2]) for t in now.trees]
+    nearest = min(range(len(d)), key=d.__getitem__)
+    return nearest if d[nearest] <= SAME_TREE_M else None
 
 
 def _numbered(o: PlotOutcome, labels: list[str]) -> str:
@@ -291,6 +303,10 @@ class PlotWindow(QMainWindow):
         )
         self.status.setObjectName("plot_status")
         self.status.setWordWrap(True)
+        # Room for three lines from the start: the tables below stay put as the
+        # messages come and go.
+        self.status.setAlignment(Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
+        self.status.setMinimumHeight(3 * self.status.fontMetrics().lineSpacing())
         self.links = table(LINK_COLUMNS, "plot_links")
         self.links.setMaximumHeight(ROW_PX * 6 + 30)
         self.links.setToolTip(
@@ -1295,6 +1311,7 @@ class PlotWindow(QMainWindow):
         except AmrstError as exc:
             review, self.review_error = PlotReview(), str(exc)
         self.review = review
+        before, shown = self.outcome, self.stem_map.selected
         self.outcome = None
         self.stem_map.select(None)  # tree k of the last run is not tree k of this one
         self._show_review()
@@ -1325,6 +1342,10 @@ class PlotWindow(QMainWindow):
             done += f". Your review is not shown: {self.review_error}"
         self._say(f"{self._summary()}; {done}", error=unsure or bool(self.review_error))
         self.plot_done.emit(o)
+        if not opened and before is not None and shown is not None:
+            again = _same_tree(before, shown, o)
+            if again is not None:
+                self.select_tree(again)
         if self.run_queued:
             self.run_queued = False
             self.run()

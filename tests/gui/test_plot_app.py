@@ -1527,10 +1527,16 @@ def test_marks_hold_when_a_scan_is_removed_and_the_plot_run_again(
     monkeypatch.setattr(
         plot_window, "confirm", lambda _p, _t, text: asked.append(text) or True
     )
+    plot.select_tree(1)
+    shown = plot.tree_panel.tree_id
+    _run(qtbot, plot)  # the same scans again: the tree shown stays shown
+    assert "a plot of these scans" in asked[0]
+    assert plot.stem_map.selected is not None
+    assert plot.tree_panel.tree_id == shown
     plot.scan_list.setCurrentRow(2)
     plot.remove_button.click()
     _run(qtbot, plot)
-    assert "same reference with other scans" in asked[0]
+    assert "same reference with other scans" in asked[1]
     assert plot.review.marks == marks  # shown, and kept by the next mark
     plot.set_mark(plot.outcome.trees[2].tree_id, "ok")
     assert len(read_review(out, plot.outcome.labels).marks) == 3
