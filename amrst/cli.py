@@ -216,9 +216,11 @@ def _register_scans(args: argparse.Namespace, params: RegistrationParams) -> int
 
 def _cmd_register(args: argparse.Namespace) -> int:
     from amrst import io
+    from amrst.files.outdir import folder_stamp
     from amrst.pipeline import register
     from amrst.results.documents import record_from_registration, result_documents
     from amrst.results.export import (
+        MANAGED_NAMES,
         check_output_dir,
         export_registration,
         output_names,
@@ -250,6 +252,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     refuse_other_export(
         args.out, [str(args.target), str(args.source)], overwrite=args.overwrite
     )
+    # What the folder holds now is what this run may replace (not another run's).
+    before = folder_stamp(args.out, [*MANAGED_NAMES, REPORT_NAME])
     pairs = read_pairs(Path(args.pairs)) if args.pairs else None
     if same_file(args.target, args.source):
         raise InvalidInput(
@@ -301,6 +305,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         parts=tuple(parts),
         remove_stale=True,
         documents=documents,
+        unchanged=before,
     )
     if args.report:  # the registration report, pictures drawn with Agg
         from amrst.results.report_html import inputs_from_result, write_report

@@ -123,6 +123,32 @@ def _plain(name: str) -> bool:
     )
 
 
+class FolderChanged(InvalidInput):
+    """Another run wrote the output folder while this one worked: nothing written."""
+
+
+#: What an output folder held of some names when a run began (:func:`folder_stamp`).
+FolderStamp = dict[str, tuple[int, int, int] | None]
+
+
+def folder_stamp(folder: str | os.PathLike[str], names: Iterable[str]) -> FolderStamp:
+    """Say what ``folder`` holds under ``names``: inode, size, change time (ns).
+
+    None where an entry is missing. A run takes it before its long work and hands it to :func:`replace_files`, which
+    refuses to write when the folder no longer matches: another run wrote it meanwhile,
+    and replacing that run's files would lose them without a word.
+    """
+    stamp: FolderStamp = {}
+    for name in sorted(set(names)):
+        try:
+            st = os.lstat(Path(folder) / name)
+        except OSError:
+            stamp[name] = None
+        else:
+            stamp[name] = (st.st_ino, st.st_size, st.st_mtime_ns)
+    return stamp
+
+
 def replace_files(
     folder: str | os.PathLike[str],
     writers: Mapping[str, Callable[[Path], object]],
@@ -130,6 +156,7 @@ def replace_files(
     managed: Collection[str],
     remove: Iterable[str] = (),
     lock_timeout_s: float = DEFAULT_TIMEOUT_S,
+    unchanged: FolderStamp | None = None,
 ) -> tuple[list[Path], list[str]]:
     """Write ``writers`` into ``folder`` and remove ``remove``, as one unit.
 
@@ -146,6 +173,9 @@ def replace_files(
         Names of earlier files to drop from the set (if present).
     lock_timeout_s : float
         How long to wait for another writer of the folder.
+    unchanged : FolderStamp or None
+        What the folder held when the run began (:func:`folder_stamp`): nothing is
+        written when it holds something else now.
 
     Returns
     -------
@@ -158,6 +188,8 @@ def replace_files(
         A write failed: the folder keeps its old set (and no debris of this run).
     FolderBusy
         Another writer kept the folder for ``lock_timeout_s``.
+    FolderChanged
+        The folder no longer holds what ``unchanged`` says.
     """
     out = Path(folder)
     try:
@@ -170,6 +202,12 @@ def replace_files(
     real = Path(os.path.realpath(out))
     with FolderLock(real, lock_timeout_s) as lock:
         recover(real)
+        if unchanged is not None and folder_stamp(real, unchanged) != unchanged:
+            raise FolderChanged(
+                f"{out} changed while this run worked (another run wrote it): nothing "
+                "was written. Look at what it holds, then run again (or choose "
+                "another folder)."
+            )
         gone = [n for n in dict.fromkeys(remove) if n not in writers]
         gone = [n for n in gone if os.path.lexists(real / n)]
         if _can_swap(real, managed):

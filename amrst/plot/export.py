@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Mapping, Sequence
     from pathlib import Path
 
+    from amrst.files.outdir import FolderStamp
     from amrst.io.las_write import PointLabels
     from amrst.plot.inventory import Inventory, Tree
     from amrst.plot.register import PlotRegistration
@@ -549,6 +550,7 @@ def write_plot(
     pairs_files: Mapping[tuple[int, int], str] | None = None,
     area: PlotArea | None = None,
     accepted: Mapping[tuple[int, int], Transform] | None = None,
+    unchanged: FolderStamp | None = None,
 ) -> tuple[list[Path], list[str], list[str]]:
     """Write the run's files into ``out`` as one unit.
 
@@ -568,6 +570,8 @@ def write_plot(
     ``area``: the fixed-radius plot, ``plot_area`` in plot.json (the report's stand
     figures count the trees inside it, per hectare). ``accepted``: links the
     technician accepts at these (world) poses, added to the folder's review.
+    ``unchanged``: what ``out`` held when the run began; nothing is written when
+    another run changed it since (:func:`amrst.files.outdir.folder_stamp`).
     """
     from amrst.files.atomic import strict_json
     from amrst.files.outdir import replace_files
@@ -619,7 +623,9 @@ def write_plot(
     ]
     gone += [] if write_cloud else [PLOT_CLOUD]
     gone += [] if report else [REPORT]
-    written, _ = replace_files(out, writers, managed=MANAGED, remove=gone)
+    written, _ = replace_files(
+        out, writers, managed=MANAGED, remove=gone, unchanged=unchanged
+    )
     if moved:
         write_review(out, labels, review)
     return written, states, lost

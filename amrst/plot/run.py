@@ -102,14 +102,16 @@ def run_plot(
         A folder or an input that cannot make a plot; raised before the scans are
         registered.
     """
+    from amrst.files.outdir import folder_stamp
     from amrst.io.scans import one_scan_specs
-    from amrst.plot.export import check_out, write_plot
+    from amrst.plot.export import MANAGED, check_out, write_plot
     from amrst.plot.inventory import take_inventory
     from amrst.plot.register import check_links, register_plot
     from amrst.plot.review import read_review
     from amrst.review.pairs_file import read_pairs
 
     check_out(out, overwrite)
+    before = folder_stamp(out, MANAGED)  # what this run may replace, not another's
     _check_inputs([*specs, *(pairs or {}).values()], out)
     by_hand = {link: read_pairs(Path(f)) for link, f in (pairs or {}).items()}
     area = _plot_area(plot_radius_m, plot_centre)
@@ -148,6 +150,7 @@ def run_plot(
         pairs_files={link: str(Path(f).resolve()) for link, f in (pairs or {}).items()},
         area=area,
         accepted=accepted,
+        unchanged=before,
     )
     reporter.progress(1.0, "Plot written")
     return PlotRun(

@@ -23,7 +23,7 @@ from amrst.errors import InvalidInput
 from amrst.files.atomic import write_json_atomic, write_text_atomic
 from amrst.files.folderlock import DEFAULT_TIMEOUT_S
 from amrst.files.outcheck import check_output_folder, same_file
-from amrst.files.outdir import clear_dead_run, replace_files
+from amrst.files.outdir import FolderStamp, clear_dead_run, replace_files
 from amrst.params import RegistrationParams, params_to_dict
 from amrst.results.documents import CONVENTION, metrics_csv
 from amrst.results.report_html import REPORT_NAME
@@ -276,6 +276,7 @@ def export_registration(
     remove_stale: bool = False,
     lock_timeout_s: float = DEFAULT_TIMEOUT_S,
     documents: ResultDocuments | None = None,
+    unchanged: FolderStamp | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -306,6 +307,9 @@ def export_registration(
     documents : ResultDocuments or None
         The result files from :func:`amrst.results.documents.result_documents`; when given,
         ``metrics``, ``T_coarse`` and ``transform_extra`` are not used.
+    unchanged : FolderStamp or None
+        What ``out_dir`` held when the run began: nothing is written when another run
+        changed it since (amrst.files.outdir.folder_stamp).
 
     Returns
     -------
@@ -383,6 +387,7 @@ def export_registration(
         managed=MANAGED_NAMES,
         remove=stale,
         lock_timeout_s=lock_timeout_s,
+        unchanged=unchanged,
     )
     if removed:
         logger.warning(

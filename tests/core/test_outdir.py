@@ -168,6 +168,35 @@ def test_a_failed_write_leaves_the_old_set_and_no_debris(tmp_path: Path) -> None
     assert _debris(out) == []
 
 
+def test_a_folder_another_run_wrote_meanwhile_is_not_written(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    _export(out, 0.0, "ply")
+    names = ["transform.json", "metrics.json", "report.html"]
+    seen = outdir.folder_stamp(out, names)
+    assert seen["transform.json"] is not None
+    assert seen["report.html"] is None
+    _export(out, 1.0, "ply")  # another run, while this one worked
+    before = _visible(out)
+    with pytest.raises(outdir.FolderChanged, match="another run wrote it"):
+        outdir.replace_files(
+            out,
+            {"transform.json": lambda p: p.write_text("{}")},
+            managed={"transform.json"},
+            unchanged=seen,
+        )
+    assert _visible(out) == before
+    assert _debris(out) == []
+    # Unchanged since it was seen: written.
+    seen = outdir.folder_stamp(out, names)
+    outdir.replace_files(
+        out,
+        {"transform.json": lambda p: p.write_text("{}")},
+        managed={"transform.json"},
+        unchanged=seen,
+    )
+    assert (out / "transform.json").read_text() == "{}"
+
+
 _WRITER = textwrap.dedent(
     """
     import os, sys, time
