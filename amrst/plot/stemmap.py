@@ -103,7 +103,7 @@ class StemMapParams:
     wide_arc_deg: float = 150.0
     wide_ok_arc_deg: float = 240.0
     ok_rmse_m: float = 0.006
-    ok_outlier_share: float = 0.4
+    ok_outlier_share: float = 0.3
     # Height flags: fewer points than min_top_points in the top metre of the tree is
     # top not seen (hidden or out of range; it wins over lean, as the worse); a
     # stem leaning more than lean_flag_deg, or a top farther off the vertical over
