@@ -298,7 +298,7 @@ def _register(
     clouds: str,
     threads: int = 2,
 ) -> tuple[str, list[str]]:
-    from amrst.io.checks import refuse_odd_coordinates
+    from amrst.io.checks import check_scans
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
     from amrst.multiscan.cli import write_scan_report
@@ -311,8 +311,8 @@ def _register(
         found = read_scans(base / spec)
         if len(found) != 1:
             raise_many(spec, len(found))
-        refuse_odd_coordinates(found[0], spec)
         scans.append(found[0])
+    check_scans(scans, list(entry.scans))  # as amrst register checks them
     truth = None
     if entry.truth is not None:
         truth = read_scan_truth(base / entry.truth, len(scans), entry.reference)

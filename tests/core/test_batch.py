@@ -248,3 +248,20 @@ def test_a_results_file_in_the_way_is_refused_before_any_tree(tmp_path, sample_p
     (tmp_path / "results").write_text("not a folder")
     with pytest.raises(InvalidInput, match="results folder"):
         run_batch(load_campaign(tmp_path), workers=1)
+
+
+def test_a_tree_whose_scans_are_one_scan_twice_fails_as_register_refuses(
+    tmp_path, sample_pair
+):
+    from amrst.campaign.run import run_tree, tree_stamp
+    from amrst.params import RegistrationParams, params_to_dict
+
+    (tmp_path / "T01").mkdir()
+    for name in ("target.ply", "source.ply"):  # a copy of the same scan
+        shutil.copy(sample_pair.target_path, tmp_path / "T01" / name)
+    campaign, _ = init_campaign(tmp_path)
+    (entry,) = campaign.trees
+    doc = params_to_dict(RegistrationParams())
+    got = run_tree(str(tmp_path), entry, doc, tree_stamp(tmp_path, entry, doc))
+    assert not got["ok"]
+    assert "holds the same points as" in got["error"]
