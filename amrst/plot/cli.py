@@ -177,12 +177,13 @@ def run_cli(args: argparse.Namespace) -> int:
     )
     bundle = run.registration.bundle_rmse_m
     print(
-        f"{out}: {len(run.inventory.trees)} trees; {len(named[REGISTERED])} of "
+        f"{out}: {counted(len(run.inventory.trees), 'tree')}; {len(named[REGISTERED])} of "
         f"{len(run.labels)} scans registered{counts}"
         + (f", bundle error {100 * bundle:.1f} cm" if math.isfinite(bundle) else ""),
         file=sys.stderr,
     )
-    print(f"  {_flags_line(run.inventory.trees)}", file=sys.stderr)
+    if run.inventory.trees:
+        print(f"  {_flags_line(run.inventory.trees)}", file=sys.stderr)
     print(f"  wrote {_file_list(list(run.written))}", file=sys.stderr)
     if run.area is not None:
         _say_stand(out, run.area)
