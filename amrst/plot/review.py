@@ -230,18 +230,26 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
     if not path.is_file():
         raise InvalidInput(f"{path} is not a file: move it away to review the plot.")
     doc = review_document(out)
+    field = "scans"  # the field read, for the message when it cannot be
     try:
+        if not isinstance(doc, dict):
+            raise TypeError("not a JSON object")
         scans = [str(label) for label in list(doc["scans"])]
+        field = "marks"
         marks = {str(k): str(v) for k, v in dict(doc["marks"]).items()}
+        field = "accepted"
         accepted = {
             _key(k): check_rigid(T, f"the pose accepted for link {k}")
             for k, T in dict(doc.get("accepted") or {}).items()
         }
+        field = "dbh"
         dbh = {str(k): _circle(v) for k, v in dict(doc.get("dbh") or {}).items()}
+        field = "added"
         points = [_point(n, v) for n, v in enumerate(list(doc.get("added") or []))]
         added = dict(points)
         if len(added) < len(points):
             raise ValueError("two trees added under one id")
+        field = "at"
         at = {str(k): _xy(v) for k, v in dict(doc.get("at") or {}).items()}
     except (
         InvalidInput,  # an accepted pose that is no rigid transform
@@ -252,8 +260,16 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         OverflowError,
         RecursionError,
     ) as exc:
+        what = (
+            f"it has no {field!r}"
+            if isinstance(exc, KeyError)
+            else "it is no JSON object"
+            if not isinstance(doc, dict)
+            else f"its {field!r} is not what the app writes"
+            + (f" ({exc})" if isinstance(exc, (InvalidInput, ValueError)) else "")
+        )
         raise InvalidInput(
-            f"{path} is no review file ({exc}); move it away to review the plot again."
+            f"{path} is no review file: {what}; move it away to review the plot again."
         ) from exc
     if any(v not in MARKS for v in marks.values()):
         raise InvalidInput(

@@ -926,7 +926,11 @@ def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
     from amrst.errors import InvalidInput
 
     bad = {
-        "no review file": {"scans": 5, "marks": {}},
+        "no review file: its 'scans' is not what the app writes": {
+            "scans": 5,
+            "marks": {},
+        },
+        "no review file: it has no 'marks'": {"scans": []},
         "not a rotation": {
             "scans": [],
             "marks": {},
@@ -953,6 +957,9 @@ def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
         (tmp_path / "review.json").write_text(text)
         with pytest.raises(InvalidInput, match=words):
             read_review(tmp_path, [])
+    (tmp_path / "review.json").write_text("[1, 2]")
+    with pytest.raises(InvalidInput, match="no review file: it is no JSON object"):
+        read_review(tmp_path, [])
     (tmp_path / "review.json").write_text("[" * 100_000)
     with pytest.raises(InvalidInput, match="no review file"):
         read_review(tmp_path, [])
