@@ -769,14 +769,14 @@ def _link_key(
         return i, j
     if (j, i) in pairs:
         return j, i
-    if i == j:
+    if not (0 <= i < n and 0 <= j < n):
+        missing = i if not 0 <= i < n else j
         raise InvalidInput(
-            f"Scan {i + 1} named twice for a link: name two different scans."
+            f"Scan {missing + 1} named for a link does not exist: the plot has scans "
+            f"1 to {n}."
         )
-    missing = i if not 0 <= i < n else j
     raise InvalidInput(
-        f"Scan {missing + 1} named for a link does not exist: the plot has scans 1 "
-        f"to {n}."
+        f"Scan {i + 1} named twice for a link: name two different scans."
     )
 
 

@@ -199,7 +199,11 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     capsys.readouterr()
     assert plot_main([*args, str(right), "--overwrite", "--accept", "1", "2"]) == 0
     assert "scans 1 and 2 is registered: nothing to accept" in capsys.readouterr().err
-    for bad, why in ((["1", "1"], "named twice"), (["1", "3"], "scans 1 to 2")):
+    for bad, why in (
+        (["1", "1"], "named twice"),
+        (["1", "3"], "scans 1 to 2"),
+        (["3", "3"], "Scan 3 named for a link does not exist"),
+    ):
         assert plot_main([*args, str(right), "--overwrite", "--accept", *bad]) == 2
         assert why in capsys.readouterr().err
 
