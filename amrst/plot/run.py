@@ -179,6 +179,7 @@ def checked_poses(
         No earlier run of these scans in ``out``, or a link it did not place.
     """
     from amrst.plot.export import read_plot_json
+    from amrst.plot.review import same_scans
     from amrst.types import check_rigid
 
     if not links:
@@ -187,8 +188,10 @@ def checked_poses(
         doc = read_plot_json(out)
     except (OSError, ValueError):
         doc = {}
-    given = [s.get("label") for s in doc.get("scans", []) if isinstance(s, dict)]
-    if given != list(labels):
+    scans = [s for s in doc.get("scans", []) if isinstance(s, dict)]
+    given = [str(s.get("label")) for s in scans]
+    # By content where the paths differ: the same scans moved or copied since.
+    if not same_scans(given, labels, [s.get("file_id") for s in scans]):
         raise InvalidInput(
             f"--accept takes the pose of a link you checked in {out}'s last run of "
             "these scans, and there is none: run the plot first, check the link "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -173,6 +174,14 @@ def test_a_link_the_technician_accepted_clears_its_scan_at_that_pose_only(
     assert plot_main([*args, str(wrong), "--overwrite", "--accept", "1", "2"]) == 0
     assert (out / "review.json").stat().st_mtime_ns == stamp  # nothing new to keep
     assert plot_main([*args, str(wrong), "--overwrite"]) == 0
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
+    # The same scans copied elsewhere are the scans of that run: --accept holds.
+    (out / "review.json").unlink()
+    (tmp_path / "moved").mkdir()
+    moved = [shutil.copy(f, tmp_path / "moved") for f in scans]
+    again = [*moved, *args[len(scans) :], str(wrong), "--overwrite"]
+    assert plot_main([*again, "--accept", "1", "2"]) == 0
     doc = json.loads((out / "plot.json").read_text())
     assert [s["state"] for s in doc["scans"]] == ["registered", "accepted"]
     capsys.readouterr()
