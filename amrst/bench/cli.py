@@ -125,12 +125,20 @@ def run_cli(args: argparse.Namespace) -> int:
                 "folder that holds them (each with a target.* and a source.* scan "
                 "and truth.json), or make cases with 'amrst simulate'."
             )
+        plots = sum(is_plot_case(f) for f in folders)
+        if 0 < plots < len(folders):
+            raise InvalidInput(
+                f"{args.cases_dir} holds {plots} plot case(s) among {len(folders)} "
+                "(the others are tree pairs, or their truth.json cannot be read): a "
+                "plot runs amrst plot, a pair amrst register; bench them apart with "
+                "--cases PATTERN."
+            )
         check_outside(args.out, args.cases_dir, "cases folder")
         check_out(Path(args.out), args.overwrite)
     except AmrstError as exc:
         print(f"amrst bench: {exc}", file=sys.stderr)
         return 2
-    if folders and all(is_plot_case(f) for f in folders):
+    if plots:
         return _run_plot_bench(args)
     command = shlex.join(["amrst", "bench", *sys.argv[2:]]) if len(sys.argv) > 1 else ""
     try:

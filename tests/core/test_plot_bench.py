@@ -166,3 +166,20 @@ def test_a_stem_without_a_dbh_is_read_as_nan(tmp_path: Path) -> None:
     case = read_plot_case(tmp_path / "p")
     np.testing.assert_array_equal(case.stems[:, 3], [NAN, 0.3, NAN])
     np.testing.assert_array_equal(case.stems[0], [1.0, 2.0, 0.0, NAN, 9.0])
+
+
+def test_plot_cases_among_tree_pairs_are_refused_not_run_as_pairs(
+    tmp_path: Path, capsys
+) -> None:
+    from amrst.cli import main
+
+    _small_plot_case(tmp_path / "cases" / "01_plot", [GOOD_STEM])
+    pair = tmp_path / "cases" / "02_pair"
+    pair.mkdir()
+    (pair / "truth.json").write_text('{"T_target_source": "not read"}')
+    out = tmp_path / "out"
+    assert main(["bench", str(tmp_path / "cases"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "holds 1 plot case(s) among 2" in err
+    assert "--cases PATTERN" in err
+    assert not out.exists()
