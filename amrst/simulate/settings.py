@@ -267,14 +267,16 @@ ONE_TREE_FOOT_M = 6.0
 
 
 def one_tree(cloud: Cloud, path: str) -> Cloud:
-    """Return ``cloud`` when it is one tree; refuse a plot of several.
+    """Return ``cloud`` when it is one tree in metres; refuse a plot of several.
 
     The truth stands each tree on its lowest points (``trunk_base``, which skips
     strays): several stems there would give one wrong foot, and the trees among them
     would be in the scans but not in the truth.
     """
+    from amrst.io.checks import refuse_odd_coordinates
     from amrst.simulate import trunk_base
 
+    refuse_odd_coordinates(cloud, path)  # a tree in millimetres is no tree of metres
     z0 = trunk_base(cloud.xyz)[2]
     z = cloud.xyz[:, 2]
     low = cloud.xyz[(z >= z0) & (z < z0 + 0.5), :2]

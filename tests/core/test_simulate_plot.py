@@ -263,6 +263,7 @@ def _tree_files(trees: list[Cloud], folder: Path) -> list[str]:
         ([], ["--range-m", "1e12"], "--range-m must be a number more than 0 and at"),
         ([], ["--shrubs", "100000000"], "--shrubs must be an integer from 0 to 1000"),
         (["two_trees.ply"], [], "as a plot of several trees does"),
+        (["in_mm.ply"], [], "are its coordinates in millimetres or centimetres?"),
         (["one_point.ply"], [], "one_point.ply has 1 point(s) over 0 m of height"),
         (["flat.ply"], [], "flat.ply has 500 point(s) over 0 m of height"),
     ],
@@ -275,6 +276,7 @@ def test_cli_bad_plot_input_is_one_line(
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat nonsense\n")
     apart = np.add(trees[0].xyz, (8.0, 0.0, 0.0))  # a plot subset given as a tree
     io.write(tmp_path / "two_trees.ply", Cloud(np.vstack([trees[0].xyz, apart])))
+    io.write(tmp_path / "in_mm.ply", Cloud(np.tile(1000 * trees[0].xyz, (2, 1))))
     io.write(tmp_path / "one_point.ply", Cloud(np.zeros((1, 3))))
     io.write(tmp_path / "flat.ply", Cloud(np.zeros((500, 3))))  # one point, repeated
     files = _tree_files(trees[:3], tmp_path) + [str(tmp_path / f) for f in more_files]
