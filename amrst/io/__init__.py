@@ -293,6 +293,13 @@ def _finish(raw: RawCloud, path: Path, label: str, source: str | None = None) ->
         xyz = xyz[valid]
         attributes = {k: v[valid] for k, v in attributes.items()}
     local, offset = rebase(xyz, raw.offset + 0.0)  # + 0.0 turns -0.0 into 0.0
+    span = [float(local[:, d].max() - local[:, d].min()) for d in range(3)]
+    if max(span) > MAX_COORD_M:  # no local frame holds it: the rows are not a scan
+        d = int(np.argmax(span))
+        raise InvalidInput(
+            f"{source}: its points span {span[d]:.3g} m along {'xyz'[d]}: no scan is "
+            "that large. Check the export (units, columns), or drop the stray rows."
+        )
     meta = {"format": label, "path": str(path), "n_dropped_invalid": n_dropped}
     return Cloud(local, offset, attributes, path.name, {**meta, **raw.meta})
 

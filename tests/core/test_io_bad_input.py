@@ -351,3 +351,9 @@ def test_absurd_coordinates_are_dropped_like_nan(tmp_path, caplog):
     (tmp_path / "all.xyz").write_text("1e12 1e12 1e12\n2e12 2e12 2e12\n")
     with pytest.raises(InvalidInput, match=r"no valid points.*within 1e9 m"):
         io.read(tmp_path / "all.xyz")
+
+
+def test_rows_spread_over_more_than_a_local_frame_holds_name_the_file(tmp_path):
+    (tmp_path / "wide.xyz").write_text("-9e8 0 0\n9e8 0 0\n0 0 1\n")
+    with pytest.raises(InvalidInput, match=r"wide.xyz: its points span 1.8e\+09 m"):
+        io.read(tmp_path / "wide.xyz")
