@@ -25,7 +25,8 @@ REPORT = "report.html"
 #: Tree fills by DBH quality, the ring of the technician's mark and link colours by
 #: state: the report's and the app's stem map.
 QUALITY_RGB = {"ok": "#4caf50", "check": "#ffb300", "none": "#9e9e9e"}
-MARK_RGB = {"ok": "#ffffff", "check": "#f44336", "not a tree": "#e040fb"}
+# Light blue, not white, for ok: the report's map is drawn on white.
+MARK_RGB = {"ok": "#29b6f6", "check": "#f44336", "not a tree": "#e040fb"}
 STATE_RGB = {
     "registered": "#4caf50",
     "accepted": "#26a69a",
@@ -54,8 +55,8 @@ def build_report(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> s
         + '<h2>Stem map</h2><figure><img alt="stem map" '
         + f'src="data:image/png;base64,{png}"><figcaption>Every tree at its stem '
         "base, its dot sized by its DBH (yours where you measured it) and filled by "
-        "the DBH's quality (green ok, amber check, grey none), ringed red where you "
-        "marked it check, crossed where you marked it not a tree; the scans "
+        "the DBH's quality (green ok, amber check, grey none), ringed blue where you "
+        "marked it ok, red where check, crossed where not a tree; the scans "
         "(triangles) and their links by state; the plot's edge dotted when it has "
         "a radius.</figcaption></figure>"
         + _scans(doc)
@@ -111,8 +112,8 @@ def stem_map_png(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> b
             y,
             s=size,
             c=QUALITY_RGB.get(str(r.get("dbh_quality")), "#9e9e9e"),
-            edgecolors=MARK_RGB["check"] if mark == "check" else "#212121",
-            linewidths=2.0 if mark == "check" else 0.6,
+            edgecolors=MARK_RGB.get(mark, "#212121"),
+            linewidths=2.0 if mark in ("ok", "check") else 0.6,
             zorder=2,
         )
         if mark == NOT_A_TREE:
@@ -171,6 +172,7 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
     sure = all(s in ("registered", "accepted") for s in states)
     colour = STATE_RGB["registered" if sure else "needs review"]
     bundle = _num(doc.get("bundle_rmse_m"))
+    good = sum(1 for r in rows if r.get("mark") == "ok")
     checked = sum(1 for r in rows if r.get("mark") == "check")
     dropped = sum(1 for r in rows if r.get("mark") == NOT_A_TREE)
     by_hand = sum(1 for r in rows if r.get("dbh_hand_m") not in (None, ""))
@@ -188,7 +190,8 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
         )
         + f"<p>Bundle error {_cm(bundle)} (the RMS of the scans' residuals: each "
         "scan's distance to the surfaces of the others where they overlap, at the "
-        f"final poses); {counted(checked, 'tree')} marked check, {dropped} "
+        f"final poses); {counted(good, 'tree')} marked ok, {checked} marked check, "
+        f"{dropped} "
         f"marked not a tree and {counted(by_hand, 'DBH')} measured by you.</p>"
         + _stand(rows, PlotArea.from_dict(doc.get("plot_area")))
         + "</div>"

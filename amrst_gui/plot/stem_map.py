@@ -97,7 +97,7 @@ class StemMapView(QWidget):
         self._dragging = False  # the press has moved farther than DRAG_PX
         self.setToolTip(
             "The plot from above: each tree is its DBH circle to scale (yours where "
-            "you measured it; green ok, amber check, grey no DBH), ringed white when "
+            "you measured it; green ok, amber check, grey no DBH), ringed blue when "
             "marked ok, red when marked check, crossed when not a tree. Triangles are "
             "the scan positions, lines the links. Click a tree; the wheel zooms, a drag "
             "moves the map, a double click shows it whole. Keys: + and - zoom, the "
@@ -559,6 +559,6 @@ class StemMapView(QWidget):
         y += step
         p.drawText(
             QPointF(x, y),
-            "Solid: the spanning tree; your mark: ring white ok, red check; "
+            "Solid: the spanning tree; your mark: ring blue ok, red check; "
             "cross: not a tree",
         )

@@ -264,7 +264,7 @@ def test_inventory_columns_and_the_command(
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1  # the stem map, in the page
     assert f"<td>{first}</td>" in page
-    assert "1 tree marked check, 0 marked not a tree and 1 DBH measured" in page
+    assert "0 trees marked ok, 1 marked check, 0 marked not a tree and 1 DBH" in page
     doc = json.loads((out / "plot.json").read_text())
     residuals = [s["residual_m"] for s in doc["scans"]]
     assert all(0 < r < 0.02 for r in residuals)  # each scan on the other's surfaces

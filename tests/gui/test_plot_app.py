@@ -284,7 +284,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert opened == [out / "report.html"]
     assert plot.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
-    assert "1 tree marked check, 0 marked not a tree and 0 DBHs measured by you" in (
+    assert "1 marked check, 0 marked not a tree and 0 DBHs measured by you" in (
         opened[0].read_text()
     )
     cell = plot.trees.item(k, 5)
