@@ -34,25 +34,29 @@ def _box(cloud: Cloud) -> np.ndarray:
     return box
 
 
-def _same_points(a: Cloud, b: Cloud) -> bool:
+def _same_points(a: Cloud, b: Cloud, tol_m: float) -> bool:
     """Tell whether two clouds of the same size and box hold the same points."""
     if np.array_equal(a.offset, b.offset) and np.array_equal(a.xyz, b.xyz):
         return True
     from scipy.spatial import cKDTree  # imported when needed: every command checks
 
     bxyz = strided(b.xyz, SAME_SAMPLE) + (b.offset - a.offset)
-    dist, _ = cKDTree(a.xyz).query(bxyz, distance_upper_bound=SAME_POINT_M)
+    dist, _ = cKDTree(a.xyz).query(bxyz, distance_upper_bound=tol_m)
     return bool(np.mean(np.isfinite(dist)) > 0.99)
 
 
-def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
+def refuse_same_points(
+    clouds: Sequence[Cloud], labels: Sequence[str], tol_m: float = SAME_POINT_M
+) -> None:
     """Refuse two scans holding the same points, in any order and precision.
 
     One file given twice, a copy, the same scan exported again as text or LAS (rows
     in another order, coordinates rounded). Registering a scan onto itself tells
     nothing and the verification of the identity runs long on a big scan. Scans of
     different positions differ in size or box at once; only clouds that agree in
-    both are compared point by point.
+    both are compared point by point. ``tol_m``: how far apart the same point may
+    read (clouds thinned on a voxel grid: the voxel; a rounded copy may pick
+    another point of a voxel).
     """
     boxes: dict[int, np.ndarray] = {}  # each cloud's, once, when a size matches
     for j, b in enumerate(clouds):
@@ -62,8 +66,8 @@ def refuse_same_points(clouds: Sequence[Cloud], labels: Sequence[str]) -> None:
             for k in (i, j):
                 if k not in boxes:
                     boxes[k] = _box(clouds[k])
-            close = np.allclose(boxes[i], boxes[j], rtol=0.0, atol=SAME_POINT_M)
-            if close and _same_points(a, b):
+            close = np.allclose(boxes[i], boxes[j], rtol=0.0, atol=tol_m)
+            if close and _same_points(a, b, tol_m):
                 what = (
                     "is given twice (a file of several scans gives them all)"
                     if labels[j] == labels[i]

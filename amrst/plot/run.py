@@ -313,7 +313,9 @@ def _read_scans(
         scan = analyse_plot_scan(cloud, params, stem_params, sub)
         scans.append(replace(scan, file_stamp=file_stamp(label), read_seconds=read_s))
         del cloud  # before the next scan is read
-        refuse_same_points([s.analysis.cloud for s in scans], labels[: k + 1])
+        refuse_same_points(  # the working points, thinned on the stem map's voxels
+            [s.analysis.cloud for s in scans], labels[: k + 1], stem_params.voxel_m
+        )
     return scans, area
 
 

@@ -1211,3 +1211,14 @@ def test_a_run_does_not_replace_what_another_run_wrote_meanwhile(
     monkeypatch.setattr(inventory, "take_inventory", taken)
     run_plot(files, out, overwrite=True)  # asked to replace what it finds: it does
     assert (out / "trees.csv").is_file()
+
+
+def test_one_scan_in_two_formats_is_refused_as_one_scan(plot_pair, tmp_path) -> None:
+    from amrst import io
+    from amrst.errors import InvalidInput
+    from amrst.plot.run import run_plot
+
+    t, _ = _pair_files(plot_pair, tmp_path)
+    io.write(tmp_path / "t.las", plot_pair[0])  # the same scan, in millimetres
+    with pytest.raises(InvalidInput, match=r"t\.las holds the same points as"):
+        run_plot([str(t), str(tmp_path / "t.las")], tmp_path / "out")
