@@ -6,7 +6,10 @@ from two positions breaks into pieces where one side is hidden and the other out
 range, so a path may also jump a gap: links up to ``GAPS`` long join points above the
 crown height, and cost their length times a factor that grows with the gap. A chain
 of small gaps thus beats one long jump, and a piece of crown goes with the crown it
-continues rather than with the nearest tree. Pieces no path reaches (a tree whose
+continues rather than with the nearest tree. A stem's seeds include the stem
+followed up above its circles (``stemmap._trace_stem``), each at the cost of the
+climb to it: a stem hidden for a metre by a neighbour's crown no longer costs a gap,
+which would hand its top to the neighbour. Pieces no path reaches (a tree whose
 stem was not found, beyond every gap) belong to no tree.
 
 This is not ``stages/stems.assign_to_stems`` (the scene stage of a registration,
@@ -43,6 +46,7 @@ def assign_crowns(
     above: np.ndarray,
     seeds: Sequence[np.ndarray],
     crown_height_m: float,
+    start: Sequence[np.ndarray] | None = None,
 ) -> np.ndarray:
     """Stem number of every point (the index of its seed), -1 for none.
 
@@ -59,6 +63,10 @@ def assign_crowns(
     crown_height_m : float
         Gap links join points higher than this only: a shrub beside a stem stays
         apart.
+    start : sequence of (K,) float64, or None
+        The cost each seed point's path starts at (None: all 0): a point of a stem
+        followed up starts at the cost of climbing the stem to it, and so gains its
+        stem no crown an unbroken stem would not.
 
     Returns
     -------
@@ -88,13 +96,32 @@ def assign_crowns(
     node_of_point = np.full(len(xyz), -1, dtype=np.int64)
     node_of_point[above] = node_of
     stem_of_node = np.full(len(nodes), -1, dtype=np.int64)
+    start_of_node = np.zeros(len(nodes))
     for k in range(len(seeds) - 1, -1, -1):
-        stem_of_node[node_of_point[seeds[k]]] = k
+        mine = node_of_point[seeds[k]]
+        stem_of_node[mine] = k
+        start_of_node[mine] = np.inf
+        np.minimum.at(start_of_node, mine, start[k] if start is not None else 0.0)
+    # Every stem is one more node, linked to its seed nodes at their start cost (a
+    # sparse graph has no links of cost 0).
+    n = len(nodes)
     sources = np.flatnonzero(stem_of_node >= 0)
+    graph = graph.tocoo()
+    graph = coo_matrix(
+        (
+            np.r_[graph.data, start_of_node[sources] + 1e-9],
+            (np.r_[graph.row, n + stem_of_node[sources]], np.r_[graph.col, sources]),
+        ),
+        shape=(n + len(seeds),) * 2,
+    ).tocsr()
     _, _, nearest = dijkstra(
-        graph, directed=False, indices=sources, min_only=True, return_predecessors=True
+        graph,
+        directed=False,
+        indices=np.arange(n, n + len(seeds)),
+        min_only=True,
+        return_predecessors=True,
     )
-    stem = np.where(nearest >= 0, stem_of_node[np.maximum(nearest, 0)], -1)
+    stem = np.where(nearest[:n] >= 0, nearest[:n] - n, -1)
     owner[above] = stem[node_of]
     return owner
 

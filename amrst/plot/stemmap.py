@@ -14,7 +14,8 @@ The inventory (``trees=True``) goes on:
 
 4. stems hidden at their foot: bark seen higher up, away from the stems found;
 5. every point above the ground goes to the stem it reaches at the least path cost
-   (``plot/crowns.py``), and the tree's highest point gives its height;
+   (``plot/crowns.py``), from the stem followed up above its circles
+   (:func:`_trace_stem`), and the tree's highest point gives its height;
 6. the DBH is the taper line of circles in slices 1.0-1.6 m (``plot/diameter.py``),
    and the stem line is fitted again to the circles on it;
 7. a tree whose foot shows no circle and is wrapped in its own branches (a spruce)
@@ -74,6 +75,21 @@ AXIS_NEAR_M = 0.1
 #: the axis (m), counted in 12 directions around it.
 SKIRT_HEIGHT_M = (0.5, 2.5)
 SKIRT_REACH_M = (0.3, 1.5)
+#: Following a stem up (:func:`_trace_stem`), slab by slab of ``TRACE_STEP_M``: the
+#: points within its radius plus ``TRACE_TOL_M`` of the axis, when at least
+#: ``TRACE_MIN_POINTS`` and no fewer than those in the ``TRACE_RING_M`` ring around
+#: them (a stem is narrow, a crown wide), are stem.
+TRACE_STEP_M = 0.4
+TRACE_TOL_M = 0.1
+TRACE_MIN_POINTS = 5
+TRACE_RING_M = 0.3
+#: A neighbour's crown can hide a few metres of stem: the trace goes on that far.
+TRACE_GAP_M = 3.0
+#: The axis moves this share of the way to the stem points of each slab: the points
+#: show one side of the stem, and a stem bends slowly.
+TRACE_FOLLOW = 0.5
+#: Points farther than this (m) across from the stem line are never its stem.
+TRACE_DRIFT_M = 3.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -291,7 +307,23 @@ def map_stems(
         _merge_same_stems(seeds, fits, params)
         roles = _add_given_stems(pts, h, ground, seeds, fits, given, params=params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
-        owner = assign_crowns(pts, h, above, seeds, params.scene.crown_height_m)
+        # Its stem followed up joins each stem's seeds, at the cost of climbing it
+        # from the slice: a stem hidden for a metre keeps its top and crown.
+        traced = [
+            _trace_stem(pts, h, above, f) if f else np.zeros(0, np.int64) for f in fits
+        ]
+        start = [
+            np.r_[np.zeros(len(s)), np.maximum(h[t] - params.scene.stem_high_m, 0.0)]
+            for s, t in zip(seeds, traced, strict=True)
+        ]
+        owner = assign_crowns(
+            pts,
+            h,
+            above,
+            [np.r_[s, t] for s, t in zip(seeds, traced, strict=True)],
+            params.scene.crown_height_m,
+            start,
+        )
     stems: list[StemRecord] = []
     kept = np.full(len(seeds) + 1, -1, dtype=np.int64)  # cluster -> stem (-1: none)
     for k, fit in enumerate(fits):
@@ -310,6 +342,41 @@ def map_stems(
             kept[k] = len(stems)
             stems.append(stem)
     return StemMap(tuple(stems), ground, pts, kept[owner], index)
+
+
+def _trace_stem(
+    pts: np.ndarray, h: np.ndarray, above: np.ndarray, fit: _StemFit
+) -> np.ndarray:
+    """Return the points of a stem above its circles, followed up slab by slab.
+
+    Each slab's axis goes on the stem line from the last slab of stem; the trace
+    ends ``TRACE_GAP_M`` above it (``TRACE_*``).
+    """
+    if not fit.line:
+        return np.zeros(0, np.int64)
+    base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
+    radius = float(np.median(list(fit.radii.values())))
+    off = np.hypot(*(pts[above, :2] - base_xy - slope * h[above, None]).T)
+    cand = above[off <= TRACE_DRIFT_M]
+    cand = cand[np.argsort(h[cand])]
+    last = max(at for at, _, _ in fit.line)
+    xy = base_xy + slope * last
+    inner_r = radius + TRACE_TOL_M
+    took = [np.zeros(0, np.int64)]
+    at = last
+    while at - last <= TRACE_GAP_M:
+        lo, hi = np.searchsorted(h[cand], [at, at + TRACE_STEP_M])
+        at += TRACE_STEP_M
+        centre = xy + slope * (at - TRACE_STEP_M / 2 - last)
+        d = np.hypot(*(pts[cand[lo:hi], :2] - centre).T)
+        inner = cand[lo:hi][d <= inner_r]
+        ring = np.sum((d > inner_r) & (d <= inner_r + TRACE_RING_M))
+        if len(inner) < TRACE_MIN_POINTS or ring > len(inner):
+            continue
+        took.append(inner)
+        xy = centre + TRACE_FOLLOW * (np.median(pts[inner, :2], axis=0) - centre)
+        last = at - TRACE_STEP_M / 2
+    return np.concatenate(took)
 
 
 def _merge_same_stems(
