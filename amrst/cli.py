@@ -233,6 +233,12 @@ def _cmd_register(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     # Everything that can be checked without the clouds is checked before reading.
     params = _load_params(args)
+    if args.format is not None and not args.write_clouds:
+        raise InvalidInput(
+            f"--format {args.format} sets the format of the clouds --write-clouds "
+            "writes: add --write-clouds, or leave --format out."
+        )
+    args.format = args.format or "ply"
     if len(args.source) != 1 or "#" in args.target + "".join(args.source):
         return _register_scans(args, params)
     args.source = args.source[0]
@@ -435,9 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reg.add_argument(
         "--format",
-        default="ply",
         choices=("ply", "las", "laz", "pcd"),
-        help="cloud format for --write-clouds",
+        help="cloud format for --write-clouds (default ply)",
     )
     reg.add_argument(
         "--report",

@@ -318,6 +318,16 @@ def test_one_scan_as_target_and_source_is_refused(capsys, tmp_path, sample_pair)
         assert not (out / "transform.json").exists()
 
 
+def test_a_cloud_format_without_clouds_is_refused(capsys, tmp_path, sample_pair):
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    out = tmp_path / "o"
+    assert main(["register", t, s, "--out", str(out), "--format", "las"]) == 2
+    err = capsys.readouterr().err
+    assert "--format las sets the format of the clouds --write-clouds writes" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
 def test_closed_output_pipe_ends_quietly(sample_pair) -> None:
     """``amrst info big.ply | head -1``: no BrokenPipeError traceback."""
     assert VENV_AMRST.is_file(), f"console script missing: {VENV_AMRST}"
