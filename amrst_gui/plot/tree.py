@@ -113,7 +113,7 @@ def figures(
             "DBH fit",
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
             f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
-            f"{_value(s.outlier_share, ' %', 100, 0)} off"
+            f"{_value(s.outlier_share, ' %', 100, 0)} of points off it"
             + (f"\nwhy {s.dbh_quality}: {s.dbh_why}" if s.dbh_why else "")
             if np.isfinite(s.dbh_m)
             else s.dbh_why or "no circle holds the stem at 1.3 m",
