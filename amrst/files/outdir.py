@@ -352,6 +352,9 @@ def _roll_forward(real: Path, record: Mapping[str, object]) -> None:
         if _plain(str(name)):
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(real / str(name))
+            if "/" in str(name):  # a subfolder left empty goes too (rmdir: only then)
+                with contextlib.suppress(OSError):
+                    os.rmdir((real / str(name)).parent)
     _fsync(real)
     (real / COMMIT_NAME).unlink()
     shutil.rmtree(stage, ignore_errors=True)

@@ -317,7 +317,16 @@ def test_files_in_a_new_subfolder_land_and_old_ones_go_in_journal_mode(tmp_path)
         managed={"a.txt", "sub"},
         remove=["sub/old.txt", "sub/b.txt", "../notes.txt"],
     )
-    assert not (tmp_path / "sub" / "old.txt").exists()
-    assert not (tmp_path / "sub" / "b.txt").exists()
+    assert not (tmp_path / "sub").exists()  # left empty: removed with its files
     assert (tmp_path / "notes.txt").read_text() == "mine"  # outside names are refused
     assert (tmp_path / "a.txt").read_text() == "a2"
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "b.txt").write_text("b")
+    (tmp_path / "sub" / "yours.txt").write_text("yours")  # not the set's: it stays
+    outdir.replace_files(
+        tmp_path,
+        {"a.txt": lambda p: p.write_text("a3")},
+        managed={"a.txt", "sub"},
+        remove=["sub/b.txt"],
+    )
+    assert sorted(p.name for p in (tmp_path / "sub").iterdir()) == ["yours.txt"]
