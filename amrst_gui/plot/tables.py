@@ -187,11 +187,20 @@ def _last_if_nan(value: float) -> float:
 
 
 class _SortItem(QTableWidgetItem):
-    """A cell that sorts by its key (``SORT_ROLE``), not its text."""
+    """A cell that sorts by its key (``SORT_ROLE``), not its text; a number missing
+    (an infinite key) ends the list whichever way it is sorted."""
 
     def __lt__(self, other: QTableWidgetItem) -> bool:
         a, b = self.data(SORT_ROLE), other.data(SORT_ROLE)
         if type(a) is type(b) and a is not None:
+            table = self.tableWidget()
+            descending = (
+                table is not None
+                and table.horizontalHeader().sortIndicatorOrder()
+                == Qt.SortOrder.DescendingOrder
+            )
+            if descending and isinstance(a, float) and math.inf in (a, b):
+                return bool(a > b)  # Qt puts the greater first: the missing one last
             return bool(a < b)
         return super().__lt__(other)
 

@@ -2036,3 +2036,27 @@ def test_a_scan_opened_through_a_link_keeps_the_name_given(
     plot.open_scans([str(link), plot_files[1]])
     assert plot.specs[0] == str(link)
     assert "stand7_pos1.ply" in plot.scan_list.item(0).text()
+
+
+def test_trees_without_a_dbh_end_the_table_whichever_way_it_is_sorted(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    from amrst.plot.review import PlotReview
+    from amrst_gui.plot.jobs import PlotOutcome
+    from amrst_gui.plot.tables import TREE_COLUMNS, fill_trees, table, tree_at_row
+
+    trees = [_tree("T001", (1,)), _tree("T002", (1,)), _tree("T003", (1,))]
+    trees[0] = replace(trees[0], stem=replace(trees[0].stem, dbh_m=float("nan")))
+    trees[2] = replace(trees[2], stem=replace(trees[2].stem, dbh_m=0.5))
+    o = PlotOutcome(tmp_path, ("a.ply",), tuple(trees), (), (), 0.01, (), None, 1.0)
+    view = table(TREE_COLUMNS, "plot_trees")
+    qtbot.addWidget(view)
+    fill_trees(view, o, PlotReview())
+    for order, ids in (
+        (Qt.SortOrder.AscendingOrder, ["T002", "T003", "T001"]),
+        (Qt.SortOrder.DescendingOrder, ["T003", "T002", "T001"]),
+    ):
+        view.sortByColumn(1, order)
+        assert [o.trees[tree_at_row(view, r)].tree_id for r in range(3)] == ids
