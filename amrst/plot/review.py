@@ -248,7 +248,7 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         points = [_point(n, v) for n, v in enumerate(list(doc.get("added") or []))]
         added = dict(points)
         if len(added) < len(points):
-            raise ValueError("two trees added under one id")
+            raise _Unfit("two trees added under one id")
         field = "at"
         at = {str(k): _xy(v) for k, v in dict(doc.get("at") or {}).items()}
     except (
@@ -261,12 +261,12 @@ def read_review(out: Path, labels: Sequence[str]) -> PlotReview:
         RecursionError,
     ) as exc:
         what = (
-            f"it has no {field!r}"
-            if isinstance(exc, KeyError)
-            else "it is no JSON object"
+            "it is no JSON object"
             if not isinstance(doc, dict)
+            else f"it has no {field!r}"
+            if field not in doc
             else f"its {field!r} is not what the app writes"
-            + (f" ({exc})" if isinstance(exc, (InvalidInput, ValueError)) else "")
+            + (f" ({exc})" if isinstance(exc, (InvalidInput, _Unfit)) else "")
         )
         raise InvalidInput(
             f"{path} is no review file: {what}; move it away to review the plot again."
@@ -502,29 +502,33 @@ def unsure_scans(states: Sequence[str]) -> frozenset[int]:
     return frozenset(k + 1 for k, s in enumerate(states) if s == NEEDS_REVIEW)
 
 
+class _Unfit(ValueError):
+    """A value of review.json that is read but cannot be right (its message says)."""
+
+
 def _circle(entry: Mapping[str, float]) -> HandCircle:
     circle = HandCircle(
         (float(entry["x_m"]), float(entry["y_m"])), float(entry["dbh_m"])
     )
     if not _usable(circle):
-        raise ValueError(f"a DBH by hand of {circle.dbh_m} m")
+        raise _Unfit(f"a DBH by hand of {circle.dbh_m} m")
     return circle
 
 
 def _xy(value: Any) -> tuple[float, float]:
     x, y = (float(v) for v in value)
     if not np.isfinite([x, y]).all():
-        raise ValueError("a tree marked at no finite position")
+        raise _Unfit("a tree marked at no finite position")
     return x, y
 
 
 def _point(n: int, entry: Mapping[str, Any]) -> tuple[str, tuple[float, float]]:
     x, y = float(entry["x_m"]), float(entry["y_m"])
     if not (abs(x) <= MAX_LOCAL_M and abs(y) <= MAX_LOCAL_M):  # NaN too
-        raise ValueError(f"a tree added at ({x}, {y}), out of any plot")
+        raise _Unfit(f"a tree added at ({x}, {y}), out of any plot")
     tree_id = str(entry.get("id") or f"H{n + 1:03d}")
     if not re.fullmatch(ADDED_ID, tree_id):
-        raise ValueError(f"an added tree's id {tree_id!r} is not H and a number")
+        raise _Unfit(f"an added tree's id {tree_id!r} is not H and a number")
     return tree_id, (x, y)
 
 
@@ -537,5 +541,5 @@ def _usable(circle: HandCircle) -> bool:
 def _key(text: str) -> LinkKey:
     i, j = (int(v) for v in str(text).split("-"))
     if i < 1 or j < 1:
-        raise ValueError(f"link {text!r}: scans are numbered from 1")
+        raise _Unfit(f"link {text!r}: scans are numbered from 1")
     return i - 1, j - 1

@@ -931,6 +931,16 @@ def test_a_review_that_cannot_be_right_is_refused(tmp_path: Path) -> None:
             "marks": {},
         },
         "no review file: it has no 'marks'": {"scans": []},
+        "its 'dbh' is not what the app writes; move": {
+            "scans": [],
+            "marks": {},
+            "dbh": {"T001": {"x_m": 1.0, "y_m": 2.0}},
+        },
+        "its 'at' is not what the app writes; move": {
+            "scans": [],
+            "marks": {},
+            "at": {"T001": [1.0, 2.0, 3.0]},
+        },
         "not a rotation": {
             "scans": [],
             "marks": {},
