@@ -132,11 +132,12 @@ FolderStamp = dict[str, tuple[int, int, int] | None]
 
 
 def folder_stamp(folder: str | os.PathLike[str], names: Iterable[str]) -> FolderStamp:
-    """Say what ``folder`` holds under ``names``: inode, size, change time (ns).
+    """Say what ``folder`` holds under ``names``: inode, size, modification time.
 
-    None where an entry is missing. A run takes it before its long work and hands it to :func:`replace_files`, which
-    refuses to write when the folder no longer matches: another run wrote it meanwhile,
-    and replacing that run's files would lose them without a word.
+    None where an entry is missing. A run takes it before its long work and hands it
+    to :func:`replace_files`, which refuses to write when the folder no longer
+    matches: another run wrote it meanwhile, and replacing that run's files would lose
+    them without a word.
     """
     stamp: FolderStamp = {}
     for name in sorted(set(names)):

@@ -102,7 +102,7 @@ def run_plot(
         A folder or an input that cannot make a plot; raised before the scans are
         registered.
     """
-    from amrst.files.outdir import folder_stamp
+    from amrst.files.outdir import clear_dead_run, folder_stamp
     from amrst.io.scans import one_scan_specs
     from amrst.plot.export import MANAGED, check_out, write_plot
     from amrst.plot.inventory import take_inventory
@@ -110,6 +110,7 @@ def run_plot(
     from amrst.plot.review import read_review
     from amrst.review.pairs_file import read_pairs
 
+    clear_dead_run(out)  # a killed run's set finished first, so the stamp holds
     check_out(out, overwrite)
     before = folder_stamp(out, MANAGED)  # what this run may replace, not another's
     _check_inputs([*specs, *(pairs or {}).values()], out)
