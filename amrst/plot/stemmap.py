@@ -309,9 +309,18 @@ def map_stems(
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
         # Its stem followed up joins each stem's seeds, at the cost of climbing it
         # from the slice: a stem hidden for a metre keeps its top and crown.
-        traced = [
-            _trace_stem(pts, h, above, f) if f else np.zeros(0, np.int64) for f in fits
-        ]
+        by_h = above[np.argsort(h[above], kind="stable")]  # one sort for every trace
+        xy_by_h, h_by_h = pts[by_h, :2], h[by_h]
+        traced = []
+        for fit in fits:
+            if reporter is not None:
+                reporter.check_cancelled()
+            traced.append(
+                by_h[_trace_stem(xy_by_h, h_by_h, fit)]
+                if fit
+                else np.zeros(0, np.int64)
+            )
+        del xy_by_h, h_by_h
         start = [
             np.r_[np.zeros(len(s)), np.maximum(h[t] - params.scene.stem_high_m, 0.0)]
             for s, t in zip(seeds, traced, strict=True)
@@ -344,37 +353,36 @@ def map_stems(
     return StemMap(tuple(stems), ground, pts, kept[owner], index)
 
 
-def _trace_stem(
-    pts: np.ndarray, h: np.ndarray, above: np.ndarray, fit: _StemFit
-) -> np.ndarray:
+def _trace_stem(xy: np.ndarray, h: np.ndarray, fit: _StemFit) -> np.ndarray:
     """Return the points of a stem above its circles, followed up slab by slab.
 
-    Each slab's axis goes on the stem line from the last slab of stem; the trace
-    ends ``TRACE_GAP_M`` above it (``TRACE_*``).
+    ``xy`` and ``h`` are the points above the ground, sorted by height; the result
+    indexes them. Each slab's axis goes on the stem line from the last slab of stem;
+    the trace ends ``TRACE_GAP_M`` above it (``TRACE_*``).
     """
     if not fit.line:
         return np.zeros(0, np.int64)
     base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
     radius = float(np.median(list(fit.radii.values())))
-    off = np.hypot(*(pts[above, :2] - base_xy - slope * h[above, None]).T)
-    cand = above[off <= TRACE_DRIFT_M]
-    cand = cand[np.argsort(h[cand])]
     last = max(at for at, _, _ in fit.line)
-    xy = base_xy + slope * last
+    axis = base_xy + slope * last
     inner_r = radius + TRACE_TOL_M
     took = [np.zeros(0, np.int64)]
     at = last
     while at - last <= TRACE_GAP_M:
-        lo, hi = np.searchsorted(h[cand], [at, at + TRACE_STEP_M])
+        lo, hi = np.searchsorted(h, [at, at + TRACE_STEP_M])
         at += TRACE_STEP_M
-        centre = xy + slope * (at - TRACE_STEP_M / 2 - last)
-        d = np.hypot(*(pts[cand[lo:hi], :2] - centre).T)
-        inner = cand[lo:hi][d <= inner_r]
+        slab = np.arange(lo, hi)
+        off = np.hypot(*(xy[slab] - base_xy - slope * h[slab, None]).T)
+        slab = slab[off <= TRACE_DRIFT_M]
+        centre = axis + slope * (at - TRACE_STEP_M / 2 - last)
+        d = np.hypot(*(xy[slab] - centre).T)
+        inner = slab[d <= inner_r]
         ring = np.sum((d > inner_r) & (d <= inner_r + TRACE_RING_M))
         if len(inner) < TRACE_MIN_POINTS or ring > len(inner):
             continue
         took.append(inner)
-        xy = centre + TRACE_FOLLOW * (np.median(pts[inner, :2], axis=0) - centre)
+        axis = centre + TRACE_FOLLOW * (np.median(xy[inner], axis=0) - centre)
         last = at - TRACE_STEP_M / 2
     return np.concatenate(took)
 

@@ -1232,3 +1232,27 @@ def test_one_scan_in_two_formats_is_refused_as_one_scan(plot_pair, tmp_path) -> 
     io.write(tmp_path / "t.las", plot_pair[0])  # the same scan, in millimetres
     with pytest.raises(InvalidInput, match=r"t\.las holds the same points as"):
         run_plot([str(t), str(tmp_path / "t.las")], tmp_path / "out")
+
+
+def test_a_stem_hidden_for_a_metre_keeps_its_top_from_a_neighbour_s_crown() -> None:
+    """A's stem is hidden 6-7.2 m up, where B's crown reaches it: without A's stem
+    followed up, B took A's upper stem and top (6 m and 14 m instead of 14 and 9)."""
+    rng = np.random.default_rng(3)
+    stems = ((0.0, 0.0, 0.08, 14.0), (1.8, 0.0, 0.2, 9.0))  # A thin and tall, B
+    xyz = scan((-6.0, 0.5), stems, seed=1)
+    h = xyz[:, 2] - ground_z(xyz[:, :2])
+    hidden = (np.hypot(xyz[:, 0], xyz[:, 1]) < 0.3) & (h > 6.0) & (h < 7.2)
+    r, a = 1.8 * np.sqrt(rng.uniform(0, 1, 8000)), rng.uniform(0, 2 * np.pi, 8000)
+    crown = np.column_stack(  # B's crown, 7-9 m, up to A's stem
+        [1.8 + r * np.cos(a), r * np.sin(a), rng.uniform(7.0, 9.0, 8000)]
+    )
+    crown = crown[np.hypot(crown[:, 0], crown[:, 1]) > 0.15]
+    top = np.column_stack(  # A's crown, 12.5-14 m
+        [rng.normal(0, 0.5, (1500, 2)), rng.uniform(12.5, 14.0, 1500)]
+    )
+    for part in (crown, top):
+        part[:, 2] += ground_z(part[:, :2])
+    m = map_stems(np.vstack([xyz[~hidden], crown, top]))
+    heights = {round(float(s.base[0]), 1): s.height_m for s in m.stems}
+    assert heights[0.0] == pytest.approx(14.0, abs=0.3)
+    assert heights[1.8] == pytest.approx(9.0, abs=0.3)
