@@ -57,6 +57,7 @@ from amrst.plot.export import inventory_rows
 from amrst.plot.inventory import seen_from_any
 from amrst.plot.review import (
     ACCEPTED,
+    FOLLOW_M,
     REVIEW_JSON,
     PlotReview,
     read_review,
@@ -98,8 +99,6 @@ log = logging.getLogger("amrst_gui.plot")
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
 #: Set after a scan's line in the scan list when its scanner position is given.
 GIVEN_MARK = "; scanner given"
-#: A tree selected stays selected after a run when one stands this close (m) to it.
-SAME_TREE_M = 0.3
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -171,13 +170,15 @@ def _run_choices(
 
 
 def _same_tree(before: PlotOutcome, k: int, now: PlotOutcome) -> int | None:
-    """The tree of ``now`` that stands where tree ``k`` of ``before`` stood (None:
-    none within ``SAME_TREE_M``, or the plot has another reference)."""
+    """The tree of ``now`` that stands where tree ``k`` of ``before`` stood, as a
+    mark given to it follows it (``FOLLOW_M`` of its breast-height centre; None:
+    none there, or the plot has another reference)."""
     if now.labels[:1] != before.labels[:1] or not now.trees:
         return None
-    d = [math.dist(t.xyz[:2], before.trees[k].xyz[:2]) for t in now.trees]
+    was = before.tree_xy[k]
+    d = [math.dist(xy, was) for xy in now.tree_xy]
     nearest = min(range(len(d)), key=d.__getitem__)
-    return nearest if d[nearest] <= SAME_TREE_M else None
+    return nearest if d[nearest] <= FOLLOW_M else None
 
 
 def _numbered(o: PlotOutcome, labels: list[str]) -> str:
