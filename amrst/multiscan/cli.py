@@ -86,6 +86,7 @@ def run_register(
 ) -> int:
     """Register every scan of ``args.target`` + ``args.source`` and write ``args.out``."""
     from amrst.errors import InvalidInput
+    from amrst.files.outdir import folder_stamp
     from amrst.io.scans import one_scan_specs
     from amrst.multiscan.export import SUMMARY, export_scans, read_scan_truth
     from amrst.multiscan.register import register_scans
@@ -115,6 +116,12 @@ def run_register(
         ),
     )
     refuse_other_export(args.out, labels, overwrite=bool(args.overwrite))
+    # What the folder holds now is what this run may replace (not another run's).
+    before = folder_stamp(
+        args.out,
+        [*MANAGED_NAMES, REPORT_NAME, SUMMARY]
+        + [f"transform_{k}.txt" for k in range(len(labels))],
+    )
     t0 = time.perf_counter()
     clouds = read_specs(labels)
     check_scans(clouds, labels)
@@ -129,6 +136,7 @@ def run_register(
         truth=truth,
         clouds=args.write_clouds,
         cloud_format=args.format,
+        unchanged=before,
     )
     if report:
         files = [*files, write_scan_report(args.out, result, labels, truth)]

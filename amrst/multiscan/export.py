@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Callable, Sequence
 
+    from amrst.files.outdir import FolderStamp
     from amrst.multiscan.register import MultiScanResult
     from amrst.types import Transform
 
@@ -137,6 +138,8 @@ def _pair_files(
     truth: Sequence[Transform | None] | None,
     clouds: bool,
     cloud_format: str,
+    *,
+    unchanged: FolderStamp | None,
 ) -> list[Path]:
     """Write the files of ``amrst register`` for two scans, built as the CLI builds them."""
     from amrst.results.documents import record_from_registration, result_documents
@@ -170,6 +173,7 @@ def _pair_files(
         parts=tuple(parts),
         remove_stale=True,
         documents=documents,
+        unchanged=unchanged,
     )
 
 
@@ -179,6 +183,8 @@ def _many_files(
     doc: dict[str, Any],
     clouds: bool,
     cloud_format: str,
+    *,
+    unchanged: FolderStamp | None,
 ) -> list[Path]:
     from amrst import io
     from amrst.files.outdir import replace_files
@@ -249,7 +255,9 @@ def _many_files(
         ),
         REPORT_NAME,
     ]
-    written, _ = replace_files(out, dict(jobs), managed=managed, remove=stale)
+    written, _ = replace_files(
+        out, dict(jobs), managed=managed, remove=stale, unchanged=unchanged
+    )
     return written
 
 
@@ -280,6 +288,7 @@ def export_scans(
     truth: Sequence[Transform | None] | None = None,
     clouds: bool = False,
     cloud_format: str = "ply",
+    unchanged: FolderStamp | None = None,
 ) -> list[Path]:
     """Write a multi-scan result into ``out_dir``; scans.json last.
 
@@ -294,6 +303,9 @@ def export_scans(
     clouds : bool
         Also write the moved/merged clouds.
     cloud_format : {"ply", "las", "laz", "pcd"}
+    unchanged : FolderStamp or None
+        What ``out_dir`` held when the run began: nothing is written when another run
+        changed it since (amrst.files.outdir.folder_stamp).
 
     Returns
     -------
@@ -302,8 +314,10 @@ def export_scans(
     out = Path(out_dir)
     doc = summary(result, truth, files)
     if result.pair is None:  # scans.json goes with the set
-        return _many_files(out, result, doc, clouds, cloud_format)
-    written = _pair_files(out, result, files, truth, clouds, cloud_format)
+        return _many_files(out, result, doc, clouds, cloud_format, unchanged=unchanged)
+    written = _pair_files(
+        out, result, files, truth, clouds, cloud_format, unchanged=unchanged
+    )
     write_json_atomic(out / SUMMARY, doc)
     return [*written, out / SUMMARY]
 
