@@ -11,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -250,18 +251,39 @@ def test_a_results_file_in_the_way_is_refused_before_any_tree(tmp_path, sample_p
         run_batch(load_campaign(tmp_path), workers=1)
 
 
-def test_a_tree_whose_scans_are_one_scan_twice_fails_as_register_refuses(
-    tmp_path, sample_pair
-):
+_ONE_TREE = textwrap.dedent(
+    """
+    import json, sys
+    from pathlib import Path
+    from amrst.campaign import load_campaign
     from amrst.campaign.run import run_tree, tree_stamp
     from amrst.params import RegistrationParams, params_to_dict
 
+    root = sys.argv[1]
+    (entry,) = load_campaign(root).trees
+    doc = params_to_dict(RegistrationParams())
+    stamp = tree_stamp(Path(root), entry, doc)
+    print(json.dumps(run_tree(root, entry, doc, stamp)))
+    """
+)
+
+
+def test_a_tree_whose_scans_are_one_scan_twice_fails_as_register_refuses(
+    tmp_path, sample_pair
+):
     (tmp_path / "T01").mkdir()
     for name in ("target.ply", "source.ply"):  # a copy of the same scan
         shutil.copy(sample_pair.target_path, tmp_path / "T01" / name)
-    campaign, _ = init_campaign(tmp_path)
-    (entry,) = campaign.trees
-    doc = params_to_dict(RegistrationParams())
-    got = run_tree(str(tmp_path), entry, doc, tree_stamp(tmp_path, entry, doc))
+    init_campaign(tmp_path)
+    # The tree runs in a process of its own, as on a Dask worker: run in the test
+    # process it kept Dask from starting the clusters of later tests.
+    out = subprocess.run(
+        [sys.executable, "-c", _ONE_TREE, str(tmp_path)],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    got = json.loads(out.stdout.strip().splitlines()[-1])
     assert not got["ok"]
     assert "holds the same points as" in got["error"]
