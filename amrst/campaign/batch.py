@@ -242,6 +242,9 @@ def run_batch(
     BatchSummary
     """
     t0 = time.perf_counter()
+    _check_options(
+        workers, scheduler, threads_per_tree
+    )  # wrong even with nothing to do
     todo, done, doc = _select(campaign, params, force, clouds, only)
     summary = BatchSummary(skipped=done)
     total = len(todo) + len(done)
@@ -250,7 +253,6 @@ def run_batch(
         if progress is not None:
             progress.update(len(done), 0, 0, total, 0.0, None)
         return summary
-    _check_options(workers, scheduler, threads_per_tree)
     make_folder(campaign.root / RESULTS, "results folder")  # each tree's goes in it
     todo, costs = longest_first(campaign, todo)
     rows = campaign_rows(campaign)  # the table, each row replaced as its tree ends

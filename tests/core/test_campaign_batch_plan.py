@@ -184,6 +184,8 @@ def test_threads_per_tree_reaches_every_tree(tmp_path, tiny_tree) -> None:
     for tree in ("T0", "T1"):
         stamp = json.loads((tmp_path / "results" / tree / "stamp.json").read_text())
         assert stamp["threads"] == 1
+    with pytest.raises(InvalidInput, match="--workers must be 1 to"):  # all done: still
+        run_batch(campaign, workers=0)
 
 
 def _worker_env() -> dict[str, object]:
