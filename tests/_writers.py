@@ -1,4 +1,5 @@
-"""Writers of the multi-scan formats amrst only reads (E57, PTX), for test fixtures.
+"""Writers for test fixtures: the multi-scan formats amrst only reads (E57, PTX), and
+another run writing an output folder meanwhile.
 
 Shared by the engine's and the app's tests; imported as ``_writers`` (this folder is
 on ``sys.path`` because it holds ``conftest.py``).
@@ -14,7 +15,7 @@ from amrst.files.atomic import write_atomic, write_text_atomic
 from amrst.io.e57 import _COLOURS
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
     from pathlib import Path
 
     from amrst.types import Cloud, Transform
@@ -98,3 +99,15 @@ def write_ptx(
         body = "\n".join(fmt % row for row in zip(*cols, strict=True))
         parts.append("\n".join(head) + "\n" + body + "\n")
     write_text_atomic(path, "".join(parts))
+
+
+def written_first(func: Callable, path: Path, text: str) -> Callable:
+    """Return ``func`` that first writes ``text`` to ``path``: another run writing the
+    output folder while the run under test works."""
+
+    def wrapped(*args, **kwargs):
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(text)
+        return func(*args, **kwargs)
+
+    return wrapped

@@ -242,9 +242,8 @@ def run_batch(
     BatchSummary
     """
     t0 = time.perf_counter()
-    _check_options(
-        workers, scheduler, threads_per_tree
-    )  # wrong even with nothing to do
+    # Checked first: a wrong option is wrong even with every tree done.
+    _check_options(workers, scheduler, threads_per_tree)
     todo, done, doc = _select(campaign, params, force, clouds, only)
     summary = BatchSummary(skipped=done)
     total = len(todo) + len(done)

@@ -357,6 +357,8 @@ def test_scans_of_a_plot_are_said_to_be_one_and_point_to_amrst_plot(three_result
 def test_cli_scans_do_not_replace_what_another_run_wrote_meanwhile(
     tmp_path, three_scans, capsys, monkeypatch
 ):
+    from _writers import written_first
+
     from amrst.multiscan import register as multiscan_register
 
     files = [tmp_path / f"s{k}.ply" for k in range(3)]
@@ -364,13 +366,8 @@ def test_cli_scans_do_not_replace_what_another_run_wrote_meanwhile(
         io.write(f, scan)
     out = tmp_path / "o"
     registered = multiscan_register.register_scans
-
-    def another_run_writes(*args, **kwargs):
-        out.mkdir(exist_ok=True)
-        (out / "scans.json").write_text("{}")  # as another run's set
-        return registered(*args, **kwargs)
-
-    monkeypatch.setattr(multiscan_register, "register_scans", another_run_writes)
+    another_run = written_first(registered, out / "scans.json", "{}")
+    monkeypatch.setattr(multiscan_register, "register_scans", another_run)
     assert main(["register", *map(str, files), "--out", str(out), "--quiet"]) == 2
     assert "changed while this run worked" in capsys.readouterr().err
     assert (out / "scans.json").read_text() == "{}"

@@ -1200,6 +1200,8 @@ def test_plot_json_names_a_loop_s_scans_as_its_links_do() -> None:
 def test_a_run_does_not_replace_what_another_run_wrote_meanwhile(
     plot_pair, tmp_path, monkeypatch
 ) -> None:
+    from _writers import written_first
+
     from amrst.files.outdir import FolderChanged
     from amrst.plot import inventory
     from amrst.plot.run import run_plot
@@ -1207,13 +1209,8 @@ def test_a_run_does_not_replace_what_another_run_wrote_meanwhile(
     files = [str(f) for f in _pair_files(plot_pair, tmp_path)]
     out = tmp_path / "out"
     taken = inventory.take_inventory
-
-    def another_run_writes(*args, **kwargs):
-        out.mkdir(exist_ok=True)
-        (out / "plot.json").write_text('{"scans": []}')  # as another run's set
-        return taken(*args, **kwargs)
-
-    monkeypatch.setattr(inventory, "take_inventory", another_run_writes)
+    another_run = written_first(taken, out / "plot.json", '{"scans": []}')
+    monkeypatch.setattr(inventory, "take_inventory", another_run)
     with pytest.raises(FolderChanged, match="another run wrote it"):
         run_plot(files, out)
     assert (out / "plot.json").read_text() == '{"scans": []}'
