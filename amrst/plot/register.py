@@ -68,6 +68,11 @@ LEFT_OUT_ORIGIN = "left out"
 PLOT_FINE_POINTS = 20_000
 PLOT_FINE_REACH_M = 0.2
 PLOT_FINE_SCALES = 4
+#: A stem pose whose stems meet loosely is refined from a first reach of this many
+#: times their RMS (up to ``PLOT_FINE_REACH_MAX_M``): the pose can be that far off
+#: at the plot's edge, out of the usual reach.
+REACH_PER_STEM_RMS = 3.0
+PLOT_FINE_REACH_MAX_M = 0.5
 #: A stem pose is scored on the source points at least this high above its ground.
 SCORE_ABOVE_GROUND_M = 0.5
 
@@ -347,11 +352,15 @@ def register_plot_link(
         return _fallback(
             target, source, indices, params, reporter=reporter, threads=threads, t0=t0
         )
+    reach = min(
+        max(params.fine.max_corr_dist_m, REACH_PER_STEM_RMS * won.rms_m),
+        PLOT_FINE_REACH_MAX_M,
+    )
     fine = refine(
         target.analysis,
         source.analysis,
         start,
-        params,
+        replace(params, fine=replace(params.fine, max_corr_dist_m=reach)),
         SubReporter(reporter, 0.5, 0.95),
         threads=threads,
     )

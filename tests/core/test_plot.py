@@ -711,6 +711,33 @@ def test_stems_alone_hold_a_pose_only_with_a_clear_lead() -> None:
     assert held_by_stems([]) is None
 
 
+def test_a_loose_stem_pose_is_refined_from_as_far_as_its_stems_missed(
+    plot_pair, monkeypatch
+) -> None:
+    # Stems that meet within 12 cm leave the pose that far off at the stems, more at
+    # the plot's edge: the fine registration must reach past the usual 20 cm first.
+    import amrst.pipeline as pipeline
+    import amrst.plot.register as register
+
+    target, source, T_true = plot_pair
+    params = plot_params()
+    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in (target, source)]
+    reaches = []
+    refine = pipeline.refine
+
+    def spy(*args, **kwargs):
+        reaches.append(args[3].fine.max_corr_dist_m)
+        return refine(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "refine", spy)
+    for rms_m in (0.02, 0.12):
+        loose = StemPose(T_true, np.array([[k, k] for k in range(5)]), rms_m, 5)
+        monkeypatch.setattr(register, "stem_poses", lambda a, b, p=loose: [p])
+        link = register_plot_link(scans[0], scans[1], (0, 1), params).link
+        assert link.origin == "stems"
+    assert reaches == [params.fine.max_corr_dist_m, pytest.approx(0.36)]
+
+
 def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
     xyz = scan((0.0, -5.0), ((4.0, 3.0, 0.12, 6.0),), 16)
     z0 = float(ground_z(np.zeros(2)))
