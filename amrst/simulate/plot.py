@@ -67,6 +67,9 @@ _MIN_ARC_SHARE = 0.6
 _MIN_RING_POINTS = 12
 _RANSAC_TRIES = 2000
 _MAX_STEM_RADIUS_M = 1.0
+# Height truth: a point with no other point of its tree this close (m) is a stray of
+# the source cloud (one tree file holds points metres off its crown), not its top.
+_STRAY_M = 1.0
 # Azimuth sectors a scan is computed in: the beam grid of a whole plot scan at once
 # would hold a few hundred million cell entries.
 _SECTORS = 16
@@ -208,7 +211,7 @@ class PlotTree:
     name: str
     foot: np.ndarray  # (3,) stem foot: x, y, and the ground height there
     dbh_m: float  # NaN where no circle covers 60 % of the breast-height slice
-    height_m: float  # top of the tree above its foot
+    height_m: float  # top of the tree above its foot, its stray points left out
 
 
 @dataclass(frozen=True, slots=True)
@@ -309,7 +312,21 @@ def _measure(
     """Measure one placed tree for the truth: DBH on its breast-height slice, height."""
     z = xyz[:, 2] - foot[2]
     ring = xyz[(z >= _SLICE_M[0]) & (z <= _SLICE_M[1]), :2]
-    return PlotTree(name, foot, _ring_dbh_m(ring, rng), float(z.max()))
+    return PlotTree(name, foot, _ring_dbh_m(ring, rng), _top_m(xyz) - float(foot[2]))
+
+
+def _top_m(xyz: np.ndarray) -> float:
+    """Height (z) of the highest point of ``xyz`` that is no stray (see ``_STRAY_M``)."""
+    from scipy.spatial import cKDTree
+
+    order = np.argsort(-xyz[:, 2])
+    tree = cKDTree(xyz)
+    for start in range(0, len(order), 256):
+        top = order[start : start + 256]
+        near = tree.query(xyz[top], k=2)[0][:, 1] <= _STRAY_M
+        if near.any():
+            return float(xyz[top[np.argmax(near)], 2])
+    return float(xyz[order[0], 2])
 
 
 def _ring_dbh_m(ring: np.ndarray, rng: np.random.Generator) -> float:

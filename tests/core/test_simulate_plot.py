@@ -210,6 +210,17 @@ def test_wind_sways_the_trees_in_the_later_scans_only(trees) -> None:
         assert (np.median(d[crown]) > 1e-3) == moved
 
 
+def test_a_stray_point_of_a_tree_file_is_not_its_top(trees) -> None:
+    # A tree file can hold single points metres off its crown; the truth height is
+    # the crown's top, not theirs.
+    stray = np.array([[20.0, 0.0, 3.0]]) + trees[0].xyz.max(axis=0)
+    strayed = [Cloud(np.vstack([trees[0].xyz, stray]), name="t/stray.ply"), *trees[1:]]
+    options = plot_options("normal", **SMALL)
+    clean, with_stray = (plot_scene(t, options, seed=3) for t in (trees, strayed))
+    k = next(i for i, t in enumerate(clean.trees) if t.name == trees[0].name)
+    assert with_stray.trees[k].height_m == pytest.approx(clean.trees[k].height_m)
+
+
 def _cli(argv: list[str], capsys) -> tuple[int, str]:
     parser = argparse.ArgumentParser()
     configure_parser(parser)
