@@ -90,12 +90,16 @@ class BreastHeightStem:
 
 
 def with_company(
-    xyz: np.ndarray, weight: np.ndarray, candidates: np.ndarray
+    xyz: np.ndarray,
+    weight: np.ndarray,
+    candidates: np.ndarray,
+    others: int = _MIN_NEIGHBOURS,
 ) -> np.ndarray:
     """Of the candidate rows, the ones with neighbours (not isolated strays).
 
     ``xyz`` holds distinct points; ``weight`` how many input points each stands for,
-    so a point repeated many times still counts as its copies.
+    so a point repeated many times still counts as its copies. A candidate needs at
+    least ``others`` other points within ``_ISOLATION_M``.
     """
     from scipy.spatial import cKDTree
 
@@ -108,11 +112,11 @@ def with_company(
         tree.query_ball_point(xyz[candidates], _ISOLATION_M, return_length=True)
     )
     # Few distinct neighbours: count their copies too (short lists, cheap).
-    few = np.flatnonzero(counts <= _MIN_NEIGHBOURS)
+    few = np.flatnonzero(counts <= others)
     if len(few):
         lists = tree.query_ball_point(xyz[candidates[few]], _ISOLATION_M)
         counts[few] = [int(near_weight[ix].sum()) for ix in lists]
-    return candidates[counts > _MIN_NEIGHBOURS]  # counts include the point itself
+    return candidates[counts > others]  # counts include the point itself
 
 
 def _slice_stems(

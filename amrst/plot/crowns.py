@@ -150,9 +150,11 @@ def _links(
 
 
 def tree_top(tree: np.ndarray) -> np.ndarray:
-    """(3,) a tree's highest point that is no stray (has neighbours).
+    """(3,) a tree's highest point that is no stray (has a neighbour).
 
-    NaN for no points.
+    One other point within 30 cm is enough: the tree's points were reached by a
+    path from its stem, which no point far from the crown is, and the tip of a
+    sparse crown is often two beam hits on one twig. NaN for no points.
     """
     from amrst.measure.dbh import with_company
 
@@ -161,7 +163,7 @@ def tree_top(tree: np.ndarray) -> np.ndarray:
     order = np.argsort(-tree[:, 2])
     for start in range(0, len(order), 200):
         kept = with_company(
-            tree, np.ones(len(tree), np.int64), order[start : start + 200]
+            tree, np.ones(len(tree), np.int64), order[start : start + 200], others=1
         )
         if len(kept):
             return np.asarray(tree[kept[np.argmax(tree[kept, 2])]], dtype=float)

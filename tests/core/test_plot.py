@@ -636,6 +636,17 @@ def test_a_tall_tree_under_a_broad_crown_keeps_its_top() -> None:
     assert heights[4] == pytest.approx(9.0, abs=0.2)
 
 
+def test_a_twig_tip_of_two_points_is_the_top_and_one_point_is_a_stray() -> None:
+    # A sparse crown's tip is often two beam hits on one twig, 0.6 m above the rest.
+    tree = np.vstack([_ground(), _stem(0.0, 0.0, 0.15, -0.05, 10.0)])
+    pair = np.array([[0.1, 0.0, 10.6], [0.12, 0.05, 10.62]])
+    heights = [
+        map_stems(np.vstack([tree, tip])).stems[0].height_m for tip in (pair, pair[:1])
+    ]
+    assert heights[0] - heights[1] == pytest.approx(0.6, abs=0.05)
+    assert heights[1] == pytest.approx(10.0, abs=0.1)
+
+
 def test_the_dbh_follows_the_stem_not_a_bulge_at_breast_height() -> None:
     xyz = scan((0.0, -4.0), ((0.0, 0.0, 0.12, 6.0), (3.0, 2.0, 0.1, 5.0)), 8)
     z0 = float(ground_z(np.zeros(2)))
