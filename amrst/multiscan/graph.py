@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
     from amrst.params import RegistrationParams
     from amrst.pipeline import ScanAnalysis
+    from amrst.stages.fine import FineResult
     from amrst.stages.metrics import CloudMetrics
     from amrst.types import Transform
 
@@ -59,6 +60,10 @@ class Link:
         ``score * overlap``: the spanning tree prefers heavy links.
     T_local : (4, 4) float64 or None
         Maps the source's local coordinates into the target's local coordinates.
+    fine_converged : bool
+        False when the fine registration stopped before it converged: the link
+        needs review, as a pair whose fine registration did not converge does (its
+        pose can lie between the right one and where it started).
     """
 
     target: int
@@ -73,6 +78,7 @@ class Link:
     origin: str = ""
     in_tree: bool = False
     seconds: float = 0.0
+    fine_converged: bool = True
 
     @property
     def verified(self) -> bool:
@@ -84,6 +90,8 @@ class Link:
         """``registered``, ``needs review`` or ``failed`` (amrst.review.verdict)."""
         from amrst.review.verdict import scans_status
 
+        if self.verified and not self.fine_converged:
+            return NEEDS_REVIEW
         return scans_status((True, self.verified), self.confidence)
 
     def as_dict(self) -> dict[str, object]:
@@ -100,6 +108,7 @@ class Link:
             "origin": self.origin,
             "message": self.message,
             "seconds": round(self.seconds, 4),
+            "fine_converged": self.fine_converged,
             "metrics": None if self.metrics is None else self.metrics.as_dict(),
         }
 
@@ -165,9 +174,20 @@ def register_link(
         weight=score * float(metrics.overlap_fraction),
         T_local=fine.T_target_source,
         metrics=metrics,
-        message=coarse.message,
+        message=coarse.message + not_converged(fine),
         origin=str(coarse.candidate.origin),
         seconds=time.perf_counter() - t0,
+        fine_converged=fine.converged,
+    )
+
+
+def not_converged(fine: FineResult) -> str:
+    """Return what a link's message adds when its fine registration did not converge."""
+    if fine.converged:
+        return ""
+    return (
+        f"; the fine registration did not converge after {fine.iterations} "
+        "iterations: check the overlay"
     )
 
 

@@ -151,6 +151,7 @@ def _from_pair(
         origin=str(result.coarse.candidate.origin),
         in_tree=True,
         seconds=float(result.timings.get("total", 0.0)),
+        fine_converged=result.fine.converged,
     )
     poses: list[Transform | None] = [None, None]
     poses[reference] = np.eye(4)

@@ -31,6 +31,7 @@ from amrst.multiscan.graph import (
     link_pairs,
     loop_closures,
     loop_confirmed,
+    not_converged,
     scan_doubts,
     scan_statuses,
     spanning_tree,
@@ -375,9 +376,10 @@ def register_plot_link(
         weight=float(score) * float(metrics.overlap_fraction),
         T_local=T,
         metrics=metrics,
-        message=message,
+        message=message + not_converged(fine),
         origin=STEMS_ORIGIN,
         seconds=time.perf_counter() - t0,
+        fine_converged=fine.converged,
     )
     return PlotLink(link, _shared(target.stems, source.stems, T))
 

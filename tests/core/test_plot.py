@@ -749,6 +749,29 @@ def test_a_loose_stem_pose_is_refined_from_as_far_as_its_stems_missed(
     assert reaches == [params.fine.max_corr_dist_m, pytest.approx(0.36)]
 
 
+def test_a_stem_link_whose_fine_registration_did_not_converge_needs_review(
+    plot_pair, monkeypatch
+) -> None:
+    # Stopped short, the fine registration can leave a pose between the right one and
+    # where it started: such a link is not taken as registered, whatever its stems say.
+    import amrst.pipeline as pipeline
+
+    target, source, _ = plot_pair
+    params = plot_params()
+    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in (target, source)]
+    refine = pipeline.refine
+
+    def stopped(*args, **kwargs):
+        return replace(refine(*args, **kwargs), converged=False, iterations=100)
+
+    monkeypatch.setattr(pipeline, "refine", stopped)
+    link = register_plot_link(scans[0], scans[1], (0, 1), params).link
+    assert link.verified
+    assert link.status == "needs review"
+    assert "did not converge after 100 iterations" in link.message
+    assert link.as_dict()["fine_converged"] is False
+
+
 def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
     xyz = scan((0.0, -5.0), ((4.0, 3.0, 0.12, 6.0),), 16)
     z0 = float(ground_z(np.zeros(2)))
