@@ -40,6 +40,14 @@ def plot_pair() -> tuple[Cloud, Cloud, np.ndarray]:
     return Cloud(target, name="t"), Cloud(source, name="s"), T_true
 
 
+@pytest.fixture(scope="module")
+def plot_scans(plot_pair):
+    """The plot pair analysed as amrst plot does: its settings and both scans."""
+    params = plot_params()
+    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in plot_pair[:2]]
+    return params, scans
+
+
 def test_stem_map_finds_every_stem_with_its_dbh() -> None:
     m = map_stems(scan((0.5, 0.5), STEMS, 3))
     assert len(m.stems) == len(STEMS)
@@ -52,10 +60,9 @@ def test_stem_map_finds_every_stem_with_its_dbh() -> None:
         assert s.lean_deg < 3.0
 
 
-def test_stems_register_a_tilted_plot_pair(plot_pair) -> None:
-    target, source, T_true = plot_pair
-    params = plot_params()
-    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in (target, source)]
+def test_stems_register_a_tilted_plot_pair(plot_pair, plot_scans) -> None:
+    T_true = plot_pair[2]
+    params, scans = plot_scans
     link = register_plot_link(scans[0], scans[1], (0, 1), params).link
     assert link.verdict == "verified"
     assert link.origin == "stems"
@@ -723,16 +730,15 @@ def test_stems_alone_hold_a_pose_only_with_a_clear_lead() -> None:
 
 
 def test_a_loose_stem_pose_is_refined_from_as_far_as_its_stems_missed(
-    plot_pair, monkeypatch
+    plot_pair, plot_scans, monkeypatch
 ) -> None:
     # Stems that meet within 12 cm leave the pose that far off at the stems, more at
     # the plot's edge: the fine registration must reach past the usual 20 cm first.
     import amrst.pipeline as pipeline
     import amrst.plot.register as register
 
-    target, source, T_true = plot_pair
-    params = plot_params()
-    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in (target, source)]
+    T_true = plot_pair[2]
+    params, scans = plot_scans
     reaches = []
     refine = pipeline.refine
 
@@ -750,15 +756,13 @@ def test_a_loose_stem_pose_is_refined_from_as_far_as_its_stems_missed(
 
 
 def test_a_stem_link_whose_fine_registration_did_not_converge_needs_review(
-    plot_pair, monkeypatch
+    plot_scans, monkeypatch
 ) -> None:
     # Stopped short, the fine registration can leave a pose between the right one and
     # where it started: such a link is not taken as registered, whatever its stems say.
     import amrst.pipeline as pipeline
 
-    target, source, _ = plot_pair
-    params = plot_params()
-    scans = [analyse_plot_scan(c, params, StemMapParams()) for c in (target, source)]
+    params, scans = plot_scans
     refine = pipeline.refine
 
     def stopped(*args, **kwargs):
