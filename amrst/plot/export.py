@@ -25,7 +25,7 @@ import numpy as np
 
 from amrst import __version__
 from amrst.errors import InvalidInput
-from amrst.plot.flags import DBH_CHECK, DBH_OK, HEIGHT_FLAGS
+from amrst.plot.flags import DBH_CHECK, DBH_OK, HEIGHT_FLAGS, OUTLIER_SHARE
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
 from amrst.plot.review import (
@@ -80,8 +80,7 @@ COLUMN_NOTES = {
     "dbh_quality": f"ok: {DBH_OK}. check: {DBH_CHECK}. none: no DBH.",
     "dbh_arc_deg": "arc of the stem its breast-height points cover, degrees",
     "dbh_rmse_m": "RMS distance of those points from the circle, m",
-    "dbh_outlier_share": "share (0-1) of the slice's points near the stem but off "
-    "the circle",
+    "dbh_outlier_share": f"0-1: {OUTLIER_SHARE}",
     "dbh_why": "why the DBH is check or none",
     "lean_deg": "lean of the stem line from the vertical, degrees; empty: not measured",
     "crown_width_m": "mean width of the crown across its two main axes, m",

@@ -6,16 +6,23 @@ window's tooltips.
 
 from __future__ import annotations
 
-from amrst.plot.stemmap import StemMapParams
+from amrst.plot.stemmap import OUTLIER_NEAR_M, OUTLIER_OFF_M, StemMapParams
 
 _P = StemMapParams()
+
+#: Which points a DBH's outlier share counts.
+OUTLIER_SHARE = (
+    f"of the slice's points within {OUTLIER_NEAR_M * 100:g} cm of the circle, the "
+    f"share over {OUTLIER_OFF_M * 100:g} cm off it (farther points, a neighbour or a "
+    "branch end, do not count)"
+)
 
 #: When a DBH is ok.
 DBH_OK = (
     f"its circle's points cover an arc of {_P.ok_arc_deg:g}° or more of the stem "
     f"({_P.wide_ok_arc_deg:g}° of a stem over {_P.wide_stem_m * 100:g} cm, seldom "
     f"round), fit within {_P.ok_rmse_m * 1000:g} mm RMS, at most "
-    f"{_P.ok_outlier_share:.0%} of the slice's points off it, and the slices from 1 "
+    f"{_P.ok_outlier_share:.0%} of the points near it off it, and the slices from 1 "
     "to 1.6 m agree on it"
 )
 #: What a DBH to check asks for.

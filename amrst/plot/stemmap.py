@@ -48,6 +48,10 @@ if TYPE_CHECKING:
     from amrst.measure.stem import StemCircle
     from amrst.progress import Reporter
 
+#: A DBH circle's outlier share counts the slice points within OUTLIER_NEAR_M of it
+#: (m); those over OUTLIER_OFF_M off it are its outliers.
+OUTLIER_NEAR_M = 0.1
+OUTLIER_OFF_M = 0.02
 #: Heights above the ground of the slices the stem line is fitted to (m).
 LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
 #: Points around a stem the slices take (m beyond the stem cluster's extent).
@@ -886,10 +890,14 @@ def _without_dbh(stem: StemRecord) -> StemRecord:
 
 
 def _outlier_share(xy: np.ndarray, circle: StemCircle) -> float:
-    """Share of slice points near the stem (within 10 cm of the circle) off it."""
+    """Share of the slice points near the circle (``OUTLIER_NEAR_M``) off it.
+
+    Off: over ``OUTLIER_OFF_M``. Points farther than ``OUTLIER_NEAR_M`` are other
+    things (a neighbour, a branch end) and do not count.
+    """
     d = np.abs(np.linalg.norm(xy - circle.centre_xy, axis=1) - circle.radius_m)
-    near = d <= 0.1
-    return float(np.mean(d[near] > 0.02)) if near.any() else 1.0
+    near = d <= OUTLIER_NEAR_M
+    return float(np.mean(d[near] > OUTLIER_OFF_M)) if near.any() else 1.0
 
 
 def _tapers(radii: dict[float, float], dbh_h: float, params: StemMapParams) -> bool:
@@ -927,7 +935,7 @@ def _dbh_quality(
         )
     if not outliers <= params.ok_outlier_share:
         why.append(
-            f"{outliers:.0%} of the slice off the circle, "
+            f"{outliers:.0%} of the points near the circle off it, "
             f"{params.ok_outlier_share:.0%} allowed"
         )
     if not tapers:

@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
-from amrst.plot.flags import DBH_OK, HEIGHT_FLAGS
+from amrst.plot.flags import DBH_OK, HEIGHT_FLAGS, OUTLIER_SHARE
 from amrst.plot.review import NOT_A_TREE, PlotReview
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.plot.stem_map import scan_colour
@@ -62,8 +62,7 @@ FIGURE_TIPS = {
     "Position": "The stem base, in the reference scan's frame (world coordinates "
     "when the files carry an offset), as trees.csv lists it",
     "DBH fit": "The DBH circle's fit: the arc of the stem its points cover, their "
-    f"residual, and the share of slice points off the circle (3DFin's checks); ok: "
-    f"{DBH_OK}",
+    f"residual, and {OUTLIER_SHARE} (3DFin's checks); ok: {DBH_OK}",
     "Height": "The tree's highest point above the ground at its stem (the Side view "
     "shows it); " + "; ".join(f"{flag}: {text}" for flag, text in HEIGHT_FLAGS.items()),
     "Seen from": "The scans with points on the tree 0.3-2.5 m above its foot; where "
@@ -113,7 +112,7 @@ def figures(
             "DBH fit",
             f"arc {_value(s.arc_deg, '°', digits=0)}, ±"
             f"{_value(s.rmse_m, ' mm', 1000, 1)}, "
-            f"{_value(s.outlier_share, ' %', 100, 0)} of points off it"
+            f"{_value(s.outlier_share, ' %', 100, 0)} of nearby points off it"
             + (f"\nwhy {s.dbh_quality}: {s.dbh_why}" if s.dbh_why else "")
             if np.isfinite(s.dbh_m)
             else s.dbh_why or "no circle holds the stem at 1.3 m",
