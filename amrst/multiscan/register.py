@@ -91,9 +91,15 @@ class MultiScanResult:
         """``registered``, ``needs review`` or ``failed`` (amrst.review.verdict).
 
         Two scans: the pair's own verdict. More: from which scans reach the reference
-        through verified links (:func:`amrst.review.verdict.scans_status`).
+        through verified links (:func:`amrst.review.verdict.scans_status`), and needs
+        review when a link of the tree does (its fine registration did not converge).
         """
-        from amrst.review.verdict import judge_result, scans_status
+        from amrst.review.verdict import (
+            NEEDS_REVIEW,
+            REGISTERED,
+            judge_result,
+            scans_status,
+        )
 
         if self.pair is not None:
             return judge_result(self.pair, self.params).status
@@ -104,7 +110,9 @@ class MultiScanResult:
             and all(step in verified for step in itertools.pairwise(path))
             for path in self.paths
         ]
-        return scans_status(by_verified_links, self.confidence)
+        status = scans_status(by_verified_links, self.confidence)
+        unsure = any(ln.in_tree and ln.status != REGISTERED for ln in self.links)
+        return NEEDS_REVIEW if status == REGISTERED and unsure else status
 
     @property
     def confidence(self) -> float:

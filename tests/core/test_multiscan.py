@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -45,6 +46,15 @@ def test_two_scans_give_the_pair_result_exactly(sample_pair, sample_run):
     assert link.verified
     assert link.status == result.status == "registered"
     assert result.paths == ((0,), (0, 1))
+
+
+def test_a_set_whose_tree_link_did_not_converge_needs_review(three_result):
+    assert three_result.status == "registered"
+    stopped = tuple(
+        replace(ln, fine_converged=False) if ln.in_tree and ln.source == 2 else ln
+        for ln in three_result.links
+    )
+    assert replace(three_result, links=stopped).status == "needs review"
 
 
 def test_reference_other_than_first(sample_pair, sample_run):
