@@ -301,6 +301,20 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     )
     summary = documents.metrics
+    extra = {}
+    if args.report:  # the registration report, pictures drawn with Agg
+        from amrst.files.atomic import text_writer
+        from amrst.results.report_html import inputs_from_result, report_page
+
+        report = inputs_from_result(
+            result,
+            target,
+            source,
+            target_file=str(args.target),
+            source_file=str(args.source),
+            T_truth=T_truth,
+        )
+        extra[REPORT_NAME] = text_writer(report_page(report))
     files = export_registration(
         args.out,
         target=target,
@@ -312,19 +326,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
         remove_stale=True,
         documents=documents,
         unchanged=before,
+        extra=extra,
     )
-    if args.report:  # the registration report, pictures drawn with Agg
-        from amrst.results.report_html import inputs_from_result, write_report
-
-        report = inputs_from_result(
-            result,
-            target,
-            source,
-            target_file=str(args.target),
-            source_file=str(args.source),
-            T_truth=T_truth,
-        )
-        files = [*files, write_report(Path(args.out) / REPORT_NAME, report)]
     _print_summary(
         result,
         summary,

@@ -8,12 +8,13 @@ runs the export and the report in one worker job. No widgets.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from amrst.results.report_html import REPORT_NAME, ReportInputs, write_report
+from amrst.results.report_html import REPORT_NAME, ReportInputs, report_page
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from amrst.progress import Reporter
     from amrst_gui.session import Session
 
@@ -70,13 +71,14 @@ def export_with_report(
     inputs: ReportInputs | None,
     reporter: Reporter,
 ) -> tuple[list[Path], float]:
-    """Write the chosen outputs, then ``report.html`` beside them (a worker job)."""
+    """Write the chosen outputs and ``report.html`` as one set (a worker job)."""
+    from amrst.files.atomic import text_writer
     from amrst_gui import jobs
 
     start = time.perf_counter()
-    paths, _seconds = jobs.export_pair(out_dir, kwargs, reporter)
     if inputs is not None:
-        reporter.progress(0.9, "Writing the report (pictures)")
-        paths = [*paths, write_report(Path(out_dir) / REPORT_NAME, inputs)]
-    reporter.progress(1.0, f"Wrote {len(paths)} files")
+        reporter.progress(0.0, "Drawing the report's pictures")
+        kwargs = {**kwargs, "extra": {REPORT_NAME: text_writer(report_page(inputs))}}
+        reporter.check_cancelled()
+    paths, _seconds = jobs.export_pair(out_dir, kwargs, reporter)
     return paths, time.perf_counter() - start

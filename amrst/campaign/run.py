@@ -301,7 +301,6 @@ def _register(
     from amrst.io.checks import check_scans
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
-    from amrst.multiscan.cli import write_scan_report
     from amrst.multiscan.export import export_scans, read_scan_truth
     from amrst.params import params_from_dict
 
@@ -324,9 +323,9 @@ def _register(
         truth=truth,
         clouds=bool(clouds),
         cloud_format=clouds or "ply",
+        report=True,
     )
-    report = write_scan_report(str(out), result, list(entry.scans), truth)
-    return result.status, [p.name for p in (*written, report)]
+    return result.status, [p.name for p in written]
 
 
 def raise_many(spec: str, count: int) -> None:

@@ -8,6 +8,7 @@ clobbers the old one. The new file keeps the old one's permissions (0644 when ne
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -62,6 +63,11 @@ def write_text_atomic(path: str | os.PathLike[str], text: str | bytes) -> None:
     """Write text (UTF-8) or bytes atomically."""
     data = text.encode("utf-8") if isinstance(text, str) else text
     write_atomic(path, lambda tmp: tmp.write_bytes(data))
+
+
+def text_writer(text: str | bytes) -> Callable[[Path], None]:
+    """Return ``write(path)`` that writes ``text``: a file of a set (``replace_files``)."""
+    return functools.partial(write_text_atomic, text=text)
 
 
 def strict_json(data: Any) -> tuple[Any, dict[str, str]]:

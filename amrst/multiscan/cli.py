@@ -19,12 +19,11 @@ from amrst.io.checks import check_scans
 
 if TYPE_CHECKING:
     import argparse
-    from pathlib import Path
 
     from amrst.multiscan.register import MultiScanResult
     from amrst.params import RegistrationParams
     from amrst.progress import Reporter
-    from amrst.types import Cloud, Transform
+    from amrst.types import Cloud
 
 
 def read_specs(labels: list[str]) -> list[Cloud]:
@@ -137,9 +136,8 @@ def run_register(
         clouds=args.write_clouds,
         cloud_format=args.format,
         unchanged=before,
+        report=report,
     )
-    if report:
-        files = [*files, write_scan_report(args.out, result, labels, truth)]
     print(
         f"Registered {len(clouds)} scans onto {labels[0]} in "
         f"{time.perf_counter() - t0:.2f} s: {result.status}."
@@ -167,32 +165,3 @@ def run_register(
         )
         return EXIT_NOT_REGISTERED
     return 0
-
-
-def write_scan_report(
-    out: str,
-    result: MultiScanResult,
-    labels: list[str],
-    truth: list[Transform] | None,
-) -> Path:
-    """Write report.html: the pair report for two scans, else the multi-scan one."""
-    from pathlib import Path
-
-    from amrst.multiscan.export import summary
-    from amrst.results.report_html import inputs_from_result, write_report
-    from amrst.results.report_multi import write_multi_report
-
-    path = Path(out) / "report.html"
-    if result.pair is not None:
-        ref, other = result.reference, 1 - result.reference
-        inputs = inputs_from_result(
-            result.pair,
-            result.scans[ref],
-            result.scans[other],
-            target_file=labels[ref],
-            source_file=labels[other],
-            T_truth=None if truth is None else truth[other],
-        )
-        return write_report(path, inputs)
-    rows = [s["truth"] for s in summary(result, truth, labels)["scans"]]
-    return write_multi_report(path, result, labels, rows)

@@ -8,15 +8,14 @@ metrics.csv hold every link, the joint refinement and the tree measures; params.
 ``merged.<fmt>`` (all reached scans, ``scan_id`` = scan number) on request. All of them
 are staged and renamed into place together (amrst.results.export's staging folder).
 
-Both write ``scans.json`` last: the same summary for any number of scans (``status``:
-registered, needs review or failed; links, paths, per-scan transforms, tree measures),
-which the campaign table reads.
+Both write ``scans.json`` with them: the same summary for any number of scans
+(``status``: registered, needs review or failed; links, paths, per-scan transforms, tree
+measures), which the campaign table reads; and ``report.html`` on request.
 """
 
 from __future__ import annotations
 
 import csv
-import functools
 import io as _stdio
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amrst import __version__
-from amrst.files.atomic import write_json_atomic, write_text_atomic
+from amrst.files.atomic import text_writer, write_json_atomic, write_text_atomic
 from amrst.types import Cloud, invert_transform
 
 if TYPE_CHECKING:
@@ -139,9 +138,10 @@ def _pair_files(
     clouds: bool,
     cloud_format: str,
     *,
+    more: dict[str, Callable[[Path], object]],
     unchanged: FolderStamp | None,
 ) -> list[Path]:
-    """Write the files of ``amrst register`` for two scans, built as the CLI builds them."""
+    """Write the pair files of ``amrst register`` (built as it builds them) and ``more``."""
     from amrst.results.documents import record_from_registration, result_documents
     from amrst.results.export import export_registration
     from amrst.review.verdict import judge_result
@@ -174,6 +174,7 @@ def _pair_files(
         remove_stale=True,
         documents=documents,
         unchanged=unchanged,
+        extra=more,
     )
 
 
@@ -184,6 +185,7 @@ def _many_files(
     clouds: bool,
     cloud_format: str,
     *,
+    more: dict[str, Callable[[Path], object]],
     unchanged: FolderStamp | None,
 ) -> list[Path]:
     from amrst import io
@@ -232,7 +234,7 @@ def _many_files(
     ]
     for k, T in enumerate(result.T_reference_scan):
         text = "" if T is None else _matrix_text(T)
-        jobs.append((f"transform_{k}.txt", functools.partial(_write_text, text=text)))
+        jobs.append((f"transform_{k}.txt", text_writer(text)))
     jobs += [
         ("metrics.json", lambda p: write_json_atomic(p, metrics)),
         ("metrics.csv", lambda p: write_text_atomic(p, buf.getvalue())),
@@ -241,11 +243,11 @@ def _many_files(
     if clouds:
         merged = merge_scans(result)
         jobs.append((f"merged.{cloud_format}", lambda p: io.write(p, merged)))
-    jobs.append((SUMMARY, lambda p: write_json_atomic(p, doc)))
+    jobs += list(more.items())
     # amrst.files.outdir: the whole set replaces the earlier one as one unit.
-    managed = {*MANAGED_NAMES, *names, SUMMARY}
+    managed = {*MANAGED_NAMES, *names, *more}
     # an earlier run's clouds and per-scan files this run does not write (as the pair
-    # command removes stale clouds), and its report (the caller writes this run's after)
+    # command removes stale clouds), and its report when this run writes none
     stale = [
         *sorted(
             name
@@ -253,16 +255,12 @@ def _many_files(
             if name not in names
             and (name.startswith("transform_") or name in CLOUD_NAMES)
         ),
-        REPORT_NAME,
+        *([] if REPORT_NAME in more else [REPORT_NAME]),
     ]
     written, _ = replace_files(
         out, dict(jobs), managed=managed, remove=stale, unchanged=unchanged
     )
     return written
-
-
-def _write_text(path: Path, text: str) -> None:
-    write_text_atomic(path, text)
 
 
 def _matrix_text(T: Transform) -> str:
@@ -289,8 +287,9 @@ def export_scans(
     clouds: bool = False,
     cloud_format: str = "ply",
     unchanged: FolderStamp | None = None,
+    report: bool = False,
 ) -> list[Path]:
-    """Write a multi-scan result into ``out_dir``; scans.json last.
+    """Write a multi-scan result into ``out_dir``, scans.json and the report with it.
 
     Parameters
     ----------
@@ -306,20 +305,54 @@ def export_scans(
     unchanged : FolderStamp or None
         What ``out_dir`` held when the run began: nothing is written when another run
         changed it since (amrst.files.outdir.folder_stamp).
+    report : bool
+        Also write report.html: the pair report for two scans, else the multi-scan one.
 
     Returns
     -------
     list of Path
     """
+    from amrst.results.report_html import REPORT_NAME
+
     out = Path(out_dir)
     doc = summary(result, truth, files)
-    if result.pair is None:  # scans.json goes with the set
-        return _many_files(out, result, doc, clouds, cloud_format, unchanged=unchanged)
-    written = _pair_files(
-        out, result, files, truth, clouds, cloud_format, unchanged=unchanged
+    more: dict[str, Callable[[Path], object]] = {
+        SUMMARY: lambda p: write_json_atomic(p, doc)
+    }
+    if report:
+        more[REPORT_NAME] = text_writer(_report_page(result, files, truth, doc))
+    if result.pair is None:
+        return _many_files(
+            out, result, doc, clouds, cloud_format, more=more, unchanged=unchanged
+        )
+    return _pair_files(
+        out, result, files, truth, clouds, cloud_format, more=more, unchanged=unchanged
     )
-    write_json_atomic(out / SUMMARY, doc)
-    return [*written, out / SUMMARY]
+
+
+def _report_page(
+    result: MultiScanResult,
+    labels: Sequence[str],
+    truth: Sequence[Transform | None] | None,
+    doc: dict[str, Any],
+) -> str:
+    """report.html: the pair report for two scans, else the multi-scan one."""
+    from amrst.results.report_html import inputs_from_result, report_page
+    from amrst.results.report_multi import multi_report_page
+
+    labels = list(labels) or [scan.name for scan in result.scans]
+    if result.pair is not None:
+        ref, other = result.reference, 1 - result.reference
+        inputs = inputs_from_result(
+            result.pair,
+            result.scans[ref],
+            result.scans[other],
+            target_file=labels[ref],
+            source_file=labels[other],
+            T_truth=None if truth is None else truth[other],
+        )
+        return report_page(inputs)
+    return multi_report_page(result, labels, [s["truth"] for s in doc["scans"]])
 
 
 def read_scan_truth(

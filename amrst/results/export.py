@@ -30,7 +30,7 @@ from amrst.results.report_html import REPORT_NAME
 from amrst.types import Cloud, Transform, transform_cloud
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
     from amrst.results.documents import ResultDocuments
 
@@ -277,6 +277,7 @@ def export_registration(
     lock_timeout_s: float = DEFAULT_TIMEOUT_S,
     documents: ResultDocuments | None = None,
     unchanged: FolderStamp | None = None,
+    extra: Mapping[str, Callable[[Path], object]] | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -300,8 +301,8 @@ def export_registration(
     remove_stale : bool
         Drop from the folder the ``MANAGED_NAMES`` files this call does not write (an
         earlier run's clouds, transform, metrics, parameters) and an earlier
-        ``report.html`` (the caller writes this run's after, when asked), in the same
-        atomic step, logging one warning line.
+        ``report.html`` this call does not write, in the same atomic step, logging one
+        warning line.
     lock_timeout_s : float
         How long to wait for another writer of ``out_dir`` (amrst.files.folderlock).
     documents : ResultDocuments or None
@@ -310,6 +311,9 @@ def export_registration(
     unchanged : FolderStamp or None
         What ``out_dir`` held when the run began: nothing is written when another run
         changed it since (amrst.files.outdir.folder_stamp).
+    extra : dict of str to callable, optional
+        More files of the result: name -> ``write(path)`` (``report.html``, a
+        multi-scan ``scans.json``), written in the same atomic step.
 
     Returns
     -------
@@ -340,7 +344,8 @@ def export_registration(
             f"Unknown cloud format {cloud_format!r}; choose from {CLOUD_FORMATS}."
         )
     names = output_names(parts, cloud_format)
-    out = check_output_dir(out_dir, names)
+    more = dict(extra or {})
+    out = check_output_dir(out_dir, [*names, *more])
     out.mkdir(parents=True, exist_ok=True)  # checked above: it can be created
     writers: dict[str, Callable[[Path], object]] = {}
     if "registered" in parts or "merged" in parts:
@@ -357,12 +362,12 @@ def export_registration(
         doc, mdoc = documents.transform, documents.metrics
         text, table = documents.transform_txt, documents.metrics_csv
     else:
-        extra = {
+        names_doc = {
             "target": target.name,
             "source": source.name,
             **(transform_extra or {}),
         }
-        doc = transform_document(T_target_source, T_coarse, **extra)
+        doc = transform_document(T_target_source, T_coarse, **names_doc)
         text = (
             "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T_target_source)
             + "\n"
@@ -377,14 +382,14 @@ def export_registration(
     if "params" in parts:
         pdoc = params_to_dict(params or RegistrationParams())
         writers["params.json"] = lambda p: write_json_atomic(p, pdoc)
-    # What this call does not write, and an earlier report, describe another result
-    # (the caller writes this run's report after).
+    writers.update(more)
+    # What this call does not write, an earlier report too, describes another result.
     stale = [*sorted(MANAGED_NAMES.difference(names)), REPORT_NAME]
-    stale = stale if remove_stale else []
+    stale = [n for n in stale if n not in more] if remove_stale else []
     written, removed = replace_files(
         out,
-        {name: writers[name] for name in names},
-        managed=MANAGED_NAMES,
+        {name: writers[name] for name in [*names, *more]},
+        managed=MANAGED_NAMES.union(more),
         remove=stale,
         lock_timeout_s=lock_timeout_s,
         unchanged=unchanged,

@@ -4,7 +4,8 @@ Everything a technician signs off by, in one page: the inputs, the verdict and w
 the chosen candidate and its alternatives, the metrics with their meaning, the
 pictures (overlay, distance colouring, distance histogram, stem slices; PNGs embedded
 as base64), the tree measurements and the parameters. ``amrst register --report``
-and the app's Export both write it with :func:`write_report`. No Qt, no pyvista.
+and the app's Export both write it with the result's files (:func:`report_page`). No
+Qt, no pyvista.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import dataclasses
 import html
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -147,19 +147,15 @@ def render_images(inputs: ReportInputs) -> dict[str, bytes]:
     return render_all(inputs.target.xyz, moved, slices)
 
 
-def write_report(
-    path: str | Path, inputs: ReportInputs, images: Mapping[str, bytes] | None = None
-) -> Path:
-    """Write the report atomically and return its path.
+def report_page(inputs: ReportInputs, images: Mapping[str, bytes] | None = None) -> str:
+    """Return the report's HTML page.
 
-    ``images`` (PNG bytes by name) default to :func:`render_images`.
+    ``images`` (PNG bytes by name) default to :func:`render_images`. The page is
+    written with the result's other files, in one atomic step
+    (``export_registration(extra=...)``).
     """
-    from amrst.files.atomic import write_text_atomic
-
-    path = Path(path)
     pictures = dict(images) if images is not None else render_images(inputs)
-    write_text_atomic(path, build_html(inputs, pictures))
-    return path
+    return build_html(inputs, pictures)
 
 
 # ------------------------------------------------------------------ the page

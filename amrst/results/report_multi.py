@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import html
 import math
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -192,20 +191,15 @@ def build_multi_html(
     )
 
 
-def write_multi_report(
-    path: str | Path,
+def multi_report_page(
     result: MultiScanResult,
     labels: Sequence[str],
     truth: Sequence[Mapping[str, Any] | None] = (),
     images: Mapping[str, bytes] | None = None,
-) -> Path:
-    """Write the multi-scan report atomically; return its path.
+) -> str:
+    """Return the multi-scan report's HTML.
 
     ``truth``: per scan, the truth errors of ``scans.json`` (or None).
     """
-    from amrst.files.atomic import write_text_atomic
-
-    path = Path(path)
     pictures = dict(images) if images is not None else render_multi_images(result)
-    write_text_atomic(path, build_multi_html(result, labels, pictures, truth))
-    return path
+    return build_multi_html(result, labels, pictures, truth)

@@ -303,6 +303,30 @@ def test_stale_clouds_of_an_earlier_run_are_removed(
     assert all(name in lines[0] for name in stale)
 
 
+def test_report_is_written_with_the_result_or_not_at_all(
+    capsys, monkeypatch, tmp_path, sample_pair
+) -> None:
+    # The report belongs to the result's set: a report that cannot be drawn leaves
+    # the earlier set whole, its report included, not a new result without one.
+    import amrst.results.report_html as report_html
+    from amrst.errors import AmrstError
+
+    out = tmp_path / "out"
+    t, s = str(sample_pair.target_path), str(sample_pair.source_path)
+    args = ["register", t, s, "--out", str(out), "--quiet", "--report"]
+    assert main(args) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert "report.html" in before
+
+    def fail(_inputs):
+        raise AmrstError("cannot draw the pictures")
+
+    monkeypatch.setattr(report_html, "render_images", fail)
+    assert main(args) != 0
+    assert "cannot draw the pictures" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
 def test_one_scan_as_target_and_source_is_refused(capsys, tmp_path, sample_pair):
     # Registering a scan onto itself tells nothing, and verifying the identity on
     # a big scan took minutes: the same file, or a copy of it, is bad input.
