@@ -102,11 +102,23 @@ def run_files(out: Path) -> list[str]:
     return theirs
 
 
+def registration_files(out: Path) -> list[str]:
+    """List the names in ``out`` that ``amrst register`` writes (not a plot's)."""
+    from amrst.multiscan.export import SUMMARY
+    from amrst.results.export import MANAGED_NAMES
+
+    names = {*MANAGED_NAMES, SUMMARY}
+    found = [n for n in names if os.path.lexists(out / n)]
+    if out.is_dir():
+        found += [p.name for p in out.glob("transform_[0-9]*.txt")]
+    return sorted(found)
+
+
 def check_out(out: Path, overwrite: bool) -> None:
     """Refuse an output folder a run cannot write into.
 
     That is a file, a place that cannot be written, or a folder that holds another
-    run's output (unless ``overwrite``). Its review must be readable (its marks go
+    run's output, a plot's or a registration's (unless ``overwrite``). Its review must be readable (its marks go
     into the inventory). All refused before the run rather than after it, in words
     for the command line and the app alike (the folder is --out to one, a field to
     the other).
@@ -137,6 +149,13 @@ def check_out(out: Path, overwrite: bool) -> None:
             f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "
             "replace or remove them. Choose another results folder, or "
             "--overwrite to replace them."
+        )
+    pair = registration_files(out)
+    if pair and not (out / PLOT_JSON).exists() and not overwrite:
+        raise InvalidInput(
+            f"{out} holds a registration's files ({', '.join(pair)}): a plot's "
+            "files beside them would mix two results. Choose another results "
+            "folder, or --overwrite to write the plot beside them."
         )
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):

@@ -333,6 +333,21 @@ def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
         check_out(other, overwrite=False)
 
 
+def test_a_registration_folder_takes_a_plot_only_when_asked(tmp_path):
+    from amrst.plot.export import check_out
+
+    # amrst register's files of three scans: a plot beside them mixes two results.
+    for name in ("transform.json", "transform_1.txt", "scans.json"):
+        (tmp_path / name).write_text("{}")
+    with pytest.raises(
+        InvalidInput,
+        match=r"holds a registration's files \(scans\.json, transform\.json, "
+        r"transform_1\.txt\)",
+    ):
+        check_out(tmp_path, overwrite=False)
+    check_out(tmp_path, overwrite=True)  # asked for
+
+
 def test_a_results_folder_that_cannot_take_a_run_is_refused_before_it(tmp_path):
     from amrst.plot.export import check_out
 

@@ -1468,6 +1468,37 @@ def test_a_folder_of_run_files_without_a_plot_is_replaced_when_asked(
     assert (out / "plot.json").is_file()
 
 
+def test_a_registration_folder_is_written_beside_only_when_asked(
+    qtbot: QtBot,
+    plot_files: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from amrst_gui.plot import window as plot_window
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "transform.json").write_text("{}")  # amrst register's result
+    answers = [False, True]
+    asked: list[str] = []
+
+    def answer(_parent: object, title: str, text: str) -> bool:
+        asked.append(f"{title} {text}")
+        return answers.pop(0)
+
+    monkeypatch.setattr(plot_window, "confirm", answer)
+    plot = plot_window.PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, out)
+    plot.run()  # asked, and kept
+    assert "holds a registration's files (transform.json)" in asked[0]
+    assert not (out / "plot.json").exists()
+    _run(qtbot, plot)  # asked again, and written beside it
+    assert len(asked) == 2
+    assert (out / "plot.json").is_file()
+    assert (out / "transform.json").read_text() == "{}"
+
+
 def test_a_scan_is_removed_from_the_plot_and_two_stay(
     qtbot: QtBot, plot_files: list[str], tmp_path: Path
 ) -> None:
