@@ -102,8 +102,8 @@ GIVEN_MARK = "; scanner given"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
-    """Ask for a plot's scans; sorted by name, so scan_1 is the reference (the
-    window's Make reference picks another)."""
+    """Ask for a plot's scans; sorted by name, numbers by value (scan_2 before
+    scan_10), so scan_1 is the reference (the window's Make reference picks another)."""
     from amrst import io
 
     patterns = " ".join(f"*{ext}" for ext in io.supported_extensions())
@@ -116,7 +116,16 @@ def ask_scans(parent: QWidget, settings) -> list[str]:
     )
     if paths:
         settings.setValue("dirs/open", str(Path(paths[0]).parent))
-    return sorted(paths)
+    return sorted(paths, key=by_name)
+
+
+def by_name(path: str) -> list[tuple[int, int | str]]:
+    """Sort key of a file path: its text, with each run of digits taken as a number."""
+    return [
+        (0, int(part)) if part.isdigit() else (1, part.casefold())
+        for part in re.split(r"(\d+)", path)
+        if part
+    ]
 
 
 def _scanner_centre(o: PlotOutcome) -> tuple[float, float]:

@@ -2091,3 +2091,26 @@ def test_trees_without_a_dbh_end_the_table_whichever_way_it_is_sorted(
     ):
         view.sortByColumn(1, order)
         assert [o.trees[tree_at_row(view, r)].tree_id for r in range(3)] == ids
+
+
+def test_scans_picked_are_ordered_by_name_numbers_by_value(
+    qtbot: QtBot, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QWidget
+
+    from amrst_gui.plot import window as plot_window
+
+    picked = [f"/plot/Scan_{k}.e57" for k in (10, 2, 1)] + ["/plot/scan_3.e57"]
+    monkeypatch.setattr(
+        plot_window.QFileDialog, "getOpenFileNames", lambda *_a: (picked, "")
+    )
+    parent = QWidget()
+    qtbot.addWidget(parent)
+    settings = QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat)
+    assert plot_window.ask_scans(parent, settings) == [
+        "/plot/Scan_1.e57",
+        "/plot/Scan_2.e57",
+        "/plot/scan_3.e57",
+        "/plot/Scan_10.e57",
+    ]
