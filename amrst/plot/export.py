@@ -114,6 +114,29 @@ def registration_files(out: Path) -> list[str]:
     return sorted(found)
 
 
+def _refuse_results(out: Path) -> None:
+    """Refuse a folder holding a plot, a run's files without one, or a registration."""
+    if (out / PLOT_JSON).exists():
+        raise InvalidInput(
+            f"{out} already holds a plot ({PLOT_JSON}): choose another results "
+            "folder, or --overwrite to replace it."
+        )
+    theirs = run_files(out)
+    if theirs:
+        raise InvalidInput(
+            f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "
+            "replace or remove them. Choose another results folder, or "
+            "--overwrite to replace them."
+        )
+    pair = registration_files(out)
+    if pair:
+        raise InvalidInput(
+            f"{out} holds a registration's files ({', '.join(pair)}): a plot's "
+            "files beside them would mix two results. Choose another results "
+            "folder, or --overwrite to write the plot beside them."
+        )
+
+
 def check_out(out: Path, overwrite: bool) -> None:
     """Refuse an output folder a run cannot write into.
 
@@ -138,25 +161,8 @@ def check_out(out: Path, overwrite: bool) -> None:
             f"{trees} is a file, where a run keeps its tree clouds: move it, or "
             "choose another results folder."
         )
-    if (out / PLOT_JSON).exists() and not overwrite:
-        raise InvalidInput(
-            f"{out} already holds a plot ({PLOT_JSON}): choose another results "
-            "folder, or --overwrite to replace it."
-        )
-    theirs = run_files(out)
-    if theirs and not (out / PLOT_JSON).exists() and not overwrite:
-        raise InvalidInput(
-            f"{out} holds {', '.join(theirs)} but no plot ({PLOT_JSON}): a run would "
-            "replace or remove them. Choose another results folder, or "
-            "--overwrite to replace them."
-        )
-    pair = registration_files(out)
-    if pair and not (out / PLOT_JSON).exists() and not overwrite:
-        raise InvalidInput(
-            f"{out} holds a registration's files ({', '.join(pair)}): a plot's "
-            "files beside them would mix two results. Choose another results "
-            "folder, or --overwrite to write the plot beside them."
-        )
+    if not overwrite:
+        _refuse_results(out)
     first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
     if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
         raise InvalidInput(f"Cannot write in {first}: choose another results folder.")
