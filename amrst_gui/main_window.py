@@ -311,11 +311,15 @@ class MainWindow(QMainWindow):
 
     def _plot_window(self) -> PlotWindow:
         """The Plot window, made the first time."""
+        from amrst_gui.plot import menus
         from amrst_gui.plot.window import PlotWindow
 
         if self.plot_window is None:
             self.plot_window = PlotWindow(self)  # a window of its own
             self.plot_window.open_pair_in = self.open_plot_pair
+            menus.add_open_actions(
+                self.plot_window, self.open_plot_dialog, self.open_plot_results_dialog
+            )
         return self.plot_window
 
     def open_plot_pair(

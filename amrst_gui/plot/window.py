@@ -67,7 +67,7 @@ from amrst.plot.stand import MAX_RADIUS_M, PlotArea, counted, stand, stand_line
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
-from amrst_gui.plot import jobs
+from amrst_gui.plot import jobs, menus
 from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
     LINK_COLUMNS,
@@ -279,14 +279,15 @@ class PlotWindow(QMainWindow):
         self.links.itemSelectionChanged.connect(self._update_link_buttons)
         for key, step in (("N", 1), ("P", -1)):  # the next / previous tree
             QShortcut(QKeySequence(key), self, lambda step=step: self.step_tree(step))
+        self.plot_menu = menus.build(self)
         fit_screen(self, 1500, 950)
 
     def _build_side(self) -> QWidget:
         side = QWidget()
         self.out_edit = QLineEdit()
         self.out_edit.setPlaceholderText("results folder (asked at Run)")
-        choose = QPushButton("Choose…")
-        choose.clicked.connect(self.choose_out)
+        self.choose_button = QPushButton("Choose…")
+        self.choose_button.clicked.connect(self.choose_out)
         self.run_button = QPushButton("Run plot")
         self.run_button.setToolTip(
             "Register the scans by their stems and list every tree (amrst plot); "
@@ -308,8 +309,8 @@ class PlotWindow(QMainWindow):
         self.progress.setTextVisible(False)
         self.progress.setMaximumHeight(10)
         self.status = QLabel(
-            "Open a plot's scans (File ▸ Open plot… in the main window), or the "
-            "results of one run before (File ▸ Open plot results…)."
+            "Open a plot's scans (Plot ▸ Open plot…), or the results of one run "
+            "before (Plot ▸ Open plot results…)."
         )
         self.status.setObjectName("plot_status")
         self.status.setWordWrap(True)
@@ -336,7 +337,7 @@ class PlotWindow(QMainWindow):
         )
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
-        folder.addWidget(choose)
+        folder.addWidget(self.choose_button)
         buttons = QHBoxLayout()
         buttons.addWidget(self.run_button)
         buttons.addWidget(self.cancel_button)

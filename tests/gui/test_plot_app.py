@@ -18,6 +18,7 @@ import pytest
 from _plots import STEMS, pose, scan
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
+from PySide6.QtWidgets import QMenu
 
 from amrst.errors import InvalidInput
 from amrst.plot.review import read_review
@@ -26,6 +27,7 @@ from amrst.types import Cloud, invert_transform
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from PySide6.QtGui import QAction
     from pytestqt.qtbot import QtBot
 
     from amrst.plot.inventory import Tree
@@ -68,6 +70,9 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     plot = win.open_plot_results(out)
     qtbot.waitUntil(lambda: plot.outcome is not None, timeout=30_000)
     assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    # Another plot is opened from the Plot window's menu too.
+    texts = [a.text() for a in plot.plot_menu.actions()]
+    assert texts[:3] == ["Open plot…", "Open plot results…", ""]
     # The window gives scan 2's (its file's origin) and refuses what is no position.
     plot.scan_list.setCurrentRow(1)
     assert plot.scanner_button.isEnabled()
@@ -2114,3 +2119,37 @@ def test_scans_picked_are_ordered_by_name_numbers_by_value(
         "/plot/scan_3.e57",
         "/plot/Scan_10.e57",
     ]
+
+
+def test_the_menus_click_the_buttons_and_show_their_state(
+    qtbot: QtBot, plot_files: list[str], tmp_path: Path
+) -> None:
+    from amrst_gui.plot import window as plot_window
+
+    plot = plot_window.PlotWindow()
+    qtbot.addWidget(plot)
+    plot.open_scans(plot_files, tmp_path / "out")
+    menus = {m.title().replace("&", ""): m for m in plot.menuBar().findChildren(QMenu)}
+    assert {"Plot", "Scans", "Links", "Trees"} <= set(menus)
+
+    def item(menu: str, text: str) -> QAction:
+        menus[menu].aboutToShow.emit()  # as the menu opens
+        return next(a for a in menus[menu].actions() if a.text().split("\t")[0] == text)
+
+    assert not item("Plot", "Export inventory…").isEnabled()  # nothing to export
+    assert item("Plot", "Run plot").text() == "Run plot\tCtrl+R"
+    with qtbot.waitSignal(plot.plot_done, timeout=300_000):
+        item("Plot", "Run plot").trigger()
+    assert plot.outcome is not None
+    assert item("Plot", "Export inventory…").isEnabled()
+    plot.select_tree(0)
+    item("Trees", "Mark check").trigger()
+    assert plot.review.marks == {plot.outcome.trees[0].tree_id: "check"}
+    item("Trees", "Next tree").trigger()
+    assert plot.tree_panel.tree_id == plot.outcome.trees[1].tree_id
+    assert not item("Links", "Accept").isEnabled()  # its link is registered
+    plot.links.selectRow(0)
+    item("Links", "Leave out").trigger()
+    assert plot.left_out == {(0, 1)}
+    item("Links", "Take in").trigger()  # the button's text, followed
+    assert plot.left_out == set()
