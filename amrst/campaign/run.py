@@ -301,10 +301,11 @@ def _register(
     from amrst.io.checks import check_scans
     from amrst.io.scans import read_scans
     from amrst.multiscan import register_scans
-    from amrst.multiscan.export import export_scans, read_scan_truth
+    from amrst.multiscan.export import export_scans, export_stamp, read_scan_truth
     from amrst.params import params_from_dict
 
     params = params_from_dict(params_doc)
+    before = export_stamp(out, len(entry.scans))
     scans = []
     for spec in entry.scans:
         found = read_scans(base / spec)
@@ -324,6 +325,7 @@ def _register(
         clouds=bool(clouds),
         cloud_format=clouds or "ply",
         report=True,
+        unchanged=before,
     )
     return result.status, [p.name for p in written]
 

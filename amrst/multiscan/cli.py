@@ -85,9 +85,13 @@ def run_register(
 ) -> int:
     """Register every scan of ``args.target`` + ``args.source`` and write ``args.out``."""
     from amrst.errors import InvalidInput
-    from amrst.files.outdir import folder_stamp
     from amrst.io.scans import one_scan_specs
-    from amrst.multiscan.export import SUMMARY, export_scans, read_scan_truth
+    from amrst.multiscan.export import (
+        SUMMARY,
+        export_scans,
+        export_stamp,
+        read_scan_truth,
+    )
     from amrst.multiscan.register import register_scans
     from amrst.results.export import (
         MANAGED_NAMES,
@@ -116,11 +120,7 @@ def run_register(
     )
     refuse_other_export(args.out, labels, overwrite=bool(args.overwrite))
     # What the folder holds now is what this run may replace (not another run's).
-    before = folder_stamp(
-        args.out,
-        [*MANAGED_NAMES, REPORT_NAME, SUMMARY]
-        + [f"transform_{k}.txt" for k in range(len(labels))],
-    )
+    before = export_stamp(args.out, len(labels))
     t0 = time.perf_counter()
     clouds = read_specs(labels)
     check_scans(clouds, labels)

@@ -278,6 +278,20 @@ def _flatten(prefix: str, value: Any, out: list[tuple[str, Any]]) -> None:
         out.append((prefix, value))
 
 
+def export_stamp(out_dir: str | os.PathLike[str], n_scans: int) -> FolderStamp:
+    """Stamp what :func:`export_scans` of ``n_scans`` scans may replace in ``out_dir``.
+
+    A run takes it before it registers and hands it to :func:`export_scans`
+    (``unchanged``): nothing is written over what another run wrote meanwhile.
+    """
+    from amrst.files.outdir import folder_stamp
+    from amrst.results.export import MANAGED_NAMES
+    from amrst.results.report_html import REPORT_NAME
+
+    names = [*MANAGED_NAMES, REPORT_NAME, SUMMARY]
+    return folder_stamp(out_dir, names + [f"transform_{k}.txt" for k in range(n_scans)])
+
+
 def export_scans(
     out_dir: str | os.PathLike[str],
     result: MultiScanResult,

@@ -91,3 +91,33 @@ def test_a_cancel_does_not_wait_for_the_trees_in_flight():
             next(_as_they_end([future], CancelSoon()))
         assert not future.done()  # Cancel came while the tree still ran
         future.cancel()
+
+
+def test_a_tree_writes_nothing_over_another_runs_results(
+    tmp_path, sample_pair, monkeypatch
+):
+    # Another run (a second batch on the campaign) writes the tree's results while
+    # this one registers it: this run's are the ones not written, and it says so.
+    import amrst.multiscan
+    from amrst.campaign import load_campaign
+    from amrst.campaign.batch import pending_trees
+    from amrst.campaign.run import run_tree
+
+    (tmp_path / "T01").mkdir()
+    for path in (sample_pair.target_path, sample_pair.source_path):
+        shutil.copy(path, tmp_path / "T01" / path.name)
+    init_campaign(tmp_path)
+    todo, _, doc = pending_trees(load_campaign(tmp_path))
+    entry, stamp = todo[0]
+    theirs = tmp_path / "results" / "T01" / "transform.json"
+    register = amrst.multiscan.register_scans
+
+    def meanwhile(*args, **kwargs):
+        theirs.write_text('{"the other run": true}')
+        return register(*args, **kwargs)
+
+    monkeypatch.setattr(amrst.multiscan, "register_scans", meanwhile)
+    row = run_tree(str(tmp_path), entry, doc, stamp)
+    assert not row["ok"]
+    assert "changed while this run worked (another run wrote it)" in row["error"]
+    assert theirs.read_text() == '{"the other run": true}'
