@@ -141,10 +141,10 @@ def check_out(out: Path, overwrite: bool) -> None:
     """Refuse an output folder a run cannot write into.
 
     That is a file, a place that cannot be written, or a folder that holds another
-    run's output, a plot's or a registration's (unless ``overwrite``). Its review must be readable (its marks go
-    into the inventory). All refused before the run rather than after it, in words
-    for the command line and the app alike (the folder is --out to one, a field to
-    the other).
+    run's output, a plot's or a registration's (unless ``overwrite``). Its review must
+    be readable (its marks go into the inventory). All refused before the run rather
+    than after it, in words for the command line and the app alike (the folder is
+    --out to one, a field to the other).
     """
     if out.is_symlink() and not out.exists():
         raise InvalidInput(

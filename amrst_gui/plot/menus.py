@@ -98,6 +98,7 @@ def _mirror(
     """
     if bind:
         button.setShortcut(QKeySequence(key))
+        button.setToolTip(f"{button.toolTip()} ({key})")
     action = QAction(menu)
     action.setCheckable(button.isCheckable())
     action.setToolTip(button.toolTip())
