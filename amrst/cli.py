@@ -301,7 +301,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         )
     )
     summary = documents.metrics
-    extra = {}
+    extra_files = {}
     if args.report:  # the registration report, pictures drawn with Agg
         from amrst.files.atomic import text_writer
         from amrst.results.report_html import inputs_from_result, report_page
@@ -314,7 +314,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
             source_file=str(args.source),
             T_truth=T_truth,
         )
-        extra[REPORT_NAME] = text_writer(report_page(report))
+        extra_files[REPORT_NAME] = text_writer(report_page(report))
     files = export_registration(
         args.out,
         target=target,
@@ -326,7 +326,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
         remove_stale=True,
         documents=documents,
         unchanged=before,
-        extra=extra,
+        extra_files=extra_files,
     )
     _print_summary(
         result,

@@ -78,7 +78,10 @@ def export_with_report(
     start = time.perf_counter()
     if inputs is not None:
         reporter.progress(0.0, "Drawing the report's pictures")
-        kwargs = {**kwargs, "extra": {REPORT_NAME: text_writer(report_page(inputs))}}
+        kwargs = {
+            **kwargs,
+            "extra_files": {REPORT_NAME: text_writer(report_page(inputs))},
+        }
         reporter.check_cancelled()
     paths, _seconds = jobs.export_pair(out_dir, kwargs, reporter)
     return paths, time.perf_counter() - start

@@ -174,7 +174,7 @@ def _pair_files(
         remove_stale=True,
         documents=documents,
         unchanged=unchanged,
-        extra=more,
+        extra_files=more,
     )
 
 

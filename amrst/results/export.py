@@ -277,7 +277,7 @@ def export_registration(
     lock_timeout_s: float = DEFAULT_TIMEOUT_S,
     documents: ResultDocuments | None = None,
     unchanged: FolderStamp | None = None,
-    extra: Mapping[str, Callable[[Path], object]] | None = None,
+    extra_files: Mapping[str, Callable[[Path], object]] | None = None,
 ) -> list[Path]:
     """Write the chosen parts of a registration into ``out_dir``.
 
@@ -311,7 +311,7 @@ def export_registration(
     unchanged : FolderStamp or None
         What ``out_dir`` held when the run began: nothing is written when another run
         changed it since (amrst.files.outdir.folder_stamp).
-    extra : dict of str to callable, optional
+    extra_files : dict of str to callable, optional
         More files of the result: name -> ``write(path)`` (``report.html``, a
         multi-scan ``scans.json``), written in the same atomic step.
 
@@ -344,7 +344,7 @@ def export_registration(
             f"Unknown cloud format {cloud_format!r}; choose from {CLOUD_FORMATS}."
         )
     names = output_names(parts, cloud_format)
-    more = dict(extra or {})
+    more = dict(extra_files or {})
     out = check_output_dir(out_dir, [*names, *more])
     out.mkdir(parents=True, exist_ok=True)  # checked above: it can be created
     writers: dict[str, Callable[[Path], object]] = {}

@@ -152,7 +152,7 @@ def report_page(inputs: ReportInputs, images: Mapping[str, bytes] | None = None)
 
     ``images`` (PNG bytes by name) default to :func:`render_images`. The page is
     written with the result's other files, in one atomic step
-    (``export_registration(extra=...)``).
+    (``export_registration(extra_files=...)``).
     """
     pictures = dict(images) if images is not None else render_images(inputs)
     return build_html(inputs, pictures)
