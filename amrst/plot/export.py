@@ -102,20 +102,8 @@ def run_files(out: Path) -> list[str]:
     return theirs
 
 
-def registration_files(out: Path) -> list[str]:
-    """List the names in ``out`` that ``amrst register`` writes (not a plot's)."""
-    from amrst.multiscan.export import SUMMARY
-    from amrst.results.export import MANAGED_NAMES
-
-    names = {*MANAGED_NAMES, SUMMARY}
-    found = [n for n in names if os.path.lexists(out / n)]
-    if out.is_dir():
-        found += [p.name for p in out.glob("transform_[0-9]*.txt")]
-    return sorted(found)
-
-
 def _refuse_results(out: Path) -> None:
-    """Refuse a folder holding a plot, a run's files without one, or a registration."""
+    """Refuse a folder holding a plot, a run's files without one, or a registration's."""
     if (out / PLOT_JSON).exists():
         raise InvalidInput(
             f"{out} already holds a plot ({PLOT_JSON}): choose another results "
@@ -128,12 +116,14 @@ def _refuse_results(out: Path) -> None:
             "replace or remove them. Choose another results folder, or "
             "--overwrite to replace them."
         )
-    pair = registration_files(out)
-    if pair:
+    from amrst.results.export import other_export
+
+    theirs_too = other_export(out, [])  # amrst register's files
+    if theirs_too:
         raise InvalidInput(
-            f"{out} holds a registration's files ({', '.join(pair)}): a plot's "
-            "files beside them would mix two results. Choose another results "
-            "folder, or --overwrite to write the plot beside them."
+            f"{out} holds {theirs_too}: a plot's files beside it would mix two "
+            "results. Choose another results folder, or --overwrite to write the "
+            "plot beside it."
         )
 
 

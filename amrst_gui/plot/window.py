@@ -1273,22 +1273,18 @@ class PlotWindow(QMainWindow):
     # -------------------------------------------------------------- slots
     def _may_replace(self, out: Path) -> bool | None:
         """False: nothing to replace; True: replace (asked); None: keep it."""
-        from amrst.plot.export import (
-            PLOT_CLOUD,
-            PLOT_JSON,
-            registration_files,
-            run_files,
-        )
+        from amrst.plot.export import PLOT_CLOUD, PLOT_JSON, run_files
+        from amrst.results.export import other_export
 
         if not (out / PLOT_JSON).exists():
             theirs = run_files(out) if out.is_dir() else []
-            pair = registration_files(out) if out.is_dir() else []
+            pair = other_export(out, []) if out.is_dir() else None
             if pair and not theirs:
                 text = (
-                    f"{out} holds a registration's files ({', '.join(pair)}): the "
-                    "plot's files go beside them, two results in one folder. Go on?"
+                    f"{out} holds {pair}: the plot's files go beside it, two "
+                    "results in one folder. Go on?"
                 )
-                return True if confirm(self, "Write beside them?", text) else None
+                return True if confirm(self, "Write beside it?", text) else None
             if not theirs:
                 return False
             text = (

@@ -44,19 +44,25 @@ def test_one_worker_runs_one_tree_at_a_time(tmp_path, sample_pair):
     )
 
 
-def test_a_tree_run_outside_dask_still_runs(tmp_path, sample_pair):
-    # no Dask worker to tell (get_worker fails): the tree runs and reports as ever
+def _one_tree(root, sample_pair):
+    """A campaign of one tree, T01, the sample pair: ``run_tree``'s arguments."""
     from amrst.campaign import load_campaign
     from amrst.campaign.batch import pending_trees
+
+    (root / "T01").mkdir()
+    for path in (sample_pair.target_path, sample_pair.source_path):
+        shutil.copy(path, root / "T01" / path.name)
+    init_campaign(root)
+    todo, _, doc = pending_trees(load_campaign(root))
+    entry, stamp = todo[0]
+    return str(root), entry, doc, stamp
+
+
+def test_a_tree_run_outside_dask_still_runs(tmp_path, sample_pair):
+    # no Dask worker to tell (get_worker fails): the tree runs and reports as ever
     from amrst.campaign.run import run_tree
 
-    (tmp_path / "T01").mkdir()
-    for path in (sample_pair.target_path, sample_pair.source_path):
-        shutil.copy(path, tmp_path / "T01" / path.name)
-    init_campaign(tmp_path)
-    todo, _, doc = pending_trees(load_campaign(tmp_path))
-    entry, stamp = todo[0]
-    row = run_tree(str(tmp_path), entry, doc, stamp)
+    row = run_tree(*_one_tree(tmp_path, sample_pair))
     assert row["ok"], row
 
 
@@ -99,16 +105,9 @@ def test_a_tree_writes_nothing_over_another_runs_results(
     # Another run (a second batch on the campaign) writes the tree's results while
     # this one registers it: this run's are the ones not written, and it says so.
     import amrst.multiscan
-    from amrst.campaign import load_campaign
-    from amrst.campaign.batch import pending_trees
     from amrst.campaign.run import run_tree
 
-    (tmp_path / "T01").mkdir()
-    for path in (sample_pair.target_path, sample_pair.source_path):
-        shutil.copy(path, tmp_path / "T01" / path.name)
-    init_campaign(tmp_path)
-    todo, _, doc = pending_trees(load_campaign(tmp_path))
-    entry, stamp = todo[0]
+    tree = _one_tree(tmp_path, sample_pair)
     theirs = tmp_path / "results" / "T01" / "transform.json"
     register = amrst.multiscan.register_scans
 
@@ -117,7 +116,7 @@ def test_a_tree_writes_nothing_over_another_runs_results(
         return register(*args, **kwargs)
 
     monkeypatch.setattr(amrst.multiscan, "register_scans", meanwhile)
-    row = run_tree(str(tmp_path), entry, doc, stamp)
+    row = run_tree(*tree)
     assert not row["ok"]
     assert "changed while this run worked (another run wrote it)" in row["error"]
     assert theirs.read_text() == '{"the other run": true}'

@@ -336,13 +336,12 @@ def test_a_folder_of_inventory_files_but_no_plot_is_not_written_over(tmp_path):
 def test_a_registration_folder_takes_a_plot_only_when_asked(tmp_path):
     from amrst.plot.export import check_out
 
-    # amrst register's files of three scans: a plot beside them mixes two results.
-    for name in ("transform.json", "transform_1.txt", "scans.json"):
-        (tmp_path / name).write_text("{}")
+    # amrst register's result: a plot beside it mixes two results.
+    doc = {"target_file": "/scans/t.ply", "source_file": "/scans/s.ply"}
+    (tmp_path / "transform.json").write_text(json.dumps(doc))
+    (tmp_path / "metrics.json").write_text("{}")
     with pytest.raises(
-        InvalidInput,
-        match=r"holds a registration's files \(scans\.json, transform\.json, "
-        r"transform_1\.txt\)",
+        InvalidInput, match=r"holds the export of s\.ply onto t\.ply: a plot's"
     ):
         check_out(tmp_path, overwrite=False)
     check_out(tmp_path, overwrite=True)  # asked for

@@ -1440,17 +1440,33 @@ def test_another_scan_is_made_the_reference_before_a_run(
     assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
 
 
-def test_a_folder_of_run_files_without_a_plot_is_replaced_when_asked(
+_REGISTERED = json.dumps({"target_file": "/scans/t.ply", "source_file": "/scans/s.ply"})
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "question", "beside"),
+    [
+        # an earlier run's list, its plot.json lost: replaced when asked
+        ("trees.csv", "an earlier run's list\n", "holds trees.csv but no plot", False),
+        # amrst register's result: the plot goes beside it when asked
+        ("transform.json", _REGISTERED, "holds the export of s.ply onto t.ply", True),
+    ],
+)
+def test_a_folder_of_another_runs_files_takes_a_run_only_when_asked(
     qtbot: QtBot,
     plot_files: list[str],
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
+    name: str,
+    text: str,
+    question: str,
+    beside: bool,
 ) -> None:
     from amrst_gui.plot import window as plot_window
 
     out = tmp_path / "out"
     out.mkdir()
-    (out / "trees.csv").write_text("an earlier run's list, its plot.json lost\n")
+    (out / name).write_text(text)
     answers = [False, True]
     asked: list[str] = []
 
@@ -1463,45 +1479,16 @@ def test_a_folder_of_run_files_without_a_plot_is_replaced_when_asked(
     qtbot.addWidget(plot)
     plot.open_scans(plot_files, out)
     plot.run()  # asked, and kept
-    assert "holds trees.csv but no plot" in asked[0]
+    assert question in asked[0]
     assert not plot.busy
     assert "is kept as it is" in plot.status.text()
-    assert (out / "trees.csv").read_text().startswith("an earlier run's list")
-    _run(qtbot, plot)  # asked again, and replaced: no dead end
+    assert (out / name).read_text() == text
+    assert not (out / "plot.json").exists()
+    _run(qtbot, plot)  # asked again, and run: no dead end
     assert len(asked) == 2
     assert plot.outcome is not None
     assert (out / "plot.json").is_file()
-
-
-def test_a_registration_folder_is_written_beside_only_when_asked(
-    qtbot: QtBot,
-    plot_files: list[str],
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    from amrst_gui.plot import window as plot_window
-
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "transform.json").write_text("{}")  # amrst register's result
-    answers = [False, True]
-    asked: list[str] = []
-
-    def answer(_parent: object, title: str, text: str) -> bool:
-        asked.append(f"{title} {text}")
-        return answers.pop(0)
-
-    monkeypatch.setattr(plot_window, "confirm", answer)
-    plot = plot_window.PlotWindow()
-    qtbot.addWidget(plot)
-    plot.open_scans(plot_files, out)
-    plot.run()  # asked, and kept
-    assert "holds a registration's files (transform.json)" in asked[0]
-    assert not (out / "plot.json").exists()
-    _run(qtbot, plot)  # asked again, and written beside it
-    assert len(asked) == 2
-    assert (out / "plot.json").is_file()
-    assert (out / "transform.json").read_text() == "{}"
+    assert ((out / name).read_text() == text) == beside
 
 
 def test_a_scan_is_removed_from_the_plot_and_two_stay(
