@@ -19,7 +19,8 @@ The inventory (``trees=True``) goes on:
 6. the DBH is the taper line of circles in slices 1.0-1.6 m (``plot/diameter.py``),
    and the stem line is fitted again to the circles on it;
 7. a tree whose foot shows no circle and is wrapped in its own branches (a spruce)
-   stands where its branches point (:func:`branch_axis`).
+   stands where its branches point (:func:`branch_axis`); a slice cluster that
+   such branches wrap is a tree too, even with no circle at all.
 
 The DBH quality follows 3DFin's section checks: the arc of the stem the circle's
 inliers cover, the fit residual, the share of slice points off the circle, and the
@@ -79,6 +80,10 @@ AXIS_NEAR_M = 0.1
 #: the axis (m), counted in 12 directions around it.
 SKIRT_HEIGHT_M = (0.5, 2.5)
 SKIRT_REACH_M = (0.3, 1.5)
+#: A wrapped stem (:func:`_add_wrapped_stems`): the branches within this reach (m)
+#: of a slice cluster's centre say where its stem is, within half of it.
+WRAP_REACH_M = 2.5
+WRAPPED_WHY = "the stem is hidden in its branches"
 #: Following a stem up (:func:`_trace_stem`), slab by slab of ``TRACE_STEP_M``: the
 #: points within its radius plus ``TRACE_TOL_M`` of the axis, when at least
 #: ``TRACE_MIN_POINTS`` and no fewer than those in the ``TRACE_RING_M`` ring around
@@ -308,6 +313,7 @@ def map_stems(
     if trees:
         say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
+        _add_wrapped_stems(pts, h, ground, slice_idx, seeds, fits, params=params)
         _merge_same_stems(seeds, fits, params)
         roles = _add_given_stems(pts, h, ground, seeds, fits, given, params=params)
         # Paths through a 5 cm graph: crowns go to the stem they hang from.
@@ -443,6 +449,71 @@ def _add_hidden_stems(
             fits.append(replace(fit, hidden=True))
 
 
+def _add_wrapped_stems(
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    slice_idx: np.ndarray,
+    seeds: list[np.ndarray],
+    fits: list[_StemFit | None],
+    *,
+    params: StemMapParams,
+) -> None:
+    """Add the stems wrapped in a conifer's branches to ``seeds``, ``fits`` (in place).
+
+    A spruce's branches down to the ground can hide its stem from every position:
+    its slice cluster, often wider than a stem's, shows no bark circle. Its whorls
+    still radiate from the stem and hang all round it (:func:`branch_axis`,
+    :func:`_skirt_sectors`): a slice cluster of no stem found that crosses the slice
+    and has such an axis within ``WRAP_REACH_M``, farther than ``hidden_gap_m`` from
+    every stem found, gets a stem on that axis, without DBH.
+    """
+    from amrst.stages.features import connected_components
+
+    mine = [s for s, f in zip(seeds, fits, strict=True) if f is not None]
+    rest = np.setdiff1d(slice_idx, np.concatenate([np.zeros(0, np.int64), *mine]))
+    if len(rest) < params.bark_min_points:
+        return
+    found = np.array([f.stem.dbh_xy for f in fits if f is not None]).reshape(-1, 2)
+    crown = np.flatnonzero(h >= AXIS_LOW_M)
+    skirt = np.flatnonzero((h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1]))
+    scene = params.scene
+    quarter = 0.25 * (scene.stem_high_m - scene.stem_low_m)
+    lab = connected_components(pts[rest], scene.link_m)
+    failed = [k for k, f in enumerate(fits) if f is None]
+    for cluster in (rest[lab == k] for k in range(int(lab.max()) + 1)):
+        if (
+            len(cluster) < params.bark_min_points
+            or h[cluster].min() > scene.stem_low_m + quarter
+            or h[cluster].max() < scene.stem_high_m - quarter
+        ):
+            continue
+        centre = np.median(pts[cluster, :2], axis=0)
+        near = crown[np.hypot(*(pts[crown, :2] - centre).T) <= WRAP_REACH_M]
+        axis = branch_axis(pts[near], h[near], centre)
+        if axis is None or axis[1] < params.axis_support:
+            continue
+        xy = axis[0]
+        if np.hypot(*(xy - centre)) > WRAP_REACH_M / 2 or (
+            len(found) and np.hypot(*(found - xy).T).min() <= params.hidden_gap_m
+        ):
+            continue
+        if _skirt_sectors(pts[skirt, :2], xy) < params.skirt_sectors:
+            continue
+        nan = float("nan")
+        stem = StemRecord(
+            np.r_[xy, float(ground.surface_z(xy)[0])],
+            xy,
+            *(nan, nan, nan, nan, "none", nan, "not measured", nan, nan, len(cluster)),
+            dbh_why=WRAPPED_WHY,
+        )
+        for j in failed:  # its points seed this stem alone
+            seeds[j] = seeds[j][~np.isin(seeds[j], cluster)]
+        seeds.append(cluster)
+        fits.append(_StemFit(stem, [], {}, hidden=True, wrapped=True))
+        found = np.vstack([found, xy])
+
+
 def _add_given_stems(
     pts: np.ndarray,
     h: np.ndarray,
@@ -520,7 +591,9 @@ def _as_tree_or_given(
     A found stem the inventory keeps is a tree found, whatever point fell on it; a
     given one it would drop, or one made at a point, is listed as given.
     """
-    stem = _as_tree(fit, pts, h, ground, mine, params) if fit.line else None
+    stem = (
+        _as_tree(fit, pts, h, ground, mine, params) if fit.line or fit.wrapped else None
+    )
     if stem is not None and role != "made":
         return replace(stem, given=None)
     if stem is not None:
@@ -586,6 +659,7 @@ class _StemFit:
     line: list[tuple[float, float, float]]
     radii: dict[float, float]
     hidden: bool = False  # found above its foot (see _add_hidden_stems)
+    wrapped: bool = False  # no circle: on its branch axis (see _add_wrapped_stems)
 
 
 def _measure_stem(
@@ -674,10 +748,18 @@ def _as_tree(
         return None
     if len(fit.line) < params.bark_heights and not top_h >= params.hidden_tree_m:
         return None
-    stem = _taper_stem(fit, pts, h, ground, params)
-    foot_r = fit.radii.get(LINE_HEIGHTS_M[0], np.inf)
-    if fit.hidden or 2 * foot_r > params.wide_foot_m or _scattered(fit.line, params):
-        stem = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
+    if fit.wrapped:
+        stem = _on_branch_axis(fit.stem, pts[mine], h[mine], ground, params)
+        stem = replace(stem, dbh_xy=stem.base[:2], dbh_why=WRAPPED_WHY)
+    else:
+        stem = _taper_stem(fit, pts, h, ground, params)
+        foot_r = fit.radii.get(LINE_HEIGHTS_M[0], np.inf)
+        if (
+            fit.hidden
+            or 2 * foot_r > params.wide_foot_m
+            or _scattered(fit.line, params)
+        ):
+            stem = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
     return replace(
         stem,
         height_m=top_h,
@@ -794,13 +876,8 @@ def _on_branch_axis(
     axis = branch_axis(tree, h, stem.base[:2])
     if axis is None or axis[1] < params.axis_support:
         return stem
-    v = tree[:, :2] - axis[0]
-    r = np.hypot(v[:, 0], v[:, 1])
     skirt = (h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1])
-    skirt &= (r >= SKIRT_REACH_M[0]) & (r <= SKIRT_REACH_M[1])
-    angle = np.arctan2(v[skirt, 1], v[skirt, 0])
-    sectors = np.unique(np.floor((angle + np.pi) / (2 * np.pi) * 12).astype(int) % 12)
-    if len(sectors) < params.skirt_sectors:
+    if _skirt_sectors(tree[skirt, :2], axis[0]) < params.skirt_sectors:
         return stem
     base = np.r_[axis[0], float(ground.surface_z(axis[0])[0])]
     if np.hypot(*(stem.dbh_xy - axis[0])) <= params.same_stem_m:
@@ -814,6 +891,15 @@ def _on_branch_axis(
         lean_deg=nan,
         dbh_why="the circle went round branches",
     )
+
+
+def _skirt_sectors(xy: np.ndarray, axis: np.ndarray) -> int:
+    """Count the 12 directions round ``axis`` in which points hang ``SKIRT_REACH_M``."""
+    v = xy - axis
+    r = np.hypot(v[:, 0], v[:, 1])
+    v = v[(r >= SKIRT_REACH_M[0]) & (r <= SKIRT_REACH_M[1])]
+    angle = np.arctan2(v[:, 1], v[:, 0])
+    return len(np.unique(np.floor((angle + np.pi) / (2 * np.pi) * 12).astype(int) % 12))
 
 
 def branch_axis(

@@ -1061,12 +1061,18 @@ def test_a_tree_added_out_of_every_scan_s_sight_is_not_listed(
     assert read_review(out, labels).added == {}
 
 
-def _whorls(centre: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
-    """A spruce without its stem: whorls of 8 level branches, 2-12 m up, 1.2 m long."""
+def _whorls(
+    centre: tuple[float, float],
+    rng: np.random.Generator,
+    low: float = 2.0,
+    step: float = 0.4,
+    length: float = 1.2,
+) -> np.ndarray:
+    """A spruce without its stem: whorls of 8 level branches from ``low`` to 12 m."""
     parts = []
-    for z in np.arange(2.0, 12.0, 0.4):
+    for z in np.arange(low, 12.0, step):
         for a in rng.uniform(0, 2 * np.pi) + np.arange(8) * np.pi / 4:
-            t = rng.uniform(0.1, 1.2, 60)
+            t = rng.uniform(0.1, length, 60)
             parts.append(
                 np.column_stack(
                     [
@@ -1093,6 +1099,23 @@ def test_branch_axis_finds_the_stem_its_branches_radiate_from() -> None:
     tree[:, :2] += rng.uniform(-1.5, 1.5, (len(tree) // 60, 2)).repeat(60, axis=0)
     axis = branch_axis(tree, tree[:, 2], np.zeros(2))
     assert axis is None or axis[1] < 0.25
+
+
+def test_a_spruce_wrapped_in_its_branches_is_listed_without_dbh() -> None:
+    # Whorls from 0.4 m up hide the stem from every side, in a skirt 2.8 m wide:
+    # wider than a stem's slice cluster, and no bark circle anywhere.
+    spruce = _whorls((2.0, 1.0), np.random.default_rng(5), 0.4, 0.15, 1.4)
+    spruce[:, 2] += ground_z(np.array([[2.0, 1.0]]))[0]
+    xyz = np.vstack([_ground(), spruce, _stem(-4.0, 0.0, 0.12, 0.0, 6.0)])
+    trees = {round(float(s.base[0])): s for s in map_stems(xyz).stems}
+    assert sorted(trees) == [-4, 2]
+    wrapped = trees[2]
+    assert np.hypot(*(wrapped.base[:2] - (2.0, 1.0))) < 0.1
+    assert np.isnan(wrapped.dbh_m)
+    assert wrapped.dbh_why == "the stem is hidden in its branches"
+    assert wrapped.height_m == pytest.approx(12.0, abs=0.5)
+    # The registration's stem map lists stems on their bark circles alone.
+    assert len(map_stems(xyz, trees=False).stems) == 1
 
 
 def test_circles_through_branches_scatter_and_a_stem_s_do_not() -> None:
