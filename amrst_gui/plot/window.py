@@ -212,14 +212,6 @@ def confirm(parent: QWidget, title: str, text: str) -> bool:
     return answer == QMessageBox.StandardButton.Yes
 
 
-def open_in_browser(path: Path) -> None:
-    """Open a written file in the desktop's browser (tests replace it)."""
-    from PySide6.QtCore import QUrl
-    from PySide6.QtGui import QDesktopServices
-
-    QDesktopServices.openUrl(QUrl.fromLocalFile(str(path)))
-
-
 class PlotWindow(QMainWindow):
     """Open, run and review one plot. Emits ``plot_done(outcome)`` when a run's or
     a results folder's plot shows."""
@@ -1446,8 +1438,16 @@ class PlotWindow(QMainWindow):
     def _on_report(self, path: Path) -> None:
         self.report_job = None
         self._update_link_buttons()
-        self._say(f"Report written: {path}")
-        open_in_browser(path)
+        from amrst_gui import dialogs
+
+        if dialogs.open_report(self, path):
+            self._say(f"Report written and opened in the web browser: {path}")
+        else:
+            self._say(
+                f"Report written: {path}. No web browser opened it; open the file by "
+                "hand.",
+                error=True,
+            )
 
     def _on_report_error(self, exc: BaseException) -> None:
         self.report_job = None

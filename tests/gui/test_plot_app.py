@@ -197,6 +197,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     plot_files: list[str],
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
+    opened_reports: list[Path],
 ) -> None:
     from amrst.plot.export import TREES_CSV
     from amrst_gui.plot import window as plot_window
@@ -282,8 +283,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     plot.export_inventory(str(tmp_path / "inventory.xlsx"))
     assert (tmp_path / "inventory.xlsx").stat().st_size > 0
     # The report says what the folder's files say, the mark included, and opens.
-    opened: list[Path] = []
-    monkeypatch.setattr(plot_window, "open_in_browser", opened.append)
+    opened = opened_reports
     plot.report_button.click()
     qtbot.waitUntil(lambda: bool(opened), timeout=30_000)  # drawn off the GUI thread
     assert opened == [out / "report.html"]
@@ -292,6 +292,13 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert "1 marked check, 0 marked not a tree and 0 DBHs measured by you" in (
         opened[0].read_text()
     )
+    # With no browser to open it, the status says where the report is.
+    from amrst_gui import dialogs
+
+    monkeypatch.setattr(dialogs, "open_report", lambda _parent, _path: False)
+    plot.report_button.click()
+    qtbot.waitUntil(lambda: "No web browser" in plot.status.text(), timeout=30_000)
+    assert str(out / "report.html") in plot.status.text()
     cell = plot.trees.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
