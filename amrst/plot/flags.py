@@ -31,7 +31,8 @@ DBH_CHECK = "measure it by hand before you use it (dbh_why says which check fail
 HEIGHT_FLAGS = {
     "lean": f"the stem leans over {_P.lean_flag_deg:g}°, or the top stands over "
     f"{_P.top_lean_flag_deg:g}° off the vertical over its foot (a bent tree, or a "
-    "neighbour's crown taken as its top)",
+    "neighbour's crown taken as its top), or, for a conifer placed where its "
+    f"branches point, over {_P.conifer_top_off_m:g} m off that point",
     "top not seen": "no scan saw the space above its top, its crown reaches the edge "
     "of every scan's range, or few points lie in its top metre, so the top may be "
     "hidden (the height too low) or a neighbour's (too high); this flag wins over "

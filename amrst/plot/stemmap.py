@@ -133,9 +133,12 @@ class StemMapParams:
     # top not seen (hidden or out of range; it wins over lean, as the worse); a
     # stem leaning more than lean_flag_deg, or a top farther off the vertical over
     # the stem's foot than top_lean_flag_deg (a bent tree, or a top taken from a
-    # neighbour's crown), is lean.
+    # neighbour's crown), is lean. So is a top farther than conifer_top_off_m across
+    # from a conifer's branch axis (:func:`_on_branch_axis`): its whorls radiate from
+    # an upright stem, and its top stands over it.
     lean_flag_deg: float = 8.0
     top_lean_flag_deg: float = 10.0
+    conifer_top_off_m: float = 1.0
     min_top_points: int = 15
     min_circles: int = 1  # bark circles a stem shows among the slices
     min_height_m: float = 2.0  # a lower stem is a shrub
@@ -748,8 +751,9 @@ def _as_tree(
         return None
     if len(fit.line) < params.bark_heights and not top_h >= params.hidden_tree_m:
         return None
+    conifer = fit.wrapped
     if fit.wrapped:
-        stem = _on_branch_axis(fit.stem, pts[mine], h[mine], ground, params)
+        stem, _ = _on_branch_axis(fit.stem, pts[mine], h[mine], ground, params)
         stem = replace(stem, dbh_xy=stem.base[:2], dbh_why=WRAPPED_WHY)
     else:
         stem = _taper_stem(fit, pts, h, ground, params)
@@ -759,11 +763,11 @@ def _as_tree(
             or 2 * foot_r > params.wide_foot_m
             or _scattered(fit.line, params)
         ):
-            stem = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
+            stem, conifer = _on_branch_axis(stem, pts[mine], h[mine], ground, params)
     return replace(
         stem,
         height_m=top_h,
-        height_flag=_height_flag(stem, top, n_top, params),
+        height_flag=_height_flag(stem, top, n_top, params, conifer=conifer),
         crown_width_m=crown,
         n_points=int(mine.sum()),
     )
@@ -863,25 +867,26 @@ def _on_branch_axis(
     h: np.ndarray,
     ground: GroundFit,
     params: StemMapParams,
-) -> StemRecord:
-    """Return the stem with its base where its branches point, if they hide its foot.
+) -> tuple[StemRecord, bool]:
+    """Return the stem with its base where its branches point, and whether it moved.
 
     Branches down to the ground hide a spruce's stem: the circles found through them
     lie up to a metre off, while its whorls still radiate from the stem. The stem
     moves only when ``axis_support`` of its branch lines pass the axis found and its
     own low branches surround that axis (``skirt_sectors``): a broadleaf's branches
     do not meet at one point, nor hang around it near the ground. A breast-height
-    circle farther than ``same_stem_m`` from the axis measured branches: no DBH.
+    circle farther than ``same_stem_m`` from the axis measured branches: no DBH. A
+    stem that moves is a conifer's.
     """
     axis = branch_axis(tree, h, stem.base[:2])
     if axis is None or axis[1] < params.axis_support:
-        return stem
+        return stem, False
     skirt = (h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1])
     if _skirt_sectors(tree[skirt, :2], axis[0]) < params.skirt_sectors:
-        return stem
+        return stem, False
     base = np.r_[axis[0], float(ground.surface_z(axis[0])[0])]
     if np.hypot(*(stem.dbh_xy - axis[0])) <= params.same_stem_m:
-        return replace(stem, base=base)
+        return replace(stem, base=base), True
     # Its breast-height circle went round branches: no DBH, and no lean measured.
     nan = float("nan")
     return replace(
@@ -890,7 +895,7 @@ def _on_branch_axis(
         dbh_xy=axis[0],
         lean_deg=nan,
         dbh_why="the circle went round branches",
-    )
+    ), True
 
 
 def _skirt_sectors(xy: np.ndarray, axis: np.ndarray) -> int:
@@ -1073,9 +1078,17 @@ def _top_and_crown(tree: np.ndarray) -> tuple[np.ndarray, float, int]:
 
 
 def _height_flag(
-    stem: StemRecord, top: np.ndarray, n_top: int, params: StemMapParams
+    stem: StemRecord,
+    top: np.ndarray,
+    n_top: int,
+    params: StemMapParams,
+    *,
+    conifer: bool = False,
 ) -> str:
-    """Flag a tree's height (``StemMapParams``' height flags), found or given."""
+    """Flag a tree's height (``StemMapParams``' height flags), found or given.
+
+    ``conifer``: the stem stands where its branches point (:func:`_on_branch_axis`).
+    """
     if not n_top:
         return "not measured"
     if n_top < params.min_top_points:
@@ -1084,4 +1097,4 @@ def _height_flag(
     top_lean = float(np.degrees(np.arctan2(off, top[2] - stem.base[2])))
     if stem.lean_deg > params.lean_flag_deg or top_lean > params.top_lean_flag_deg:
         return "lean"
-    return "ok"
+    return "lean" if conifer and off > params.conifer_top_off_m else "ok"

@@ -1114,8 +1114,20 @@ def test_a_spruce_wrapped_in_its_branches_is_listed_without_dbh() -> None:
     assert np.isnan(wrapped.dbh_m)
     assert wrapped.dbh_why == "the stem is hidden in its branches"
     assert wrapped.height_m == pytest.approx(12.0, abs=0.5)
+    assert wrapped.height_flag == "ok"
     # The registration's stem map lists stems on their bark circles alone.
     assert len(map_stems(xyz, trees=False).stems) == 1
+    # A neighbour's limb rising 2.2 m aside of its top to 13 m (under 10 degrees off
+    # its foot): a conifer's top stands over its stem, so this one is flagged.
+    t = np.linspace(0, 1, 2000)[:, None]
+    noise = np.random.default_rng(4).normal(0, 0.03, (2000, 3))
+    limb = np.array([2.6, 1.0, 11.4]) + t * np.array([1.6, 0.0, 1.6]) + noise
+    limb[:, 2] += ground_z(np.array([[2.0, 1.0]]))[0]
+    trees = {
+        round(float(s.base[0])): s for s in map_stems(np.vstack([xyz, limb])).stems
+    }
+    assert trees[2].height_m == pytest.approx(13.0, abs=0.3)
+    assert trees[2].height_flag == "lean"
 
 
 def test_circles_through_branches_scatter_and_a_stem_s_do_not() -> None:
