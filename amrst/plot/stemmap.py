@@ -513,7 +513,7 @@ def _add_wrapped_stems(
         for j in failed:  # its points seed this stem alone
             seeds[j] = seeds[j][~np.isin(seeds[j], cluster)]
         seeds.append(cluster)
-        fits.append(_StemFit(stem, [], {}, hidden=True, wrapped=True))
+        fits.append(_StemFit(stem, [], {}, wrapped=True))
         found = np.vstack([found, xy])
 
 
