@@ -40,7 +40,7 @@ from amrst.plot.crowns import assign_crowns, tree_top
 from amrst.plot.diameter import BREAST_HEIGHT_M, WINDOW_MARGIN_M, taper_dbh
 from amrst.stages.ground import GroundFit, fit_ground
 from amrst.stages.scene import SceneParams
-from amrst.stages.stems import find_stems
+from amrst.stages.stems import crosses_slice, find_stems
 from amrst.stages.voxels import voxel_sample
 
 if TYPE_CHECKING:
@@ -479,20 +479,17 @@ def _add_wrapped_stems(
         return
     found = np.array([f.stem.dbh_xy for f in fits if f is not None]).reshape(-1, 2)
     crown = np.flatnonzero(h >= AXIS_LOW_M)
-    skirt = np.flatnonzero((h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1]))
-    scene = params.scene
-    quarter = 0.25 * (scene.stem_high_m - scene.stem_low_m)
-    lab = connected_components(pts[rest], scene.link_m)
+    crown_xy = pts[crown, :2]
+    skirt_xy = pts[(h >= SKIRT_HEIGHT_M[0]) & (h <= SKIRT_HEIGHT_M[1]), :2]
+    lab = connected_components(pts[rest], params.scene.link_m)
     failed = [k for k, f in enumerate(fits) if f is None]
     for cluster in (rest[lab == k] for k in range(int(lab.max()) + 1)):
-        if (
-            len(cluster) < params.bark_min_points
-            or h[cluster].min() > scene.stem_low_m + quarter
-            or h[cluster].max() < scene.stem_high_m - quarter
+        if len(cluster) < params.bark_min_points or not crosses_slice(
+            h[cluster], params.scene
         ):
             continue
         centre = np.median(pts[cluster, :2], axis=0)
-        near = crown[np.hypot(*(pts[crown, :2] - centre).T) <= WRAP_REACH_M]
+        near = crown[np.hypot(*(crown_xy - centre).T) <= WRAP_REACH_M]
         axis = branch_axis(pts[near], h[near], centre)
         if axis is None or axis[1] < params.axis_support:
             continue
@@ -501,7 +498,7 @@ def _add_wrapped_stems(
             len(found) and np.hypot(*(found - xy).T).min() <= params.hidden_gap_m
         ):
             continue
-        if _skirt_sectors(pts[skirt, :2], xy) < params.skirt_sectors:
+        if _skirt_sectors(skirt_xy, xy) < params.skirt_sectors:
             continue
         nan = float("nan")
         stem = StemRecord(

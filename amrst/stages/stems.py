@@ -40,6 +40,17 @@ def _components(pts: np.ndarray, link: float) -> tuple[int, np.ndarray]:
     return int(n), lab
 
 
+def crosses_slice(h: np.ndarray, params: SceneParams) -> bool:
+    """Tell whether heights ``h`` span the stem slice, as a stem crossing it does.
+
+    They must reach into its lowest quarter and its highest.
+    """
+    quarter = 0.25 * (params.stem_high_m - params.stem_low_m)
+    return not (
+        h.min() > params.stem_low_m + quarter or h.max() < params.stem_high_m - quarter
+    )
+
+
 def find_stems(
     xyz: np.ndarray, h: np.ndarray, above: np.ndarray, params: SceneParams
 ) -> tuple[list[Stem], np.ndarray, np.ndarray]:
@@ -49,19 +60,11 @@ def find_stems(
     if len(sl) < 10:
         return [], np.zeros(0, dtype=np.int64), sl
     n, lab = _components(xyz[sl], params.link_m)
-    span = params.stem_high_m - params.stem_low_m
     stems: list[Stem] = []
     out = np.full(len(sl), -1, dtype=np.int64)
     for k in range(n):
         m = lab == k
-        if m.sum() < 10:
-            continue
-        hk = h[sl[m]]
-        # A stem crosses the slice: from near its bottom to near its top.
-        if (
-            hk.min() > params.stem_low_m + 0.25 * span
-            or hk.max() < params.stem_high_m - 0.25 * span
-        ):
+        if m.sum() < 10 or not crosses_slice(h[sl[m]], params):
             continue
         pts = xyz[sl[m], :2]
         if np.ptp(pts, axis=0).max() > params.stem_max_width_m:
