@@ -35,7 +35,6 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QCheckBox,
-    QDoubleSpinBox,
     QFileDialog,
     QHBoxLayout,
     QInputDialog,
@@ -63,11 +62,12 @@ from amrst.plot.review import (
     read_review,
     write_review,
 )
-from amrst.plot.stand import MAX_RADIUS_M, PlotArea, counted, stand, stand_line
+from amrst.plot.stand import PlotArea, counted, stand, stand_line
 from amrst.review.verdict import NEEDS_REVIEW, REGISTERED
 from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot import jobs, menus
+from amrst_gui.plot.area import AreaRow
 from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
     LINK_COLUMNS,
@@ -85,6 +85,7 @@ from amrst_gui.plot.tables import (
     tree_at_row,
 )
 from amrst_gui.plot.tree import TreePanel
+from amrst_gui.plot.typed import short_number, typed_numbers
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -135,19 +136,6 @@ def _scanner_centre(o: PlotOutcome) -> tuple[float, float]:
     if xy is None:
         return (0.0, 0.0)
     return (float(xy[0] + o.reference_at[0]), float(xy[1] + o.reference_at[1]))
-
-
-def _typed_numbers(text: str) -> list[str]:
-    """Split typed numbers: spaces between them, a comma only before a space.
-
-    "12,5 3" is two words, "12,5" and "3": a decimal comma is not read as two numbers.
-    """
-    return [w for w in re.split(r"\s*,\s+|\s+", text.strip()) if w]
-
-
-def _short(value: float) -> str:
-    """A coordinate to the micrometre, without trailing zeros."""
-    return f"{value:.6f}".rstrip("0").rstrip(".")
 
 
 def _stamp(out: Path) -> tuple[int, int] | None:
@@ -251,6 +239,9 @@ class PlotWindow(QMainWindow):
         self.opening = False  # the job reads a results folder
         self.run_queued = False  # Run was asked for while listing or opening
         self.stem_map = StemMapView()
+        self.area_row = AreaRow()
+        self.area_row.edited.connect(self.apply_area)
+        self.area_row.picking.connect(self._picking_centre)
         self.tree_panel = TreePanel()
         split = QSplitter(Qt.Orientation.Horizontal)
         split.addWidget(self._build_side())
@@ -342,7 +333,7 @@ class PlotWindow(QMainWindow):
         layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
         layout.addLayout(buttons)
-        layout.addLayout(self._build_area_row())
+        layout.addWidget(self.area_row)
         layout.addWidget(self.progress)
         layout.addWidget(self.status)
         layout.addWidget(QLabel("<b>Links</b>"))
@@ -389,66 +380,6 @@ class PlotWindow(QMainWindow):
         head.addWidget(self.reference_button)
         head.addWidget(self.remove_button)
         return head
-
-    def _build_area_row(self) -> QHBoxLayout:
-        """Plot radius and centre: the fixed-radius plot, applied to the shown plot."""
-        self.radius_spin = QDoubleSpinBox()
-        self.radius_spin.setRange(0.0, MAX_RADIUS_M)
-        self.radius_spin.setDecimals(2)  # 5.64, 11.28, 12.62, 17.84 m plots
-        self.radius_spin.setSuffix(" m")
-        self.radius_spin.setSpecialValueText("no radius")
-        self.radius_spin.setKeyboardTracking(False)  # applied once the value is typed
-        self.radius_spin.setToolTip(
-            "A fixed-radius plot: the stand figures count the trees within this "
-            "distance of the plot centre, per hectare. It applies to the plot shown "
-            "at once (plot.json, trees.csv) and to the next Run."
-        )
-        self.centre_edit = QLineEdit()
-        self.centre_edit.setPlaceholderText("x y (blank: scanner S1)")
-        self.centre_edit.setToolTip(
-            "The plot centre, x and y in the reference scan's coordinates as trees.csv "
-            "gives positions (world coordinates for a georeferenced scan); blank: "
-            "where the reference's scanner stood (as an E57 or PTX file says, else "
-            "the file's origin). Enter applies it."
-        )
-        self.centre_button = QPushButton("On map")
-        self.centre_button.setCheckable(True)
-        self.centre_button.setToolTip("Click the plot centre on the stem map")
-        self.centre_button.toggled.connect(self._picking_centre)
-        self.radius_spin.valueChanged.connect(self._on_radius)
-        self.radius_spin.valueChanged.connect(self.apply_area)
-        self.centre_edit.editingFinished.connect(self.apply_area)
-        self._on_radius(0.0)
-        row = QHBoxLayout()
-        row.addWidget(QLabel("Plot radius"))
-        row.addWidget(self.radius_spin)
-        row.addWidget(QLabel("centre"))
-        row.addWidget(self.centre_edit, 1)
-        row.addWidget(self.centre_button)
-        return row
-
-    def _show_area(self, area: PlotArea | None) -> None:
-        """Show ``area`` (None: no radius) in the radius and centre fields, without
-        applying it: it is the plot's own, or none for another plot."""
-        centre = (0.0, 0.0) if area is None else area.centre_xy
-        for widget in (self.radius_spin, self.centre_edit):
-            widget.blockSignals(True)
-        self.radius_spin.setValue(0.0 if area is None else area.radius_m)
-        self.centre_edit.setText(
-            "" if centre == (0.0, 0.0) else " ".join(_short(v) for v in centre)
-        )
-        for widget in (self.radius_spin, self.centre_edit):
-            widget.blockSignals(False)
-        self._on_radius(self.radius_spin.value())
-
-    def _on_radius(self, radius: float) -> None:
-        """Let the centre be given with a radius, and no job running (the area
-        fields are the job's to set when it ends)."""
-        on = radius > 0 and not self.busy
-        for widget in (self.centre_edit, self.centre_button):
-            widget.setEnabled(on)
-        if not on:
-            self.centre_button.setChecked(False)
 
     def _build_tree_buttons(self) -> QHBoxLayout:
         """The trees' heading: Add tree, Report, Export inventory."""
@@ -547,7 +478,7 @@ class PlotWindow(QMainWindow):
         # its area would be written into this one's: without a folder given, Run
         # asks for one.
         self._set_out("" if out is None else str(Path(out).expanduser().absolute()))
-        self._show_area(None)
+        self.area_row.show_area(None)
         if any(names_several(p) for p in paths):
             self._take_scans([])
             self._say("Listing the scans of the files…")
@@ -736,11 +667,11 @@ class PlotWindow(QMainWindow):
                 f"Scanner of {name}",
                 f"Where the scanner of {name} stood: X Y Z in metres, in the file's "
                 "own coordinates (blank: not known).",
-                text="" if now is None else " ".join(_short(v) for v in now),
+                text="" if now is None else " ".join(short_number(v) for v in now),
             )
             if not ok:
                 return
-        parts = _typed_numbers(text)
+        parts = typed_numbers(text)
         if not parts:
             self.given_scanners.pop(k, None)
             self._show_given()
@@ -800,7 +731,7 @@ class PlotWindow(QMainWindow):
         if self.busy or len(self.specs) < 2:
             return
         try:
-            area = self._area()
+            area = self.area_row.area()
         except InvalidInput as exc:
             self._say(f"Not run: {exc}", error=True)
             return
@@ -843,32 +774,6 @@ class PlotWindow(QMainWindow):
             on_progress=self._on_progress,
         )
         self._show_busy()
-
-    def _area(self) -> tuple[float, tuple[float, float] | None] | None:
-        """The plot radius to run with, and its centre (None: the reference scanner).
-
-        Raises InvalidInput when the centre field holds anything but two numbers.
-        """
-        radius = self.radius_spin.value()
-        if radius <= 0:
-            return None
-        text = self.centre_edit.text().strip().removeprefix("(").removesuffix(")")
-        text = text.strip()  # "( 1 2 )"
-        if not text:
-            return radius, None
-        words = _typed_numbers(text)
-        try:
-            x, y = (float(w) for w in words)
-        except ValueError:
-            x = y = float("nan")
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise InvalidInput(
-                "the plot centre takes x and y separated by a space, with decimal "
-                "points, as trees.csv gives positions; or nothing for the reference "
-                "scanner."
-            )
-        PlotArea((x, y), radius)  # refuses what amrst plot would
-        return radius, (x, y)
 
     def cancel(self) -> None:
         if self.job is not None:
@@ -1042,12 +947,12 @@ class PlotWindow(QMainWindow):
     def keyPressEvent(self, event) -> None:
         """Esc cancels a running plot, else ends a click on the map awaited (what no
         child took)."""
-        picking = self.add_button.isChecked() or self.centre_button.isChecked()
+        picking = self.add_button.isChecked() or self.area_row.picking_centre
         if event.key() == Qt.Key.Key_Escape and self.job is not None:
             self.cancel()
         elif event.key() == Qt.Key.Key_Escape and picking:
             self.add_button.setChecked(False)
-            self.centre_button.setChecked(False)
+            self.area_row.stop_picking()
         else:
             super().keyPressEvent(event)
 
@@ -1079,8 +984,8 @@ class PlotWindow(QMainWindow):
 
     def _adding_tree(self, on: bool) -> None:
         if on:
-            self.centre_button.setChecked(False)
-        self.stem_map.set_adding(on or self.centre_button.isChecked())
+            self.area_row.stop_picking()
+        self.stem_map.set_adding(on or self.area_row.picking_centre)
 
     def _picking_centre(self, on: bool) -> None:
         if on:
@@ -1089,16 +994,15 @@ class PlotWindow(QMainWindow):
 
     def _on_map_point(self, x: float, y: float) -> None:
         """A click on the map: the plot centre while picking it, else a tree added."""
-        if not self.centre_button.isChecked():
+        if not self.area_row.picking_centre:
             self.add_tree(x, y)
             return
-        self.centre_button.setChecked(False)
         o = self.outcome
         if o is None:
+            self.area_row.stop_picking()
             return
-        at = (x + o.reference_at[0], y + o.reference_at[1])  # the file's coordinates
-        self.centre_edit.setText(" ".join(f"{v:.2f}" for v in at))
-        self.apply_area()
+        # The centre is typed in the file's coordinates.
+        self.area_row.set_centre((x + o.reference_at[0], y + o.reference_at[1]))
 
     def apply_area(self) -> None:
         """Give the plot shown the radius and centre of the fields, saved at once.
@@ -1111,7 +1015,7 @@ class PlotWindow(QMainWindow):
         if o is None or self.busy:
             return  # the next run takes the fields
         try:
-            asked = self._area()
+            asked = self.area_row.area()
             area = (
                 None
                 if asked is None
@@ -1126,12 +1030,12 @@ class PlotWindow(QMainWindow):
             return
         # Not saved, the fields go back to the area the map and figures show.
         if not self._still_shown(o.out, "The plot area"):
-            self._show_area(o.area)
+            self.area_row.show_area(o.area)
             return
         try:
             write_area(o.out, o.trees, self.review, area)
         except (AmrstError, OSError) as exc:
-            self._show_area(o.area)
+            self.area_row.show_area(o.area)
             self._say(f"Plot area not changed: {exc}", error=True)
             return
         self.shown_stamp = _stamp(o.out)
@@ -1314,7 +1218,7 @@ class PlotWindow(QMainWindow):
         if opened:
             self._take_scans(list(outcome.labels))
         self._shown_specs = list(self.specs)
-        self._show_area(outcome.area)
+        self.area_row.show_area(outcome.area)
         # What placed each link carries on to the next run.
         self.left_out, self.hand_pairs, self.given_scanners = _run_choices(outcome)
         try:
@@ -1592,8 +1496,7 @@ class PlotWindow(QMainWindow):
         self.cancel_button.setEnabled(self.busy)
         self.tree_panel.set_locked(self.busy)
         # A run or an opening ends by showing its plot's area in these fields.
-        self.radius_spin.setEnabled(not self.busy)
-        self._on_radius(self.radius_spin.value())
+        self.area_row.set_busy(self.busy)
         self._update_link_buttons()
 
     def _update_link_buttons(self) -> None:

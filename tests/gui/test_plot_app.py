@@ -422,12 +422,12 @@ def _review_by_keys(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     QTest.keyClick(plot.trees, Qt.Key.Key_N)
     QTest.keyClick(plot.trees, Qt.Key.Key_Delete)
     marks_become({})
-    plot.centre_edit.setEnabled(True)
-    plot.centre_edit.setFocus()  # typed into a field, a letter is text
-    QTest.keyClick(plot.centre_edit, Qt.Key.Key_C)
+    plot.area_row.centre_edit.setEnabled(True)
+    plot.area_row.centre_edit.setFocus()  # typed into a field, a letter is text
+    QTest.keyClick(plot.area_row.centre_edit, Qt.Key.Key_C)
     qtbot.wait(300)
     assert read_review(out, o.labels).marks == {}
-    plot.centre_edit.clear()
+    plot.area_row.centre_edit.clear()
 
 
 def _add_a_tree(
@@ -820,7 +820,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
     assert plot.trees.item(0, 0).toolTip() == ""
     # A plot area given after the acceptance writes trees.csv as the review leaves it.
-    plot.radius_spin.setValue(5.0)
+    plot.area_row.radius_spin.setValue(5.0)
     plot.apply_area()
     assert json.loads((tmp_path / "plot.json").read_text())["plot_area"] is not None
     assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
@@ -1163,7 +1163,7 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     assert o is not None
     assert o.area is not None
     assert o.area.centre_xy == (1.5, -2.0)
-    assert plot.radius_spin.value() == 6.0
+    assert plot.area_row.radius_spin.value() == 6.0
     far = [np.hypot(t.xyz[0] - 1.5, t.xyz[1] + 2.0) > 6.0 for t in o.trees]
     assert sum(far) == 2  # of the six test stems
     for r, outside in enumerate(far):  # greyed in the table, and why
@@ -1180,30 +1180,30 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     after = plot.status.text().split(": ")[-1].split(f"{nbsp}stems/ha")[0]
     assert int(after) < int(before)
     assert not plot.stem_map.grab().isNull()  # the edge drawn with the trees
-    assert plot.centre_edit.text() == "1.5 -2"
-    plot.radius_spin.setValue(8.0)
-    assert plot._area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
+    assert plot.area_row.centre_edit.text() == "1.5 -2"
+    plot.area_row.radius_spin.setValue(8.0)
+    assert plot.area_row.area() == (8.0, (1.5, -2.0))  # the next run keeps the centre
     _area_applies_at_once(qtbot, plot, out)
-    plot.centre_edit.setText("3, 4.25")
-    assert plot._area() == (8.0, (3.0, 4.25))
-    plot.centre_edit.setText("(512340.125, -2)")
-    assert plot._area() == (8.0, (512340.125, -2.0))
+    plot.area_row.centre_edit.setText("3, 4.25")
+    assert plot.area_row.area() == (8.0, (3.0, 4.25))
+    plot.area_row.centre_edit.setText("(512340.125, -2)")
+    assert plot.area_row.area() == (8.0, (512340.125, -2.0))
     for text in ("12,5", "1,5 2", "3 north"):  # decimal commas are no pair
-        plot.centre_edit.setText(text)
+        plot.area_row.centre_edit.setText(text)
         with pytest.raises(InvalidInput):
-            plot._area()
-    plot.centre_edit.setText("")
-    assert plot._area() == (8.0, None)  # the reference scanner
-    plot.centre_edit.setText("3 north")
+            plot.area_row.area()
+    plot.area_row.centre_edit.setText("")
+    assert plot.area_row.area() == (8.0, None)  # the reference scanner
+    plot.area_row.centre_edit.setText("3 north")
     plot.run()  # refused in a line, before anything is asked or run
     assert not plot.busy
     assert "Not run: the plot centre takes x and y" in plot.status.text()
-    plot.centre_edit.setText("1e12 0")
+    plot.area_row.centre_edit.setText("1e12 0")
     plot.run()
     assert "Not run: The plot centre must be two coordinates" in plot.status.text()
-    plot.radius_spin.setValue(0.0)
-    assert not plot.centre_edit.isEnabled()
-    assert plot._area() is None
+    plot.area_row.radius_spin.setValue(0.0)
+    assert not plot.area_row.centre_edit.isEnabled()
+    assert plot.area_row.area() is None
     assert plot.outcome is not None
     assert plot.outcome.area is None  # no plot radius any more
     assert json.loads((out / "plot.json").read_text())["plot_area"] is None
@@ -1235,7 +1235,7 @@ def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     assert json.loads((out / "plot.json").read_text())["plot_area"] == area.as_dict()
     assert _in_plot(out) == ["yes" if area.holds(t.row()) else "no" for t in o.trees]
     assert "Within 8\u00a0m (0.0201\u00a0ha): " in plot.status.text()
-    plot.centre_button.click()  # then a click on the map is the centre
+    plot.area_row.centre_button.click()  # then a click on the map is the centre
     assert plot.stem_map.adding
     x, y = plot.stem_map.to_px(np.subtract((2.0, 1.0), o.reference_at))[0]
     QTest.mouseClick(
@@ -1247,18 +1247,18 @@ def _area_applies_at_once(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     assert not plot.stem_map.adding
     assert plot.outcome.area is not None
     assert np.allclose(plot.outcome.area.centre_xy, (2.0, 1.0), atol=0.1)
-    cx, cy = (float(v) for v in plot.centre_edit.text().split())
+    cx, cy = (float(v) for v in plot.area_row.centre_edit.text().split())
     assert (cx, cy) == plot.outcome.area.centre_xy
     assert json.loads((out / "plot.json").read_text())["plot_area"]["centre_x_m"] == cx
-    plot.centre_edit.setText("3 north")
-    plot.centre_edit.editingFinished.emit()
+    plot.area_row.centre_edit.setText("3 north")
+    plot.area_row.centre_edit.editingFinished.emit()
     assert plot.status.text().startswith("Plot area not changed: the plot centre")
     assert plot.outcome.area.centre_xy == (cx, cy)
-    plot.centre_edit.setText(f"{cx} {cy}")  # as it is: the stale refusal goes
-    plot.centre_edit.editingFinished.emit()
+    plot.area_row.centre_edit.setText(f"{cx} {cy}")  # as it is: the stale refusal goes
+    plot.area_row.centre_edit.editingFinished.emit()
     assert plot.status.text().startswith("The plot area is as shown")
-    plot.centre_edit.setText("1.5 -2")
-    plot.centre_edit.editingFinished.emit()
+    plot.area_row.centre_edit.setText("1.5 -2")
+    plot.area_row.centre_edit.editingFinished.emit()
     assert plot.outcome.area == area
 
 
@@ -1331,7 +1331,7 @@ def test_results_another_run_rewrote_are_not_written_over(
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         plot.open_results(out)
     plot.set_mark("T001", "ok")  # the window's own writes keep it the plot shown
-    plot.radius_spin.setValue(40.0)
+    plot.area_row.radius_spin.setValue(40.0)
     plot.apply_area()
     with FolderLock(out):  # another writer holds the folder: said at once
         plot.set_mark("T002", "check")
@@ -1343,7 +1343,7 @@ def test_results_another_run_rewrote_are_not_written_over(
     written = {f.name: f.read_bytes() for f in out.iterdir() if f.is_file()}
     plot.set_mark("T003", "ok")
     assert "changed since they were shown" in plot.status.text()
-    plot.radius_spin.setValue(10.0)
+    plot.area_row.radius_spin.setValue(10.0)
     plot.apply_area()
     assert "changed since they were shown" in plot.status.text()
     assert {f.name: f.read_bytes() for f in out.iterdir() if f.is_file()} == written
@@ -1798,22 +1798,22 @@ def test_other_scans_opened_take_no_plot_area_of_the_last_plot(
     plot = PlotWindow()
     qtbot.addWidget(plot)
     plot.open_scans(["a.ply", "b.ply"])
-    plot.radius_spin.setValue(12.0)
-    plot.centre_edit.setText("5 5")
+    plot.area_row.radius_spin.setValue(12.0)
+    plot.area_row.centre_edit.setText("5 5")
     plot.open_scans(plot_files, tmp_path)  # another plot: no radius of the last
-    assert plot.radius_spin.value() == 0.0
-    assert plot.centre_edit.text() == ""
-    assert plot._area() is None
+    assert plot.area_row.radius_spin.value() == 0.0
+    assert plot.area_row.centre_edit.text() == ""
+    assert plot.area_row.area() is None
     # Another reference, or a scan left out, is the same plot: its area holds.
     plot.open_scans(["a.ply", "b.ply", "c.ply"], tmp_path)
-    plot.radius_spin.setValue(12.0)
-    plot.centre_edit.setText("5 5")
+    plot.area_row.radius_spin.setValue(12.0)
+    plot.area_row.centre_edit.setText("5 5")
     plot.scan_list.setCurrentRow(1)
     plot.make_reference()
     plot.scan_list.setCurrentRow(2)
     plot.remove_scan()
     assert [Path(s).name for s in plot.specs] == ["b.ply", "a.ply"]
-    assert plot._area() == (12.0, (5.0, 5.0))
+    assert plot.area_row.area() == (12.0, (5.0, 5.0))
     assert plot.out_edit.text() == str(tmp_path)
 
 
@@ -1825,18 +1825,26 @@ def test_the_plot_area_is_not_typed_while_a_run_would_drop_it(
     plot = PlotWindow()
     qtbot.addWidget(plot)
     plot.open_scans(plot_files, tmp_path / "out")
-    plot.radius_spin.setValue(12.0)
-    plot.centre_button.setChecked(True)
+    plot.area_row.radius_spin.setValue(12.0)
+    plot.area_row.centre_button.setChecked(True)
     plot.run()
     assert plot.busy
-    for widget in (plot.radius_spin, plot.centre_edit, plot.centre_button):
+    for widget in (
+        plot.area_row.radius_spin,
+        plot.area_row.centre_edit,
+        plot.area_row.centre_button,
+    ):
         assert not widget.isEnabled()
-    assert not plot.centre_button.isChecked()  # no click on the map awaited
+    assert not plot.area_row.centre_button.isChecked()  # no click on the map awaited
     plot.cancel()
     qtbot.waitUntil(lambda: not plot.busy, timeout=10_000)
-    for widget in (plot.radius_spin, plot.centre_edit, plot.centre_button):
+    for widget in (
+        plot.area_row.radius_spin,
+        plot.area_row.centre_edit,
+        plot.area_row.centre_button,
+    ):
         assert widget.isEnabled()
-    assert plot.radius_spin.value() == 12.0  # the next run's
+    assert plot.area_row.radius_spin.value() == 12.0  # the next run's
 
 
 def test_a_plot_area_not_saved_goes_back_to_the_one_in_force(
@@ -1849,9 +1857,9 @@ def test_a_plot_area_not_saved_goes_back_to_the_one_in_force(
 
     plot, _found = _one_link_shown(qtbot, tmp_path)
     monkeypatch.setattr(export, "write_area", refused)
-    plot.radius_spin.setValue(12.0)
+    plot.area_row.radius_spin.setValue(12.0)
     assert plot.status.text().startswith("Plot area not changed: [Errno 13]")
-    assert plot.radius_spin.value() == 0.0  # no radius, as the map shows
+    assert plot.area_row.radius_spin.value() == 0.0  # no radius, as the map shows
     assert plot.found is not None
     assert plot.found.area is None
 
