@@ -47,10 +47,10 @@ def build(window: PlotWindow) -> QMenu:
 
     links = bar.addMenu("&Links")
     for button in (
-        window.open_button,
-        window.accept_button,
-        window.pairs_button,
-        window.leave_button,
+        window.links.open_button,
+        window.links.accept_button,
+        window.links.pairs_button,
+        window.links.leave_button,
     ):
         _mirror(links, button)
 

@@ -68,15 +68,13 @@ from amrst_gui.app import fit_screen
 from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot import jobs, menus
 from amrst_gui.plot.area import AreaRow
+from amrst_gui.plot.links import LinksPanel
 from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
-    LINK_COLUMNS,
     NBSP,
-    ROW_PX,
     TREE_COLUMNS,
     fill,
     fill_trees,
-    link_rows,
     row_of_tree,
     scan_file_exists,
     scan_lines,
@@ -92,7 +90,7 @@ if TYPE_CHECKING:
 
     from amrst.campaign.stored import StoredLinkResult
     from amrst.plot.review import HandCircle
-    from amrst_gui.plot.jobs import LinkLine, PlotOutcome
+    from amrst_gui.plot.jobs import PlotOutcome
     from amrst_gui.workers import StageJob
 
 log = logging.getLogger("amrst_gui.plot")
@@ -219,11 +217,9 @@ class PlotWindow(QMainWindow):
         self.review = PlotReview()  # marks, DBHs by hand, links accepted
         # Why the folder's review.json could not be read: no review is written over it.
         self.review_error: str | None = None
-        self.hand_pairs: dict[tuple[int, int], str] = {}  # link -> pairs CSV
         # scan -> where its scanner stood, given by Scanner at… or amrst plot --scanner
         # (the scan file's coordinates); the next run takes it
         self.given_scanners: dict[int, tuple[float, float, float]] = {}
-        self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self._close_agreed = False  # the user let the window close with choices unrun
         self._shown_specs: list[str] = []  # the scans of the plot shown, as listed
         # plot.json as the plot shown was read: a run from elsewhere into the same
@@ -239,6 +235,10 @@ class PlotWindow(QMainWindow):
         self.opening = False  # the job reads a results folder
         self.run_queued = False  # Run was asked for while listing or opening
         self.stem_map = StemMapView()
+        self.links = LinksPanel()
+        self.links.said.connect(self._say)
+        self.links.open_asked.connect(self.open_pair)
+        self.links.accept_asked.connect(self.toggle_accept)
         self.area_row = AreaRow()
         self.area_row.edited.connect(self.apply_area)
         self.area_row.picking.connect(self._picking_centre)
@@ -259,7 +259,6 @@ class PlotWindow(QMainWindow):
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
         self.trees.itemSelectionChanged.connect(self._on_row_selected)
-        self.links.itemSelectionChanged.connect(self._update_link_buttons)
         for key, step in (("N", 1), ("P", -1)):  # the next / previous tree
             QShortcut(QKeySequence(key), self, lambda step=step: self.step_tree(step))
         self.plot_menu = menus.build(self)
@@ -301,15 +300,6 @@ class PlotWindow(QMainWindow):
         # messages come and go.
         self.status.setAlignment(Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
         self.status.setMinimumHeight(3 * self.status.fontMetrics().lineSpacing())
-        self.links = table(LINK_COLUMNS, "plot_links")
-        self.links.setMaximumHeight(ROW_PX * 6 + 30)
-        self.links.setToolTip(
-            "Every pair of scans: its state, the stems it shares (within 30 cm at the "
-            "link's pose; its pose may have come from fewer), the overlap, the "
-            "residual (how far the second scan lies from the first one's surfaces at "
-            "the link's pose) and what found the pose (stems, or the two-scan "
-            "engine). ★: in the spanning tree that places the scans."
-        )
         self.trees = table(TREE_COLUMNS, "plot_trees")
         self.trees.horizontalHeader().setSortIndicator(0, Qt.SortOrder.AscendingOrder)
         self.trees.setToolTip(
@@ -336,12 +326,10 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.area_row)
         layout.addWidget(self.progress)
         layout.addWidget(self.status)
-        layout.addWidget(QLabel("<b>Links</b>"))
         layout.addWidget(self.links)
-        layout.addLayout(self._build_link_buttons())
         layout.addLayout(self._build_tree_buttons())
         layout.addWidget(self.trees, 1)
-        self._update_link_buttons()
+        self._update_tree_buttons()
         return side
 
     def _build_scans_head(self) -> QHBoxLayout:
@@ -410,43 +398,6 @@ class PlotWindow(QMainWindow):
         head.addWidget(self.export_button)
         return head
 
-    def _build_link_buttons(self) -> QHBoxLayout:
-        """The selected link's buttons: open, accept, pairs, leave out."""
-        self.open_button = QPushButton("Open pair")
-        self.open_button.setToolTip(
-            "Show the selected link's two scans at its pose in the main window: check "
-            "the overlay, or pick point pairs in the Manual pose dock and save them"
-        )
-        self.open_button.clicked.connect(self.open_pair)
-        self.pairs_button = QPushButton("Use pairs…")
-        self.pairs_button.setToolTip(
-            "Place the selected link from a point pairs CSV (first scan's points as "
-            "target) at the next run, instead of the automatic match"
-        )
-        self.pairs_button.clicked.connect(self.toggle_pairs)
-        self.accept_button = QPushButton("Accept")
-        self.accept_button.setToolTip(
-            "Accept the selected link at its pose after checking it (Open pair): the "
-            f"scans it places read accepted; kept in {REVIEW_JSON} while a run gives "
-            "the link the same pose"
-        )
-        self.accept_button.clicked.connect(self.toggle_accept)
-        self.leave_button = QPushButton("Leave out")
-        self.leave_button.setToolTip(
-            "Leave the selected link out of the next run (one you found wrong): the "
-            "plot then joins its scans through the other links"
-        )
-        self.leave_button.clicked.connect(self.toggle_left_out)
-        row = QHBoxLayout()
-        for button in (
-            self.open_button,
-            self.accept_button,
-            self.pairs_button,
-            self.leave_button,
-        ):
-            row.addWidget(button)
-        return row
-
     # ------------------------------------------------------------- public
     @property
     def busy(self) -> bool:
@@ -504,14 +455,13 @@ class PlotWindow(QMainWindow):
         review, and the links placed from point pairs or left out (they name scans
         by their numbers)."""
         self.found = self.outcome = None
-        self.review, self.hand_pairs = PlotReview(), {}
-        self.review_error = None
-        self.left_out = set()
+        self.review, self.review_error = PlotReview(), None
+        self.links.set_choices(set(), {})
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
-        fill(self.links, [])
+        self.links.show_links(None)
         fill(self.trees, [])
-        self._update_link_buttons()
+        self._update_tree_buttons()
 
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
@@ -764,8 +714,8 @@ class PlotWindow(QMainWindow):
             out,
             overwrite,
             name="plot",
-            pairs=dict(self.hand_pairs),
-            left_out=set(self.left_out),
+            pairs=dict(self.links.hand_pairs),
+            left_out=set(self.links.left_out),
             scanners=dict(self.given_scanners),
             write_cloud=self.cloud_check.isChecked(),
             area=area,
@@ -779,16 +729,9 @@ class PlotWindow(QMainWindow):
         if self.job is not None:
             self.job.cancel()
 
-    def selected_link(self) -> LinkLine | None:
-        """The link selected in the links table, or None."""
-        rows = self.links.selectionModel().selectedRows()
-        if self.outcome is None or not rows:
-            return None
-        return self.outcome.links[rows[0].row()]
-
     def open_pair(self) -> None:
         """Show the selected link's scans at its pose in the main window."""
-        line = self.selected_link()
+        line = self.links.selected()
         if line is None:
             return
         i, j = line.target, line.source
@@ -805,67 +748,6 @@ class PlotWindow(QMainWindow):
             "points in both in the Manual pose dock, Save them, then Use pairs… here "
             "and Run plot."
         )
-
-    def toggle_pairs(self, path: str | None = None) -> None:
-        """Take a pairs CSV for the selected link (asked when not given), or drop it."""
-        from amrst.review.manual import pairs_disagree
-        from amrst.review.pairs_file import read_pairs
-
-        line = self.selected_link()
-        if line is None:
-            return
-        link = line.target, line.source
-        name = f"S{link[0] + 1}–S{link[1] + 1}"
-        if link in self.hand_pairs:
-            del self.hand_pairs[link]
-            self._say(f"Link {name}: the automatic match again at the next run.")
-            self._update_link_buttons()
-            self._show_hand_pairs()
-            return
-        if path is None:
-            path, _ = QFileDialog.getOpenFileName(
-                self, f"Point pairs of link {name}", "", "Point pairs (*.csv)"
-            )
-        if not path:
-            return
-        try:
-            t_pts, s_pts = read_pairs(Path(path))
-        except AmrstError as exc:
-            self._say(f"Not used: {exc}", error=True)
-            return
-        if apart := pairs_disagree(t_pts, s_pts):
-            self._say(
-                f"Not used: the point pairs of {Path(path).name} {apart}.", error=True
-            )
-            return
-        n = len(t_pts)
-        self.hand_pairs[link] = path
-        self.left_out.discard(link)
-        self._say(
-            f"Link {name} comes from {n} point pairs ({Path(path).name}) at the next "
-            "run: Run plot."
-        )
-        self._update_link_buttons()
-        self._show_hand_pairs()
-
-    def toggle_left_out(self) -> None:
-        """Leave the selected link out of the next runs, or take it in again."""
-        line = self.selected_link()
-        if line is None:
-            return
-        name = f"S{line.target + 1}–S{line.source + 1}"
-        if line.key in self.left_out:
-            self.left_out.discard(line.key)
-            self._say(f"Link {name} is registered again at the next run.")
-        else:
-            self.left_out.add(line.key)
-            self.hand_pairs.pop(line.key, None)
-            self._say(
-                f"Link {name} is left out at the next run: Run plot joins its scans "
-                "through the other links."
-            )
-        self._update_link_buttons()
-        self._show_hand_pairs()
 
     def export_inventory(self, path: str | None = None) -> None:
         """Save the inventory with the marks as CSV or XLSX (asked when not given)."""
@@ -909,7 +791,7 @@ class PlotWindow(QMainWindow):
             on_result=self._on_report,
             on_error=self._on_report_error,
         )
-        self._update_link_buttons()
+        self._update_tree_buttons()
 
     def select_tree(self, k: int | None) -> None:
         """Show tree ``k`` (index into the outcome's trees) everywhere; a DBH being
@@ -1111,7 +993,7 @@ class PlotWindow(QMainWindow):
         """Accept the selected link at its pose (asked first), or undo that."""
         from amrst.plot.export import TREES_CSV, write_states
 
-        line = self.selected_link()
+        line = self.links.selected()
         if line is None or self.outcome is None:
             return
         name = f"S{line.target + 1}–S{line.source + 1}"
@@ -1220,7 +1102,8 @@ class PlotWindow(QMainWindow):
         self._shown_specs = list(self.specs)
         self.area_row.show_area(outcome.area)
         # What placed each link carries on to the next run.
-        self.left_out, self.hand_pairs, self.given_scanners = _run_choices(outcome)
+        left_out, hand_pairs, self.given_scanners = _run_choices(outcome)
+        self.links.set_choices(left_out, hand_pairs)
         try:
             review, self.review_error = read_review(outcome.out, outcome.labels), None
         except AmrstError as exc:
@@ -1341,7 +1224,7 @@ class PlotWindow(QMainWindow):
 
     def _on_report(self, path: Path) -> None:
         self.report_job = None
-        self._update_link_buttons()
+        self._update_tree_buttons()
         from amrst_gui import dialogs
 
         if dialogs.open_report(self, path):
@@ -1355,7 +1238,7 @@ class PlotWindow(QMainWindow):
 
     def _on_report_error(self, exc: BaseException) -> None:
         self.report_job = None
-        self._update_link_buttons()
+        self._update_tree_buttons()
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self._say(f"No report: {text.removeprefix('No report: ')}", error=True)
 
@@ -1395,17 +1278,14 @@ class PlotWindow(QMainWindow):
         """Show the run as the review leaves it: map, scans, links, marks."""
         assert self.found is not None
         selected = self.stem_map.selected
-        link_row = self.links.currentRow()
         self.outcome = jobs.reviewed(self.found, self.review.accepted)
         self.stem_map.set_plot(self.outcome)
         self._show_scans(self.outcome)
-        self._show_links(self.outcome)
-        if link_row >= 0:
-            self.links.selectRow(link_row)
+        self.links.show_links(self.outcome)
         self._show_marks()
         if selected is not None:
             self.select_tree(selected)
-        self._update_link_buttons()
+        self._update_tree_buttons()
 
     def _show_scans(self, o: PlotOutcome) -> None:
         lines = scan_lines(o)
@@ -1433,35 +1313,6 @@ class PlotWindow(QMainWindow):
                 where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
                 text += GIVEN_MARK
                 tip += f"\nScanner given at {where} m, in the file's coordinates"
-            item.setText(text)
-            item.setToolTip(tip)
-
-    def _show_links(self, o: PlotOutcome) -> None:
-        fill(self.links, link_rows(o))
-        for r, ln in enumerate(o.links):
-            item = self.links.item(r, 0)
-            assert item is not None  # just filled
-            item.setToolTip(
-                ln.message + ("; in the spanning tree (★)" if ln.in_tree else "")
-            )
-        self._show_hand_pairs()
-
-    def _show_hand_pairs(self) -> None:
-        """Name, in the By column, the links the next run places from point pairs
-        or leaves out."""
-        if self.outcome is None:
-            return
-        for r, ln in enumerate(self.outcome.links):
-            item = self.links.item(r, len(LINK_COLUMNS) - 1)
-            if item is None:
-                continue
-            path = self.hand_pairs.get(ln.key)
-            if path:
-                text, tip = "your pairs", f"Placed from {Path(path).name} at each run"
-            elif ln.key in self.left_out:
-                text, tip = "left out", "Left out at each run (Take in undoes it)"
-            else:
-                text, tip = ln.origin or "–", ""
             item.setText(text)
             item.setToolTip(tip)
 
@@ -1497,35 +1348,17 @@ class PlotWindow(QMainWindow):
         self.tree_panel.set_locked(self.busy)
         # A run or an opening ends by showing its plot's area in these fields.
         self.area_row.set_busy(self.busy)
-        self._update_link_buttons()
+        self.links.set_busy(self.busy)
+        self._update_tree_buttons()
 
-    def _update_link_buttons(self) -> None:
-        line = None if self.busy else self.selected_link()
-        link = None if line is None else (line.target, line.source)
-        self.open_button.setEnabled(link is not None)
-        self.export_button.setEnabled(self.outcome is not None and not self.busy)
-        self.add_button.setEnabled(self.outcome is not None and not self.busy)
-        if not self.add_button.isEnabled():
+    def _update_tree_buttons(self) -> None:
+        """Enable the trees' buttons: a plot shown, no job running."""
+        shown = self.outcome is not None and not self.busy
+        self.export_button.setEnabled(shown)
+        self.add_button.setEnabled(shown)
+        if not shown:
             self.add_button.setChecked(False)
-        self.report_button.setEnabled(
-            self.outcome is not None and not self.busy and self.report_job is None
-        )
-        accepted = line is not None and line.status == ACCEPTED
-        self.accept_button.setEnabled(
-            accepted
-            or (
-                line is not None
-                and line.status == NEEDS_REVIEW
-                and line.T_world is not None
-            )
-        )
-        self.accept_button.setText("Undo accept" if accepted else "Accept")
-        self.pairs_button.setEnabled(link is not None)
-        self.pairs_button.setText(
-            "Drop pairs" if link in self.hand_pairs else "Use pairs…"
-        )
-        self.leave_button.setEnabled(link is not None)
-        self.leave_button.setText("Take in" if link in self.left_out else "Leave out")
+        self.report_button.setEnabled(shown and self.report_job is None)
 
     def _say(self, text: str, error: bool = False) -> None:
         text = " ".join(text.splitlines())  # one line, whatever a path holds
@@ -1538,7 +1371,7 @@ class PlotWindow(QMainWindow):
         o = self.found
         ran = o is not None and self._shown_specs == self.specs
         then = _run_choices(o) if ran and o is not None else (set(), {}, {})
-        now = (self.left_out, self.hand_pairs, self.given_scanners)
+        now = (self.links.left_out, self.links.hand_pairs, self.given_scanners)
         names = ("links left out", "links placed from point pairs", "scanner positions")
         return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
 

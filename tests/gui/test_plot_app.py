@@ -657,17 +657,17 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
 
     win = make_main_window()
     plot = win.open_plot(plot_files, tmp_path / "out")
-    assert not plot.open_button.isEnabled()  # no link yet
+    assert not plot.links.open_button.isEnabled()  # no link yet
     _run(qtbot, plot)
     assert plot.outcome is not None
     assert plot.outcome.links[0].origin != HAND_ORIGIN
-    plot.links.selectRow(0)
-    assert plot.open_button.isEnabled()
+    plot.links.table.selectRow(0)
+    assert plot.links.open_button.isEnabled()
 
     # Open pair shows the link's two scans at its pose, Manual pose in front.
     session = win.session
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
-        plot.open_button.click()
+        plot.links.open_button.click()
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
     assert [session.path(r).name for r in ("target", "source")] == [
         "scan_1.ply",
@@ -704,13 +704,13 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert "Plot window" not in win.slices.view.caption
     session.discard_guard = guard
     with qtbot.waitSignal(session.busy_changed, timeout=20_000):
-        plot.open_button.click()
+        plot.links.open_button.click()
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
     assert session.plot_pair
     # The main window refuses while it runs a step: the plot window says so.
     session.run_step("separate")
     assert session.busy
-    plot.open_button.click()
+    plot.links.open_button.click()
     assert plot.status.text().startswith("S1 and S2 are not open: Cannot open scans")
     session.cancel()
     qtbot.waitUntil(lambda: not session.busy, timeout=30_000)
@@ -721,16 +721,16 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     in_source = picked @ inv[:3, :3].T + inv[:3, 3]
     swapped = tmp_path / "swapped.csv"  # the source's rows in another order
     write_pairs(swapped, picked, in_source[[1, 2, 3, 0]])
-    plot.toggle_pairs(str(swapped))
-    assert plot.hand_pairs == {}
+    plot.links.toggle_pairs(str(swapped))
+    assert plot.links.hand_pairs == {}
     assert plot.status.text().startswith("Not used: the point pairs of swapped.csv")
     assert "same point in both scans" in plot.status.text()
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, picked, in_source)
-    plot.toggle_pairs(str(pairs))
-    assert plot.hand_pairs == {(0, 1): str(pairs)}
-    assert plot.pairs_button.text() == "Drop pairs"
-    by = plot.links.item(0, 5)
+    plot.links.toggle_pairs(str(pairs))
+    assert plot.links.hand_pairs == {(0, 1): str(pairs)}
+    assert plot.links.pairs_button.text() == "Drop pairs"
+    by = plot.links.table.item(0, 5)
     assert by is not None
     assert by.text() == "your pairs"  # the next run places it from the file
     monkeypatch.setattr(plot_window, "confirm", lambda *_: True)  # the same plot
@@ -740,7 +740,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     link = plot.outcome.links[0]
     assert link.origin == HAND_ORIGIN
     assert link.status == "registered", link.message
-    cell = plot.links.item(0, 5)
+    cell = plot.links.table.item(0, 5)
     assert cell is not None
     assert cell.text() == "your pairs"  # and again at the next run
     plot.cloud_check.setChecked(False)
@@ -751,7 +751,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     plot.close()
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         win.open_plot_results(tmp_path / "out")
-    assert plot.hand_pairs == {(0, 1): str(pairs.resolve())}
+    assert plot.links.hand_pairs == {(0, 1): str(pairs.resolve())}
     placed = [s.xy for s in plot.outcome.scans]  # where the scans stood, from poses
     assert np.allclose(placed[0], 0.0, atol=1e-9)
     assert np.allclose(placed[1], SOURCE_POSE[:2, 3], atol=0.01)
@@ -791,25 +791,25 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     (tmp_path / "plot.json").write_text(json.dumps(doc))
     plot.open_scans(["a.ply", "b.ply"], tmp_path)
     plot._on_result(found)
-    plot.links.selectRow(0)
-    assert plot.accept_button.isEnabled()
-    assert plot.accept_button.text() == "Accept"
+    plot.links.table.selectRow(0)
+    assert plot.links.accept_button.isEnabled()
+    assert plot.links.accept_button.text() == "Accept"
     assert "S2, which needs review" in plot.trees.item(0, 0).toolTip()  # T001
     assert plot.trees.item(1, 0).toolTip() == ""  # T002, seen from S1 alone
 
     # Asked first; "Cancel" accepts nothing.
     monkeypatch.setattr(plot_window, "confirm", lambda *_: False)
-    plot.accept_button.click()
+    plot.links.accept_button.click()
     assert read_review(tmp_path, found.labels).accepted == {}
     monkeypatch.setattr(plot_window, "confirm", lambda *_: True)
-    plot.accept_button.click()
+    plot.links.accept_button.click()
     o = plot.outcome
     assert o is not None
     assert [ln.status for ln in o.links] == ["accepted"]
     assert [s.status for s in o.scans] == ["registered", "accepted"]
     assert "accepted" in plot.scan_list.item(1).text()
     assert "1 accepted by you" in plot.status.text()
-    assert plot.accept_button.text() == "Undo accept"
+    assert plot.links.accept_button.text() == "Undo accept"
     (kept,) = read_review(tmp_path, found.labels).accepted.items()
     assert kept[0] == (0, 1)
     assert np.array_equal(kept[1], T)
@@ -837,8 +837,8 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
 
     # Undo: the link needs review again, and the file says so.
     plot._on_result(found)
-    plot.links.selectRow(0)
-    plot.accept_button.click()
+    plot.links.table.selectRow(0)
+    plot.links.accept_button.click()
     assert plot.outcome.links[0].status == "needs review"
     assert read_review(tmp_path, found.labels).accepted == {}
     doc = json.loads((tmp_path / "plot.json").read_text())
@@ -1011,24 +1011,24 @@ def test_a_link_is_left_out_of_the_next_run_until_taken_in(
     from amrst.review.pairs_file import write_pairs
 
     plot, _found = _one_link_shown(qtbot, tmp_path)
-    plot.links.selectRow(0)
-    by = plot.links.item(0, 5)
+    plot.links.table.selectRow(0)
+    by = plot.links.table.item(0, 5)
     assert by is not None
-    plot.leave_button.click()
-    assert plot.left_out == {(0, 1)}
+    plot.links.leave_button.click()
+    assert plot.links.left_out == {(0, 1)}
     assert by.text() == "left out"
-    assert plot.leave_button.text() == "Take in"
+    assert plot.links.leave_button.text() == "Take in"
     # Point pairs for the link take it in again; leaving it out drops the pairs.
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, np.eye(3), np.eye(3))
-    plot.toggle_pairs(str(pairs))
-    assert plot.left_out == set()
+    plot.links.toggle_pairs(str(pairs))
+    assert plot.links.left_out == set()
     assert by.text() == "your pairs"
-    plot.leave_button.click()
-    assert plot.hand_pairs == {}
+    plot.links.leave_button.click()
+    assert plot.links.hand_pairs == {}
     assert by.text() == "left out"
-    plot.leave_button.click()
-    assert plot.left_out == set()
+    plot.links.leave_button.click()
+    assert plot.links.left_out == set()
     assert by.text() == "stems"
 
 
@@ -1039,20 +1039,20 @@ def test_closing_the_plot_window_asks_when_choices_were_not_run(
     scans = found.scans
     plot.show()
     assert plot.pending_choices() == ""
-    plot.links.selectRow(0)
-    plot.leave_button.click()
+    plot.links.table.selectRow(0)
+    plot.links.leave_button.click()
     plot.scan_list.setCurrentRow(1)
     plot.set_scanner("1 2 0")
     assert plot.pending_choices() == "links left out, scanner positions"
     close_answers.append(False)
     assert not plot.close()
     assert plot.isVisible()
-    assert plot.left_out == {(0, 1)}
+    assert plot.links.left_out == {(0, 1)}
     assert "links left out, scanner positions you chose" in close_answers.asked[0]
     assert plot.close()  # answered Close
     assert len(close_answers.asked) == 2
     plot.show()
-    plot.leave_button.click()  # taken in again: only the scanner is not run
+    plot.links.leave_button.click()  # taken in again: only the scanner is not run
     assert plot.pending_choices() == "scanner positions"
     # Results opened whose run had a scanner given: that choice was run.
     given = (scans[0], dataclasses.replace(scans[1], given=(1.0, 2.0, 0.0)))
@@ -1118,8 +1118,8 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
         plot.open_results(out)
     o = plot.outcome
     assert o is not None
-    assert plot.left_out == {(0, 1)}
-    assert plot.leave_button.text() == "Leave out"  # no link selected
+    assert plot.links.left_out == {(0, 1)}
+    assert plot.links.leave_button.text() == "Leave out"  # no link selected
     assert [s.status for s in o.scans] == ["registered", "failed"]
     assert o.scans[1].xy is None  # not placed
     assert len(o.trees) == len(STEMS)
@@ -1767,16 +1767,16 @@ def test_tab_reaches_the_buttons_past_the_links_and_trees_tables(
     qtbot: QtBot, plot_run: Path, tmp_path: Path
 ) -> None:
     plot, _out = _shown(qtbot, plot_run, tmp_path)
-    plot.links.selectRow(0)  # Open pair and Leave out take it
-    plot.links.setFocus()
+    plot.links.table.selectRow(0)  # Open pair and Leave out take it
+    plot.links.table.setFocus()
     visited = []
     for _ in range(40):
         widget = plot.focusWidget()
         visited.append(widget)
         QTest.keyClick(widget, Qt.Key.Key_Tab)
     for button in (
-        plot.open_button,
-        plot.leave_button,
+        plot.links.open_button,
+        plot.links.leave_button,
         plot.add_button,
         plot.report_button,
         plot.export_button,
@@ -2150,8 +2150,8 @@ def test_the_menus_click_the_buttons_and_show_their_state(
     item("Trees", "Next tree").trigger()
     assert plot.tree_panel.tree_id == plot.outcome.trees[1].tree_id
     assert not item("Links", "Accept").isEnabled()  # its link is registered
-    plot.links.selectRow(0)
+    plot.links.table.selectRow(0)
     item("Links", "Leave out").trigger()
-    assert plot.left_out == {(0, 1)}
+    assert plot.links.left_out == {(0, 1)}
     item("Links", "Take in").trigger()  # the button's text, followed
-    assert plot.left_out == set()
+    assert plot.links.left_out == set()
