@@ -39,9 +39,9 @@ def build(window: PlotWindow) -> QMenu:
 
     scans = bar.addMenu("&Scans")
     for button in (
-        window.scanner_button,
-        window.reference_button,
-        window.remove_button,
+        window.scans.scanner_button,
+        window.scans.reference_button,
+        window.scans.remove_button,
     ):
         _mirror(scans, button)
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -37,10 +36,8 @@ from PySide6.QtWidgets import (
     QCheckBox,
     QFileDialog,
     QHBoxLayout,
-    QInputDialog,
     QLabel,
     QLineEdit,
-    QListWidget,
     QMainWindow,
     QMessageBox,
     QProgressBar,
@@ -69,6 +66,7 @@ from amrst_gui.panels.verdict_style import ERROR_STYLE
 from amrst_gui.plot import jobs, menus
 from amrst_gui.plot.area import AreaRow
 from amrst_gui.plot.links import LinksPanel
+from amrst_gui.plot.scans import ScansPanel
 from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
     NBSP,
@@ -77,13 +75,10 @@ from amrst_gui.plot.tables import (
     fill_trees,
     row_of_tree,
     scan_file_exists,
-    scan_lines,
-    scan_title,
     table,
     tree_at_row,
 )
 from amrst_gui.plot.tree import TreePanel
-from amrst_gui.plot.typed import short_number, typed_numbers
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -96,8 +91,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("amrst_gui.plot")
 
 RESULT_FILES = f"trees.csv, plot.json, {REVIEW_JSON}"
-#: Set after a scan's line in the scan list when its scanner position is given.
-GIVEN_MARK = "; scanner given"
 
 
 def ask_scans(parent: QWidget, settings) -> list[str]:
@@ -208,18 +201,11 @@ class PlotWindow(QMainWindow):
         super().__init__(parent)
         self.setObjectName("plot_window")
         self.setWindowTitle("AMRST Studio: plot")
-        self.specs: list[str] = []
-        self._scan_tips: list[str] = []  # each scan's whole line, once a run shows it
-        # The names files give their scans (E57 setups), by spec, as last listed.
-        self.scan_names: dict[str, str] = {}
         self.found: PlotOutcome | None = None  # the run's outcome
         self.outcome: PlotOutcome | None = None  # as the review leaves it
         self.review = PlotReview()  # marks, DBHs by hand, links accepted
         # Why the folder's review.json could not be read: no review is written over it.
         self.review_error: str | None = None
-        # scan -> where its scanner stood, given by Scanner at… or amrst plot --scanner
-        # (the scan file's coordinates); the next run takes it
-        self.given_scanners: dict[int, tuple[float, float, float]] = {}
         self._close_agreed = False  # the user let the window close with choices unrun
         self._shown_specs: list[str] = []  # the scans of the plot shown, as listed
         # plot.json as the plot shown was read: a run from elsewhere into the same
@@ -235,6 +221,9 @@ class PlotWindow(QMainWindow):
         self.opening = False  # the job reads a results folder
         self.run_queued = False  # Run was asked for while listing or opening
         self.stem_map = StemMapView()
+        self.scans = ScansPanel()
+        self.scans.said.connect(self._say)
+        self.scans.reordered.connect(self._on_reordered)
         self.links = LinksPanel()
         self.links.said.connect(self._say)
         self.links.open_asked.connect(self.open_pair)
@@ -318,8 +307,7 @@ class PlotWindow(QMainWindow):
         buttons.addStretch(1)
         layout = QVBoxLayout(side)
         layout.setContentsMargins(6, 4, 6, 4)
-        layout.addLayout(self._build_scans_head())
-        layout.addWidget(self.scan_list)
+        layout.addWidget(self.scans)
         layout.addWidget(QLabel(f"<b>Results folder</b>: {RESULT_FILES}"))
         layout.addLayout(folder)
         layout.addLayout(buttons)
@@ -331,43 +319,6 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.trees, 1)
         self._update_tree_buttons()
         return side
-
-    def _build_scans_head(self) -> QHBoxLayout:
-        """The scan list and its heading, with Make reference."""
-        self.scan_list = QListWidget()
-        self.scan_list.setObjectName("plot_scans")
-        self.scan_list.setMaximumHeight(96)
-        # Names are cut in the middle (scan_title); the whole path is the tooltip.
-        self.scan_list.setHorizontalScrollBarPolicy(
-            Qt.ScrollBarPolicy.ScrollBarAlwaysOff
-        )
-        self.reference_button = QPushButton("Make reference")
-        self.reference_button.setToolTip(
-            "Make the selected scan S1, the reference: the plot's frame and the "
-            "positions in trees.csv are its own"
-        )
-        self.reference_button.clicked.connect(self.make_reference)
-        self.remove_button = QPushButton("Remove")
-        self.remove_button.setToolTip(
-            "Leave the selected scan out of the plot (a setup of another plot, or one "
-            "that cannot be read); its file is kept. The shown plot is cleared: Run "
-            "plot makes it again of the others"
-        )
-        self.remove_button.clicked.connect(self.remove_scan)
-        self.scanner_button = QPushButton("Scanner at…")
-        self.scanner_button.setToolTip(
-            "Where the selected scan's scanner stood, X Y Z in the file's own "
-            "coordinates, for a file that does not say (a georeferenced LAS): the next "
-            "Run checks the tops of the trees it sees from there (amrst plot --scanner)"
-        )
-        self.scanner_button.clicked.connect(lambda: self.set_scanner())
-        self.scan_list.itemSelectionChanged.connect(self._show_busy)
-        head = QHBoxLayout()
-        head.addWidget(QLabel("<b>Scans</b> (S1: the reference)"), 1)
-        head.addWidget(self.scanner_button)
-        head.addWidget(self.reference_button)
-        head.addWidget(self.remove_button)
-        return head
 
     def _build_tree_buttons(self) -> QHBoxLayout:
         """The trees' heading: Add tree, Report, Export inventory."""
@@ -424,7 +375,6 @@ class PlotWindow(QMainWindow):
             self._say_busy()
             return False
         self._clear_plot()
-        self.given_scanners = {}
         # Another plot's folder would take this one's results over its own, and
         # its area would be written into this one's: without a folder given, Run
         # asks for one.
@@ -461,13 +411,11 @@ class PlotWindow(QMainWindow):
         self.tree_panel.show_tree(None, None, None)
         self.links.show_links(None)
         fill(self.trees, [])
-        self._update_tree_buttons()
+        self._show_busy()
 
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
-        self.scan_names.update(
-            (os.path.abspath(spec), name) for spec, name in listed if name
-        )
+        self.scans.name(listed)
         self._take_scans([spec for spec, _name in listed])
         self._scans_taken()
 
@@ -476,7 +424,7 @@ class PlotWindow(QMainWindow):
         Open plot results… would); else say what Run does, and run if asked to
         meanwhile."""
         text = self.out_edit.text().strip()
-        if text and jobs.run_of(Path(text).expanduser(), self.specs):
+        if text and jobs.run_of(Path(text).expanduser(), self.scans.specs):
             self._open(Path(text).expanduser())
             return
         self._say_scans()
@@ -493,8 +441,10 @@ class PlotWindow(QMainWindow):
             self._say("A plot is running: cancel it first.", error=True)
 
     def _say_scans(self) -> None:
-        gone = [k + 1 for k, s in enumerate(self.specs) if not scan_file_exists(s)]
-        if len(self.specs) < 2:
+        gone = [
+            k + 1 for k, s in enumerate(self.scans.specs) if not scan_file_exists(s)
+        ]
+        if len(self.scans.specs) < 2:
             self._say("A plot needs two or more scans: open them together.", error=True)
         elif gone:
             self._say(
@@ -504,7 +454,7 @@ class PlotWindow(QMainWindow):
             )
         else:
             self._say(
-                f"{len(self.specs)} scans. Run plot registers and inventories them."
+                f"{len(self.scans.specs)} scans. Run plot registers and inventories them."
             )
 
     def open_results(self, out: Path) -> bool:
@@ -540,116 +490,38 @@ class PlotWindow(QMainWindow):
 
     def _take_scans(self, paths: list) -> None:
         """The scans the next run reads, listed (the first is the reference)."""
-        self.specs = [os.path.abspath(p) for p in paths]  # a link keeps its name
-        self._scan_tips = []
-        self.scan_list.clear()
-        for k, spec in enumerate(self.specs):
-            title = scan_title(spec, self.scan_names.get(spec, ""), short=True)
-            gone = "" if scan_file_exists(spec) else "  (not found)"
-            self.scan_list.addItem(f"S{k + 1}  {title}{gone}")
+        self.scans.take(paths)
+        self._scans_changed()
+
+    def _on_reordered(self) -> None:
+        """The scans listed changed (Make reference, Remove): the plot shown is not
+        of them; the results folder and the plot area stay."""
+        self._clear_plot()
+        self._scans_changed()
+
+    def _scans_changed(self) -> None:
         self.stem_map.empty_text = (
             "Run plot registers the scans listed and draws the plot here."
-            if self.specs
+            if self.scans.specs
             else NO_PLOT
         )
         self.stem_map.update()
-        self._show_given()
         self._show_title()
         self._show_busy()
 
     def _show_title(self) -> None:
         """Name the scans in the window's title (none: the plain title)."""
-        names = ", ".join(Path(s).name for s in self.specs)
+        names = ", ".join(Path(s).name for s in self.scans.specs)
         self.setWindowTitle(
             f"AMRST Studio: plot of {names}" if names else "AMRST Studio: plot"
-        )
-
-    def make_reference(self) -> None:
-        """Put the selected scan first: the next run's reference (before a run)."""
-        k = self.scan_list.currentRow()
-        if self.busy or self.found is not None or not 0 < k < len(self.specs):
-            return
-        self._reorder([k, *range(k), *range(k + 1, len(self.specs))])
-        self._say(f"{Path(self.specs[0]).name} is the reference now (S1).")
-
-    def remove_scan(self) -> None:
-        """Leave the selected scan out of the plot; two scans at least stay.
-
-        The shown plot is cleared (:meth:`_reorder`).
-        """
-        k = self.scan_list.currentRow()
-        if self.busy or not 0 <= k < len(self.specs) or len(self.specs) <= 2:
-            return
-        gone = scan_title(self.specs[k], self.scan_names.get(self.specs[k], ""))
-        self._reorder([j for j in range(len(self.specs)) if j != k])
-        first = scan_title(self.specs[0], self.scan_names.get(self.specs[0], ""))
-        reference = f" {first} is the reference now (S1)." if k == 0 else ""
-        self._say(
-            f"{gone} is left out: {len(self.specs)} scans.{reference} Run plot "
-            "registers and inventories them."
-        )
-
-    def _reorder(self, order: list[int]) -> None:
-        """Take the listed scans ``order`` names (their indices) for the next run,
-        the shown plot cleared (:meth:`_clear_plot`). The scans given a scanner
-        position keep it; the results folder and the plot area stay."""
-        given = self.given_scanners
-        self._clear_plot()
-        self._take_scans([self.specs[j] for j in order])
-        self.given_scanners = {n: given[j] for n, j in enumerate(order) if j in given}
-        self._show_given()
-
-    def set_scanner(self, text: str | None = None) -> None:
-        """Give where the selected scan's scanner stood, for the next run.
-
-        ``text``: X Y Z (asked when None); blank forgets the position given.
-        """
-        from amrst.plot.cli import given_scanners
-
-        k = self.scan_list.currentRow()
-        if self.busy or not 0 <= k < len(self.specs):
-            return
-        name = f"S{k + 1}"
-        if text is None:
-            now = self.given_scanners.get(k)
-            text, ok = QInputDialog.getText(
-                self,
-                f"Scanner of {name}",
-                f"Where the scanner of {name} stood: X Y Z in metres, in the file's "
-                "own coordinates (blank: not known).",
-                text="" if now is None else " ".join(short_number(v) for v in now),
-            )
-            if not ok:
-                return
-        parts = typed_numbers(text)
-        if not parts:
-            self.given_scanners.pop(k, None)
-            self._show_given()
-            self._say(f"The scanner of {name} is not given: its file decides.")
-            return
-        if len(parts) != 3 or any("," in p for p in parts):
-            self._say(
-                f"The scanner of {name}: give X Y Z, three numbers with decimal "
-                f"points, separated by spaces (got {text.strip()[:40]!r}).",
-                error=True,
-            )
-            return
-        try:
-            (xyz,) = given_scanners([[str(k + 1), *parts]]).values()
-        except InvalidInput as exc:
-            self._say(str(exc), error=True)
-            return
-        self.given_scanners[k] = xyz
-        self._show_given()
-        self._say(
-            f"The scanner of {name} stood at {', '.join(f'{v:.2f}' for v in xyz)} m "
-            "(file coordinates): Run plot checks the tops of its trees from there."
         )
 
     def choose_out(self) -> None:
         """Ask for the results folder."""
         start = self.out_edit.text() or (
-            str(Path(self.specs[0]).parent) if self.specs else str(Path.home())
+            str(Path(self.scans.specs[0]).parent)
+            if self.scans.specs
+            else str(Path.home())
         )
         folder = QFileDialog.getExistingDirectory(
             self, "Results folder of the plot", start
@@ -678,7 +550,7 @@ class PlotWindow(QMainWindow):
         if self.listing or self.opening:
             self.run_queued = True
             return
-        if self.busy or len(self.specs) < 2:
+        if self.busy or len(self.scans.specs) < 2:
             return
         try:
             area = self.area_row.area()
@@ -693,7 +565,7 @@ class PlotWindow(QMainWindow):
             return
         out = Path(text).expanduser()
         if not out.is_absolute():  # a name typed: beside the scans, as Choose… starts
-            out = Path(self.specs[0]).parent / out
+            out = Path(self.scans.specs[0]).parent / out
             self.out_edit.setText(str(out))
         overwrite = self._may_replace(out)
         if overwrite is None:
@@ -710,13 +582,13 @@ class PlotWindow(QMainWindow):
             engine_process.in_engine(
                 jobs.run_plot, what="the plot run in the Plot window"
             ),
-            list(self.specs),
+            list(self.scans.specs),
             out,
             overwrite,
             name="plot",
             pairs=dict(self.links.hand_pairs),
             left_out=set(self.links.left_out),
-            scanners=dict(self.given_scanners),
+            scanners=dict(self.scans.given_scanners),
             write_cloud=self.cloud_check.isChecked(),
             area=area,
             on_result=self._on_result,
@@ -737,7 +609,9 @@ class PlotWindow(QMainWindow):
         i, j = line.target, line.source
         if self.open_pair_in is None:
             return
-        why = self.open_pair_in(self.specs[i], self.specs[j], jobs.stored_link(line))
+        why = self.open_pair_in(
+            self.scans.specs[i], self.scans.specs[j], jobs.stored_link(line)
+        )
         if why:
             self._say(f"S{i + 1} and S{j + 1} are not open: {why}", error=True)
             return
@@ -1077,7 +951,7 @@ class PlotWindow(QMainWindow):
                 "trees is kept)"
             ),
         }.get(
-            jobs.same_plot(out, self.specs),
+            jobs.same_plot(out, self.scans.specs),
             "ANOTHER plot (another reference scan; its review no longer applies)",
         )
         text = f"{out} holds {what}. Replace its files with this run's?"
@@ -1094,15 +968,16 @@ class PlotWindow(QMainWindow):
 
     def _on_result(self, outcome: PlotOutcome, opened: bool = False) -> None:
         self.job, self.opening = None, False
-        self._show_busy()
         self.found = outcome
+        self._show_busy()
         self.shown_stamp = _stamp(outcome.out)
         if opened:
             self._take_scans(list(outcome.labels))
-        self._shown_specs = list(self.specs)
+        self._shown_specs = list(self.scans.specs)
         self.area_row.show_area(outcome.area)
         # What placed each link carries on to the next run.
-        left_out, hand_pairs, self.given_scanners = _run_choices(outcome)
+        left_out, hand_pairs, given = _run_choices(outcome)
+        self.scans.set_given(given)
         self.links.set_choices(left_out, hand_pairs)
         try:
             review, self.review_error = read_review(outcome.out, outcome.labels), None
@@ -1280,41 +1155,12 @@ class PlotWindow(QMainWindow):
         selected = self.stem_map.selected
         self.outcome = jobs.reviewed(self.found, self.review.accepted)
         self.stem_map.set_plot(self.outcome)
-        self._show_scans(self.outcome)
+        self.scans.show_lines(self.outcome)
         self.links.show_links(self.outcome)
         self._show_marks()
         if selected is not None:
             self.select_tree(selected)
         self._update_tree_buttons()
-
-    def _show_scans(self, o: PlotOutcome) -> None:
-        lines = scan_lines(o)
-        self._scan_tips = [whole for _listed, whole in lines]  # the list cuts them
-        for k, (text, _whole) in enumerate(lines):
-            item = self.scan_list.item(k)
-            if item is not None:
-                item.setText(text)
-        self._show_given()
-
-    def _show_given(self) -> None:
-        """Mark the scans whose scanner position the next run is given."""
-        for k in range(self.scan_list.count()):
-            item = self.scan_list.item(k)
-            text = item.text().split(GIVEN_MARK)[0]
-            tip = "\n".join(
-                t
-                for t in (
-                    self._scan_tips[k] if k < len(self._scan_tips) else "",
-                    self.specs[k] if k < len(self.specs) else "",
-                )
-                if t
-            )
-            if k in self.given_scanners:
-                where = ", ".join(f"{v:.2f}" for v in self.given_scanners[k])
-                text += GIVEN_MARK
-                tip += f"\nScanner given at {where} m, in the file's coordinates"
-            item.setText(text)
-            item.setToolTip(tip)
 
     def _show_marks(self) -> None:
         o = self.outcome
@@ -1334,16 +1180,8 @@ class PlotWindow(QMainWindow):
 
     def _show_busy(self) -> None:
         """Enable what a job in progress (``busy``) allows, after it starts or ends."""
-        self.run_button.setEnabled(not self.busy and len(self.specs) >= 2)
-        self.reference_button.setEnabled(
-            not self.busy and self.found is None and self.scan_list.currentRow() > 0
-        )
-        self.scanner_button.setEnabled(
-            not self.busy and 0 <= self.scan_list.currentRow() < len(self.specs)
-        )
-        self.remove_button.setEnabled(
-            self.scanner_button.isEnabled() and len(self.specs) > 2
-        )
+        self.run_button.setEnabled(not self.busy and len(self.scans.specs) >= 2)
+        self.scans.set_state(self.busy, self.found is not None)
         self.cancel_button.setEnabled(self.busy)
         self.tree_panel.set_locked(self.busy)
         # A run or an opening ends by showing its plot's area in these fields.
@@ -1369,9 +1207,9 @@ class PlotWindow(QMainWindow):
     def pending_choices(self) -> str:
         """Say what was chosen for the next run and not run yet ("" for nothing)."""
         o = self.found
-        ran = o is not None and self._shown_specs == self.specs
+        ran = o is not None and self._shown_specs == self.scans.specs
         then = _run_choices(o) if ran and o is not None else (set(), {}, {})
-        now = (self.links.left_out, self.links.hand_pairs, self.given_scanners)
+        now = (self.links.left_out, self.links.hand_pairs, self.scans.given_scanners)
         names = ("links left out", "links placed from point pairs", "scanner positions")
         return ", ".join(n for n, a, b in zip(names, now, then, strict=True) if a != b)
 

@@ -69,27 +69,27 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     win = make_main_window()
     plot = win.open_plot_results(out)
     qtbot.waitUntil(lambda: plot.outcome is not None, timeout=30_000)
-    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    assert plot.scans.given_scanners == {0: (-2.0, 0.0, 0.0)}
     # Another plot is opened from the Plot window's menu too.
     texts = [a.text() for a in plot.plot_menu.actions()]
     assert texts[:3] == ["Open plot…", "Open plot results…", ""]
     # The window gives scan 2's (its file's origin) and refuses what is no position.
-    plot.scan_list.setCurrentRow(1)
-    assert plot.scanner_button.isEnabled()
+    plot.scans.scan_list.setCurrentRow(1)
+    assert plot.scans.scanner_button.isEnabled()
     for typed in ("0 0", "12,5 3 1"):  # too few; a decimal comma
-        plot.set_scanner(typed)
+        plot.scans.set_scanner(typed)
         assert plot.status.text().startswith(
             "The scanner of S2: give X Y Z, three numbers with decimal points"
         )
-    plot.set_scanner("0, 0, nan")
+    plot.scans.set_scanner("0, 0, nan")
     assert plot.status.text() == (
         "The scanner of scan 2 at 0 0 nan: give X Y Z as numbers within 1e+09 m "
         "(metres)."
     )
-    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
-    plot.set_scanner("0, 0, 0")
-    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
-    item = plot.scan_list.item(1)
+    assert plot.scans.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    plot.scans.set_scanner("0, 0, 0")
+    assert plot.scans.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
+    item = plot.scans.scan_list.item(1)
     assert item.text().endswith("; scanner given")
     assert item.toolTip().endswith(
         "\nScanner given at 0.00, 0.00, 0.00 m, in the file's coordinates"
@@ -98,13 +98,15 @@ def test_scanners_given_to_amrst_plot_hold_for_a_run_from_the_window(
     _run(qtbot, plot)
     doc = json.loads((out / "plot.json").read_text())
     assert [s["scanner_given"] for s in doc["scans"]] == [[-2.0, 0.0, 0.0], [0.0] * 3]
-    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
-    assert plot.scan_list.item(1).text().endswith("; scanner given")
-    plot.set_scanner("")  # forgotten: the next run goes by the file
-    assert plot.given_scanners == {0: (-2.0, 0.0, 0.0)}
-    assert "given" not in plot.scan_list.item(1).text()
-    assert "given" not in plot.scan_list.item(1).toolTip()
-    assert plot.scan_list.item(1).toolTip().endswith(plot.specs[1])  # whole path
+    assert plot.scans.given_scanners == {0: (-2.0, 0.0, 0.0), 1: (0.0, 0.0, 0.0)}
+    assert plot.scans.scan_list.item(1).text().endswith("; scanner given")
+    plot.scans.set_scanner("")  # forgotten: the next run goes by the file
+    assert plot.scans.given_scanners == {0: (-2.0, 0.0, 0.0)}
+    assert "given" not in plot.scans.scan_list.item(1).text()
+    assert "given" not in plot.scans.scan_list.item(1).toolTip()
+    assert (
+        plot.scans.scan_list.item(1).toolTip().endswith(plot.scans.specs[1])
+    )  # whole path
 
 
 @pytest.fixture(scope="module")
@@ -206,7 +208,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     out = tmp_path / "out"
     plot = win.open_plot(plot_files, out)
     assert plot.isVisible()
-    assert plot.scan_list.count() == 2
+    assert plot.scans.scan_list.count() == 2
     _run(qtbot, plot)
     o = plot.outcome
     assert o is not None
@@ -214,7 +216,10 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert [ln.status for ln in o.links] == ["registered"]
     for k, place in enumerate(o.scans):  # each scan on the other's surfaces
         assert 0 < place.residual_m < 0.02
-        assert f"residual {place.residual_m * 100:.1f}" in plot.scan_list.item(k).text()
+        assert (
+            f"residual {place.residual_m * 100:.1f}"
+            in plot.scans.scan_list.item(k).text()
+        )
     # Every tree once, where it stands in the reference scan, its DBH measured.
     assert len(o.trees) == len(STEMS)
     for x, y, r, _h in STEMS:
@@ -495,7 +500,9 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     assert plot is not None
     assert plot.listing
     _run(qtbot, plot)  # asked for while the scans are listed: it runs once they are
-    lines = [plot.scan_list.item(k).text() for k in range(plot.scan_list.count())]
+    lines = [
+        plot.scans.scan_list.item(k).text() for k in range(plot.scans.scan_list.count())
+    ]
     assert [line.split(":")[0] for line in lines] == [
         "S1  plot.e57#0 (Setup 1)",
         "S2  plot.e57#1 (Setup 2)",
@@ -508,11 +515,11 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     assert "a plot of these scans" in asked[0]
     # Listed once: another reference is chosen among the scans as listed.
     plot.open_scans([str(e57)])
-    qtbot.waitUntil(lambda: plot.scan_list.count() == 2, timeout=60_000)
-    plot.scan_list.setCurrentRow(1)
-    plot.make_reference()
+    qtbot.waitUntil(lambda: plot.scans.scan_list.count() == 2, timeout=60_000)
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.make_reference()
     assert plot.job is None
-    assert [plot.scan_list.item(k).text() for k in range(2)] == [
+    assert [plot.scans.scan_list.item(k).text() for k in range(2)] == [
         "S1  plot.e57#1 (Setup 2)",
         "S2  plot.e57#0 (Setup 1)",
     ]
@@ -521,7 +528,7 @@ def test_a_plot_in_one_e57_file_is_listed_and_run_scan_by_scan(
     bad.write_text("not an e57 file")
     plot.open_scans([str(bad), plot_files[0]])
     qtbot.waitUntil(lambda: plot.job is None, timeout=60_000)
-    assert plot.scan_list.count() == 0
+    assert plot.scans.scan_list.count() == 0
     assert plot.status.text().startswith("Not opened: ")
     assert "bad.e57" in plot.status.text()
     assert "\n" not in plot.status.text()
@@ -755,7 +762,7 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     placed = [s.xy for s in plot.outcome.scans]  # where the scans stood, from poses
     assert np.allclose(placed[0], 0.0, atol=1e-9)
     assert np.allclose(placed[1], SOURCE_POSE[:2, 3], atol=0.01)
-    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    assert plot.scans.specs == [str(Path(f).resolve()) for f in plot_files]
     assert plot.outcome is not None
     assert len(plot.outcome.trees) == len(STEMS)
     assert "opened from" in plot.status.text()
@@ -807,7 +814,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert o is not None
     assert [ln.status for ln in o.links] == ["accepted"]
     assert [s.status for s in o.scans] == ["registered", "accepted"]
-    assert "accepted" in plot.scan_list.item(1).text()
+    assert "accepted" in plot.scans.scan_list.item(1).text()
     assert "1 accepted by you" in plot.status.text()
     assert plot.links.accept_button.text() == "Undo accept"
     (kept,) = read_review(tmp_path, found.labels).accepted.items()
@@ -1041,8 +1048,8 @@ def test_closing_the_plot_window_asks_when_choices_were_not_run(
     assert plot.pending_choices() == ""
     plot.links.table.selectRow(0)
     plot.links.leave_button.click()
-    plot.scan_list.setCurrentRow(1)
-    plot.set_scanner("1 2 0")
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.set_scanner("1 2 0")
     assert plot.pending_choices() == "links left out, scanner positions"
     close_answers.append(False)
     assert not plot.close()
@@ -1057,7 +1064,7 @@ def test_closing_the_plot_window_asks_when_choices_were_not_run(
     # Results opened whose run had a scanner given: that choice was run.
     given = (scans[0], dataclasses.replace(scans[1], given=(1.0, 2.0, 0.0)))
     plot._on_result(dataclasses.replace(found, scans=given), opened=True)
-    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert plot.scans.given_scanners == {1: (1.0, 2.0, 0.0)}
     assert plot.pending_choices() == ""
 
 
@@ -1069,13 +1076,13 @@ def test_closing_the_app_asks_the_plot_window_first(
 ) -> None:
     win = make_main_window()
     plot = win.open_plot(plot_files, tmp_path / "out")
-    plot.scan_list.setCurrentRow(1)
-    plot.set_scanner("1 2 0")
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.set_scanner("1 2 0")
     close_answers.append(False)
     assert not win.close()
     assert win.isVisible()
     assert plot.isVisible()
-    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert plot.scans.given_scanners == {1: (1.0, 2.0, 0.0)}
     assert win.close()
     assert len(close_answers.asked) == 2  # asked once more, not again by the window
 
@@ -1125,8 +1132,8 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert len(o.trees) == len(STEMS)
     assert plot.trees.rowCount() == len(STEMS)
     assert plot.out_edit.text() == str(out)
-    assert plot.scan_list.count() == 2
-    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    assert plot.scans.scan_list.count() == 2
+    assert plot.scans.specs == [str(Path(f).resolve()) for f in plot_files]
     # Each tree from the side: its points, its height, its DBH.
     from amrst_gui.plot.tree import SIDE
 
@@ -1433,18 +1440,18 @@ def test_another_scan_is_made_the_reference_before_a_run(
     plot = PlotWindow()
     qtbot.addWidget(plot)
     plot.open_scans(plot_files)
-    assert not plot.reference_button.isEnabled()  # S1 is the reference already
-    plot.scan_list.setCurrentRow(1)
-    plot.set_scanner("1 2 3")  # goes with its scan
-    assert plot.reference_button.isEnabled()
-    plot.reference_button.click()
-    assert plot.specs == [str(Path(f).resolve()) for f in reversed(plot_files)]
-    item = plot.scan_list.item(0)
+    assert not plot.scans.reference_button.isEnabled()  # S1 is the reference already
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.set_scanner("1 2 3")  # goes with its scan
+    assert plot.scans.reference_button.isEnabled()
+    plot.scans.reference_button.click()
+    assert plot.scans.specs == [str(Path(f).resolve()) for f in reversed(plot_files)]
+    item = plot.scans.scan_list.item(0)
     assert item is not None
     assert item.text() == "S1  scan_2.ply; scanner given"
     assert "1.00, 2.00, 3.00" in item.toolTip()
     assert "scan_2.ply is the reference now" in plot.status.text()
-    assert plot.given_scanners == {0: (1.0, 2.0, 3.0)}
+    assert plot.scans.given_scanners == {0: (1.0, 2.0, 3.0)}
 
 
 _REGISTERED = json.dumps({"target_file": "/scans/t.ply", "source_file": "/scans/s.ply"})
@@ -1510,23 +1517,26 @@ def test_a_scan_is_removed_from_the_plot_and_two_stay(
     plot = PlotWindow()
     qtbot.addWidget(plot)
     plot.open_scans([*plot_files, str(third)])
-    plot.scan_list.setCurrentRow(2)
-    plot.set_scanner("1 2 3")  # scan 3's position goes with it
-    plot.scan_list.setCurrentRow(1)
-    assert plot.remove_button.isEnabled()
-    plot.remove_button.click()
-    assert plot.specs == [str(Path(plot_files[0]).resolve()), str(third.resolve())]
-    assert plot.given_scanners == {1: (1.0, 2.0, 3.0)}
+    plot.scans.scan_list.setCurrentRow(2)
+    plot.scans.set_scanner("1 2 3")  # scan 3's position goes with it
+    plot.scans.scan_list.setCurrentRow(1)
+    assert plot.scans.remove_button.isEnabled()
+    plot.scans.remove_button.click()
+    assert plot.scans.specs == [
+        str(Path(plot_files[0]).resolve()),
+        str(third.resolve()),
+    ]
+    assert plot.scans.given_scanners == {1: (1.0, 2.0, 3.0)}
     assert plot.status.text().startswith("scan_2.ply is left out: 2 scans.")
-    plot.scan_list.setCurrentRow(0)
-    assert not plot.remove_button.isEnabled()  # a plot needs two
-    plot.remove_scan()
-    assert len(plot.specs) == 2
+    plot.scans.scan_list.setCurrentRow(0)
+    assert not plot.scans.remove_button.isEnabled()  # a plot needs two
+    plot.scans.remove_scan()
+    assert len(plot.scans.specs) == 2
     # The reference may go too: the next scan becomes S1.
     plot.open_scans([*plot_files, str(third)])
-    plot.scan_list.setCurrentRow(0)
-    plot.remove_button.click()
-    assert plot.specs[0] == str(Path(plot_files[1]).resolve())
+    plot.scans.scan_list.setCurrentRow(0)
+    plot.scans.remove_button.click()
+    assert plot.scans.specs[0] == str(Path(plot_files[1]).resolve())
     assert "scan_2.ply is the reference now (S1)" in plot.status.text()
 
 
@@ -1563,8 +1573,8 @@ def test_marks_hold_when_a_scan_is_removed_and_the_plot_run_again(
     assert "a plot of these scans" in asked[0]
     assert plot.stem_map.selected is not None
     assert plot.tree_panel.tree_id == shown
-    plot.scan_list.setCurrentRow(2)
-    plot.remove_button.click()
+    plot.scans.scan_list.setCurrentRow(2)
+    plot.scans.remove_button.click()
     _run(qtbot, plot)
     assert "same reference with other scans" in asked[1]
     assert plot.review.marks == marks  # shown, and kept by the next mark
@@ -1590,7 +1600,7 @@ def test_results_whose_scan_was_moved_open_and_say_so(
     qtbot.addWidget(plot)
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         plot.open_results(out)
-    item = plot.scan_list.item(1)
+    item = plot.scans.scan_list.item(1)
     assert item is not None
     assert "scan_2.ply (file missing)" in item.text()
     assert "Not where plot.json says: S2 (scan_2.ply)" in plot.status.text()
@@ -1735,31 +1745,31 @@ def test_opening_another_plot_asks_before_it_drops_choices_not_run(
 ) -> None:
     win = make_main_window()
     plot = win.open_plot(plot_files, tmp_path / "out")
-    plot.scan_list.setCurrentRow(1)
-    plot.set_scanner("1 2 0")
-    specs = list(plot.specs)
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.set_scanner("1 2 0")
+    specs = list(plot.scans.specs)
     discard_answers.append(False)  # Cancel: the plot shown stays
     assert win.open_plot(plot_files[::-1]) is plot
     discard_answers.append(False)
     win.open_plot_results(tmp_path / "elsewhere")
     assert not plot.busy
-    assert plot.specs == specs
-    assert plot.given_scanners == {1: (1.0, 2.0, 0.0)}
+    assert plot.scans.specs == specs
+    assert plot.scans.given_scanners == {1: (1.0, 2.0, 0.0)}
     assert discard_answers.asked == ["Opening another plot"] * 2
     win.open_plot_results(tmp_path / "elsewhere")  # Discard
     qtbot.waitUntil(lambda: not plot.busy, timeout=30_000)
-    assert plot.given_scanners == {}
+    assert plot.scans.given_scanners == {}
     assert plot.status.text().startswith("Not opened:")
     assert len(discard_answers.asked) == 3
     # Closed with a choice not run (asked then), the window opens another at once.
     plot.open_scans(plot_files)
-    plot.scan_list.setCurrentRow(1)
-    plot.set_scanner("1 2 0")
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.set_scanner("1 2 0")
     assert plot.close()
     assert close_answers.asked
     win.open_plot(plot_files)
     assert plot.isVisible()
-    assert plot.given_scanners == {}
+    assert plot.scans.given_scanners == {}
     assert len(discard_answers.asked) == 3
 
 
@@ -1808,11 +1818,11 @@ def test_other_scans_opened_take_no_plot_area_of_the_last_plot(
     plot.open_scans(["a.ply", "b.ply", "c.ply"], tmp_path)
     plot.area_row.radius_spin.setValue(12.0)
     plot.area_row.centre_edit.setText("5 5")
-    plot.scan_list.setCurrentRow(1)
-    plot.make_reference()
-    plot.scan_list.setCurrentRow(2)
-    plot.remove_scan()
-    assert [Path(s).name for s in plot.specs] == ["b.ply", "a.ply"]
+    plot.scans.scan_list.setCurrentRow(1)
+    plot.scans.make_reference()
+    plot.scans.scan_list.setCurrentRow(2)
+    plot.scans.remove_scan()
+    assert [Path(s).name for s in plot.scans.specs] == ["b.ply", "a.ply"]
     assert plot.area_row.area() == (12.0, (5.0, 5.0))
     assert plot.out_edit.text() == str(tmp_path)
 
@@ -1879,7 +1889,7 @@ def test_scans_opened_into_a_folder_of_their_results_show_them(
         plot.open_scans(plot_files, out)  # File ▸ Open plot… with a folder
     assert plot.outcome is not None
     assert plot.trees.rowCount() == len(STEMS)
-    assert plot.specs == [str(Path(f).resolve()) for f in plot_files]
+    assert plot.scans.specs == [str(Path(f).resolve()) for f in plot_files]
     assert f"opened from {out}" in plot.status.text()
     assert plot.run_button.isEnabled()
     # Another folder, or other scans, show nothing until they are run.
@@ -2072,8 +2082,8 @@ def test_a_scan_opened_through_a_link_keeps_the_name_given(
     plot = PlotWindow()
     qtbot.addWidget(plot)
     plot.open_scans([str(link), plot_files[1]])
-    assert plot.specs[0] == str(link)
-    assert "stand7_pos1.ply" in plot.scan_list.item(0).text()
+    assert plot.scans.specs[0] == str(link)
+    assert "stand7_pos1.ply" in plot.scans.scan_list.item(0).text()
 
 
 def test_trees_without_a_dbh_end_the_table_whichever_way_it_is_sorted(
