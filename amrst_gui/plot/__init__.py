@@ -1,6 +1,9 @@
 """The Plot window: a forest plot's scans run through ``amrst.plot``, and its review.
 
-``window`` is the window; ``jobs`` what it runs in the engine process and reads back
-(no Qt); ``tables`` the links and trees tables; ``tree`` the selected tree's panel,
-drawn by ``tree_slice`` and ``tree_side``; ``stem_map`` the plot from above.
+``window`` is the window: it runs the plot, shows it and saves the technician's
+review. Its parts: ``scans`` the scans listed for the next run, ``area`` the plot
+radius and centre, ``links`` the links and what the next run does with them,
+``tables`` the links and trees tables, ``tree`` the selected tree's panel (drawn by
+``tree_slice`` and ``tree_side``), ``stem_map`` the plot from above, ``menus`` the
+menus; ``jobs`` is what the window runs in the engine process and reads back (no Qt).
 """
