@@ -3,7 +3,8 @@
 ``window`` is the window: it runs the plot, shows it and saves the technician's
 review. Its parts: ``scans`` the scans listed for the next run, ``area`` the plot
 radius and centre, ``links`` the links and what the next run does with them,
-``tables`` the links and trees tables, ``tree`` the selected tree's panel (drawn by
-``tree_slice`` and ``tree_side``), ``stem_map`` the plot from above, ``menus`` the
-menus; ``jobs`` is what the window runs in the engine process and reads back (no Qt).
+``tree_list`` the trees listed, ``tables`` what fills the links and trees tables,
+``tree`` the selected tree's panel (drawn by ``tree_slice`` and ``tree_side``),
+``stem_map`` the plot from above, ``menus`` the menus; ``jobs`` is what the window
+runs in the engine process and reads back (no Qt).
 """

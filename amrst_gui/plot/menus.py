@@ -30,8 +30,8 @@ def build(window: PlotWindow) -> QMenu:
     _mirror(plot, window.run_button, key="Ctrl+R", bind=True)
     _mirror(plot, window.cancel_button, key="Esc")
     plot.addSeparator()
-    _mirror(plot, window.report_button, text="Write report")
-    _mirror(plot, window.export_button, key="Ctrl+E", bind=True)
+    _mirror(plot, window.trees.report_button, text="Write report")
+    _mirror(plot, window.trees.export_button, key="Ctrl+E", bind=True)
     plot.addSeparator()
     close = plot.addAction("Close")
     close.setShortcut(QKeySequence("Ctrl+W"))
@@ -65,7 +65,7 @@ def build(window: PlotWindow) -> QMenu:
             trees, panel.buttons[mark], text=None if mark else "Clear mark", key=key
         )
     trees.addSeparator()
-    _mirror(trees, window.add_button)
+    _mirror(trees, window.trees.add_button)
     for button in (panel.measure_button, panel.keep_button, panel.forget_button):
         _mirror(trees, button)
     return plot

@@ -70,15 +70,10 @@ from amrst_gui.plot.scans import ScansPanel
 from amrst_gui.plot.stem_map import NO_PLOT, StemMapView
 from amrst_gui.plot.tables import (
     NBSP,
-    TREE_COLUMNS,
-    fill,
-    fill_trees,
-    row_of_tree,
     scan_file_exists,
-    table,
-    tree_at_row,
 )
 from amrst_gui.plot.tree import TreePanel
+from amrst_gui.plot.tree_list import TreeList
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -220,17 +215,23 @@ class PlotWindow(QMainWindow):
         self.listing = False  # the job lists the scans of a file of several
         self.opening = False  # the job reads a results folder
         self.run_queued = False  # Run was asked for while listing or opening
-        self.stem_map = StemMapView()
+        # The side column's parts, top to bottom; the map; the selected tree.
         self.scans = ScansPanel()
         self.scans.said.connect(self._say)
         self.scans.reordered.connect(self._on_reordered)
+        self.area_row = AreaRow()
+        self.area_row.edited.connect(self.apply_area)
+        self.area_row.picking.connect(self._picking_centre)
         self.links = LinksPanel()
         self.links.said.connect(self._say)
         self.links.open_asked.connect(self.open_pair)
         self.links.accept_asked.connect(self.toggle_accept)
-        self.area_row = AreaRow()
-        self.area_row.edited.connect(self.apply_area)
-        self.area_row.picking.connect(self._picking_centre)
+        self.trees = TreeList()
+        self.trees.chosen.connect(self.select_tree)
+        self.trees.adding.connect(self._adding_tree)
+        self.trees.report_asked.connect(self.write_report)
+        self.trees.export_asked.connect(lambda: self.export_inventory())
+        self.stem_map = StemMapView()
         self.tree_panel = TreePanel()
         split = QSplitter(Qt.Orientation.Horizontal)
         split.addWidget(self._build_side())
@@ -247,7 +248,6 @@ class PlotWindow(QMainWindow):
         self.stem_map.point_clicked.connect(self._on_map_point)
         self.tree_panel.mark_chosen.connect(self.set_mark)
         self.tree_panel.dbh_chosen.connect(self.set_hand_dbh)
-        self.trees.itemSelectionChanged.connect(self._on_row_selected)
         for key, step in (("N", 1), ("P", -1)):  # the next / previous tree
             QShortcut(QKeySequence(key), self, lambda step=step: self.step_tree(step))
         self.plot_menu = menus.build(self)
@@ -289,14 +289,6 @@ class PlotWindow(QMainWindow):
         # messages come and go.
         self.status.setAlignment(Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
         self.status.setMinimumHeight(3 * self.status.fontMetrics().lineSpacing())
-        self.trees = table(TREE_COLUMNS, "plot_trees")
-        self.trees.horizontalHeader().setSortIndicator(0, Qt.SortOrder.AscendingOrder)
-        self.trees.setToolTip(
-            "Every tree listed: click one to see it, a heading to sort by it. An amber "
-            "id: the tree is seen from a scan that needs review. Keys: N / P the "
-            "next / previous tree; O mark ok, C mark check, X not a tree, Del clear "
-            "the mark."
-        )
         folder = QHBoxLayout()
         folder.addWidget(self.out_edit, 1)
         folder.addWidget(self.choose_button)
@@ -315,39 +307,9 @@ class PlotWindow(QMainWindow):
         layout.addWidget(self.progress)
         layout.addWidget(self.status)
         layout.addWidget(self.links)
-        layout.addLayout(self._build_tree_buttons())
         layout.addWidget(self.trees, 1)
         self._update_tree_buttons()
         return side
-
-    def _build_tree_buttons(self) -> QHBoxLayout:
-        """The trees' heading: Add tree, Report, Export inventory."""
-        self.export_button = QPushButton("Export inventory…")
-        self.export_button.setToolTip(
-            "Save the tree list with your marks as a CSV or Excel file elsewhere (the "
-            "results folder's trees.csv always holds it too)"
-        )
-        self.export_button.clicked.connect(lambda: self.export_inventory())
-        self.report_button = QPushButton("Report")
-        self.report_button.setToolTip(
-            "Write report.html in the results folder (scans, links, the stem map and "
-            "the trees, with your review) and open it"
-        )
-        self.report_button.clicked.connect(self.write_report)
-        self.add_button = QPushButton("Add tree")
-        self.add_button.setCheckable(True)
-        self.add_button.setToolTip(
-            "A tree the list misses: click where its stem stands on the stem map (the "
-            "grey shows the vegetation). Run plot measures a tree there and lists it "
-            "as H and a number. Click a cross again to take it back; Esc ends adding."
-        )
-        self.add_button.toggled.connect(self._adding_tree)
-        head = QHBoxLayout()
-        head.addWidget(QLabel("<b>Trees</b>"), 1)
-        head.addWidget(self.add_button)
-        head.addWidget(self.report_button)
-        head.addWidget(self.export_button)
-        return head
 
     # ------------------------------------------------------------- public
     @property
@@ -410,7 +372,7 @@ class PlotWindow(QMainWindow):
         self.stem_map.set_plot(None)
         self.tree_panel.show_tree(None, None, None)
         self.links.show_links(None)
-        fill(self.trees, [])
+        self.trees.show_trees(None, self.review, None)
         self._show_busy()
 
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
@@ -682,32 +644,24 @@ class PlotWindow(QMainWindow):
             and k != shown
             and not dialogs.confirm_discard(self, "Choosing another tree", lost)
         ):
-            self.trees.blockSignals(True)  # its row again, and nothing else
-            self.trees.selectRow(row_of_tree(self.trees, shown))
-            self.trees.blockSignals(False)
+            self.trees.select(shown, quiet=True)  # its row again, and nothing else
             return
         self.stem_map.select(k)
         self.tree_panel.show_tree(o, k, self.review)
-        row = row_of_tree(self.trees, k)
-        if self.trees.currentRow() != row:
-            self.trees.selectRow(row)
+        self.trees.select(k)
 
     def step_tree(self, step: int) -> None:
         """Select the tree ``step`` rows below the selected one in the list."""
-        n = self.trees.rowCount()
-        if n:
-            row = self.trees.currentRow()
-            row = min(max(row + step, 0), n - 1) if row >= 0 else 0
-            self.select_tree(tree_at_row(self.trees, row))
+        self.select_tree(self.trees.stepped(step))
 
     def keyPressEvent(self, event) -> None:
         """Esc cancels a running plot, else ends a click on the map awaited (what no
         child took)."""
-        picking = self.add_button.isChecked() or self.area_row.picking_centre
+        picking = self.trees.adding_tree or self.area_row.picking_centre
         if event.key() == Qt.Key.Key_Escape and self.job is not None:
             self.cancel()
         elif event.key() == Qt.Key.Key_Escape and picking:
-            self.add_button.setChecked(False)
+            self.trees.stop_adding()
             self.area_row.stop_picking()
         else:
             super().keyPressEvent(event)
@@ -745,8 +699,8 @@ class PlotWindow(QMainWindow):
 
     def _picking_centre(self, on: bool) -> None:
         if on:
-            self.add_button.setChecked(False)
-        self.stem_map.set_adding(on or self.add_button.isChecked())
+            self.trees.stop_adding()
+        self.stem_map.set_adding(on or self.trees.adding_tree)
 
     def _on_map_point(self, x: float, y: float) -> None:
         """A click on the map: the plot centre while picking it, else a tree added."""
@@ -805,7 +759,7 @@ class PlotWindow(QMainWindow):
         one not yet listed drawn there; saved in the review for the next run."""
         from amrst.plot.review import next_added_id, without_added
 
-        self.add_button.setChecked(False)
+        self.trees.stop_adding()
         o = self.outcome
         if o is None:
             return
@@ -1143,11 +1097,6 @@ class PlotWindow(QMainWindow):
             )
         self._say(f"The plot failed: {text}", error=True)
 
-    def _on_row_selected(self) -> None:
-        rows = self.trees.selectionModel().selectedRows()
-        if rows:
-            self.select_tree(tree_at_row(self.trees, rows[0].row()))
-
     # ---------------------------------------------------------- showing
     def _show_review(self) -> None:
         """Show the run as the review leaves it: map, scans, links, marks."""
@@ -1167,13 +1116,7 @@ class PlotWindow(QMainWindow):
         if o is None:
             return
         k = self.stem_map.selected
-        self.trees.blockSignals(True)
-        fill_trees(self.trees, o, self.review)
-        if k is not None:
-            self.trees.selectRow(row_of_tree(self.trees, k))
-        else:
-            self.trees.clearSelection()
-        self.trees.blockSignals(False)
+        self.trees.show_trees(o, self.review, k)
         self.stem_map.set_review(self.review)
         if k is not None:
             self.tree_panel.show_tree(o, k, self.review)
@@ -1190,13 +1133,8 @@ class PlotWindow(QMainWindow):
         self._update_tree_buttons()
 
     def _update_tree_buttons(self) -> None:
-        """Enable the trees' buttons: a plot shown, no job running."""
         shown = self.outcome is not None and not self.busy
-        self.export_button.setEnabled(shown)
-        self.add_button.setEnabled(shown)
-        if not shown:
-            self.add_button.setChecked(False)
-        self.report_button.setEnabled(shown and self.report_job is None)
+        self.trees.set_enabled(shown, self.report_job is None)
 
     def _say(self, text: str, error: bool = False) -> None:
         text = " ".join(text.splitlines())  # one line, whatever a path holds

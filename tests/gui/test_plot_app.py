@@ -180,7 +180,7 @@ def _measure_by_hand(plot: PlotWindow, k: int, out: Path) -> None:
     assert plot.stem_map.review.dbh == kept  # drawn so
     panel.height_buttons.button(SIDE).click()
     assert panel.side_view.hand == kept[tree.tree_id]  # a green bar by the white
-    cell = plot.trees.item(k, 2)
+    cell = plot.trees.table.item(k, 2)
     assert cell is not None
     assert cell.text() == "yours"
     assert panel.forget_button.isEnabled()
@@ -227,7 +227,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
         k = int(np.argmin(d))
         assert d[k] < 0.1
         assert abs(o.trees[k].stem.dbh_m - 2 * r) < 0.02
-    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.trees.table.rowCount() == len(STEMS)
     with (out / TREES_CSV).open() as fh:
         assert len(list(csv.DictReader(fh))) == len(STEMS)
 
@@ -244,7 +244,7 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     tree = o.trees[k]
     assert plot.stem_map.selected == k
     assert plot.tree_panel.tree_id == tree.tree_id
-    assert plot.trees.currentRow() == k
+    assert plot.trees.table.currentRow() == k
     assert f"{tree.stem.dbh_m * 100:.1f} cm" in plot.tree_panel.values["DBH"].text()
     # Its slices: the points around the stem at 0.6-3 m lie on its circle (these
     # stems are straight cylinders), the 1.3 m one shown first, the fitted one.
@@ -289,10 +289,10 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     assert (tmp_path / "inventory.xlsx").stat().st_size > 0
     # The report says what the folder's files say, the mark included, and opens.
     opened = opened_reports
-    plot.report_button.click()
+    plot.trees.report_button.click()
     qtbot.waitUntil(lambda: bool(opened), timeout=30_000)  # drawn off the GUI thread
     assert opened == [out / "report.html"]
-    assert plot.report_button.isEnabled()
+    assert plot.trees.report_button.isEnabled()
     assert f"<td>{tree.tree_id}</td>" in opened[0].read_text()
     assert "1 marked check, 0 marked not a tree and 0 DBHs measured by you" in (
         opened[0].read_text()
@@ -301,16 +301,16 @@ def test_a_plot_runs_and_its_stem_map_shows_every_tree(
     from amrst_gui import dialogs
 
     monkeypatch.setattr(dialogs, "open_report", lambda _parent, _path: False)
-    plot.report_button.click()
+    plot.trees.report_button.click()
     qtbot.waitUntil(lambda: "No web browser" in plot.status.text(), timeout=30_000)
     assert str(out / "report.html") in plot.status.text()
-    cell = plot.trees.item(k, 5)
+    cell = plot.trees.table.item(k, 5)
     assert cell is not None
     assert cell.text() == "check"
     plot.tree_panel.buttons["not a tree"].click()  # a shrub listed as a tree
     assert read_review(out, o.labels).marks == {tree.tree_id: "not a tree"}
     assert plot.stem_map.review.marks == {tree.tree_id: "not a tree"}
-    cell = plot.trees.item(k, 5)
+    cell = plot.trees.table.item(k, 5)
     assert cell is not None
     assert cell.text() == "not a tree"
     plot.tree_panel.buttons[""].click()
@@ -378,25 +378,25 @@ def _sorted_by_dbh(plot: PlotWindow) -> None:
     """A heading sorts the table by its numbers; a row still shows its own tree."""
     o = plot.outcome
     assert o is not None
-    plot.trees.sortByColumn(1, Qt.SortOrder.DescendingOrder)  # as a heading click
+    plot.trees.table.sortByColumn(1, Qt.SortOrder.DescendingOrder)  # as a heading click
     dbh = [o.trees[_tree_in(plot, r)].stem.dbh_m for r in range(len(o.trees))]
     assert dbh == sorted(dbh, reverse=True)
-    plot.trees.selectRow(0)  # the widest stem
+    plot.trees.table.selectRow(0)  # the widest stem
     assert plot.tree_panel.tree_id == o.trees[_tree_in(plot, 0)].tree_id
     assert o.trees[_tree_in(plot, 0)].stem.dbh_m == max(dbh)
     plot.step_tree(1)  # N: the next row down, the next widest
     assert plot.tree_panel.tree_id == o.trees[_tree_in(plot, 1)].tree_id
     plot.set_mark(o.trees[_tree_in(plot, 1)].tree_id, "ok")  # the order holds
-    assert plot.trees.currentRow() == 1
+    assert plot.trees.table.currentRow() == 1
     plot.set_mark(o.trees[_tree_in(plot, 1)].tree_id, "")
-    plot.trees.sortByColumn(0, Qt.SortOrder.AscendingOrder)  # the trees' order
+    plot.trees.table.sortByColumn(0, Qt.SortOrder.AscendingOrder)  # the trees' order
     assert [_tree_in(plot, r) for r in range(len(o.trees))] == list(range(len(o.trees)))
 
 
 def _tree_in(plot: PlotWindow, row: int) -> int:
     from amrst_gui.plot.tables import tree_at_row
 
-    k = tree_at_row(plot.trees, row)
+    k = tree_at_row(plot.trees.table, row)
     assert k is not None
     return k
 
@@ -413,19 +413,19 @@ def _review_by_keys(qtbot: QtBot, plot: PlotWindow, out: Path) -> None:
     qtbot.waitUntil(plot.isActiveWindow)
     plot.select_tree(0)
     first, second = o.trees[0].tree_id, o.trees[1].tree_id
-    QTest.keyClick(plot.trees, Qt.Key.Key_N)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_N)
     assert plot.tree_panel.tree_id == second
-    QTest.keyClick(plot.trees, Qt.Key.Key_O)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_O)
     marks_become({second: "ok"})
-    QTest.keyClick(plot.trees, Qt.Key.Key_P)
-    QTest.keyClick(plot.trees, Qt.Key.Key_P)  # stays at the first
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_P)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_P)  # stays at the first
     assert plot.tree_panel.tree_id == first
-    QTest.keyClick(plot.trees, Qt.Key.Key_X)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_X)
     marks_become({first: "not a tree", second: "ok"})
-    QTest.keyClick(plot.trees, Qt.Key.Key_Delete)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_Delete)
     marks_become({second: "ok"})
-    QTest.keyClick(plot.trees, Qt.Key.Key_N)
-    QTest.keyClick(plot.trees, Qt.Key.Key_Delete)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_N)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_Delete)
     marks_become({})
     plot.area_row.centre_edit.setEnabled(True)
     plot.area_row.centre_edit.setFocus()  # typed into a field, a letter is text
@@ -446,7 +446,7 @@ def _add_a_tree(
     gap = (1.0, -1.0)  # bare ground between the stems
 
     def click_at(xy: tuple[float, float]) -> None:
-        plot.add_button.click()
+        plot.trees.add_button.click()
         assert plot.stem_map.adding
         ((x, y),) = plot.stem_map.to_px(np.array(xy))
         QTest.mouseClick(
@@ -801,8 +801,8 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     plot.links.table.selectRow(0)
     assert plot.links.accept_button.isEnabled()
     assert plot.links.accept_button.text() == "Accept"
-    assert "S2, which needs review" in plot.trees.item(0, 0).toolTip()  # T001
-    assert plot.trees.item(1, 0).toolTip() == ""  # T002, seen from S1 alone
+    assert "S2, which needs review" in plot.trees.table.item(0, 0).toolTip()  # T001
+    assert plot.trees.table.item(1, 0).toolTip() == ""  # T002, seen from S1 alone
 
     # Asked first; "Cancel" accepts nothing.
     monkeypatch.setattr(plot_window, "confirm", lambda *_: False)
@@ -825,7 +825,7 @@ def test_a_link_that_needs_review_is_accepted_at_its_pose(
     assert [s["status"] for s in doc["scans"]] == ["registered", "needs review"]
     assert doc["links"][0]["accepted"]
     assert _scans_to_check(tmp_path) == {"T001": "", "T002": ""}
-    assert plot.trees.item(0, 0).toolTip() == ""
+    assert plot.trees.table.item(0, 0).toolTip() == ""
     # A plot area given after the acceptance writes trees.csv as the review leaves it.
     plot.area_row.radius_spin.setValue(5.0)
     plot.apply_area()
@@ -965,7 +965,7 @@ def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
     plot._on_result(found)
     plot.review = replace(plot.review, marks={"T100": "not a tree"})
     plot._show_marks()
-    table = plot.trees
+    table = plot.trees.table
     qtbot.waitUntil(lambda: table.viewport().width() > 0)
     assert table.horizontalScrollBar().maximum() == 0  # nothing out of sight
     mark = table.item(0, table.columnCount() - 1)
@@ -1130,7 +1130,7 @@ def test_a_plot_s_results_open_as_written_with_what_the_next_run_leaves_out(
     assert [s.status for s in o.scans] == ["registered", "failed"]
     assert o.scans[1].xy is None  # not placed
     assert len(o.trees) == len(STEMS)
-    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.trees.table.rowCount() == len(STEMS)
     assert plot.out_edit.text() == str(out)
     assert plot.scans.scan_list.count() == 2
     assert plot.scans.specs == [str(Path(f).resolve()) for f in plot_files]
@@ -1174,7 +1174,7 @@ def test_a_fixed_radius_plot_opens_with_its_edge_and_runs_again_with_it(
     far = [np.hypot(t.xyz[0] - 1.5, t.xyz[1] + 2.0) > 6.0 for t in o.trees]
     assert sum(far) == 2  # of the six test stems
     for r, outside in enumerate(far):  # greyed in the table, and why
-        assert ("outside the plot" in plot.trees.item(r, 0).toolTip()) == outside
+        assert ("outside the plot" in plot.trees.table.item(r, 0).toolTip()) == outside
     nbsp = "\u00a0"  # a unit stays on its number's line
     before = plot.status.text().split(": ")[-1].split(f"{nbsp}stems/ha")[0]
     assert f"Within 6{nbsp}m (0.0113{nbsp}ha): 4 trees, 4 with a DBH: " in (
@@ -1298,10 +1298,10 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     plot.open_results(out)
     assert plot.busy  # opening is a job too: nothing that writes the folder meanwhile
     assert not plot.run_button.isEnabled()
-    assert not plot.add_button.isEnabled()
+    assert not plot.trees.add_button.isEnabled()
     qtbot.waitUntil(lambda: not plot.busy and plot.outcome is not None, timeout=30_000)
     plot.select_tree(1)
-    assert plot.trees.selectedItems()
+    assert plot.trees.table.selectedItems()
     plot.out_edit.setText(str(tmp_path / "again"))  # a new folder: nothing to ask
     plot.run()
     assert plot.busy
@@ -1310,8 +1310,8 @@ def test_a_review_file_that_cannot_be_read_is_never_written_over(
     assert panel.tree_id is not None
     for button in (
         plot.run_button,
-        plot.add_button,
-        plot.export_button,
+        plot.trees.add_button,
+        plot.trees.export_button,
         *panel.buttons.values(),
         panel.measure_button,
     ):
@@ -1704,13 +1704,13 @@ def test_a_dbh_measured_and_not_kept_is_asked_about_before_it_goes(
     for choose in (
         lambda: plot.step_tree(1),
         lambda: plot.stem_map.tree_clicked.emit(1),
-        lambda: plot.trees.selectRow(row_of_tree(plot.trees, 1)),
+        lambda: plot.trees.table.selectRow(row_of_tree(plot.trees.table, 1)),
     ):
         discard_answers.append(False)
         choose()
         assert panel.tree_id == tree.tree_id
         assert len(view.clicks) == 4
-        assert plot.trees.currentRow() == row_of_tree(plot.trees, 0)
+        assert plot.trees.table.currentRow() == row_of_tree(plot.trees.table, 0)
     assert discard_answers.asked == ["Choosing another tree"] * 3
     plot.set_mark(tree.tree_id, "check")  # a mark given meanwhile keeps the points
     assert len(view.clicks) == 4
@@ -1787,17 +1787,17 @@ def test_tab_reaches_the_buttons_past_the_links_and_trees_tables(
     for button in (
         plot.links.open_button,
         plot.links.leave_button,
-        plot.add_button,
-        plot.report_button,
-        plot.export_button,
+        plot.trees.add_button,
+        plot.trees.report_button,
+        plot.trees.export_button,
     ):
         assert button in visited, button.text()
-    assert plot.trees in visited
+    assert plot.trees.table in visited
     # The arrows still move from row to row.
-    plot.trees.setFocus()
-    plot.trees.setCurrentCell(0, 0)
-    QTest.keyClick(plot.trees, Qt.Key.Key_Down)
-    assert plot.trees.currentRow() == 1
+    plot.trees.table.setFocus()
+    plot.trees.table.setCurrentCell(0, 0)
+    QTest.keyClick(plot.trees.table, Qt.Key.Key_Down)
+    assert plot.trees.table.currentRow() == 1
 
 
 def test_other_scans_opened_take_no_plot_area_of_the_last_plot(
@@ -1888,7 +1888,7 @@ def test_scans_opened_into_a_folder_of_their_results_show_them(
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         plot.open_scans(plot_files, out)  # File ▸ Open plot… with a folder
     assert plot.outcome is not None
-    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.trees.table.rowCount() == len(STEMS)
     assert plot.scans.specs == [str(Path(f).resolve()) for f in plot_files]
     assert f"opened from {out}" in plot.status.text()
     assert plot.run_button.isEnabled()
@@ -1954,7 +1954,7 @@ def test_a_trees_csv_a_spreadsheet_saved_again_opens_or_says_why_not(
     csv_path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
     with qtbot.waitSignal(plot.plot_done, timeout=30_000):
         plot.open_results(out)
-    assert plot.trees.rowCount() == len(STEMS)
+    assert plot.trees.table.rowCount() == len(STEMS)
     # Saved with ';' between the columns, or in another encoding: said so.
     for damaged, why in (
         (text.replace(",", ";").encode(), "has no tree_id column"),
