@@ -2,8 +2,8 @@
 
 Before a run the list can be reordered (**Make reference**), a scan left out
 (**Remove**), and where a scan's scanner stood given (**Scanner at…**, for a file
-that does not say). A change of the list emits ``reordered``: the plot shown is no
-longer of these scans.
+that does not say). Make reference and Remove emit ``reordered``: the plot shown is
+no longer of the scans listed.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ Scanner = tuple[float, float, float]
 class ScansPanel(QWidget):
     """The scans listed, their names and the scanner positions given.
 
-    Emits ``said(text, error)`` for the window's status line.
+    Emits ``said(text, error)`` for the window's status line, and ``reordered``
+    when Make reference or Remove changed the list.
     """
 
     said = Signal(str, bool)

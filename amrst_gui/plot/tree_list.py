@@ -109,9 +109,10 @@ class TreeList(QWidget):
         self.table.blockSignals(False)
 
     def select(self, k: int, *, quiet: bool = False) -> None:
-        """Select tree ``k``'s row (``quiet``: without emitting ``chosen``)."""
+        """Select tree ``k``'s row, unless it is the current one; ``quiet``: select it
+        again in any case, without emitting ``chosen``."""
         row = row_of_tree(self.table, k)
-        if self.table.currentRow() == row:
+        if self.table.currentRow() == row and not quiet:
             return
         self.table.blockSignals(quiet)
         self.table.selectRow(row)

@@ -373,7 +373,6 @@ class PlotWindow(QMainWindow):
         self.tree_panel.show_tree(None, None, None)
         self.links.show_links(None)
         self.trees.show_trees(None, self.review, None)
-        self._show_busy()
 
     def _scans_listed(self, listed: list[tuple[str, str]]) -> None:
         self.job, self.listing = None, False
@@ -462,6 +461,7 @@ class PlotWindow(QMainWindow):
         self._scans_changed()
 
     def _scans_changed(self) -> None:
+        """Show what the scans listed now allow: the map's hint, the title, Run."""
         self.stem_map.empty_text = (
             "Run plot registers the scans listed and draws the plot here."
             if self.scans.specs
@@ -1122,7 +1122,8 @@ class PlotWindow(QMainWindow):
             self.tree_panel.show_tree(o, k, self.review)
 
     def _show_busy(self) -> None:
-        """Enable what a job in progress (``busy``) allows, after it starts or ends."""
+        """Enable what a job in progress (``busy``) and the plot shown (``found``)
+        allow: called after every change of either, as the panels keep them."""
         self.run_button.setEnabled(not self.busy and len(self.scans.specs) >= 2)
         self.scans.set_state(self.busy, self.found is not None)
         self.cancel_button.setEnabled(self.busy)

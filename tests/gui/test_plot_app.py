@@ -734,7 +734,14 @@ def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     assert "same point in both scans" in plot.status.text()
     pairs = tmp_path / "pairs.csv"
     write_pairs(pairs, picked, in_source)
-    plot.links.toggle_pairs(str(pairs))
+
+    class _Chosen:  # the file dialog, answered with the pairs file
+        @staticmethod
+        def getOpenFileName(*_args, **_kwargs) -> tuple[str, str]:
+            return str(pairs), ""
+
+    monkeypatch.setattr("amrst_gui.plot.links.QFileDialog", _Chosen)
+    plot.links.pairs_button.click()  # Use pairs… asks for the file
     assert plot.links.hand_pairs == {(0, 1): str(pairs)}
     assert plot.links.pairs_button.text() == "Drop pairs"
     by = plot.links.table.item(0, 5)
