@@ -45,6 +45,9 @@ _MAX_HEAD_BYTES = 64_000_000  # ... read further past comments up to this
 _MAX_CONTROL_SHARE = 0.05  # more control characters than this: binary
 _MAX_UNDECODABLE_SHARE = 0.3  # more bytes that are not UTF-8 than this: binary
 _TEXT_CONTROLS = frozenset("\t\n\r\f\v\x1a")  # \x1a: DOS end-of-file mark
+#: More values on a line than this is no point a line (lost line breaks): refused
+#: before numpy parses a line of millions of columns.
+MAX_COLUMNS = 256
 
 
 class _Layout:
@@ -345,6 +348,12 @@ def read_text(path: Path, columns: Sequence[str] | None = None) -> RawCloud:
         raise InvalidInput(
             f"{path} has {layout.n_columns} value(s) per line; at least x, y, z "
             "are needed. Check the separator and the export settings."
+        )
+    if layout.n_columns > MAX_COLUMNS:
+        raise InvalidInput(
+            f"{path} has {layout.n_columns:,} values on a line; a point cloud holds "
+            "one point a line (x, y, z and its attributes). Check the line breaks "
+            "and the export settings."
         )
     names, warning = _column_names(layout, columns, path)
     data = _parse_body(path, encoding, layout)

@@ -103,6 +103,12 @@ def test_ragged_text_row_names_the_line(tmp_path):
         io.read(tmp_path / "r.csv")
 
 
+def test_a_text_file_without_line_breaks_is_refused_at_once(tmp_path):
+    (tmp_path / "one_line.xyz").write_text(" ".join(["1.5"] * 300_000) + "\n")
+    with pytest.raises(InvalidInput, match=r"300,000 values on a line.*line breaks"):
+        io.read(tmp_path / "one_line.xyz")
+
+
 def test_nan_rows_are_dropped_and_counted(tmp_path, caplog):
     (tmp_path / "nan.txt").write_text("1 2 3 5\nnan 2 3 6\n4 inf 6 7\n7 8 9 8\n")
     with caplog.at_level(logging.WARNING, logger="amrst.io"):
