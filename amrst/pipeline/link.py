@@ -66,13 +66,16 @@ def find_matches(
         )
     few = [
         f"The {name} skeleton has only {len(kp.xyz)} key points; 4 are needed for a "
-        "tetrahedron. Raise the depth rule (max_depth), lower the pruning length, or skeletonise all points."
+        "tetrahedron."
         for name, kp in (("target", target.keypoints), ("source", source.keypoints))
         if len(kp.xyz) < 4
     ]
     trunk_available = params.trunk.mode != "off" and params.match.levelled
     if few and not trunk_available:
-        raise RegistrationFailed(few[0])
+        raise RegistrationFailed(
+            f"{few[0]} Raise the depth rule (max_depth), lower the pruning length, "
+            "or skeletonise all points."
+        )
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     if few:

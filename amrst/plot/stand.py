@@ -176,6 +176,11 @@ def stand_line(st: Stand, area: PlotArea) -> str:
     return (
         f"within {area.radius_m:g}{sp}m ({area.hectares:.4f}{sp}ha): "
         f"{counted(st.trees, 'tree')}, "
-        f"{st.with_dbh} with a DBH: {st.trees_per_ha:.0f}{sp}stems/ha, "
+        f"{st.with_dbh} with a DBH: {_per_ha(st.trees_per_ha)}{sp}stems/ha, "
         f"basal area {st.basal_area_m2_per_ha:.1f}{sp}m²/ha{outside}"
     )
+
+
+def _per_ha(value: float) -> str:
+    """Stems per hectare, whole; two digits under ten (few trees, a wide plot)."""
+    return f"{value:.2g}" if value < 9.5 else f"{value:.0f}"

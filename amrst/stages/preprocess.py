@@ -196,17 +196,18 @@ def preprocess_points(
         n_outliers = len(pts) - len(kept)
         index, pts = index[kept], pts[kept]
     if len(pts) < params.min_points:
-        # Many points read and few kept: the voxel grid merged them (units).
+        # Most points merged by the voxel grid: a scan in other units.
         hint = (
             f"{voxel:g} m cells keep {len(pts) + n_outliers} of them; are its "
             "coordinates in metres"
-            if n_input - n_invalid >= params.min_points
+            if n_thinned > (n_input - n_invalid) / 2
             else "does the file hold a whole scan"
         )
         raise InvalidInput(
             f"Only {len(pts)} usable point(s) after filtering ({n_input} read, "
-            f"{n_invalid} invalid, {n_outliers} outliers); at least "
-            f"{params.min_points} are needed: {hint}?"
+            f"{n_invalid} invalid, {n_thinned} merged in {voxel:g} m cells, "
+            f"{n_outliers} outliers); at least {params.min_points} are needed: "
+            f"{hint}?"
         )
     reporter.progress(1.0, f"{len(pts)} points kept")
     return PreprocessResult(

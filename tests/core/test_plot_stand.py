@@ -7,7 +7,7 @@ import math
 import pytest
 
 from amrst.errors import InvalidInput
-from amrst.plot.stand import PlotArea, stand
+from amrst.plot.stand import PlotArea, stand, stand_line
 
 
 def _row(dbh: str, height: str, flag: str = "ok", mark: str = "", hand: str = ""):
@@ -63,6 +63,10 @@ def test_a_fixed_radius_plot_counts_the_trees_inside_per_hectare() -> None:
         with pytest.raises(InvalidInput, match=r"plot_area|plot radius"):
             PlotArea.from_dict({**area.as_dict(), "radius_m": bad})
     assert math.isnan(stand([inside]).trees_per_ha)  # no area, no per hectare
+    # One tree in a wide plot is no "0 stems/ha".
+    wide = PlotArea((100.0, 200.0), 500.0)
+    assert ": 0.013\u00a0stems/ha" in stand_line(stand([inside], wide), wide)
+    assert ": 32\u00a0stems/ha" in stand_line(stand([inside], area), area)
 
 
 @pytest.mark.parametrize("radius", [0.0, -5.0, math.nan, math.inf, 1e5])

@@ -147,6 +147,13 @@ def test_too_few_points_raise_invalid_input() -> None:
     all_nan = np.full((300, 3), np.nan)
     with pytest.raises(InvalidInput, match="300 read, 300 invalid"):
         preprocess_points(all_nan, PreprocessParams(min_points=10))
+    # A sparse scan a few points short: no question of its units.
+    few = _blob(190)
+    with pytest.raises(InvalidInput, match=r"20 merged.*does the file hold a whole"):
+        preprocess_points(
+            np.vstack([few, few[:20]]),
+            PreprocessParams(outlier_neighbours=0, min_points=200),
+        )
 
 
 def test_inputs_are_not_modified() -> None:
