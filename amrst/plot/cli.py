@@ -189,6 +189,8 @@ def run_cli(args: argparse.Namespace) -> int:
         _say_stand(out, run.area)
     for note in run.notes:
         print(f"amrst plot: {note}.", file=sys.stderr)
+    if why := run.inventory.why_none:
+        print(f"amrst plot: no tree listed: {why}.", file=sys.stderr)
     if run.lost:
         print(
             f"amrst plot: no tree stands any more where you gave "
@@ -225,10 +227,18 @@ def run_cli(args: argparse.Namespace) -> int:
             )
             if state == FAILED
         ]
+        # The scans are placed onto the first: without stems it holds none of them.
+        bare = (
+            f"the reference, {run.labels[0]}, shows no stem: give first a scan that "
+            "shows the plot's stems, z up; else "
+            if stems[0] == 0
+            else ""
+        )
         print(
             f"amrst plot: not registered (no verified link): {', '.join(failed)}; "
-            "check those scans overlap the others and show their stems, or place each "
-            "by hand: point pairs with a scan it overlaps, then --pairs I J PAIRS.csv.",
+            f"{bare}check those scans overlap the others and show their stems, z up, "
+            "or place each by hand: point pairs with a scan it overlaps, then --pairs "
+            "I J PAIRS.csv.",
             file=sys.stderr,
         )
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0

@@ -469,6 +469,7 @@ def plot_document(
         "joint": None if reg.joint is None else reg.joint.as_dict(),
         "loops": _loops(reg.loops),
         "trees": len(inventory.trees),
+        "no_tree_why": inventory.why_none,
         "timings_s": {k: round(v, 3) for k, v in reg.timings.items()},
     }
 

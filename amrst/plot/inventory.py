@@ -150,6 +150,22 @@ class Inventory:
     stem_map: StemMap
     scan_of_point: np.ndarray  # (N,) scan index of each stem-map working point
 
+    @property
+    def why_none(self) -> str:
+        """Why the plot lists no tree ("" when it lists one), for the technician."""
+        if self.trees:
+            return ""
+        if not self.stem_map.ground.found:
+            return (
+                "no ground was found under the registered plot, and trees are "
+                "measured from it: check that the scans are z-up and show the ground "
+                "around the stems"
+            )
+        return (
+            "no stem stands on the ground found under the registered plot: check "
+            "that the scans are z-up and show the stems down to the ground"
+        )
+
     def tree_points(self, k: int) -> np.ndarray:
         """(M, 3) the points of tree k (reference local frame)."""
         return np.asarray(self.stem_map.xyz[self.stem_map.owner == k])

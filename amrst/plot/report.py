@@ -182,6 +182,11 @@ def _summary(doc: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> str:
         f'<div class="verdict" style="border-color:{colour}">'
         f'<p class="headline">{counted(len(rows), "tree")}; scans: {_e(counts)}</p>'
         + (
+            f"<p>No tree listed: {_e(doc['no_tree_why'])}.</p>"
+            if doc.get("no_tree_why")
+            else ""
+        )
+        + (
             f"<p>{counted(unsure, 'tree')} seen from a scan that needs review: "
             "their figures rest on its pose (Seen from says which; check the "
             "link, then accept it or place the scan by hand).</p>"

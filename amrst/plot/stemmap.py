@@ -295,6 +295,7 @@ def map_stems(
         min_area_m2=params.min_ground_area_m2,
         iterations=300,
         seed=params.scene.seed,
+        skip_strays=True,
     )
     owner = np.full(len(pts), -1, dtype=np.int64)
     if not ground.found:

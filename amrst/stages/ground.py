@@ -142,6 +142,7 @@ def fit_ground(
     min_area_m2: float,
     iterations: int,
     seed: int,
+    skip_strays: bool = False,
 ) -> GroundFit:
     """Fit the ground surface under a scan.
 
@@ -159,6 +160,10 @@ def fit_ground(
     iterations : int
         RANSAC draws (seeded).
     seed : int
+    skip_strays : bool
+        Only the cells whose lowest point another point of the cell supports
+        (:func:`_supported`) vote for the plane: stray echoes below the ground, or
+        far off it, do not outvote it. The plane is then refitted to every cell.
 
     Returns
     -------
@@ -179,9 +184,12 @@ def fit_ground(
     # The plane is fitted through the lowest points where they are (not the cell
     # centres): on a slope a cell's lowest point sits at its downhill edge.
     A = np.column_stack([xyz[first, :2], np.ones(len(first))])
-    coef = _ransac_plane(
-        A, mins, tol_m, np.tan(np.radians(max_slope_deg)), iterations, seed
+    slope = np.tan(np.radians(max_slope_deg))
+    # A cell's points may differ by tol_m plus what the steepest ground climbs in it.
+    votes = (
+        _supported(xyz, first, cell_m, tol_m + cell_m * slope) if skip_strays else None
     )
+    coef = _ransac_plane(A, mins, tol_m, slope, iterations, seed, votes=votes)
     for _ in range(3):  # refit on the inliers: the levelled plane
         inl = np.abs(mins - A @ coef) < tol_m
         if inl.sum() < 3:
@@ -228,6 +236,39 @@ def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:
     return first
 
 
+def _supported(
+    xyz: np.ndarray, first: np.ndarray, cell_m: float, gap_m: float
+) -> np.ndarray:
+    """Mark the cells whose lowest point another point of the cell supports.
+
+    ``first``: each occupied cell's lowest point, cells in grid order (as
+    :func:`_lowest_per_cell` gives them). A cell's lowest point is supported when
+    another point of the cell lies within ``gap_m`` above it; a cell of one point is
+    not. A lone point below the ground (multipath echoes, noise a filter missed)
+    would otherwise be its cell's ground, and many of them, spread over a scan's
+    reach, the lowest surface the plane is drawn to.
+    """
+    rest = np.ones(len(xyz), dtype=bool)
+    rest[first] = False
+    others = np.flatnonzero(rest)
+    if len(others) == 0:
+        return np.zeros(len(first), dtype=bool)
+    second = others[_lowest_per_cell(xyz[others], cell_m)]
+    ij = np.floor(xyz[:, :2] / cell_m).astype(np.int64)
+    ij -= column_min(ij)
+    span = int(ij[:, 1].max()) + 1
+
+    def code(rows: np.ndarray) -> np.ndarray:
+        return np.asarray(ij[rows, 0] * span + ij[rows, 1])
+
+    # Both lists are in grid order: each cell's next lowest point is found by search.
+    at = np.minimum(np.searchsorted(code(second), code(first)), len(second) - 1)
+    nxt = second[at]
+    return np.asarray(
+        (code(nxt) == code(first)) & (xyz[nxt, 2] - xyz[first, 2] <= gap_m)
+    )
+
+
 def _ransac_plane(
     A: np.ndarray,
     z: np.ndarray,
@@ -235,14 +276,22 @@ def _ransac_plane(
     max_slope: float,
     iterations: int,
     seed: int,
+    *,
+    votes: np.ndarray | None = None,
 ) -> np.ndarray:
     """Plane (a, b, c) with the most cell minima on it and the fewest far below it.
+
+    ``votes``: the cells that count (all when None); the draws are made from them.
 
     The draws are solved and scored in blocks (one batched solve, one matrix product
     per block), the first best draw wins as in a loop over them.
     """
     rng = np.random.default_rng(seed)
     best = np.array([0.0, 0.0, float(np.min(z))])
+    if votes is not None:
+        A, z = A[votes], z[votes]
+        if len(z) < 3:
+            return best
     draws = rng.integers(0, len(z), size=(iterations, 3))
     coefs = _solve_draws(A[draws], z[draws])
     usable = np.isfinite(coefs).all(axis=1)

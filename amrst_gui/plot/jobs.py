@@ -108,6 +108,7 @@ class PlotOutcome:
     lost: tuple[str, ...] = ()  # the review this run found no tree for (dropped)
     area: PlotArea | None = None  # the fixed-radius plot, file coordinates
     reference_at: tuple[float, float] = (0.0, 0.0)  # the reference's local origin
+    no_tree_why: str = ""  # why the plot lists no tree ("" when it lists one)
 
     @property
     def area_xy(self) -> np.ndarray | None:
@@ -228,6 +229,7 @@ def open_results(
             raise ValueError("a link names a scan the plot does not have")
         bundle = _float(doc["bundle_rmse_m"])
         lost = tuple(str(v) for v in doc.get("review_lost") or ())
+        no_tree_why = str(doc.get("no_tree_why") or "")
         area = PlotArea.from_dict(doc.get("plot_area"))
     except (
         KeyError,
@@ -255,6 +257,7 @@ def open_results(
         lost=lost,
         area=area,
         reference_at=(float(at[0]), float(at[1])),
+        no_tree_why=no_tree_why,
     )
 
 

@@ -945,7 +945,7 @@ class PlotWindow(QMainWindow):
         self.tree_panel.show_tree(None, None, None)
         assert self.outcome is not None
         o = self.outcome
-        unsure = bool(o.missing or o.labelled(NEEDS_REVIEW) or o.lost)
+        unsure = bool(o.missing or o.labelled(NEEDS_REVIEW) or o.lost or o.no_tree_why)
         done = (
             f"opened from {o.out}"
             if opened
@@ -1041,6 +1041,8 @@ class PlotWindow(QMainWindow):
                 f". Not placed: {_numbered(o, missing)}"
                 " (select its link, Open pair, pick point pairs, then Use pairs…)"
             )
+        if o.no_tree_why:
+            line += f". No tree listed: {o.no_tree_why}"
         return line + self._stand_text()
 
     def _stand_text(self) -> str:

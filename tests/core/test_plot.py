@@ -60,6 +60,22 @@ def test_stem_map_finds_every_stem_with_its_dbh() -> None:
         assert s.lean_deg < 3.0
 
 
+def test_stray_echoes_below_the_ground_hide_no_tree() -> None:
+    # Lone points up to 1.6 m below the ground, out to 120 m (2 % of the scan):
+    # as cell minima they outnumber the ground's cells, and drew its plane.
+    xyz = scan((0.5, 0.5), STEMS, 3)
+    rng = np.random.default_rng(9)
+    xy = rng.uniform(-120, 120, (len(xyz) // 50, 2))
+    strays = np.c_[xy, ground_z(xy) - rng.uniform(0.3, 1.6, len(xy))]
+    m = map_stems(np.vstack([xyz, strays]))
+    assert abs(m.ground.surface_z(np.zeros((1, 2)))[0] - ground_z(np.zeros(2))) < 0.05
+    assert len(m.stems) == len(STEMS)
+    for x, y, _r, h in STEMS:
+        d = [np.hypot(*(s.base[:2] - (x, y))) for s in m.stems]
+        assert min(d) < 0.1
+        assert abs(m.stems[int(np.argmin(d))].height_m - h) < 0.3
+
+
 def test_stems_register_a_tilted_plot_pair(plot_pair, plot_scans) -> None:
     T_true = plot_pair[2]
     params, scans = plot_scans
@@ -572,6 +588,27 @@ def _stem(x: float, y: float, r: float, z0: float, z1: float) -> np.ndarray:
 def _ground(half: float = 8.0) -> np.ndarray:
     g = np.mgrid[-half:half:0.08, -half:half:0.08].reshape(2, -1).T
     return np.column_stack([g, ground_z(g)])
+
+
+def test_a_plot_that_lists_no_tree_says_why() -> None:
+    from amrst.plot.inventory import take_inventory
+
+    bare = take_inventory([Cloud(_ground(), name="g")], [np.eye(4)])
+    assert not bare.trees
+    assert bare.why_none.startswith("no stem stands on the ground found")
+    upside_down = scan((0.5, 0.5), STEMS, 3) * [1.0, 1.0, -1.0]
+    flipped = take_inventory([Cloud(upside_down, name="u")], [np.eye(4)])
+    assert not flipped.trees
+    assert "check that the scans are z-up" in flipped.why_none
+    a = np.tile(np.linspace(0, 2 * np.pi, 60), 80)
+    z = np.repeat(np.linspace(0, 8, 80), 60)
+    stem = np.column_stack([0.2 * np.cos(a), 0.2 * np.sin(a), z])  # on no ground
+    floating = take_inventory([Cloud(stem, name="f")], [np.eye(4)])
+    assert not floating.trees
+    assert floating.why_none.startswith("no ground was found under")
+    listed = take_inventory([Cloud(scan((0.5, 0.5), STEMS, 3), name="s")], [np.eye(4)])
+    assert listed.trees
+    assert listed.why_none == ""
 
 
 def test_crown_pieces_go_with_the_crown_they_continue() -> None:
@@ -1236,6 +1273,14 @@ def test_a_scan_of_ground_only_is_named_with_its_stems_when_it_fails(
     err = capsys.readouterr().err
     assert "not registered (no verified link): " in err
     assert "ground.ply (0 stems found)" in err
+    assert "the reference" not in err  # the first scan shows its stems
+    # Given first, the scan without stems is the one to change, not the others.
+    files.insert(0, files.pop())
+    out = tmp_path / "first"
+    code = plot_main([*map(str, files), "--out", str(out), "--quiet"])
+    assert code == 3
+    err = capsys.readouterr().err
+    assert f"the reference, {files[0]}, shows no stem: give first a scan" in err
 
 
 def test_a_scanner_may_be_given_where_the_file_says_nothing_usable() -> None:

@@ -950,6 +950,29 @@ def test_a_dbh_no_tree_has_draws_a_bounded_circle(qtbot: QtBot, tmp_path: Path) 
     view.grab()  # paints without an overflow
 
 
+def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> None:
+    from amrst_gui.panels.verdict_style import ERROR_STYLE
+    from amrst_gui.plot import window as plot_window
+    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+
+    plot = plot_window.PlotWindow()
+    qtbot.addWidget(plot)
+    scans = (
+        ScanPlace("a.ply", np.zeros(2), 5, "registered"),
+        ScanPlace("b.ply", np.zeros(2), 4, "registered"),
+    )
+    why = "no ground was found under the registered plot"
+    found = PlotOutcome(
+        tmp_path, ("a.ply", "b.ply"), (), scans, (), 0.01, (), None, 1.0,
+        no_tree_why=why,
+    )  # fmt: skip
+    plot.open_scans(["a.ply", "b.ply"], tmp_path)
+    plot._on_result(found)
+    assert plot.status.text().startswith("0 trees; 2 of 2 scans registered")
+    assert f"No tree listed: {why}" in plot.status.text()
+    assert plot.status.styleSheet() == ERROR_STYLE
+
+
 def test_every_column_of_the_tree_list_is_in_sight_at_1366x768(
     qtbot: QtBot, tmp_path: Path
 ) -> None:
