@@ -23,9 +23,10 @@ from amrst.errors import EXIT_INPUT, EXIT_NOT_REGISTERED
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from amrst.plot.inventory import Tree
+    from amrst.plot.run import PlotRun
     from amrst.plot.stand import PlotArea
 
 
@@ -157,8 +158,6 @@ def run_cli(args: argparse.Namespace) -> int:
     except AmrstError as exc:
         print(f"amrst plot: {exc}", file=sys.stderr)
         return EXIT_INPUT
-    from amrst.plot.inventory import seen_from_any
-    from amrst.plot.review import unsure_scans
     from amrst.plot.stand import counted
     from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
 
@@ -198,6 +197,20 @@ def run_cli(args: argparse.Namespace) -> int:
             "dropped from the review (see review_lost in plot.json).",
             file=sys.stderr,
         )
+    _say_what_to_check(run, named, left_out)
+    return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
+
+
+def _say_what_to_check(
+    run: PlotRun, named: Mapping[str, list[str]], left_out: Sequence[tuple[int, int]]
+) -> None:
+    """Say which scans need review or failed, and what the technician's pairs showed."""
+    from amrst.plot.inventory import seen_from_any
+    from amrst.plot.register import HAND_ORIGIN
+    from amrst.plot.review import unsure_scans
+    from amrst.plot.stand import counted
+    from amrst.review.verdict import FAILED, NEEDS_REVIEW, REGISTERED
+
     if named[NEEDS_REVIEW]:
         unsure = unsure_scans(run.states)
         resting = seen_from_any(run.inventory.trees, unsure)
@@ -213,6 +226,14 @@ def run_cli(args: argparse.Namespace) -> int:
             "place it by hand with --pairs I J PAIRS.csv.",
             file=sys.stderr,
         )
+    for pl in run.registration.links:  # what the technician's own pairs showed
+        ln = pl.link
+        if ln.origin == HAND_ORIGIN and ln.status != REGISTERED:
+            print(
+                f"amrst plot: link {ln.target + 1}-{ln.source + 1}, from your point "
+                f"pairs, {ln.status}: {ln.message}",
+                file=sys.stderr,
+            )
     if named[FAILED]:
         from amrst.plot.register import cut_off
 
@@ -241,7 +262,6 @@ def run_cli(args: argparse.Namespace) -> int:
             "I J PAIRS.csv.",
             file=sys.stderr,
         )
-    return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
 
 
 def _say_stand(out: Path, area: PlotArea) -> None:

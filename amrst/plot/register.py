@@ -439,6 +439,13 @@ def register_plot_link_by_hand(
     )
     score = scorer.score(T, MANUAL_ID_BASE, "point pairs").score
     metrics = evaluate(tgt, src, T, params, threads=threads)
+    swapped = ""
+    if verdict.status != REGISTERED and _fits_swapped(target, source, pairs, params):
+        i, j = indices[0] + 1, indices[1] + 1
+        swapped = (
+            f"Read the other way round, scan {j}'s points first, the pairs fit: the "
+            f"file's target and source columns are swapped (give it as --pairs {j} {i})."
+        )
     link = Link(
         target=indices[0],
         source=indices[1],
@@ -448,11 +455,43 @@ def register_plot_link_by_hand(
         weight=float(score) * float(metrics.overlap_fraction),
         T_local=T,
         metrics=metrics,
-        message=" ".join(filter(None, (verdict.reason, weak_turn(t_pts)))),
+        message=" ".join(filter(None, (verdict.reason, weak_turn(t_pts), swapped))),
         origin=HAND_ORIGIN,
         seconds=time.perf_counter() - t0,
     )
     return PlotLink(link, _shared(target.stems, source.stems, T))
+
+
+def _fits_swapped(
+    target: PlotScan,
+    source: PlotScan,
+    pairs: tuple[np.ndarray, np.ndarray],
+    params: RegistrationParams,
+) -> bool:
+    """Tell whether the pairs fit the two scans read the other way round.
+
+    That is, each column of points picked in the other scan: the commonest slip in
+    a pairs file.
+    """
+    from amrst.pipeline import refine
+    from amrst.review.manual import fit_pairs
+    from amrst.review.overlap import overlap_distances
+    from amrst.review.strength import axis_strength
+    from amrst.review.verdict import REGISTERED, manual_verdict
+
+    tgt, src = target.analysis, source.analysis
+    t_pts = np.asarray(pairs[1], float) - tgt.cloud.offset
+    s_pts = np.asarray(pairs[0], float) - src.cloud.offset
+    start = fit_pairs(t_pts, s_pts).T_target_source
+    if not np.all(np.isfinite(start)):
+        return False
+    T = refine(tgt, src, start, params).T_target_source
+    verdict = manual_verdict(
+        overlap_distances(target.stems.xyz, src.xyz, T),
+        axis_strength(tgt.xyz, src.xyz, T, params.metrics.overlap_dist_m),
+        "",
+    )
+    return verdict.status == REGISTERED
 
 
 def _score_stem_pose(

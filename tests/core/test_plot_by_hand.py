@@ -75,6 +75,13 @@ def test_pairs_of_the_wrong_points_are_never_called_registered(pair_and_picks) -
     reg = register_plot(scans, by_hand={(0, 1): (t_pts, off)})
     assert reg.links[0].link.origin == HAND_ORIGIN
     assert reg.statuses[1] == "needs review"
+    # The file's columns swapped: each scan's points given as the other's.
+    turned = register_plot(scans, by_hand={(0, 1): (s_pts, t_pts)})
+    assert turned.statuses[1] == "needs review"
+    message = turned.links[0].link.message
+    assert "target and source columns are swapped" in message
+    assert "--pairs 2 1" in message
+    assert "swapped" not in reg.links[0].link.message  # the picks 40 cm off
     swapped = s_pts[[1, 2, 3, 0]]  # every pick on another stem: no pose follows
     with pytest.raises(InvalidInput, match="same point in both scans"):
         register_plot(scans, by_hand={(0, 1): (t_pts, swapped)})
@@ -103,6 +110,15 @@ def test_the_command_reads_pairs_and_refuses_bad_ones(
     assert (
         np.abs(at @ T_file[:3, :3].T + T_file[:3, 3] - _moved(T_world, at)).max() < 0.01
     )
+    # The columns of the file swapped: the command says so, and how to give it.
+    turned = tmp_path / "turned.csv"
+    write_pairs(turned, s_pts, t_pts)
+    capsys.readouterr()
+    args = [*scans, "--out", str(tmp_path / "turned"), "--quiet", "--pairs", "1", "2"]
+    assert plot_main([*args, str(turned)]) == 3
+    err = capsys.readouterr().err
+    assert "link 1-2, from your point pairs, needs review: " in err
+    assert "columns are swapped (give it as --pairs 2 1)" in err
     huge = tmp_path / "huge.csv"  # one field over the csv module's limit
     huge.write_text(
         "target_x,target_y,target_z,source_x,source_y,source_z\n" + "1" * 200_000
