@@ -281,6 +281,13 @@ def _finish(raw: RawCloud, path: Path, label: str, source: str | None = None) ->
             f"x, y, z within 1e9 m). Check the export{columns}."
         )
     n_dropped = len(valid) - n_valid
+    with np.errstate(over="ignore", invalid="ignore"):
+        n_far = int(np.isfinite(raw.xyz + raw.offset).all(axis=1).sum()) - n_valid
+    if n_far > n_valid:  # most of the scan, not a few stray rows: the units
+        raise InvalidInput(
+            f"{source}: {n_far:,} of its {len(valid):,} points lie beyond 1e9 m. "
+            "Check the units (metres) and the offset of the export."
+        )
     xyz, attributes = raw.xyz, raw.attributes
     if n_dropped:
         logger.warning(

@@ -109,6 +109,14 @@ def test_a_text_file_without_line_breaks_is_refused_at_once(tmp_path):
         io.read(tmp_path / "one_line.xyz")
 
 
+def test_a_scan_mostly_beyond_1e9_m_is_refused_not_cut(tmp_path):
+    xyz = np.random.default_rng(0).uniform(-5, 5, (1000, 3))
+    xyz[:970] += 1e9 + 10.0  # a few rows under 1e9 m: no scan to keep of them
+    np.savetxt(tmp_path / "far.xyz", xyz, fmt="%.3f")
+    with pytest.raises(InvalidInput, match=r"970 of its 1,000 points lie beyond 1e9"):
+        io.read(tmp_path / "far.xyz")
+
+
 def test_nan_rows_are_dropped_and_counted(tmp_path, caplog):
     (tmp_path / "nan.txt").write_text("1 2 3 5\nnan 2 3 6\n4 inf 6 7\n7 8 9 8\n")
     with caplog.at_level(logging.WARNING, logger="amrst.io"):
