@@ -25,6 +25,7 @@ import numpy as np
 
 from amrst import __version__
 from amrst.errors import InvalidInput
+from amrst.files.outcheck import check_output_folder
 from amrst.plot.flags import DBH_CHECK, DBH_OK, HEIGHT_FLAGS, OUTLIER_SHARE
 from amrst.plot.inventory import TREE_COLUMNS, scanner_in_reference
 from amrst.plot.report import REPORT
@@ -153,9 +154,9 @@ def check_out(out: Path, overwrite: bool) -> None:
         )
     if not overwrite:
         _refuse_results(out)
-    first = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
-    if not (first.is_dir() and os.access(first, os.W_OK | os.X_OK)):
-        raise InvalidInput(f"Cannot write in {first}: choose another results folder.")
+    # Created (and removed again) to write a file in it: what permissions tell of
+    # /proc or a full read-only mount is not what a write meets.
+    check_output_folder(out, "results folder")
     read_review(out, ())
 
 

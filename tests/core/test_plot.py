@@ -1398,3 +1398,15 @@ def test_a_stem_hidden_for_a_metre_keeps_its_top_from_a_neighbour_s_crown() -> N
     heights = {round(float(s.base[0]), 1): s.height_m for s in m.stems}
     assert heights[0.0] == pytest.approx(14.0, abs=0.3)
     assert heights[1.8] == pytest.approx(9.0, abs=0.3)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="no /proc")
+def test_a_results_folder_that_cannot_be_made_is_refused_before_the_run() -> None:
+    import pathlib
+
+    from amrst.errors import InvalidInput
+    from amrst.plot.export import check_out
+
+    # /proc lets root "write" by its permissions, but no folder can be made in it.
+    with pytest.raises(InvalidInput, match=r"Cannot create the results folder /proc/"):
+        check_out(pathlib.Path("/proc/amrst-no-such-folder"), overwrite=False)
