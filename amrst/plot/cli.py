@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
     from amrst.plot.run import PlotRun
     from amrst.plot.stand import PlotArea
+    from amrst.plot.stemmap import StemMap
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -242,6 +243,7 @@ def _say_what_to_check(
         failed = [
             f"{label} ({counted(n, 'stem')} found"
             + ("; the links left out cut it off" if k in cut else "")
+            + (_turned(run.registration.scans[k].stems) if n == 0 else "")
             + ")"
             for k, (label, state, n) in enumerate(
                 zip(run.labels, run.states, stems, strict=True)
@@ -262,6 +264,14 @@ def _say_what_to_check(
             "I J PAIRS.csv.",
             file=sys.stderr,
         )
+
+
+def _turned(stem_map: StemMap) -> str:
+    """Say how a scan turned over seems to stand, to follow its stem count ("": not)."""
+    from amrst.plot.stemmap import which_way_up
+
+    way = which_way_up(stem_map)
+    return f"; it seems to stand {way}: export it z up" if way else ""
 
 
 def _say_stand(out: Path, area: PlotArea) -> None:

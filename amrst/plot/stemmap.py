@@ -238,6 +238,50 @@ class StemMap:
         return np.array([s.dbh_m for s in self.stems], dtype=float)
 
 
+#: The ways a scan may stand other than z up: each turn takes its points z up.
+_TURNS = {
+    "upside down": np.diag([1.0, -1.0, -1.0]),
+    "with its y axis up": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "with its y axis down": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "with its x axis up": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]),
+    "with its x axis down": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
+}
+
+
+def which_way_up(stem_map: StemMap, params: StemMapParams | None = None) -> str:
+    """Say how a scan seems to stand when a turn puts far more ground under it.
+
+    A way holds the area of the ground it finds, unless a twentieth of the points
+    hang more than half a metre below that ground (a scan upside down shows its
+    ground on top of its trees, and the bare ground between them). "" when z up holds
+    the most (or no way holds ``min_ground_area_m2``); else one of ``_TURNS``, e.g.
+    "with its y axis up" (a common export slip). Each turn fits a ground again: for
+    a scan whose stems were not found.
+    """
+    params = params or StemMapParams()
+
+    def ground_area(xyz: np.ndarray) -> float:
+        ground = fit_ground(
+            xyz,
+            cell_m=params.ground_cell_m,
+            tol_m=params.ground_tol_m,
+            max_slope_deg=params.max_slope_deg,
+            min_area_m2=params.min_ground_area_m2,
+            iterations=300,
+            seed=params.scene.seed,
+            skip_strays=True,
+        )
+        if not ground.found or np.mean(ground.height(xyz) < -0.5) > 0.05:
+            return 0.0
+        return ground.area_m2
+
+    upright = ground_area(stem_map.xyz)
+    areas = {name: ground_area(stem_map.xyz @ R.T) for name, R in _TURNS.items()}
+    best = max(areas, key=areas.__getitem__)
+    enough = max(2.0 * upright, params.min_ground_area_m2)
+    return best if areas[best] >= enough else ""
+
+
 def working_index(xyz: np.ndarray, params: StemMapParams) -> np.ndarray:
     """Rows of ``xyz`` the stem map works on: thinned, at most ``max_points``."""
     index = np.arange(len(xyz))

@@ -1410,3 +1410,14 @@ def test_a_results_folder_that_cannot_be_made_is_refused_before_the_run() -> Non
     # /proc lets root "write" by its permissions, but no folder can be made in it.
     with pytest.raises(InvalidInput, match=r"Cannot create the results folder /proc/"):
         check_out(pathlib.Path("/proc/amrst-no-such-folder"), overwrite=False)
+
+
+def test_a_scan_turned_over_is_told_which_way_it_stands() -> None:
+    from amrst.plot.stemmap import which_way_up
+
+    xyz = scan((0.5, 0.5), STEMS, 3)
+    assert which_way_up(map_stems(xyz, trees=False)) == ""
+    y_up = xyz[:, [0, 2, 1]] * [1.0, 1.0, -1.0]  # the file's y is the height
+    assert which_way_up(map_stems(y_up, trees=False)) == "with its y axis up"
+    upside_down = xyz * [1.0, -1.0, -1.0]
+    assert which_way_up(map_stems(upside_down, trees=False)) == "upside down"
