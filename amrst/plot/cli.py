@@ -28,7 +28,6 @@ if TYPE_CHECKING:
     from amrst.plot.inventory import Tree
     from amrst.plot.run import PlotRun
     from amrst.plot.stand import PlotArea
-    from amrst.plot.stemmap import StemMap
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -198,14 +197,21 @@ def run_cli(args: argparse.Namespace) -> int:
             "dropped from the review (see review_lost in plot.json).",
             file=sys.stderr,
         )
-    _say_what_to_check(run, named, left_out)
+    _say_what_to_check(out, run, named, left_out)
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
 
 
 def _say_what_to_check(
-    run: PlotRun, named: Mapping[str, list[str]], left_out: Sequence[tuple[int, int]]
+    out: Path,
+    run: PlotRun,
+    named: Mapping[str, list[str]],
+    left_out: Sequence[tuple[int, int]],
 ) -> None:
-    """Say which scans need review or failed, and what the technician's pairs showed."""
+    """Say which scans need review or failed, and what the technician's pairs showed.
+
+    plot.json, just written in ``out``, says how a scan turned over seems to stand.
+    """
+    from amrst.plot.export import read_plot_json
     from amrst.plot.inventory import seen_from_any
     from amrst.plot.register import HAND_ORIGIN
     from amrst.plot.review import unsure_scans
@@ -239,11 +245,12 @@ def _say_what_to_check(
         from amrst.plot.register import cut_off
 
         stems = [len(s.stems.stems) for s in run.registration.scans]
+        turned = [s.get("turned", "") for s in read_plot_json(out)["scans"]]
         cut = cut_off(len(run.labels), 0, left_out)
         failed = [
             f"{label} ({counted(n, 'stem')} found"
             + ("; the links left out cut it off" if k in cut else "")
-            + (_turned(run.registration.scans[k].stems) if n == 0 else "")
+            + (f"; it seems to stand {turned[k]}: export it z up" if turned[k] else "")
             + ")"
             for k, (label, state, n) in enumerate(
                 zip(run.labels, run.states, stems, strict=True)
@@ -264,14 +271,6 @@ def _say_what_to_check(
             "I J PAIRS.csv.",
             file=sys.stderr,
         )
-
-
-def _turned(stem_map: StemMap) -> str:
-    """Say how a scan turned over seems to stand, to follow its stem count ("": not)."""
-    from amrst.plot.stemmap import which_way_up
-
-    way = which_way_up(stem_map)
-    return f"; it seems to stand {way}: export it z up" if way else ""
 
 
 def _say_stand(out: Path, area: PlotArea) -> None:

@@ -386,11 +386,15 @@ def plot_document(
     ``scanner_xyz`` is where the scan's scanner stood in the reference's file
     coordinates (None: not placed, or a georeferenced file that does not say);
     ``scanner_given`` where the person running the plot said it stood, in the scan's
-    own file coordinates (``amrst plot --scanner``; None: not given); a
+    own file coordinates (``amrst plot --scanner``; None: not given); ``turned``, for
+    a scan that failed, how it seems to stand when another way up holds far more
+    ground (``stemmap.which_way_up``; "" else); a
     link's ``T_target_source`` its source's into its target's. A link placed from
     point pairs names their file (``pairs_files``, keyed by the scans as its target
     and source points, from 0) as ``pairs``: the next run can place it again.
     """
+    from amrst.plot.stemmap import which_way_up
+    from amrst.review.verdict import FAILED
     from amrst.types import world_transform
 
     clouds = [scan.analysis.cloud for scan in reg.scans]
@@ -445,6 +449,8 @@ def plot_document(
                 ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
+                # Why a scan may have failed: it stands another way up.
+                "turned": which_way_up(scan.stems) if status == FAILED else "",
                 "residual_m": residual,
                 "unsure_links": None
                 if doubts is None

@@ -256,7 +256,7 @@ def which_way_up(stem_map: StemMap, params: StemMapParams | None = None) -> str:
     ground on top of its trees, and the bare ground between them). "" when z up holds
     the most (or no way holds ``min_ground_area_m2``); else one of ``_TURNS``, e.g.
     "with its y axis up" (a common export slip). Each turn fits a ground again: for
-    a scan whose stems were not found.
+    a scan that failed to register.
     """
     params = params or StemMapParams()
 

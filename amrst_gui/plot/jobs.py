@@ -52,6 +52,8 @@ class ScanPlace:
     residual_m: float = float("nan")
     # Its name in its file (an E57 setup's; "" when none).
     name: str = ""
+    # How it seems to stand when it failed without a stem ("" else; plot.json turned).
+    turned: str = ""
 
     @property
     def placed(self) -> bool:
@@ -221,6 +223,7 @@ def open_results(
                 given=_given(scan.get("scanner_given")),
                 residual_m=_float(scan.get("residual_m")),
                 name=str(scan.get("name", "")),
+                turned=str(scan.get("turned") or ""),
             )
             for scan in doc["scans"]
         )

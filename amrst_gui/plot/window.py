@@ -1041,6 +1041,9 @@ class PlotWindow(QMainWindow):
                 f". Not placed: {_numbered(o, missing)}"
                 " (select its link, Open pair, pick point pairs, then Use pairs…)"
             )
+        for k, scan in enumerate(o.scans):
+            if scan.turned:
+                line += f". S{k + 1} seems to stand {scan.turned}: export it z up"
         if o.no_tree_why:
             line += f". No tree listed: {o.no_tree_why}"
         return line + self._stand_text()

@@ -1281,6 +1281,16 @@ def test_a_scan_of_ground_only_is_named_with_its_stems_when_it_fails(
     assert code == 3
     err = capsys.readouterr().err
     assert f"the reference, {files[0]}, shows no stem: give first a scan" in err
+    # A scan exported Y-up: the command and plot.json say how it seems to stand.
+    y_up = Cloud(source.xyz[:, [0, 2, 1]] * [1.0, 1.0, -1.0], name="y")
+    io.write(tmp_path / "y_up.ply", y_up)
+    out = tmp_path / "y_up"
+    args = [str(tmp_path / "t.ply"), str(tmp_path / "y_up.ply"), "--out", str(out)]
+    assert plot_main([*args, "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "found; it seems to stand with its y axis up: export it z up)" in err
+    doc = json.loads((out / "plot.json").read_text())
+    assert [s["turned"] for s in doc["scans"]] == ["", "with its y axis up"]
 
 
 def test_a_scanner_may_be_given_where_the_file_says_nothing_usable() -> None:

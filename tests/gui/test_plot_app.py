@@ -959,7 +959,7 @@ def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> Non
     qtbot.addWidget(plot)
     scans = (
         ScanPlace("a.ply", np.zeros(2), 5, "registered"),
-        ScanPlace("b.ply", np.zeros(2), 4, "registered"),
+        ScanPlace("b.ply", None, 0, "failed", turned="with its y axis up"),
     )
     why = "no ground was found under the registered plot"
     found = PlotOutcome(
@@ -968,8 +968,9 @@ def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> Non
     )  # fmt: skip
     plot.open_scans(["a.ply", "b.ply"], tmp_path)
     plot._on_result(found)
-    assert plot.status.text().startswith("0 trees; 2 of 2 scans registered")
+    assert plot.status.text().startswith("0 trees; 1 of 2 scans registered")
     assert f"No tree listed: {why}" in plot.status.text()
+    assert "S2 seems to stand with its y axis up: export it z up" in plot.status.text()
     assert plot.status.styleSheet() == ERROR_STYLE
 
 
