@@ -1014,7 +1014,9 @@ class PlotWindow(QMainWindow):
         return False
 
     def _summary(self) -> str:
-        """The plot in a line: trees, scans by state, the bundle error."""
+        """The plot in a line: trees, scans by state, the bundle error; what to check."""
+        from amrst.plot.register import HAND_ORIGIN
+
         o = self.outcome
         assert o is not None
         accepted = o.labelled(ACCEPTED)
@@ -1044,6 +1046,11 @@ class PlotWindow(QMainWindow):
         for k, scan in enumerate(o.scans):
             if scan.turned:
                 line += f". S{k + 1} seems to stand {scan.turned}: export it z up"
+        line += "".join(
+            f". Your pairs of S{ln.target + 1}–S{ln.source + 1}: {ln.message}"
+            for ln in o.links
+            if ln.origin == HAND_ORIGIN and ln.status == NEEDS_REVIEW
+        )
         if o.no_tree_why:
             line += f". No tree listed: {o.no_tree_why}"
         return line + self._stand_text()

@@ -950,10 +950,12 @@ def test_a_dbh_no_tree_has_draws_a_bounded_circle(qtbot: QtBot, tmp_path: Path) 
     view.grab()  # paints without an overflow
 
 
-def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> None:
+def test_the_status_says_why_no_tree_and_what_to_fix(
+    qtbot: QtBot, tmp_path: Path
+) -> None:
     from amrst_gui.panels.verdict_style import ERROR_STYLE
     from amrst_gui.plot import window as plot_window
-    from amrst_gui.plot.jobs import PlotOutcome, ScanPlace
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome, ScanPlace
 
     plot = plot_window.PlotWindow()
     qtbot.addWidget(plot)
@@ -962,8 +964,12 @@ def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> Non
         ScanPlace("b.ply", None, 0, "failed", turned="with its y axis up"),
     )
     why = "no ground was found under the registered plot"
+    swapped = "the file's target and source columns are swapped"
+    by_hand = LinkLine(
+        0, 1, "needs review", False, True, "manual", 0.4, 0.05, 0, swapped
+    )
     found = PlotOutcome(
-        tmp_path, ("a.ply", "b.ply"), (), scans, (), 0.01, (), None, 1.0,
+        tmp_path, ("a.ply", "b.ply"), (), scans, (by_hand,), 0.01, (), None, 1.0,
         no_tree_why=why,
     )  # fmt: skip
     plot.open_scans(["a.ply", "b.ply"], tmp_path)
@@ -971,6 +977,7 @@ def test_a_plot_that_lists_no_tree_says_why(qtbot: QtBot, tmp_path: Path) -> Non
     assert plot.status.text().startswith("0 trees; 1 of 2 scans registered")
     assert f"No tree listed: {why}" in plot.status.text()
     assert "S2 seems to stand with its y axis up: export it z up" in plot.status.text()
+    assert f"Your pairs of S1–S2: {swapped}" in plot.status.text()
     assert plot.status.styleSheet() == ERROR_STYLE
 
 
