@@ -238,6 +238,25 @@ class StemMap:
         return np.array([s.dbh_m for s in self.stems], dtype=float)
 
 
+def plot_ground(xyz: np.ndarray, params: StemMapParams) -> GroundFit:
+    """Fit the ground under a plot cloud, as the stem map takes it.
+
+    Stray echoes do not vote for it (``fit_ground``'s ``skip_strays``): a plot scan
+    reaches tens of metres, and lone points below the ground, one a cell, would
+    outnumber the ground's cells.
+    """
+    return fit_ground(
+        xyz,
+        cell_m=params.ground_cell_m,
+        tol_m=params.ground_tol_m,
+        max_slope_deg=params.max_slope_deg,
+        min_area_m2=params.min_ground_area_m2,
+        iterations=300,
+        seed=params.scene.seed,
+        skip_strays=True,
+    )
+
+
 #: The ways a scan may stand other than z up: each turn takes its points z up.
 _TURNS = {
     "upside down": np.diag([1.0, -1.0, -1.0]),
@@ -261,16 +280,7 @@ def which_way_up(stem_map: StemMap, params: StemMapParams | None = None) -> str:
     params = params or StemMapParams()
 
     def ground_area(xyz: np.ndarray) -> float:
-        ground = fit_ground(
-            xyz,
-            cell_m=params.ground_cell_m,
-            tol_m=params.ground_tol_m,
-            max_slope_deg=params.max_slope_deg,
-            min_area_m2=params.min_ground_area_m2,
-            iterations=300,
-            seed=params.scene.seed,
-            skip_strays=True,
-        )
+        ground = plot_ground(xyz, params)
         if not ground.found or np.mean(ground.height(xyz) < -0.5) > 0.05:
             return 0.0
         return ground.area_m2
@@ -331,16 +341,7 @@ def map_stems(
     pts = np.asarray(xyz, dtype=float)[index]
     say = reporter.progress if reporter is not None else lambda _f, _m="": None
     say(0.05, f"ground under {len(pts):,} points")
-    ground = fit_ground(
-        pts,
-        cell_m=params.ground_cell_m,
-        tol_m=params.ground_tol_m,
-        max_slope_deg=params.max_slope_deg,
-        min_area_m2=params.min_ground_area_m2,
-        iterations=300,
-        seed=params.scene.seed,
-        skip_strays=True,
-    )
+    ground = plot_ground(pts, params)
     owner = np.full(len(pts), -1, dtype=np.int64)
     if not ground.found:
         return StemMap((), ground, pts, owner, index)
