@@ -134,6 +134,14 @@ def _configure_plot(p: argparse.ArgumentParser) -> None:
         "(default: the kind's)",
     )
     plot.add_argument(
+        "--relief-m",
+        type=float,
+        default=None,
+        metavar="M",
+        help="hills and hollows 5-15 m across of about M m on the ground, so that it "
+        "bends away from any plane (default 0: a plane with small bumps)",
+    )
+    plot.add_argument(
         "--range-m",
         type=float,
         default=None,
@@ -193,6 +201,7 @@ def _check_common(args: argparse.Namespace, tilt_deg: float) -> None:
             "clip_radius_m": args.clip_radius_m,
             "positions": args.positions,
             "range_m": args.range_m,
+            "relief_m": args.relief_m,
             "trees": args.n_trees,
         },
         cli=True,
@@ -219,6 +228,7 @@ def _run_pair(args: argparse.Namespace) -> str:
             "kind": "--kind",
             "spacing_m": "--spacing-m",
             "range_m": "--range-m",
+            "relief_m": "--relief-m",
             "n_trees": "--trees",
         },
         "applies to a forest plot: add --plot",
@@ -306,7 +316,7 @@ def _run_plot(args: argparse.Namespace) -> str:
         "noise_m": args.noise_m,
         "slope_deg": SLOPE_DEG if args.slope_deg is None else args.slope_deg,
     }
-    for dest in ("positions", "tilt_deg", "shrubs", "range_m"):
+    for dest in ("positions", "tilt_deg", "shrubs", "range_m", "relief_m"):
         if getattr(args, dest) is not None:
             changes[dest] = getattr(args, dest)
     if args.n_trees is not None:

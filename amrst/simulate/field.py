@@ -128,6 +128,37 @@ def ground_height(
     return height
 
 
+def with_relief(
+    height: Callable[[np.ndarray], np.ndarray],
+    rng: np.random.Generator,
+    relief_m: float,
+    extent_m: float,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Return ``height`` with hills and hollows of about ``relief_m``, 5-15 m across.
+
+    Six are centred within 15 m of the origin, as many per square metre beyond, out
+    to ``extent_m``: over a plot the terrain bends away from any plane by about
+    ``relief_m``.
+    """
+    hills = [
+        (
+            rng.uniform(-extent_m, extent_m, 2),
+            rng.uniform(2.5, 7.5),
+            rng.normal(0.0, 1.0),
+        )
+        for _ in range(max(1, round(6 * (extent_m / 15.0) ** 2)))
+    ]
+
+    def relief(xy: np.ndarray) -> np.ndarray:
+        z = height(xy)
+        for centre, width, amp in hills:
+            d2 = np.sum((xy - centre) ** 2, axis=1)
+            z = z + relief_m * amp * np.exp(-d2 / (2 * width**2))
+        return np.asarray(z)
+
+    return relief
+
+
 def standing(
     tree: Cloud,
     at_xy: np.ndarray,

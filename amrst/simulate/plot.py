@@ -40,7 +40,13 @@ from amrst.simulate import (
     scanner_pose,
     simulate_scan,
 )
-from amrst.simulate.field import ground_disc, ground_height, shrub, standing
+from amrst.simulate.field import (
+    ground_disc,
+    ground_height,
+    shrub,
+    standing,
+    with_relief,
+)
 from amrst.simulate.settings import MIN_TREES, check_numbers, check_range
 from amrst.types import Cloud, Transform, apply_transform, invert_transform
 
@@ -56,6 +62,8 @@ MIN_TREE_HEIGHT_M = 1.0
 MAX_GROUND_POINTS = 8_000_000
 # A tripod stands at least this far from every stem foot (buttresses, the trunk).
 _STEM_CLEARANCE_M = 1.5
+#: The plot's hills (``PlotOptions.relief_m``) are drawn from the seed's own stream.
+RELIEF_STREAM = 7
 # Tries to place one tree or one scanner position before giving up.
 _TRIES = 2000
 # DBH truth: the slice above the foot, the circle's band, the share of the circle
@@ -113,6 +121,9 @@ class PlotOptions:
         Each scan keeps what lies within this distance of the scanner (m).
     ground_spacing_m, slope_deg, roughness_m : float
         Ground point spacing, largest slope, bump height.
+    relief_m : float
+        Height of the terrain's hills and hollows, 5-15 m across (zero: none); they
+        are drawn apart from the rest, so a plot keeps its trees and scans with them.
     shrubs : int
         Leafy blobs inside the plot or up to 4 m beyond its edge.
     """
@@ -134,6 +145,7 @@ class PlotOptions:
     ground_spacing_m: float = 0.05
     slope_deg: float = 8.0
     roughness_m: float = 0.04
+    relief_m: float = 0.0
     shrubs: int = 15
 
     def __post_init__(self) -> None:
@@ -148,6 +160,7 @@ class PlotOptions:
                     "height_m",
                     "range_m",
                     "slope_deg",
+                    "relief_m",
                     "shrubs",
                     "trees",
                 )
@@ -429,6 +442,9 @@ def plot_scene(
     positions = _place_positions(rng, feet, options)
     reach = options.plot_radius_m + options.range_m
     height = ground_height(rng, options.slope_deg, options.roughness_m, reach)
+    if options.relief_m > 0:
+        relief = np.random.default_rng([seed, RELIEF_STREAM])
+        height = with_relief(height, relief, options.relief_m, reach)
     parts, placed = [], []
     for tree, xy in zip(chosen, feet, strict=True):
         heading, scale = rng.uniform(0.0, 2 * np.pi), rng.uniform(*options.scale)

@@ -32,6 +32,8 @@ MIN_TREES = 3
 # Most shrubs a scene is built with in memory.
 MAX_SHRUBS = 1000
 MAX_SLOPE_DEG = 45.0
+# Largest height of a plot's hills and hollows (m).
+MAX_RELIEF_M = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +119,7 @@ SETTINGS: dict[str, Bounds] = {
         0.0, MAX_TILT_DEG, unit="degrees", why="a levelled tripod tilts under 1"
     ),
     "slope_deg": Bounds(0.0, MAX_SLOPE_DEG, below_high=True, unit="degrees"),
+    "relief_m": Bounds(0.0, MAX_RELIEF_M, unit="m", why="hills a plot stands on"),
     "shrubs": Bounds(0, MAX_SHRUBS, integer=True),
     "clip_radius_m": _LENGTH,
     "positions": _POSITIONS,

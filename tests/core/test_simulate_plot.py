@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -192,6 +193,23 @@ def test_same_seed_same_plot_and_progress_scan_by_scan(trees) -> None:
     )
 
 
+def test_relief_bends_the_ground_and_keeps_the_rest_of_the_plot(trees) -> None:
+    options = plot_options("normal", noise_m=0.0, **SMALL)
+    flat = plot_scene(trees, options, seed=5)
+    hilly = plot_scene(trees, replace(options, relief_m=1.0), seed=5)
+    assert np.array_equal(flat.positions[:, :2], hilly.positions[:, :2])
+    for a, b in zip(flat.trees, hilly.trees, strict=True):
+        assert a.name == b.name
+        assert np.array_equal(a.foot[:2], b.foot[:2])
+    ground = hilly.tree_of < 0  # ground and shrubs, as the flat plot's
+    xyz = hilly.cloud.xyz[ground & (np.abs(hilly.cloud.xyz[:, 2]) < 50)]
+    A = np.c_[xyz[:, :2], np.ones(len(xyz))]
+    off = xyz[:, 2] - A @ np.linalg.lstsq(A, xyz[:, 2], rcond=None)[0]
+    assert np.percentile(np.abs(off), 95) > 0.3  # no plane holds it
+    feet = np.array([t.foot for t in hilly.trees])
+    assert not np.allclose(feet[:, 2], [t.foot[2] for t in flat.trees])
+
+
 def test_wind_sways_the_trees_in_the_later_scans_only(trees) -> None:
     from scipy.spatial import cKDTree
 
@@ -272,6 +290,7 @@ def _tree_files(trees: list[Cloud], folder: Path) -> list[str]:
         ([], ["--neighbours", "x.ply"], "--neighbours applies to a one-tree case"),
         ([], ["--range-m", "100"], "give a shorter --range-m"),  # out of memory
         ([], ["--range-m", "1e12"], "--range-m must be a number more than 0 and at"),
+        ([], ["--relief-m", "50"], "--relief-m must be a number from 0 to 10 m"),
         ([], ["--shrubs", "100000000"], "--shrubs must be an integer from 0 to 1000"),
         (["two_trees.ply"], [], "as a plot of several trees does"),
         (["in_mm.ply"], [], "are its coordinates in millimetres or centimetres?"),
