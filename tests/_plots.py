@@ -6,7 +6,12 @@ is on ``sys.path`` because it holds ``conftest.py``).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 # (x, y, radius, height) of the stems, in the plot's frame.
 STEMS = (
@@ -24,27 +29,36 @@ def ground_z(xy: np.ndarray) -> np.ndarray:
     return np.asarray(0.03 * xy[..., 0] - 0.02 * xy[..., 1])
 
 
+def wave_z(xy: np.ndarray) -> np.ndarray:
+    """Height of a ground that bends: waves of 0.6 m over 14 m on the gentle slope."""
+    return np.asarray(ground_z(xy) + 0.6 * np.sin(2 * np.pi * xy[..., 0] / 14.0))
+
+
 def scan(
     position: tuple[float, float],
     stems: tuple[tuple[float, ...], ...],
     seed: int,
     hidden_tops: bool = False,
+    ground: Callable[[np.ndarray], np.ndarray] = ground_z,
+    reach_m: float = np.inf,
 ) -> np.ndarray:
     """Points a scanner at ``position`` sees: ground, and the near half of each stem.
 
     ``hidden_tops``: each stem is seen up to a random height only (crowns hide the
-    rest differently from each position).
+    rest differently from each position). ``ground`` gives the ground's height,
+    seen within ``reach_m`` of the position.
     """
     rng = np.random.default_rng(seed)
     g = np.mgrid[-12:12:0.08, -12:12:0.08].reshape(2, -1).T
-    g = g[np.hypot(*(g - position).T) > 1.0]
-    parts = [np.column_stack([g, ground_z(g)])]
+    far = np.hypot(*(g - position).T)
+    g = g[(far > 1.0) & (far <= reach_m)]
+    parts = [np.column_stack([g, ground(g)])]
     p = np.asarray(position, float)
     for x, y, r, h in stems:
         c = np.array([x, y])
         facing = np.arctan2(*(p - c)[::-1])
         theta = facing + np.linspace(-np.pi / 2, np.pi / 2, int(np.pi * r / 0.01))
-        z0 = float(ground_z(c))
+        z0 = float(ground(c))
         top = rng.uniform(2.0, h) if hidden_tops else h
         z = np.arange(z0 - 0.05, z0 + top, 0.02)
         tt, zz = np.meshgrid(theta, z)

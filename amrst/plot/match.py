@@ -6,7 +6,8 @@ their DBH. Every pair of stems in one scan is compared with every pair in the ot
 other stems then confirm or not. Poses confirmed by three stems or more are the
 similar triangles of stem bases; poses with two stems only are kept too (a position
 that sees only two of the shared trees), ranked after them. The scanners' residual
-tilt is taken out by aligning the two scans' ground normals under the pose.
+tilt is taken out by laying one scan's ground on the other's under the pose (by
+their ground normals where they share too little ground).
 The poses go through the same verification as every other candidate (``verify.py``).
 """
 
@@ -36,6 +37,10 @@ MIN_PAIR_M = 1.5
 #: many meet within HELD_RMS_M and no other pose is confirmed by as many.
 HELD_STEMS = 4
 HELD_RMS_M = 0.1
+#: A pose is levelled on the ground both scans see when they share this many cells
+#: of it (50 m2 of 0.5 m cells); cells more than LEVEL_TRIM_M off the fit are left out.
+SHARED_GROUND_CELLS = 200
+LEVEL_TRIM_M = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,7 +164,46 @@ def stem_poses(target: StemMap, source: StemMap, max_poses: int = 6) -> list[Ste
             out.append(p)
         if len(out) == max_poses:
             break
-    return out
+    return [_levelled_on_ground(p, target, source) for p in out]
+
+
+def _levelled_on_ground(pose: StemPose, target: StemMap, source: StemMap) -> StemPose:
+    """Take the pose's residual tilt from the ground both scans see under it.
+
+    The ground normals agree only where both scans see the same plane; over a terrain
+    that bends, each scan's plane leans its own way. So the source's ground, moved by
+    the stems' levelled pose, is laid on the target's: the plane of their height
+    differences (cells more than ``LEVEL_TRIM_M`` off it left out: a shrub one scan
+    sees round) is the tilt and the height left. The pose is kept as it is when the
+    scans share fewer than ``SHARED_GROUND_CELLS`` ground cells.
+    """
+    from scipy.spatial import cKDTree
+
+    tg, sg = target.ground, source.ground
+    if not (tg.found and sg.found):
+        return pose
+    t = target.keys()[pose.pairs[:, 0]]
+    s = source.keys()[pose.pairs[:, 1]]
+    T = fit_levelled(t, s)
+    cells = np.c_[sg.centres, sg.surface_z(sg.centres)] @ T[:3, :3].T + T[:3, 3]
+    gap = cKDTree(tg.centres).query(cells[:, :2], distance_upper_bound=tg.cell_m)[0]
+    cells = cells[np.isfinite(gap)]
+    if len(cells) < SHARED_GROUND_CELLS:
+        return pose
+    pivot = t.mean(axis=0)
+    A = np.c_[cells[:, :2] - pivot[:2], np.ones(len(cells))]
+    dz = cells[:, 2] - tg.surface_z(cells[:, :2])
+    on = np.ones(len(cells), dtype=bool)
+    for _ in range(3):
+        coef = np.linalg.lstsq(A[on], dz[on], rcond=None)[0]
+        on = np.abs(dz - A @ coef) <= LEVEL_TRIM_M
+        if on.sum() < SHARED_GROUND_CELLS:
+            return pose
+    a, b, c = np.linalg.lstsq(A[on], dz[on], rcond=None)[0]
+    tilted = np.array([-a, -b, 1.0]) / np.hypot(np.hypot(a, b), 1.0)
+    T = _tilt_fix(T, np.array([0.0, 0.0, 1.0]), T[:3, :3].T @ tilted, pivot)
+    T[2, 3] -= c
+    return StemPose(T, pose.pairs, pose.rms_m, pose.dbh_agree)
 
 
 def held_by_stems(poses: list[StemPose]) -> int | None:

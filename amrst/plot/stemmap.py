@@ -243,7 +243,8 @@ def plot_ground(xyz: np.ndarray, params: StemMapParams) -> GroundFit:
 
     Stray echoes do not vote for it (``fit_ground``'s ``skip_strays``): a plot scan
     reaches tens of metres, and lone points below the ground, one a cell, would
-    outnumber the ground's cells.
+    outnumber the ground's cells. It follows the terrain (``follow_terrain``): a plot
+    reaching 20 m around its scanners is no plane.
     """
     return fit_ground(
         xyz,
@@ -254,6 +255,7 @@ def plot_ground(xyz: np.ndarray, params: StemMapParams) -> GroundFit:
         iterations=300,
         seed=params.scene.seed,
         skip_strays=True,
+        follow_terrain=True,
     )
 
 

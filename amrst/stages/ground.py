@@ -1,10 +1,12 @@
 """The ground surface of a scan: a levelled plane fitted to the lowest points, plus relief.
 
-Used by the scene stage (``scene.py``). A grid of ``cell_m`` cells keeps each cell's
-lowest point; a seeded RANSAC finds the plane (slope at most ``max_slope_deg``) that
-the most cell minima lie on while few lie far below it (the ground is the lowest
-surface), a least-squares refit on its inlier cells levels it, and the relief of each
-cell is the median residual of the nearest inlier cells (rough ground, small bumps).
+Used by the scene stage (``scene.py``) and the plot's stem map. A grid of ``cell_m``
+cells keeps each cell's lowest point; a seeded RANSAC finds the plane (slope at most
+``max_slope_deg``) that the most cell minima lie on while few lie far below it (the
+ground is the lowest surface), a least-squares refit on its inlier cells levels it,
+and the relief of each cell is the median residual of the nearest inlier cells (rough
+ground, small bumps). A plot, tens of metres wide, asks the ground to follow a
+terrain that bends away from the plane (``follow_terrain``).
 A clean, segmented tree has no such surface: its lowest points form the stem foot,
 a few square metres at most, so a ground is only declared above ``min_area_m2``.
 
@@ -25,6 +27,10 @@ import numpy as np
 from amrst.stages.voxels import column_min
 
 _BELOW_PENALTY = 3.0  # a cell far below a plane costs this many inliers
+#: Growing the ground over a bending terrain (``_follow_terrain``): a cell joins
+#: from its ground neighbours this near (m), on the plane through this many of them.
+_GROW_REACH_M = 1.0
+_GROW_NEIGHBOURS = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,6 +149,7 @@ def fit_ground(
     iterations: int,
     seed: int,
     skip_strays: bool = False,
+    follow_terrain: bool = False,
 ) -> GroundFit:
     """Fit the ground surface under a scan.
 
@@ -164,6 +171,9 @@ def fit_ground(
         Only the cells whose lowest point another point of the cell supports
         (:func:`_supported`) vote for the plane: stray echoes below the ground, or
         far off it, do not outvote it. The plane is then refitted to every cell.
+    follow_terrain : bool
+        Grow the ground from the plane's cells over a terrain that bends away from
+        it (:func:`_follow_terrain`): a plot tens of metres wide is no plane.
 
     Returns
     -------
@@ -197,6 +207,8 @@ def fit_ground(
         coef = np.linalg.lstsq(A[inl], mins[inl], rcond=None)[0]
     resid = mins - A @ coef
     inl = np.abs(resid) < tol_m
+    if follow_terrain:
+        inl = _follow_terrain(A[:, :2], resid, inl, tol_m, votes)
     area = float(inl.sum() * cell_m**2)
     if area < min_area_m2 or inl.sum() < 3:
         return GroundFit(False, lowest, area, len(first), cell_m, none, np.zeros(0))
@@ -204,11 +216,76 @@ def fit_ground(
     # bumps follow while a cell with only crown points in it keeps the ground below.
     from scipy.spatial import cKDTree
 
+    at_centre = resid[inl]
+    if follow_terrain:
+        # Where the terrain bends away from the plane, a cell's lowest point lies at
+        # its downhill edge, up to a decimetre below its centre: the local plane
+        # through the ground around it carries it to the centre.
+        k = int(min(_GROW_NEIGHBOURS, inl.sum()))
+        on = A[inl, :2]
+        nn = cKDTree(on).query(on, k=k)[1].reshape(len(on), k)
+        slope = _local_plane(on[nn] - on[:, None], at_centre[nn])[1]
+        at_centre = at_centre + np.sum(slope * (cxy[inl] - on), axis=1)
     k = int(min(4, inl.sum()))
     nn = cKDTree(cxy[inl]).query(cxy, k=k)[1].reshape(len(first), k)
-    relief = np.median(resid[inl][nn], axis=1)
-    relief[inl] = resid[inl]
+    relief = np.median(at_centre[nn], axis=1)
+    relief[inl] = at_centre
     return GroundFit(True, coef, area, len(first), cell_m, cxy, relief)
+
+
+def _follow_terrain(
+    xy: np.ndarray,
+    resid: np.ndarray,
+    ground: np.ndarray,
+    tol_m: float,
+    eligible: np.ndarray | None,
+) -> np.ndarray:
+    """Grow the ground cells outwards from ``ground`` over a bending terrain.
+
+    ``xy``: each cell's lowest point, ``resid`` its height above the plot's plane.
+
+    Each round, a cell next to the ground (its nearest ground cell within
+    ``_GROW_REACH_M``) joins it when its lowest point lies within ``tol_m`` of the
+    plane through its ``_GROW_NEIGHBOURS`` nearest ground cells: the ground may bend
+    away from the plot's plane by metres, but not between neighbouring cells, while a
+    shrub or a log stands off the ground beside it. ``eligible``: the cells that may
+    join (all when None). Stops when a round adds no cell.
+
+    Returns
+    -------
+    (K,) bool
+        The ground cells, ``ground`` among them.
+    """
+    from scipy.spatial import cKDTree
+
+    ground = ground.copy()
+    open_ = ~ground if eligible is None else ~ground & eligible
+    while open_.any() and ground.sum() >= _GROW_NEIGHBOURS:
+        on = np.flatnonzero(ground)
+        dist, nn = cKDTree(xy[on]).query(xy[open_], k=_GROW_NEIGHBOURS)
+        near = dist[:, 0] <= _GROW_REACH_M
+        cand = np.flatnonzero(open_)[near]
+        nbr = on[nn[near]]  # (M, k) ground cells around each candidate
+        level = _local_plane(xy[nbr] - xy[cand, None], resid[nbr])[0]
+        join = cand[np.abs(resid[cand] - level) < tol_m]
+        if not len(join):
+            break
+        ground[join] = True
+        open_[join] = False
+    return ground
+
+
+def _local_plane(dxy: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fit a plane to each row's (k,) ``z`` at (k, 2) ``dxy``: (M,) level at 0, (M, 2) slope.
+
+    A little ridge on the slopes keeps a row whose cells lie on a line from tilting
+    its plane at will (the level then tends to their mean).
+    """
+    X = np.concatenate([np.ones((*dxy.shape[:2], 1)), dxy], axis=2)
+    XtX = np.einsum("mki,mkj->mij", X, X) + np.diag([0.0, 1e-2, 1e-2])
+    Xtz = np.einsum("mki,mk->mi", X, z)
+    coef = np.linalg.solve(XtX, Xtz[..., None])[..., 0]
+    return np.asarray(coef[:, 0]), np.asarray(coef[:, 1:])
 
 
 def _lowest_per_cell(xyz: np.ndarray, cell_m: float) -> np.ndarray:

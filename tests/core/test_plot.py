@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import _plots
 import numpy as np
 import pytest
-from _plots import STEMS, blob, ground_z, scan
+from _plots import STEMS, blob, ground_z, pose, scan, wave_z
 
 from amrst.files.folderlock import FolderBusy, FolderLock
 from amrst.plot.cli import main as plot_main
@@ -74,6 +74,42 @@ def test_stray_echoes_below_the_ground_hide_no_tree() -> None:
         d = [np.hypot(*(s.base[:2] - (x, y))) for s in m.stems]
         assert min(d) < 0.1
         assert abs(m.stems[int(np.argmin(d))].height_m - h) < 0.3
+
+
+def test_the_stem_map_follows_a_ground_that_bends() -> None:
+    # Waves of 0.6 m across the plot: a plane through them is half a metre off in
+    # places, and every height measured from it, the breast-height slice among them.
+    m = map_stems(scan((0.5, 0.5), STEMS, 3, ground=wave_z))
+    xy = np.mgrid[-11:11.5:0.5, -11:11.5:0.5].reshape(2, -1).T + 0.25  # cell centres
+    off = np.abs(m.ground.surface_z(xy) - wave_z(xy))
+    assert np.percentile(off, 99) < 0.03
+    assert off.max() < 0.2  # the scanner's foot, where no ground is seen
+    assert len(m.stems) == len(STEMS)
+    for x, y, r, h in STEMS:
+        d = [np.hypot(*(s.base[:2] - (x, y))) for s in m.stems]
+        s = m.stems[int(np.argmin(d))]
+        assert min(d) < 0.1
+        assert abs(s.base[2] - wave_z(np.array([x, y]))) < 0.1  # 5 cm into the ground
+        assert abs(s.dbh_m - 2 * r) < 0.01
+        assert abs(s.height_m - h) < 0.3
+
+
+def test_a_stem_pose_is_levelled_on_the_ground_both_scans_see() -> None:
+    # Each scan sees its own stretch of the waves: their ground planes lean apart by
+    # degrees, and a pose that made them meet would be tilted by as much.
+    from amrst.plot.match import stem_poses
+
+    T_true = pose(70.0, (4.0, 0.0, 0.0), tilt_deg=1.0)
+    target = scan((-4.0, 0.0), STEMS, 1, hidden_tops=True, ground=wave_z, reach_m=9)
+    world = scan((4.0, 0.0), STEMS, 2, hidden_tops=True, ground=wave_z, reach_m=9)
+    source = world @ T_true[:3, :3] - T_true[:3, 3] @ T_true[:3, :3]
+    maps = [map_stems(c, trees=False) for c in (target, source)]
+    leaning = np.degrees(np.arccos(maps[0].ground.normal @ maps[1].ground.normal))
+    assert leaning > 2.0  # the planes of the two grounds, as the scans see them
+    best = stem_poses(*maps)[0]
+    E = invert_transform(T_true) @ best.T_target_source
+    assert rotation_angle_deg(E[:3, :3]) < 0.3
+    assert np.linalg.norm(E[:3, 3]) < 0.05
 
 
 def test_stems_register_a_tilted_plot_pair(plot_pair, plot_scans) -> None:
