@@ -50,9 +50,13 @@ class TaperFit:
     circle: StemCircle
     slice_xy: np.ndarray  # (M, 2)
 
+    def at(self, height_m: float) -> float:
+        """Return the line's diameter ``height_m`` above the ground."""
+        return self.dbh_m + self.per_m * (height_m - BREAST_HEIGHT_M)
+
     def agrees(self, at: float, diameter_m: float) -> bool:
         """Tell whether a circle of ``diameter_m`` at height ``at`` lies on the line."""
-        line = self.dbh_m + self.per_m * (at - BREAST_HEIGHT_M)
+        line = self.at(at)
         return abs(diameter_m - line) <= max(AGREE_M, AGREE_SHARE * line)
 
 

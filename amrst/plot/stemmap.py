@@ -55,6 +55,9 @@ OUTLIER_NEAR_M = 0.1
 OUTLIER_OFF_M = 0.02
 #: Heights above the ground of the slices the stem line is fitted to (m).
 LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
+#: The circle at the foot is the tree's position (``_foot_xy``) unless it is this many
+#: times wider than the taper line there.
+FOOT_WIDER = 1.5
 #: Points around a stem the slices take (m beyond the stem cluster's extent).
 STEM_MARGIN_M = 0.15
 #: A tree the technician gives: its stem is the points this high above the ground
@@ -858,7 +861,9 @@ def _taper_stem(
         return fit.stem
     on_line = [(at, *c.centre_xy) for at, c in taper.circles] + bark
     base_xy, _, lean = _stem_line(sorted(on_line), base_xy, params.refit_circles)
-    base_xy = _foot_xy(fit.line, base_xy)
+    # A foot circle far wider than the stem above it went round a buttress or a root.
+    foot = [c for c in fit.line if 2 * fit.radii[c[0]] <= FOOT_WIDER * taper.at(c[0])]
+    base_xy = _foot_xy(foot, base_xy)
     # Too few circles on the taper line leave the lean unmeasured (NaN): the first
     # fit's line went through circles the taper line rejects.
     stem = replace(

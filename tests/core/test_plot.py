@@ -947,6 +947,21 @@ def test_a_tree_stands_where_its_stem_leaves_the_ground() -> None:
     assert np.hypot(*tree[0].base[:2]) < 0.02
 
 
+def test_a_buttress_round_the_foot_does_not_move_the_tree() -> None:
+    # From 0.45 to 0.75 m a buttress wraps the stem on one side: the circle there
+    # goes round it, twice as wide and 30 cm off, where the tree does not stand.
+    z0 = float(ground_z(np.zeros(2)))
+    trunk = [
+        _stem(0.0, 0.0, 0.15, z0 - 0.05, z0 + 0.45),
+        _stem(0, 0, 0.15, z0 + 0.75, z0 + 8),
+    ]
+    wide = _stem(0.3, 0.0, 0.35, z0 + 0.45, z0 + 0.75)
+    tree = map_stems(np.vstack([_ground(), *trunk, wide])).stems
+    assert len(tree) == 1
+    assert tree[0].dbh_m == pytest.approx(0.3, abs=0.01)
+    assert np.hypot(*tree[0].base[:2]) < 0.05
+
+
 def test_tree_clouds_of_an_earlier_run_do_not_outlive_it(plot_pair, tmp_path: Path):
     from amrst import io
 
