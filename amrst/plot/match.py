@@ -203,7 +203,13 @@ def _levelled_on_ground(pose: StemPose, target: StemMap, source: StemMap) -> Ste
     tilted = np.array([-a, -b, 1.0]) / np.hypot(np.hypot(a, b), 1.0)
     T = _tilt_fix(T, np.array([0.0, 0.0, 1.0]), T[:3, :3].T @ tilted, pivot)
     T[2, 3] -= c
-    return StemPose(T, pose.pairs, pose.rms_m, pose.dbh_agree)
+    return StemPose(T, pose.pairs, _horizontal_rms(T, t, s), pose.dbh_agree)
+
+
+def _horizontal_rms(T: Transform, t: np.ndarray, s: np.ndarray) -> float:
+    """Return how far apart the stems ``t`` and ``s`` moved by ``T`` stand (RMS, m)."""
+    moved = s @ T[:3, :3].T + T[:3, 3]
+    return float(np.sqrt(np.mean(np.sum((moved[:, :2] - t[:, :2]) ** 2, axis=1))))
 
 
 def held_by_stems(poses: list[StemPose]) -> int | None:
@@ -240,8 +246,6 @@ def _refit(
     t, s = tk[pairs[:, 0]], sk[pairs[:, 1]]
     T = _tilt_fix(fit_levelled(t, s), *normals, t.mean(axis=0))
     T[:3, 3] += np.mean(t - (s @ T[:3, :3].T + T[:3, 3]), axis=0)
-    moved = s @ T[:3, :3].T + T[:3, 3]
-    rms = float(np.sqrt(np.mean(np.sum((moved[:, :2] - t[:, :2]) ** 2, axis=1))))
     a, b = td[pairs[:, 0]], sd[pairs[:, 1]]
     agree = int(np.sum(np.isfinite(a) & np.isfinite(b) & dbh_alike(a, b)))
-    return StemPose(T, pairs, rms, agree)
+    return StemPose(T, pairs, _horizontal_rms(T, t, s), agree)

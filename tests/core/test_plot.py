@@ -110,6 +110,7 @@ def test_a_stem_pose_is_levelled_on_the_ground_both_scans_see() -> None:
     E = invert_transform(T_true) @ best.T_target_source
     assert rotation_angle_deg(E[:3, :3]) < 0.3
     assert np.linalg.norm(E[:3, 3]) < 0.05
+    assert best.rms_m < 0.03  # how far its stems meet at this pose, not a tilted one
 
 
 def test_stems_register_a_tilted_plot_pair(plot_pair, plot_scans) -> None:
