@@ -244,10 +244,9 @@ class StemMap:
 def plot_ground(xyz: np.ndarray, params: StemMapParams) -> GroundFit:
     """Fit the ground under a plot cloud, as the stem map takes it.
 
-    Stray echoes do not vote for it (``fit_ground``'s ``skip_strays``): a plot scan
-    reaches tens of metres, and lone points below the ground, one a cell, would
-    outnumber the ground's cells. It follows the terrain (``follow_terrain``): a plot
-    reaching 20 m around its scanners is no plane.
+    A plot scan reaches tens of metres (``fit_ground``'s ``wide``): lone stray points
+    below the ground, one a cell, would outnumber the ground's cells, and no ground
+    that wide is a plane.
     """
     return fit_ground(
         xyz,
@@ -257,8 +256,7 @@ def plot_ground(xyz: np.ndarray, params: StemMapParams) -> GroundFit:
         min_area_m2=params.min_ground_area_m2,
         iterations=300,
         seed=params.scene.seed,
-        skip_strays=True,
-        follow_terrain=True,
+        wide=True,
     )
 
 

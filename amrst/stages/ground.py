@@ -6,7 +6,7 @@ cells keeps each cell's lowest point; a seeded RANSAC finds the plane (slope at 
 ground is the lowest surface), a least-squares refit on its inlier cells levels it,
 and the relief of each cell is the median residual of the nearest inlier cells (rough
 ground, small bumps). A plot, tens of metres wide, asks the ground to follow a
-terrain that bends away from the plane (``follow_terrain``).
+terrain that bends away from the plane, and stray echoes not to vote (``wide``).
 A clean, segmented tree has no such surface: its lowest points form the stem foot,
 a few square metres at most, so a ground is only declared above ``min_area_m2``.
 
@@ -148,8 +148,7 @@ def fit_ground(
     min_area_m2: float,
     iterations: int,
     seed: int,
-    skip_strays: bool = False,
-    follow_terrain: bool = False,
+    wide: bool = False,
 ) -> GroundFit:
     """Fit the ground surface under a scan.
 
@@ -167,13 +166,13 @@ def fit_ground(
     iterations : int
         RANSAC draws (seeded).
     seed : int
-    skip_strays : bool
-        Only the cells whose lowest point another point of the cell supports
-        (:func:`_supported`) vote for the plane: stray echoes below the ground, or
-        far off it, do not outvote it. The plane is then refitted to every cell.
-    follow_terrain : bool
-        Grow the ground from the plane's cells over a terrain that bends away from
-        it (:func:`_follow_terrain`): a plot tens of metres wide is no plane.
+    wide : bool
+        A ground tens of metres wide (a plot). Only the cells whose lowest point
+        another point of the cell supports (:func:`_supported`) vote for the plane:
+        stray echoes below the ground, or far off it, one a cell over the scan's
+        reach, would outvote it. The plane is refitted to every cell, and the ground
+        then grows from its cells over a terrain that bends away from it
+        (:func:`_follow_terrain`): no plot that wide is a plane.
 
     Returns
     -------
@@ -196,9 +195,7 @@ def fit_ground(
     A = np.column_stack([xyz[first, :2], np.ones(len(first))])
     slope = np.tan(np.radians(max_slope_deg))
     # A cell's points may differ by tol_m plus what the steepest ground climbs in it.
-    votes = (
-        _supported(xyz, first, cell_m, tol_m + cell_m * slope) if skip_strays else None
-    )
+    votes = _supported(xyz, first, cell_m, tol_m + cell_m * slope) if wide else None
     coef = _ransac_plane(A, mins, tol_m, slope, iterations, seed, votes=votes)
     for _ in range(3):  # refit on the inliers: the levelled plane
         inl = np.abs(mins - A @ coef) < tol_m
@@ -207,7 +204,7 @@ def fit_ground(
         coef = np.linalg.lstsq(A[inl], mins[inl], rcond=None)[0]
     resid = mins - A @ coef
     inl = np.abs(resid) < tol_m
-    if follow_terrain:
+    if votes is not None:  # a wide ground
         inl = _follow_terrain(A[:, :2], resid, inl, tol_m, votes)
     area = float(inl.sum() * cell_m**2)
     if area < min_area_m2 or inl.sum() < 3:
@@ -217,7 +214,7 @@ def fit_ground(
     from scipy.spatial import cKDTree
 
     at_centre = resid[inl]
-    if follow_terrain:
+    if wide:
         # Where the terrain bends away from the plane, a cell's lowest point lies at
         # its downhill edge, up to a decimetre below its centre: the local plane
         # through the ground around it carries it to the centre.
@@ -238,7 +235,7 @@ def _follow_terrain(
     resid: np.ndarray,
     ground: np.ndarray,
     tol_m: float,
-    eligible: np.ndarray | None,
+    eligible: np.ndarray,
 ) -> np.ndarray:
     """Grow the ground cells outwards from ``ground`` over a bending terrain.
 
@@ -249,7 +246,7 @@ def _follow_terrain(
     plane through its ``_GROW_NEIGHBOURS`` nearest ground cells: the ground may bend
     away from the plot's plane by metres, but not between neighbouring cells, while a
     shrub or a log stands off the ground beside it. ``eligible``: the cells that may
-    join (all when None). Stops when a round adds no cell.
+    join (a stray echo's may not). Stops when a round adds no cell.
 
     Returns
     -------
@@ -259,7 +256,7 @@ def _follow_terrain(
     from scipy.spatial import cKDTree
 
     ground = ground.copy()
-    open_ = ~ground if eligible is None else ~ground & eligible
+    open_ = ~ground & eligible
     while open_.any() and ground.sum() >= _GROW_NEIGHBOURS:
         on = np.flatnonzero(ground)
         dist, nn = cKDTree(xy[on]).query(xy[open_], k=_GROW_NEIGHBOURS)
