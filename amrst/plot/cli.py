@@ -197,21 +197,16 @@ def run_cli(args: argparse.Namespace) -> int:
             "dropped from the review (see review_lost in plot.json).",
             file=sys.stderr,
         )
-    _say_what_to_check(out, run, named, left_out)
+    _say_what_to_check(run, named, left_out)
     return EXIT_NOT_REGISTERED if named[NEEDS_REVIEW] or named[FAILED] else 0
 
 
 def _say_what_to_check(
-    out: Path,
     run: PlotRun,
     named: Mapping[str, list[str]],
     left_out: Sequence[tuple[int, int]],
 ) -> None:
-    """Say which scans need review or failed, and what the technician's pairs showed.
-
-    plot.json, just written in ``out``, says how a scan turned over seems to stand.
-    """
-    from amrst.plot.export import read_plot_json
+    """Say which scans need review or failed, and what the technician's pairs showed."""
     from amrst.plot.inventory import seen_from_any
     from amrst.plot.register import HAND_ORIGIN
     from amrst.plot.review import unsure_scans
@@ -245,7 +240,7 @@ def _say_what_to_check(
         from amrst.plot.register import cut_off
 
         stems = [len(s.stems.stems) for s in run.registration.scans]
-        turned = [s.get("turned", "") for s in read_plot_json(out)["scans"]]
+        turned = run.registration.turned
         cut = cut_off(len(run.labels), 0, left_out)
         failed = [
             f"{label} ({counted(n, 'stem')} found"

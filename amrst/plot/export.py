@@ -387,14 +387,11 @@ def plot_document(
     coordinates (None: not placed, or a georeferenced file that does not say);
     ``scanner_given`` where the person running the plot said it stood, in the scan's
     own file coordinates (``amrst plot --scanner``; None: not given); ``turned``, for
-    a scan that failed, how it seems to stand when another way up holds far more
-    ground (``stemmap.which_way_up``; "" else); a
+    a scan that failed, how it seems to stand (``PlotRegistration.turned``); a
     link's ``T_target_source`` its source's into its target's. A link placed from
     point pairs names their file (``pairs_files``, keyed by the scans as its target
     and source points, from 0) as ``pairs``: the next run can place it again.
     """
-    from amrst.plot.stemmap import which_way_up
-    from amrst.review.verdict import FAILED
     from amrst.types import world_transform
 
     clouds = [scan.analysis.cloud for scan in reg.scans]
@@ -449,14 +446,13 @@ def plot_document(
                 ),
                 "path": None if path is None else [k + 1 for k in path],
                 "stems": len(scan.stems.stems),
-                # Why a scan may have failed: it stands another way up.
-                "turned": which_way_up(scan.stems) if status == FAILED else "",
+                "turned": turned,
                 "residual_m": residual,
                 "unsure_links": None
                 if doubts is None
                 else sorted([t, s] for t, s in doubts),
             }
-            for label, pose, path, scan, status, state, doubts, cloud, residual in zip(
+            for label, pose, path, scan, status, state, doubts, cloud, residual, turned in zip(
                 labels,
                 reg.poses,
                 reg.paths,
@@ -466,6 +462,7 @@ def plot_document(
                 reg.doubts(),
                 clouds,
                 reg.residuals_m,
+                reg.turned,
                 strict=True,
             )
         ],

@@ -40,7 +40,7 @@ from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
 from amrst.plot.match import StemPose, held_by_stems, stem_poses
 from amrst.plot.residual import Surfaces, bundle_error, scan_residuals
-from amrst.plot.stemmap import StemMap, StemMapParams, map_stems
+from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, which_way_up
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
 from amrst.stages.candidates import (
     Candidate,
@@ -122,7 +122,9 @@ class PlotRegistration:
     it did not raise the bundle error; ``joint`` is None for two scans, whose link is
     already their fine fit).
     ``statuses[k]`` is scan k's state: registered, needs review or failed
-    (:func:`amrst.multiscan.graph.scan_statuses`).
+    (:func:`amrst.multiscan.graph.scan_statuses`); ``turned[k]``, for a scan that
+    failed, how it seems to stand when another way up holds far more ground
+    (:func:`amrst.plot.stemmap.which_way_up`; "" else).
     """
 
     scans: tuple[PlotScan, ...]
@@ -133,6 +135,7 @@ class PlotRegistration:
     joint: JointResult | None
     loops: dict[str, float]
     statuses: tuple[str, ...]
+    turned: tuple[str, ...]
     residuals_m: tuple[float, ...]
     bundle_rmse_m: float
     timings: dict[str, float]
@@ -705,6 +708,8 @@ def register_plot(
     -------
     PlotRegistration
     """
+    from amrst.review.verdict import FAILED
+
     params = plot_params()
     n = len(scans)
     hand, dropped, _ = check_links(n, reference, by_hand or {}, left_out)
@@ -768,6 +773,7 @@ def register_plot(
     timings["joint"] = time.perf_counter() - t1
     timings["total"] = timings["read"] + timings["analyse"] + time.perf_counter() - t0
     loops = loop_closures(graph.links, graph.poses)
+    statuses = scan_statuses(graph.links, graph.paths, loops)
     return PlotRegistration(
         scans=tuple(scans),
         reference=reference,
@@ -776,7 +782,12 @@ def register_plot(
         paths=graph.paths,
         joint=joint,
         loops=loops,
-        statuses=scan_statuses(graph.links, graph.paths, loops),
+        statuses=statuses,
+        # Why a scan may have failed: it stands another way up.
+        turned=tuple(
+            which_way_up(scan.stems) if status == FAILED else ""
+            for scan, status in zip(scans, statuses, strict=True)
+        ),
         residuals_m=residuals,
         bundle_rmse_m=bundle_error(residuals),
         timings=timings,
