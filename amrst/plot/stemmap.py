@@ -456,19 +456,31 @@ def _merge_same_stems(
 
     A stem can be found twice: in two pieces (two positions each see one side, too
     far apart to link in the slice), as a slice cluster and bark beside it, or again
-    above its foot. Fits whose bases lie within ``same_stem_m`` are one stem.
+    above its foot. Fits whose bases, or whose circles at one height, lie within
+    ``same_stem_m`` are one stem: two fits of a leaning stem drawn down from
+    different circles can put its base apart.
     """
-    kept: list[tuple[int, np.ndarray]] = []  # (seed, base x y)
+    kept: list[tuple[int, _StemFit]] = []
     for k, fit in enumerate(fits):
         if fit is None:
             continue
-        xy = fit.stem.base[:2]
-        same = [j for j, b in kept if np.hypot(*(b - xy)) <= params.same_stem_m]
+        same = [j for j, other in kept if _same_stem(fit, other, params.same_stem_m)]
         if same:
             seeds[same[0]] = np.concatenate([seeds[same[0]], seeds[k]])
             fits[k] = None
         else:
-            kept.append((k, xy))
+            kept.append((k, fit))
+
+
+def _same_stem(a: _StemFit, b: _StemFit, reach_m: float) -> bool:
+    """Tell whether two fits' bases, or their circles at one height, meet."""
+    if np.hypot(*(a.stem.base[:2] - b.stem.base[:2])) <= reach_m:
+        return True
+    b_at = {at: (x, y) for at, x, y in b.line}
+    return any(
+        at in b_at and np.hypot(x - b_at[at][0], y - b_at[at][1]) <= reach_m
+        for at, x, y in a.line
+    )
 
 
 def _add_hidden_stems(

@@ -26,7 +26,7 @@ from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
 from amrst.plot.review import HandCircle, PlotReview, read_review, write_review
-from amrst.plot.stemmap import StemMapParams, branch_axis, map_stems
+from amrst.plot.stemmap import StemMapParams, StemRecord, branch_axis, map_stems
 from amrst.types import Cloud, invert_transform, rotation_angle_deg
 
 if TYPE_CHECKING:
@@ -874,6 +874,32 @@ def test_a_stem_seen_in_two_pieces_is_one_tree() -> None:
     # Without the merge the one stem is two trees.
     apart = replace(StemMapParams(), same_stem_m=0.0)
     assert len(map_stems(pts, apart).stems) == 3
+
+
+def test_a_leaning_stem_found_twice_above_its_foot_is_one_tree() -> None:
+    from amrst.plot.stemmap import _merge_same_stems, _StemFit
+
+    nan = float("nan")
+
+    def fit(base_xy: tuple[float, float], line: list[tuple[float, ...]]) -> _StemFit:
+        stem = StemRecord(
+            np.r_[base_xy, 0.0], np.asarray(base_xy), nan, nan, nan, nan, "none",
+            nan, "not measured", nan, nan, 10,
+        )  # fmt: skip
+        return _StemFit(stem, [(at, x, y) for at, x, y in line], {})
+
+    # One stem leaning 11 degrees, found twice in its bark: the fit with circles at
+    # 1.7 and 2.2 m stands it upright over them, the one with a circle at 1.0 m too
+    # draws its lean down to the ground, 0.54 m away. The circles at 1.7 m meet.
+    upright = fit((-2.31, 11.31), [(1.7, -2.28, 11.37), (2.2, -2.35, 11.26)])
+    drawn = fit((-1.93, 11.70), [(1.0, -2.12, 11.5), (1.7, -2.27, 11.38)])
+    # A neighbour 0.6 m off, its circle at 1.7 m as far.
+    neighbour = fit((-1.68, 11.37), [(1.7, -1.67, 11.37)])
+    seeds = [np.array([0]), np.array([1]), np.array([2])]
+    fits: list[_StemFit | None] = [upright, drawn, neighbour]
+    _merge_same_stems(seeds, fits, StemMapParams())
+    assert [f is not None for f in fits] == [True, False, True]
+    assert seeds[0].tolist() == [0, 1]
 
 
 def test_the_arc_seen_decides_a_dbh_and_its_flag() -> None:
