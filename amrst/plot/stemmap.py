@@ -473,7 +473,7 @@ def _merge_same_stems(
 
 
 def _same_stem(a: _StemFit, b: _StemFit, reach_m: float) -> bool:
-    """Tell whether two fits' bases, or their circles at one height, meet."""
+    """Tell whether two fits' bases, or their circles at one height, lie within reach."""
     if np.hypot(*(a.stem.base[:2] - b.stem.base[:2])) <= reach_m:
         return True
     b_at = {at: (x, y) for at, x, y in b.line}
