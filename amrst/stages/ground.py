@@ -221,8 +221,8 @@ def fit_ground(
         k = int(min(_GROW_NEIGHBOURS, inl.sum()))
         on = A[inl, :2]
         nn = cKDTree(on).query(on, k=k)[1].reshape(len(on), k)
-        slope = _local_plane(on[nn] - on[:, None], at_centre[nn])[1]
-        at_centre = at_centre + np.sum(slope * (cxy[inl] - on), axis=1)
+        grade = _local_plane(on[nn] - on[:, None], at_centre[nn])[1]
+        at_centre = at_centre + np.sum(grade * (cxy[inl] - on), axis=1)
     k = int(min(4, inl.sum()))
     nn = cKDTree(cxy[inl]).query(cxy, k=k)[1].reshape(len(first), k)
     relief = np.median(at_centre[nn], axis=1)
