@@ -206,6 +206,7 @@ class InventoryScore:
     dbh_missing: int  # found trees with a true DBH but none listed
     height_errors_m: tuple[float, ...]
     height_ok_errors_m: tuple[float, ...] = ()  # trees whose height is flagged ok
+    height_missing: int = 0  # found trees listed with no height
 
 
 def match_trees(listed_xy: np.ndarray, true_xy: np.ndarray) -> list[tuple[int, int]]:
@@ -263,7 +264,7 @@ def score_inventory(
     listed = np.asarray(listed, dtype=float).reshape(-1, 5)
     pairs = match_trees(listed[:, :2], truth[:, :2])
     dbh, dbh_ok, heights, heights_ok = [], [], [], []
-    missing = 0
+    missing = height_missing = 0
     for i, j in pairs:
         if np.isfinite(truth[j, 3]):
             if np.isfinite(listed[i, 3]):
@@ -276,6 +277,8 @@ def score_inventory(
             heights.append(float(listed[i, 4] - truth[j, 4]))
             if flags[i] == "ok":
                 heights_ok.append(heights[-1])
+        else:
+            height_missing += 1
     seen = np.ones(len(truth), bool) if in_view is None else np.asarray(in_view)
     return InventoryScore(
         n_true=len(truth),
@@ -289,6 +292,7 @@ def score_inventory(
         dbh_missing=missing,
         height_errors_m=tuple(heights),
         height_ok_errors_m=tuple(heights_ok),
+        height_missing=height_missing,
     )
 
 
@@ -622,7 +626,9 @@ def _inventory_table(records: Sequence[PlotRecord]) -> list[str]:
             "have none listed",
             f"- median height error {_fmt(_median_abs(heights))} m over "
             f"{len(heights)} trees ({_fmt(_median_abs(heights_ok))} m over the "
-            f"{len(heights_ok)} flagged ok)",
+            f"{len(heights_ok)} flagged ok); "
+            f"{sum(s.height_missing for s in scores)} found trees have no height "
+            "(top out of range, or not measured)",
         ]
     return lines
 

@@ -73,9 +73,12 @@ COLUMN_NOTES = {
     "coordinates when that file is georeferenced (its coordinate system)",
     "y_m": "stem base, m, as x_m",
     "z_m": "ground height at the stem base, m, as x_m",
-    "height_m": "highest point of the tree above its base, m",
+    "height_m": "highest point of the tree above its base, m; empty where its top "
+    "was out of every scan's range",
     "height_flag": "ok: nothing doubts it. "
     + " ".join(f"{flag}: {text}." for flag, text in HEIGHT_FLAGS.items()),
+    "height_seen_m": "where the top was out of range: how high above its base the "
+    "tree was seen, m (the tree is taller); empty otherwise",
     "dbh_m": "diameter at 1.3 m, m: the taper line through circles fitted from 1.0 "
     "to 1.6 m",
     "dbh_quality": f"ok: {DBH_OK}. check: {DBH_CHECK}. none: no DBH.",
@@ -356,8 +359,9 @@ def read_tree_rows(out: Path) -> list[dict[str, str]]:
         with (out / TREES_CSV).open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             columns = reader.fieldnames or ()
-            # dbh_why came later: a results folder of an earlier run lacks it.
-            missing = [c for c in TREE_COLUMNS if c not in {*columns, "dbh_why"}]
+            # These came later: a results folder of an earlier run lacks them.
+            later = {"dbh_why", "height_seen_m"}
+            missing = [c for c in TREE_COLUMNS if c not in {*columns, *later}]
             if missing:
                 raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
             return list(reader)

@@ -6,6 +6,8 @@ window's tooltips.
 
 from __future__ import annotations
 
+import math
+
 from amrst.plot.stemmap import OUTLIER_NEAR_M, OUTLIER_OFF_M, StemMapParams
 
 _P = StemMapParams()
@@ -37,8 +39,24 @@ HEIGHT_FLAGS = {
     "of every scan's range, or few points lie in its top metre, so the top may be "
     "hidden (the height too low) or a neighbour's (too high); this flag wins over "
     "lean, and lean_deg still gives the stem's lean",
+    "top out of range": "its highest point lies at the edge of every scan's range: "
+    "the crown goes on beyond what the scans kept, so no height is given "
+    "(height_seen_m: how high it was seen; the tree is taller)",
     "top not checked": "no scan says where its scanner stood (a georeferenced LAS, "
     "say; amrst plot --scanner or the Plot window's Scanner at… gives it), so no top "
     "could be checked",
     "not measured": "no height",
 }
+
+
+def height_words(height_m: float, height_seen_m: float, digits: int = 1) -> str:
+    """Write the height as the inventory gives it, in metres without the unit.
+
+    The figure; ``>`` and how high the tree was seen where its top was out of range;
+    ``–`` where there is neither.
+    """
+    if math.isfinite(height_m):
+        return f"{height_m:.{digits}f}"
+    if math.isfinite(height_seen_m):
+        return f">{height_seen_m:.{digits}f}"
+    return "–"

@@ -32,6 +32,7 @@ TREE_COLUMNS = (
     "z_m",
     "height_m",
     "height_flag",
+    "height_seen_m",
     "dbh_m",
     "dbh_quality",
     "dbh_arc_deg",
@@ -61,6 +62,9 @@ SIGHT_END_M = 0.3
 #: The height flag of a tree whose top no scan could be checked against: no scan of
 #: the plot says where its scanner stood (a georeferenced LAS, say).
 NOT_CHECKED = "top not checked"
+#: The height flag of a tree whose top lies at the edge of every scan's range: the
+#: crown went on beyond what any scan kept, so its height is not known.
+OUT_OF_RANGE = "top out of range"
 #: A scan's file origin farther than this from its points is not where its scanner
 #: stood (m): the scan was moved into other coordinates.
 ORIGIN_GAP_M = 50.0
@@ -85,6 +89,7 @@ class Tree:
             "z_m": round(float(self.xyz[2]), 3),
             "height_m": _rounded(s.height_m, 2),
             "height_flag": s.height_flag,
+            "height_seen_m": _rounded(s.height_seen_m, 2),
             "dbh_m": _rounded(s.dbh_m, 4),
             "dbh_quality": s.dbh_quality,
             "dbh_arc_deg": _rounded(s.arc_deg, 0),
@@ -125,6 +130,7 @@ class Tree:
             dbh_why=row.get("dbh_why", ""),
             height_m=_number(row["height_m"]),
             height_flag=row["height_flag"],
+            height_seen_m=_number(row.get("height_seen_m", "")),
             lean_deg=_number(row["lean_deg"]),
             crown_width_m=_number(row["crown_width_m"]),
             n_points=int(row["n_points"]),
@@ -331,12 +337,15 @@ def _scanner_reach(
 def _flag_hidden_tops(
     stem_map: StemMap, reach: Sequence[tuple[np.ndarray, float]]
 ) -> StemMap:
-    """Flag ``top not seen`` where no scan could have seen above a tree's top.
+    """Flag the trees whose top no scan could have seen above.
 
     A tree's highest point is its top only if a scan saw the space just above it
     (``PROBE_M`` higher) empty: within that scan's range, and with no point near the
-    line of sight in front of it. A crown that reaches the edge of every scan's range
-    is cut there, wherever its highest point lies.
+    line of sight in front of it. Where the highest point itself lies at the edge of
+    every scan's range, the crown went on beyond what any scan kept: the height is
+    not known (``top out of range``, ``height_seen_m`` how high it was seen).
+    Otherwise a crown that reaches the edge of every scan's range elsewhere, or a
+    top seen by no scan, is ``top not seen``.
     """
     if not reach:  # no scan says where its scanner stood: no top can be checked
         return replace(
@@ -356,6 +365,12 @@ def _flag_hidden_tops(
             stems.append(s)
             continue
         top = mine[np.argmin(np.abs(mine[:, 2] - (s.base[2] + s.height_m)))]
+        if all(
+            np.linalg.norm(top - origin) > r - RANGE_MARGIN_M for origin, r in reach
+        ):
+            out = replace(s, height_m=float("nan"), height_seen_m=s.height_m)
+            stems.append(replace(out, height_flag=OUT_OF_RANGE))
+            continue
         probe = top + np.array([0.0, 0.0, PROBE_M])
         seen = any(
             np.linalg.norm(probe - origin) <= r and _clear(kd, origin, probe)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from amrst.plot.flags import height_words
 from amrst.plot.review import NOT_A_TREE, unsure_scans
 from amrst.plot.stand import PlotArea, counted, stand
 from amrst.results.report_html import STYLE, html_table
@@ -308,7 +309,8 @@ def _trees(rows: Sequence[Mapping[str, Any]], unsure: frozenset[int]) -> str:
             [
                 _e(r["tree_id"]),
                 f"{_num(r['x_m']):.2f}, {_num(r['y_m']):.2f}, {_num(r['z_m']):.2f}",
-                _fixed(r.get("height_m"), 1) + f" ({_e(r.get('height_flag', ''))})",
+                _e(height_words(_num(r.get("height_m")), _num(r.get("height_seen_m"))))
+                + f" ({_e(r.get('height_flag', ''))})",
                 _fixed(_num(r.get("dbh_m")) * 100, 1)
                 + f" ({_e(r.get('dbh_quality', ''))})"
                 + (

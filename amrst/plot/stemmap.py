@@ -192,8 +192,9 @@ class StemRecord:
     over too little), ``dbh_why`` says why it is not ok where known; ``lean_deg`` is
     NaN where no stem line was measured;
     ``height_flag``: ``ok``, ``lean`` (the stem, or the line from its foot to the
-    tree's top), ``top not seen``, ``top not checked`` (no scanner position known:
-    set by the inventory) or ``not measured``.
+    tree's top), ``top not seen``, ``top out of range`` (``height_m`` NaN and
+    ``height_seen_m`` how high the tree was seen) and ``top not checked`` (no
+    scanner position known), both set by the inventory, or ``not measured``.
     """
 
     base: np.ndarray  # (3,)
@@ -210,6 +211,7 @@ class StemRecord:
     n_points: int
     given: str | None = None  # the id the technician gave the tree it stands for
     dbh_why: str = ""  # why the DBH is check or none, "; "-separated
+    height_seen_m: float = float("nan")  # top out of range: how high it was seen
 
     @property
     def key_xyz(self) -> np.ndarray:

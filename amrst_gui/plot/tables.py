@@ -15,6 +15,7 @@ from PySide6.QtWidgets import (
     QTableWidgetItem,
 )
 
+from amrst.plot.flags import height_words
 from amrst.plot.review import ACCEPTED
 from amrst.review.verdict import NEEDS_REVIEW, TEXT_RGB
 
@@ -169,12 +170,15 @@ def tree_rows(
             else (hand.dbh_m, "yours")
         )
         mark = review.marks.get(t.tree_id, "")
+        # A tree whose top was out of range sorts by how high it was seen.
+        h = t.stem.height_m
+        height_key = _last_if_nan(h if h == h else t.stem.height_seen_m)
         rows.append(
             (
                 (t.tree_id, k),
                 (number(dbh * 100, ".1f"), _last_if_nan(dbh)),
                 (quality, quality),
-                (number(t.stem.height_m, ".1f"), _last_if_nan(t.stem.height_m)),
+                (height_words(t.stem.height_m, t.stem.height_seen_m), height_key),
                 (t.stem.height_flag, t.stem.height_flag),
                 (mark, mark or "~"),  # unmarked after the marks
             )

@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (
 )
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
-from amrst.plot.flags import DBH_OK, HEIGHT_FLAGS, OUTLIER_SHARE
+from amrst.plot.flags import DBH_OK, HEIGHT_FLAGS, OUTLIER_SHARE, height_words
 from amrst.plot.review import NOT_A_TREE, PlotReview
 from amrst.plot.view import SLICE_HEIGHTS_M
 from amrst_gui.plot.stem_map import scan_colour
@@ -106,7 +106,10 @@ def figures(
         seen += f" ({', '.join(doubt)} {'needs' if len(doubt) == 1 else 'need'} review)"
     return [
         ("Position", f"x {x:.2f}, y {y:.2f}, z {z:.2f} m"),
-        ("Height", f"{_value(s.height_m, ' m')} ({s.height_flag})"),
+        (
+            "Height",
+            f"{height_words(s.height_m, s.height_seen_m, 2)} m ({s.height_flag})",
+        ),
         ("DBH", f"{_value(s.dbh_m, ' cm', 100, 1)} ({s.dbh_quality}){yours}"),
         (
             "DBH fit",

@@ -17,6 +17,7 @@ from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from amrst.plot.diameter import BREAST_HEIGHT_M
+from amrst.plot.flags import height_words
 from amrst_gui.plot.stem_map import BACKGROUND, HAND_RGB, TEXT, scan_colour
 
 if TYPE_CHECKING:
@@ -92,7 +93,9 @@ class TreeSideView(QWidget):
         axis, seen = across(base_xy, profile.xyz)
         dx = (profile.xyz[:, :2] - base_xy) @ axis
         dz = profile.xyz[:, 2] - base_z
-        top = float(np.nanmax([stem.height_m, dz.max(initial=0.0), 2.0]))
+        top = float(
+            np.nanmax([stem.height_m, stem.height_seen_m, dz.max(initial=0.0), 2.0])
+        )
         half = max(float(np.abs(dx).max(initial=0.0)), 1.0) + MARGIN_M
         box = QRectF(4, 4, self.width() - 8, self.height() - 8 - LABEL_PX)
         scale = min(box.width() / (2 * half), box.height() / (top + 2 * MARGIN_M))
@@ -116,15 +119,17 @@ class TreeSideView(QWidget):
             rect = p.fontMetrics().boundingRect(text).translated(where.toPoint())
             p.fillRect(rect.adjusted(-1, 0, 1, 0), LABEL_SHADE)
             p.drawText(where, text)
-        if np.isfinite(stem.height_m):
+        line = stem.height_m if np.isfinite(stem.height_m) else stem.height_seen_m
+        if np.isfinite(line):
             pen = QPen(QColor(255, 255, 255), 1)
             pen.setStyle(Qt.PenStyle.DashLine)
             p.setPen(pen)
-            p.drawLine(at(-half, stem.height_m), at(half, stem.height_m))
+            p.drawLine(at(-half, line), at(half, line))
             p.setPen(TEXT)
+            words = height_words(stem.height_m, stem.height_seen_m)
             p.drawText(
-                at(-half, stem.height_m) + QPointF(2, -3),
-                f"height {stem.height_m:.1f} m ({stem.height_flag})",
+                at(-half, line) + QPointF(2, -3),
+                f"height {words} m ({stem.height_flag})",
             )
         bars = [
             (np.asarray(stem.dbh_xy, float), stem.dbh_m, QColor(255, 255, 255), 0.0)

@@ -22,6 +22,7 @@ from _plots import STEMS, blob, ground_z, pose, scan, wave_z
 from amrst.files.folderlock import FolderBusy, FolderLock
 from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
+from amrst.plot.flags import height_words
 from amrst.plot.inventory import take_inventory
 from amrst.plot.match import StemPose, held_by_stems
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
@@ -212,6 +213,7 @@ def test_inventory_columns_and_the_command(
         "z_m",
         "height_m",
         "height_flag",
+        "height_seen_m",
         "dbh_m",
         "dbh_quality",
         "dbh_arc_deg",
@@ -228,7 +230,9 @@ def test_inventory_columns_and_the_command(
         "in_plot",
     ]
     for row in rows:
-        assert row["height_flag"] in {"ok", "lean", "top not seen"}
+        assert row["height_flag"] in {"ok", "lean", "top not seen", "top out of range"}
+        assert bool(row["height_m"]) == (row["height_flag"] != "top out of range")
+        assert bool(row["height_seen_m"]) == (not row["height_m"])
         assert row["dbh_quality"] in {"ok", "check", "none"}
         assert bool(row["dbh_why"]) == (row["dbh_quality"] != "ok")
         assert 0 < float(row["dbh_m"]) < 0.6
@@ -477,13 +481,30 @@ def test_a_stem_inside_a_wide_thicket_is_found() -> None:
     assert np.hypot(*bases[np.argmin(np.hypot(*bases.T))]) < 0.1
 
 
-def test_a_top_cut_by_the_scanner_range_is_flagged() -> None:
+def test_a_top_out_of_the_scanner_range_gives_no_height() -> None:
     stems = ((4.0, 0.0, 0.15, 14.0), (-3.0, 2.0, 0.12, 5.0), (0.0, -4.0, 0.1, 4.0))
     xyz = scan((0.0, 0.0), stems, 7)
     xyz = xyz[np.linalg.norm(xyz, axis=1) <= 10.0]  # the scanner's range
     inv = take_inventory([Cloud(xyz)], [np.eye(4)])
-    flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
-    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+    trees = {round(float(t.xyz[0])): t.stem for t in inv.trees}
+    assert {k: s.height_flag for k, s in trees.items()} == {
+        4: "top out of range",
+        -3: "ok",
+        0: "ok",
+    }
+    # The 14 m tree was seen up to where the 10 m range cut it, and no higher.
+    cut = trees[4]
+    assert np.isnan(cut.height_m)
+    assert 8.0 < cut.height_seen_m < 9.5
+    assert np.isnan(trees[0].height_seen_m)
+    assert trees[0].height_m == pytest.approx(4.0, abs=0.3)
+    row = next(t.row() for t in inv.trees if round(float(t.xyz[0])) == 4)
+    assert row["height_m"] == ""
+    assert row["height_seen_m"] == pytest.approx(cut.height_seen_m, abs=0.01)
+    # Wherever a height is written out, such a tree reads "over how high it was seen".
+    assert height_words(cut.height_m, cut.height_seen_m) == f">{cut.height_seen_m:.1f}"
+    assert height_words(4.04, float("nan")) == "4.0"
+    assert height_words(float("nan"), float("nan")) == "–"
 
 
 def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood() -> (
@@ -497,13 +518,13 @@ def test_the_hidden_top_check_looks_from_where_the_file_says_the_scanner_stood()
     posed = Cloud(xyz + at, meta={"scanner_origin": tuple(at)})
     inv = take_inventory([posed], [np.eye(4)])
     flags = {round(float(t.xyz[0] - at[0])): t.stem.height_flag for t in inv.trees}
-    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+    assert flags == {4: "top out of range", -3: "ok", 0: "ok"}
     # A LAS file in its scanner's frame with a header offset: the file's origin.
     shift = np.array([20.0, 20.0, 0.0])
     shifted = Cloud(xyz + shift, offset=-shift)
     inv = take_inventory([shifted], [np.eye(4)])
     flags = {round(float(t.xyz[0])): t.stem.height_flag for t in inv.trees}
-    assert flags == {4: "top not seen", -3: "ok", 0: "ok"}
+    assert flags == {4: "top out of range", -3: "ok", 0: "ok"}
     # Georeferenced, or moved a kilometre from its origin, a file does not say
     # where its scanner stood: no top is checked, and no height reads ok.
     for offset, moved in (((512_000.0, 5_400_000.0, 300.0), 0.0), (0.0, 1000.0)):
