@@ -13,7 +13,7 @@ The poses go through the same verification as every other candidate (``verify.py
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,6 +37,16 @@ MIN_PAIR_M = 1.5
 #: many meet within HELD_RMS_M and no other pose is confirmed by as many.
 HELD_STEMS = 4
 HELD_RMS_M = 0.1
+#: A stem's key point is where its circles put it to within KEY_SD_M plus
+#: KEY_SD_SHARE of its diameter (a wide stem's section is seldom round, and each scan
+#: sees another side of it), or NO_DBH_SD_M where either scan has no circle for it;
+#: the pose's fit weighs each stem pair by the inverse square.
+KEY_SD_M = 0.01
+KEY_SD_SHARE = 0.1
+NO_DBH_SD_M = 0.1
+#: A pose held by its stems alone needs review when they fix its heading no better
+#: than this (1 sd, degrees; 7 cm at 10 m).
+HELD_HEADING_SD_DEG = 0.4
 #: A pose is levelled on the ground both scans see when they share this many cells
 #: of it (50 m2 of 0.5 m cells); cells more than LEVEL_TRIM_M off the fit are left out.
 SHARED_GROUND_CELLS = 200
@@ -51,6 +61,7 @@ class StemPose:
     pairs: np.ndarray  # (K, 2) target stem, source stem
     rms_m: float  # horizontal RMS of the confirming stems
     dbh_agree: int  # confirming stems whose DBH agree (both measured)
+    heading_sd_deg: float = 0.0  # how well the stems fix the heading (key_weights)
 
 
 def dbh_alike(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -61,6 +72,16 @@ def dbh_alike(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     both = np.isfinite(a) & np.isfinite(b)
     close = np.abs(a - b) <= 0.05 + 0.3 * np.fmax(a, b)
     return np.asarray(~both | close)
+
+
+def key_weights(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K,) weights of stem pairs of DBHs ``a`` and ``b`` in a pose's fit."""
+    sd = np.where(
+        np.isfinite(a) & np.isfinite(b),
+        KEY_SD_M + KEY_SD_SHARE * np.fmax(a, b),
+        NO_DBH_SD_M,
+    )
+    return np.asarray(1.0 / sd**2)
 
 
 def _segments(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -184,13 +205,14 @@ def _levelled_on_ground(pose: StemPose, target: StemMap, source: StemMap) -> Ste
         return pose
     t = target.keys()[pose.pairs[:, 0]]
     s = source.keys()[pose.pairs[:, 1]]
-    T = fit_levelled(t, s)
+    w = key_weights(target.dbh()[pose.pairs[:, 0]], source.dbh()[pose.pairs[:, 1]])
+    T = fit_levelled(t, s, w)
     cells = np.c_[sg.centres, sg.surface_z(sg.centres)] @ T[:3, :3].T + T[:3, 3]
     gap = cKDTree(tg.centres).query(cells[:, :2], distance_upper_bound=tg.cell_m)[0]
     cells = cells[np.isfinite(gap)]
     if len(cells) < SHARED_GROUND_CELLS:
         return pose
-    pivot = t.mean(axis=0)
+    pivot = (w / w.sum()) @ t
     A = np.c_[cells[:, :2] - pivot[:2], np.ones(len(cells))]
     dz = cells[:, 2] - tg.surface_z(cells[:, :2])
     on = np.ones(len(cells), dtype=bool)
@@ -203,7 +225,7 @@ def _levelled_on_ground(pose: StemPose, target: StemMap, source: StemMap) -> Ste
     tilted = np.array([-a, -b, 1.0]) / np.hypot(np.hypot(a, b), 1.0)
     T = _tilt_fix(T, np.array([0.0, 0.0, 1.0]), T[:3, :3].T @ tilted, pivot)
     T[2, 3] -= c
-    return StemPose(T, pose.pairs, _horizontal_rms(T, t, s), pose.dbh_agree)
+    return replace(pose, T_target_source=T, rms_m=_horizontal_rms(T, t, s))
 
 
 def _horizontal_rms(T: Transform, t: np.ndarray, s: np.ndarray) -> float:
@@ -244,8 +266,22 @@ def _refit(
 ) -> StemPose:
     """Levelled fit on every confirming stem, tilt taken out, and its figures."""
     t, s = tk[pairs[:, 0]], sk[pairs[:, 1]]
-    T = _tilt_fix(fit_levelled(t, s), *normals, t.mean(axis=0))
-    T[:3, 3] += np.mean(t - (s @ T[:3, :3].T + T[:3, 3]), axis=0)
     a, b = td[pairs[:, 0]], sd[pairs[:, 1]]
+    weights = key_weights(a, b)
+    w = weights / weights.sum()
+    T = _tilt_fix(fit_levelled(t, s, w), *normals, w @ t)
+    T[:3, 3] += w @ (t - (s @ T[:3, :3].T + T[:3, 3]))
     agree = int(np.sum(np.isfinite(a) & np.isfinite(b) & dbh_alike(a, b)))
-    return StemPose(T, pairs, _horizontal_rms(T, t, s), agree)
+    sd_deg = _heading_sd_deg(t, weights)
+    return StemPose(T, pairs, _horizontal_rms(T, t, s), agree, sd_deg)
+
+
+def _heading_sd_deg(t: np.ndarray, weights: np.ndarray) -> float:
+    """Return how well stems ``t`` of :func:`key_weights` ``weights`` fix a heading.
+
+    The sd (degrees) of a levelled fit's heading when each stem's key point is off by
+    its own sd: 1 / sqrt(sum of weight x squared distance from the weighted centre).
+    """
+    centre = (weights / weights.sum()) @ t[:, :2]
+    spread = float(np.sum(weights * np.sum((t[:, :2] - centre) ** 2, axis=1)))
+    return float(np.degrees(1.0 / np.sqrt(spread))) if spread > 0 else 180.0

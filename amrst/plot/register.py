@@ -8,13 +8,14 @@ the stem poses (``match.py``) are verified as the technician's manual poses are
 the source's points above its ground, and the best verified one is fine-registered
 (``pipeline.refine``). Scans far apart share too little surface for that score to
 judge; a pose held by four or more stems with no rival as well held
-(``match.held_by_stems``) is taken then. When no stem pose holds, the two-scan engine
-runs as the fallback (tetrahedra, feature matcher, trunk search). A link the
-technician gives as point pairs is taken from them instead
-(:func:`register_plot_link_by_hand`), and one they leave out (a link they found
-wrong, so that the scans are joined through others) is not registered. The links then
-form the multiscan spanning tree, and a joint refinement is kept when it lowers the
-error (``amrst.multiscan``).
+(``match.held_by_stems``) is taken then, as needing review when those stems fix its
+heading loosely (``match.HELD_HEADING_SD_DEG``). When no stem pose holds, the
+two-scan engine runs as the fallback (tetrahedra, feature matcher, trunk search). A
+link the technician gives as point pairs is taken from them instead
+(:func:`register_plot_link_by_hand`), and one they leave out (a link they found wrong,
+so that the scans are joined through others) is not registered. The links then form
+the multiscan spanning tree, and a joint refinement is kept when it lowers the error
+(``amrst.multiscan``).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from amrst.multiscan.graph import (
 )
 from amrst.multiscan.joint import JointResult, refine_jointly
 from amrst.neighbours import THREADS
-from amrst.plot.match import StemPose, held_by_stems, stem_poses
+from amrst.plot.match import HELD_HEADING_SD_DEG, StemPose, held_by_stems, stem_poses
 from amrst.plot.residual import Surfaces, bundle_error, scan_residuals
 from amrst.plot.stemmap import StemMap, StemMapParams, map_stems, which_way_up
 from amrst.progress import NULL_REPORTER, Reporter, SubReporter
@@ -344,13 +345,21 @@ def register_plot_link(
         message = f"pose of {len(won.pairs)} stem pairs; {coarse.message}"
     elif held is not None:
         won = poses[held]
-        start, confidence = won.T_target_source, 1.0
+        # Stems that leave the heading loose (wide stems, each scan seeing another
+        # side of them; stems close together) give a pose to check, not to trust.
+        sure = won.heading_sd_deg <= HELD_HEADING_SD_DEG
+        start, confidence = won.T_target_source, 1.0 if sure else 0.0
         score = next(c.score for c in cands if c.id == MANUAL_ID_BASE + held)
         message = (
             f"the {len(won.pairs)} stem pairs of the pose meet within "
             f"{100 * won.rms_m:.0f} cm and "
             f"no other pose is held by as many; the scans share too little surface "
             f"for the point score to judge ({score:.0%})"
+        ) + (
+            ""
+            if sure
+            else f"; but these stems fix its heading to ±{won.heading_sd_deg:.1f}° "
+            "only: check it"
         )
     else:
         return _fallback(

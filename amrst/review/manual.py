@@ -95,13 +95,19 @@ def fit_rigid(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
     return np.asarray(transforms[0])
 
 
-def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
+def fit_levelled(
+    target_pts: np.ndarray,
+    source_pts: np.ndarray,
+    weights: np.ndarray | None = None,
+) -> Transform:
     """Rotation about the vertical (z) axis and translation, for levelled scans.
 
     Parameters
     ----------
     target_pts, source_pts : (K, 3) float64
         Corresponding points, K >= 2, not all on one vertical line.
+    weights : (K,) float64 or None
+        How much each pair counts (positive; None: all alike).
 
     Returns
     -------
@@ -118,7 +124,9 @@ def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
         raise InvalidInput(
             f"{len(t)} point pair(s): the levelled fit needs 2 (a full fit 3)."
         )
-    tc, sc = t.mean(axis=0), s.mean(axis=0)
+    w = np.ones(len(t)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    tc, sc = w @ t, w @ s
     a, b = (s - sc)[:, :2], (t - tc)[:, :2]
     for points, scan in ((a, "source"), (b, "target")):
         if np.linalg.norm(points, axis=1).max() < 1e-3:
@@ -127,8 +135,8 @@ def fit_levelled(target_pts: np.ndarray, source_pts: np.ndarray) -> Transform:
                 "unknown: pick points that are apart horizontally."
             )
     # Best yaw in closed form (2-D Procrustes): atan2(sum a x b, sum a . b).
-    cross = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-    dot = np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
+    cross = np.sum(w * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    dot = np.sum(w * (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
     R = yaw_rotation(np.arctan2(cross, dot))
     out = np.eye(4)
     out[:3, :3] = R

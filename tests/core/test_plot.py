@@ -24,7 +24,14 @@ from amrst.plot.cli import main as plot_main
 from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.flags import height_words
 from amrst.plot.inventory import take_inventory
-from amrst.plot.match import StemPose, held_by_stems
+from amrst.plot.match import (
+    HELD_HEADING_SD_DEG,
+    StemPose,
+    _heading_sd_deg,
+    held_by_stems,
+    key_weights,
+    stem_poses,
+)
 from amrst.plot.register import analyse_plot_scan, plot_params, register_plot_link
 from amrst.plot.review import HandCircle, PlotReview, read_review, write_review
 from amrst.plot.stemmap import StemMapParams, StemRecord, branch_axis, map_stems
@@ -98,7 +105,6 @@ def test_the_stem_map_follows_a_ground_that_bends() -> None:
 def test_a_stem_pose_is_levelled_on_the_ground_both_scans_see() -> None:
     # Each scan sees its own stretch of the waves: their ground planes lean apart by
     # degrees, and a pose that made them meet would be tilted by as much.
-    from amrst.plot.match import stem_poses
 
     T_true = pose(70.0, (4.0, 0.0, 0.0), tilt_deg=1.0)
     target = scan((-4.0, 0.0), STEMS, 1, hidden_tops=True, ground=wave_z, reach_m=9)
@@ -822,6 +828,53 @@ def test_stems_alone_hold_a_pose_only_with_a_clear_lead() -> None:
     assert held_by_stems([pose_of(5, 0.15), pose_of(2, 0.0)]) is None
     assert held_by_stems([pose_of(5, 0.02), pose_of(5, 0.03)]) is None
     assert held_by_stems([]) is None
+
+
+def test_a_tilted_scans_stem_pose_meets_its_stems_at_breast_height() -> None:
+    # The stems match by their breast-height circles; levelling the pose about the
+    # ground under them would move those circles 1.3 m x sin(2.5°) = 5.7 cm.
+    target = scan((-2.0, 0.0), STEMS, 1)
+    T_true = pose(70.0, (3.0, 1.0, 0.0), tilt_deg=2.5)
+    back = np.linalg.inv(T_true)
+    source = scan((3.0, 1.0), STEMS, 2) @ back[:3, :3].T + back[:3, 3]
+    best = stem_poses(map_stems(target, trees=False), map_stems(source, trees=False))[0]
+    at = np.array(
+        [(x, y, float(ground_z(np.array([x, y]))) + 1.3) for x, y, *_ in STEMS]
+    )
+    in_source = at @ back[:3, :3].T + back[:3, 3]
+    T = best.T_target_source
+    moved = in_source @ T[:3, :3].T + T[:3, 3]
+    assert np.hypot(*(moved - at)[:, :2].T).max() < 0.015
+    assert rotation_angle_deg(T[:3, :3] @ T_true[:3, :3].T) < 0.2
+
+
+def test_stems_that_fix_the_heading_loosely_leave_a_held_pose_to_check(
+    plot_scans, monkeypatch
+) -> None:
+    # Four wide stems close together, one with no circle: under a true pose each
+    # could be off by a tenth of its width, which turns the plot's edge by decimetres.
+    import amrst.plot.register as register
+
+    thin_far = np.array([[0, 0, 1.3], [8, 0, 1.3], [0, 8, 1.3], [8, 8, 1.3]], float)
+    wide_near = np.array([[0, 0, 1.3], [3, 0, 1.3], [0, 2, 1.3], [2, 3, 1.3]], float)
+    thin = key_weights(np.full(4, 0.2), np.full(4, 0.21))
+    wide = key_weights(
+        np.array([1.1, 0.8, 0.6, np.nan]), np.array([1.2, 0.8, 0.6, 0.6])
+    )
+    assert _heading_sd_deg(thin_far, thin) < 0.2
+    assert _heading_sd_deg(wide_near, wide) > HELD_HEADING_SD_DEG
+    params, scans = plot_scans
+    monkeypatch.setattr(register, "choose_coarse", lambda *a, **k: None)
+    statuses = []
+    found = stem_poses(scans[0].stems, scans[1].stems)[0].T_target_source
+    for sd in (0.1, 0.6):
+        held = StemPose(found, np.array([[k, k] for k in range(5)]), 0.03, 5, sd)
+        monkeypatch.setattr(register, "stem_poses", lambda a, b, p=held: [p])
+        link = register_plot_link(scans[0], scans[1], (0, 1), params).link
+        statuses.append(link.status)
+        assert link.origin == "stems"
+    assert statuses == ["registered", "needs review"]
+    assert "fix its heading to ±0.6° only" in link.message
 
 
 def test_a_loose_stem_pose_is_refined_from_as_far_as_its_stems_missed(
