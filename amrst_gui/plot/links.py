@@ -34,6 +34,10 @@ if TYPE_CHECKING:
     from amrst_gui.plot.jobs import LinkLine, PlotOutcome
 
 
+#: The links table shows at least, and at most, this many rows (more scroll).
+LINK_ROWS = (2, 6)
+
+
 class LinksPanel(QWidget):
     """The links table and the selected link's buttons.
 
@@ -51,7 +55,7 @@ class LinksPanel(QWidget):
         self.left_out: set[tuple[int, int]] = set()  # links the next run leaves out
         self._busy = False
         self.table = table(LINK_COLUMNS, "plot_links")
-        self.table.setMaximumHeight(ROW_PX * 6 + 30)
+        self._fit_rows(0)
         self.table.setToolTip(
             "Every pair of scans: its state, the stems it shares (within 30 cm at the "
             "link's pose; its pose may have come from fewer), the overlap, the "
@@ -112,6 +116,7 @@ class LinksPanel(QWidget):
         row = self.table.currentRow()
         self.lines = () if o is None else o.links
         fill(self.table, [] if o is None else link_rows(o))
+        self._fit_rows(len(self.lines))
         for r, ln in enumerate(self.lines):
             item = self.table.item(r, 0)
             assert item is not None  # just filled
@@ -122,6 +127,12 @@ class LinksPanel(QWidget):
             self.table.selectRow(row)
         self._show_choices()
         self._update_buttons()
+
+    def _fit_rows(self, n: int) -> None:
+        """Make the table as tall as its links, within LINK_ROWS: the room a plot of
+        two or three positions does not need goes to the tree list below."""
+        rows = min(max(n, LINK_ROWS[0]), LINK_ROWS[1])
+        self.table.setMaximumHeight(ROW_PX * rows + 30)
 
     def set_choices(
         self, left_out: Set[tuple[int, int]], hand_pairs: Mapping[tuple[int, int], str]

@@ -651,6 +651,33 @@ def test_a_link_a_loop_confirms_reads_registered_in_the_links_table(tmp_path):
     assert [r[1] for r in rows] == ["registered (loop)", "needs review"]
 
 
+def test_the_links_table_is_as_tall_as_its_links(qtbot: QtBot, tmp_path) -> None:
+    # Two positions make one link: the rows it does not need go to the tree list.
+    from amrst_gui.plot.jobs import LinkLine, PlotOutcome
+    from amrst_gui.plot.links import LinksPanel
+    from amrst_gui.plot.tables import ROW_PX
+
+    def outcome(n: int) -> PlotOutcome:
+        lines = tuple(
+            LinkLine(0, k, "registered", True, True, "stems", 0.4, 0.01, 6, "")
+            for k in range(1, n + 1)
+        )
+        names = tuple(f"s{k}" for k in range(n + 1))
+        return PlotOutcome(tmp_path, names, (), (), lines, 0.01, (), None, 1.0)
+
+    panel = LinksPanel()
+    qtbot.addWidget(panel)
+    heights = {}
+    for n in (1, 2, 3, 10):
+        panel.show_links(outcome(n))
+        heights[n] = panel.table.maximumHeight()
+    assert heights[1] == heights[2] < heights[3] < heights[10]
+    # Ten links (five positions) scroll past six rows rather than crowd the trees.
+    panel.show_links(outcome(10))
+    assert panel.table.rowCount() == 10
+    assert heights[10] == panel.table.maximumHeight() < 10 * ROW_PX
+
+
 def test_a_link_is_placed_from_point_pairs_picked_in_the_main_window(
     make_main_window: Callable[..., MainWindow],
     qtbot: QtBot,
