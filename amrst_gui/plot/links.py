@@ -34,8 +34,16 @@ if TYPE_CHECKING:
     from amrst_gui.plot.jobs import LinkLine, PlotOutcome
 
 
-#: The links table shows at least, and at most, this many rows (more scroll).
-LINK_ROWS = (2, 6)
+#: The links table shows at least this many rows, and at most the second on a laptop
+#: screen or the third on a screen at least TALL_SCREEN_PX high (more scroll).
+LINK_ROWS = (2, 6, 10)
+TALL_SCREEN_PX = 1000
+
+
+def link_rows_shown(links: int, screen_px: int) -> int:
+    """Rows the links table shows for ``links`` links on a screen ``screen_px`` high."""
+    most = LINK_ROWS[2] if screen_px >= TALL_SCREEN_PX else LINK_ROWS[1]
+    return min(max(links, LINK_ROWS[0]), most)
 
 
 class LinksPanel(QWidget):
@@ -129,10 +137,11 @@ class LinksPanel(QWidget):
         self._update_buttons()
 
     def _fit_rows(self, n: int) -> None:
-        """Make the table as tall as its links, within LINK_ROWS: the room a plot of
-        two or three positions does not need goes to the tree list below."""
-        rows = min(max(n, LINK_ROWS[0]), LINK_ROWS[1])
-        self.table.setMaximumHeight(ROW_PX * rows + 30)
+        """Make the table as tall as its links (:func:`link_rows_shown`): the room a
+        plot of few positions does not need goes to the tree list below."""
+        screen = self.screen()
+        high = screen.availableGeometry().height() if screen is not None else 0
+        self.table.setFixedHeight(ROW_PX * link_rows_shown(n, high) + 30)
 
     def set_choices(
         self, left_out: Set[tuple[int, int]], hand_pairs: Mapping[tuple[int, int], str]
