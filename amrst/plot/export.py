@@ -364,11 +364,16 @@ def read_tree_rows(out: Path) -> list[dict[str, str]]:
             missing = [c for c in TREE_COLUMNS if c not in {*columns, *later}]
             if missing:
                 raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
-            return list(reader)
+            rows = list(reader)
     except UnicodeDecodeError as exc:
         raise ValueError(f"{TREES_CSV} is not UTF-8 text: {other}") from exc
     except csv.Error as exc:
         raise ValueError(f"{TREES_CSV} is not a table ({exc}): {other}") from exc
+    # csv fills the cells a row lacks with None: a file cut off, or edited by hand.
+    short = next((n for n, r in enumerate(rows, 1) if None in r.values()), None)
+    if short is not None:
+        raise ValueError(f"{TREES_CSV} row {short} has too few cells: {other}")
+    return rows
 
 
 def plot_document(

@@ -452,6 +452,13 @@ def _reads_back(out: Path, T_true: np.ndarray) -> None:
         with pytest.raises(InvalidInput, match=f"{VIEW_NPZ} cannot be read"):
             read_plot(out)
     (out / VIEW_NPZ).write_bytes(view)
+    # A trees.csv cut off in its last row: a message, not a crash on the empty cells.
+    table = (out / TREES_CSV).read_text()
+    (out / TREES_CSV).write_text(table.rstrip("\n").rsplit(",", 12)[0] + "\n")
+    last = len(table.splitlines()) - 1  # the header comes first
+    with pytest.raises(InvalidInput, match=f"row {last} has too few cells"):
+        read_plot(out)
+    (out / TREES_CSV).write_text(table)
     # A named pipe in place of a file would block the reading for ever.
     for name in (VIEW_NPZ, TREES_CSV):
         kept = (out / name).read_bytes()
