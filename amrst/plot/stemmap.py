@@ -214,6 +214,14 @@ class StemRecord:
     height_seen_m: float = float("nan")  # top out of range: how high it was seen
 
     @property
+    def seen_to_m(self) -> float:
+        """Return how high above its base the tree was seen (m).
+
+        Its height, or, where its top was out of range, ``height_seen_m``.
+        """
+        return self.height_m if np.isfinite(self.height_m) else self.height_seen_m
+
+    @property
     def key_xyz(self) -> np.ndarray:
         """(3,) the stem's key point: its breast-height centre, where it stands.
 

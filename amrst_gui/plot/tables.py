@@ -170,15 +170,15 @@ def tree_rows(
             else (hand.dbh_m, "yours")
         )
         mark = review.marks.get(t.tree_id, "")
-        # A tree whose top was out of range sorts by how high it was seen.
-        h = t.stem.height_m
-        height_key = _last_if_nan(h if h == h else t.stem.height_seen_m)
         rows.append(
             (
                 (t.tree_id, k),
                 (number(dbh * 100, ".1f"), _last_if_nan(dbh)),
                 (quality, quality),
-                (height_words(t.stem.height_m, t.stem.height_seen_m), height_key),
+                (
+                    height_words(t.stem.height_m, t.stem.height_seen_m),
+                    _last_if_nan(t.stem.seen_to_m),  # out of range: by how high seen
+                ),
                 (t.stem.height_flag, t.stem.height_flag),
                 (mark, mark or "~"),  # unmarked after the marks
             )

@@ -93,9 +93,7 @@ class TreeSideView(QWidget):
         axis, seen = across(base_xy, profile.xyz)
         dx = (profile.xyz[:, :2] - base_xy) @ axis
         dz = profile.xyz[:, 2] - base_z
-        top = float(
-            np.nanmax([stem.height_m, stem.height_seen_m, dz.max(initial=0.0), 2.0])
-        )
+        top = float(np.nanmax([stem.seen_to_m, dz.max(initial=0.0), 2.0]))
         half = max(float(np.abs(dx).max(initial=0.0)), 1.0) + MARGIN_M
         box = QRectF(4, 4, self.width() - 8, self.height() - 8 - LABEL_PX)
         scale = min(box.width() / (2 * half), box.height() / (top + 2 * MARGIN_M))
@@ -119,7 +117,7 @@ class TreeSideView(QWidget):
             rect = p.fontMetrics().boundingRect(text).translated(where.toPoint())
             p.fillRect(rect.adjusted(-1, 0, 1, 0), LABEL_SHADE)
             p.drawText(where, text)
-        line = stem.height_m if np.isfinite(stem.height_m) else stem.height_seen_m
+        line = stem.seen_to_m  # the height, or how high a tree out of range was seen
         if np.isfinite(line):
             pen = QPen(QColor(255, 255, 255), 1)
             pen.setStyle(Qt.PenStyle.DashLine)

@@ -510,6 +510,8 @@ def test_a_top_out_of_the_scanner_range_gives_no_height() -> None:
     assert np.isnan(cut.height_m)
     assert 8.0 < cut.height_seen_m < 9.5
     assert np.isnan(trees[0].height_seen_m)
+    assert cut.seen_to_m == cut.height_seen_m
+    assert trees[0].seen_to_m == trees[0].height_m
     assert trees[0].height_m == pytest.approx(4.0, abs=0.3)
     row = next(t.row() for t in inv.trees if round(float(t.xyz[0])) == 4)
     assert row["height_m"] == ""
