@@ -298,6 +298,11 @@ def read_plot(out: Path) -> PlotFiles:
             raise ValueError(f"{len(doc['scans'])} scans, {VIEW_NPZ} draws another")
         reference = [s["label"] for s in doc["scans"]].index(doc["reference"])
         at = dict(zip(view.trees, view.dbh_xy, strict=True))
+        # csv fills the cells a row lacks with None: a file cut off, or edited by
+        # hand. (Its tree ids alone still tell which tree clouds a run wrote.)
+        short = next((n for n, r in enumerate(rows, 1) if None in r.values()), None)
+        if short is not None:
+            raise ValueError(f"{TREES_CSV} row {short} has too few cells")
         trees = tuple(
             Tree.from_row(row, view.offsets[reference], at[row["tree_id"]])
             for row in rows
@@ -369,10 +374,6 @@ def read_tree_rows(out: Path) -> list[dict[str, str]]:
         raise ValueError(f"{TREES_CSV} is not UTF-8 text: {other}") from exc
     except csv.Error as exc:
         raise ValueError(f"{TREES_CSV} is not a table ({exc}): {other}") from exc
-    # csv fills the cells a row lacks with None: a file cut off, or edited by hand.
-    short = next((n for n, r in enumerate(rows, 1) if None in r.values()), None)
-    if short is not None:
-        raise ValueError(f"{TREES_CSV} row {short} has too few cells: {other}")
     return rows
 
 
