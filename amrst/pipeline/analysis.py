@@ -141,11 +141,17 @@ class ScanAnalysis:
 SHARED_MARGIN = 2
 
 
-def _shared_k(params: RegistrationParams) -> int:
-    """Neighbours per point the preprocess query lists for the later stages."""
-    sep = max(*params.separate.scales_k, params.separate.vote_neighbours)
-    skel = max(params.skeleton.neighbours, 16) + 1
-    return max(sep, skel) + SHARED_MARGIN
+def _shared_k(params: RegistrationParams, skeleton: bool) -> int:
+    """Neighbours per point the preprocess query lists for the later stages.
+
+    0 when no later stage reads them: no wood-leaf separation, and no skeleton.
+    """
+    need = [0]
+    if params.separate.mode != "all_wood":
+        need += [*params.separate.scales_k, params.separate.vote_neighbours]
+    if skeleton:
+        need.append(max(params.skeleton.neighbours, 16) + 1)
+    return max(need) + SHARED_MARGIN if max(need) else 0
 
 
 def _timed(timings: dict[str, float], key: str, t0: float) -> float:
@@ -162,6 +168,7 @@ def prepare_scan(
     expect_ground: float | None = None,
     pre: PreprocessResult | None = None,
     *,
+    skeleton: bool = True,
     threads: int = THREADS,
 ) -> ScanAnalysis:
     """Preprocess one scan, label its scene, and separate wood from leaves.
@@ -169,8 +176,9 @@ def prepare_scan(
     ``stem_xy`` (local frame) picks the tree of interest; ``expect_ground`` is the
     other scan's ground tilt (deg) when it has a ground (see ``understand_scene``).
     ``pre``: this scan's preprocessing made before with the same parameters (an
-    earlier analysis's ``scene_pre``), used instead of a new one. ``threads``: for
-    the KD-tree queries.
+    earlier analysis's ``scene_pre``), used instead of a new one. ``skeleton``:
+    :func:`skeletonise_scan` follows, and the preprocess lists the neighbours it
+    reads. ``threads``: for the KD-tree queries.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -180,7 +188,7 @@ def prepare_scan(
                 cloud.xyz,
                 params.preprocess,
                 SubReporter(reporter, 0, 0.3, "preprocess"),
-                share_k=_shared_k(params),
+                share_k=_shared_k(params, skeleton),
                 threads=threads,
             )
         except InvalidInput as exc:  # say which scan

@@ -271,7 +271,11 @@ def analyse_plot_scan(
 
     t0 = time.perf_counter()
     an = prepare_scan(
-        cloud, params, SubReporter(reporter, 0.0, 0.5, "preprocess"), threads=threads
+        cloud,
+        params,
+        SubReporter(reporter, 0.0, 0.5, "preprocess"),
+        skeleton=False,
+        threads=threads,
     )
     stems = map_stems(cloud.xyz, stem_params, reporter, trees=False)
     assert stems.index is not None  # map_stems gives the rows it kept
