@@ -110,6 +110,25 @@ def arc_deg(xy: np.ndarray, centre: np.ndarray) -> float:
     return float(np.degrees(2 * np.pi - gaps.max()))
 
 
+def _arcs_deg(
+    xy: np.ndarray, centres: np.ndarray, radii: np.ndarray, inlier_m: float
+) -> np.ndarray:
+    """:func:`arc_deg` of each circle's inliers among ``xy``, for all circles at once.
+
+    Every circle has at least two inliers.
+    """
+    d = xy[None] - centres[:, None]  # (C, N, 2)
+    inl = np.abs(np.linalg.norm(d, axis=2) - radii[:, None]) <= inlier_m
+    angles = np.where(inl, np.arctan2(d[..., 1], d[..., 0]), np.inf)
+    angles.sort(axis=1)  # each circle's inliers first, in order
+    last = angles[np.arange(len(angles)), inl.sum(axis=1) - 1]
+    with np.errstate(invalid="ignore"):  # inf - inf past the inliers
+        gaps = np.diff(angles, axis=1)
+    gaps[~np.isfinite(gaps)] = 0.0
+    widest = np.maximum(gaps.max(axis=1), angles[:, 0] + 2 * np.pi - last)
+    return np.asarray(np.degrees(2 * np.pi - widest))
+
+
 def fit_stem_circle(xy: np.ndarray, params: MeasureParams) -> StemCircle | None:
     """Fit the stem circle to the (N, 2) points of a slice; None when there is none.
 
@@ -163,17 +182,7 @@ def fit_stem_circle(xy: np.ndarray, params: MeasureParams) -> StemCircle | None:
     top = top[counts[top] >= min(_MIN_STEM_POINTS, len(few))]
     if not len(top):
         return None
-    weight = [
-        counts[j]
-        * arc_deg(
-            few[
-                np.abs(np.linalg.norm(few - centres[j], axis=1) - radii[j])
-                <= params.inlier_m
-            ],
-            centres[j],
-        )
-        for j in top
-    ]
+    weight = counts[top] * _arcs_deg(few, centres[top], radii[top], params.inlier_m)
     best = int(top[int(np.argmax(weight))])
     centre, radius = centres[best], radii[best]
     inl = np.abs(np.linalg.norm(pts - centre, axis=1) - radius) <= params.inlier_m

@@ -143,3 +143,26 @@ def test_kasa_circle_fits_an_arc_and_refuses_a_line():
     line = np.column_stack([np.arange(10.0), 2 * np.arange(10.0)])
     assert np.isnan(kasa_circle(line, line.mean(axis=0))[1])
     assert np.isnan(kasa_circle(xy[:2], xy[0])[1])
+
+
+def test_the_arcs_of_many_circles_are_each_circles_arc():
+    """The candidate circles' arcs, taken together, equal arc_deg taken one by one."""
+    from amrst.measure.stem import _arcs_deg, arc_deg
+
+    rng = np.random.default_rng(3)
+    a = rng.uniform(0.0, 4.0, 400)
+    xy = np.column_stack([0.2 * np.cos(a), 0.2 * np.sin(a)])
+    xy = np.r_[xy + rng.normal(0.0, 0.004, xy.shape), rng.uniform(-0.4, 0.4, (150, 2))]
+    centres = rng.normal(0.0, 0.02, (30, 2))
+    radii = rng.uniform(0.15, 0.25, 30)
+    inl = [
+        np.abs(np.linalg.norm(xy - c, axis=1) - r) <= 0.01
+        for c, r in zip(centres, radii, strict=True)
+    ]
+    keep = np.array([m.sum() >= 2 for m in inl])
+    one_by_one = [
+        arc_deg(xy[m], c) for m, c in zip(inl, centres, strict=True) if m.sum() >= 2
+    ]
+    together = _arcs_deg(xy, centres[keep], radii[keep], 0.01)
+    assert keep.sum() > 10
+    assert np.array_equal(together, one_by_one)
