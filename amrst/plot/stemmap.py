@@ -12,7 +12,9 @@ registration) and the merged plot (the inventory):
 
 The inventory (``trees=True``) goes on:
 
-4. stems hidden at their foot: bark seen higher up, away from the stems found;
+4. a stem with too few circles looked at again in thicker slices and higher up
+   (:func:`_look_again`); stems hidden at their foot: bark seen higher up, away from
+   the stems found;
 5. every point above the ground goes to the stem it reaches at the least path cost
    (``plot/crowns.py``), from the stem followed up above its circles
    (:func:`_trace_stem`), and the tree's highest point gives its height;
@@ -55,6 +57,9 @@ OUTLIER_NEAR_M = 0.1
 OUTLIER_OFF_M = 0.02
 #: Heights above the ground of the slices the stem line is fitted to (m).
 LINE_HEIGHTS_M = (0.6, 1.0, 1.3, 1.7, 2.2)
+#: The second look at a stem with too few circles (:func:`_look_again`) goes up to
+#: 2.6 m.
+AGAIN_HEIGHTS_M = (*LINE_HEIGHTS_M, 2.6)
 #: The circle at the foot is the tree's position (``_foot_xy``) unless it is this many
 #: times wider than the taper line there.
 FOOT_WIDER = 1.5
@@ -378,6 +383,7 @@ def map_stems(
             reporter.check_cancelled()
         fits.append(_measure_stem(pts, h, ground, seed, params))
     if trees:
+        _look_again(pts, h, ground, seeds, fits, params)
         say(0.5, "stems hidden at their foot, crowns")
         _add_hidden_stems(pts, h, ground, seeds, fits, params)
         _add_wrapped_stems(pts, h, ground, slice_idx, seeds, fits, params=params)
@@ -462,6 +468,46 @@ def _trace_stem(xy: np.ndarray, h: np.ndarray, fit: _StemFit) -> np.ndarray:
         axis = centre + TRACE_FOLLOW * (np.median(xy[inner], axis=0) - centre)
         last = at - TRACE_STEP_M / 2
     return np.concatenate(took)
+
+
+def _look_again(
+    pts: np.ndarray,
+    h: np.ndarray,
+    ground: GroundFit,
+    seeds: list[np.ndarray],
+    fits: list[_StemFit | None],
+    params: StemMapParams,
+) -> None:
+    """Measure again the stems that show fewer than ``bark_heights`` circles (in place).
+
+    A sparse scan shows a stem by a few points a centimetre, and undergrowth or the
+    tree's own low branches can hide its lowest two metres: the inventory looks at
+    such a stem again in slices twice as thick, up to ``AGAIN_HEIGHTS_M``, and keeps
+    the look that shows more circles when they show one stem: radii within
+    ``taper_tol`` of their median, centres within that radius of theirs (circles
+    through a shrub or a crown's edge differ).
+    """
+    for k, fit in enumerate(fits):
+        if fit is not None and len(fit.line) >= params.bark_heights:
+            continue
+        again = _measure_stem(pts, h, ground, seeds[k], params, again=True)
+        if (
+            again is not None
+            and (fit is None or len(again.line) > len(fit.line))
+            and _one_stem(again, params)
+        ):
+            fits[k] = again
+
+
+def _one_stem(fit: _StemFit, params: StemMapParams) -> bool:
+    """Tell whether a fit's circles agree as one stem's (see :func:`_look_again`)."""
+    radii = np.array(list(fit.radii.values()))
+    ref = float(np.median(radii))
+    xy = np.array([c[1:] for c in fit.line])
+    return bool(
+        np.all(np.abs(radii - ref) <= params.taper_tol * ref + 0.005)
+        and np.hypot(*(xy - np.median(xy, axis=0)).T).max() <= ref
+    )
 
 
 def _merge_same_stems(
@@ -744,30 +790,37 @@ def _measure_stem(
     ground: GroundFit,
     seed: np.ndarray,
     params: StemMapParams,
+    *,
+    again: bool = False,
 ) -> _StemFit | None:
     """Measure one stem (``seed``: its slice points): base, DBH, lean.
+
+    ``again``: the second look at a stem that showed too few circles
+    (:func:`_look_again`), in slices twice as thick and up to ``AGAIN_HEIGHTS_M``.
 
     None when bark circles fit at fewer than ``min_circles`` heights: a shrub or a
     hanging branch crosses the slice too, but it is no upright stem.
     """
+    heights = AGAIN_HEIGHTS_M if again else LINE_HEIGHTS_M
     lo = pts[seed, :2].min(axis=0) - STEM_MARGIN_M
     hi = pts[seed, :2].max(axis=0) + STEM_MARGIN_M
     box = np.flatnonzero(
         np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
         & (h > 0.3)
-        & (h < max(LINE_HEIGHTS_M) + 0.3)
+        & (h < max(heights) + 0.3)
     )
     near, hn = pts[box], h[box]
     centre = pts[seed, :2].mean(axis=0)
     z0 = float(ground.surface_z(centre)[0])
     mp = MeasureParams(inlier_m=params.circle_inlier_m, max_radius_m=1.0)
-    half = (params.dbh_high_m - params.dbh_low_m) / 2
+    thick = 2.0 if again else 1.0
+    half = thick * (params.dbh_high_m - params.dbh_low_m) / 2
     dbh_h = (params.dbh_low_m + params.dbh_high_m) / 2
     line: list[tuple[float, float, float]] = []
     radii: dict[float, float] = {}
     dbh_fit: tuple[StemCircle, float] | None = None
-    for at in sorted({*LINE_HEIGHTS_M, dbh_h}):
-        width = half if at == dbh_h else 0.05
+    for at in sorted({*heights, dbh_h}):
+        width = half if at == dbh_h else thick * 0.05
         in_slice = np.abs(hn - at) <= width
         if in_slice.sum() < 12:
             continue

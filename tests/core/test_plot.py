@@ -1592,3 +1592,22 @@ def test_a_scan_turned_over_is_told_which_way_it_stands() -> None:
     assert which_way_up(map_stems(y_up, trees=False)) == "with its y axis up"
     upside_down = xyz * [1.0, -1.0, -1.0]
     assert which_way_up(map_stems(upside_down, trees=False)) == "upside down"
+
+
+def test_a_sparse_stem_hidden_in_its_own_bush_is_a_tree() -> None:
+    # A 6 m tree seen from one side by a few points a centimetre: its foliage hides
+    # the lowest 1.9 m, the stem shows from there to its crown at 2.8 m.
+    z0 = float(ground_z(np.zeros(2)))
+    rng = np.random.default_rng(21)
+    a = rng.uniform(-np.pi / 2, np.pi / 2, 110)
+    z = rng.uniform(z0 + 1.9, z0 + 2.8, 110)
+    stem = np.column_stack([0.085 * np.cos(a), 0.085 * np.sin(a), z])
+    bush = blob((0.0, 0.0, z0 + 1.1), 0.6, 4000, 22)
+    bush = bush[bush[:, 2] > z0 + 0.3]
+    crown = blob((0.0, 0.0, z0 + 4.4), 1.6, 6000, 23)
+    crown = crown[crown[:, 2] > z0 + 2.8]
+    xyz = np.vstack([_ground(), stem, bush, crown])
+    inv = take_inventory([Cloud(xyz)], [np.eye(4)])
+    assert len(inv.trees) == 1
+    assert np.hypot(*inv.trees[0].xyz[:2]) < 0.15
+    assert inv.trees[0].stem.height_m == pytest.approx(6.0, abs=0.3)
