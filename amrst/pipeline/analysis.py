@@ -146,12 +146,12 @@ def _shared_k(params: RegistrationParams, skeleton: bool) -> int:
 
     0 when no later stage reads them: no wood-leaf separation, and no skeleton.
     """
-    need = [0]
+    need = 0
     if params.separate.mode != "all_wood":
-        need += [*params.separate.scales_k, params.separate.vote_neighbours]
+        need = max(*params.separate.scales_k, params.separate.vote_neighbours)
     if skeleton:
-        need.append(max(params.skeleton.neighbours, 16) + 1)
-    return max(need) + SHARED_MARGIN if max(need) else 0
+        need = max(need, max(params.skeleton.neighbours, 16) + 1)
+    return need + SHARED_MARGIN if need else 0
 
 
 def _timed(timings: dict[str, float], key: str, t0: float) -> float:

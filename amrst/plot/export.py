@@ -369,12 +369,11 @@ def read_tree_rows(out: Path) -> list[dict[str, str]]:
             missing = [c for c in TREE_COLUMNS if c not in {*columns, *later}]
             if missing:
                 raise ValueError(f"{TREES_CSV} has no {missing[0]} column: {other}")
-            rows = list(reader)
+            return list(reader)
     except UnicodeDecodeError as exc:
         raise ValueError(f"{TREES_CSV} is not UTF-8 text: {other}") from exc
     except csv.Error as exc:
         raise ValueError(f"{TREES_CSV} is not a table ({exc}): {other}") from exc
-    return rows
 
 
 def plot_document(

@@ -1611,3 +1611,18 @@ def test_a_sparse_stem_hidden_in_its_own_bush_is_a_tree() -> None:
     assert len(inv.trees) == 1
     assert np.hypot(*inv.trees[0].xyz[:2]) < 0.15
     assert inv.trees[0].stem.height_m == pytest.approx(6.0, abs=0.3)
+
+
+def test_a_plot_scan_keeps_no_neighbour_lists_for_later_stages(
+    plot_pair, plot_scans
+) -> None:
+    # A plot scan gets no wood-leaf separation nor skeleton: nothing reads the
+    # neighbours its outlier filter listed; a two-scan analysis keeps them.
+    from amrst.params import RegistrationParams
+    from amrst.pipeline import prepare_scan
+
+    _, scans = plot_scans
+    assert all(s.analysis.pre.neighbours is None for s in scans)
+    pair = prepare_scan(plot_pair[0], RegistrationParams())
+    assert pair.pre.neighbours is not None
+    assert pair.pre.neighbours.k > RegistrationParams().preprocess.outlier_neighbours
