@@ -2,10 +2,12 @@
 
 One circle at breast height goes wrong on whatever crosses that slice: a branch, a
 bump of the bark, a fork. Each 10 cm slice gets its own circle (all the slice's points
-around the stem line, :func:`amrst.measure.fit_stem_circle`); the DBH is the 1.3 m
-value of the straight line of diameter over height that most circles agree with
-(within ``AGREE_M`` or ``AGREE_SHARE`` of the diameter), its slope a plausible taper.
-Slices near breast height count a little more, so a tie goes to them.
+around the stem line, :func:`amrst.measure.fit_stem_circle`). The circles that one
+straight line of diameter over height holds (within ``AGREE_M`` or ``AGREE_SHARE`` of
+the diameter, its slope a plausible taper) are the stem's; slices near breast height
+count a little more, so a tie goes to them. The DBH is the median of those circles:
+the slices are centred on breast height, and a median is not pulled up by a flared
+foot or a bump the way a least-squares line's value there is.
 """
 
 from __future__ import annotations
@@ -106,11 +108,10 @@ def taper_dbh(
     d = np.array([2 * f[1].radius_m for f in fits])
     agree = _taper_inliers(heights, d)
     z = heights[agree] - BREAST_HEIGHT_M
+    dbh, per_m = np.median(d[agree]), 0.0
     if agree.sum() >= 3 and np.ptp(z) >= 0.3:
         A = np.column_stack([np.ones(len(z)), z])
-        dbh, per_m = np.linalg.lstsq(A, d[agree], rcond=None)[0]
-    else:
-        dbh, per_m = np.median(d[agree]), 0.0
+        per_m = np.linalg.lstsq(A, d[agree], rcond=None)[0][1]
     on = np.flatnonzero(agree)
     best = on[np.argmin(np.abs(z))]
     return TaperFit(

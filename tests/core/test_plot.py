@@ -21,6 +21,7 @@ from _plots import STEMS, blob, ground_z, pose, scan, wave_z
 
 from amrst.files.folderlock import FolderBusy, FolderLock
 from amrst.plot.cli import main as plot_main
+from amrst.plot.diameter import taper_dbh
 from amrst.plot.export import TREES_CSV, trees_csv, write_inventory
 from amrst.plot.flags import height_words
 from amrst.plot.inventory import take_inventory
@@ -777,6 +778,17 @@ def test_the_dbh_follows_the_stem_not_a_bulge_at_breast_height() -> None:
     assert tree[at].dbh_m == pytest.approx(0.24, abs=0.01)
     # The registration's key points keep the one bark circle at breast height.
     assert min(abs(s.dbh_m - 0.30) for s in key) < 0.01
+
+
+def test_a_flared_foot_does_not_widen_the_dbh() -> None:
+    # A 30 cm stem whose lowest slices still hold the flare of its roots.
+    rings = [_stem(0.0, 0.0, 0.15, 1.15, 1.65)]
+    rings += [_stem(0.0, 0.0, r, z, z + 0.06) for r, z in ((0.17, 0.96), (0.16, 1.06))]
+    xyz = np.vstack(rings)
+    taper = taper_dbh(xyz, xyz[:, 2], (np.zeros(2), np.zeros(2)), 0.15, 0.01)
+    assert taper is not None
+    # A least-squares line through the flare reads 8 mm more at 1.3 m.
+    assert taper.dbh_m == pytest.approx(0.30, abs=0.001)
 
 
 def test_a_stem_hidden_at_its_foot_is_a_tree_not_a_key_point() -> None:
