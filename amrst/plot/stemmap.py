@@ -164,8 +164,9 @@ class StemMapParams:
     # inventory, all but this many of the slice circles 1.0-1.6 m lie on one taper.
     taper_tol: float = 0.15
     taper_misfits: int = 2
-    # In the inventory, a DBH needs this many slice circles on the taper line and a
-    # bark circle (0.6-2.2 m) that agrees with it.
+    # In the inventory, a DBH needs this many slice circles on the taper line, and no
+    # fewer than half of those fitted (else the slices show no one stem: a buttress, a
+    # lobed stem, branches), and a bark circle (0.6-2.2 m) that agrees with it.
     taper_min_circles: int = 3
     refit_circles: int = 4  # the stem line refitted leans on this many circles
     # Stems hidden at their foot (inventory only): bark seeds this high above the
@@ -910,10 +911,11 @@ def _taper_stem(
 
     The stem line is fitted again to the circles on the taper line (slice circles
     and bark circles that agree with it): a circle through a branch no longer tilts
-    it. The DBH needs ``taper_min_circles`` slice circles on the line and a bark
-    circle that agrees with it; else the stem has none: circles through the twigs and
-    branches of a thin or hidden stem agree by chance, and one wrong diameter weighs
-    more than a missing one. A stem without slice circles keeps its bark circle's
+    it. The DBH needs ``taper_min_circles`` slice circles on the line, half of those
+    fitted at least, and a bark circle that agrees with it; else the stem has none:
+    circles through the twigs and branches of a thin or hidden stem agree by chance,
+    those of a lobed or buttressed one tell several diameters, and one wrong diameter
+    weighs more than a missing one. A stem without slice circles keeps its bark circle's
     DBH, unless it was found above its foot.
     """
     base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
@@ -949,9 +951,16 @@ def _taper_stem(
         base=np.r_[base_xy, float(ground.surface_z(base_xy)[0])],
         lean_deg=lean,
     )
-    if not bark or len(taper.circles) < params.taper_min_circles:
+    enough = max(params.taper_min_circles, (taper.fitted + 1) // 2)
+    if len(taper.circles) < enough:
         return replace(
-            _without_dbh(stem), dbh_why="too few slice circles agree (twigs?)"
+            _without_dbh(stem),
+            dbh_why=f"{len(taper.circles)} of {taper.fitted} slice circles agree "
+            f"(twigs, a buttress?), {enough} needed",
+        )
+    if not bark:
+        return replace(
+            _without_dbh(stem), dbh_why="no stem circle 0.6-2.2 m up agrees with them"
         )
     if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.wide_arc_deg:
         return replace(
