@@ -123,11 +123,10 @@ class StemMapParams:
     dbh_low_m: float = 1.25  # the DBH slice, above the local ground
     dbh_high_m: float = 1.35
     circle_inlier_m: float = 0.01
-    # DBH quality: ok needs the arc, the residual and the outlier share below, and
-    # the slice circles on one taper line (taper_misfits). The arc (360 deg less the
-    # widest gap between the circle's points) as 3DFin's default of 9 of 16 sectors:
-    # a circle whose points leave half the stem or more unseen in one piece is not
-    # held on both sides.
+    # DBH quality: ok needs the arc, the residual and the outlier share below. The arc
+    # (360 deg less the widest gap between the circle's points) as 3DFin's default of
+    # 9 of 16 sectors: a circle whose points leave half the stem or more unseen in one
+    # piece is not held on both sides.
     ok_arc_deg: float = 202.5
     # A stem wider than wide_stem_m seen over less than wide_arc_deg gets no DBH: a
     # wide stem's section is seldom round, and a short arc of it does not fix the circle.
@@ -160,14 +159,13 @@ class StemMapParams:
     bark_min_points: int = 30
     bark_min_rise_m: float = 0.6
     bark_max_width_m: float = 1.0
-    # The DBH circle is checked against the circles just below and above it; in the
-    # inventory, all but this many of the slice circles 1.0-1.6 m lie on one taper.
+    # The DBH circle is checked against the circles just below and above it.
     taper_tol: float = 0.15
-    taper_misfits: int = 2
-    # In the inventory, a DBH needs this many slice circles on the taper line, and no
-    # fewer than half of those fitted (else the slices show no one stem: a buttress, a
-    # lobed stem, branches), and a bark circle (0.6-2.2 m) that agrees with it.
+    # In the inventory, a DBH needs this many slice circles on the taper line, and all
+    # but taper_misfits of those fitted (else the slices show no one stem: a buttress,
+    # a lobed stem, branches), and a bark circle (0.6-2.2 m) that agrees with it.
     taper_min_circles: int = 3
+    taper_misfits: int = 2
     refit_circles: int = 4  # the stem line refitted leans on this many circles
     # Stems hidden at their foot (inventory only): bark seeds this high above the
     # ground, this far from every stem found; bases this close are one stem.
@@ -911,12 +909,12 @@ def _taper_stem(
 
     The stem line is fitted again to the circles on the taper line (slice circles
     and bark circles that agree with it): a circle through a branch no longer tilts
-    it. The DBH needs ``taper_min_circles`` slice circles on the line, half of those
-    fitted at least, and a bark circle that agrees with it; else the stem has none:
-    circles through the twigs and branches of a thin or hidden stem agree by chance,
-    those of a lobed or buttressed one tell several diameters, and one wrong diameter
-    weighs more than a missing one. A stem without slice circles keeps its bark circle's
-    DBH, unless it was found above its foot.
+    it. The DBH needs ``taper_min_circles`` slice circles on the line, all but
+    ``taper_misfits`` of those fitted, and a bark circle that agrees with it; else the
+    stem has none: circles through the twigs and branches of a thin or hidden stem
+    agree by chance, those of a lobed or buttressed one tell several diameters, and one
+    wrong diameter weighs more than a missing one. A stem without slice circles keeps
+    its bark circle's DBH, unless it was found above its foot.
     """
     base_xy, slope, _ = _stem_line(fit.line, fit.stem.base[:2])
     radius = float(np.median(list(fit.radii.values()))) if fit.radii else 0.15
@@ -951,7 +949,7 @@ def _taper_stem(
         base=np.r_[base_xy, float(ground.surface_z(base_xy)[0])],
         lean_deg=lean,
     )
-    enough = max(params.taper_min_circles, (taper.fitted + 1) // 2)
+    enough = max(params.taper_min_circles, taper.fitted - params.taper_misfits)
     if len(taper.circles) < enough:
         return replace(
             _without_dbh(stem),
@@ -970,8 +968,7 @@ def _taper_stem(
             f"{params.wide_arc_deg:g}° needed",
         )
     outliers = _outlier_share(taper.slice_xy, taper.circle)
-    consistent = len(taper.circles) >= max(3, taper.fitted - params.taper_misfits)
-    quality, why = _dbh_quality((taper.circle, outliers), consistent, params)
+    quality, why = _dbh_quality((taper.circle, outliers), True, params)  # on one line
     return replace(
         stem,
         dbh_xy=np.asarray(taper.circle.centre_xy),
