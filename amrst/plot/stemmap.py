@@ -958,7 +958,8 @@ def _taper_stem(
         )
     if not bark:
         return replace(
-            _without_dbh(stem), dbh_why="no stem circle 0.6-2.2 m up agrees with them"
+            _without_dbh(stem),
+            dbh_why="no bark circle 0.6-2.2 m up agrees with the slice circles",
         )
     if taper.dbh_m > params.wide_stem_m and taper.circle.arc_deg < params.wide_arc_deg:
         return replace(
