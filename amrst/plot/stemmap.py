@@ -159,7 +159,8 @@ class StemMapParams:
     bark_min_points: int = 30
     bark_min_rise_m: float = 0.6
     bark_max_width_m: float = 1.0
-    # The DBH circle is checked against the circles just below and above it.
+    # Two circles of one stem: radii within this share (and 5 mm) of each other; the
+    # DBH circle is checked against the circles just below and above it.
     taper_tol: float = 0.15
     # In the inventory, a DBH needs this many slice circles on the taper line, and all
     # but taper_misfits of those fitted (else the slices show no one stem: a buttress,
@@ -504,7 +505,7 @@ def _one_stem(fit: _StemFit, params: StemMapParams) -> bool:
     ref = float(np.median(radii))
     xy = np.array([c[1:] for c in fit.line])
     return bool(
-        np.all(np.abs(radii - ref) <= params.taper_tol * ref + 0.005)
+        np.all(_same_width(radii, ref, params))
         and np.hypot(*(xy - np.median(xy, axis=0)).T).max() <= ref
     )
 
@@ -837,7 +838,7 @@ def _measure_stem(
     base_xy = _foot_xy(line, base_xy)
     base = np.r_[base_xy, float(ground.surface_z(base_xy)[0])]
     nan = float("nan")
-    quality, why = _dbh_quality(dbh_fit, _tapers(radii, dbh_h, params), params)
+    quality, why = _dbh_quality(dbh_fit, params, tapers=_tapers(radii, dbh_h, params))
     stem = StemRecord(
         base=base,
         dbh_xy=np.asarray(dbh_fit[0].centre_xy) if dbh_fit else base_xy,
@@ -969,7 +970,7 @@ def _taper_stem(
             f"{params.wide_arc_deg:g}° needed",
         )
     outliers = _outlier_share(taper.slice_xy, taper.circle)
-    quality, why = _dbh_quality((taper.circle, outliers), True, params)  # on one line
+    quality, why = _dbh_quality((taper.circle, outliers), params)
     return replace(
         stem,
         dbh_xy=np.asarray(taper.circle.centre_xy),
@@ -1137,14 +1138,27 @@ def _tapers(radii: dict[float, float], dbh_h: float, params: StemMapParams) -> b
     others = [r for at, r in radii.items() if at != dbh_h and abs(at - dbh_h) <= 0.5]
     if not others:
         return True
-    ref = float(np.median(others))
-    return abs(radii[dbh_h] - ref) <= params.taper_tol * ref + 0.005
+    return bool(_same_width(radii[dbh_h], float(np.median(others)), params))
+
+
+def _same_width(
+    radius: float | np.ndarray, ref: float, params: StemMapParams
+) -> np.ndarray:
+    """Tell whether a circle of ``radius`` is one stem's with one of ``ref`` (m)."""
+    return np.asarray(np.abs(radius - ref) <= params.taper_tol * ref + 0.005)
 
 
 def _dbh_quality(
-    fit: tuple[StemCircle, float] | None, tapers: bool, params: StemMapParams
+    fit: tuple[StemCircle, float] | None,
+    params: StemMapParams,
+    *,
+    tapers: bool = True,
 ) -> tuple[str, str]:
-    """Return the DBH's quality and, for ``check``, what failed (``dbh_why``)."""
+    """Return the DBH's quality and, for ``check``, what failed (``dbh_why``).
+
+    ``tapers``: the circle agrees with the stem's circles near it (those on a taper
+    line do).
+    """
     if fit is None:
         return "none", "no circle at breast height"
     circle, outliers = fit
