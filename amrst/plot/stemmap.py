@@ -970,7 +970,8 @@ def _taper_stem(
             f"{params.wide_arc_deg:g}° needed",
         )
     outliers = _outlier_share(taper.slice_xy, taper.circle)
-    quality, why = _dbh_quality((taper.circle, outliers), params)
+    # The taper's circle lies on the line with its neighbours by construction.
+    quality, why = _dbh_quality((taper.circle, outliers), params, tapers=True)
     return replace(
         stem,
         dbh_xy=np.asarray(taper.circle.centre_xy),
@@ -1152,12 +1153,11 @@ def _dbh_quality(
     fit: tuple[StemCircle, float] | None,
     params: StemMapParams,
     *,
-    tapers: bool = True,
+    tapers: bool,
 ) -> tuple[str, str]:
     """Return the DBH's quality and, for ``check``, what failed (``dbh_why``).
 
-    ``tapers``: the circle agrees with the stem's circles near it (those on a taper
-    line do).
+    ``tapers``: the circle agrees with the stem's circles near it.
     """
     if fit is None:
         return "none", "no circle at breast height"
